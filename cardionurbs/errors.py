@@ -1,0 +1,57 @@
+"""Exception types of cardionurbs.
+
+Every error a user can cause with bad input is a subclass of
+:class:`CardioNurbsError`, itself a :class:`ValueError`, and its message is
+one line that names the argument, file, slice, frame or field at fault.
+The CLI turns any of them into one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+
+class CardioNurbsError(ValueError):
+    """Base class of every input error raised by cardionurbs."""
+
+
+class NurbsInputError(CardioNurbsError):
+    """Bad argument to a NURBS routine (names the argument and what is wrong)."""
+
+
+class StudyError(CardioNurbsError):
+    """Bad or inconsistent study input: DICOM, contours, tags, landmarks.
+
+    The message is built from the parts that locate the fault, e.g.
+    ``StudyError("contour has 3 points, needs >= 5", file="c.csv", slice="sa_03", frame=0)``
+    gives ``c.csv: slice sa_03, frame 0: contour has 3 points, needs >= 5``.
+    """
+
+    def __init__(self, message: str, *, file: object = None, slice: object = None,
+                 frame: object = None, field: object = None) -> None:
+        self.file, self.slice, self.frame, self.field = file, slice, frame, field
+        where = []
+        if slice is not None:
+            where.append(f"slice {slice}")
+        if frame is not None:
+            where.append(f"frame {frame}")
+        if field is not None:
+            where.append(f"field {field}")
+        prefix = f"{file}: " if file is not None else ""
+        if where:
+            prefix += ", ".join(where) + ": "
+        super().__init__(" ".join((prefix + str(message)).split()))
+
+
+class UnsupportedInputError(StudyError):
+    """Input that is valid but not supported (e.g. enhanced multi-frame MR)."""
+
+
+class PhantomError(CardioNurbsError):
+    """Bad phantom parameters or preset/cohort specification."""
+
+
+class ReconstructionError(CardioNurbsError):
+    """A surface or mesh could not be built (names structure and frame)."""
+
+
+class TagError(StudyError):
+    """Bad tag-line input (names family, index, slice and frame)."""

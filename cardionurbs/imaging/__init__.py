@@ -1,0 +1,1 @@
+"""Image geometry: DICOM series, slice planes, pixel <-> scanner."""

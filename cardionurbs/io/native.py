@@ -1,0 +1,244 @@
+"""The native study format: a JSON manifest plus one long-format CSV of points.
+
+A native study is a folder::
+
+    STUDY/
+      study.json      manifest (below)
+      points.csv      every annotation point, one per row
+      dicom/...       optional image files referenced by the manifest
+      truth.json      optional ground truth (phantoms)
+
+``study.json``::
+
+    {"format": "cardionurbs-native", "version": 1,
+     "subject": "normal_000", "heart_rate_bpm": 60.0,
+     "frame_times_ms": {"0": 0.0, "1": 50.0, ...},
+     "ed_frame": 0, "es_frame": 7,            # optional labels
+     "images": [ {"id", "slice", "view", "frame", "position"[3],
+                  "orientation"[6], "pixel_spacing"[2], "rows", "columns",
+                  "thickness", "trigger_time"?, "file"?}, ... ],
+     "points": "points.csv", "meta": {...}}
+
+``points.csv`` columns (one row per point, in drawing order):
+
+=========  ==================================================================
+kind       ``contour``, ``tag`` or ``landmark``
+name       structure (contours), family (tags) or landmark name
+index      piece index (contours), tag index (tags), point index (landmarks)
+view       ``SA`` or ``LA``
+slice      slice id (empty allowed for landmarks)
+frame      frame index
+image      image id of the manifest (may be empty when x, y, z are given)
+closed     1 or 0 for contours, empty otherwise
+x, y, z    scanner mm (LPS); written with 17 significant digits (lossless)
+px, py     pixel column and row on ``image``; used when x, y, z are empty
+=========  ==================================================================
+
+Consecutive rows sharing (kind, name, index, view, slice, frame, image) form
+one annotation. Reading then writing a study gives equal files.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cardionurbs.errors import StudyError
+from cardionurbs.imaging.geometry import ImagePlane
+from cardionurbs.io import atomic
+from cardionurbs.study import Contour, Landmark, Study, TagLine
+
+FORMAT = "cardionurbs-native"
+VERSION = 1
+MANIFEST = "study.json"
+POINTS = "points.csv"
+COLUMNS = ["kind", "name", "index", "view", "slice", "frame", "image", "closed",
+           "x", "y", "z", "px", "py"]
+_KEY = ["kind", "name", "index", "view", "slice", "frame", "image"]
+
+
+def is_native(path: str | Path) -> bool:
+    """True when ``path`` is a native study folder (or its manifest)."""
+    p = Path(path)
+    manifest = p / MANIFEST if p.is_dir() else p
+    if manifest.name != MANIFEST or not manifest.is_file():
+        return False
+    try:
+        return json.loads(manifest.read_text()).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+# --------------------------------------------------------------------- writing
+def study_to_frames(study: Study, pixel_coordinates: bool = True) -> tuple[dict, pd.DataFrame]:
+    """The manifest dict and the points table of a study (what :func:`write_study` writes)."""
+    images = study._image_index()
+    rows: list[pd.DataFrame] = []
+
+    def block(kind, name, index, view, slc, frame, image, closed, pts):
+        n = len(pts)
+        px = py = np.full(n, np.nan)
+        if pixel_coordinates and image is not None and image in images:
+            pix = images[image].scanner_to_pixel(pts)
+            px, py = pix[:, 0], pix[:, 1]
+        rows.append(pd.DataFrame({
+            "kind": kind, "name": name, "index": index, "view": view or "",
+            "slice": slc or "", "frame": frame, "image": image or "",
+            "closed": "" if closed is None else int(closed),
+            "x": pts[:, 0], "y": pts[:, 1], "z": pts[:, 2], "px": px, "py": py}))
+
+    for c in study.contours:
+        block("contour", c.structure, c.index, c.view, c.slice, c.frame, c.image, c.closed, c.points)
+    for t in study.tags:
+        block("tag", t.family, t.index, t.view, t.slice, t.frame, t.image, None, t.points)
+    for lm in study.landmarks:
+        block("landmark", lm.name, lm.index, lm.view, lm.slice, lm.frame, lm.image, None,
+              lm.point.reshape(1, 3))
+    table = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=COLUMNS)
+    manifest = {
+        "format": FORMAT, "version": VERSION, "subject": study.subject,
+        "heart_rate_bpm": study.heart_rate_bpm,
+        "frame_times_ms": {str(k): float(v) for k, v in sorted(study.frame_times_ms.items())},
+        "ed_frame": study.ed_frame, "es_frame": study.es_frame,
+        "images": [im.to_dict() for im in study.images],
+        "points": POINTS, "meta": study.meta,
+    }
+    return manifest, table[COLUMNS]
+
+
+def write_study(study: Study, folder: str | Path, pixel_coordinates: bool = True) -> Path:
+    """Write ``study`` as a native study into ``folder`` (files written atomically)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    manifest, table = study_to_frames(study, pixel_coordinates)
+    with atomic.atomic_path(folder / POINTS) as tmp:
+        table.to_csv(tmp, index=False, float_format="%.17g", lineterminator="\n")
+    atomic.write_text(folder / MANIFEST, json.dumps(manifest, indent=1, sort_keys=False) + "\n")
+    return folder
+
+
+# --------------------------------------------------------------------- reading
+def read_study(path: str | Path) -> Study:
+    """Read a native study folder (or its ``study.json``) into a :class:`Study`."""
+    path = Path(path)
+    folder = path if path.is_dir() else path.parent
+    manifest_path = folder / MANIFEST
+    if not manifest_path.is_file():
+        raise StudyError("no study.json manifest in this folder", file=folder)
+    try:
+        manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise StudyError(f"not valid JSON ({exc})", file=manifest_path) from None
+    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
+        raise StudyError(f"field 'format' must be {FORMAT!r}", file=manifest_path)
+    if manifest.get("version") != VERSION:
+        raise StudyError(f"unsupported version {manifest.get('version')!r}", file=manifest_path,
+                         field="version")
+    try:
+        images = [ImagePlane.from_dict(d) for d in manifest.get("images", [])]
+    except StudyError as exc:
+        raise StudyError(str(exc), file=manifest_path) from None
+    except (KeyError, TypeError, ValueError) as exc:
+        raise StudyError(f"malformed image entry ({exc})", file=manifest_path, field="images") from None
+    study = Study(
+        subject=str(manifest.get("subject") or folder.name),
+        images=images,
+        frame_times_ms={int(k): float(v) for k, v in (manifest.get("frame_times_ms") or {}).items()},
+        heart_rate_bpm=_opt_float(manifest.get("heart_rate_bpm")),
+        ed_frame=manifest.get("ed_frame"), es_frame=manifest.get("es_frame"),
+        source=str(folder), meta=manifest.get("meta") or {},
+    )
+    ids = [im.id for im in images]
+    if len(set(ids)) != len(ids):
+        dup = next(i for i in ids if ids.count(i) > 1)
+        raise StudyError(f"image id {dup!r} appears twice", file=manifest_path, field="images")
+    points_path = folder / str(manifest.get("points", POINTS))
+    _read_points(study, points_path)
+    return study
+
+
+def _opt_float(v):
+    return None if v is None else float(v)
+
+
+def _read_points(study: Study, points_path: Path) -> None:
+    if not points_path.is_file():
+        raise StudyError("points file is missing", file=points_path)
+    try:
+        table = pd.read_csv(points_path, dtype={"kind": str, "name": str, "view": str, "slice": str,
+                                                "image": str, "closed": str},
+                            keep_default_na=False, na_values={"x": [""], "y": [""], "z": [""],
+                                                             "px": [""], "py": [""]})
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, ValueError) as exc:
+        raise StudyError(f"cannot parse CSV ({str(exc).splitlines()[0]})", file=points_path) from None
+    missing = [c for c in COLUMNS if c not in table.columns]
+    if missing:
+        raise StudyError(f"missing column(s) {', '.join(missing)}", file=points_path)
+    if table.empty:
+        return
+    for col in ("x", "y", "z", "px", "py", "frame", "index"):
+        num = pd.to_numeric(table[col], errors="coerce")
+        bad = num.isna() & (table[col].astype(str).str.strip() != "") & table[col].notna()
+        if col in ("frame", "index"):
+            bad |= num.isna() | (num != np.round(num))
+        if bad.any():
+            line = int(np.flatnonzero(bad.to_numpy())[0]) + 2
+            raise StudyError(f"line {line}: {col} is not a number ({table[col].iloc[line - 2]!r})",
+                             file=points_path, field=col)
+        table[col] = num
+    xyz = table[["x", "y", "z"]].to_numpy(float)
+    pix = table[["px", "py"]].to_numpy(float)
+    has_xyz = np.isfinite(xyz).all(axis=1)
+    images = study._image_index()
+    # pixel-only rows -> scanner mm through their image
+    need = ~has_xyz
+    if need.any():
+        for image_id in pd.unique(table.loc[need, "image"]):
+            sel = need & (table["image"] == image_id).to_numpy()
+            line = int(np.flatnonzero(sel)[0]) + 2
+            if not image_id:
+                raise StudyError(f"line {line}: no x, y, z and no image to map px, py",
+                                 file=points_path, field="image")
+            if image_id not in images:
+                raise StudyError(f"line {line}: reference to image {image_id!r} that is not in the "
+                                 "manifest", file=points_path, field="image")
+            p = pix[sel]
+            if not np.isfinite(p).all():
+                raise StudyError(f"line {line}: neither x, y, z nor px, py are given",
+                                 file=points_path, field="px")
+            xyz[sel] = images[image_id].pixel_to_scanner(p)
+    key = table[_KEY].astype(str).agg("\x1f".join, axis=1).to_numpy()
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    ends = np.r_[starts[1:], len(key)]
+    kinds, names = table["kind"].to_numpy(), table["name"].to_numpy()
+    views, slices = table["view"].to_numpy(), table["slice"].to_numpy()
+    frames, idxs = table["frame"].to_numpy(int), table["index"].to_numpy(int)
+    imgs, closed = table["image"].to_numpy(), table["closed"].to_numpy()
+    for s, e in zip(starts, ends):
+        kind, image = kinds[s], imgs[s] or None
+        if image is not None and image not in images:
+            raise StudyError(f"line {s + 2}: reference to image {image!r} that is not in the manifest",
+                             file=points_path, field="image")
+        try:
+            if kind == "contour":
+                study.contours.append(Contour(names[s], views[s], slices[s], frames[s], xyz[s:e],
+                                              image=image, closed=str(closed[s]).strip() != "0",
+                                              index=idxs[s]))
+            elif kind == "tag":
+                study.tags.append(TagLine(names[s], idxs[s], views[s], slices[s], frames[s],
+                                          xyz[s:e], image=image))
+            elif kind == "landmark":
+                for k in range(s, e):
+                    study.landmarks.append(Landmark(names[s], frames[s], xyz[k], index=idxs[s],
+                                                    slice=slices[s] or None, view=views[s] or None,
+                                                    image=image))
+            else:
+                raise StudyError(f"line {s + 2}: unknown kind {kind!r} (contour, tag or landmark)",
+                                 file=points_path, field="kind")
+        except StudyError as exc:
+            if exc.file is not None:
+                raise
+            raise StudyError(f"line {s + 2}: {exc}", file=points_path) from None

@@ -1,0 +1,230 @@
+"""The in-memory study: image planes, contours, tag lines and landmarks in scanner mm.
+
+A :class:`Study` is what every reader produces (DICOM + native, Sunnybrook,
+CAP GPFile, phantom) and what reconstruction consumes. All coordinates are
+scanner (patient LPS) millimetres; pixel coordinates live only in the files.
+
+Vocabulary
+----------
+structures (``Contour.structure``)
+    ``lv_endo``, ``lv_epi``, ``rv_endo``, ``rv_epi`` — closed in SA views;
+    ``rv_septum`` and ``rv_freewall`` — the two open parts of an RV
+    endocardial contour as CAP guide points give it.
+tag families (``TagLine.family``)
+    ``sa1``, ``sa2`` — the two orthogonal SA families of tag planes (parallel
+    to the long axis), seen as lines in SA images; ``la`` — the planes
+    perpendicular to the long axis, seen as lines in LA images.
+landmarks (``Landmark.name``)
+    ``apex``, ``mitral``, ``tricuspid``, ``aortic``, ``pulmonary``,
+    ``rv_insert`` (several points may share a name; ``index`` tells them apart).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Iterable
+
+import numpy as np
+
+from cardionurbs.errors import StudyError
+from cardionurbs.imaging.geometry import VIEWS, ImagePlane
+
+STRUCTURES = ("lv_endo", "lv_epi", "rv_endo", "rv_epi", "rv_septum", "rv_freewall")
+CLOSED_STRUCTURES = ("lv_endo", "lv_epi", "rv_endo", "rv_epi")
+TAG_FAMILIES = ("sa1", "sa2", "la")
+LANDMARKS = ("apex", "mitral", "tricuspid", "aortic", "pulmonary", "rv_insert")
+
+
+def _points(value, what: str, *, slice=None, frame=None, ndim: int = 3) -> np.ndarray:
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim == 1 and ndim and arr.size == ndim:
+        arr = arr.reshape(1, ndim)
+    if arr.ndim != 2 or arr.shape[1] != ndim:
+        raise StudyError(f"{what}: points must be an (n, {ndim}) array, got shape {arr.shape}",
+                         slice=slice, frame=frame)
+    if not np.all(np.isfinite(arr)):
+        raise StudyError(f"{what}: points contain NaN or infinity", slice=slice, frame=frame)
+    return arr
+
+
+@dataclass(eq=False)
+class Contour:
+    """One delineated boundary on one image: (n, 3) scanner-mm points in drawing order.
+
+    ``closed`` is True for a closed loop (SA ``lv_endo`` etc.; the first point
+    is not repeated at the end); LA contours and RV septum / free-wall parts are
+    open. ``index`` tells apart several pieces of one structure on one image.
+    """
+
+    structure: str
+    view: str
+    slice: str
+    frame: int
+    points: np.ndarray
+    image: str | None = None
+    closed: bool = True
+    index: int = 0
+
+    def __post_init__(self) -> None:
+        if self.structure not in STRUCTURES:
+            raise StudyError(f"unknown structure {self.structure!r}; expected one of "
+                             f"{', '.join(STRUCTURES)}", slice=self.slice, frame=self.frame,
+                             field="structure")
+        if self.view not in VIEWS:
+            raise StudyError(f"unknown view {self.view!r}", slice=self.slice, frame=self.frame,
+                             field="view")
+        self.frame = int(self.frame)
+        self.points = _points(self.points, f"{self.structure} contour", slice=self.slice,
+                              frame=self.frame)
+
+
+@dataclass(eq=False)
+class TagLine:
+    """One tracked tag line on one image: family, tag index, (n, 3) scanner-mm points."""
+
+    family: str
+    index: int
+    view: str
+    slice: str
+    frame: int
+    points: np.ndarray
+    image: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.family not in TAG_FAMILIES:
+            raise StudyError(f"unknown tag family {self.family!r}; expected one of "
+                             f"{', '.join(TAG_FAMILIES)}", slice=self.slice, frame=self.frame,
+                             field="family")
+        if self.view not in VIEWS:
+            raise StudyError(f"unknown view {self.view!r}", slice=self.slice, frame=self.frame,
+                             field="view")
+        self.frame, self.index = int(self.frame), int(self.index)
+        self.points = _points(self.points, f"tag {self.family}#{self.index}", slice=self.slice,
+                              frame=self.frame)
+
+
+@dataclass(eq=False)
+class Landmark:
+    """An anatomical landmark point (scanner mm) at one frame."""
+
+    name: str
+    frame: int
+    point: np.ndarray
+    index: int = 0
+    slice: str | None = None
+    view: str | None = None
+    image: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.name not in LANDMARKS:
+            raise StudyError(f"unknown landmark {self.name!r}; expected one of "
+                             f"{', '.join(LANDMARKS)}", slice=self.slice, frame=self.frame,
+                             field="name")
+        self.frame, self.index = int(self.frame), int(self.index)
+        self.point = _points(self.point, f"landmark {self.name}", slice=self.slice,
+                             frame=self.frame)[0]
+
+
+@dataclass(eq=False)
+class Study:
+    """Everything known about one subject's scan, in scanner mm.
+
+    Attributes
+    ----------
+    subject : str
+        Study identifier (the cohort CSV's ``subject``).
+    images : list of ImagePlane
+        Every image plane (one per slice and frame) the annotations refer to.
+    contours, tags, landmarks : lists
+        Annotations, see :class:`Contour`, :class:`TagLine`, :class:`Landmark`.
+    frame_times_ms : dict frame -> ms
+        Trigger time of each frame, where known.
+    heart_rate_bpm : float or None
+        See METRICS.md (Frames).
+    ed_frame, es_frame : int or None
+        ED/ES labels given by the input (the label wins when only two frames
+        are contoured).
+    source : str or None
+        Where the study was read from.
+    meta : dict
+        Free-form provenance (format, series descriptions, pathology...).
+    """
+
+    subject: str
+    images: list[ImagePlane] = field(default_factory=list)
+    contours: list[Contour] = field(default_factory=list)
+    tags: list[TagLine] = field(default_factory=list)
+    landmarks: list[Landmark] = field(default_factory=list)
+    frame_times_ms: dict[int, float] = field(default_factory=dict)
+    heart_rate_bpm: float | None = None
+    ed_frame: int | None = None
+    es_frame: int | None = None
+    source: str | None = None
+    meta: dict = field(default_factory=dict)
+
+    # ----------------------------------------------------------------- queries
+    @property
+    def frames(self) -> list[int]:
+        """Sorted frame indices that carry images or annotations."""
+        fr = {im.frame for im in self.images}
+        fr |= {c.frame for c in self.contours} | {t.frame for t in self.tags}
+        fr |= {lm.frame for lm in self.landmarks}
+        return sorted(fr)
+
+    @property
+    def contoured_frames(self) -> list[int]:
+        """Sorted frames that have at least one LV endocardial contour."""
+        return sorted({c.frame for c in self.contours if c.structure == "lv_endo"})
+
+    @property
+    def tagged_frames(self) -> list[int]:
+        return sorted({t.frame for t in self.tags})
+
+    def image(self, image_id: str) -> ImagePlane:
+        """The image plane with this id (StudyError naming the id if absent)."""
+        idx = self._image_index()
+        if image_id not in idx:
+            raise StudyError(f"reference to image {image_id!r} that is not in the study",
+                             file=self.source, field="image")
+        return idx[image_id]
+
+    def _image_index(self) -> dict[str, ImagePlane]:
+        cache = self.__dict__.get("_image_cache")
+        if cache is None or len(cache) != len(self.images):
+            cache = {im.id: im for im in self.images}
+            self.__dict__["_image_cache"] = cache
+        return cache
+
+    def images_at(self, frame: int, view: str | None = None) -> list[ImagePlane]:
+        return [im for im in self.images if im.frame == frame and (view is None or im.view == view)]
+
+    def contours_at(self, frame: int, structure: str | Iterable[str] | None = None,
+                    view: str | None = None) -> list[Contour]:
+        """Contours of one frame, optionally of some structures and one view."""
+        if isinstance(structure, str):
+            structure = (structure,)
+        return [c for c in self.contours if c.frame == frame
+                and (structure is None or c.structure in structure)
+                and (view is None or c.view == view)]
+
+    def tags_at(self, frame: int, family: str | None = None) -> list[TagLine]:
+        return [t for t in self.tags if t.frame == frame and (family is None or t.family == family)]
+
+    def landmarks_at(self, frame: int, name: str | None = None) -> list[Landmark]:
+        return [lm for lm in self.landmarks if lm.frame == frame and (name is None or lm.name == name)]
+
+    def slice_plane(self, slice_id: str, frame: int | None = None) -> ImagePlane:
+        """The plane of a slice (at a frame, or at any frame for a static slice)."""
+        for im in self.images:
+            if im.slice == slice_id and (frame is None or im.frame == frame):
+                return im
+        raise StudyError("no image for this slice", file=self.source, slice=slice_id, frame=frame)
+
+    def summary(self) -> str:
+        """One line for logs: counts of what the study holds."""
+        views = sorted({(im.view, im.slice) for im in self.images})
+        n_sa = sum(v == "SA" for v, _ in views)
+        n_la = sum(v == "LA" for v, _ in views)
+        return (f"{self.subject}: {len(self.frames)} frames, {n_sa} SA + {n_la} LA slices, "
+                f"{len(self.contours)} contours, {len(self.tags)} tag lines, "
+                f"{len(self.landmarks)} landmarks")
