@@ -1,0 +1,476 @@
+"""DICOM cine series -> image planes in scanner coordinates (pydicom).
+
+:func:`read_dicom_folder` reads every DICOM file under a folder (recursively),
+headers only unless ``pixels=True``, and returns a :class:`DicomSeries`: one
+:class:`~cardionurbs.imaging.geometry.ImagePlane` per image, with
+
+* **slices**: images grouped by series (SeriesInstanceUID) and slice position
+  (plane normal, then position along it, within 0.01 mm);
+* **views**: the largest group of parallel slices is the short-axis stack
+  (``sa_00`` at the base ... ``sa_NN`` at the apex, see
+  :mod:`cardionurbs.imaging.stack`), other slices are long-axis views named
+  from their SeriesDescription (``la_2ch``, ``la_3ch``, ``la_4ch``) or
+  ``la_<k>`` (k = 1, 2, ... by SeriesNumber);
+* **frames**: per slice, by TriggerTime (:func:`cardionurbs.imaging.phases.phase_indices`);
+* **geometry**: pixel <-> scanner by DICOM PS3.3 C.7.6.2.1.1 (ImagePositionPatient,
+  ImageOrientationPatient, PixelSpacing); slice spacing from positions;
+* **heart rate** from HeartRate (0018,1088), else NominalInterval (0018,1062).
+
+Enhanced (multi-frame) MR objects are refused with
+:class:`~cardionurbs.errors.UnsupportedInputError`; export the series as
+classic single-frame MR images.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+import pydicom
+from pydicom.errors import InvalidDicomError
+
+from cardionurbs.errors import StudyError, UnsupportedInputError
+from cardionurbs.imaging import phases, stack
+from cardionurbs.imaging.geometry import ImagePlane
+
+#: SOP classes of multi-frame ("enhanced") MR objects.
+ENHANCED_MR_SOP_CLASSES = {
+    "1.2.840.10008.5.1.4.1.1.4.1": "Enhanced MR Image Storage",
+    "1.2.840.10008.5.1.4.1.1.4.3": "Enhanced MR Color Image Storage",
+    "1.2.840.10008.5.1.4.1.1.4.4": "Legacy Converted Enhanced MR Image Storage",
+}
+#: file suffixes that are never DICOM (skipped when scanning a folder).
+NOT_DICOM_SUFFIXES = {".txt", ".csv", ".json", ".md", ".png", ".jpg", ".jpeg", ".html", ".toml",
+                      ".xml", ".py", ".npz", ".npy", ".stl", ".obj", ".ply", ".zip", ".gz",
+                      ".pdf", ".log", ".yaml", ".yml"}
+#: slices of one series closer than this along their normal are one slice, mm.
+SLICE_POSITION_TOL_MM = 0.01
+#: normals closer than this angle are one orientation within a series, degrees.
+ORIENTATION_TOL_DEG = 0.01
+
+
+@contextmanager
+def _quiet_pydicom() -> Iterator[None]:
+    """Read leniently and silently: no pydicom validation warnings on stderr."""
+    cfg = pydicom.config.settings
+    old = cfg.reading_validation_mode
+    cfg.reading_validation_mode = pydicom.config.IGNORE
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        cfg.reading_validation_mode = old
+
+
+@dataclass(frozen=True, eq=False)
+class DicomHeader:
+    """The header fields of one image file that geometry and timing need."""
+
+    file: Path
+    sop_instance_uid: str
+    series_instance_uid: str
+    series_number: int | None
+    series_description: str
+    instance_number: int | None
+    position: np.ndarray
+    orientation: np.ndarray
+    pixel_spacing: tuple[float, float]
+    rows: int
+    columns: int
+    thickness: float | None
+    trigger_time: float | None
+    heart_rate: float | None
+    nominal_interval: float | None
+    cardiac_number_of_images: int | None
+
+    @property
+    def normal(self) -> np.ndarray:
+        n = np.cross(self.orientation[:3], self.orientation[3:])
+        return n / np.linalg.norm(n)
+
+
+def _numbers(ds, keyword: str, count: int, path: Path, required: bool = True):
+    """Tag ``keyword`` of ``ds`` as a float array of ``count`` finite numbers."""
+    if keyword not in ds or ds[keyword].value in (None, ""):
+        if required:
+            tag = pydicom.datadict.tag_for_keyword(keyword)
+            raise StudyError(f"missing {keyword} ({tag >> 16:04X},{tag & 0xFFFF:04X})",
+                             file=path, field=keyword)
+        return None
+    value = ds[keyword].value
+    try:
+        seq = list(value) if isinstance(value, (list, tuple, pydicom.multival.MultiValue)) else [value]
+        arr = np.array([float(v) for v in seq], dtype=float)
+    except (TypeError, ValueError):
+        raise StudyError(f"{keyword} is not numeric ({value!r})", file=path, field=keyword) from None
+    if arr.size != count or not np.all(np.isfinite(arr)):
+        raise StudyError(f"{keyword} must be {count} finite number(s), got {value!r}", file=path,
+                         field=keyword)
+    return arr
+
+
+def _opt_number(ds, keyword: str, path: Path) -> float | None:
+    arr = _numbers(ds, keyword, 1, path, required=False)
+    return None if arr is None else float(arr[0])
+
+
+def _dcmread(path: Path, pixels: bool):
+    try:
+        with _quiet_pydicom():
+            return pydicom.dcmread(path, stop_before_pixels=not pixels)
+    except InvalidDicomError:
+        raise StudyError("not a DICOM file (no DICM preamble)", file=path) from None
+    except (OSError, EOFError, ValueError, TypeError, KeyError, IndexError, AttributeError,
+            NotImplementedError, OverflowError, MemoryError) as exc:
+        raise StudyError(f"unreadable DICOM ({type(exc).__name__}: {_first_line(exc)})",
+                         file=path) from None
+    except Exception as exc:  # noqa: BLE001 - struct.error and friends from a truncated file
+        raise StudyError(f"unreadable DICOM ({type(exc).__name__}: {_first_line(exc)})",
+                         file=path) from None
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+def header_from_dataset(ds, path: Path) -> DicomHeader:
+    """Validated :class:`DicomHeader` of a pydicom dataset (StudyError names file and tag)."""
+    with _quiet_pydicom():
+        return _header_from_dataset(ds, Path(path))
+
+
+def _header_from_dataset(ds, path: Path) -> DicomHeader:
+    try:
+        sop_class = str(ds.get("SOPClassUID", "") or "")
+        n_frames = ds.get("NumberOfFrames", None)
+    except Exception as exc:  # noqa: BLE001 - a truncated element can fail on access
+        raise StudyError(f"unreadable DICOM header ({_first_line(exc)})", file=path) from None
+    if sop_class in ENHANCED_MR_SOP_CLASSES or (n_frames not in (None, "") and int(n_frames) > 1):
+        what = ENHANCED_MR_SOP_CLASSES.get(sop_class, f"multi-frame image ({n_frames} frames)")
+        raise UnsupportedInputError(f"{what} is not supported; export the series as classic "
+                                    "single-frame MR images", file=path, field="SOPClassUID")
+    try:
+        pos = _numbers(ds, "ImagePositionPatient", 3, path)
+        ori = _numbers(ds, "ImageOrientationPatient", 6, path)
+        spacing = _numbers(ds, "PixelSpacing", 2, path)
+        rows = _numbers(ds, "Rows", 1, path)
+        cols = _numbers(ds, "Columns", 1, path)
+        uid = str(ds.get("SOPInstanceUID", "") or "").strip()
+        if not uid:
+            raise StudyError("missing SOPInstanceUID (0008,0018)", file=path, field="SOPInstanceUID")
+        r, c = ori[:3], ori[3:]
+        if abs(np.linalg.norm(r) - 1) > 1e-3 or abs(np.linalg.norm(c) - 1) > 1e-3 or abs(r @ c) > 1e-3:
+            raise StudyError(f"ImageOrientationPatient is not two orthonormal vectors ({list(ori)})",
+                             file=path, field="ImageOrientationPatient")
+        if np.any(spacing <= 0):
+            raise StudyError(f"PixelSpacing must be positive, got {list(spacing)}", file=path,
+                             field="PixelSpacing")
+        thickness = _opt_number(ds, "SliceThickness", path)
+        inst = _opt_number(ds, "InstanceNumber", path)
+        series_no = _opt_number(ds, "SeriesNumber", path)
+        n_img = _opt_number(ds, "CardiacNumberOfImages", path)
+        return DicomHeader(
+            file=path, sop_instance_uid=uid,
+            series_instance_uid=str(ds.get("SeriesInstanceUID", "") or ""),
+            series_number=None if series_no is None else int(series_no),
+            series_description=str(ds.get("SeriesDescription", "") or ""),
+            instance_number=None if inst is None else int(inst),
+            position=pos, orientation=ori, pixel_spacing=(float(spacing[0]), float(spacing[1])),
+            rows=int(rows[0]), columns=int(cols[0]),
+            thickness=thickness if thickness is not None and thickness > 0 else None,
+            trigger_time=_opt_number(ds, "TriggerTime", path),
+            heart_rate=_opt_number(ds, "HeartRate", path),
+            nominal_interval=_opt_number(ds, "NominalInterval", path),
+            cardiac_number_of_images=None if n_img is None or n_img < 1 else int(n_img),
+        )
+    except StudyError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - malformed values in a damaged header
+        raise StudyError(f"unreadable DICOM header ({type(exc).__name__}: {_first_line(exc)})",
+                         file=path) from None
+
+
+def read_header(path: str | Path) -> DicomHeader:
+    """Read and validate the header of one DICOM image file (no pixel data)."""
+    path = Path(path)
+    return header_from_dataset(_dcmread(path, pixels=False), path)
+
+
+def read_pixels(path: str | Path) -> np.ndarray:
+    """The pixel array (rows, columns) of one DICOM image file, as float."""
+    path = Path(path)
+    ds = _dcmread(path, pixels=True)
+    try:
+        with _quiet_pydicom():
+            arr = ds.pixel_array
+    except Exception as exc:  # noqa: BLE001 - truncated or compressed pixel data
+        raise StudyError(f"cannot decode pixel data ({_first_line(exc)})", file=path,
+                         field="PixelData") from None
+    return np.asarray(arr, dtype=float)
+
+
+def find_dicom_files(folder: str | Path, exclude: Iterable[str | Path] = ()) -> list[Path]:
+    """Candidate DICOM files under ``folder`` (recursive, sorted, hidden files skipped).
+
+    Files with a suffix in :data:`NOT_DICOM_SUFFIXES` and everything under a
+    path in ``exclude`` are left out.
+    """
+    folder = Path(folder)
+    if folder.is_file():
+        return [folder]
+    excl = [Path(e).resolve() for e in exclude]
+    out = []
+    for p in folder.rglob("*"):
+        if not p.is_file() or p.suffix.lower() in NOT_DICOM_SUFFIXES:
+            continue
+        if any(part.startswith(".") for part in p.relative_to(folder).parts):
+            continue
+        if excl and any(e == p.resolve() or e in p.resolve().parents for e in excl):
+            continue
+        out.append(p)
+    return sorted(out, key=_natural_key)
+
+
+def _natural_key(p: Path):
+    return [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", str(p))]
+
+
+def read_headers(files: Iterable[Path]) -> list[DicomHeader]:
+    """Headers of the DICOM files among ``files``.
+
+    A file with a ``.dcm``/``.ima`` suffix must be readable DICOM; a file with
+    another or no suffix that lacks the DICM preamble is skipped.
+    """
+    out = []
+    for f in files:
+        try:
+            out.append(read_header(f))
+        except StudyError as exc:
+            strict = f.suffix.lower() in (".dcm", ".ima", ".dicom")
+            if not strict and str(exc).endswith("not a DICOM file (no DICM preamble)"):
+                continue
+            raise
+    return out
+
+
+@dataclass(eq=False)
+class DicomSeries:
+    """Image planes read from a DICOM folder (see :func:`read_dicom_folder`).
+
+    ``images`` carry ``meta`` entries ``instance_number``, ``series_uid``,
+    ``series_number``, ``series_description``; ``pixels`` maps image id to
+    its pixel array when read with ``pixels=True``.
+    """
+
+    root: Path
+    images: list[ImagePlane]
+    frame_times_ms: dict[int, float]
+    heart_rate_bpm: float | None
+    slice_spacing_mm: float | None
+    base_apex_rule: str | None
+    headers: dict[str, DicomHeader] = field(default_factory=dict)
+    pixels: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def by_instance_number(self) -> dict[int, ImagePlane]:
+        """InstanceNumber -> image (StudyError when a number is used twice)."""
+        out: dict[int, ImagePlane] = {}
+        for im in self.images:
+            n = im.meta.get("instance_number")
+            if n is None:
+                continue
+            if n in out:
+                raise StudyError(f"InstanceNumber {n} is used by two images ({out[n].file} and "
+                                 f"{im.file}); cannot tell which one a contour refers to",
+                                 file=self.root, field="InstanceNumber")
+            out[n] = im
+        return out
+
+    def read_pixels(self, image_id: str) -> np.ndarray:
+        """Pixel array of one image (read now unless already loaded)."""
+        if image_id not in self.pixels:
+            self.pixels[image_id] = read_pixels(self.headers[image_id].file)
+        return self.pixels[image_id]
+
+    def to_study(self, subject: str | None = None):
+        """An annotation-free :class:`~cardionurbs.study.Study` of these images."""
+        from cardionurbs.study import Study
+
+        return Study(subject=subject or self.root.name, images=list(self.images),
+                     frame_times_ms=dict(self.frame_times_ms), heart_rate_bpm=self.heart_rate_bpm,
+                     source=str(self.root),
+                     meta={"format": "dicom", "slice_spacing_mm": self.slice_spacing_mm,
+                           "base_apex_rule": self.base_apex_rule})
+
+
+_LA_NAME = re.compile(r"(?<![0-9])([234])\s*-?\s*ch", re.IGNORECASE)
+
+
+def read_dicom_folder(folder: str | Path, *, pixels: bool = False,
+                      exclude: Iterable[str | Path] = ()) -> DicomSeries:
+    """Read every DICOM image under ``folder`` into image planes (see module docstring).
+
+    Parameters
+    ----------
+    folder : path
+        Folder searched recursively (or a single file).
+    pixels : bool
+        Also read the pixel data (slower); by default headers only.
+    exclude : paths
+        Sub-folders or files to leave out (e.g. contour folders).
+
+    Raises
+    ------
+    StudyError
+        No DICOM image, unreadable or truncated file, missing geometry tag,
+        duplicate SOPInstanceUID or duplicate (slice, phase); the message names
+        the file and the tag. UnsupportedInputError for enhanced MR.
+    """
+    root = Path(folder)
+    if not root.exists():
+        raise StudyError("no such file or folder", file=root)
+    headers = read_headers(find_dicom_files(root, exclude))
+    if not headers:
+        raise StudyError("no DICOM image found", file=root)
+    base = root if root.is_dir() else root.parent
+    seen: dict[str, Path] = {}
+    for h in headers:
+        if h.sop_instance_uid in seen:
+            raise StudyError(f"SOPInstanceUID {h.sop_instance_uid} also in {seen[h.sop_instance_uid]} "
+                             "(duplicate image)", file=h.file, field="SOPInstanceUID")
+        seen[h.sop_instance_uid] = h.file
+    slices = _group_slices(headers)
+    names, views, spacing, rule = _name_slices(slices)
+    images: list[ImagePlane] = []
+    times: dict[int, list[float]] = {}
+    for members, name, view in zip(slices, names, views):
+        frames = _frames_of_slice(members, name)
+        thick_default = spacing if spacing else 8.0
+        for h, fr in zip(members, frames):
+            rel = h.file.relative_to(base).as_posix() if h.file.is_relative_to(base) else str(h.file)
+            images.append(ImagePlane(
+                id=h.sop_instance_uid, slice=name, view=view, frame=int(fr), position=h.position,
+                row_cosine=h.orientation[:3], column_cosine=h.orientation[3:],
+                pixel_spacing=h.pixel_spacing, rows=h.rows, columns=h.columns,
+                thickness=h.thickness if h.thickness else thick_default,
+                trigger_time=h.trigger_time, file=rel,
+                meta={"instance_number": h.instance_number, "series_uid": h.series_instance_uid,
+                      "series_number": h.series_number,
+                      "series_description": h.series_description}))
+            if h.trigger_time is not None:
+                times.setdefault(int(fr), []).append(h.trigger_time)
+    images.sort(key=lambda im: (im.view != "SA", im.slice, im.frame))
+    series = DicomSeries(
+        root=root, images=images,
+        frame_times_ms={f: float(np.mean(v)) for f, v in sorted(times.items())},
+        heart_rate_bpm=phases.heart_rate_bpm([h.heart_rate for h in headers],
+                                             [h.nominal_interval for h in headers]),
+        slice_spacing_mm=spacing, base_apex_rule=rule,
+        headers={h.sop_instance_uid: h for h in headers})
+    if pixels:
+        for im in images:
+            series.read_pixels(im.id)
+    return series
+
+
+def _group_slices(headers: list[DicomHeader]) -> list[list[DicomHeader]]:
+    """Images grouped by (series, orientation, position along the normal)."""
+    by_series: dict[str, list[DicomHeader]] = {}
+    for h in headers:
+        by_series.setdefault(h.series_instance_uid, []).append(h)
+    out: list[list[DicomHeader]] = []
+    for uid in sorted(by_series, key=lambda u: (by_series[u][0].series_number or 0, u)):
+        hs = by_series[uid]
+        normals = np.array([h.normal for h in hs])
+        labels = stack.group_parallel(normals, ORIENTATION_TOL_DEG)
+        for g in np.unique(labels):
+            members = [h for h, lab in zip(hs, labels) if lab == g]
+            n0 = members[0].normal
+            s = np.array([h.position @ n0 for h in members])
+            order = np.argsort(s, kind="stable")
+            cuts = np.flatnonzero(np.diff(s[order]) > SLICE_POSITION_TOL_MM) + 1
+            for part in np.split(order, cuts):
+                out.append([members[i] for i in part])
+    return out
+
+
+def _name_slices(slices: list[list[DicomHeader]]):
+    """Slice ids and views (SA stack base->apex, LA by description), spacing, base/apex rule."""
+    normals = np.array([s[0].normal for s in slices])
+    centers = np.array([_center(s[0]) for s in slices])
+    is_sa = stack.split_stack(normals)
+    names: list[str] = [""] * len(slices)
+    views = ["SA" if m else "LA" for m in is_sa]
+    spacing = rule = None
+    sa_idx = np.flatnonzero(is_sa)
+    if sa_idx.size:
+        n = stack.stack_normal(normals[sa_idx])
+        u, rule = stack.base_to_apex_direction(n, centers[sa_idx])
+        depth = centers[sa_idx] @ u
+        spacing = stack.slice_spacing(depth)
+        for k, i in enumerate(sa_idx[np.argsort(depth, kind="stable")]):
+            names[i] = f"sa_{k:02d}"
+    used: set[str] = set()
+    la_idx = [i for i in range(len(slices)) if not is_sa[i]]
+    la_idx.sort(key=lambda i: (slices[i][0].series_number or 0, slices[i][0].series_instance_uid))
+    for k, i in enumerate(la_idx, start=1):
+        m = _LA_NAME.search(slices[i][0].series_description)
+        name = f"la_{m.group(1)}ch" if m else f"la_{k}"
+        if name in used:
+            name = f"la_{k}"
+        used.add(name)
+        names[i] = name
+    return names, views, spacing, rule
+
+
+def _center(h: DicomHeader) -> np.ndarray:
+    return (h.position + (h.columns - 1) / 2 * h.pixel_spacing[1] * h.orientation[:3]
+            + (h.rows - 1) / 2 * h.pixel_spacing[0] * h.orientation[3:])
+
+
+def _frames_of_slice(members: list[DicomHeader], name: str) -> np.ndarray:
+    """Frame index of each image of one slice (by TriggerTime, see phases.phase_indices)."""
+    tt = [h.trigger_time for h in members]
+    missing = [h for h in members if h.trigger_time is None]
+    if len(members) == 1 and missing:
+        return np.zeros(1, dtype=int)
+    if missing and len(missing) < len(members):
+        raise StudyError(f"TriggerTime missing here but present in other images of slice {name}",
+                         file=missing[0].file, field="TriggerTime")
+    if missing:
+        # no timing at all: acquisition order (InstanceNumber, then file name)
+        keys = [(h.instance_number if h.instance_number is not None else 0, _natural_key(h.file))
+                for h in members]
+        order = sorted(range(len(members)), key=lambda i: keys[i])
+        frames = np.empty(len(members), dtype=int)
+        frames[order] = np.arange(len(members))
+        return frames
+    n_phases = _mode([h.cardiac_number_of_images for h in members])
+    rr = phases.rr_interval_ms(
+        heart_rate_bpm=_mean([h.heart_rate for h in members]),
+        nominal_interval_ms=_mean([h.nominal_interval for h in members]))
+    try:
+        return phases.phase_indices(tt, n_phases, rr, slice=name)
+    except StudyError as exc:
+        t = np.asarray(tt, float)
+        dup = [h.file.name for h in members if np.sum(t == h.trigger_time) > 1]
+        raise StudyError(f"{exc} in files {', '.join(dup[:3])}", file=members[0].file.parent) from None
+
+
+def _mode(values) -> int | None:
+    v = [x for x in values if x is not None]
+    if not v:
+        return None
+    vals, counts = np.unique(v, return_counts=True)
+    return int(vals[np.argmax(counts)])
+
+
+def _mean(values) -> float | None:
+    v = np.array([x for x in values if x is not None and x > 0], dtype=float)
+    return float(v.mean()) if v.size else None
