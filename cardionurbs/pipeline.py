@@ -1,15 +1,94 @@
-"""`cardionurbs analyze`: one study in, its model, meshes, metrics and figures out."""
+"""`cardionurbs analyze`: one study in, its model, meshes, metrics and figures out.
+
+Output folder (written atomically: complete or absent)::
+
+    DIR/metrics.json        {"subject", "metrics": {METRICS.md column: value},
+                             "ed_frame", "es_frame", "volume_curve", "residuals",
+                             "warnings"}
+    DIR/model.json          the NURBS model (BiventricularModel.to_dict)
+    DIR/residuals.csv       contour-point-to-surface distances per slice
+    DIR/meshes/frame_NN_<mesh>.stl   closed meshes per frame and structure
+    DIR/figures/...         figures (hook: cardionurbs.report, when installed)
+"""
 
 from __future__ import annotations
 
 import argparse
+import math
+from pathlib import Path
 
-from cardionurbs.io import load_study
+from cardionurbs.analysis.function import measure, volume_curve
+from cardionurbs.anatomy.model import BiventricularModel, reconstruct
+from cardionurbs.io import atomic, load_study
+from cardionurbs.io.export import export_mesh, export_model, write_json
+from cardionurbs.study import Study
+
+
+def tag_metrics_hook(model: BiventricularModel) -> dict[str, float]:
+    """Tag columns (Twist, Torsion, CL shear, LS, QC flags) from
+    ``cardionurbs.analysis.tags.tag_metrics(model)`` when that module exists and
+    the study has tag lines; {} otherwise (the columns stay NaN)."""
+    if not model.study.tags:
+        return {}
+    try:
+        from cardionurbs.analysis.tags import tag_metrics
+    except ImportError:
+        return {}
+    return dict(tag_metrics(model))
+
+
+def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path) -> list[Path]:
+    """Figures of an analysis: ``cardionurbs.report.figures.write_figures(model,
+    metrics, out_dir)`` when the report module provides it; [] otherwise."""
+    try:
+        from cardionurbs.report.figures import write_figures
+    except ImportError:
+        return []
+    return list(write_figures(model, metrics, out_dir) or [])
+
+
+def analyse_study(study: Study, *, heart_rate_bpm: float | None = None
+                  ) -> tuple[BiventricularModel, dict[str, float]]:
+    """Reconstruct and measure one loaded study: (model, METRICS.md dict)."""
+    model = reconstruct(study)
+    metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
+    metrics.update({k: float(v) for k, v in tag_metrics_hook(model).items() if k in metrics})
+    return model, metrics
+
+
+def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
+                   figures: bool = True, mesh_ext: str = "stl") -> Path:
+    """Write metrics.json, model.json, residuals.csv, meshes (and figures) to ``out``,
+    atomically (the folder is complete or untouched)."""
+    with atomic.atomic_dir(out) as tmp:
+        mesh_dir = tmp / "meshes"
+        for f in model.frames:
+            for name, m in model.meshes(f).items():
+                export_mesh(m, mesh_dir / f"frame_{f:02d}_{name}.{mesh_ext}")
+        export_model(model, tmp / "model.json")
+        res = model.residuals
+        atomic.write_text(tmp / "residuals.csv", res.to_csv(index=False))
+        summary = {}
+        for s, g in res.groupby("structure"):
+            summary[s] = {"mean_mm": float(g["mean_mm"].mean()), "max_mm": float(g["max_mm"].max()),
+                          "max_px": float(g["max_px"].max())}
+        write_json({"subject": model.study.subject,
+                    "metrics": {k: (None if isinstance(v, float) and math.isnan(v) else v)
+                                for k, v in metrics.items()},
+                    "ed_frame": model.ed_frame, "es_frame": model.es_frame,
+                    "volume_curve": volume_curve(model), "residuals": summary,
+                    "warnings": model.warnings}, tmp / "metrics.json")
+        if figures:
+            figures_hook(model, metrics, tmp)
+    return Path(out)
 
 
 def run_analyze(args: argparse.Namespace) -> int:
     """Load, reconstruct, measure and write one study (see API.md)."""
     study = load_study(args.study, format=args.format)
-    from cardionurbs.anatomy.model import reconstruct  # noqa: F401  (built by the models work)
-
-    raise NotImplementedError(f"analysis of {study.subject} is not built yet")
+    model, metrics = analyse_study(study, heart_rate_bpm=getattr(args, "heart_rate", None))
+    write_analysis(model, metrics, args.out, figures=not getattr(args, "no_figures", False))
+    print(f"{study.subject}: ED frame {model.ed_frame}, ES frame {model.es_frame}; "
+          f"LVEDV {metrics['LVEDV (mL)']:.1f} mL, LVEF {metrics['LVEF (%)']:.1f} %; "
+          f"wrote {args.out}")
+    return 0

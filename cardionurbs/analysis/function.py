@@ -1,0 +1,186 @@
+"""Global cardiac function from a biventricular model (METRICS.md, paper §5).
+
+:func:`measure` returns every column of the cohort CSV (METRICS.md, in
+order) as a float, NaN where the input does not allow it: RV columns without
+RV contours, CO without a heart rate, tag columns (filled in by
+:mod:`cardionurbs.analysis.tags` where tag lines exist).
+
+Formulas (volumes from closed manifold meshes, mL; mass density 1.05 g/mL)::
+
+    SV  = EDV − ESV                       EF = 100 · SV / EDV
+    CO  = SV · HR / 1000  (L/min)         M  = 1.05 · V_myo(ED)
+    MR RegVol = max(0, LVSV − RVSV)       MR RegFrac = 100 · RegVol / LVSV
+    EI  = D_parallel / D_perpendicular    (LV cavity chords through its centroid
+                                           on the mid-ventricular SA slice at ES)
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from cardionurbs.anatomy.model import BiventricularModel
+
+MYOCARDIAL_DENSITY_G_PER_ML = 1.05
+
+#: The cohort CSV's metric columns, in METRICS.md order (``subject`` and
+#: ``status`` come first in the CSV).
+COLUMNS = (
+    "HR (bpm)",
+    "LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVCO (L/min)", "LVM (g)",
+    "RVEDV (mL)", "RVESV (mL)", "RVSV (mL)", "RVEF (%)", "RVM (g)",
+    "MR RegVol (mL)", "MR RegFrac (%)",
+    "RV/LV EDV ratio", "RV/LV mass ratio",
+    "EI ES",
+    "Twist (deg)", "Twist 2D (deg)", "Torsion (deg/cm)", "CL shear (deg)", "LS (%)",
+    "Tag QC flags",
+)
+TAG_COLUMNS = ("Twist (deg)", "Twist 2D (deg)", "Torsion (deg/cm)", "CL shear (deg)", "LS (%)",
+               "Tag QC flags")
+NAN = float("nan")
+
+
+def _ratio(a: float, b: float) -> float:
+    return a / b if (np.isfinite(a) and np.isfinite(b) and b != 0) else NAN
+
+
+def ventricular_function(edv: float, esv: float, hr_bpm: float) -> dict[str, float]:
+    """SV (mL), EF (%) and CO (L/min) of one ventricle from EDV, ESV (mL) and HR (bpm)."""
+    sv = edv - esv
+    ef = 100.0 * _ratio(sv, edv)
+    co = sv * hr_bpm / 1000.0 if np.isfinite(hr_bpm) else NAN
+    return {"SV": sv, "EF": ef, "CO": co}
+
+
+def regurgitation(lvsv: float, rvsv: float) -> tuple[float, float]:
+    """Mitral regurgitant volume (mL) and fraction (%): max(0, LVSV − RVSV), 100·RegVol/LVSV.
+
+    Valid when no other valve leaks (the forward flow then equals RVSV).
+    """
+    if not (np.isfinite(lvsv) and np.isfinite(rvsv)):
+        return NAN, NAN
+    reg = max(0.0, lvsv - rvsv)
+    return reg, 100.0 * _ratio(reg, lvsv)
+
+
+def mass_g(myocardial_volume_ml: float) -> float:
+    """Myocardial mass (g) = 1.05 g/mL · volume (mL)."""
+    return MYOCARDIAL_DENSITY_G_PER_ML * myocardial_volume_ml
+
+
+def polygon_centroid(xy: np.ndarray) -> np.ndarray:
+    """Area centroid (2,) of a simple closed polygon (n, 2) (shoelace formula)."""
+    x, y = xy[:, 0], xy[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cross = x * yn - xn * y
+    a = cross.sum() / 2.0
+    if abs(a) < 1e-12:
+        return xy.mean(axis=0)
+    return np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6.0 * a)
+
+
+def chord_length(xy: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> float:
+    """Length of the chord of a closed polygon along the line origin + t·direction.
+
+    All intersections of the line with the polygon's edges are found at once;
+    the chord runs from the smallest to the largest t (the polygon is assumed
+    star-shaped about ``origin``, as a cavity is about its centroid).
+    """
+    d = direction / np.linalg.norm(direction)
+    a, b = xy, np.roll(xy, -1, axis=0)
+    e = b - a
+    # solve origin + t d = a + s e  for (t, s), vectorised over edges (Cramer's rule)
+    den = d[0] * (-e[:, 1]) - d[1] * (-e[:, 0])
+    r = a - origin
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (r[:, 0] * (-e[:, 1]) - r[:, 1] * (-e[:, 0])) / den
+        s = (d[0] * r[:, 1] - d[1] * r[:, 0]) / den
+    ok = np.isfinite(t) & (s >= 0) & (s <= 1)
+    if not ok.any():
+        return NAN
+    return float(t[ok].max() - t[ok].min())
+
+
+def eccentricity_index(lv_xy: np.ndarray, rv_xy: np.ndarray) -> float:
+    """LV eccentricity index on one SA slice (contracts.md).
+
+    ``lv_xy``, ``rv_xy``: LV and RV cavity boundaries in in-plane mm. The
+    septum direction is perpendicular to (RV centroid − LV centroid); EI is the
+    LV chord through its centroid along the septum over the chord across it.
+    """
+    c_lv, c_rv = polygon_centroid(lv_xy), polygon_centroid(rv_xy)
+    across = c_rv - c_lv
+    if np.linalg.norm(across) < 1e-9:
+        return NAN
+    along = np.array([-across[1], across[0]])
+    return _ratio(chord_length(lv_xy, c_lv, along), chord_length(lv_xy, c_lv, across))
+
+
+def eccentricity_index_es(model: "BiventricularModel") -> float:
+    """EI at ES on the mid-ventricular SA slice (contracts.md), NaN without RV contours."""
+    fr = model.es_frame
+    secs = model.sections.get(fr, {})
+    lv = {s.slice: s for s in secs.get("lv_endo", []) if s.slice is not None}
+    rv = {s.slice: s for s in secs.get("rv_endo", []) if s.slice is not None}
+    common = [k for k in lv if k in rv]
+    if not common:
+        return NAN
+    apex = model.apex_points.get(fr, {}).get("lv_endo")
+    base = model.base_planes.get(fr, {}).get("lv")
+    if apex is None or base is None:
+        return NAN
+    mid = 0.5 * (apex + base.origin)
+    from cardionurbs.anatomy.sections import fit_plane, in_plane_basis
+    planes = {k: fit_plane(lv[k].points) for k in common}
+    best = min(common, key=lambda k: abs((mid - planes[k][0]) @ planes[k][1]))
+    c, nrm = planes[best]
+    b = in_plane_basis(nrm).T
+    return eccentricity_index((lv[best].points - c) @ b, (rv[best].points - c) @ b)
+
+
+def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None) -> dict[str, float]:
+    """Every METRICS.md column for one model, as floats (NaN where not measurable).
+
+    ``heart_rate_bpm`` is used when the study carries no heart rate (the
+    user-given value of METRICS.md, Frames). Tag columns are NaN here.
+    """
+    hr = model.study.heart_rate_bpm
+    if hr is None or not np.isfinite(hr):
+        hr = heart_rate_bpm
+    hr = float(hr) if hr is not None else NAN
+    ed, es = model.ed_frame, model.es_frame
+    vol = model.volumes
+
+    def v(frame: int, key: str) -> float:
+        return float(vol.get(frame, {}).get(key, NAN))
+
+    out = {c: NAN for c in COLUMNS}
+    out["HR (bpm)"] = hr
+    for side, cav, myo in (("LV", "lv_cavity", "lv_myocardium"), ("RV", "rv_cavity", "rv_myocardium")):
+        edv, esv = v(ed, cav), v(es, cav)
+        f = ventricular_function(edv, esv, hr)
+        out[f"{side}EDV (mL)"], out[f"{side}ESV (mL)"] = edv, esv
+        out[f"{side}SV (mL)"], out[f"{side}EF (%)"] = f["SV"], f["EF"]
+        if side == "LV":
+            out["LVCO (L/min)"] = f["CO"]
+        out[f"{side}M (g)"] = mass_g(v(ed, myo))
+    out["MR RegVol (mL)"], out["MR RegFrac (%)"] = regurgitation(out["LVSV (mL)"], out["RVSV (mL)"])
+    out["RV/LV EDV ratio"] = _ratio(out["RVEDV (mL)"], out["LVEDV (mL)"])
+    out["RV/LV mass ratio"] = _ratio(out["RVM (g)"], out["LVM (g)"])
+    out["EI ES"] = eccentricity_index_es(model)
+    return {k: (float(x) if x is not None and math.isfinite(float(x)) else NAN)
+            for k, x in out.items()}
+
+
+def volume_curve(model: "BiventricularModel") -> dict[str, list]:
+    """The volume–time curve: per reconstructed frame, trigger time (ms, None where
+    unknown) and the four volumes (mL; NaN where a structure is missing)."""
+    frames = list(model.frames)
+    times = [model.study.frame_times_ms.get(f) for f in frames]
+    out: dict[str, list] = {"frame": frames, "time_ms": times}
+    for key in ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium"):
+        out[f"{key} (mL)"] = [float(model.volumes.get(f, {}).get(key, NAN)) for f in frames]
+    return out

@@ -1,0 +1,300 @@
+"""The biventricular model: NURBS surfaces per frame, closed meshes, volumes.
+
+``reconstruct(study)`` builds, for every frame with LV endocardial contours,
+the surfaces lv_endo, lv_epi, rv_endo, rv_epi (those the contours allow) in
+scanner mm (:mod:`cardionurbs.anatomy.surfaces`), their valve planes and apex
+points (:mod:`cardionurbs.anatomy.sections`), and finds ED and ES
+(METRICS.md, Frames). Meshes and volumes follow lazily from the surfaces
+(:mod:`cardionurbs.anatomy.mesh`).
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cached_property
+
+import numpy as np
+import pandas as pd
+import trimesh
+
+from cardionurbs import nurbs
+from cardionurbs.anatomy import mesh as meshing
+from cardionurbs.anatomy.mesh import Plane
+from cardionurbs.anatomy.sections import (SURFACES, FrameGeometry, Section, frame_geometry,
+                                          loop_centroid)
+from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface
+from cardionurbs.errors import ReconstructionError
+from cardionurbs.study import Study
+
+MESHES = ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium")
+#: default tessellation (around, along) of each surface before the booleans
+RESOLUTION = (72, 48)
+
+
+def ed_es_frames(lv_volumes: dict[int, float], ed_label: int | None = None,
+                 es_label: int | None = None) -> tuple[int, int]:
+    """ED = frame of maximum, ES = frame of minimum LV cavity volume (METRICS.md);
+    when exactly two frames are measured and both labels name them, the labels win."""
+    vols = {f: v for f, v in lv_volumes.items() if v is not None and math.isfinite(v)}
+    if not vols:
+        raise ReconstructionError("no frame has an LV cavity volume: cannot find ED and ES")
+    if (len(vols) == 2 and ed_label in vols and es_label in vols and ed_label != es_label):
+        return int(ed_label), int(es_label)
+    frames = sorted(vols)
+    v = np.array([vols[f] for f in frames])
+    return frames[int(np.argmax(v))], frames[int(np.argmin(v))]
+
+
+def _reference_direction(study: Study, geo: FrameGeometry) -> np.ndarray:
+    """In-plane direction from the LV towards the RV (start of every section's
+    parameterisation); the first SA image's row direction when there is no RV."""
+    n = geo.direction
+    lv = geo.sections.get("lv_endo") or geo.sections.get("lv_epi") or []
+    rv = geo.sections.get("rv_endo") or geo.sections.get("rv_epi") or []
+    if lv and rv:
+        d = (np.mean([loop_centroid(s.points, n) for s in rv], axis=0)
+             - np.mean([loop_centroid(s.points, n) for s in lv], axis=0))
+    else:
+        sa = [im for im in study.images if im.view == "SA"]
+        d = sa[0].row_cosine if sa else np.cross(n, np.eye(3)[np.argmin(np.abs(n))])
+    d = d - (d @ n) * n
+    return d / np.linalg.norm(d)
+
+
+class BiventricularModel:
+    """NURBS surfaces of the ventricles per frame, with meshes, volumes and residuals.
+
+    Attributes
+    ----------
+    study : Study
+    frames : list of int
+        Reconstructed frames (those with LV endocardial contours).
+    surfaces : dict frame -> dict structure -> NurbsSurface
+        structures ``lv_endo``, ``lv_epi``, ``rv_endo``, ``rv_epi`` (those present).
+    sections : dict frame -> dict structure -> list of Section
+        The SA sections (contours as ordered loops), base -> apex.
+    apex_points : dict frame -> dict structure -> (3,) apex (collapsed end), mm.
+    base_planes : dict frame -> {'lv': Plane, 'rv': Plane} valve planes (normal apical).
+    ed_frame, es_frame : int
+    warnings : list of str
+    """
+
+    def __init__(self, study: Study, frames: list[int], surfaces: dict, base_planes: dict,
+                 apex_points: dict, sections: dict | None = None, fits: dict | None = None,
+                 la_points: dict | None = None, warnings: list[str] | None = None,
+                 resolution: tuple[int, int] = RESOLUTION) -> None:
+        self.study = study
+        self.frames = list(frames)
+        self.surfaces = surfaces
+        self.base_planes = base_planes
+        self.apex_points = apex_points
+        self.sections = sections or {}
+        self.fits = fits or {}
+        self.la_points = la_points or {}
+        self.warnings = list(warnings or [])
+        self.resolution = tuple(resolution)
+        self._meshes: dict[int, dict[str, trimesh.Trimesh]] = {}
+        ed, es = ed_es_frames({f: self.volumes[f].get("lv_cavity", math.nan) for f in self.frames},
+                              study.ed_frame, study.es_frame)
+        self.ed_frame, self.es_frame = ed, es
+        if ed == es:
+            self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, SV = 0")
+
+    # ------------------------------------------------------------- geometry
+    def long_axis(self) -> tuple[np.ndarray, np.ndarray]:
+        """(apex (3,), base centre (3,)) at ED per contracts.md: the epicardial apex
+        landmark (else the model's LV epicardial, else endocardial apex) to the mean
+        of the mitral landmarks (else the LV valve plane's origin)."""
+        fr = self.ed_frame
+        lm = [lm.point for lm in self.study.landmarks_at(fr, "apex")]
+        ap = self.apex_points.get(fr, {})
+        apex = np.mean(lm, axis=0) if lm else ap.get("lv_epi", ap.get("lv_endo"))
+        mitral = [lm.point for lm in self.study.landmarks_at(fr, "mitral")]
+        base = np.mean(mitral, axis=0) if mitral else self.base_planes[fr]["lv"].origin
+        return np.asarray(apex, float), np.asarray(base, float)
+
+    def _solids(self, frame: int) -> dict:
+        """manifold3d solids of each surface, capped and trimmed by its valve plane."""
+        out = {}
+        nu, nv = self.resolution
+        for s, surf in self.surfaces[frame].items():
+            v, f = nurbs.tessellate(surf, nu, nv)
+            side = "lv" if s.startswith("lv") else "rv"
+            out[s] = meshing.solid(v, f, plane=self.base_planes[frame].get(side), what=s,
+                                   frame=frame)
+        return out
+
+    def meshes(self, frame: int) -> dict[str, trimesh.Trimesh]:
+        """Closed manifold meshes (scanner mm) of one frame, keyed lv_cavity,
+        rv_cavity, lv_myocardium, rv_myocardium (those the surfaces allow); cached.
+
+        lv_cavity = LV endo; lv_myocardium = LV epi − LV endo; rv_cavity = RV endo −
+        LV epi; rv_myocardium = RV epi − RV endo − LV epi; each trimmed by its valve
+        plane (METRICS.md). ReconstructionError names the mesh and frame on failure.
+        """
+        if frame in self._meshes:
+            return self._meshes[frame]
+        if frame not in self.surfaces:
+            raise ReconstructionError(f"frame {frame} is not reconstructed "
+                                      f"(reconstructed: {self.frames})")
+        sol = self._solids(frame)
+        out: dict = {}
+        if "lv_endo" in sol:
+            out["lv_cavity"] = sol["lv_endo"]
+            if "lv_epi" in sol:
+                out["lv_myocardium"] = sol["lv_epi"] - sol["lv_endo"]
+        if "rv_endo" in sol:
+            rc = sol["rv_endo"]
+            if "lv_epi" in sol:
+                rc = rc - sol["lv_epi"]
+            out["rv_cavity"] = rc
+            if "rv_epi" in sol:
+                rm = sol["rv_epi"] - sol["rv_endo"]
+                if "lv_epi" in sol:
+                    rm = rm - sol["lv_epi"]
+                out["rv_myocardium"] = rm
+        meshes = {k: meshing.to_trimesh(m, what=k, frame=frame) for k, m in out.items()}
+        self._meshes[frame] = meshes
+        return meshes
+
+    @cached_property
+    def volumes(self) -> dict[int, dict[str, float]]:
+        """Volume (mL) per frame and mesh (lv_cavity, rv_cavity, lv_myocardium, rv_myocardium)."""
+        out = {}
+        for f in self.frames:
+            out[f] = {k: float(m.volume) / 1000.0 for k, m in self.meshes(f).items()}
+        return out
+
+    # ------------------------------------------------------------- residuals
+    @cached_property
+    def residuals(self) -> pd.DataFrame:
+        """Distance of every contour point to its surface, per (structure, frame, slice):
+        columns structure, frame, slice, view, n_points, mean_mm, max_mm, mean_px, max_px."""
+        rows = []
+        for f in self.frames:
+            for s, surf in self.surfaces[f].items():
+                items = [(sec.slice, "SA", sec.source_points, _pixel_mm(sec.plane))
+                         for sec in self.sections.get(f, {}).get(s, []) if sec.source_points is not None]
+                items += [(sl, "LA", pts, px) for sl, pts, px in self.la_points.get(f, {}).get(s, [])]
+                if not items:
+                    continue
+                allp = np.concatenate([it[2] for it in items])
+                d = surface_distance(surf, allp)
+                k = 0
+                for sl, view, pts, px in items:
+                    di = d[k:k + len(pts)]
+                    k += len(pts)
+                    rows.append({"structure": s, "frame": f, "slice": sl, "view": view,
+                                 "n_points": len(pts), "mean_mm": float(di.mean()),
+                                 "max_mm": float(di.max()), "mean_px": float(di.mean() / px),
+                                 "max_px": float(di.max() / px)})
+        cols = ["structure", "frame", "slice", "view", "n_points", "mean_mm", "max_mm",
+                "mean_px", "max_px"]
+        return pd.DataFrame(rows, columns=cols)
+
+    # ------------------------------------------------------------- (de)serialise
+    def to_dict(self) -> dict:
+        """JSON-safe model: surfaces (NURBS), valve planes, apex points, SA sections, ED/ES."""
+        def arr(a):
+            return np.asarray(a, float).tolist()
+        return {
+            "format": "cardionurbs-model", "version": 1,
+            "subject": self.study.subject, "frames": self.frames,
+            "ed_frame": self.ed_frame, "es_frame": self.es_frame,
+            "heart_rate_bpm": self.study.heart_rate_bpm,
+            "resolution": list(self.resolution),
+            "surfaces": {str(f): {s: surf.to_dict() for s, surf in d.items()}
+                         for f, d in self.surfaces.items()},
+            "base_planes": {str(f): {k: p.to_dict() for k, p in d.items()}
+                            for f, d in self.base_planes.items()},
+            "apex_points": {str(f): {k: arr(p) for k, p in d.items()}
+                            for f, d in self.apex_points.items()},
+            "sections": {str(f): {s: [{"slice": sec.slice, "points": arr(sec.points)} for sec in secs]
+                                  for s, secs in d.items()} for f, d in self.sections.items()},
+            "landmarks": [{"name": lm.name, "frame": lm.frame, "index": lm.index,
+                           "point": arr(lm.point)} for lm in self.study.landmarks
+                          if lm.name in ("apex", "mitral")],
+            "warnings": self.warnings,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict, study: Study | None = None) -> "BiventricularModel":
+        """Inverse of :meth:`to_dict` (the Study is reduced to subject, heart rate,
+        ED/ES labels and the apex/mitral landmarks unless ``study`` is given)."""
+        from cardionurbs.study import Landmark
+        if study is None:
+            study = Study(subject=d["subject"], heart_rate_bpm=d.get("heart_rate_bpm"),
+                          ed_frame=d.get("ed_frame"), es_frame=d.get("es_frame"),
+                          landmarks=[Landmark(lm["name"], lm["frame"], lm["point"], lm["index"])
+                                     for lm in d.get("landmarks", [])])
+        surfaces = {int(f): {s: nurbs.NurbsSurface.from_dict(sd) for s, sd in dd.items()}
+                    for f, dd in d["surfaces"].items()}
+        planes = {int(f): {k: Plane.from_dict(p) for k, p in dd.items()}
+                  for f, dd in d["base_planes"].items()}
+        apex = {int(f): {k: np.asarray(p, float) for k, p in dd.items()}
+                for f, dd in d["apex_points"].items()}
+        sections = {int(f): {s: [Section(s, int(f), np.asarray(x["points"], float), slice=x["slice"])
+                                 for x in secs] for s, secs in dd.items()}
+                    for f, dd in d.get("sections", {}).items()}
+        m = cls(study, d["frames"], surfaces, planes, apex, sections=sections,
+                warnings=d.get("warnings"), resolution=tuple(d.get("resolution", RESOLUTION)))
+        return m
+
+
+def _pixel_mm(plane) -> float:
+    return float(np.mean(plane.pixel_spacing)) if plane is not None else 1.0
+
+
+def surface_distance(surface, points: np.ndarray) -> np.ndarray:
+    """Distance (mm) of each point to a NURBS surface (closest-point projection)."""
+    res = nurbs.closest_points(surface, np.asarray(points, float))
+    if isinstance(res, tuple):
+        res = res[-1]
+    res = np.asarray(res, float)
+    if res.ndim == 2:  # closest points returned
+        return np.linalg.norm(res - points, axis=1)
+    return res
+
+
+def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float = 1.0,
+                resolution: tuple[int, int] = RESOLUTION) -> BiventricularModel:
+    """Biventricular NURBS model of a study (paper §4.2): one set of lofted
+    surfaces per frame with LV endocardial contours (or the given ``frames``).
+
+    ``tol_px``: curve-fit tolerance, pixels (paper §4.2.1: < 1 px).
+    Raises ReconstructionError naming the structure and frame when a surface
+    cannot be built.
+    """
+    avail = study.contoured_frames
+    if frames is None:
+        frames = avail
+    missing = [f for f in frames if f not in avail]
+    if missing:
+        raise ReconstructionError(f"frame(s) {missing} have no LV endocardial contours")
+    if not frames:
+        raise ReconstructionError(f"study {study.subject}: no LV endocardial contours")
+    surfaces, planes, apex, sections, fits, la, warnings = {}, {}, {}, {}, {}, {}, []
+    for f in frames:
+        geo = frame_geometry(study, f)
+        warnings += geo.warnings
+        ref = _reference_direction(study, geo)
+        surfaces[f], fits[f] = {}, {}
+        for s in SURFACES:
+            secs = geo.sections.get(s) or []
+            if len(secs) == 0:
+                continue
+            if len(secs) == 1:
+                warnings.append(f"{s}, frame {f}: contours on one slice only; surface skipped")
+                continue
+            fit: SurfaceFit = build_surface(geo, s, ref, tol_px=tol_px)
+            warnings += fit.warnings
+            surfaces[f][s], fits[f][s] = fit.surface, fit
+        if "lv_endo" not in surfaces[f]:
+            raise ReconstructionError(f"lv_endo, frame {f}: needs SA contours on at least 2 slices")
+        planes[f] = geo.base_planes
+        apex[f] = {s: geo.apex[s] for s in surfaces[f]}
+        sections[f] = {s: geo.sections[s] for s in surfaces[f]}
+        la[f] = {s: list(zip(geo.la_slices.get(s, []), geo.la_points.get(s, []),
+                             geo.la_pixel_mm.get(s, []))) for s in surfaces[f]}
+    return BiventricularModel(study, frames, surfaces, planes, apex, sections=sections, fits=fits,
+                              la_points=la, warnings=warnings, resolution=resolution)

@@ -1,0 +1,470 @@
+"""Cross-sections of the ventricles: contour ordering and closing, RV assembly,
+the long axis, apex points and valve planes of one frame.
+
+Everything here works on point arrays in scanner mm; the NURBS fitting and
+lofting is in :mod:`cardionurbs.anatomy.surfaces`.
+
+Conventions
+-----------
+* A *section* is one closed loop of points (no repeated end point) in one
+  plane, with the slice it came from (``synthetic`` sections are built from
+  long-axis contours between or beyond the short-axis slices).
+* The *stacking direction* ``n`` is the mean SA plane normal oriented from
+  base to apex; the *level* of a point x is (x − o)·n for a fixed origin o.
+* A valve :class:`~cardionurbs.anatomy.mesh.Plane` has its normal pointing to
+  the apical (kept) side.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
+from scipy.spatial import cKDTree
+
+from cardionurbs.anatomy.mesh import Plane
+from cardionurbs.errors import ReconstructionError
+from cardionurbs.imaging.geometry import ImagePlane
+from cardionurbs.study import Contour, Study
+
+SURFACES = ("lv_endo", "lv_epi", "rv_endo", "rv_epi")
+
+
+@dataclass(eq=False)
+class Section:
+    """One closed planar cross-section of a surface (scanner mm, ordered loop)."""
+
+    structure: str
+    frame: int
+    points: np.ndarray
+    slice: str | None = None
+    plane: ImagePlane | None = None
+    synthetic: bool = False
+    source_points: np.ndarray | None = None   # the contour points it was made of
+
+
+@dataclass(eq=False)
+class FrameGeometry:
+    """What one frame offers to reconstruct from.
+
+    ``sections[structure]`` are SA sections ordered base -> apex; ``la_points
+    [structure]`` the LA contour polylines (each (k, 3)); ``apex[structure]``
+    the collapsed-end point of each surface; ``base_planes['lv'|'rv']`` the
+    valve planes; ``direction`` the stacking direction (base -> apex).
+    """
+
+    frame: int
+    direction: np.ndarray
+    sections: dict[str, list[Section]] = field(default_factory=dict)
+    la_points: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    apex: dict[str, np.ndarray] = field(default_factory=dict)
+    base_planes: dict[str, Plane] = field(default_factory=dict)
+    la_slices: dict[str, list[str]] = field(default_factory=dict)
+    la_pixel_mm: dict[str, list[float]] = field(default_factory=dict)
+    thickness: float = 8.0
+    warnings: list[str] = field(default_factory=list)
+
+
+# --------------------------------------------------------------- point order
+def _in_drawing_order(points: np.ndarray, closed: bool) -> bool:
+    """True when consecutive points are neighbours (no step > 4 median steps)."""
+    q = np.vstack([points, points[:1]]) if closed else points
+    steps = np.linalg.norm(np.diff(q, axis=0), axis=1)
+    if len(steps) == 0:
+        return True
+    med = np.median(steps)
+    return bool(np.all(steps <= 4.0 * max(med, 1e-9)))
+
+
+def _nearest_neighbour_chain(points: np.ndarray, start: int) -> np.ndarray:
+    """Greedy nearest-neighbour ordering of points from ``start`` (indices)."""
+    n = len(points)
+    tree = cKDTree(points)
+    visited = np.zeros(n, dtype=bool)
+    order = [start]
+    visited[start] = True
+    cur = start
+    for _ in range(n - 1):
+        k = min(n, 8)
+        while True:
+            _, idx = tree.query(points[cur], k=k)
+            idx = np.atleast_1d(idx)
+            free = idx[~visited[idx]]
+            if free.size or k >= n:
+                break
+            k = min(n, k * 4)
+        nxt = int(free[0])
+        visited[nxt] = True
+        order.append(nxt)
+        cur = nxt
+    return np.asarray(order)
+
+
+def order_open(points: np.ndarray) -> np.ndarray:
+    """Order an open contour's points from one end to the other.
+
+    Points in drawing order are kept (a cyclic rotation is undone by cutting at
+    the largest gap); otherwise the chain starts at one end of the diameter of
+    the points' Euclidean minimum spanning tree and follows nearest neighbours.
+    """
+    p = np.asarray(points, dtype=float)
+    if len(p) < 3:
+        return p
+    if _in_drawing_order(p, closed=False):
+        return p
+    steps = np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1)
+    cut = int(np.argmax(steps))
+    rolled = np.roll(p, -(cut + 1), axis=0)
+    if _in_drawing_order(rolled, closed=False):
+        return rolled
+    d = np.linalg.norm(p[:, None] - p[None], axis=2)
+    mst = minimum_spanning_tree(d)
+    sym = mst + mst.T
+    far = lambda s: int(breadth_first_order(sym, s, directed=False, return_predecessors=False)[-1])  # noqa: E731
+    end = far(far(0))
+    return p[_nearest_neighbour_chain(p, end)]
+
+
+def order_closed(points: np.ndarray) -> np.ndarray:
+    """Order a closed contour's points around the loop (drawing order kept if present)."""
+    p = np.asarray(points, dtype=float)
+    if len(p) < 4 or _in_drawing_order(p, closed=True):
+        return p
+    return p[_nearest_neighbour_chain(p, 0)]
+
+
+def join_open_parts(parts: list[np.ndarray]) -> np.ndarray:
+    """Join open curves end to end into one closed loop.
+
+    Each part is ordered, then the parts are chained greedily: the next part is
+    the one with an end nearest the current loop end, reversed if needed.
+    """
+    parts = [order_open(p) for p in parts if len(p)]
+    if not parts:
+        raise ReconstructionError("no points to join")
+    loop = parts.pop(0)
+    while parts:
+        end = loop[-1]
+        cost = [(min(np.linalg.norm(q[0] - end), np.linalg.norm(q[-1] - end)), i)
+                for i, q in enumerate(parts)]
+        _, i = min(cost)
+        q = parts.pop(i)
+        if np.linalg.norm(q[-1] - end) < np.linalg.norm(q[0] - end):
+            q = q[::-1]
+        loop = np.concatenate([loop, q])
+    # drop a duplicated junction point
+    keep = np.ones(len(loop), dtype=bool)
+    keep[1:] = np.linalg.norm(np.diff(loop, axis=0), axis=1) > 1e-9
+    return loop[keep]
+
+
+# --------------------------------------------------------------- plane helpers
+def fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares plane through points: (centroid (3,), unit normal (3,)) by SVD."""
+    p = np.asarray(points, dtype=float)
+    c = p.mean(axis=0)
+    _, _, vt = np.linalg.svd(p - c, full_matrices=False)
+    return c, vt[-1]
+
+
+def in_plane_basis(normal: np.ndarray) -> np.ndarray:
+    """(2, 3) orthonormal in-plane axes for a plane with this normal."""
+    n = normal / np.linalg.norm(normal)
+    t = np.eye(3)[np.argmin(np.abs(n))]
+    e1 = np.cross(n, t)
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(n, e1)])
+
+
+def signed_area(points: np.ndarray, normal: np.ndarray) -> float:
+    """Signed area (mm²) of a closed loop about ``normal`` (positive = counter-clockwise)."""
+    p = points - points.mean(axis=0)
+    return float(np.cross(p, np.roll(p, -1, axis=0)).sum(axis=0) @ normal / 2.0)
+
+
+def loop_centroid(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Area centroid (3,) of a planar closed loop (shoelace in its plane)."""
+    c0 = points.mean(axis=0)
+    b = in_plane_basis(normal)
+    xy = (points - c0) @ b.T
+    x, y = xy[:, 0], xy[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cr = x * yn - xn * y
+    a = cr.sum() / 2.0
+    if abs(a) < 1e-9:
+        return c0
+    cxy = np.array([((x + xn) * cr).sum(), ((y + yn) * cr).sum()]) / (6.0 * a)
+    return c0 + cxy @ b
+
+
+def ray_exit(points: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> float:
+    """Largest t with origin + t·direction on the closed loop (in-plane, mm); NaN if none.
+
+    Vectorised over the loop's edges (line–segment intersection by Cramer's rule
+    in the plane spanned by the edge and ``direction``).
+    """
+    d = direction / np.linalg.norm(direction)
+    b = in_plane_basis(_loop_normal(points))
+    xy = (points - origin) @ b.T
+    dd = b @ d
+    a, e = xy, np.roll(xy, -1, axis=0) - xy
+    den = dd[0] * (-e[:, 1]) + dd[1] * e[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (a[:, 0] * (-e[:, 1]) + a[:, 1] * e[:, 0]) / den
+        s = (dd[0] * a[:, 1] - dd[1] * a[:, 0]) / den
+    ok = np.isfinite(t) & (s >= 0) & (s <= 1) & (t > 0)
+    return float(t[ok].max()) if ok.any() else float("nan")
+
+
+def _loop_normal(points: np.ndarray) -> np.ndarray:
+    return fit_plane(points)[1]
+
+
+# --------------------------------------------------------------- level planes
+def crossings(polyline: np.ndarray, direction: np.ndarray, level: float) -> np.ndarray:
+    """Points (k, 3) where an open polyline crosses the plane x·direction = level
+    (linear interpolation on every segment that changes side)."""
+    h = polyline @ direction - level
+    a, b = h[:-1], h[1:]
+    idx = np.nonzero((a == 0) | (a * b < 0))[0]
+    if idx.size == 0:
+        return np.empty((0, 3))
+    t = a[idx] / np.where(a[idx] - b[idx] == 0, 1.0, a[idx] - b[idx])
+    return polyline[idx] + t[:, None] * (polyline[idx + 1] - polyline[idx])
+
+
+def scaled_section(template: Section, level: float, direction: np.ndarray,
+                   centre: np.ndarray, targets: np.ndarray | None,
+                   default_scale: float | None = None) -> tuple[np.ndarray, float] | None:
+    """A section at ``level`` shaped like ``template``: centre + s·(T − c_T) moved to the level.
+
+    The scale s is the mean, over target points (LA contour crossings of the
+    level plane), of |q − centre| / r_T(θ_q), r_T the template's radius in the
+    direction of q; without targets ``default_scale`` is used (None: no section).
+    """
+    t = template.points
+    ct = loop_centroid(t, direction)
+    rel = t - ct
+    rel -= np.outer(rel @ direction, direction)           # in-plane
+    centre = centre - (centre @ direction - level) * direction
+    if targets is not None and len(targets):
+        q = targets - centre
+        q -= np.outer(q @ direction, direction)
+        rq = np.linalg.norm(q, axis=1)
+        ratios = []
+        for qi, ri in zip(q, rq):
+            if ri < 1e-6:
+                continue
+            r_t = ray_exit(ct + rel, ct, qi)
+            if np.isfinite(r_t) and r_t > 1e-6:
+                ratios.append(ri / r_t)
+        if not ratios:
+            return None
+        s = float(np.mean(ratios))
+    elif default_scale is not None:
+        s = float(default_scale)
+    else:
+        return None
+    return centre + s * rel, s
+
+
+# --------------------------------------------------------------- frame geometry
+def _slice_rank(slice_id: str) -> tuple[int, str]:
+    m = re.fullmatch(r"sa_(\d+)", slice_id or "")
+    return (int(m.group(1)), "") if m else (10**6, slice_id or "")
+
+
+def stacking_direction(study: Study, frame: int) -> tuple[np.ndarray, float]:
+    """Mean SA plane normal oriented base -> apex, and the mean SA slice thickness (mm).
+
+    Orientation: towards the apex landmark when given; else towards increasing
+    ``sa_NN`` slice number (contracts.md: numbered from base to apex); else
+    towards the end with the smaller LV endocardial area.
+    """
+    ims = [im for im in study.images if im.view == "SA" and im.frame == frame]
+    if not ims:
+        ims = [im for im in study.images if im.view == "SA"]
+    if not ims:
+        raise ReconstructionError(f"frame {frame}: no short-axis image planes")
+    normals = np.array([im.normal for im in ims])
+    n = normals[0] if len(normals) == 1 else normals.mean(axis=0)
+    normals_sign = np.sign(normals @ normals[0])
+    n = (normals * normals_sign[:, None]).mean(axis=0)
+    n /= np.linalg.norm(n)
+    thickness = float(np.mean([im.thickness for im in ims]))
+    apex = [lm.point for lm in study.landmarks_at(frame, "apex")] or \
+        [lm.point for lm in study.landmarks if lm.name == "apex"]
+    centres = {im.slice: im.position for im in ims}
+    if apex:
+        mean_pos = np.mean(list(centres.values()), axis=0)
+        if (np.mean(apex, axis=0) - mean_pos) @ n < 0:
+            n = -n
+        return n, thickness
+    ranked = sorted((s for s in centres if re.fullmatch(r"sa_\d+", s)), key=_slice_rank)
+    if len(ranked) >= 2 and (centres[ranked[-1]] - centres[ranked[0]]) @ n != 0:
+        if (centres[ranked[-1]] - centres[ranked[0]]) @ n < 0:
+            n = -n
+        return n, thickness
+    endo = [c for c in study.contours_at(frame, "lv_endo", view="SA") if c.closed]
+    if len(endo) >= 2:
+        lev = np.array([c.points.mean(axis=0) @ n for c in endo])
+        area = np.array([abs(signed_area(c.points, n)) for c in endo])
+        lo, hi = np.argmin(lev), np.argmax(lev)
+        if area[hi] > area[lo]:
+            n = -n
+    return n, thickness
+
+
+def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.ndarray, np.ndarray]]]:
+    """Closed SA loops per surface: (slice, ordered loop points, source points).
+
+    Closed contours are ordered; CAP open parts are joined: rv_endo =
+    rv_freewall + rv_septum; an open rv_epi is closed through the slice's
+    rv_septum (the septal part lies on the LV epicardium, which the RV
+    myocardium boolean removes anyway).
+    """
+    out: dict[str, list] = {s: [] for s in SURFACES}
+    by_slice: dict[str, dict[str, list[Contour]]] = {}
+    for c in study.contours_at(frame, view="SA"):
+        by_slice.setdefault(c.slice, {}).setdefault(c.structure, []).append(c)
+    for sl, d in by_slice.items():
+        for s in ("lv_endo", "lv_epi"):
+            for c in d.get(s, []):
+                if len(c.points) >= 5:
+                    out[s].append((sl, order_closed(c.points) if c.closed else order_open(c.points),
+                                   c.points))
+        sept = [c.points for c in d.get("rv_septum", [])]
+        fw = [c.points for c in d.get("rv_freewall", [])]
+        rv_closed = [c for c in d.get("rv_endo", []) if c.closed]
+        if rv_closed:
+            for c in rv_closed:
+                out["rv_endo"].append((sl, order_closed(c.points), c.points))
+        elif fw:
+            parts = fw + sept
+            pts = np.concatenate(parts)
+            if len(pts) >= 5:
+                out["rv_endo"].append((sl, join_open_parts(parts), pts))
+        for c in d.get("rv_epi", []):
+            if c.closed:
+                out["rv_epi"].append((sl, order_closed(c.points), c.points))
+            elif sept:
+                out["rv_epi"].append((sl, join_open_parts([c.points] + sept),
+                                      np.concatenate([c.points] + sept)))
+    return out
+
+
+def _la_polylines(study: Study, frame: int) -> tuple[dict, dict, dict]:
+    """LA contours per surface as ordered open polylines (CAP parts mapped to rv_endo),
+    with their slice ids and pixel sizes (mm)."""
+    pts: dict[str, list[np.ndarray]] = {s: [] for s in SURFACES}
+    sls: dict[str, list[str]] = {s: [] for s in SURFACES}
+    pxs: dict[str, list[float]] = {s: [] for s in SURFACES}
+    idx = study._image_index()
+    for c in study.contours_at(frame, view="LA"):
+        key = "rv_endo" if c.structure in ("rv_septum", "rv_freewall") else c.structure
+        if len(c.points) >= 3:
+            pts[key].append(order_open(c.points))
+            sls[key].append(c.slice)
+            im = idx.get(c.image) if c.image else None
+            if im is None:
+                im = next((i for i in study.images if i.slice == c.slice), None)
+            pxs[key].append(float(np.mean(im.pixel_spacing)) if im is not None else 1.0)
+    return pts, sls, pxs
+
+
+def valve_plane(points: np.ndarray, axis: np.ndarray) -> Plane:
+    """Plane through annulus landmark points, normal oriented along ``axis`` (apical side kept).
+
+    Three or more points: least-squares plane (SVD). Two points: the plane that
+    contains both and is as perpendicular to the axis as possible. One: the
+    plane through it perpendicular to the axis.
+    """
+    p = np.atleast_2d(points)
+    if len(p) >= 3:
+        c, nrm = fit_plane(p)
+    elif len(p) == 2:
+        c = p.mean(axis=0)
+        t = (p[1] - p[0]) / np.linalg.norm(p[1] - p[0])
+        nrm = axis - (axis @ t) * t
+    else:
+        c, nrm = p[0], axis
+    if nrm @ axis < 0:
+        nrm = -nrm
+    return Plane(c, nrm)
+
+
+def frame_geometry(study: Study, frame: int) -> FrameGeometry:
+    """Sections, LA polylines, apex points and valve planes of one frame.
+
+    Apex points (collapsed surface ends): lv_epi = the ``apex`` landmark, else
+    the most apical point of the LA lv_epi contours; lv_endo, rv_endo, rv_epi =
+    the most apical point of their LA contours (where the contours turn);
+    without any of these, half a slice thickness beyond the most apical contour
+    centroid along the stacking direction (METRICS.md).
+    Valve planes: ``mitral`` (LV) and ``tricuspid`` (RV) landmarks; else the
+    most basal SA contour's plane moved half a slice thickness towards the base.
+    """
+    n, thick = stacking_direction(study, frame)
+    geo = FrameGeometry(frame=frame, direction=n, thickness=thick)
+    planes = {}
+    for im in study.images:
+        if im.view == "SA" and (im.frame == frame or im.slice not in planes):
+            planes[im.slice] = im
+    for s, loops in _sa_loops(study, frame).items():
+        secs = []
+        for sl, pts, src in loops:
+            secs.append(Section(s, frame, pts, slice=sl, plane=planes.get(sl), source_points=src))
+        secs.sort(key=lambda sec: float(sec.points.mean(axis=0) @ n))
+        geo.sections[s] = secs
+    geo.la_points, geo.la_slices, geo.la_pixel_mm = _la_polylines(study, frame)
+
+    lm_apex = [lm.point for lm in study.landmarks_at(frame, "apex")]
+    for s, secs in geo.sections.items():
+        if not secs:
+            continue
+        la = geo.la_points.get(s, [])
+        if s == "lv_epi" and lm_apex:
+            geo.apex[s] = np.mean(lm_apex, axis=0)
+        elif la:
+            allp = np.concatenate(la)
+            lev = allp @ n
+            far = lev.max()
+            tip = allp[lev >= far - 0.5].mean(axis=0)
+            geo.apex[s] = tip + (far - tip @ n) * n
+        else:
+            last = secs[-1].points
+            geo.apex[s] = loop_centroid(last, n) + 0.5 * thick * n
+        if (geo.apex[s] - secs[-1].points.mean(axis=0)) @ n <= 0:
+            geo.warnings.append(f"frame {frame}: {s} apex is not beyond the most apical section; "
+                                f"moved half a slice thickness beyond it")
+            last = secs[-1].points
+            geo.apex[s] = loop_centroid(last, n) + 0.5 * thick * n
+
+    for side, lm_name, surf in (("lv", "mitral", "lv_endo"), ("rv", "tricuspid", "rv_endo")):
+        lms = [lm.point for lm in study.landmarks_at(frame, lm_name)]
+        secs = geo.sections.get(surf) or []
+        if lms:
+            geo.base_planes[side] = valve_plane(np.array(lms), n)
+        elif secs:
+            first = secs[0]
+            nrm = first.plane.normal if first.plane is not None else n
+            nrm = nrm if nrm @ n > 0 else -nrm
+            c = loop_centroid(first.points, nrm)
+            geo.base_planes[side] = Plane(c - 0.5 * thick * nrm, nrm)
+    return geo
+
+
+def long_axis(study: Study, frame: int, geo: FrameGeometry | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(apex (3,), base centre (3,)) per contracts.md: the epicardial apex landmark
+    (else the model's LV apex) and the mean of the mitral landmarks (else the LV
+    valve plane's origin)."""
+    geo = geo or frame_geometry(study, frame)
+    lm_apex = [lm.point for lm in study.landmarks_at(frame, "apex")]
+    apex = np.mean(lm_apex, axis=0) if lm_apex else geo.apex.get("lv_epi", geo.apex.get("lv_endo"))
+    mitral = [lm.point for lm in study.landmarks_at(frame, "mitral")]
+    base = np.mean(mitral, axis=0) if mitral else geo.base_planes["lv"].origin
+    if apex is None:
+        raise ReconstructionError(f"frame {frame}: no LV apex (no LV contours)")
+    return np.asarray(apex, float), np.asarray(base, float)

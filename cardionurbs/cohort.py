@@ -1,0 +1,94 @@
+"""Many studies -> one table (METRICS.md columns, one row per study).
+
+A study that fails (bad input, a surface that cannot be built) is recorded
+in its row as ``status = "error: <one line>"`` with empty numbers, and the
+run goes on. ``jobs > 1`` measures studies in worker processes
+(concurrent.futures); rows keep the input order.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Iterable
+
+import pandas as pd
+
+from cardionurbs.analysis.function import COLUMNS, NAN
+from cardionurbs.io import atomic
+
+CSV_COLUMNS = ("subject", "status") + COLUMNS
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None = None) -> dict:
+    """One cohort row for the study at ``path`` (never raises for a bad study)."""
+    row = {c: NAN for c in COLUMNS}
+    row["subject"] = Path(path).name
+    try:
+        from cardionurbs.io import load_study
+        from cardionurbs.pipeline import analyse_study
+        study = load_study(path, format=format)
+        row["subject"] = study.subject
+        _, metrics = analyse_study(study, heart_rate_bpm=heart_rate_bpm)
+        row.update(metrics)
+        row["status"] = "ok"
+    except Exception as exc:  # noqa: BLE001 - recorded in the row, the run goes on
+        kind = "" if isinstance(exc, ValueError) else f"{type(exc).__name__}: "
+        row.update({c: NAN for c in COLUMNS})
+        row["status"] = f"error: {kind}{_one_line(exc)}"
+    return row
+
+
+def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "auto",
+           progress: bool = False, heart_rate_bpm: float | None = None) -> pd.DataFrame:
+    """Measure every study: a DataFrame with ``subject``, ``status`` and the METRICS.md
+    columns in order, one row per path (input order)."""
+    paths = [str(p) for p in paths]
+    rows: list[dict | None] = [None] * len(paths)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=len(paths), desc="studies", unit="study", file=sys.stderr)
+    try:
+        if jobs <= 1 or len(paths) <= 1:
+            for i, p in enumerate(paths):
+                rows[i] = measure_study(p, format, heart_rate_bpm)
+                if bar is not None:
+                    bar.update(1)
+        else:
+            with ProcessPoolExecutor(max_workers=min(jobs, len(paths))) as pool:
+                futs = {pool.submit(measure_study, p, format, heart_rate_bpm): i
+                        for i, p in enumerate(paths)}
+                for fut in as_completed(futs):
+                    rows[futs[fut]] = fut.result()
+                    if bar is not None:
+                        bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    return pd.DataFrame(rows, columns=list(CSV_COLUMNS))
+
+
+def write_csv(table: pd.DataFrame, path: str | os.PathLike) -> Path:
+    """Write the cohort table as CSV, atomically (empty cells for NaN)."""
+    return atomic.write_text(path, table.to_csv(index=False, float_format="%.6g"))
+
+
+def run_cohort(args: argparse.Namespace) -> int:
+    """`cardionurbs cohort STUDY... --csv FILE [--jobs N]`."""
+    table = cohort(args.studies, jobs=args.jobs, format=getattr(args, "format", "auto"),
+                   progress=True)
+    write_csv(table, args.csv)
+    failed = table[table["status"] != "ok"]
+    print(f"{len(table) - len(failed)} of {len(table)} studies measured; wrote {args.csv}",
+          file=sys.stderr)
+    for _, r in failed.iterrows():
+        print(f"  {r['subject']}: {r['status']}", file=sys.stderr)
+    return 0

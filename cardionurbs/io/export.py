@@ -1,0 +1,102 @@
+"""Model and mesh export: meshes through trimesh by file extension, the model as JSON.
+
+Mesh formats: ``.stl``, ``.ply``, ``.obj``, ``.glb`` (trimesh's exporters,
+chosen by extension, as trimesh does). The NURBS model is written as
+``model.json`` (:meth:`BiventricularModel.to_dict`, lossless). All files are
+written atomically (:mod:`cardionurbs.io.atomic`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import trimesh
+
+from cardionurbs.errors import CardioNurbsError
+from cardionurbs.io import atomic
+
+MESH_FORMATS = ("stl", "ply", "obj", "glb")
+
+
+class ExportError(CardioNurbsError):
+    """Unsupported export format or unwritable output."""
+
+
+def mesh_format(path: str | os.PathLike) -> str:
+    """The mesh format of ``path`` from its extension (ExportError if unsupported)."""
+    ext = Path(path).suffix.lower().lstrip(".")
+    if ext not in MESH_FORMATS:
+        raise ExportError(f"{path}: unsupported mesh format {ext!r}; expected one of "
+                          f"{', '.join(MESH_FORMATS)}")
+    return ext
+
+
+def export_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike) -> Path:
+    """Write one mesh (scanner mm) to ``path`` in the format its extension names."""
+    fmt = mesh_format(path)
+    data = mesh.export(file_type=fmt)
+    if isinstance(data, str):
+        data = data.encode("utf-8")
+    return atomic.write_bytes(path, data)
+
+
+def _json_safe(x):
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {str(k): _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    if hasattr(x, "item") and not isinstance(x, (str, bytes)):
+        try:
+            return _json_safe(x.item())
+        except (ValueError, AttributeError):
+            pass
+    return x
+
+
+def write_json(obj, path: str | os.PathLike) -> Path:
+    """Atomically write JSON (NaN and infinity become null)."""
+    return atomic.write_text(path, json.dumps(_json_safe(obj), indent=1) + "\n")
+
+
+def export_model(model, path: str | os.PathLike) -> Path:
+    """Write the NURBS model as JSON (``model.json``)."""
+    return write_json(model.to_dict(), path)
+
+
+def export_model_3dm(model, path: str | os.PathLike, frame: int | None = None) -> Path:
+    """Write one frame's NURBS surfaces as a Rhino .3dm file (needs the ``cad``
+    extra, rhino3dm). Frame defaults to ED."""
+    try:
+        import rhino3dm
+    except ImportError as exc:  # pragma: no cover - depends on the extra
+        raise ExportError("writing .3dm needs rhino3dm: pip install 'cardionurbs[cad]'") from exc
+    frame = model.ed_frame if frame is None else frame
+    f3 = rhino3dm.File3dm()
+    for name, s in model.surfaces[frame].items():
+        d = s.to_dict()
+        cp = d["control_points"]
+        nu, nv = len(cp), len(cp[0])
+        w = d.get("weights")
+        ns = rhino3dm.NurbsSurface.Create(3, w is not None, d["degree_u"] + 1, d["degree_v"] + 1, nu, nv)
+        for i in range(nu):
+            for j in range(nv):
+                x, y, z = cp[i][j]
+                wij = w[i][j] if w is not None else 1.0
+                ns.Points[i, j] = rhino3dm.Point4d(x * wij, y * wij, z * wij, wij)
+        ku, kv = d["knots_u"][1:-1], d["knots_v"][1:-1]
+        for k, val in enumerate(ku):
+            ns.KnotsU[k] = val
+        for k, val in enumerate(kv):
+            ns.KnotsV[k] = val
+        attr = rhino3dm.ObjectAttributes()
+        attr.Name = f"{name}_frame{frame}"
+        f3.Objects.AddSurface(ns, attr)
+    with atomic.atomic_path(path) as tmp:
+        if not f3.Write(str(tmp), 7):
+            raise ExportError(f"{path}: rhino3dm could not write the file")
+    return Path(path)
