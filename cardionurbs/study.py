@@ -148,6 +148,9 @@ class Study:
         Where the study was read from.
     meta : dict
         Free-form provenance (format, series descriptions, pathology...).
+    warnings : list of str
+        One-line warnings of the input checks (``load_study`` fills it; not
+        written to files).
     """
 
     subject: str
@@ -161,6 +164,7 @@ class Study:
     es_frame: int | None = None
     source: str | None = None
     meta: dict = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
     # ----------------------------------------------------------------- queries
     @property

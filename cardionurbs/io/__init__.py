@@ -1,4 +1,11 @@
-"""Study file formats (native, Sunnybrook, CAP GPFile) and model/mesh export."""
+"""Study file formats (native, Sunnybrook, CAP GPFile) and model/mesh export.
+
+:func:`load_study` reads a study in any supported format and runs
+:func:`cardionurbs.io.checks.check_study` on it: fatal problems raise
+:class:`~cardionurbs.errors.StudyError` (one line naming file, slice and
+frame); warnings are returned in ``study.warnings`` (one line each,
+not printed, so that callers decide how to show them).
+"""
 
 from __future__ import annotations
 
@@ -11,7 +18,12 @@ FORMATS = ("auto", "native", "sunnybrook", "gpfile", "phantom")
 
 
 def detect_format(path: str | Path) -> str:
-    """Tell the study format of ``path`` (a folder or a file in it)."""
+    """Tell the study format of ``path`` (a folder or a file in it).
+
+    ``native`` (a study.json manifest of format cardionurbs-native),
+    ``gpfile`` (GPFile_NNN.txt + SliceInfoFile.txt), ``sunnybrook``
+    (``*contour-manual.txt`` files beside DICOM images).
+    """
     from cardionurbs.io import native
 
     p = Path(path)
@@ -23,43 +35,60 @@ def detect_format(path: str | Path) -> str:
         fmt = reader(p)
         if fmt:
             return fmt
+    hint = ""
+    if p.is_dir() and (p / native.MANIFEST).is_file():
+        hint = " (study.json is not a cardionurbs-native manifest)"
+    elif p.is_dir() and _has_dicom(p):
+        hint = " (DICOM images but no contours beside them)"
     raise StudyError("cannot tell the study format (expected a native study.json, Sunnybrook "
-                     "contour folders beside DICOM, or GPFile_*.txt + SliceInfoFile.txt)", file=p)
+                     "contour folders beside DICOM, or GPFile_*.txt + SliceInfoFile.txt)" + hint,
+                     file=p)
+
+
+def _has_dicom(p: Path) -> bool:
+    return any(q.suffix.lower() in (".dcm", ".ima") for q in p.rglob("*"))
 
 
 def _extra_detectors():
     """Detectors of the other formats; each returns a format name or None."""
-    out = []
-    try:
-        from cardionurbs.io.sunnybrook import detect as sb
-        out.append(lambda p: "sunnybrook" if sb(p) else None)
-    except ImportError:
-        pass
-    try:
-        from cardionurbs.io.gpfile import detect as gp
-        out.append(lambda p: "gpfile" if gp(p) else None)
-    except ImportError:
-        pass
-    return out
+    from cardionurbs.io.gpfile import detect as gp
+    from cardionurbs.io.sunnybrook import detect as sb
+
+    return [lambda p: "gpfile" if gp(p) else None,
+            lambda p: "sunnybrook" if sb(p) else None]
 
 
 def load_study(path: str | Path, format: str = "auto") -> Study:
-    """Read a study from ``path`` in ``format`` (``auto`` tells it from the files).
+    """Read a study from ``path`` in ``format`` (``auto`` tells it from the files), then
+    check it (:func:`cardionurbs.io.checks.check_study`).
 
     ``phantom`` is a native study written by ``cardionurbs phantom`` (it reads
-    the same way; ``truth.json`` beside it is not part of the Study).
+    the same way; ``truth.json`` beside it is not part of the Study). For a
+    native study whose images name DICOM files that exist, the manifest's
+    geometry is cross-checked against the DICOM headers.
+
+    Returns the Study with ``study.warnings`` (list of one-line
+    strings). Raises StudyError for unreadable or inconsistent input.
     """
     if format not in FORMATS:
         raise StudyError(f"unknown format {format!r}; expected one of {', '.join(FORMATS)}",
                          field="format")
     fmt = detect_format(path) if format == "auto" else format
+    if not Path(path).exists():
+        raise StudyError("no such file or folder", file=path)
     if fmt in ("native", "phantom"):
-        from cardionurbs.io.native import read_study
-        return read_study(path)
-    if fmt == "sunnybrook":
+        from cardionurbs.io.native import check_dicom_geometry, read_study
+        study = read_study(path)
+        check_dicom_geometry(study)
+    elif fmt == "sunnybrook":
         from cardionurbs.io.sunnybrook import read_study
-        return read_study(path)
-    if fmt == "gpfile":
+        study = read_study(path)
+    elif fmt == "gpfile":
         from cardionurbs.io.gpfile import read_study
-        return read_study(path)
-    raise StudyError(f"format {fmt!r} is not readable", file=path)
+        study = read_study(path)
+    else:  # pragma: no cover - FORMATS and this list agree
+        raise StudyError(f"format {fmt!r} is not readable", file=path)
+    from cardionurbs.io.checks import check_study
+
+    study.warnings = check_study(study)
+    return study

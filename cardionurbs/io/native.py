@@ -164,7 +164,7 @@ def _opt_float(v):
     return None if v is None else float(v)
 
 
-def _read_points(study: Study, points_path: Path) -> None:
+def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False) -> None:
     if not points_path.is_file():
         raise StudyError("points file is missing", file=points_path)
     try:
@@ -193,8 +193,10 @@ def _read_points(study: Study, points_path: Path) -> None:
     pix = table[["px", "py"]].to_numpy(float)
     has_xyz = np.isfinite(xyz).all(axis=1)
     images = study._image_index()
-    # pixel-only rows -> scanner mm through their image
+    # pixel-only rows (every row with pixels when prefer_pixels) -> scanner mm through their image
     need = ~has_xyz
+    if prefer_pixels:
+        need |= np.isfinite(pix).all(axis=1) & table["image"].isin(list(images)).to_numpy()
     if need.any():
         for image_id in pd.unique(table.loc[need, "image"]):
             sel = need & (table["image"] == image_id).to_numpy()
@@ -242,3 +244,95 @@ def _read_points(study: Study, points_path: Path) -> None:
             if exc.file is not None:
                 raise
             raise StudyError(f"line {s + 2}: {exc}", file=points_path) from None
+
+
+# ------------------------------------------------------- DICOM images of a study
+#: largest tolerated difference between manifest and DICOM header geometry
+#: (DICOM DS values carry at most 16 characters).
+DICOM_POSITION_TOL_MM = 1e-4
+DICOM_DIRECTION_TOL = 1e-6
+
+
+def _dicom_files(study: Study) -> list[tuple[ImagePlane, Path]]:
+    """(image, DICOM file) for every image whose ``file`` names a DICOM file."""
+    if not study.source:
+        return []
+    folder = Path(study.source)
+    out = []
+    for im in study.images:
+        if not im.file or Path(im.file).suffix.lower() not in ("", ".dcm", ".ima", ".dicom"):
+            continue
+        path = folder / im.file
+        if not path.is_file():
+            raise StudyError(f"image {im.id!r} refers to file {im.file!r}, which does not exist",
+                             file=folder / MANIFEST, slice=im.slice, frame=im.frame, field="file")
+        out.append((im, path))
+    return out
+
+
+def check_dicom_geometry(study: Study) -> int:
+    """Cross-check each image's manifest geometry against the header of the DICOM file it
+    names (ImagePositionPatient, ImageOrientationPatient, PixelSpacing, Rows, Columns, and
+    SOPInstanceUID = image id when the id looks like a UID). Returns the number of images
+    checked; StudyError names the DICOM file, slice, frame and field that disagree."""
+    from cardionurbs.imaging.dicom import read_header
+
+    pairs = _dicom_files(study)
+    for im, path in pairs:
+        h = read_header(path)
+        where = dict(file=path, slice=im.slice, frame=im.frame)
+        d = float(np.linalg.norm(h.position - im.position))
+        if d > DICOM_POSITION_TOL_MM:
+            raise StudyError(f"ImagePositionPatient is {d:.3g} mm from study.json's position of "
+                             f"image {im.id!r}", field="ImagePositionPatient", **where)
+        if np.abs(h.orientation / np.repeat(np.linalg.norm(h.orientation.reshape(2, 3), axis=1), 3)
+                  - im.orientation).max() > DICOM_DIRECTION_TOL:
+            raise StudyError(f"ImageOrientationPatient differs from study.json's image {im.id!r}",
+                             field="ImageOrientationPatient", **where)
+        if np.abs(np.subtract(h.pixel_spacing, im.pixel_spacing)).max() > 1e-9 * max(im.pixel_spacing):
+            raise StudyError(f"PixelSpacing {list(h.pixel_spacing)} differs from study.json's "
+                             f"{list(im.pixel_spacing)}", field="PixelSpacing", **where)
+        if (h.rows, h.columns) != (im.rows, im.columns):
+            raise StudyError(f"matrix {h.rows}x{h.columns} differs from study.json's "
+                             f"{im.rows}x{im.columns}", field="Rows", **where)
+        if im.id.replace(".", "").isdigit() and "." in im.id and h.sop_instance_uid != im.id:
+            raise StudyError(f"SOPInstanceUID {h.sop_instance_uid} is not the image id {im.id}",
+                             field="SOPInstanceUID", **where)
+    return len(pairs)
+
+
+def read_study_from_dicom(path: str | Path) -> Study:
+    """Read a native study taking image geometry from the DICOM files its images name.
+
+    Slice, view and frame labels come from the manifest; position, orientation,
+    pixel spacing, matrix, thickness and trigger time from the DICOM headers;
+    every annotation point given in pixels (px, py) is mapped through the DICOM
+    geometry (DICOM PS3.3 C.7.6.2.1.1), its x, y, z column ignored.
+    """
+    from cardionurbs.imaging.dicom import read_header
+
+    study = read_study(path)
+    pairs = dict((im.id, p) for im, p in _dicom_files(study))
+    if not pairs:
+        raise StudyError("no image of this study names a DICOM file", file=study.source)
+    images = []
+    for im in study.images:
+        if im.id not in pairs:
+            images.append(im)
+            continue
+        h = read_header(pairs[im.id])
+        images.append(ImagePlane(id=im.id, slice=im.slice, view=im.view, frame=im.frame,
+                                 position=h.position, row_cosine=h.orientation[:3],
+                                 column_cosine=h.orientation[3:], pixel_spacing=h.pixel_spacing,
+                                 rows=h.rows, columns=h.columns,
+                                 thickness=h.thickness or im.thickness,
+                                 trigger_time=h.trigger_time if h.trigger_time is not None
+                                 else im.trigger_time, file=im.file))
+    study.images = images
+    study.__dict__.pop("_image_cache", None)
+    study.contours, study.tags, study.landmarks = [], [], []
+    folder = Path(study.source)
+    manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
+    _read_points(study, folder / str(manifest.get("points", POINTS)), prefer_pixels=True)
+    study.meta = dict(study.meta, geometry="dicom")
+    return study

@@ -1,0 +1,350 @@
+"""Checks a user sees before any model is built: one line per problem.
+
+:func:`check_study` raises :class:`~cardionurbs.errors.StudyError` for the
+first fatal problem and returns the list of warnings otherwise. Every message
+is one line naming the file, the slice and the frame.
+
+Fatal (StudyError)
+    * two images at one (slice, frame); two slices at the same place (duplicate slice);
+    * an SA slice not parallel to the stack (> ``MAX_TILT_DEG``);
+    * an annotation referring to an image that is not in the study, or to an
+      image of another slice / frame;
+    * a closed or LV contour with fewer than ``MIN_CONTOUR_POINTS`` points (an open
+      RV part may be shorter), a closed contour that crosses itself, a tag
+      line with fewer than 2 points;
+    * a contour, tag or landmark point farther than half the slice thickness
+      (at least ``OFF_PLANE_ERROR_MM``) from its image plane;
+    * no LV endocardial contour at all, or none at the labelled ED or ES frame;
+    * trigger times for some frames but not for others.
+
+Warnings
+    * points slightly off their plane (> ``OFF_PLANE_WARN_MM``);
+    * an open contour that crosses itself; an open RV part (CAP ``rv_septum``,
+      ``rv_freewall``, ``rv_epi`` guide points) with 1 to 4 points — real CAP
+      data has such short septal runs;
+    * a gap in the SA stack wider than 1.5 x the median spacing (missing slice?);
+    * a slice without an image at some frame that other slices have;
+    * a structure present in some frames but missing at ED or ES (labelled, or
+      estimated from the summed SA ``lv_endo`` areas when unlabelled);
+    * no frame timing or no heart rate at all.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from cardionurbs.errors import StudyError
+from cardionurbs.imaging import stack
+from cardionurbs.imaging.geometry import ImagePlane
+from cardionurbs.study import Study
+
+MIN_CONTOUR_POINTS = 5
+MAX_TILT_DEG = 1.0
+OFF_PLANE_WARN_MM = 0.1
+OFF_PLANE_ERROR_MM = 1.0
+DUPLICATE_SLICE_MM = 0.01
+GAP_FACTOR = 1.5
+
+
+# --------------------------------------------------------------------- geometry
+def polygon_area_mm2(points: np.ndarray) -> float:
+    """Area (mm^2) of a closed planar polygon in 3D: half the norm of the vector area
+    ``sum_i p_i x p_{i+1}`` (Stokes / shoelace formula); exact for planar polygons."""
+    p = np.asarray(points, float).reshape(-1, 3)
+    if len(p) < 3:
+        return 0.0
+    p = p - p.mean(axis=0)
+    return 0.5 * float(np.linalg.norm(np.cross(p, np.roll(p, -1, axis=0)).sum(axis=0)))
+
+
+def in_plane_coordinates(points: np.ndarray, plane: ImagePlane | None = None) -> np.ndarray:
+    """(n, 2) coordinates of (n, 3) points in the image plane (mm along row and column
+    cosines); without a plane, in the best-fit plane (SVD)."""
+    p = np.asarray(points, float).reshape(-1, 3)
+    if plane is not None:
+        d = p - plane.position
+        return np.column_stack([d @ plane.row_cosine, d @ plane.column_cosine])
+    c = p - p.mean(axis=0)
+    _, _, vt = np.linalg.svd(c, full_matrices=False)
+    return c @ vt[:2].T
+
+
+def self_intersections(xy: np.ndarray, closed: bool) -> np.ndarray:
+    """(k, 2) index pairs (i, j) of non-adjacent segments of a 2-D polyline that cross.
+
+    Segment i runs from point i to point i+1 (and the last to the first when
+    ``closed``). Proper crossings only: both segments strictly straddle each
+    other's line (orientation-sign test, computational geometry's standard
+    predicate); touching or collinear overlap is not counted. O(n^2), vectorised.
+    """
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    a = xy if closed else xy[:-1]
+    b = np.roll(xy, -1, axis=0) if closed else xy[1:]
+    m = len(a)
+    if m < 3:
+        return np.zeros((0, 2), dtype=int)
+    scale = max(float(np.ptp(xy, axis=0).max()), 1e-12)
+    eps = 1e-12 * scale * scale
+
+    def orient(p, q, r):
+        return (q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1]) - \
+               (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0])
+
+    A, B = a[:, None, :], b[:, None, :]
+    C, D = a[None, :, :], b[None, :, :]
+    o1, o2 = orient(A, B, C), orient(A, B, D)
+    o3, o4 = orient(C, D, A), orient(C, D, B)
+    cross = ((o1 > eps) & (o2 < -eps) | (o1 < -eps) & (o2 > eps)) & \
+            ((o3 > eps) & (o4 < -eps) | (o3 < -eps) & (o4 > eps))
+    i, j = np.triu_indices(m, k=2)
+    keep = cross[i, j]
+    if closed:
+        keep &= ~((i == 0) & (j == m - 1))
+    return np.column_stack([i[keep], j[keep]])
+
+
+# ----------------------------------------------------------------------- checks
+def check_study(study: Study) -> list[str]:
+    """Check ``study`` (see module docstring): raise StudyError on the first fatal
+    problem, else return the warnings, one line each."""
+    warnings: list[str] = []
+    planes = _check_images(study, warnings)
+    _check_stack(study, planes, warnings)
+    _check_annotations(study, warnings)
+    _check_frames(study, warnings)
+    return warnings
+
+
+def _src(study: Study, file=None):
+    """The file to name in a message: ``file`` (under the study folder) or the study."""
+    if file is None:
+        return study.source
+    if study.source and not Path(str(file)).is_absolute():
+        return (Path(study.source) / str(file)).as_posix()
+    return file
+
+
+def _check_images(study: Study, warnings: list[str]) -> dict[str, ImagePlane]:
+    """Duplicate images / slices; returns one representative plane per slice."""
+    seen: dict[tuple, ImagePlane] = {}
+    ids: dict[str, ImagePlane] = {}
+    for im in study.images:
+        if im.id in ids:
+            raise StudyError(f"image id {im.id!r} is used twice", file=_src(study, im.file),
+                             slice=im.slice, frame=im.frame)
+        ids[im.id] = im
+        key = (im.slice, im.frame)
+        if key in seen:
+            raise StudyError(f"two images at the same slice and frame ({seen[key].id} and {im.id})",
+                             file=_src(study, im.file), slice=im.slice, frame=im.frame)
+        seen[key] = im
+    planes: dict[str, ImagePlane] = {}
+    for im in sorted(study.images, key=lambda im: im.frame):
+        planes.setdefault(im.slice, im)
+    # duplicate slices: two slice ids with the same plane at one frame
+    by_frame: dict[int, list[ImagePlane]] = defaultdict(list)
+    for im in study.images:
+        by_frame[im.frame].append(im)
+    for frame, ims in by_frame.items():
+        if len(ims) < 2:
+            continue
+        normals = np.array([im.normal for im in ims])
+        pos = np.array([im.position for im in ims])
+        parallel = np.abs(normals @ normals.T) > np.cos(np.deg2rad(0.1))
+        depth_gap = np.abs(np.einsum("ij,kj->ik", normals, pos) - np.sum(normals * pos, axis=1)[:, None])
+        dup = np.triu(parallel & (depth_gap < DUPLICATE_SLICE_MM), k=1)
+        if dup.any():
+            i, j = map(int, np.argwhere(dup)[0])
+            raise StudyError(f"slices {ims[i].slice} and {ims[j].slice} are at the same position "
+                             "(duplicate slice)", file=_src(study, ims[j].file), slice=ims[j].slice,
+                             frame=frame)
+    # slices lacking an image at a frame other slices of their view have
+    frames_by_view: dict[str, set[int]] = defaultdict(set)
+    frames_of_slice: dict[str, set[int]] = defaultdict(set)
+    view_of: dict[str, str] = {}
+    for im in study.images:
+        frames_by_view[im.view].add(im.frame)
+        frames_of_slice[im.slice].add(im.frame)
+        view_of[im.slice] = im.view
+    for sl, frs in sorted(frames_of_slice.items()):
+        missing = sorted(frames_by_view[view_of[sl]] - frs)
+        if missing and len(frs) > 1:
+            warnings.append(f"{study.source}: slice {sl}: no image at frame(s) "
+                            f"{_short_list(missing)} (missing images?)")
+    return planes
+
+
+def _short_list(values, n: int = 6) -> str:
+    v = [str(x) for x in values]
+    return ", ".join(v[:n]) + (", ..." if len(v) > n else "")
+
+
+def _check_stack(study: Study, planes: dict[str, ImagePlane], warnings: list[str]) -> None:
+    """SA slices parallel; gaps in the stack."""
+    sa = [p for s, p in sorted(planes.items()) if p.view == "SA"]
+    if len(sa) < 2:
+        return
+    normals = np.array([p.normal for p in sa])
+    groups = stack.group_parallel(normals, MAX_TILT_DEG)
+    main = int(np.bincount(groups).argmax())
+    ref = stack.stack_normal(normals[groups == main])
+    for p, g in zip(sa, groups):
+        if g != main:
+            tilt = np.degrees(np.arccos(np.clip(abs(float(p.normal @ ref)), 0, 1)))
+            raise StudyError(f"SA slice is not parallel to the stack (tilted {tilt:.2f} deg > "
+                             f"{MAX_TILT_DEG} deg)", file=_src(study, p.file), slice=p.slice,
+                             frame=p.frame)
+    depth = np.array([p.position @ ref for p in sa])
+    order = np.argsort(depth)
+    gaps = np.diff(depth[order])
+    if len(gaps) >= 2:
+        med = float(np.median(gaps))
+        for k in np.flatnonzero(gaps > GAP_FACTOR * med):
+            a, b = sa[order[k]], sa[order[k + 1]]
+            warnings.append(f"{study.source}: slice {b.slice}: gap of {gaps[k]:.1f} mm from "
+                            f"{a.slice} (median spacing {med:.1f} mm): missing slice?")
+
+
+def _annotation_files(study: Study) -> list:
+    """Source file of each contour where the reader recorded it (else None)."""
+    files = study.meta.get("contour_files") if isinstance(study.meta, dict) else None
+    if isinstance(files, list) and len(files) == len(study.contours):
+        return files
+    gp = study.meta.get("gpfile") if isinstance(study.meta, dict) else None
+    if isinstance(gp, dict) and isinstance(gp.get("frames"), dict):
+        return [gp["frames"].get(str(c.frame), {}).get("file") for c in study.contours]
+    if study.meta.get("format") in (None, "cardionurbs-native") and study.source:
+        return ["points.csv"] * len(study.contours)
+    return [None] * len(study.contours)
+
+
+def _plane_of(study: Study, ann, file) -> ImagePlane | None:
+    """The image plane an annotation lies on (its image, else its slice at its frame)."""
+    index = study._image_index()
+    if ann.image is not None:
+        im = index.get(ann.image)
+        if im is None:
+            raise StudyError(f"reference to image {ann.image!r} that does not exist in the study",
+                             file=_src(study, file), slice=ann.slice, frame=ann.frame, field="image")
+        if (ann.slice and im.slice != ann.slice) or im.frame != ann.frame:
+            raise StudyError(f"image {ann.image!r} belongs to slice {im.slice}, frame {im.frame}",
+                             file=_src(study, file), slice=ann.slice, frame=ann.frame, field="image")
+        return im
+    if ann.slice is None:
+        return None
+    for im in study.images:
+        if im.slice == ann.slice and im.frame == ann.frame:
+            return im
+    return None
+
+
+def _off_plane(study: Study, plane: ImagePlane, pts: np.ndarray, what: str, file, ann,
+               warnings: list[str]) -> None:
+    d = float(np.abs(plane.distance_to_plane(pts)).max())
+    limit = max(OFF_PLANE_ERROR_MM, 0.5 * plane.thickness)
+    if d > limit:
+        raise StudyError(f"{what} lies {d:.2f} mm off its image plane (limit {limit:.2f} mm)",
+                         file=_src(study, file), slice=ann.slice, frame=ann.frame)
+    if d > OFF_PLANE_WARN_MM:
+        warnings.append(f"{_src(study, file)}: slice {ann.slice}, frame {ann.frame}: {what} lies "
+                        f"up to {d:.2f} mm off its image plane")
+
+
+def _check_annotations(study: Study, warnings: list[str]) -> None:
+    files = _annotation_files(study)
+    no_plane = 0
+    for c, file in zip(study.contours, files):
+        what = f"{c.structure} contour" + (f" #{c.index}" if c.index else "")
+        n = len(c.points)
+        if n < MIN_CONTOUR_POINTS:
+            msg = f"{what} has {n} point(s), needs >= {MIN_CONTOUR_POINTS}"
+            if c.closed or c.structure in ("lv_endo", "lv_epi"):
+                raise StudyError(msg, file=_src(study, file), slice=c.slice, frame=c.frame)
+            warnings.append(f"{_src(study, file)}: slice {c.slice}, frame {c.frame}: open {msg}")
+        plane = _plane_of(study, c, file)
+        if plane is None:
+            no_plane += 1
+        else:
+            _off_plane(study, plane, c.points, what, file, c, warnings)
+        cross = self_intersections(in_plane_coordinates(c.points, plane), c.closed)
+        if len(cross):
+            i, j = map(int, cross[0])
+            msg = (f"{what} crosses itself (segment {i}-{i + 1} crosses segment "
+                   f"{j}-{(j + 1) % n})")
+            if c.closed:
+                raise StudyError(msg, file=_src(study, file), slice=c.slice, frame=c.frame)
+            warnings.append(f"{_src(study, file)}: slice {c.slice}, frame {c.frame}: open {msg}")
+    for t in study.tags:
+        what = f"tag {t.family}#{t.index}"
+        if len(t.points) < 2:
+            raise StudyError(f"{what} has {len(t.points)} point(s), needs >= 2",
+                             file=_src(study), slice=t.slice, frame=t.frame)
+        plane = _plane_of(study, t, None)
+        if plane is not None:
+            _off_plane(study, plane, t.points, what, None, t, warnings)
+    for lm in study.landmarks:
+        plane = _plane_of(study, lm, None)
+        if plane is not None:
+            _off_plane(study, plane, lm.point, f"landmark {lm.name}", None, lm, warnings)
+    if no_plane:
+        warnings.append(f"{study.source}: {no_plane} contour(s) have no image plane to check "
+                        "them against")
+
+
+def ed_es_frames(study: Study) -> tuple[int | None, int | None, str]:
+    """ED and ES frames: the input's labels, else estimated as the frames of largest and
+    smallest summed SA ``lv_endo`` area (a volume proxy); and how they were found."""
+    ed, es = study.ed_frame, study.es_frame
+    if ed is not None and es is not None:
+        return ed, es, "labelled"
+    areas: dict[int, float] = defaultdict(float)
+    for c in study.contours:
+        if c.structure == "lv_endo" and c.view == "SA" and c.closed:
+            areas[c.frame] += polygon_area_mm2(c.points)
+    if not areas:
+        return ed, es, "labelled" if ed is not None or es is not None else "unknown"
+    frames = sorted(areas)
+    a = np.array([areas[f] for f in frames])
+    ed = ed if ed is not None else frames[int(np.argmax(a))]
+    es = es if es is not None else frames[int(np.argmin(a))]
+    return ed, es, "estimated from SA lv_endo areas"
+
+
+def _check_frames(study: Study, warnings: list[str]) -> None:
+    if not any(c.structure == "lv_endo" for c in study.contours):
+        raise StudyError("no LV endocardial (lv_endo) contour in the study: nothing to "
+                         "reconstruct", file=study.source)
+    ed, es, how = ed_es_frames(study)
+    present: dict[tuple[str, str], set[int]] = defaultdict(set)
+    for c in study.contours:
+        present[(c.structure, c.view)].add(c.frame)
+    for label, frame in (("ED", ed), ("ES", es)):
+        if frame is None:
+            continue
+        if frame not in present[("lv_endo", "SA")] | present[("lv_endo", "LA")]:
+            raise StudyError(f"no lv_endo contour at the {label} frame the input labels",
+                             file=study.source, frame=frame)
+        for (structure, view), frames in sorted(present.items()):
+            if frame not in frames and structure != "lv_endo":
+                warnings.append(f"{study.source}: frame {frame}: {structure} ({view}) is missing "
+                                f"at {label} ({how}) but present at frame(s) {_short_list(sorted(frames))}")
+    frames = sorted({im.frame for im in study.images} | {c.frame for c in study.contours})
+    timed = [f for f in frames if f in study.frame_times_ms]
+    if timed and len(timed) < len(frames):
+        missing = [f for f in frames if f not in study.frame_times_ms]
+        raise StudyError(f"frame(s) {_short_list(missing)} have no trigger time while other frames "
+                         "do", file=study.source, frame=missing[0], field="TriggerTime")
+    if not timed:
+        warnings.append(f"{study.source}: no frame timing (TriggerTime): frame times unknown")
+    else:
+        t = np.array([study.frame_times_ms[f] for f in timed])
+        if np.any(np.diff(t) <= 0):
+            k = int(np.flatnonzero(np.diff(t) <= 0)[0])
+            raise StudyError(f"frame times do not increase ({t[k]:g} ms then {t[k + 1]:g} ms)",
+                             file=study.source, frame=timed[k + 1], field="TriggerTime")
+    if study.heart_rate_bpm is None:
+        warnings.append(f"{study.source}: no heart rate (HeartRate / NominalInterval): HR and "
+                        "cardiac output need --heart-rate")
