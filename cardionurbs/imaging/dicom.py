@@ -198,9 +198,35 @@ def _header_from_dataset(ds, path: Path) -> DicomHeader:
 
 
 def read_header(path: str | Path) -> DicomHeader:
-    """Read and validate the header of one DICOM image file (no pixel data)."""
+    """Read and validate the header of one DICOM image file (no pixel data).
+
+    When a required tag is missing, the file is read once more in full to tell
+    a truncated file (it ends before its pixel data) from an incomplete header.
+    """
     path = Path(path)
-    return header_from_dataset(_dcmread(path, pixels=False), path)
+    try:
+        return header_from_dataset(_dcmread(path, pixels=False), path)
+    except UnsupportedInputError:
+        raise
+    except StudyError as exc:
+        if _is_truncated(path):
+            raise StudyError(f"truncated DICOM file (it ends before its pixel data): {exc}",
+                             ) from None
+        raise
+
+
+def _is_truncated(path: Path) -> bool:
+    """True when the file has no or too short PixelData for its Rows x Columns x bits."""
+    try:
+        with _quiet_pydicom():
+            ds = pydicom.dcmread(path, force=True)
+            if "PixelData" not in ds:
+                return True
+            need = int(ds.Rows) * int(ds.Columns) * int(ds.get("SamplesPerPixel", 1)) \
+                * int(ds.BitsAllocated) // 8 * int(ds.get("NumberOfFrames", 1) or 1)
+            return len(ds.PixelData) < need
+    except Exception:  # noqa: BLE001 - unreadable enough to be called truncated
+        return True
 
 
 def read_pixels(path: str | Path) -> np.ndarray:

@@ -29,16 +29,14 @@ def detect_format(path: str | Path) -> str:
     p = Path(path)
     if not p.exists():
         raise StudyError("no such file or folder", file=p)
-    if native.is_native(p):
-        return "native"
+    if native.is_native(p) or (p.is_dir() and (p / native.MANIFEST).is_file()):
+        return "native"  # a broken study.json is reported by the native reader
     for reader in _extra_detectors():
         fmt = reader(p)
         if fmt:
             return fmt
     hint = ""
-    if p.is_dir() and (p / native.MANIFEST).is_file():
-        hint = " (study.json is not a cardionurbs-native manifest)"
-    elif p.is_dir() and _has_dicom(p):
+    if p.is_dir() and _has_dicom(p):
         hint = " (DICOM images but no contours beside them)"
     raise StudyError("cannot tell the study format (expected a native study.json, Sunnybrook "
                      "contour folders beside DICOM, or GPFile_*.txt + SliceInfoFile.txt)" + hint,

@@ -73,14 +73,21 @@ def in_plane_coordinates(points: np.ndarray, plane: ImagePlane | None = None) ->
 
 
 def self_intersections(xy: np.ndarray, closed: bool) -> np.ndarray:
-    """(k, 2) index pairs (i, j) of non-adjacent segments of a 2-D polyline that cross.
+    """(k, 2) index pairs (i, j) of non-adjacent segments of a 2-D polyline that meet.
 
     Segment i runs from point i to point i+1 (and the last to the first when
-    ``closed``). Proper crossings only: both segments strictly straddle each
-    other's line (orientation-sign test, computational geometry's standard
-    predicate); touching or collinear overlap is not counted. O(n^2), vectorised.
+    ``closed``); repeated consecutive points are dropped first, so indices refer
+    to the de-duplicated polyline. Two segments meet when each one's end points
+    are not strictly on one side of the other's line (orientation-sign
+    predicate, with collinear segments tested for overlap) — crossings and
+    touchings both count, since either makes the curve non-simple. O(n^2),
+    vectorised.
     """
     xy = np.asarray(xy, float).reshape(-1, 2)
+    keep_pt = np.r_[True, np.any(np.diff(xy, axis=0) != 0, axis=1)]
+    xy = xy[keep_pt]
+    if closed and len(xy) > 1 and np.array_equal(xy[0], xy[-1]):
+        xy = xy[:-1]
     a = xy if closed else xy[:-1]
     b = np.roll(xy, -1, axis=0) if closed else xy[1:]
     m = len(a)
@@ -88,22 +95,26 @@ def self_intersections(xy: np.ndarray, closed: bool) -> np.ndarray:
         return np.zeros((0, 2), dtype=int)
     scale = max(float(np.ptp(xy, axis=0).max()), 1e-12)
     eps = 1e-12 * scale * scale
-
-    def orient(p, q, r):
-        return (q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1]) - \
-               (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0])
-
-    A, B = a[:, None, :], b[:, None, :]
-    C, D = a[None, :, :], b[None, :, :]
-    o1, o2 = orient(A, B, C), orient(A, B, D)
-    o3, o4 = orient(C, D, A), orient(C, D, B)
-    cross = ((o1 > eps) & (o2 < -eps) | (o1 < -eps) & (o2 > eps)) & \
-            ((o3 > eps) & (o4 < -eps) | (o3 < -eps) & (o4 > eps))
     i, j = np.triu_indices(m, k=2)
-    keep = cross[i, j]
     if closed:
-        keep &= ~((i == 0) & (j == m - 1))
-    return np.column_stack([i[keep], j[keep]])
+        pair = ~((i == 0) & (j == m - 1))
+        i, j = i[pair], j[pair]
+    A, B, C, D = a[i], b[i], a[j], b[j]
+
+    def side(p, q, r):
+        o = (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
+        return np.where(np.abs(o) <= eps, 0, np.sign(o))
+
+    s1, s2, s3, s4 = side(A, B, C), side(A, B, D), side(C, D, A), side(C, D, B)
+    meet = (s1 * s2 <= 0) & (s3 * s4 <= 0)
+    collinear = (s1 == 0) & (s2 == 0)
+    if collinear.any():
+        d = B - A
+        t = lambda p: np.einsum("ij,ij->i", p - A, d)  # noqa: E731 - projection on AB
+        lo, hi = np.minimum(t(C), t(D)), np.maximum(t(C), t(D))
+        overlap = (hi >= 0) & (lo <= np.einsum("ij,ij->i", d, d))
+        meet = np.where(collinear, overlap, meet)
+    return np.column_stack([i[meet], j[meet]])
 
 
 # ----------------------------------------------------------------------- checks

@@ -1,0 +1,1 @@
+"""A programmatic corpus of broken study inputs (see corpus.py)."""
