@@ -69,13 +69,15 @@ class FrameGeometry:
 
 # --------------------------------------------------------------- point order
 def _in_drawing_order(points: np.ndarray, closed: bool) -> bool:
-    """True when consecutive points are neighbours (no step > 4 median steps)."""
+    """True when consecutive points are neighbours: the median step is at most 3 median
+    nearest-neighbour distances and no step exceeds 4 median steps (noise-tolerant)."""
+    if len(points) < 3:
+        return True
     q = np.vstack([points, points[:1]]) if closed else points
     steps = np.linalg.norm(np.diff(q, axis=0), axis=1)
-    if len(steps) == 0:
-        return True
-    med = np.median(steps)
-    return bool(np.all(steps <= 4.0 * max(med, 1e-9)))
+    nn = cKDTree(points).query(points, k=2)[0][:, 1]
+    med = max(float(np.median(steps)), 1e-9)
+    return bool(med <= 3.0 * max(float(np.median(nn)), 1e-9) and np.all(steps <= 4.0 * med))
 
 
 def _nearest_neighbour_chain(points: np.ndarray, start: int) -> np.ndarray:

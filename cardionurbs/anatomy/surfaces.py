@@ -190,7 +190,7 @@ def fit_sections(loops: list[np.ndarray], sources: list[np.ndarray | None], tol_
     """
     curves, err = [], np.inf
     for n_ctrl in N_CTRL_STEPS:
-        curves = [nurbs.fit_curve(lp, degree=3, closed=True, n_ctrl=n_ctrl) for lp in loops]
+        curves = [nurbs.fit_curve(lp, degree=3, closed=True, n_ctrl=n_ctrl, knot_rule="uniform") for lp in loops]
         errs = [float(curve_distance(c, src).max()) if src is not None else 0.0
                 for c, src in zip(curves, sources)]
         err = max(errs) if errs else 0.0
