@@ -1,0 +1,131 @@
+"""B-spline basis functions, vectorised over many parameters at once.
+
+The functions map one-to-one to The NURBS Book (Piegl & Tiller, 2nd ed.):
+
+* :func:`find_spans`  -- A2.1 (FindSpan) for an array of parameters;
+* :func:`basis_functions` -- A2.2 (BasisFuns), the p+1 non-zero functions;
+* :func:`basis_function_derivatives` -- A2.3 (DersBasisFuns);
+* :func:`basis_matrix` -- the dense collocation ("design") matrix built from
+  A2.3, optionally folded for periodic (closed) splines.
+
+Every routine loops only over the degree (a handful of iterations); the work
+per parameter is done by numpy on whole arrays.  A knot vector ``U`` of a
+spline with ``n`` control points has ``n + p + 1`` entries and its parameter
+domain is ``[U[p], U[n]]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["find_spans", "basis_functions", "basis_function_derivatives", "basis_matrix"]
+
+
+def find_spans(knots: np.ndarray, degree: int, u: np.ndarray) -> np.ndarray:
+    """Knot span index ``k`` with ``U[k] <= u < U[k+1]`` for every ``u`` (A2.1).
+
+    Parameters outside the domain ``[U[p], U[n]]`` are treated as the first or
+    last non-empty span (so that a parameter a rounding error outside the
+    domain still evaluates the end polynomial piece).  The returned spans are
+    always non-degenerate (``U[k] < U[k+1]``).
+    """
+    U = np.asarray(knots, dtype=float)
+    p = int(degree)
+    n = len(U) - p - 1
+    u = np.asarray(u, dtype=float)
+    first = int(np.searchsorted(U, U[p], side="right")) - 1
+    last = int(np.searchsorted(U, U[n], side="left")) - 1
+    spans = np.searchsorted(U, u, side="right") - 1
+    return np.clip(spans, first, last)
+
+
+def basis_functions(spans: np.ndarray, u: np.ndarray, degree: int, knots: np.ndarray) -> np.ndarray:
+    """Non-zero basis functions ``N[k, j] = N_{span_k - p + j, p}(u_k)`` (A2.2).
+
+    Returns an array of shape ``(len(u), p + 1)``.
+    """
+    return basis_function_derivatives(spans, u, degree, knots, 0)[:, 0, :]
+
+
+def basis_function_derivatives(spans: np.ndarray, u: np.ndarray, degree: int,
+                               knots: np.ndarray, n_derivatives: int) -> np.ndarray:
+    """Basis functions and their derivatives up to ``n_derivatives`` (A2.3).
+
+    Returns ``D`` of shape ``(k, n_derivatives + 1, p + 1)`` with
+    ``D[:, r, j] = d^r N_{span - p + j, p} / du^r``; derivatives above the
+    degree are zero.  Vectorised over the ``k`` parameters.
+    """
+    U = np.asarray(knots, dtype=float)
+    p = int(degree)
+    u = np.atleast_1d(np.asarray(u, dtype=float))
+    spans = np.atleast_1d(np.asarray(spans))
+    k = u.shape[0]
+    nd = int(n_derivatives)
+    ndu = np.zeros((k, p + 1, p + 1))
+    ndu[:, 0, 0] = 1.0
+    left = np.zeros((k, p + 1))
+    right = np.zeros((k, p + 1))
+    for j in range(1, p + 1):
+        left[:, j] = u - U[spans + 1 - j]
+        right[:, j] = U[spans + j] - u
+        saved = np.zeros(k)
+        for r in range(j):
+            ndu[:, j, r] = right[:, r + 1] + left[:, j - r]
+            temp = ndu[:, r, j - 1] / ndu[:, j, r]
+            ndu[:, r, j] = saved + right[:, r + 1] * temp
+            saved = left[:, j - r] * temp
+        ndu[:, j, j] = saved
+    ders = np.zeros((k, nd + 1, p + 1))
+    ders[:, 0, :] = ndu[:, :, p]
+    if nd == 0:
+        return ders
+    for r in range(p + 1):
+        a = np.zeros((2, k, p + 1))
+        a[0, :, 0] = 1.0
+        s1, s2 = 0, 1
+        for kk in range(1, min(nd, p) + 1):
+            d = np.zeros(k)
+            rk, pk = r - kk, p - kk
+            if r >= kk:
+                a[s2, :, 0] = a[s1, :, 0] / ndu[:, pk + 1, rk]
+                d = a[s2, :, 0] * ndu[:, rk, pk]
+            j1 = 1 if rk >= -1 else -rk
+            j2 = kk - 1 if r - 1 <= pk else p - r
+            for j in range(j1, j2 + 1):
+                a[s2, :, j] = (a[s1, :, j] - a[s1, :, j - 1]) / ndu[:, pk + 1, rk + j]
+                d = d + a[s2, :, j] * ndu[:, rk + j, pk]
+            if r <= pk:
+                a[s2, :, kk] = -a[s1, :, kk - 1] / ndu[:, pk + 1, r]
+                d = d + a[s2, :, kk] * ndu[:, r, pk]
+            ders[:, kk, r] = d
+            s1, s2 = s2, s1
+    factor = float(p)
+    for kk in range(1, min(nd, p) + 1):
+        ders[:, kk, :] *= factor
+        factor *= p - kk
+    return ders
+
+
+def basis_matrix(knots: np.ndarray, degree: int, u: np.ndarray, derivative: int = 0,
+                 n_periodic: int | None = None) -> np.ndarray:
+    """Dense collocation matrix ``B[k, i] = d^r N_{i,p}(u_k) / du^r``.
+
+    For a periodic spline pass ``n_periodic`` = number of distinct control
+    points ``n``: the ``n + p`` wrapped basis functions are folded so that
+    column ``i`` multiplies the control point ``P_i`` (``P_{n+i} = P_i``).
+    Shape ``(len(u), n_ctrl)``.
+    """
+    U = np.asarray(knots, dtype=float)
+    p = int(degree)
+    u = np.atleast_1d(np.asarray(u, dtype=float))
+    n_full = len(U) - p - 1
+    spans = find_spans(U, p, u)
+    D = basis_function_derivatives(spans, u, p, U, derivative)[:, derivative, :]
+    cols = spans[:, None] - p + np.arange(p + 1)[None, :]
+    rows = np.broadcast_to(np.arange(len(u))[:, None], cols.shape)
+    if n_periodic is not None:
+        cols = cols % int(n_periodic)
+        n_full = int(n_periodic)
+    B = np.zeros((len(u), n_full))
+    B[rows, cols] = D   # the p+1 columns of a row are distinct (n >= p + 1)
+    return B

@@ -1,0 +1,243 @@
+"""Fitting NURBS curves to ordered points within a tolerance (paper §3.2).
+
+Steps (paper §3.2.1–3.2.3, NURBS Book §9.4.1):
+
+1. chord-length parameters ``ū_k`` (eqs. 6–8; for a closed contour the
+   closing chord ``|Q_0 - Q_m|`` is part of the length ``d`` and ``ū`` runs
+   over [0, 1) -- the point Q_0 sits at both 0 and 1);
+2. knots by eq. 9 (every knot span holds parameters); the periodic analogue
+   puts break j of n at the parameter of the fractional data index j (m+1)/n;
+3. control points by least squares.  Open curves keep their end points fixed,
+   ``P_0 = Q_0``, ``P_n = Q_m`` (eq. 10); closed curves solve the periodic
+   problem with the folded design matrix (no end constraints).
+
+``tol`` is a bound on the true maximum point-to-curve distance (computed by
+:func:`~cardionurbs.nurbs.projection.curve_closest_points`); the fit starts
+with the fewest control points the degree allows and adds one at a time until
+the bound holds (paper §3.2.3, first strategy).  ``rational=True`` also
+optimises the weights at each count (variable projection: least squares in
+the control points inside a Levenberg–Marquardt search over log-weights).
+
+Eq. 9 is applied at the *centred* fractional data index ``j d - 1/2``
+(the book's formula uses ``j d - 1``).  The centred rule makes the knot vector
+mirror-symmetric under reversal of the data, so reversed points give exactly
+the reversed curve, and still leaves at least one parameter in every span
+(spans are ``d >= 1`` data indices wide).  ``knot_rule="book"`` gives the
+literal formula, ``"uniform"`` equally spaced knots (for comparison).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from cardionurbs.errors import NurbsInputError
+from cardionurbs.nurbs import _validate as V
+from cardionurbs.nurbs.basis import basis_matrix
+from cardionurbs.nurbs.curve import NurbsCurve
+from cardionurbs.nurbs.knots import periodic_knot_vector
+from cardionurbs.nurbs.projection import curve_closest_points
+
+__all__ = ["fit_curve", "chord_length_parameters", "approximation_knots",
+           "periodic_approximation_breaks", "least_squares_curve", "KNOT_RULES"]
+
+KNOT_RULES = ("eq9", "book", "uniform")
+
+
+def chord_length_parameters(points: np.ndarray, closed: bool = False) -> np.ndarray:
+    """Chord-length parameters ``ū_k`` (paper eqs. 6–8).
+
+    Open: ``ū_0 = 0``, ``ū_m = 1``.  Closed: the closing chord counts, so
+    ``ū_0 = 0`` and ``ū_m = 1 - |Q_0 - Q_m| / d`` < 1.
+    """
+    Q = np.asarray(points, dtype=float)
+    chords = np.linalg.norm(np.diff(Q, axis=0), axis=1)
+    if closed:
+        chords = np.append(chords, np.linalg.norm(Q[0] - Q[-1]))
+    d = chords.sum()                                                  # eq. 6
+    if not d > 0:
+        raise NurbsInputError("points: zero chord length (all points coincide)")
+    u = np.concatenate([[0.0], np.cumsum(chords) / d])                # eqs. 7, 8
+    if closed:
+        return u[:-1]
+    u[-1] = 1.0
+    return u
+
+
+def _fractional_index(params: np.ndarray, x: np.ndarray, closed: bool) -> np.ndarray:
+    """Linear interpolation of the parameters at fractional data indices ``x``."""
+    ext = np.append(params, 1.0) if closed else params
+    return np.interp(x, np.arange(ext.size), ext)
+
+
+def approximation_knots(params: np.ndarray, n_ctrl: int, degree: int,
+                        rule: str = "eq9") -> np.ndarray:
+    """Clamped knot vector for ``n_ctrl`` control points (paper eq. 9).
+
+    ``d = (m+1)/(n-p+1)``; interior knot j = the parameter at fractional data
+    index ``j d - 1/2`` (rule "eq9"), ``j d - 1`` (rule "book": ``i = int(jd)``,
+    ``α = jd - i``, ``u_{p+j} = (1-α) ū_{i-1} + α ū_i``), or ``j / (n-p+1)``
+    (rule "uniform").
+    """
+    p = degree
+    n = n_ctrl - 1
+    j = np.arange(1, n - p + 1)
+    if rule == "uniform":
+        inner = j / (n - p + 1)
+    else:
+        d = params.size / (n - p + 1)
+        shift = 0.5 if rule == "eq9" else 1.0
+        inner = _fractional_index(params, j * d - shift, False)
+    return np.concatenate([np.zeros(p + 1), inner, np.ones(p + 1)])
+
+
+def periodic_approximation_breaks(params: np.ndarray, n_ctrl: int, rule: str = "eq9") -> np.ndarray:
+    """Breaks ``0 = B_0 < ... < B_n = 1`` of a periodic fit with ``n_ctrl`` spans:
+    ``B_j`` = parameter at fractional data index ``j (m+1)/n`` (the periodic
+    analogue of eq. 9: each span holds ``(m+1)/n >= 1`` parameters), or ``j/n``
+    ("uniform")."""
+    n = n_ctrl
+    j = np.arange(n + 1)
+    if rule == "uniform":
+        B = j / n
+    else:
+        B = _fractional_index(params, j * params.size / n, True)
+    B[0], B[-1] = 0.0, 1.0
+    return B
+
+
+def _rational_basis(B: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Rational basis ``R_i = N_i w_i / sum_j N_j w_j`` from the B-spline one."""
+    Bw = B * weights[None, :]
+    return Bw / Bw.sum(axis=1, keepdims=True)
+
+
+def least_squares_curve(points: np.ndarray, params: np.ndarray, degree: int, n_ctrl: int,
+                        closed: bool, rule: str = "eq9", weights: np.ndarray | None = None
+                        ) -> NurbsCurve:
+    """Least-squares NURBS with ``n_ctrl`` control points at fixed parameters.
+
+    Open: end points fixed (paper eq. 10, solved in the least-squares sense
+    by LAPACK's SVD-based ``lstsq``; same minimiser as the normal equations).
+    Closed: periodic, all ``n_ctrl`` points free.
+    """
+    Q = np.asarray(points, dtype=float)
+    p = degree
+    w = np.ones(n_ctrl) if weights is None else np.asarray(weights, dtype=float)
+    if closed:
+        U = periodic_knot_vector(periodic_approximation_breaks(params, n_ctrl, rule), p)
+        R = _rational_basis(basis_matrix(U, p, params, n_periodic=n_ctrl), w)
+        P, *_ = np.linalg.lstsq(R, Q, rcond=None)
+        return NurbsCurve(p, U, P, w, closed=True)
+    U = approximation_knots(params, n_ctrl, p, rule)
+    R = _rational_basis(basis_matrix(U, p, params), w)
+    P = np.empty((n_ctrl, Q.shape[1]))
+    P[0], P[-1] = Q[0], Q[-1]
+    if n_ctrl > 2:
+        rhs = Q[1:-1] - R[1:-1, :1] * Q[0] - R[1:-1, -1:] * Q[-1]     # R_k of eq. 10
+        P[1:-1], *_ = np.linalg.lstsq(R[1:-1, 1:-1], rhs, rcond=None)
+    return NurbsCurve(p, U, P, w)
+
+
+def _optimise_weights(points: np.ndarray, params: np.ndarray, degree: int, n_ctrl: int,
+                      closed: bool, rule: str) -> NurbsCurve:
+    """Weights minimising the squared residuals at the fixed parameters.
+
+    Variables: log-weights of control points 1..n-1 (w_0 = 1 removes the
+    scale invariance), bounded to [-3, 3]; inner problem linear in P.
+    """
+    def residuals(logw: np.ndarray) -> np.ndarray:
+        w = np.exp(np.concatenate([[0.0], logw]))
+        c = least_squares_curve(points, params, degree, n_ctrl, closed, rule, w)
+        return (c.evaluate(params) - points).ravel()
+
+    res = least_squares(residuals, np.zeros(n_ctrl - 1), bounds=(-3.0, 3.0),
+                        method="trf", x_scale=1.0, max_nfev=30 * n_ctrl)
+    w = np.exp(np.concatenate([[0.0], res.x]))
+    return least_squares_curve(points, params, degree, n_ctrl, closed, rule, w)
+
+
+def max_distance(curve: NurbsCurve, points: np.ndarray) -> float:
+    """Maximum true distance from ``points`` to ``curve`` (points' units)."""
+    _, dist = curve_closest_points(curve, points)
+    return float(dist.max())
+
+
+def _error_within(curve: NurbsCurve, points: np.ndarray, params: np.ndarray,
+                  tol: float) -> tuple[bool, float]:
+    """Whether max distance <= tol, and that distance (or an upper bound <= tol).
+
+    The residual at the fit parameters ``max |Q_k - C(ū_k)|`` bounds the true
+    distance from above; the projection is computed only when it exceeds tol."""
+    bound = float(np.max(np.linalg.norm(curve.evaluate(params) - points, axis=1)))
+    if bound <= tol:
+        return True, bound
+    err = max_distance(curve, points)
+    return err <= tol, err
+
+
+def fit_curve(points: Any, degree: int = 3, closed: bool = False, tol: float | None = None,
+              n_ctrl: int | None = None, rational: bool = False, knot_rule: str = "eq9"
+              ) -> NurbsCurve:
+    """Fit a NURBS curve to ordered points (paper §3.2).
+
+    Parameters
+    ----------
+    points : (m, d) points in drawing order (closed: no repeated end point;
+        a repeated one is dropped)
+    degree : curve degree p (paper: order 3 ... degree 3 here by default)
+    closed : fit a periodic curve, C^(p-1) across the seam
+    tol : maximum allowed point-to-curve distance, in the points' units;
+        control points are added until it holds.  Default (with ``n_ctrl``
+        None): 1e-3 of the diagonal of the points' bounding box.
+    n_ctrl : fixed number of (distinct) control points instead of ``tol``
+    rational : also optimise the weights
+    knot_rule : "eq9" (default), "book" or "uniform", see module doc
+    """
+    p = V.degree_value(degree)
+    Q = V.finite_array(points, "points", ndim=2)
+    if Q.shape[1] < 1:
+        raise NurbsInputError(f"points: need at least one coordinate, got shape {Q.shape}")
+    if knot_rule not in KNOT_RULES:
+        raise NurbsInputError(f"knot_rule: must be one of {KNOT_RULES}, got {knot_rule!r}")
+    if closed and Q.shape[0] > 1 and np.array_equal(Q[0], Q[-1]):
+        Q = Q[:-1]
+    m1 = Q.shape[0]
+    if m1 < p + 1:
+        raise NurbsInputError(f"points: degree {p} needs at least {p + 1} points, got {m1}")
+    params = chord_length_parameters(Q, closed)
+    n_min, n_max = p + 1, m1
+    if n_ctrl is not None:
+        n = V.degree_value(n_ctrl, "n_ctrl", minimum=n_min)
+        if n > n_max:
+            raise NurbsInputError(f"n_ctrl: {n} control points need at least {n} points, got {m1}")
+        if rational:
+            return _optimise_weights(Q, params, p, n, closed, knot_rule)
+        return least_squares_curve(Q, params, p, n, closed, knot_rule)
+    if tol is None:
+        tol = 1e-3 * float(np.linalg.norm(np.ptp(Q, axis=0)))
+    else:
+        try:
+            tol = float(tol)
+        except (TypeError, ValueError):
+            raise NurbsInputError(f"tol: must be a number, got {tol!r}") from None
+        if not np.isfinite(tol) or tol <= 0:
+            raise NurbsInputError(f"tol: must be a finite number > 0, got {tol}")
+    best: tuple[float, NurbsCurve] | None = None
+    for n in range(n_min, n_max + 1):
+        c = least_squares_curve(Q, params, p, n, closed, knot_rule)
+        ok, err = _error_within(c, Q, params, tol)
+        if ok:
+            return c
+        if best is None or err < best[0]:
+            best = (err, c)
+        if rational:
+            c = _optimise_weights(Q, params, p, n, closed, knot_rule)
+            ok, err = _error_within(c, Q, params, tol)
+            if ok:
+                return c
+    assert best is not None
+    raise NurbsInputError(f"tol: {tol} not reached with up to {n_max} control points "
+                          f"(best maximum distance {best[0]:.3g})")

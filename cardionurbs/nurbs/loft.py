@@ -1,0 +1,195 @@
+"""Lofting: a NURBS surface through section curves (paper §3.2.4, NURBS
+Book §10.3).
+
+u runs along the sections (around them, periodic, when they are closed), v
+across the sections from the first to the last.  Steps:
+
+0. closed sections are turned to one orientation -- counter-clockwise about
+   the loft axis (first section's centroid -> last section's centroid), so
+   ``Su x Sv`` points away from the axis -- and each seam is rotated (exact
+   periodic reparameterisation ``C(u + s)``) to minimise the twist with the
+   previous section; open sections are reversed where that pairs their end
+   points better with the previous section's;
+1.–3. all sections are raised to the highest degree (A5.9) and brought to one
+   knot vector (A5.4) by :func:`~cardionurbs.nurbs.operations.make_compatible`;
+4. section parameters by the paper's formula
+   ``v_k = v_{k-1} + 1/(n+1) sum_i |P_{i,k} - P_{i,k-1}| / d_i`` with
+   ``d_i = sum_k |P_{i,k} - P_{i,k-1}|``, degree ``q = min(degree_v, K)`` and
+   knots by averaging (NURBS Book eq. 9.8);
+5. n + 1 interpolations across the homogeneous control points (one linear
+   solve with many right-hand sides).
+
+A single point may be given as the first and/or the last section (an apex):
+that row of the net collapses to the point, with the weights of the
+neighbouring section.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from cardionurbs.errors import NurbsInputError
+from cardionurbs.nurbs import _validate as V
+from cardionurbs.nurbs.basis import basis_matrix
+from cardionurbs.nurbs.curve import NurbsCurve
+from cardionurbs.nurbs.operations import make_compatible, rotate_seam
+from cardionurbs.nurbs.surface import NurbsSurface
+
+__all__ = ["loft", "section_parameters", "averaging_knots", "align_sections"]
+
+_ALIGN_SAMPLES = 256
+
+
+def averaging_knots(params: np.ndarray, degree: int) -> np.ndarray:
+    """Clamped knots by averaging (NURBS Book eq. 9.8) for interpolation."""
+    q = degree
+    K = params.size - 1
+    inner = np.array([params[j:j + q].mean() for j in range(1, K - q + 1)])
+    return np.concatenate([np.full(q + 1, params[0]), inner, np.full(q + 1, params[-1])])
+
+
+def section_parameters(P: np.ndarray) -> np.ndarray:
+    """Paper §3.2.4: ``v_k`` from the sections' control points ``P[k, i]`` (K+1, n, d).
+
+    Columns i with ``d_i = 0`` (a point shared by every section) are left out
+    of the average.
+    """
+    steps = np.linalg.norm(np.diff(P, axis=0), axis=-1)          # (K, n)
+    d = steps.sum(axis=0)                                         # d_i
+    ok = d > 0
+    if not np.any(ok):
+        raise NurbsInputError("sections: all sections coincide (zero distance between them)")
+    inc = (steps[:, ok] / d[ok]).mean(axis=1)
+    v = np.concatenate([[0.0], np.cumsum(inc)])
+    v[-1] = 1.0
+    if np.any(np.diff(v) <= 0):
+        k = int(np.flatnonzero(np.diff(v) <= 0)[0]) + 1
+        raise NurbsInputError(f"sections: section {k} coincides with section {k - 1}")
+    return v
+
+
+def _samples(c: NurbsCurve) -> np.ndarray:
+    u = np.arange(_ALIGN_SAMPLES) / _ALIGN_SAMPLES if c.closed else np.linspace(0, 1, _ALIGN_SAMPLES)
+    return c.evaluate(u)
+
+
+def _newell_normal(points: np.ndarray) -> np.ndarray:
+    """Area vector of a closed polygon (Newell's method), length = 2 * area."""
+    return np.cross(points, np.roll(points, -1, axis=0)).sum(axis=0)
+
+
+def _best_shift(prev: np.ndarray, cur: np.ndarray) -> float:
+    """Shift s in [0, 1) minimising sum_i |cur(u_i + s) - prev(u_i)|^2 for
+    centred, scale-normalised samples (circular correlation + parabolic refinement)."""
+    M = prev.shape[0]
+    A = prev - prev.mean(axis=0)
+    B = cur - cur.mean(axis=0)
+    A /= max(np.sqrt((A ** 2).sum(axis=1).mean()), 1e-300)
+    B /= max(np.sqrt((B ** 2).sum(axis=1).mean()), 1e-300)
+    idx = (np.arange(M)[:, None] + np.arange(M)[None, :]) % M       # [j, i] -> i + j
+    corr = np.einsum("jid,id->j", B[idx], A)
+    cost = -corr
+    j = int(np.argmin(cost))
+    c0, cm, cp = cost[j], cost[(j - 1) % M], cost[(j + 1) % M]
+    den = cm - 2 * c0 + cp
+    delta = 0.5 * (cm - cp) / den if den > 0 else 0.0
+    return ((j + float(np.clip(delta, -0.5, 0.5))) / M) % 1.0
+
+
+def align_sections(curves: Sequence[NurbsCurve], axis: np.ndarray | None) -> list[NurbsCurve]:
+    """Orientation and seam alignment of the section curves (step 0 above)."""
+    curves = list(curves)
+    if curves[0].closed:
+        if curves[0].dimension == 3:
+            ref = axis if axis is not None and np.linalg.norm(axis) > 0 else \
+                _newell_normal(_samples(curves[0]))
+            curves = [c.reversed() if float(_newell_normal(_samples(c)) @ ref) < 0 else c
+                      for c in curves]
+        out = [curves[0]]
+        for c in curves[1:]:
+            s = _best_shift(_samples(out[-1]), _samples(c))
+            out.append(rotate_seam(c, s))
+        return out
+    out = [curves[0]]
+    for c in curves[1:]:
+        a0, a1 = out[-1].evaluate(np.array([0.0, 1.0]))
+        b0, b1 = c.evaluate(np.array([0.0, 1.0]))
+        straight = np.linalg.norm(a0 - b0) + np.linalg.norm(a1 - b1)
+        crossed = np.linalg.norm(a0 - b1) + np.linalg.norm(a1 - b0)
+        out.append(c.reversed() if crossed < straight else c)
+    return out
+
+
+def loft(sections: Sequence[Any], degree_v: int = 3) -> NurbsSurface:
+    """Loft a surface through ``sections`` (paper §3.2.4).
+
+    Parameters
+    ----------
+    sections : sequence of K + 1 >= 2 items, each a :class:`NurbsCurve` (all
+        open or all closed, same dimension) or, as the first and/or last item
+        only, a point (d,) where the surface collapses (an apex).
+    degree_v : degree across the sections; ``q = min(degree_v, K)``.
+
+    Returns a :class:`NurbsSurface` with u along the sections (``closed_u``
+    when the sections are closed) and v from the first to the last section.
+    """
+    items = list(sections)
+    q_req = V.degree_value(degree_v, "degree_v")
+    if len(items) < 2:
+        raise NurbsInputError(f"sections: need at least 2 sections, got {len(items)}")
+    K = len(items) - 1
+    kinds = []
+    for k, s in enumerate(items):
+        if isinstance(s, NurbsCurve):
+            kinds.append("curve")
+        else:
+            pt = V.finite_array(s, f"sections[{k}]", ndim=1)
+            if k not in (0, K):
+                raise NurbsInputError(f"sections[{k}]: a point section is only allowed first or last")
+            items[k] = pt
+            kinds.append("point")
+    curve_idx = [k for k, t in enumerate(kinds) if t == "curve"]
+    if not curve_idx:
+        raise NurbsInputError("sections: need at least one curve section")
+    curves = [items[k] for k in curve_idx]
+    dims = {c.dimension for c in curves} | {items[k].size for k, t in enumerate(kinds) if t == "point"}
+    if len(dims) != 1:
+        raise NurbsInputError(f"sections: sections have different dimensions {sorted(dims)}")
+    if len({c.closed for c in curves}) != 1:
+        raise NurbsInputError("sections: mix of open and closed curves")
+    closed = curves[0].closed
+
+    def centroid(k: int) -> np.ndarray:
+        return items[k] if kinds[k] == "point" else _samples(items[k]).mean(axis=0)
+
+    axis = centroid(K) - centroid(0)
+    curves = make_compatible(align_sections(curves, axis))
+    n = curves[0].n_control
+    d = curves[0].dimension
+    Pw = np.empty((K + 1, n, d + 1))
+    P = np.empty((K + 1, n, d))
+    for k, c in zip(curve_idx, curves):
+        P[k] = c.control_points
+        Pw[k] = np.column_stack([c.control_points * c.weights[:, None], c.weights])
+    for k, t in enumerate(kinds):
+        if t == "point":
+            nb = curves[0] if k == 0 else curves[-1]
+            P[k] = items[k]
+            Pw[k] = np.column_stack([np.outer(nb.weights, items[k]), nb.weights])
+    v = section_parameters(P)
+    q = min(q_req, K)
+    Vk = averaging_knots(v, q)
+    M = basis_matrix(Vk, q, v)
+    Qw = np.linalg.solve(M, Pw.reshape(K + 1, -1)).reshape(K + 1, n, d + 1)
+    Qw = Qw.transpose(1, 0, 2)                                  # (n, K+1, d+1)
+    w = Qw[..., -1]
+    if np.any(w <= 0):
+        raise NurbsInputError("sections: interpolating the section weights gave weights <= 0; "
+                              "use sections with less different weights")
+    for k, t in enumerate(kinds):          # the collapsed row is exactly the point
+        if t == "point":
+            Qw[:, k, :-1] = w[:, k, None] * items[k][None, :]
+    return NurbsSurface(curves[0].degree, q, curves[0].knots, Vk, Qw[..., :-1] / w[..., None],
+                        w, closed_u=closed)

@@ -1,0 +1,150 @@
+"""Closest points on curves and surfaces (point inversion, NURBS Book §6.1).
+
+Vectorised over all query points: seeds from the nearest of a dense sample
+(:class:`scipy.spatial.cKDTree`), then Newton iterations on the
+squared-distance function with second derivatives (eqs. 6.3 and 6.6 of the
+NURBS Book), falling back to Gauss-Newton where the Hessian is not positive
+definite; a step is kept only where it lowers the distance.  Parameters are
+clamped to the domain, or wrapped around a periodic direction.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from cardionurbs.errors import NurbsInputError
+from cardionurbs.nurbs import _validate as V
+from cardionurbs.nurbs.knots import distinct_knots
+
+__all__ = ["closest_points", "curve_closest_points", "surface_closest_points"]
+
+# step fractions tried in turn (backtracking); a point keeps the first that helps
+_BACKTRACK = (1.0, 0.25, 1.0 / 16, 1.0 / 64)
+
+
+def _span_samples(knots: np.ndarray, degree: int, lo: float, hi: float, per_span: int,
+                  periodic: bool, minimum: int = 64) -> np.ndarray:
+    """Parameters sampling every non-empty knot span ``per_span`` times (at
+    least ``minimum`` samples in all)."""
+    inner = knots[(knots > lo) & (knots < hi)]
+    edges = np.concatenate([[lo], distinct_knots(inner)[0], [hi]])
+    per_span = max(per_span, -(-minimum // (edges.size - 1)))
+    t = np.arange(per_span) / per_span
+    u = (edges[:-1, None] + np.diff(edges)[:, None] * t[None, :]).ravel()
+    return u if periodic else np.append(u, hi)
+
+
+def _wrap_or_clip(u: np.ndarray, lo: float, hi: float, periodic: bool) -> np.ndarray:
+    return lo + np.mod(u - lo, hi - lo) if periodic else np.clip(u, lo, hi)
+
+
+def curve_closest_points(curve: Any, points: Any, iterations: int = 8,
+                         samples_per_span: int = 16) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters and distances of the curve points closest to ``points``.
+
+    ``points`` (m, d) -> ``(u (m,), distance (m,))``, distances in the
+    points' units.
+    """
+    Q = V.finite_array(points, "points", ndim=2, last_dim=curve.dimension)
+    lo, hi = curve.domain
+    us = _span_samples(curve.knots, curve.degree, lo, hi, samples_per_span, curve.closed)
+    _, idx = cKDTree(curve.evaluate(us)).query(Q)
+    u = us[idx]
+    dist = np.linalg.norm(curve.evaluate(u) - Q, axis=1)
+    for _ in range(iterations):
+        D = curve.derivatives(u, 2)
+        r = D[:, 0] - Q
+        f = np.einsum("kd,kd->k", D[:, 1], r)
+        g2 = np.einsum("kd,kd->k", D[:, 1], D[:, 1])
+        fp = g2 + np.einsum("kd,kd->k", D[:, 2], r)
+        fp = np.where(fp > 1e-12 * np.maximum(g2, 1e-300), fp, np.maximum(g2, 1e-300))
+        step = -f / fp
+        todo = np.ones(u.size, dtype=bool)
+        for scale in _BACKTRACK:
+            cand = _wrap_or_clip(u + scale * step, lo, hi, curve.closed)
+            cd = np.linalg.norm(curve.evaluate(cand) - Q, axis=1)
+            better = todo & (cd < dist)
+            u = np.where(better, cand, u)
+            dist = np.where(better, cd, dist)
+            todo &= ~better
+        if np.all(todo):
+            break
+    return u, dist
+
+
+def surface_closest_points(surface: Any, points: Any, iterations: int = 16,
+                           samples_per_span: int = 6, seeds: int = 3
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Parameters and distances of the surface points closest to ``points``.
+
+    Newton runs from the ``seeds`` nearest samples of each point and the
+    best result is kept (guards against local minima, e.g. near an apex).
+
+    ``points`` (m, 3) -> ``(u (m,), v (m,), distance (m,))``.
+    """
+    P = V.finite_array(points, "points", ndim=2, last_dim=surface.dimension)
+    (ulo, uhi), (vlo, vhi) = surface.domain_u, surface.domain_v
+    us = _span_samples(surface.knots_u, surface.degree_u, ulo, uhi, samples_per_span,
+                       surface.closed_u)
+    vs = _span_samples(surface.knots_v, surface.degree_v, vlo, vhi, samples_per_span, False)
+    # seeds on a collapsed end carry no u information: seed from the next row
+    c0, c1 = surface.collapsed_v()
+    vs = vs[(vs > vlo if c0 else True) & (vs < vhi if c1 else True)]
+    grid = surface.evaluate(us, vs)
+    m = P.shape[0]
+    k = max(1, min(int(seeds), us.size * vs.size))
+    _, idx = cKDTree(grid.reshape(-1, grid.shape[-1])).query(P, k=k)
+    idx = np.asarray(idx).reshape(m, k).ravel()
+    P0, P = P, np.repeat(P, k, axis=0)      # Newton from each of the k nearest seeds
+    u, v = us[idx // vs.size], vs[idx % vs.size]
+    dist = np.linalg.norm(surface.evaluate_points(u, v) - P, axis=1)
+    for _ in range(iterations):
+        D = surface.derivatives(u, v, 2)
+        r = D[:, 0, 0] - P
+        Su, Sv = D[:, 1, 0], D[:, 0, 1]
+        dot = lambda a, b: np.einsum("kd,kd->k", a, b)  # noqa: E731
+        gu, gv = dot(Su, r), dot(Sv, r)
+        juu, juv, jvv = dot(Su, Su), dot(Su, Sv), dot(Sv, Sv)
+        huu = juu + dot(D[:, 2, 0], r)
+        huv = juv + dot(D[:, 1, 1], r)
+        hvv = jvv + dot(D[:, 0, 2], r)
+        det = huu * hvv - huv * huv
+        newton_ok = (huu > 0) & (det > 1e-12 * np.maximum(juu * jvv, 1e-300))
+        huu, huv, hvv = (np.where(newton_ok, huu, juu), np.where(newton_ok, huv, juv),
+                         np.where(newton_ok, hvv, jvv))
+        lam = 1e-9 * (huu + hvv) + 1e-300
+        huu, hvv = huu + lam, hvv + lam
+        det = huu * hvv - huv * huv
+        du = -(hvv * gu - huv * gv) / det
+        dv = -(huu * gv - huv * gu) / det
+        todo = np.ones(u.size, dtype=bool)
+        for scale in _BACKTRACK:
+            cu = _wrap_or_clip(u + scale * du, ulo, uhi, surface.closed_u)
+            cv = np.clip(v + scale * dv, vlo, vhi)
+            cd = np.linalg.norm(surface.evaluate_points(cu, cv) - P, axis=1)
+            better = todo & (cd < dist)
+            u, v = np.where(better, cu, u), np.where(better, cv, v)
+            dist = np.where(better, cd, dist)
+            todo &= ~better
+        if np.all(todo):
+            break
+    best = dist.reshape(m, k).argmin(axis=1) + np.arange(m) * k
+    assert P[best].shape == P0.shape
+    return u[best], v[best], dist[best]
+
+
+def closest_points(geometry: Any, points: Any, iterations: int = 16):
+    """Closest points on a curve or a surface.
+
+    Surface: ``(u, v, distance)``; curve: ``(u, distance)``; each (m,).
+    """
+    from cardionurbs.nurbs.curve import NurbsCurve
+    from cardionurbs.nurbs.surface import NurbsSurface
+    if isinstance(geometry, NurbsSurface):
+        return surface_closest_points(geometry, points, iterations)
+    if isinstance(geometry, NurbsCurve):
+        return curve_closest_points(geometry, points, iterations)
+    raise NurbsInputError(f"geometry: expected a NurbsCurve or NurbsSurface, got {type(geometry).__name__}")

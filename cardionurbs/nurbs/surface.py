@@ -1,0 +1,262 @@
+"""Rational tensor-product (NURBS) surfaces, optionally periodic in u.
+
+    S(u, v) = sum_ij N_i,p(u) N_j,q(v) w_ij P_ij / sum_ij N_i,p(u) N_j,q(v) w_ij
+
+evaluated in homogeneous coordinates.  Grids use dense collocation matrices
+(two matrix products, fast for the control nets of a heart model); paired
+points gather the (p+1)(q+1) active control points (NURBS Book A3.6/A4.3);
+derivatives follow A3.6 and A4.4.
+
+The v direction is always clamped.  With ``closed_u=True`` the u direction
+uses the periodic representation of :mod:`cardionurbs.nurbs.knots`
+(``control_points`` holds the ``nu`` distinct rows, ``knots_u`` the full
+``nu + 2p + 1`` periodic knots, u in [0, 1] goes once around).  A v-boundary
+whose control row is a single repeated point is a *collapsed end* (an apex);
+:meth:`NurbsSurface.normal` stays finite there.
+"""
+
+from __future__ import annotations
+
+from math import comb
+from typing import Any
+
+import numpy as np
+
+from cardionurbs.errors import NurbsInputError
+from cardionurbs.nurbs import _validate as V
+from cardionurbs.nurbs.basis import basis_function_derivatives, basis_matrix, find_spans
+from cardionurbs.nurbs.knots import canonical_periodic
+
+__all__ = ["NurbsSurface", "rational_surface_derivatives"]
+
+
+def rational_surface_derivatives(Aw: np.ndarray) -> np.ndarray:
+    """Euclidean partial derivatives from homogeneous ones (A4.4).
+
+    ``Aw`` has shape ``(..., K + 1, L + 1, d + 1)``, ``Aw[..., k, l]`` being
+    d^(k+l) Sw / du^k dv^l; returns ``(..., K + 1, L + 1, d)``.
+    """
+    A = Aw[..., :-1]
+    w = Aw[..., -1]
+    K, L = Aw.shape[-3] - 1, Aw.shape[-2] - 1
+    S = np.empty_like(A)
+    w00 = w[..., 0, 0, None]
+    for k in range(K + 1):
+        for ell in range(L + 1):
+            v = A[..., k, ell, :].copy()
+            for j in range(1, ell + 1):
+                v -= comb(ell, j) * w[..., 0, j, None] * S[..., k, ell - j, :]
+            for i in range(1, k + 1):
+                v -= comb(k, i) * w[..., i, 0, None] * S[..., k - i, ell, :]
+                v2 = np.zeros_like(v)
+                for j in range(1, ell + 1):
+                    v2 += comb(ell, j) * w[..., i, j, None] * S[..., k - i, ell - j, :]
+                v -= comb(k, i) * v2
+            S[..., k, ell, :] = v / w00
+    return S
+
+
+class NurbsSurface:
+    """A NURBS surface (see module doc).
+
+    Parameters
+    ----------
+    degree_u, degree_v : int >= 1
+    knots_u : clamped (nu + p + 1,) or periodic (nu + 2p + 1,) when ``closed_u``
+    knots_v : clamped (nv + q + 1,)
+    control_points : (nu, nv, d) Euclidean control net
+    weights : (nu, nv) positive, default ones
+    closed_u : periodic in u
+    """
+
+    __slots__ = ("degree_u", "degree_v", "knots_u", "knots_v", "control_points", "weights",
+                 "closed_u", "_hom")
+
+    def __init__(self, degree_u: int, degree_v: int, knots_u: Any, knots_v: Any,
+                 control_points: Any, weights: Any = None, closed_u: bool = False) -> None:
+        p = V.degree_value(degree_u, "degree_u")
+        q = V.degree_value(degree_v, "degree_v")
+        P = V.finite_array(control_points, "control_points", ndim=3)
+        nu, nv = P.shape[:2]
+        if nu < p + 1 or nv < q + 1:
+            raise NurbsInputError(f"control_points: degrees ({p}, {q}) need at least "
+                                  f"({p + 1}, {q + 1}) control points, got ({nu}, {nv})")
+        w = V.weight_vector(weights, "weights", (nu, nv))
+        Kv = V.knot_vector(knots_v, "knots_v", q, nv, clamped=True)
+        if closed_u:
+            Ku = V.knot_vector(knots_u, "knots_u", p, nu + p, clamped=False)
+            if abs(Ku[p]) > 1e-12 or abs(Ku[nu + p] - 1.0) > 1e-12:
+                raise NurbsInputError(f"knots_u: closed_u needs the u domain [0, 1], got "
+                                      f"[{Ku[p]}, {Ku[nu + p]}]")
+            if np.max(np.abs(Ku[nu:] - Ku[:2 * p + 1] - 1.0)) > 1e-9:
+                raise NurbsInputError("knots_u: closed_u needs a periodic knot vector "
+                                      "(U[i + nu] = U[i] + 1)")
+            Ku, Pw = canonical_periodic(Ku, np.concatenate([P, w[..., None]], axis=-1), p)
+            P, w = Pw[..., :-1].copy(), Pw[..., -1].copy()
+        else:
+            Ku = V.knot_vector(knots_u, "knots_u", p, nu, clamped=True)
+        for arr in (Ku, Kv, P, w):
+            arr.flags.writeable = False
+        self.degree_u, self.degree_v = p, q
+        self.knots_u, self.knots_v = Ku, Kv
+        self.control_points, self.weights = P, w
+        self.closed_u = bool(closed_u)
+        self._hom: np.ndarray | None = None
+
+    # ------------------------------------------------------------------ basics
+    @property
+    def dimension(self) -> int:
+        return int(self.control_points.shape[2])
+
+    @property
+    def domain_u(self) -> tuple[float, float]:
+        n_full = self.knots_u.size - self.degree_u - 1
+        return float(self.knots_u[self.degree_u]), float(self.knots_u[n_full])
+
+    @property
+    def domain_v(self) -> tuple[float, float]:
+        n = self.knots_v.size - self.degree_v - 1
+        return float(self.knots_v[self.degree_v]), float(self.knots_v[n])
+
+    @property
+    def homogeneous_control_points(self) -> np.ndarray:
+        """``(nu_full, nv, d + 1)`` homogeneous net, rows wrapped when closed_u."""
+        if self._hom is None:
+            Pw = np.concatenate([self.control_points * self.weights[..., None],
+                                 self.weights[..., None]], axis=-1)
+            if self.closed_u:
+                nu = Pw.shape[0]
+                Pw = Pw[np.arange(nu + self.degree_u) % nu]
+            Pw.flags.writeable = False
+            self._hom = Pw
+        return self._hom
+
+    def collapsed_v(self, rtol: float = 1e-12) -> tuple[bool, bool]:
+        """Whether the boundary curves at v = start / v = end are single points."""
+        P = self.control_points
+        scale = max(float(np.ptp(P.reshape(-1, P.shape[-1]), axis=0).max()), 1e-300)
+        first = float(np.ptp(P[:, 0], axis=0).max()) <= rtol * scale
+        last = float(np.ptp(P[:, -1], axis=0).max()) <= rtol * scale
+        return first, last
+
+    def __repr__(self) -> str:
+        nu, nv = self.control_points.shape[:2]
+        return (f"NurbsSurface(degrees=({self.degree_u}, {self.degree_v}), net=({nu}, {nv}), "
+                f"closed_u={self.closed_u})")
+
+    # -------------------------------------------------------------- evaluation
+    def _uv(self, u: Any, v: Any) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = self.domain_u
+        u = V.parameters(u, "u", lo, hi, self.closed_u)
+        lo, hi = self.domain_v
+        v = V.parameters(v, "v", lo, hi, False)
+        return u, v
+
+    def _grid_homogeneous(self, u: np.ndarray, v: np.ndarray, order: int) -> np.ndarray:
+        """``(a, b, order+1, order+1, d+1)`` homogeneous partials on the grid u x v."""
+        Pw = self.homogeneous_control_points
+        nfu, nv, c = Pw.shape
+        out = np.empty((u.size, v.size, order + 1, order + 1, c))
+        Bus = [basis_matrix(self.knots_u, self.degree_u, u, k) for k in range(order + 1)]
+        Bvs = [basis_matrix(self.knots_v, self.degree_v, v, k) for k in range(order + 1)]
+        flat = Pw.reshape(nfu, nv * c)
+        for k, Bu in enumerate(Bus):
+            tmp = (Bu @ flat).reshape(u.size, nv, c)                      # (a, nv, c)
+            for ell, Bv in enumerate(Bvs):
+                out[:, :, k, ell, :] = Bv[None] @ tmp                     # (a, b, c)
+        return out
+
+    def evaluate(self, u: Any, v: Any) -> np.ndarray:
+        """Points on the grid ``u (a,) x v (b,)`` -> ``(a, b, d)``."""
+        u, v = self._uv(u, v)
+        Pw = self.homogeneous_control_points
+        nfu, nv, c = Pw.shape
+        Bu = basis_matrix(self.knots_u, self.degree_u, u)
+        Bv = basis_matrix(self.knots_v, self.degree_v, v)
+        # contract u, then v as one (a*c, nv) @ (nv, b) product
+        T = (Bu @ Pw.reshape(nfu, nv * c)).reshape(u.size, nv, c).transpose(0, 2, 1)
+        Sw = (T.reshape(u.size * c, nv) @ Bv.T).reshape(u.size, c, v.size)
+        return (Sw[:, :-1, :] / Sw[:, -1:, :]).transpose(0, 2, 1)    # (a, b, d) view
+
+    def _paired_homogeneous(self, u: np.ndarray, v: np.ndarray, order: int) -> np.ndarray:
+        p, q = self.degree_u, self.degree_v
+        su = find_spans(self.knots_u, p, u)
+        sv = find_spans(self.knots_v, q, v)
+        Du = basis_function_derivatives(su, u, p, self.knots_u, order)   # (k, o+1, p+1)
+        Dv = basis_function_derivatives(sv, v, q, self.knots_v, order)
+        iu = su[:, None] - p + np.arange(p + 1)[None, :]
+        iv = sv[:, None] - q + np.arange(q + 1)[None, :]
+        Pw = self.homogeneous_control_points[iu[:, :, None], iv[:, None, :]]  # (k,p+1,q+1,c)
+        return np.einsum("kai,kbj,kijc->kabc", Du, Dv, Pw)
+
+    def evaluate_points(self, u: Any, v: Any) -> np.ndarray:
+        """Points at paired parameters ``(u_k, v_k)``: (k,), (k,) -> (k, d)."""
+        u, v = self._uv(u, v)
+        if u.shape != v.shape:
+            raise NurbsInputError(f"u, v: paired parameters need equal shapes, got {u.shape} and {v.shape}")
+        Sw = self._paired_homogeneous(u, v, 0)[:, 0, 0]
+        return Sw[:, :-1] / Sw[:, -1:]
+
+    def derivatives(self, u: Any, v: Any, order: int = 1) -> np.ndarray:
+        """Partial derivatives at paired points: ``D[k, a, b] = d^(a+b) S / du^a dv^b``
+        for ``a, b <= order``; shape ``(k, order + 1, order + 1, d)``.
+        ``D[:, 1, 0]`` is Su, ``D[:, 0, 1]`` Sv, ``D[:, 1, 1]`` Suv, ``D[:, 2, 0]`` Suu."""
+        order = V.degree_value(order, "order", minimum=0)
+        u, v = self._uv(u, v)
+        if u.shape != v.shape:
+            raise NurbsInputError(f"u, v: paired parameters need equal shapes, got {u.shape} and {v.shape}")
+        return rational_surface_derivatives(self._paired_homogeneous(u, v, order))
+
+    def derivatives_grid(self, u: Any, v: Any, order: int = 1) -> np.ndarray:
+        """As :meth:`derivatives` on the grid u x v: ``(a, b, order+1, order+1, d)``."""
+        order = V.degree_value(order, "order", minimum=0)
+        u, v = self._uv(u, v)
+        return rational_surface_derivatives(self._grid_homogeneous(u, v, order))
+
+    def normal(self, u: Any, v: Any) -> np.ndarray:
+        """Unit normals ``Su x Sv / |Su x Sv|`` on the grid u x v -> (a, b, 3).
+
+        Where ``Su x Sv`` vanishes (a collapsed end, where Su = 0) the limit
+        direction is used: near v = v0 with S(u, v0) constant, Su ~ (v - v0) Suv,
+        so the normal is ``sign * Suv x Sv`` (sign + at the start of the v
+        domain, - at the end).
+        """
+        u, v = self._uv(u, v)
+        D = rational_surface_derivatives(self._grid_homogeneous(u, v, 1))
+        return _unit_normals(D, v, self.domain_v)
+
+    def normal_points(self, u: Any, v: Any) -> np.ndarray:
+        """Unit normals at paired parameters (k,), (k,) -> (k, 3)."""
+        D = self.derivatives(u, v, 1)
+        u, v = self._uv(u, v)
+        return _unit_normals(D, v, self.domain_v)
+
+    # ------------------------------------------------------------ conversions
+    def to_dict(self) -> dict[str, Any]:
+        """Lossless JSON-safe dict."""
+        from cardionurbs.nurbs.serialize import surface_to_dict
+        return surface_to_dict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "NurbsSurface":
+        """Inverse of :meth:`to_dict`."""
+        from cardionurbs.nurbs.serialize import surface_from_dict
+        return surface_from_dict(data)
+
+
+def _unit_normals(D: np.ndarray, v: np.ndarray, domain_v: tuple[float, float]) -> np.ndarray:
+    """Unit normals from first partials (and Suv at degenerate points)."""
+    Su, Sv, Suv = D[..., 1, 0, :], D[..., 0, 1, :], D[..., 1, 1, :]
+    if Su.shape[-1] != 3:
+        raise NurbsInputError(f"surface: normals need 3-d control points, got {Su.shape[-1]}-d")
+    n = np.cross(Su, Sv)
+    nn = np.linalg.norm(n, axis=-1)
+    scale = np.linalg.norm(Su, axis=-1).max() * np.linalg.norm(Sv, axis=-1)
+    bad = nn <= 1e-10 * np.maximum(scale, 1e-300)
+    if np.any(bad):
+        vb = np.broadcast_to(v if n.ndim == 2 else v[None, :], nn.shape)
+        sign = np.where(vb < 0.5 * (domain_v[0] + domain_v[1]), 1.0, -1.0)
+        alt = sign[..., None] * np.cross(Suv, Sv)
+        n = np.where(bad[..., None], alt, n)
+        nn = np.linalg.norm(n, axis=-1)
+    return n / np.where(nn > 0, nn, 1.0)[..., None]
