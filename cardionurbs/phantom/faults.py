@@ -1,0 +1,68 @@
+"""Faults injected into phantom annotations on request; each is recorded in truth["faults"].
+
+* **Contour/tag noise** (``noise_px``): i.i.d. Gaussian noise of standard
+  deviation σ pixels added to the column and row coordinates of every contour
+  and tag-line point (the point stays on its image plane).
+* **Tag jumping** (``tag_jumps`` = K): on K distinct (SA slice, frame ≠ ED)
+  pairs, one SA tag line (family, index) is replaced by the points of its
+  neighbour (index ± 1 of the same family on the same image): it lies one tag
+  spacing off and keeps its index — the tracking error of the paper's Fig. 8.
+* **Breath-hold slice shifts** (``breath_hold_mm`` = σ): each SA slice is
+  acquired in a different breath hold, so the heart seen on it is displaced
+  in-plane by a Gaussian vector (σ mm per axis) for all frames; the images,
+  contours, tags and landmarks of that slice move together while the recorded
+  plane geometry does not.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cardionurbs.errors import PhantomError
+from cardionurbs.study import Study
+
+
+def add_noise(study: Study, sigma_px: float, rng: np.random.Generator) -> None:
+    """Add N(0, σ²) pixel noise to every contour and tag-line point, in place."""
+    if sigma_px <= 0:
+        return
+    for item in [*study.contours, *study.tags]:
+        im = study.image(item.image)
+        d = rng.normal(0.0, sigma_px, size=(len(item.points), 2))
+        item.points = (item.points + d[:, :1] * im.pixel_spacing[1] * im.row_cosine
+                       + d[:, 1:] * im.pixel_spacing[0] * im.column_cosine)
+
+
+def inject_tag_jumps(study: Study, k: int, rng: np.random.Generator) -> list[dict]:
+    """Replace one SA tag line by its neighbour's on k (slice, frame ≠ ED) pairs, in place."""
+    if k <= 0:
+        return []
+    by_image: dict[tuple[str, int], dict[tuple[str, int], object]] = {}
+    for t in study.tags:
+        if t.view == "SA" and t.frame != 0:
+            by_image.setdefault((t.slice, t.frame), {})[(t.family, t.index)] = t
+    pairs = sorted(p for p, lines in by_image.items()
+                   if any((f, i + 1) in lines or (f, i - 1) in lines for f, i in lines))
+    if k > len(pairs):
+        raise PhantomError(f"tag_jumps={k} exceeds the {len(pairs)} tagged SA (slice, frame) pairs "
+                           "after ED")
+    chosen = rng.choice(len(pairs), size=k, replace=False)
+    record = []
+    for c in sorted(int(x) for x in chosen):
+        key = pairs[c]
+        lines = by_image[key]
+        cands = sorted(fi for fi in lines if (fi[0], fi[1] + 1) in lines or (fi[0], fi[1] - 1) in lines)
+        fam, idx = cands[int(rng.integers(len(cands)))]
+        options = [j for j in (idx - 1, idx + 1) if (fam, j) in lines]
+        nb = options[int(rng.integers(len(options)))]
+        lines[(fam, idx)].points = lines[(fam, nb)].points.copy()
+        record.append({"slice": key[0], "frame": int(key[1]), "family": fam, "index": int(idx),
+                       "replaced_by_index": int(nb)})
+    return record
+
+
+def breath_hold_offsets(slice_ids: list[str], sigma_mm: float, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """In-plane (row, column) displacement in mm of each SA slice (zeros when σ = 0)."""
+    if sigma_mm <= 0:
+        return {s: np.zeros(2) for s in slice_ids}
+    return {s: rng.normal(0.0, sigma_mm, size=2) for s in slice_ids}

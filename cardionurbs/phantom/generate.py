@@ -1,0 +1,269 @@
+"""Generate a phantom study (Study + truth) and write it (native study, DICOM, truth.json).
+
+Pipeline of :func:`generate`: preset → seeded draw (presets.sample_subject) →
+ED anatomy solved to the draw (presets.solve_anatomy) → imaging planes
+(geometry) → frame-aligned volume curve with ED = frame 0 and ES =
+round(es_fraction · N) → motion whose twist amplitude is solved so that the
+METRICS.md twist between the outermost tag levels equals the draw → contours,
+landmarks and tag lines on every plane and frame (annotate) → faults → truth.
+
+Everything random is drawn from numpy Generators seeded by (seed, pathology,
+purpose), and DICOM UIDs are derived from the same inputs, so one seed gives
+byte-identical output.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pydicom.uid import generate_uid
+
+from cardionurbs.errors import PhantomError
+from cardionurbs.imaging.geometry import ImagePlane
+from cardionurbs.io import atomic
+from cardionurbs.io.native import write_study
+from cardionurbs.phantom import annotate, faults, truth
+from cardionurbs.phantom.anatomy import Anatomy
+from cardionurbs.phantom.geometry import Acquisition, HeartPose, SliceSpec, image_plane, slice_specs
+from cardionurbs.phantom.motion import Motion, VolumeCurve
+from cardionurbs.phantom.presets import (PATHOLOGIES, SubjectDraw, SubjectSpec, load_preset,
+                                         sample_subject, solve_anatomy)
+from cardionurbs.study import Contour, Landmark, Study, TagLine
+
+UID_PREFIX = "1.2.826.0.1.3680043.8.498."   # pydicom's registered root for generated UIDs
+SERIES = {"SA": "sa", "la_2ch": "la_2ch", "la_3ch": "la_3ch", "la_4ch": "la_4ch"}
+
+
+@dataclass
+class Phantom:
+    """A generated phantom: the study, its truth and the analytic model behind them."""
+
+    study: Study
+    truth: dict
+    anatomy: Anatomy
+    motion: Motion
+    pose: HeartPose
+    acquisition: Acquisition
+    slices: list[SliceSpec]
+    tag_grid: annotate.TagGrid
+    phases: np.ndarray
+    es_frame: int
+    draw: SubjectDraw
+    config: dict
+    shifts: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def frame_times_ms(self) -> np.ndarray:
+        return np.array([self.study.frame_times_ms[k] for k in range(len(self.phases))])
+
+
+def _rng(seed: int, pathology: str, purpose: str) -> np.random.Generator:
+    entropy = [int(seed), PATHOLOGIES.index(pathology) if pathology in PATHOLOGIES else 9,
+               zlib.crc32(purpose.encode())]
+    return np.random.default_rng(np.random.SeedSequence(entropy))
+
+
+def _check_args(pathology, seed, frames, noise_px, tag_jumps, breath_hold_mm) -> None:
+    if not isinstance(pathology, str) or pathology not in PATHOLOGIES:
+        raise PhantomError(f"unknown pathology {pathology!r}; expected one of {', '.join(PATHOLOGIES)}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise PhantomError(f"seed must be a whole number >= 0, got {seed!r}")
+    if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 2:
+        raise PhantomError(f"frames must be a whole number >= 2 (ED and ES), got {frames!r}")
+    if not (np.isfinite(noise_px) and noise_px >= 0):
+        raise PhantomError(f"noise_px must be a finite number >= 0, got {noise_px!r}")
+    if isinstance(tag_jumps, bool) or not isinstance(tag_jumps, (int, np.integer)) or tag_jumps < 0:
+        raise PhantomError(f"tag_jumps must be a whole number >= 0, got {tag_jumps!r}")
+    if not (np.isfinite(breath_hold_mm) and breath_hold_mm >= 0):
+        raise PhantomError(f"breath_hold_mm must be a finite number >= 0, got {breath_hold_mm!r}")
+
+
+def _twist_motion(anatomy: Anatomy, draw: SubjectDraw, curve: VolumeCurve, specs, grid, f_es) -> Motion:
+    """Motion whose level-based twist at ES equals the drawn twist (linear ψ(z), eq. M2)."""
+    v = draw.values
+    pm = draw.predicted_metrics()
+    eps = (v["ei_es"] ** 2 - 1.0) / (v["ei_es"] ** 2 + 1.0)
+    kw = dict(ls=v["ls_pct"] / 100.0, lv_ef=v["lvef_pct"] / 100.0, rv_ef=pm["RVEF (%)"] / 100.0,
+              septal_flattening=eps, z_base=anatomy.z_base, curve=curve)
+    probe = Motion(apex_rotation_deg=0.0, base_rotation_deg=0.0, **kw)
+    levels = truth.tag_levels(anatomy, probe, grid, specs, f_es)
+    if len(levels) < 2:
+        raise PhantomError("fewer than two LA tag levels lie between the tagged SA slices; "
+                           "use more SA slices or a smaller sa_spacing_mm")
+    span = (levels[-1]["distance_from_apex_mm"] - levels[0]["distance_from_apex_mm"]) / anatomy.z_base
+    total = v["twist_deg"] / (f_es * span)
+    share = v["base_rotation_share"]
+    return Motion(apex_rotation_deg=(1 - share) * total, base_rotation_deg=-share * total, **kw)
+
+
+def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_px: float = 0.0,
+             tag_jumps: int = 0, sa_spacing_mm: float = 10.0, sa_thickness_mm: float = 8.0,
+             n_sa: int | None = None, breath_hold_mm: float = 0.0, subject: str | None = None,
+             tag_spacing_px: float = 7.0, fov_mm: float = 300.0, matrix: int = 256,
+             volume_check: bool = True) -> Phantom:
+    """Generate one phantom subject.
+
+    Parameters
+    ----------
+    pathology : ``"normal"``, ``"mr"`` or ``"phtn"`` (preset in phantoms/).
+    seed : subject variability and fault seed (same seed → identical output).
+    frames : cardiac phases N >= 2 over one RR interval; frame 0 = ED.
+    noise_px, tag_jumps, breath_hold_mm : faults (see :mod:`cardionurbs.phantom.faults`).
+    sa_spacing_mm, sa_thickness_mm, n_sa : SA stack (n_sa None = cover base to apex).
+    tag_spacing_px : SPAMM tag spacing in pixels (7 in the paper).
+    volume_check : also compute the method-B mesh volumes at ED and ES into the truth.
+    """
+    _check_args(pathology, seed, frames, noise_px, tag_jumps, breath_hold_mm)
+    frames, seed, tag_jumps = int(frames), int(seed), int(tag_jumps)
+    preset = load_preset(pathology)
+    draw = sample_subject(preset, _rng(seed, pathology, "subject"))
+    anatomy = solve_anatomy(draw)
+    acq = Acquisition(rows=matrix, columns=matrix, fov_mm=fov_mm, sa_spacing_mm=sa_spacing_mm,
+                      sa_thickness_mm=sa_thickness_mm, n_sa=n_sa)
+    if not (np.isfinite(tag_spacing_px) and tag_spacing_px > 0):
+        raise PhantomError(f"tag_spacing_px must be positive, got {tag_spacing_px!r}")
+    specs = slice_specs(anatomy, acq)
+    es_frame = int(min(max(round(draw.values["es_fraction"] * frames), 1), frames - 1))
+    curve = VolumeCurve(es_fraction=es_frame / frames)
+    phases = curve(np.arange(frames) / frames)
+    f_es = float(phases[es_frame])
+    grid = annotate.make_tag_grid(anatomy, tag_spacing_px * acq.pixel_mm)
+    motion = _twist_motion(anatomy, draw, curve, specs, grid, f_es)
+    pose = HeartPose.default(anatomy.z_base)
+    hr = round(draw.values["heart_rate_bpm"], 1)
+    rr = 60000.0 / hr
+    times = {k: round(k * rr / frames, 3) for k in range(frames)}
+    subject = subject or f"{pathology}_{seed:03d}"
+    config = dict(pathology=pathology, seed=seed, frames=frames, noise_px=float(noise_px),
+                  tag_jumps=tag_jumps, sa_spacing_mm=float(sa_spacing_mm),
+                  sa_thickness_mm=float(sa_thickness_mm), n_sa=n_sa, breath_hold_mm=float(breath_hold_mm),
+                  tag_spacing_px=float(tag_spacing_px), fov_mm=float(fov_mm), matrix=int(matrix),
+                  subject=subject)
+    uid_base = json.dumps(config, sort_keys=True)
+
+    def uid(*parts) -> str:
+        return generate_uid(prefix=UID_PREFIX, entropy_srcs=[uid_base, *map(str, parts)])
+
+    shifts = faults.breath_hold_offsets([s.id for s in specs if s.view == "SA"], breath_hold_mm,
+                                        _rng(seed, pathology, "breath-hold"))
+    study = Study(subject=subject, frame_times_ms={k: float(t) for k, t in times.items()},
+                  heart_rate_bpm=float(hr), ed_frame=0, es_frame=es_frame, source=None,
+                  meta={"generator": "cardionurbs.phantom", "pathology": pathology, "seed": seed,
+                        "study_uid": uid("study"), "frame_of_reference_uid": uid("for")})
+    step = acq.pixel_mm
+    for spec in specs:
+        series = SERIES["SA"] if spec.view == "SA" else SERIES[spec.id]
+        for k in range(frames):
+            f = float(phases[k])
+            plane = image_plane(spec, pose, acq, k, uid("image", spec.id, k), times[k],
+                                file=f"dicom/{series}/{spec.id}_{k:02d}.dcm")
+            study.images.append(plane)
+            shift = np.zeros(3)
+            if spec.id in shifts:
+                shift = shifts[spec.id][0] * plane.row_cosine + shifts[spec.id][1] * plane.column_cosine
+
+            def scan(p):
+                return pose.to_scanner(p) + shift
+
+            if spec.view == "SA":
+                cont = annotate.sa_contours(anatomy, motion, spec, f)
+                for name in ("lv_endo", "lv_epi", "rv_endo", "rv_epi"):
+                    if name in cont:
+                        study.contours.append(Contour(name, "SA", spec.id, k, scan(cont[name]),
+                                                      image=plane.id, closed=True))
+                tags = annotate.sa_tag_lines(anatomy, motion, grid, spec, f, step)
+                ins = annotate.rv_insertion_points(anatomy, motion, spec, f)
+                if ins is not None:
+                    for i, p in enumerate(scan(ins)):
+                        study.landmarks.append(Landmark("rv_insert", k, p, index=i, slice=spec.id,
+                                                        view="SA", image=plane.id))
+            else:
+                cont = annotate.la_contours(anatomy, motion, spec, f, with_rv=spec.id == "la_4ch")
+                for name in ("lv_endo", "lv_epi", "rv_endo", "rv_epi"):
+                    if name in cont:
+                        study.contours.append(Contour(name, "LA", spec.id, k, scan(cont[name]),
+                                                      image=plane.id, closed=False))
+                tags = annotate.la_tag_lines(anatomy, motion, grid, spec, f, step)
+            for fam, idx, pts in tags:
+                study.tags.append(TagLine(fam, idx, spec.view, spec.id, k, scan(pts), image=plane.id))
+    for k in range(frames):
+        for name, pts in annotate.landmarks(anatomy, motion, float(phases[k])).items():
+            for i, p in enumerate(pose.to_scanner(pts)):
+                study.landmarks.append(Landmark(name, k, p, index=i))
+
+    jumps = faults.inject_tag_jumps(study, tag_jumps, _rng(seed, pathology, "tag-jumps"))
+    faults.add_noise(study, float(noise_px), _rng(seed, pathology, "noise"))
+
+    metrics, tag_truth = truth.compute_metrics(anatomy, motion, grid, specs, phases, es_frame, float(hr),
+                                               len(jumps))
+    fault_record = {"noise_px": float(noise_px), "tag_jumps": jumps,
+                    "breath_hold_mm": float(breath_hold_mm),
+                    "breath_hold_shifts_mm": ({k: [float(x) for x in v] for k, v in shifts.items()}
+                                              if breath_hold_mm > 0 else {})}
+    tr = {"format": "cardionurbs-phantom-truth", "version": 1, "subject": subject,
+          "pathology": pathology, "seed": seed, "ed_frame": 0, "es_frame": es_frame,
+          "metrics": metrics, "tags": tag_truth,
+          "motion": {**motion.to_dict(), "phase_per_frame": [float(x) for x in phases],
+                     "lambda_per_frame": [float(x) for x in motion.lam(phases)]},
+          "anatomy": anatomy.to_dict(), "pose": pose.to_dict(), "draw": draw.values,
+          "acquisition": dataclasses.asdict(acq), "faults": fault_record,
+          "slices": {s.id: ({"height_mm": s.height} if s.view == "SA"
+                            else {"azimuth_deg": float(np.degrees(s.azimuth))}) for s in specs}}
+    if volume_check:
+        tr["volumes"] = truth.volume_table(anatomy, motion, phases, [0, es_frame])
+    study.meta["truth"] = "truth.json"
+    return Phantom(study=study, truth=_json_safe(tr), anatomy=anatomy, motion=motion, pose=pose,
+                   acquisition=acq, slices=specs, tag_grid=grid, phases=phases, es_frame=es_frame,
+                   draw=draw, config=config, shifts=shifts)
+
+
+def _json_safe(obj):
+    """Floats as Python floats, NaN/inf as None, numpy scalars/arrays converted."""
+    if isinstance(obj, dict):
+        return {str(k): _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _json_safe(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if np.isfinite(v) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj
+
+
+def write_phantom(phantom: Phantom, out_dir: str | Path, dicom: bool = True) -> Path:
+    """Write the native study (study.json + points.csv), dicom/ and truth.json into ``out_dir``.
+
+    The folder is replaced atomically; the same phantom gives byte-identical files.
+    """
+    out_dir = Path(out_dir)
+    study = phantom.study
+    if not dicom:
+        study = dataclasses.replace(study, images=[dataclasses.replace(im, file=None)
+                                                   for im in study.images])
+    with atomic.atomic_dir(out_dir) as tmp:
+        write_study(study, tmp)
+        atomic.write_text(tmp / "truth.json", json.dumps(phantom.truth, indent=1, allow_nan=False) + "\n")
+        if dicom:
+            from cardionurbs.phantom.dicom import write_dicom
+            write_dicom(phantom, tmp)
+    return out_dir
+
+
+def generate_cohort(subjects: list[SubjectSpec], out_dir: str | Path, dicom: bool = True,
+                    **kw) -> list[Path]:
+    """Generate and write every subject of a cohort spec into ``out_dir/<id>``."""
+    out_dir = Path(out_dir)
+    paths = []
+    for s in subjects:
+        ph = generate(s.pathology, seed=s.seed, frames=s.frames, noise_px=s.noise_px,
+                      tag_jumps=s.tag_jumps, subject=s.id, **kw)
+        paths.append(write_phantom(ph, out_dir / s.id, dicom=dicom))
+    return paths

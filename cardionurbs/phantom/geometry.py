@@ -1,0 +1,164 @@
+"""Placement of the phantom heart in the scanner and its imaging planes.
+
+The heart frame (see :mod:`cardionurbs.phantom.anatomy`) is put in scanner
+(patient LPS, mm) space by a rigid map ``X = origin + R x`` whose columns
+``R = [e_x e_y e_z]`` are: e_z the long axis from apex to base pointing to the
+patient's right, posterior and superior (a realistic oblique orientation);
+e_x toward the RV (right and anterior), orthogonalised; e_y = e_z × e_x.
+
+Imaging planes (DICOM Image Plane module, see cardionurbs.imaging.geometry):
+
+* SA stack: planes z = h_k ⟂ long axis, numbered from base (``sa_00``) to
+  apex, the first ``sa_first_offset_mm`` below the ED base, then every
+  ``sa_spacing_mm`` while the ED LV cavity is still cut (h > z_endo_apex + 3 mm).
+  Row cosine at ``sa_rotation_deg`` about e_z from −e_x (RV on the image left),
+  column cosine e_z × row, so the plane normal is +e_z.
+* LA views through the long axis: 4-chamber (azimuth 0°, through the RV),
+  2-chamber (90°) and 3-chamber (135°); row cosine the radial direction
+  u = cos α e_x + sin α e_y, column cosine −e_z (base at the top).
+* 256 × 256 matrix, 300 mm field of view (pixel 1.171875 mm), images centred
+  near the heart.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cardionurbs.errors import PhantomError
+from cardionurbs.imaging.geometry import ImagePlane
+from cardionurbs.phantom.anatomy import Anatomy
+
+LA_VIEWS = {"la_4ch": 0.0, "la_2ch": 90.0, "la_3ch": 135.0}
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, dtype=float)
+    return v / np.linalg.norm(v)
+
+
+@dataclass(frozen=True)
+class HeartPose:
+    """Rigid placement of the heart frame in scanner coordinates (LPS, mm)."""
+
+    origin: np.ndarray
+    rotation: np.ndarray     # 3x3, columns e_x, e_y, e_z in scanner coordinates
+
+    @classmethod
+    def default(cls, z_base: float, long_axis=(-0.55, 0.42, 0.72), rv_direction=(-0.45, -0.85, 0.05),
+                mitral_center=(4.0, -12.0, 18.0)) -> "HeartPose":
+        """Realistic oblique pose: long axis right-posterior-superior, RV right-anterior."""
+        ez = _unit(long_axis)
+        ex = _unit(np.asarray(rv_direction, dtype=float) - np.dot(rv_direction, ez) * ez)
+        ey = np.cross(ez, ex)
+        rot = np.column_stack([ex, ey, ez])
+        origin = np.asarray(mitral_center, dtype=float) - z_base * ez
+        return cls(origin=origin, rotation=rot)
+
+    def to_scanner(self, points: np.ndarray) -> np.ndarray:
+        p = np.asarray(points, dtype=float).reshape(-1, 3)
+        return self.origin + p @ self.rotation.T
+
+    def to_heart(self, points: np.ndarray) -> np.ndarray:
+        p = np.asarray(points, dtype=float).reshape(-1, 3)
+        return (p - self.origin) @ self.rotation
+
+    def direction_to_scanner(self, v: np.ndarray) -> np.ndarray:
+        return np.asarray(v, dtype=float) @ self.rotation.T
+
+    def to_dict(self) -> dict:
+        return {"origin_mm": [float(v) for v in self.origin],
+                "axes": {"x_to_rv": [float(v) for v in self.rotation[:, 0]],
+                         "y": [float(v) for v in self.rotation[:, 1]],
+                         "z_apex_to_base": [float(v) for v in self.rotation[:, 2]]}}
+
+
+@dataclass(frozen=True)
+class SliceSpec:
+    """One imaging location: id, view, heart-frame plane (centre, row, column directions)."""
+
+    id: str
+    view: str
+    center: np.ndarray        # heart frame, mm
+    row: np.ndarray           # heart frame unit vector
+    column: np.ndarray        # heart frame unit vector
+    height: float | None = None      # SA: plane height z = h, mm
+    azimuth: float | None = None     # LA: α, radians
+
+    @property
+    def normal(self) -> np.ndarray:
+        return np.cross(self.row, self.column)
+
+
+@dataclass(frozen=True)
+class Acquisition:
+    """Imaging protocol: matrix, field of view, SA spacing/thickness."""
+
+    rows: int = 256
+    columns: int = 256
+    fov_mm: float = 300.0
+    sa_spacing_mm: float = 10.0
+    sa_thickness_mm: float = 8.0
+    la_thickness_mm: float = 8.0
+    sa_first_offset_mm: float = 6.0
+    sa_rotation_deg: float = 20.0
+    n_sa: int | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("fov_mm", "sa_spacing_mm", "sa_thickness_mm", "la_thickness_mm"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise PhantomError(f"{name} must be positive, got {v!r}")
+        if self.rows < 32 or self.columns < 32:
+            raise PhantomError("image matrix must be at least 32 x 32")
+        if self.n_sa is not None and self.n_sa < 2:
+            raise PhantomError(f"n_sa must be >= 2, got {self.n_sa!r}")
+
+    @property
+    def pixel_mm(self) -> float:
+        return self.fov_mm / max(self.rows, self.columns)
+
+
+def sa_heights(anatomy: Anatomy, acq: Acquisition) -> np.ndarray:
+    """Heights h_k (mm above the apex) of the SA slices, base to apex."""
+    top = anatomy.z_base - acq.sa_first_offset_mm
+    if acq.n_sa is not None:
+        h = top - acq.sa_spacing_mm * np.arange(acq.n_sa)
+    else:
+        n = int(np.floor((top - (anatomy.z_endo_apex + 3.0)) / acq.sa_spacing_mm)) + 1
+        h = top - acq.sa_spacing_mm * np.arange(max(n, 2))
+    if h[-1] <= 0:
+        raise PhantomError(f"the SA stack ({len(h)} slices, spacing {acq.sa_spacing_mm:g} mm) "
+                           "extends beyond the apex")
+    return h
+
+
+def slice_specs(anatomy: Anatomy, acq: Acquisition) -> list[SliceSpec]:
+    """SA stack (base to apex) then the 2-, 3- and 4-chamber LA views (heart frame)."""
+    out = []
+    g = np.radians(acq.sa_rotation_deg)
+    row = np.array([-np.cos(g), -np.sin(g), 0.0])
+    col = np.cross([0.0, 0.0, 1.0], row)
+    for k, h in enumerate(sa_heights(anatomy, acq)):
+        out.append(SliceSpec(f"sa_{k:02d}", "SA", np.array([12.0, 0.0, h]), row, col, height=float(h)))
+    for name in ("la_2ch", "la_3ch", "la_4ch"):
+        a = np.radians(LA_VIEWS[name])
+        u = np.array([np.cos(a), np.sin(a), 0.0])
+        centre = np.array([0.0, 0.0, 0.55 * anatomy.z_base]) + 10.0 * u
+        out.append(SliceSpec(name, "LA", centre, u, np.array([0.0, 0.0, -1.0]), azimuth=float(a)))
+    return out
+
+
+def image_plane(spec: SliceSpec, pose: HeartPose, acq: Acquisition, frame: int, image_id: str,
+                trigger_time: float | None, file: str | None = None) -> ImagePlane:
+    """The DICOM geometry of one slice at one frame (ImagePositionPatient = first pixel centre)."""
+    px = acq.pixel_mm
+    row = pose.direction_to_scanner(spec.row)
+    col = pose.direction_to_scanner(spec.column)
+    centre = pose.to_scanner(spec.center)[0]
+    position = centre - 0.5 * (acq.columns - 1) * px * row - 0.5 * (acq.rows - 1) * px * col
+    thick = acq.sa_thickness_mm if spec.view == "SA" else acq.la_thickness_mm
+    return ImagePlane(id=image_id, slice=spec.id, view=spec.view, frame=frame, position=position,
+                      row_cosine=row, column_cosine=col, pixel_spacing=(px, px), rows=acq.rows,
+                      columns=acq.columns, thickness=thick, trigger_time=trigger_time, file=file)
