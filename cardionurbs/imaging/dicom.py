@@ -439,7 +439,7 @@ def _name_slices(slices: list[list[DicomHeader]]):
         n = stack.stack_normal(normals[sa_idx])
         u, rule = stack.base_to_apex_direction(n, centers[sa_idx])
         depth = centers[sa_idx] @ u
-        spacing = stack.slice_spacing(depth)
+        spacing = stack.slice_spacing(np.array([slices[i][0].position for i in sa_idx]) @ u)
         for k, i in enumerate(sa_idx[np.argsort(depth, kind="stable")]):
             names[i] = f"sa_{k:02d}"
     used: set[str] = set()

@@ -234,8 +234,8 @@ def read_study(path: str | Path) -> Study:
                          row_cosine=planes[s["id"]].row_cosine,
                          column_cosine=planes[s["id"]].column_cosine,
                          pixel_spacing=planes[s["id"]].pixel_spacing, rows=DEFAULT_ROWS,
-                         columns=DEFAULT_COLUMNS, thickness=DEFAULT_THICKNESS_MM, file=s["file"])
-              for s in slices for fr in frames]
+                         columns=DEFAULT_COLUMNS, thickness=DEFAULT_THICKNESS_MM)
+              for s in slices for fr in frames]  # DICOM names: meta only (files are absent)
     contours: list[Contour] = []
     landmarks: list[Landmark] = []
     frame_meta = {}
