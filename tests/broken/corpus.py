@@ -16,6 +16,7 @@ import numpy as np
 import pydicom
 from pydicom.dataset import Dataset, FileMetaDataset
 from pydicom.uid import ExplicitVRLittleEndian, generate_uid
+from pydicom.valuerep import DSfloat
 
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import gpfile, native
@@ -33,6 +34,11 @@ if SA_NORMAL @ np.array([1.0, -1.0, -1.0]) < 0:  # make +normal point base -> ap
     SA_COL = -SA_COL
     SA_NORMAL = -SA_NORMAL
 SA_ORIGIN = np.array([-60.0, -80.0, 40.0])
+
+
+def ds_text(v: float) -> str:
+    """A DICOM DS string (at most 16 characters, as many digits as fit)."""
+    return str(DSfloat(float(v), auto_format=True))
 
 
 def write_dicom_image(path: Path, *, position, row, col, spacing=(2.0, 2.0), rows=32, columns=32,
@@ -57,9 +63,9 @@ def write_dicom_image(path: Path, *, position, row, col, spacing=(2.0, 2.0), row
     ds.SeriesNumber = series_number
     ds.SeriesDescription = description
     ds.InstanceNumber = instance
-    ds.ImagePositionPatient = [f"{v:.10g}" for v in position]
-    ds.ImageOrientationPatient = [f"{v:.10g}" for v in np.r_[row, col]]
-    ds.PixelSpacing = [f"{v:.10g}" for v in spacing]
+    ds.ImagePositionPatient = [ds_text(v) for v in position]
+    ds.ImageOrientationPatient = [ds_text(v) for v in np.r_[row, col]]
+    ds.PixelSpacing = [ds_text(v) for v in spacing]
     ds.SliceThickness = f"{thickness:g}"
     if trigger_time is not None:
         ds.TriggerTime = f"{trigger_time:.6g}"
@@ -239,7 +245,7 @@ def _tilt_slice(root: Path) -> None:
     def edit(ds):
         c, s = np.cos(np.deg2rad(8)), np.sin(np.deg2rad(8))
         row = SA_ROW * c + SA_NORMAL * s
-        ds.ImageOrientationPatient = [f"{v:.10g}" for v in np.r_[row, SA_COL]]
+        ds.ImageOrientationPatient = [ds_text(v) for v in np.r_[row, SA_COL]]
     for k in (2, 3):  # both images of slice 1
         _rewrite_dicom(root, edit, k)
 
