@@ -1,0 +1,533 @@
+"""Material points: where three tag surfaces, one per family, meet.
+
+Tag planes are laid down in the tissue at ED and move with it, so the point
+where tag surfaces ``sa1 #i``, ``sa2 #j`` and ``la #k`` meet is the same
+piece of myocardium at every frame (METRICS.md, Tags). For every triple
+(i, j, k) and frame we solve
+
+    S1(u1, v1) = S2(u2, v2) = S3(u3, v3)                                  (M1)
+
+for the six surface parameters by damped Newton (Gauss–Newton with a tiny
+Levenberg term): residual F = [S1 − S2, S2 − S3] ∈ R⁶, Jacobian
+J = [[S1u S1v −S2u −S2v 0 0], [0 0 S2u S2v −S3u −S3v]] (3 × 2 blocks of
+surface first derivatives, NURBS Book A3.6/A4.4). All triples iterate
+together; each surface is evaluated once per iteration at the parameters of
+the triples that use it.
+
+Starting values: at ED the three surfaces are close to planes, so the start
+is the intersection of the three least-squares planes of the surfaces'
+data, projected on a parameter grid of each surface; at any other frame the
+start is the ED solution (the same tissue has nearly the same surface
+parameters), with the plane start as a fallback. Triples whose ED point
+lies outside the LV myocardium (SA contours at ED) or outside a surface's
+parameter domain are left out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cardionurbs.analysis.tag_surfaces import TagSurface, build_tag_surfaces
+from cardionurbs.study import Study
+
+FAMILIES = ("sa1", "sa2", "la")
+NEWTON_TOL_MM = 1e-4
+ACCEPT_TOL_MM = 0.05
+MAX_ITER = 20
+_GRID = 25
+
+
+# ------------------------------------------------------ batched evaluation
+def basis_with_derivative(knots: np.ndarray, spans: np.ndarray, t: np.ndarray,
+                          p: int) -> tuple[np.ndarray, np.ndarray]:
+    """Non-zero B-spline basis N_{span-p..span, p}(t) and first derivatives, row by row.
+
+    NURBS Book A2.2 (triangular table ``ndu``) and A2.3 for k = 1,
+    vectorised over rows that each have their own knot vector
+    (``knots`` (k, m), ``spans`` (k,), ``t`` (k,)). Returns two (k, p + 1) arrays.
+    """
+    k = len(t)
+    rows = np.arange(k)
+    ndu = np.zeros((k, p + 1, p + 1))
+    ndu[:, 0, 0] = 1.0
+    left = np.zeros((k, p + 1))
+    right = np.zeros((k, p + 1))
+    for j in range(1, p + 1):
+        left[:, j] = t - knots[rows, spans + 1 - j]
+        right[:, j] = knots[rows, spans + j] - t
+        saved = np.zeros(k)
+        for r in range(j):
+            ndu[:, j, r] = right[:, r + 1] + left[:, j - r]
+            temp = ndu[:, r, j - 1] / ndu[:, j, r]
+            ndu[:, r, j] = saved + right[:, r + 1] * temp
+            saved = left[:, j - r] * temp
+        ndu[:, j, j] = saved
+    N = ndu[:, :, p].copy()
+    dN = np.zeros((k, p + 1))
+    for r in range(p + 1):
+        if r >= 1:
+            dN[:, r] += ndu[:, r - 1, p - 1] / ndu[:, p, r - 1]
+        if r <= p - 1:
+            dN[:, r] -= ndu[:, r, p - 1] / ndu[:, p, r]
+    return N, p * dN
+
+
+def _spans(knots: np.ndarray, n_ctrl: np.ndarray, p: int, t: np.ndarray) -> np.ndarray:
+    """Knot span index per row (A2.1): last i with U[i] <= t, in [p, n - 1]."""
+    count = (knots <= t[:, None]).sum(axis=1)
+    return np.clip(count - 1, p, n_ctrl - 1)
+
+
+class SurfaceBatch:
+    """Many open NURBS surfaces evaluated together, one (surface, u, v) per row.
+
+    Knot vectors and homogeneous control nets are padded per (degree_u,
+    degree_v) group, so one call costs a few array operations whatever the
+    number of surfaces (A3.6/A4.4 with first derivatives, vectorised).
+    """
+
+    def __init__(self, surfaces: list) -> None:
+        self.surfaces = list(surfaces)
+        self.groups: dict[tuple[int, int], dict] = {}
+        self.group_of = np.empty(len(self.surfaces), dtype=object)
+        self.pos_in_group = np.zeros(len(self.surfaces), int)
+        by: dict[tuple[int, int], list[int]] = {}
+        for i, srf in enumerate(self.surfaces):
+            if getattr(srf, "closed_u", False):
+                raise ValueError("SurfaceBatch handles open surfaces only")
+            by.setdefault((srf.degree_u, srf.degree_v), []).append(i)
+        for key, ids in by.items():
+            srfs = [self.surfaces[i] for i in ids]
+            nu = np.array([s_.control_points.shape[0] for s_ in srfs])
+            nv = np.array([s_.control_points.shape[1] for s_ in srfs])
+            Ku = np.full((len(ids), nu.max() + key[0] + 1), np.inf)
+            Kv = np.full((len(ids), nv.max() + key[1] + 1), np.inf)
+            Pw = np.zeros((len(ids), nu.max(), nv.max(), 4))
+            for g, s_ in enumerate(srfs):
+                Ku[g, :len(s_.knots_u)] = s_.knots_u
+                Kv[g, :len(s_.knots_v)] = s_.knots_v
+                w = s_.weights[..., None]
+                Pw[g, :nu[g], :nv[g]] = np.concatenate([s_.control_points * w, w], axis=-1)
+            self.groups[key] = {"Ku": Ku, "Kv": Kv, "Pw": Pw, "nu": nu, "nv": nv}
+            for g, i in enumerate(ids):
+                self.group_of[i] = key
+                self.pos_in_group[i] = g
+
+    def derivatives(self, sid: np.ndarray, u: np.ndarray, v: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """S, ∂S/∂u, ∂S/∂v (each (k, 3)) of surface ``sid[r]`` at (u[r], v[r])."""
+        sid = np.asarray(sid, int)
+        S = np.empty((len(sid), 3))
+        Su = np.empty_like(S)
+        Sv = np.empty_like(S)
+        keys = self.group_of[sid] if len(sid) else np.empty(0, dtype=object)
+        for key, grp in self.groups.items():
+            rows = np.flatnonzero([k_ == key for k_ in keys]) if len(self.groups) > 1 \
+                else np.arange(len(sid))
+            if len(rows) == 0:
+                continue
+            p, q = key
+            g = self.pos_in_group[sid[rows]]
+            Ku, Kv = grp["Ku"][g], grp["Kv"][g]
+            su = _spans(Ku, grp["nu"][g], p, u[rows])
+            sv = _spans(Kv, grp["nv"][g], q, v[rows])
+            Nu, dNu = basis_with_derivative(Ku, su, u[rows], p)
+            Nv, dNv = basis_with_derivative(Kv, sv, v[rows], q)
+            iu = su[:, None] - p + np.arange(p + 1)
+            iv = sv[:, None] - q + np.arange(q + 1)
+            P = grp["Pw"][g[:, None, None], iu[:, :, None], iv[:, None, :]]   # (k, p+1, q+1, 4)
+            A = np.einsum("ka,kb,kabc->kc", Nu, Nv, P)
+            Au = np.einsum("ka,kb,kabc->kc", dNu, Nv, P)
+            Av = np.einsum("ka,kb,kabc->kc", Nu, dNv, P)
+            w = A[:, 3:]
+            pt = A[:, :3] / w
+            S[rows] = pt
+            Su[rows] = (Au[:, :3] - Au[:, 3:] * pt) / w
+            Sv[rows] = (Av[:, :3] - Av[:, 3:] * pt) / w
+        return S, Su, Sv
+
+
+class CurveBatch:
+    """Many open NURBS curves evaluated together, one (curve, u) per row (A4.2, k = 1)."""
+
+    def __init__(self, curves: list) -> None:
+        self.curves = list(curves)
+        ps = {c.degree for c in self.curves}
+        self.by_degree: dict[int, dict] = {}
+        self.deg = np.array([c.degree for c in self.curves])
+        self.pos = np.zeros(len(self.curves), int)
+        for p in ps:
+            ids = [i for i, c in enumerate(self.curves) if c.degree == p]
+            n = np.array([len(self.curves[i].control_points) for i in ids])
+            K = np.full((len(ids), n.max() + p + 1), np.inf)
+            Pw = np.zeros((len(ids), n.max(), 4))
+            for g, i in enumerate(ids):
+                c = self.curves[i]
+                K[g, :len(c.knots)] = c.knots
+                w = c.weights[:, None]
+                Pw[g, :n[g]] = np.column_stack([c.control_points * w, w])
+                self.pos[i] = g
+            self.by_degree[p] = {"K": K, "Pw": Pw, "n": n}
+
+    def derivatives(self, cid: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """C and C' (each (k, 3)) of curve ``cid[r]`` at u[r]."""
+        cid = np.asarray(cid, int)
+        C = np.empty((len(cid), 3))
+        dC = np.empty_like(C)
+        for p, grp in self.by_degree.items():
+            rows = np.flatnonzero(self.deg[cid] == p)
+            if len(rows) == 0:
+                continue
+            g = self.pos[cid[rows]]
+            K = grp["K"][g]
+            sp = _spans(K, grp["n"][g], p, u[rows])
+            N, dN = basis_with_derivative(K, sp, u[rows], p)
+            idx = sp[:, None] - p + np.arange(p + 1)
+            P = grp["Pw"][g[:, None], idx]
+            A = np.einsum("ka,kac->kc", N, P)
+            Au = np.einsum("ka,kac->kc", dN, P)
+            w = A[:, 3:]
+            C[rows] = A[:, :3] / w
+            dC[rows] = (Au[:, :3] - Au[:, 3:] * C[rows]) / w
+        return C, dC
+
+
+def surface_derivatives(surface, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, ...]:
+    """S, ∂S/∂u, ∂S/∂v at parameter pairs (u[k], v[k]) of one surface -> three (k, 3) arrays."""
+    d = surface.derivatives(np.asarray(u, float), np.asarray(v, float), order=1)
+    return d[:, 0, 0], d[:, 1, 0], d[:, 0, 1]
+
+
+def surface_grid(surface, n: int = _GRID) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters (n², 2) and points (n², 3) of a uniform n × n grid on a surface."""
+    t = np.linspace(0.0, 1.0, n)
+    pts = np.asarray(surface.evaluate(t, t)).reshape(-1, 3)
+    uu, vv = np.meshgrid(t, t, indexing="ij")
+    return np.column_stack([uu.ravel(), vv.ravel()]), pts
+
+
+def best_fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares plane (centroid, unit normal) of (n, 3) points (smallest singular vector)."""
+    c = points.mean(axis=0)
+    n = np.linalg.svd(points - c, full_matrices=False)[2][-1]
+    return c, n
+
+
+# --------------------------------------------------------------- myocardium
+def _polygon_signed_distance(pts2: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Signed distance (positive inside) of (n, 2) points to a closed (m, 2) polygon."""
+    a = poly
+    b = np.roll(poly, -1, axis=0)
+    ab = b - a
+    ap = pts2[:, None, :] - a[None]
+    t = np.clip((ap * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0.0, 1.0)
+    d = np.linalg.norm(ap - t[..., None] * ab, axis=-1).min(axis=1)
+    # crossing-number point-in-polygon test
+    y = pts2[:, 1:2]
+    cond = (a[None, :, 1] > y) != (b[None, :, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xint = a[None, :, 0] + (y - a[None, :, 1]) * ab[None, :, 0] / ab[None, :, 1]
+    inside = (cond & (pts2[:, :1] < xint)).sum(axis=1) % 2 == 1
+    return np.where(inside, d, -d)
+
+
+def myocardium_margin(study: Study, frame: int, points: np.ndarray) -> np.ndarray | None:
+    """Signed distance (mm, positive inside) of points to the LV myocardium, or None.
+
+    Built from the closed SA ``lv_endo`` / ``lv_epi`` contours of ``frame``:
+    in each slice the margin is min(distance inside the epicardium, distance
+    outside the endocardium); between slices it is interpolated linearly
+    along the stack normal; beyond the first or last contoured slice it is
+    negative. None when the frame has no such contour pair.
+    """
+    from cardionurbs.analysis.tag_surfaces import stack_normal
+    rings = {}
+    for c in study.contours_at(frame, ("lv_endo", "lv_epi"), view="SA"):
+        if c.closed:
+            rings.setdefault(c.slice, {})[c.structure] = c.points
+    rings = {s: r for s, r in rings.items() if len(r) == 2}
+    if not rings:
+        return None
+    n = stack_normal(study)
+    pts = np.asarray(points, float).reshape(-1, 3)
+    slices = sorted(rings, key=lambda s: float(rings[s]["lv_epi"].mean(axis=0) @ n))
+    keys = np.array([float(rings[s]["lv_epi"].mean(axis=0) @ n) for s in slices])
+    margins = np.empty((len(slices), len(pts)))
+    for m, s in enumerate(slices):
+        plane = study.slice_plane(s, frame) if any(im.slice == s and im.frame == frame
+                                                  for im in study.images) else study.slice_plane(s)
+        e1, e2 = plane.row_cosine, plane.column_cosine
+        o = plane.position
+        to2 = lambda p: np.column_stack([(p - o) @ e1, (p - o) @ e2])  # noqa: E731
+        q = to2(pts)
+        d_epi = _polygon_signed_distance(q, to2(rings[s]["lv_epi"]))
+        d_endo = _polygon_signed_distance(q, to2(rings[s]["lv_endo"]))
+        margins[m] = np.minimum(d_epi, -d_endo)
+    h = pts @ n
+    out = np.full(len(pts), -np.inf)
+    if len(slices) == 1:
+        return margins[0]
+    j = np.clip(np.searchsorted(keys, h) - 1, 0, len(keys) - 2)
+    w = (h - keys[j]) / (keys[j + 1] - keys[j])
+    ok = (w >= -1e-9) & (w <= 1 + 1e-9)
+    cols = np.arange(len(pts))
+    out[ok] = ((1 - w) * margins[j, cols] + w * margins[j + 1, cols])[ok]
+    return out
+
+
+# ------------------------------------------------------------------- Newton
+class _Surfaces:
+    """The three families' surfaces of one frame, indexed by tag index, batched per family."""
+
+    def __init__(self, by_family: dict[str, dict[int, TagSurface]]) -> None:
+        self.by_family = by_family
+        self.batch = {}
+        self.lookup = {}
+        for f, d in by_family.items():
+            keys = sorted(d)
+            self.batch[f] = SurfaceBatch([d[k].surface for k in keys])
+            lut = np.full(max(keys) - min(keys) + 1 if keys else 0, -1)
+            for pos, k in enumerate(keys):
+                lut[k - min(keys)] = pos
+            self.lookup[f] = (min(keys) if keys else 0, lut)
+
+    def evaluate(self, fam: str, idx: np.ndarray, uv: np.ndarray):
+        lo, lut = self.lookup[fam]
+        return self.batch[fam].derivatives(lut[np.asarray(idx) - lo], uv[:, 0], uv[:, 1])
+
+
+def _wrap_or_clip(params: np.ndarray, periodic: tuple[bool, bool, bool]) -> np.ndarray:
+    p = params.copy()
+    for f in range(3):
+        p[:, 2 * f] = np.clip(p[:, 2 * f], 0.0, 1.0)
+        if periodic[f]:
+            p[:, 2 * f + 1] = np.mod(p[:, 2 * f + 1], 1.0)
+        else:
+            p[:, 2 * f + 1] = np.clip(p[:, 2 * f + 1], 0.0, 1.0)
+    return p
+
+
+def intersect_three_surfaces(surfs: _Surfaces, triples: np.ndarray, params: np.ndarray,
+                             max_iter: int = MAX_ITER) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Solve (M1) for every triple from starting parameters (n, 6).
+
+    Returns (points (n, 3), params (n, 6), residual (n,) mm). The step is a
+    Gauss–Newton step with Levenberg damping λ = 1e-10·tr(JᵀJ), limited to
+    0.2 in any parameter; non-periodic parameters are clipped to [0, 1], the
+    angular parameter of the closed LA fan wraps.
+    """
+    periodic = tuple(bool(next(iter(surfs.by_family[f].values())).periodic_v)
+                     if surfs.by_family[f] else False for f in FAMILIES)
+    p = _wrap_or_clip(np.asarray(params, float), periodic)
+    n = len(triples)
+    active = np.ones(n, bool)
+    res = np.full(n, np.inf)
+    X = np.full((n, 3), np.nan)
+    for _ in range(max_iter + 1):
+        rows = np.flatnonzero(active)
+        if len(rows) == 0:
+            break
+        ev = [surfs.evaluate(f, triples[rows, c], p[rows, 2 * c:2 * c + 2])
+              for c, f in enumerate(FAMILIES)]
+        (S1, S1u, S1v), (S2, S2u, S2v), (S3, S3u, S3v) = ev
+        F = np.concatenate([S1 - S2, S2 - S3], axis=1)
+        r = np.linalg.norm(F, axis=1)
+        res[rows] = r
+        X[rows] = (S1 + S2 + S3) / 3.0
+        done = r < NEWTON_TOL_MM
+        active[rows[done]] = False
+        rows, F = rows[~done], F[~done]
+        if len(rows) == 0:
+            break
+        k = ~done
+        J = np.zeros((len(rows), 6, 6))
+        J[:, 0:3, 0], J[:, 0:3, 1] = S1u[k], S1v[k]
+        J[:, 0:3, 2], J[:, 0:3, 3] = -S2u[k], -S2v[k]
+        J[:, 3:6, 2], J[:, 3:6, 3] = S2u[k], S2v[k]
+        J[:, 3:6, 4], J[:, 3:6, 5] = -S3u[k], -S3v[k]
+        JtJ = np.einsum("nij,nik->njk", J, J)
+        lam = 1e-10 * np.trace(JtJ, axis1=1, axis2=2)[:, None, None] * np.eye(6)
+        step = -np.linalg.solve(JtJ + lam + 1e-12 * np.eye(6), np.einsum("nij,ni->nj", J, F)[..., None])[..., 0]
+        big = np.abs(step).max(axis=1, keepdims=True)
+        step *= np.minimum(1.0, 0.2 / np.maximum(big, 1e-300))
+        new = _wrap_or_clip(p[rows] + step, periodic)
+        moved = np.abs(new - p[rows]).max(axis=1)
+        p[rows] = new
+        # stuck against a domain boundary, or hopeless: stop iterating those rows
+        active[rows[moved < 1e-12]] = False
+    return X, p, res
+
+
+def start_from_planes(surfs: _Surfaces, triples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Starting points and parameters (n, 3), (n, 6) from the three least-squares planes.
+
+    The planes' intersection point is projected on each surface by the
+    nearest node of a 25 × 25 parameter grid. Also returns, as the third
+    item of the tuple, the largest point-to-grid distance (mm) per triple, a
+    cheap test of whether the point is inside all three surfaces' domains.
+    """
+    planes = {}
+    grids = {}
+    for f in FAMILIES:
+        for k, ts in surfs.by_family[f].items():
+            pts = np.vstack([s.points for s in ts.sections])
+            planes[(f, k)] = best_fit_plane(pts)
+            grids[(f, k)] = surface_grid(ts.surface)
+    A = np.empty((len(triples), 3, 3))
+    b = np.empty((len(triples), 3))
+    for c, f in enumerate(FAMILIES):
+        for k in np.unique(triples[:, c]):
+            rows = triples[:, c] == k
+            cen, nrm = planes[(f, int(k))]
+            A[rows, c] = nrm
+            b[rows, c] = nrm @ cen
+    X0 = np.linalg.solve(A + 1e-12 * np.eye(3), b[..., None])[..., 0]
+    params = np.empty((len(triples), 6))
+    gap = np.zeros(len(triples))
+    for c, f in enumerate(FAMILIES):
+        for k in np.unique(triples[:, c]):
+            rows = np.flatnonzero(triples[:, c] == k)
+            uv, g = grids[(f, int(k))]
+            d2 = ((X0[rows, None, :] - g[None]) ** 2).sum(-1)
+            j = np.argmin(d2, axis=1)
+            params[rows, 2 * c:2 * c + 2] = uv[j]
+            gap[rows] = np.maximum(gap[rows], np.sqrt(d2[np.arange(len(rows)), j]))
+    return X0, params, gap
+
+
+# ------------------------------------------------------------------ results
+@dataclass
+class MaterialPoints:
+    """Material points of a study: one row per tag triple (sa1 i, sa2 j, la k).
+
+    Attributes
+    ----------
+    triples : (n, 3) int
+        Tag indices (sa1, sa2, la).
+    positions : dict frame -> (n, 3)
+        Scanner mm at each tracked frame; NaN where the three surfaces do not
+        meet inside their domains at that frame.
+    ed_frame, es_frame : int
+    dropped : int
+        Triples left out at ED (outside the myocardium or the surfaces).
+    notes : list of str
+    """
+
+    triples: np.ndarray
+    positions: dict[int, np.ndarray]
+    ed_frame: int
+    es_frame: int
+    dropped: int = 0
+    notes: list[str] = field(default_factory=list)
+    params: dict[int, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def frames(self) -> list[int]:
+        return sorted(self.positions)
+
+    def tracked(self, *frames: int) -> np.ndarray:
+        """Boolean mask of the triples found at every one of ``frames``."""
+        m = np.ones(len(self.triples), bool)
+        for f in frames:
+            m &= np.all(np.isfinite(self.positions[f]), axis=1)
+        return m
+
+    def displacement(self, f0: int | None = None, f1: int | None = None) -> np.ndarray:
+        """(n, 3) displacement, mm, from frame f0 (ED) to f1 (ES)."""
+        f0 = self.ed_frame if f0 is None else f0
+        f1 = self.es_frame if f1 is None else f1
+        return self.positions[f1] - self.positions[f0]
+
+
+def _complete(surfaces: dict) -> _Surfaces | None:
+    by = {f: {k[1]: ts for k, ts in surfaces.items() if k[0] == f} for f in FAMILIES}
+    return _Surfaces(by) if all(by[f] for f in FAMILIES) else None
+
+
+def material_points(study: Study, ed_frame: int | None = None, es_frame: int | None = None,
+                    frames: list[int] | None = None, long_axis: tuple | None = None,
+                    surfaces: dict | None = None, margin_mm: float = 0.0) -> MaterialPoints:
+    """Material points (tag-surface triple intersections) at ED, ES and ``frames``.
+
+    Parameters
+    ----------
+    study : Study
+        With tag lines of all three families at ED.
+    ed_frame, es_frame : int
+        Default to the study's labels; ``frames`` defaults to every tagged
+        frame (ED first).
+    long_axis : (apex, base centre) at ED, mm
+        For lofting the LA family; from the landmarks when omitted.
+    surfaces : dict frame -> {(family, index): TagSurface}, optional
+        Pre-built surfaces (:func:`build_tag_surfaces`), to share work.
+    margin_mm : float
+        A point is kept when its ED signed distance inside the LV
+        myocardium is >= -margin_mm (mm) (no test without ED contours).
+    """
+    from cardionurbs.analysis.tags import long_axis_from_study, resolve_frames
+    ed_frame, es_frame = resolve_frames(study, ed_frame, es_frame)
+    if frames is None:
+        frames = [f for f in study.tagged_frames]
+    frames = [ed_frame] + [f for f in dict.fromkeys([es_frame, *frames]) if f != ed_frame]
+    if long_axis is None:
+        long_axis = long_axis_from_study(study, ed_frame)
+    surfaces = dict(surfaces or {})
+    notes: list[str] = []
+    for f in frames:
+        if f not in surfaces:
+            surfaces[f] = build_tag_surfaces(study, f, long_axis)
+    ed = _complete(surfaces[ed_frame])
+    empty = MaterialPoints(np.zeros((0, 3), int), {f: np.zeros((0, 3)) for f in frames},
+                           ed_frame, es_frame, 0, notes)
+    if ed is None:
+        notes.append(f"frame {ed_frame}: tag surfaces of all three families are needed for "
+                     "material points")
+        return empty
+    grid = np.array(np.meshgrid(sorted(ed.by_family["sa1"]), sorted(ed.by_family["sa2"]),
+                                sorted(ed.by_family["la"]), indexing="ij")).reshape(3, -1).T
+    X0, p0, gap = start_from_planes(ed, grid)
+    keep = gap < 8.0
+    margin0 = myocardium_margin(study, ed_frame, X0)
+    if margin0 is not None:
+        keep &= margin0 > -(margin_mm + 4.0)
+    else:
+        notes.append(f"frame {ed_frame}: no SA myocardial contours; material points not "
+                     "restricted to the myocardium")
+    triples, p0 = grid[keep], p0[keep]
+    X, p, res = intersect_three_surfaces(ed, triples, p0)
+    ok = res < ACCEPT_TOL_MM
+    margin = myocardium_margin(study, ed_frame, X)
+    if margin is not None:
+        ok &= margin >= -margin_mm
+    dropped = len(grid) - int(ok.sum())
+    triples, X, p = triples[ok], X[ok], p[ok]
+    positions = {ed_frame: X}
+    params = {ed_frame: p}
+    for f in frames[1:]:
+        sf = _complete(surfaces[f])
+        if sf is None:
+            positions[f] = np.full_like(X, np.nan)
+            notes.append(f"frame {f}: not all three tag families; no material points")
+            continue
+        has = np.array([all(int(t[c]) in sf.by_family[fam] for c, fam in enumerate(FAMILIES))
+                        for t in triples], bool) if len(triples) else np.zeros(0, bool)
+        Xf = np.full_like(X, np.nan)
+        pf = np.full_like(p, np.nan)
+        if has.any():
+            rows = np.flatnonzero(has)
+            x1, p1, r1 = intersect_three_surfaces(sf, triples[rows], p[rows])
+            bad = r1 >= ACCEPT_TOL_MM
+            if bad.any():
+                _, pb, _ = start_from_planes(sf, triples[rows[bad]])
+                x2, p2, r2 = intersect_three_surfaces(sf, triples[rows[bad]], pb)
+                better = r2 < r1[bad]
+                idx = np.flatnonzero(bad)[better]
+                x1[idx], p1[idx], r1[idx] = x2[better], p2[better], r2[better]
+            good = r1 < ACCEPT_TOL_MM
+            Xf[rows[good]] = x1[good]
+            pf[rows[good]] = p1[good]
+        positions[f] = Xf
+        params[f] = pf
+    return MaterialPoints(triples, positions, ed_frame, es_frame, dropped, notes, params)

@@ -1,0 +1,366 @@
+"""Tag surfaces: tracked tag lines fitted as curves and lofted across slices.
+
+Paper §3.2 (curve approximation, eqs. 6–10) and §4.2.3 (tag surface
+reconstruction): every tracked tag line (one tag (family, index) in one image
+at one frame, scanner mm) is approximated by a degree-3 NURBS curve, and the
+curves of one tag at one frame are lofted (§3.2.4) into a tag surface.
+
+Families and how they are lofted
+--------------------------------
+``sa1``, ``sa2``
+    Tag planes parallel to the long axis, seen as lines in the short-axis
+    (SA) stack. The lines of one tag are ordered along the stack normal
+    (base → apex, the order of ``sa_00, sa_01, ...``) and lofted across the
+    stack: ``u`` runs along the tag line, ``v`` across the slices.
+``la``
+    Tag planes perpendicular to the long axis, seen as lines in the long-axis
+    (LA) views. The views (2-, 3-, 4-chamber) are half-planes pairs at
+    different angles around the long axis, so one LA tag line crosses the
+    axis once. **Decision**: each LA line is cut where it crosses the long
+    axis (at the middle of its cavity gap when it has one, else at its point
+    nearest the axis) into two *spokes* running from the axis outward; the
+    spokes of all views are ordered by their angle about the long axis and
+    lofted *around* it, the first spoke repeated at the end so that the
+    surface closes (``u`` radial, ``v`` angular, ``v = 0`` and ``v = 1`` on
+    the same spoke). Three LA views give six spokes 60° apart on average:
+    enough for a cubic loft that follows a tilted or dished plane. A lofted
+    spoke fan stays inside the plane when the lines are coplanar (lofting is
+    an affine combination of control points), so at ED the surface is the
+    tag plane itself.
+
+Every line is oriented before lofting (SA: along the family's mean
+direction; LA spokes: outward) so that the sections' ``u`` directions agree.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cardionurbs import nurbs
+from cardionurbs.errors import TagError
+from cardionurbs.imaging.geometry import ImagePlane
+from cardionurbs.study import TAG_FAMILIES, Study, TagLine
+
+#: the image view each tag family is seen in
+FAMILY_VIEW = {"sa1": "SA", "sa2": "SA", "la": "LA"}
+#: a jump in point spacing larger than this many times the median spacing
+#: (and larger than ``GAP_MIN_MM``) is a gap (the line crosses a cavity)
+GAP_FACTOR = 3.0
+GAP_MIN_MM = 3.0
+
+
+# ----------------------------------------------------------------- validation
+def check_tags(study: Study, ed_frame: int | None = None) -> None:
+    """Raise :class:`TagError` (one line naming it) on bad tag input.
+
+    Checks: every family is ``sa1``/``sa2``/``la`` and seen in its view; every
+    line has >= 2 points; no (family, index) appears twice in one slice at
+    one frame; and, when tags exist and ``ed_frame`` is given, that the ED
+    frame is tagged.
+    """
+    seen: set[tuple] = set()
+    for t in study.tags:
+        where = dict(slice=t.slice, frame=t.frame)
+        if t.family not in TAG_FAMILIES:
+            raise TagError(f"unknown tag family {t.family!r} (tag index {t.index}); expected one of "
+                           f"{', '.join(TAG_FAMILIES)}", field="family", **where)
+        if t.view != FAMILY_VIEW[t.family]:
+            raise TagError(f"tag {t.family}#{t.index} is in a {t.view} view; family {t.family} is "
+                           f"seen in {FAMILY_VIEW[t.family]} views", field="view", **where)
+        pts = np.asarray(t.points)
+        if pts.ndim != 2 or len(pts) < 2:
+            raise TagError(f"tag {t.family}#{t.index} has {len(pts)} point(s), needs >= 2",
+                           field="points", **where)
+        key = (t.family, t.index, t.slice, t.frame)
+        if key in seen:
+            raise TagError(f"tag {t.family}#{t.index} appears twice in this slice",
+                           field="index", **where)
+        seen.add(key)
+    if ed_frame is not None and study.tags and not any(t.frame == ed_frame for t in study.tags):
+        raise TagError(f"tag lines exist (frames {study.tagged_frames}) but none at the ED frame "
+                       f"{ed_frame}", field="ed_frame")
+
+
+# --------------------------------------------------------------- line helpers
+def split_at_gaps(points: np.ndarray) -> list[np.ndarray]:
+    """Split an ordered (n, 3) tag line where it jumps a gap (a cavity crossing).
+
+    A gap is a step longer than ``GAP_FACTOR`` × the median step and longer
+    than ``GAP_MIN_MM`` mm. Returns the pieces in order.
+    """
+    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    if len(steps) < 2:
+        return [points]
+    limit = max(GAP_FACTOR * float(np.median(steps)), GAP_MIN_MM)
+    cuts = np.flatnonzero(steps > limit) + 1
+    return np.split(points, cuts)
+
+
+def fit_tag_curve(points: np.ndarray, pixel_mm: float) -> "nurbs.NurbsCurve":
+    """Least-squares degree-3 curve through an ordered tag line (paper §3.2, eqs. 6–10).
+
+    The number of control points grows with the line's length (one per
+    ~12 mm, 4..8) rather than with a tolerance, so that tracking noise of a
+    pixel or so is smoothed rather than interpolated; a line of 2 or 3 points
+    gets degree 1 or 2.
+    """
+    m = len(points)
+    degree = min(3, m - 1)
+    length = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
+    n_ctrl = int(np.clip(round(length / 12.0) + 3, degree + 1, 8))
+    n_ctrl = min(n_ctrl, m)
+    return nurbs.fit_curve(points, degree=degree, n_ctrl=n_ctrl)
+
+
+# ------------------------------------------------------------------ sections
+@dataclass(eq=False)
+class TagSection:
+    """One tag line (or, for ``la``, one spoke of it) ready for lofting.
+
+    points : (n, 3) scanner mm, oriented (SA: along the family direction;
+    LA spoke: from the long axis outward). ``key`` orders sections within a
+    surface: the position along the SA stack normal (mm) or the spoke's
+    angle about the long axis (rad).
+    """
+
+    family: str
+    index: int
+    slice: str
+    frame: int
+    points: np.ndarray
+    plane: ImagePlane
+    key: float
+    curve: object = None
+    half: int = 0
+
+
+@dataclass(eq=False)
+class TagSurface:
+    """The tag surface of one (family, index) at one frame, with its sections."""
+
+    family: str
+    index: int
+    frame: int
+    surface: object
+    sections: list[TagSection] = field(default_factory=list)
+    periodic_v: bool = False
+
+    @property
+    def slices(self) -> list[str]:
+        seen: list[str] = []
+        for s in self.sections:
+            if s.slice not in seen:
+                seen.append(s.slice)
+        return seen
+
+
+def _principal_direction(points: np.ndarray) -> np.ndarray:
+    d = points[-1] - points[0]
+    n = np.linalg.norm(d)
+    if n < 1e-9:
+        c = points - points.mean(axis=0)
+        d = np.linalg.svd(c, full_matrices=False)[2][0]
+        n = 1.0
+    return d / n
+
+
+def family_direction(lines: list[np.ndarray]) -> np.ndarray:
+    """Mean unit direction of a family's lines (signs aligned to the first line)."""
+    dirs = np.array([_principal_direction(p) for p in lines])
+    ref = dirs[0]
+    dirs *= np.where(dirs @ ref < 0, -1.0, 1.0)[:, None]
+    d = dirs.sum(axis=0)
+    return d / np.linalg.norm(d)
+
+
+def stack_normal(study: Study) -> np.ndarray:
+    """Unit normal of the SA stack pointing from the basal (``sa_00``) to the apical slices."""
+    planes = {}
+    for im in study.images:
+        if im.view == "SA" and im.slice not in planes:
+            planes[im.slice] = im
+    if not planes:
+        raise TagError("SA tag lines but no SA image planes in the study", field="images")
+    names = sorted(planes)
+    normals = np.array([planes[s].normal for s in names])
+    n = normals * np.where(normals @ normals[0] < 0, -1.0, 1.0)[:, None]
+    n = n.sum(axis=0)
+    n /= np.linalg.norm(n)
+    if len(names) > 1:
+        d = planes[names[-1]].position - planes[names[0]].position
+        if d @ n < 0:
+            n = -n
+    return n
+
+
+def sa_sections(study: Study, family: str, frame: int) -> dict[int, list[TagSection]]:
+    """Oriented SA sections of every tag index of one family at one frame, ordered base → apex."""
+    lines = [t for t in study.tags_at(frame, family)]
+    if not lines:
+        return {}
+    n_stack = stack_normal(study)
+    d_fam = family_direction([t.points for t in lines])
+    out: dict[int, list[TagSection]] = defaultdict(list)
+    for t in lines:
+        pts = np.asarray(t.points, dtype=float)
+        if _principal_direction(pts) @ d_fam < 0:
+            pts = pts[::-1]
+        plane = _plane_of(study, t)
+        out[t.index].append(TagSection(t.family, t.index, t.slice, t.frame, pts, plane,
+                                       key=float(plane.position @ n_stack)))
+    for secs in out.values():
+        secs.sort(key=lambda s: s.key)
+    return dict(out)
+
+
+def _plane_of(study: Study, t: TagLine) -> ImagePlane:
+    if t.image is not None:
+        idx = study._image_index()
+        if t.image in idx:
+            return idx[t.image]
+    try:
+        return study.slice_plane(t.slice, t.frame)
+    except Exception:
+        return study.slice_plane(t.slice)
+
+
+def axis_frame(apex: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Right-handed unit frame (e1, e2, e) about the long axis.
+
+    ``e`` points from the base to the apex, so an angle measured
+    right-handed about ``e`` (from e1 towards e2) is counter-clockwise as
+    seen from the apex looking toward the base (METRICS.md sign).
+    """
+    e = np.asarray(apex, float) - np.asarray(base, float)
+    e /= np.linalg.norm(e)
+    helper = np.eye(3)[np.argmin(np.abs(e))]
+    e1 = np.cross(e, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(e, e1)
+    return e1, e2, e
+
+
+def angles_about_axis(points: np.ndarray, apex: np.ndarray, base: np.ndarray) -> np.ndarray:
+    """Angle (rad) of (n, 3) points about the long axis, CCW seen from the apex."""
+    e1, e2, _ = axis_frame(apex, base)
+    d = np.asarray(points, float) - np.asarray(apex, float)
+    return np.arctan2(d @ e2, d @ e1)
+
+
+def la_sections(study: Study, frame: int, apex: np.ndarray,
+                base: np.ndarray) -> dict[int, list[TagSection]]:
+    """Spokes of every LA tag at one frame, ordered by angle about the long axis.
+
+    Each LA line is cut where it crosses the long axis — the middle of its
+    first gap around the axis when it crosses the cavity, else its point
+    nearest the axis — into two spokes running outward. A spoke keeps the
+    cut point and the first wall segment beyond it (so the RV walls of a
+    four-chamber line are left out).
+    """
+    apex, base = np.asarray(apex, float), np.asarray(base, float)
+    e = (base - apex) / np.linalg.norm(base - apex)
+    out: dict[int, list[TagSection]] = defaultdict(list)
+    for t in study.tags_at(frame, "la"):
+        pts = np.asarray(t.points, dtype=float)
+        rel = pts - apex
+        radial = rel - np.outer(rel @ e, e)
+        r = np.linalg.norm(radial, axis=1)
+        steps = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        limit = max(GAP_FACTOR * float(np.median(steps)), GAP_MIN_MM) if len(steps) > 1 else np.inf
+        gaps = np.flatnonzero(steps > limit)
+        # the gap nearest the axis, if the axis lies across it
+        cut_pt, lo, hi = None, None, None
+        if len(gaps):
+            mid_r = np.linalg.norm(((radial[gaps] + radial[gaps + 1]) / 2), axis=1)
+            g = gaps[np.argmin(mid_r)]
+            # the axis is across the gap when the two ends lie on opposite sides
+            if radial[g] @ radial[g + 1] < 0:
+                cut_pt, lo, hi = (pts[g] + pts[g + 1]) / 2, g, g + 1
+        if cut_pt is None:
+            k = int(np.argmin(r))
+            cut_pt, lo, hi = pts[k], k - 1, k + 1
+        halves = []
+        inner = pts[: lo + 1][::-1] if lo >= 0 else pts[:0]
+        outer = pts[hi:]
+        for h, seg in enumerate((inner, outer)):
+            if len(seg) == 0:
+                continue
+            first_wall = split_at_gaps(seg)[0]
+            spoke = np.vstack([cut_pt, first_wall])
+            if len(spoke) < 2:
+                continue
+            halves.append((h, spoke))
+        plane = _plane_of(study, t)
+        for h, spoke in halves:
+            ang = float(angles_about_axis(spoke[-1:], apex, base)[0]) % (2 * np.pi)
+            out[t.index].append(TagSection("la", t.index, t.slice, t.frame, spoke, plane,
+                                           key=ang, half=h))
+    for secs in out.values():
+        secs.sort(key=lambda s: s.key)
+    return dict(out)
+
+
+# ------------------------------------------------------------------- lofting
+def loft_sections(sections: list[TagSection], pixel_mm: float, periodic: bool = False):
+    """Fit each section's curve (paper §3.2) and loft them (§3.2.4) into one surface.
+
+    ``periodic`` repeats the first section at the end (the LA spoke fan).
+    Returns None when fewer than two sections remain.
+    """
+    for s in sections:
+        if s.curve is None:
+            s.curve = fit_tag_curve(s.points, pixel_mm)
+    curves = [s.curve for s in sections]
+    if periodic and len(curves) >= 2:
+        curves = curves + [curves[0]]
+    if len(curves) < 2:
+        return None
+    return nurbs.loft(curves, degree_v=min(3, len(curves) - 1))
+
+
+def pixel_size(study: Study) -> float:
+    """Mean in-plane pixel size (mm) of the tagged images (1 mm when unknown)."""
+    sp = [np.mean(im.pixel_spacing) for im in study.images]
+    return float(np.mean(sp)) if sp else 1.0
+
+
+def build_tag_surfaces(study: Study, frame: int, long_axis: tuple | None = None,
+                       families: tuple[str, ...] = TAG_FAMILIES) -> dict[tuple[str, int], TagSurface]:
+    """Every tag surface at one frame, with its sections (see :func:`tag_surfaces`)."""
+    check_tags(study)
+    px = pixel_size(study)
+    out: dict[tuple[str, int], TagSurface] = {}
+    for fam in families:
+        if fam == "la":
+            if not study.tags_at(frame, "la"):
+                continue
+            if long_axis is None:
+                from cardionurbs.analysis.tags import long_axis_from_study
+                long_axis = long_axis_from_study(study, frame)
+            groups = la_sections(study, frame, *long_axis)
+            periodic = True
+        else:
+            groups = sa_sections(study, fam, frame)
+            periodic = False
+        for idx, secs in groups.items():
+            if periodic and len(secs) < 3:
+                continue
+            surf = loft_sections(secs, px, periodic=periodic)
+            if surf is not None:
+                out[(fam, idx)] = TagSurface(fam, idx, frame, surf, secs, periodic_v=periodic)
+    return out
+
+
+def tag_surfaces(study: Study, frame: int, long_axis: tuple | None = None) -> dict:
+    """Tag surfaces of one frame: ``{(family, index): NurbsSurface}`` in scanner mm.
+
+    SA families are lofted across the SA slices that show the tag; the LA
+    family is lofted around the long axis through the spokes of its lines
+    (module docstring). ``long_axis`` = (apex, base centre) at ED, mm; taken
+    from the landmarks when omitted (needed for ``la`` only). A tag seen in
+    fewer than two slices (three spokes for ``la``) has no surface.
+    """
+    return {k: ts.surface for k, ts in build_tag_surfaces(study, frame, long_axis).items()}

@@ -1,0 +1,506 @@
+"""LV twist, torsion, CL shear and longitudinal shortening from tag surfaces (METRICS.md, Tags).
+
+Public API (the pipeline's ``measure``/``analyze`` call these):
+
+- :func:`tag_surfaces` (study, frame) -> {(family, index): NurbsSurface}
+- :func:`material_points` (study, ed_frame, es_frame) -> :class:`MaterialPoints`
+- :func:`tag_metrics` (study, ed_frame, es_frame, long_axis=None) -> :class:`TagMetrics`
+- :func:`tag_qc` (study, threshold=0.5) -> list of :class:`TagFlag`
+- :func:`tag_figure_data` (study, frame) -> tessellated tag surfaces with flag status
+
+Definitions (METRICS.md and the project contracts)
+--------------------------------------------------
+Long axis
+    From the apex (the ``apex`` landmark at ED, or the model's apex) to the
+    centre of the mitral valve plane (mean of the ``mitral`` landmarks), at ED.
+Rotation φ of a level (LA tag plane ``k``)
+    Mean over its material points of the angle swept ED → ES about the ED
+    long axis, counter-clockwise positive as seen from the apex looking
+    toward the base, i.e. right-handed about the unit vector base → apex:
+
+        φ_k = mean_p wrap(θ_ES(p) − θ_ED(p)),  θ = atan2((x − a)·e2, (x − a)·e1)      (T1)
+
+    with (e1, e2, e) the axis frame of :func:`axis_frame`.
+Levels
+    LA tag planes with at least 3 material points tracked at ED and ES (and
+    at least half of their ED points tracked at ES). Distance from the apex
+    z_k = mean over the level's points of (x_ED − apex)·ê, ê = unit(base − apex).
+Twist, torsion, CL shear (METRICS.md)
+    Twist = φ_apex − φ_base between the most apical and most basal levels;
+    D = z_base − z_apex (mm); Torsion = Twist / (D / 10) deg/cm;
+    CL shear = Twist (ρ_apex + ρ_base) / (2 D) deg, ρ = mean LV epicardial
+    radius at the level at ED (SA ``lv_epi`` contours, mean distance from
+    the long axis, interpolated along it).
+LS
+    L_f = mean z(basal level points at f) − mean z(apical level points at f)
+    measured along the ED axis; LS = 100 (L_ED − L_ES) / L_ED.
+Twist 2D
+    The slice-based measure: in the most basal and most apical SA slices
+    tagged at ED and ES, the crossings of sa1 and sa2 tag lines (same
+    index pair at both frames) rotated about each slice's LV centroid
+    (``lv_endo`` contour centroid at that frame, else the crossings' mean);
+    Twist 2D = φ_2D(apical slice) − φ_2D(basal slice). It mixes different
+    tissue at ED and ES (through-plane motion), hence reported beside the
+    3D value.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from cardionurbs.analysis.material import MaterialPoints, material_points
+from cardionurbs.analysis.tag_surfaces import (axis_frame, build_tag_surfaces, check_tags,
+                                               fit_tag_curve, pixel_size, stack_normal, tag_surfaces)
+from cardionurbs.analysis.tagqc import TagFlag, tag_departures, tag_qc
+from cardionurbs.errors import TagError
+from cardionurbs.study import Study
+
+__all__ = ["tag_surfaces", "material_points", "tag_metrics", "tag_qc", "tag_figure_data",
+           "TagMetrics", "MaterialPoints", "TagFlag", "long_axis_from_study", "TAG_COLUMNS"]
+
+TAG_COLUMNS = ("Twist (deg)", "Twist 2D (deg)", "Torsion (deg/cm)", "CL shear (deg)", "LS (%)",
+               "Tag QC flags")
+MIN_LEVEL_POINTS = 3
+NAN = float("nan")
+
+
+# ------------------------------------------------------------ frames, axis
+def resolve_frames(study: Study, ed_frame: int | None, es_frame: int | None) -> tuple[int, int]:
+    """ED and ES frames: the arguments, else the study's labels; TagError when unknown."""
+    ed = study.ed_frame if ed_frame is None else int(ed_frame)
+    es = study.es_frame if es_frame is None else int(es_frame)
+    if ed is None:
+        raise TagError(f"tag lines exist (frames {study.tagged_frames}) but no ED frame is "
+                       "given or labelled", field="ed_frame")
+    check_tags(study, ed)
+    if es is None:
+        raise TagError("no ES frame is given or labelled for tag tracking", field="es_frame")
+    return ed, es
+
+
+def long_axis_from_study(study: Study, frame: int) -> tuple[np.ndarray, np.ndarray]:
+    """(apex, base centre) at ``frame`` from landmarks: ``apex`` and the mean of ``mitral``.
+
+    Without landmarks: a line fitted through the SA ``lv_endo`` centroids at
+    ``frame``, from half a slice gap beyond the most apical slice (apex) to
+    the most basal centroid (base). TagError when neither exists.
+    """
+    apex = [lm.point for lm in study.landmarks_at(frame, "apex")]
+    mitral = [lm.point for lm in study.landmarks_at(frame, "mitral")]
+    if apex and mitral:
+        return np.mean(apex, axis=0), np.mean(mitral, axis=0)
+    cents = []
+    for c in study.contours_at(frame, "lv_endo", view="SA"):
+        if c.closed:
+            cents.append((c.slice, c.points.mean(axis=0)))
+    if len(cents) >= 2:
+        n = stack_normal(study)          # base -> apex
+        cents.sort(key=lambda sc: float(sc[1] @ n))
+        P = np.array([c for _, c in cents])
+        ctr = P.mean(axis=0)
+        d = np.linalg.svd(P - ctr, full_matrices=False)[2][0]
+        if d @ n < 0:
+            d = -d
+        t = (P - ctr) @ d
+        gap = float(np.median(np.diff(np.sort(t)))) if len(t) > 1 else 0.0
+        base = ctr + t.min() * d
+        apex_pt = ctr + (t.max() + gap / 2) * d
+        if apex:
+            apex_pt = np.mean(apex, axis=0)
+        return apex_pt, base
+    raise TagError("no apex and mitral landmarks (nor SA contours) to define the long axis",
+                   frame=frame, field="landmarks")
+
+
+def _wrap_deg(a: np.ndarray) -> np.ndarray:
+    return (np.asarray(a) + 180.0) % 360.0 - 180.0
+
+
+def rotation_deg(x0: np.ndarray, x1: np.ndarray, apex: np.ndarray, base: np.ndarray) -> np.ndarray:
+    """Angle (deg) swept about the long axis from x0 to x1 (T1), CCW seen from the apex."""
+    e1, e2, _ = axis_frame(apex, base)
+    d0, d1 = x0 - apex, x1 - apex
+    th0 = np.arctan2(d0 @ e2, d0 @ e1)
+    th1 = np.arctan2(d1 @ e2, d1 @ e1)
+    return _wrap_deg(np.degrees(th1 - th0))
+
+
+# ------------------------------------------------------------- epi radius
+def epicardial_radius_profile(study: Study, frame: int, apex: np.ndarray,
+                              base: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(z, ρ): distance from the apex along the axis and mean LV epicardial radius (mm).
+
+    One entry per SA ``lv_epi`` contour at ``frame``: the contour resampled
+    uniformly by arc length, ρ its mean distance from the long axis. None
+    without contours.
+    """
+    ez = (base - apex) / np.linalg.norm(base - apex)
+    zs, rs = [], []
+    for c in study.contours_at(frame, "lv_epi", view="SA"):
+        if not c.closed or len(c.points) < 3:
+            continue
+        p = np.vstack([c.points, c.points[:1]])
+        seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        s = np.r_[0.0, np.cumsum(seg)]
+        t = np.linspace(0, s[-1], 200, endpoint=False)
+        q = np.column_stack([np.interp(t, s, p[:, k]) for k in range(3)])
+        rel = q - apex
+        z = rel @ ez
+        r = np.linalg.norm(rel - np.outer(z, ez), axis=1)
+        zs.append(float(z.mean()))
+        rs.append(float(r.mean()))
+    if not zs:
+        return None
+    order = np.argsort(zs)
+    return np.asarray(zs)[order], np.asarray(rs)[order]
+
+
+# --------------------------------------------------------------- Twist 2D
+def curve_crossings(curves: list, raw: list[np.ndarray], pairs: np.ndarray,
+                    iterations: int = 12) -> np.ndarray:
+    """Crossing points of curve pairs (Gauss–Newton on (u1, u2), all pairs at once).
+
+    ``pairs`` (k, 2) indexes ``curves``; returns (k, 3), NaN where the curves
+    do not meet within 0.01 mm or the crossing is not on the data of both
+    lines (farther than two point spacings from every tag point, i.e. across
+    a cavity gap). Started from the nearest pair of 24-point samples.
+    """
+    from cardionurbs.analysis.material import CurveBatch
+    k = len(pairs)
+    if k == 0:
+        return np.zeros((0, 3))
+    batch = CurveBatch(curves)
+    ns = 24
+    t = np.linspace(0.0, 1.0, ns)
+    ids = np.repeat(np.arange(len(curves)), ns)
+    samples = batch.derivatives(ids, np.tile(t, len(curves)))[0].reshape(len(curves), ns, 3)
+    a, b = samples[pairs[:, 0]], samples[pairs[:, 1]]
+    d2 = ((a[:, :, None, :] - b[:, None, :, :]) ** 2).sum(-1).reshape(k, -1)
+    j = np.argmin(d2, axis=1)
+    u = np.column_stack([t[j // ns], t[j % ns]])
+    for _ in range(iterations):
+        c1, d1 = batch.derivatives(pairs[:, 0], u[:, 0])
+        c2, d2_ = batch.derivatives(pairs[:, 1], u[:, 1])
+        F = c1 - c2
+        J = np.stack([d1, -d2_], axis=2)                        # (k, 3, 2)
+        JtJ = np.einsum("kia,kib->kab", J, J) + 1e-12 * np.eye(2)
+        step = -np.linalg.solve(JtJ, np.einsum("kia,ki->ka", J, F)[..., None])[..., 0]
+        step = np.clip(step, -0.2, 0.2)
+        u = np.clip(u + step, 0.0, 1.0)
+    c1, _ = batch.derivatives(pairs[:, 0], u[:, 0])
+    c2, _ = batch.derivatives(pairs[:, 1], u[:, 1])
+    X = (c1 + c2) / 2
+    ok = np.linalg.norm(c1 - c2, axis=1) < 0.01
+    for col in (0, 1):
+        for li in np.unique(pairs[:, col]):
+            rows = np.flatnonzero(pairs[:, col] == li)
+            P = raw[li]
+            step_mm = float(np.median(np.linalg.norm(np.diff(P, axis=0), axis=1)))
+            dmin = np.sqrt(((X[rows, None, :] - P[None]) ** 2).sum(-1)).min(axis=1)
+            ok[rows] &= dmin <= max(2.0 * step_mm, 1.0)
+    X[~ok] = np.nan
+    return X
+
+
+def _slice_centroid(study: Study, slice_id: str, frame: int, fallback: np.ndarray) -> np.ndarray:
+    for c in study.contours_at(frame, "lv_endo", view="SA"):
+        if c.slice == slice_id and c.closed and len(c.points) >= 3:
+            return _polygon_centroid(c.points)
+    return fallback
+
+
+def _polygon_centroid(p: np.ndarray) -> np.ndarray:
+    """Area centroid (3,) of a planar closed polygon in 3D (shoelace in its own plane)."""
+    c0 = p.mean(axis=0)
+    q = p - c0
+    n = np.linalg.svd(q, full_matrices=False)[2]
+    xy = q @ n[:2].T
+    x, y = xy[:, 0], xy[:, 1]
+    x1, y1 = np.roll(x, -1), np.roll(y, -1)
+    cr = x * y1 - x1 * y
+    A = cr.sum() / 2
+    if abs(A) < 1e-9:
+        return c0
+    cx = ((x + x1) * cr).sum() / (6 * A)
+    cy = ((y + y1) * cr).sum() / (6 * A)
+    return c0 + cx * n[0] + cy * n[1]
+
+
+def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base: np.ndarray,
+             surfaces: dict | None = None) -> tuple[float, list[dict]]:
+    """Slice-based twist (deg) and per-slice rotations (see module docstring).
+
+    ``surfaces`` ({frame: build_tag_surfaces(...)}) lends its fitted section
+    curves; lines not found there are fitted here.
+    """
+    px = pixel_size(study)
+    fitted: dict[tuple, object] = {}
+    for f, surfs in (surfaces or {}).items():
+        for (fam, idx), ts in surfs.items():
+            if fam in ("sa1", "sa2"):
+                for sec in ts.sections:
+                    if sec.curve is not None:
+                        fitted[(fam, idx, sec.slice, f)] = (sec.curve, sec.points)
+    lines = {}
+    for f in (ed_frame, es_frame):
+        for t in study.tags_at(f):
+            if t.family in ("sa1", "sa2"):
+                lines[(t.family, t.index, t.slice, f)] = t.points
+    n_stack = stack_normal(study)
+    ax = (apex - base) / np.linalg.norm(apex - base)
+    keys, curves, raw = [], [], []
+    pairs, meta = [], []
+    slices = sorted({k[2] for k in lines}, key=lambda s: float(study.slice_plane(s).position @ n_stack))
+    pos: dict[tuple, int] = {}
+
+    def line_id(key):
+        if key not in pos:
+            c, pts = fitted.get(key, (None, None))
+            if c is None:
+                c, pts = fit_tag_curve(lines[key], px), lines[key]
+            pos[key] = len(curves)
+            curves.append(c)
+            raw.append(np.asarray(pts, float))
+        return pos[key]
+
+    for s in slices:
+        i_s = sorted({k[1] for k in lines if k[0] == "sa1" and k[2] == s})
+        j_s = sorted({k[1] for k in lines if k[0] == "sa2" and k[2] == s})
+        for i in i_s:
+            for j in j_s:
+                if all((fam, x, s, f) in lines for fam, x in (("sa1", i), ("sa2", j))
+                       for f in (ed_frame, es_frame)):
+                    for f in (ed_frame, es_frame):
+                        pairs.append((line_id(("sa1", i, s, f)), line_id(("sa2", j, s, f))))
+                        meta.append((s, i, j, f))
+    if not pairs:
+        return NAN, []
+    X = curve_crossings(curves, raw, np.asarray(pairs, int))
+    meta_arr = np.array([(m[0], m[3]) for m in meta], dtype=object)
+    rows = []
+    for s in slices:
+        sel = {f: np.flatnonzero((meta_arr[:, 0] == s) & (meta_arr[:, 1] == f))
+               for f in (ed_frame, es_frame)}
+        if len(sel[ed_frame]) == 0:
+            continue
+        X0, X1 = X[sel[ed_frame]], X[sel[es_frame]]
+        ok = np.all(np.isfinite(X0), 1) & np.all(np.isfinite(X1), 1)
+        if ok.sum() < MIN_LEVEL_POINTS:
+            continue
+        plane = study.slice_plane(s)
+        n = plane.normal if plane.normal @ ax > 0 else -plane.normal
+        e1 = plane.row_cosine
+        e2 = np.cross(n, e1)
+        ang = {}
+        for f, Xf in ((ed_frame, X0), (es_frame, X1)):
+            c = _slice_centroid(study, s, f, Xf[ok].mean(axis=0))
+            d = Xf[ok] - c
+            ang[f] = np.arctan2(d @ e2, d @ e1)
+        rot = _wrap_deg(np.degrees(ang[es_frame] - ang[ed_frame]))
+        rows.append({"slice": s, "rotation_deg": float(rot.mean()), "n_crossings": int(ok.sum())})
+    if len(rows) < 2:
+        return NAN, rows
+    return rows[-1]["rotation_deg"] - rows[0]["rotation_deg"], rows
+
+
+# ---------------------------------------------------------------- results
+@dataclass
+class TagMetrics(Mapping):
+    """Tag metrics of one study; a read-only mapping METRICS.md column -> float.
+
+    ``dict(result)`` gives the columns; the rest are attributes:
+
+    columns : METRICS.md tag columns -> float (NaN when not measurable)
+    levels : list of dicts (index, distance_from_apex_mm, rotation_deg,
+        epi_radius_mm, n_points, in_twist) sorted apex → base
+    flags : list of TagFlag
+    slices_2d : per-slice rotations of the Twist 2D measure
+    notes : one-line remarks (e.g. "no tag lines")
+    over_time : {frame: {"Twist (deg)", "LS (%)"}} when computed
+    """
+
+    columns: dict[str, float]
+    levels: list[dict] = field(default_factory=list)
+    flags: list[TagFlag] = field(default_factory=list)
+    slices_2d: list[dict] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    over_time: dict[int, dict[str, float]] = field(default_factory=dict)
+    material: MaterialPoints | None = None
+
+    def __getitem__(self, key: str) -> float:
+        return self.columns[key]
+
+    def __iter__(self):
+        return iter(self.columns)
+
+    def __len__(self) -> int:
+        return len(self.columns)
+
+    def to_json(self) -> dict:
+        """JSON-safe dict for metrics.json (NaN -> None)."""
+        def num(x):
+            return None if x is None or (isinstance(x, float) and not np.isfinite(x)) else x
+        return {
+            "columns": {k: num(v) for k, v in self.columns.items()},
+            "levels": [{k: num(v) for k, v in lv.items()} for lv in self.levels],
+            "flags": [{"family": f.family, "index": f.index, "slice": f.slice, "frame": f.frame,
+                       "departure_spacings": round(f.departure, 4)} for f in self.flags],
+            "twist_2d_slices": self.slices_2d,
+            "over_time": {str(k): {kk: num(vv) for kk, vv in v.items()}
+                          for k, v in self.over_time.items()},
+            "notes": self.notes,
+        }
+
+
+def _empty(note: str) -> TagMetrics:
+    return TagMetrics({k: NAN for k in TAG_COLUMNS}, notes=[note])
+
+
+def level_table(mp: MaterialPoints, frame: int, apex: np.ndarray, base: np.ndarray,
+                radius: tuple[np.ndarray, np.ndarray] | None) -> list[dict]:
+    """Per-level rotation ED → ``frame`` and ED distance from apex (see module docstring)."""
+    ez = (base - apex) / np.linalg.norm(base - apex)
+    X0 = mp.positions[mp.ed_frame]
+    X1 = mp.positions[frame]
+    tracked = mp.tracked(mp.ed_frame, frame)
+    rows = []
+    for k in np.unique(mp.triples[:, 2]) if len(mp.triples) else []:
+        at = mp.triples[:, 2] == k
+        sel = at & tracked
+        if sel.sum() < MIN_LEVEL_POINTS or sel.sum() < 0.5 * at.sum():
+            continue
+        z0 = float(((X0[sel] - apex) @ ez).mean())
+        z1 = float(((X1[sel] - apex) @ ez).mean())
+        rot = rotation_deg(X0[sel], X1[sel], apex, base)
+        rho = float(np.interp(z0, *radius)) if radius is not None else NAN
+        rows.append({"index": int(k), "distance_from_apex_mm": z0, "distance_at_frame_mm": z1,
+                     "rotation_deg": float(rot.mean()), "epi_radius_mm": rho,
+                     "n_points": int(sel.sum()), "in_twist": False})
+    rows.sort(key=lambda r: r["distance_from_apex_mm"])
+    if len(rows) >= 2:
+        rows[0]["in_twist"] = rows[-1]["in_twist"] = True
+    return rows
+
+
+def twist_from_levels(levels: list[dict]) -> dict[str, float]:
+    """Twist, Torsion, CL shear and LS from a level table (METRICS.md formulas)."""
+    if len(levels) < 2:
+        return {"Twist (deg)": NAN, "Torsion (deg/cm)": NAN, "CL shear (deg)": NAN, "LS (%)": NAN}
+    a, b = levels[0], levels[-1]
+    twist = a["rotation_deg"] - b["rotation_deg"]
+    D = b["distance_from_apex_mm"] - a["distance_from_apex_mm"]
+    L_es = b["distance_at_frame_mm"] - a["distance_at_frame_mm"]
+    return {
+        "Twist (deg)": twist,
+        "Torsion (deg/cm)": twist / (D / 10.0),
+        "CL shear (deg)": twist * (a["epi_radius_mm"] + b["epi_radius_mm"]) / (2.0 * D),
+        "LS (%)": 100.0 * (D - L_es) / D,
+    }
+
+
+def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = None,
+                long_axis: tuple | None = None, qc: bool = True, over_time: bool = False,
+                threshold: float = 0.5) -> TagMetrics:
+    """Twist, Twist 2D, Torsion, CL shear, LS and tag QC of a study (METRICS.md, Tags).
+
+    Parameters
+    ----------
+    study : Study, or a BiventricularModel
+        A model supplies its study, its ED/ES frames and its long axis
+        (``model.long_axis()``) as defaults.
+    ed_frame, es_frame : int, optional
+        Default to the study's labels.
+    long_axis : (apex, base centre) at ED, mm, optional
+        From the model when given, else from the landmarks
+        (:func:`long_axis_from_study`).
+    qc : bool
+        Run the tag-jump QC (:func:`tag_qc`) and fill ``Tag QC flags``.
+    over_time : bool
+        Also twist and LS at every tagged frame (relative to ED).
+
+    Returns a :class:`TagMetrics` (a mapping of the columns, with the level
+    table, flags and notes as attributes). A study without tag lines gives
+    NaN columns and one note.
+    """
+    if not isinstance(study, Study) and hasattr(study, "study"):
+        model = study
+        study = model.study
+        ed_frame = model.ed_frame if ed_frame is None else ed_frame
+        es_frame = model.es_frame if es_frame is None else es_frame
+        if long_axis is None and study.tags:
+            try:
+                long_axis = model.long_axis()
+            except (KeyError, AttributeError, TypeError):
+                long_axis = None
+    if not study.tags:
+        return _empty("no tag lines: tag metrics not measured")
+    ed_frame, es_frame = resolve_frames(study, ed_frame, es_frame)
+    if long_axis is None:
+        long_axis = long_axis_from_study(study, ed_frame)
+    apex, base = (np.asarray(x, float) for x in long_axis)
+    frames = study.tagged_frames if over_time else [ed_frame, es_frame]
+    surfaces = {f: build_tag_surfaces(study, f, (apex, base)) for f in frames}
+    mp = material_points(study, ed_frame, es_frame, frames=frames, long_axis=(apex, base),
+                         surfaces=surfaces)
+    notes = list(mp.notes)
+    radius = epicardial_radius_profile(study, ed_frame, apex, base)
+    if radius is None:
+        notes.append(f"frame {ed_frame}: no SA lv_epi contours; CL shear not measured")
+    cols = {k: NAN for k in TAG_COLUMNS}
+    levels = level_table(mp, es_frame, apex, base, radius) if es_frame in mp.positions else []
+    cols.update(twist_from_levels(levels))
+    if len(levels) < 2:
+        notes.append("fewer than two LA tag levels with material points: twist not measured")
+    t2d, rows2d = twist_2d(study, ed_frame, es_frame, apex, base, surfaces)
+    cols["Twist 2D (deg)"] = t2d
+    flags: list[TagFlag] = []
+    if qc:
+        qc_frames = sorted(set(frames))
+        flags = tag_qc(study, threshold, frames=qc_frames, long_axis=(apex, base),
+                       surfaces=surfaces)
+        cols["Tag QC flags"] = float(len(flags))
+    times = {}
+    if over_time:
+        for f in frames:
+            lv = level_table(mp, f, apex, base, radius)
+            t = twist_from_levels(lv)
+            times[f] = {"Twist (deg)": t["Twist (deg)"], "LS (%)": t["LS (%)"]}
+    return TagMetrics(cols, levels, flags, rows2d, notes, times, mp)
+
+
+# ---------------------------------------------------------------- figures
+def tag_figure_data(study: Study, frame: int, long_axis: tuple | None = None,
+                    flags: list[TagFlag] | None = None, nu: int = 24, nv: int = 16) -> list[dict]:
+    """Tessellated tag surfaces of one frame, with flag status, for figures (paper Fig. 8).
+
+    Returns one dict per tag surface: ``family``, ``index``, ``frame``,
+    ``vertices`` (k, 3) mm, ``faces`` (m, 3) int, ``flagged`` (bool: a line
+    of this tag at this frame is flagged), ``flagged_slices`` (list), and
+    ``lines``: [{"slice", "points" (n, 3), "flagged"}] the tag lines.
+    ``flags`` defaults to :func:`tag_qc` of that frame.
+    """
+    from cardionurbs import nurbs
+    if long_axis is None and study.tags_at(frame, "la"):
+        long_axis = long_axis_from_study(study, study.ed_frame if study.ed_frame is not None
+                                         else frame)
+    surfs = build_tag_surfaces(study, frame, long_axis)
+    if flags is None:
+        flags = tag_qc(study, frames=[frame], long_axis=long_axis, surfaces={frame: surfs})
+    bad = {(f.family, f.index, f.slice) for f in flags if f.frame == frame}
+    out = []
+    for (fam, idx), ts in sorted(surfs.items()):
+        verts, faces = nurbs.tessellate(ts.surface, nu, nv)
+        flagged_slices = sorted({s for (f_, i_, s) in bad if f_ == fam and i_ == idx})
+        out.append({
+            "family": fam, "index": idx, "frame": frame,
+            "vertices": np.asarray(verts), "faces": np.asarray(faces),
+            "flagged": bool(flagged_slices), "flagged_slices": flagged_slices,
+            "lines": [{"slice": t.slice, "points": np.asarray(t.points),
+                       "flagged": (fam, idx, t.slice) in bad}
+                      for t in study.tags_at(frame, fam) if t.index == idx],
+        })
+    return out
