@@ -197,9 +197,9 @@ def check_closed(tm: trimesh.Trimesh, *, what: str = "mesh", frame: int | None =
         raise ReconstructionError(f"{what}, frame {frame}: mesh is empty")
     if not tm.is_watertight:
         raise ReconstructionError(f"{what}, frame {frame}: mesh is not watertight")
-    if not tm.is_winding_consistent or not tm.is_volume:
-        raise ReconstructionError(f"{what}, frame {frame}: mesh is not a consistent volume")
-    if tm.volume <= 0:
+    if not tm.is_winding_consistent:
+        raise ReconstructionError(f"{what}, frame {frame}: mesh winding is not consistent")
+    if signed_volume(tm.vertices, tm.faces) <= 0:
         raise ReconstructionError(f"{what}, frame {frame}: mesh normals point inward")
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from functools import cached_property
 
+import manifold3d
 import numpy as np
 import pandas as pd
 import trimesh
@@ -28,7 +29,7 @@ from cardionurbs.study import Study
 
 MESHES = ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium")
 #: default tessellation (around, along) of each surface before the booleans
-RESOLUTION = (72, 48)
+RESOLUTION = (56, 36)
 
 
 def ed_es_frames(lv_volumes: dict[int, float], ed_label: int | None = None,
@@ -94,6 +95,7 @@ class BiventricularModel:
         self.warnings = list(warnings or [])
         self.resolution = tuple(resolution)
         self._meshes: dict[int, dict[str, trimesh.Trimesh]] = {}
+        self._solid_cache: dict[int, dict] = {}
         ed, es = ed_es_frames({f: self.volumes[f].get("lv_cavity", math.nan) for f in self.frames},
                               study.ed_frame, study.es_frame)
         self.ed_frame, self.es_frame = ed, es
@@ -124,16 +126,13 @@ class BiventricularModel:
                                    frame=frame)
         return out
 
-    def meshes(self, frame: int) -> dict[str, trimesh.Trimesh]:
-        """Closed manifold meshes (scanner mm) of one frame, keyed lv_cavity,
-        rv_cavity, lv_myocardium, rv_myocardium (those the surfaces allow); cached.
-
+    def solids(self, frame: int) -> dict:
+        """manifold3d solids of one frame keyed like :meth:`meshes` (cached):
         lv_cavity = LV endo; lv_myocardium = LV epi − LV endo; rv_cavity = RV endo −
         LV epi; rv_myocardium = RV epi − RV endo − LV epi; each trimmed by its valve
-        plane (METRICS.md). ReconstructionError names the mesh and frame on failure.
-        """
-        if frame in self._meshes:
-            return self._meshes[frame]
+        plane (METRICS.md)."""
+        if frame in self._solid_cache:
+            return self._solid_cache[frame]
         if frame not in self.surfaces:
             raise ReconstructionError(f"frame {frame} is not reconstructed "
                                       f"(reconstructed: {self.frames})")
@@ -153,17 +152,30 @@ class BiventricularModel:
                 if "lv_epi" in sol:
                     rm = rm - sol["lv_epi"]
                 out["rv_myocardium"] = rm
-        meshes = {k: meshing.to_trimesh(m, what=k, frame=frame) for k, m in out.items()}
-        self._meshes[frame] = meshes
-        return meshes
+        for k, m in out.items():
+            if m.status() != manifold3d.Error.NoError or m.is_empty():
+                raise ReconstructionError(f"{k}, frame {frame}: boolean result is empty or not "
+                                          f"manifold ({m.status().name})")
+        self._solid_cache[frame] = out
+        return out
+
+    def meshes(self, frame: int) -> dict[str, trimesh.Trimesh]:
+        """Closed manifold meshes (scanner mm) of one frame, keyed lv_cavity,
+        rv_cavity, lv_myocardium, rv_myocardium (those the surfaces allow); cached.
+
+        See :meth:`solids` for the booleans. Each mesh is checked watertight with
+        consistent outward winding; ReconstructionError names the mesh and frame
+        on failure.
+        """
+        if frame not in self._meshes:
+            self._meshes[frame] = {k: meshing.to_trimesh(m, what=k, frame=frame)
+                                   for k, m in self.solids(frame).items()}
+        return self._meshes[frame]
 
     @cached_property
     def volumes(self) -> dict[int, dict[str, float]]:
         """Volume (mL) per frame and mesh (lv_cavity, rv_cavity, lv_myocardium, rv_myocardium)."""
-        out = {}
-        for f in self.frames:
-            out[f] = {k: float(m.volume) / 1000.0 for k, m in self.meshes(f).items()}
-        return out
+        return {f: {k: meshing.volume_ml(m) for k, m in self.solids(f).items()} for f in self.frames}
 
     # ------------------------------------------------------------- residuals
     @cached_property

@@ -43,6 +43,9 @@ class Section:
     plane: ImagePlane | None = None
     synthetic: bool = False
     source_points: np.ndarray | None = None   # the contour points it was made of
+    septum_of: np.ndarray | None = None       # RV sections: the LV epicardial loop of the slice
+    scale: float = 1.0                        # synthetic sections: scale of their template
+    template: int | None = None               # synthetic sections: 0 basal / -1 apical template
 
 
 @dataclass(eq=False)
@@ -201,14 +204,15 @@ def loop_centroid(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
     return c0 + cxy @ b
 
 
-def ray_exit(points: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> float:
+def ray_exit(points: np.ndarray, origin: np.ndarray, direction: np.ndarray,
+             normal: np.ndarray | None = None) -> float:
     """Largest t with origin + t·direction on the closed loop (in-plane, mm); NaN if none.
 
     Vectorised over the loop's edges (line–segment intersection by Cramer's rule
-    in the plane spanned by the edge and ``direction``).
+    in the loop's plane, of normal ``normal`` — fitted when not given).
     """
     d = direction / np.linalg.norm(direction)
-    b = in_plane_basis(_loop_normal(points))
+    b = in_plane_basis(_loop_normal(points) if normal is None else normal)
     xy = (points - origin) @ b.T
     dd = b @ d
     a, e = xy, np.roll(xy, -1, axis=0) - xy
@@ -259,7 +263,7 @@ def scaled_section(template: Section, level: float, direction: np.ndarray,
         for qi, ri in zip(q, rq):
             if ri < 1e-6:
                 continue
-            r_t = ray_exit(ct + rel, ct, qi)
+            r_t = ray_exit(ct + rel, ct, qi, normal=direction)
             if np.isfinite(r_t) and r_t > 1e-6:
                 ratios.append(ri / r_t)
         if not ratios:
@@ -270,6 +274,40 @@ def scaled_section(template: Section, level: float, direction: np.ndarray,
     else:
         return None
     return centre + s * rel, s
+
+
+def embed_septum(rv_loop: np.ndarray, lv_epi_loop: np.ndarray, normal: np.ndarray,
+                 near_mm: float = 0.5, depth_mm: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
+    """Move the septal part of an RV loop into the LV wall; returns (loop, free-wall points).
+
+    The septal part of an SA rv_endo / rv_epi contour lies on the LV epicardium
+    (contracts.md), meeting the free wall in sharp corners at the insertion
+    points that no smooth curve follows within a pixel. Since the RV meshes
+    subtract the LV epicardial solid anyway, the septal points (within
+    ``near_mm`` of the LV epicardial contour, or inside it) are moved
+    ``depth_mm`` towards the LV centroid: the RV boundary on the septum then
+    comes exactly from the LV epicardial surface, and the loop's corners lie
+    inside the LV wall where their rounding does not matter. The free-wall points
+    (the ones kept) are what the residuals are measured on.
+    """
+    b = in_plane_basis(normal)
+    c = loop_centroid(lv_epi_loop, normal)
+    from matplotlib.path import Path as _Path
+    poly = (lv_epi_loop - c) @ b.T
+    xy = (rv_loop - c) @ b.T
+    inside = _Path(poly).contains_points(xy)
+    # distance to the LV epicardial polygon (vectorised point-segment distances)
+    a, e = poly, np.roll(poly, -1, axis=0) - poly
+    rel = xy[:, None, :] - a[None]
+    t = np.clip(np.einsum("ijk,jk->ij", rel, e) / np.maximum((e * e).sum(1), 1e-18), 0, 1)
+    d = np.linalg.norm(rel - t[..., None] * e[None], axis=2).min(axis=1)
+    sept = inside | (d <= near_mm)
+    if not sept.any() or sept.all():
+        return rv_loop, rv_loop
+    r = np.linalg.norm(xy[sept], axis=1, keepdims=True)
+    moved = rv_loop.copy()
+    moved[sept] = c + (xy[sept] * (1 - depth_mm / np.maximum(r, depth_mm + 1e-9))) @ b
+    return moved, rv_loop[~sept]
 
 
 # --------------------------------------------------------------- frame geometry
@@ -420,6 +458,14 @@ def frame_geometry(study: Study, frame: int) -> FrameGeometry:
             secs.append(Section(s, frame, pts, slice=sl, plane=planes.get(sl), source_points=src))
         secs.sort(key=lambda sec: float(sec.points.mean(axis=0) @ n))
         geo.sections[s] = secs
+    lv_epi = {sec.slice: sec for sec in geo.sections.get("lv_epi", [])}
+    for s in ("rv_endo", "rv_epi"):
+        for sec in geo.sections.get(s, []):
+            ep = lv_epi.get(sec.slice)
+            if ep is not None:
+                px = float(np.mean(sec.plane.pixel_spacing)) if sec.plane is not None else 1.0
+                sec.septum_of = ep.points
+                sec.source_points = embed_septum(sec.points, ep.points, n, near_mm=0.5 * px)[1]
     geo.la_points, geo.la_slices, geo.la_pixel_mm = _la_polylines(study, frame)
 
     lm_apex = [lm.point for lm in study.landmarks_at(frame, "apex")]

@@ -31,12 +31,12 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial import cKDTree
 
 from cardionurbs import nurbs
-from cardionurbs.anatomy.sections import (FrameGeometry, Section, crossings, loop_centroid,
-                                          ray_exit, scaled_section, signed_area)
+from cardionurbs.anatomy.sections import (FrameGeometry, Section, crossings, embed_septum,
+                                          loop_centroid, ray_exit, scaled_section, signed_area)
 from cardionurbs.errors import ReconstructionError
 
 #: control-point counts tried (common to all sections of a surface)
-N_CTRL_STEPS = (12, 16, 20, 26, 32, 40)
+N_CTRL_STEPS = (12, 16, 20, 26, 32, 40, 52)
 #: points per resampled section
 N_SAMPLES = 120
 #: spacing (mm) of synthetic sections built from LA contours
@@ -78,14 +78,14 @@ def resample_loop(points: np.ndarray, direction: np.ndarray, ref: np.ndarray,
     if signed_area(p, direction) < 0:
         p = p[::-1]
     spline, length = periodic_spline(p)
-    dense_s = np.linspace(0.0, length, 16 * m, endpoint=False)
+    dense_s = np.linspace(0.0, length, 8 * m, endpoint=False)
     dense = spline(dense_s)
     seg = np.linalg.norm(np.diff(np.vstack([dense, dense[:1]]), axis=0), axis=1)
     arc = np.concatenate([[0.0], np.cumsum(seg)])
     total = arc[-1]
     o = loop_centroid(dense, direction) if origin is None else origin
     r = ref - (ref @ direction) * direction
-    t = ray_exit(dense, o, r)
+    t = ray_exit(dense, o, r, normal=direction)
     if np.isfinite(t):
         hit = o + t * r / np.linalg.norm(r)
         k = int(np.argmin(np.linalg.norm(dense - hit, axis=1)))
@@ -97,7 +97,7 @@ def resample_loop(points: np.ndarray, direction: np.ndarray, ref: np.ndarray,
     return spline(s_of_arc)
 
 
-def curve_distance(curve, points: np.ndarray, n_eval: int = 2000) -> np.ndarray:
+def curve_distance(curve, points: np.ndarray, n_eval: int = 1000) -> np.ndarray:
     """Distance (mm) of each point to a curve: nearest of a dense sampling, then
     projected on the sampled polyline's adjacent segments (error ≪ 0.01 mm)."""
     u = np.linspace(0.0, 1.0, n_eval)
@@ -140,7 +140,8 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
             centre = (1 - f) * c_last + f * apex
             res = scaled_section(last, h, n, centre, targets)
             if res is not None and res[1] > 0.02:
-                apical.append(Section(structure, geo.frame, res[0], synthetic=True))
+                apical.append(Section(structure, geo.frame, res[0], synthetic=True, scale=res[1],
+                                      template=-1))
     basal = []
     plane = geo.base_planes.get("lv" if structure.startswith("lv") else "rv")
     c_first = loop_centroid(first.points, n)
@@ -159,9 +160,28 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
             res = scaled_section(first, h, n, c_first, targets)
             if res is None:
                 break
-            basal.insert(0, Section(structure, geo.frame, res[0], synthetic=True))
+            basal.insert(0, Section(structure, geo.frame, res[0], synthetic=True, scale=res[1],
+                                    template=0))
             h -= SYNTHETIC_STEP_MM
     return basal, apical
+
+
+def embed_septa(real: list[Section], synthetic: list[Section], direction: np.ndarray,
+                near_px: float) -> None:
+    """Move the septal part of RV sections into the LV wall (see
+    :func:`cardionurbs.anatomy.sections.embed_septum`), in place, after the
+    common resampling: real sections by their slice's LV epicardial loop,
+    synthetic ones by their template's displacement times their scale."""
+    disp = []
+    for sec in real:
+        d = np.zeros_like(sec.points)
+        if sec.septum_of is not None:
+            near = near_px * _pixel_mm(sec)
+            d = embed_septum(sec.points, sec.septum_of, direction, near_mm=near)[0] - sec.points
+        disp.append(d)
+        sec.points = sec.points + d
+    for sec in synthetic:
+        sec.points = sec.points + sec.scale * disp[sec.template]
 
 
 def extension_section(basal: Section, geo: FrameGeometry, structure: str,
@@ -183,20 +203,65 @@ def extension_section(basal: Section, geo: FrameGeometry, structure: str,
 # ---------------------------------------------------------------- fitting
 def fit_sections(loops: list[np.ndarray], sources: list[np.ndarray | None], tol_mm: list[float],
                  ) -> tuple[list, int, float, bool]:
-    """Closed cubic curves with a common control-point count, the smallest in
-    N_CTRL_STEPS for which every source point is within its tolerance (mm).
+    """Closed cubic curves with a common control-point count: the smallest count in
+    N_CTRL_STEPS for which every source point is within its tolerance (mm) of its
+    section's curve (paper §3.2.3: start with few control points, add until the
+    error criterion holds).
 
+    Each section is tried with increasing counts only until it meets its own
+    tolerance; then all sections are fitted with the largest count needed, on
+    one uniform knot vector (so that they are compatible for lofting).
     Returns (curves, n_ctrl, max error mm, tolerance met).
     """
-    curves, err = [], np.inf
-    for n_ctrl in N_CTRL_STEPS:
-        curves = [nurbs.fit_curve(lp, degree=3, closed=True, n_ctrl=n_ctrl, knot_rule="uniform") for lp in loops]
-        errs = [float(curve_distance(c, src).max()) if src is not None else 0.0
-                for c, src in zip(curves, sources)]
-        err = max(errs) if errs else 0.0
-        if all(e <= t for e, t in zip(errs, tol_mm)):
-            return curves, n_ctrl, err, True
-    return curves, N_CTRL_STEPS[-1], err, False
+    need = 0
+    ok_all = True
+    for i, (lp, src, tol) in enumerate(zip(loops, sources, tol_mm)):
+        if src is None:
+            continue
+        met = False
+        for k in range(need, len(N_CTRL_STEPS)):
+            c = nurbs.fit_curve(lp, degree=3, closed=True, n_ctrl=N_CTRL_STEPS[k], knot_rule="uniform")
+            if float(curve_distance(c, src).max()) <= tol:
+                need, met = k, True
+                break
+        if not met:
+            need, ok_all = len(N_CTRL_STEPS) - 1, False
+    n_ctrl = N_CTRL_STEPS[need]
+    curves = [nurbs.fit_curve(lp, degree=3, closed=True, n_ctrl=n_ctrl, knot_rule="uniform")
+              for lp in loops]
+    errs = [float(curve_distance(c, src).max()) for c, src in zip(curves, sources) if src is not None]
+    return curves, n_ctrl, max(errs, default=0.0), ok_all
+
+
+def skin(curves: list, apex: np.ndarray, degree_v: int = 3):
+    """Loft compatible closed sections and a collapsed apex into one surface
+    (paper §3.2.4 steps 4–5; NURBS Book §10.3 skinning).
+
+    The sections here already share degree, knot vector, orientation and seam
+    (:func:`resample_loop`, :func:`fit_sections`), so steps 1–3 of
+    :func:`cardionurbs.nurbs.loft` are identities; its seam re-alignment would
+    only perturb the shared knots (and multiply the control points through knot
+    merging), so the interpolation across sections is done here directly with
+    the loft's own section parameters (paper's v̄_k formula) and averaging knots.
+    Falls back to :func:`cardionurbs.nurbs.loft` when the knots differ.
+    """
+    from cardionurbs.nurbs.basis import basis_matrix
+    from cardionurbs.nurbs.loft import averaging_knots, section_parameters
+
+    k0 = curves[0].knots
+    if not all(c.knots.shape == k0.shape and np.allclose(c.knots, k0, atol=1e-12)
+               and c.degree == curves[0].degree and np.allclose(c.weights, 1.0) for c in curves):
+        return nurbs.loft(list(curves) + [apex], degree_v=degree_v)
+    P = np.stack([c.control_points for c in curves]
+                 + [np.repeat(np.asarray(apex, float)[None], curves[0].n_control, axis=0)])
+    K = len(P) - 1
+    v = section_parameters(P)
+    q = min(degree_v, K)
+    knots_v = averaging_knots(v, q)
+    M = basis_matrix(knots_v, q, v)
+    Q = np.linalg.solve(M, P.reshape(K + 1, -1)).reshape(P.shape).transpose(1, 0, 2)
+    Q[:, -1] = apex                      # the collapsed row is exactly the apex
+    return nurbs.NurbsSurface(curves[0].degree, q, k0, knots_v, Q, closed_u=True)
 
 
 def _pixel_mm(sec: Section) -> float:
@@ -220,8 +285,10 @@ def build_surface(geo: FrameGeometry, structure: str, ref: np.ndarray,
     warnings: list[str] = []
     # common parameterisation of the real sections first (templates for synthetic ones)
     real = [Section(s.structure, s.frame, resample_loop(s.points, n, ref), s.slice, s.plane,
-                    False, s.source_points) for s in secs]
+                    False, s.source_points, s.septum_of) for s in secs]
     basal, apical = synthetic_sections(geo, structure, real, apex)
+    if structure.startswith("rv"):
+        embed_septa(real, basal + apical, n, tol_px * 0.5)
     stack = basal + real + apical
     ext = extension_section(stack[0], geo, structure)
     stack = [ext] + stack
@@ -233,7 +300,7 @@ def build_surface(geo: FrameGeometry, structure: str, ref: np.ndarray,
         warnings.append(f"{structure}, frame {frame}: contour fit error {err:.2f} mm exceeds "
                         f"{tol_px:g} px with {n_ctrl} control points")
     try:
-        surface = nurbs.loft(curves + [apex], degree_v=3)
+        surface = skin(curves, apex, degree_v=3)
     except Exception as exc:  # a NURBS input error is a reconstruction failure here
         raise ReconstructionError(f"{structure}, frame {frame}: loft failed: {exc}") from exc
     return SurfaceFit(structure, frame, surface, stack, apex, n_ctrl, err, warnings)
