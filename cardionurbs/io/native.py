@@ -212,9 +212,13 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False) -
                 raise StudyError(f"line {line}: neither x, y, z nor px, py are given",
                                  file=points_path, field="px")
             xyz[sel] = images[image_id].pixel_to_scanner(p)
-    key = table[_KEY].astype(str).agg("\x1f".join, axis=1).to_numpy()
-    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-    ends = np.r_[starts[1:], len(key)]
+    # a new annotation starts where any key column differs from the row before (vectorised)
+    change = np.zeros(max(len(table) - 1, 0), dtype=bool)
+    for col in _KEY:
+        values = table[col].to_numpy()
+        change |= values[1:] != values[:-1]
+    starts = np.flatnonzero(np.r_[True, change])
+    ends = np.r_[starts[1:], len(table)]
     kinds, names = table["kind"].to_numpy(), table["name"].to_numpy()
     views, slices = table["view"].to_numpy(), table["slice"].to_numpy()
     frames, idxs = table["frame"].to_numpy(int), table["index"].to_numpy(int)

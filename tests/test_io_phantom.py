@@ -1,0 +1,88 @@
+"""A written phantom loads from its native files and from its DICOM folder, with contours,
+tag lines and landmarks equal to the phantom's geometry (< 1e-6 mm)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pydicom
+import pytest
+
+from cardionurbs import StudyError, load_study
+from cardionurbs.imaging.dicom import read_dicom_folder
+from cardionurbs.io.native import read_study_from_dicom
+
+generate_mod = pytest.importorskip("cardionurbs.phantom.generate",
+                                   reason="phantom generator not available")
+
+
+@pytest.fixture(scope="module")
+def phantom(tmp_path_factory):
+    pytest.importorskip("cardionurbs.phantom.dicom", reason="phantom DICOM writer not available")
+    ph = generate_mod.generate("normal", seed=3, frames=2, volume_check=False)
+    out = generate_mod.write_phantom(ph, tmp_path_factory.mktemp("ph") / "normal_003")
+    return ph, out
+
+
+def _max_diff(a_list, b_list, attr):
+    assert len(a_list) == len(b_list) > 0
+    return max(float(np.abs(getattr(a, attr) - getattr(b, attr)).max())
+               for a, b in zip(a_list, b_list))
+
+
+def _same_labels(a, b):
+    assert [(c.structure, c.slice, c.frame, c.closed, c.image) for c in a.contours] == \
+           [(c.structure, c.slice, c.frame, c.closed, c.image) for c in b.contours]
+    assert [(t.family, t.index, t.slice, t.frame) for t in a.tags] == \
+           [(t.family, t.index, t.slice, t.frame) for t in b.tags]
+
+
+def test_native_files_give_the_phantom_geometry(phantom):
+    ph, out = phantom
+    study = load_study(out)
+    _same_labels(ph.study, study)
+    assert _max_diff(ph.study.contours, study.contours, "points") < 1e-6
+    assert _max_diff(ph.study.tags, study.tags, "points") < 1e-6
+    assert _max_diff(ph.study.landmarks, study.landmarks, "point") < 1e-6
+    assert (study.ed_frame, study.es_frame) == (0, ph.es_frame)
+    assert not [w for w in study.warnings if "off its image plane" in w]
+
+
+def test_dicom_geometry_gives_the_phantom_geometry(phantom):
+    """Image planes from the DICOM headers, points from the pixel columns of points.csv."""
+    ph, out = phantom
+    study = read_study_from_dicom(out)
+    assert study.meta["geometry"] == "dicom"
+    _same_labels(ph.study, study)
+    assert _max_diff(ph.study.contours, study.contours, "points") < 1e-6
+    assert _max_diff(ph.study.tags, study.tags, "points") < 1e-6
+
+
+def test_dicom_folder_alone_gives_the_same_slices_and_frames(phantom):
+    """The DICOM reader's own grouping, naming (SA base->apex, LA from SeriesDescription or
+    numbered) and frame order agree with the phantom's labels."""
+    ph, out = phantom
+    series = read_dicom_folder(out / "dicom")
+    truth = {im.id: im for im in ph.study.images}
+    assert set(truth) == {im.id for im in series.images}
+    for im in series.images:
+        t = truth[im.id]
+        assert (im.view, im.frame) == (t.view, t.frame)
+        if im.view == "SA":
+            assert im.slice == t.slice
+        assert im.same_geometry(t, tol=1e-6)
+    # HeartRate (0018,1088) is an integer string (VR IS): within half a beat
+    assert series.heart_rate_bpm == pytest.approx(ph.study.heart_rate_bpm, abs=0.5)
+
+
+def test_manifest_geometry_cross_checked_against_dicom(phantom, tmp_path):
+    import shutil
+    _, out = phantom
+    copy = tmp_path / "ph"
+    shutil.copytree(out, copy)
+    f = sorted((copy / "dicom").rglob("*.dcm"))[0]
+    ds = pydicom.dcmread(f)
+    ds.ImagePositionPatient = [float(v) + 0.5 for v in ds.ImagePositionPatient]
+    ds.save_as(f)
+    with pytest.raises(StudyError, match="ImagePositionPatient is 0.866 mm from study.json") as e:
+        load_study(copy)
+    assert str(f) in str(e.value)
