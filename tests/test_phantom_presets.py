@@ -1,0 +1,114 @@
+"""Phantom presets: target ranges for every subject, blood conservation, paper12, bad specs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cardionurbs.errors import PhantomError
+from cardionurbs.phantom import generate, load_cohort_spec, load_preset
+from cardionurbs.phantom.presets import in_targets, read_toml
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _truth(pathology, seed):
+    # truth metrics only depend on the ED and ES phases: 2 frames is enough and fast
+    return generate(pathology, seed=seed, frames=2, volume_check=False).truth["metrics"]
+
+
+@pytest.mark.parametrize("pathology", ["normal", "mr", "phtn"])
+def test_every_seed_meets_targets_and_conserves_blood(pathology):
+    targets = load_preset(pathology)["targets"]
+    for seed in range(6):
+        m = _truth(pathology, seed)
+        assert not in_targets(m, targets), (pathology, seed, in_targets(m, targets))
+        if pathology == "mr":
+            assert m["RVSV (mL)"] == pytest.approx(m["LVSV (mL)"] - m["MR RegVol (mL)"], rel=1e-12)
+            assert 30 <= m["MR RegFrac (%)"] <= 50
+        else:
+            assert abs(m["LVSV (mL)"] - m["RVSV (mL)"]) / m["LVSV (mL)"] <= 0.05
+
+
+def test_issue_target_ranges_hold():
+    """The issue's ranges, written out independently of the TOML files."""
+    n = _truth("normal", 11)
+    assert 140 <= n["LVEDV (mL)"] <= 160 and 60 <= n["LVEF (%)"] <= 67 and 100 <= n["LVM (g)"] <= 135
+    assert 150 <= n["RVEDV (mL)"] <= 190 and 55 <= n["RVEF (%)"] <= 60
+    assert 10 <= n["Twist (deg)"] <= 15 and 12 <= n["LS (%)"] <= 18
+    mr = _truth("mr", 11)
+    assert mr["LVEDV (mL)"] >= 200 and mr["LVEF (%)"] >= 65 and 30 <= mr["MR RegFrac (%)"] <= 50
+    p = _truth("phtn", 11)
+    assert p["RV/LV EDV ratio"] >= 1.5 and p["RV/LV mass ratio"] >= 0.45 and p["RVEF (%)"] <= 40
+    assert p["EI ES"] >= 1.3 and p["Twist (deg)"] < n["Twist (deg)"]
+    assert p["LVEDV (mL)"] < n["LVEDV (mL)"]
+
+
+def test_paper12_composition_and_targets():
+    subjects = load_cohort_spec(ROOT / "phantoms" / "paper12.toml")
+    counts = {p: sum(s.pathology == p for s in subjects) for p in ("normal", "mr", "phtn")}
+    assert counts == {"normal": 5, "mr": 3, "phtn": 4}
+    assert len({s.id for s in subjects}) == 12 and all(s.frames == 20 for s in subjects)
+    for s in subjects:
+        assert not in_targets(_truth(s.pathology, s.seed), load_preset(s.pathology)["targets"])
+
+
+def test_packaged_presets_match_phantoms_folder():
+    for name in ("normal", "mr", "phtn", "paper12"):
+        assert (ROOT / "phantoms" / f"{name}.toml").read_bytes() == \
+            (ROOT / "cardionurbs" / "data" / f"{name}.toml").read_bytes()
+
+
+@pytest.mark.parametrize("text, word", [
+    ("[preset]\nname = 'x'\n[sample\n", "malformed TOML"),
+    ("[preset]\nname = 'x'\n", "[sample]"),
+])
+def test_malformed_preset_is_one_line(tmp_path, text, word):
+    p = tmp_path / "bad.toml"
+    p.write_text(text)
+    with pytest.raises(PhantomError) as e:
+        load_preset(str(p))
+    assert word in str(e.value) and str(p) in str(e.value) and "\n" not in str(e.value)
+
+
+def test_preset_range_must_be_ordered(tmp_path):
+    text = (ROOT / "phantoms" / "normal.toml").read_text().replace("lvedv_ml = [141.0, 159.0]",
+                                                                    "lvedv_ml = [159.0, 141.0]")
+    p = tmp_path / "n.toml"
+    p.write_text(text)
+    with pytest.raises(PhantomError, match="sample.lvedv_ml"):
+        load_preset(str(p))
+
+
+def test_missing_toml_and_bad_cohort(tmp_path):
+    with pytest.raises(PhantomError, match="file not found"):
+        read_toml(tmp_path / "nope.toml")
+    bad = tmp_path / "c.toml"
+    bad.write_text("[[subject]]\nid = 'a'\npathology = 'flu'\nseed = 1\n")
+    with pytest.raises(PhantomError, match="unknown pathology"):
+        load_cohort_spec(bad)
+    bad.write_text("[[subject]]\nid = 'a'\npathology = 'mr'\nseed = 1\n[[subject]]\nid = 'a'\n"
+                   "pathology = 'mr'\nseed = 2\n")
+    with pytest.raises(PhantomError, match="repeated"):
+        load_cohort_spec(bad)
+
+
+@pytest.mark.parametrize("kw, word", [
+    (dict(pathology="flu"), "unknown pathology"),
+    (dict(frames=1), "frames"),
+    (dict(seed=-1), "seed"),
+    (dict(noise_px=-0.5), "noise_px"),
+    (dict(tag_jumps=-2), "tag_jumps"),
+    (dict(sa_spacing_mm=-10.0), "sa_spacing_mm"),
+])
+def test_bad_generate_arguments(kw, word):
+    with pytest.raises(PhantomError) as e:
+        generate(**{"frames": 2, **kw})
+    assert word in str(e.value) and "\n" not in str(e.value)
+
+
+def test_seeds_vary_subjects():
+    a, b = _truth("normal", 1), _truth("normal", 2)
+    assert a["LVEDV (mL)"] != b["LVEDV (mL)"] and np.isfinite(a["Twist 2D (deg)"])
