@@ -97,13 +97,13 @@ class DicomHeader:
 
 def _numbers(ds, keyword: str, count: int, path: Path, required: bool = True):
     """Tag ``keyword`` of ``ds`` as a float array of ``count`` finite numbers."""
-    if keyword not in ds or ds[keyword].value in (None, ""):
+    value = ds.get(keyword)
+    if value is None or value == "":
         if required:
             tag = pydicom.datadict.tag_for_keyword(keyword)
             raise StudyError(f"missing {keyword} ({tag >> 16:04X},{tag & 0xFFFF:04X})",
                              file=path, field=keyword)
         return None
-    value = ds[keyword].value
     try:
         seq = list(value) if isinstance(value, (list, tuple, pydicom.multival.MultiValue)) else [value]
         arr = np.array([float(v) for v in seq], dtype=float)

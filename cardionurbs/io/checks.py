@@ -80,14 +80,18 @@ def self_intersections(xy: np.ndarray, closed: bool) -> np.ndarray:
     to the de-duplicated polyline. Two segments meet when each one's end points
     are not strictly on one side of the other's line (orientation-sign
     predicate, with collinear segments tested for overlap) — crossings and
-    touchings both count, since either makes the curve non-simple. O(n^2),
-    vectorised.
+    touchings both count, since either makes the curve non-simple. Curves
+    turning monotonically around their centroid are simple (fast path);
+    otherwise candidate pairs come from a bounding-box sweep, then the exact
+    predicate, all vectorised.
     """
     xy = np.asarray(xy, float).reshape(-1, 2)
     keep_pt = np.r_[True, np.any(np.diff(xy, axis=0) != 0, axis=1)]
     xy = xy[keep_pt]
     if closed and len(xy) > 1 and np.array_equal(xy[0], xy[-1]):
         xy = xy[:-1]
+    if _angularly_monotone(xy, closed):
+        return np.zeros((0, 2), dtype=int)
     a = xy if closed else xy[:-1]
     b = np.roll(xy, -1, axis=0) if closed else xy[1:]
     m = len(a)
@@ -95,10 +99,9 @@ def self_intersections(xy: np.ndarray, closed: bool) -> np.ndarray:
         return np.zeros((0, 2), dtype=int)
     scale = max(float(np.ptp(xy, axis=0).max()), 1e-12)
     eps = 1e-12 * scale * scale
-    i, j = np.triu_indices(m, k=2)
-    if closed:
-        pair = ~((i == 0) & (j == m - 1))
-        i, j = i[pair], j[pair]
+    i, j = _overlapping_boxes(a, b)
+    pair = (j - i >= 2) & ~(closed & (i == 0) & (j == m - 1))
+    i, j = i[pair], j[pair]
     A, B, C, D = a[i], b[i], a[j], b[j]
 
     def side(p, q, r):
@@ -115,6 +118,42 @@ def self_intersections(xy: np.ndarray, closed: bool) -> np.ndarray:
         overlap = (hi >= 0) & (lo <= np.einsum("ij,ij->i", d, d))
         meet = np.where(collinear, overlap, meet)
     return np.column_stack([i[meet], j[meet]])
+
+
+def _overlapping_boxes(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs i < j of segments a->b whose bounding boxes overlap (sweep over x:
+    sort by left end, each segment pairs with those starting before its right end)."""
+    m = len(a)
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    order = np.argsort(lo[:, 0], kind="stable")
+    xs = lo[order, 0]
+    end = np.searchsorted(xs, hi[order, 0], side="right")
+    counts = np.maximum(end - np.arange(m) - 1, 0)
+    p = np.repeat(np.arange(m), counts)
+    q = p + 1 + (np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts))
+    i, j = order[p], order[q]
+    i, j = np.minimum(i, j), np.maximum(i, j)
+    keep = (lo[i, 1] <= hi[j, 1]) & (lo[j, 1] <= hi[i, 1])
+    return i[keep], j[keep]
+
+
+def _angularly_monotone(xy: np.ndarray, closed: bool) -> bool:
+    """Fast sufficient test of simplicity: seen from the centroid, the polar angle of the
+    points turns strictly one way, each step by less than pi, in total exactly one turn
+    (closed) or less than one turn (open). Each edge then lies in its own angular wedge
+    and wedges of non-adjacent edges meet only at the centroid, which no edge reaches."""
+    if len(xy) < 3:
+        return True
+    d = xy - xy.mean(axis=0)
+    if np.any(np.hypot(d[:, 0], d[:, 1]) == 0):
+        return False
+    ang = np.arctan2(d[:, 1], d[:, 0])
+    steps = np.diff(np.r_[ang, ang[0]] if closed else ang)
+    steps = (steps + np.pi) % (2 * np.pi) - np.pi
+    if not (np.all(steps > 0) or np.all(steps < 0)) or np.any(np.abs(steps) >= np.pi - 1e-9):
+        return False
+    total = abs(float(steps.sum()))
+    return abs(total - 2 * np.pi) < 1e-6 if closed else total < 2 * np.pi - 1e-9
 
 
 # ----------------------------------------------------------------------- checks
@@ -252,9 +291,20 @@ def _plane_of(study: Study, ann, file) -> ImagePlane | None:
     return None
 
 
+class _Normals(dict):
+    """Unit normal of each image plane, computed once per plane (keyed by plane id)."""
+
+    def of(self, plane: ImagePlane) -> np.ndarray:
+        n = self.get(plane.id)
+        if n is None:
+            n = self[plane.id] = plane.normal
+        return n
+
+
 def _off_plane(study: Study, plane: ImagePlane, pts: np.ndarray, what: str, file, ann,
-               warnings: list[str]) -> None:
-    d = float(np.abs(plane.distance_to_plane(pts)).max())
+               warnings: list[str], normals: _Normals) -> None:
+    d = float(np.abs((np.asarray(pts, float).reshape(-1, 3) - plane.position)
+                     @ normals.of(plane)).max())
     limit = max(OFF_PLANE_ERROR_MM, 0.5 * plane.thickness)
     if d > limit:
         raise StudyError(f"{what} lies {d:.2f} mm off its image plane (limit {limit:.2f} mm)",
@@ -266,6 +316,7 @@ def _off_plane(study: Study, plane: ImagePlane, pts: np.ndarray, what: str, file
 
 def _check_annotations(study: Study, warnings: list[str]) -> None:
     files = _annotation_files(study)
+    normals = _Normals()
     no_plane = 0
     for c, file in zip(study.contours, files):
         what = f"{c.structure} contour" + (f" #{c.index}" if c.index else "")
@@ -279,7 +330,7 @@ def _check_annotations(study: Study, warnings: list[str]) -> None:
         if plane is None:
             no_plane += 1
         else:
-            _off_plane(study, plane, c.points, what, file, c, warnings)
+            _off_plane(study, plane, c.points, what, file, c, warnings, normals)
         cross = self_intersections(in_plane_coordinates(c.points, plane), c.closed)
         if len(cross):
             i, j = map(int, cross[0])
@@ -295,11 +346,11 @@ def _check_annotations(study: Study, warnings: list[str]) -> None:
                              file=_src(study), slice=t.slice, frame=t.frame)
         plane = _plane_of(study, t, None)
         if plane is not None:
-            _off_plane(study, plane, t.points, what, None, t, warnings)
+            _off_plane(study, plane, t.points, what, None, t, warnings, normals)
     for lm in study.landmarks:
         plane = _plane_of(study, lm, None)
         if plane is not None:
-            _off_plane(study, plane, lm.point, f"landmark {lm.name}", None, lm, warnings)
+            _off_plane(study, plane, lm.point, f"landmark {lm.name}", None, lm, warnings, normals)
     if no_plane:
         warnings.append(f"{study.source}: {no_plane} contour(s) have no image plane to check "
                         "them against")

@@ -181,7 +181,10 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False) -
         return
     for col in ("x", "y", "z", "px", "py", "frame", "index"):
         num = pd.to_numeric(table[col], errors="coerce")
-        bad = num.isna() & (table[col].astype(str).str.strip() != "") & table[col].notna()
+        if pd.api.types.is_numeric_dtype(table[col]):  # parsed as numbers: only NaN can be bad
+            bad = pd.Series(np.zeros(len(table), dtype=bool), index=table.index)
+        else:
+            bad = num.isna() & (table[col].astype(str).str.strip() != "") & table[col].notna()
         if col in ("frame", "index"):
             bad |= num.isna() | (num != np.round(num))
         if bad.any():
