@@ -46,10 +46,11 @@ from cardionurbs.study import TAG_FAMILIES, Study, TagLine
 
 #: the image view each tag family is seen in
 FAMILY_VIEW = {"sa1": "SA", "sa2": "SA", "la": "LA"}
-#: a jump in point spacing larger than this many times the median spacing
-#: (and larger than ``GAP_MIN_MM``) is a gap (the line crosses a cavity)
-GAP_FACTOR = 3.0
-GAP_MIN_MM = 3.0
+#: a step between consecutive points longer than this many times the line's
+#: median step, and longer than ``GAP_MIN_MM``, is a gap (the line crosses a
+#: cavity); tracking noise of a pixel or so never makes one
+GAP_FACTOR = 4.0
+GAP_MIN_MM = 5.0
 
 
 # ----------------------------------------------------------------- validation
@@ -85,34 +86,92 @@ def check_tags(study: Study, ed_frame: int | None = None) -> None:
 
 
 # --------------------------------------------------------------- line helpers
-def split_at_gaps(points: np.ndarray) -> list[np.ndarray]:
-    """Split an ordered (n, 3) tag line where it jumps a gap (a cavity crossing).
-
-    A gap is a step longer than ``GAP_FACTOR`` × the median step and longer
-    than ``GAP_MIN_MM`` mm. Returns the pieces in order.
-    """
+def gap_limit(points: np.ndarray) -> float:
+    """Step length (mm) above which consecutive points of a line are across a gap."""
     steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
     if len(steps) < 2:
-        return [points]
-    limit = max(GAP_FACTOR * float(np.median(steps)), GAP_MIN_MM)
+        return np.inf
+    return max(GAP_FACTOR * float(np.median(steps)), GAP_MIN_MM)
+
+
+def split_at_gaps(points: np.ndarray, limit: float | None = None) -> list[np.ndarray]:
+    """Split an ordered (n, 3) tag line where it jumps a gap (a cavity crossing).
+
+    A gap is a step longer than ``limit`` (default :func:`gap_limit` of the
+    line). Returns the pieces in order.
+    """
+    limit = gap_limit(points) if limit is None else limit
+    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
     cuts = np.flatnonzero(steps > limit) + 1
     return np.split(points, cuts)
 
 
-def fit_tag_curve(points: np.ndarray, pixel_mm: float) -> "nurbs.NurbsCurve":
-    """Least-squares degree-3 curve through an ordered tag line (paper §3.2, eqs. 6–10).
+def uniform_knots(n_ctrl: int, degree: int = 3) -> np.ndarray:
+    """Clamped knot vector on [0, 1] with uniformly spaced interior knots."""
+    inner = np.arange(1, n_ctrl - degree) / (n_ctrl - degree)
+    return np.concatenate([np.zeros(degree + 1), inner, np.ones(degree + 1)])
 
-    The number of control points grows with the line's length (one per
-    ~12 mm, 4..8) rather than with a tolerance, so that tracking noise of a
-    pixel or so is smoothed rather than interpolated; a line of 2 or 3 points
-    gets degree 1 or 2.
+
+def control_count(lines: list[np.ndarray]) -> int:
+    """Control points for a family's tag lines: one per ~12 mm of the median line, 4..8."""
+    lengths = [float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in lines]
+    return int(np.clip(round(float(np.median(lengths)) / 12.0) + 3, 4, 8))
+
+
+def fit_tag_curves(lines: list[np.ndarray], n_ctrl: int, degree: int = 3,
+                   smoothing: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares degree-3 curves through many tag lines at once (paper §3.2, eqs. 6–10).
+
+    Every line gets chord-length parameters (eqs. 6–8), end control points
+    on its end points (P_0 = Q_0, P_n = Q_m) and the interior control points
+    by least squares (eq. 10), all lines solved together. Two departures
+    from the paper, both for lofting: the knots are uniform in the
+    chord-length parameter (every section of a tag then shares one knot
+    vector, so lofting needs no knot insertion), and a tiny second-difference
+    penalty (``smoothing`` × the mean diagonal of NᵀN) keeps the system
+    regular where a cavity gap leaves a control point without data (the
+    curve bridges the gap smoothly) or where a line has fewer points than
+    control points. The number of control points is fixed (not a
+    tolerance), so tracking noise is smoothed rather than interpolated.
+
+    Returns (knots (n + p + 1,), control points (L, n, 3)).
     """
-    m = len(points)
-    degree = min(3, m - 1)
-    length = float(np.linalg.norm(np.diff(points, axis=0), axis=1).sum())
-    n_ctrl = int(np.clip(round(length / 12.0) + 3, degree + 1, 8))
-    n_ctrl = min(n_ctrl, m)
-    return nurbs.fit_curve(points, degree=degree, n_ctrl=n_ctrl)
+    from cardionurbs.nurbs.basis import basis_matrix
+    U = uniform_knots(n_ctrl, degree)
+    L = len(lines)
+    m = np.array([len(q) for q in lines])
+    Q = np.vstack(lines)
+    starts = np.r_[0, np.cumsum(m)[:-1]]
+    seg = np.linalg.norm(np.diff(Q, axis=0), axis=1)
+    seg = np.r_[0.0, seg]
+    seg[starts] = 0.0                                    # no chord between two lines
+    cum = np.cumsum(seg)
+    cum -= np.repeat(cum[starts], m)
+    total = np.repeat(cum[starts + m - 1], m)
+    u = np.where(total > 0, cum / np.where(total > 0, total, 1.0), 0.0)   # eqs. 6–8
+    B = basis_matrix(U, degree, u)                       # (N, n)
+    line = np.repeat(np.arange(L), m)
+    Q0, Qm = Q[starts], Q[starts + m - 1]
+    rhs = Q - B[:, :1] * Q0[line] - B[:, -1:] * Qm[line]
+    Bi = B[:, 1:-1]
+    A = np.add.reduceat(Bi[:, :, None] * Bi[:, None, :], starts, axis=0)      # (L, n-2, n-2)
+    b = np.add.reduceat(Bi[:, :, None] * rhs[:, None, :], starts, axis=0)     # (L, n-2, 3)
+    # second differences of the full control polygon, restricted to the interior unknowns
+    D = np.diff(np.eye(n_ctrl), 2, axis=0)
+    R = D.T @ D
+    scale = np.trace(A, axis1=1, axis2=2) / max(n_ctrl - 2, 1)
+    lam = smoothing * np.maximum(scale, 1e-3)
+    Rin = R[1:-1, 1:-1]
+    b_reg = -(R[1:-1, :1][None] * Q0[:, None, :] + R[1:-1, -1:][None] * Qm[:, None, :])
+    P_in = np.linalg.solve(A + lam[:, None, None] * Rin[None], b + lam[:, None, None] * b_reg)
+    P = np.concatenate([Q0[:, None, :], P_in, Qm[:, None, :]], axis=1)
+    return U, P
+
+
+def fit_tag_curve(points: np.ndarray, pixel_mm: float = 1.0) -> "nurbs.NurbsCurve":
+    """One tag line's curve (:func:`fit_tag_curves` with the count of :func:`control_count`)."""
+    U, P = fit_tag_curves([np.asarray(points, float)], control_count([points]))
+    return nurbs.NurbsCurve(3, U, P[0])
 
 
 # ------------------------------------------------------------------ sections
@@ -135,6 +194,8 @@ class TagSection:
     key: float
     curve: object = None
     half: int = 0
+    knots: np.ndarray | None = None
+    ctrl: np.ndarray | None = None
 
 
 @dataclass(eq=False)
@@ -269,7 +330,7 @@ def la_sections(study: Study, frame: int, apex: np.ndarray,
         radial = rel - np.outer(rel @ e, e)
         r = np.linalg.norm(radial, axis=1)
         steps = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-        limit = max(GAP_FACTOR * float(np.median(steps)), GAP_MIN_MM) if len(steps) > 1 else np.inf
+        limit = gap_limit(pts)
         gaps = np.flatnonzero(steps > limit)
         # the gap nearest the axis, if the axis lies across it
         cut_pt, lo, hi = None, None, None
@@ -288,7 +349,7 @@ def la_sections(study: Study, frame: int, apex: np.ndarray,
         for h, seg in enumerate((inner, outer)):
             if len(seg) == 0:
                 continue
-            first_wall = split_at_gaps(seg)[0]
+            first_wall = split_at_gaps(seg, limit)[0]
             spoke = np.vstack([cut_pt, first_wall])
             if len(spoke) < 2:
                 continue
@@ -304,21 +365,31 @@ def la_sections(study: Study, frame: int, apex: np.ndarray,
 
 
 # ------------------------------------------------------------------- lofting
-def loft_sections(sections: list[TagSection], pixel_mm: float, periodic: bool = False):
-    """Fit each section's curve (paper §3.2) and loft them (§3.2.4) into one surface.
+def fit_sections(sections: list[TagSection]) -> None:
+    """Fit every section's curve (:func:`fit_tag_curves`, one batch per call), in place."""
+    todo = [s for s in sections if s.ctrl is None]
+    if not todo:
+        return
+    U, P = fit_tag_curves([s.points for s in todo], control_count([s.points for s in todo]))
+    for s, ctrl in zip(todo, P):
+        s.knots, s.ctrl = U, ctrl
+        s.curve = nurbs.NurbsCurve(3, U, ctrl)
+
+
+def loft_sections(sections: list[TagSection], periodic: bool = False,
+                  degree_v: int = 3):
+    """Loft fitted sections (paper §3.2.4, :func:`cardionurbs.nurbs.loft`) into one surface.
 
     ``periodic`` repeats the first section at the end (the LA spoke fan).
     Returns None when fewer than two sections remain.
     """
-    for s in sections:
-        if s.curve is None:
-            s.curve = fit_tag_curve(s.points, pixel_mm)
+    fit_sections(sections)
     curves = [s.curve for s in sections]
     if periodic and len(curves) >= 2:
         curves = curves + [curves[0]]
     if len(curves) < 2:
         return None
-    return nurbs.loft(curves, degree_v=min(3, len(curves) - 1))
+    return nurbs.loft(curves, degree_v=min(degree_v, len(curves) - 1))
 
 
 def pixel_size(study: Study) -> float:
@@ -331,7 +402,6 @@ def build_tag_surfaces(study: Study, frame: int, long_axis: tuple | None = None,
                        families: tuple[str, ...] = TAG_FAMILIES) -> dict[tuple[str, int], TagSurface]:
     """Every tag surface at one frame, with its sections (see :func:`tag_surfaces`)."""
     check_tags(study)
-    px = pixel_size(study)
     out: dict[tuple[str, int], TagSurface] = {}
     for fam in families:
         if fam == "la":
@@ -345,10 +415,11 @@ def build_tag_surfaces(study: Study, frame: int, long_axis: tuple | None = None,
         else:
             groups = sa_sections(study, fam, frame)
             periodic = False
+        fit_sections([sec for secs in groups.values() for sec in secs])
         for idx, secs in groups.items():
             if periodic and len(secs) < 3:
                 continue
-            surf = loft_sections(secs, px, periodic=periodic)
+            surf = loft_sections(secs, periodic=periodic)
             if surf is not None:
                 out[(fam, idx)] = TagSurface(fam, idx, frame, surf, secs, periodic_v=periodic)
     return out

@@ -5,20 +5,29 @@ one slice to the neighbouring tag plane, so the lofted tag surface gets a
 one-spacing step. For every tag (family, index) at every tagged frame, and
 every slice (SA families) or view (``la``) showing it, we
 
-1. loft the tag surface through the *other* slices' fitted curves
-   (paper §3.2.4; for ``la`` the spoke fan of the other views);
-2. cut that surface with the left-out image plane: for each ``u`` the
-   ``v*`` where the surface crosses the plane (sign change on a parameter
-   grid, one Newton step), or — beyond the first or last remaining slice —
-   the linear extension S(u, v_end) + t·∂S/∂v;
-3. measure each left-out tag point's in-plane distance from that trace,
-   perpendicular to it (tangent ∂S/∂u − (∂S/∂u·n)/(∂S/∂v·n)·∂S/∂v), and
-   take the median over the line, divided by the tag spacing.
+1. loft the tag surface through the *other* slices' fitted curves with
+   degree 1 across the slices (paper §3.2.4 with q = 1): with sections on
+   one knot vector this is the blend S(u, v) = (1 − t) C_a(u) + t C_b(u)
+   between the two remaining sections on either side of the left-out plane
+   (or, beyond the first or last remaining section, the linear extension
+   from the two nearest). For ``la`` the sections are the spokes of the
+   other views around the long axis, and a and b the spokes on either side
+   of the left-out spoke's angle;
+2. cut that surface with the left-out image plane: for every u, t(u) =
+   d_a / (d_a − d_b) with d the signed distances of C_a(u), C_b(u) from the
+   plane, giving the trace T(u) in the plane;
+3. measure each left-out tag point's distance from the trace across its
+   tangent (the trace extended by its end tangents), take the median over
+   the line and divide by the tag spacing.
 
-Lines whose departure exceeds the threshold (0.5 spacing by default) are
-flagged one at a time, worst first, and left out of the surface before the
-rest are measured again (a jumped line also pulls the loft that predicts
-its neighbours, by about half a spacing).
+Degree 1 rather than 3 across the slices: a cubic loft through a jumped
+line swings by about a spacing at every other slice (and more where it
+extrapolates), whereas the linear blend confines a jump's influence to its
+two neighbours (about half a spacing each). Lines whose departure exceeds
+the threshold (0.5 spacing) are flagged one at a time, worst first, and
+left out of the lofts before the others are measured again, so a jumped
+line (about one spacing) is flagged and its neighbours, measured again
+without it, are not.
 
 Tag spacing: ``study.meta["tag_spacing_mm"]`` when given, else estimated
 per family and frame from neighbouring indices (median over slices of the
@@ -32,13 +41,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cardionurbs import nurbs
-from cardionurbs.analysis.tag_surfaces import (TagSection, TagSurface, build_tag_surfaces,
-                                               family_direction, fit_tag_curve, pixel_size)
+from cardionurbs.analysis.tag_surfaces import TagSection, family_direction
 from cardionurbs.study import TAG_FAMILIES, Study
 
 DEFAULT_THRESHOLD = 0.5
-_NU, _NV = 48, 64
+_NU = 48
 
 
 @dataclass(frozen=True)
@@ -68,72 +75,41 @@ class LineDeparture:
 
 
 # ---------------------------------------------------------------- geometry
-def plane_trace(surface, origin: np.ndarray, normal: np.ndarray, periodic: bool = False,
-                nu: int = _NU, nv: int = _NV) -> tuple[np.ndarray, np.ndarray]:
-    """Points (k, 3) and unit tangents (k, 3) where a surface crosses a plane.
+def _samples(section, ns: int = _NU) -> np.ndarray:
+    """(ns, 3) points of a section's fitted curve at uniform u."""
+    from cardionurbs.nurbs.basis import basis_matrix
+    key = (len(section.knots), ns)
+    B = _BASIS.get(key)
+    if B is None or B[0].shape != section.knots.shape or not np.array_equal(B[0], section.knots):
+        B = (section.knots.copy(), basis_matrix(section.knots, 3, np.linspace(0.0, 1.0, ns)))
+        _BASIS[key] = B
+    return B[1] @ section.ctrl
 
-    For each of ``nu`` values of u, every sign change of the signed distance
-    along a ``nv`` grid in v (wrapping when ``periodic``) is refined by one
-    Newton step in v. For u where the surface does not reach the plane, the
-    surface is extended linearly beyond its nearer v-boundary.
+
+_BASIS: dict = {}
+
+
+def blend_trace(Ca: np.ndarray, Cb: np.ndarray, origin: np.ndarray, normal: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Trace (k, 3) and unit tangents of the degree-1 loft between two sampled sections in a plane.
+
+    T(u) = C_a(u) + t(u) (C_b(u) − C_a(u)), t = d_a / (d_a − d_b), d the
+    signed distances from the plane (t outside [0, 1] extends the blend).
     """
-    u = np.linspace(0.0, 1.0, nu)
-    v = np.linspace(0.0, 1.0, nv)
-    P = np.asarray(surface.evaluate(u, v))
-    d = (P - origin) @ normal                                   # (nu, nv)
-    if periodic:
-        d_next = np.roll(d, -1, axis=1)
-        v_next = np.roll(v, -1) + np.r_[np.zeros(nv - 1), 1.0]
-        d, d_next, v0, v1 = d[:, :-1], d_next[:, :-1], v[:-1], v_next[:-1]
-    else:
-        d_next, v0, v1 = d[:, 1:], v[:-1], v[1:]
-        d = d[:, :-1]
-    cross = (d == 0) | (np.sign(d) != np.sign(d_next))
-    iu, iv = np.nonzero(cross)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        w = np.where(d[iu, iv] != d_next[iu, iv], d[iu, iv] / (d[iu, iv] - d_next[iu, iv]), 0.0)
-    uu = u[iu]
-    vv = np.mod(v0[iv] + w * (v1[iv] - v0[iv]), 1.0) if periodic else v0[iv] + w * (v1[iv] - v0[iv])
-    ext_u = np.empty(0)
-    ext_v = np.empty(0)
-    if not periodic:
-        missing = np.setdiff1d(np.arange(nu), iu)
-        if len(missing):
-            full = (P - origin) @ normal
-            # extend from the boundary nearer the plane
-            end = np.where(np.abs(full[missing, 0]) < np.abs(full[missing, -1]), 0.0, 1.0)
-            ext_u, ext_v = u[missing], end
-    pts, tan = [], []
-    if len(uu):
-        from cardionurbs.analysis.material import surface_derivatives
-        S, Su, Sv = surface_derivatives(surface, uu, vv)
-        den = Sv @ normal
-        ok = np.abs(den) > 1e-12
-        dv = np.where(ok, -((S - origin) @ normal) / np.where(ok, den, 1.0), 0.0)
-        vv2 = np.mod(vv + dv, 1.0) if periodic else np.clip(vv + dv, 0.0, 1.0)
-        S, Su, Sv = surface_derivatives(surface, uu, vv2)
-        pts.append(S - np.outer((S - origin) @ normal, normal))
-        tan.append(_in_plane_tangent(Su, Sv, normal))
-    if len(ext_u):
-        from cardionurbs.analysis.material import surface_derivatives
-        S, Su, Sv = surface_derivatives(surface, ext_u, ext_v)
-        den = Sv @ normal
-        den = np.where(np.abs(den) > 1e-12, den, 1e-12)
-        t = -((S - origin) @ normal) / den
-        Q = S + t[:, None] * Sv
-        pts.append(Q - np.outer((Q - origin) @ normal, normal))
-        tan.append(_in_plane_tangent(Su, Sv, normal))
-    if not pts:
-        return np.zeros((0, 3)), np.zeros((0, 3))
-    return np.vstack(pts), np.vstack(tan)
-
-
-def _in_plane_tangent(Su: np.ndarray, Sv: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    den = Sv @ normal
-    den = np.where(np.abs(den) > 1e-12, den, 1e-12)
-    t = Su - ((Su @ normal) / den)[:, None] * Sv
-    t -= np.outer(t @ normal, normal)
-    return t / np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
+    da = (Ca - origin) @ normal
+    db = (Cb - origin) @ normal
+    den = da - db
+    ok = np.abs(den) > 1e-9
+    t = np.where(ok, da / np.where(ok, den, 1.0), 0.0)
+    T = Ca + t[:, None] * (Cb - Ca)
+    T = T[ok]
+    T -= np.outer((T - origin) @ normal, normal)
+    if len(T) < 2:
+        return T, np.zeros_like(T)
+    tan = np.gradient(T, axis=0)
+    tan -= np.outer(tan @ normal, normal)
+    tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-12)
+    return T, tan
 
 
 def distance_to_trace(points: np.ndarray, trace: np.ndarray, tangents: np.ndarray) -> np.ndarray:
@@ -167,12 +143,9 @@ def tag_spacing(study: Study, family: str, frame: int,
         if len(ts) < 2:
             continue
         plane = study.slice_plane(slc)
-        if family == "la":
-            across = d_fam_la = np.cross(plane.normal, family_direction([t.points for t in ts]))
-            across = d_fam_la / np.linalg.norm(d_fam_la)
-        else:
-            across = np.cross(plane.normal, d_fam)
-            across /= np.linalg.norm(across)
+        along = family_direction([t.points for t in ts]) if family == "la" else d_fam
+        across = np.cross(plane.normal, along)
+        across /= np.linalg.norm(across)
         idx = np.array([t.index for t in ts])
         pos = np.array([t.points.mean(axis=0) @ across for t in ts])
         order = np.argsort(idx)
@@ -184,51 +157,121 @@ def tag_spacing(study: Study, family: str, frame: int,
 
 
 # ----------------------------------------------------------------- LOO core
-def _group_by_slice(sections: list[TagSection]) -> dict[str, list[TagSection]]:
-    out: dict[str, list[TagSection]] = {}
-    for s in sections:
-        out.setdefault(s.slice, []).append(s)
+def _neighbours_linear(keys: np.ndarray, h: float) -> tuple[int, int] | None:
+    """Indices of the two remaining sections bracketing position h (or the two nearest at an end)."""
+    n = len(keys)
+    if n < 2:
+        return None
+    j = int(np.searchsorted(keys, h))
+    if j <= 0:
+        return 0, 1
+    if j >= n:
+        return n - 2, n - 1
+    return j - 1, j
+
+
+def _neighbours_cyclic(angles: np.ndarray, a: float) -> tuple[int, int] | None:
+    """Indices of the remaining spokes just before and just after angle a (cyclic)."""
+    if len(angles) < 2:
+        return None
+    d = (angles - a) % (2 * np.pi)
+    after = int(np.argmin(d))
+    before = int(np.argmax(d))
+    return before, after
+
+
+def spoke_height_departure(points: np.ndarray, Ca: np.ndarray, Cb: np.ndarray,
+                           axis: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Axial distance (mm) of LA spoke points from the linear loft of two neighbouring spokes.
+
+    The loft is taken in cylindrical coordinates (r, θ, z) about the long
+    axis: z_pred(r, θ) = (1 − w) z_a(r) + w z_b(r), w the angular fraction of
+    θ between the spokes' angles, z_a(r) the neighbour's height at radius r
+    (its samples interpolated in r, held constant beyond its ends). A
+    straight blend of two radial spokes would follow their chord, far inside
+    the wall at the left-out angle.
+    """
+    from cardionurbs.analysis.tag_surfaces import axis_frame
+    apex, base = axis
+    e1, e2, e = axis_frame(apex, base)
+
+    def cyl(P):
+        d = P - apex
+        z = d @ e
+        x, y = d @ e1, d @ e2
+        return np.hypot(x, y), np.arctan2(y, x), z
+
+    rp, tp, zp = cyl(points)
+    ra, ta, za = cyl(Ca)
+    rb, tb, zb = cyl(Cb)
+    tha = float(np.angle(np.exp(1j * ta[ra > 0.5 * ra.max()]).mean()))
+    thb = float(np.angle(np.exp(1j * tb[rb > 0.5 * rb.max()]).mean()))
+    span = (thb - tha) % (2 * np.pi)
+    w = np.clip(((tp - tha) % (2 * np.pi)) / max(span, 1e-9), 0.0, 1.0)
+    oa, ob = np.argsort(ra), np.argsort(rb)
+    z_a = np.interp(rp, ra[oa], za[oa])
+    z_b = np.interp(rp, rb[ob], zb[ob])
+    return np.abs(zp - ((1 - w) * z_a + w * z_b))
+
+
+def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: float,
+                   periodic: bool, exclude: set[str] = frozenset(),
+                   axis: tuple | None = None) -> dict[str, float]:
+    """Leave-one-out departure (tag spacings) of each slice's line of one tag at one frame.
+
+    ``secs`` and ``samples`` (their fitted curves at uniform u) in loft
+    order; ``exclude``: slices already flagged, left out of every loft;
+    ``axis`` (apex, base) for the LA spoke fan (``periodic``).
+    Returns {slice: departure}; slices that cannot be judged are absent.
+    """
+    names = list(dict.fromkeys(s.slice for s in secs if s.slice not in exclude))
+    out: dict[str, float] = {}
+    if len(names) < 3:
+        return out
+    for left in names:
+        keep = [k for k, s in enumerate(secs) if s.slice != left and s.slice not in exclude]
+        mine = [k for k, s in enumerate(secs) if s.slice == left]
+        keys = np.array([secs[k].key for k in keep])
+        dist = []
+        for k in mine:
+            sec = secs[k]
+            nb = _neighbours_cyclic(keys, sec.key) if periodic else _neighbours_linear(keys, sec.key)
+            if nb is None:
+                continue
+            Ca, Cb = samples[keep[nb[0]]], samples[keep[nb[1]]]
+            if periodic:   # a spoke's first point is the cut on the axis, not data
+                dist.append(spoke_height_departure(sec.points[1:], Ca, Cb, axis))
+            else:
+                plane = sec.plane
+                trace, tan = blend_trace(Ca, Cb, plane.position, plane.normal)
+                dist.append(distance_to_trace(sec.points, trace, tan))
+        if dist:
+            out[left] = float(np.median(np.concatenate(dist)) / spacing)
     return out
 
 
-def _raw_line(study: Study, family: str, index: int, slice_: str, frame: int) -> np.ndarray:
-    for t in study.tags_at(frame, family):
-        if t.index == index and t.slice == slice_:
-            return np.asarray(t.points, float)
-    return np.zeros((0, 3))
+def _qc_axis(study: Study, long_axis: tuple | None) -> tuple | None:
+    if long_axis is not None or not _can_axis(study, None):
+        return long_axis
+    from cardionurbs.analysis.tags import long_axis_from_study
+    ed = study.ed_frame if study.ed_frame is not None else study.tagged_frames[0]
+    if not study.landmarks_at(ed, "apex"):
+        ed = next(lm.frame for lm in study.landmarks if lm.name == "apex")
+    return long_axis_from_study(study, ed)
 
 
-def loo_departures(study: Study, ts: TagSurface, spacing: float, px: float,
-                   exclude: set[str] = frozenset()) -> dict[str, float]:
-    """Leave-one-out departure (tag spacings) of each slice's line of one tag surface.
-
-    ``exclude``: slices already flagged, left out of every loft. Returns
-    {slice: departure}; slices that cannot be judged (too few others) absent.
-    """
-    groups = _group_by_slice(ts.sections)
-    names = [s for s in groups if s not in exclude]
-    min_others = 2
-    out: dict[str, float] = {}
-    if len(names) - 1 < min_others:
-        return out
-    for s in ts.sections:
-        if s.curve is None:
-            s.curve = fit_tag_curve(s.points, px)
-    for left in names:
-        others = [sec for sec in ts.sections if sec.slice != left and sec.slice not in exclude]
-        curves = [sec.curve for sec in others]
-        if ts.periodic_v:
-            if len(curves) < 3:
-                continue
-            curves = curves + [curves[0]]
-        surf = nurbs.loft(curves, degree_v=min(3, len(curves) - 1))
-        plane = groups[left][0].plane
-        trace, tan = plane_trace(surf, plane.position, plane.normal, periodic=ts.periodic_v)
-        pts = _raw_line(study, ts.family, ts.index, left, ts.frame)
-        if ts.periodic_v:   # judge the LV part the spokes describe
-            pts = np.vstack([sec.points[1:] for sec in groups[left]])
-        dist = distance_to_trace(pts, trace, tan)
-        out[left] = float(np.median(dist) / spacing)
+def qc_sections(study: Study, frame: int, long_axis: tuple | None) -> dict[tuple[str, int], list]:
+    """Fitted sections of every tag at one frame (no lofting), keyed (family, index)."""
+    from cardionurbs.analysis.tag_surfaces import fit_sections, la_sections, sa_sections
+    out: dict[tuple[str, int], list] = {}
+    for fam in ("sa1", "sa2"):
+        groups = sa_sections(study, fam, frame)
+        fit_sections([s for g in groups.values() for s in g])
+        out.update({(fam, k): g for k, g in groups.items()})
+    if study.tags_at(frame, "la") and long_axis is not None:
+        groups = la_sections(study, frame, *long_axis)
+        fit_sections([s for g in groups.values() for s in g])
+        out.update({("la", k): g for k, g in groups.items()})
     return out
 
 
@@ -237,26 +280,31 @@ def tag_departures(study: Study, threshold: float = DEFAULT_THRESHOLD,
                    surfaces: dict | None = None) -> list[LineDeparture]:
     """Departure of every judgeable tag line, with the iterative worst-first flagging.
 
-    See the module docstring. ``surfaces``: optional {frame: build_tag_surfaces(...)}.
+    See the module docstring. ``surfaces``: optional {frame: build_tag_surfaces(...)}
+    whose fitted sections are reused.
     """
+    from cardionurbs.analysis.tag_surfaces import check_tags
+    check_tags(study)
     frames = study.tagged_frames if frames is None else list(frames)
-    px = pixel_size(study)
+    long_axis = _qc_axis(study, long_axis)
     out: list[LineDeparture] = []
     for f in frames:
-        surfs = (surfaces or {}).get(f)
-        if surfs is None:
-            fams = TAG_FAMILIES if study.tags_at(f, "la") and _can_axis(study, long_axis) \
-                else ("sa1", "sa2")
-            surfs = build_tag_surfaces(study, f, long_axis, families=fams)
+        if surfaces is not None and f in surfaces:
+            groups = {k: ts.sections for k, ts in surfaces[f].items()}
+        else:
+            groups = qc_sections(study, f, long_axis)
         spacing = {fam: tag_spacing(study, fam, f) for fam in TAG_FAMILIES}
-        for (fam, idx), ts in sorted(surfs.items()):
+        for (fam, idx), secs in sorted(groups.items()):
             sp = spacing[fam]
             if not np.isfinite(sp) or sp <= 0:
                 continue
+            periodic = fam == "la"
+            samples = [_samples(s) for s in secs]
             flagged: dict[str, float] = {}
             last: dict[str, float] = {}
             while True:
-                dep = loo_departures(study, ts, sp, px, exclude=set(flagged))
+                dep = loo_departures(secs, samples, sp, periodic, exclude=set(flagged),
+                                     axis=long_axis)
                 if not dep:
                     break
                 last.update(dep)
@@ -265,9 +313,7 @@ def tag_departures(study: Study, threshold: float = DEFAULT_THRESHOLD,
                     break
                 flagged[worst] = dep[worst]
             for slc, d in last.items():
-                if slc in flagged:
-                    d = flagged[slc]
-                out.append(LineDeparture(fam, idx, slc, f, d, slc in flagged))
+                out.append(LineDeparture(fam, idx, slc, f, flagged.get(slc, d), slc in flagged))
     return out
 
 

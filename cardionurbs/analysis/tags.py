@@ -22,8 +22,10 @@ Rotation φ of a level (LA tag plane ``k``)
 
     with (e1, e2, e) the axis frame of :func:`axis_frame`.
 Levels
-    LA tag planes with at least 3 material points tracked at ED and ES (and
-    at least half of their ED points tracked at ES). Distance from the apex
+    LA tag planes with at least 3 material points tracked at ED and ES whose
+    mean position lies strictly between the most basal and the most apical
+    SA slices tagged at both ED and ES, at ED and at ES (contracts.md).
+    Distance from the apex
     z_k = mean over the level's points of (x_ED − apex)·ê, ê = unit(base − apex).
 Twist, torsion, CL shear (METRICS.md)
     Twist = φ_apex − φ_base between the most apical and most basal levels;
@@ -360,19 +362,40 @@ def _empty(note: str) -> TagMetrics:
     return TagMetrics({k: NAN for k in TAG_COLUMNS}, notes=[note])
 
 
+def tagged_stack_range(study: Study, ed_frame: int, frame: int) -> tuple[np.ndarray, float, float] | None:
+    """(stack normal, lowest, highest plane position) of the SA slices tagged at both frames."""
+    n = stack_normal(study)
+    both = ({t.slice for t in study.tags_at(ed_frame) if t.family != "la"}
+            & {t.slice for t in study.tags_at(frame) if t.family != "la"})
+    if len(both) < 2:
+        return None
+    h = np.array([float(study.slice_plane(s).position @ n) for s in both])
+    return n, float(h.min()), float(h.max())
+
+
 def level_table(mp: MaterialPoints, frame: int, apex: np.ndarray, base: np.ndarray,
-                radius: tuple[np.ndarray, np.ndarray] | None) -> list[dict]:
-    """Per-level rotation ED → ``frame`` and ED distance from apex (see module docstring)."""
+                radius: tuple[np.ndarray, np.ndarray] | None,
+                stack: tuple[np.ndarray, float, float] | None = None) -> list[dict]:
+    """Per-level rotation ED → ``frame`` and ED distance from apex (see module docstring).
+
+    ``stack`` (:func:`tagged_stack_range`): a level is kept only when the
+    mean position of its points lies strictly between the most basal and
+    most apical SA slices tagged at both frames, at ED and at ``frame``.
+    """
     ez = (base - apex) / np.linalg.norm(base - apex)
     X0 = mp.positions[mp.ed_frame]
     X1 = mp.positions[frame]
     tracked = mp.tracked(mp.ed_frame, frame)
     rows = []
     for k in np.unique(mp.triples[:, 2]) if len(mp.triples) else []:
-        at = mp.triples[:, 2] == k
-        sel = at & tracked
-        if sel.sum() < MIN_LEVEL_POINTS or sel.sum() < 0.5 * at.sum():
+        sel = (mp.triples[:, 2] == k) & tracked
+        if sel.sum() < MIN_LEVEL_POINTS:
             continue
+        if stack is not None:
+            n, lo, hi = stack
+            h0, h1 = float((X0[sel] @ n).mean()), float((X1[sel] @ n).mean())
+            if not (lo < h0 < hi and lo < h1 < hi):
+                continue
         z0 = float(((X0[sel] - apex) @ ez).mean())
         z1 = float(((X1[sel] - apex) @ ez).mean())
         rot = rotation_deg(X0[sel], X1[sel], apex, base)
@@ -451,7 +474,9 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
     if radius is None:
         notes.append(f"frame {ed_frame}: no SA lv_epi contours; CL shear not measured")
     cols = {k: NAN for k in TAG_COLUMNS}
-    levels = level_table(mp, es_frame, apex, base, radius) if es_frame in mp.positions else []
+    levels = (level_table(mp, es_frame, apex, base, radius,
+                          tagged_stack_range(study, ed_frame, es_frame))
+              if es_frame in mp.positions else [])
     cols.update(twist_from_levels(levels))
     if len(levels) < 2:
         notes.append("fewer than two LA tag levels with material points: twist not measured")
@@ -466,7 +491,7 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
     times = {}
     if over_time:
         for f in frames:
-            lv = level_table(mp, f, apex, base, radius)
+            lv = level_table(mp, f, apex, base, radius, tagged_stack_range(study, ed_frame, f))
             t = twist_from_levels(lv)
             times[f] = {"Twist (deg)": t["Twist (deg)"], "LS (%)": t["LS (%)"]}
     return TagMetrics(cols, levels, flags, rows2d, notes, times, mp)
