@@ -54,6 +54,7 @@ shortest repr that reads back to the same float.
 
 from __future__ import annotations
 
+import io
 import re
 from pathlib import Path
 
@@ -154,13 +155,54 @@ def read_gp_table(path: str | Path) -> tuple[pd.DataFrame, str, int | None]:
     if not any(ln.strip() for ln in lines):
         raise StudyError("empty GPFile (expected a header and x y z contour_type frameID weight "
                          "time_frame lines)", file=path)
-    header = ""
-    first = lines[0].split("\t")[0].strip()
+    header, start = "", 0
     try:
-        float(first)
-        start = 0
+        float(lines[0].split("\t")[0].strip())
     except ValueError:
         header, start = lines[0], 1
+    table = _fast_table(text, start) if all(ln.strip() for ln in lines[start:]) else None
+    if table is None:
+        table = _slow_table(lines, start, path)
+    decimals = _fixed_decimals(table[["x", "y", "z"]])
+    for col in ("x", "y", "z", "slice", "weight"):
+        num = pd.to_numeric(table[col], errors="coerce").to_numpy(float)
+        bad = ~np.isfinite(num)
+        if col == "slice":
+            bad |= num != np.round(num)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            what = "NaN or infinite" if table[col].iloc[i].lower() in ("nan", "inf", "-inf") \
+                else "not a number"
+            raise StudyError(f"line {table['line'].iloc[i]}: {col} is {what} "
+                             f"({table[col].iloc[i]!r})", file=path,
+                             field="frameID" if col == "slice" else col)
+        if col in ("x", "y", "z"):
+            table[col] = num
+        elif col == "slice":
+            table["slice_id"] = num.astype(int)
+    return table, header, decimals
+
+
+_COLUMNS = ["x", "y", "z", "type", "slice", "weight", "time"]
+
+
+def _fast_table(text: str, start: int) -> pd.DataFrame | None:
+    """Parse with pandas' C reader; None when some line has not exactly 7 fields."""
+    try:
+        t = pd.read_csv(io.StringIO(text), sep="\t", header=None, names=_COLUMNS, dtype=str,
+                        keep_default_na=False, skiprows=start, engine="c", quoting=3)
+    except (pd.errors.ParserError, ValueError):
+        return None
+    if len(t) and (t["time"] == "").any():
+        return None
+    if len(t):
+        t["type"] = t["type"].str.strip()
+    t["line"] = np.arange(len(t)) + start + 1
+    return t
+
+
+def _slow_table(lines: list[str], start: int, path: Path) -> pd.DataFrame:
+    """Line-by-line parse (blank lines, whitespace separators) with exact error lines."""
     rows = []
     for k in range(start, len(lines)):
         ln = lines[k]
@@ -173,24 +215,7 @@ def read_gp_table(path: str | Path) -> tuple[pd.DataFrame, str, int | None]:
             raise StudyError(f"line {k + 1}: expected 7 tab-separated fields (x y z contour_type "
                              f"frameID weight time_frame), got {len(tok)}", file=path)
         rows.append([t.strip() for t in tok] + [k + 1])
-    table = pd.DataFrame(rows, columns=["x", "y", "z", "type", "slice", "weight", "time", "line"])
-    decimals = _fixed_decimals(table[["x", "y", "z"]])
-    for col in ("x", "y", "z", "slice", "weight"):
-        num = pd.to_numeric(table[col], errors="coerce")
-        bad = ~np.isfinite(num.to_numpy(float))
-        if col == "slice":
-            bad |= num.to_numpy(float) != np.round(num.to_numpy(float))
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            what = "NaN or infinite" if table[col].iloc[i].lower() in ("nan", "inf", "-inf") \
-                else "not a number"
-            raise StudyError(f"line {table['line'].iloc[i]}: {col} is {what} "
-                             f"({table[col].iloc[i]!r})", file=path,
-                             field="frameID" if col == "slice" else col)
-        if col in ("x", "y", "z"):
-            table[col] = num.astype(float)
-    table["slice_id"] = pd.to_numeric(table["slice"]).astype(int)
-    return table, header, decimals
+    return pd.DataFrame(rows, columns=[*_COLUMNS, "line"])
 
 
 def _gp_files(folder: Path) -> list[tuple[int, Path]]:
@@ -360,11 +385,15 @@ def _fmt(values, decimals: int | None = None) -> list[str]:
 
 def _fixed_decimals(columns: pd.DataFrame) -> int | None:
     """The common number of decimals of fixed-point number text columns, or None."""
-    text = pd.concat([columns[c] for c in columns.columns], ignore_index=True).astype(str)
-    if text.empty or not text.str.fullmatch(r"-?\d+\.\d+").all():
+    tok = np.concatenate([columns[c].to_numpy(str) for c in columns.columns])
+    if tok.size == 0:
         return None
-    lengths = text.str.split(".").str[1].str.len().unique()
-    return int(lengths[0]) if len(lengths) == 1 else None
+    dot = np.char.find(tok, ".")
+    dec = np.char.str_len(tok) - dot - 1
+    if np.any(dot < 1) or np.any(dec < 1) or dec.min() != dec.max():
+        return None
+    digits = np.char.isdigit(np.char.replace(np.char.lstrip(tok, "-"), ".", ""))
+    return int(dec[0]) if digits.all() else None
 
 
 def write_study(study: Study, folder: str | Path) -> Path:
