@@ -30,18 +30,23 @@ from __future__ import annotations
 
 from typing import Any
 
+import warnings
+
 import numpy as np
+from scipy import sparse
 from scipy.optimize import least_squares
+from scipy.sparse.linalg import MatrixRankWarning, spsolve
 
 from cardionurbs.errors import NurbsInputError
 from cardionurbs.nurbs import _validate as V
 from cardionurbs.nurbs.basis import basis_matrix
 from cardionurbs.nurbs.curve import NurbsCurve
 from cardionurbs.nurbs.knots import periodic_knot_vector
-from cardionurbs.nurbs.projection import curve_closest_points
+from cardionurbs.nurbs.projection import curve_closest_points, curve_distance_bounds
 
 __all__ = ["fit_curve", "chord_length_parameters", "approximation_knots",
-           "periodic_approximation_breaks", "least_squares_curve", "KNOT_RULES"]
+           "periodic_approximation_breaks", "least_squares_curve", "solve_normal_equations",
+           "KNOT_RULES"]
 
 KNOT_RULES = ("eq9", "book", "uniform")
 
@@ -108,6 +113,29 @@ def periodic_approximation_breaks(params: np.ndarray, n_ctrl: int, rule: str = "
     return B
 
 
+def solve_normal_equations(N: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """Least-squares control points from ``(N^T N) P = N^T R`` (paper eq. 10).
+
+    ``N`` has p + 1 non-zeros per row, so N^T N is (cyclically) banded: it is
+    formed and factorised sparse (SuperLU), which stays fast where a dense,
+    multithreaded LAPACK least squares does not.  Falls back to an SVD
+    least-squares solve when N^T N is singular (a knot span without data).
+    """
+    Ns = sparse.csr_matrix(N)
+    A = (Ns.T @ Ns).tocsc()
+    b = Ns.T @ R
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", MatrixRankWarning)
+        try:
+            P = spsolve(A, b)
+        except (MatrixRankWarning, RuntimeError):
+            P = None
+    P = None if P is None else np.asarray(P).reshape(A.shape[0], -1)
+    if P is None or not np.all(np.isfinite(P)):
+        P, *_ = np.linalg.lstsq(N, R, rcond=None)
+    return P.reshape(N.shape[1], -1)
+
+
 def _rational_basis(B: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """Rational basis ``R_i = N_i w_i / sum_j N_j w_j`` from the B-spline one."""
     Bw = B * weights[None, :]
@@ -119,9 +147,8 @@ def least_squares_curve(points: np.ndarray, params: np.ndarray, degree: int, n_c
                         ) -> NurbsCurve:
     """Least-squares NURBS with ``n_ctrl`` control points at fixed parameters.
 
-    Open: end points fixed (paper eq. 10, solved in the least-squares sense
-    by LAPACK's SVD-based ``lstsq``; same minimiser as the normal equations).
-    Closed: periodic, all ``n_ctrl`` points free.
+    Open: end points fixed, the other control points from the normal
+    equations (paper eq. 10).  Closed: periodic, all ``n_ctrl`` points free.
     """
     Q = np.asarray(points, dtype=float)
     p = degree
@@ -129,7 +156,7 @@ def least_squares_curve(points: np.ndarray, params: np.ndarray, degree: int, n_c
     if closed:
         U = periodic_knot_vector(periodic_approximation_breaks(params, n_ctrl, rule), p)
         R = _rational_basis(basis_matrix(U, p, params, n_periodic=n_ctrl), w)
-        P, *_ = np.linalg.lstsq(R, Q, rcond=None)
+        P = solve_normal_equations(R, Q)
         return NurbsCurve(p, U, P, w, closed=True)
     U = approximation_knots(params, n_ctrl, p, rule)
     R = _rational_basis(basis_matrix(U, p, params), w)
@@ -137,7 +164,7 @@ def least_squares_curve(points: np.ndarray, params: np.ndarray, degree: int, n_c
     P[0], P[-1] = Q[0], Q[-1]
     if n_ctrl > 2:
         rhs = Q[1:-1] - R[1:-1, :1] * Q[0] - R[1:-1, -1:] * Q[-1]     # R_k of eq. 10
-        P[1:-1], *_ = np.linalg.lstsq(R[1:-1, 1:-1], rhs, rcond=None)
+        P[1:-1] = solve_normal_equations(R[1:-1, 1:-1], rhs)
     return NurbsCurve(p, U, P, w)
 
 
@@ -174,7 +201,14 @@ def _error_within(curve: NurbsCurve, points: np.ndarray, params: np.ndarray,
     bound = float(np.max(np.linalg.norm(curve.evaluate(params) - points, axis=1)))
     if bound <= tol:
         return True, bound
-    err = max_distance(curve, points)
+    lower, upper = curve_distance_bounds(curve, points)
+    if lower.max() > tol:                   # surely too far: skip the projection
+        return False, float(upper.max())
+    near = upper > tol                      # only these can violate the bound
+    if not np.any(near):
+        return True, float(upper.max())
+    _, dist = curve_closest_points(curve, points[near])
+    err = max(float(dist.max()), float(upper[~near].max(initial=0.0)))
     return err <= tol, err
 
 

@@ -19,7 +19,8 @@ from cardionurbs.errors import NurbsInputError
 from cardionurbs.nurbs import _validate as V
 from cardionurbs.nurbs.knots import distinct_knots
 
-__all__ = ["closest_points", "curve_closest_points", "surface_closest_points"]
+__all__ = ["closest_points", "curve_closest_points", "surface_closest_points",
+           "curve_distance_bounds"]
 
 # step fractions tried in turn (backtracking); a point keeps the first that helps
 _BACKTRACK = (1.0, 0.25, 1.0 / 16, 1.0 / 64)
@@ -54,25 +55,51 @@ def curve_closest_points(curve: Any, points: Any, iterations: int = 8,
     _, idx = cKDTree(curve.evaluate(us)).query(Q)
     u = us[idx]
     dist = np.linalg.norm(curve.evaluate(u) - Q, axis=1)
+    active = np.arange(u.size)
     for _ in range(iterations):
-        D = curve.derivatives(u, 2)
-        r = D[:, 0] - Q
+        if active.size == 0:
+            break
+        ua, Qa, da = u[active], Q[active], dist[active]
+        D = curve.derivatives(ua, 2)
+        r = D[:, 0] - Qa
         f = np.einsum("kd,kd->k", D[:, 1], r)
         g2 = np.einsum("kd,kd->k", D[:, 1], D[:, 1])
         fp = g2 + np.einsum("kd,kd->k", D[:, 2], r)
         fp = np.where(fp > 1e-12 * np.maximum(g2, 1e-300), fp, np.maximum(g2, 1e-300))
         step = -f / fp
-        todo = np.ones(u.size, dtype=bool)
+        todo = np.ones(active.size, dtype=bool)
         for scale in _BACKTRACK:
-            cand = _wrap_or_clip(u + scale * step, lo, hi, curve.closed)
-            cd = np.linalg.norm(curve.evaluate(cand) - Q, axis=1)
-            better = todo & (cd < dist)
-            u = np.where(better, cand, u)
-            dist = np.where(better, cd, dist)
-            todo &= ~better
-        if np.all(todo):
-            break
+            idx = np.flatnonzero(todo)
+            if idx.size == 0:
+                break
+            cand = _wrap_or_clip(ua[idx] + scale * step[idx], lo, hi, curve.closed)
+            cd = np.linalg.norm(curve.evaluate(cand) - Qa[idx], axis=1)
+            ok = cd < da[idx]
+            ua[idx[ok]], da[idx[ok]] = cand[ok], cd[ok]
+            todo[idx[ok]] = False
+        u[active], dist[active] = ua, da
+        # keep iterating where the step helped and was not negligible
+        active = active[~todo & (np.abs(step) > 1e-14 * (hi - lo))]
     return u, dist
+
+
+def curve_distance_bounds(curve: Any, points: np.ndarray, samples_per_span: int = 16
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """Cheap lower and upper bounds of each point's distance to the curve.
+
+    Upper: distance to the nearest of a dense sample.  Lower: that minus the
+    longest chord between consecutive samples (every curve point lies within
+    half an arc of a sample; arcs are chord-long to first order, so a whole
+    chord is a safe margin).
+    """
+    lo, hi = curve.domain
+    us = _span_samples(curve.knots, curve.degree, lo, hi, samples_per_span, curve.closed,
+                       minimum=256)
+    S = curve.evaluate(us)
+    chords = np.linalg.norm(np.diff(np.concatenate([S, S[:1]]) if curve.closed else S, axis=0),
+                            axis=1)
+    upper, _ = cKDTree(S).query(points)
+    return upper - chords.max(), upper
 
 
 def surface_closest_points(surface: Any, points: Any, iterations: int = 16,
