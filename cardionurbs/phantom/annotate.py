@@ -228,7 +228,7 @@ def sa_tag_lines(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpe
     s1, s2 = float(anatomy.s_lv_endo(z)), float(anatomy.s_lv_epi(z))
     if s2 < MIN_RADIUS_MM ** 2:
         return []
-    out = []
+    keys, mats = [], []
     for fam in ("sa1", "sa2"):
         n = grid.sa_normal(fam)
         t = np.array([-n[1], n[0], 0.0])
@@ -239,33 +239,44 @@ def sa_tag_lines(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpe
             w = _sample_segments(segs, step)
             mat = c * n[None, :] + w[:, None] * t[None, :]
             mat[:, 2] = z
-            out.append((fam, i, motion.forward(anatomy, mat, f)))
-    return out
+            keys.append((fam, i))
+            mats.append(mat)
+    if not mats:
+        return []
+    moved = motion.forward(anatomy, np.concatenate(mats), f)
+    cuts = np.cumsum([len(m) for m in mats])[:-1]
+    return [(fam, i, pts) for (fam, i), pts in zip(keys, np.split(moved, cuts))]
 
 
 def la_tag_lines(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpec, f: float,
                  step: float) -> list[tuple[str, int, np.ndarray]]:
     """(``"la"``, index, points) of the LA tag lines on one LA plane at phase f, clipped to the LV wall."""
-    out = []
     alpha = spec.azimuth
-    for j, zj in enumerate(grid.la_positions(anatomy.z_base - BASE_MARGIN_MM)):
-        s1, s2 = float(anatomy.s_lv_endo(zj)), float(anatomy.s_lv_epi(zj))
+    u = np.array([np.cos(alpha), np.sin(alpha), 0.0])
+    rs, ths, zs, signs, owners = [], [], [], [], []
+    levels = grid.la_positions(anatomy.z_base - BASE_MARGIN_MM)
+    psi = motion.psi(levels, f)
+    s1_all, s2_all = anatomy.s_lv_endo(levels), anatomy.s_lv_epi(levels)
+    for j, zj in enumerate(levels):
+        s1, s2 = float(s1_all[j]), float(s2_all[j])
         if s2 < MIN_RADIUS_MM ** 2:
             continue
-        pieces = []
         for side, sign in ((alpha + np.pi, -1.0), (alpha, 1.0)):
-            # material radial interval on this half-plane (ray at material angle θ)
             segs = [(np.sqrt(s1), np.sqrt(s2))] if s1 > 0 else [(0.0, np.sqrt(s2))]
             r = _sample_segments(segs, step)
             if s1 <= 0 and sign < 0:
                 r = r[r > 0]
-            th = side + float(motion.psi(zj, f))
-            sp = motion.radial_map(anatomy, r * r, th, zj, f)
-            w = sign * np.sqrt(sp)
-            pieces.append(np.sort(w))
-        w = np.concatenate(pieces)
-        u = np.array([np.cos(alpha), np.sin(alpha), 0.0])
-        pts = w[:, None] * u[None, :]
-        pts[:, 2] = motion.lam(f) * zj
-        out.append(("la", j, pts))
-    return out
+            r = r[::-1] if sign < 0 else r          # order along the line: −epi → −endo, endo → epi
+            rs.append(r)
+            ths.append(np.full(len(r), side + float(psi[j])))
+            zs.append(np.full(len(r), zj))
+            signs.append(np.full(len(r), sign))
+            owners.append(np.full(len(r), j))
+    if not rs:
+        return []
+    r, th, z, sign, owner = map(np.concatenate, (rs, ths, zs, signs, owners))
+    w = sign * np.sqrt(motion.radial_map(anatomy, r * r, th, z, f))
+    pts = w[:, None] * u[None, :]
+    pts[:, 2] = motion.lam(f) * z
+    cuts = np.flatnonzero(np.diff(owner)) + 1
+    return [("la", int(o[0]), p) for o, p in zip(np.split(owner, cuts), np.split(pts, cuts))]

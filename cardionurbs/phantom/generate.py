@@ -135,7 +135,7 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     grid = annotate.make_tag_grid(anatomy, tag_spacing_px * acq.pixel_mm)
     motion = _twist_motion(anatomy, draw, curve, specs, grid, f_es)
     pose = HeartPose.default(anatomy.z_base)
-    hr = round(draw.values["heart_rate_bpm"], 1)
+    hr = float(round(draw.values["heart_rate_bpm"]))   # integer bpm, as DICOM HeartRate (IS)
     rr = 60000.0 / hr
     times = {k: round(k * rr / frames, 3) for k in range(frames)}
     subject = subject or f"{pathology}_{seed:03d}"

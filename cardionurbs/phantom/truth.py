@@ -94,8 +94,8 @@ def crescent_grid(anatomy: Anatomy, epi: bool, n_z: int, n_v: int) -> np.ndarray
     return np.stack([r * np.cos(th), r * np.sin(th), zc], axis=-1)
 
 
-def mesh_volumes(anatomy: Anatomy, motion: Motion, f: float, n_mu: int = 240, n_theta: int = 480,
-                 n_z_rv: int = 240, n_v_rv: int = 240) -> dict[str, float]:
+def mesh_volumes(anatomy: Anatomy, motion: Motion, f: float, n_mu: int = 160, n_theta: int = 320,
+                 n_z_rv: int = 160, n_v_rv: int = 160) -> dict[str, float]:
     """Method B: LV/RV cavity and wall volumes (mL) at phase f from forward-mapped fine meshes."""
     zb = anatomy.z_base
     cap = motion.forward(anatomy, np.array([[0.0, 0.0, zb]]), f)[0]
