@@ -100,9 +100,7 @@ def _numbers(ds, keyword: str, count: int, path: Path, required: bool = True):
     value = ds.get(keyword)
     if value is None or value == "":
         if required:
-            tag = pydicom.datadict.tag_for_keyword(keyword)
-            raise StudyError(f"missing {keyword} ({tag >> 16:04X},{tag & 0xFFFF:04X})",
-                             file=path, field=keyword)
+            raise StudyError(_missing(keyword), file=path, field=keyword)
         return None
     try:
         seq = list(value) if isinstance(value, (list, tuple, pydicom.multival.MultiValue)) else [value]
@@ -167,10 +165,10 @@ def _header_from_dataset(ds, path: Path) -> DicomHeader:
             raise StudyError("missing SOPInstanceUID (0008,0018)", file=path, field="SOPInstanceUID")
         r, c = ori[:3], ori[3:]
         if abs(np.linalg.norm(r) - 1) > 1e-3 or abs(np.linalg.norm(c) - 1) > 1e-3 or abs(r @ c) > 1e-3:
-            raise StudyError(f"ImageOrientationPatient is not two orthonormal vectors ({list(ori)})",
+            raise StudyError(f"ImageOrientationPatient is not two orthonormal vectors ({ori.tolist()})",
                              file=path, field="ImageOrientationPatient")
         if np.any(spacing <= 0):
-            raise StudyError(f"PixelSpacing must be positive, got {list(spacing)}", file=path,
+            raise StudyError(f"PixelSpacing must be positive, got {spacing.tolist()}", file=path,
                              field="PixelSpacing")
         thickness = _opt_number(ds, "SliceThickness", path)
         inst = _opt_number(ds, "InstanceNumber", path)
@@ -209,10 +207,18 @@ def read_header(path: str | Path) -> DicomHeader:
     except UnsupportedInputError:
         raise
     except StudyError as exc:
-        if _is_truncated(path):
-            raise StudyError(f"truncated DICOM file (it ends before its pixel data): {exc}",
-                             ) from None
+        if exc.field in _REQUIRED and str(exc).endswith(_missing(exc.field)) and _is_truncated(path):
+            raise StudyError(f"truncated DICOM file (it ends before its pixel data; "
+                             f"{_missing(exc.field)})", file=path, field=exc.field) from None
         raise
+
+
+_REQUIRED = ("ImagePositionPatient", "ImageOrientationPatient", "PixelSpacing", "Rows", "Columns")
+
+
+def _missing(keyword: str) -> str:
+    tag = pydicom.datadict.tag_for_keyword(keyword)
+    return f"missing {keyword} ({tag >> 16:04X},{tag & 0xFFFF:04X})"
 
 
 def _is_truncated(path: Path) -> bool:
@@ -339,7 +345,8 @@ _LA_NAME = re.compile(r"(?<![0-9])([234])\s*-?\s*ch", re.IGNORECASE)
 
 
 def read_dicom_folder(folder: str | Path, *, pixels: bool = False,
-                      exclude: Iterable[str | Path] = ()) -> DicomSeries:
+                      exclude: Iterable[str | Path] = (),
+                      relative_to: str | Path | None = None) -> DicomSeries:
     """Read every DICOM image under ``folder`` into image planes (see module docstring).
 
     Parameters
@@ -350,6 +357,8 @@ def read_dicom_folder(folder: str | Path, *, pixels: bool = False,
         Also read the pixel data (slower); by default headers only.
     exclude : paths
         Sub-folders or files to leave out (e.g. contour folders).
+    relative_to : path, optional
+        Folder that ``ImagePlane.file`` paths are relative to (default ``folder``).
 
     Raises
     ------
@@ -364,7 +373,7 @@ def read_dicom_folder(folder: str | Path, *, pixels: bool = False,
     headers = read_headers(find_dicom_files(root, exclude))
     if not headers:
         raise StudyError("no DICOM image found", file=root)
-    base = root if root.is_dir() else root.parent
+    base = Path(relative_to) if relative_to is not None else (root if root.is_dir() else root.parent)
     seen: dict[str, Path] = {}
     for h in headers:
         if h.sop_instance_uid in seen:

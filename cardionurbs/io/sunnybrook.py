@@ -12,7 +12,8 @@ File names are ``IM-SSSS-NNNN-<kind>contour-<manual|auto>.txt`` where
 ``NNNN`` is the InstanceNumber of the image the contour was drawn on and
 ``<kind>`` is ``i`` (LV endocardium -> ``lv_endo``), ``o`` (LV epicardium ->
 ``lv_epi``) or ``p1``/``p2`` (papillary muscles: not modelled, skipped and
-listed in ``Study.meta["skipped_files"]``). Each line holds one ``x y`` pixel
+listed in ``Study.meta["skipped_files"]``; ``Study.meta["contour_files"]`` names
+the file of each contour, for messages). Each line holds one ``x y`` pixel
 pair: x is the column index, y the row index, (0, 0) the centre of the first
 pixel (the DICOM convention of :mod:`cardionurbs.imaging.geometry`); the loop
 is closed (its first point is not repeated).
@@ -104,9 +105,11 @@ def read_study(path: str | Path) -> Study:
     if not files:
         raise StudyError("no *contour*.txt files in this folder", file=folder)
     dicom_root = folder / "dicom" if (folder / "dicom").is_dir() else folder
-    series = read_dicom_folder(dicom_root, exclude=sorted({f.parent for f in files} - {folder}))
+    series = read_dicom_folder(dicom_root, exclude=sorted({f.parent for f in files} - {folder}),
+                               relative_to=folder)
     by_instance = series.by_instance_number()
     contours: list[Contour] = []
+    sources: list[str] = []
     skipped: list[str] = []
     for f in files:
         m = CONTOUR_FILE.match(f.name)
@@ -126,8 +129,12 @@ def read_study(path: str | Path) -> Study:
             raise StudyError(f"reference to image InstanceNumber {inst}, which is not in "
                              f"{dicom_root}", file=f, field="InstanceNumber")
         pix = read_contour_file(f)
-        contours.append(Contour(STRUCTURE_OF_KIND[kind], image.view, image.slice, image.frame,
-                                image.pixel_to_scanner(pix), image=image.id, closed=True))
+        try:
+            contours.append(Contour(STRUCTURE_OF_KIND[kind], image.view, image.slice, image.frame,
+                                    image.pixel_to_scanner(pix), image=image.id, closed=True))
+        except StudyError as exc:
+            raise StudyError(str(exc), file=f) from None
+        sources.append(f.relative_to(folder).as_posix())
     _index_pieces(contours)
     ed, es = _ed_es_labels(contours)
     study = Study(subject=folder.name, images=list(series.images), contours=contours,
@@ -137,7 +144,7 @@ def read_study(path: str | Path) -> Study:
                         if dicom_root != folder else ".",
                         "slice_spacing_mm": series.slice_spacing_mm,
                         "base_apex_rule": series.base_apex_rule,
-                        "skipped_files": skipped})
+                        "skipped_files": skipped, "contour_files": sources})
     return study
 
 

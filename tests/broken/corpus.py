@@ -359,18 +359,23 @@ def _lv_endo_missing_at_es(lines: list[str]) -> list[str]:
 
 CORPUS: list[Broken] = [
     # --- DICOM series (Sunnybrook layout)
-    Broken("dicom_truncated", lambda r: _sb(r, _truncate), "truncated DICOM file"),
+    Broken("dicom_truncated", lambda r: _sb(r, _truncate),
+           "dicom/8.dcm: field ImagePositionPatient: truncated DICOM file"),
     Broken("dicom_no_orientation", lambda r: _sb(r, lambda r: _rewrite_dicom(
         r, lambda ds: delattr(ds, "ImageOrientationPatient"))), "missing ImageOrientationPatient"),
     Broken("dicom_no_position", lambda r: _sb(r, lambda r: _rewrite_dicom(
         r, lambda ds: delattr(ds, "ImagePositionPatient"))), "missing ImagePositionPatient"),
-    Broken("dicom_zero_pixel_spacing", lambda r: _sb(r, _bad_spacing), "PixelSpacing"),
-    Broken("dicom_text_file", lambda r: _sb(r, _text_as_dcm), "not a DICOM file"),
+    Broken("dicom_zero_pixel_spacing", lambda r: _sb(r, _bad_spacing),
+           "PixelSpacing must be positive, got [0.0, 2.0]"),
+    Broken("dicom_text_file", lambda r: _sb(r, _text_as_dcm),
+           "dicom/500.dcm: not a DICOM file (no DICM preamble)"),
     Broken("dicom_duplicate_file", lambda r: _sb(r, _copy_file), "duplicate image"),
     Broken("dicom_enhanced_mr", lambda r: _sb(r, _enhanced), "not supported"),
     Broken("dicom_trigger_time_missing", lambda r: _sb(r, _no_trigger), "TriggerTime"),
-    Broken("stack_not_parallel", lambda r: _sb(r, _tilt_slice), "not parallel"),
-    Broken("stack_duplicate_slice", lambda r: _sb(r, _duplicate_slice), "duplicate slice"),
+    Broken("stack_not_parallel", lambda r: _sb(r, _tilt_slice),
+           "dicom/28.dcm: slice sa_01, frame 7: SA slice is not parallel to the stack (tilted 8.00"),
+    Broken("stack_duplicate_slice", lambda r: _sb(r, _duplicate_slice),
+           "are at the same position (duplicate slice)"),
     # --- Sunnybrook contour files
     Broken("contour_non_numeric", lambda r: _sb(r, lambda r: _edit(
         sb_contour(r), lambda t: t.replace("\n", "\nabc 12.5\n", 1))), "not a number"),
@@ -383,8 +388,10 @@ CORPUS: list[Broken] = [
     Broken("contour_missing_image", lambda r: _sb(r, lambda r: write_contour(
         r / "i-contours" / "IM-0001-0777-icontour-manual.txt", circle_pixels())), "not in"),
     Broken("contour_too_few_points", lambda r: _sb(r, lambda r: write_contour(
-        sb_contour(r), circle_pixels(n=4))), "needs >= 5"),
-    Broken("contour_self_intersecting", lambda r: _sb(r, _figure_eight), "crosses itself"),
+        sb_contour(r), circle_pixels(n=4))),
+        "IM-0001-0040-icontour-manual.txt: slice sa_01, frame 19: lv_endo contour has 4 point(s), needs >= 5"),
+    Broken("contour_self_intersecting", lambda r: _sb(r, _figure_eight),
+           "IM-0001-0040-icontour-manual.txt: slice sa_01, frame 19: lv_endo contour crosses itself"),
     Broken("contour_unknown_kind", lambda r: _sb(r, lambda r: write_contour(
         r / "i-contours" / "IM-0001-0020-xcontour-manual.txt", circle_pixels())),
         "unknown contour kind"),
@@ -404,7 +411,8 @@ CORPUS: list[Broken] = [
     Broken("gpfile_empty", lambda r: _gp(r, lambda r: _gp_file(r, 1).write_text("")), "empty GPFile"),
     Broken("gpfile_short_line", lambda r: _gp(r, lambda r: _gp_line(r, 4, lambda t: t[:5])),
            "expected 7"),
-    Broken("gpfile_off_plane", lambda r: _gp(r, _gp_off_plane), "off its image plane"),
+    Broken("gpfile_off_plane", lambda r: _gp(r, _gp_off_plane),
+           "GPFile_000.txt: slice sa_00, frame 0: lv_endo contour lies"),
     Broken("sliceinfo_no_orientation", lambda r: _gp(r, lambda r: _edit(
         r / "SliceInfoFile.txt", lambda t: t.replace("ImageOrientationPatient", "Orientation", 1))),
         "missing ImageOrientationPatient"),
