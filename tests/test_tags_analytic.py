@@ -292,3 +292,31 @@ def test_long_axis_argument_is_used(heart):
     st2 = heart.study(with_landmarks=False)
     b = tag_metrics(st2, 0, 1, long_axis=axis, qc=False).columns
     assert a["Twist (deg)"] == pytest.approx(b["Twist (deg)"], abs=1e-9)
+
+
+def test_compatible_loft_equals_nurbs_loft(heart):
+    """The fast loft of sections on one knot vector is the NURBS module's loft."""
+    from cardionurbs import nurbs
+    from cardionurbs.analysis.tag_surfaces import loft_compatible, sa_sections, fit_sections
+    secs = sa_sections(heart.study(noise_px=0.3), "sa2", 1)[1]
+    fit_sections(secs)
+    fast = loft_compatible(np.array([s.ctrl for s in secs]), secs[0].knots)
+    ref = nurbs.loft([s.curve for s in secs], degree_v=3)
+    t = np.linspace(0, 1, 23)
+    assert np.allclose(fast.evaluate(t, t), ref.evaluate(t, t), atol=1e-9)
+
+
+def test_batched_surface_evaluation_matches_nurbs(heart):
+    """SurfaceBatch (per-row knots, A2.3 vectorised) equals NurbsSurface.derivatives."""
+    from cardionurbs.analysis.material import SurfaceBatch
+    from cardionurbs.analysis.tags import tag_surfaces
+    surfs = list(tag_surfaces(heart.study(), 1).values())
+    rng = np.random.default_rng(0)
+    sid = rng.integers(0, len(surfs), 300)
+    u, v = rng.uniform(0, 1, 300), rng.uniform(0, 1, 300)
+    S, Su, Sv = SurfaceBatch(surfs).derivatives(sid, u, v)
+    for k in range(0, 300, 7):
+        d = surfs[sid[k]].derivatives(u[k:k + 1], v[k:k + 1], order=1)[0]
+        assert np.allclose(S[k], d[0, 0], atol=1e-9)
+        assert np.allclose(Su[k], d[1, 0], atol=1e-7)
+        assert np.allclose(Sv[k], d[0, 1], atol=1e-7)

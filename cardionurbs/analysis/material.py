@@ -33,10 +33,12 @@ from cardionurbs.analysis.tag_surfaces import TagSurface, build_tag_surfaces
 from cardionurbs.study import Study
 
 FAMILIES = ("sa1", "sa2", "la")
+#: how far (in surface parameter) Newton may follow a surface's linear extension
+EXTENSION = 0.25
 NEWTON_TOL_MM = 1e-4
 ACCEPT_TOL_MM = 0.05
 MAX_ITER = 20
-_GRID = 25
+_GRID = 15
 
 
 # ------------------------------------------------------ batched evaluation
@@ -117,8 +119,14 @@ class SurfaceBatch:
 
     def derivatives(self, sid: np.ndarray, u: np.ndarray, v: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """S, ∂S/∂u, ∂S/∂v (each (k, 3)) of surface ``sid[r]`` at (u[r], v[r])."""
+        """S, ∂S/∂u, ∂S/∂v (each (k, 3)) of surface ``sid[r]`` at (u[r], v[r]).
+
+        Parameters outside [0, 1] evaluate the C¹ linear extension
+        S(u_c, v_c) + (u − u_c) S_u + (v − v_c) S_v, (u_c, v_c) the clamped pair.
+        """
         sid = np.asarray(sid, int)
+        u_in, v_in = np.asarray(u, float), np.asarray(v, float)
+        u, v = np.clip(u_in, 0.0, 1.0), np.clip(v_in, 0.0, 1.0)
         S = np.empty((len(sid), 3))
         Su = np.empty_like(S)
         Sv = np.empty_like(S)
@@ -146,7 +154,18 @@ class SurfaceBatch:
             S[rows] = pt
             Su[rows] = (Au[:, :3] - Au[:, 3:] * pt) / w
             Sv[rows] = (Av[:, :3] - Av[:, 3:] * pt) / w
+        S += (u_in - u)[:, None] * Su + (v_in - v)[:, None] * Sv
         return S, Su, Sv
+
+
+@dataclass(frozen=True)
+class SplineData:
+    """The arrays of an open NURBS curve (what :class:`CurveBatch` reads), without validation."""
+
+    degree: int
+    knots: np.ndarray
+    control_points: np.ndarray
+    weights: np.ndarray
 
 
 class CurveBatch:
@@ -254,26 +273,28 @@ def myocardium_margin(study: Study, frame: int, points: np.ndarray) -> np.ndarra
     pts = np.asarray(points, float).reshape(-1, 3)
     slices = sorted(rings, key=lambda s: float(rings[s]["lv_epi"].mean(axis=0) @ n))
     keys = np.array([float(rings[s]["lv_epi"].mean(axis=0) @ n) for s in slices])
-    margins = np.empty((len(slices), len(pts)))
-    for m, s in enumerate(slices):
-        plane = study.slice_plane(s, frame) if any(im.slice == s and im.frame == frame
-                                                  for im in study.images) else study.slice_plane(s)
-        e1, e2 = plane.row_cosine, plane.column_cosine
-        o = plane.position
-        to2 = lambda p: np.column_stack([(p - o) @ e1, (p - o) @ e2])  # noqa: E731
-        q = to2(pts)
-        d_epi = _polygon_signed_distance(q, to2(rings[s]["lv_epi"]))
-        d_endo = _polygon_signed_distance(q, to2(rings[s]["lv_endo"]))
-        margins[m] = np.minimum(d_epi, -d_endo)
     h = pts @ n
     out = np.full(len(pts), -np.inf)
     if len(slices) == 1:
-        return margins[0]
+        keys = np.r_[keys, keys + 1e-9]
     j = np.clip(np.searchsorted(keys, h) - 1, 0, len(keys) - 2)
     w = (h - keys[j]) / (keys[j + 1] - keys[j])
     ok = (w >= -1e-9) & (w <= 1 + 1e-9)
-    cols = np.arange(len(pts))
-    out[ok] = ((1 - w) * margins[j, cols] + w * margins[j + 1, cols])[ok]
+    acc = np.zeros(len(pts))
+    for m, s in enumerate(slices):
+        rows = np.flatnonzero(ok & ((j == m) | (j + 1 == m)))
+        if len(rows) == 0:
+            continue
+        plane = study.slice_plane(s, frame) if any(im.slice == s and im.frame == frame
+                                                  for im in study.images) else study.slice_plane(s)
+        e1, e2, o = plane.row_cosine, plane.column_cosine, plane.position
+        to2 = lambda p: np.column_stack([(p - o) @ e1, (p - o) @ e2])  # noqa: E731
+        q = to2(pts[rows])
+        margin = np.minimum(_polygon_signed_distance(q, to2(rings[s]["lv_epi"])),
+                            -_polygon_signed_distance(q, to2(rings[s]["lv_endo"])))
+        weight = np.where(j[rows] == m, 1 - w[rows], w[rows])
+        acc[rows] += weight * margin
+    out[ok] = acc[ok]
     return out
 
 
@@ -300,13 +321,20 @@ class _Surfaces:
 
 def _wrap_or_clip(params: np.ndarray, periodic: tuple[bool, bool, bool]) -> np.ndarray:
     p = params.copy()
+    lo, hi = -EXTENSION, 1.0 + EXTENSION
     for f in range(3):
-        p[:, 2 * f] = np.clip(p[:, 2 * f], 0.0, 1.0)
+        p[:, 2 * f] = np.clip(p[:, 2 * f], lo, hi)
         if periodic[f]:
             p[:, 2 * f + 1] = np.mod(p[:, 2 * f + 1], 1.0)
         else:
-            p[:, 2 * f + 1] = np.clip(p[:, 2 * f + 1], 0.0, 1.0)
+            p[:, 2 * f + 1] = np.clip(p[:, 2 * f + 1], lo, hi)
     return p
+
+
+def in_domain(params: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    """Rows whose six surface parameters all lie in [0, 1] (not on a surface's extension)."""
+    with np.errstate(invalid="ignore"):
+        return np.all((params >= -tol) & (params <= 1 + tol), axis=1)
 
 
 def intersect_three_surfaces(surfs: _Surfaces, triples: np.ndarray, params: np.ndarray,
@@ -422,13 +450,25 @@ class MaterialPoints:
     dropped: int = 0
     notes: list[str] = field(default_factory=list)
     params: dict[int, np.ndarray] = field(default_factory=dict)
+    extended: dict[int, np.ndarray] = field(default_factory=dict)
 
     @property
     def frames(self) -> list[int]:
         return sorted(self.positions)
 
     def tracked(self, *frames: int) -> np.ndarray:
-        """Boolean mask of the triples found at every one of ``frames``."""
+        """Triples found inside all three surfaces' domains at every one of ``frames``."""
+        m = np.ones(len(self.triples), bool)
+        for f in frames:
+            m &= np.all(np.isfinite(self.positions[f]), axis=1)
+            if f in self.extended:
+                m &= ~self.extended[f]
+        return m
+
+    def found(self, *frames: int) -> np.ndarray:
+        """Triples found at every one of ``frames``, also on the surfaces' linear extensions
+        (up to ``EXTENSION`` in parameter beyond the data: used to place a level that
+        leaves the SA stack)."""
         m = np.ones(len(self.triples), bool)
         for f in frames:
             m &= np.all(np.isfinite(self.positions[f]), axis=1)
@@ -497,7 +537,7 @@ def material_points(study: Study, ed_frame: int | None = None, es_frame: int | N
                      "restricted to the myocardium")
     triples, p0 = grid[keep], p0[keep]
     X, p, res = intersect_three_surfaces(ed, triples, p0)
-    ok = res < ACCEPT_TOL_MM
+    ok = (res < ACCEPT_TOL_MM) & in_domain(p)
     margin = myocardium_margin(study, ed_frame, X)
     if margin is not None:
         ok &= margin >= -margin_mm
@@ -505,6 +545,7 @@ def material_points(study: Study, ed_frame: int | None = None, es_frame: int | N
     triples, X, p = triples[ok], X[ok], p[ok]
     positions = {ed_frame: X}
     params = {ed_frame: p}
+    extended = {ed_frame: np.zeros(len(X), bool)}
     for f in frames[1:]:
         sf = _complete(surfaces[f])
         if sf is None:
@@ -530,4 +571,5 @@ def material_points(study: Study, ed_frame: int | None = None, es_frame: int | N
             pf[rows[good]] = p1[good]
         positions[f] = Xf
         params[f] = pf
-    return MaterialPoints(triples, positions, ed_frame, es_frame, dropped, notes, params)
+        extended[f] = np.isfinite(Xf[:, 0]) & ~in_domain(pf)
+    return MaterialPoints(triples, positions, ed_frame, es_frame, dropped, notes, params, extended)

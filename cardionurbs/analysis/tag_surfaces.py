@@ -192,10 +192,17 @@ class TagSection:
     points: np.ndarray
     plane: ImagePlane
     key: float
-    curve: object = None
     half: int = 0
     knots: np.ndarray | None = None
     ctrl: np.ndarray | None = None
+    _curve: object = None
+
+    @property
+    def curve(self):
+        """The fitted :class:`~cardionurbs.nurbs.NurbsCurve` (built on first use)."""
+        if self._curve is None and self.ctrl is not None:
+            self._curve = nurbs.NurbsCurve(3, self.knots, self.ctrl)
+        return self._curve
 
 
 @dataclass(eq=False)
@@ -323,6 +330,7 @@ def la_sections(study: Study, frame: int, apex: np.ndarray,
     """
     apex, base = np.asarray(apex, float), np.asarray(base, float)
     e = (base - apex) / np.linalg.norm(base - apex)
+    e1, e2, _ = axis_frame(apex, base)
     out: dict[int, list[TagSection]] = defaultdict(list)
     for t in study.tags_at(frame, "la"):
         pts = np.asarray(t.points, dtype=float)
@@ -356,7 +364,8 @@ def la_sections(study: Study, frame: int, apex: np.ndarray,
             halves.append((h, spoke))
         plane = _plane_of(study, t)
         for h, spoke in halves:
-            ang = float(angles_about_axis(spoke[-1:], apex, base)[0]) % (2 * np.pi)
+            d = spoke[-1] - apex
+            ang = float(np.arctan2(d @ e2, d @ e1)) % (2 * np.pi)
             out[t.index].append(TagSection("la", t.index, t.slice, t.frame, spoke, plane,
                                            key=ang, half=h))
     for secs in out.values():
@@ -373,23 +382,49 @@ def fit_sections(sections: list[TagSection]) -> None:
     U, P = fit_tag_curves([s.points for s in todo], control_count([s.points for s in todo]))
     for s, ctrl in zip(todo, P):
         s.knots, s.ctrl = U, ctrl
-        s.curve = nurbs.NurbsCurve(3, U, ctrl)
+
+
+def loft_compatible(ctrl: np.ndarray, knots_u: np.ndarray, degree_u: int = 3,
+                    degree_v: int = 3) -> "nurbs.NurbsSurface":
+    """Loft non-rational sections that already share one degree and knot vector (§3.2.4).
+
+    Steps 4–5 of the paper's lofting (1–3 are void for compatible
+    sections): section parameters v_k by the paper's formula
+    (:func:`cardionurbs.nurbs.loft.section_parameters`), knots by averaging
+    (NURBS Book eq. 9.8), and one interpolation across the sections for all
+    control-point columns. Equal to :func:`cardionurbs.nurbs.loft` on the
+    same (already oriented) curves, without its per-curve alignment and
+    knot-union work. ``ctrl`` is (K + 1, n, 3).
+    """
+    from cardionurbs.nurbs.basis import basis_matrix
+    from cardionurbs.nurbs.loft import averaging_knots, section_parameters
+    K = len(ctrl) - 1
+    v = section_parameters(ctrl)
+    q = min(degree_v, K)
+    Vk = averaging_knots(v, q)
+    M = basis_matrix(Vk, q, v)
+    Q = np.linalg.solve(M, ctrl.reshape(K + 1, -1)).reshape(ctrl.shape).transpose(1, 0, 2)
+    return nurbs.NurbsSurface(degree_u, q, knots_u, Vk, Q)
 
 
 def loft_sections(sections: list[TagSection], periodic: bool = False,
                   degree_v: int = 3):
-    """Loft fitted sections (paper §3.2.4, :func:`cardionurbs.nurbs.loft`) into one surface.
+    """Loft fitted sections (paper §3.2.4) into one surface.
 
-    ``periodic`` repeats the first section at the end (the LA spoke fan).
-    Returns None when fewer than two sections remain.
+    Sections sharing one knot vector (the usual case: :func:`fit_sections`)
+    go through :func:`loft_compatible`, others through
+    :func:`cardionurbs.nurbs.loft`. ``periodic`` repeats the first section
+    at the end (the LA spoke fan). Returns None with fewer than two sections.
     """
     fit_sections(sections)
-    curves = [s.curve for s in sections]
-    if periodic and len(curves) >= 2:
-        curves = curves + [curves[0]]
-    if len(curves) < 2:
+    secs = list(sections) + ([sections[0]] if periodic and len(sections) >= 2 else [])
+    if len(secs) < 2:
         return None
-    return nurbs.loft(curves, degree_v=min(degree_v, len(curves) - 1))
+    U = secs[0].knots
+    if all(s.knots is not None and s.knots.shape == U.shape and np.array_equal(s.knots, U)
+           for s in secs):
+        return loft_compatible(np.array([s.ctrl for s in secs]), U, 3, degree_v)
+    return nurbs.loft([s.curve for s in secs], degree_v=min(degree_v, len(secs) - 1))
 
 
 def pixel_size(study: Study) -> float:

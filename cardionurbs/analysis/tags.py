@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from cardionurbs.analysis.material import MaterialPoints, material_points
+from cardionurbs.analysis.material import MaterialPoints, SplineData, material_points
 from cardionurbs.analysis.tag_surfaces import (axis_frame, build_tag_surfaces, check_tags,
                                                fit_tag_curve, pixel_size, stack_normal, tag_surfaces)
 from cardionurbs.analysis.tagqc import TagFlag, tag_departures, tag_qc
@@ -197,13 +197,19 @@ def curve_crossings(curves: list, raw: list[np.ndarray], pairs: np.ndarray,
     c2, _ = batch.derivatives(pairs[:, 1], u[:, 1])
     X = (c1 + c2) / 2
     ok = np.linalg.norm(c1 - c2, axis=1) < 0.01
+    # on the data of both lines: within two point spacings of a tag point
+    m = max(len(p) for p in raw)
+    pad = np.full((len(raw), m, 3), np.inf)
+    reach = np.empty(len(raw))
+    for li, P in enumerate(raw):
+        pad[li, :len(P)] = P
+        steps = np.linalg.norm(np.diff(P, axis=0), axis=1)
+        reach[li] = max(2.0 * float(np.median(steps)) if len(steps) else 0.0, 1.0)
     for col in (0, 1):
-        for li in np.unique(pairs[:, col]):
-            rows = np.flatnonzero(pairs[:, col] == li)
-            P = raw[li]
-            step_mm = float(np.median(np.linalg.norm(np.diff(P, axis=0), axis=1)))
-            dmin = np.sqrt(((X[rows, None, :] - P[None]) ** 2).sum(-1)).min(axis=1)
-            ok[rows] &= dmin <= max(2.0 * step_mm, 1.0)
+        li = pairs[:, col]
+        with np.errstate(invalid="ignore"):
+            d2 = ((pad[li] - X[:, None, :]) ** 2).sum(-1)
+        ok &= np.sqrt(np.nanmin(d2, axis=1)) <= reach[li]
     X[~ok] = np.nan
     return X
 
@@ -245,8 +251,9 @@ def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base:
         for (fam, idx), ts in surfs.items():
             if fam in ("sa1", "sa2"):
                 for sec in ts.sections:
-                    if sec.curve is not None:
-                        fitted[(fam, idx, sec.slice, f)] = (sec.curve, sec.points)
+                    if sec.ctrl is not None:
+                        fitted[(fam, idx, sec.slice, f)] = (
+                            SplineData(3, sec.knots, sec.ctrl, np.ones(len(sec.ctrl))), sec.points)
     lines = {}
     for f in (ed_frame, es_frame):
         for t in study.tags_at(f):
@@ -386,14 +393,17 @@ def level_table(mp: MaterialPoints, frame: int, apex: np.ndarray, base: np.ndarr
     X0 = mp.positions[mp.ed_frame]
     X1 = mp.positions[frame]
     tracked = mp.tracked(mp.ed_frame, frame)
+    found = mp.found(mp.ed_frame, frame)
     rows = []
     for k in np.unique(mp.triples[:, 2]) if len(mp.triples) else []:
-        sel = (mp.triples[:, 2] == k) & tracked
+        at = mp.triples[:, 2] == k
+        sel = at & tracked
         if sel.sum() < MIN_LEVEL_POINTS:
             continue
-        if stack is not None:
+        if stack is not None:   # placed with the points on the surfaces' extensions too
             n, lo, hi = stack
-            h0, h1 = float((X0[sel] @ n).mean()), float((X1[sel] @ n).mean())
+            every = at & found
+            h0, h1 = float((X0[every] @ n).mean()), float((X1[every] @ n).mean())
             if not (lo < h0 < hi and lo < h1 < hi):
                 continue
         z0 = float(((X0[sel] - apex) @ ez).mean())
