@@ -112,3 +112,24 @@ def test_bad_generate_arguments(kw, word):
 def test_seeds_vary_subjects():
     a, b = _truth("normal", 1), _truth("normal", 2)
     assert a["LVEDV (mL)"] != b["LVEDV (mL)"] and np.isfinite(a["Twist 2D (deg)"])
+
+
+@pytest.mark.parametrize("over, word", [
+    ({"r_short_endo": -3.0}, "r_short_endo must be a positive"),
+    ({"r_short_endo": 60.0}, "wall thickness"),
+    ({"r_long_endo": 200.0}, "r_long_epi must exceed"),
+    ({"radius": 3.0}, "unknown anatomy parameter"),
+])
+def test_bad_anatomy_overrides(over, word):
+    with pytest.raises(PhantomError) as e:
+        generate("normal", frames=2, anatomy=over)
+    assert word in str(e.value) and "\n" not in str(e.value)
+
+
+def test_anatomy_override_changes_truth():
+    base = generate("normal", seed=0, frames=2, volume_check=False)
+    a = dict(base.truth["anatomy"])
+    bigger = generate("normal", seed=0, frames=2, anatomy={"r_short_endo": a["r_short_endo"] + 1.0})
+    assert bigger.truth["metrics"]["LVEDV (mL)"] > base.truth["metrics"]["LVEDV (mL)"]
+    assert bigger.truth["metrics"]["LVM (g)"] < base.truth["metrics"]["LVM (g)"]
+    assert bigger.truth["volumes"]["max_relative_difference"] < 0.002

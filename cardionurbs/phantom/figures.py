@@ -1,9 +1,10 @@
 """Figures of phantom images with their annotations (paper Fig. 1 style), matplotlib Agg.
 
-``python -m cardionurbs.phantom.figures OUT_DIR`` writes, for each preset
+``python -m cardionurbs.phantom.figures OUT_DIR [COHORT.toml]`` writes, for each preset
 (seed 0), ``phantom_<preset>_ed.png`` and ``phantom_<preset>_es.png``: the
 mid-ventricular tagged SA image at ED and ES, cropped around the heart, with
-the LV/RV contours and the tracked tag lines drawn over it.
+the LV/RV contours and the tracked tag lines drawn over it; with a cohort
+spec it also prints the markdown table of its subjects' truth metrics.
 """
 
 from __future__ import annotations
@@ -85,6 +86,29 @@ def write_preset_figures(out_dir: str | Path, seed: int = 0, frames: int = 20) -
     return out
 
 
+TABLE_COLUMNS = ("LVEDV (mL)", "LVEF (%)", "LVM (g)", "RVEDV (mL)", "RVEF (%)", "RVM (g)",
+                 "MR RegFrac (%)", "RV/LV EDV ratio", "RV/LV mass ratio", "EI ES", "Twist (deg)",
+                 "Twist 2D (deg)", "Torsion (deg/cm)", "LS (%)")
+
+
+def cohort_truth_table(spec_path: str | Path) -> str:
+    """Markdown table of the truth metrics of every subject of a cohort spec."""
+    from cardionurbs.phantom.generate import generate
+    from cardionurbs.phantom.presets import load_cohort_spec
+
+    rows = ["| subject | pathology | HR | " + " | ".join(TABLE_COLUMNS) + " |",
+            "|---" * (3 + len(TABLE_COLUMNS)) + "|"]
+    for s in load_cohort_spec(spec_path):
+        m = generate(s.pathology, seed=s.seed, frames=s.frames, subject=s.id,
+                     volume_check=False).truth["metrics"]
+        rows.append(f"| {s.id} | {s.pathology} | {m['HR (bpm)']:.0f} | "
+                    + " | ".join(f"{m[c]:.2f}" if "ratio" in c or c == "EI ES" else f"{m[c]:.1f}"
+                                 for c in TABLE_COLUMNS) + " |")
+    return "\n".join(rows)
+
+
 if __name__ == "__main__":  # pragma: no cover
     for path in write_preset_figures(sys.argv[1] if len(sys.argv) > 1 else "reports/figures"):
         print(path)
+    if len(sys.argv) > 2:
+        print(cohort_truth_table(sys.argv[2]))

@@ -105,7 +105,7 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
              tag_jumps: int = 0, sa_spacing_mm: float = 10.0, sa_thickness_mm: float = 8.0,
              n_sa: int | None = None, breath_hold_mm: float = 0.0, subject: str | None = None,
              tag_spacing_px: float = 7.0, fov_mm: float = 300.0, matrix: int = 256,
-             volume_check: bool = True) -> Phantom:
+             volume_check: bool = True, anatomy: dict | None = None) -> Phantom:
     """Generate one phantom subject.
 
     Parameters
@@ -117,12 +117,26 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     sa_spacing_mm, sa_thickness_mm, n_sa : SA stack (n_sa None = cover base to apex).
     tag_spacing_px : SPAMM tag spacing in pixels (7 in the paper).
     volume_check : also compute the method-B mesh volumes at ED and ES into the truth.
+    anatomy : optional overrides of the solved ED geometry (Anatomy field -> mm), e.g.
+        ``{"r_short_endo": 30.0}``; the truth is computed from the overridden shape (the
+        preset's target ranges then no longer apply).
     """
     _check_args(pathology, seed, frames, noise_px, tag_jumps, breath_hold_mm)
     frames, seed, tag_jumps = int(frames), int(seed), int(tag_jumps)
     preset = load_preset(pathology)
     draw = sample_subject(preset, _rng(seed, pathology, "subject"))
+    overrides = anatomy
     anatomy = solve_anatomy(draw)
+    if overrides:
+        unknown = sorted(set(overrides) - set(Anatomy.__dataclass_fields__))
+        if unknown:
+            raise PhantomError(f"unknown anatomy parameter {unknown[0]!r}; expected one of "
+                               f"{', '.join(Anatomy.__dataclass_fields__)}")
+        try:
+            fields = {**anatomy.to_dict(), **{k: float(v) for k, v in overrides.items()}}
+        except (TypeError, ValueError):
+            raise PhantomError("anatomy parameters must be numbers (mm)") from None
+        anatomy = Anatomy(**fields).validate()
     acq = Acquisition(rows=matrix, columns=matrix, fov_mm=fov_mm, sa_spacing_mm=sa_spacing_mm,
                       sa_thickness_mm=sa_thickness_mm, n_sa=n_sa)
     if not (np.isfinite(tag_spacing_px) and tag_spacing_px > 0):
@@ -140,6 +154,7 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     times = {k: round(k * rr / frames, 3) for k in range(frames)}
     subject = subject or f"{pathology}_{seed:03d}"
     config = dict(pathology=pathology, seed=seed, frames=frames, noise_px=float(noise_px),
+                  anatomy_overrides=dict(sorted((overrides or {}).items())),
                   tag_jumps=tag_jumps, sa_spacing_mm=float(sa_spacing_mm),
                   sa_thickness_mm=float(sa_thickness_mm), n_sa=n_sa, breath_hold_mm=float(breath_hold_mm),
                   tag_spacing_px=float(tag_spacing_px), fov_mm=float(fov_mm), matrix=int(matrix),
