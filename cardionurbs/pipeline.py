@@ -38,13 +38,18 @@ def tag_metrics_hook(model: BiventricularModel) -> dict[str, float]:
 
 
 def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path) -> list[Path]:
-    """Figures of an analysis: ``cardionurbs.report.figures.write_figures(model,
-    metrics, out_dir)`` when the report module provides it; [] otherwise."""
+    """Figures and HTML report of an analysis: ``cardionurbs.report.figures.write_figures``
+    into ``out_dir/figures`` and ``cardionurbs.report.html.write_report`` to
+    ``out_dir/report.html`` (after metrics.json and model.json are written) when the
+    report module provides them; [] otherwise."""
     try:
         from cardionurbs.report.figures import write_figures
+        from cardionurbs.report.html import write_report
     except ImportError:
         return []
-    return list(write_figures(model, metrics, out_dir) or [])
+    paths = list(write_figures(model, Path(out_dir) / "figures", metrics=metrics) or [])
+    paths.append(write_report(out_dir, Path(out_dir) / "report.html"))
+    return paths
 
 
 def analyse_study(study: Study, *, heart_rate_bpm: float | None = None

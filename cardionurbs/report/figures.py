@@ -1,0 +1,791 @@
+"""Static figures of one analysed study (paper Figs. 3-10), headless PNG.
+
+Every figure is drawn with matplotlib's Agg backend (no display needed). 3D
+panels show tessellated NURBS surfaces (:func:`cardionurbs.nurbs.tessellate`)
+as ONE depth-sorted :class:`~mpl_toolkits.mplot3d.art3d.Poly3DCollection` per
+panel, so translucent walls and the surfaces inside them sort together
+(painter's algorithm over all triangles of the panel).
+
+Conventions
+-----------
+* Axes are scanner (patient LPS) millimetres with equal scale on x, y, z;
+  an orientation marker draws the anterior (−y), left (+x) and head (+z)
+  directions from a corner of the box.
+* Camera: perpendicular to the LV long axis (apex → mitral centre, ED), with
+  the base at the top; it looks along the septal plane, so the RV sits beside
+  the LV as in a four-chamber view (from the anterior side). Without an RV the
+  camera looks from the anterior direction.
+* Colours: Okabe–Ito colour-blind-safe palette (:data:`OKABE_ITO`); faces are
+  Lambert-shaded by scaling their RGB (two-sided light), so a structure's hue
+  is kept in the PNG.
+* Every figure carries a caption naming the subject, frame(s) and structure.
+
+A figure whose input is missing (no tag lines, one frame only, no RV, no
+truth) is left out with one line saying why (:attr:`FigureSet.skipped`, and
+``skipped.txt`` beside the PNGs); it never raises.
+
+Public API: :func:`write_figures`, :func:`render_figures`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import textwrap
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg", force=True)
+import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
+from mpl_toolkits.mplot3d import proj3d  # noqa: E402
+from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection  # noqa: E402
+
+from cardionurbs import nurbs  # noqa: E402
+from cardionurbs.io import atomic  # noqa: E402
+
+__all__ = ["write_figures", "render_figures", "FigureSet", "FigureResult", "OKABE_ITO",
+           "STRUCTURE_COLOURS", "FAMILY_COLOURS", "FLAG_COLOUR", "tag_data", "view_frame"]
+
+# Okabe & Ito (2008), "Color Universal Design"
+OKABE_ITO = {
+    "black": "#000000", "orange": "#E69F00", "sky_blue": "#56B4E9", "bluish_green": "#009E73",
+    "yellow": "#F0E442", "blue": "#0072B2", "vermillion": "#D55E00", "reddish_purple": "#CC79A7",
+}
+STRUCTURE_COLOURS = {"lv_endo": OKABE_ITO["vermillion"], "lv_epi": OKABE_ITO["orange"],
+                     "rv_endo": OKABE_ITO["blue"], "rv_epi": OKABE_ITO["sky_blue"]}
+FAMILY_COLOURS = {"sa1": OKABE_ITO["bluish_green"], "sa2": OKABE_ITO["reddish_purple"],
+                  "la": OKABE_ITO["yellow"]}
+FLAG_COLOUR = OKABE_ITO["vermillion"]
+GOOD_LINE_COLOUR = OKABE_ITO["blue"]
+NAMES = {"lv_endo": "LV endocardium", "lv_epi": "LV epicardium", "rv_endo": "RV endocardium",
+         "rv_epi": "RV epicardium", "sa1": "SA tag family 1", "sa2": "SA tag family 2",
+         "la": "LA tag family"}
+SURFACE_GRID = (40, 14)          # (nu, nv) tessellation of a wall surface for figures
+TAG_GRID = (14, 8)               # (nu, nv) tessellation of a tag surface
+DPI = 100
+LIGHT = np.array([0.35, -0.45, 0.82])
+
+
+# ----------------------------------------------------------------- results
+@dataclass
+class FigureResult:
+    """One written figure: file, caption, and the opaque colours it must show."""
+
+    name: str
+    path: Path
+    caption: str
+    colours: dict[str, str] = field(default_factory=dict)   # label -> hex (opaque faces/lines)
+    legend_boxes: list[tuple[float, float, float, float]] = field(default_factory=list)
+    # pixel boxes (x0, y0, x1, y1; origin top-left) of the legends in the PNG
+
+
+@dataclass
+class FigureSet:
+    """Figures of one study: written ones, and one-line reasons for those left out."""
+
+    figures: list[FigureResult] = field(default_factory=list)
+    skipped: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def paths(self) -> list[Path]:
+        return [f.path for f in self.figures]
+
+
+# ----------------------------------------------------------------- geometry
+def _rgb(hex_colour: str) -> np.ndarray:
+    return np.asarray(matplotlib.colors.to_rgb(hex_colour))
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    return v / n if n > 0 else v
+
+
+def lambert_colours(vertices: np.ndarray, faces: np.ndarray, colour: str, alpha: float = 1.0
+                    ) -> np.ndarray:
+    """RGBA per face: the colour scaled by 0.45 + 0.55 |n · l| (two-sided Lambert, unit
+    face normal n, fixed light l); hue is preserved, only brightness changes."""
+    tri = vertices[faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+    k = 0.45 + 0.55 * np.abs(n @ _unit(LIGHT))
+    rgba = np.empty((len(faces), 4))
+    rgba[:, :3] = np.clip(k[:, None] * _rgb(colour)[None, :], 0, 1)
+    rgba[:, 3] = alpha
+    return rgba
+
+
+@dataclass
+class View:
+    """Camera of a 3D panel: matplotlib (elev, azim, roll) in degrees and the data box."""
+
+    elev: float
+    azim: float
+    roll: float
+    centre: np.ndarray
+    half: float
+
+
+def view_frame(axis: tuple[np.ndarray, np.ndarray], side: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """(w, up): unit view direction (centre → eye) perpendicular to the long axis and the
+    screen-up direction (apex → base).
+
+    ``side`` (e.g. RV centroid − LV centroid) is kept in the screen plane: w ⟂ side
+    and w ⟂ axis, with w chosen on the anterior side (w · (0, −1, 0) ≥ 0, LPS).
+    Without ``side``, w is the anterior direction made perpendicular to the axis.
+    """
+    apex, base = (np.asarray(a, float) for a in axis)
+    up = _unit(base - apex)
+    anterior = np.array([0.0, -1.0, 0.0])
+    w = None
+    if side is not None:
+        s = side - (side @ up) * up
+        if np.linalg.norm(s) > 1e-6:
+            w = _unit(np.cross(up, _unit(s)))
+    if w is None:
+        w = anterior - (anterior @ up) * up
+        if np.linalg.norm(w) < 1e-6:
+            w = np.array([1.0, 0.0, 0.0]) - up[0] * up
+        w = _unit(w)
+    if w @ anterior < 0:
+        w = -w
+    return w, up
+
+
+def _camera(w: np.ndarray, up: np.ndarray, centre: np.ndarray, half: float) -> View:
+    """matplotlib angles putting the eye along ``w`` and ``up`` vertical on screen.
+
+    elev = asin(w_z), azim = atan2(w_y, w_x); the roll is the signed angle, about w,
+    from matplotlib's default screen-up (the projection of +z) to ``up``; its sign
+    convention is fixed once by projecting two points (see :func:`_roll_sign`).
+    """
+    elev = math.degrees(math.asin(float(np.clip(w[2], -1, 1))))
+    azim = math.degrees(math.atan2(w[1], w[0]))
+    z = np.array([0.0, 0.0, 1.0])
+    up0 = z - (z @ w) * w
+    if np.linalg.norm(up0) < 1e-6:          # looking along z: default up is -x rotated by azim
+        up0 = np.array([-math.cos(math.radians(azim)), -math.sin(math.radians(azim)), 0.0])
+    up0 = _unit(up0)
+    upp = _unit(up - (up @ w) * w)
+    ang = math.degrees(math.atan2(np.cross(up0, upp) @ w, up0 @ upp))
+    return View(elev, azim, _roll_sign() * ang, np.asarray(centre, float), float(half))
+
+
+_ROLL_SIGN: list[float] = []
+
+
+def _roll_sign() -> float:
+    """+1 or −1: matplotlib's roll convention relative to a right-handed angle about the
+    view direction, found by projecting a point with a known roll (cached)."""
+    if not _ROLL_SIGN:
+        fig = Figure(figsize=(2, 2))
+        ax = fig.add_subplot(projection="3d")
+        ax.set_xlim(-1, 1), ax.set_ylim(-1, 1), ax.set_zlim(-1, 1)
+        ax.view_init(elev=0.0, azim=0.0, roll=30.0)     # eye on +x; default up +z
+        x, y, _ = proj3d.proj_transform(0.0, 0.0, 1.0, ax.get_proj())
+        # right-handed +30 deg about +x tilts screen-up (+z) toward -y, i.e. the
+        # +z point moves to screen-left when the screen-right axis is +y (eye on +x).
+        _ROLL_SIGN.append(-1.0 if x < 0 else 1.0)
+    return _ROLL_SIGN[0]
+
+
+@dataclass
+class Mesh:
+    """A triangle mesh to draw: vertices (V, 3) mm, faces (F, 3), colour, alpha, label."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    colour: str
+    alpha: float = 1.0
+    label: str = ""
+
+
+def surface_mesh(surface: Any, colour: str, alpha: float = 1.0, label: str = "",
+                 grid: tuple[int, int] = SURFACE_GRID) -> Mesh:
+    """Tessellate a NURBS surface (``nu x nv`` grid) into a :class:`Mesh`."""
+    v, f = nurbs.tessellate(surface, *grid)
+    return Mesh(np.asarray(v, float), np.asarray(f, np.int64), colour, alpha, label)
+
+
+def _bounds(points: Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
+    P = np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in points])
+    lo, hi = P.min(axis=0), P.max(axis=0)
+    return (lo + hi) / 2, float((hi - lo).max()) / 2 * 1.05 + 1.0
+
+
+def draw_panel(ax, meshes: Sequence[Mesh], view: View, *, lines: Sequence[tuple] = (),
+               title: str = "", marker: bool = True) -> None:
+    """Draw meshes (one depth-sorted collection) and polylines on a 3D axes.
+
+    ``lines``: (points (n, 3), colour, width) polylines drawn on top of the surfaces.
+    """
+    polys, colours = [], []
+    for m in meshes:
+        if len(m.faces) == 0:
+            continue
+        polys.append(m.vertices[m.faces])
+        colours.append(lambert_colours(m.vertices, m.faces, m.colour, m.alpha))
+    if polys:
+        pc = Poly3DCollection(np.concatenate(polys), facecolors=np.concatenate(colours),
+                              edgecolors="none", linewidths=0.0, shade=False)
+        pc.set_zorder(1)
+        ax.add_collection3d(pc)
+    if lines:
+        lc = Line3DCollection([np.asarray(p, float) for p, _, _ in lines],
+                              colors=[c for _, c, _ in lines], linewidths=[w for _, _, w in lines])
+        lc.set_zorder(3)
+        ax.add_collection3d(lc)
+    c, h = view.centre, view.half
+    ax.set_xlim(c[0] - h, c[0] + h)
+    ax.set_ylim(c[1] - h, c[1] + h)
+    ax.set_zlim(c[2] - h, c[2] + h)
+    ax.set_box_aspect((1, 1, 1), zoom=1.2)
+    ax.computed_zorder = False
+    ax.view_init(elev=view.elev, azim=view.azim, roll=view.roll)
+    ax.set_xlabel("x (mm, →L)", fontsize=7, labelpad=-6)
+    ax.set_ylabel("y (mm, →P)", fontsize=7, labelpad=-6)
+    ax.set_zlabel("z (mm, →H)", fontsize=7, labelpad=-6)
+    ax.tick_params(labelsize=6, pad=-2)
+    for a in (ax.xaxis, ax.yaxis, ax.zaxis):
+        a.set_pane_color((1, 1, 1, 0))
+        a.set_major_locator(matplotlib.ticker.MaxNLocator(3))
+    if title:
+        ax.set_title(title, fontsize=9, pad=0)
+    ax.grid(False)
+    if marker:
+        orientation_marker(ax)
+
+
+def orientation_marker(ax) -> None:
+    """Inset arrows (lower-left of a 3D panel) for the anterior (−y), left (+x) and head
+    (+z) directions (LPS), projected with the panel's own camera; an arrow's length is
+    its projected length relative to the longest of the three (short = toward the eye)."""
+    M = ax.get_proj()
+    origin = np.array(proj3d.proj_transform(0.0, 0.0, 0.0, M)[:2])
+    span = float(np.diff(ax.get_xlim3d())[0]) * 0.2
+    dirs = (((0.0, -1.0, 0.0), "A"), ((1.0, 0.0, 0.0), "L"), ((0.0, 0.0, 1.0), "H"))
+    vec = np.array([np.array(proj3d.proj_transform(*(np.asarray(d) * span), M)[:2]) - origin
+                    for d, _ in dirs])
+    vec /= max(float(np.linalg.norm(vec, axis=1).max()), 1e-12)
+    pos = ax.get_position()
+    size = 0.2 * min(pos.width, pos.height * ax.figure.get_figheight() / ax.figure.get_figwidth())
+    inset = ax.figure.add_axes([pos.x0 + 0.03 * pos.width, pos.y0 + 0.03 * pos.height, size,
+                                size * ax.figure.get_figwidth() / ax.figure.get_figheight()])
+    inset.set_xlim(-1.45, 1.45), inset.set_ylim(-1.45, 1.45)
+    inset.axis("off")
+    for v, (_, txt) in zip(vec, dirs):
+        inset.annotate("", xy=tuple(v), xytext=(0.0, 0.0),
+                       arrowprops=dict(arrowstyle="-|>", lw=1.1, color="black", shrinkA=0,
+                                       shrinkB=0))
+        u = v / max(float(np.linalg.norm(v)), 1e-9)
+        inset.text(*(v + 0.3 * u), txt, fontsize=7, fontweight="bold", ha="center", va="center")
+
+
+def _new_figure(n_panels: int, caption: str, *, width: float = 4.6, height: float = 4.8,
+                three_d: bool = True) -> tuple[Figure, list]:
+    fig = Figure(figsize=(width * n_panels, height), dpi=DPI)
+    axes = [fig.add_subplot(1, n_panels, i + 1, projection="3d" if three_d else None)
+            for i in range(n_panels)]
+    fig.subplots_adjust(left=0.02 if three_d else 0.1, right=0.98, top=0.93,
+                        bottom=0.13 if three_d else 0.22, wspace=0.05 if three_d else 0.3)
+    chars = int(width * n_panels * 17)          # ~17 characters per inch at 7.5 pt
+    fig.text(0.01, 0.01, textwrap.fill(caption, chars), fontsize=7.5, ha="left", va="bottom")
+    return fig, axes
+
+
+def _legend(fig: Figure, items: Sequence[tuple[str, str]]) -> None:
+    from matplotlib.patches import Patch
+    fig.legend(handles=[Patch(facecolor=c, label=l) for l, c in items], loc="upper left",
+               fontsize=7, frameon=False, ncol=1)
+
+
+def _save(fig: Figure, path: Path) -> tuple[Path, list]:
+    """Render to PNG (atomic write); return the path and the legends' pixel boxes."""
+    import io
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI)
+    atomic.write_bytes(path, buf.getvalue())
+    H = fig.get_figheight() * DPI
+    boxes = []
+    for leg in fig.legends:
+        e = leg.get_window_extent()
+        boxes.append((float(e.x0), float(H - e.y1), float(e.x1), float(H - e.y0)))
+    return path, boxes
+
+
+def _result(name: str, fig: Figure, out: Path, caption: str, colours: Mapping[str, str]
+            ) -> FigureResult:
+    path, boxes = _save(fig, out / f"{name}.png")
+    return FigureResult(name, path, caption, dict(colours), boxes)
+
+
+# ----------------------------------------------------------------- context
+@dataclass
+class _Context:
+    """Everything the figure functions share for one study."""
+
+    model: Any
+    subject: str
+    ed: int
+    es: int
+    axis: tuple[np.ndarray, np.ndarray]
+    view: View
+    oblique: View
+    metrics: Mapping | None
+    truth: Mapping | None
+    tags: Any                          # TagMetrics or None
+    tag_frames: dict[int, list[dict]]  # frame -> tag_figure_data
+    tag_note: str | None               # why tags are unavailable
+
+    def surfaces(self, frame: int) -> dict:
+        return dict(self.model.surfaces[frame])
+
+    def frame_label(self, f: int) -> str:
+        tag = " (ED)" if f == self.ed else " (ES)" if f == self.es else ""
+        return f"frame {f}{tag}"
+
+
+def _centroid(surface) -> np.ndarray:
+    v, _ = nurbs.tessellate(surface, 12, 6)
+    return np.asarray(v).mean(axis=0)
+
+
+OBLIQUE_DEG = 35.0     # tag figures: the eye raised this much toward the base
+
+
+def _make_view(model, frames: Sequence[int], axis, raise_deg: float = 0.0) -> View:
+    """Camera of the model's panels (see module doc); ``raise_deg`` lifts the eye from
+    the plane perpendicular to the long axis toward the base (tag planes seen obliquely)."""
+    surf = model.surfaces[model.ed_frame]
+    side = None
+    if "rv_endo" in surf and "lv_endo" in surf:
+        side = _centroid(surf["rv_endo"]) - _centroid(surf["lv_endo"])
+    w, up = view_frame(axis, side)
+    if raise_deg:
+        r = math.radians(raise_deg)
+        w, up = math.cos(r) * w + math.sin(r) * up, -math.sin(r) * w + math.cos(r) * up
+    pts = []
+    for f in frames:
+        for s in model.surfaces[f].values():
+            pts.append(np.asarray(s.control_points)[..., :3].reshape(-1, 3))
+    centre, half = _bounds(pts)
+    return _camera(w, up, centre, half)
+
+
+def _model_axis(model) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        apex, base = model.long_axis()
+        if np.all(np.isfinite(apex)) and np.all(np.isfinite(base)) and np.linalg.norm(base - apex) > 1:
+            return apex, base
+    except (KeyError, AttributeError, TypeError, ValueError):
+        pass
+    s = model.surfaces[model.ed_frame]["lv_endo"]
+    v, _ = nurbs.tessellate(s, 12, 12)
+    c = v.mean(axis=0)
+    d = np.linalg.svd(v - c, full_matrices=False)[2][0]
+    t = (v - c) @ d
+    return c + t.min() * d, c + t.max() * d
+
+
+def tag_data(model, tags: Any = None, frames: Sequence[int] | None = None,
+             grid: tuple[int, int] = TAG_GRID) -> tuple[Any, dict[int, list[dict]], str | None]:
+    """(TagMetrics, {frame: tag_figure_data}, note): tag surfaces of the model's study.
+
+    ``tags`` (a TagMetrics from :func:`cardionurbs.analysis.tags.tag_metrics`) lends its
+    QC flags; without it the metrics are computed here (over time when the study has
+    tags at three or more frames, for the twist–time curve). ``note`` says why there
+    are no tag surfaces (no tag lines, or the analysis failed), else None.
+    """
+    study = model.study
+    if not getattr(study, "tags", None):
+        return None, {}, "no tag lines in the study"
+    from cardionurbs.analysis.tags import tag_figure_data, tag_metrics
+    from cardionurbs.errors import CardioNurbsError
+    try:
+        axis = model.long_axis()
+        if tags is None or not hasattr(tags, "flags"):
+            tags = tag_metrics(model, over_time=len(study.tagged_frames) >= 3)
+        flags = list(tags.flags)
+        frames = [f for f in (frames if frames is not None else study.tagged_frames)
+                  if f in study.tagged_frames]
+        data = {f: tag_figure_data(study, f, long_axis=axis, flags=flags, nu=grid[0], nv=grid[1])
+                for f in frames}
+    except (CardioNurbsError, ValueError, np.linalg.LinAlgError) as exc:
+        return tags, {}, f"tag surfaces not built: {' '.join(str(exc).split())}"
+    return tags, data, None
+
+
+# ----------------------------------------------------------------- figures
+FigureFn = Callable[[_Context, Path], "FigureResult | str"]
+
+
+def _wall_pair(ctx: _Context, out: Path, name: str, structures: Sequence[str], fig_no: str,
+               what: str, alphas: Mapping[str, float] | None = None) -> FigureResult | str:
+    """Two panels (ED, ES) of the given wall surfaces."""
+    alphas = alphas or {}
+    frames = [ctx.ed] if ctx.ed == ctx.es else [ctx.ed, ctx.es]
+    missing = [s for s in structures if s not in ctx.surfaces(ctx.ed)]
+    if missing:
+        return f"no {', '.join(missing)} surface in the model (no contours for it)"
+    caption = (f"Fig. {fig_no}. {what} of subject {ctx.subject}, "
+               + " and ".join(ctx.frame_label(f) for f in frames)
+               + ". Scanner (LPS) mm; arrows: A anterior, L left, H head.")
+    if ctx.ed == ctx.es:
+        caption += " Only one frame was reconstructed: ES panel left out."
+    fig, axes = _new_figure(len(frames), caption)
+    for ax, f in zip(axes, frames):
+        surf = ctx.surfaces(f)
+        meshes = [surface_mesh(surf[s], STRUCTURE_COLOURS[s], alphas.get(s, 1.0), s)
+                  for s in structures if s in surf]
+        draw_panel(ax, meshes, ctx.view, title=ctx.frame_label(f))
+    _legend(fig, [(NAMES[s], STRUCTURE_COLOURS[s]) for s in structures])
+    opaque = {s: STRUCTURE_COLOURS[s] for s in structures if alphas.get(s, 1.0) >= 1.0}
+    return _result(name, fig, out, caption, opaque)
+
+
+def fig03_lv_endo(ctx, out):
+    return _wall_pair(ctx, out, "fig03_lv_endo_ed_es", ["lv_endo"], "3",
+                      "LV endocardial surface (lv_endo)")
+
+
+def fig04_lv_endo_epi(ctx, out):
+    return _wall_pair(ctx, out, "fig04_lv_endo_epi", ["lv_endo", "lv_epi"], "4",
+                      "LV endocardium (lv_endo, opaque) inside the LV epicardium (lv_epi, "
+                      "translucent)", {"lv_epi": 0.35})
+
+
+def fig05_rv_endo(ctx, out):
+    return _wall_pair(ctx, out, "fig05_rv_endo_ed_es", ["rv_endo"], "5",
+                      "RV endocardial surface (rv_endo, free wall and septum)")
+
+
+def fig06_rv_lv(ctx, out):
+    return _wall_pair(ctx, out, "fig06_rv_with_lv", ["lv_epi", "rv_endo", "rv_epi"], "6",
+                      "RV endocardium (rv_endo, opaque) and epicardium (rv_epi, translucent) "
+                      "wrapped around the LV epicardium (lv_epi)", {"rv_epi": 0.3})
+
+
+def _tag_mesh(d: dict, colour: str, alpha: float = 1.0) -> Mesh:
+    return Mesh(np.asarray(d["vertices"], float), np.asarray(d["faces"], np.int64), colour, alpha,
+                f"{d['family']}#{d['index']}")
+
+
+def _need_tags(ctx: _Context, frames: Sequence[int]) -> str | None:
+    if ctx.tag_note:
+        return ctx.tag_note
+    absent = [f for f in frames if not ctx.tag_frames.get(f)]
+    if absent:
+        return f"no tag surfaces at frame(s) {absent} (tagged frames: {sorted(ctx.tag_frames)})"
+    return None
+
+
+def fig07_tag_surface(ctx, out):
+    """One SA tag surface (middle index of family sa1) at ED and ES, with the long axis;
+    the ES panel shows the ED surface as a grey outline: twist bends the plane about the
+    axis and shortening moves its apical edge toward the base."""
+    if ctx.ed == ctx.es:
+        return "one frame only: ED and ES tag surfaces cannot be compared"
+    why = _need_tags(ctx, [ctx.ed, ctx.es])
+    if why:
+        return why
+    by = {f: {(d["family"], d["index"]): d for d in ctx.tag_frames[f]} for f in (ctx.ed, ctx.es)}
+    common = sorted(set(by[ctx.ed]) & set(by[ctx.es]))
+    fam = next((fm for fm in ("sa1", "sa2", "la") if any(k[0] == fm for k in common)), None)
+    if fam is None:
+        return "no tag surface present at both ED and ES"
+    idx = [k for k in common if k[0] == fam]
+    key = idx[len(idx) // 2]
+    twist = ""
+    if ctx.tags is not None and np.isfinite(ctx.tags.columns.get("Twist (deg)", np.nan)):
+        twist = (f" Measured twist {ctx.tags.columns['Twist (deg)']:.1f} deg, "
+                 f"LS {ctx.tags.columns['LS (%)']:.1f} %.")
+    caption = (f"Fig. 7. Tag surface {fam} #{key[1]} ({NAMES[fam]}) of subject {ctx.subject} at "
+               f"{ctx.frame_label(ctx.ed)} and {ctx.frame_label(ctx.es)}; black line: LV long "
+               f"axis (apex to mitral centre, ED); grey: the ED surface.{twist}")
+    fig, axes = _new_figure(2, caption)
+    apex, base = ctx.axis
+    axis_line = (np.vstack([apex, base]), "black", 1.5)
+    ed_d = by[ctx.ed][key]
+    box = _bounds([by[ctx.ed][key]["vertices"], by[ctx.es][key]["vertices"], apex, base])
+    v = View(ctx.oblique.elev, ctx.oblique.azim, ctx.oblique.roll, *box)
+    for ax, f in zip(axes, (ctx.ed, ctx.es)):
+        meshes = [_tag_mesh(by[f][key], FAMILY_COLOURS[fam])]
+        if f == ctx.es:
+            meshes.append(_tag_mesh(ed_d, "#999999", 0.3))
+        draw_panel(ax, meshes, v, lines=[axis_line], title=ctx.frame_label(f))
+    _legend(fig, [(f"{fam} #{key[1]}", FAMILY_COLOURS[fam])])
+    return _result("fig07_tag_surface_ed_es", fig, out, caption, {fam: FAMILY_COLOURS[fam]})
+
+
+def fig08_tag_qc(ctx, out):
+    """Tag surfaces (translucent grey) and their tag lines at the frame with most QC
+    flags (else ES): lines flagged as mistracked in vermillion, the others in blue."""
+    why = _need_tags(ctx, [])
+    if why:
+        return why
+    flags = list(getattr(ctx.tags, "flags", []) or [])
+    count = {f: sum(1 for g in flags if g.frame == f) for f in ctx.tag_frames}
+    frame = max(count, key=lambda f: (count[f], f == ctx.es)) if count else ctx.es
+    data = ctx.tag_frames.get(frame)
+    if not data:
+        return f"no tag surfaces at frame {frame}"
+    meshes, lines = [], []
+    n_bad = 0
+    for d in data:
+        meshes.append(_tag_mesh(d, "#BBBBBB", 0.25))
+        for ln in d["lines"]:
+            bad = bool(ln["flagged"])
+            n_bad += bad
+            lines.append((np.asarray(ln["points"]), FLAG_COLOUR if bad else GOOD_LINE_COLOUR,
+                          2.6 if bad else 1.1))
+    lines.sort(key=lambda t: t[1] == FLAG_COLOUR)       # flagged lines drawn last
+    where = ", ".join(f"{g.family} #{g.index} in {g.slice}" for g in flags if g.frame == frame)
+    caption = (f"Fig. 8. Tag QC of subject {ctx.subject}, {ctx.frame_label(frame)}: tag surfaces "
+               f"(grey), tracked tag lines (blue) and {n_bad} line(s) flagged as mistracked "
+               f"(vermillion){': ' + where if where else ''}.")
+    fig, axes = _new_figure(1, caption, width=6.4, height=5.6)
+    draw_panel(axes[0], meshes, ctx.oblique, lines=lines, title=ctx.frame_label(frame))
+    items = [("tag line", GOOD_LINE_COLOUR)] + ([("flagged line", FLAG_COLOUR)] if n_bad else [])
+    _legend(fig, items)
+    colours = {"tag line": GOOD_LINE_COLOUR}
+    if n_bad:
+        colours["flagged line"] = FLAG_COLOUR
+    return _result("fig08_tag_qc", fig, out, caption, colours)
+
+
+def fig09_all_tag_surfaces(ctx, out):
+    why = _need_tags(ctx, [ctx.ed])
+    if why:
+        return why
+    data = ctx.tag_frames[ctx.ed]
+    fams = sorted({d["family"] for d in data}, key=["sa1", "sa2", "la"].index)
+    caption = (f"Fig. 9. All LV tag surfaces of subject {ctx.subject} at {ctx.frame_label(ctx.ed)}: "
+               + ", ".join(f"{NAMES[f]} ({sum(d['family'] == f for d in data)})" for f in fams)
+               + ". Scanner (LPS) mm.")
+    fig, axes = _new_figure(1, caption, width=6.4, height=5.6)
+    draw_panel(axes[0], [_tag_mesh(d, FAMILY_COLOURS[d["family"]]) for d in data], ctx.oblique,
+               title=ctx.frame_label(ctx.ed))
+    _legend(fig, [(f, FAMILY_COLOURS[f]) for f in fams])
+    return _result("fig09_all_tag_surfaces", fig, out, caption, {f: FAMILY_COLOURS[f] for f in fams})
+
+
+def fig10_biventricular(ctx, out):
+    surf = ctx.surfaces(ctx.ed)
+    order = [s for s in ("lv_endo", "rv_endo", "lv_epi", "rv_epi") if s in surf]
+    alpha = {"lv_endo": 1.0, "rv_endo": 1.0, "lv_epi": 0.3, "rv_epi": 0.3}
+    meshes = [surface_mesh(surf[s], STRUCTURE_COLOURS[s], alpha[s], s) for s in order]
+    tag_note = ""
+    data = ctx.tag_frames.get(ctx.ed) or []
+    if data:
+        meshes += [_tag_mesh(d, FAMILY_COLOURS["la"], 0.55) for d in data if d["family"] == "la"]
+        tag_note = " LA tag planes (yellow, translucent)."
+    else:
+        tag_note = f" No tag planes drawn: {ctx.tag_note or 'no tag surfaces at ED'}."
+    caption = (f"Fig. 10. Biventricular model of subject {ctx.subject} at {ctx.frame_label(ctx.ed)}: "
+               + ", ".join(f"{NAMES[s]} ({s})" for s in order) + "." + tag_note
+               + " Scanner (LPS) mm.")
+    fig, axes = _new_figure(1, caption, width=6.4, height=5.6)
+    draw_panel(axes[0], meshes, ctx.oblique, title=ctx.frame_label(ctx.ed))
+    items = [(NAMES[s], STRUCTURE_COLOURS[s]) for s in order]
+    if data:
+        items.append(("LA tag planes", FAMILY_COLOURS["la"]))
+    _legend(fig, items)
+    return _result("fig10_biventricular_tags", fig, out, caption, {s: STRUCTURE_COLOURS[s] for s in order if alpha[s] >= 1})
+
+
+def _times(ctx: _Context, frames: Sequence[int]) -> tuple[np.ndarray, str]:
+    t = ctx.model.study.frame_times_ms or {}
+    if all(f in t for f in frames):
+        return np.array([t[f] for f in frames], float), "time after R wave (ms)"
+    return np.asarray(frames, float), "frame"
+
+
+def fig11_volume_time(ctx, out):
+    """LV and RV cavity volume (mL, closed manifold meshes) at every reconstructed frame."""
+    frames = list(ctx.model.frames)
+    if len(frames) < 3:
+        return (f"{len(frames)} reconstructed frame(s) ({frames}): a volume–time curve needs "
+                "at least 3")
+    vols = {f: ctx.model.volumes[f] for f in frames}
+    x, xlabel = _times(ctx, frames)
+    keys = [k for k in ("lv_cavity", "rv_cavity") if all(k in vols[f] for f in frames)]
+    colours = {"lv_cavity": STRUCTURE_COLOURS["lv_endo"], "rv_cavity": STRUCTURE_COLOURS["rv_endo"]}
+    truth_v = ((ctx.truth or {}).get("volumes") or {}).get("analytic_mL") or {}
+    caption = (f"Volume–time curves of subject {ctx.subject}: LV and RV cavity volumes from the "
+               f"closed meshes at {len(frames)} frames (ED frame {ctx.ed}, ES frame {ctx.es})"
+               + ("; dashed: phantom truth." if truth_v else "."))
+    fig, axes = _new_figure(1, caption, width=6.4, height=4.2, three_d=False)
+    ax = axes[0]
+    for k in keys:
+        ax.plot(x, [vols[f][k] for f in frames], "-o", color=colours[k], ms=3, lw=1.8,
+                label=k.replace("_", " "))
+        tf = [f for f in frames if str(f) in truth_v and k in truth_v[str(f)]]
+        if tf:
+            xt, _ = _times(ctx, tf)
+            ax.plot(xt, [truth_v[str(f)][k] for f in tf], "--", color=colours[k], lw=1,
+                    label=f"{k.replace('_', ' ')} (truth)")
+    for f, lab in ((ctx.ed, "ED"), (ctx.es, "ES")):
+        xf, _ = _times(ctx, [f])
+        ax.axvline(xf[0], color="#777777", lw=0.8, ls=":")
+        ax.text(xf[0], ax.get_ylim()[1], lab, fontsize=7, ha="center", va="bottom")
+    ax.set_xlabel(xlabel, fontsize=8)
+    ax.set_ylabel("volume (mL)", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.legend(fontsize=7, frameon=False)
+    return _result("fig11_volume_time", fig, out, caption, {k: colours[k] for k in keys})
+
+
+def fig12_twist_time(ctx, out):
+    """Twist (deg) and LS (%) relative to ED at every tagged frame (TagMetrics.over_time)."""
+    if ctx.tag_note and ctx.tags is None:
+        return ctx.tag_note
+    over = dict(getattr(ctx.tags, "over_time", {}) or {})
+    frames = sorted(f for f, v in over.items() if np.isfinite(v.get("Twist (deg)", np.nan)))
+    if len(frames) < 3:
+        return (f"twist measured at {len(frames)} frame(s): a twist–time curve needs tags "
+                "tracked at 3 or more frames")
+    x, xlabel = _times(ctx, frames)
+    caption = (f"Twist–time curve of subject {ctx.subject}: LV twist (apical minus basal rotation "
+               f"of the LA tag levels, deg) and longitudinal shortening LS (%) relative to ED "
+               f"(frame {ctx.ed}) at {len(frames)} tagged frames.")
+    fig, axes = _new_figure(1, caption, width=6.4, height=4.2, three_d=False)
+    ax = axes[0]
+    c1, c2 = OKABE_ITO["bluish_green"], OKABE_ITO["reddish_purple"]
+    ax.plot(x, [over[f]["Twist (deg)"] for f in frames], "-o", color=c1, ms=3, lw=1.8,
+            label="twist (deg)")
+    ax.set_ylabel("twist (deg)", fontsize=8, color=c1)
+    ax2 = ax.twinx()
+    ax2.plot(x, [over[f]["LS (%)"] for f in frames], "-s", color=c2, ms=3, lw=1.4, label="LS (%)")
+    ax2.set_ylabel("LS (%)", fontsize=8, color=c2)
+    tm = (ctx.truth or {}).get("metrics") or {}
+    if "Twist (deg)" in tm and tm["Twist (deg)"] is not None:
+        xe, _ = _times(ctx, [ctx.es])
+        ax.plot([xe[0]], [tm["Twist (deg)"]], marker="*", ms=10, color="black", ls="none",
+                label="truth twist at ES")
+    ax.set_xlabel(xlabel, fontsize=8)
+    for a in (ax, ax2):
+        a.tick_params(labelsize=7)
+    ax.legend(fontsize=7, frameon=False, loc="upper left")
+    return _result("fig12_twist_time", fig, out, caption, {"twist": c1, "LS": c2})
+
+
+FIGURES: dict[str, FigureFn] = {
+    "fig03_lv_endo_ed_es": fig03_lv_endo, "fig04_lv_endo_epi": fig04_lv_endo_epi,
+    "fig05_rv_endo_ed_es": fig05_rv_endo, "fig06_rv_with_lv": fig06_rv_lv,
+    "fig07_tag_surface_ed_es": fig07_tag_surface, "fig08_tag_qc": fig08_tag_qc,
+    "fig09_all_tag_surfaces": fig09_all_tag_surfaces,
+    "fig10_biventricular_tags": fig10_biventricular, "fig11_volume_time": fig11_volume_time,
+    "fig12_twist_time": fig12_twist_time,
+}
+
+
+# ----------------------------------------------------------------- driver
+def _load_truth(model, truth) -> Mapping | None:
+    if truth is not None and not isinstance(truth, (str, Path)):
+        return truth
+    path = Path(truth) if truth is not None else None
+    if path is None and getattr(model.study, "source", None):
+        src = Path(model.study.source)
+        cand = (src if src.is_dir() else src.parent) / "truth.json"
+        path = cand if cand.is_file() else None
+    if path is None or not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = None,
+                   truth: Mapping | str | Path | None = None, tags: Any = None,
+                   only: Sequence[str] | None = None, tag_grid: tuple[int, int] = TAG_GRID
+                   ) -> FigureSet:
+    """Render the figures of one model into ``out_dir``; see :func:`write_figures`.
+
+    Also writes ``figures.json`` (captions, skip reasons, study source) and
+    ``tag_surfaces.npz``-free JSON data for the HTML report (``report_tags.json``:
+    coarse tag surfaces per tagged frame with QC flags) when tags exist.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    fs = FigureSet()
+    names = list(FIGURES) if only is None else [n for n in FIGURES if n in set(only)]
+    axis = _model_axis(model)
+    ed, es = int(model.ed_frame), int(model.es_frame)
+    view = _make_view(model, sorted({ed, es}), axis)
+    oblique = _make_view(model, sorted({ed, es}), axis, OBLIQUE_DEG)
+    tags_m, tag_frames, tag_note = tag_data(model, tags, grid=tag_grid)
+    ctx = _Context(model, str(model.study.subject), ed, es, axis, view, oblique, metrics,
+                   _load_truth(model, truth), tags_m, tag_frames, tag_note)
+    for name in names:
+        try:
+            res = FIGURES[name](ctx, out)
+        except (ValueError, KeyError, np.linalg.LinAlgError) as exc:   # never crash analyze
+            res = f"not drawn: {type(exc).__name__}: {' '.join(str(exc).split())}"
+        finally:
+            plt.close("all")
+        if isinstance(res, FigureResult):
+            fs.figures.append(res)
+        else:
+            fs.skipped[name] = str(res).splitlines()[0] if res else "not drawn"
+    index = {"subject": ctx.subject, "source": getattr(model.study, "source", None),
+             "ed_frame": ed, "es_frame": es,
+             "figures": [{"name": f.name, "file": f.path.name, "caption": f.caption}
+                         for f in fs.figures],
+             "skipped": fs.skipped}
+    atomic.write_text(out / "figures.json", json.dumps(index, indent=1))
+    atomic.write_text(out / "skipped.txt",
+                      "".join(f"{k}: {v}\n" for k, v in fs.skipped.items()))
+    if tag_frames:
+        atomic.write_text(out / "report_tags.json", json.dumps(_tags_json(tag_frames, tags_m)))
+    return fs
+
+
+def _tags_json(tag_frames: Mapping[int, list[dict]], tags: Any) -> dict:
+    """Coarse tag surfaces per frame (vertices rounded to 0.1 mm) with QC flags."""
+    flags = [{"family": g.family, "index": g.index, "slice": g.slice, "frame": g.frame,
+              "departure_spacings": round(float(g.departure), 3)}
+             for g in (getattr(tags, "flags", None) or [])]
+    return {"frames": {str(f): [{"family": d["family"], "index": int(d["index"]),
+                                 "flagged": bool(d["flagged"]),
+                                 "flagged_slices": list(d["flagged_slices"]),
+                                 "vertices": np.round(np.asarray(d["vertices"]), 1).tolist(),
+                                 "faces": np.asarray(d["faces"]).astype(int).tolist(),
+                                 "flagged_lines": [np.round(np.asarray(ln["points"]), 1).tolist()
+                                                   for ln in d["lines"] if ln["flagged"]]}
+                                for d in data] for f, data in tag_frames.items()},
+            "flags": flags}
+
+
+def write_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = None,
+                  truth: Mapping | str | Path | None = None, tags: Any = None) -> list[Path]:
+    """Write the paper's figures of one reconstructed model as PNG files; return their paths.
+
+    Parameters
+    ----------
+    model : BiventricularModel (``cardionurbs.reconstruct``)
+    out_dir : folder for the PNGs (created), plus ``figures.json`` (captions and the
+        reasons figures were left out), ``skipped.txt`` (one line per figure left
+        out) and ``report_tags.json`` (tag surfaces for the HTML report).
+    metrics : METRICS.md dict (optional; captions).
+    truth : phantom truth dict or path to truth.json; default: ``truth.json`` beside
+        the study source when present.
+    tags : TagMetrics from ``cardionurbs.analysis.tags.tag_metrics`` (QC flags,
+        twist over time); computed here when the study has tag lines.
+
+    Figures: fig03 LV endo ED/ES (paper Fig. 3), fig04 LV endo+epi (Fig. 4), fig05/06 RV
+    (Figs. 5-6), fig07 one tag surface ED/ES (Fig. 7), fig08 tag QC (Fig. 8), fig09 all
+    tag surfaces (Fig. 9), fig10 biventricular + tag planes (Fig. 10), fig11
+    volume–time, fig12 twist–time.
+    """
+    return render_figures(model, out_dir, metrics=metrics, truth=truth, tags=tags).paths

@@ -1,0 +1,445 @@
+"""`cardionurbs report OUTPUT_DIR --out report.html`: one self-contained, offline HTML viewer.
+
+The file embeds everything it needs (no network fetches, no sibling files):
+
+* plotly.js, inline (``plotly.offline.get_plotlyjs``), drawing WebGL ``mesh3d``
+  traces;
+* the model's surfaces per frame, re-tessellated from ``model.json`` (NURBS,
+  :data:`SURFACE_GRID`), coordinates quantised to 0.1 mm as little-endian
+  int16 relative to the model's centre and base64-encoded (2 bytes per
+  coordinate; faces as uint16, shared between frames when identical);
+* tag surfaces per tagged frame with their QC flags (``figures/report_tags.json``
+  written by :func:`cardionurbs.report.figures.write_figures`), the flagged tag
+  lines, and a table of the flags;
+* the metrics table (``metrics.json``) beside the truth (``truth.json`` in
+  OUTPUT_DIR, else beside the study source named in ``figures/figures.json``);
+* the volume–time curve and the static PNG figures (base64 data URIs).
+
+Controls: one checkbox per structure / tag group (toggles its trace), a frame
+slider and a play button cycling through the frames.
+
+Size: a 20-frame study with tags stays well under 10 MB (plotly.js is ~4.8 MB
+of it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import html
+import json
+import math
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from cardionurbs import nurbs
+from cardionurbs.errors import CardioNurbsError
+from cardionurbs.io import atomic
+
+__all__ = ["write_report", "run_report", "report_payload", "ReportInputError", "SURFACE_GRID"]
+
+SURFACE_GRID = (36, 14)        # (nu, nv) per wall surface in the viewer
+QUANTUM_MM = 0.1               # coordinate quantisation
+STRUCTURE_COLOURS = {"lv_endo": "#D55E00", "lv_epi": "#E69F00", "rv_endo": "#0072B2",
+                     "rv_epi": "#56B4E9"}
+STRUCTURE_OPACITY = {"lv_endo": 1.0, "lv_epi": 0.35, "rv_endo": 1.0, "rv_epi": 0.35}
+FAMILY_COLOURS = {"sa1": "#009E73", "sa2": "#CC79A7", "la": "#F0E442"}
+FLAG_COLOUR = "#D55E00"
+NAMES = {"lv_endo": "LV endocardium", "lv_epi": "LV epicardium", "rv_endo": "RV endocardium",
+         "rv_epi": "RV epicardium", "sa1": "tags SA family 1", "sa2": "tags SA family 2",
+         "la": "tags LA family", "flagged": "tag surfaces with QC flags"}
+
+
+class ReportInputError(CardioNurbsError, ValueError):
+    """The analysis folder given to ``report`` is missing or incomplete."""
+
+
+# ----------------------------------------------------------------- encoding
+def _b64(a: np.ndarray) -> str:
+    return base64.b64encode(np.ascontiguousarray(a).tobytes()).decode("ascii")
+
+
+def quantise(vertices: np.ndarray, origin: np.ndarray, quantum: float = QUANTUM_MM) -> str:
+    """base64 of little-endian int16 ``round((v − origin) / quantum)`` (±3.2 m at 0.1 mm)."""
+    q = np.rint((np.asarray(vertices, float) - origin) / quantum)
+    if q.size and np.abs(q).max() > 32767:
+        raise ReportInputError(f"coordinates farther than {32767 * quantum:.0f} mm from the "
+                               "model centre cannot be quantised")
+    return _b64(q.astype("<i2"))
+
+
+def _faces_b64(faces: np.ndarray) -> str:
+    """``"u2:<base64>"`` (uint16 indices) or ``"u4:<base64>"`` when a mesh is larger."""
+    f = np.asarray(faces)
+    if f.size == 0 or f.max() < 65536:
+        return "u2:" + _b64(f.astype("<u2"))
+    return "u4:" + _b64(f.astype("<u4"))
+
+
+class _FacePool:
+    """Shared face arrays: identical faces (e.g. one structure's grid at every frame) are
+    stored once and referenced by index."""
+
+    def __init__(self) -> None:
+        self.items: list[str] = []
+        self._index: dict[str, int] = {}
+
+    def add(self, faces: np.ndarray) -> int:
+        key = _faces_b64(faces)
+        if key not in self._index:
+            self._index[key] = len(self.items)
+            self.items.append(key)
+        return self._index[key]
+
+
+def _merge(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Concatenate meshes into one (vertices, faces) with offset face indices."""
+    if not parts:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    verts, faces, off = [], [], 0
+    for v, f in parts:
+        verts.append(np.asarray(v, float))
+        faces.append(np.asarray(f, np.int64) + off)
+        off += len(v)
+    return np.concatenate(verts), np.concatenate(faces)
+
+
+# ----------------------------------------------------------------- inputs
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ReportInputError(f"{path}: not readable JSON ({' '.join(str(exc).split())})") from None
+
+
+def _find_truth(out: Path, fig_index: Mapping | None) -> tuple[Mapping | None, str | None]:
+    cands = [out / "truth.json"]
+    src = (fig_index or {}).get("source")
+    if src:
+        p = Path(src)
+        cands.append((p if p.is_dir() else p.parent) / "truth.json")
+    for c in cands:
+        if c.is_file():
+            try:
+                return json.loads(c.read_text()), str(c)
+            except (OSError, ValueError):
+                continue
+    return None, None
+
+
+def report_payload(output_dir: str | Path) -> dict:
+    """The data embedded in the report (JSON-safe), from an ``analyze`` output folder."""
+    from cardionurbs.anatomy.model import BiventricularModel
+
+    out = Path(output_dir)
+    if not out.is_dir():
+        raise ReportInputError(f"{out}: not a folder (expected the output of cardionurbs analyze)")
+    for need in ("model.json", "metrics.json"):
+        if not (out / need).is_file():
+            raise ReportInputError(f"{out / need}: missing (expected the output of cardionurbs "
+                                   "analyze)")
+    try:
+        model = BiventricularModel.from_dict(_read_json(out / "model.json"))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ReportInputError(f"{out / 'model.json'}: not a cardionurbs model "
+                               f"({type(exc).__name__}: {' '.join(str(exc).split())})") from None
+    metrics = _read_json(out / "metrics.json")
+    fig_dir = out / "figures"
+    fig_index = _read_json(fig_dir / "figures.json") if (fig_dir / "figures.json").is_file() else None
+    truth, truth_path = _find_truth(out, fig_index)
+
+    frames = sorted(int(f) for f in model.frames)
+    structures = [s for s in ("lv_endo", "lv_epi", "rv_endo", "rv_epi")
+                  if any(s in model.surfaces[f] for f in frames)]
+    tess = {f: {s: nurbs.tessellate(model.surfaces[f][s], *SURFACE_GRID)
+                for s in structures if s in model.surfaces[f]} for f in frames}
+    allv = np.concatenate([v for d in tess.values() for v, _ in d.values()])
+    origin = np.round((allv.min(axis=0) + allv.max(axis=0)) / 2, 1)
+    pool = _FacePool()
+    groups = []
+    for s in structures:
+        per = {str(f): {"v": quantise(tess[f][s][0], origin), "f": pool.add(tess[f][s][1])}
+               for f in frames if s in tess[f]}
+        groups.append({"key": s, "name": NAMES[s], "colour": STRUCTURE_COLOURS[s],
+                       "opacity": STRUCTURE_OPACITY[s], "kind": "mesh", "frames": per})
+
+    tags_note = None
+    flags: list = []
+    tag_path = fig_dir / "report_tags.json"
+    if tag_path.is_file():
+        td = _read_json(tag_path)
+        flags = td.get("flags", [])
+        fams = ("sa1", "sa2", "la", "flagged")
+        per_fam: dict[str, dict] = {k: {} for k in fams}
+        lines: dict[str, str] = {}
+        for f, surfs in td.get("frames", {}).items():
+            parts: dict[str, list] = {k: [] for k in fams}
+            for d in surfs:
+                key = "flagged" if d.get("flagged") else d["family"]
+                parts[key].append((np.asarray(d["vertices"], float), np.asarray(d["faces"])))
+            for k in fams:
+                if parts[k]:
+                    v, fc = _merge(parts[k])
+                    per_fam[k][f] = {"v": quantise(v, origin), "f": pool.add(fc)}
+            pts = [np.asarray(p, float) for d in surfs for p in d.get("flagged_lines", [])]
+            if pts:
+                # lines separated by a NaN row, quantised with the NaN sentinel -32768
+                seq = np.concatenate([np.vstack([p, np.full((1, 3), np.nan)]) for p in pts])
+                q = np.rint((seq - origin) / QUANTUM_MM)
+                q[~np.isfinite(q)] = -32768
+                lines[f] = _b64(q.astype("<i2"))
+        for k in fams:
+            if per_fam[k]:
+                groups.append({"key": f"tags_{k}", "name": NAMES[k],
+                               "colour": FLAG_COLOUR if k == "flagged" else FAMILY_COLOURS[k],
+                               "opacity": 0.9 if k == "flagged" else 0.6, "kind": "mesh",
+                               "frames": per_fam[k]})
+        if lines:
+            groups.append({"key": "flagged_lines", "name": "tag lines flagged as mistracked",
+                           "colour": FLAG_COLOUR, "opacity": 1.0, "kind": "lines",
+                           "frames": lines})
+    else:
+        skipped = (fig_index or {}).get("skipped", {})
+        tags_note = (skipped.get("fig09_all_tag_surfaces") or "no tag surfaces in this analysis"
+                     if fig_index else "no figures/report_tags.json: tag surfaces not available")
+
+    meas = metrics.get("metrics", {})
+    tmet = (truth or {}).get("metrics", {})
+    rows = []
+    for k, v in meas.items():
+        t = tmet.get(k) if truth else None
+        diff = (v - t) if isinstance(v, (int, float)) and isinstance(t, (int, float)) else None
+        rows.append({"metric": k, "measured": _num(v), "truth": _num(t), "difference": _num(diff)})
+
+    figures = []
+    for item in (fig_index or {}).get("figures", []):
+        p = fig_dir / item["file"]
+        if p.is_file() and p.stat().st_size < 2_000_000:
+            figures.append({"name": item["name"], "caption": item["caption"],
+                            "src": "data:image/png;base64," + _b64(np.frombuffer(p.read_bytes(),
+                                                                                   np.uint8))})
+    apex, base = _axis(model)
+    ed, es = int(model.ed_frame), int(model.es_frame)
+    from cardionurbs.report.figures import view_frame
+    side = None
+    if {"lv_endo", "rv_endo"} <= set(tess[ed]):
+        side = tess[ed]["rv_endo"][0].mean(axis=0) - tess[ed]["lv_endo"][0].mean(axis=0)
+    eye, up = view_frame((apex, base), side)
+    return {
+        "subject": str(metrics.get("subject", model.study.subject)),
+        "frames": frames, "ed_frame": ed, "es_frame": es,
+        "frame_times_ms": (metrics.get("volume_curve") or {}).get("time_ms"),
+        "origin": origin.tolist(), "quantum_mm": QUANTUM_MM,
+        "camera": {"eye": (2.1 * eye).tolist(), "up": up.tolist()},
+        "faces": pool.items, "groups": groups,
+        "metrics": rows, "truth_file": truth_path, "has_truth": truth is not None,
+        "flags": flags, "tags_note": tags_note,
+        "volume_curve": metrics.get("volume_curve"),
+        "warnings": list(metrics.get("warnings", []))[:50],
+        "skipped": (fig_index or {}).get("skipped", {}), "figures": figures,
+    }
+
+
+def _num(x: Any) -> Any:
+    if isinstance(x, bool) or x is None:
+        return x
+    if isinstance(x, (int, float)):
+        return None if not math.isfinite(float(x)) else float(x)
+    return x
+
+
+def _axis(model) -> tuple[np.ndarray, np.ndarray]:
+    try:
+        a, b = model.long_axis()
+        return np.asarray(a, float), np.asarray(b, float)
+    except (KeyError, AttributeError, TypeError, ValueError):
+        v, _ = nurbs.tessellate(model.surfaces[model.ed_frame]["lv_endo"], 8, 8)
+        return v.min(axis=0), v.max(axis=0)
+
+
+# ----------------------------------------------------------------- page
+_CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:0;color:#222}
+header{padding:10px 18px;background:#f4f4f4;border-bottom:1px solid #ddd}
+h1{font-size:20px;margin:0} h2{font-size:16px;margin:18px 0 6px}
+main{display:flex;flex-wrap:wrap;gap:14px;padding:10px 18px}
+#viewer{flex:1 1 640px;min-width:480px} #side{flex:0 1 460px}
+#plot{width:100%;height:620px;border:1px solid #ddd}
+.controls{display:flex;flex-wrap:wrap;gap:8px 16px;margin:6px 0;font-size:13px;align-items:center}
+.sw{display:inline-block;width:12px;height:12px;margin-right:4px;border:1px solid #888;vertical-align:middle}
+table{border-collapse:collapse;font-size:12.5px} td,th{border-bottom:1px solid #e3e3e3;padding:2px 8px;text-align:right}
+td:first-child,th:first-child{text-align:left} .bad{color:#D55E00;font-weight:600}
+.gallery figure{margin:10px 0} .gallery img{max-width:100%;border:1px solid #eee}
+figcaption{font-size:12px;color:#444} #frameLabel{min-width:150px;display:inline-block}
+.note{font-size:12.5px;color:#555} #volplot{width:100%;height:260px}
+"""
+
+_JS = r"""
+(function(){
+const D = JSON.parse(document.getElementById('cn-data').textContent);
+const status = document.getElementById('cn-status');
+function dec16(b64){const s=atob(b64);const u=new Uint8Array(s.length);for(let i=0;i<s.length;i++)u[i]=s.charCodeAt(i);return new Int16Array(u.buffer);}
+function decFaces(tagged){const s=atob(tagged.slice(3));const u=new Uint8Array(s.length);for(let i=0;i<s.length;i++)u[i]=s.charCodeAt(i);
+  return tagged.slice(0,2)==='u2' ? new Uint16Array(u.buffer) : new Uint32Array(u.buffer);}
+const Q = D.quantum_mm, O = D.origin;
+const faceCache = {};
+function faces(idx){ if(!(idx in faceCache)){ const f = decFaces(D.faces[idx]); const n=f.length/3;
+  const I=new Array(n),J=new Array(n),K=new Array(n); for(let t=0;t<n;t++){I[t]=f[3*t];J[t]=f[3*t+1];K[t]=f[3*t+2];}
+  faceCache[idx]={i:I,j:J,k:K}; } return faceCache[idx]; }
+function coords(b64){ const q=dec16(b64); const n=q.length/3; const x=new Array(n),y=new Array(n),z=new Array(n);
+  for(let p=0;p<n;p++){ const a=q[3*p],b=q[3*p+1],c=q[3*p+2];
+    if(a===-32768){x[p]=null;y[p]=null;z[p]=null;} else {x[p]=O[0]+a*Q;y[p]=O[1]+b*Q;z[p]=O[2]+c*Q;} }
+  return {x:x,y:y,z:z}; }
+function traceData(g, f){
+  const e = g.frames[String(f)];
+  if(g.kind==='lines'){ if(!e) return {x:[],y:[],z:[]}; return coords(e); }
+  if(!e) return {x:[],y:[],z:[],i:[],j:[],k:[]};
+  const c = coords(e.v), fc = faces(e.f); return {x:c.x,y:c.y,z:c.z,i:fc.i,j:fc.j,k:fc.k};
+}
+const frames = D.frames; let cur = frames.indexOf(D.ed_frame); if(cur<0) cur=0;
+const traces = D.groups.map(function(g){
+  const d = traceData(g, frames[cur]);
+  if(g.kind==='lines') return Object.assign({type:'scatter3d',mode:'lines',name:g.name,
+      line:{color:g.colour,width:7},hoverinfo:'name'}, d);
+  return Object.assign({type:'mesh3d',name:g.name,color:g.colour,opacity:g.opacity,flatshading:false,
+      lighting:{ambient:0.55,diffuse:0.7,specular:0.1},hoverinfo:'name',showlegend:true}, d);
+});
+const w = D.camera.eye, u = D.camera.up;
+const layout = {margin:{l:0,r:0,t:0,b:0}, showlegend:true, legend:{x:0,y:1,font:{size:11}},
+  scene:{aspectmode:'data', camera:{eye:{x:w[0],y:w[1],z:w[2]}, up:{x:u[0],y:u[1],z:u[2]}},
+    xaxis:{title:{text:'x (mm, →L)'}}, yaxis:{title:{text:'y (mm, →P)'}}, zaxis:{title:{text:'z (mm, →H)'}}}};
+const gd = document.getElementById('plot');
+const shown = D.groups.map(function(){return true;});
+function label(f){ let s='frame '+f; if(f===D.ed_frame) s+=' (ED)'; else if(f===D.es_frame) s+=' (ES)';
+  const t=D.frame_times_ms; const k=frames.indexOf(f); if(t && t[k]!=null) s+=', '+Math.round(t[k])+' ms'; return s; }
+function show(k){
+  cur = k; const f = frames[k];
+  const upd = {x:[],y:[],z:[],i:[],j:[],k:[]}; const idx=[];
+  D.groups.forEach(function(g,n){ const d=traceData(g,f); idx.push(n);
+    upd.x.push(d.x); upd.y.push(d.y); upd.z.push(d.z);
+    upd.i.push(d.i||null); upd.j.push(d.j||null); upd.k.push(d.k||null); });
+  Plotly.restyle(gd, upd, idx);
+  document.getElementById('frameLabel').textContent = label(f);
+  document.getElementById('slider').value = k;
+}
+Plotly.newPlot(gd, traces, layout, {displaylogo:false, responsive:true}).then(function(){
+  status.textContent = 'rendered ' + traces.length + ' traces, ' + frames.length + ' frames';
+  status.setAttribute('data-ok','1');
+});
+const boxes = document.getElementById('toggles');
+D.groups.forEach(function(g,n){
+  const l=document.createElement('label'); const c=document.createElement('input'); c.type='checkbox'; c.checked=true;
+  c.id='toggle-'+g.key; c.addEventListener('change',function(){ shown[n]=c.checked; Plotly.restyle(gd,{visible:c.checked},[n]); });
+  const sw=document.createElement('span'); sw.className='sw'; sw.style.background=g.colour;
+  l.appendChild(c); l.appendChild(sw); l.appendChild(document.createTextNode(g.name)); boxes.appendChild(l); });
+const slider = document.getElementById('slider'); slider.max = frames.length-1; slider.value=cur;
+slider.addEventListener('input', function(){ show(parseInt(slider.value,10)); });
+document.getElementById('frameLabel').textContent = label(frames[cur]);
+let timer=null; const play=document.getElementById('play');
+play.disabled = frames.length < 2;
+play.addEventListener('click', function(){
+  if(timer){clearInterval(timer); timer=null; play.textContent='▶ play'; return;}
+  play.textContent='❚❚ pause'; timer=setInterval(function(){ show((cur+1)%frames.length); }, 180); });
+if(D.volume_curve && D.volume_curve.frame && D.volume_curve.frame.length>1){
+  const vc=D.volume_curve; const haveT = vc.time_ms && vc.time_ms.every(function(t){return t!=null;});
+  const xs = haveT ? vc.time_ms : vc.frame; const tr=[];
+  [['lv_cavity (mL)','LV cavity','#D55E00'],['rv_cavity (mL)','RV cavity','#0072B2']].forEach(function(s){
+    if(vc[s[0]] && vc[s[0]].some(function(v){return v!=null && !isNaN(v);}))
+      tr.push({x:xs,y:vc[s[0]],name:s[1],mode:'lines+markers',line:{color:s[2]}}); });
+  if(tr.length) Plotly.newPlot('volplot', tr, {margin:{l:50,r:10,t:10,b:40},
+    xaxis:{title:{text: haveT?'time (ms)':'frame'}}, yaxis:{title:{text:'volume (mL)'}}, legend:{x:0.7,y:1}},
+    {displaylogo:false, responsive:true, staticPlot:false});
+  else document.getElementById('volplot').style.display='none';
+} else { document.getElementById('volplot').style.display='none'; }
+})();
+"""
+
+
+def _fmt(x: Any) -> str:
+    if x is None:
+        return "–"
+    if isinstance(x, float):
+        return f"{x:.2f}" if abs(x) < 1000 else f"{x:.0f}"
+    return html.escape(str(x))
+
+
+def render_html(payload: Mapping) -> str:
+    """The report page (a string) for a :func:`report_payload`."""
+    from plotly.offline import get_plotlyjs
+
+    esc = html.escape
+    p = payload
+    has_truth = p["has_truth"]
+    head = "<tr><th>metric</th><th>measured</th>" + (
+        "<th>truth</th><th>measured − truth</th>" if has_truth else "") + "</tr>"
+    body = "".join(
+        f"<tr><td>{esc(r['metric'])}</td><td>{_fmt(r['measured'])}</td>"
+        + (f"<td>{_fmt(r['truth'])}</td><td>{_fmt(r['difference'])}</td>" if has_truth else "")
+        + "</tr>" for r in p["metrics"])
+    truth_note = (f"Truth: {esc(p['truth_file'])}" if has_truth
+                  else "No truth.json found: measured values only.")
+    if p["flags"]:
+        flag_rows = "".join(
+            f"<tr><td>{esc(str(f['family']))} #{f['index']}</td><td>{esc(str(f['slice']))}</td>"
+            f"<td>{f['frame']}</td><td class='bad'>{f['departure_spacings']:.2f}</td></tr>"
+            for f in p["flags"])
+        flags_html = ("<table id='flags'><tr><th>tag</th><th>slice/view</th><th>frame</th>"
+                      "<th>departure (spacings)</th></tr>" + flag_rows + "</table>")
+    elif p["tags_note"]:
+        flags_html = f"<p class='note'>{esc(p['tags_note'])}</p>"
+    else:
+        flags_html = "<p class='note'>Tag QC: no tag line flagged as mistracked.</p>"
+    skipped = "".join(f"<li>{esc(k)}: {esc(v)}</li>" for k, v in p["skipped"].items())
+    warns = "".join(f"<li>{esc(w)}</li>" for w in p["warnings"])
+    gallery = "".join(f"<figure><img alt='{esc(f['name'])}' src='{f['src']}'>"
+                      f"<figcaption>{esc(f['caption'])}</figcaption></figure>" for f in p["figures"])
+    data = json.dumps({k: v for k, v in p.items() if k not in ("figures",)}, separators=(",", ":"))
+    data = data.replace("</", "<\\/")
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<meta http-equiv="Content-Security-Policy" content="default-src 'none'; script-src 'unsafe-inline' 'unsafe-eval'; style-src 'unsafe-inline'; img-src data: blob:; font-src data:; connect-src 'none'; worker-src blob:">
+<title>cardionurbs report: {esc(p['subject'])}</title><style>{_CSS}</style></head>
+<body><header><h1>cardionurbs report: {esc(p['subject'])}</h1>
+<div class="note">Biventricular NURBS model, scanner (LPS) mm; ED frame {p['ed_frame']},
+ES frame {p['es_frame']}; {len(p['frames'])} reconstructed frame(s).
+<span id="cn-status">loading…</span></div></header>
+<main><section id="viewer">
+<div class="controls" id="toggles"></div>
+<div class="controls"><button id="play">▶ play</button>
+<input type="range" id="slider" min="0" max="0" step="1" style="width:320px">
+<span id="frameLabel"></span></div>
+<div id="plot"></div>
+<h2>Volume–time curve</h2><div id="volplot"></div>
+</section>
+<section id="side"><h2>Metrics</h2><p class="note">{truth_note}</p>
+<table id="metrics">{head}{body}</table>
+<h2>Tag QC flags</h2>{flags_html}
+{"<h2>Figures left out</h2><ul class='note'>" + skipped + "</ul>" if skipped else ""}
+{"<h2>Warnings</h2><ul class='note'>" + warns + "</ul>" if warns else ""}
+</section></main>
+{"<section class='gallery' style='padding:0 18px'><h2>Figures</h2>" + gallery + "</section>" if gallery else ""}
+<script type="application/json" id="cn-data">{data}</script>
+<script>{get_plotlyjs()}</script>
+<script>{_JS}</script>
+</body></html>
+"""
+
+
+def write_report(output_dir: str | Path, out_path: str | Path) -> Path:
+    """Write the self-contained HTML report of an ``analyze`` output folder; return its path.
+
+    Raises :class:`ReportInputError` (one line, naming the file) when the folder is not an
+    analysis output.
+    """
+    page = render_html(report_payload(output_dir))
+    return atomic.write_text(out_path, page)
+
+
+def run_report(args: argparse.Namespace) -> int:
+    """CLI: ``cardionurbs report OUTPUT_DIR --out report.html``."""
+    path = write_report(args.output_dir, args.out)
+    size = Path(path).stat().st_size / 1e6
+    print(f"wrote {path} ({size:.1f} MB)")
+    return 0
