@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 from pydicom.uid import generate_uid
 
 from broken.corpus import (SA_COL, SA_NORMAL, SA_ORIGIN, SA_ROW, ds_text, make_sunnybrook,
-                           write_dicom_image)
-from cardionurbs.errors import StudyError, UnsupportedInputError
+                           write_dicom_image, write_enhanced_mr)
+from cardionurbs.errors import StudyError
 from cardionurbs.imaging import phases
 from cardionurbs.imaging.dicom import read_dicom_folder, read_header, read_pixels
 
@@ -75,11 +75,33 @@ def test_pixels_read_on_request(tmp_path):
     assert np.array_equal(read_pixels(tmp_path / "a.dcm"), px)
 
 
-def test_enhanced_mr_refused_with_one_line(tmp_path):
-    write_dicom_image(tmp_path / "e.dcm", position=SA_ORIGIN, row=SA_ROW, col=SA_COL,
-                      series_uid=generate_uid(), sop_class="1.2.840.10008.5.1.4.1.1.4.1")
-    with pytest.raises(UnsupportedInputError, match="Enhanced MR Image Storage is not supported"):
-        read_dicom_folder(tmp_path)
+def test_enhanced_mr_reads_like_the_classic_series(tmp_path):
+    """One multi-frame object holding 3 slices x 4 phases gives the same planes, frames and
+    pixels as 12 classic images with the same header values."""
+    positions, times, pix = [], [], []
+    rng = np.random.default_rng(0)
+    for s_ in range(3):
+        for k in range(4):
+            positions.append(SA_ORIGIN + 9.0 * s_ * SA_NORMAL)
+            times.append(k * 225.0 + 5.0 + s_)
+            pix.append(rng.integers(0, 1000, (32, 32)))
+    uid = write_enhanced_mr(tmp_path / "enh" / "cine.dcm", positions=positions, row=SA_ROW,
+                            col=SA_COL, trigger_times=times, pixels=np.array(pix))
+    series = generate_uid()
+    for i, (p, t, px) in enumerate(zip(positions, times, pix)):
+        write_dicom_image(tmp_path / "classic" / f"{i}.dcm", position=p, row=SA_ROW, col=SA_COL,
+                          trigger_time=t, series_uid=series, instance=i + 1, heart_rate=None,
+                          nominal_interval=900, n_phases=None, pixels=px)
+    enh = read_dicom_folder(tmp_path / "enh", pixels=True)
+    cla = read_dicom_folder(tmp_path / "classic", pixels=True)
+    assert len(enh.images) == len(cla.images) == 12
+    key = lambda im: (im.slice, im.frame)  # noqa: E731
+    for a, b in zip(sorted(enh.images, key=key), sorted(cla.images, key=key)):
+        assert key(a) == key(b) and a.same_geometry(b, tol=1e-12) and a.thickness == b.thickness
+        assert a.id.startswith(uid + "#")
+        assert np.array_equal(enh.pixels[a.id], cla.pixels[b.id])
+    assert enh.heart_rate_bpm == cla.heart_rate_bpm == pytest.approx(60000 / 900)
+    assert enh.slice_spacing_mm == pytest.approx(9.0)
 
 
 def test_non_dicom_files_without_suffix_are_skipped(tmp_path):

@@ -16,9 +16,11 @@ headers only unless ``pixels=True``, and returns a :class:`DicomSeries`: one
   ImageOrientationPatient, PixelSpacing); slice spacing from positions;
 * **heart rate** from HeartRate (0018,1088), else NominalInterval (0018,1062).
 
-Enhanced (multi-frame) MR objects are refused with
-:class:`~cardionurbs.errors.UnsupportedInputError`; export the series as
-classic single-frame MR images.
+Enhanced (multi-frame) MR objects are read frame by frame from their
+functional groups (PS3.3 C.7.6.16: PlanePositionSequence,
+PlaneOrientationSequence, PixelMeasuresSequence, CardiacSynchronizationSequence
+NominalCardiacTriggerDelayTime); each frame is one image with id
+``<SOPInstanceUID>#<frame number>``.
 """
 
 from __future__ import annotations
@@ -88,6 +90,7 @@ class DicomHeader:
     heart_rate: float | None
     nominal_interval: float | None
     cardiac_number_of_images: int | None
+    frame_number: int | None = None  # 1-based frame of a multi-frame (enhanced) object
 
     @property
     def normal(self) -> np.ndarray:
@@ -139,21 +142,115 @@ def _first_line(exc: BaseException) -> str:
 
 
 def header_from_dataset(ds, path: Path) -> DicomHeader:
-    """Validated :class:`DicomHeader` of a pydicom dataset (StudyError names file and tag)."""
+    """Validated :class:`DicomHeader` of a single-frame pydicom dataset (StudyError names
+    file and tag)."""
     with _quiet_pydicom():
-        return _header_from_dataset(ds, Path(path))
+        if _is_multiframe(ds, path):
+            raise UnsupportedInputError("multi-frame object: read it with read_file_headers",
+                                        file=path, field="NumberOfFrames")
+        return _header_from_dataset(ds, path)
 
 
-def _header_from_dataset(ds, path: Path) -> DicomHeader:
+def headers_from_dataset(ds, path: Path) -> list[DicomHeader]:
+    """One :class:`DicomHeader` per image: one for a classic image, one per frame of an
+    enhanced (multi-frame) MR object."""
+    with _quiet_pydicom():
+        if _is_multiframe(ds, path):
+            return _enhanced_headers(ds, Path(path))
+        return [_header_from_dataset(ds, Path(path))]
+
+
+def _is_multiframe(ds, path: Path) -> bool:
     try:
         sop_class = str(ds.get("SOPClassUID", "") or "")
         n_frames = ds.get("NumberOfFrames", None)
+        n_frames = int(n_frames) if n_frames not in (None, "") else 1
     except Exception as exc:  # noqa: BLE001 - a truncated element can fail on access
         raise StudyError(f"unreadable DICOM header ({_first_line(exc)})", file=path) from None
-    if sop_class in ENHANCED_MR_SOP_CLASSES or (n_frames not in (None, "") and int(n_frames) > 1):
-        what = ENHANCED_MR_SOP_CLASSES.get(sop_class, f"multi-frame image ({n_frames} frames)")
-        raise UnsupportedInputError(f"{what} is not supported; export the series as classic "
-                                    "single-frame MR images", file=path, field="SOPClassUID")
+    return sop_class in ENHANCED_MR_SOP_CLASSES or n_frames > 1
+
+
+def _check_plane(pos, ori, spacing, path: Path, where: str = "") -> None:
+    r, c = ori[:3], ori[3:]
+    if abs(np.linalg.norm(r) - 1) > 1e-3 or abs(np.linalg.norm(c) - 1) > 1e-3 or abs(r @ c) > 1e-3:
+        raise StudyError(f"{where}ImageOrientationPatient is not two orthonormal vectors "
+                         f"({ori.tolist()})", file=path, field="ImageOrientationPatient")
+    if np.any(spacing <= 0):
+        raise StudyError(f"{where}PixelSpacing must be positive, got {spacing.tolist()}", file=path,
+                         field="PixelSpacing")
+
+
+def _enhanced_headers(ds, path: Path) -> list[DicomHeader]:
+    """Per-frame headers of an enhanced MR object (PS3.3 C.7.6.16 multi-frame functional
+    groups): plane position, orientation, pixel measures and cardiac trigger delay of each
+    frame, from its PerFrameFunctionalGroupsSequence item or the shared one."""
+    try:
+        n = int(ds.get("NumberOfFrames", 1) or 1)
+        per = ds.get("PerFrameFunctionalGroupsSequence")
+        shared = ds.get("SharedFunctionalGroupsSequence")
+        shared = shared[0] if shared else None
+        if per is None or len(per) != n:
+            raise StudyError(f"multi-frame object needs a PerFrameFunctionalGroupsSequence with "
+                             f"one item per frame (NumberOfFrames = {n}, items = "
+                             f"{0 if per is None else len(per)})", file=path,
+                             field="PerFrameFunctionalGroupsSequence")
+        uid = str(ds.get("SOPInstanceUID", "") or "").strip()
+        if not uid:
+            raise StudyError("missing SOPInstanceUID (0008,0018)", file=path, field="SOPInstanceUID")
+        rows = int(_numbers(ds, "Rows", 1, path)[0])
+        cols = int(_numbers(ds, "Columns", 1, path)[0])
+        series_no = _opt_number(ds, "SeriesNumber", path)
+        inst = _opt_number(ds, "InstanceNumber", path)
+        out = []
+        for i in range(n):
+            def group(name):
+                for src in (per[i], shared):
+                    if src is not None and name in src and len(src[name].value):
+                        return src[name].value[0]
+                return None
+
+            where = f"frame {i + 1}: "
+            pp, po = group("PlanePositionSequence"), group("PlaneOrientationSequence")
+            pm, cs = group("PixelMeasuresSequence"), group("CardiacSynchronizationSequence")
+            for item, kw, seq in ((pp, "ImagePositionPatient", "PlanePositionSequence"),
+                                  (po, "ImageOrientationPatient", "PlaneOrientationSequence"),
+                                  (pm, "PixelSpacing", "PixelMeasuresSequence")):
+                if item is None or item.get(kw) in (None, ""):
+                    raise StudyError(f"{where}missing {kw} (in {seq})", file=path, field=kw)
+            pos = _numbers(pp, "ImagePositionPatient", 3, path)
+            ori = _numbers(po, "ImageOrientationPatient", 6, path)
+            spacing = _numbers(pm, "PixelSpacing", 2, path)
+            _check_plane(pos, ori, spacing, path, where)
+            thickness = _opt_number(pm, "SliceThickness", path)
+            out.append(DicomHeader(
+                file=path, sop_instance_uid=f"{uid}#{i + 1}",
+                series_instance_uid=str(ds.get("SeriesInstanceUID", "") or ""),
+                series_number=None if series_no is None else int(series_no),
+                series_description=str(ds.get("SeriesDescription", "") or ""),
+                instance_number=None if inst is None else int(inst),
+                position=pos, orientation=ori, pixel_spacing=(float(spacing[0]), float(spacing[1])),
+                rows=rows, columns=cols,
+                thickness=thickness if thickness is not None and thickness > 0 else None,
+                trigger_time=None if cs is None else _opt_number(cs, "NominalCardiacTriggerDelayTime", path),
+                heart_rate=_opt_number(ds, "HeartRate", path),
+                nominal_interval=(None if cs is None else _opt_number(cs, "RRIntervalTimeNominal", path))
+                or _opt_number(ds, "NominalInterval", path),
+                cardiac_number_of_images=_opt_int(ds, "CardiacNumberOfImages", path),
+                frame_number=i + 1))
+        return out
+    except StudyError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - malformed functional groups
+        raise StudyError(f"unreadable multi-frame header ({type(exc).__name__}: {_first_line(exc)})",
+                         file=path) from None
+
+
+def _opt_int(ds, keyword: str, path: Path) -> int | None:
+    v = _opt_number(ds, keyword, path)
+    return None if v is None or v < 1 else int(v)
+
+
+def _header_from_dataset(ds, path: Path) -> DicomHeader:
     try:
         pos = _numbers(ds, "ImagePositionPatient", 3, path)
         ori = _numbers(ds, "ImageOrientationPatient", 6, path)
@@ -163,13 +260,7 @@ def _header_from_dataset(ds, path: Path) -> DicomHeader:
         uid = str(ds.get("SOPInstanceUID", "") or "").strip()
         if not uid:
             raise StudyError("missing SOPInstanceUID (0008,0018)", file=path, field="SOPInstanceUID")
-        r, c = ori[:3], ori[3:]
-        if abs(np.linalg.norm(r) - 1) > 1e-3 or abs(np.linalg.norm(c) - 1) > 1e-3 or abs(r @ c) > 1e-3:
-            raise StudyError(f"ImageOrientationPatient is not two orthonormal vectors ({ori.tolist()})",
-                             file=path, field="ImageOrientationPatient")
-        if np.any(spacing <= 0):
-            raise StudyError(f"PixelSpacing must be positive, got {spacing.tolist()}", file=path,
-                             field="PixelSpacing")
+        _check_plane(pos, ori, spacing, path)
         thickness = _opt_number(ds, "SliceThickness", path)
         inst = _opt_number(ds, "InstanceNumber", path)
         series_no = _opt_number(ds, "SeriesNumber", path)
@@ -196,14 +287,24 @@ def _header_from_dataset(ds, path: Path) -> DicomHeader:
 
 
 def read_header(path: str | Path) -> DicomHeader:
-    """Read and validate the header of one DICOM image file (no pixel data).
+    """Read and validate the header of one single-frame DICOM image file (no pixel data)."""
+    headers = read_file_headers(path)
+    if len(headers) != 1:
+        raise UnsupportedInputError(f"multi-frame object ({len(headers)} frames): read it with "
+                                    "read_file_headers", file=path, field="NumberOfFrames")
+    return headers[0]
+
+
+def read_file_headers(path: str | Path) -> list[DicomHeader]:
+    """Headers of the images in one DICOM file: one for a classic image, one per frame for
+    an enhanced (multi-frame) MR object.
 
     When a required tag is missing, the file is read once more in full to tell
     a truncated file (it ends before its pixel data) from an incomplete header.
     """
     path = Path(path)
     try:
-        return header_from_dataset(_dcmread(path, pixels=False), path)
+        return headers_from_dataset(_dcmread(path, pixels=False), path)
     except UnsupportedInputError:
         raise
     except StudyError as exc:
@@ -235,8 +336,9 @@ def _is_truncated(path: Path) -> bool:
         return True
 
 
-def read_pixels(path: str | Path) -> np.ndarray:
-    """The pixel array (rows, columns) of one DICOM image file, as float."""
+def read_pixels(path: str | Path, frame_number: int | None = None) -> np.ndarray:
+    """The pixel array (rows, columns) of one DICOM image file, as float; of frame
+    ``frame_number`` (1-based) for a multi-frame object."""
     path = Path(path)
     ds = _dcmread(path, pixels=True)
     try:
@@ -245,6 +347,8 @@ def read_pixels(path: str | Path) -> np.ndarray:
     except Exception as exc:  # noqa: BLE001 - truncated or compressed pixel data
         raise StudyError(f"cannot decode pixel data ({_first_line(exc)})", file=path,
                          field="PixelData") from None
+    if frame_number is not None and int(ds.get("NumberOfFrames", 1) or 1) > 1:
+        arr = arr[frame_number - 1]
     return np.asarray(arr, dtype=float)
 
 
@@ -283,7 +387,7 @@ def read_headers(files: Iterable[Path]) -> list[DicomHeader]:
     out = []
     for f in files:
         try:
-            out.append(read_header(f))
+            out.extend(read_file_headers(f))
         except StudyError as exc:
             strict = f.suffix.lower() in (".dcm", ".ima", ".dicom")
             if not strict and str(exc).endswith("not a DICOM file (no DICM preamble)"):
@@ -327,7 +431,8 @@ class DicomSeries:
     def read_pixels(self, image_id: str) -> np.ndarray:
         """Pixel array of one image (read now unless already loaded)."""
         if image_id not in self.pixels:
-            self.pixels[image_id] = read_pixels(self.headers[image_id].file)
+            h = self.headers[image_id]
+            self.pixels[image_id] = read_pixels(h.file, h.frame_number)
         return self.pixels[image_id]
 
     def to_study(self, subject: str | None = None):
@@ -365,7 +470,7 @@ def read_dicom_folder(folder: str | Path, *, pixels: bool = False,
     StudyError
         No DICOM image, unreadable or truncated file, missing geometry tag,
         duplicate SOPInstanceUID or duplicate (slice, phase); the message names
-        the file and the tag. UnsupportedInputError for enhanced MR.
+        the file and the tag.
     """
     root = Path(folder)
     if not root.exists():
@@ -397,7 +502,8 @@ def read_dicom_folder(folder: str | Path, *, pixels: bool = False,
                 trigger_time=h.trigger_time, file=rel,
                 meta={"instance_number": h.instance_number, "series_uid": h.series_instance_uid,
                       "series_number": h.series_number,
-                      "series_description": h.series_description}))
+                      "series_description": h.series_description,
+                      "frame_number": h.frame_number}))
             if h.trigger_time is not None:
                 times.setdefault(int(fr), []).append(h.trigger_time)
     images.sort(key=lambda im: (im.view != "SA", im.slice, im.frame))

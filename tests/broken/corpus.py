@@ -93,6 +93,58 @@ def write_dicom_image(path: Path, *, position, row, col, spacing=(2.0, 2.0), row
     return sop_uid
 
 
+def write_enhanced_mr(path: Path, *, positions, row, col, trigger_times, spacing=(2.0, 2.0),
+                      rows=32, columns=32, rr_ms: float = 900.0, series_uid: str | None = None,
+                      pixels: np.ndarray | None = None, drop_position_of: int | None = None) -> str:
+    """Write one Enhanced MR Image Storage object, one frame per (position, trigger time) pair,
+    geometry in the functional groups (shared orientation and pixel measures)."""
+    n = len(positions)
+    sop_uid = generate_uid()
+    meta = FileMetaDataset()
+    meta.MediaStorageSOPClassUID = ENHANCED_MR_STORAGE
+    meta.MediaStorageSOPInstanceUID = sop_uid
+    meta.TransferSyntaxUID = ExplicitVRLittleEndian
+    ds = Dataset()
+    ds.file_meta = meta
+    ds.SOPClassUID, ds.SOPInstanceUID, ds.Modality = ENHANCED_MR_STORAGE, sop_uid, "MR"
+    ds.SeriesInstanceUID = series_uid or generate_uid()
+    ds.SeriesNumber, ds.InstanceNumber = 1, 1
+    ds.NumberOfFrames = n
+    orient = Dataset()
+    orient.ImageOrientationPatient = [ds_text(v) for v in np.r_[row, col]]
+    measures = Dataset()
+    measures.PixelSpacing = [ds_text(v) for v in spacing]
+    measures.SliceThickness = "8"
+    shared = Dataset()
+    shared.PlaneOrientationSequence = [orient]
+    shared.PixelMeasuresSequence = [measures]
+    ds.SharedFunctionalGroupsSequence = [shared]
+    per = []
+    for k, (p, t) in enumerate(zip(positions, trigger_times)):
+        item = Dataset()
+        if k != drop_position_of:
+            pos = Dataset()
+            pos.ImagePositionPatient = [ds_text(v) for v in p]
+            item.PlanePositionSequence = [pos]
+        sync = Dataset()
+        sync.NominalCardiacTriggerDelayTime = float(t)
+        sync.RRIntervalTimeNominal = float(rr_ms)
+        item.CardiacSynchronizationSequence = [sync]
+        per.append(item)
+    ds.PerFrameFunctionalGroupsSequence = per
+    ds.Rows, ds.Columns = rows, columns
+    ds.SamplesPerPixel = 1
+    ds.PhotometricInterpretation = "MONOCHROME2"
+    ds.BitsAllocated = ds.BitsStored = 16
+    ds.HighBit = 15
+    ds.PixelRepresentation = 0
+    px = pixels if pixels is not None else (np.arange(n * rows * columns) % 251).reshape(n, rows, columns)
+    ds.PixelData = np.asarray(px, dtype=np.uint16).tobytes()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ds.save_as(path, enforce_file_format=True)
+    return sop_uid
+
+
 def circle_pixels(center=(16.0, 15.0), radius=6.0, n=24, phase=0.0) -> np.ndarray:
     t = np.linspace(0, 2 * np.pi, n, endpoint=False) + phase
     return np.column_stack([center[0] + radius * np.cos(t), center[1] + radius * np.sin(t)])
@@ -282,6 +334,11 @@ def _enhanced(root: Path) -> None:
     _rewrite_dicom(root, edit, 0)
 
 
+def _enhanced_no_position(root: Path) -> None:
+    write_enhanced_mr(root / "dicom" / "900.dcm", positions=[SA_ORIGIN - 50 * SA_NORMAL] * 2,
+                      row=SA_ROW, col=SA_COL, trigger_times=[10.0, 400.0], drop_position_of=1)
+
+
 def _bad_spacing(root: Path) -> None:
     def edit(ds):
         ds["PixelSpacing"].value = ["0", "2.0"]
@@ -370,7 +427,10 @@ CORPUS: list[Broken] = [
     Broken("dicom_text_file", lambda r: _sb(r, _text_as_dcm),
            "dicom/500.dcm: not a DICOM file (no DICM preamble)"),
     Broken("dicom_duplicate_file", lambda r: _sb(r, _copy_file), "duplicate image"),
-    Broken("dicom_enhanced_mr", lambda r: _sb(r, _enhanced), "not supported"),
+    Broken("dicom_enhanced_no_groups", lambda r: _sb(r, _enhanced),
+           "needs a PerFrameFunctionalGroupsSequence with one item per frame"),
+    Broken("dicom_enhanced_no_position", lambda r: _sb(r, _enhanced_no_position),
+           "frame 2: missing ImagePositionPatient (in PlanePositionSequence)"),
     Broken("dicom_trigger_time_missing", lambda r: _sb(r, _no_trigger), "TriggerTime"),
     Broken("stack_not_parallel", lambda r: _sb(r, _tilt_slice),
            "dicom/28.dcm: slice sa_01, frame 7: SA slice is not parallel to the stack (tilted 8.00"),
