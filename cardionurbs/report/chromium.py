@@ -189,7 +189,8 @@ def open_page(path: str | Path, *, chromium: str | None = None, width: int = 140
               value_js: str | None = None, timeout: float = 60.0, settle: float = 0.8
               ) -> PageRun:
     """Open ``path`` in headless Chromium; wait until ``ready_js`` is truthy (or timeout),
-    evaluate ``value_js``, screenshot, and report errors and network requests."""
+    screenshot, then evaluate ``value_js`` (may return a promise), and report errors and
+    network requests seen meanwhile."""
     exe = chromium or find_chromium()
     if not exe:
         raise ChromiumError("no chromium executable found (apt-get install chromium)")
@@ -231,11 +232,12 @@ def open_page(path: str | Path, *, chromium: str | None = None, width: int = 140
                     break
                 time.sleep(0.1)
             s.pump(settle)
-            value = None
-            if value_js:
-                value = s.call("Runtime.evaluate", expression=value_js,
-                               returnByValue=True).get("result", {}).get("value")
             shot = base64.b64decode(s.call("Page.captureScreenshot", format="png")["data"])
+            value = None
+            if value_js:                          # after the screenshot: it may change the page
+                value = s.call("Runtime.evaluate", expression=value_js, awaitPromise=True,
+                               returnByValue=True).get("result", {}).get("value")
+                s.pump(0.2)
             run = PageRun(page_url, ready, value, screenshot=shot)
             for ev in s.events:
                 m, p = ev["method"], ev.get("params", {})

@@ -236,8 +236,11 @@ def draw_panel(ax, meshes: Sequence[Mesh], view: View, *, lines: Sequence[tuple]
         polys.append(m.vertices[m.faces])
         colours.append(lambert_colours(m.vertices, m.faces, m.colour, m.alpha))
     if polys:
-        pc = Poly3DCollection(np.concatenate(polys), facecolors=np.concatenate(colours),
-                              edgecolors="none", linewidths=0.0, shade=False)
+        fc = np.concatenate(colours)
+        ec = fc.copy()                     # edges in the face colour hide anti-aliasing seams
+        ec[:, 3] = np.where(fc[:, 3] >= 1.0, 1.0, 0.0)
+        pc = Poly3DCollection(np.concatenate(polys), facecolors=fc, edgecolors=ec,
+                              linewidths=0.35, shade=False)
         pc.set_zorder(1)
         ax.add_collection3d(pc)
     if lines:
