@@ -72,11 +72,9 @@ def render_image(phantom, plane: ImagePlane, rng: np.random.Generator | None = N
     an, mo, grid = phantom.anatomy, phantom.motion, phantom.tag_grid
     f = float(phantom.phases[plane.frame])
     hp, roi = roi_points if roi_points is not None else pixel_heart_points(phantom, plane)
-    mat = mo.inverse(an, hp, f)
-    x, y, z = mat[:, 0], mat[:, 1], mat[:, 2]
-    s, th = x * x + y * y, np.arctan2(y, x)
-    s1, s2 = an.s_lv_endo(z), an.s_lv_epi(z)
-    s3 = np.maximum(s2, an.s_rv(th, z))
+    s, th, z, s1, s2, s3 = mo.inverse_cylindrical(an, hp, f)
+    r = np.sqrt(np.maximum(s, 0.0))
+    x, y = r * np.cos(th), r * np.sin(th)
     s4 = np.maximum(s3, an.s_rv(th, z, epi=True))
     heart = (z >= 0) & (z <= an.z_base)
     lv_cav = heart & (s < s1)

@@ -149,20 +149,25 @@ class Motion:
                                 np.where(s <= s3, b2 + kr * (s - s2), b3 + (s - s3))))
         return out / lam
 
-    def inverse_radial_map(self, anatomy: Anatomy, s_def, theta, z, f) -> np.ndarray:
-        """Material s from deformed s' at material (θ, z): inverse of eq. (M3)."""
-        sp, theta, z = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (s_def, theta, z)))
+    def _inverse_layers(self, anatomy: Anatomy, s_def, theta, z, f):
+        """Material s from deformed s' at material (θ, z) (inverse of eq. M3), with S1, S2, S3."""
         lam = self.lam(f)
         s1, s2 = anatomy.s_lv_endo(z), anatomy.s_lv_epi(z)
         s3 = np.maximum(s2, anatomy.s_rv(theta, z))
         kl, kr = self.kappa_lv(theta, f), self.kappa_rv(f)
-        u = sp * lam
+        u = s_def * lam
         b1 = kl * s1
         b2 = b1 + (s2 - s1)
         b3 = b2 + kr * (s3 - s2)
-        return np.where(u <= b1, u / kl,
-                        np.where(u <= b2, s1 + (u - b1),
-                                 np.where(u <= b3, s2 + (u - b2) / kr, s3 + (u - b3))))
+        s = np.where(u <= b1, u / kl,
+                     np.where(u <= b2, s1 + (u - b1),
+                              np.where(u <= b3, s2 + (u - b2) / kr, s3 + (u - b3))))
+        return s, s1, s2, s3
+
+    def inverse_radial_map(self, anatomy: Anatomy, s_def, theta, z, f) -> np.ndarray:
+        """Material s from deformed s' at material (θ, z): inverse of eq. (M3)."""
+        sp, theta, z = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (s_def, theta, z)))
+        return self._inverse_layers(anatomy, sp, theta, z, f)[0]
 
     def forward(self, anatomy: Anatomy, points: np.ndarray, f: float) -> np.ndarray:
         """φ_f: (n, 3) material heart-frame points (ED, mm) -> positions at phase f (mm)."""
@@ -174,12 +179,18 @@ class Motion:
         r = np.sqrt(np.maximum(sp, 0.0))
         return np.column_stack([r * np.cos(thp), r * np.sin(thp), self.lam(f) * z])
 
-    def inverse(self, anatomy: Anatomy, points: np.ndarray, f: float) -> np.ndarray:
-        """φ_f⁻¹: (n, 3) heart-frame positions at phase f -> material ED points (mm)."""
+    def inverse_cylindrical(self, anatomy: Anatomy, points: np.ndarray, f: float):
+        """φ_f⁻¹ in cylindrical form: material (s, θ, z) of (n, 3) heart-frame positions at phase f,
+        with the section values S1 = s_endo, S2 = s_epi, S3 = max(S2, S_rv_endo) at (θ, z)."""
         p = np.asarray(points, dtype=float).reshape(-1, 3)
         z = p[:, 2] / self.lam(f)
         theta = np.arctan2(p[:, 1], p[:, 0]) + self.psi(z, f)
-        s = self.inverse_radial_map(anatomy, p[:, 0] ** 2 + p[:, 1] ** 2, theta, z, f)
+        s, s1, s2, s3 = self._inverse_layers(anatomy, p[:, 0] ** 2 + p[:, 1] ** 2, theta, z, f)
+        return s, theta, z, s1, s2, s3
+
+    def inverse(self, anatomy: Anatomy, points: np.ndarray, f: float) -> np.ndarray:
+        """φ_f⁻¹: (n, 3) heart-frame positions at phase f -> material ED points (mm)."""
+        s, theta, z = self.inverse_cylindrical(anatomy, points, f)[:3]
         r = np.sqrt(np.maximum(s, 0.0))
         return np.column_stack([r * np.cos(theta), r * np.sin(theta), z])
 
