@@ -6,24 +6,26 @@ Volumes are computed by two independent methods:
   spheroid (anatomy eq. A4) and the polar quadrature of the RV crescent
   (eq. A5); at phase f the cavities scale exactly by κ (motion eqs. M3:
   V_LV(f) = (1 − EF_L f) V_LV(ED)), myocardial volumes are constant.
-* **B — fine closed meshes.** The ED surfaces (LV endocardium and epicardium
-  spheroids; for the RV the star-shaped unions LV-epicardium ∪ RV shell,
-  s = max(S2, S_rv)) are sampled on a (μ, θ) grid, mapped forward by the motion
-  φ_f vertex by vertex, closed by the planar valve-plane cap and integrated with
-  the divergence theorem V = Σ a·(b × c)/6. The RV cavity (RV shell minus LV
-  epicardium) is meshed directly as a closed crescent tube whose rings follow
-  the free wall and the septum between the sector edges θ_e(z); RV wall =
+* **B — fine closed meshes.** The ED LV endocardium and epicardium spheroids
+  are sampled on a (μ, θ) grid; the RV cavity (RV shell minus LV epicardium) is
+  meshed as a closed crescent tube whose rings follow the free wall and the
+  septum between the sector edges θ_e(z). Every vertex is mapped forward by the
+  motion φ_f, the surfaces are closed by their planar valve-plane caps and
+  integrated with the divergence theorem V = Σ a·(b × c)/6. RV wall =
   crescent(epi) − crescent(endo), LV wall = LV epi − LV cavity.
 
-Method A gives the truth values; method B is reported beside it (relative
-differences in ``volume_check``; they agree to ~1e-5).
+Method A gives the truth values; method B is reported beside it
+(``truth["volumes"]``: relative differences ~3e-4 at the default resolution,
+O(h²) convergence, see reports/benchmark-phantom.md).
 
-Tags and twist follow METRICS.md and contracts.md: levels are the LA tag
-planes z = z_j with h_apical < z_j and λ_ES z_j < h_basal... (see
-:func:`tag_levels`), their rotation is ψ(z_j) at ES (all material points of a
-level rotate alike), LS = 100 (1 − λ_ES). ``Twist 2D`` is measured the slice
-way from the analytic tag crossings (:func:`twist_2d`), ``EI ES`` from the
-analytic ES contours on the mid-ventricular SA slice (:func:`eccentricity_index`).
+Tags and twist follow METRICS.md and contracts.md. The SA slices bounding the
+levels are those carrying tag lines at both ED and ES (basal slices above the
+descended base at ES have none); a level is an LA tag plane z = z_j with
+h_apical < z_j < h_basal and h_apical < λ_ES z_j < h_basal (:func:`tag_levels`).
+All material points of a level rotate by ψ(z_j) at ES (motion eq. M2), so its
+rotation is exact; LS = 100 (1 − λ_ES). ``Twist 2D`` is measured the slice way
+from the analytic tag crossings (:func:`twist_2d`), ``EI ES`` from the analytic
+ES contours on the mid-ventricular SA slice (:func:`eccentricity_index`).
 """
 
 from __future__ import annotations
