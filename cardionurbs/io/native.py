@@ -164,6 +164,35 @@ def _opt_float(v):
     return None if v is None else float(v)
 
 
+def _pixels_to_scanner(table: pd.DataFrame, need: np.ndarray, pix: np.ndarray, xyz: np.ndarray,
+                       images: dict, points_path: Path) -> None:
+    """Fill ``xyz[need]`` from (px, py) through each row's image plane, all rows at once:
+    P = S + px * dc * X + py * dr * Y (DICOM PS3.3 C.7.6.2.1.1, same operation order as
+    ImagePlane.pixel_to_scanner, so results are bit-identical)."""
+    codes, uniques = pd.factorize(table["image"].to_numpy()[need])
+    rows = np.flatnonzero(need)
+    for k, image_id in enumerate(uniques):
+        line = int(rows[np.argmax(codes == k)]) + 2
+        if not image_id:
+            raise StudyError(f"line {line}: no x, y, z and no image to map px, py",
+                             file=points_path, field="image")
+        if image_id not in images:
+            raise StudyError(f"line {line}: reference to image {image_id!r} that is not in the "
+                             "manifest", file=points_path, field="image")
+    p = pix[need]
+    bad = ~np.isfinite(p).all(axis=1)
+    if bad.any():
+        raise StudyError(f"line {int(rows[np.argmax(bad)]) + 2}: neither x, y, z nor px, py are "
+                         "given", file=points_path, field="px")
+    planes = [images[i] for i in uniques]
+    S = np.array([im.position for im in planes])[codes]
+    X = np.array([im.row_cosine for im in planes])[codes]
+    Y = np.array([im.column_cosine for im in planes])[codes]
+    dc = np.array([im.pixel_spacing[1] for im in planes])[codes]
+    dr = np.array([im.pixel_spacing[0] for im in planes])[codes]
+    xyz[need] = S + (p[:, 0] * dc)[:, None] * X + (p[:, 1] * dr)[:, None] * Y
+
+
 def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False) -> None:
     if not points_path.is_file():
         raise StudyError("points file is missing", file=points_path)
@@ -201,20 +230,7 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False) -
     if prefer_pixels:
         need |= np.isfinite(pix).all(axis=1) & table["image"].isin(list(images)).to_numpy()
     if need.any():
-        for image_id in pd.unique(table.loc[need, "image"]):
-            sel = need & (table["image"] == image_id).to_numpy()
-            line = int(np.flatnonzero(sel)[0]) + 2
-            if not image_id:
-                raise StudyError(f"line {line}: no x, y, z and no image to map px, py",
-                                 file=points_path, field="image")
-            if image_id not in images:
-                raise StudyError(f"line {line}: reference to image {image_id!r} that is not in the "
-                                 "manifest", file=points_path, field="image")
-            p = pix[sel]
-            if not np.isfinite(p).all():
-                raise StudyError(f"line {line}: neither x, y, z nor px, py are given",
-                                 file=points_path, field="px")
-            xyz[sel] = images[image_id].pixel_to_scanner(p)
+        _pixels_to_scanner(table, need, pix, xyz, images, points_path)
     # a new annotation starts where any key column differs from the row before (vectorised)
     change = np.zeros(max(len(table) - 1, 0), dtype=bool)
     for col in _KEY:
