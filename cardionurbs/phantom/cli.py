@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from cardionurbs.errors import PhantomError
-from cardionurbs.phantom.generate import generate, write_phantom
+from cardionurbs.phantom.generate import generate, generate_cohort, write_phantom
 from cardionurbs.phantom.presets import load_cohort_spec
 
 
@@ -24,10 +24,7 @@ def run_phantom(args: argparse.Namespace) -> int:
         write_phantom(ph, out, dicom=dicom)
         print(f"{out}: {ph.study.summary()}", file=sys.stdout)
         return 0
-    subjects = load_cohort_spec(args.cohort)
-    for s in subjects:
-        ph = generate(s.pathology, seed=s.seed, frames=s.frames, noise_px=s.noise_px or args.noise_px,
-                      tag_jumps=s.tag_jumps or args.tag_jumps, subject=s.id)
-        write_phantom(ph, out / s.id, dicom=dicom)
-        print(f"{out / s.id}: {ph.study.summary()}", file=sys.stdout)
+    generate_cohort(load_cohort_spec(args.cohort), out, dicom=dicom, noise_px=args.noise_px,
+                    tag_jumps=args.tag_jumps,
+                    report=lambda path, ph: print(f"{path}: {ph.study.summary()}", file=sys.stdout))
     return 0

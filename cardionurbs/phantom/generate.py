@@ -273,12 +273,18 @@ def write_phantom(phantom: Phantom, out_dir: str | Path, dicom: bool = True) -> 
 
 
 def generate_cohort(subjects: list[SubjectSpec], out_dir: str | Path, dicom: bool = True,
-                    **kw) -> list[Path]:
-    """Generate and write every subject of a cohort spec into ``out_dir/<id>``."""
+                    noise_px: float = 0.0, tag_jumps: int = 0, report=None, **kw) -> list[Path]:
+    """Generate and write every subject of a cohort spec into ``out_dir/<id>``.
+
+    ``noise_px`` and ``tag_jumps`` apply to subjects whose spec sets none; ``report`` (optional
+    callable) receives (path, phantom) after each subject is written.
+    """
     out_dir = Path(out_dir)
     paths = []
     for s in subjects:
-        ph = generate(s.pathology, seed=s.seed, frames=s.frames, noise_px=s.noise_px,
-                      tag_jumps=s.tag_jumps, subject=s.id, **kw)
+        ph = generate(s.pathology, seed=s.seed, frames=s.frames, noise_px=s.noise_px or noise_px,
+                      tag_jumps=s.tag_jumps or tag_jumps, subject=s.id, **kw)
         paths.append(write_phantom(ph, out_dir / s.id, dicom=dicom))
+        if report is not None:
+            report(paths[-1], ph)
     return paths
