@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from cardionurbs.errors import PhantomError
 from cardionurbs.phantom import generate, load_cohort_spec, load_preset
@@ -133,3 +134,21 @@ def test_anatomy_override_changes_truth():
     assert bigger.truth["metrics"]["LVEDV (mL)"] > base.truth["metrics"]["LVEDV (mL)"]
     assert bigger.truth["metrics"]["LVM (g)"] < base.truth["metrics"]["LVM (g)"]
     assert bigger.truth["volumes"]["max_relative_difference"] < 0.002
+
+
+@settings(max_examples=15, deadline=None)
+@given(pathology=st.sampled_from(["normal", "mr", "phtn"]), seed=st.integers(0, 10 ** 6))
+def test_solved_anatomy_reproduces_the_draw(pathology, seed):
+    from cardionurbs.phantom.presets import sample_subject, solve_anatomy
+    draw = sample_subject(load_preset(pathology), np.random.default_rng(seed))
+    a = solve_anatomy(draw)
+    pm = draw.predicted_metrics()
+    assert a.lv_cavity_volume() / 1000 == pytest.approx(pm["LVEDV (mL)"], rel=1e-9)
+    assert 1.05 * a.lv_myocardial_volume() / 1000 == pytest.approx(pm["LVM (g)"], rel=1e-9)
+    assert a.rv_cavity_volume() / 1000 == pytest.approx(pm["RVEDV (mL)"], rel=1e-9)
+    assert 1.05 * a.rv_myocardial_volume() / 1000 == pytest.approx(pm["RVM (g)"], rel=1e-9)
+    # the RV crescent edge solves g² P(θ_e) = s_epi on every section that has one
+    z = np.linspace(a.z_base - a.r_long_rv_endo, a.z_base, 60)
+    e = a.rv_sector_edge(z)
+    has = (e > 0) & (e < np.pi)
+    np.testing.assert_allclose(a.rv_g2(z[has]) * a.rv_p(e[has]), a.s_lv_epi(z[has]), rtol=1e-10)
