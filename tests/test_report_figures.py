@@ -23,7 +23,7 @@ def colour_pixels(img: np.ndarray, hex_colour: str) -> np.ndarray:
 
 
 def check_png(res: F.FigureResult, *, min_fg: float = 0.02, max_fg: float = 0.7,
-              min_pixels: int = 60) -> None:
+              min_pixels: int = 60, caption_word: str = "frame") -> None:
     """Not blank: a sensible foreground fraction, and every listed colour drawn outside
     the legend (legend boxes are masked out, so a patch alone does not pass)."""
     img = np.asarray(Image.open(res.path).convert("RGB"))
@@ -36,7 +36,7 @@ def check_png(res: F.FigureResult, *, min_fg: float = 0.02, max_fg: float = 0.7,
     for label, colour in res.colours.items():
         n = int((colour_pixels(img, colour) & mask).sum())
         assert n >= min_pixels, f"{res.name}: colour of {label} ({colour}) on {n} pixels"
-    assert "frame" in res.caption.lower()
+    assert caption_word in res.caption.lower()
 
 
 # --------------------------------------------------------------- phantom
