@@ -155,6 +155,8 @@ def main(argv=None) -> int:
         f"- Machine: {os.cpu_count()} cores ({cpu_name()}), shared with other jobs; "
         f"Python {platform.python_version()}, pydicom {__import__('pydicom').__version__}, "
         f"numpy {np.__version__}",
+        f"- Load average at the end of the run: {', '.join(f'{v:.1f}' for v in os.getloadavg())} "
+        "(other jobs share the 2 cores; times scale with it).",
         f"- Median and best of {args.repeat} runs each, warm file cache, one process.",
         "- Target: a 300-image study loads in under 2 s.",
         "",
