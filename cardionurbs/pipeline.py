@@ -7,7 +7,8 @@ Output folder (written atomically: complete or absent)::
                              "warnings"}
     DIR/model.json          the NURBS model (BiventricularModel.to_dict)
     DIR/residuals.csv       contour-point-to-surface distances per slice
-    DIR/meshes/frame_NN_<mesh>.stl   closed meshes per frame and structure
+    DIR/meshes/frame_NN_<mesh>.ply   closed meshes per frame and structure (binary PLY,
+                                     float64 vertices: exactly the manifold3d result)
     DIR/figures/...         figures (hook: cardionurbs.report, when installed)
 """
 
@@ -62,7 +63,7 @@ def analyse_study(study: Study, *, heart_rate_bpm: float | None = None
 
 
 def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
-                   figures: bool = True, mesh_ext: str = "stl") -> Path:
+                   figures: bool = True, mesh_ext: str = "ply") -> Path:
     """Write metrics.json, model.json, residuals.csv, meshes (and figures) to ``out``,
     atomically (the folder is complete or untouched)."""
     with atomic.atomic_dir(out) as tmp:

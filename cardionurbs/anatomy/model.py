@@ -11,6 +11,7 @@ points (:mod:`cardionurbs.anatomy.sections`), and finds ED and ES
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from functools import cached_property
 
 import manifold3d
@@ -23,7 +24,7 @@ from cardionurbs.anatomy import mesh as meshing
 from cardionurbs.anatomy.mesh import Plane
 from cardionurbs.anatomy.sections import (SURFACES, FrameGeometry, Section, frame_geometry,
                                           loop_centroid)
-from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface
+from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface, free_wall_points
 from cardionurbs.errors import ReconstructionError
 from cardionurbs.study import Study
 
@@ -62,45 +63,126 @@ def _reference_direction(study: Study, geo: FrameGeometry) -> np.ndarray:
     return d / np.linalg.norm(d)
 
 
+class LazyFrames(Mapping):
+    """A read-only mapping frame -> value that computes each value on first access.
+
+    Lets a model of many frames build only what is asked for: measuring needs
+    every frame's LV cavity (to find ED and ES) but the other surfaces only at
+    ED and ES; exporting asks for everything.
+    """
+
+    def __init__(self, frames, compute) -> None:
+        self._frames = list(frames)
+        self._compute = compute
+        self._cache: dict = {}
+
+    def __getitem__(self, frame):
+        if frame not in self._frames:
+            raise KeyError(frame)
+        if frame not in self._cache:
+            self._cache[frame] = self._compute(frame)
+        return self._cache[frame]
+
+    def __iter__(self):
+        return iter(self._frames)
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    @property
+    def computed(self) -> list:
+        """Frames computed so far."""
+        return [f for f in self._frames if f in self._cache]
+
+
 class BiventricularModel:
     """NURBS surfaces of the ventricles per frame, with meshes, volumes and residuals.
+
+    Per-frame attributes are mappings frame -> value, computed on first access
+    (:class:`LazyFrames`) when the model is reconstructed from a study.
 
     Attributes
     ----------
     study : Study
     frames : list of int
         Reconstructed frames (those with LV endocardial contours).
-    surfaces : dict frame -> dict structure -> NurbsSurface
+    surfaces : frame -> dict structure -> NurbsSurface
         structures ``lv_endo``, ``lv_epi``, ``rv_endo``, ``rv_epi`` (those present).
-    sections : dict frame -> dict structure -> list of Section
+    sections : frame -> dict structure -> list of Section
         The SA sections (contours as ordered loops), base -> apex.
-    apex_points : dict frame -> dict structure -> (3,) apex (collapsed end), mm.
-    base_planes : dict frame -> {'lv': Plane, 'rv': Plane} valve planes (normal apical).
+    apex_points : frame -> dict structure -> (3,) apex (collapsed end), mm.
+    base_planes : frame -> {'lv': Plane, 'rv': Plane} valve planes (normal apical).
+    volumes : frame -> dict mesh -> mL
     ed_frame, es_frame : int
     warnings : list of str
     """
 
-    def __init__(self, study: Study, frames: list[int], surfaces: dict, base_planes: dict,
-                 apex_points: dict, sections: dict | None = None, fits: dict | None = None,
-                 la_points: dict | None = None, warnings: list[str] | None = None,
+    def __init__(self, study: Study, frames: list[int], *, surfaces: Mapping | None = None,
+                 base_planes: Mapping | None = None, apex_points: Mapping | None = None,
+                 sections: Mapping | None = None, tol_px: float = 1.0,
+                 warnings: list[str] | None = None,
                  resolution: tuple[int, int] = RESOLUTION) -> None:
         self.study = study
         self.frames = list(frames)
-        self.surfaces = surfaces
-        self.base_planes = base_planes
-        self.apex_points = apex_points
-        self.sections = sections or {}
-        self.fits = fits or {}
-        self.la_points = la_points or {}
+        self.tol_px = float(tol_px)
         self.warnings = list(warnings or [])
         self.resolution = tuple(resolution)
         self._meshes: dict[int, dict[str, trimesh.Trimesh]] = {}
-        self._solid_cache: dict[int, dict] = {}
-        ed, es = ed_es_frames({f: self.volumes[f].get("lv_cavity", math.nan) for f in self.frames},
-                              study.ed_frame, study.es_frame)
+        self._solid_cache: dict[tuple[int, str], object] = {}
+        self._fits: dict[tuple[int, str], SurfaceFit] = {}
+        self.geometry = LazyFrames(self.frames, self._frame_geometry)
+        if surfaces is None:          # reconstruct lazily from the study
+            self.surfaces = LazyFrames(self.frames, self._all_surfaces)
+            self.base_planes = LazyFrames(self.frames, lambda f: self.geometry[f].base_planes)
+            self.apex_points = LazyFrames(self.frames, lambda f: {
+                s: self.geometry[f].apex[s] for s in self._structures(f)})
+            self.sections = LazyFrames(self.frames, lambda f: {
+                s: self.geometry[f].sections[s] for s in self._structures(f)})
+        else:                         # a deserialised model
+            self.surfaces, self.base_planes = surfaces, base_planes
+            self.apex_points, self.sections = apex_points, sections or {}
+        self.volumes = LazyFrames(self.frames, lambda f: {
+            k: meshing.volume_ml(m) for k, m in self.solids(f).items()})
+        lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
+        ed, es = ed_es_frames(lv, study.ed_frame, study.es_frame)
         self.ed_frame, self.es_frame = ed, es
         if ed == es:
             self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, SV = 0")
+
+    # ------------------------------------------------------------- lazy construction
+    def _frame_geometry(self, frame: int) -> FrameGeometry:
+        geo = frame_geometry(self.study, frame)
+        self.warnings += geo.warnings
+        geo.reference = _reference_direction(self.study, geo)
+        return geo
+
+    def _structures(self, frame: int) -> list[str]:
+        """Surfaces that frame's contours allow (SA contours on >= 2 slices)."""
+        geo = self.geometry[frame]
+        return [s for s in SURFACES if len(geo.sections.get(s) or []) >= 2]
+
+    def fit(self, frame: int, structure: str) -> SurfaceFit:
+        """The lofted surface of one structure at one frame, with its sections (cached)."""
+        key = (frame, structure)
+        if key not in self._fits:
+            geo = self.geometry[frame]
+            f = build_surface(geo, structure, geo.reference, tol_px=self.tol_px)
+            self.warnings += f.warnings
+            self._fits[key] = f
+        return self._fits[key]
+
+    def _all_surfaces(self, frame: int) -> dict:
+        geo = self.geometry[frame]
+        for s in SURFACES:
+            if len(geo.sections.get(s) or []) == 1:
+                self.warnings.append(f"{s}, frame {frame}: contours on one slice only; "
+                                     "surface skipped")
+        return {s: self.fit(frame, s).surface for s in self._structures(frame)}
+
+    def _surface(self, frame: int, structure: str):
+        if isinstance(self.surfaces, LazyFrames) and frame not in self.surfaces.computed:
+            return self.fit(frame, structure).surface
+        return self.surfaces[frame][structure]
 
     # ------------------------------------------------------------- geometry
     def long_axis(self) -> tuple[np.ndarray, np.ndarray]:
@@ -115,48 +197,76 @@ class BiventricularModel:
         base = np.mean(mitral, axis=0) if mitral else self.base_planes[fr]["lv"].origin
         return np.asarray(apex, float), np.asarray(base, float)
 
-    def _solids(self, frame: int) -> dict:
-        """manifold3d solids of each surface, capped and trimmed by its valve plane."""
-        out = {}
-        nu, nv = self.resolution
-        for s, surf in self.surfaces[frame].items():
-            v, f = nurbs.tessellate(surf, nu, nv)
-            side = "lv" if s.startswith("lv") else "rv"
-            out[s] = meshing.solid(v, f, plane=self.base_planes[frame].get(side), what=s,
-                                   frame=frame)
+    def _solid(self, frame: int, structure: str):
+        """manifold3d solid bounded by one surface, capped beyond its valve plane but not
+        yet trimmed by it (cached)."""
+        key = (frame, structure)
+        if key not in self._solid_cache:
+            surf = self._surface(frame, structure)
+            v, f = nurbs.tessellate(surf, *self.resolution)
+            self._solid_cache[key] = meshing.solid(v, f, what=structure, frame=frame)
+        return self._solid_cache[key]
+
+    def _trim(self, m, frame: int, side: str, shift_mm: float = 0.0, what: str = ""):
+        """Keep the apical side of a valve plane (moved ``shift_mm`` towards the base)."""
+        plane = self.base_planes[frame].get(side)
+        if plane is None:
+            return m
+        out = m.trim_by_plane(plane.normal, float(plane.origin @ plane.normal) - shift_mm)
+        if out.is_empty():
+            raise ReconstructionError(f"{what}, frame {frame}: nothing lies on the apical side "
+                                      "of the valve plane")
         return out
 
+    def lv_cavity_solid(self, frame: int):
+        """The LV cavity of one frame: LV endocardial solid trimmed by the mitral plane."""
+        key = (frame, "lv_cavity")
+        if key not in self._solid_cache:
+            self._solid_cache[key] = self._trim(self._solid(frame, "lv_endo"), frame, "lv",
+                                                what="lv_cavity")
+        return self._solid_cache[key]
+
     def solids(self, frame: int) -> dict:
-        """manifold3d solids of one frame keyed like :meth:`meshes` (cached):
-        lv_cavity = LV endo; lv_myocardium = LV epi − LV endo; rv_cavity = RV endo −
-        LV epi; rv_myocardium = RV epi − RV endo − LV epi; each trimmed by its valve
-        plane (METRICS.md)."""
-        if frame in self._solid_cache:
-            return self._solid_cache[frame]
+        """manifold3d solids of one frame keyed like :meth:`meshes` (cached)::
+
+            lv_cavity     = LV endo ∩ H_lv
+            lv_myocardium = (LV epi − LV endo) ∩ H_lv
+            rv_cavity     = (RV endo − L) ∩ H_rv
+            rv_myocardium = (RV epi − RV endo − L) ∩ H_rv,   L = LV epi ∩ H_lv
+
+        H = the apical half-space of the valve plane (METRICS.md). The booleans act
+        on the untrimmed solids and the trim comes last, so no two faces of a
+        boolean are coplanar (which would pinch the result); L is trimmed 0.01 mm
+        beyond the mitral plane for the same reason when the two valve planes
+        coincide (SA-only input).
+        """
+        if (frame, None) in self._solid_cache:
+            return self._solid_cache[(frame, None)]
         if frame not in self.surfaces:
             raise ReconstructionError(f"frame {frame} is not reconstructed "
                                       f"(reconstructed: {self.frames})")
-        sol = self._solids(frame)
+        have = set(self.surfaces[frame])
+        sol = {s: self._solid(frame, s) for s in have}
         out: dict = {}
         if "lv_endo" in sol:
-            out["lv_cavity"] = sol["lv_endo"]
+            out["lv_cavity"] = self.lv_cavity_solid(frame)
             if "lv_epi" in sol:
-                out["lv_myocardium"] = sol["lv_epi"] - sol["lv_endo"]
+                out["lv_myocardium"] = self._trim(sol["lv_epi"] - sol["lv_endo"], frame, "lv",
+                                                  what="lv_myocardium")
+        lv_epi = self._trim(sol["lv_epi"], frame, "lv", 0.01, "lv_epi") if "lv_epi" in sol else None
         if "rv_endo" in sol:
-            rc = sol["rv_endo"]
-            if "lv_epi" in sol:
-                rc = rc - sol["lv_epi"]
-            out["rv_cavity"] = rc
+            rc = sol["rv_endo"] if lv_epi is None else sol["rv_endo"] - lv_epi
+            out["rv_cavity"] = self._trim(rc, frame, "rv", what="rv_cavity")
             if "rv_epi" in sol:
                 rm = sol["rv_epi"] - sol["rv_endo"]
-                if "lv_epi" in sol:
-                    rm = rm - sol["lv_epi"]
-                out["rv_myocardium"] = rm
+                if lv_epi is not None:
+                    rm = rm - lv_epi
+                out["rv_myocardium"] = self._trim(rm, frame, "rv", what="rv_myocardium")
         for k, m in out.items():
             if m.status() != manifold3d.Error.NoError or m.is_empty():
                 raise ReconstructionError(f"{k}, frame {frame}: boolean result is empty or not "
                                           f"manifold ({m.status().name})")
-        self._solid_cache[frame] = out
+        self._solid_cache[(frame, None)] = out
         return out
 
     def meshes(self, frame: int) -> dict[str, trimesh.Trimesh]:
@@ -172,26 +282,30 @@ class BiventricularModel:
                                    for k, m in self.solids(frame).items()}
         return self._meshes[frame]
 
-    @cached_property
-    def volumes(self) -> dict[int, dict[str, float]]:
-        """Volume (mL) per frame and mesh (lv_cavity, rv_cavity, lv_myocardium, rv_myocardium)."""
-        return {f: {k: meshing.volume_ml(m) for k, m in self.solids(f).items()} for f in self.frames}
-
     # ------------------------------------------------------------- residuals
     @cached_property
     def residuals(self) -> pd.DataFrame:
-        """Distance of every contour point to its surface, per (structure, frame, slice):
-        columns structure, frame, slice, view, n_points, mean_mm, max_mm, mean_px, max_px."""
+        """Distance of every contour point to its surface, per (structure, frame, slice,
+        view): columns structure, frame, slice, view, n_points, mean_mm, max_mm, mean_px,
+        max_px. SA points are the contour points of each slice (for the RV, the free
+        wall: the septal part is the LV epicardium's); LA points are the LA contours.
+        Empty for a model read back without its study's contours."""
+        cols = ["structure", "frame", "slice", "view", "n_points", "mean_mm", "max_mm",
+                "mean_px", "max_px"]
         rows = []
+        if not self.study.contours:
+            return pd.DataFrame(rows, columns=cols)
         for f in self.frames:
+            geo = self.geometry[f]
             for s, surf in self.surfaces[f].items():
-                items = [(sec.slice, "SA", sec.source_points, _pixel_mm(sec.plane))
-                         for sec in self.sections.get(f, {}).get(s, []) if sec.source_points is not None]
-                items += [(sl, "LA", pts, px) for sl, pts, px in self.la_points.get(f, {}).get(s, [])]
+                items = [(sec.slice, "SA", free_wall_points(sec, geo.direction), _pixel_mm(sec.plane))
+                         for sec in self.sections[f].get(s, []) if sec.source_points is not None]
+                items += [(sl, "LA", pts, px) for sl, pts, px in
+                          zip(geo.la_slices.get(s, []), geo.la_points.get(s, []),
+                              geo.la_pixel_mm.get(s, []))]
                 if not items:
                     continue
-                allp = np.concatenate([it[2] for it in items])
-                d = surface_distance(surf, allp)
+                d = surface_distance(surf, np.concatenate([it[2] for it in items]))
                 k = 0
                 for sl, view, pts, px in items:
                     di = d[k:k + len(pts)]
@@ -200,8 +314,6 @@ class BiventricularModel:
                                  "n_points": len(pts), "mean_mm": float(di.mean()),
                                  "max_mm": float(di.max()), "mean_px": float(di.mean() / px),
                                  "max_px": float(di.max() / px)})
-        cols = ["structure", "frame", "slice", "view", "n_points", "mean_mm", "max_mm",
-                "mean_px", "max_px"]
         return pd.DataFrame(rows, columns=cols)
 
     # ------------------------------------------------------------- (de)serialise
@@ -248,8 +360,9 @@ class BiventricularModel:
         sections = {int(f): {s: [Section(s, int(f), np.asarray(x["points"], float), slice=x["slice"])
                                  for x in secs] for s, secs in dd.items()}
                     for f, dd in d.get("sections", {}).items()}
-        m = cls(study, d["frames"], surfaces, planes, apex, sections=sections,
-                warnings=d.get("warnings"), resolution=tuple(d.get("resolution", RESOLUTION)))
+        m = cls(study, d["frames"], surfaces=surfaces, base_planes=planes, apex_points=apex,
+                sections=sections, warnings=d.get("warnings"),
+                resolution=tuple(d.get("resolution", RESOLUTION)))
         return m
 
 
@@ -273,6 +386,10 @@ def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float 
     """Biventricular NURBS model of a study (paper §4.2): one set of lofted
     surfaces per frame with LV endocardial contours (or the given ``frames``).
 
+    The LV endocardium of every frame is built at once (its cavity volume finds
+    ED and ES); the other surfaces are built when first asked for (measuring
+    asks only at ED and ES).
+
     ``tol_px``: curve-fit tolerance, pixels (paper §4.2.1: < 1 px).
     Raises ReconstructionError naming the structure and frame when a surface
     cannot be built.
@@ -285,28 +402,4 @@ def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float 
         raise ReconstructionError(f"frame(s) {missing} have no LV endocardial contours")
     if not frames:
         raise ReconstructionError(f"study {study.subject}: no LV endocardial contours")
-    surfaces, planes, apex, sections, fits, la, warnings = {}, {}, {}, {}, {}, {}, []
-    for f in frames:
-        geo = frame_geometry(study, f)
-        warnings += geo.warnings
-        ref = _reference_direction(study, geo)
-        surfaces[f], fits[f] = {}, {}
-        for s in SURFACES:
-            secs = geo.sections.get(s) or []
-            if len(secs) == 0:
-                continue
-            if len(secs) == 1:
-                warnings.append(f"{s}, frame {f}: contours on one slice only; surface skipped")
-                continue
-            fit: SurfaceFit = build_surface(geo, s, ref, tol_px=tol_px)
-            warnings += fit.warnings
-            surfaces[f][s], fits[f][s] = fit.surface, fit
-        if "lv_endo" not in surfaces[f]:
-            raise ReconstructionError(f"lv_endo, frame {f}: needs SA contours on at least 2 slices")
-        planes[f] = geo.base_planes
-        apex[f] = {s: geo.apex[s] for s in surfaces[f]}
-        sections[f] = {s: geo.sections[s] for s in surfaces[f]}
-        la[f] = {s: list(zip(geo.la_slices.get(s, []), geo.la_points.get(s, []),
-                             geo.la_pixel_mm.get(s, []))) for s in surfaces[f]}
-    return BiventricularModel(study, frames, surfaces, planes, apex, sections=sections, fits=fits,
-                              la_points=la, warnings=warnings, resolution=resolution)
+    return BiventricularModel(study, frames, tol_px=tol_px, resolution=resolution)

@@ -67,20 +67,26 @@ class FrameGeometry:
     la_slices: dict[str, list[str]] = field(default_factory=dict)
     la_pixel_mm: dict[str, list[float]] = field(default_factory=dict)
     thickness: float = 8.0
+    reference: np.ndarray | None = None     # in-plane LV -> RV direction (section seams)
     warnings: list[str] = field(default_factory=list)
 
 
 # --------------------------------------------------------------- point order
 def _in_drawing_order(points: np.ndarray, closed: bool) -> bool:
-    """True when consecutive points are neighbours: the median step is at most 3 median
-    nearest-neighbour distances and no step exceeds 4 median steps (noise-tolerant)."""
+    """True when consecutive points are neighbours: no step exceeds 4 median steps and
+    the median step is at most 3 median nearest-neighbour distances (noise-tolerant;
+    the nearest-neighbour distance is estimated on up to 24 of the points)."""
     if len(points) < 3:
         return True
     q = np.vstack([points, points[:1]]) if closed else points
     steps = np.linalg.norm(np.diff(q, axis=0), axis=1)
-    nn = cKDTree(points).query(points, k=2)[0][:, 1]
     med = max(float(np.median(steps)), 1e-9)
-    return bool(med <= 3.0 * max(float(np.median(nn)), 1e-9) and np.all(steps <= 4.0 * med))
+    if np.any(steps > 4.0 * med):
+        return False
+    probe = points[np.linspace(0, len(points) - 1, min(24, len(points))).astype(int)]
+    d = np.linalg.norm(probe[:, None] - points[None], axis=2)
+    d[d == 0] = np.inf
+    return bool(med <= 3.0 * max(float(np.median(d.min(axis=1))), 1e-9))
 
 
 def _nearest_neighbour_chain(points: np.ndarray, start: int) -> np.ndarray:
@@ -176,11 +182,17 @@ def fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def in_plane_basis(normal: np.ndarray) -> np.ndarray:
     """(2, 3) orthonormal in-plane axes for a plane with this normal."""
-    n = normal / np.linalg.norm(normal)
+    n = np.asarray(normal, dtype=float)
+    n = n / np.sqrt(n @ n)
     t = np.eye(3)[np.argmin(np.abs(n))]
-    e1 = np.cross(n, t)
-    e1 /= np.linalg.norm(e1)
-    return np.stack([e1, np.cross(n, e1)])
+    e1 = _cross3(n, t)
+    e1 /= np.sqrt(e1 @ e1)
+    return np.stack([e1, _cross3(n, e1)])
+
+
+def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product of two 3-vectors (np.cross has a large fixed overhead)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 def signed_area(points: np.ndarray, normal: np.ndarray) -> float:
@@ -463,9 +475,7 @@ def frame_geometry(study: Study, frame: int) -> FrameGeometry:
         for sec in geo.sections.get(s, []):
             ep = lv_epi.get(sec.slice)
             if ep is not None:
-                px = float(np.mean(sec.plane.pixel_spacing)) if sec.plane is not None else 1.0
                 sec.septum_of = ep.points
-                sec.source_points = embed_septum(sec.points, ep.points, n, near_mm=0.5 * px)[1]
     geo.la_points, geo.la_slices, geo.la_pixel_mm = _la_polylines(study, frame)
 
     lm_apex = [lm.point for lm in study.landmarks_at(frame, "apex")]

@@ -97,7 +97,7 @@ def resample_loop(points: np.ndarray, direction: np.ndarray, ref: np.ndarray,
     return spline(s_of_arc)
 
 
-def curve_distance(curve, points: np.ndarray, n_eval: int = 1000) -> np.ndarray:
+def curve_distance(curve, points: np.ndarray, n_eval: int = 400) -> np.ndarray:
     """Distance (mm) of each point to a curve: nearest of a dense sampling, then
     projected on the sampled polyline's adjacent segments (error ≪ 0.01 mm)."""
     u = np.linspace(0.0, 1.0, n_eval)
@@ -118,6 +118,16 @@ def _level(x: np.ndarray, n: np.ndarray) -> np.ndarray:
     return np.asarray(x) @ n
 
 
+def free_wall_targets(targets: np.ndarray, centre: np.ndarray,
+                      side: np.ndarray | None) -> np.ndarray:
+    """LA crossings on the free-wall side of an RV section: (q − centre)·side > 0,
+    ``side`` the LV -> RV direction (None: all targets). Scaling a crescent about its
+    centroid fits its free wall; its septal side is the LV epicardium's anyway."""
+    if side is None or not len(targets):
+        return targets
+    return targets[(targets - centre) @ side > 0]
+
+
 def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
                        apex: np.ndarray) -> tuple[list[Section], list[Section]]:
     """Synthetic (basal, apical) sections from LA contour crossings (see module doc)."""
@@ -125,6 +135,7 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
     la = geo.la_points.get(structure, [])
     if not la or not secs:
         return [], []
+    side = geo.reference if structure.startswith("rv") else None
     first, last = secs[0], secs[-1]
     h0 = float(_level(first.points, n).mean())
     hk = float(_level(last.points, n).mean())
@@ -138,7 +149,7 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
             h = hk + f * gap
             targets = np.concatenate([crossings(pl, n, h) for pl in la])
             centre = (1 - f) * c_last + f * apex
-            res = scaled_section(last, h, n, centre, targets)
+            res = scaled_section(last, h, n, centre, free_wall_targets(targets, centre, side))
             if res is not None and res[1] > 0.02:
                 apical.append(Section(structure, geo.frame, res[0], synthetic=True, scale=res[1],
                                       template=-1))
@@ -157,7 +168,7 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
                 targets = targets[plane.signed_distance(targets) >= -0.5]
             if not len(targets):
                 break
-            res = scaled_section(first, h, n, c_first, targets)
+            res = scaled_section(first, h, n, c_first, free_wall_targets(targets, c_first, side))
             if res is None:
                 break
             basal.insert(0, Section(structure, geo.frame, res[0], synthetic=True, scale=res[1],
@@ -178,10 +189,20 @@ def embed_septa(real: list[Section], synthetic: list[Section], direction: np.nda
         if sec.septum_of is not None:
             near = near_px * _pixel_mm(sec)
             d = embed_septum(sec.points, sec.septum_of, direction, near_mm=near)[0] - sec.points
+            sec.source_points = free_wall_points(sec, direction, near_px)
         disp.append(d)
         sec.points = sec.points + d
     for sec in synthetic:
         sec.points = sec.points + sec.scale * disp[sec.template]
+
+
+def free_wall_points(sec: Section, direction: np.ndarray, near_px: float = 0.5) -> np.ndarray:
+    """The contour points of an RV section that are not on the septum (the septal
+    ones lie on the LV epicardium, which bounds the RV there; see embed_septum)."""
+    if sec.septum_of is None or sec.source_points is None:
+        return sec.source_points
+    return embed_septum(sec.source_points, sec.septum_of, direction,
+                        near_mm=near_px * _pixel_mm(sec))[1]
 
 
 def extension_section(basal: Section, geo: FrameGeometry, structure: str,
