@@ -320,3 +320,26 @@ def test_batched_surface_evaluation_matches_nurbs(heart):
         assert np.allclose(S[k], d[0, 0], atol=1e-9)
         assert np.allclose(Su[k], d[1, 0], atol=1e-7)
         assert np.allclose(Sv[k], d[0, 1], atol=1e-7)
+
+
+def test_figure_data_marks_the_flagged_line(heart):
+    from cardionurbs.analysis.tags import tag_figure_data
+    st = heart.study(jumps=[("sa1", 1, "sa_03", 1)])
+    figs = tag_figure_data(st, 1)
+    bad = [f for f in figs if f["flagged"]]
+    assert [(f["family"], f["index"], f["flagged_slices"]) for f in bad] == [("sa1", 1, ["sa_03"])]
+    f = bad[0]
+    assert f["vertices"].shape[1] == 3 and f["faces"].max() < len(f["vertices"])
+    assert [ln["slice"] for ln in f["lines"] if ln["flagged"]] == ["sa_03"]
+    assert {(g["family"]) for g in figs} == {"sa1", "sa2", "la"}
+
+
+def test_over_time_and_json(heart):
+    import json
+    from cardionurbs.analysis.tags import tag_metrics
+    res = tag_metrics(heart.study(), 0, 1, over_time=True, qc=False)
+    assert res.over_time[0]["Twist (deg)"] == pytest.approx(0.0, abs=1e-6)
+    assert res.over_time[1]["Twist (deg)"] == pytest.approx(res["Twist (deg)"])
+    doc = json.loads(json.dumps(res.to_json()))
+    assert doc["columns"]["Tag QC flags"] is None        # QC not run
+    assert [lv["index"] for lv in doc["levels"]] == [lv["index"] for lv in res.levels]

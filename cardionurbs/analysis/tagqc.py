@@ -8,11 +8,14 @@ every slice (SA families) or view (``la``) showing it, we
 1. loft the tag surface through the *other* slices' fitted curves with
    degree 1 across the slices (paper §3.2.4 with q = 1): with sections on
    one knot vector this is the blend S(u, v) = (1 − t) C_a(u) + t C_b(u)
-   between the two remaining sections on either side of the left-out plane
-   (or, beyond the first or last remaining section, the linear extension
-   from the two nearest). For ``la`` the sections are the spokes of the
-   other views around the long axis, and a and b the spokes on either side
-   of the left-out spoke's angle;
+   between two remaining sections a, b. Several pairs predict the left-out
+   line — pairs bracketing it (also skipping the nearest section on one
+   side), the nearest pair on either side (linear extension by one gap)
+   and, at a stack end, the pairs among the three nearest — and the line's
+   departure is the smallest of them, so that one jumped neighbour cannot
+   make a good line look bad. For ``la`` the sections are the spokes
+   of the other views around the long axis, a and b the spokes on either
+   side of the left-out spoke's angle, blended in cylindrical coordinates;
 2. cut that surface with the left-out image plane: for every u, t(u) =
    d_a / (d_a − d_b) with d the signed distances of C_a(u), C_b(u) from the
    plane, giving the trace T(u) in the plane;
@@ -157,17 +160,29 @@ def tag_spacing(study: Study, family: str, frame: int,
 
 
 # ----------------------------------------------------------------- LOO core
-def _neighbours_linear(keys: np.ndarray, h: float) -> tuple[int, int] | None:
-    """Indices of the two remaining sections bracketing position h (or the two nearest at an end)."""
+def _neighbour_pairs(keys: np.ndarray, h: float) -> list[tuple[int, int]]:
+    """Pairs of remaining sections that predict the section at stack position h.
+
+    From the (up to) three nearest remaining sections on each side: every
+    pair among the nearest two on each side and the pair bracketing h, plus
+    the pairs that skip the nearest one on a side, so that whichever single
+    neighbour jumped, some pair without it remains as a witness.
+    """
     n = len(keys)
-    if n < 2:
-        return None
     j = int(np.searchsorted(keys, h))
-    if j <= 0:
-        return 0, 1
-    if j >= n:
-        return n - 2, n - 1
-    return j - 1, j
+    L = [i for i in (j - 1, j - 2, j - 3) if 0 <= i < n]
+    R = [i for i in (j, j + 1, j + 2) if 0 <= i < n]
+    pairs: list[tuple[int, int]] = []
+    if L and R:                       # interpolation
+        pairs += [(L[0], R[0])]
+        pairs += [(L[1], R[0])] if len(L) > 1 else []
+        pairs += [(L[0], R[1])] if len(R) > 1 else []
+    for side in (L, R):               # extrapolation from one side (by one or two gaps)
+        if len(side) > 1:
+            pairs.append(tuple(sorted((side[0], side[1]))))
+        if len(side) > 2 and not (L and R):
+            pairs += [tuple(sorted((side[0], side[2]))), tuple(sorted((side[1], side[2])))]
+    return pairs
 
 
 def _neighbours_cyclic(angles: np.ndarray, a: float) -> tuple[int, int] | None:
@@ -232,21 +247,25 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
         keep = [k for k, s in enumerate(secs) if s.slice != left and s.slice not in exclude]
         mine = [k for k, s in enumerate(secs) if s.slice == left]
         keys = np.array([secs[k].key for k in keep])
-        dist = []
-        for k in mine:
-            sec = secs[k]
-            nb = _neighbours_cyclic(keys, sec.key) if periodic else _neighbours_linear(keys, sec.key)
-            if nb is None:
-                continue
-            Ca, Cb = samples[keep[nb[0]]], samples[keep[nb[1]]]
-            if periodic:   # a spoke's first point is the cut on the axis, not data
-                dist.append(spoke_height_departure(sec.points[1:], Ca, Cb, axis))
-            else:
-                plane = sec.plane
-                trace, tan = blend_trace(Ca, Cb, plane.position, plane.normal)
-                dist.append(distance_to_trace(sec.points, trace, tan))
-        if dist:
-            out[left] = float(np.median(np.concatenate(dist)) / spacing)
+        if periodic:   # LA: both spokes of the left-out view against their angular neighbours
+            dist = []
+            for k in mine:
+                nb = _neighbours_cyclic(keys, secs[k].key)
+                if nb is not None:   # a spoke's first point is the cut on the axis, not data
+                    dist.append(spoke_height_departure(secs[k].points[1:], samples[keep[nb[0]]],
+                                                       samples[keep[nb[1]]], axis))
+            if dist:
+                out[left] = float(np.median(np.concatenate(dist)) / spacing)
+            continue
+        sec = secs[mine[0]]
+        plane = sec.plane
+        best = np.inf
+        for a, b in _neighbour_pairs(keys, sec.key):
+            trace, tan = blend_trace(samples[keep[a]], samples[keep[b]], plane.position,
+                                     plane.normal)
+            best = min(best, float(np.median(distance_to_trace(sec.points, trace, tan))))
+        if np.isfinite(best):
+            out[left] = best / spacing
     return out
 
 
