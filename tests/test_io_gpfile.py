@@ -132,7 +132,7 @@ def test_synthetic_study_round_trip(tmp_path):
     gpfile.write_study(s, tmp_path)
     r = load_study(tmp_path)
     assert {c.structure for c in r.contours} == {c.structure for c in s.contours}
-    assert sorted({im.slice for im in r.images}) == ["la_4", "sa_00", "sa_01", "sa_02"]
+    assert sorted({im.slice for im in r.images}) == ["la_4ch", "sa_00", "sa_01", "sa_02"]
     for a, b in zip(s.contours, r.contours):
         assert np.array_equal(a.points, b.points) and a.structure == b.structure
 

@@ -86,3 +86,30 @@ def test_manifest_geometry_cross_checked_against_dicom(phantom, tmp_path):
     with pytest.raises(StudyError, match="ImagePositionPatient is 0.866 mm from study.json") as e:
         load_study(copy)
     assert str(f) in str(e.value)
+
+
+def test_phantom_to_gpfile_and_back(phantom, tmp_path):
+    """A phantom study goes to biv-me GPFiles: closed rv_endo becomes RV_SEPTUM + RV_FREEWALL
+    (same points), LA views keep their names, every other contour and landmark is equal."""
+    from cardionurbs.io import gpfile
+
+    ph, out = phantom
+    study = load_study(out)
+    gpfile.write_study(study, tmp_path)
+    back = load_study(tmp_path)
+    assert {im.slice for im in back.images} == {im.slice for im in study.images}
+    key = lambda c: (c.structure, c.slice, c.frame)  # noqa: E731
+    same = {key(c): c for c in back.contours}
+    for c in study.contours:
+        if c.structure == "rv_endo":
+            parts = [p.points for p in back.contours if p.structure in ("rv_septum", "rv_freewall")
+                     and (p.slice, p.frame) == (c.slice, c.frame)]
+            assert np.array_equal(np.sort(np.concatenate(parts), axis=0), np.sort(c.points, axis=0))
+        else:
+            assert np.array_equal(same[key(c)].points, c.points)
+    assert len(back.landmarks) == len(study.landmarks)
+    order = lambda lm: (lm.frame, lm.name, tuple(lm.point))  # noqa: E731
+    for a, b in zip(sorted(study.landmarks, key=order), sorted(back.landmarks, key=order)):
+        assert np.array_equal(a.point, b.point)
+        if a.slice is not None:  # slice-bound landmarks keep slice and index
+            assert (a.slice, a.index) == (b.slice, b.index)

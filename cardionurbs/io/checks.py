@@ -12,13 +12,14 @@ Fatal (StudyError)
     * a closed or LV contour with fewer than ``MIN_CONTOUR_POINTS`` points (an open
       RV part may be shorter), a closed contour that crosses itself, a tag
       line with fewer than 2 points;
-    * a contour, tag or landmark point farther than half the slice thickness
-      (at least ``OFF_PLANE_ERROR_MM``) from its image plane;
+    * a contour or tag point farther than half the slice thickness (at least
+      ``OFF_PLANE_ERROR_MM``) from its image plane;
     * no LV endocardial contour at all, or none at the labelled ED or ES frame;
     * trigger times for some frames but not for others.
 
 Warnings
-    * points slightly off their plane (> ``OFF_PLANE_WARN_MM``);
+    * points slightly off their plane (> ``OFF_PLANE_WARN_MM``); landmarks off the
+      plane of the slice they name, however far (a landmark is a 3-D point);
     * an open contour that crosses itself; an open RV part (CAP ``rv_septum``,
       ``rv_freewall``, ``rv_epi`` guide points) with 1 to 4 points — real CAP
       data has such short septal runs;
@@ -302,11 +303,11 @@ class _Normals(dict):
 
 
 def _off_plane(study: Study, plane: ImagePlane, pts: np.ndarray, what: str, file, ann,
-               warnings: list[str], normals: _Normals) -> None:
+               warnings: list[str], normals: _Normals, fatal: bool = True) -> None:
     d = float(np.abs((np.asarray(pts, float).reshape(-1, 3) - plane.position)
                      @ normals.of(plane)).max())
     limit = max(OFF_PLANE_ERROR_MM, 0.5 * plane.thickness)
-    if d > limit:
+    if d > limit and fatal:
         raise StudyError(f"{what} lies {d:.2f} mm off its image plane (limit {limit:.2f} mm)",
                          file=_src(study, file), slice=ann.slice, frame=ann.frame)
     if d > OFF_PLANE_WARN_MM:
@@ -350,7 +351,9 @@ def _check_annotations(study: Study, warnings: list[str]) -> None:
     for lm in study.landmarks:
         plane = _plane_of(study, lm, None)
         if plane is not None:
-            _off_plane(study, plane, lm.point, f"landmark {lm.name}", None, lm, warnings, normals)
+            # a landmark is a 3-D point; its slice is where it was picked: warn only
+            _off_plane(study, plane, lm.point, f"landmark {lm.name}", None, lm, warnings, normals,
+                       fatal=False)
     if no_plane:
         warnings.append(f"{study.source}: {no_plane} contour(s) have no image plane to check "
                         "them against")

@@ -39,7 +39,9 @@ Slice ids: the slices of SliceInfoFile whose normals are parallel (the largest
 such group, :func:`cardionurbs.imaging.stack.split_stack`) are the SA stack,
 named ``sa_00`` (base) ... towards the apex, the direction told by the
 APEX_POINT landmark, else the MITRAL_VALVE points, else the LPS prior
-(:mod:`cardionurbs.imaging.stack`). Every other slice is ``la_<sliceID>``.
+(:mod:`cardionurbs.imaging.stack`). Every other slice is ``la_<n>ch`` when its
+DICOM file name says so (``..._4ch_...``, as this writer writes them), else
+``la_<sliceID>``.
 Every slice gets one image per frame, id ``<slice>_f<NNN>``; SliceInfoFile has
 no matrix size or thickness, so images use 256 x 256 and 8 mm (noted in
 ``Study.meta["gpfile"]["defaults"]``). There is no timing: ``frame_times_ms``
@@ -309,10 +311,19 @@ def _slice_planes(slices: list[dict], tables: list[pd.DataFrame], folder: Path):
         depth = centers[sa_idx] @ u
         for k, j in enumerate(np.argsort(depth, kind="stable")):
             names[sa[j]], views[sa[j]] = f"sa_{k:02d}", "SA"
+    by_id = {s["id"]: s for s in slices}
+    la_names = {}
     for i, m in zip(ids, is_sa):
         if not m:
-            names[i], views[i] = f"la_{i}", "LA"
+            hit = _LA_VIEW.search(Path(by_id[i]["file"]).name)
+            la_names[i] = f"la_{hit.group(1)}ch" if hit else f"la_{i}"
+    counts = pd.Series(list(la_names.values()), dtype=object).value_counts()
+    for i, name in la_names.items():
+        names[i], views[i] = (name if counts[name] == 1 else f"la_{i}"), "LA"
     return planes, names, views, rule
+
+
+_LA_VIEW = re.compile(r"(?<![0-9a-z])([234])\s*-?\s*ch(?![a-z])", re.IGNORECASE)
 
 
 def _read_blocks(t: pd.DataFrame, frame: int, f: Path, names: dict, views: dict,
@@ -328,7 +339,7 @@ def _read_blocks(t: pd.DataFrame, frame: int, f: Path, names: dict, views: dict,
     ends = np.r_[starts[1:], len(t)].astype(int)
     blocks = []
     piece: dict[tuple, int] = {}
-    lm_count: dict[str, int] = {}
+    lm_count: dict[tuple[str, str], int] = {}
     for s, e in zip(starts, ends):
         gp_type, sid = str(types[s]), int(sids[s])
         slice_id, view = names[sid], views[sid]
@@ -336,10 +347,11 @@ def _read_blocks(t: pd.DataFrame, frame: int, f: Path, names: dict, views: dict,
         if gp_type in LANDMARK_TYPES:
             name = LANDMARK_TYPES[gp_type]
             blocks.append(["l", len(landmarks), int(e - s), gp_type])
-            for k in range(s, e):
-                landmarks.append(Landmark(name, frame, xyz[k], index=lm_count.get(name, 0),
-                                          slice=slice_id, view=view, image=image))
-                lm_count[name] = lm_count.get(name, 0) + 1
+            for k in range(s, e):  # index counts the points of a name on one slice
+                n = lm_count.get((name, slice_id), 0)
+                landmarks.append(Landmark(name, frame, xyz[k], index=n, slice=slice_id, view=view,
+                                          image=image))
+                lm_count[(name, slice_id)] = n + 1
             continue
         prefix, _, base = gp_type.partition("_")
         if prefix not in VIEW_PREFIX or base not in CONTOUR_TYPES:
@@ -417,7 +429,7 @@ def write_study(study: Study, folder: str | Path) -> Path:
             pos, ori, sp = tok["position"], tok["orientation"], tok["pixel_spacing"]
         else:
             pos, ori, sp = _fmt(im.position), _fmt(im.orientation), _fmt(im.pixel_spacing)
-        lines.append("\t".join([slice_files.get(sl) or im.file or f"{sl}.dcm", "sliceID: ", str(sid),
+        lines.append("\t".join([slice_files.get(sl) or (Path(im.file).name if im.file else f"{sl}.dcm"), "sliceID: ", str(sid),
                                 "ImagePositionPatient", *pos, "ImageOrientationPatient", *ori,
                                 "PixelSpacing", *sp]))
     atomic.write_text(folder / SLICE_INFO, "\n".join(lines) + "\n")
