@@ -429,9 +429,9 @@ def write_study(study: Study, folder: str | Path) -> Path:
             pos, ori, sp = tok["position"], tok["orientation"], tok["pixel_spacing"]
         else:
             pos, ori, sp = _fmt(im.position), _fmt(im.orientation), _fmt(im.pixel_spacing)
-        lines.append("\t".join([slice_files.get(sl) or (Path(im.file).name if im.file else f"{sl}.dcm"), "sliceID: ", str(sid),
-                                "ImagePositionPatient", *pos, "ImageOrientationPatient", *ori,
-                                "PixelSpacing", *sp]))
+        name = slice_files.get(sl) or (Path(im.file).name if im.file else f"{sl}.dcm")
+        lines.append("\t".join([name, "sliceID: ", str(sid), "ImagePositionPatient", *pos,
+                                "ImageOrientationPatient", *ori, "PixelSpacing", *sp]))
     atomic.write_text(folder / SLICE_INFO, "\n".join(lines) + "\n")
     exact = (gp.get("n_contours") == len(study.contours)
              and gp.get("n_landmarks") == len(study.landmarks))
@@ -445,8 +445,9 @@ def write_study(study: Study, folder: str | Path) -> Path:
         if fm and sum(r[0] for r in fm["runs"]) == n:
             weights = [w for c, w, _ in fm["runs"] for _ in range(c)]
             times = [tt for c, _, tt in fm["runs"] for _ in range(c)]
+        points = _expand(rows, gp.get("decimals"))
         body = [f"{x}\t{y}\t{z}\t{ty}\t{sid}\t{w}\t{tt}"
-                for (x, y, z, ty, sid), w, tt in zip(_expand(rows, gp.get("decimals")), weights, times)]
+                for (x, y, z, ty, sid), w, tt in zip(points, weights, times)]
         name = (fm or {}).get("file") or f"GPFile_{frame:03d}.txt"
         atomic.write_text(folder / name, "\n".join([header, *body]) + "\n")
     return folder
