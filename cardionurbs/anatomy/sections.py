@@ -255,15 +255,19 @@ def crossings(polyline: np.ndarray, direction: np.ndarray, level: float) -> np.n
 
 def scaled_section(template: Section, level: float, direction: np.ndarray,
                    centre: np.ndarray, targets: np.ndarray | None,
-                   default_scale: float | None = None) -> tuple[np.ndarray, float] | None:
-    """A section at ``level`` shaped like ``template``: centre + s·(T − c_T) moved to the level.
+                   default_scale: float | None = None,
+                   anchor: np.ndarray | None = None) -> tuple[np.ndarray, float] | None:
+    """A section at ``level`` shaped like ``template``: centre + s·(T − a), moved to the level.
 
-    The scale s is the mean, over target points (LA contour crossings of the
-    level plane), of |q − centre| / r_T(θ_q), r_T the template's radius in the
+    ``a`` is the scaling anchor in the template's plane (default: its centroid;
+    for the RV, the LV centre, so that the crescent thins onto the LV rather
+    than shrinking about its own centroid). The scale s is the mean, over
+    target points (LA contour crossings of the level plane), of
+    |q − centre| / r_T(θ_q), r_T the template's radius from the anchor in the
     direction of q; without targets ``default_scale`` is used (None: no section).
     """
     t = template.points
-    ct = loop_centroid(t, direction)
+    ct = loop_centroid(t, direction) if anchor is None else anchor
     rel = t - ct
     rel -= np.outer(rel @ direction, direction)           # in-plane
     centre = centre - (centre @ direction - level) * direction

@@ -120,12 +120,17 @@ def _level(x: np.ndarray, n: np.ndarray) -> np.ndarray:
 
 def free_wall_targets(targets: np.ndarray, centre: np.ndarray,
                       side: np.ndarray | None) -> np.ndarray:
-    """LA crossings on the free-wall side of an RV section: (q − centre)·side > 0,
-    ``side`` the LV -> RV direction (None: all targets). Scaling a crescent about its
-    centroid fits its free wall; its septal side is the LV epicardium's anyway."""
+    """The LA crossing on the RV free wall: of the crossings on the RV side of the LV
+    centre ((q − centre)·side > 0, ``side`` the LV -> RV direction), the one farthest
+    from it (the septal crossings lie on the LV epicardium, nearer the centre).
+    ``side`` None: all targets (LV surfaces)."""
     if side is None or not len(targets):
         return targets
-    return targets[(targets - centre) @ side > 0]
+    rel = targets - centre
+    rv_side = targets[rel @ side > 0]
+    if not len(rv_side):
+        return rv_side
+    return rv_side[[int(np.argmax(np.linalg.norm(rv_side - centre, axis=1)))]]
 
 
 def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
@@ -135,12 +140,21 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
     la = geo.la_points.get(structure, [])
     if not la or not secs:
         return [], []
-    side = geo.reference if structure.startswith("rv") else None
+    rv = structure.startswith("rv")
+    side = geo.reference if rv else None
     first, last = secs[0], secs[-1]
     h0 = float(_level(first.points, n).mean())
     hk = float(_level(last.points, n).mean())
     ha = float(apex @ n)
-    c_last = loop_centroid(last.points, n)
+
+    def anchor_of(sec: Section) -> tuple[np.ndarray, np.ndarray | None]:
+        """(centre of the shape, scaling anchor): the RV scales about the LV centre."""
+        if rv and sec.septum_of is not None:
+            a = loop_centroid(sec.septum_of, n)
+            return a, a
+        return loop_centroid(sec.points, n), None
+
+    c_last, a_last = anchor_of(last)
     apical = []
     gap = ha - hk
     if gap > SYNTHETIC_STEP_MM:
@@ -148,14 +162,15 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
         for f in np.arange(1, k) / k:
             h = hk + f * gap
             targets = np.concatenate([crossings(pl, n, h) for pl in la])
-            centre = (1 - f) * c_last + f * apex
-            res = scaled_section(last, h, n, centre, free_wall_targets(targets, centre, side))
+            centre = c_last if a_last is not None else (1 - f) * c_last + f * apex
+            res = scaled_section(last, h, n, centre, free_wall_targets(targets, centre, side),
+                                 anchor=a_last)
             if res is not None and res[1] > 0.02:
                 apical.append(Section(structure, geo.frame, res[0], synthetic=True, scale=res[1],
                                       template=-1))
     basal = []
-    plane = geo.base_planes.get("lv" if structure.startswith("lv") else "rv")
-    c_first = loop_centroid(first.points, n)
+    plane = geo.base_planes.get("rv" if rv else "lv")
+    c_first, a_first = anchor_of(first)
     if plane is not None:
         # the most basal level any part of the valve plane reaches inside the LA contours
         la_all = np.concatenate(la)
@@ -168,7 +183,8 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
                 targets = targets[plane.signed_distance(targets) >= -0.5]
             if not len(targets):
                 break
-            res = scaled_section(first, h, n, c_first, free_wall_targets(targets, c_first, side))
+            res = scaled_section(first, h, n, c_first, free_wall_targets(targets, c_first, side),
+                                 anchor=a_first)
             if res is None:
                 break
             basal.insert(0, Section(structure, geo.frame, res[0], synthetic=True, scale=res[1],
