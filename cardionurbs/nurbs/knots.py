@@ -40,7 +40,7 @@ from cardionurbs.nurbs.basis import basis_matrix, find_spans
 
 __all__ = [
     "periodic_knot_vector", "periodic_knot", "knot_multiplicity", "insert_knot",
-    "refine_knot_vector", "insert_knot_periodic", "rotate_periodic",
+    "refine_knot_vector", "insert_knot_periodic", "refine_periodic", "rotate_periodic",
     "canonical_periodic", "clamp_periodic", "elevate_degree_clamped",
     "elevate_degree_periodic", "distinct_knots",
 ]
@@ -189,6 +189,43 @@ def insert_knot_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, u: floa
     Q[rest % (n + 1)] = Pw[(rest - 1) % n]
     B = np.concatenate([U[p:k + 1], [u], U[k + 1:n + p + 1]])
     return canonical_periodic(periodic_knot_vector(B, p), Q, p)
+
+
+def refine_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, X: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Insert all knots ``X`` (values in [0, 1), repeats allowed) into a periodic
+    spline at once: the Oslo algorithm (Cohen, Lyche & Riesenfeld 1980), the
+    general form of A5.4, vectorised over the new control points.
+
+    New control point j is the blossom of the curve at the new knots
+    ``tau_{j+1} .. tau_{j+p}``, evaluated by a de Boor triangle on the old
+    span mu with ``T_mu <= tau_j < T_{mu+1}`` (indices cyclic).
+    """
+    U = np.asarray(knots, dtype=float)
+    Pw = np.asarray(Pw, dtype=float)
+    p = int(degree)
+    n = Pw.shape[0]
+    X = np.sort(np.mod(np.asarray(X, dtype=float).ravel(), 1.0))
+    if X.size == 0:
+        return U.copy(), Pw.copy()
+    old = U[p:n + p]                                   # one period, seam run first
+    B = np.concatenate([np.sort(np.concatenate([old, X]), kind="stable"), [1.0]])
+    Un, _ = canonical_periodic(periodic_knot_vector(B, p), np.zeros((B.size - 1, 1)), p)
+    nn = B.size - 1
+    j = np.arange(nn)
+    # locate tau_j by its stored value in one period (exact, no "- 1" rounding)
+    q, r = np.divmod(j - p, nn)
+    mu = np.searchsorted(old, Un[p + r], side="right") - 1 + p + q * n
+    shape = (nn,) + (1,) * (Pw.ndim - 1)
+    d = [Pw[(mu - p + i) % n] for i in range(p + 1)]   # local de Boor points
+    for r in range(1, p + 1):
+        x = periodic_knot(Un, p, nn, j + r).reshape(shape)
+        for i in range(p, r - 1, -1):
+            lo = periodic_knot(U, p, n, mu - p + i).reshape(shape)
+            hi = periodic_knot(U, p, n, mu + i + 1 - r).reshape(shape)
+            a = (x - lo) / (hi - lo)
+            d[i] = a * d[i] + (1.0 - a) * d[i - 1]
+    return Un, d[p]
 
 
 def rotate_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, shift: float

@@ -88,8 +88,9 @@ def _best_shift(prev: np.ndarray, cur: np.ndarray) -> float:
     B = cur - cur.mean(axis=0)
     A /= max(np.sqrt((A ** 2).sum(axis=1).mean()), 1e-300)
     B /= max(np.sqrt((B ** 2).sum(axis=1).mean()), 1e-300)
-    idx = (np.arange(M)[:, None] + np.arange(M)[None, :]) % M       # [j, i] -> i + j
-    corr = np.einsum("jid,id->j", B[idx], A)
+    # corr[j] = sum_i A_i . B_{i+j}, all shifts at once by FFT
+    corr = np.fft.irfft(np.conj(np.fft.rfft(A, axis=0)) * np.fft.rfft(B, axis=0), n=M,
+                        axis=0).sum(axis=1)
     cost = -corr
     j = int(np.argmin(cost))
     c0, cm, cp = cost[j], cost[(j - 1) % M], cost[(j + 1) % M]

@@ -17,8 +17,8 @@ from cardionurbs.errors import NurbsInputError
 from cardionurbs.nurbs import _validate as V
 from cardionurbs.nurbs.curve import NurbsCurve
 from cardionurbs.nurbs.knots import (distinct_knots, elevate_degree_clamped,
-                                     elevate_degree_periodic, insert_knot_periodic,
-                                     knot_multiplicity, refine_knot_vector, rotate_periodic)
+                                     elevate_degree_periodic, refine_periodic,
+                                     refine_knot_vector, rotate_periodic)
 
 __all__ = ["insert_knots", "elevate_degree", "make_compatible", "rotate_seam",
            "reparameterise"]
@@ -42,7 +42,7 @@ def _check_curve(curve: Any, name: str = "curve") -> NurbsCurve:
 
 def insert_knots(curve: NurbsCurve, knots: Any) -> NurbsCurve:
     """Insert the knots ``knots`` (each value once per occurrence) -- A5.4 for
-    open curves, cyclic Boehm insertion for closed ones.  The curve keeps its
+    open curves, the Oslo algorithm with cyclic indices for closed ones.  The curve keeps its
     shape and parameterisation.  Interior multiplicity may reach the degree.
     """
     curve = _check_curve(curve)
@@ -56,18 +56,16 @@ def insert_knots(curve: NurbsCurve, knots: Any) -> NurbsCurve:
     elif X.min() <= lo or X.max() >= hi:
         raise NurbsInputError(f"knots: inserted knots must lie inside the domain ({lo}, {hi}), "
                               f"got [{X.min()}, {X.max()}]")
-    vals, mult = distinct_knots(X, 0.0)
-    for x, r in zip(vals, mult):
-        existing = knot_multiplicity(_period_knots(curve) if curve.closed else curve.knots, x)
-        if existing + r > p:
-            raise NurbsInputError(f"knots: inserting {x} {r} time(s) would give multiplicity "
-                                  f"{existing + r} > degree {p}")
+    merged = np.sort(np.concatenate([_period_knots(curve), X]))
+    vals, mult = distinct_knots(merged, 0.0)
+    if mult.max() > p:
+        bad = vals[np.argmax(mult)]
+        raise NurbsInputError(f"knots: inserting {bad} would give multiplicity "
+                              f"{mult.max()} > degree {p}")
     Pw = _homogeneous(curve)
     if curve.closed:
-        U = curve.knots
-        for x in X:
-            U, Pw = insert_knot_periodic(U, Pw, p, float(x))
-        return _from_homogeneous(p, U, Pw, True)
+        U, Qw = refine_periodic(curve.knots, Pw, p, X)
+        return _from_homogeneous(p, U, Qw, True)
     U, Qw = refine_knot_vector(curve.knots, Pw, p, X)
     return _from_homogeneous(p, U, Qw, False)
 
@@ -129,25 +127,18 @@ def make_compatible(curves: Sequence[NurbsCurve]) -> list[NurbsCurve]:
         raise NurbsInputError("curves: mix of open and closed curves")
     pmax = max(c.degree for c in curves)
     curves = [reparameterise(elevate_degree(c, pmax - c.degree)) for c in curves]
-    # union multiset: value -> max multiplicity over curves
-    union: dict[float, int] = {}
-    per_curve = []
-    for c in curves:
-        vals, mult = distinct_knots(_period_knots(c))
-        per_curve.append(dict(zip(vals.tolist(), mult.tolist())))
-    all_vals = np.unique(np.concatenate([np.array(list(d), dtype=float) for d in per_curve]
-                                        + [np.zeros(0)]))
-    merged, _ = distinct_knots(all_vals, 1e-12)
-    for v in merged:
-        union[float(v)] = max(sum(m for x, m in d.items() if abs(x - v) <= 1e-12)
-                              for d in per_curve)
+    # union multiset: every distinct knot value with its largest multiplicity
+    per_curve = [distinct_knots(_period_knots(c)) for c in curves]
+    merged, _ = distinct_knots(np.sort(np.concatenate([v for v, _ in per_curve])), 1e-12)
+    counts = np.zeros((len(curves), merged.size), dtype=int)
+    for row, (vals, mult) in zip(counts, per_curve):
+        idx = np.clip(np.searchsorted(merged, vals - 1e-12), 0, merged.size - 1)
+        np.add.at(row, idx, mult)
+    need = counts.max(axis=0)
     out = []
-    for c, d in zip(curves, per_curve):
-        X = []
-        for v, m in union.items():
-            own = sum(mm for x, mm in d.items() if abs(x - v) <= 1e-12)
-            X.extend([v] * (m - own))
-        out.append(insert_knots(c, np.array(X)) if X else c)
+    for c, row in zip(curves, counts):
+        X = np.repeat(merged, need - row)
+        out.append(insert_knots(c, X) if X.size else c)
     ref = out[0].knots
     for c in out[1:]:
         if c.knots.shape != ref.shape or np.max(np.abs(c.knots - ref)) > 1e-9:

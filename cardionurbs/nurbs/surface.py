@@ -25,7 +25,7 @@ import numpy as np
 from cardionurbs.errors import NurbsInputError
 from cardionurbs.nurbs import _validate as V
 from cardionurbs.nurbs.basis import basis_function_derivatives, basis_matrix, find_spans
-from cardionurbs.nurbs.knots import canonical_periodic
+from cardionurbs.nurbs.knots import canonical_periodic, clamp_periodic
 
 __all__ = ["NurbsSurface", "rational_surface_derivatives"]
 
@@ -232,6 +232,18 @@ class NurbsSurface:
         return _unit_normals(D, v, self.domain_v)
 
     # ------------------------------------------------------------ conversions
+    def to_clamped(self) -> "NurbsSurface":
+        """An equivalent surface clamped in u as well (itself if not closed_u):
+        the seam knot is inserted to multiplicity p at u = 0 and u = 1 (A5.1)."""
+        if not self.closed_u:
+            return self
+        Pw = np.concatenate([self.control_points * self.weights[..., None],
+                             self.weights[..., None]], axis=-1)
+        Uc, Qw = clamp_periodic(self.knots_u, Pw, self.degree_u)
+        w = Qw[..., -1]
+        return NurbsSurface(self.degree_u, self.degree_v, Uc, self.knots_v,
+                            Qw[..., :-1] / w[..., None], w)
+
     def to_dict(self) -> dict[str, Any]:
         """Lossless JSON-safe dict."""
         from cardionurbs.nurbs.serialize import surface_to_dict
