@@ -15,7 +15,8 @@ Fatal (StudyError)
     * a contour or tag point farther than half the slice thickness (at least
       ``OFF_PLANE_ERROR_MM``) from its image plane;
     * no LV endocardial contour at all, or none at the labelled ED or ES frame;
-    * trigger times for some frames but not for others.
+    * trigger times for some frames but not for others, or frame times that do
+      not increase with the frame index.
 
 Warnings
     * points slightly off their plane (> ``OFF_PLANE_WARN_MM``); landmarks off the
