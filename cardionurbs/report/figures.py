@@ -111,13 +111,13 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 def lambert_colours(vertices: np.ndarray, faces: np.ndarray, colour: str, alpha: float = 1.0
                     ) -> np.ndarray:
-    """RGBA per face: the colour scaled by 0.45 + 0.55 |n · l| (two-sided Lambert, unit
+    """RGBA per face: the colour scaled by 0.55 + 0.45 |n · l| (two-sided Lambert, unit
     face normal n, fixed light l); hue is preserved, only brightness changes."""
     tri = vertices[faces]
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     norm = np.linalg.norm(n, axis=1, keepdims=True)
     n = np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
-    k = 0.45 + 0.55 * np.abs(n @ _unit(LIGHT))
+    k = 0.55 + 0.45 * np.abs(n @ _unit(LIGHT))
     rgba = np.empty((len(faces), 4))
     rgba[:, :3] = np.clip(k[:, None] * _rgb(colour)[None, :], 0, 1)
     rgba[:, 3] = alpha
@@ -299,7 +299,7 @@ def _new_figure(n_panels: int, caption: str, *, width: float = 4.6, height: floa
     fig = Figure(figsize=(width * n_panels, height), dpi=DPI)
     axes = [fig.add_subplot(1, n_panels, i + 1, projection="3d" if three_d else None)
             for i in range(n_panels)]
-    fig.subplots_adjust(left=0.02 if three_d else 0.1, right=0.98, top=0.93,
+    fig.subplots_adjust(left=0.02 if three_d else 0.1, right=0.98 if three_d else 0.88, top=0.93,
                         bottom=0.13 if three_d else 0.22, wspace=0.05 if three_d else 0.3)
     chars = int(width * n_panels * 17)          # ~17 characters per inch at 7.5 pt
     fig.text(0.01, 0.01, textwrap.fill(caption, chars), fontsize=7.5, ha="left", va="bottom")
@@ -320,7 +320,8 @@ def _save(fig: Figure, path: Path) -> tuple[Path, list]:
     atomic.write_bytes(path, buf.getvalue())
     H = fig.get_figheight() * DPI
     boxes = []
-    for leg in fig.legends:
+    legends = list(fig.legends) + [a.get_legend() for a in fig.axes if a.get_legend()]
+    for leg in legends:
         e = leg.get_window_extent()
         boxes.append((float(e.x0), float(H - e.y1), float(e.x1), float(H - e.y0)))
     return path, boxes
@@ -576,10 +577,12 @@ def fig09_all_tag_surfaces(ctx, out):
                + ", ".join(f"{NAMES[f]} ({sum(d['family'] == f for d in data)})" for f in fams)
                + ". Scanner (LPS) mm.")
     fig, axes = _new_figure(1, caption, width=6.4, height=5.6)
-    draw_panel(axes[0], [_tag_mesh(d, FAMILY_COLOURS[d["family"]]) for d in data], ctx.oblique,
-               title=ctx.frame_label(ctx.ed))
+    alpha = {"sa1": 1.0, "sa2": 1.0, "la": 0.45}        # LA discs translucent: SA planes show
+    draw_panel(axes[0], [_tag_mesh(d, FAMILY_COLOURS[d["family"]], alpha[d["family"]])
+                         for d in data], ctx.oblique, title=ctx.frame_label(ctx.ed))
     _legend(fig, [(f, FAMILY_COLOURS[f]) for f in fams])
-    return _result("fig09_all_tag_surfaces", fig, out, caption, {f: FAMILY_COLOURS[f] for f in fams})
+    return _result("fig09_all_tag_surfaces", fig, out, caption,
+                   {f: FAMILY_COLOURS[f] for f in fams if alpha[f] >= 1.0})
 
 
 def fig10_biventricular(ctx, out):
@@ -678,7 +681,9 @@ def fig12_twist_time(ctx, out):
     ax.set_xlabel(xlabel, fontsize=8)
     for a in (ax, ax2):
         a.tick_params(labelsize=7)
-    ax.legend(fontsize=7, frameon=False, loc="upper left")
+    h1, l1 = ax.get_legend_handles_labels()
+    h2, l2 = ax2.get_legend_handles_labels()
+    ax.legend(h1 + h2, l1 + l2, fontsize=7, frameon=False, loc="upper right")
     return _result("fig12_twist_time", fig, out, caption, {"twist": c1, "LS": c2})
 
 
