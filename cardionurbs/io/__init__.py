@@ -12,9 +12,11 @@ from __future__ import annotations
 from pathlib import Path
 
 from cardionurbs.errors import StudyError
+from cardionurbs.io.checks import check_study
 from cardionurbs.study import Study
 
 FORMATS = ("auto", "native", "sunnybrook", "gpfile", "phantom")
+__all__ = ["FORMATS", "detect_format", "load_study", "check_study"]
 
 
 def detect_format(path: str | Path) -> str:
@@ -86,7 +88,5 @@ def load_study(path: str | Path, format: str = "auto") -> Study:
         study = read_study(path)
     else:  # pragma: no cover - FORMATS and this list agree
         raise StudyError(f"format {fmt!r} is not readable", file=path)
-    from cardionurbs.io.checks import check_study
-
     study.warnings = check_study(study)
     return study
