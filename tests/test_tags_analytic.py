@@ -343,3 +343,19 @@ def test_over_time_and_json(heart):
     doc = json.loads(json.dumps(res.to_json()))
     assert doc["columns"]["Tag QC flags"] is None        # QC not run
     assert [lv["index"] for lv in doc["levels"]] == [lv["index"] for lv in res.levels]
+
+
+def test_flagged_lines_do_not_reach_the_material_points(heart):
+    """Two jumped ES lines in a mid slice: left out, the levels are exact again."""
+    from cardionurbs.analysis.tags import tag_metrics
+    tr = heart.truth()
+    st = heart.study(jumps=[("sa1", 2, "sa_03", 1), ("sa2", -2, "sa_03", 1)])
+
+    def worst(res):
+        return max(abs(lv["rotation_deg"] - tr["levels"][lv["index"]]) for lv in res.levels)
+
+    kept = tag_metrics(st, 0, 1, exclude_flagged=False)
+    left_out = tag_metrics(st, 0, 1)
+    assert kept["Tag QC flags"] == left_out["Tag QC flags"] == 2
+    assert worst(kept) > 0.05
+    assert worst(left_out) < 0.01

@@ -31,7 +31,7 @@ def test_noise_free_metrics_match_truth(clean):
     assert res["Twist (deg)"] == pytest.approx(t["Twist (deg)"], abs=0.5)
     assert res["LS (%)"] == pytest.approx(t["LS (%)"], abs=0.5)
     assert res["Torsion (deg/cm)"] == pytest.approx(t["Torsion (deg/cm)"], abs=0.1)
-    assert res["CL shear (deg)"] == pytest.approx(t["CL shear (deg)"], rel=0.02)
+    assert res["CL shear (deg)"] == pytest.approx(t["CL shear (deg)"], rel=0.01)
     assert res["Twist 2D (deg)"] == pytest.approx(t["Twist 2D (deg)"], abs=0.5)
     assert res["Tag QC flags"] == 0
 
@@ -72,3 +72,14 @@ def test_clean_phantom_has_no_flags_and_small_departures():
     assert len(deps) > 500
     assert not [d for d in deps if d.flagged]
     assert max(d.departure for d in deps) < 0.45
+
+
+def test_flagged_lines_are_left_out_of_the_metrics():
+    """Jumps at ES corrupt the ES tag surfaces unless the flagged lines are left out."""
+    ph = phantom.generate("normal", seed=7, frames=2, tag_jumps=3, volume_check=False)
+    t = ph.truth["metrics"]
+    res = tag_metrics(ph.study, 0, ph.truth["es_frame"])
+    assert res["Tag QC flags"] == 3 == t["Tag QC flags"]
+    assert res["Twist (deg)"] == pytest.approx(t["Twist (deg)"], abs=0.5)
+    assert res["LS (%)"] == pytest.approx(t["LS (%)"], abs=0.5)
+    assert any("left out" in n for n in res.notes)

@@ -434,8 +434,13 @@ def pixel_size(study: Study) -> float:
 
 
 def build_tag_surfaces(study: Study, frame: int, long_axis: tuple | None = None,
-                       families: tuple[str, ...] = TAG_FAMILIES) -> dict[tuple[str, int], TagSurface]:
-    """Every tag surface at one frame, with its sections (see :func:`tag_surfaces`)."""
+                       families: tuple[str, ...] = TAG_FAMILIES,
+                       exclude: set | frozenset = frozenset()) -> dict[tuple[str, int], TagSurface]:
+    """Every tag surface at one frame, with its sections (see :func:`tag_surfaces`).
+
+    ``exclude``: {(family, index, slice)} tag lines left out (e.g. flagged
+    by the tag-jump QC).
+    """
     check_tags(study)
     out: dict[tuple[str, int], TagSurface] = {}
     for fam in families:
@@ -443,13 +448,16 @@ def build_tag_surfaces(study: Study, frame: int, long_axis: tuple | None = None,
             if not study.tags_at(frame, "la"):
                 continue
             if long_axis is None:
-                from cardionurbs.analysis.tags import long_axis_from_study
-                long_axis = long_axis_from_study(study, frame)
+                from cardionurbs.analysis.tags import default_long_axis
+                long_axis = default_long_axis(study)
             groups = la_sections(study, frame, *long_axis)
             periodic = True
         else:
             groups = sa_sections(study, fam, frame)
             periodic = False
+        if exclude:
+            groups = {i: [sec for sec in secs if (fam, i, sec.slice) not in exclude]
+                      for i, secs in groups.items()}
         fit_sections([sec for secs in groups.values() for sec in secs])
         for idx, secs in groups.items():
             if periodic and len(secs) < 3:
@@ -466,7 +474,7 @@ def tag_surfaces(study: Study, frame: int, long_axis: tuple | None = None) -> di
     SA families are lofted across the SA slices that show the tag; the LA
     family is lofted around the long axis through the spokes of its lines
     (module docstring). ``long_axis`` = (apex, base centre) at ED, mm; taken
-    from the landmarks when omitted (needed for ``la`` only). A tag seen in
+    from the ED landmarks when omitted (needed for ``la`` only). A tag seen in
     fewer than two slices (three spokes for ``la``) has no surface.
     """
     return {k: ts.surface for k, ts in build_tag_surfaces(study, frame, long_axis).items()}

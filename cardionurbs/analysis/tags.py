@@ -32,7 +32,7 @@ Twist, torsion, CL shear (METRICS.md)
     D = z_base − z_apex (mm); Torsion = Twist / (D / 10) deg/cm;
     CL shear = Twist (ρ_apex + ρ_base) / (2 D) deg, ρ = mean LV epicardial
     radius at the level at ED (SA ``lv_epi`` contours, mean distance from
-    the long axis, interpolated along it).
+    the long axis, cubic spline along it).
 LS
     L_f = mean z(basal level points at f) − mean z(apical level points at f)
     measured along the ED axis; LS = 100 (L_ED − L_ES) / L_ED.
@@ -118,6 +118,17 @@ def long_axis_from_study(study: Study, frame: int) -> tuple[np.ndarray, np.ndarr
                    frame=frame, field="landmarks")
 
 
+def default_long_axis(study: Study) -> tuple[np.ndarray, np.ndarray]:
+    """The long axis at ED (study label, else the first tagged frame) from landmarks or contours."""
+    ed = study.ed_frame if study.ed_frame is not None else \
+        (study.tagged_frames[0] if study.tagged_frames else 0)
+    if not study.landmarks_at(ed, "apex"):
+        with_apex = sorted({lm.frame for lm in study.landmarks if lm.name == "apex"})
+        if with_apex and not study.contours_at(ed, "lv_endo"):
+            ed = with_apex[0]
+    return long_axis_from_study(study, ed)
+
+
 def _wrap_deg(a: np.ndarray) -> np.ndarray:
     return (np.asarray(a) + 180.0) % 360.0 - 180.0
 
@@ -133,13 +144,15 @@ def rotation_deg(x0: np.ndarray, x1: np.ndarray, apex: np.ndarray, base: np.ndar
 
 # ------------------------------------------------------------- epi radius
 def epicardial_radius_profile(study: Study, frame: int, apex: np.ndarray,
-                              base: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """(z, ρ): distance from the apex along the axis and mean LV epicardial radius (mm).
+                              base: np.ndarray):
+    """ρ(z): mean LV epicardial radius (mm) at distance z (mm) from the apex along the axis.
 
-    One entry per SA ``lv_epi`` contour at ``frame``: the contour resampled
-    uniformly by arc length, ρ its mean distance from the long axis. None
-    without contours.
+    One sample per SA ``lv_epi`` contour at ``frame`` — the contour resampled
+    uniformly by arc length, ρ its mean distance from the long axis, z its
+    mean axial position — joined by a cubic spline (not-a-knot; linear with
+    two slices, constant beyond the ends). None without contours.
     """
+    from scipy.interpolate import CubicSpline
     ez = (base - apex) / np.linalg.norm(base - apex)
     zs, rs = [], []
     for c in study.contours_at(frame, "lv_epi", view="SA"):
@@ -158,7 +171,11 @@ def epicardial_radius_profile(study: Study, frame: int, apex: np.ndarray,
     if not zs:
         return None
     order = np.argsort(zs)
-    return np.asarray(zs)[order], np.asarray(rs)[order]
+    z, r = np.asarray(zs)[order], np.asarray(rs)[order]
+    if len(z) < 3:
+        return lambda x: np.interp(x, z, r)
+    spline = CubicSpline(z, r)
+    return lambda x: spline(np.clip(x, z[0], z[-1]))
 
 
 # --------------------------------------------------------------- Twist 2D
@@ -239,11 +256,13 @@ def _polygon_centroid(p: np.ndarray) -> np.ndarray:
 
 
 def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base: np.ndarray,
-             surfaces: dict | None = None) -> tuple[float, list[dict]]:
+             surfaces: dict | None = None, exclude: set | frozenset = frozenset()
+             ) -> tuple[float, list[dict]]:
     """Slice-based twist (deg) and per-slice rotations (see module docstring).
 
     ``surfaces`` ({frame: build_tag_surfaces(...)}) lends its fitted section
-    curves; lines not found there are fitted here.
+    curves; lines not found there are fitted here. ``exclude``: {(family,
+    index, slice, frame)} lines left out (flagged by the QC).
     """
     px = pixel_size(study)
     fitted: dict[tuple, object] = {}
@@ -257,7 +276,7 @@ def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base:
     lines = {}
     for f in (ed_frame, es_frame):
         for t in study.tags_at(f):
-            if t.family in ("sa1", "sa2"):
+            if t.family in ("sa1", "sa2") and (t.family, t.index, t.slice, f) not in exclude:
                 lines[(t.family, t.index, t.slice, f)] = t.points
     n_stack = stack_normal(study)
     ax = (apex - base) / np.linalg.norm(apex - base)
@@ -381,7 +400,7 @@ def tagged_stack_range(study: Study, ed_frame: int, frame: int) -> tuple[np.ndar
 
 
 def level_table(mp: MaterialPoints, frame: int, apex: np.ndarray, base: np.ndarray,
-                radius: tuple[np.ndarray, np.ndarray] | None,
+                radius,
                 stack: tuple[np.ndarray, float, float] | None = None) -> list[dict]:
     """Per-level rotation ED → ``frame`` and ED distance from apex (see module docstring).
 
@@ -409,7 +428,7 @@ def level_table(mp: MaterialPoints, frame: int, apex: np.ndarray, base: np.ndarr
         z0 = float(((X0[sel] - apex) @ ez).mean())
         z1 = float(((X1[sel] - apex) @ ez).mean())
         rot = rotation_deg(X0[sel], X1[sel], apex, base)
-        rho = float(np.interp(z0, *radius)) if radius is not None else NAN
+        rho = float(radius(z0)) if radius is not None else NAN
         rows.append({"index": int(k), "distance_from_apex_mm": z0, "distance_at_frame_mm": z1,
                      "rotation_deg": float(rot.mean()), "epi_radius_mm": rho,
                      "n_points": int(sel.sum()), "in_twist": False})
@@ -437,7 +456,7 @@ def twist_from_levels(levels: list[dict]) -> dict[str, float]:
 
 def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = None,
                 long_axis: tuple | None = None, qc: bool = True, over_time: bool = False,
-                threshold: float = 0.5) -> TagMetrics:
+                threshold: float = 0.5, exclude_flagged: bool = True) -> TagMetrics:
     """Twist, Twist 2D, Torsion, CL shear, LS and tag QC of a study (METRICS.md, Tags).
 
     Parameters
@@ -451,7 +470,11 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
         From the model when given, else from the landmarks
         (:func:`long_axis_from_study`).
     qc : bool
-        Run the tag-jump QC (:func:`tag_qc`) and fill ``Tag QC flags``.
+        Run the tag-jump QC (:func:`tag_qc`) on every tagged frame and fill
+        ``Tag QC flags`` (the number of flagged lines).
+    exclude_flagged : bool
+        Leave the flagged lines out of the tag surfaces the material points
+        are computed from (with ``qc``).
     over_time : bool
         Also twist and LS at every tagged frame (relative to ED).
 
@@ -477,9 +500,23 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
     apex, base = (np.asarray(x, float) for x in long_axis)
     frames = study.tagged_frames if over_time else [ed_frame, es_frame]
     surfaces = {f: build_tag_surfaces(study, f, (apex, base)) for f in frames}
+    flags: list[TagFlag] = []
+    notes: list[str] = []
+    bad: set = set()
+    if qc:
+        flags = tag_qc(study, threshold, frames=study.tagged_frames, long_axis=(apex, base),
+                       surfaces=surfaces)
+        bad = {(fl.family, fl.index, fl.slice, fl.frame) for fl in flags}
+        if exclude_flagged and any(b[3] in surfaces for b in bad):
+            for f in frames:
+                ex = {(b[0], b[1], b[2]) for b in bad if b[3] == f}
+                if ex:
+                    surfaces[f] = build_tag_surfaces(study, f, (apex, base), exclude=ex)
+            notes.append(f"{sum(b[3] in surfaces for b in bad)} flagged tag line(s) left out of "
+                         "the tag surfaces")
     mp = material_points(study, ed_frame, es_frame, frames=frames, long_axis=(apex, base),
                          surfaces=surfaces)
-    notes = list(mp.notes)
+    notes += list(mp.notes)
     radius = epicardial_radius_profile(study, ed_frame, apex, base)
     if radius is None:
         notes.append(f"frame {ed_frame}: no SA lv_epi contours; CL shear not measured")
@@ -490,13 +527,10 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
     cols.update(twist_from_levels(levels))
     if len(levels) < 2:
         notes.append("fewer than two LA tag levels with material points: twist not measured")
-    t2d, rows2d = twist_2d(study, ed_frame, es_frame, apex, base, surfaces)
+    t2d, rows2d = twist_2d(study, ed_frame, es_frame, apex, base, surfaces,
+                           exclude=bad if exclude_flagged else frozenset())
     cols["Twist 2D (deg)"] = t2d
-    flags: list[TagFlag] = []
     if qc:
-        qc_frames = sorted(set(frames))
-        flags = tag_qc(study, threshold, frames=qc_frames, long_axis=(apex, base),
-                       surfaces=surfaces)
         cols["Tag QC flags"] = float(len(flags))
     times = {}
     if over_time:
@@ -520,8 +554,7 @@ def tag_figure_data(study: Study, frame: int, long_axis: tuple | None = None,
     """
     from cardionurbs import nurbs
     if long_axis is None and study.tags_at(frame, "la"):
-        long_axis = long_axis_from_study(study, study.ed_frame if study.ed_frame is not None
-                                         else frame)
+        long_axis = default_long_axis(study)
     surfs = build_tag_surfaces(study, frame, long_axis)
     if flags is None:
         flags = tag_qc(study, frames=[frame], long_axis=long_axis, surfaces={frame: surfs})
