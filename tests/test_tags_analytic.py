@@ -359,3 +359,16 @@ def test_flagged_lines_do_not_reach_the_material_points(heart):
     assert kept["Tag QC flags"] == left_out["Tag QC flags"] == 2
     assert worst(kept) > 0.05
     assert worst(left_out) < 0.01
+
+
+def test_tag_surfaces_round_trip_through_json(heart):
+    import json
+    from cardionurbs.analysis.tags import tag_surfaces, tag_surfaces_dict
+    from cardionurbs.nurbs import NurbsSurface
+    st = heart.study()
+    doc = json.loads(json.dumps(tag_surfaces_dict(st, frames=[1])))
+    surfs = tag_surfaces(st, 1)
+    t = np.linspace(0, 1, 9)
+    for (fam, idx), s in surfs.items():
+        back = NurbsSurface.from_dict(doc["frames"]["1"][f"{fam}:{idx}"])
+        assert np.allclose(back.evaluate(t, t), s.evaluate(t, t))

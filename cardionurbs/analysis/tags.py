@@ -7,6 +7,7 @@ Public API (the pipeline's ``measure``/``analyze`` call these):
 - :func:`tag_metrics` (study, ed_frame, es_frame, long_axis=None) -> :class:`TagMetrics`
 - :func:`tag_qc` (study, threshold=0.5) -> list of :class:`TagFlag`
 - :func:`tag_figure_data` (study, frame) -> tessellated tag surfaces with flag status
+- :func:`tag_surfaces_dict` (study) -> JSON-safe tag surfaces to save with the model
 
 Definitions (METRICS.md and the project contracts)
 --------------------------------------------------
@@ -62,7 +63,8 @@ from cardionurbs.errors import TagError
 from cardionurbs.study import Study
 
 __all__ = ["tag_surfaces", "material_points", "tag_metrics", "tag_qc", "tag_figure_data",
-           "TagMetrics", "MaterialPoints", "TagFlag", "long_axis_from_study", "TAG_COLUMNS"]
+           "tag_surfaces_dict", "TagMetrics", "MaterialPoints", "TagFlag", "long_axis_from_study",
+           "default_long_axis", "TAG_COLUMNS"]
 
 TAG_COLUMNS = ("Twist (deg)", "Twist 2D (deg)", "Torsion (deg/cm)", "CL shear (deg)", "LS (%)",
                "Tag QC flags")
@@ -539,6 +541,28 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
             t = twist_from_levels(lv)
             times[f] = {"Twist (deg)": t["Twist (deg)"], "LS (%)": t["LS (%)"]}
     return TagMetrics(cols, levels, flags, rows2d, notes, times, mp)
+
+
+# ---------------------------------------------------------------- export
+def tag_surfaces_dict(study: Study, frames: list[int] | None = None,
+                      long_axis: tuple | None = None) -> dict:
+    """JSON-safe tag surfaces for saving with the model.
+
+    ``{"long_axis": {"apex", "base"}, "frames": {"<frame>": {"<family>:<index>":
+    NurbsSurface.to_dict(), ...}}}``, scanner mm; ``frames`` defaults to every
+    tagged frame. Read back with :meth:`cardionurbs.nurbs.NurbsSurface.from_dict`.
+    """
+    frames = study.tagged_frames if frames is None else list(frames)
+    if long_axis is None and any(study.tags_at(f, "la") for f in frames):
+        long_axis = default_long_axis(study)
+    out: dict = {"frames": {}}
+    if long_axis is not None:
+        out["long_axis"] = {"apex": [float(x) for x in long_axis[0]],
+                            "base": [float(x) for x in long_axis[1]]}
+    for f in frames:
+        out["frames"][str(f)] = {f"{fam}:{idx}": ts.surface.to_dict() for (fam, idx), ts
+                                 in sorted(build_tag_surfaces(study, f, long_axis).items())}
+    return out
 
 
 # ---------------------------------------------------------------- figures
