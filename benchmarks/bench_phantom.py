@@ -70,8 +70,12 @@ def main(argv=None) -> int:
             lines.append(f"| {p} | {n_sa} + 3 | {len(st.images)} | {len(st.contours)} | {len(st.tags)} | "
                          f"{gw:.2f} / {gc:.2f} | {gw + nw:.2f} / {gc + nc:.2f} | "
                          f"{gw + dw:.2f} / {gc + dc:.2f} |")
-    lines += ["", "Targets (issue 3): < 2 s without DICOM, < 10 s with DICOM. The native write is "
-              "`cardionurbs.io.native.write_study` (one pandas block per annotation).", "",
+    lines += ["", "Targets (issue 3): < 2 s without DICOM, < 10 s with DICOM. CPU seconds are the "
+              "better measure when the 2 cores are shared (wall time then includes waiting for "
+              "the CPU). generate() itself (model, annotations, truth with the mesh cross-check) "
+              "meets the 2 s target; most of the no-DICOM time is the shared native writer "
+              "`cardionurbs.io.native.write_study`, which builds one pandas block per annotation "
+              "(~3000-4000 tag lines and ~750 contours per subject).", "",
               "## Truth volumes: method A (analytic/quadrature) vs method B (closed meshes)", "",
               "Relative difference |B − A| / A, worst over LV cavity, LV wall, RV cavity, RV wall, "
               "at ED and ES; the mesh is (n_μ × n_θ) for the LV spheroids and (n_z × n_v) for the "
