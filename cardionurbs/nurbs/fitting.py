@@ -15,8 +15,9 @@ Steps (paper §3.2.1–3.2.3, NURBS Book §9.4.1):
 :func:`~cardionurbs.nurbs.projection.curve_closest_points`); the fit starts
 with the fewest control points the degree allows and adds one at a time until
 the bound holds (paper §3.2.3, first strategy).  ``rational=True`` also
-optimises the weights at each count (variable projection: least squares in
-the control points inside a Levenberg–Marquardt search over log-weights).
+optimises the weights (variable projection: least squares in the control
+points inside a trust-region search over log-weights); with ``tol`` it then
+removes control points while the weighted fit still meets the bound.
 
 Eq. 9 is applied at the *centred* fractional data index ``j d - 1/2``
 (the book's formula uses ``j d - 1``).  The centred rule makes the knot vector
@@ -142,6 +143,31 @@ def _rational_basis(B: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return Bw / Bw.sum(axis=1, keepdims=True)
 
 
+def _design(params: np.ndarray, degree: int, n_ctrl: int, closed: bool, rule: str
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Knot vector and B-spline design matrix ``N[k, i] = N_i,p(ū_k)`` (folded when closed)."""
+    if closed:
+        U = periodic_knot_vector(periodic_approximation_breaks(params, n_ctrl, rule), degree)
+        return U, basis_matrix(U, degree, params, n_periodic=n_ctrl)
+    U = approximation_knots(params, n_ctrl, degree, rule)
+    return U, basis_matrix(U, degree, params)
+
+
+def _control_points(N: np.ndarray, w: np.ndarray, Q: np.ndarray, closed: bool
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Control points for weights ``w``, and the rational design matrix R."""
+    R = _rational_basis(N, w)
+    if closed:
+        return solve_normal_equations(R, Q), R
+    n_ctrl = N.shape[1]
+    P = np.empty((n_ctrl, Q.shape[1]))
+    P[0], P[-1] = Q[0], Q[-1]
+    if n_ctrl > 2:
+        rhs = Q[1:-1] - R[1:-1, :1] * Q[0] - R[1:-1, -1:] * Q[-1]     # R_k of eq. 10
+        P[1:-1] = solve_normal_equations(R[1:-1, 1:-1], rhs)
+    return P, R
+
+
 def least_squares_curve(points: np.ndarray, params: np.ndarray, degree: int, n_ctrl: int,
                         closed: bool, rule: str = "eq9", weights: np.ndarray | None = None
                         ) -> NurbsCurve:
@@ -149,41 +175,38 @@ def least_squares_curve(points: np.ndarray, params: np.ndarray, degree: int, n_c
 
     Open: end points fixed, the other control points from the normal
     equations (paper eq. 10).  Closed: periodic, all ``n_ctrl`` points free.
+    With ``weights`` the rational basis ``R_i = N_i w_i / sum_j N_j w_j``
+    replaces N (the problem stays linear in the control points).
     """
     Q = np.asarray(points, dtype=float)
-    p = degree
     w = np.ones(n_ctrl) if weights is None else np.asarray(weights, dtype=float)
-    if closed:
-        U = periodic_knot_vector(periodic_approximation_breaks(params, n_ctrl, rule), p)
-        R = _rational_basis(basis_matrix(U, p, params, n_periodic=n_ctrl), w)
-        P = solve_normal_equations(R, Q)
-        return NurbsCurve(p, U, P, w, closed=True)
-    U = approximation_knots(params, n_ctrl, p, rule)
-    R = _rational_basis(basis_matrix(U, p, params), w)
-    P = np.empty((n_ctrl, Q.shape[1]))
-    P[0], P[-1] = Q[0], Q[-1]
-    if n_ctrl > 2:
-        rhs = Q[1:-1] - R[1:-1, :1] * Q[0] - R[1:-1, -1:] * Q[-1]     # R_k of eq. 10
-        P[1:-1] = solve_normal_equations(R[1:-1, 1:-1], rhs)
-    return NurbsCurve(p, U, P, w)
+    U, N = _design(params, degree, n_ctrl, closed, rule)
+    P, _ = _control_points(N, w, Q, closed)
+    return NurbsCurve(degree, U, P, w, closed=closed)
 
 
 def _optimise_weights(points: np.ndarray, params: np.ndarray, degree: int, n_ctrl: int,
                       closed: bool, rule: str) -> NurbsCurve:
-    """Weights minimising the squared residuals at the fixed parameters.
+    """Weights minimising the squared residuals at the fixed parameters
+    (variable projection: the control points are re-solved by eq. 10 for
+    every trial of weights; Levenberg–Marquardt-type trust region search).
 
     Variables: log-weights of control points 1..n-1 (w_0 = 1 removes the
-    scale invariance), bounded to [-3, 3]; inner problem linear in P.
+    scale invariance), bounded to [-3, 3].
     """
+    Q = np.asarray(points, dtype=float)
+    U, N = _design(params, degree, n_ctrl, closed, rule)
+
     def residuals(logw: np.ndarray) -> np.ndarray:
         w = np.exp(np.concatenate([[0.0], logw]))
-        c = least_squares_curve(points, params, degree, n_ctrl, closed, rule, w)
-        return (c.evaluate(params) - points).ravel()
+        P, R = _control_points(N, w, Q, closed)
+        return (R @ P - Q).ravel()
 
     res = least_squares(residuals, np.zeros(n_ctrl - 1), bounds=(-3.0, 3.0),
                         method="trf", x_scale=1.0, max_nfev=30 * n_ctrl)
     w = np.exp(np.concatenate([[0.0], res.x]))
-    return least_squares_curve(points, params, degree, n_ctrl, closed, rule, w)
+    P, _ = _control_points(N, w, Q, closed)
+    return NurbsCurve(degree, U, P, w, closed=closed)
 
 
 def max_distance(curve: NurbsCurve, points: np.ndarray) -> float:
@@ -227,7 +250,9 @@ def fit_curve(points: Any, degree: int = 3, closed: bool = False, tol: float | N
         control points are added until it holds.  Default (with ``n_ctrl``
         None): 1e-3 of the diagonal of the points' bounding box.
     n_ctrl : fixed number of (distinct) control points instead of ``tol``
-    rational : also optimise the weights
+    rational : also optimise the weights: with ``tol``, once the polynomial
+        fit meets it, control points are removed one at a time while a fit
+        with optimised weights still meets it
     knot_rule : "eq9" (default), "book" or "uniform", see module doc
     """
     p = V.degree_value(degree)
@@ -260,18 +285,25 @@ def fit_curve(points: Any, degree: int = 3, closed: bool = False, tol: float | N
         if not np.isfinite(tol) or tol <= 0:
             raise NurbsInputError(f"tol: must be a finite number > 0, got {tol}")
     best: tuple[float, NurbsCurve] | None = None
+    found: NurbsCurve | None = None
     for n in range(n_min, n_max + 1):
         c = least_squares_curve(Q, params, p, n, closed, knot_rule)
         ok, err = _error_within(c, Q, params, tol)
         if ok:
-            return c
+            found = c
+            break
         if best is None or err < best[0]:
             best = (err, c)
-        if rational:
+    if found is None:
+        assert best is not None
+        raise NurbsInputError(f"tol: {tol} not reached with up to {n_max} control points "
+                              f"(best maximum distance {best[0]:.3g})")
+    if rational:
+        # remove control points while optimised weights keep the tolerance
+        for n in range(found.n_control - 1, n_min - 1, -1):
             c = _optimise_weights(Q, params, p, n, closed, knot_rule)
-            ok, err = _error_within(c, Q, params, tol)
-            if ok:
-                return c
-    assert best is not None
-    raise NurbsInputError(f"tol: {tol} not reached with up to {n_max} control points "
-                          f"(best maximum distance {best[0]:.3g})")
+            ok, _ = _error_within(c, Q, params, tol)
+            if not ok:
+                break
+            found = c
+    return found

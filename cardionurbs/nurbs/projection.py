@@ -119,7 +119,12 @@ def surface_closest_points(surface: Any, points: Any, iterations: int = 16,
     vs = _span_samples(surface.knots_v, surface.degree_v, vlo, vhi, samples_per_span, False)
     # seeds on a collapsed end carry no u information: seed from the next row
     c0, c1 = surface.collapsed_v()
-    vs = vs[(vs > vlo if c0 else True) & (vs < vhi if c1 else True)]
+    keep = np.ones(vs.size, dtype=bool)
+    if c0:
+        keep &= vs > vlo
+    if c1:
+        keep &= vs < vhi
+    vs = vs[keep]
     grid = surface.evaluate(us, vs)
     m = P.shape[0]
     k = max(1, min(int(seeds), us.size * vs.size))

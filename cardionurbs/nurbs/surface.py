@@ -223,13 +223,18 @@ class NurbsSurface:
         """
         u, v = self._uv(u, v)
         D = rational_surface_derivatives(self._grid_homogeneous(u, v, 1))
-        return _unit_normals(D, v, self.domain_v)
+        return _unit_normals(D, v, self.domain_v, self._size())
 
     def normal_points(self, u: Any, v: Any) -> np.ndarray:
         """Unit normals at paired parameters (k,), (k,) -> (k, 3)."""
         D = self.derivatives(u, v, 1)
         u, v = self._uv(u, v)
-        return _unit_normals(D, v, self.domain_v)
+        return _unit_normals(D, v, self.domain_v, self._size())
+
+    def _size(self) -> float:
+        """Diagonal of the control net's bounding box (a length scale)."""
+        P = self.control_points.reshape(-1, self.control_points.shape[-1])
+        return float(np.linalg.norm(np.ptp(P, axis=0)))
 
     # ------------------------------------------------------------ conversions
     def to_clamped(self) -> "NurbsSurface":
@@ -256,15 +261,18 @@ class NurbsSurface:
         return surface_from_dict(data)
 
 
-def _unit_normals(D: np.ndarray, v: np.ndarray, domain_v: tuple[float, float]) -> np.ndarray:
-    """Unit normals from first partials (and Suv at degenerate points)."""
+def _unit_normals(D: np.ndarray, v: np.ndarray, domain_v: tuple[float, float],
+                  size: float) -> np.ndarray:
+    """Unit normals from first partials (and Suv at degenerate points).
+
+    A point is degenerate when ``|Su x Sv| <= 1e-9 * size * |Sv|`` (size =
+    the net's diagonal; |Su| is of that order away from a collapsed end)."""
     Su, Sv, Suv = D[..., 1, 0, :], D[..., 0, 1, :], D[..., 1, 1, :]
     if Su.shape[-1] != 3:
         raise NurbsInputError(f"surface: normals need 3-d control points, got {Su.shape[-1]}-d")
     n = np.cross(Su, Sv)
     nn = np.linalg.norm(n, axis=-1)
-    scale = np.linalg.norm(Su, axis=-1).max() * np.linalg.norm(Sv, axis=-1)
-    bad = nn <= 1e-10 * np.maximum(scale, 1e-300)
+    bad = nn <= 1e-9 * max(size, 1e-300) * np.linalg.norm(Sv, axis=-1)
     if np.any(bad):
         vb = np.broadcast_to(v if n.ndim == 2 else v[None, :], nn.shape)
         sign = np.where(vb < 0.5 * (domain_v[0] + domain_v[1]), 1.0, -1.0)
