@@ -134,12 +134,16 @@ def main(argv=None) -> int:
             ph = generate("normal", seed=0, frames=28, volume_check=False)
             out = write_phantom(ph, tmp / "phantom")
             print(f"(wrote a {len(ph.study.images)}-image phantom in {time.perf_counter() - t0:.1f} s)")
-            from cardionurbs.io.native import read_study_from_dicom
-            add(f"phantom, {len(ph.study.images)} images (native+DICOM)",
-                "load_study (+ DICOM geometry cross-check)", lambda: load_study(out),
-                lambda s: s.summary().split(": ", 1)[1])
-            add(f"phantom, {len(ph.study.images)} images (native+DICOM)",
-                "read_study_from_dicom (geometry from headers)", lambda: read_study_from_dicom(out),
+            from cardionurbs.io.native import check_dicom_geometry, read_study, read_study_from_dicom
+            case = f"phantom, {len(ph.study.images)} images (native+DICOM)"
+            pst = add(case, "load_study (+ DICOM geometry cross-check)", lambda: load_study(out),
+                      lambda s: s.summary().split(": ", 1)[1])
+            add(case, "  part: native.read_study (study.json + points.csv)", lambda: read_study(out),
+                lambda s: f"{sum(len(c.points) for c in s.contours) + sum(len(t.points) for t in s.tags)} points")
+            add(case, "  part: check_dicom_geometry (headers)", lambda: check_dicom_geometry(pst),
+                lambda n: f"{n} headers")
+            add(case, "  part: check_study", lambda: check_study(pst), lambda w: f"{len(w)} warnings")
+            add(case, "read_study_from_dicom (geometry from headers)", lambda: read_study_from_dicom(out),
                 lambda s: f"{len(s.contours)} contours")
 
     lines = [
