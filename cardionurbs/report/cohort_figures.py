@@ -266,8 +266,6 @@ def write_cohort_figures(cohort_csv: str | Path | pd.DataFrame, out_dir: str | P
     given, and ``skipped.txt`` (one line per figure left out).
     """
     from cardionurbs.io import atomic
-    import matplotlib
-    matplotlib.use("Agg", force=True)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     df = cohort_csv.copy() if isinstance(cohort_csv, pd.DataFrame) else _read_csv(Path(cohort_csv), "cohort")

@@ -1,6 +1,7 @@
 """Static figures of one analysed study (paper Figs. 3-10), headless PNG.
 
-Every figure is drawn with matplotlib's Agg backend (no display needed). 3D
+Every figure is a bare :class:`matplotlib.figure.Figure` saved as PNG by the
+Agg renderer: no pyplot, no global backend switch, no display needed. 3D
 panels show tessellated NURBS surfaces (:func:`cardionurbs.nurbs.tessellate`)
 as ONE depth-sorted :class:`~mpl_toolkits.mplot3d.art3d.Poly3DCollection` per
 panel, so translucent walls and the surfaces inside them sort together
@@ -31,25 +32,20 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
+import matplotlib.colors
+import matplotlib.ticker
 import numpy as np
+from matplotlib.figure import Figure
+from mpl_toolkits.mplot3d import proj3d
+from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
-os.environ.setdefault("MPLBACKEND", "Agg")
-import matplotlib  # noqa: E402
-
-matplotlib.use("Agg", force=True)
-import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-from mpl_toolkits.mplot3d import proj3d  # noqa: E402
-from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection  # noqa: E402
-
-from cardionurbs import nurbs  # noqa: E402
-from cardionurbs.io import atomic  # noqa: E402
+from cardionurbs import nurbs
+from cardionurbs.io import atomic
 
 __all__ = ["write_figures", "render_figures", "FigureSet", "FigureResult", "OKABE_ITO",
            "STRUCTURE_COLOURS", "FAMILY_COLOURS", "FLAG_COLOUR", "tag_data", "view_frame"]
@@ -453,8 +449,23 @@ def _wall_pair(ctx: _Context, out: Path, name: str, structures: Sequence[str], f
                   for s in structures if s in surf]
         draw_panel(ax, meshes, ctx.view, title=ctx.frame_label(f))
     _legend(fig, [(NAMES[s], STRUCTURE_COLOURS[s]) for s in structures])
-    opaque = {s: STRUCTURE_COLOURS[s] for s in structures if alphas.get(s, 1.0) >= 1.0}
+    opaque = {s: seen_colour(s, alphas, structures) for s in structures
+              if alphas.get(s, 1.0) >= 1.0}
     return _result(name, fig, out, caption, opaque)
+
+
+COVER = {"lv_endo": "lv_epi", "rv_endo": "rv_epi"}     # the wall around each cavity surface
+
+
+def seen_colour(structure: str, alphas: Mapping[str, float], present: Sequence[str]) -> str:
+    """Colour an opaque surface shows in the PNG: its own, or — inside a translucent wall of
+    opacity a — the blend a·wall + (1 − a)·own (both shaded alike, so still a scaled colour)."""
+    own = _rgb(STRUCTURE_COLOURS[structure])
+    cover = COVER.get(structure)
+    a = alphas.get(cover, 1.0) if cover in present else 0.0
+    if not 0.0 < a < 1.0:
+        return STRUCTURE_COLOURS[structure]
+    return matplotlib.colors.to_hex(a * _rgb(STRUCTURE_COLOURS[cover]) + (1 - a) * own)
 
 
 def fig03_lv_endo(ctx, out):
@@ -606,7 +617,7 @@ def fig10_biventricular(ctx, out):
     if data:
         items.append(("LA tag planes", FAMILY_COLOURS["la"]))
     _legend(fig, items)
-    return _result("fig10_biventricular_tags", fig, out, caption, {s: STRUCTURE_COLOURS[s] for s in order if alpha[s] >= 1})
+    return _result("fig10_biventricular_tags", fig, out, caption, {s: seen_colour(s, alpha, order) for s in order if alpha[s] >= 1})
 
 
 def _times(ctx: _Context, frames: Sequence[int]) -> tuple[np.ndarray, str]:
@@ -664,26 +675,26 @@ def fig12_twist_time(ctx, out):
     caption = (f"Twist–time curve of subject {ctx.subject}: LV twist (apical minus basal rotation "
                f"of the LA tag levels, deg) and longitudinal shortening LS (%) relative to ED "
                f"(frame {ctx.ed}) at {len(frames)} tagged frames.")
-    fig, axes = _new_figure(1, caption, width=6.4, height=4.2, three_d=False)
-    ax = axes[0]
+    fig = Figure(figsize=(6.4, 5.0), dpi=DPI)
+    ax, ax2 = fig.subplots(2, 1, sharex=True)
+    fig.subplots_adjust(left=0.12, right=0.97, top=0.95, bottom=0.2, hspace=0.12)
+    fig.text(0.01, 0.01, textwrap.fill(caption, 110), fontsize=7.5, ha="left", va="bottom")
     c1, c2 = OKABE_ITO["bluish_green"], OKABE_ITO["reddish_purple"]
-    ax.plot(x, [over[f]["Twist (deg)"] for f in frames], "-o", color=c1, ms=3, lw=1.8,
-            label="twist (deg)")
-    ax.set_ylabel("twist (deg)", fontsize=8, color=c1)
-    ax2 = ax.twinx()
-    ax2.plot(x, [over[f]["LS (%)"] for f in frames], "-s", color=c2, ms=3, lw=1.4, label="LS (%)")
-    ax2.set_ylabel("LS (%)", fontsize=8, color=c2)
+    ax.plot(x, [over[f]["Twist (deg)"] for f in frames], "-o", color=c1, ms=3.5, lw=2.0,
+            label="twist (measured)")
+    ax2.plot(x, [over[f]["LS (%)"] for f in frames], "-s", color=c2, ms=3.5, lw=2.0,
+             label="LS (measured)")
     tm = (ctx.truth or {}).get("metrics") or {}
-    if "Twist (deg)" in tm and tm["Twist (deg)"] is not None:
-        xe, _ = _times(ctx, [ctx.es])
-        ax.plot([xe[0]], [tm["Twist (deg)"]], marker="*", ms=10, color="black", ls="none",
-                label="truth twist at ES")
-    ax.set_xlabel(xlabel, fontsize=8)
-    for a in (ax, ax2):
+    xe, _ = _times(ctx, [ctx.es])
+    for a, key in ((ax, "Twist (deg)"), (ax2, "LS (%)")):
+        if tm.get(key) is not None:
+            a.plot([xe[0]], [tm[key]], marker="*", ms=10, color="black", ls="none",
+                   label="truth at ES")
+        a.axhline(0.0, color="#999999", lw=0.6)
+        a.set_ylabel(key.replace(" (", "\n("), fontsize=8)
         a.tick_params(labelsize=7)
-    h1, l1 = ax.get_legend_handles_labels()
-    h2, l2 = ax2.get_legend_handles_labels()
-    ax.legend(h1 + h2, l1 + l2, fontsize=7, frameon=False, loc="upper right")
+        a.legend(fontsize=7, frameon=False, loc="best")
+    ax2.set_xlabel(xlabel, fontsize=8)
     return _result("fig12_twist_time", fig, out, caption, {"twist": c1, "LS": c2})
 
 
@@ -720,9 +731,9 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
                    ) -> FigureSet:
     """Render the figures of one model into ``out_dir``; see :func:`write_figures`.
 
-    Also writes ``figures.json`` (captions, skip reasons, study source) and
-    ``tag_surfaces.npz``-free JSON data for the HTML report (``report_tags.json``:
-    coarse tag surfaces per tagged frame with QC flags) when tags exist.
+    Also writes ``figures.json`` (captions, skip reasons, study source), ``skipped.txt``
+    and, when tags exist, ``report_tags.json`` for the HTML report (coarse tag surfaces
+    per tagged frame with QC flags).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -740,8 +751,6 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
             res = FIGURES[name](ctx, out)
         except (ValueError, KeyError, np.linalg.LinAlgError) as exc:   # never crash analyze
             res = f"not drawn: {type(exc).__name__}: {' '.join(str(exc).split())}"
-        finally:
-            plt.close("all")
         if isinstance(res, FigureResult):
             fs.figures.append(res)
         else:
