@@ -342,7 +342,7 @@ play.disabled = frames.length < 2;
 play.addEventListener('click', function(){
   if(timer){clearInterval(timer); timer=null; play.textContent='▶ play'; return;}
   play.textContent='❚❚ pause'; timer=setInterval(function(){ show((cur+1)%frames.length); }, 180); });
-if(D.volume_curve && D.volume_curve.frame && D.volume_curve.frame.length>1){
+if(D.volume_curve && D.volume_curve.frame && D.volume_curve.frame.length>2){
   const vc=D.volume_curve; const haveT = vc.time_ms && vc.time_ms.every(function(t){return t!=null;});
   const xs = haveT ? vc.time_ms : vc.frame; const tr=[];
   [['lv_cavity (mL)','LV cavity','#D55E00'],['rv_cavity (mL)','RV cavity','#0072B2']].forEach(function(s){
@@ -352,7 +352,8 @@ if(D.volume_curve && D.volume_curve.frame && D.volume_curve.frame.length>1){
     xaxis:{title:{text: haveT?'time (ms)':'frame'}}, yaxis:{title:{text:'volume (mL)'}}, legend:{x:0.7,y:1}},
     {displaylogo:false, responsive:true, staticPlot:false});
   else document.getElementById('volplot').style.display='none';
-} else { document.getElementById('volplot').style.display='none'; }
+} else { const v=document.getElementById('volplot'); v.style.height='auto'; v.className='note';
+  v.textContent='Fewer than 3 reconstructed frames: no volume–time curve.'; }
 })();
 """
 
