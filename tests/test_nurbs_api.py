@@ -85,14 +85,14 @@ def test_rational_fit_is_no_worse_than_polynomial():
 
 
 def test_rational_tol_fit_meets_tol_with_no_more_control_points():
-    t = np.linspace(0, 2 * np.pi, 90, endpoint=False)
-    r = 20 + 1.5 * np.exp(-((t - 2.0) / 0.08) ** 2)          # a sharp local bump
+    t = np.linspace(0, 2 * np.pi, 48, endpoint=False)
+    r = 20 + 1.5 * np.exp(-((t - 2.0) / 0.15) ** 2)          # a sharp local bump
     pts = np.c_[r * np.cos(t), r * np.sin(t)]
-    poly = nurbs.fit_curve(pts, closed=True, tol=0.1)
-    rat = nurbs.fit_curve(pts, closed=True, tol=0.1, rational=True)
-    assert rat.n_control <= poly.n_control
+    poly = nurbs.fit_curve(pts, closed=True, tol=0.2)
+    rat = nurbs.fit_curve(pts, closed=True, tol=0.2, rational=True)
+    assert rat.n_control < poly.n_control and rat.is_rational
     _, d = nurbs.closest_points(rat, pts)
-    assert d.max() <= 0.1
+    assert d.max() <= 0.2
 
 
 def test_closed_curve_to_clamped_and_back_shape():

@@ -17,7 +17,7 @@ with the fewest control points the degree allows and adds one at a time until
 the bound holds (paper §3.2.3, first strategy).  ``rational=True`` also
 optimises the weights (variable projection: least squares in the control
 points inside a trust-region search over log-weights); with ``tol`` it then
-removes control points while the weighted fit still meets the bound.
+bisects for the fewest control points whose weighted fit still meets it.
 
 Eq. 9 is applied at the *centred* fractional data index ``j d - 1/2``
 (the book's formula uses ``j d - 1``).  The centred rule makes the knot vector
@@ -186,24 +186,42 @@ def least_squares_curve(points: np.ndarray, params: np.ndarray, degree: int, n_c
 
 
 def _optimise_weights(points: np.ndarray, params: np.ndarray, degree: int, n_ctrl: int,
-                      closed: bool, rule: str) -> NurbsCurve:
-    """Weights minimising the squared residuals at the fixed parameters
-    (variable projection: the control points are re-solved by eq. 10 for
-    every trial of weights; Levenberg–Marquardt-type trust region search).
+                      closed: bool, rule: str, max_iterations: int = 60) -> NurbsCurve:
+    """Weights minimising the squared residuals at the fixed parameters.
 
-    Variables: log-weights of control points 1..n-1 (w_0 = 1 removes the
-    scale invariance), bounded to [-3, 3].
+    Variable projection (Golub & Pereyra 1973): for every trial of weights
+    the control points are re-solved by eq. 10, so only the log-weights
+    ``theta_j`` of control points 1..n-1 are searched (w_0 = 1 removes the
+    scale invariance; bounds [-3, 3]), by scipy's trust-region least squares
+    with Kaufman's Jacobian: with ``R_kj = N_kj w_j / sum_l N_kl w_l``,
+    ``d(R P)_k / d theta_j = R_kj (P_j - C_k)``, projected onto the orthogonal
+    complement of the columns of R that are solved for.
     """
     Q = np.asarray(points, dtype=float)
     U, N = _design(params, degree, n_ctrl, closed, rule)
+    m, d = Q.shape
+    free = slice(None) if closed else slice(1, n_ctrl - 1)
 
-    def residuals(logw: np.ndarray) -> np.ndarray:
-        w = np.exp(np.concatenate([[0.0], logw]))
+    def state(theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        w = np.exp(np.concatenate([[0.0], theta]))
         P, R = _control_points(N, w, Q, closed)
-        return (R @ P - Q).ravel()
+        return P, R, R @ P
 
-    res = least_squares(residuals, np.zeros(n_ctrl - 1), bounds=(-3.0, 3.0),
-                        method="trf", x_scale=1.0, max_nfev=30 * n_ctrl)
+    def residuals(theta: np.ndarray) -> np.ndarray:
+        return (state(theta)[2] - Q).ravel()
+
+    def jacobian(theta: np.ndarray) -> np.ndarray:
+        P, R, C = state(theta)
+        # J0[k, c, j] = R_kj (P_jc - C_kc)
+        J0 = R[:, None, :] * (P.T[None, :, :] - C[:, :, None])
+        Rf = R[:, free]
+        # Kaufman: remove the part the (re-solved) free control points absorb
+        coef = solve_normal_equations(Rf, J0.reshape(m, d * n_ctrl)).reshape(-1, d, n_ctrl)
+        J = J0 - np.einsum("ki,icj->kcj", Rf, coef)
+        return J.reshape(m * d, n_ctrl)[:, 1:]
+
+    res = least_squares(residuals, np.zeros(n_ctrl - 1), jac=jacobian, bounds=(-3.0, 3.0),
+                        method="trf", x_scale=1.0, max_nfev=max_iterations)
     w = np.exp(np.concatenate([[0.0], res.x]))
     P, _ = _control_points(N, w, Q, closed)
     return NurbsCurve(degree, U, P, w, closed=closed)
@@ -251,8 +269,8 @@ def fit_curve(points: Any, degree: int = 3, closed: bool = False, tol: float | N
         None): 1e-3 of the diagonal of the points' bounding box.
     n_ctrl : fixed number of (distinct) control points instead of ``tol``
     rational : also optimise the weights: with ``tol``, once the polynomial
-        fit meets it, control points are removed one at a time while a fit
-        with optimised weights still meets it
+        fit meets it, the fewest control points whose weighted fit still meets
+        it are searched by bisection below the polynomial count
     knot_rule : "eq9" (default), "book" or "uniform", see module doc
     """
     p = V.degree_value(degree)
@@ -299,11 +317,15 @@ def fit_curve(points: Any, degree: int = 3, closed: bool = False, tol: float | N
         raise NurbsInputError(f"tol: {tol} not reached with up to {n_max} control points "
                               f"(best maximum distance {best[0]:.3g})")
     if rational:
-        # remove control points while optimised weights keep the tolerance
-        for n in range(found.n_control - 1, n_min - 1, -1):
-            c = _optimise_weights(Q, params, p, n, closed, knot_rule)
+        # fewest control points whose weighted fit meets tol: bisection between
+        # the minimum and the polynomial count (assumes more points never hurt)
+        lo, hi = n_min - 1, found.n_control
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            c = _optimise_weights(Q, params, p, mid, closed, knot_rule)
             ok, _ = _error_within(c, Q, params, tol)
-            if not ok:
-                break
-            found = c
+            if ok:
+                hi, found = mid, c
+            else:
+                lo = mid
     return found
