@@ -98,7 +98,7 @@ def chord_length(xy: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> f
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (r[:, 0] * (-e[:, 1]) - r[:, 1] * (-e[:, 0])) / den
         s = (d[0] * r[:, 1] - d[1] * r[:, 0]) / den
-    ok = np.isfinite(t) & (s >= 0) & (s <= 1)
+    ok = np.isfinite(t) & (s >= -1e-9) & (s <= 1 + 1e-9)   # a vertex hit counts
     if not ok.any():
         return NAN
     return float(t[ok].max() - t[ok].min())

@@ -115,6 +115,19 @@ def blend_trace(Ca: np.ndarray, Cb: np.ndarray, origin: np.ndarray, normal: np.n
     return T, tan
 
 
+def signed_distance_to_trace(points: np.ndarray, trace: np.ndarray, tangents: np.ndarray,
+                             normal: np.ndarray) -> np.ndarray:
+    """In-plane distance (mm) of points from a trace across its tangent, signed along
+    normal × tangent (the same side for every tag of a family: their lines share one
+    orientation)."""
+    if len(trace) == 0:
+        return np.full(len(points), np.nan)
+    diff = points[:, None, :] - trace[None]
+    j = np.argmin((diff ** 2).sum(-1), axis=1)
+    dd = diff[np.arange(len(points)), j]
+    return (dd * np.cross(normal, tangents[j])).sum(1)
+
+
 def distance_to_trace(points: np.ndarray, trace: np.ndarray, tangents: np.ndarray) -> np.ndarray:
     """Distance (mm) of each point from the nearest trace point, across the trace's tangent."""
     if len(trace) == 0:
@@ -269,6 +282,104 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
     return out
 
 
+def loo_residuals(secs: list[TagSection], samples: list[np.ndarray],
+                  exclude: set[str] = frozenset()) -> dict[str, dict[tuple[str, str], float]]:
+    """Signed leave-one-out residual (mm) of each SA slice's line of one tag, per predictor.
+
+    {slice: {(slice_a, slice_b): median signed in-plane distance of the line's
+    points from the degree-1 loft of sections a, b}} (module docstring, steps 1–3).
+    """
+    names = [s.slice for s in secs if s.slice not in exclude]
+    out: dict[str, dict[tuple[str, str], float]] = {}
+    if len(names) < 3:
+        return out
+    for i, sec in enumerate(secs):
+        if sec.slice in exclude:
+            continue
+        keep = [k for k, s in enumerate(secs) if k != i and s.slice not in exclude]
+        keys = np.array([secs[k].key for k in keep])
+        plane = sec.plane
+        res = {}
+        for a, b in _neighbour_pairs(keys, sec.key):
+            trace, tan = blend_trace(samples[keep[a]], samples[keep[b]], plane.position,
+                                     plane.normal)
+            d = signed_distance_to_trace(sec.points, trace, tan, plane.normal)
+            if len(d) and np.isfinite(d).all():
+                res[(secs[keep[a]].slice, secs[keep[b]].slice)] = float(np.median(d))
+        if res:
+            out[sec.slice] = res
+    return out
+
+
+def _index_trend(values: list[tuple[int, float]], i: int, outlier: float) -> float:
+    """Residual expected at tag index i from the other tags' (index, residual) in its slice.
+
+    A weighted least-squares polynomial in the index — quadratic with four
+    or more tags, else linear or constant — with weights 1 / (1 + |j − i|)²
+    (the nearest tags count most), refitted once without the tags that
+    depart from the first fit by more than ``outlier`` (jumped lines);
+    evaluated at i. No other tag: 0 (no correction).
+    """
+    if not values:
+        return 0.0
+    j = np.array([v[0] for v in values], float)
+    r = np.array([v[1] for v in values], float)
+    keep = np.ones(len(j), bool)
+    for _ in range(2):
+        n = int(keep.sum())
+        if n == 0:
+            return 0.0
+        if n == 1:
+            return float(r[keep][0])
+        deg = 2 if n >= 4 else 1
+        w = 1.0 / (1.0 + np.abs(j[keep] - i)) ** 2
+        c = np.polyfit(j[keep] - i, r[keep], deg, w=np.sqrt(w))
+        fit = np.polyval(c, j - i)
+        new = np.abs(r - fit) <= outlier
+        if new.sum() < 1 or np.array_equal(new, keep):
+            break
+        keep = new
+    return float(c[-1])
+
+
+def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
+                         threshold: float) -> list[tuple[int, str, float, bool]]:
+    """Departures (tag spacings) of every line of one SA family at one frame, with flags.
+
+    A line's residual against a predictor pair is compared with the trend
+    of the other tags' residuals in the same slice against the same pair
+    (:func:`_index_trend`, a robust local polynomial in the tag index): the
+    loft's own error where the tag surfaces bend (the apex at end-systole)
+    varies smoothly from tag to tag, a jump does not. The departure is the
+    smallest difference over the predictor pairs. Worst first, lines above ``threshold`` are flagged and left out,
+    and the family is measured again. Returns (index, slice, departure, flagged).
+    """
+    samples = {i: [_samples(s) for s in secs] for i, secs in groups.items()}
+    excl: dict[int, set[str]] = {i: set() for i in groups}
+    R = {i: loo_residuals(groups[i], samples[i]) for i in groups}
+
+    def departure(i: int, slc: str) -> float:
+        best = np.inf
+        for pair, r in R[i][slc].items():
+            nb = [(j, R[j][slc][pair]) for j in R if j != i and slc in R[j] and pair in R[j][slc]]
+            best = min(best, abs(r - _index_trend(nb, i, 0.5 * spacing)))
+        return best / spacing
+
+    flagged: dict[tuple[int, str], float] = {}
+    while True:
+        deps = {(i, slc): departure(i, slc) for i in R for slc in R[i]}
+        over = {k: v for k, v in deps.items() if v > threshold}
+        if not over:
+            break
+        worst = max(over, key=over.get)
+        flagged[worst] = over[worst]
+        excl[worst[0]].add(worst[1])
+        R[worst[0]] = loo_residuals(groups[worst[0]], samples[worst[0]], excl[worst[0]])
+    out = [(i, slc, d, False) for (i, slc), d in deps.items()]
+    out += [(i, slc, d, True) for (i, slc), d in flagged.items()]
+    return out
+
+
 def _qc_axis(study: Study, long_axis: tuple | None) -> tuple | None:
     if long_axis is not None or not _can_axis(study, None):
         return long_axis
@@ -313,11 +424,18 @@ def tag_departures(study: Study, threshold: float = DEFAULT_THRESHOLD,
         else:
             groups = qc_sections(study, f, long_axis)
         spacing = {fam: tag_spacing(study, fam, f) for fam in TAG_FAMILIES}
+        for fam in ("sa1", "sa2"):
+            sp = spacing[fam]
+            fam_groups = {i: secs for (g, i), secs in groups.items() if g == fam}
+            if not fam_groups or not np.isfinite(sp) or sp <= 0:
+                continue
+            for i, slc, d, fl in sa_family_departures(fam_groups, sp, threshold):
+                out.append(LineDeparture(fam, i, slc, f, d, fl))
         for (fam, idx), secs in sorted(groups.items()):
             sp = spacing[fam]
-            if not np.isfinite(sp) or sp <= 0:
+            if fam != "la" or not np.isfinite(sp) or sp <= 0:
                 continue
-            periodic = fam == "la"
+            periodic = True
             samples = [_samples(s) for s in secs]
             flagged: dict[str, float] = {}
             last: dict[str, float] = {}

@@ -10,6 +10,7 @@ points (:mod:`cardionurbs.anatomy.sections`), and finds ED and ES
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from functools import cached_property
@@ -24,6 +25,7 @@ from cardionurbs.anatomy import mesh as meshing
 from cardionurbs.anatomy.mesh import Plane
 from cardionurbs.anatomy.sections import (SURFACES, FrameGeometry, Section, frame_geometry,
                                           loop_centroid)
+from cardionurbs.anatomy.refine import refine_surface
 from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface, free_wall_points
 from cardionurbs.errors import ReconstructionError
 from cardionurbs.study import Study
@@ -120,11 +122,13 @@ class BiventricularModel:
     def __init__(self, study: Study, frames: list[int], *, surfaces: Mapping | None = None,
                  base_planes: Mapping | None = None, apex_points: Mapping | None = None,
                  sections: Mapping | None = None, tol_px: float = 1.0,
+                 refine: bool = True, anchor_weight: float = 4.0,
                  warnings: list[str] | None = None,
                  resolution: tuple[int, int] = RESOLUTION) -> None:
         self.study = study
         self.frames = list(frames)
         self.tol_px = float(tol_px)
+        self.refine, self.anchor_weight = bool(refine), float(anchor_weight)
         self.warnings = list(warnings or [])
         self.resolution = tuple(resolution)
         self._meshes: dict[int, dict[str, trimesh.Trimesh]] = {}
@@ -143,7 +147,10 @@ class BiventricularModel:
             self.apex_points, self.sections = apex_points, sections or {}
         self.volumes = LazyFrames(self.frames, lambda f: {
             k: meshing.volume_ml(m) for k, m in self.solids(f).items()})
-        lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
+        if isinstance(self.surfaces, LazyFrames):
+            lv = {f: self.lv_cavity_volume_unrefined(f) for f in self.frames}
+        else:
+            lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
         ed, es = ed_es_frames(lv, study.ed_frame, study.es_frame)
         self.ed_frame, self.es_frame = ed, es
         if ed == es:
@@ -161,15 +168,47 @@ class BiventricularModel:
         geo = self.geometry[frame]
         return [s for s in SURFACES if len(geo.sections.get(s) or []) >= 2]
 
-    def fit(self, frame: int, structure: str) -> SurfaceFit:
-        """The lofted surface of one structure at one frame, with its sections (cached)."""
-        key = (frame, structure)
+    def fit(self, frame: int, structure: str, refined: bool = True) -> SurfaceFit:
+        """The lofted surface of one structure at one frame, with its sections (cached);
+        ``refined``: corrected towards the LA contours (LV surfaces, when enabled)."""
+        refined = refined and self.refine and structure in ("lv_endo", "lv_epi") \
+            and bool(self.geometry[frame].la_points.get(structure))
+        key = (frame, structure, refined)
         if key not in self._fits:
-            geo = self.geometry[frame]
-            f = build_surface(geo, structure, geo.reference, tol_px=self.tol_px)
-            self.warnings += f.warnings
+            if refined:
+                base = self.fit(frame, structure, refined=False)
+                f = dataclasses.replace(base, surface=self._refined(self.geometry[frame], structure,
+                                                                    base.surface), warnings=[])
+            else:
+                geo = self.geometry[frame]
+                f = build_surface(geo, structure, geo.reference, tol_px=self.tol_px)
+                self.warnings += f.warnings
             self._fits[key] = f
         return self._fits[key]
+
+    def lv_cavity_volume_unrefined(self, frame: int) -> float:
+        """LV cavity volume (mL) of the loft through the SA contours alone: what ED and
+        ES are found with (cheap for every frame; the LA correction is applied only
+        to the frames that are reported)."""
+        surf = self.fit(frame, "lv_endo", refined=False).surface
+        v, f = nurbs.tessellate(surf, *self.resolution)
+        m = meshing.solid(v, f, what="lv_endo", frame=frame)
+        return meshing.volume_ml(self._trim(m, frame, "lv", what="lv_cavity"))
+
+    def _refined(self, geo: FrameGeometry, structure: str, surface):
+        """The surface corrected towards the LA contour points on the apical side of the
+        valve plane (:func:`cardionurbs.anatomy.refine.refine_surface`)."""
+        la = geo.la_points.get(structure) or []
+        if not la:
+            return surface
+        targets = np.concatenate(la)
+        plane = geo.base_planes.get("lv")
+        if plane is not None:
+            targets = targets[plane.signed_distance(targets) >= 0]
+        # the SA points every ~2 mm along each contour suffice to hold the surface
+        anchors = np.concatenate([_every(sec.source_points, 2.0) for sec in geo.sections[structure]])
+        return refine_surface(surface, anchors, _every(targets, 2.0), anchor_weight=self.anchor_weight,
+                              passes=1)
 
     def _all_surfaces(self, frame: int) -> dict:
         geo = self.geometry[frame]
@@ -366,6 +405,14 @@ class BiventricularModel:
         return m
 
 
+def _every(points: np.ndarray, spacing_mm: float) -> np.ndarray:
+    """A subsample of ordered contour points about ``spacing_mm`` apart."""
+    if len(points) < 3:
+        return points
+    step = float(np.median(np.linalg.norm(np.diff(points, axis=0), axis=1))) or spacing_mm
+    return points[:: max(1, int(round(spacing_mm / step)))]
+
+
 def _pixel_mm(plane) -> float:
     return float(np.mean(plane.pixel_spacing)) if plane is not None else 1.0
 
@@ -382,7 +429,8 @@ def surface_distance(surface, points: np.ndarray) -> np.ndarray:
 
 
 def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float = 1.0,
-                resolution: tuple[int, int] = RESOLUTION) -> BiventricularModel:
+                refine: bool = True, resolution: tuple[int, int] = RESOLUTION
+                ) -> BiventricularModel:
     """Biventricular NURBS model of a study (paper §4.2): one set of lofted
     surfaces per frame with LV endocardial contours (or the given ``frames``).
 
@@ -391,6 +439,8 @@ def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float 
     asks only at ED and ES).
 
     ``tol_px``: curve-fit tolerance, pixels (paper §4.2.1: < 1 px).
+    ``refine``: correct the LV surfaces towards the LA contour points
+    (:mod:`cardionurbs.anatomy.refine`), where the study has LA contours.
     Raises ReconstructionError naming the structure and frame when a surface
     cannot be built.
     """
@@ -402,4 +452,4 @@ def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float 
         raise ReconstructionError(f"frame(s) {missing} have no LV endocardial contours")
     if not frames:
         raise ReconstructionError(f"study {study.subject}: no LV endocardial contours")
-    return BiventricularModel(study, frames, tol_px=tol_px, resolution=resolution)
+    return BiventricularModel(study, frames, tol_px=tol_px, refine=refine, resolution=resolution)

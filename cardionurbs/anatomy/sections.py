@@ -232,7 +232,7 @@ def ray_exit(points: np.ndarray, origin: np.ndarray, direction: np.ndarray,
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (a[:, 0] * (-e[:, 1]) + a[:, 1] * e[:, 0]) / den
         s = (dd[0] * a[:, 1] - dd[1] * a[:, 0]) / den
-    ok = np.isfinite(t) & (s >= 0) & (s <= 1) & (t > 0)
+    ok = np.isfinite(t) & (s >= -1e-9) & (s <= 1 + 1e-9) & (t > 0)   # a vertex hit counts
     return float(t[ok].max()) if ok.any() else float("nan")
 
 

@@ -1,0 +1,107 @@
+"""Least-squares correction of a lofted surface towards long-axis contour points.
+
+Beyond the paper: the loft (§3.2.4) passes through the SA sections, and
+between them it only interpolates; long-axis (LA) contours show where the
+surface really runs between and beyond the SA slices. The correction moves
+each control point P_j along its control normal n_j (the surface normal at
+the control point's Greville abscissae, NURBS Book eq. 9.8 averages) by δ_j,
+minimising (a linearised, smoothed least-squares fit)
+
+    Σ_i w_i (Σ_j N_j(u_i, v_i) (n_j · N_i) δ_j − r_i)²  +  λ Σ_(j,k) (δ_j − δ_k)²  +  ε Σ_j δ_j²
+
+over the SA contour points (weight ``anchor_weight``, r_i ≈ 0: stay through
+them) and the LA points
+(r_i = signed normal distance to the surface), where (u_i, v_i) is each
+point's closest surface point and N_i the unit normal there; the second sum
+runs over neighbouring control points (periodic around u). The collapsed apex
+row and its ring neighbours keep δ = 0 (the apex is a measured point).
+Two passes (re-projecting the points) are made.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cardionurbs import nurbs
+from cardionurbs.nurbs.basis import basis_matrix
+
+
+def greville(knots: np.ndarray, degree: int, n: int, periodic: bool) -> np.ndarray:
+    """Greville abscissae (n,) of n control points: mean of the p knots after each."""
+    U = np.asarray(knots, float)
+    g = np.array([U[j + 1:j + degree + 1].mean() for j in range(n)])
+    return np.mod(g, 1.0) if periodic else g
+
+
+def collocation(surface, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Tensor-product basis matrix (k, nu·nv) of a non-rational surface at (u_i, v_i)."""
+    nu, nv = surface.control_points.shape[:2]
+    Bu = basis_matrix(surface.knots_u, surface.degree_u, u,
+                      n_periodic=nu if surface.closed_u else None)
+    Bv = basis_matrix(surface.knots_v, surface.degree_v, v)
+    return (Bu[:, :, None] * Bv[:, None, :]).reshape(len(u), nu * nv)
+
+
+def grid_laplacian(nu: int, nv: int, periodic_u: bool) -> np.ndarray:
+    """Graph Laplacian (nu·nv, nu·nv) of the control grid (4-neighbours, periodic in u)."""
+    idx = np.arange(nu * nv).reshape(nu, nv)
+    pairs = [np.stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()], 1)]
+    if periodic_u:
+        pairs.append(np.stack([idx.ravel(), np.roll(idx, -1, axis=0).ravel()], 1))
+    else:
+        pairs.append(np.stack([idx[:-1].ravel(), idx[1:].ravel()], 1))
+    e = np.concatenate(pairs)
+    L = np.zeros((nu * nv, nu * nv))
+    np.add.at(L, (e[:, 0], e[:, 0]), 1.0)
+    np.add.at(L, (e[:, 1], e[:, 1]), 1.0)
+    np.add.at(L, (e[:, 0], e[:, 1]), -1.0)
+    np.add.at(L, (e[:, 1], e[:, 0]), -1.0)
+    return L
+
+
+def refine_surface(surface, anchors: np.ndarray, targets: np.ndarray, *,
+                   smoothing: float = 0.05, ridge: float = 1e-4, passes: int = 2,
+                   anchor_weight: float = 1.0, max_step_mm: float = 10.0):
+    """Correct ``surface`` towards ``targets`` (LA points) while keeping it through
+    ``anchors`` (SA contour points); see module doc. Returns the new surface.
+
+    ``smoothing`` (λ) and ``ridge`` (ε) are relative to the mean diagonal of the
+    normal equations, so they do not depend on the point counts.
+    """
+    if len(targets) == 0:
+        return surface
+    pts = np.concatenate([anchors, targets])
+    nu, nv = surface.control_points.shape[:2]
+    fixed = np.zeros((nu, nv), dtype=bool)
+    collapsed_start, collapsed_end = surface.collapsed_v()
+    if collapsed_end:
+        fixed[:, -2:] = True
+    if collapsed_start:
+        fixed[:, :2] = True
+    free = ~fixed.ravel()
+    L = grid_laplacian(nu, nv, surface.closed_u)[np.ix_(free, free)]
+    gu = greville(surface.knots_u, surface.degree_u, nu, surface.closed_u)
+    gv = greville(surface.knots_v, surface.degree_v, nv, False)
+    for _ in range(passes):
+        u, v, _ = nurbs.closest_points(surface, pts)
+        S = surface.evaluate_points(u, v)
+        N = surface.normal_points(u, v)
+        r = np.einsum("ij,ij->i", pts - S, N)
+        r[: len(anchors)] = np.einsum("ij,ij->i", anchors - S[: len(anchors)], N[: len(anchors)])
+        n_ctrl = surface.normal(gu, gv).reshape(nu * nv, 3)
+        B = collocation(surface, u, v)
+        A = B * (N @ n_ctrl.T)                         # (k, nu·nv): N_j(u_i,v_i) (n_j · N_i)
+        A = A[:, free]
+        w = np.ones(len(pts))
+        w[: len(anchors)] = anchor_weight
+        AtA = A.T @ (A * w[:, None])
+        scale = float(np.mean(np.diag(AtA))) or 1.0
+        M = AtA + smoothing * scale * L + ridge * scale * np.eye(AtA.shape[0])
+        delta = np.zeros(nu * nv)
+        delta[free] = np.linalg.solve(M, A.T @ (w * r))
+        delta = np.clip(delta, -max_step_mm, max_step_mm)
+        P = surface.control_points.reshape(nu * nv, 3) + delta[:, None] * n_ctrl
+        surface = nurbs.NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u,
+                                     surface.knots_v, P.reshape(nu, nv, 3),
+                                     closed_u=surface.closed_u)
+    return surface
