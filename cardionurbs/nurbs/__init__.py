@@ -3,7 +3,8 @@
 Fitting contours (paper §3.2, eqs. 6–10), lofting sections (§3.2.4), knot
 insertion/refinement (NURBS Book A5.1/A5.4), degree elevation (A5.9),
 vectorised evaluation (A2.2/A2.3, A4.2/A4.4), closest points, tessellation and
-lossless (de)serialisation.  Knows nothing about hearts.
+lossless (de)serialisation, ``.3dm`` export (rhino3dm, the ``cad`` extra,
+imported only when used).  Knows nothing about hearts.
 
     from cardionurbs import nurbs
     c = nurbs.fit_curve(points, degree=3, closed=True, tol=0.5)
@@ -21,6 +22,7 @@ from cardionurbs.nurbs.operations import (elevate_degree, insert_knots, make_com
                                           rotate_seam)
 from cardionurbs.nurbs.projection import (closest_points, curve_closest_points,
                                           surface_closest_points)
+from cardionurbs.nurbs.rhino import to_rhino, write_3dm
 from cardionurbs.nurbs.surface import NurbsSurface
 from cardionurbs.nurbs.tessellate import tessellate
 
@@ -29,4 +31,5 @@ __all__ = [
     "fit_curve", "chord_length_parameters", "loft", "tessellate",
     "elevate_degree", "insert_knots", "make_compatible", "rotate_seam",
     "closest_points", "curve_closest_points", "surface_closest_points",
+    "to_rhino", "write_3dm",
 ]

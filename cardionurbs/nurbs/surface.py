@@ -173,10 +173,12 @@ class NurbsSurface:
         nfu, nv, c = Pw.shape
         Bu = basis_matrix(self.knots_u, self.degree_u, u)
         Bv = basis_matrix(self.knots_v, self.degree_v, v)
-        # contract u, then v as one (a*c, nv) @ (nv, b) product
-        T = (Bu @ Pw.reshape(nfu, nv * c)).reshape(u.size, nv, c).transpose(0, 2, 1)
-        Sw = (T.reshape(u.size * c, nv) @ Bv.T).reshape(u.size, c, v.size)
-        return (Sw[:, :-1, :] / Sw[:, -1:, :]).transpose(0, 2, 1)    # (a, b, d) view
+        # contract v, then u: two plain matrix products, (a, b, c) comes out contiguous
+        Tv = Bv @ Pw.transpose(1, 0, 2).reshape(nv, nfu * c)              # (b, nfu*c)
+        Tv = Tv.reshape(v.size, nfu, c).transpose(1, 0, 2).reshape(nfu, v.size * c)
+        Sw = (Bu @ Tv).reshape(u.size, v.size, c)
+        Sw[..., :-1] /= Sw[..., -1:]                                      # in place
+        return Sw[..., :-1]
 
     def _paired_homogeneous(self, u: np.ndarray, v: np.ndarray, order: int) -> np.ndarray:
         p, q = self.degree_u, self.degree_v
