@@ -6,6 +6,9 @@ import json
 
 import numpy as np
 import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 from PIL import Image
 
 from cardionurbs.report import figures as F
@@ -90,27 +93,34 @@ def test_colour_check_rejects_a_blank_or_wrong_image(tmp_path):
         check_png(F.FigureResult("x", blue, "frame 0", {"lv": F.STRUCTURE_COLOURS["lv_endo"]}))
 
 
-def test_view_puts_base_up_and_rv_beside_lv():
-    """Camera: the long axis projects vertical (base up) on screen for any axis direction."""
+unit3 = arrays(np.float64, 3, elements=st.floats(-1, 1)).filter(lambda v: np.linalg.norm(v) > 0.1)
+
+
+@settings(max_examples=30, deadline=None)
+@given(arrays(np.float64, 3, elements=st.floats(-100, 100)), unit3, unit3)
+@example(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))     # eye straight down z
+@example(np.zeros(3), np.array([0, 0, 1.0]), np.array([0, 0, 1.0]))     # side along the axis
+def test_view_puts_base_up_and_rv_beside_lv(apex, axis_dir, side):
+    """Camera: the long axis projects vertical (base up) on screen for any axis direction,
+    and the eye looks perpendicular to both the axis and the septal direction."""
     from matplotlib.figure import Figure
     from mpl_toolkits.mplot3d import proj3d
-    rng = np.random.default_rng(0)
-    for _ in range(6):
-        apex = rng.normal(size=3) * 10
-        base = apex + 80 * F._unit(rng.normal(size=3))
-        side = rng.normal(size=3)
-        w, up = F.view_frame((apex, base), side)
-        assert abs(w @ up) < 1e-9 and abs(w @ side) < 1e-6 * np.linalg.norm(side)
-        v = F._camera(w, up, (apex + base) / 2, 60.0)
-        ax = Figure().add_subplot(projection="3d")
-        c, h = v.centre, v.half
-        ax.set_xlim(c[0] - h, c[0] + h), ax.set_ylim(c[1] - h, c[1] + h)
-        ax.set_zlim(c[2] - h, c[2] + h), ax.set_box_aspect((1, 1, 1))
-        ax.view_init(v.elev, v.azim, v.roll)
-        M = ax.get_proj()
-        xa, ya, _ = proj3d.proj_transform(*apex, M)
-        xb, yb, _ = proj3d.proj_transform(*base, M)
-        assert yb > ya and abs(xb - xa) < 1e-6 + 0.02 * abs(yb - ya)
+    base = apex + 80 * F._unit(axis_dir)
+    w, up = F.view_frame((apex, base), side)
+    assert abs(w @ up) < 1e-9 and np.linalg.norm(w) == pytest.approx(1.0)
+    s_perp = side - (side @ up) * up
+    if np.linalg.norm(s_perp) > 1e-3:
+        assert abs(w @ s_perp) < 1e-9 * max(1.0, np.linalg.norm(s_perp))
+    v = F._camera(w, up, (apex + base) / 2, 60.0)
+    ax = Figure().add_subplot(projection="3d")
+    c, h = v.centre, v.half
+    ax.set_xlim(c[0] - h, c[0] + h), ax.set_ylim(c[1] - h, c[1] + h)
+    ax.set_zlim(c[2] - h, c[2] + h), ax.set_box_aspect((1, 1, 1))
+    ax.view_init(v.elev, v.azim, v.roll)
+    M = ax.get_proj()
+    xa, ya, _ = proj3d.proj_transform(*apex, M)
+    xb, yb, _ = proj3d.proj_transform(*base, M)
+    assert yb > ya and abs(xb - xa) < 1e-6 + 0.02 * abs(yb - ya)
 
 
 # --------------------------------------------------------------- real data

@@ -12,6 +12,9 @@ import subprocess
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 from PIL import Image
 
 from cardionurbs import nurbs
@@ -75,6 +78,35 @@ def test_report_size_for_twenty_frames(analysis):
     n = len(p["frames"])
     total = (out / "report.html").stat().st_size
     assert total + per_frame / n * (20 - n) < 10e6
+
+
+@settings(max_examples=60, deadline=None)
+@given(arrays(np.float64, st.tuples(st.integers(1, 40), st.just(3)),
+              elements=st.floats(-3000, 3000, allow_nan=False)),
+       arrays(np.float64, 3, elements=st.floats(-200, 200, allow_nan=False)))
+def test_quantise_round_trip_within_half_a_quantum(v, origin):
+    origin = np.round(origin, 1)
+    v = np.clip(v, origin - 3270, origin + 3270)
+    q = np.frombuffer(base64.b64decode(H.quantise(v, origin)), "<i2").reshape(-1, 3)
+    assert np.abs(origin + q * H.QUANTUM_MM - v).max() <= H.QUANTUM_MM / 2 + 1e-9
+
+
+def test_quantise_refuses_far_coordinates():
+    with pytest.raises(H.ReportInputError):
+        H.quantise(np.array([[4000.0, 0, 0]]), np.zeros(3))
+
+
+def test_report_of_an_analysis_without_figures(analysis, tmp_path):
+    """analyze --no-figures output: the report still works (no tag surfaces, one line why)."""
+    out, _ = analysis
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    for name in ("model.json", "metrics.json"):
+        shutil.copy2(out / name, bare / name)
+    p = H.report_payload(bare)
+    assert not any(g["key"].startswith("tags_") for g in p["groups"])
+    assert "report_tags.json" in p["tags_note"] and p["figures"] == [] and not p["has_truth"]
+    assert H.write_report(bare, bare / "r.html").stat().st_size > 1e6
 
 
 def test_cli_report_and_bad_folder(analysis, tmp_path, capsys):
