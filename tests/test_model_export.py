@@ -71,10 +71,15 @@ def test_bad_study_exits_2_and_writes_nothing(tmp_path, capsys):
     assert not out.exists()
 
 
-@pytest.mark.parametrize("ext", ["stl", "ply", "obj", "glb"])
-def test_export_formats_by_extension(ext, tmp_path):
+@pytest.fixture(scope="module")
+def lv_myocardium():
     m = reconstruct(study_from_hearts([heart(1.0)], rv=False), resolution=(40, 24))
-    tm = m.meshes(0)["lv_myocardium"]
+    return m.meshes(0)["lv_myocardium"]
+
+
+@pytest.mark.parametrize("ext", ["stl", "ply", "obj", "glb"])
+def test_export_formats_by_extension(ext, tmp_path, lv_myocardium):
+    tm = lv_myocardium
     path = export_mesh(tm, tmp_path / f"lv_myo.{ext}")
     back = trimesh.load(path, force="mesh")
     if ext != "obj":

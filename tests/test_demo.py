@@ -1,0 +1,57 @@
+"""`cardionurbs demo`: subjects generated, analysed, CSVs written, metrics printed beside truth
+(run here on two small subjects; the full 12-subject demo is timed in the benchmark)."""
+
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+from cardionurbs.analysis.function import COLUMNS
+from cardionurbs.cli import main
+from cardionurbs.cohort import CSV_COLUMNS
+
+presets = pytest.importorskip("cardionurbs.phantom.presets", reason="phantom generator not built")
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory):
+    small = [presets.SubjectSpec("nrm01", "normal", 101, frames=2),
+             presets.SubjectSpec("phtn01", "phtn", 301, frames=2)]
+    mp = pytest.MonkeyPatch()
+    mp.setattr(presets, "load_cohort_spec", lambda path: small)
+    out = tmp_path_factory.mktemp("demo")
+    import contextlib
+    import io
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = main(["demo", "--out", str(out)])
+    mp.undo()
+    return code, out, buf.getvalue()
+
+
+def test_demo_exits_zero_and_writes_csvs(demo_run):
+    code, out, _ = demo_run
+    assert code == 0
+    measured = pd.read_csv(out / "cohort.csv")
+    truth = pd.read_csv(out / "truth.csv")
+    assert list(measured.columns) == list(CSV_COLUMNS)
+    assert list(measured["subject"]) == ["nrm01", "phtn01"] and (measured["status"] == "ok").all()
+    assert list(truth.columns[2:]) == list(COLUMNS)
+    assert (out / "nrm01" / "study.json").exists() and (out / "nrm01" / "truth.json").exists()
+
+
+def test_demo_metrics_match_truth(demo_run):
+    _, out, _ = demo_run
+    m = pd.read_csv(out / "cohort.csv").set_index("subject")
+    t = pd.read_csv(out / "truth.csv").set_index("subject")
+    for c in ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "RVESV (mL)"):
+        assert ((m[c] / t[c] - 1).abs() < 0.01).all(), c
+
+
+def test_demo_prints_every_metric_beside_truth(demo_run):
+    _, out, text = demo_run
+    comp = pd.read_csv(out / "comparison.csv")
+    assert set(comp["metric"]) >= {"LVEDV (mL)", "LVEF (%)", "RVM (g)", "MR RegFrac (%)", "EI ES"}
+    for c in ("LVEDV (mL)", "RVEF (%)", "LVM (g)"):
+        assert text.count(c) >= 3          # two subject blocks + the summary
+    assert "nrm01" in text and "phtn01" in text and "mean |error|" in text
