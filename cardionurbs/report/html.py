@@ -386,7 +386,11 @@ def render_html(payload: Mapping) -> str:
             f"<tr><td>{esc(str(f['family']))} #{f['index']}</td><td>{esc(str(f['slice']))}</td>"
             f"<td>{f['frame']}</td><td class='bad'>{f['departure_spacings']:.2f}</td></tr>"
             for f in p["flags"])
-        flags_html = ("<table id='flags'><tr><th>tag</th><th>slice/view</th><th>frame</th>"
+        n_fr = len({f["frame"] for f in p["flags"]})
+        flags_html = (f"<p class='note'>{len(p['flags'])} tag line(s) flagged by the "
+                      f"leave-one-out tag-jump QC over the tagged frames (in {n_fr} frame(s)); "
+                      "shown in vermillion in the viewer.</p>"
+                      "<table id='flags'><tr><th>tag</th><th>slice/view</th><th>frame</th>"
                       "<th>departure (spacings)</th></tr>" + flag_rows + "</table>")
     elif p["tags_note"]:
         flags_html = f"<p class='note'>{esc(p['tags_note'])}</p>"
