@@ -2,9 +2,10 @@
 
 Steps (paper §3.2.1–3.2.3, NURBS Book §9.4.1):
 
-1. chord-length parameters ``ū_k`` (eqs. 6–8; for a closed contour the
-   closing chord ``|Q_0 - Q_m|`` is part of the length ``d`` and ``ū`` runs
-   over [0, 1) -- the point Q_0 sits at both 0 and 1);
+1. chord-length parameters ``ū_k`` (eqs. 6–8; eq. 8 is printed with
+   ``ū_{k+1}`` on the right, the recursion is over ``ū_{k-1}``; for a closed
+   contour the closing chord ``|Q_0 - Q_m|`` is part of the length ``d`` and
+   ``ū`` runs over [0, 1) -- the point Q_0 sits at both 0 and 1);
 2. knots by eq. 9 (every knot span holds parameters); the periodic analogue
    puts break j of n at the parameter of the fractional data index j (m+1)/n;
 3. control points by least squares.  Open curves keep their end points fixed,
@@ -24,14 +25,14 @@ Eq. 9 is applied at the *centred* fractional data index ``j d - 1/2``
 mirror-symmetric under reversal of the data, so reversed points give exactly
 the reversed curve, and still leaves at least one parameter in every span
 (spans are ``d >= 1`` data indices wide).  ``knot_rule="book"`` gives the
-literal formula, ``"uniform"`` equally spaced knots (for comparison).
+literal formula, ``"uniform"`` equally spaced knots (for comparison).  For
+closed curves "eq9" and "book" are the same periodic rule.
 """
 
 from __future__ import annotations
 
-from typing import Any
-
 import warnings
+from typing import Any
 
 import numpy as np
 from scipy import sparse
