@@ -16,6 +16,7 @@ import argparse
 import datetime as dt
 import os
 import platform
+import resource
 import statistics
 import subprocess
 import sys
@@ -50,13 +51,30 @@ def header(title: str, command: str) -> list[str]:
             "(the 2 cores are shared with other work: wall times are upper bounds)", ""]
 
 
-def timed(fn, repeat: int = 1) -> tuple[float, object]:
-    times, out = [], None
+def _cpu() -> float:
+    """CPU seconds of this process and its finished children (user + system)."""
+    s, c = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return s.ru_utime + s.ru_stime + c.ru_utime + c.ru_stime
+
+
+CPU: dict[str, float] = {}
+
+
+def timed(fn, repeat: int = 1, label: str | None = None) -> tuple[float, object]:
+    """Median wall time of ``repeat`` runs (and the median CPU time, kept in CPU[label])."""
+    times, cpus, out = [], [], None
     for _ in range(repeat):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), _cpu()
         out = fn()
         times.append(time.perf_counter() - t)
+        cpus.append(_cpu() - c)
+    if label:
+        CPU[label] = statistics.median(cpus)
     return statistics.median(times), out
+
+
+def cpu(label: str) -> str:
+    return f"{CPU[label]:.2f} s" if label in CPU else ""
 
 
 # ------------------------------------------------------------------ benchmark
@@ -65,30 +83,32 @@ def bench_phantom_two_frames() -> list[str]:
     st = generate("normal", seed=1, frames=2, volume_check=False).study
     rows = []
     for refine in (True, False):
-        t, m = timed(lambda: measure(reconstruct(st, refine=refine)), repeat=5)
+        lab = f"ph{refine}"
+        t, m = timed(lambda: measure(reconstruct(st, refine=refine)), repeat=5, label=lab)
         rows.append(f"| phantom normal_001, 2 frames, LV+RV endo+epi, refine={refine} | {t:.3f} s "
-                    f"| LVEDV {m['LVEDV (mL)']:.1f} mL |")
+                    f"| {cpu(lab)} | LVEDV {m['LVEDV (mL)']:.1f} mL |")
     return rows
 
 
 def bench_bivme() -> list[str]:
     p = DATA / "bivme-patient1"
     if not p.exists():
-        return ["| bivme-patient1 | skipped: ../shared/data absent | |"]
+        return ["| bivme-patient1 | skipped: ../shared/data absent | | |"]
     st = load_study(p)
     rows = []
     for refine in (True, False):
         def run():
             model = reconstruct(st, refine=refine)
             return model, measure(model)
-        t, (model, m) = timed(run)
+        t, (model, m) = timed(run, label=f"bv{refine}")
         rows.append(f"| bivme-patient1, 25 frames to metrics (ED/ES), refine={refine} | {t:.2f} s "
-                    f"| ED {model.ed_frame}, ES {model.es_frame} |")
+                    f"| {cpu(f'bv{refine}')} | ED {model.ed_frame}, ES {model.es_frame} |")
     def every_frame():
         model = reconstruct(st)
         return [model.volumes[f] for f in model.frames]
-    t, _ = timed(every_frame)
-    rows.append(f"| bivme-patient1, all 25 frames fully meshed (volume curve), refine=True | {t:.2f} s | |")
+    t, _ = timed(every_frame, label="bvall")
+    rows.append(f"| bivme-patient1, all 25 frames fully meshed (volume curve), refine=True | {t:.2f} s "
+                f"| {cpu('bvall')} | |")
     return rows
 
 
@@ -97,28 +117,38 @@ def bench_cohort(folder: Path) -> list[str]:
     from cardionurbs.phantom.generate import generate_cohort
     from cardionurbs.phantom.presets import data_path, load_cohort_spec
     subjects = load_cohort_spec(data_path("paper12.toml"))
-    t_gen, paths = timed(lambda: generate_cohort(subjects, folder, dicom=False))
-    t1, tab1 = timed(lambda: cohort(paths, jobs=1))
-    t2, tab2 = timed(lambda: cohort(paths, jobs=2))
+    t_gen, paths = timed(lambda: generate_cohort(subjects, folder, dicom=False), label="gen")
+    t1, tab1 = timed(lambda: cohort(paths, jobs=1), label="j1")
+    t2, tab2 = timed(lambda: cohort(paths, jobs=2), label="j2")
     same = bool(np.allclose(tab1[list(VOLS)].to_numpy(float), tab2[list(VOLS)].to_numpy(float)))
-    return [f"| paper12 cohort (12 x 20 frames), generation (native, no DICOM) | {t_gen:.1f} s | |",
-            f"| paper12 cohort, `cohort --jobs 1` | {t1:.1f} s | {(tab1['status'] == 'ok').sum()} ok |",
-            f"| paper12 cohort, `cohort --jobs 2` | {t2:.1f} s | speed-up {t1 / t2:.2f}x, same table: {same} |"]
+    return [f"| paper12 cohort (12 x 20 frames), generation (native, no DICOM) | {t_gen:.1f} s "
+            f"| {cpu('gen')} | |",
+            f"| paper12 cohort, `cohort --jobs 1` | {t1:.1f} s | {cpu('j1')} "
+            f"| {(tab1['status'] == 'ok').sum()} ok |",
+            f"| paper12 cohort, `cohort --jobs 2` | {t2:.1f} s | {cpu('j2')} "
+            f"| speed-up {t1 / t2:.2f}x (wall), same table: {same} |"]
 
 
 def bench_demo() -> list[str]:
-    with tempfile.TemporaryDirectory() as d:
-        t = time.perf_counter()
-        r = subprocess.run([sys.executable, "-m", "cardionurbs.cli", "demo", "--out", d, "--jobs", "2"],
-                           capture_output=True, text=True, cwd=ROOT)
-        t = time.perf_counter() - t
-    return [f"| `cardionurbs demo --jobs 2` (generate + analyse 12 subjects) | {t:.1f} s | exit {r.returncode} |"]
+    rows = []
+    for jobs in (1, 2):
+        with tempfile.TemporaryDirectory() as d:
+            t, c = time.perf_counter(), _cpu()
+            r = subprocess.run([sys.executable, "-m", "cardionurbs.cli", "demo", "--out", d,
+                                "--jobs", str(jobs)], capture_output=True, text=True, cwd=ROOT)
+            t, c = time.perf_counter() - t, _cpu() - c
+        rows.append(f"| `cardionurbs demo --jobs {jobs}` (generate + analyse 12 subjects) | {t:.1f} s "
+                    f"| {c:.1f} s | exit {r.returncode} |")
+    return rows
 
 
 def run_benchmark(out: Path) -> None:
     lines = header("Benchmark: biventricular models and function metrics",
                    "python benchmarks/bench_models.py benchmark")
-    lines += ["| what | wall time | note |", "|---|---|---|"]
+    lines += ["CPU time = user + system seconds of the process and its workers: on this shared "
+              "machine it is the better estimate of the wall time an idle machine would give "
+              "(per worker process).", "",
+              "| what | wall time | CPU time | note |", "|---|---|---|---|"]
     lines += bench_phantom_two_frames()
     lines += bench_bivme()
     with tempfile.TemporaryDirectory() as d:

@@ -208,7 +208,7 @@ class BiventricularModel:
         # the SA points every ~2 mm along each contour suffice to hold the surface
         anchors = np.concatenate([_every(sec.source_points, 2.0) for sec in geo.sections[structure]])
         return refine_surface(surface, anchors, _every(targets, 2.0), anchor_weight=self.anchor_weight,
-                              passes=1)
+                              passes=2)
 
     def _all_surfaces(self, frame: int) -> dict:
         geo = self.geometry[frame]
