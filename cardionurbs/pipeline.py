@@ -6,6 +6,7 @@ Output folder (written atomically: complete or absent)::
                              "ed_frame", "es_frame", "volume_curve", "residuals",
                              "warnings"}
     DIR/model.json          the NURBS model (BiventricularModel.to_dict)
+    DIR/model.3dm           the ED surfaces as Rhino NURBS (with the ``cad`` extra)
     DIR/residuals.csv       contour-point-to-surface distances per slice
     DIR/meshes/frame_NN_<mesh>.ply   closed meshes per frame and structure (binary PLY,
                                      float64 vertices: exactly the manifold3d result)
@@ -21,7 +22,7 @@ from pathlib import Path
 from cardionurbs.analysis.function import measure, volume_curve
 from cardionurbs.anatomy.model import BiventricularModel, reconstruct
 from cardionurbs.io import atomic, load_study
-from cardionurbs.io.export import export_mesh, export_model, write_json
+from cardionurbs.io.export import export_mesh, export_model, export_model_3dm, write_json
 from cardionurbs.study import Study
 
 
@@ -72,6 +73,12 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
             for name, m in model.meshes(f).items():
                 export_mesh(m, mesh_dir / f"frame_{f:02d}_{name}.{mesh_ext}")
         export_model(model, tmp / "model.json")
+        try:                                   # the cad extra: Rhino .3dm of the ED surfaces
+            import rhino3dm  # noqa: F401
+        except ImportError:
+            pass
+        else:
+            export_model_3dm(model, tmp / "model.3dm")
         res = model.residuals
         atomic.write_text(tmp / "residuals.csv", res.to_csv(index=False))
         summary = {}

@@ -91,3 +91,18 @@ def test_export_formats_by_extension(ext, tmp_path, lv_myocardium):
 def test_unsupported_extension():
     with pytest.raises(ExportError, match="vtk"):
         mesh_format("x.vtk")
+
+
+def test_rhino_3dm_matches_the_surfaces(analysis):
+    rhino3dm = pytest.importorskip("rhino3dm", reason="the cad extra (rhino3dm) is not installed")
+    m = BiventricularModel.from_dict(json.loads((analysis / "model.json").read_text()))
+    f = rhino3dm.File3dm.Read(str(analysis / "model.3dm"))
+    names = sorted(o.Attributes.Name for o in f.Objects)
+    assert names == sorted(f"{s}_frame{m.ed_frame}" for s in m.surfaces[m.ed_frame])
+    for o in f.Objects:
+        g = o.Geometry
+        s = m.surfaces[m.ed_frame][o.Attributes.Name.split("_frame")[0]]
+        d0, d1 = g.Domain(0), g.Domain(1)
+        for u, v in ((0.3, 0.6), (0.9, 0.1)):
+            p = g.PointAt(d0.T0 + u * (d0.T1 - d0.T0), d1.T0 + v * (d1.T1 - d1.T0))
+            assert np.allclose([p.X, p.Y, p.Z], s.evaluate([u], [v])[0, 0], atol=1e-6)

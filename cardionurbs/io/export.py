@@ -13,6 +13,7 @@ import math
 import os
 from pathlib import Path
 
+import numpy as np
 import trimesh
 
 from cardionurbs.errors import CardioNurbsError
@@ -78,21 +79,24 @@ def export_model_3dm(model, path: str | os.PathLike, frame: int | None = None) -
     frame = model.ed_frame if frame is None else frame
     f3 = rhino3dm.File3dm()
     for name, s in model.surfaces[frame].items():
-        d = s.to_dict()
-        cp = d["control_points"]
-        nu, nv = len(cp), len(cp[0])
-        w = d.get("weights")
-        ns = rhino3dm.NurbsSurface.Create(3, w is not None, d["degree_u"] + 1, d["degree_v"] + 1, nu, nv)
+        c = s.to_clamped() if s.closed_u else s      # Rhino: clamped knots, no end knots
+        cp, w = c.control_points, c.weights
+        nu, nv = cp.shape[:2]
+        rational = not np.allclose(w, 1.0)
+        ns = rhino3dm.NurbsSurface.Create(3, rational, c.degree_u + 1, c.degree_v + 1, nu, nv)
         for i in range(nu):
             for j in range(nv):
-                x, y, z = cp[i][j]
-                wij = w[i][j] if w is not None else 1.0
-                ns.Points[i, j] = rhino3dm.Point4d(x * wij, y * wij, z * wij, wij)
-        ku, kv = d["knots_u"][1:-1], d["knots_v"][1:-1]
+                x, y, z = cp[i, j]
+                wij = float(w[i, j])
+                if rational:
+                    ns.Points[i, j] = rhino3dm.Point4d(x * wij, y * wij, z * wij, wij)
+                else:
+                    ns.Points[i, j] = rhino3dm.Point4d(x, y, z, 1.0)
+        ku, kv = c.knots_u[1:-1], c.knots_v[1:-1]
         for k, val in enumerate(ku):
-            ns.KnotsU[k] = val
+            ns.KnotsU[k] = float(val)
         for k, val in enumerate(kv):
-            ns.KnotsV[k] = val
+            ns.KnotsV[k] = float(val)
         attr = rhino3dm.ObjectAttributes()
         attr.Name = f"{name}_frame{frame}"
         f3.Objects.AddSurface(ns, attr)
