@@ -10,7 +10,8 @@ Output folder (written atomically: complete or absent)::
     DIR/residuals.csv       contour-point-to-surface distances per slice
     DIR/meshes/frame_NN_<mesh>.ply   closed meshes per frame and structure (binary PLY,
                                      float64 vertices: exactly the manifold3d result)
-    DIR/figures/...         figures (hook: cardionurbs.report, when installed)
+    DIR/figures/...         PNG figures + figures.json (cardionurbs.report.figures, via
+                            :func:`figures_hook`; skipped with --no-figures)
 """
 
 from __future__ import annotations
@@ -26,45 +27,50 @@ from cardionurbs.io.export import export_mesh, export_model, export_model_3dm, w
 from cardionurbs.study import Study
 
 
-def tag_metrics_hook(model: BiventricularModel) -> dict[str, float]:
-    """Tag columns (Twist, Torsion, CL shear, LS, QC flags) from
-    ``cardionurbs.analysis.tags.tag_metrics(model)`` when that module exists and
-    the study has tag lines; {} otherwise (the columns stay NaN)."""
+def tag_metrics_hook(model: BiventricularModel):
+    """Tag metrics (Twist, Twist 2D, Torsion, CL shear, LS, QC flags) from
+    ``cardionurbs.analysis.tags.tag_metrics(model)`` -- a mapping METRICS.md column ->
+    float -- when that module exists and the study has tag lines; None otherwise
+    (the columns then stay NaN)."""
     if not model.study.tags:
-        return {}
+        return None
     try:
         from cardionurbs.analysis.tags import tag_metrics
     except ImportError:
-        return {}
-    return dict(tag_metrics(model))
+        return None
+    return tag_metrics(model)
 
 
-def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path) -> list[Path]:
-    """Figures and HTML report of an analysis: ``cardionurbs.report.figures.write_figures``
-    into ``out_dir/figures`` and ``cardionurbs.report.html.write_report`` to
-    ``out_dir/report.html`` (after metrics.json and model.json are written) when the
-    report module provides them; [] otherwise."""
+def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path, tags=None) -> list[Path]:
+    """Figures of an analysis into ``out_dir/figures``:
+    ``cardionurbs.report.figures.write_figures(model, out_dir, metrics=, tags=)`` when the
+    report module provides it; [] otherwise."""
     try:
         from cardionurbs.report.figures import write_figures
-        from cardionurbs.report.html import write_report
     except ImportError:
         return []
-    paths = list(write_figures(model, Path(out_dir) / "figures", metrics=metrics) or [])
-    paths.append(write_report(out_dir, Path(out_dir) / "report.html"))
-    return paths
+    return list(write_figures(model, Path(out_dir) / "figures", metrics=metrics, tags=tags) or [])
+
+
+def analyse(study: Study, *, heart_rate_bpm: float | None = None):
+    """Reconstruct and measure one loaded study: (model, METRICS.md dict, tag result or None)."""
+    model = reconstruct(study)
+    metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
+    tags = tag_metrics_hook(model)
+    if tags is not None:
+        metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
+    return model, metrics, tags
 
 
 def analyse_study(study: Study, *, heart_rate_bpm: float | None = None
                   ) -> tuple[BiventricularModel, dict[str, float]]:
     """Reconstruct and measure one loaded study: (model, METRICS.md dict)."""
-    model = reconstruct(study)
-    metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
-    metrics.update({k: float(v) for k, v in tag_metrics_hook(model).items() if k in metrics})
+    model, metrics, _ = analyse(study, heart_rate_bpm=heart_rate_bpm)
     return model, metrics
 
 
 def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
-                   figures: bool = True, mesh_ext: str = "ply") -> Path:
+                   figures: bool = True, mesh_ext: str = "ply", tags=None) -> Path:
     """Write metrics.json, model.json, residuals.csv, meshes (and figures) to ``out``,
     atomically (the folder is complete or untouched)."""
     with atomic.atomic_dir(out) as tmp:
@@ -92,15 +98,16 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                     "volume_curve": volume_curve(model), "residuals": summary,
                     "warnings": model.warnings}, tmp / "metrics.json")
         if figures:
-            figures_hook(model, metrics, tmp)
+            figures_hook(model, metrics, tmp, tags=tags)
     return Path(out)
 
 
 def run_analyze(args: argparse.Namespace) -> int:
     """Load, reconstruct, measure and write one study (see API.md)."""
     study = load_study(args.study, format=args.format)
-    model, metrics = analyse_study(study, heart_rate_bpm=getattr(args, "heart_rate", None))
-    write_analysis(model, metrics, args.out, figures=not getattr(args, "no_figures", False))
+    model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None))
+    write_analysis(model, metrics, args.out, figures=not getattr(args, "no_figures", False),
+                   tags=tags)
     print(f"{study.subject}: ED frame {model.ed_frame}, ES frame {model.es_frame}; "
           f"LVEDV {metrics['LVEDV (mL)']:.1f} mL, LVEF {metrics['LVEF (%)']:.1f} %; "
           f"wrote {args.out}")

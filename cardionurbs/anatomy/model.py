@@ -123,7 +123,7 @@ class BiventricularModel:
                  base_planes: Mapping | None = None, apex_points: Mapping | None = None,
                  sections: Mapping | None = None, tol_px: float = 1.0,
                  refine: bool = True, anchor_weight: float = 4.0,
-                 warnings: list[str] | None = None,
+                 ed_es: tuple[int, int] | None = None, warnings: list[str] | None = None,
                  resolution: tuple[int, int] = RESOLUTION) -> None:
         self.study = study
         self.frames = list(frames)
@@ -147,11 +147,14 @@ class BiventricularModel:
             self.apex_points, self.sections = apex_points, sections or {}
         self.volumes = LazyFrames(self.frames, lambda f: {
             k: meshing.volume_ml(m) for k, m in self.solids(f).items()})
-        if isinstance(self.surfaces, LazyFrames):
-            lv = {f: self.lv_cavity_volume_unrefined(f) for f in self.frames}
+        if ed_es is not None:            # known (a deserialised model)
+            ed, es = int(ed_es[0]), int(ed_es[1])
         else:
-            lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
-        ed, es = ed_es_frames(lv, study.ed_frame, study.es_frame)
+            if isinstance(self.surfaces, LazyFrames):
+                lv = {f: self.lv_cavity_volume_unrefined(f) for f in self.frames}
+            else:
+                lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
+            ed, es = ed_es_frames(lv, study.ed_frame, study.es_frame)
         self.ed_frame, self.es_frame = ed, es
         if ed == es:
             self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, SV = 0")
@@ -399,8 +402,9 @@ class BiventricularModel:
         sections = {int(f): {s: [Section(s, int(f), np.asarray(x["points"], float), slice=x["slice"])
                                  for x in secs] for s, secs in dd.items()}
                     for f, dd in d.get("sections", {}).items()}
+        ed_es = (d["ed_frame"], d["es_frame"]) if "ed_frame" in d and "es_frame" in d else None
         m = cls(study, d["frames"], surfaces=surfaces, base_planes=planes, apex_points=apex,
-                sections=sections, warnings=d.get("warnings"),
+                sections=sections, warnings=d.get("warnings"), ed_es=ed_es,
                 resolution=tuple(d.get("resolution", RESOLUTION)))
         return m
 
