@@ -4,6 +4,7 @@ lofting, tessellation, closest points, serialisation and input errors."""
 from __future__ import annotations
 
 import json
+from functools import lru_cache
 
 import numpy as np
 import pytest
@@ -21,6 +22,7 @@ def ellipse_points(m: int = 80, a: float = 30.0, b: float = 18.0, z: float | Non
     return pts
 
 
+@lru_cache(maxsize=1)
 def lv_like_surface() -> nurbs.NurbsSurface:
     sections = [nurbs.fit_curve(ellipse_points(60, 25 - 4 * k, 20 - 3 * k, 10.0 * k, 0.2 * k),
                                 closed=True, tol=0.01) for k in range(4)]

@@ -169,16 +169,23 @@ class NurbsSurface:
     def evaluate(self, u: Any, v: Any) -> np.ndarray:
         """Points on the grid ``u (a,) x v (b,)`` -> ``(a, b, d)``."""
         u, v = self._uv(u, v)
-        Pw = self.homogeneous_control_points
-        nfu, nv, c = Pw.shape
+        wP, w = self._split_net
+        nfu, nv, d = wP.shape
         Bu = basis_matrix(self.knots_u, self.degree_u, u)
         Bv = basis_matrix(self.knots_v, self.degree_v, v)
-        # contract v, then u: two plain matrix products, (a, b, c) comes out contiguous
-        Tv = Bv @ Pw.transpose(1, 0, 2).reshape(nv, nfu * c)              # (b, nfu*c)
-        Tv = Tv.reshape(v.size, nfu, c).transpose(1, 0, 2).reshape(nfu, v.size * c)
-        Sw = (Bu @ Tv).reshape(u.size, v.size, c)
-        Sw[..., :-1] /= Sw[..., -1:]                                      # in place
-        return Sw[..., :-1]
+        # numerator: contract v, then u -- two plain matrix products, contiguous result
+        Tv = Bv @ wP.transpose(1, 0, 2).reshape(nv, nfu * d)              # (b, nfu*d)
+        Tv = Tv.reshape(v.size, nfu, d).transpose(1, 0, 2).reshape(nfu, v.size * d)
+        num = (Bu @ Tv).reshape(u.size, v.size, d)
+        den = Bu @ (w @ Bv.T)                                              # (a, b)
+        num *= (1.0 / den)[..., None]
+        return num
+
+    @property
+    def _split_net(self) -> tuple[np.ndarray, np.ndarray]:
+        """Homogeneous net split into ``w P`` (nu_full, nv, d) and ``w`` (nu_full, nv)."""
+        Pw = self.homogeneous_control_points
+        return Pw[..., :-1], Pw[..., -1]
 
     def _paired_homogeneous(self, u: np.ndarray, v: np.ndarray, order: int) -> np.ndarray:
         p, q = self.degree_u, self.degree_v
