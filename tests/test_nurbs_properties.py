@@ -163,6 +163,31 @@ def test_seam_rotation_and_clamping_are_exact(c, s):
                                atol=1e-9 * _scale(c), rtol=0)
 
 
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(open_curves(max_degree=4), min_size=2, max_size=4))
+def test_make_compatible_gives_one_degree_and_knot_vector(curves):
+    out = nurbs.make_compatible(curves)
+    assert len({c.degree for c in out}) == 1
+    assert out[0].degree == max(c.degree for c in curves)
+    for c in out[1:]:
+        np.testing.assert_array_equal(c.knots, out[0].knots)
+    for a, b in zip(curves, out):
+        np.testing.assert_allclose(b.evaluate(U_SAMPLES), a.evaluate(U_SAMPLES),
+                                   atol=1e-9 * _scale(a), rtol=0)
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(closed_curves(max_degree=3), min_size=2, max_size=3))
+def test_make_compatible_periodic(curves):
+    out = nurbs.make_compatible(curves)
+    for c in out[1:]:
+        np.testing.assert_array_equal(c.knots, out[0].knots)
+    for a, b in zip(curves, out):
+        assert b.closed
+        np.testing.assert_allclose(b.evaluate(U_SAMPLES), a.evaluate(U_SAMPLES),
+                                   atol=1e-9 * _scale(a), rtol=0)
+
+
 # ----------------------------------------------------------- fitting
 @st.composite
 def point_sets(draw, closed: bool):

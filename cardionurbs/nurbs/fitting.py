@@ -246,11 +246,18 @@ def _error_within(curve: NurbsCurve, points: np.ndarray, params: np.ndarray,
     lower, upper = curve_distance_bounds(curve, points)
     if lower.max() > tol:                   # surely too far: skip the projection
         return False, float(upper.max())
-    near = upper > tol                      # only these can violate the bound
-    if not np.any(near):
+    near = np.flatnonzero(upper > tol)      # only these can violate the bound
+    if near.size == 0:
         return True, float(upper.max())
-    _, dist = curve_closest_points(curve, points[near])
-    err = max(float(dist.max()), float(upper[~near].max(initial=0.0)))
+    near = near[np.argsort(-upper[near])]
+    worst, rest = near[:8], near[8:]        # a violation is usually among the worst seeds
+    _, dist = curve_closest_points(curve, points[worst])
+    if dist.max() > tol or rest.size == 0:
+        err = max(float(dist.max()), float(np.delete(upper, near).max(initial=0.0)))
+        return err <= tol, err
+    _, dist_rest = curve_closest_points(curve, points[rest])
+    err = max(float(dist.max()), float(dist_rest.max()),
+              float(np.delete(upper, near).max(initial=0.0)))
     return err <= tol, err
 
 

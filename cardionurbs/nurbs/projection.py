@@ -168,7 +168,7 @@ def surface_closest_points(surface: Any, points: Any, iterations: int = 16,
     return u[best], v[best], dist[best]
 
 
-def closest_points(geometry: Any, points: Any, iterations: int = 16):
+def closest_points(geometry: Any, points: Any, iterations: int = 16) -> tuple[np.ndarray, ...]:
     """Closest points on a curve or a surface.
 
     Surface: ``(u, v, distance)``; curve: ``(u, distance)``; each (m,).
