@@ -42,6 +42,28 @@ def test_seams_aligned_and_orientation_unified():
         assert d.max() < 1e-8
 
 
+def test_shared_uniform_knots_stay_shared():
+    rng = np.random.default_rng(1)
+    secs = []
+    for k in range(5):
+        t = np.linspace(0, 2 * np.pi, 48, endpoint=False) + rng.uniform(0, 2 * np.pi)
+        if k % 2:
+            t = t[::-1]
+        pts = np.c_[(20 - 2 * k) * np.cos(t), (16 - 2 * k) * np.sin(t), np.full(48, 8.0 * k)]
+        secs.append(nurbs.fit_curve(pts, closed=True, n_ctrl=12, knot_rule="uniform"))
+    s = nurbs.loft(secs + [np.array([0.0, 0.0, 50.0])])
+    assert s.control_points.shape[:2] == (12, 6)          # no knot merging
+    P = s.evaluate([0.0], np.linspace(0, 1, 9))[0][:-1]
+    ang = np.unwrap(np.arctan2(P[:, 1] / 0.8, P[:, 0]))
+    assert np.ptp(ang) < 2 * np.pi / 12 * 1.5             # within about a knot span
+    for c in secs:
+        _, _, d = nurbs.closest_points(s, c.evaluate(np.linspace(0, 1, 30)))
+        assert d.max() < 1e-8
+    # align=False keeps the sections as given (here: mixed orientations -> a twisted surface)
+    raw = nurbs.loft(secs, align=False)
+    assert raw.control_points.shape[:2] == (12, 5)
+
+
 def test_apex_first_section():
     secs = [np.array([0.0, 0.0, -20.0])] + [ring(10.0 * k, 10 + 5 * k) for k in range(3)]
     s = nurbs.loft(secs)

@@ -8,8 +8,11 @@ across the sections from the first to the last.  Steps:
    the loft axis (first section's centroid -> last section's centroid), so
    ``Su x Sv`` points away from the axis -- and each seam is rotated (exact
    periodic reparameterisation ``C(u + s)``) to minimise the twist with the
-   previous section; open sections are reversed where that pairs their end
-   points better with the previous section's;
+   previous section.  When all sections share one uniform periodic knot
+   vector the shift is rounded to whole knot spans (a cyclic relabelling of
+   the control points), so the sections stay compatible and the net does not
+   grow.  Open sections are reversed where that pairs their end points
+   better with the previous section's.  ``align=False`` skips this step;
 1.–3. all sections are raised to the highest degree (A5.9) and brought to one
    knot vector (A5.4) by :func:`~cardionurbs.nurbs.operations.make_compatible`;
 4. section parameters by the paper's formula
@@ -99,6 +102,21 @@ def _best_shift(prev: np.ndarray, cur: np.ndarray) -> float:
     return ((j + float(np.clip(delta, -0.5, 0.5))) / M) % 1.0
 
 
+def _uniform_shared_step(curves: Sequence[NurbsCurve]) -> float | None:
+    """Knot spacing 1/n when all closed curves share one degree and one uniform
+    periodic knot vector (simple knots), else None."""
+    c0 = curves[0]
+    p, n = c0.degree, c0.n_control
+    breaks = c0.knots[p:n + p + 1]
+    if not np.allclose(breaks, np.linspace(0.0, 1.0, n + 1), rtol=0, atol=1e-12):
+        return None
+    for c in curves[1:]:
+        if c.degree != p or c.knots.shape != c0.knots.shape or \
+                not np.allclose(c.knots, c0.knots, rtol=0, atol=1e-12):
+            return None
+    return 1.0 / n
+
+
 def align_sections(curves: Sequence[NurbsCurve], axis: np.ndarray | None) -> list[NurbsCurve]:
     """Orientation and seam alignment of the section curves (step 0 above)."""
     curves = list(curves)
@@ -108,9 +126,12 @@ def align_sections(curves: Sequence[NurbsCurve], axis: np.ndarray | None) -> lis
                 _newell_normal(_samples(curves[0]))
             curves = [c.reversed() if float(_newell_normal(_samples(c)) @ ref) < 0 else c
                       for c in curves]
+        step = _uniform_shared_step(curves)
         out = [curves[0]]
         for c in curves[1:]:
             s = _best_shift(_samples(out[-1]), _samples(c))
+            if step is not None:            # whole knot spans: a relabelling, knots stay shared
+                s = (round(s / step) * step) % 1.0
             out.append(rotate_seam(c, s))
         return out
     out = [curves[0]]
@@ -123,7 +144,7 @@ def align_sections(curves: Sequence[NurbsCurve], axis: np.ndarray | None) -> lis
     return out
 
 
-def loft(sections: Sequence[Any], degree_v: int = 3) -> NurbsSurface:
+def loft(sections: Sequence[Any], degree_v: int = 3, align: bool = True) -> NurbsSurface:
     """Loft a surface through ``sections`` (paper §3.2.4).
 
     Parameters
@@ -132,6 +153,8 @@ def loft(sections: Sequence[Any], degree_v: int = 3) -> NurbsSurface:
         open or all closed, same dimension) or, as the first and/or last item
         only, a point (d,) where the surface collapses (an apex).
     degree_v : degree across the sections; ``q = min(degree_v, K)``.
+    align : orient the sections and align their seams (step 0); pass False
+        when the caller has done so.
 
     Returns a :class:`NurbsSurface` with u along the sections (``closed_u``
     when the sections are closed) and v from the first to the last section.
@@ -166,7 +189,7 @@ def loft(sections: Sequence[Any], degree_v: int = 3) -> NurbsSurface:
         return items[k] if kinds[k] == "point" else _samples(items[k]).mean(axis=0)
 
     axis = centroid(K) - centroid(0)
-    curves = make_compatible(align_sections(curves, axis))
+    curves = make_compatible(align_sections(curves, axis) if align else curves)
     n = curves[0].n_control
     d = curves[0].dimension
     Pw = np.empty((K + 1, n, d + 1))
