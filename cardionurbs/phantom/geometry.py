@@ -10,7 +10,7 @@ Imaging planes (DICOM Image Plane module, see cardionurbs.imaging.geometry):
 
 * SA stack: planes z = h_k ⟂ long axis, numbered from base (``sa_00``) to
   apex, the first ``sa_first_offset_mm`` below the ED base, then every
-  ``sa_spacing_mm`` while the ED LV cavity is still cut (h >= z_endo_apex + 2 mm).
+  ``sa_spacing_mm`` while the ED LV cavity is still cut (h >= z_endo_apex + 3 mm).
   Row cosine at ``sa_rotation_deg`` about e_z from −e_x (RV on the image left),
   column cosine e_z × row, so the plane normal is +e_z.
 * LA views through the long axis: 4-chamber (azimuth 0°, through the RV),
@@ -101,7 +101,7 @@ class Acquisition:
     sa_spacing_mm: float = 10.0
     sa_thickness_mm: float = 8.0
     la_thickness_mm: float = 8.0
-    sa_first_offset_mm: float = 5.0
+    sa_first_offset_mm: float = 6.0
     sa_rotation_deg: float = 20.0
     n_sa: int | None = None
 
@@ -126,7 +126,7 @@ def sa_heights(anatomy: Anatomy, acq: Acquisition) -> np.ndarray:
     if acq.n_sa is not None:
         h = top - acq.sa_spacing_mm * np.arange(acq.n_sa)
     else:
-        n = int(np.floor((top - (anatomy.z_endo_apex + 2.0)) / acq.sa_spacing_mm)) + 1
+        n = int(np.floor((top - (anatomy.z_endo_apex + 3.0)) / acq.sa_spacing_mm)) + 1
         h = top - acq.sa_spacing_mm * np.arange(max(n, 2))
     if h[-1] <= 0:
         raise PhantomError(f"the SA stack ({len(h)} slices, spacing {acq.sa_spacing_mm:g} mm) "
