@@ -122,7 +122,7 @@ class BiventricularModel:
     def __init__(self, study: Study, frames: list[int], *, surfaces: Mapping | None = None,
                  base_planes: Mapping | None = None, apex_points: Mapping | None = None,
                  sections: Mapping | None = None, tol_px: float = 1.0,
-                 refine: bool = True, anchor_weight: float = 4.0,
+                 refine: bool = True, anchor_weight: float = 10.0,
                  ed_es: tuple[int, int] | None = None, warnings: list[str] | None = None,
                  resolution: tuple[int, int] = RESOLUTION) -> None:
         self.study = study
