@@ -152,3 +152,19 @@ def test_solved_anatomy_reproduces_the_draw(pathology, seed):
     e = a.rv_sector_edge(z)
     has = (e > 0) & (e < np.pi)
     np.testing.assert_allclose(a.rv_g2(z[has]) * a.rv_p(e[has]), a.s_lv_epi(z[has]), rtol=1e-10)
+
+
+def test_cohort_options_and_defaults(tmp_path):
+    spec = tmp_path / "c.toml"
+    spec.write_text("[cohort]\nframes = 4\nnoise_px = 0.3\n[[subject]]\nid = 'a'\npathology = 'mr'\n"
+                    "seed = 1\nbreath_hold_mm = 1.5\n[[subject]]\nid = 'b'\npathology = 'phtn'\n"
+                    "seed = 2\nframes = 6\ntag_jumps = 2\n")
+    a, b = load_cohort_spec(spec)
+    assert (a.frames, a.noise_px, a.breath_hold_mm, a.tag_jumps) == (4, 0.3, 1.5, 0)
+    assert (b.frames, b.noise_px, b.breath_hold_mm, b.tag_jumps) == (6, 0.3, 0.0, 2)
+    spec.write_text("[[subject]]\nid = 'a'\npathology = 'mr'\nseed = 1\ncolour = 'red'\n")
+    with pytest.raises(PhantomError, match="unknown field colour"):
+        load_cohort_spec(spec)
+    spec.write_text("[[subject]]\nid = 'a'\npathology = 'mr'\nseed = 'one'\n")
+    with pytest.raises(PhantomError, match="must be numbers"):
+        load_cohort_spec(spec)

@@ -283,7 +283,8 @@ def generate_cohort(subjects: list[SubjectSpec], out_dir: str | Path, dicom: boo
     paths = []
     for s in subjects:
         ph = generate(s.pathology, seed=s.seed, frames=s.frames, noise_px=s.noise_px or noise_px,
-                      tag_jumps=s.tag_jumps or tag_jumps, subject=s.id, **kw)
+                      tag_jumps=s.tag_jumps or tag_jumps, breath_hold_mm=s.breath_hold_mm,
+                      subject=s.id, **kw)
         paths.append(write_phantom(ph, out_dir / s.id, dicom=dicom))
         if report is not None:
             report(paths[-1], ph)

@@ -23,7 +23,8 @@ A preset TOML has three tables:
 
 A cohort spec (``paper12.toml``) lists subjects: ``[cohort]`` (``name``,
 optional defaults such as ``frames``) and ``[[subject]]`` entries with ``id``,
-``pathology`` and ``seed`` (optionally ``frames``, ``noise_px``, ``tag_jumps``).
+``pathology`` and ``seed`` (optionally ``frames``, ``noise_px``, ``tag_jumps``,
+``breath_hold_mm``; each may also be a cohort-wide default in ``[cohort]``).
 """
 
 from __future__ import annotations
@@ -196,6 +197,9 @@ def solve_anatomy(draw: SubjectDraw) -> Anatomy:
 
 
 # ----------------------------------------------------------------- cohorts
+_SUBJECT_OPTIONS = ("frames", "noise_px", "tag_jumps", "breath_hold_mm")
+
+
 @dataclass(frozen=True)
 class SubjectSpec:
     """One subject of a cohort spec."""
@@ -206,6 +210,7 @@ class SubjectSpec:
     frames: int = 20
     noise_px: float = 0.0
     tag_jumps: int = 0
+    breath_hold_mm: float = 0.0
 
 
 def load_cohort_spec(path: str | Path) -> list[SubjectSpec]:
@@ -222,7 +227,7 @@ def load_cohort_spec(path: str | Path) -> list[SubjectSpec]:
     for i, s in enumerate(subjects):
         if not isinstance(s, dict):
             raise PhantomError(f"{path}: subject {i + 1} must be a table")
-        merged = {k: defaults[k] for k in ("frames", "noise_px", "tag_jumps") if k in defaults}
+        merged = {k: defaults[k] for k in _SUBJECT_OPTIONS if k in defaults}
         merged.update(s)
         for key in ("id", "pathology", "seed"):
             if key not in merged:
@@ -237,11 +242,12 @@ def load_cohort_spec(path: str | Path) -> list[SubjectSpec]:
             spec = SubjectSpec(id=sid, pathology=str(merged["pathology"]), seed=int(merged["seed"]),
                                frames=int(merged.get("frames", 20)),
                                noise_px=float(merged.get("noise_px", 0.0)),
-                               tag_jumps=int(merged.get("tag_jumps", 0)))
+                               tag_jumps=int(merged.get("tag_jumps", 0)),
+                               breath_hold_mm=float(merged.get("breath_hold_mm", 0.0)))
         except (TypeError, ValueError):
-            raise PhantomError(f"{path}: subject {sid}: seed, frames, noise_px and tag_jumps must be "
-                               "numbers") from None
-        unknown = set(merged) - {"id", "pathology", "seed", "frames", "noise_px", "tag_jumps"}
+            raise PhantomError(f"{path}: subject {sid}: seed, frames, noise_px, tag_jumps and "
+                               "breath_hold_mm must be numbers") from None
+        unknown = set(merged) - {"id", "pathology", "seed", *_SUBJECT_OPTIONS}
         if unknown:
             raise PhantomError(f"{path}: subject {sid}: unknown field {sorted(unknown)[0]}")
         out.append(spec)
