@@ -19,9 +19,15 @@ every slice (SA families) or view (``la``) showing it, we
 2. cut that surface with the left-out image plane: for every u, t(u) =
    d_a / (d_a − d_b) with d the signed distances of C_a(u), C_b(u) from the
    plane, giving the trace T(u) in the plane;
-3. measure each left-out tag point's distance from the trace across its
-   tangent (the trace extended by its end tangents), take the median over
-   the line and divide by the tag spacing.
+3. measure each left-out tag point's signed distance from the trace
+   across its tangent (the trace extended by its end tangents) and take
+   the median over the line: the residual r of the line for that pair;
+4. (SA families) compare r with the trend t of the same residual over the
+   neighbouring tags of the same slice (a robust local quadratic in the tag
+   index): where the tag surfaces bend (the apical slices near
+   end-systole) every tag's loft misses by a similar, smoothly varying
+   amount, whereas a jump is a one-tag step. The line's departure is
+   min(|r|, |r − t|) over the predicting pairs, in tag spacings.
 
 Degree 1 rather than 3 across the slices: a cubic loft through a jumped
 line swings by about a spacing at every other slice (and more where it
@@ -247,6 +253,8 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
                    axis: tuple | None = None) -> dict[str, float]:
     """Leave-one-out departure (tag spacings) of each slice's line of one tag at one frame.
 
+    Used for the LA spoke fan (``periodic``); the SA families go through
+    :func:`sa_family_departures`, which also compares neighbouring tags.
     ``secs`` and ``samples`` (their fitted curves at uniform u) in loft
     order; ``exclude``: slices already flagged, left out of every loft;
     ``axis`` (apex, base) for the LA spoke fan (``periodic``).
@@ -346,12 +354,14 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
                          threshold: float) -> list[tuple[int, str, float, bool]]:
     """Departures (tag spacings) of every line of one SA family at one frame, with flags.
 
-    A line's residual against a predictor pair is compared with the trend
-    of the other tags' residuals in the same slice against the same pair
-    (:func:`_index_trend`, a robust local polynomial in the tag index): the
-    loft's own error where the tag surfaces bend (the apex at end-systole)
-    varies smoothly from tag to tag, a jump does not. The departure is the
-    smallest difference over the predictor pairs. Worst first, lines above ``threshold`` are flagged and left out,
+    A line's residual r against a predictor pair is also compared with the
+    trend t of the other tags' residuals in the same slice against the same
+    pair (:func:`_index_trend`, a robust local polynomial in the tag index):
+    the loft's own error where the tag surfaces bend (the apical slices
+    near end-systole) varies smoothly from tag to tag, a jump does not. The
+    departure is min(|r|, |r − t|) over the predictor pairs: a line is
+    flagged only when neither its own tag's other slices nor its
+    neighbouring tags explain it. Worst first, lines above ``threshold`` are flagged and left out,
     and the family is measured again. Returns (index, slice, departure, flagged).
     """
     samples = {i: [_samples(s) for s in secs] for i, secs in groups.items()}
@@ -362,7 +372,8 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
         best = np.inf
         for pair, r in R[i][slc].items():
             nb = [(j, R[j][slc][pair]) for j in R if j != i and slc in R[j] and pair in R[j][slc]]
-            best = min(best, abs(r - _index_trend(nb, i, 0.5 * spacing)))
+            trend = _index_trend(nb, i, 0.5 * spacing)
+            best = min(best, abs(r), abs(r - trend))
         return best / spacing
 
     flagged: dict[tuple[int, str], float] = {}
