@@ -7,7 +7,7 @@ Output folder (written atomically: complete or absent)::
                              "warnings"}
     DIR/model.json          the NURBS model (BiventricularModel.to_dict)
     DIR/model.3dm           the ED surfaces as Rhino NURBS (with the ``cad`` extra)
-    DIR/residuals.csv       contour-point-to-surface distances per slice
+    DIR/residuals.csv       contour-point-to-surface distances per slice, at ED and ES
     DIR/meshes/frame_NN_<mesh>.ply   closed meshes per frame and structure (binary PLY,
                                      float64 vertices: exactly the manifold3d result)
     DIR/figures/...         PNG figures + figures.json (cardionurbs.report.figures, via
@@ -85,7 +85,7 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
             pass
         else:
             export_model_3dm(model, tmp / "model.3dm")
-        res = model.residuals
+        res = model.residual_table()            # ED and ES (every frame: model.residuals)
         atomic.write_text(tmp / "residuals.csv", res.to_csv(index=False))
         summary = {}
         for s, g in res.groupby("structure"):
@@ -96,6 +96,7 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                                 for k, v in metrics.items()},
                     "ed_frame": model.ed_frame, "es_frame": model.es_frame,
                     "volume_curve": volume_curve(model), "residuals": summary,
+                    "residual_frames": sorted({model.ed_frame, model.es_frame}),
                     "warnings": model.warnings}, tmp / "metrics.json")
         if figures:
             figures_hook(model, metrics, tmp, tags=tags)

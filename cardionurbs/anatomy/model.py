@@ -327,17 +327,26 @@ class BiventricularModel:
     # ------------------------------------------------------------- residuals
     @cached_property
     def residuals(self) -> pd.DataFrame:
-        """Distance of every contour point to its surface, per (structure, frame, slice,
-        view): columns structure, frame, slice, view, n_points, mean_mm, max_mm, mean_px,
-        max_px. SA points are the contour points of each slice (for the RV, the free
-        wall: the septal part is the LV epicardium's); LA points are the LA contours.
-        Empty for a model read back without its study's contours."""
+        """Distance of every contour point to its surface, every frame (see
+        :meth:`residual_table`)."""
+        return self.residual_table(self.frames)
+
+    def residual_table(self, frames=None) -> pd.DataFrame:
+        """Distance of every contour point to its surface (closest-point projection,
+        :func:`cardionurbs.nurbs.closest_points`), per (structure, frame, slice, view):
+        columns structure, frame, slice, view, n_points, mean_mm, max_mm, mean_px,
+        max_px, for the given frames (default ED and ES). SA points are the contour
+        points of each slice (for the RV, the free wall: the septal part is the LV
+        epicardium's); LA points are the LA contours. Empty for a model read back
+        without its study's contours."""
         cols = ["structure", "frame", "slice", "view", "n_points", "mean_mm", "max_mm",
                 "mean_px", "max_px"]
         rows = []
         if not self.study.contours:
             return pd.DataFrame(rows, columns=cols)
-        for f in self.frames:
+        if frames is None:
+            frames = sorted({self.ed_frame, self.es_frame})
+        for f in frames:
             geo = self.geometry[f]
             for s, surf in self.surfaces[f].items():
                 items = [(sec.slice, "SA", free_wall_points(sec, geo.direction), _pixel_mm(sec.plane))
