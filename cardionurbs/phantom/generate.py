@@ -24,7 +24,6 @@ import numpy as np
 from pydicom.uid import generate_uid
 
 from cardionurbs.errors import PhantomError
-from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import atomic
 from cardionurbs.io.native import write_study
 from cardionurbs.phantom import annotate, faults, truth
