@@ -74,30 +74,51 @@ def is_native(path: str | Path) -> bool:
 
 # --------------------------------------------------------------------- writing
 def study_to_frames(study: Study, pixel_coordinates: bool = True) -> tuple[dict, pd.DataFrame]:
-    """The manifest dict and the points table of a study (what :func:`write_study` writes)."""
+    """The manifest dict and the points table of a study (what :func:`write_study` writes).
+
+    Each column is built once for all annotations (metadata repeated by point
+    count with ``np.repeat``; pixel coordinates mapped per image in one call),
+    so writing costs a few array operations whatever the number of annotations.
+    """
     images = study._image_index()
-    rows: list[pd.DataFrame] = []
-
-    def block(kind, name, index, view, slc, frame, image, closed, pts):
-        n = len(pts)
-        px = py = np.full(n, np.nan)
-        if pixel_coordinates and image is not None and image in images:
-            pix = images[image].scanner_to_pixel(pts)
-            px, py = pix[:, 0], pix[:, 1]
-        rows.append(pd.DataFrame({
-            "kind": kind, "name": name, "index": index, "view": view or "",
-            "slice": slc or "", "frame": frame, "image": image or "",
-            "closed": "" if closed is None else int(closed),
-            "x": pts[:, 0], "y": pts[:, 1], "z": pts[:, 2], "px": px, "py": py}))
-
+    meta: list[tuple] = []      # (kind, name, index, view, slice, frame, image, closed)
+    blocks: list[np.ndarray] = []
     for c in study.contours:
-        block("contour", c.structure, c.index, c.view, c.slice, c.frame, c.image, c.closed, c.points)
+        meta.append(("contour", c.structure, c.index, c.view, c.slice, c.frame, c.image,
+                     str(int(c.closed))))
+        blocks.append(c.points)
     for t in study.tags:
-        block("tag", t.family, t.index, t.view, t.slice, t.frame, t.image, None, t.points)
+        meta.append(("tag", t.family, t.index, t.view, t.slice, t.frame, t.image, ""))
+        blocks.append(t.points)
     for lm in study.landmarks:
-        block("landmark", lm.name, lm.index, lm.view, lm.slice, lm.frame, lm.image, None,
-              lm.point.reshape(1, 3))
-    table = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=COLUMNS)
+        meta.append(("landmark", lm.name, lm.index, lm.view, lm.slice, lm.frame, lm.image, ""))
+        blocks.append(lm.point.reshape(1, 3))
+    if not meta:
+        table = pd.DataFrame(columns=COLUMNS)
+    else:
+        counts = np.array([len(b) for b in blocks])
+        xyz = np.concatenate(blocks).reshape(-1, 3)
+        image_per_block = np.array([m[6] or "" for m in meta], dtype=object)
+        image_col = np.repeat(image_per_block, counts)
+        pix = np.full((len(xyz), 2), np.nan)
+        if pixel_coordinates:
+            codes, uniques = pd.factorize(image_col)
+            order = np.argsort(codes, kind="stable")
+            bounds = np.searchsorted(codes[order], np.arange(len(uniques) + 1))
+            for k, image_id in enumerate(uniques):
+                if image_id and image_id in images:
+                    sel = order[bounds[k]:bounds[k + 1]]
+                    pix[sel] = images[image_id].scanner_to_pixel(xyz[sel])
+
+        def col(i, empty=""):
+            return np.repeat(np.array([empty if m[i] is None else m[i] for m in meta],
+                                      dtype=object), counts)
+
+        table = pd.DataFrame({
+            "kind": col(0), "name": col(1), "index": np.repeat([int(m[2]) for m in meta], counts),
+            "view": col(3), "slice": col(4), "frame": np.repeat([int(m[5]) for m in meta], counts),
+            "image": image_col, "closed": col(7),
+            "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "px": pix[:, 0], "py": pix[:, 1]})
     manifest = {
         "format": FORMAT, "version": VERSION, "subject": study.subject,
         "heart_rate_bpm": study.heart_rate_bpm,
