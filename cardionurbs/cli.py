@@ -70,6 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="contour and tag noise, pixels (standard deviation)")
     ph.add_argument("--tag-jumps", type=_nonneg_int, default=0,
                     help="number of (slice, frame) pairs with a tag-jumping fault")
+    ph.add_argument("--breath-hold-mm", type=_nonneg_float, default=0.0,
+                    help="breath-hold fault: random in-plane shifts of the SA slices, mm (std)")
     ph.add_argument("--no-dicom", action="store_true", help="skip the synthetic DICOM images")
     ph.add_argument("--out", required=True, metavar="DIR")
 

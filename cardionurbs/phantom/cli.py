@@ -13,14 +13,15 @@ from cardionurbs.phantom.presets import load_cohort_spec
 
 def run_phantom(args: argparse.Namespace) -> int:
     """Run the ``phantom`` command (args: pathology, cohort, seed, frames, noise_px, tag_jumps,
-    no_dicom, out). Exactly one of --pathology and --cohort is required."""
+    breath_hold_mm, no_dicom, out). Exactly one of --pathology and --cohort is required."""
     if bool(args.pathology) == bool(args.cohort):
         raise PhantomError("phantom: give exactly one of --pathology and --cohort")
     out = Path(args.out)
     dicom = not args.no_dicom
     if args.pathology:
         ph = generate(args.pathology, seed=args.seed, frames=args.frames, noise_px=args.noise_px,
-                      tag_jumps=args.tag_jumps)
+                      tag_jumps=args.tag_jumps,
+                      breath_hold_mm=getattr(args, "breath_hold_mm", 0.0))
         write_phantom(ph, out, dicom=dicom)
         print(f"{out}: {ph.study.summary()}", file=sys.stdout)
         return 0
