@@ -12,6 +12,7 @@ Output folder (written atomically: complete or absent)::
                                      float64 vertices: exactly the manifold3d result)
     DIR/figures/...         PNG figures + figures.json (cardionurbs.report.figures, via
                             :func:`figures_hook`; skipped with --no-figures)
+    DIR/report.html         self-contained offline viewer (cardionurbs.report.html)
 """
 
 from __future__ import annotations
@@ -43,13 +44,17 @@ def tag_metrics_hook(model: BiventricularModel):
 
 def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path, tags=None) -> list[Path]:
     """Figures of an analysis into ``out_dir/figures``:
-    ``cardionurbs.report.figures.write_figures(model, out_dir, metrics=, tags=)`` when the
-    report module provides it; [] otherwise."""
+    ``cardionurbs.report.figures.write_figures(model, out_dir, metrics=, tags=)``, then the
+    self-contained HTML viewer ``out_dir/report.html``
+    (``cardionurbs.report.html.write_report``), when the report module provides them;
+    [] otherwise."""
     try:
         from cardionurbs.report.figures import write_figures
+        from cardionurbs.report.html import write_report
     except ImportError:
         return []
-    return list(write_figures(model, Path(out_dir) / "figures", metrics=metrics, tags=tags) or [])
+    paths = list(write_figures(model, Path(out_dir) / "figures", metrics=metrics, tags=tags) or [])
+    return paths + [write_report(out_dir, Path(out_dir) / "report.html")]
 
 
 def analyse(study: Study, *, heart_rate_bpm: float | None = None):

@@ -100,6 +100,7 @@ unit3 = arrays(np.float64, 3, elements=st.floats(-1, 1)).filter(lambda v: np.lin
 @given(arrays(np.float64, 3, elements=st.floats(-100, 100)), unit3, unit3)
 @example(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))     # eye straight down z
 @example(np.zeros(3), np.array([0, 0, 1.0]), np.array([0, 0, 1.0]))     # side along the axis
+@example(np.zeros(3), np.array([0, 1.0, 0]), np.array([1.0, 0, 0]))     # eye straight up z
 def test_view_puts_base_up_and_rv_beside_lv(apex, axis_dir, side):
     """Camera: the long axis projects vertical (base up) on screen for any axis direction,
     and the eye looks perpendicular to both the axis and the septal direction."""

@@ -159,40 +159,45 @@ def view_frame(axis: tuple[np.ndarray, np.ndarray], side: np.ndarray | None = No
 
 
 def _camera(w: np.ndarray, up: np.ndarray, centre: np.ndarray, half: float) -> View:
-    """matplotlib angles putting the eye along ``w`` and ``up`` vertical on screen.
+    """matplotlib angles putting the eye along ``w`` with ``up`` vertical on screen.
 
-    elev = asin(w_z), azim = atan2(w_y, w_x); the roll is the signed angle, about w,
-    from matplotlib's default screen-up (the projection of +z) to ``up``; its sign
-    convention is fixed once by projecting two points (see :func:`_roll_sign`).
+    elev = asin(w_z), azim = atan2(w_y, w_x); the roll is found by projection: with
+    roll 0 the screen direction of ``up`` makes an angle α with the screen x axis, and
+    the roll ±(90° − α) that makes it point straight up is kept (the sign is checked
+    by projecting again, so no convention — including the eye on the z axis — is
+    assumed).
     """
     elev = math.degrees(math.asin(float(np.clip(w[2], -1, 1))))
     azim = math.degrees(math.atan2(w[1], w[0]))
-    z = np.array([0.0, 0.0, 1.0])
-    up0 = z - (z @ w) * w
-    if np.linalg.norm(up0) < 1e-6:          # looking along z: default up is -x rotated by azim
-        up0 = np.array([-math.cos(math.radians(azim)), -math.sin(math.radians(azim)), 0.0])
-    up0 = _unit(up0)
     upp = _unit(up - (up @ w) * w)
-    ang = math.degrees(math.atan2(np.cross(up0, upp) @ w, up0 @ upp))
-    return View(elev, azim, _roll_sign() * ang, np.asarray(centre, float), float(half))
+
+    def screen_angle(roll: float) -> float:
+        ax = _probe_axes()
+        ax.view_init(elev=elev, azim=azim, roll=roll)
+        M = ax.get_proj()
+        x0, y0, _ = proj3d.proj_transform(0.0, 0.0, 0.0, M)
+        x1, y1, _ = proj3d.proj_transform(*(0.5 * upp), M)
+        return math.degrees(math.atan2(y1 - y0, x1 - x0))
+
+    alpha = screen_angle(0.0)
+    roll = 90.0 - alpha
+    if abs(((screen_angle(roll) - 90.0) + 180.0) % 360.0 - 180.0) > 1e-3:
+        roll = alpha - 90.0
+    roll = (roll + 180.0) % 360.0 - 180.0
+    return View(elev, azim, roll, np.asarray(centre, float), float(half))
 
 
-_ROLL_SIGN: list[float] = []
+_PROBE: list = []
 
 
-def _roll_sign() -> float:
-    """+1 or −1: matplotlib's roll convention relative to a right-handed angle about the
-    view direction, found by projecting a point with a known roll (cached)."""
-    if not _ROLL_SIGN:
-        fig = Figure(figsize=(2, 2))
-        ax = fig.add_subplot(projection="3d")
+def _probe_axes():
+    """A cached unit-cube 3D axes used only to project directions (camera set-up)."""
+    if not _PROBE:
+        ax = Figure(figsize=(2, 2)).add_subplot(projection="3d")
         ax.set_xlim(-1, 1), ax.set_ylim(-1, 1), ax.set_zlim(-1, 1)
-        ax.view_init(elev=0.0, azim=0.0, roll=30.0)     # eye on +x; default up +z
-        x, y, _ = proj3d.proj_transform(0.0, 0.0, 1.0, ax.get_proj())
-        # right-handed +30 deg about +x tilts screen-up (+z) toward -y, i.e. the
-        # +z point moves to screen-left when the screen-right axis is +y (eye on +x).
-        _ROLL_SIGN.append(-1.0 if x < 0 else 1.0)
-    return _ROLL_SIGN[0]
+        ax.set_box_aspect((1, 1, 1))
+        _PROBE.append(ax)
+    return _PROBE[0]
 
 
 @dataclass
@@ -402,8 +407,9 @@ def tag_data(model, tags: Any = None, frames: Sequence[int] | None = None,
     """(TagMetrics, {frame: tag_figure_data}, note): tag surfaces of the model's study.
 
     ``tags`` (a TagMetrics from :func:`cardionurbs.analysis.tags.tag_metrics`) lends its
-    QC flags; without it the metrics are computed here (over time when the study has
-    tags at three or more frames, for the twist–time curve). ``note`` says why there
+    QC flags; without it — or when the study has tags at three or more frames and
+    ``tags`` lacks ``over_time`` (needed for the twist–time curve) — the metrics are
+    computed here. ``note`` says why there
     are no tag surfaces (no tag lines, or the analysis failed), else None.
     """
     study = model.study
@@ -413,8 +419,10 @@ def tag_data(model, tags: Any = None, frames: Sequence[int] | None = None,
     from cardionurbs.errors import CardioNurbsError
     try:
         axis = model.long_axis()
-        if tags is None or not hasattr(tags, "flags"):
-            tags = tag_metrics(model, over_time=len(study.tagged_frames) >= 3)
+        over = len(study.tagged_frames) >= 3            # a twist–time curve is possible
+        stale = over and not getattr(tags, "over_time", None)
+        if tags is None or not hasattr(tags, "flags") or stale:
+            tags = tag_metrics(model, over_time=over)
         flags = list(tags.flags)
         frames = [f for f in (frames if frames is not None else study.tagged_frames)
                   if f in study.tagged_frames]
