@@ -59,21 +59,23 @@ def _num(x) -> str:
 def analyse(study_path: Path, work: Path, frames: list[int] | None = None) -> dict:
     """Analyse one study into ``work`` (figures + report.html); return a summary."""
     import cardionurbs as cn
-    from cardionurbs.pipeline import analyse_study, write_analysis
-    from cardionurbs.anatomy.model import reconstruct
     from cardionurbs.analysis.function import measure
-    from cardionurbs.pipeline import tag_metrics_hook
+    from cardionurbs.anatomy.model import reconstruct
+    from cardionurbs.pipeline import analyse as analyse_all
+    from cardionurbs.pipeline import tag_metrics_hook, write_analysis
 
     t0 = time.perf_counter()
     study = cn.load_study(study_path)
     if frames:
         model = reconstruct(study, frames=frames)
         metrics = measure(model)
-        metrics.update({k: float(v) for k, v in tag_metrics_hook(model).items() if k in metrics})
+        tags = tag_metrics_hook(model)
+        if tags is not None:
+            metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
     else:
-        model, metrics = analyse_study(study)
+        model, metrics, tags = analyse_all(study)
     out = work / study.subject
-    write_analysis(model, metrics, out, figures=True)
+    write_analysis(model, metrics, out, figures=True, tags=tags)
     return {"subject": study.subject, "out": out, "metrics": metrics, "seconds":
             time.perf_counter() - t0, "frames": list(model.frames), "ed": model.ed_frame,
             "es": model.es_frame, "truth": (json.loads((Path(study_path) / "truth.json").read_text())
