@@ -121,6 +121,7 @@ def main(argv=None) -> int:
     p = Path(args.out)
     p.parent.mkdir(parents=True, exist_ok=True)
     atomic.write_text(p, "\n".join(out) + "\n")
+    os.chmod(p, 0o644)
     print("\n".join(out))
     return 0
 

@@ -36,6 +36,30 @@ from cardionurbs.io import atomic  # noqa: E402
 from cardionurbs.phantom import generate  # noqa: E402
 
 PRESETS = ("normal", "mr", "phtn")
+
+NOTES = """## Notes
+
+- **Method.** Tag lines are fitted as degree-3 curves (paper eqs. 6–10, fixed end points, uniform
+  knots in the chord-length parameter, a small second-difference penalty that bridges cavity
+  gaps); SA tags are lofted across the SA stack, LA tags around the long axis through the
+  *spokes* of the 2-, 3- and 4-chamber lines (each line cut where it crosses the axis); material
+  points are the intersections of one surface of each family, by batched Newton on the six
+  surface parameters, kept where the ED point lies in the LV myocardium (SA contours).
+- **Levels** follow contracts.md: LA tags whose material points lie strictly between the most
+  basal and most apical SA slices tagged at ED *and* ES, at ED and at ES (decided on the mean
+  position of the level's points, the surfaces extended linearly beyond the stack so that a level
+  just outside is placed, not clamped onto the end slice). With noise a level within about
+  0.1 mm of an end slice at ES can fall on the other side of it than in the truth; Twist then
+  uses a neighbouring level (about 2 deg apart in these phantoms) — the large Twist errors in
+  table 2 with "same levels: False" are such cases, the per-level errors stay small.
+- **Noise.** 0.5 px noise on every tag point moves each material point by a few tenths of a mm;
+  the level rotations (means over 3–25 points) carry errors of a few tenths of a degree, more on
+  the apical levels that have few points.
+- **Tag-jump QC** (leave-one-out, degree-1 loft of the remaining slices, several predicting
+  pairs, residuals compared with the neighbouring tags' trend in the same slice) flags a jumped
+  line at about one spacing. The remaining false flags are edge tags of the most apical SA slice
+  near end-systole, where the tag surfaces bend most and the slice can only be extrapolated.
+"""
 COLS = ("Twist (deg)", "Torsion (deg/cm)", "CL shear (deg)", "LS (%)", "Twist 2D (deg)")
 
 
@@ -141,9 +165,11 @@ def main(argv=None) -> int:
         lines.extend(["", f"Total: {tot_h}/{tot_j} jumps flagged, {tot_f} false flags over "
                       f"{sum(r['lines'] for r in rows)} lines judged.", ""])
     lines.append(f"Run time: {time.perf_counter() - t0:.0f} s.")
+    lines.extend(["", NOTES])
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     atomic.write_text(out, "\n".join(lines) + "\n")
+    os.chmod(out, 0o644)
     print(f"wrote {out}")
     return 0
 

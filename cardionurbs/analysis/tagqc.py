@@ -9,11 +9,10 @@ every slice (SA families) or view (``la``) showing it, we
    degree 1 across the slices (paper §3.2.4 with q = 1): with sections on
    one knot vector this is the blend S(u, v) = (1 − t) C_a(u) + t C_b(u)
    between two remaining sections a, b. Several pairs predict the left-out
-   line — pairs bracketing it (also skipping the nearest section on one
-   side), the nearest pair on either side (linear extension by one gap)
-   and, at a stack end, the pairs among the three nearest — and the line's
-   departure is the smallest of them, so that one jumped neighbour cannot
-   make a good line look bad. For ``la`` the sections are the spokes
+   line — inside the stack the pairs bracketing it (also skipping the
+   nearest section on one side), at a stack end the pairs among the three
+   nearest (linear extension) — and the line's departure is the smallest
+   of them, so that one jumped neighbour cannot make a good line look bad. For ``la`` the sections are the spokes
    of the other views around the long axis, a and b the spokes on either
    side of the left-out spoke's angle, blended in cylindrical coordinates;
 2. cut that surface with the left-out image plane: for every u, t(u) =
@@ -182,26 +181,26 @@ def tag_spacing(study: Study, family: str, frame: int,
 def _neighbour_pairs(keys: np.ndarray, h: float) -> list[tuple[int, int]]:
     """Pairs of remaining sections that predict the section at stack position h.
 
-    From the (up to) three nearest remaining sections on each side: every
-    pair among the nearest two on each side and the pair bracketing h, plus
-    the pairs that skip the nearest one on a side, so that whichever single
-    neighbour jumped, some pair without it remains as a witness.
+    Inside the stack the pairs that bracket h — the nearest section on each
+    side, and each of them with the second nearest on the other side — so
+    that whichever single neighbour jumped, a bracketing pair without it
+    remains; beyond the first or last remaining section, the pairs among
+    the three nearest (linear extension by one or two gaps). Extension pairs
+    are not used inside the stack: two jumps on one tag could otherwise
+    explain each other.
     """
     n = len(keys)
     j = int(np.searchsorted(keys, h))
-    L = [i for i in (j - 1, j - 2, j - 3) if 0 <= i < n]
-    R = [i for i in (j, j + 1, j + 2) if 0 <= i < n]
-    pairs: list[tuple[int, int]] = []
-    if L and R:                       # interpolation
-        pairs += [(L[0], R[0])]
+    L = [i for i in (j - 1, j - 2) if 0 <= i < n]
+    R = [i for i in (j, j + 1) if 0 <= i < n]
+    if L and R:
+        pairs = [(L[0], R[0])]
         pairs += [(L[1], R[0])] if len(L) > 1 else []
         pairs += [(L[0], R[1])] if len(R) > 1 else []
-    for side in (L, R):               # extrapolation from one side (by one or two gaps)
-        if len(side) > 1:
-            pairs.append(tuple(sorted((side[0], side[1]))))
-        if len(side) > 2 and not (L and R):
-            pairs += [tuple(sorted((side[0], side[2]))), tuple(sorted((side[1], side[2])))]
-    return pairs
+        return pairs
+    side = sorted([i for i in (j - 1, j - 2, j - 3) if 0 <= i < n] if not R
+                  else [i for i in (j, j + 1, j + 2) if 0 <= i < n])
+    return [(side[a], side[b]) for a in range(len(side)) for b in range(a + 1, len(side))]
 
 
 def _neighbours_cyclic(angles: np.ndarray, a: float) -> tuple[int, int] | None:
