@@ -213,12 +213,6 @@ class CurveBatch:
         return C, dC
 
 
-def surface_derivatives(surface, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, ...]:
-    """S, ∂S/∂u, ∂S/∂v at parameter pairs (u[k], v[k]) of one surface -> three (k, 3) arrays."""
-    d = surface.derivatives(np.asarray(u, float), np.asarray(v, float), order=1)
-    return d[:, 0, 0], d[:, 1, 0], d[:, 0, 1]
-
-
 def surface_grid(surface, n: int = _GRID) -> tuple[np.ndarray, np.ndarray]:
     """Parameters (n², 2) and points (n², 3) of a uniform n × n grid on a surface."""
     t = np.linspace(0.0, 1.0, n)

@@ -168,7 +168,7 @@ def fit_tag_curves(lines: list[np.ndarray], n_ctrl: int, degree: int = 3,
     return U, P
 
 
-def fit_tag_curve(points: np.ndarray, pixel_mm: float = 1.0) -> "nurbs.NurbsCurve":
+def fit_tag_curve(points: np.ndarray) -> "nurbs.NurbsCurve":
     """One tag line's curve (:func:`fit_tag_curves` with the count of :func:`control_count`)."""
     U, P = fit_tag_curves([np.asarray(points, float)], control_count([points]))
     return nurbs.NurbsCurve(3, U, P[0])
@@ -311,13 +311,6 @@ def axis_frame(apex: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return e1, e2, e
 
 
-def angles_about_axis(points: np.ndarray, apex: np.ndarray, base: np.ndarray) -> np.ndarray:
-    """Angle (rad) of (n, 3) points about the long axis, CCW seen from the apex."""
-    e1, e2, _ = axis_frame(apex, base)
-    d = np.asarray(points, float) - np.asarray(apex, float)
-    return np.arctan2(d @ e2, d @ e1)
-
-
 def la_sections(study: Study, frame: int, apex: np.ndarray,
                 base: np.ndarray) -> dict[int, list[TagSection]]:
     """Spokes of every LA tag at one frame, ordered by angle about the long axis.
@@ -425,12 +418,6 @@ def loft_sections(sections: list[TagSection], periodic: bool = False,
            for s in secs):
         return loft_compatible(np.array([s.ctrl for s in secs]), U, 3, degree_v)
     return nurbs.loft([s.curve for s in secs], degree_v=min(degree_v, len(secs) - 1))
-
-
-def pixel_size(study: Study) -> float:
-    """Mean in-plane pixel size (mm) of the tagged images (1 mm when unknown)."""
-    sp = [np.mean(im.pixel_spacing) for im in study.images]
-    return float(np.mean(sp)) if sp else 1.0
 
 
 def build_tag_surfaces(study: Study, frame: int, long_axis: tuple | None = None,

@@ -57,8 +57,8 @@ import numpy as np
 
 from cardionurbs.analysis.material import MaterialPoints, SplineData, material_points
 from cardionurbs.analysis.tag_surfaces import (axis_frame, build_tag_surfaces, check_tags,
-                                               fit_tag_curve, pixel_size, stack_normal, tag_surfaces)
-from cardionurbs.analysis.tagqc import TagFlag, tag_departures, tag_qc
+                                               fit_tag_curve, stack_normal, tag_surfaces)
+from cardionurbs.analysis.tagqc import TagFlag, tag_qc
 from cardionurbs.errors import TagError
 from cardionurbs.study import Study
 
@@ -266,7 +266,6 @@ def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base:
     curves; lines not found there are fitted here. ``exclude``: {(family,
     index, slice, frame)} lines left out (flagged by the QC).
     """
-    px = pixel_size(study)
     fitted: dict[tuple, object] = {}
     for f, surfs in (surfaces or {}).items():
         for (fam, idx), ts in surfs.items():
@@ -291,7 +290,7 @@ def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base:
         if key not in pos:
             c, pts = fitted.get(key, (None, None))
             if c is None:
-                c, pts = fit_tag_curve(lines[key], px), lines[key]
+                c, pts = fit_tag_curve(lines[key]), lines[key]
             pos[key] = len(curves)
             curves.append(c)
             raw.append(np.asarray(pts, float))
