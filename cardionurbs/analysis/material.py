@@ -482,7 +482,7 @@ def _complete(surfaces: dict) -> _Surfaces | None:
 
 def material_points(study: Study, ed_frame: int | None = None, es_frame: int | None = None,
                     frames: list[int] | None = None, long_axis: tuple | None = None,
-                    surfaces: dict | None = None, margin_mm: float = 0.0) -> MaterialPoints:
+                    surfaces: dict | None = None, margin_mm: float = 0.5) -> MaterialPoints:
     """Material points (tag-surface triple intersections) at ED, ES and ``frames``.
 
     Parameters
@@ -498,7 +498,8 @@ def material_points(study: Study, ed_frame: int | None = None, es_frame: int | N
         Pre-built surfaces (:func:`build_tag_surfaces`), to share work.
     margin_mm : float
         A point is kept when its ED signed distance inside the LV
-        myocardium is >= -margin_mm (mm) (no test without ED contours).
+        myocardium is >= -margin_mm (mm): half a millimetre of tolerance,
+        the order of contour tracing noise (no test without ED contours).
     """
     from cardionurbs.analysis.tags import long_axis_from_study, resolve_frames
     ed_frame, es_frame = resolve_frames(study, ed_frame, es_frame)

@@ -23,7 +23,7 @@ Rotation φ of a level (LA tag plane ``k``)
 
     with (e1, e2, e) the axis frame of :func:`axis_frame`.
 Levels
-    LA tag planes with at least 3 material points tracked at ED and ES whose
+    LA tag planes with at least 2 material points tracked at ED and ES whose
     mean position lies strictly between the most basal and the most apical
     SA slices tagged at both ED and ES, at ED and at ES (contracts.md).
     Distance from the apex
@@ -68,7 +68,7 @@ __all__ = ["tag_surfaces", "material_points", "tag_metrics", "tag_qc", "tag_figu
 
 TAG_COLUMNS = ("Twist (deg)", "Twist 2D (deg)", "Torsion (deg/cm)", "CL shear (deg)", "LS (%)",
                "Tag QC flags")
-MIN_LEVEL_POINTS = 3
+MIN_LEVEL_POINTS = 2
 NAN = float("nan")
 
 
