@@ -157,7 +157,7 @@ def run_benchmark(out: Path) -> None:
     lines += ["", "Targets: 2-frame phantom < 0.5 s; 25 bivme frames < 5 s; demo < 60 s "
               "(the paper: < 30 s per study; biv-me: 15-18 s per frame).", "",
               "Per frame the model fits ~10 sections per surface, lofts 4 surfaces, tessellates "
-              "them (72 x 48) and runs 5 manifold3d booleans. ED and ES are found from the LV "
+              "them (56 x 36 around x along) and runs 5 manifold3d booleans. ED and ES are found from the LV "
               "cavity of every frame (SA loft only); the other surfaces and the LA correction are "
               "built for ED and ES only unless a frame is asked for (`model.meshes(f)`)."]
     out.write_text("\n".join(lines) + "\n")

@@ -147,7 +147,10 @@ class BiventricularModel:
             self.apex_points, self.sections = apex_points, sections or {}
         self.volumes = LazyFrames(self.frames, lambda f: {
             k: meshing.volume_ml(m) for k, m in self.solids(f).items()})
-        if ed_es is not None:            # known (a deserialised model)
+        labels = (study.ed_frame, study.es_frame)
+        if ed_es is None and len(self.frames) == 2 and set(labels) == set(self.frames):
+            ed_es = labels                # METRICS.md: two contoured frames, the labels win
+        if ed_es is not None:            # known (labels, or a deserialised model)
             ed, es = int(ed_es[0]), int(ed_es[1])
         else:
             if isinstance(self.surfaces, LazyFrames):
