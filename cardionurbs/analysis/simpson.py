@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from cardionurbs.analysis.function import COLUMNS, NAN, mass_g, regurgitation, ventricular_function
-from cardionurbs.anatomy.sections import SURFACES, _sa_loops, fit_plane, stacking_direction
+from cardionurbs.anatomy.sections import _sa_loops, stacking_direction
 from cardionurbs.study import Study
 
 
@@ -86,7 +86,3 @@ def simpson_metrics(study: Study, ed_frame: int, es_frame: int,
         out[f"{side}M (g)"] = mass_g(ed[myo])
     out["MR RegVol (mL)"], out["MR RegFrac (%)"] = regurgitation(out["LVSV (mL)"], out["RVSV (mL)"])
     return out
-
-
-__all__ = ["polygon_area", "slice_spacing", "disk_areas", "disk_volumes", "simpson_metrics",
-           "SURFACES", "fit_plane"]
