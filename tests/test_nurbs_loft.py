@@ -145,3 +145,75 @@ def test_section_parameters_follow_the_paper_formula():
 def test_bad_sections(sections, word):
     with pytest.raises(nurbs.NurbsInputError, match=word):
         nurbs.loft(sections)
+
+
+# ------------------------------------------------ loft_compatible (steps 4-5)
+def uniform_rings(weights: bool = False) -> list[nurbs.NurbsCurve]:
+    """Closed sections on one uniform periodic knot vector, already aligned."""
+    rng = np.random.default_rng(7)
+    out = []
+    for k in range(4):
+        t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+        pts = np.c_[(18 - 3 * k) * np.cos(t), (14 - 2 * k) * np.sin(t), np.full(40, 7.0 * k)]
+        c = nurbs.fit_curve(pts, closed=True, n_ctrl=10, knot_rule="uniform")
+        if weights:
+            c = nurbs.NurbsCurve(c.degree, c.knots, c.control_points,
+                                 rng.uniform(0.9, 1.1, c.n_control), closed=True)
+        out.append(c)
+    return out
+
+
+@pytest.mark.parametrize("rational", [False, True])
+@pytest.mark.parametrize("apex", [None, "end", "both"])
+@pytest.mark.parametrize("degree_v", [1, 2, 3])
+def test_loft_compatible_equals_loft(rational, apex, degree_v):
+    secs = uniform_rings(weights=rational)
+    start = np.array([0.0, 0.0, -9.0]) if apex == "both" else None
+    end = np.array([0.0, 0.0, 30.0]) if apex else None
+    items = ([start] if start is not None else []) + secs + ([end] if end is not None else [])
+    ref = nurbs.loft(items, degree_v=degree_v, align=False)
+    s = nurbs.loft_compatible(np.stack([c.control_points for c in secs]), secs[0].knots,
+                              secs[0].degree, degree_v,
+                              weights=np.stack([c.weights for c in secs]) if rational else None,
+                              closed_u=True, start_point=start, end_point=end)
+    assert s.closed_u and s.degree_v == min(degree_v, len(items) - 1)
+    np.testing.assert_allclose(s.knots_v, ref.knots_v, rtol=0, atol=1e-12)
+    t = np.linspace(0, 1, 31)
+    np.testing.assert_allclose(s.evaluate(t, t), ref.evaluate(t, t), rtol=0, atol=1e-9)
+    # the collapsed rows are the points (exactly when non-rational; w P / w when rational)
+    tol = 1e-12 if rational else 0.0
+    for row, pt in ((-1, end), (0, start)):
+        if pt is not None:
+            np.testing.assert_allclose(s.control_points[:, row], np.tile(pt, (10, 1)), rtol=0,
+                                       atol=tol)
+
+
+def test_loft_compatible_open_sections_equal_loft():
+    t = np.linspace(0.0, 1.0, 25)
+    secs = [nurbs.fit_curve(np.c_[30 * t, 5 * np.sin(3 * t + k), np.full(25, 4.0 * k + k * k)],
+                            n_ctrl=7, knot_rule="uniform") for k in range(5)]
+    ref = nurbs.loft(secs)
+    s = nurbs.loft_compatible(np.stack([c.control_points for c in secs]), secs[0].knots)
+    assert not s.closed_u and np.array_equal(s.weights, np.ones_like(s.weights))
+    g = np.linspace(0, 1, 29)
+    np.testing.assert_allclose(s.evaluate(g, g), ref.evaluate(g, g), rtol=0, atol=1e-9)
+    for k, c in enumerate(secs):     # interpolates the sections at the section parameters
+        _, _, d = nurbs.closest_points(s, c.evaluate(np.linspace(0, 1, 20)))
+        assert d.max() < 1e-8
+
+
+@pytest.mark.parametrize("kwargs, word", [
+    (dict(control_points=np.zeros((1, 6, 3))), "at least 2 sections"),
+    (dict(control_points=np.zeros((6, 3))), "control_points"),
+    (dict(weights=np.ones((3, 5))), "weights"),
+    (dict(end_point=np.zeros(2)), "end_point"),
+    (dict(degree_v=0), "degree_v"),
+])
+def test_loft_compatible_bad_input(kwargs, word):
+    t = np.linspace(0, 1, 12)
+    secs = [nurbs.fit_curve(np.c_[t, np.sin(t + k), np.full(12, float(k))], n_ctrl=6,
+                            knot_rule="uniform") for k in range(3)]
+    args = dict(control_points=np.stack([c.control_points for c in secs]), knots_u=secs[0].knots)
+    args.update(kwargs)
+    with pytest.raises(nurbs.NurbsInputError, match=word):
+        nurbs.loft_compatible(**args)

@@ -297,10 +297,10 @@ def test_long_axis_argument_is_used(heart):
 def test_compatible_loft_equals_nurbs_loft(heart):
     """The fast loft of sections on one knot vector is the NURBS module's loft."""
     from cardionurbs import nurbs
-    from cardionurbs.analysis.tag_surfaces import loft_compatible, sa_sections, fit_sections
+    from cardionurbs.analysis.tag_surfaces import fit_sections, sa_sections
     secs = sa_sections(heart.study(noise_px=0.3), "sa2", 1)[1]
     fit_sections(secs)
-    fast = loft_compatible(np.array([s.ctrl for s in secs]), secs[0].knots)
+    fast = nurbs.loft_compatible(np.array([s.ctrl for s in secs]), secs[0].knots)
     ref = nurbs.loft([s.curve for s in secs], degree_v=3)
     t = np.linspace(0, 1, 23)
     assert np.allclose(fast.evaluate(t, t), ref.evaluate(t, t), atol=1e-9)

@@ -42,6 +42,7 @@ import numpy as np
 from cardionurbs import nurbs
 from cardionurbs.errors import TagError
 from cardionurbs.imaging.geometry import ImagePlane
+from cardionurbs.nurbs.loft import loft_compatible  # noqa: F401  (old import path, benchmarks)
 from cardionurbs.study import TAG_FAMILIES, Study, TagLine
 
 #: the image view each tag family is seen in
@@ -377,35 +378,12 @@ def fit_sections(sections: list[TagSection]) -> None:
         s.knots, s.ctrl = U, ctrl
 
 
-def loft_compatible(ctrl: np.ndarray, knots_u: np.ndarray, degree_u: int = 3,
-                    degree_v: int = 3) -> "nurbs.NurbsSurface":
-    """Loft non-rational sections that already share one degree and knot vector (§3.2.4).
-
-    Steps 4–5 of the paper's lofting (1–3 are void for compatible
-    sections): section parameters v_k by the paper's formula
-    (:func:`cardionurbs.nurbs.loft.section_parameters`), knots by averaging
-    (NURBS Book eq. 9.8), and one interpolation across the sections for all
-    control-point columns. Equal to :func:`cardionurbs.nurbs.loft` on the
-    same (already oriented) curves, without its per-curve alignment and
-    knot-union work. ``ctrl`` is (K + 1, n, 3).
-    """
-    from cardionurbs.nurbs.basis import basis_matrix
-    from cardionurbs.nurbs.loft import averaging_knots, section_parameters
-    K = len(ctrl) - 1
-    v = section_parameters(ctrl)
-    q = min(degree_v, K)
-    Vk = averaging_knots(v, q)
-    M = basis_matrix(Vk, q, v)
-    Q = np.linalg.solve(M, ctrl.reshape(K + 1, -1)).reshape(ctrl.shape).transpose(1, 0, 2)
-    return nurbs.NurbsSurface(degree_u, q, knots_u, Vk, Q)
-
-
 def loft_sections(sections: list[TagSection], periodic: bool = False,
                   degree_v: int = 3):
     """Loft fitted sections (paper §3.2.4) into one surface.
 
     Sections sharing one knot vector (the usual case: :func:`fit_sections`)
-    go through :func:`loft_compatible`, others through
+    go through :func:`cardionurbs.nurbs.loft_compatible`, others through
     :func:`cardionurbs.nurbs.loft`. ``periodic`` repeats the first section
     at the end (the LA spoke fan). Returns None with fewer than two sections.
     """
@@ -416,7 +394,7 @@ def loft_sections(sections: list[TagSection], periodic: bool = False,
     U = secs[0].knots
     if all(s.knots is not None and s.knots.shape == U.shape and np.array_equal(s.knots, U)
            for s in secs):
-        return loft_compatible(np.array([s.ctrl for s in secs]), U, 3, degree_v)
+        return nurbs.loft_compatible(np.array([s.ctrl for s in secs]), U, 3, degree_v)
     return nurbs.loft([s.curve for s in secs], degree_v=min(degree_v, len(secs) - 1))
 
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 from cardionurbs.errors import NurbsInputError
 from cardionurbs.nurbs.curve import NurbsCurve
 from cardionurbs.nurbs.fitting import chord_length_parameters, fit_curve
-from cardionurbs.nurbs.loft import loft
+from cardionurbs.nurbs.loft import loft, loft_compatible
 from cardionurbs.nurbs.operations import (elevate_degree, insert_knots, make_compatible,
                                           rotate_seam)
 from cardionurbs.nurbs.projection import (closest_points, curve_closest_points,
@@ -28,7 +28,7 @@ from cardionurbs.nurbs.tessellate import tessellate
 
 __all__ = [
     "NurbsCurve", "NurbsSurface", "NurbsInputError",
-    "fit_curve", "chord_length_parameters", "loft", "tessellate",
+    "fit_curve", "chord_length_parameters", "loft", "loft_compatible", "tessellate",
     "elevate_degree", "insert_knots", "make_compatible", "rotate_seam",
     "closest_points", "curve_closest_points", "surface_closest_points",
     "to_rhino", "write_3dm",

@@ -15,6 +15,8 @@ across the sections from the first to the last.  Steps:
    better with the previous section's.  ``align=False`` skips this step;
 1.–3. all sections are raised to the highest degree (A5.9) and brought to one
    knot vector (A5.4) by :func:`~cardionurbs.nurbs.operations.make_compatible`;
+4.–5. :func:`loft_compatible` (public: sections that already share degree and
+   knots, e.g. fitted on one knot vector, skip steps 0–3):
 4. section parameters by the paper's formula
    ``v_k = v_{k-1} + 1/(n+1) sum_i |P_{i,k} - P_{i,k-1}| / d_i`` with
    ``d_i = sum_k |P_{i,k} - P_{i,k-1}|``, degree ``q = min(degree_v, K)`` and
@@ -40,7 +42,8 @@ from cardionurbs.nurbs.curve import NurbsCurve
 from cardionurbs.nurbs.operations import make_compatible, rotate_seam
 from cardionurbs.nurbs.surface import NurbsSurface
 
-__all__ = ["loft", "section_parameters", "averaging_knots", "align_sections"]
+__all__ = ["loft", "loft_compatible", "section_parameters", "averaging_knots",
+           "align_sections"]
 
 _ALIGN_SAMPLES = 256
 
@@ -190,30 +193,86 @@ def loft(sections: Sequence[Any], degree_v: int = 3, align: bool = True) -> Nurb
 
     axis = centroid(K) - centroid(0)
     curves = make_compatible(align_sections(curves, axis) if align else curves)
-    n = curves[0].n_control
-    d = curves[0].dimension
-    Pw = np.empty((K + 1, n, d + 1))
+    return loft_compatible(np.stack([c.control_points for c in curves]), curves[0].knots,
+                           curves[0].degree, q_req,
+                           weights=np.stack([c.weights for c in curves]), closed_u=closed,
+                           start_point=items[0] if kinds[0] == "point" else None,
+                           end_point=items[K] if kinds[K] == "point" else None)
+
+
+def loft_compatible(control_points: Any, knots_u: Any, degree_u: int = 3, degree_v: int = 3,
+                    weights: Any = None, closed_u: bool = False, start_point: Any = None,
+                    end_point: Any = None) -> NurbsSurface:
+    """Loft sections that already share one degree and one knot vector
+    (paper §3.2.4 steps 4–5; NURBS Book §10.3, skinning).
+
+    Steps 1–3 of :func:`loft` are identities for such sections, so only the
+    interpolation across them remains: section parameters ``v_k`` by the
+    paper's formula (:func:`section_parameters`), degree
+    ``q = min(degree_v, K)``, knots by averaging (NURBS Book eq. 9.8) and one
+    linear solve for all control-point columns.  :func:`loft` ends with this
+    function, so both give the same surface for compatible, aligned sections.
+
+    Parameters
+    ----------
+    control_points : (L, n, d) -- row ``k`` is section ``k``'s control polygon
+        (all rows on ``knots_u``, already oriented and seam-aligned).
+    knots_u : the sections' common knot vector (clamped, or periodic when
+        ``closed_u``); becomes the surface's ``knots_u``.
+    degree_u : the sections' common degree.
+    degree_v : requested degree across the sections.
+    weights : (L, n) section weights, or None for non-rational sections (the
+        interpolation then runs on the Euclidean points and the surface has
+        unit weights); given weights are interpolated in homogeneous
+        coordinates ``(w P, w)``.
+    closed_u : the sections are closed (periodic ``knots_u``).
+    start_point, end_point : optional points (d,) where the surface collapses
+        before the first / after the last section (an apex): an extra row of
+        the net equal to the point, weighted like its neighbouring section;
+        the collapsed row of the result is exactly the point.
+
+    Returns a :class:`NurbsSurface`, u along the sections, v from the first
+    (or ``start_point``) to the last (or ``end_point``); ``K + 1 = L`` plus the
+    number of end points, ``K >= 1``.
+    """
+    C = V.finite_array(control_points, "control_points", ndim=3)
+    p = V.degree_value(degree_u, "degree_u")
+    q_req = V.degree_value(degree_v, "degree_v")
+    L, n, d = C.shape
+    ends = []
+    for name, pt in (("start_point", start_point), ("end_point", end_point)):
+        ends.append(None if pt is None else V.finite_array(pt, name, ndim=1, last_dim=d))
+    rational = weights is not None
+    W = V.weight_vector(weights, "weights", (L, n))
+    K = L - 1 + sum(e is not None for e in ends)
+    if K < 1:
+        raise NurbsInputError(f"control_points: need at least 2 sections, got {K + 1}")
+    k0 = 1 if ends[0] is not None else 0
     P = np.empty((K + 1, n, d))
-    for k, c in zip(curve_idx, curves):
-        P[k] = c.control_points
-        Pw[k] = np.column_stack([c.control_points * c.weights[:, None], c.weights])
-    for k, t in enumerate(kinds):
-        if t == "point":
-            nb = curves[0] if k == 0 else curves[-1]
-            P[k] = items[k]
-            Pw[k] = np.column_stack([np.outer(nb.weights, items[k]), nb.weights])
+    Pw = np.empty((K + 1, n, d + 1))
+    P[k0:k0 + L] = C
+    Pw[k0:k0 + L] = np.concatenate([C * W[..., None], W[..., None]], axis=-1)
+    rows = []                                   # (row, point) of the collapsed ends
+    for k, pt, nb in ((0, ends[0], W[0]), (K, ends[1], W[-1])):
+        if pt is not None:
+            P[k] = pt
+            Pw[k] = np.column_stack([np.outer(nb, pt), nb])
+            rows.append((k, pt))
     v = section_parameters(P)
     q = min(q_req, K)
     Vk = averaging_knots(v, q)
     M = basis_matrix(Vk, q, v)
+    if not rational:
+        Q = np.linalg.solve(M, P.reshape(K + 1, -1)).reshape(P.shape).transpose(1, 0, 2)
+        for k, pt in rows:                      # the collapsed row is exactly the point
+            Q[:, k] = pt
+        return NurbsSurface(p, q, knots_u, Vk, Q, closed_u=closed_u)
     Qw = np.linalg.solve(M, Pw.reshape(K + 1, -1)).reshape(K + 1, n, d + 1)
     Qw = Qw.transpose(1, 0, 2)                                  # (n, K+1, d+1)
     w = Qw[..., -1]
     if np.any(w <= 0):
         raise NurbsInputError("sections: interpolating the section weights gave weights <= 0; "
                               "use sections with less different weights")
-    for k, t in enumerate(kinds):          # the collapsed row is exactly the point
-        if t == "point":
-            Qw[:, k, :-1] = w[:, k, None] * items[k][None, :]
-    return NurbsSurface(curves[0].degree, q, curves[0].knots, Vk, Qw[..., :-1] / w[..., None],
-                        w, closed_u=closed)
+    for k, pt in rows:                          # the collapsed row is exactly the point
+        Qw[:, k, :-1] = w[:, k, None] * pt[None, :]
+    return NurbsSurface(p, q, knots_u, Vk, Qw[..., :-1] / w[..., None], w, closed_u=closed_u)
