@@ -165,6 +165,24 @@ def test_closest_points_match_dense_sampling():
     assert np.all(dense - d < 0.2)          # grid spacing ~0.25 mm
 
 
+def test_closest_points_accept_one_point():
+    """A single (3,) point is one query point: (1,) results equal to the (1, 3) call."""
+    s = lv_like_surface()
+    q = s.evaluate_points([0.3], [0.6])[0] + [0.4, -0.2, 0.3]
+    one = nurbs.closest_points(s, q)
+    rows = nurbs.closest_points(s, q[None, :])
+    assert len(one) == 3 and all(a.shape == (1,) for a in one)
+    for a, b in zip(one, rows):
+        np.testing.assert_array_equal(a, b)
+    c = nurbs.fit_curve(np.c_[np.linspace(0, 10, 20), np.sin(np.linspace(0, 3, 20))], n_ctrl=6)
+    u, d = nurbs.closest_points(c, [5.0, 2.0])
+    assert u.shape == d.shape == (1,)
+    np.testing.assert_allclose(d, np.linalg.norm(c.evaluate(u) - [5.0, 2.0], axis=1), atol=1e-12)
+    for bad in ([1.0, 2.0], np.zeros((2, 2)), np.zeros((1, 2, 3))):
+        with pytest.raises(NurbsInputError, match="points"):
+            nurbs.closest_points(s, bad)
+
+
 def test_surface_derivatives_match_finite_differences():
     s = lv_like_surface()
     u = np.array([0.1, 0.4, 0.77])

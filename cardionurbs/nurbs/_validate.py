@@ -25,6 +25,17 @@ def finite_array(value: object, name: str, ndim: int | None = None,
     return arr
 
 
+def point_rows(value: object, name: str, dim: int) -> np.ndarray:
+    """Query points as an (m, dim) array; a single point (dim,) is one row (1, dim)."""
+    arr = finite_array(value, name)
+    if arr.ndim == 1 and arr.shape[0] == dim:
+        return arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != dim:
+        raise NurbsInputError(f"{name}: expected one point ({dim},) or points (m, {dim}), "
+                              f"got shape {arr.shape}")
+    return arr
+
+
 def degree_value(value: object, name: str = "degree", minimum: int = 1) -> int:
     """A positive integer degree."""
     try:

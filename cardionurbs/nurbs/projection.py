@@ -46,10 +46,10 @@ def curve_closest_points(curve: Any, points: Any, iterations: int = 8,
                          samples_per_span: int = 16) -> tuple[np.ndarray, np.ndarray]:
     """Parameters and distances of the curve points closest to ``points``.
 
-    ``points`` (m, d) -> ``(u (m,), distance (m,))``, distances in the
-    points' units.
+    ``points`` (m, d), or one point (d,) as m = 1 -> ``(u (m,), distance (m,))``,
+    distances in the points' units.
     """
-    Q = V.finite_array(points, "points", ndim=2, last_dim=curve.dimension)
+    Q = V.point_rows(points, "points", curve.dimension)
     lo, hi = curve.domain
     us = _span_samples(curve.knots, curve.degree, lo, hi, samples_per_span, curve.closed)
     _, idx = cKDTree(curve.evaluate(us)).query(Q)
@@ -110,9 +110,9 @@ def surface_closest_points(surface: Any, points: Any, iterations: int = 16,
     Newton runs from the ``seeds`` nearest samples of each point and the
     best result is kept (guards against local minima, e.g. near an apex).
 
-    ``points`` (m, 3) -> ``(u (m,), v (m,), distance (m,))``.
+    ``points`` (m, 3), or one point (3,) as m = 1 -> ``(u (m,), v (m,), distance (m,))``.
     """
-    P = V.finite_array(points, "points", ndim=2, last_dim=surface.dimension)
+    P = V.point_rows(points, "points", surface.dimension)
     (ulo, uhi), (vlo, vhi) = surface.domain_u, surface.domain_v
     us = _span_samples(surface.knots_u, surface.degree_u, ulo, uhi, samples_per_span,
                        surface.closed_u)
@@ -171,6 +171,7 @@ def surface_closest_points(surface: Any, points: Any, iterations: int = 16,
 def closest_points(geometry: Any, points: Any, iterations: int = 16) -> tuple[np.ndarray, ...]:
     """Closest points on a curve or a surface.
 
+    ``points`` (m, d), or a single point (d,) (then m = 1).
     Surface: ``(u, v, distance)``; curve: ``(u, distance)``; each (m,).
     """
     from cardionurbs.nurbs.curve import NurbsCurve
