@@ -12,7 +12,7 @@ Levenberg term): residual F = [S1 − S2, S2 − S3] ∈ R⁶, Jacobian
 J = [[S1u S1v −S2u −S2v 0 0], [0 0 S2u S2v −S3u −S3v]] (3 × 2 blocks of
 surface first derivatives, NURBS Book A3.6/A4.4). All triples iterate
 together; each surface is evaluated once per iteration at the parameters of
-the triples that use it.
+the triples that use it (:class:`cardionurbs.nurbs.batch.SurfaceBatch`).
 
 Starting values: at ED the three surfaces are close to planes, so the start
 is the intersection of the three least-squares planes of the surfaces'
@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cardionurbs.analysis.tag_surfaces import TagSurface, build_tag_surfaces
+from cardionurbs.nurbs.batch import CurveBatch, SplineData, SurfaceBatch  # noqa: F401 (re-export)
 from cardionurbs.study import Study
 
 FAMILIES = ("sa1", "sa2", "la")
@@ -39,178 +40,6 @@ NEWTON_TOL_MM = 1e-4
 ACCEPT_TOL_MM = 0.05
 MAX_ITER = 20
 _GRID = 15
-
-
-# ------------------------------------------------------ batched evaluation
-def basis_with_derivative(knots: np.ndarray, spans: np.ndarray, t: np.ndarray,
-                          p: int) -> tuple[np.ndarray, np.ndarray]:
-    """Non-zero B-spline basis N_{span-p..span, p}(t) and first derivatives, row by row.
-
-    NURBS Book A2.2 (triangular table ``ndu``) and A2.3 for k = 1,
-    vectorised over rows that each have their own knot vector
-    (``knots`` (k, m), ``spans`` (k,), ``t`` (k,)). Returns two (k, p + 1) arrays.
-    """
-    k = len(t)
-    rows = np.arange(k)
-    ndu = np.zeros((k, p + 1, p + 1))
-    ndu[:, 0, 0] = 1.0
-    left = np.zeros((k, p + 1))
-    right = np.zeros((k, p + 1))
-    for j in range(1, p + 1):
-        left[:, j] = t - knots[rows, spans + 1 - j]
-        right[:, j] = knots[rows, spans + j] - t
-        saved = np.zeros(k)
-        for r in range(j):
-            ndu[:, j, r] = right[:, r + 1] + left[:, j - r]
-            temp = ndu[:, r, j - 1] / ndu[:, j, r]
-            ndu[:, r, j] = saved + right[:, r + 1] * temp
-            saved = left[:, j - r] * temp
-        ndu[:, j, j] = saved
-    N = ndu[:, :, p].copy()
-    dN = np.zeros((k, p + 1))
-    for r in range(p + 1):
-        if r >= 1:
-            dN[:, r] += ndu[:, r - 1, p - 1] / ndu[:, p, r - 1]
-        if r <= p - 1:
-            dN[:, r] -= ndu[:, r, p - 1] / ndu[:, p, r]
-    return N, p * dN
-
-
-def _spans(knots: np.ndarray, n_ctrl: np.ndarray, p: int, t: np.ndarray) -> np.ndarray:
-    """Knot span index per row (A2.1): last i with U[i] <= t, in [p, n - 1]."""
-    count = (knots <= t[:, None]).sum(axis=1)
-    return np.clip(count - 1, p, n_ctrl - 1)
-
-
-class SurfaceBatch:
-    """Many open NURBS surfaces evaluated together, one (surface, u, v) per row.
-
-    Knot vectors and homogeneous control nets are padded per (degree_u,
-    degree_v) group, so one call costs a few array operations whatever the
-    number of surfaces (A3.6/A4.4 with first derivatives, vectorised).
-    """
-
-    def __init__(self, surfaces: list) -> None:
-        self.surfaces = list(surfaces)
-        self.groups: dict[tuple[int, int], dict] = {}
-        self.group_of = np.empty(len(self.surfaces), dtype=object)
-        self.pos_in_group = np.zeros(len(self.surfaces), int)
-        by: dict[tuple[int, int], list[int]] = {}
-        for i, srf in enumerate(self.surfaces):
-            if getattr(srf, "closed_u", False):
-                raise ValueError("SurfaceBatch handles open surfaces only")
-            by.setdefault((srf.degree_u, srf.degree_v), []).append(i)
-        for key, ids in by.items():
-            srfs = [self.surfaces[i] for i in ids]
-            nu = np.array([s_.control_points.shape[0] for s_ in srfs])
-            nv = np.array([s_.control_points.shape[1] for s_ in srfs])
-            Ku = np.full((len(ids), nu.max() + key[0] + 1), np.inf)
-            Kv = np.full((len(ids), nv.max() + key[1] + 1), np.inf)
-            Pw = np.zeros((len(ids), nu.max(), nv.max(), 4))
-            for g, s_ in enumerate(srfs):
-                Ku[g, :len(s_.knots_u)] = s_.knots_u
-                Kv[g, :len(s_.knots_v)] = s_.knots_v
-                w = s_.weights[..., None]
-                Pw[g, :nu[g], :nv[g]] = np.concatenate([s_.control_points * w, w], axis=-1)
-            self.groups[key] = {"Ku": Ku, "Kv": Kv, "Pw": Pw, "nu": nu, "nv": nv}
-            for g, i in enumerate(ids):
-                self.group_of[i] = key
-                self.pos_in_group[i] = g
-
-    def derivatives(self, sid: np.ndarray, u: np.ndarray, v: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """S, ∂S/∂u, ∂S/∂v (each (k, 3)) of surface ``sid[r]`` at (u[r], v[r]).
-
-        Parameters outside [0, 1] evaluate the C¹ linear extension
-        S(u_c, v_c) + (u − u_c) S_u + (v − v_c) S_v, (u_c, v_c) the clamped pair.
-        """
-        sid = np.asarray(sid, int)
-        u_in, v_in = np.asarray(u, float), np.asarray(v, float)
-        u, v = np.clip(u_in, 0.0, 1.0), np.clip(v_in, 0.0, 1.0)
-        S = np.empty((len(sid), 3))
-        Su = np.empty_like(S)
-        Sv = np.empty_like(S)
-        keys = self.group_of[sid] if len(sid) else np.empty(0, dtype=object)
-        for key, grp in self.groups.items():
-            rows = np.flatnonzero([k_ == key for k_ in keys]) if len(self.groups) > 1 \
-                else np.arange(len(sid))
-            if len(rows) == 0:
-                continue
-            p, q = key
-            g = self.pos_in_group[sid[rows]]
-            Ku, Kv = grp["Ku"][g], grp["Kv"][g]
-            su = _spans(Ku, grp["nu"][g], p, u[rows])
-            sv = _spans(Kv, grp["nv"][g], q, v[rows])
-            Nu, dNu = basis_with_derivative(Ku, su, u[rows], p)
-            Nv, dNv = basis_with_derivative(Kv, sv, v[rows], q)
-            iu = su[:, None] - p + np.arange(p + 1)
-            iv = sv[:, None] - q + np.arange(q + 1)
-            P = grp["Pw"][g[:, None, None], iu[:, :, None], iv[:, None, :]]   # (k, p+1, q+1, 4)
-            A = np.einsum("ka,kb,kabc->kc", Nu, Nv, P)
-            Au = np.einsum("ka,kb,kabc->kc", dNu, Nv, P)
-            Av = np.einsum("ka,kb,kabc->kc", Nu, dNv, P)
-            w = A[:, 3:]
-            pt = A[:, :3] / w
-            S[rows] = pt
-            Su[rows] = (Au[:, :3] - Au[:, 3:] * pt) / w
-            Sv[rows] = (Av[:, :3] - Av[:, 3:] * pt) / w
-        S += (u_in - u)[:, None] * Su + (v_in - v)[:, None] * Sv
-        return S, Su, Sv
-
-
-@dataclass(frozen=True)
-class SplineData:
-    """The arrays of an open NURBS curve (what :class:`CurveBatch` reads), without validation."""
-
-    degree: int
-    knots: np.ndarray
-    control_points: np.ndarray
-    weights: np.ndarray
-
-
-class CurveBatch:
-    """Many open NURBS curves evaluated together, one (curve, u) per row (A4.2, k = 1)."""
-
-    def __init__(self, curves: list) -> None:
-        self.curves = list(curves)
-        ps = {c.degree for c in self.curves}
-        self.by_degree: dict[int, dict] = {}
-        self.deg = np.array([c.degree for c in self.curves])
-        self.pos = np.zeros(len(self.curves), int)
-        for p in ps:
-            ids = [i for i, c in enumerate(self.curves) if c.degree == p]
-            n = np.array([len(self.curves[i].control_points) for i in ids])
-            K = np.full((len(ids), n.max() + p + 1), np.inf)
-            Pw = np.zeros((len(ids), n.max(), 4))
-            for g, i in enumerate(ids):
-                c = self.curves[i]
-                K[g, :len(c.knots)] = c.knots
-                w = c.weights[:, None]
-                Pw[g, :n[g]] = np.column_stack([c.control_points * w, w])
-                self.pos[i] = g
-            self.by_degree[p] = {"K": K, "Pw": Pw, "n": n}
-
-    def derivatives(self, cid: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """C and C' (each (k, 3)) of curve ``cid[r]`` at u[r]."""
-        cid = np.asarray(cid, int)
-        C = np.empty((len(cid), 3))
-        dC = np.empty_like(C)
-        for p, grp in self.by_degree.items():
-            rows = np.flatnonzero(self.deg[cid] == p)
-            if len(rows) == 0:
-                continue
-            g = self.pos[cid[rows]]
-            K = grp["K"][g]
-            sp = _spans(K, grp["n"][g], p, u[rows])
-            N, dN = basis_with_derivative(K, sp, u[rows], p)
-            idx = sp[:, None] - p + np.arange(p + 1)
-            P = grp["Pw"][g[:, None], idx]
-            A = np.einsum("ka,kac->kc", N, P)
-            Au = np.einsum("ka,kac->kc", dN, P)
-            w = A[:, 3:]
-            C[rows] = A[:, :3] / w
-            dC[rows] = (Au[:, :3] - Au[:, 3:] * C[rows]) / w
-        return C, dC
 
 
 def surface_grid(surface, n: int = _GRID) -> tuple[np.ndarray, np.ndarray]:

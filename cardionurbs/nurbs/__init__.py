@@ -2,7 +2,8 @@
 
 Fitting contours (paper §3.2, eqs. 6–10), lofting sections (§3.2.4), knot
 insertion/refinement (NURBS Book A5.1/A5.4), degree elevation (A5.9),
-vectorised evaluation (A2.2/A2.3, A4.2/A4.4), closest points, tessellation and
+vectorised evaluation (A2.2/A2.3, A4.2/A4.4; many splines at once:
+:mod:`~cardionurbs.nurbs.batch`), closest points, tessellation and
 lossless (de)serialisation, ``.3dm`` export (rhino3dm, the ``cad`` extra,
 imported only when used).  Knows nothing about hearts.
 
@@ -15,6 +16,7 @@ imported only when used).  Knows nothing about hearts.
 from __future__ import annotations
 
 from cardionurbs.errors import NurbsInputError
+from cardionurbs.nurbs.batch import CurveBatch, SplineData, SurfaceBatch
 from cardionurbs.nurbs.curve import NurbsCurve
 from cardionurbs.nurbs.fitting import chord_length_parameters, fit_curve
 from cardionurbs.nurbs.loft import loft, loft_compatible
@@ -31,5 +33,5 @@ __all__ = [
     "fit_curve", "chord_length_parameters", "loft", "loft_compatible", "tessellate",
     "elevate_degree", "insert_knots", "make_compatible", "rotate_seam",
     "closest_points", "curve_closest_points", "surface_closest_points",
-    "to_rhino", "write_3dm",
+    "to_rhino", "write_3dm", "CurveBatch", "SurfaceBatch", "SplineData",
 ]

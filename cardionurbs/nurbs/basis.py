@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from cardionurbs.errors import NurbsInputError
+
 __all__ = ["find_spans", "basis_functions", "basis_function_derivatives", "basis_matrix"]
 
 
@@ -28,11 +30,21 @@ def find_spans(knots: np.ndarray, degree: int, u: np.ndarray) -> np.ndarray:
     last non-empty span (so that a parameter a rounding error outside the
     domain still evaluates the end polynomial piece).  The returned spans are
     always non-degenerate (``U[k] < U[k+1]``).
+
+    ``knots`` may also be (k, m): one knot vector per parameter ``u[r]``
+    (k,), all of length m -- pad a shorter vector by repeating its last knot
+    (a higher end multiplicity only adds empty spans; the spans returned stay
+    those of the unpadded vector).
     """
     U = np.asarray(knots, dtype=float)
     p = int(degree)
-    n = len(U) - p - 1
     u = np.asarray(u, dtype=float)
+    if U.ndim == 2:
+        n = U.shape[1] - p - 1
+        first = (U <= U[:, p:p + 1]).sum(axis=1)
+        last = (U < U[:, n:n + 1]).sum(axis=1)
+        return np.clip((U <= u[:, None]).sum(axis=1), first, last) - 1
+    n = len(U) - p - 1
     first = int(np.searchsorted(U, U[p], side="right")) - 1
     last = int(np.searchsorted(U, U[n], side="left")) - 1
     spans = np.searchsorted(U, u, side="right") - 1
@@ -54,20 +66,36 @@ def basis_function_derivatives(spans: np.ndarray, u: np.ndarray, degree: int,
     Returns ``D`` of shape ``(k, n_derivatives + 1, p + 1)`` with
     ``D[:, r, j] = d^r N_{span - p + j, p} / du^r``; derivatives above the
     degree are zero.  Vectorised over the ``k`` parameters.
+
+    ``knots`` is one knot vector (m,) shared by all parameters, or (k, m):
+    row ``r`` is the knot vector of ``u[r]`` and ``spans[r]`` indexes it
+    (many splines evaluated at once, e.g. :class:`~cardionurbs.nurbs.batch.SurfaceBatch`;
+    shorter vectors padded as for :func:`find_spans`).
     """
     U = np.asarray(knots, dtype=float)
     p = int(degree)
     u = np.atleast_1d(np.asarray(u, dtype=float))
     spans = np.atleast_1d(np.asarray(spans))
     k = u.shape[0]
+    if U.ndim == 2:
+        if U.shape[0] != k or spans.shape[0] != k:
+            raise NurbsInputError(f"knots: per-parameter knot vectors need {k} rows, got "
+                                  f"{U.shape[0]} (and {spans.shape[0]} spans)")
+        rows = np.arange(k)
+
+        def knot(i: np.ndarray) -> np.ndarray:
+            return U[rows, i]
+    else:
+        def knot(i: np.ndarray) -> np.ndarray:
+            return U[i]
     nd = int(n_derivatives)
     ndu = np.zeros((k, p + 1, p + 1))
     ndu[:, 0, 0] = 1.0
     left = np.zeros((k, p + 1))
     right = np.zeros((k, p + 1))
     for j in range(1, p + 1):
-        left[:, j] = u - U[spans + 1 - j]
-        right[:, j] = U[spans + j] - u
+        left[:, j] = u - knot(spans + 1 - j)
+        right[:, j] = knot(spans + j) - u
         saved = np.zeros(k)
         for r in range(j):
             ndu[:, j, r] = right[:, r + 1] + left[:, j - r]
@@ -79,26 +107,27 @@ def basis_function_derivatives(spans: np.ndarray, u: np.ndarray, degree: int,
     ders[:, 0, :] = ndu[:, :, p]
     if nd == 0:
         return ders
-    for r in range(p + 1):
-        a = np.zeros((2, k, p + 1))
-        a[0, :, 0] = 1.0
-        s1, s2 = 0, 1
-        for kk in range(1, min(nd, p) + 1):
-            d = np.zeros(k)
-            rk, pk = r - kk, p - kk
-            if r >= kk:
-                a[s2, :, 0] = a[s1, :, 0] / ndu[:, pk + 1, rk]
-                d = a[s2, :, 0] * ndu[:, rk, pk]
-            j1 = 1 if rk >= -1 else -rk
-            j2 = kk - 1 if r - 1 <= pk else p - r
-            for j in range(j1, j2 + 1):
-                a[s2, :, j] = (a[s1, :, j] - a[s1, :, j - 1]) / ndu[:, pk + 1, rk + j]
-                d = d + a[s2, :, j] * ndu[:, rk + j, pk]
-            if r <= pk:
-                a[s2, :, kk] = -a[s1, :, kk - 1] / ndu[:, pk + 1, r]
-                d = d + a[s2, :, kk] * ndu[:, r, pk]
-            ders[:, kk, r] = d
-            s1, s2 = s2, s1
+    # A2.3's loop over r (which function) runs for all r at once: a[s][:, r, j]
+    # is the book's a[s][j] of function r, the same operations in the same
+    # order.  The r of each term form a range: j = 0 needs r >= kk, the inner
+    # j (1 .. kk-1) kk - j <= r <= p - j, j = kk needs r <= p - kk.
+    a = np.zeros((2, k, p + 1, p + 1))
+    a[0, :, :, 0] = 1.0
+    s1, s2 = 0, 1
+    for kk in range(1, min(nd, p) + 1):
+        pk = p - kk
+        a1, a2 = a[s1], a[s2]
+        d = np.zeros((k, p + 1))
+        a2[:, kk:, 0] = a1[:, kk:, 0] / ndu[:, pk + 1, :pk + 1]           # r = kk .. p
+        d[:, kk:] = a2[:, kk:, 0] * ndu[:, :pk + 1, pk]
+        for j in range(1, kk):                                            # r = kk-j .. p-j
+            r = slice(kk - j, p - j + 1)
+            a2[:, r, j] = (a1[:, r, j] - a1[:, r, j - 1]) / ndu[:, pk + 1, :pk + 1]
+            d[:, r] += a2[:, r, j] * ndu[:, :pk + 1, pk]
+        a2[:, :pk + 1, kk] = -a1[:, :pk + 1, kk - 1] / ndu[:, pk + 1, :pk + 1]  # r = 0 .. pk
+        d[:, :pk + 1] += a2[:, :pk + 1, kk] * ndu[:, :pk + 1, pk]
+        ders[:, kk, :] = d
+        s1, s2 = s2, s1
     factor = float(p)
     for kk in range(1, min(nd, p) + 1):
         ders[:, kk, :] *= factor

@@ -242,37 +242,36 @@ def loft_compatible(control_points: Any, knots_u: Any, degree_u: int = 3, degree
     ends = []
     for name, pt in (("start_point", start_point), ("end_point", end_point)):
         ends.append(None if pt is None else V.finite_array(pt, name, ndim=1, last_dim=d))
-    rational = weights is not None
-    W = V.weight_vector(weights, "weights", (L, n))
     K = L - 1 + sum(e is not None for e in ends)
     if K < 1:
         raise NurbsInputError(f"control_points: need at least 2 sections, got {K + 1}")
     k0 = 1 if ends[0] is not None else 0
+    ends = [(k, pt) for k, pt in ((0, ends[0]), (K, ends[1])) if pt is not None]
     P = np.empty((K + 1, n, d))
-    Pw = np.empty((K + 1, n, d + 1))
     P[k0:k0 + L] = C
-    Pw[k0:k0 + L] = np.concatenate([C * W[..., None], W[..., None]], axis=-1)
-    rows = []                                   # (row, point) of the collapsed ends
-    for k, pt, nb in ((0, ends[0], W[0]), (K, ends[1], W[-1])):
-        if pt is not None:
-            P[k] = pt
-            Pw[k] = np.column_stack([np.outer(nb, pt), nb])
-            rows.append((k, pt))
+    for k, pt in ends:
+        P[k] = pt
     v = section_parameters(P)
     q = min(q_req, K)
     Vk = averaging_knots(v, q)
     M = basis_matrix(Vk, q, v)
-    if not rational:
+    if weights is None:
         Q = np.linalg.solve(M, P.reshape(K + 1, -1)).reshape(P.shape).transpose(1, 0, 2)
-        for k, pt in rows:                      # the collapsed row is exactly the point
+        for k, pt in ends:                      # the collapsed row is exactly the point
             Q[:, k] = pt
         return NurbsSurface(p, q, knots_u, Vk, Q, closed_u=closed_u)
+    W = V.weight_vector(weights, "weights", (L, n))
+    Pw = np.empty((K + 1, n, d + 1))
+    Pw[k0:k0 + L] = np.concatenate([C * W[..., None], W[..., None]], axis=-1)
+    for k, pt in ends:                          # weighted like the neighbouring section
+        nb = W[0] if k == 0 else W[-1]
+        Pw[k] = np.column_stack([np.outer(nb, pt), nb])
     Qw = np.linalg.solve(M, Pw.reshape(K + 1, -1)).reshape(K + 1, n, d + 1)
     Qw = Qw.transpose(1, 0, 2)                                  # (n, K+1, d+1)
     w = Qw[..., -1]
     if np.any(w <= 0):
         raise NurbsInputError("sections: interpolating the section weights gave weights <= 0; "
                               "use sections with less different weights")
-    for k, pt in rows:                          # the collapsed row is exactly the point
+    for k, pt in ends:                          # the collapsed row is exactly the point
         Qw[:, k, :-1] = w[:, k, None] * pt[None, :]
     return NurbsSurface(p, q, knots_u, Vk, Qw[..., :-1] / w[..., None], w, closed_u=closed_u)
