@@ -308,7 +308,7 @@ def test_compatible_loft_equals_nurbs_loft(heart):
 
 def test_batched_surface_evaluation_matches_nurbs(heart):
     """SurfaceBatch (per-row knots, A2.3 vectorised) equals NurbsSurface.derivatives."""
-    from cardionurbs.analysis.material import SurfaceBatch
+    from cardionurbs.nurbs import SurfaceBatch
     from cardionurbs.analysis.tags import tag_surfaces
     surfs = list(tag_surfaces(heart.study(), 1).values())
     rng = np.random.default_rng(0)

@@ -81,7 +81,7 @@ def basis_function_derivatives(spans: np.ndarray, u: np.ndarray, degree: int,
         if U.shape[0] != k or spans.shape[0] != k:
             raise NurbsInputError(f"knots: per-parameter knot vectors need {k} rows, got "
                                   f"{U.shape[0]} (and {spans.shape[0]} spans)")
-        rows = np.arange(k)
+        rows = np.arange(k)[:, None]
 
         def knot(i: np.ndarray) -> np.ndarray:
             return U[rows, i]
@@ -91,11 +91,10 @@ def basis_function_derivatives(spans: np.ndarray, u: np.ndarray, degree: int,
     nd = int(n_derivatives)
     ndu = np.zeros((k, p + 1, p + 1))
     ndu[:, 0, 0] = 1.0
-    left = np.zeros((k, p + 1))
-    right = np.zeros((k, p + 1))
+    j = np.arange(p + 1)
+    left = u[:, None] - knot(spans[:, None] + 1 - j)      # left[:, j] = u - U[span + 1 - j]
+    right = knot(spans[:, None] + j) - u[:, None]         # right[:, j] = U[span + j] - u
     for j in range(1, p + 1):
-        left[:, j] = u - knot(spans + 1 - j)
-        right[:, j] = knot(spans + j) - u
         saved = np.zeros(k)
         for r in range(j):
             ndu[:, j, r] = right[:, r + 1] + left[:, j - r]

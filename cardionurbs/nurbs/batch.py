@@ -14,9 +14,11 @@ array operations:
 * basis functions and first derivatives:
   :func:`~cardionurbs.nurbs.basis.basis_function_derivatives` (A2.2/A2.3) on
   per-row knot vectors;
-* homogeneous point and derivatives by the tensor product (A3.6 / A4.2),
-  Euclidean first derivatives by the quotient rule (A4.4 / eq. 4.8, k = 1):
-  ``S' = (A' - w' S) / w``.
+* homogeneous point and first derivatives by the tensor product (A3.6 /
+  A4.3), Euclidean ones by :func:`~cardionurbs.nurbs.curve.rational_derivatives`
+  (A4.2) and :func:`~cardionurbs.nurbs.surface.rational_surface_derivatives`
+  (A4.4) -- the routines behind ``NurbsCurve.derivatives`` and
+  ``NurbsSurface.derivatives``.
 
 Only open (clamped) splines, all of one dimension d; units are those of the
 control points.
@@ -31,6 +33,8 @@ import numpy as np
 
 from cardionurbs.errors import NurbsInputError
 from cardionurbs.nurbs.basis import basis_function_derivatives, find_spans
+from cardionurbs.nurbs.curve import rational_derivatives
+from cardionurbs.nurbs.surface import rational_surface_derivatives
 
 __all__ = ["SplineData", "CurveBatch", "SurfaceBatch"]
 
@@ -90,14 +94,10 @@ class CurveBatch:
             K = grp["K"][g]
             sp = find_spans(K, p, u[rows])
             D = basis_function_derivatives(sp, u[rows], p, K, 1)          # (k, 2, p+1)
-            N, dN = D[:, 0], D[:, 1]
             idx = sp[:, None] - p + np.arange(p + 1)
-            P = grp["Pw"][g[:, None], idx]
-            A = np.einsum("ka,kac->kc", N, P)
-            Au = np.einsum("ka,kac->kc", dN, P)
-            w = A[:, d:]
-            C[rows] = A[:, :d] / w
-            dC[rows] = (Au[:, :d] - Au[:, d:] * C[rows]) / w
+            Aw = D @ grp["Pw"][g[:, None], idx]                           # (k, 2, d+1)
+            Cd = rational_derivatives(Aw)
+            C[rows], dC[rows] = Cd[:, 0], Cd[:, 1]
         return C, dC
 
 
@@ -167,18 +167,14 @@ class SurfaceBatch:
             su = find_spans(Ku, p, uc)
             sv = find_spans(Kv, q, vc)
             Du = basis_function_derivatives(su, uc, p, Ku, 1)              # (k, 2, p+1)
-            Dv = basis_function_derivatives(sv, vc, q, Kv, 1)
-            Nu, dNu, Nv, dNv = Du[:, 0], Du[:, 1], Dv[:, 0], Dv[:, 1]
+            Dv = basis_function_derivatives(sv, vc, q, Kv, 1)              # (k, 2, q+1)
             iu = su[:, None] - p + np.arange(p + 1)
             iv = sv[:, None] - q + np.arange(q + 1)
             P = grp["Pw"][g[:, None, None], iu[:, :, None], iv[:, None, :]]  # (k, p+1, q+1, d+1)
-            A = np.einsum("ka,kb,kabc->kc", Nu, Nv, P)
-            Au = np.einsum("ka,kb,kabc->kc", dNu, Nv, P)
-            Av = np.einsum("ka,kb,kabc->kc", Nu, dNv, P)
-            w = A[:, d:]
-            pt = A[:, :d] / w
-            ext_u, ext_v = (u_in[rows] - uc)[:, None], (v_in[rows] - vc)[:, None]
-            Su[rows] = (Au[:, :d] - Au[:, d:] * pt) / w
-            Sv[rows] = (Av[:, :d] - Av[:, d:] * pt) / w
-            S[rows] = pt + ext_u * Su[rows] + ext_v * Sv[rows]
+            Pv = (Dv[:, None] @ P).reshape(len(rows), p + 1, 2 * (d + 1))    # sum over v first
+            Aw = (Du @ Pv).reshape(len(rows), 2, 2, d + 1)   # Aw[:, a, b] = d^(a+b) Sw/du^a dv^b
+            D = rational_surface_derivatives(Aw)
+            Su[rows], Sv[rows] = D[:, 1, 0], D[:, 0, 1]
+            S[rows] = (D[:, 0, 0] + (u_in[rows] - uc)[:, None] * D[:, 1, 0]
+                       + (v_in[rows] - vc)[:, None] * D[:, 0, 1])
         return S, Su, Sv

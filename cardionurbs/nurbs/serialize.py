@@ -35,15 +35,19 @@ def _field(data: dict[str, Any], key: str, kind: str) -> Any:
     return data[key]
 
 
+def _typed_fields(data: dict[str, Any], kind: str, keys: tuple[str, ...]) -> list[Any]:
+    """The values of ``keys`` of a dict whose ``type`` must be ``kind``."""
+    found = _field(data, "type", kind)
+    if found != kind:
+        raise NurbsInputError(f"data: field 'type' is {found!r}, expected {kind!r}")
+    return [_field(data, key, kind) for key in keys]
+
+
 def curve_from_dict(data: dict[str, Any]) -> Any:
     """Inverse of :func:`curve_to_dict`."""
     from cardionurbs.nurbs.curve import NurbsCurve
-    kind = _field(data, "type", "NurbsCurve")
-    if kind != "NurbsCurve":
-        raise NurbsInputError(f"data: field 'type' is {kind!r}, expected 'NurbsCurve'")
-    return NurbsCurve(_field(data, "degree", kind), _field(data, "knots", kind),
-                      _field(data, "control_points", kind), _field(data, "weights", kind),
-                      closed=bool(data.get("closed", False)))
+    fields = _typed_fields(data, "NurbsCurve", ("degree", "knots", "control_points", "weights"))
+    return NurbsCurve(*fields, closed=bool(data.get("closed", False)))
 
 
 def surface_to_dict(surface: Any) -> dict[str, Any]:
@@ -61,10 +65,6 @@ def surface_to_dict(surface: Any) -> dict[str, Any]:
 def surface_from_dict(data: dict[str, Any]) -> Any:
     """Inverse of :func:`surface_to_dict`."""
     from cardionurbs.nurbs.surface import NurbsSurface
-    kind = _field(data, "type", "NurbsSurface")
-    if kind != "NurbsSurface":
-        raise NurbsInputError(f"data: field 'type' is {kind!r}, expected 'NurbsSurface'")
-    return NurbsSurface(_field(data, "degree_u", kind), _field(data, "degree_v", kind),
-                        _field(data, "knots_u", kind), _field(data, "knots_v", kind),
-                        _field(data, "control_points", kind), _field(data, "weights", kind),
-                        closed_u=bool(data.get("closed_u", False)))
+    fields = _typed_fields(data, "NurbsSurface", ("degree_u", "degree_v", "knots_u", "knots_v",
+                                                   "control_points", "weights"))
+    return NurbsSurface(*fields, closed_u=bool(data.get("closed_u", False)))
