@@ -97,3 +97,15 @@ def test_bivme_meshes_closed_at_ed_and_es(bivme):
         assert set(meshes) == {"lv_cavity", "lv_myocardium", "rv_cavity", "rv_myocardium"}
         for tm in meshes.values():
             assert tm.is_watertight and tm.is_winding_consistent and tm.volume > 0
+
+
+def test_bivme_volume_curve_has_no_spike(bivme):
+    """Partial basal tracings (frames 6 and 13 of this patient) are left out with a
+    warning instead of being lofted as whole sections: the LV volume curve stays smooth."""
+    from cardionurbs.analysis.function import volume_curve
+
+    _, model = bivme
+    v = np.array(volume_curve(model)["lv_cavity (mL)"], dtype=float)
+    assert np.isfinite(v).all()
+    deviation = np.abs(v[1:-1] - 0.5 * (v[:-2] + v[2:]))
+    assert deviation.max() < 12.0, f"frame {1 + int(deviation.argmax())} deviates {deviation.max():.1f} mL"

@@ -451,6 +451,55 @@ def valve_plane(points: np.ndarray, axis: np.ndarray) -> Plane:
     return Plane(c, nrm)
 
 
+#: smallest isoperimetric quotient 4*pi*A / P**2 of an LV loop (circle 1, 4:1 ellipse 0.54)
+MIN_LV_ROUNDNESS = 0.2
+
+
+def isoperimetric_quotient(points: np.ndarray, normal: np.ndarray) -> float:
+    """4*pi*|A| / P**2 of a closed loop (1 for a circle, near 0 for a loop that folds back)."""
+    perimeter = float(np.linalg.norm(np.diff(np.vstack([points, points[:1]]), axis=0), axis=1).sum())
+    if perimeter <= 0:
+        return 0.0
+    return 4.0 * np.pi * abs(signed_area(points, normal)) / perimeter ** 2
+
+
+#: a basal LV loop smaller than this fraction of the next one is taken as a partial tracing
+MIN_BASAL_AREA_RATIO = 0.35
+
+
+def _drop_degenerate_loops(secs: list, n: np.ndarray, warnings: list[str]) -> list:
+    """Leave out LV loops (sorted base -> apex) that cannot be whole cross-sections.
+
+    Two signs of a partial or back-and-forth tracing (typically a basal slice
+    through the outflow tract, drawn on some frames only): a loop that encloses
+    almost no area for its length (isoperimetric quotient below
+    ``MIN_LV_ROUNDNESS``), and a basal loop whose area is below
+    ``MIN_BASAL_AREA_RATIO`` of the loop apical to it — the LV is widest near
+    its base, so a section that collapses there is not the ventricle's. Lofted
+    as full sections they bend the surface and distort the cavity volume.
+    """
+    def drop(sec, why):
+        warnings.append(f"frame {sec.frame}: slice {sec.slice}: {sec.structure} contour {why}; "
+                        "left out of the surface (a partial tracing?)")
+
+    kept = []
+    for sec in secs:
+        q = isoperimetric_quotient(sec.points, n)
+        if q < MIN_LV_ROUNDNESS:
+            drop(sec, f"encloses almost no area (isoperimetric quotient {q:.2f})")
+        else:
+            kept.append(sec)
+    while len(kept) >= 3:
+        a0 = abs(signed_area(kept[0].points, n))
+        a1 = abs(signed_area(kept[1].points, n))
+        if a0 >= MIN_BASAL_AREA_RATIO * a1:
+            break
+        drop(kept[0], f"encloses {a0:.0f} mm^2, under {MIN_BASAL_AREA_RATIO:.0%} of the "
+                      f"next slice's {a1:.0f} mm^2, at the base")
+        kept.pop(0)
+    return kept
+
+
 def frame_geometry(study: Study, frame: int) -> FrameGeometry:
     """Sections, LA polylines, apex points and valve planes of one frame.
 
@@ -473,6 +522,8 @@ def frame_geometry(study: Study, frame: int) -> FrameGeometry:
         for sl, pts, src in loops:
             secs.append(Section(s, frame, pts, slice=sl, plane=planes.get(sl), source_points=src))
         secs.sort(key=lambda sec: float(sec.points.mean(axis=0) @ n))
+        if s in ("lv_endo", "lv_epi"):
+            secs = _drop_degenerate_loops(secs, n, geo.warnings)
         geo.sections[s] = secs
     lv_epi = {sec.slice: sec for sec in geo.sections.get("lv_epi", [])}
     for s in ("rv_endo", "rv_epi"):

@@ -278,27 +278,16 @@ def skin(curves: list, apex: np.ndarray, degree_v: int = 3):
     (:func:`resample_loop`, :func:`fit_sections`), so steps 1–3 of
     :func:`cardionurbs.nurbs.loft` are identities; its seam re-alignment would
     only perturb the shared knots (and multiply the control points through knot
-    merging), so the interpolation across sections is done here directly with
-    the loft's own section parameters (paper's v̄_k formula) and averaging knots.
+    merging), so only the interpolation across sections is done, by
+    :func:`cardionurbs.nurbs.loft_compatible` (the loft's own last step).
     Falls back to :func:`cardionurbs.nurbs.loft` when the knots differ.
     """
-    from cardionurbs.nurbs.basis import basis_matrix
-    from cardionurbs.nurbs.loft import averaging_knots, section_parameters
-
     k0 = curves[0].knots
     if not all(c.knots.shape == k0.shape and np.allclose(c.knots, k0, atol=1e-12)
                and c.degree == curves[0].degree and np.allclose(c.weights, 1.0) for c in curves):
         return nurbs.loft(list(curves) + [apex], degree_v=degree_v)
-    P = np.stack([c.control_points for c in curves]
-                 + [np.repeat(np.asarray(apex, float)[None], curves[0].n_control, axis=0)])
-    K = len(P) - 1
-    v = section_parameters(P)
-    q = min(degree_v, K)
-    knots_v = averaging_knots(v, q)
-    M = basis_matrix(knots_v, q, v)
-    Q = np.linalg.solve(M, P.reshape(K + 1, -1)).reshape(P.shape).transpose(1, 0, 2)
-    Q[:, -1] = apex                      # the collapsed row is exactly the apex
-    return nurbs.NurbsSurface(curves[0].degree, q, k0, knots_v, Q, closed_u=True)
+    return nurbs.loft_compatible(np.stack([c.control_points for c in curves]), k0,
+                                 curves[0].degree, degree_v, closed_u=True, end_point=apex)
 
 
 def _pixel_mm(sec: Section) -> float:
