@@ -90,7 +90,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     de = sub.add_parser("demo", help="the paper's 12-subject phantom cohort, end to end")
     de.add_argument("--out", metavar="DIR", default=None)
-    de.add_argument("--jobs", type=_positive_int, default=1)
+    de.add_argument("--jobs", type=_positive_int, default=None,
+                    help="worker processes (default: one per CPU core)")
 
     rp = sub.add_parser("report", help="self-contained offline HTML viewer of an analysis folder")
     rp.add_argument("output_dir", metavar="OUTPUT_DIR")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
@@ -99,13 +100,13 @@ def format_comparison(comp: pd.DataFrame, measured: pd.DataFrame) -> str:
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    """`cardionurbs demo [--out DIR] [--jobs N]`."""
+    """`cardionurbs demo [--out DIR] [--jobs N]` (default: one job per CPU core)."""
     from cardionurbs.phantom.presets import data_path, load_cohort_spec
 
     subjects = load_cohort_spec(data_path("paper12.toml"))
     out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="cardionurbs-demo-"))
     out.mkdir(parents=True, exist_ok=True)
-    jobs = max(1, int(getattr(args, "jobs", 1) or 1))
+    jobs = max(1, int(getattr(args, "jobs", None) or os.cpu_count() or 1))
     print(f"generating and analysing {len(subjects)} phantom subjects in {out} "
           f"({jobs} job{'s' if jobs > 1 else ''})", file=sys.stderr)
     from tqdm import tqdm
@@ -129,7 +130,12 @@ def run_demo(args: argparse.Namespace) -> int:
     comp = comparison_table(measured, truth)
     write_csv(comp, out / "comparison.csv")
     print(format_comparison(comp, measured))
+    from cardionurbs.report.cohort_figures import write_cohort_figures
+    figs = write_cohort_figures(measured, out / "figures", truth=truth)
+    for name, why in figs.skipped.items():
+        print(f"figure {name} left out: {why}", file=sys.stderr)
     ok = int((measured["status"] == "ok").sum())
     print(f"\n{ok} of {len(measured)} subjects measured; wrote {out / 'cohort.csv'}, "
-          f"{out / 'truth.csv'}, {out / 'comparison.csv'}")
+          f"{out / 'truth.csv'}, {out / 'comparison.csv'} and {len(figs.figures)} cohort figures "
+          f"in {out / 'figures'} (distributions by group, measured vs truth, Bland-Altman)")
     return 0

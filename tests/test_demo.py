@@ -55,3 +55,11 @@ def test_demo_prints_every_metric_beside_truth(demo_run):
     for c in ("LVEDV (mL)", "RVEF (%)", "LVM (g)"):
         assert text.count(c) >= 3          # two subject blocks + the summary
     assert "nrm01" in text and "phtn01" in text and "mean |error|" in text
+
+
+def test_demo_draws_the_cohort_figures(demo_run):
+    _, out, text = demo_run
+    for name in ("cohort_distributions", "cohort_measured_vs_truth", "cohort_bland_altman"):
+        png = out / "figures" / f"{name}.png"
+        assert png.is_file() and png.stat().st_size > 10_000, name
+    assert "cohort figures" in text
