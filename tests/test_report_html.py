@@ -134,9 +134,14 @@ def chromium_or_skip() -> str:
     if exe:
         return exe
     if os.environ.get("CI", "").lower() == "true" and hasattr(os, "geteuid") and os.geteuid() == 0:
-        subprocess.run(["apt-get", "update"], check=False, capture_output=True)
-        subprocess.run(["apt-get", "install", "-y", "--no-install-recommends", "chromium"],
-                       check=False, capture_output=True)
+        import fcntl
+        # one installer at a time across pytest-xdist workers (dpkg holds a lock)
+        with open("/tmp/cardionurbs-chromium-install.lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if not find_chromium():
+                subprocess.run(["apt-get", "update"], check=False, capture_output=True)
+                subprocess.run(["apt-get", "install", "-y", "--no-install-recommends", "chromium"],
+                               check=False, capture_output=True)
         exe = find_chromium()
         if exe:
             return exe
