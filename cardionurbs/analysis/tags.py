@@ -25,7 +25,11 @@ Rotation φ of a level (LA tag plane ``k``)
 Levels
     LA tag planes with at least 2 material points tracked at ED and ES whose
     mean position lies strictly between the most basal and the most apical
-    SA slices tagged at both ED and ES, at ED and at ES (contracts.md).
+    SA slices tagged at both ED and ES, at ED and at ES (contracts.md). The
+    ES position of a level is read off the pooled map h_ES = a + b h_ED
+    fitted on all material points (:func:`longitudinal_height_map`), not
+    off the level's own few noisy points, so noise cannot move a level
+    across an end slice.
     Distance from the apex
     z_k = mean over the level's points of (x_ED − apex)·ê, ê = unit(base − apex).
 Twist, torsion, CL shear (METRICS.md)
@@ -400,6 +404,25 @@ def tagged_stack_range(study: Study, ed_frame: int, frame: int) -> tuple[np.ndar
     return n, float(h.min()), float(h.max())
 
 
+def longitudinal_height_map(h_ed: np.ndarray, h_at: np.ndarray, use: np.ndarray):
+    """Pooled map ED stack height -> height at a frame, h_f = a + b h_ED (mm), least squares.
+
+    Fitted on every material point ``use`` of every level at once (not per
+    level), so a level's position at the frame is read off a line through
+    hundreds of points: the tag-line noise on the few points of one level
+    cannot move it across an end slice. b is the longitudinal stretch of the
+    tagged stack (b = λ for an axial scaling z -> λ z). Returns a callable;
+    with fewer than 2 distinct ED heights the identity shift by the mean
+    displacement.
+    """
+    h0, h1 = np.asarray(h_ed, float)[use], np.asarray(h_at, float)[use]
+    if len(h0) >= 2 and np.ptp(h0) > 0:
+        b, a = np.polyfit(h0, h1, 1)
+    else:
+        b, a = 1.0, float((h1 - h0).mean()) if len(h0) else 0.0
+    return lambda h: float(a + b * h)
+
+
 def level_table(mp: MaterialPoints, frame: int, apex: np.ndarray, base: np.ndarray,
                 radius,
                 stack: tuple[np.ndarray, float, float] | None = None) -> list[dict]:
@@ -407,7 +430,8 @@ def level_table(mp: MaterialPoints, frame: int, apex: np.ndarray, base: np.ndarr
 
     ``stack`` (:func:`tagged_stack_range`): a level is kept only when the
     mean position of its points lies strictly between the most basal and
-    most apical SA slices tagged at both frames, at ED and at ``frame``.
+    most apical SA slices tagged at both frames, at ED and at ``frame`` (the
+    position at ``frame`` from the pooled :func:`longitudinal_height_map`).
     """
     ez = (base - apex) / np.linalg.norm(base - apex)
     X0 = mp.positions[mp.ed_frame]
@@ -415,16 +439,17 @@ def level_table(mp: MaterialPoints, frame: int, apex: np.ndarray, base: np.ndarr
     tracked = mp.tracked(mp.ed_frame, frame)
     found = mp.found(mp.ed_frame, frame)
     rows = []
+    if stack is not None:
+        n, lo, hi = stack
+        es_height = longitudinal_height_map(X0 @ n, X1 @ n, found)
     for k in np.unique(mp.triples[:, 2]) if len(mp.triples) else []:
         at = mp.triples[:, 2] == k
         sel = at & tracked
         if sel.sum() < MIN_LEVEL_POINTS:
             continue
         if stack is not None:   # placed with the points on the surfaces' extensions too
-            n, lo, hi = stack
-            every = at & found
-            h0, h1 = float((X0[every] @ n).mean()), float((X1[every] @ n).mean())
-            if not (lo < h0 < hi and lo < h1 < hi):
+            h0 = float((X0[at & found] @ n).mean())
+            if not (lo < h0 < hi and lo < es_height(h0) < hi):
                 continue
         z0 = float(((X0[sel] - apex) @ ez).mean())
         z1 = float(((X1[sel] - apex) @ ez).mean())
