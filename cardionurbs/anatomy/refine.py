@@ -75,9 +75,9 @@ def grid_projection(surface, points: np.ndarray, nu: int = 192, nv: int = 96
     ug = lo_u + (hi_u - lo_u) * (np.arange(nu) / nu if surface.closed_u else np.linspace(0, 1, nu))
     vg = np.linspace(lo_v, hi_v, nv)
     G = surface.evaluate(ug, vg).reshape(-1, 3)
-    Ng = surface.normal(ug, vg).reshape(-1, 3)
     _, k = cKDTree(G).query(points)
-    return ug[k // nv], vg[k % nv], G[k], Ng[k]
+    u, v = ug[k // nv], vg[k % nv]
+    return u, v, G[k], surface.normal_points(u, v)      # normals at the chosen nodes only
 
 
 def refine_surface(surface, anchors: np.ndarray, targets: np.ndarray, *,

@@ -252,21 +252,31 @@ def fit_sections(loops: list[np.ndarray], sources: list[np.ndarray | None], tol_
     """
     need = 0
     ok_all = True
+    tried: dict[tuple[int, int], tuple] = {}    # (section, step) -> (curve, max error): fit once
     for i, (lp, src, tol) in enumerate(zip(loops, sources, tol_mm)):
         if src is None:
             continue
         met = False
         for k in range(need, len(N_CTRL_STEPS)):
             c = nurbs.fit_curve(lp, degree=3, closed=True, n_ctrl=N_CTRL_STEPS[k], knot_rule="uniform")
-            if float(curve_distance(c, src).max()) <= tol:
+            e = float(curve_distance(c, src).max())
+            tried[i, k] = (c, e)
+            if e <= tol:
                 need, met = k, True
                 break
         if not met:
             need, ok_all = len(N_CTRL_STEPS) - 1, False
     n_ctrl = N_CTRL_STEPS[need]
-    curves = [nurbs.fit_curve(lp, degree=3, closed=True, n_ctrl=n_ctrl, knot_rule="uniform")
-              for lp in loops]
-    errs = [float(curve_distance(c, src).max()) for c, src in zip(curves, sources) if src is not None]
+    curves, errs = [], []
+    for i, (lp, src) in enumerate(zip(loops, sources)):
+        if (i, need) in tried:
+            c, e = tried[i, need]
+        else:
+            c = nurbs.fit_curve(lp, degree=3, closed=True, n_ctrl=n_ctrl, knot_rule="uniform")
+            e = None if src is None else float(curve_distance(c, src).max())
+        curves.append(c)
+        if e is not None:
+            errs.append(e)
     return curves, n_ctrl, max(errs, default=0.0), ok_all
 
 
