@@ -94,6 +94,21 @@ def test_every_tag_jump_is_flagged_and_nothing_else(pathology, seed):
         assert 0.7 < f.departure < 1.5     # one tag spacing
 
 
+def test_jumps_next_to_the_apical_slice_flag_no_neighbour():
+    """Regression (mr seed 10, 20 frames, 3 jumps): a jump in the slice next to the apical one
+    used to flag the apical line of the same tag (then only extrapolated, 2 gaps), and a jump in
+    the apical slice flagged its neighbour (every bracketing pair held the jumped line). Frames
+    5-10 carry two of the jumps; each must be flagged and nothing else."""
+    ph = phantom.generate("mr", seed=10, frames=20, tag_jumps=3, volume_check=False)
+    frames = list(range(5, 11))
+    jumps = {(j["family"], j["index"], j["slice"], j["frame"]) for j in ph.truth["faults"]["tag_jumps"]
+             if j["frame"] in frames}
+    assert len(jumps) == 2
+    found = tag_qc(ph.study, frames=frames)
+    assert {(f.family, f.index, f.slice, f.frame) for f in found} == jumps
+    assert all(f.departure > 0.9 for f in found)
+
+
 def test_clean_phantom_has_no_flags_and_small_departures():
     ph = phantom.generate("phtn", seed=5, frames=4, volume_check=False)
     deps = tag_departures(ph.study)

@@ -48,7 +48,7 @@ def test_blend_trace_of_two_parallel_sections_is_the_midline():
 
 def test_neighbour_pairs_always_leave_a_witness_without_any_one_section():
     keys = np.arange(6) * 10.0
-    for h in (-10.0, 25.0, 55.0, 70.0):
+    for h in (-10.0, 5.0, 25.0, 45.0, 55.0, 70.0):     # 5, 45: next to a stack end
         pairs = _neighbour_pairs(keys, h)
         used = {k for p in pairs for k in p}
         for k in used:   # whichever single section jumped, a pair without it remains

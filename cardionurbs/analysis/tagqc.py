@@ -186,8 +186,10 @@ def _neighbour_pairs(keys: np.ndarray, h: float) -> list[tuple[int, int]]:
     that whichever single neighbour jumped, a bracketing pair without it
     remains; beyond the first or last remaining section, the pairs among
     the three nearest (linear extension by one or two gaps). Extension pairs
-    are not used inside the stack: two jumps on one tag could otherwise
-    explain each other.
+    are not used inside the stack — two jumps on one tag could otherwise
+    explain each other — except next to a stack end, where one side has a
+    single section: every bracketing pair contains it, so the two nearest
+    on the other side, extended by one gap, are the witness without it.
     """
     n = len(keys)
     j = int(np.searchsorted(keys, h))
@@ -197,6 +199,10 @@ def _neighbour_pairs(keys: np.ndarray, h: float) -> list[tuple[int, int]]:
         pairs = [(L[0], R[0])]
         pairs += [(L[1], R[0])] if len(L) > 1 else []
         pairs += [(L[0], R[1])] if len(R) > 1 else []
+        if len(R) == 1 and len(L) > 1:     # R[0] is in every bracketing pair: extend the
+            pairs.append((L[1], L[0]))      # other side by one gap, the witness without it
+        elif len(L) == 1 and len(R) > 1:
+            pairs.append((R[0], R[1]))
         return pairs
     side = sorted([i for i in (j - 1, j - 2, j - 3) if 0 <= i < n] if not R
                   else [i for i in (j, j + 1, j + 2) if 0 <= i < n])
@@ -349,8 +355,24 @@ def _index_trend(values: list[tuple[int, float]], i: int, outlier: float) -> flo
     return float(c[-1])
 
 
+def _is_extrapolated(secs: list[TagSection], slc: str, exclude: set[str]) -> bool:
+    """True when slice ``slc`` lies beyond the first or last remaining section of its tag
+    (its line can only be predicted by extending the loft)."""
+    keys = [s.key for s in secs if s.slice != slc and s.slice not in exclude]
+    mine = next(s.key for s in secs if s.slice == slc)
+    return bool(keys) and not (min(keys) <= mine <= max(keys))
+
+
+def _time_witnesses(temporal: list[dict], i: int, slc: str, pair: tuple[str, str]) -> list[float]:
+    """Residuals (mm) of the same line against the same pair at the neighbouring frames (each
+    a separate witness, so that a jump at one neighbouring frame cannot make a good line look
+    bad); empty when no neighbouring frame has it."""
+    return [R[i][slc][pair] for R in temporal if i in R and slc in R[i] and pair in R[i][slc]]
+
+
 def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
-                         threshold: float) -> list[tuple[int, str, float, bool]]:
+                         threshold: float, residuals: dict | None = None,
+                         temporal: list[dict] = ()) -> list[tuple[int, str, float, bool]]:
     """Departures (tag spacings) of every line of one SA family at one frame, with flags.
 
     A line's residual r against a predictor pair is also compared with the
@@ -362,17 +384,34 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
     flagged only when neither its own tag's other slices nor its
     neighbouring tags explain it. Worst first, lines above ``threshold`` are flagged and left out,
     and the family is measured again. Returns (index, slice, departure, flagged).
+
+    A line beyond the remaining sections of its tag (a stack end) is only
+    predicted by extending the loft one or two gaps, whose error is large
+    and differs between tags (the edge tags have few neighbours sharing its
+    predictor pair, so the index trend is a far tag's); there t is instead
+    the same line's residual against the same pair at the previous and at
+    the next tagged frame, each a witness (``temporal``: the initial
+    ``residuals`` of this family at those frames): the extension's error
+    changes smoothly over the cycle, a jump is a step at one frame. Only
+    when both neighbouring frames have it (bracketed in time, as interior
+    lines are bracketed in space); otherwise — the first or last frame, an
+    ED + ES study — the index trend is kept.
     """
     samples = {i: [_samples(s) for s in secs] for i, secs in groups.items()}
     excl: dict[int, set[str]] = {i: set() for i in groups}
-    R = {i: loo_residuals(groups[i], samples[i]) for i in groups}
+    R = dict(residuals) if residuals is not None else \
+        {i: loo_residuals(groups[i], samples[i]) for i in groups}
 
     def departure(i: int, slc: str) -> float:
         best = np.inf
+        extrap = bool(temporal) and _is_extrapolated(groups[i], slc, excl[i])
         for pair, r in R[i][slc].items():
-            nb = [(j, R[j][slc][pair]) for j in R if j != i and slc in R[j] and pair in R[j][slc]]
-            trend = _index_trend(nb, i, 0.5 * spacing)
-            best = min(best, abs(r), abs(r - trend))
+            trends = _time_witnesses(temporal, i, slc, pair) if extrap else []
+            if len(trends) < 2:      # not bracketed in time: the index trend
+                nb = [(j, R[j][slc][pair]) for j in R
+                      if j != i and slc in R[j] and pair in R[j][slc]]
+                trends = [_index_trend(nb, i, 0.5 * spacing)]
+            best = min(best, abs(r), *(abs(r - t) for t in trends))
         return best / spacing
 
     flagged: dict[tuple[int, str], float] = {}
@@ -428,18 +467,29 @@ def tag_departures(study: Study, threshold: float = DEFAULT_THRESHOLD,
     frames = study.tagged_frames if frames is None else list(frames)
     long_axis = _qc_axis(study, long_axis)
     out: list[LineDeparture] = []
+    frames = sorted(frames)
+    groups_at: dict[int, dict] = {}
+    spacing_at: dict[int, dict] = {}
+    R0: dict[tuple[int, str], dict] = {}      # initial SA residuals, per (frame, family)
     for f in frames:
         if surfaces is not None and f in surfaces:
-            groups = {k: ts.sections for k, ts in surfaces[f].items()}
+            groups_at[f] = {k: ts.sections for k, ts in surfaces[f].items()}
         else:
-            groups = qc_sections(study, f, long_axis)
-        spacing = {fam: tag_spacing(study, fam, f) for fam in TAG_FAMILIES}
+            groups_at[f] = qc_sections(study, f, long_axis)
+        spacing_at[f] = {fam: tag_spacing(study, fam, f) for fam in TAG_FAMILIES}
+        for fam in ("sa1", "sa2"):
+            R0[(f, fam)] = {i: loo_residuals(secs, [_samples(s) for s in secs])
+                            for (g, i), secs in groups_at[f].items() if g == fam}
+    for n, f in enumerate(frames):
+        groups, spacing = groups_at[f], spacing_at[f]
+        near = [frames[m] for m in (n - 1, n + 1) if 0 <= m < len(frames)]
         for fam in ("sa1", "sa2"):
             sp = spacing[fam]
             fam_groups = {i: secs for (g, i), secs in groups.items() if g == fam}
             if not fam_groups or not np.isfinite(sp) or sp <= 0:
                 continue
-            for i, slc, d, fl in sa_family_departures(fam_groups, sp, threshold):
+            for i, slc, d, fl in sa_family_departures(fam_groups, sp, threshold, R0[(f, fam)],
+                                                      [R0[(g, fam)] for g in near]):
                 out.append(LineDeparture(fam, i, slc, f, d, fl))
         for (fam, idx), secs in sorted(groups.items()):
             sp = spacing[fam]
