@@ -89,3 +89,13 @@ def test_half_pixel_noise_volumes_within_two_percent():
     for c in VOLUMES:
         assert m[c] == pytest.approx(t[c], rel=0.02), c
     assert not math.isnan(m["LVM (g)"])
+
+
+def test_half_pixel_noise_rv_volumes_worst_paper12_subject():
+    """paper12 nrm03 (normal, seed 103) with 0.5 px noise: RVESV was -2.06 % when noisy
+    septal points of the RV contours, left on the free wall, dented the RV loops; the
+    septal run is now closed over short gaps (sections.fill_short_gaps)."""
+    ph, _, m = _run("normal", 103, noise_px=0.5)
+    t = ph.truth["metrics"]
+    for c in ("RVEDV (mL)", "RVESV (mL)"):
+        assert m[c] == pytest.approx(t[c], rel=0.02), c

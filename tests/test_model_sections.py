@@ -39,3 +39,35 @@ def test_apical_narrowing_is_kept():
             _sec(_ellipse(4, 3, -20), "sa_02")]
     warnings: list[str] = []
     assert len(_drop_degenerate_loops(secs, N, warnings)) == 3 and not warnings
+
+
+def test_fill_short_gaps_closes_only_short_runs_between_true():
+    from cardionurbs.anatomy.sections import fill_short_gaps
+    m = np.zeros(40, dtype=bool)
+    m[0:10] = True
+    m[12:20] = True          # gap of 2 between septal runs -> filled
+    m[38:40] = True          # wraps round to index 0: the free run 20..37 (18) is kept
+    out = fill_short_gaps(m, 4)
+    assert out[10:12].all() and not out[20:38].any() and out[m].all()
+    assert np.array_equal(fill_short_gaps(m, 0), m)
+    assert np.array_equal(fill_short_gaps(np.zeros(5, bool), 3), np.zeros(5, bool))
+    assert fill_short_gaps(m, 18).all()
+
+
+def test_septal_mask_keeps_a_noisy_septum_contiguous():
+    """An RV loop whose septal half lies on the LV epicardial circle, with 0.3 mm noise:
+    some septal points fall outside the 0.5 mm band on their own; with gap filling the
+    septum is one run and the free wall is untouched."""
+    from cardionurbs.anatomy.sections import septal_mask
+    rng = np.random.default_rng(7)
+    lv = _ellipse(20.0, 20.0, 0.0, n=200)
+    t = np.linspace(-np.pi / 2, np.pi / 2, 60)
+    sept = np.column_stack([20 * np.cos(t), 20 * np.sin(t), np.zeros_like(t)])
+    s = np.linspace(np.pi / 2, -np.pi / 2, 60)[1:-1]
+    free = np.column_stack([20 * np.cos(s) + 25 * np.cos(s), 20 * np.sin(s) * 1.6, np.zeros_like(s)])
+    loop = np.vstack([sept, free])
+    loop[:60, :2] += rng.normal(0, 0.3, (60, 2))
+    raw = septal_mask(loop, lv, N, near_mm=0.5)
+    closed = septal_mask(loop, lv, N, near_mm=0.5, max_gap=len(loop) // 8)
+    assert not raw[:60].all()                 # noise alone splits the septum
+    assert closed[:60].all() and not closed[62:-2].any()

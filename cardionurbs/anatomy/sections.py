@@ -292,37 +292,72 @@ def scaled_section(template: Section, level: float, direction: np.ndarray,
     return centre + s * rel, s
 
 
+def fill_short_gaps(mask: np.ndarray, max_gap: int) -> np.ndarray:
+    """Circular morphological closing of a boolean sequence: runs of False of at most
+    ``max_gap`` entries with True on both sides become True (the septum of an RV loop is
+    one contiguous run; contour noise must not split it)."""
+    m = np.asarray(mask, dtype=bool)
+    if max_gap <= 0 or m.all() or not m.any():
+        return m
+    start = int(np.argmax(m))                           # a True entry: runs are bounded
+    r = np.roll(m, -start)
+    d = np.diff(np.concatenate([r, [True]]).astype(np.int8))
+    lo, hi = np.flatnonzero(d == -1) + 1, np.flatnonzero(d == 1) + 1   # False runs [lo, hi)
+    short = (hi - lo) <= max_gap
+    if not short.any():
+        return m
+    cover = np.zeros(len(r) + 1, dtype=np.int32)
+    np.add.at(cover, lo[short], 1)
+    np.add.at(cover, hi[short], -1)
+    r = r | (np.cumsum(cover[:-1]) > 0)
+    return np.roll(r, start)
+
+
+def septal_mask(rv_points: np.ndarray, lv_epi_loop: np.ndarray, normal: np.ndarray,
+                near_mm: float = 0.5, max_gap: int = 0) -> np.ndarray:
+    """Which RV contour points lie on the septum: inside the LV epicardial loop or within
+    ``near_mm`` of it (vectorised point-segment distances in the plane); for an ordered
+    loop, free-wall runs of at most ``max_gap`` points between septal ones are septal too
+    (:func:`fill_short_gaps`)."""
+    b = in_plane_basis(normal)
+    c = loop_centroid(lv_epi_loop, normal)
+    from matplotlib.path import Path as _Path
+    poly = (lv_epi_loop - c) @ b.T
+    xy = (rv_points - c) @ b.T
+    inside = _Path(poly).contains_points(xy)
+    a, e = poly, np.roll(poly, -1, axis=0) - poly
+    rel = xy[:, None, :] - a[None]
+    t = np.clip(np.einsum("ijk,jk->ij", rel, e) / np.maximum((e * e).sum(1), 1e-18), 0, 1)
+    d = np.linalg.norm(rel - t[..., None] * e[None], axis=2).min(axis=1)
+    return fill_short_gaps(inside | (d <= near_mm), max_gap)
+
+
 def embed_septum(rv_loop: np.ndarray, lv_epi_loop: np.ndarray, normal: np.ndarray,
-                 near_mm: float = 0.5, depth_mm: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
+                 near_mm: float = 0.5, depth_mm: float = 4.0, max_gap: int = 0,
+                 mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Move the septal part of an RV loop into the LV wall; returns (loop, free-wall points).
 
     The septal part of an SA rv_endo / rv_epi contour lies on the LV epicardium
     (contracts.md), meeting the free wall in sharp corners at the insertion
     points that no smooth curve follows within a pixel. Since the RV meshes
-    subtract the LV epicardial solid anyway, the septal points (within
-    ``near_mm`` of the LV epicardial contour, or inside it) are moved
-    ``depth_mm`` towards the LV centroid: the RV boundary on the septum then
-    comes exactly from the LV epicardial surface, and the loop's corners lie
-    inside the LV wall where their rounding does not matter. The free-wall points
-    (the ones kept) are what the residuals are measured on.
+    subtract the LV epicardial solid anyway, the septal points
+    (:func:`septal_mask`: within ``near_mm`` of the LV epicardial contour, or
+    inside it; with ``max_gap`` > 0 short free-wall runs between septal points
+    of an ordered loop as well) are moved ``depth_mm`` towards the LV centroid:
+    the RV boundary on the septum then comes exactly from the LV epicardial
+    surface, and the loop's corners lie inside the LV wall where their rounding
+    does not matter. The free-wall points (the ones kept) are what the
+    residuals are measured on. ``mask``: the septal points when already known.
     """
-    b = in_plane_basis(normal)
-    c = loop_centroid(lv_epi_loop, normal)
-    from matplotlib.path import Path as _Path
-    poly = (lv_epi_loop - c) @ b.T
-    xy = (rv_loop - c) @ b.T
-    inside = _Path(poly).contains_points(xy)
-    # distance to the LV epicardial polygon (vectorised point-segment distances)
-    a, e = poly, np.roll(poly, -1, axis=0) - poly
-    rel = xy[:, None, :] - a[None]
-    t = np.clip(np.einsum("ijk,jk->ij", rel, e) / np.maximum((e * e).sum(1), 1e-18), 0, 1)
-    d = np.linalg.norm(rel - t[..., None] * e[None], axis=2).min(axis=1)
-    sept = inside | (d <= near_mm)
+    sept = septal_mask(rv_loop, lv_epi_loop, normal, near_mm, max_gap) if mask is None else mask
     if not sept.any() or sept.all():
         return rv_loop, rv_loop
-    r = np.linalg.norm(xy[sept], axis=1, keepdims=True)
+    b = in_plane_basis(normal)
+    c = loop_centroid(lv_epi_loop, normal)
+    xy = (rv_loop[sept] - c) @ b.T
+    r = np.linalg.norm(xy, axis=1, keepdims=True)
     moved = rv_loop.copy()
-    moved[sept] = c + (xy[sept] * (1 - depth_mm / np.maximum(r, depth_mm + 1e-9))) @ b
+    moved[sept] = c + (xy * (1 - depth_mm / np.maximum(r, depth_mm + 1e-9))) @ b
     return moved, rv_loop[~sept]
 
 

@@ -32,7 +32,8 @@ from scipy.spatial import cKDTree
 
 from cardionurbs import nurbs
 from cardionurbs.anatomy.sections import (FrameGeometry, Section, crossings, embed_septum,
-                                          loop_centroid, ray_exit, scaled_section, signed_area)
+                                          fill_short_gaps, loop_centroid, ray_exit, scaled_section,
+                                          septal_mask, signed_area)
 from cardionurbs.errors import ReconstructionError
 
 #: control-point counts tried (common to all sections of a surface)
@@ -41,6 +42,10 @@ N_CTRL_STEPS = (12, 16, 20, 26, 32, 40, 52)
 N_SAMPLES = 120
 #: spacing (mm) of synthetic sections built from LA contours
 SYNTHETIC_STEP_MM = 2.5
+#: RV contour points within this many pixels of the LV epicardial contour are septal
+SEPTUM_NEAR_PX = 0.5
+#: free-wall runs shorter than this fraction of an RV loop, between septal points, are septal
+SEPTUM_GAP_FRACTION = 0.125
 
 
 @dataclass(eq=False)
@@ -204,21 +209,47 @@ def embed_septa(real: list[Section], synthetic: list[Section], direction: np.nda
         d = np.zeros_like(sec.points)
         if sec.septum_of is not None:
             near = near_px * _pixel_mm(sec)
-            d = embed_septum(sec.points, sec.septum_of, direction, near_mm=near)[0] - sec.points
-            sec.source_points = free_wall_points(sec, direction, near_px)
+            raw = septal_mask(sec.points, sec.septum_of, direction, near)
+            sept = fill_short_gaps(raw, septum_gap(len(sec.points)))
+            d = embed_septum(sec.points, sec.septum_of, direction, mask=sept)[0] - sec.points
+            sec.source_points = free_wall_points(sec, direction, near_px, loop_mask=raw)
         disp.append(d)
         sec.points = sec.points + d
     for sec in synthetic:
         sec.points = sec.points + sec.scale * disp[sec.template]
 
 
-def free_wall_points(sec: Section, direction: np.ndarray, near_px: float = 0.5) -> np.ndarray:
+def septum_gap(n_points: int) -> int:
+    """Longest run of an ordered RV loop's points (``SEPTUM_GAP_FRACTION`` of them) that
+    may lie between septal points and still be septal (contour noise, not free wall)."""
+    return int(SEPTUM_GAP_FRACTION * n_points)
+
+
+def free_wall_points(sec: Section, direction: np.ndarray, near_px: float = SEPTUM_NEAR_PX,
+                     loop_mask: np.ndarray | None = None) -> np.ndarray:
     """The contour points of an RV section that are not on the septum (the septal
-    ones lie on the LV epicardium, which bounds the RV there; see embed_septum)."""
+    ones lie on the LV epicardium, which bounds the RV there; see embed_septum).
+
+    A source point is septal by its own distance to the LV epicardial loop, or when
+    its nearest point of the section's ordered loop lies in a short gap of the loop's
+    septal run (:func:`cardionurbs.anatomy.sections.fill_short_gaps`), so that the
+    points classified agree with the loop that is embedded (``loop_mask``: the loop's
+    own septal points before the gaps are filled, when already known)."""
     if sec.septum_of is None or sec.source_points is None:
         return sec.source_points
-    return embed_septum(sec.source_points, sec.septum_of, direction,
-                        near_mm=near_px * _pixel_mm(sec))[1]
+    near = near_px * _pixel_mm(sec)
+    src = sec.source_points
+    own = septal_mask(src, sec.septum_of, direction, near)
+    loop_raw = septal_mask(sec.points, sec.septum_of, direction, near) if loop_mask is None \
+        else loop_mask
+    filled = fill_short_gaps(loop_raw, septum_gap(len(sec.points))) & ~loop_raw
+    sept = own
+    if filled.any():
+        _, k = cKDTree(sec.points).query(src)
+        sept = own | filled[k]
+    if not sept.any() or sept.all():
+        return src
+    return src[~sept]
 
 
 def extension_section(basal: Section, geo: FrameGeometry, structure: str,
@@ -324,7 +355,7 @@ def build_surface(geo: FrameGeometry, structure: str, ref: np.ndarray,
                     False, s.source_points, s.septum_of) for s in secs]
     basal, apical = synthetic_sections(geo, structure, real, apex)
     if structure.startswith("rv"):
-        embed_septa(real, basal + apical, n, tol_px * 0.5)
+        embed_septa(real, basal + apical, n, SEPTUM_NEAR_PX)
     stack = basal + real + apical
     ext = extension_section(stack[0], geo, structure)
     stack = [ext] + stack
