@@ -326,7 +326,7 @@ def run_validation(out: Path, jobs: int = 2) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("what", choices=["benchmark", "validation"])
+    ap.add_argument("what", nargs="?", default="benchmark", choices=["benchmark", "validation"])
     ap.add_argument("--jobs", type=int, default=2)
     a = ap.parse_args()
     reports = ROOT / "reports"
