@@ -35,7 +35,7 @@ import warnings
 from typing import Any
 
 import numpy as np
-from scipy import sparse
+from scipy import linalg, sparse
 from scipy.optimize import least_squares
 from scipy.sparse.linalg import MatrixRankWarning, spsolve
 
@@ -115,14 +115,32 @@ def periodic_approximation_breaks(params: np.ndarray, n_ctrl: int, rule: str = "
     return B
 
 
+#: up to this many unknowns eq. 10 is solved dense (Cholesky), above it sparse (SuperLU)
+DENSE_SOLVE_MAX = 64
+
+
 def solve_normal_equations(N: np.ndarray, R: np.ndarray) -> np.ndarray:
     """Least-squares control points from ``(N^T N) P = N^T R`` (paper eq. 10).
 
-    ``N`` has p + 1 non-zeros per row, so N^T N is (cyclically) banded: it is
-    formed and factorised sparse (SuperLU), which stays fast where a dense,
-    multithreaded LAPACK least squares does not.  Falls back to an SVD
-    least-squares solve when N^T N is singular (a knot span without data).
+    N^T N is symmetric positive definite when every knot span holds data
+    (eq. 9). Up to ``DENSE_SOLVE_MAX`` unknowns it is factorised dense
+    (Cholesky); larger systems, whose N^T N is (cyclically) banded with p + 1
+    non-zeros per row of N, are formed and factorised sparse (SuperLU).
+    Either falls back to an SVD least-squares solve when N^T N is singular
+    (a knot span without data).
     """
+    if N.shape[1] <= DENSE_SOLVE_MAX:
+        # small systems (contours: tens of control points): a dense Cholesky of the
+        # banded N^T N costs less than building and factorising a sparse matrix
+        try:
+            P = linalg.cho_solve(linalg.cho_factor(N.T @ N, check_finite=False), N.T @ R,
+                                 check_finite=False)
+        except linalg.LinAlgError:
+            P = None
+        if P is not None and np.all(np.isfinite(P)):
+            return P.reshape(N.shape[1], -1)
+        P, *_ = np.linalg.lstsq(N, R, rcond=None)
+        return P.reshape(N.shape[1], -1)
     Ns = sparse.csr_matrix(N)
     A = (Ns.T @ Ns).tocsc()
     b = Ns.T @ R
