@@ -59,6 +59,7 @@ from typing import Any
 
 import numpy as np
 
+from cardionurbs.anatomy.sections import loop_centroid
 from cardionurbs.analysis.material import MaterialPoints, SplineData, material_points
 from cardionurbs.analysis.tag_surfaces import (axis_frame, build_tag_surfaces, check_tags,
                                                fit_tag_curve, stack_normal, tag_surfaces)
@@ -245,20 +246,10 @@ def _slice_centroid(study: Study, slice_id: str, frame: int, fallback: np.ndarra
 
 
 def _polygon_centroid(p: np.ndarray) -> np.ndarray:
-    """Area centroid (3,) of a planar closed polygon in 3D (shoelace in its own plane)."""
-    c0 = p.mean(axis=0)
-    q = p - c0
-    n = np.linalg.svd(q, full_matrices=False)[2]
-    xy = q @ n[:2].T
-    x, y = xy[:, 0], xy[:, 1]
-    x1, y1 = np.roll(x, -1), np.roll(y, -1)
-    cr = x * y1 - x1 * y
-    A = cr.sum() / 2
-    if abs(A) < 1e-9:
-        return c0
-    cx = ((x + x1) * cr).sum() / (6 * A)
-    cy = ((y + y1) * cr).sum() / (6 * A)
-    return c0 + cx * n[0] + cy * n[1]
+    """Area centroid (3,) of a planar closed polygon in 3D, in its best-fit plane
+    (:func:`cardionurbs.anatomy.sections.loop_centroid`)."""
+    normal = np.linalg.svd(p - p.mean(axis=0), full_matrices=False)[2][2]
+    return loop_centroid(p, normal)
 
 
 def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base: np.ndarray,
