@@ -32,6 +32,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _timing import best_of  # noqa: E402  (benchmarks/ is sys.path[0] when run as a script)
+
 import cardionurbs as cn  # noqa: E402
 from cardionurbs.analysis.tags import tag_metrics  # noqa: E402
 from cardionurbs.phantom import generate  # noqa: E402
@@ -41,14 +43,6 @@ from cardionurbs.report import figures as F  # noqa: E402
 from cardionurbs.report.html import write_report  # noqa: E402
 
 
-def _best(fn, repeat):
-    walls, cpus, out = [], [], None
-    for _ in range(repeat):
-        w, c = time.perf_counter(), time.process_time()
-        out = fn()
-        walls.append(time.perf_counter() - w)
-        cpus.append(time.process_time() - c)
-    return min(walls), min(cpus), out
 
 
 def _fmt(w, c):
@@ -57,17 +51,17 @@ def _fmt(w, c):
 
 def _figures_rows(name, model, tags, tmp, repeat, truth=None):
     rows = []
-    w, c, fs = _best(lambda: F.render_figures(model, tmp / "a", tags=tags, truth=truth), repeat)
+    w, c, fs = best_of(lambda: F.render_figures(model, tmp / "a", tags=tags, truth=truth), repeat)
     rows.append((name, "all figures, tag metrics given", len(fs.figures), _fmt(w, c)))
     wc = (w, c)
     if model.study.tags:
-        w2, c2, _ = _best(lambda: F.render_figures(model, tmp / "b", truth=truth), repeat)
+        w2, c2, _ = best_of(lambda: F.render_figures(model, tmp / "b", truth=truth), repeat)
         rows.append((name, "all figures incl. tag analysis", len(fs.figures), _fmt(w2, c2)))
     per = []
     for fig in F.FIGURES:
         if fig in fs.skipped:
             continue
-        fw, fc, _ = _best(lambda: F.render_figures(model, tmp / "c", tags=tags, truth=truth,
+        fw, fc, _ = best_of(lambda: F.render_figures(model, tmp / "c", tags=tags, truth=truth,
                                                    only=[fig]), 1)
         per.append((fig, fw, fc))
     return rows, per, fs, wc
@@ -144,7 +138,7 @@ def main(argv=None) -> int:
             t0 = time.perf_counter()
             F.write_figures(mdl, out / "figures", metrics=met)
             t_fig = time.perf_counter() - t0
-            w, c, path = _best(lambda: write_report(out, out / "report.html"), args.repeat)
+            w, c, path = best_of(lambda: write_report(out, out / "report.html"), args.repeat)
             size = path.stat().st_size / 1e6
             chrome = "chromium not installed"
             if exe:
