@@ -69,12 +69,18 @@ def _grid_faces(nu: int, nv: int, closed_u: bool, collapsed_start: bool,
         faces = tri[use]
     else:
         faces = tri.reshape(-1, 3)
+    faces.flags.writeable = False          # shared by every call with this grid: never mutate
+    vertex_of.flags.writeable = False
     return faces, vertex_of
 
 
 def tessellate(surface: NurbsSurface, nu: int, nv: int) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) and triangle faces (F, 3) of ``surface`` on an
     ``nu x nv`` parameter grid (see module doc for seam, apex and orientation).
+
+    The faces depend only on the grid and the surface's topology (closed u,
+    collapsed ends), so they come from a cache and are returned read-only:
+    copy them (``faces.copy()``) before modifying in place.
     """
     if not isinstance(surface, NurbsSurface):
         raise NurbsInputError(f"surface: expected a NurbsSurface, got {type(surface).__name__}")
@@ -89,7 +95,7 @@ def tessellate(surface: NurbsSurface, nu: int, nv: int) -> tuple[np.ndarray, np.
     v = np.linspace(vlo, vhi, nv)
     grid = surface.evaluate(u, v)
     c0, c1 = surface.collapsed_v()
-    faces, vertex_of = grid_faces(nu, nv, surface.closed_u, c0, c1)
+    faces, vertex_of = _grid_faces(nu, nv, bool(surface.closed_u), bool(c0), bool(c1))
     flat = np.ascontiguousarray(grid).reshape(-1, grid.shape[-1])
     if not (c0 or c1):
         return flat, faces
