@@ -24,22 +24,21 @@ from pathlib import Path
 from cardionurbs.analysis.function import measure, volume_curve
 from cardionurbs.anatomy.model import BiventricularModel, reconstruct
 from cardionurbs.io import atomic, load_study
-from cardionurbs.io.export import export_mesh, export_model, export_model_3dm, write_json
+from cardionurbs.io.export import export_mesh, export_model_3dm, write_json
 from cardionurbs.study import Study
 
 
 def tag_metrics_hook(model: BiventricularModel):
     """Tag metrics (Twist, Twist 2D, Torsion, CL shear, LS, QC flags) from
     ``cardionurbs.analysis.tags.tag_metrics(model)`` -- a mapping METRICS.md column ->
-    float -- when that module exists and the study has tag lines; None otherwise
-    (the columns then stay NaN)."""
+    float, with the level table, QC flags and tag surfaces as attributes -- when the
+    study has tag lines; None otherwise (the columns then stay NaN). Twist and LS over
+    time are included when three or more frames are tagged, so this one result serves
+    the metrics, metrics.json, model.json and the figures."""
     if not model.study.tags:
         return None
-    try:
-        from cardionurbs.analysis.tags import tag_metrics
-    except ImportError:
-        return None
-    return tag_metrics(model)
+    from cardionurbs.analysis.tags import tag_metrics
+    return tag_metrics(model, over_time=len(model.study.tagged_frames) >= 3)
 
 
 def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path, tags=None) -> list[Path]:
@@ -83,7 +82,12 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
         for f in model.frames:
             for name, m in model.meshes(f).items():
                 export_mesh(m, mesh_dir / f"frame_{f:02d}_{name}.{mesh_ext}")
-        export_model(model, tmp / "model.json")
+        model_dict = model.to_dict()
+        if tags is not None:                   # tag surfaces are saved with the model
+            from cardionurbs.analysis.tags import tag_surfaces_dict
+            model_dict["tag_surfaces"] = tag_surfaces_dict(
+                model.study, long_axis=model.long_axis(), surfaces=tags.surfaces)
+        write_json(model_dict, tmp / "model.json")
         try:                                   # the cad extra: Rhino .3dm of the ED surfaces
             import rhino3dm  # noqa: F401
         except ImportError:
@@ -102,6 +106,7 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                     "ed_frame": model.ed_frame, "es_frame": model.es_frame,
                     "volume_curve": volume_curve(model), "residuals": summary,
                     "residual_frames": sorted({model.ed_frame, model.es_frame}),
+                    "tags": None if tags is None else tags.to_json(),
                     "warnings": model.warnings}, tmp / "metrics.json")
         if figures:
             figures_hook(model, metrics, tmp, tags=tags)

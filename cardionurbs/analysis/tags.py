@@ -345,6 +345,8 @@ class TagMetrics(Mapping):
     slices_2d : per-slice rotations of the Twist 2D measure
     notes : one-line remarks (e.g. "no tag lines")
     over_time : {frame: {"Twist (deg)", "LS (%)"}} when computed
+    surfaces : {frame: {(family, index): TagSurface}} the tag surfaces the metrics were
+        measured on (flagged lines left out), for saving with the model
     """
 
     columns: dict[str, float]
@@ -354,6 +356,7 @@ class TagMetrics(Mapping):
     notes: list[str] = field(default_factory=list)
     over_time: dict[int, dict[str, float]] = field(default_factory=dict)
     material: MaterialPoints | None = None
+    surfaces: dict = field(default_factory=dict)
 
     def __getitem__(self, key: str) -> float:
         return self.columns[key]
@@ -555,18 +558,21 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
             lv = level_table(mp, f, apex, base, radius, tagged_stack_range(study, ed_frame, f))
             t = twist_from_levels(lv)
             times[f] = {"Twist (deg)": t["Twist (deg)"], "LS (%)": t["LS (%)"]}
-    return TagMetrics(cols, levels, flags, rows2d, notes, times, mp)
+    return TagMetrics(cols, levels, flags, rows2d, notes, times, mp, surfaces)
 
 
 # ---------------------------------------------------------------- export
 def tag_surfaces_dict(study: Study, frames: list[int] | None = None,
-                      long_axis: tuple | None = None) -> dict:
+                      long_axis: tuple | None = None, surfaces: dict | None = None) -> dict:
     """JSON-safe tag surfaces for saving with the model.
 
     ``{"long_axis": {"apex", "base"}, "frames": {"<frame>": {"<family>:<index>":
     NurbsSurface.to_dict(), ...}}}``, scanner mm; ``frames`` defaults to every
     tagged frame. Read back with :meth:`cardionurbs.nurbs.NurbsSurface.from_dict`.
+    ``surfaces`` ({frame: {(family, index): TagSurface}}, e.g.
+    :attr:`TagMetrics.surfaces`) are used where given instead of being rebuilt.
     """
+    surfaces = surfaces or {}
     frames = study.tagged_frames if frames is None else list(frames)
     if long_axis is None and any(study.tags_at(f, "la") for f in frames):
         long_axis = default_long_axis(study)
@@ -575,8 +581,11 @@ def tag_surfaces_dict(study: Study, frames: list[int] | None = None,
         out["long_axis"] = {"apex": [float(x) for x in long_axis[0]],
                             "base": [float(x) for x in long_axis[1]]}
     for f in frames:
-        out["frames"][str(f)] = {f"{fam}:{idx}": ts.surface.to_dict() for (fam, idx), ts
-                                 in sorted(build_tag_surfaces(study, f, long_axis).items())}
+        built = surfaces.get(f)
+        if built is None:
+            built = build_tag_surfaces(study, f, long_axis)
+        out["frames"][str(f)] = {f"{fam}:{idx}": ts.surface.to_dict()
+                                 for (fam, idx), ts in sorted(built.items())}
     return out
 
 
