@@ -41,6 +41,20 @@ def ds_text(v: float) -> str:
     return str(DSfloat(float(v), auto_format=True))
 
 
+def _set_pixel_module(ds: Dataset, rows: int, columns: int, pixels, frames: int | None) -> None:
+    """Image Pixel module: 16-bit MONOCHROME2, ``pixels`` or a test pattern
+    (one image, or ``frames`` images of a multi-frame object)."""
+    ds.Rows, ds.Columns = rows, columns
+    ds.SamplesPerPixel = 1
+    ds.PhotometricInterpretation = "MONOCHROME2"
+    ds.BitsAllocated = ds.BitsStored = 16
+    ds.HighBit = 15
+    ds.PixelRepresentation = 0
+    shape = (rows, columns) if frames is None else (frames, rows, columns)
+    px = pixels if pixels is not None else (np.arange(int(np.prod(shape))) % 251).reshape(shape)
+    ds.PixelData = np.asarray(px, dtype=np.uint16).tobytes()
+
+
 def write_dicom_image(path: Path, *, position, row, col, spacing=(2.0, 2.0), rows=32, columns=32,
                       trigger_time: float | None = 0.0, instance: int = 1, series_uid: str,
                       series_number: int = 1, description: str = "", sop_uid: str | None = None,
@@ -75,14 +89,7 @@ def write_dicom_image(path: Path, *, position, row, col, spacing=(2.0, 2.0), row
         ds.NominalInterval = int(nominal_interval)
     if n_phases is not None:
         ds.CardiacNumberOfImages = n_phases
-    ds.Rows, ds.Columns = rows, columns
-    ds.SamplesPerPixel = 1
-    ds.PhotometricInterpretation = "MONOCHROME2"
-    ds.BitsAllocated = ds.BitsStored = 16
-    ds.HighBit = 15
-    ds.PixelRepresentation = 0
-    px = pixels if pixels is not None else (np.arange(rows * columns) % 251).reshape(rows, columns)
-    ds.PixelData = np.asarray(px, dtype=np.uint16).tobytes()
+    _set_pixel_module(ds, rows, columns, pixels, frames=None)
     for kw in omit:
         if kw in ds:
             delattr(ds, kw)
@@ -132,14 +139,7 @@ def write_enhanced_mr(path: Path, *, positions, row, col, trigger_times, spacing
         item.CardiacSynchronizationSequence = [sync]
         per.append(item)
     ds.PerFrameFunctionalGroupsSequence = per
-    ds.Rows, ds.Columns = rows, columns
-    ds.SamplesPerPixel = 1
-    ds.PhotometricInterpretation = "MONOCHROME2"
-    ds.BitsAllocated = ds.BitsStored = 16
-    ds.HighBit = 15
-    ds.PixelRepresentation = 0
-    px = pixels if pixels is not None else (np.arange(n * rows * columns) % 251).reshape(n, rows, columns)
-    ds.PixelData = np.asarray(px, dtype=np.uint16).tobytes()
+    _set_pixel_module(ds, rows, columns, pixels, frames=n)
     path.parent.mkdir(parents=True, exist_ok=True)
     ds.save_as(path, enforce_file_format=True)
     return sop_uid
