@@ -80,6 +80,11 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--format", default="auto", choices=["auto", "native", "sunnybrook", "gpfile"])
     an.add_argument("--heart-rate", type=float, default=None, help="bpm, when the input has none")
     an.add_argument("--no-figures", action="store_true", help="skip PNG figures and HTML report")
+    an.add_argument("--outputs", default="all", metavar="LIST",
+                    help="comma-separated subset of metrics,model,meshes,figures,report "
+                         "(default all; report also writes metrics and model)")
+    an.add_argument("--progress", action="store_true",
+                    help="stage progress on stderr (default: only when stderr is a terminal)")
     an.add_argument("--out", required=True, metavar="DIR")
 
     co = sub.add_parser("cohort", help="measure many studies into one CSV")

@@ -13,6 +13,13 @@ Output folder (written atomically: complete or absent)::
     DIR/figures/...         PNG figures + figures.json (cardionurbs.report.figures, via
                             :func:`figures_hook`; skipped with --no-figures)
     DIR/report.html         self-contained offline viewer (cardionurbs.report.html)
+
+``--outputs`` chooses what is computed and written (default: all): ``metrics``
+(metrics.json), ``model`` (model.json, model.3dm, residuals.csv), ``meshes``,
+``figures``, ``report`` (needs metrics and model, which it then also writes).
+Nothing that was not asked for is computed: metrics alone reconstruct every frame's
+LV cavity (to find ED and ES) and the other surfaces at ED and ES only, and measure
+the tags at ED and ES (twist and LS over time only for figures and report).
 """
 
 from __future__ import annotations
@@ -25,20 +32,42 @@ from cardionurbs.analysis.function import measure, volume_curve
 from cardionurbs.anatomy.model import BiventricularModel, reconstruct
 from cardionurbs.io import atomic, load_study
 from cardionurbs.io.export import export_mesh, export_model_3dm, write_json
+from cardionurbs.progress import Progress
 from cardionurbs.study import Study
 
+#: what ``analyze`` can write (``--outputs``), in the order it is produced
+OUTPUTS = ("metrics", "model", "meshes", "figures", "report")
 
-def tag_metrics_hook(model: BiventricularModel):
+
+def parse_outputs(text: str | None) -> tuple[str, ...]:
+    """``"metrics,figures"`` -> the outputs to write, in :data:`OUTPUTS` order (None or
+    ``"all"``: everything). ``report`` brings ``metrics`` and ``model`` (its inputs).
+    Raises ValueError naming an unknown output."""
+    if text is None or text.strip() == "all":
+        return OUTPUTS
+    want = {t.strip() for t in text.split(",") if t.strip()}
+    unknown = sorted(want - set(OUTPUTS))
+    if unknown or not want:
+        raise ValueError(f"--outputs: unknown output {unknown[0]!r}; choose from "
+                         f"{', '.join(OUTPUTS)} (comma-separated) or all" if unknown else
+                         "--outputs: name at least one output")
+    if "report" in want:
+        want |= {"metrics", "model"}
+    return tuple(o for o in OUTPUTS if o in want)
+
+
+def tag_metrics_hook(model: BiventricularModel, over_time: bool = True):
     """Tag metrics (Twist, Twist 2D, Torsion, CL shear, LS, QC flags) from
     ``cardionurbs.analysis.tags.tag_metrics(model)`` -- a mapping METRICS.md column ->
     float, with the level table, QC flags and tag surfaces as attributes -- when the
     study has tag lines; None otherwise (the columns then stay NaN). Twist and LS over
     time are included when three or more frames are tagged, so this one result serves
-    the metrics, metrics.json, model.json and the figures."""
+    the metrics, metrics.json, model.json and the figures. ``over_time=False`` (metrics
+    only) measures at ED and ES alone: the same columns, without the time course."""
     if not model.study.tags:
         return None
     from cardionurbs.analysis.tags import tag_metrics
-    return tag_metrics(model, over_time=len(model.study.tagged_frames) >= 3)
+    return tag_metrics(model, over_time=over_time and len(model.study.tagged_frames) >= 3)
 
 
 def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path, tags=None) -> list[Path]:
@@ -56,11 +85,20 @@ def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path, tags=N
     return paths + [write_report(out_dir, Path(out_dir) / "report.html")]
 
 
-def analyse(study: Study, *, heart_rate_bpm: float | None = None):
-    """Reconstruct and measure one loaded study: (model, METRICS.md dict, tag result or None)."""
-    model = reconstruct(study)
+def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: bool = True,
+            progress: Progress | None = None):
+    """Reconstruct and measure one loaded study: (model, METRICS.md dict, tag result or None).
+
+    ``over_time``: also twist and LS at every tagged frame (for figures and metrics.json);
+    the METRICS.md columns are the same without it. ``progress``: stages on stderr."""
+    progress = progress or Progress(False)
+    progress.stage("reconstruct")
+    model = reconstruct(study, progress=progress.step)
+    progress.stage("measure")
     metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
-    tags = tag_metrics_hook(model)
+    if study.tags:
+        progress.stage("tags")
+    tags = tag_metrics_hook(model, over_time=over_time)
     if tags is not None:
         metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
     return model, metrics, tags
@@ -68,57 +106,107 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None):
 
 def analyse_study(study: Study, *, heart_rate_bpm: float | None = None
                   ) -> tuple[BiventricularModel, dict[str, float]]:
-    """Reconstruct and measure one loaded study: (model, METRICS.md dict)."""
-    model, metrics, _ = analyse(study, heart_rate_bpm=heart_rate_bpm)
+    """Reconstruct and measure one loaded study: (model, METRICS.md dict) -- the metrics
+    only (what a cohort row needs: no tag time course)."""
+    model, metrics, _ = analyse(study, heart_rate_bpm=heart_rate_bpm, over_time=False)
     return model, metrics
 
 
 def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
-                   figures: bool = True, mesh_ext: str = "ply", tags=None) -> Path:
-    """Write metrics.json, model.json, residuals.csv, meshes (and figures) to ``out``,
-    atomically (the folder is complete or untouched)."""
+                   figures: bool = True, mesh_ext: str = "ply", tags=None,
+                   outputs: tuple[str, ...] | None = None,
+                   progress: Progress | None = None) -> Path:
+    """Write the chosen ``outputs`` (default all; ``figures=False`` drops figures and
+    report) to ``out``, atomically (the folder is complete or untouched)."""
+    outputs = OUTPUTS if outputs is None else tuple(outputs)
+    if not figures:
+        outputs = tuple(o for o in outputs if o not in ("figures", "report"))
+    progress = progress or Progress(False)
     with atomic.atomic_dir(out) as tmp:
-        mesh_dir = tmp / "meshes"
-        for f in model.frames:
-            for name, m in model.meshes(f).items():
-                export_mesh(m, mesh_dir / f"frame_{f:02d}_{name}.{mesh_ext}")
-        model_dict = model.to_dict()
-        if tags is not None:                   # tag surfaces are saved with the model
-            from cardionurbs.analysis.tags import tag_surfaces_dict
-            model_dict["tag_surfaces"] = tag_surfaces_dict(
-                model.study, long_axis=model.long_axis(), surfaces=tags.surfaces)
-        write_json(model_dict, tmp / "model.json")
-        try:                                   # the cad extra: Rhino .3dm of the ED surfaces
-            import rhino3dm  # noqa: F401
-        except ImportError:
-            pass
-        else:
-            export_model_3dm(model, tmp / "model.3dm")
-        res = model.residual_table()            # ED and ES (every frame: model.residuals)
-        atomic.write_text(tmp / "residuals.csv", res.to_csv(index=False))
-        summary = {}
-        for s, g in res.groupby("structure"):
-            summary[s] = {"mean_mm": float(g["mean_mm"].mean()), "max_mm": float(g["max_mm"].max()),
-                          "max_px": float(g["max_px"].max())}
-        write_json({"subject": model.study.subject,
-                    "metrics": {k: (None if isinstance(v, float) and math.isnan(v) else v)
-                                for k, v in metrics.items()},
-                    "ed_frame": model.ed_frame, "es_frame": model.es_frame,
-                    "volume_curve": volume_curve(model), "residuals": summary,
-                    "residual_frames": sorted({model.ed_frame, model.es_frame}),
-                    "tags": None if tags is None else tags.to_json(),
-                    "warnings": model.warnings}, tmp / "metrics.json")
-        if figures:
-            figures_hook(model, metrics, tmp, tags=tags)
+        if "meshes" in outputs:
+            progress.stage("meshes")
+            mesh_dir = tmp / "meshes"
+            for k, f in enumerate(model.frames):
+                for name, m in model.meshes(f).items():
+                    export_mesh(m, mesh_dir / f"frame_{f:02d}_{name}.{mesh_ext}")
+                progress.step(k + 1, len(model.frames))
+        res = None
+        if "model" in outputs:
+            progress.stage("model")
+            model_dict = model.to_dict()
+            if tags is not None:                   # tag surfaces are saved with the model
+                from cardionurbs.analysis.tags import tag_surfaces_dict
+                model_dict["tag_surfaces"] = tag_surfaces_dict(
+                    model.study, long_axis=model.long_axis(), surfaces=tags.surfaces)
+            write_json(model_dict, tmp / "model.json", indent=None)
+            try:                                   # the cad extra: Rhino .3dm of the ED surfaces
+                import rhino3dm  # noqa: F401
+            except ImportError:
+                pass
+            else:
+                export_model_3dm(model, tmp / "model.3dm")
+            res = model.residual_table()            # ED and ES (every frame: model.residuals)
+            atomic.write_text(tmp / "residuals.csv", res.to_csv(index=False))
+        if "metrics" in outputs:
+            progress.stage("metrics")
+            if res is None:
+                res = model.residual_table()
+            summary = {}
+            for s, g in res.groupby("structure"):
+                summary[s] = {"mean_mm": float(g["mean_mm"].mean()),
+                              "max_mm": float(g["max_mm"].max()),
+                              "max_px": float(g["max_px"].max())}
+            write_json({"subject": model.study.subject,
+                        "metrics": {k: (None if isinstance(v, float) and math.isnan(v) else v)
+                                    for k, v in metrics.items()},
+                        "ed_frame": model.ed_frame, "es_frame": model.es_frame,
+                        "volume_curve": volume_curve(model), "residuals": summary,
+                        "residual_frames": sorted({model.ed_frame, model.es_frame}),
+                        "tags": None if tags is None else tags.to_json(),
+                        "warnings": model.warnings}, tmp / "metrics.json")
+        if "figures" in outputs:
+            progress.stage("figures")
+            _figures(model, metrics, tmp, tags=tags)
+        if "report" in outputs:
+            progress.stage("report")
+            _report(tmp)
+        progress.done()
     return Path(out)
 
 
+def _figures(model: BiventricularModel, metrics: dict, out_dir: Path, tags=None) -> list[Path]:
+    try:
+        from cardionurbs.report.figures import write_figures
+    except ImportError:
+        return []
+    return list(write_figures(model, Path(out_dir) / "figures", metrics=metrics, tags=tags) or [])
+
+
+def _report(out_dir: Path) -> Path | None:
+    try:
+        from cardionurbs.report.html import write_report
+    except ImportError:
+        return None
+    return write_report(out_dir, Path(out_dir) / "report.html")
+
+
 def run_analyze(args: argparse.Namespace) -> int:
-    """Load, reconstruct, measure and write one study (see API.md)."""
+    """Load, reconstruct, measure and write one study (see API.md); ``--outputs`` chooses
+    what is written, ``--progress`` (or a terminal on stderr) shows the stages."""
+    try:
+        outputs = parse_outputs(getattr(args, "outputs", None))
+    except ValueError as exc:
+        from cardionurbs.cli import UsageError
+        raise UsageError(str(exc)) from None
+    if getattr(args, "no_figures", False):
+        outputs = tuple(o for o in outputs if o not in ("figures", "report"))
+    progress = Progress(True if getattr(args, "progress", False) else None, prefix="analyze")
+    progress.stage("load")
     study = load_study(args.study, format=args.format)
-    model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None))
-    write_analysis(model, metrics, args.out, figures=not getattr(args, "no_figures", False),
-                   tags=tags)
+    model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None),
+                                   over_time=bool({"figures", "report"} & set(outputs)),
+                                   progress=progress)
+    write_analysis(model, metrics, args.out, outputs=outputs, tags=tags, progress=progress)
     print(f"{study.subject}: ED frame {model.ed_frame}, ES frame {model.es_frame}; "
           f"LVEDV {metrics['LVEDV (mL)']:.1f} mL, LVEF {metrics['LVEF (%)']:.1f} %; "
           f"wrote {args.out}")

@@ -130,7 +130,14 @@ def signed_distance_to_trace(points: np.ndarray, trace: np.ndarray, tangents: np
     diff = points[:, None, :] - trace[None]
     j = np.argmin((diff ** 2).sum(-1), axis=1)
     dd = diff[np.arange(len(points)), j]
-    return (dd * np.cross(normal, tangents[j])).sum(1)
+    return (dd * _cross_rows(normal, tangents[j])).sum(1)
+
+
+def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a × b for one vector a (3,) and rows b (n, 3): the same products and differences as
+    ``np.cross`` (bit-identical) without its per-call overhead."""
+    return np.column_stack([a[1] * b[:, 2] - a[2] * b[:, 1], a[2] * b[:, 0] - a[0] * b[:, 2],
+                            a[0] * b[:, 1] - a[1] * b[:, 0]])
 
 
 def distance_to_trace(points: np.ndarray, trace: np.ndarray, tangents: np.ndarray) -> np.ndarray:
@@ -313,15 +320,58 @@ def loo_residuals(secs: list[TagSection], samples: list[np.ndarray],
         keys = np.array([secs[k].key for k in keep])
         plane = sec.plane
         res = {}
-        for a, b in _neighbour_pairs(keys, sec.key):
-            trace, tan = blend_trace(samples[keep[a]], samples[keep[b]], plane.position,
-                                     plane.normal)
-            d = signed_distance_to_trace(sec.points, trace, tan, plane.normal)
-            if len(d) and np.isfinite(d).all():
-                res[(secs[keep[a]].slice, secs[keep[b]].slice)] = float(np.median(d))
+        pairs = _neighbour_pairs(keys, sec.key)
+        medians = _pair_residuals(sec.points, [samples[keep[a]] for a, _ in pairs],
+                                  [samples[keep[b]] for _, b in pairs], plane.position,
+                                  plane.normal)
+        for (a, b), m in zip(pairs, medians):
+            if m is not None:
+                res[(secs[keep[a]].slice, secs[keep[b]].slice)] = m
         if res:
             out[sec.slice] = res
     return out
+
+
+def _pair_residuals(points: np.ndarray, Ca: list[np.ndarray], Cb: list[np.ndarray],
+                    origin: np.ndarray, normal: np.ndarray) -> list[float | None]:
+    """Median signed distance (mm) of ``points`` from the trace of every predictor pair
+    (:func:`blend_trace` of Ca[k], Cb[k] cut by the plane, then
+    :func:`signed_distance_to_trace`); None where it is undefined.
+
+    All pairs at once (arrays (pairs, samples, 3)) when every sample of every pair
+    cuts the plane, which is the rule; pair by pair otherwise (the trace then loses
+    samples and differs in length between pairs).
+    """
+    if not Ca:
+        return []
+    A, B = np.stack(Ca), np.stack(Cb)
+    da = (A - origin) @ normal
+    db = (B - origin) @ normal
+    den = da - db
+    if len(points) == 0 or A.shape[1] < 2 or not (np.abs(den) > 1e-9).all():
+        out = []
+        for a, b in zip(Ca, Cb):
+            trace, tan = blend_trace(a, b, origin, normal)
+            d = signed_distance_to_trace(points, trace, tan, normal)
+            out.append(float(np.median(d)) if len(d) and np.isfinite(d).all() else None)
+        return out
+    t = da / den
+    T = A + t[..., None] * (B - A)
+    T -= ((T - origin) @ normal)[..., None] * normal
+    tan = np.gradient(T, axis=1)
+    tan -= (tan @ normal)[..., None] * normal
+    tan /= np.maximum(np.linalg.norm(tan, axis=2, keepdims=True), 1e-12)
+    diff = points[None, :, None, :] - T[:, None, :, :]          # (pairs, points, samples, 3)
+    j = np.argmin((diff ** 2).sum(-1), axis=2)                   # (pairs, points)
+    P = np.arange(len(A))[:, None]
+    dd = diff[P, np.arange(len(points))[None, :], j]             # (pairs, points, 3)
+    tj = tan[P, j]
+    across = np.stack([normal[1] * tj[..., 2] - normal[2] * tj[..., 1],
+                       normal[2] * tj[..., 0] - normal[0] * tj[..., 2],
+                       normal[0] * tj[..., 1] - normal[1] * tj[..., 0]], axis=-1)
+    d = (dd * across).sum(-1)
+    med = np.median(d, axis=1)
+    return [float(m) if np.isfinite(d[k]).all() else None for k, m in enumerate(med)]
 
 
 def _index_trend(values: list[tuple[int, float]], i: int, outlier: float) -> float:

@@ -591,19 +591,21 @@ def tag_surfaces_dict(study: Study, frames: list[int] | None = None,
 
 # ---------------------------------------------------------------- figures
 def tag_figure_data(study: Study, frame: int, long_axis: tuple | None = None,
-                    flags: list[TagFlag] | None = None, nu: int = 24, nv: int = 16) -> list[dict]:
+                    flags: list[TagFlag] | None = None, nu: int = 24, nv: int = 16,
+                    surfaces: dict | None = None) -> list[dict]:
     """Tessellated tag surfaces of one frame, with flag status, for figures (paper Fig. 8).
 
     Returns one dict per tag surface: ``family``, ``index``, ``frame``,
     ``vertices`` (k, 3) mm, ``faces`` (m, 3) int, ``flagged`` (bool: a line
     of this tag at this frame is flagged), ``flagged_slices`` (list), and
     ``lines``: [{"slice", "points" (n, 3), "flagged"}] the tag lines.
-    ``flags`` defaults to :func:`tag_qc` of that frame.
+    ``flags`` defaults to :func:`tag_qc` of that frame. ``surfaces``: that frame's
+    ``build_tag_surfaces(study, frame, long_axis)`` when already built (every line kept).
     """
     from cardionurbs import nurbs
     if long_axis is None and study.tags_at(frame, "la"):
         long_axis = default_long_axis(study)
-    surfs = build_tag_surfaces(study, frame, long_axis)
+    surfs = surfaces if surfaces is not None else build_tag_surfaces(study, frame, long_axis)
     if flags is None:
         flags = tag_qc(study, frames=[frame], long_axis=long_axis, surfaces={frame: surfs})
     bad = {(f.family, f.index, f.slice) for f in flags if f.frame == frame}

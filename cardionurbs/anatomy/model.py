@@ -124,7 +124,7 @@ class BiventricularModel:
                  sections: Mapping | None = None, tol_px: float = 1.0,
                  refine: bool = True, anchor_weight: float = 10.0,
                  ed_es: tuple[int, int] | None = None, warnings: list[str] | None = None,
-                 resolution: tuple[int, int] = RESOLUTION) -> None:
+                 resolution: tuple[int, int] = RESOLUTION, progress=None) -> None:
         self.study = study
         self.frames = list(frames)
         self.tol_px = float(tol_px)
@@ -154,7 +154,11 @@ class BiventricularModel:
             ed, es = int(ed_es[0]), int(ed_es[1])
         else:
             if isinstance(self.surfaces, LazyFrames):
-                lv = {f: self.lv_cavity_volume_unrefined(f) for f in self.frames}
+                lv = {}
+                for k, f in enumerate(self.frames):
+                    lv[f] = self.lv_cavity_volume_unrefined(f)
+                    if progress is not None:
+                        progress(k + 1, len(self.frames))
             else:
                 lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
             ed, es = ed_es_frames(lv, study.ed_frame, study.es_frame)
@@ -445,8 +449,8 @@ def surface_distance(surface, points: np.ndarray) -> np.ndarray:
 
 
 def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float = 1.0,
-                refine: bool = True, resolution: tuple[int, int] = RESOLUTION
-                ) -> BiventricularModel:
+                refine: bool = True, resolution: tuple[int, int] = RESOLUTION,
+                progress=None) -> BiventricularModel:
     """Biventricular NURBS model of a study (paper §4.2): one set of lofted
     surfaces per frame with LV endocardial contours (or the given ``frames``).
 
@@ -457,6 +461,7 @@ def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float 
     ``tol_px``: curve-fit tolerance, pixels (paper §4.2.1: < 1 px).
     ``refine``: correct the LV surfaces towards the LA contour points
     (:mod:`cardionurbs.anatomy.refine`), where the study has LA contours.
+    ``progress``: optional callable (k, n) told after each frame's LV cavity is built.
     Raises ReconstructionError naming the structure and frame when a surface
     cannot be built.
     """
@@ -468,4 +473,5 @@ def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float 
         raise ReconstructionError(f"frame(s) {missing} have no LV endocardial contours")
     if not frames:
         raise ReconstructionError(f"study {study.subject}: no LV endocardial contours")
-    return BiventricularModel(study, frames, tol_px=tol_px, refine=refine, resolution=resolution)
+    return BiventricularModel(study, frames, tol_px=tol_px, refine=refine, resolution=resolution,
+                              progress=progress)

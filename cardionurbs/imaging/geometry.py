@@ -16,6 +16,7 @@ the image, with (0, 0) the centre of the first pixel.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -113,11 +114,14 @@ class ImagePlane:
         object.__setattr__(self, "thickness", float(self.thickness))
 
     # ------------------------------------------------------------------ geometry
-    @property
+    @cached_property
     def normal(self) -> np.ndarray:
-        """Unit plane normal, row_cosine x column_cosine."""
+        """Unit plane normal, row_cosine x column_cosine (computed once per plane; read-only,
+        since hot loops such as tag QC ask for it thousands of times)."""
         n = np.cross(self.row_cosine, self.column_cosine)
-        return n / np.linalg.norm(n)
+        n = n / np.linalg.norm(n)
+        n.setflags(write=False)
+        return n
 
     @property
     def orientation(self) -> np.ndarray:

@@ -59,9 +59,24 @@ def _json_safe(x):
     return x
 
 
-def write_json(obj, path: str | os.PathLike) -> Path:
-    """Atomically write JSON (NaN and infinity become null)."""
-    return atomic.write_text(path, json.dumps(_json_safe(obj), indent=1) + "\n")
+def _plain(x):
+    """``default`` hook of the fast path: numpy scalars and arrays as Python values."""
+    if hasattr(x, "tolist"):
+        return x.tolist()
+    raise TypeError(f"{type(x).__name__} is not JSON serialisable")
+
+
+def write_json(obj, path: str | os.PathLike, indent: int | None = 1) -> Path:
+    """Atomically write JSON (NaN and infinity become null).
+
+    ``indent=None`` writes compact JSON through the C encoder (large files such as
+    model.json: several times faster). Values without NaN or infinity are encoded as
+    they are; otherwise every value goes through :func:`_json_safe` first."""
+    try:
+        text = json.dumps(obj, indent=indent, allow_nan=False, default=_plain)
+    except (ValueError, TypeError):
+        text = json.dumps(_json_safe(obj), indent=indent, default=_plain)
+    return atomic.write_text(path, text + "\n")
 
 
 def export_model(model, path: str | os.PathLike) -> Path:

@@ -426,7 +426,12 @@ def tag_data(model, tags: Any = None, frames: Sequence[int] | None = None,
         flags = list(tags.flags)
         frames = [f for f in (frames if frames is not None else study.tagged_frames)
                   if f in study.tagged_frames]
-        data = {f: tag_figure_data(study, f, long_axis=axis, flags=flags, nu=grid[0], nv=grid[1])
+        # the analysis's own tag surfaces where no line was left out of them (same study,
+        # frame and axis: the same surfaces), else built here with every line
+        built = getattr(tags, "surfaces", None) or {}
+        flagged_at = {fl.frame for fl in flags}
+        data = {f: tag_figure_data(study, f, long_axis=axis, flags=flags, nu=grid[0], nv=grid[1],
+                                   surfaces=None if f in flagged_at else built.get(f))
                 for f in frames}
     except (CardioNurbsError, ValueError, np.linalg.LinAlgError) as exc:
         return tags, {}, f"tag surfaces not built: {' '.join(str(exc).split())}"
