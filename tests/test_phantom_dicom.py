@@ -46,14 +46,16 @@ def test_every_dicom_reads_back_with_exact_geometry(written):
         dsets[im.id] = ds
     assert sorted(map(sorted, series.values())) == [["la_2ch"], ["la_3ch"], ["la_4ch"], ["sa_"]]
     # each contour point lies on the plane of the DICOM it references, and the DICOM
-    # pixel -> scanner mapping reproduces it
+    # pixel -> scanner mapping reproduces it -- to the native files' stated precision
+    # (x, y, z at 3 decimals: each within 0.5 µm, a point within sqrt(3) * 0.5 µm)
+    tol = 0.5e-3 * np.sqrt(3) + 1e-9
     for c in [*st.contours, *st.tags]:
         ipp, row, col, ps = _plane_from_dicom(dsets[c.image])
         n = np.cross(row, col)
-        assert np.abs((c.points - ipp) @ n).max() < 1e-6
+        assert np.abs((c.points - ipp) @ n).max() < tol
         pix = np.column_stack([(c.points - ipp) @ row / ps[1], (c.points - ipp) @ col / ps[0]])
         back = ipp + pix[:, :1] * ps[1] * row + pix[:, 1:] * ps[0] * col
-        assert np.abs(back - c.points).max() < 1e-6
+        assert np.abs(back - c.points).max() < tol
 
 
 def test_image_contrast_and_tag_fading(written):

@@ -30,17 +30,34 @@ slice      slice id (empty allowed for landmarks)
 frame      frame index
 image      image id of the manifest (may be empty when x, y, z are given)
 closed     1 or 0 for contours, empty otherwise
-x, y, z    scanner mm (LPS); written with 17 significant digits (lossless)
-px, py     pixel column and row on ``image``; used when x, y, z are empty
+x, y, z    scanner mm (LPS), written with 3 decimals (1 µm)
+px, py     pixel column and row on ``image``, 3 decimals (1/1000 pixel); used when
+           x, y, z are empty
 =========  ==================================================================
 
 Consecutive rows sharing (kind, name, index, view, slice, frame, image) form
 one annotation. Reading then writing a study gives equal files.
+
+Precision: coordinates are written at a fixed precision, stated in the manifest
+(``"coordinate_decimals": 3``): 1 µm in scanner mm, far below a pixel (about
+1 mm) and below the 0.1 mm off-plane tolerance of the checks, so every number
+measured from a study is unchanged at the precision it is reported to; a
+20-frame phantom's points.csv shrinks from 20 MB (17 significant digits) to
+about 8 MB. ``write_study(..., decimals=None)`` writes 17 significant digits
+(lossless for any float); files of either kind, and files written before the
+precision was fixed (no ``coordinate_decimals``), load alike.
+
+Sidecar: ``write_study(..., sidecar=True)`` also writes ``points.parquet``
+(the same table, columnar binary, named by the manifest's ``points_sidecar``)
+for large studies, which loads several times faster than the CSV. The CSV
+stays the reference: the sidecar carries the CRC-32 of the CSV it was made
+from and is used only when the CSV still has it (a CSV edited by hand wins).
 """
 
 from __future__ import annotations
 
 import json
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +72,10 @@ FORMAT = "cardionurbs-native"
 VERSION = 1
 MANIFEST = "study.json"
 POINTS = "points.csv"
+SIDECAR = "points.parquet"
+#: decimals of x, y, z (mm) and px, py (pixels) in points.csv: 1 µm, 1/1000 pixel
+DECIMALS = 3
+_CRC_KEY = b"cardionurbs.points_csv_crc32"
 COLUMNS = ["kind", "name", "index", "view", "slice", "frame", "image", "closed",
            "x", "y", "z", "px", "py"]
 _KEY = ["kind", "name", "index", "view", "slice", "frame", "image"]
@@ -130,15 +151,40 @@ def study_to_frames(study: Study, pixel_coordinates: bool = True) -> tuple[dict,
     return manifest, table[COLUMNS]
 
 
-def write_study(study: Study, folder: str | Path, pixel_coordinates: bool = True) -> Path:
-    """Write ``study`` as a native study into ``folder`` (files written atomically)."""
+def write_study(study: Study, folder: str | Path, pixel_coordinates: bool = True,
+                decimals: int | None = DECIMALS, sidecar: bool = False) -> Path:
+    """Write ``study`` as a native study into ``folder`` (files written atomically).
+
+    ``decimals``: fixed decimals of the coordinates (default 3: 1 µm, 1/1000 pixel);
+    None writes 17 significant digits (lossless). ``sidecar``: also write
+    ``points.parquet`` (see the module docstring)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     manifest, table = study_to_frames(study, pixel_coordinates)
-    with atomic.atomic_path(folder / POINTS) as tmp:
-        table.to_csv(tmp, index=False, float_format="%.17g", lineterminator="\n")
+    fmt = "%.17g" if decimals is None else f"%.{int(decimals)}f"
+    text = table.to_csv(index=False, float_format=fmt, lineterminator="\n")
+    if decimals is not None:
+        manifest["coordinate_decimals"] = int(decimals)
+    data = text.encode("utf-8")
+    atomic.write_bytes(folder / POINTS, data)
+    if sidecar:
+        _write_sidecar(folder / POINTS, folder / SIDECAR, zlib.crc32(data))
+        manifest["points_sidecar"] = SIDECAR
     atomic.write_text(folder / MANIFEST, json.dumps(manifest, indent=1, sort_keys=False) + "\n")
     return folder
+
+
+def _write_sidecar(csv_path: Path, path: Path, crc: int) -> Path:
+    """points.parquet: the table exactly as read back from ``csv_path`` (so both files give
+    identical studies), with the CSV's CRC-32 in the schema metadata."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    table = pa.Table.from_pandas(_points_table(csv_path), preserve_index=False)
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}),
+                                           _CRC_KEY: str(crc).encode()})
+    with atomic.atomic_path(path) as tmp:
+        pq.write_table(table, tmp, compression="zstd")
+    return path
 
 
 # --------------------------------------------------------------------- reading
@@ -177,8 +223,26 @@ def read_study(path: str | Path) -> Study:
         dup = next(i for i in ids if ids.count(i) > 1)
         raise StudyError(f"image id {dup!r} appears twice", file=manifest_path, field="images")
     points_path = folder / str(manifest.get("points", POINTS))
-    _read_points(study, points_path)
+    _read_points(study, points_path, sidecar=_sidecar_path(folder, manifest))
     return study
+
+
+def _sidecar_path(folder: Path, manifest: dict) -> Path | None:
+    name = manifest.get("points_sidecar")
+    return folder / str(name) if isinstance(name, str) and name else None
+
+
+def _sidecar_table(path: Path, csv_path: Path) -> pd.DataFrame | None:
+    """The sidecar's points table when it was made from the CSV as it is now; else None."""
+    try:
+        import pyarrow.parquet as pq
+        meta = pq.read_schema(path).metadata or {}
+        crc = int(meta.get(_CRC_KEY, b"-1"))
+        if crc != zlib.crc32(csv_path.read_bytes()):
+            return None
+        return pq.read_table(path).to_pandas()
+    except (ImportError, OSError, ValueError):
+        return None
 
 
 def _opt_float(v):
@@ -214,16 +278,26 @@ def _pixels_to_scanner(table: pd.DataFrame, need: np.ndarray, pix: np.ndarray, x
     xyz[need] = S + (p[:, 0] * dc)[:, None] * X + (p[:, 1] * dr)[:, None] * Y
 
 
-def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False) -> None:
-    if not points_path.is_file():
-        raise StudyError("points file is missing", file=points_path)
+def _points_table(points_path: Path) -> pd.DataFrame:
+    """points.csv as a DataFrame (strings kept as written, empty coordinates NaN)."""
     try:
-        table = pd.read_csv(points_path, dtype={"kind": str, "name": str, "view": str, "slice": str,
-                                                "image": str, "closed": str},
-                            keep_default_na=False, na_values={"x": [""], "y": [""], "z": [""],
-                                                             "px": [""], "py": [""]})
+        return pd.read_csv(points_path, dtype={"kind": str, "name": str, "view": str, "slice": str,
+                                               "image": str, "closed": str},
+                           keep_default_na=False, na_values={"x": [""], "y": [""], "z": [""],
+                                                            "px": [""], "py": [""]})
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, ValueError) as exc:
         raise StudyError(f"cannot parse CSV ({str(exc).splitlines()[0]})", file=points_path) from None
+
+
+def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False,
+                 sidecar: Path | None = None) -> None:
+    if not points_path.is_file():
+        raise StudyError("points file is missing", file=points_path)
+    table = None
+    if sidecar is not None and sidecar.is_file():
+        table = _sidecar_table(sidecar, points_path)
+    if table is None:
+        table = _points_table(points_path)
     missing = [c for c in COLUMNS if c not in table.columns]
     if missing:
         raise StudyError(f"missing column(s) {', '.join(missing)}", file=points_path)
@@ -377,6 +451,7 @@ def read_study_from_dicom(path: str | Path) -> Study:
     study.contours, study.tags, study.landmarks = [], [], []
     folder = Path(study.source)
     manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
-    _read_points(study, folder / str(manifest.get("points", POINTS)), prefer_pixels=True)
+    _read_points(study, folder / str(manifest.get("points", POINTS)), prefer_pixels=True,
+                 sidecar=_sidecar_path(folder, manifest))
     study.meta = dict(study.meta, geometry="dicom")
     return study
