@@ -11,7 +11,7 @@ from cardionurbs import StudyError, load_study
 from cardionurbs.imaging.dicom import read_dicom_folder
 from cardionurbs.io.native import read_study_from_dicom
 
-from cardionurbs.phantom import generate as generate_mod
+from cardionurbs import phantom as generate_mod
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ from cardionurbs.analysis.function import measure
 from cardionurbs.analysis.simpson import simpson_metrics
 from cardionurbs.anatomy.model import reconstruct
 
-from cardionurbs.phantom import generate as phantom
+from cardionurbs import phantom
 
 VOLUMES = ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "RVESV (mL)")
 
