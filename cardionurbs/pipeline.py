@@ -2,7 +2,7 @@
 
 Output folder (written atomically: complete or absent)::
 
-    DIR/metrics.json        {"subject", "metrics": {METRICS.md column: value},
+    DIR/metrics.json        {"subject", "metrics": {docs/metrics.md column: value},
                              "ed_frame", "es_frame", "volume_curve", "residuals",
                              "warnings"}
     DIR/model.json          the NURBS model (BiventricularModel.to_dict)
@@ -58,7 +58,7 @@ def parse_outputs(text: str | None) -> tuple[str, ...]:
 
 def tag_metrics_hook(model: BiventricularModel, over_time: bool = True):
     """Tag metrics (Twist, Twist 2D, Torsion, CL shear, LS, QC flags) from
-    ``cardionurbs.analysis.tags.tag_metrics(model)`` -- a mapping METRICS.md column ->
+    ``cardionurbs.analysis.tags.tag_metrics(model)`` -- a mapping docs/metrics.md column ->
     float, with the level table, QC flags and tag surfaces as attributes -- when the
     study has tag lines; None otherwise (the columns then stay NaN). Twist and LS over
     time are included when three or more frames are tagged, so this one result serves
@@ -87,10 +87,10 @@ def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path, tags=N
 
 def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: bool = True,
             progress: Progress | None = None):
-    """Reconstruct and measure one loaded study: (model, METRICS.md dict, tag result or None).
+    """Reconstruct and measure one loaded study: (model, docs/metrics.md dict, tag result or None).
 
     ``over_time``: also twist and LS at every tagged frame (for figures and metrics.json);
-    the METRICS.md columns are the same without it. ``progress``: stages on stderr."""
+    the docs/metrics.md columns are the same without it. ``progress``: stages on stderr."""
     progress = progress or Progress(False)
     progress.stage("reconstruct")
     model = reconstruct(study, progress=progress.step)
@@ -106,7 +106,7 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
 
 def analyse_study(study: Study, *, heart_rate_bpm: float | None = None
                   ) -> tuple[BiventricularModel, dict[str, float]]:
-    """Reconstruct and measure one loaded study: (model, METRICS.md dict) -- the metrics
+    """Reconstruct and measure one loaded study: (model, docs/metrics.md dict) -- the metrics
     only (what a cohort row needs: no tag time course)."""
     model, metrics, _ = analyse(study, heart_rate_bpm=heart_rate_bpm, over_time=False)
     return model, metrics
@@ -191,7 +191,7 @@ def _report(out_dir: Path) -> Path | None:
 
 
 def run_analyze(args: argparse.Namespace) -> int:
-    """Load, reconstruct, measure and write one study (see API.md); ``--outputs`` chooses
+    """Load, reconstruct, measure and write one study (outputs: docs/formats.md); ``--outputs`` chooses
     what is written, ``--progress`` (or a terminal on stderr) shows the stages."""
     try:
         outputs = parse_outputs(getattr(args, "outputs", None))
