@@ -2,7 +2,7 @@
 
 Exit codes: 0 ok; 2 bad input or usage (one line on stderr, no traceback);
 1 an internal error (one line on stderr; ``CARDIONURBS_DEBUG=1`` shows the
-traceback).
+traceback); 3 ``cohort`` finished but some study failed (``--allow-failures``: 0).
 """
 
 from __future__ import annotations
@@ -39,6 +39,16 @@ def _nonneg_float(text: str) -> float:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
     if not (v >= 0 and v < float("inf")):
         raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
+    return v
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (v > 0 and v < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
     return v
 
 
@@ -86,7 +96,19 @@ def build_parser() -> argparse.ArgumentParser:
     co = sub.add_parser("cohort", help="measure many studies into one CSV")
     co.add_argument("studies", nargs="+", metavar="STUDY")
     co.add_argument("--csv", required=True, metavar="FILE")
-    co.add_argument("--jobs", type=_positive_int, default=1)
+    co.add_argument("--jobs", type=_positive_int, default=1,
+                    help="worker processes (or Dask workers with --dask local)")
+    co.add_argument("--dask", metavar="local|tcp://HOST:PORT", default=None,
+                    help="run on Dask: a LocalCluster on 127.0.0.1, or an existing scheduler")
+    co.add_argument("--timeout", type=_positive_float, default=None, metavar="S",
+                    help="seconds per study; a study still running then becomes an error row")
+    co.add_argument("--run-dir", default=None, metavar="DIR",
+                    help="where finished rows are kept (default: CSV path + '.rows')")
+    co.add_argument("--resume", action="store_true",
+                    help="keep the rows a previous run of the same studies finished")
+    co.add_argument("--parquet", action="store_true", help="also write the table as .parquet")
+    co.add_argument("--allow-failures", action="store_true",
+                    help="exit 0 even when some study failed (default: exit 3)")
     co.add_argument("--format", default="auto", choices=["auto", "native", "sunnybrook", "gpfile"])
 
     de = sub.add_parser("demo", help="the paper's 12-subject phantom cohort, end to end")

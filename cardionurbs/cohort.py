@@ -1,17 +1,30 @@
 """Many studies -> one table (docs/metrics.md columns, one row per study).
 
-A study that fails (bad input, a surface that cannot be built) is recorded
-in its row as ``status = "error: <one line>"`` with empty numbers, and the
-run goes on. ``jobs > 1`` measures studies in worker processes
-(concurrent.futures); rows keep the input order.
+A study that fails (bad input, a surface that cannot be built, a hang past
+``timeout``, a worker process that dies) is recorded in its row as
+``status = "error: <one line>"`` with empty numbers, and the run goes on.
+Studies are measured on local worker processes (``jobs``) or on a Dask cluster
+(``dask="local"`` or ``"tcp://host:port"``; :mod:`cardionurbs.executor`); rows
+keep the input order.
+
+Durable runs (``run_dir``, the CLI's ``<csv>.rows/`` by default): each finished
+subject's row is written at once to its own small file ``rows/<key>.json``
+(temporary file, fsync, rename, fsync of the folder), so a run killed at any
+moment (even ``kill -9``) keeps every subject it finished; ``resume=True``
+measures only the subjects without a row. The table -- and so the CSV -- is
+always assembled from the stored rows in input order, which makes a resumed
+run's CSV byte-identical to an uninterrupted one.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
+import math
 import os
 import sys
-from concurrent.futures import ProcessPoolExecutor, as_completed
+import time
 from pathlib import Path
 from typing import Iterable
 
@@ -27,8 +40,32 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
+#: environment variable that arms :func:`_test_fault` (the test suite's fault injection)
+TEST_FAULTS_ENV = "CARDIONURBS_TEST_FAULTS"
+
+
+def _test_fault(path: str) -> None:
+    """Test-only hook: with ``CARDIONURBS_TEST_FAULTS=1`` in the environment, a study folder
+    holding a file ``TEST_FAULT`` misbehaves as it says -- ``hang`` (sleeps for an hour),
+    ``exit`` (the worker process ends at once, as if killed) or ``raise`` (an internal
+    error). Does nothing otherwise."""
+    if os.environ.get(TEST_FAULTS_ENV) != "1":
+        return
+    marker = Path(path) / "TEST_FAULT"
+    if not marker.is_file():
+        return
+    what = marker.read_text().strip()
+    if what == "hang":
+        time.sleep(3600)
+    elif what == "exit":
+        os._exit(17)
+    elif what == "raise":
+        raise RuntimeError(f"injected fault in {path}")
+
+
 def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None = None) -> dict:
     """One cohort row for the study at ``path`` (never raises for a bad study)."""
+    _test_fault(path)
     row = {c: NAN for c in COLUMNS}
     row["subject"] = Path(path).name
     try:
@@ -46,30 +83,121 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
     return row
 
 
+def failure_row(path: str, reason: str) -> dict:
+    """The row of a study that gave no result (a hang, a dead worker): reason, empty numbers."""
+    row = {c: NAN for c in COLUMNS}
+    row["subject"] = Path(path).name
+    row["status"] = f"error: {' '.join(str(reason).split())}"
+    return row
+
+
+class RowStore:
+    """Finished rows of a cohort run, one small JSON file per subject under ``folder/rows``.
+
+    A row is written to a temporary file, flushed and fsynced, renamed into place and
+    the folder fsynced: once :meth:`put` returns the row survives a crash of the process
+    or the machine. Rows are keyed by the study path as given (plus the format), so a
+    rerun with the same arguments finds them.
+    """
+
+    def __init__(self, folder: str | os.PathLike) -> None:
+        self.folder = Path(folder)
+        self.rows_dir = self.folder / "rows"
+
+    @staticmethod
+    def key(path: str, format: str = "auto") -> str:
+        return hashlib.sha1(f"{format}\0{path}".encode()).hexdigest()[:20]
+
+    def clear(self) -> None:
+        """Forget every stored row (a fresh run)."""
+        if self.rows_dir.is_dir():
+            for f in self.rows_dir.iterdir():
+                f.unlink()
+
+    def put(self, path: str, format: str, row: dict) -> None:
+        self.rows_dir.mkdir(parents=True, exist_ok=True)
+        data = json.dumps({"path": path, "format": format,
+                           "row": {k: (None if isinstance(v, float) and math.isnan(v) else v)
+                                   for k, v in row.items()}}, allow_nan=False)
+        final = self.rows_dir / f"{self.key(path, format)}.json"
+        tmp = self.rows_dir / f".{final.name}.{os.getpid()}.tmp"
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, final)
+        fd = os.open(self.rows_dir, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+    def get(self, path: str, format: str = "auto") -> dict | None:
+        """The stored row of one study (NaN for empty numbers), or None."""
+        f = self.rows_dir / f"{self.key(path, format)}.json"
+        try:
+            d = json.loads(f.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None                      # absent (or, impossibly, torn): measure again
+        if d.get("path") != path or d.get("format") != format:
+            return None
+        return {k: (NAN if v is None and k in COLUMNS else v) for k, v in d["row"].items()}
+
+
 def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "auto",
-           progress: bool = False, heart_rate_bpm: float | None = None) -> pd.DataFrame:
+           progress: bool = False, heart_rate_bpm: float | None = None,
+           dask: str | None = None, timeout: float | None = None,
+           run_dir: str | os.PathLike | None = None, resume: bool = False) -> pd.DataFrame:
     """Measure every study: a DataFrame with ``subject``, ``status`` and the docs/metrics.md
-    columns in order, one row per path (input order)."""
+    columns in order, one row per path (input order).
+
+    ``jobs``: worker processes (or Dask workers for ``dask="local"``); ``dask``: run on a
+    Dask cluster (``"local"`` or a scheduler address); ``timeout``: seconds per study
+    before it becomes an error row; ``run_dir``: store each finished row durably there
+    (:class:`RowStore`); ``resume``: keep the rows already in ``run_dir`` and measure only
+    the others.
+    """
+    from cardionurbs.executor import TaskFailure, run_tasks
+
     paths = [str(p) for p in paths]
+    store = RowStore(run_dir) if run_dir is not None else None
     rows: list[dict | None] = [None] * len(paths)
+    if store is not None:
+        if resume:
+            rows = [store.get(p, format) for p in paths]
+        else:
+            store.clear()
+    todo = [i for i, r in enumerate(rows) if r is None]
     bar = None
     if progress:
         from tqdm import tqdm
-        bar = tqdm(total=len(paths), desc="studies", unit="study", file=sys.stderr)
-    try:
-        if jobs <= 1 or len(paths) <= 1:
-            for i, p in enumerate(paths):
-                rows[i] = measure_study(p, format, heart_rate_bpm)
-                if bar is not None:
-                    bar.update(1)
+        bar = tqdm(total=len(paths), initial=len(paths) - len(todo), desc="studies",
+                   unit="study", file=sys.stderr)
+
+    def finished(k: int, result) -> None:
+        i = todo[k]
+        if isinstance(result, TaskFailure):
+            row = failure_row(paths[i], result.message if result.kind == "error" else str(result))
         else:
-            with ProcessPoolExecutor(max_workers=min(jobs, len(paths))) as pool:
-                futs = {pool.submit(measure_study, p, format, heart_rate_bpm): i
-                        for i, p in enumerate(paths)}
-                for fut in as_completed(futs):
-                    rows[futs[fut]] = fut.result()
-                    if bar is not None:
-                        bar.update(1)
+            row = result
+        if store is not None:
+            store.put(paths[i], format, row)
+            row = store.get(paths[i], format)      # exactly what a resumed run would read
+        rows[i] = row
+        if bar is not None:
+            bar.update(1)
+
+    try:
+        if dask is None and jobs <= 1 and timeout is None:
+            for k, i in enumerate(todo):             # in this process: no worker to start
+                try:
+                    result = measure_study(paths[i], format, heart_rate_bpm)
+                except Exception as exc:  # noqa: BLE001 - as a worker would report it
+                    result = TaskFailure("error", f"{type(exc).__name__}: {_one_line(exc)}")
+                finished(k, result)
+        else:
+            run_tasks(measure_study, [(paths[i], format, heart_rate_bpm) for i in todo],
+                      finished, jobs=jobs, dask=dask, timeout=timeout)
     finally:
         if bar is not None:
             bar.close()
@@ -81,14 +209,36 @@ def write_csv(table: pd.DataFrame, path: str | os.PathLike) -> Path:
     return atomic.write_text(path, table.to_csv(index=False, float_format="%.6g"))
 
 
+def write_parquet(table: pd.DataFrame, path: str | os.PathLike) -> Path:
+    """Write the cohort table as Parquet (pyarrow), atomically."""
+    with atomic.atomic_path(path) as tmp:
+        table.to_parquet(tmp, index=False, engine="pyarrow")
+    return Path(path)
+
+
+#: exit status of ``cohort`` when the run finished but some study failed (without
+#: ``--allow-failures``): distinct from 1 (internal error) and 2 (bad usage)
+EXIT_SOME_FAILED = 3
+
+
 def run_cohort(args: argparse.Namespace) -> int:
-    """`cardionurbs cohort STUDY... --csv FILE [--jobs N]`."""
+    """`cardionurbs cohort STUDY... --csv FILE [--jobs N] [--dask local|tcp://HOST:PORT]
+    [--timeout S] [--resume] [--run-dir DIR] [--parquet] [--allow-failures]`."""
+    csv = Path(args.csv)
+    run_dir = getattr(args, "run_dir", None) or csv.with_name(csv.name + ".rows")
     table = cohort(args.studies, jobs=args.jobs, format=getattr(args, "format", "auto"),
-                   progress=True)
-    write_csv(table, args.csv)
+                   progress=sys.stderr.isatty(), dask=getattr(args, "dask", None),
+                   timeout=getattr(args, "timeout", None), run_dir=run_dir,
+                   resume=getattr(args, "resume", False))
+    write_csv(table, csv)
+    wrote = [str(csv)]
+    if getattr(args, "parquet", False):
+        wrote.append(str(write_parquet(table, csv.with_suffix(".parquet"))))
     failed = table[table["status"] != "ok"]
-    print(f"{len(table) - len(failed)} of {len(table)} studies measured; wrote {args.csv}",
-          file=sys.stderr)
+    print(f"cohort: {len(table) - len(failed)} of {len(table)} studies measured, "
+          f"{len(failed)} failed; wrote {', '.join(wrote)}", file=sys.stderr)
     for _, r in failed.iterrows():
         print(f"  {r['subject']}: {r['status']}", file=sys.stderr)
+    if len(failed) and not getattr(args, "allow_failures", False):
+        return EXIT_SOME_FAILED
     return 0

@@ -68,9 +68,10 @@ def test_jobs_two_gives_the_same_table(studies, table):
 
 def test_cli_writes_csv_and_reports_failures(studies, tmp_path, capsys):
     out = tmp_path / "sub" / "cohort.csv"
-    assert main(["cohort", *studies, "--csv", str(out), "--jobs", "1"]) == 0
+    assert main(["cohort", *studies, "--csv", str(out), "--jobs", "1"]) == 3   # some failed
     err = capsys.readouterr().err
-    assert "2 of 4 studies measured" in err and "does-not-exist" in err
+    assert "2 of 4 studies measured, 2 failed" in err and "does-not-exist" in err
+    assert main(["cohort", *studies, "--csv", str(out), "--allow-failures"]) == 0
     df = pd.read_csv(out)
     assert list(df.columns) == list(CSV_COLUMNS)
     assert df["status"].tolist()[0] == "ok" and df["status"].tolist()[1].startswith("error: ")

@@ -86,8 +86,8 @@ def test_native_pixel_only_rows_map_through_their_image(tmp_path):
         out.append(",".join(f))
     (tmp_path / "points.csv").write_text("\n".join(out) + "\n")
     r = load_study(tmp_path)
-    for a, b in zip(s.contours, r.contours):
-        assert np.allclose(a.points, b.points, atol=1e-9)
+    for a, b in zip(s.contours, r.contours):   # px, py at 1/1000 pixel (1.17 mm pixels)
+        assert np.allclose(a.points, b.points, atol=1e-3)
 
 
 @pytest.mark.parametrize("mutate, needle", [

@@ -94,12 +94,15 @@ def is_native(path: str | Path) -> bool:
 
 
 # --------------------------------------------------------------------- writing
-def study_to_frames(study: Study, pixel_coordinates: bool = True) -> tuple[dict, pd.DataFrame]:
+def study_to_frames(study: Study, pixel_coordinates: bool = True,
+                    decimals: int | None = None) -> tuple[dict, pd.DataFrame]:
     """The manifest dict and the points table of a study (what :func:`write_study` writes).
 
     Each column is built once for all annotations (metadata repeated by point
     count with ``np.repeat``; pixel coordinates mapped per image in one call),
     so writing costs a few array operations whatever the number of annotations.
+    ``decimals``: round x, y, z to that many decimals first (what :func:`write_study`
+    writes), so that px, py are those of the coordinates a reader will see.
     """
     images = study._image_index()
     meta: list[tuple] = []      # (kind, name, index, view, slice, frame, image, closed)
@@ -119,6 +122,10 @@ def study_to_frames(study: Study, pixel_coordinates: bool = True) -> tuple[dict,
     else:
         counts = np.array([len(b) for b in blocks])
         xyz = np.concatenate(blocks).reshape(-1, 3)
+        if decimals is not None:
+            # the coordinates as they will be read back, so that the pixel columns are
+            # computed from them and a study read and written again gives equal files
+            xyz = np.round(xyz, int(decimals))
         image_per_block = np.array([m[6] or "" for m in meta], dtype=object)
         image_col = np.repeat(image_per_block, counts)
         pix = np.full((len(xyz), 2), np.nan)
@@ -160,7 +167,7 @@ def write_study(study: Study, folder: str | Path, pixel_coordinates: bool = True
     ``points.parquet`` (see the module docstring)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    manifest, table = study_to_frames(study, pixel_coordinates)
+    manifest, table = study_to_frames(study, pixel_coordinates, decimals)
     fmt = "%.17g" if decimals is None else f"%.{int(decimals)}f"
     text = table.to_csv(index=False, float_format=fmt, lineterminator="\n")
     if decimals is not None:

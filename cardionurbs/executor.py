@@ -1,0 +1,247 @@
+"""Run one function over many inputs on local worker processes or on a Dask cluster,
+with a per-task timeout, surviving workers that die.
+
+:func:`run_tasks` calls ``fn(*args)`` for every ``args`` of a list and hands each
+result to ``on_result(i, result)`` as soon as it is known (so the caller can write
+it durably). A task that raises, runs longer than ``timeout`` seconds, or whose
+worker process dies (a crash, ``os._exit``, the out-of-memory killer) ends as
+``on_result(i, TaskFailure(...))``; the other tasks go on.
+
+Executors:
+
+- ``"processes"`` (default): ``jobs`` worker processes of this machine, each
+  running one task at a time. A worker whose task overruns the timeout is killed
+  and replaced; a worker that dies is replaced. Forked from this process where the
+  platform allows (no re-import per worker).
+- a Dask cluster (``dask="local"`` starts a ``LocalCluster`` of ``jobs``
+  single-threaded worker processes on 127.0.0.1; ``dask="tcp://host:port"``
+  connects to a running scheduler, e.g. one started by dask-jobqueue on SLURM or
+  PBS). At most as many tasks are in flight as the cluster has worker threads, so
+  a task starts when it is submitted and its timeout is measured from then; a
+  worker holding an overrun task is restarted (its nanny starts a fresh process).
+  A task whose worker dies fails at once (the local cluster is started with
+  ``distributed.scheduler.allowed-failures = 0``; set the same on a scheduler of
+  your own, or the scheduler retries the task on other workers first).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import sys
+import time
+from collections import deque
+from dataclasses import dataclass
+from multiprocessing.connection import wait as wait_connections
+from typing import Any, Callable, Sequence
+
+#: executor names accepted besides a Dask scheduler address
+LOCAL = "processes"
+
+
+@dataclass(frozen=True)
+class TaskFailure:
+    """Why a task produced no result: ``kind`` is ``error``, ``timeout`` or ``worker died``."""
+
+    kind: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.kind}: {self.message}" if self.message else self.kind
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def run_tasks(fn: Callable[..., Any], tasks: Sequence[tuple], on_result: Callable[[int, Any], None],
+              *, jobs: int = 1, dask: str | None = None, timeout: float | None = None) -> None:
+    """Run ``fn(*tasks[i])`` for every i; ``on_result(i, result or TaskFailure)`` once per task,
+    in completion order, in this process. ``fn`` must be importable by the workers."""
+    if not tasks:
+        return
+    if timeout is not None and not timeout > 0:
+        raise ValueError(f"timeout must be > 0 seconds, got {timeout!r}")
+    if dask:
+        _run_dask(fn, tasks, on_result, jobs=jobs, address=dask, timeout=timeout)
+    else:
+        _run_processes(fn, tasks, on_result, jobs=jobs, timeout=timeout)
+
+
+# ------------------------------------------------------------------ local processes
+def _worker_loop(conn, fn) -> None:
+    """Worker process: run tasks sent over ``conn`` until told to stop (None)."""
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            return
+        if msg is None:
+            return
+        i, args = msg
+        try:
+            out = fn(*args)
+        except BaseException as exc:  # noqa: BLE001 - reported as the task's failure
+            out = TaskFailure("error", f"{type(exc).__name__}: {_one_line(exc)}")
+        try:
+            conn.send((i, out))
+        except (OSError, ValueError):
+            return
+
+
+class _Worker:
+    def __init__(self, ctx, fn) -> None:
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_worker_loop, args=(child, fn), daemon=True)
+        self.proc.start()
+        child.close()
+        self.task: int | None = None
+        self.deadline = float("inf")
+
+    def give(self, i: int, args: tuple, timeout: float | None) -> None:
+        self.task = i
+        self.deadline = time.monotonic() + timeout if timeout else float("inf")
+        self.conn.send((i, args))
+
+    def stop(self, kill: bool = False) -> None:
+        if kill:
+            self.proc.kill()
+        else:
+            try:
+                self.conn.send(None)
+            except (OSError, ValueError):
+                self.proc.kill()
+        self.proc.join(timeout=5)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join()
+        self.conn.close()
+
+
+def _context():
+    methods = mp.get_all_start_methods()
+    return mp.get_context("fork" if "fork" in methods and sys.platform != "darwin" else "spawn")
+
+
+def _run_processes(fn, tasks, on_result, *, jobs: int, timeout: float | None) -> None:
+    ctx = _context()
+    todo = deque(range(len(tasks)))
+    workers = [_Worker(ctx, fn) for _ in range(max(1, min(jobs, len(tasks))))]
+    try:
+        for w in workers:
+            if todo:
+                i = todo.popleft()
+                w.give(i, tasks[i], timeout)
+        while any(w.task is not None for w in workers):
+            busy = [w for w in workers if w.task is not None]
+            wait_s = min(w.deadline for w in busy) - time.monotonic()
+            ready = wait_connections([w.conn for w in busy] + [w.proc.sentinel for w in busy],
+                                     timeout=None if wait_s == float("inf") else max(wait_s, 0.0))
+            now = time.monotonic()
+            for k, w in enumerate(workers):
+                if w.task is None:
+                    continue
+                i, result = w.task, None
+                if w.conn in ready or w.conn.poll():
+                    try:
+                        _, result = w.conn.recv()
+                    except (EOFError, OSError):
+                        result = None
+                if result is None and (w.proc.sentinel in ready or not w.proc.is_alive()):
+                    w.proc.join(timeout=1)
+                    code = w.proc.exitcode
+                    result = TaskFailure("worker died", f"worker process ended with exit code {code}"
+                                         if code is None or code >= 0 else
+                                         f"worker process killed by signal {-code}")
+                    w.stop(kill=True)
+                    workers[k] = w = _Worker(ctx, fn)
+                elif result is None and now >= w.deadline:
+                    result = TaskFailure("timeout", f"no result after {timeout:g} s; worker stopped")
+                    w.stop(kill=True)
+                    workers[k] = w = _Worker(ctx, fn)
+                if result is None:
+                    continue
+                w.task = None
+                on_result(i, result)
+                if todo:
+                    j = todo.popleft()
+                    w.give(j, tasks[j], timeout)
+    finally:
+        for w in workers:
+            w.stop(kill=w.task is not None)
+
+
+# ------------------------------------------------------------------ Dask
+def dask_client(address: str, jobs: int):
+    """(client, cluster or None): a LocalCluster of ``jobs`` single-threaded worker processes
+    on 127.0.0.1 for ``"local"``, else a client of the scheduler at ``address``."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    if address == "local":
+        with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+            cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True,
+                                   host="127.0.0.1", dashboard_address=None)
+        return Client(cluster), cluster
+    return Client(address), None
+
+
+def _import_module(name: str) -> None:
+    import importlib
+    importlib.import_module(name)
+
+
+def _run_dask(fn, tasks, on_result, *, jobs: int, address: str, timeout: float | None) -> None:
+    from distributed import wait
+
+    client, cluster = dask_client(address, jobs)
+    try:
+        # import the task's module on every worker first, so that no task's timeout pays it
+        client.run(_import_module, fn.__module__)
+        slots = max(1, sum(client.nthreads().values()))
+        todo = deque(range(len(tasks)))
+        inflight: dict = {}            # future -> (task index, deadline)
+        token = f"{os.getpid()}-{time.time_ns()}"
+
+        def submit(i: int) -> None:
+            fut = client.submit(fn, *tasks[i], key=f"cardionurbs-{token}-{i}", pure=False,
+                                retries=0)
+            inflight[fut] = (i, time.monotonic() + timeout if timeout else float("inf"))
+
+        while todo or inflight:
+            while todo and len(inflight) < slots:
+                submit(todo.popleft())
+            soonest = min(d for _, d in inflight.values()) - time.monotonic()
+            try:
+                wait(list(inflight), return_when="FIRST_COMPLETED",
+                     timeout=None if soonest == float("inf") else max(soonest, 0.01))
+            except TimeoutError:           # a deadline passed: handled below
+                pass
+            now = time.monotonic()
+            for fut in list(inflight):
+                i, deadline = inflight[fut]
+                if fut.done():
+                    del inflight[fut]
+                    if fut.status == "finished":
+                        result = fut.result()
+                    else:
+                        exc = fut.exception()
+                        name = type(exc).__name__
+                        kind = "worker died" if name == "KilledWorker" else "error"
+                        result = TaskFailure(kind, f"{name}: {_one_line(exc)}")
+                    on_result(i, result)
+                elif now >= deadline:
+                    del inflight[fut]
+                    holders = [w for w, keys in client.processing().items() if fut.key in keys]
+                    fut.cancel()
+                    if holders:
+                        try:
+                            client.restart_workers(holders, timeout=60)
+                        except Exception:  # noqa: BLE001 - best effort; the task is already lost
+                            pass
+                    on_result(i, TaskFailure("timeout", f"no result after {timeout:g} s; "
+                                             "worker restarted"))
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

@@ -1,0 +1,119 @@
+"""Cohort runs that survive trouble: on a real Dask LocalCluster (scheduler and worker
+processes on 127.0.0.1) and on local worker processes, a study that raises, one that
+hangs past --timeout and one whose worker process dies each end as an error row while
+the others are measured; a run killed with SIGKILL and rerun with --resume gives the
+uninterrupted run's CSV byte for byte without measuring its finished studies again."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from cardionurbs.cohort import TEST_FAULTS_ENV, RowStore, cohort
+from cardionurbs.io.native import write_study
+
+from test_model_fixtures import heart, study_from_hearts
+
+ROOT = Path(__file__).resolve().parents[1]
+TIMEOUT_S = 20.0
+
+
+@pytest.fixture(scope="module")
+def studies(tmp_path_factory):
+    root = tmp_path_factory.mktemp("runs")
+    good = []
+    for i, s in enumerate((1.0, 0.97, 0.94)):
+        st = study_from_hearts([heart(s), heart(0.8 * s)], subject=f"good{i}", la=False)
+        good.append(str(write_study(st, root / f"good{i}")))
+    faulty = {}
+    for what in ("raise", "hang", "exit"):
+        d = root / what
+        write_study(study_from_hearts([heart(1.0), heart(0.8)], subject=what, la=False), d)
+        (d / "TEST_FAULT").write_text(what)
+        faulty[what] = str(d)
+    return good, faulty
+
+
+def _check_rows(table: pd.DataFrame, good, faulty) -> None:
+    by = dict(zip(table["subject"], table["status"]))
+    for p in good:
+        assert by[Path(p).name] == "ok", by
+    assert by["raise"].startswith("error: RuntimeError: injected fault"), by
+    assert by["hang"].startswith("error: timeout: no result after 20 s"), by
+    assert by["exit"].startswith("error: worker died"), by
+    assert table["LVEDV (mL)"].notna().sum() == len(good)
+
+
+def test_dask_local_cluster_turns_raise_hang_and_dead_worker_into_error_rows(
+        studies, tmp_path, monkeypatch):
+    pytest.importorskip("distributed")
+    good, faulty = studies
+    monkeypatch.setenv(TEST_FAULTS_ENV, "1")
+    paths = [good[0], faulty["raise"], faulty["hang"], good[1], faulty["exit"], good[2]]
+    table = cohort(paths, jobs=2, dask="local", timeout=TIMEOUT_S, run_dir=tmp_path / "run")
+    assert list(table["subject"]) == [Path(p).name for p in paths]     # input order
+    _check_rows(table, good, faulty)
+    assert len(list((tmp_path / "run" / "rows").glob("*.json"))) == len(paths)
+
+
+def test_local_processes_turn_raise_hang_and_dead_worker_into_error_rows(
+        studies, tmp_path, monkeypatch):
+    good, faulty = studies
+    monkeypatch.setenv(TEST_FAULTS_ENV, "1")
+    paths = [faulty["hang"], good[0], faulty["exit"], good[1], faulty["raise"], good[2]]
+    table = cohort(paths, jobs=2, timeout=TIMEOUT_S)
+    _check_rows(table, good, faulty)
+
+
+def _cli(args, **kw):
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OPENBLAS_NUM_THREADS="1")
+    return subprocess.Popen([sys.executable, "-m", "cardionurbs.cli", "cohort", *args],
+                            cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kw)
+
+
+def test_sigkill_midway_then_resume_gives_the_same_csv_without_redoing_rows(studies, tmp_path):
+    good, _ = studies
+    paths = list(good)
+    ref = _cli([*paths, "--csv", str(tmp_path / "ref.csv")])
+    ref.communicate(timeout=300)
+    assert ref.returncode == 0
+    # the same run, killed with SIGKILL once it has finished at least one subject
+    csv = tmp_path / "killed.csv"
+    rows = RowStore(tmp_path / "killed.csv.rows").rows_dir
+    run = _cli([*paths, "--csv", str(csv)], start_new_session=True)
+    t0 = time.monotonic()
+    while not (rows.is_dir() and list(rows.glob("*.json"))):
+        assert run.poll() is None, "the run ended before it could be killed"
+        assert time.monotonic() - t0 < 240
+        time.sleep(0.02)
+    os.killpg(run.pid, signal.SIGKILL)
+    run.communicate()
+    assert run.returncode == -signal.SIGKILL
+    assert not csv.exists()
+    done = {f.name: f.stat().st_mtime_ns for f in rows.glob("*.json")}
+    assert 1 <= len(done) < len(paths)
+    again = _cli([*paths, "--csv", str(csv), "--resume"])
+    again.communicate(timeout=300)
+    assert again.returncode == 0
+    assert csv.read_bytes() == (tmp_path / "ref.csv").read_bytes()
+    for name, mtime in done.items():        # finished subjects were not measured again
+        assert (rows / name).stat().st_mtime_ns == mtime
+    assert len(list(rows.glob("*.json"))) == len(paths)
+
+
+def test_exit_status_and_parquet(studies, tmp_path, monkeypatch):
+    from cardionurbs.cli import main
+    good, faulty = studies
+    monkeypatch.setenv(TEST_FAULTS_ENV, "1")
+    args = ["cohort", good[0], faulty["raise"], "--csv", str(tmp_path / "c.csv"), "--parquet"]
+    assert main(args) == 3
+    t = pd.read_parquet(tmp_path / "c.parquet")
+    assert list(t["status"] == "ok") == [True, False]
+    assert main(args + ["--resume", "--allow-failures"]) == 0
