@@ -18,12 +18,9 @@ import os
 import sys
 from typing import Sequence
 
-from cardionurbs.errors import CardioNurbsError
+from cardionurbs.errors import CardioNurbsError, UsageError
 from cardionurbs.limits import MAX_FRAMES
-
-
-class UsageError(CardioNurbsError):
-    """Bad command-line usage."""
+from cardionurbs.safe import excerpt, printable
 
 
 class _Parser(argparse.ArgumentParser):
@@ -36,7 +33,6 @@ class _Parser(argparse.ArgumentParser):
 
 def _excerpt(text: object, n: int = 40) -> str:
     """A short printable quotation of user input (at most ``n`` characters)."""
-    from cardionurbs.safe import excerpt
     return excerpt(text, n)
 
 
@@ -282,7 +278,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _one_line(exc: BaseException) -> str:
-    from cardionurbs.safe import printable
     text = printable(" ".join(str(exc).split()))
     text = text.removeprefix("cardionurbs: error: ").removeprefix("cardionurbs: ")
     if len(text) > 2000:

@@ -37,6 +37,7 @@ import pydicom
 from pydicom.errors import InvalidDicomError
 
 from cardionurbs.errors import StudyError, UnsupportedInputError
+from cardionurbs.confine import files_inside
 from cardionurbs.safe import excerpt
 from cardionurbs.imaging import phases, stack
 from cardionurbs.imaging.geometry import ImagePlane
@@ -372,7 +373,6 @@ def find_dicom_files(folder: str | Path, exclude: Iterable[str | Path] = ()) -> 
         if excl and any(e == p.resolve() or e in p.resolve().parents for e in excl):
             continue
         out.append(p)
-    from cardionurbs.confine import files_inside
     return sorted(files_inside(folder, out, what="DICOM file"), key=_natural_key)
 
 
