@@ -63,7 +63,15 @@ def _test_fault(path: str) -> None:
         raise RuntimeError(f"injected fault in {path}")
 
 
-def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None = None) -> dict:
+def ignore_interrupts() -> None:
+    """Worker-process initializer: Ctrl-C reaches the whole process group, but only the
+    parent handles it (one message, exit 130), so workers ignore SIGINT."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None = None,
+                  allow_outside: bool = False) -> dict:
     """One cohort row for the study at ``path`` (never raises for a bad study)."""
     _test_fault(path)
     row = {c: NAN for c in COLUMNS}
@@ -71,7 +79,7 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
     try:
         from cardionurbs.io import load_study
         from cardionurbs.pipeline import analyse_study
-        study = load_study(path, format=format)
+        study = load_study(path, format=format, allow_outside=allow_outside)
         row["subject"] = study.subject
         _, metrics = analyse_study(study, heart_rate_bpm=heart_rate_bpm)
         row.update(metrics)
@@ -147,7 +155,8 @@ class RowStore:
 def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "auto",
            progress: bool = False, heart_rate_bpm: float | None = None,
            dask: str | None = None, timeout: float | None = None,
-           run_dir: str | os.PathLike | None = None, resume: bool = False) -> pd.DataFrame:
+           run_dir: str | os.PathLike | None = None, resume: bool = False,
+           allow_outside: bool = False) -> pd.DataFrame:
     """Measure every study: a DataFrame with ``subject``, ``status`` and the docs/metrics.md
     columns in order, one row per path (input order).
 
@@ -191,12 +200,13 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
         if dask is None and jobs <= 1 and timeout is None:
             for k, i in enumerate(todo):             # in this process: no worker to start
                 try:
-                    result = measure_study(paths[i], format, heart_rate_bpm)
+                    result = measure_study(paths[i], format, heart_rate_bpm, allow_outside)
                 except Exception as exc:  # noqa: BLE001 - as a worker would report it
                     result = TaskFailure("error", f"{type(exc).__name__}: {_one_line(exc)}")
                 finished(k, result)
         else:
-            run_tasks(measure_study, [(paths[i], format, heart_rate_bpm) for i in todo],
+            run_tasks(measure_study, [(paths[i], format, heart_rate_bpm, allow_outside)
+                                      for i in todo],
                       finished, jobs=jobs, dask=dask, timeout=timeout)
     finally:
         if bar is not None:
@@ -206,7 +216,8 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
 
 def write_csv(table: pd.DataFrame, path: str | os.PathLike) -> Path:
     """Write the cohort table as CSV, atomically (empty cells for NaN)."""
-    return atomic.write_text(path, table.to_csv(index=False, float_format="%.6g"))
+    from cardionurbs.safe import csv_safe_table
+    return atomic.write_text(path, csv_safe_table(table).to_csv(index=False, float_format="%.6g"))
 
 
 def write_parquet(table: pd.DataFrame, path: str | os.PathLike) -> Path:
@@ -223,13 +234,18 @@ EXIT_SOME_FAILED = 3
 
 def run_cohort(args: argparse.Namespace) -> int:
     """`cardionurbs cohort STUDY... --csv FILE [--jobs N] [--dask local|tcp://HOST:PORT]
-    [--timeout S] [--resume] [--run-dir DIR] [--parquet] [--allow-failures]`."""
+    [--timeout S] [--resume] [--run-dir DIR] [--parquet] [--allow-failures]`; ``--csv`` is
+    checked (cardionurbs.io.outputs) before any study is read."""
+    from cardionurbs.io.outputs import check_output_file
+    from cardionurbs.pipeline import study_folder
+    check_output_file(args.csv, inputs=[study_folder(s) for s in args.studies], option="--csv")
     csv = Path(args.csv)
     run_dir = getattr(args, "run_dir", None) or csv.with_name(csv.name + ".rows")
     table = cohort(args.studies, jobs=args.jobs, format=getattr(args, "format", "auto"),
                    progress=sys.stderr.isatty(), dask=getattr(args, "dask", None),
                    timeout=getattr(args, "timeout", None), run_dir=run_dir,
-                   resume=getattr(args, "resume", False))
+                   resume=getattr(args, "resume", False),
+                   allow_outside=getattr(args, "allow_outside", False))
     write_csv(table, csv)
     wrote = [str(csv)]
     if getattr(args, "parquet", False):

@@ -190,9 +190,17 @@ def _report(out_dir: Path) -> Path | None:
     return write_report(out_dir, Path(out_dir) / "report.html")
 
 
+def study_folder(path: str | Path) -> Path:
+    """The folder of a study given as a folder or as a file in it (its study.json)."""
+    p = Path(path)
+    return p if p.is_dir() or not p.exists() else p.parent
+
+
 def run_analyze(args: argparse.Namespace) -> int:
-    """Load, reconstruct, measure and write one study (outputs: docs/formats.md); ``--outputs`` chooses
-    what is written, ``--progress`` (or a terminal on stderr) shows the stages."""
+    """Load, reconstruct, measure and write one study (outputs: docs/formats.md); ``--out`` is
+    checked (cardionurbs.io.outputs) before anything is read; ``--outputs`` chooses what is
+    written, ``--progress`` (or a terminal on stderr) shows the stages."""
+    from cardionurbs.io.outputs import check_output_dir
     try:
         outputs = parse_outputs(getattr(args, "outputs", None))
     except ValueError as exc:
@@ -200,9 +208,12 @@ def run_analyze(args: argparse.Namespace) -> int:
         raise UsageError(str(exc)) from None
     if getattr(args, "no_figures", False):
         outputs = tuple(o for o in outputs if o not in ("figures", "report"))
+    check_output_dir(args.out, inputs=[study_folder(args.study)],
+                     overwrite=getattr(args, "overwrite", False))
     progress = Progress(True if getattr(args, "progress", False) else None, prefix="analyze")
     progress.stage("load")
-    study = load_study(args.study, format=args.format)
+    study = load_study(args.study, format=args.format,
+                       allow_outside=getattr(args, "allow_outside", False))
     model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None),
                                    over_time=bool({"figures", "report"} & set(outputs)),
                                    progress=progress)
