@@ -33,9 +33,9 @@ in closed form (the tag lines in the native study are those planes' cuts).
 DICOM: pixel data RLE Lossless (transfer syntax 1.2.840.10008.1.2.5, DICOM PS3.5
 Annex G; encoded and decoded by pydicom without plugins, read by every DICOM
 toolkit), or uncompressed Explicit VR Little Endian with ``compression=None``.
-Lossless compression cannot go below the entropy of the Rician noise (σ = 75 of
-4095 grey levels, about 8.3 bits per pixel): RLE stores about 2/3 of the
-uncompressed 16 bits. One MR series per view (``sa`` with all SA slices, ``la_2ch``,
+Lossless compression cannot go below the entropy of the Rician noise: at the
+default σ = 0.025 (75 of 4095 grey levels) about 8.3 bits per pixel, and RLE
+stores about 2/3 of the uncompressed 16 bits; a higher ``snr`` compresses further. One MR series per view (``sa`` with all SA slices, ``la_2ch``,
 ``la_3ch``, ``la_4ch``), file ``dicom/<series>/<slice>_<frame>.dcm``, with
 ImagePositionPatient, ImageOrientationPatient, PixelSpacing, SliceThickness,
 SliceLocation, TriggerTime, HeartRate, NominalInterval, CardiacNumberOfImages
