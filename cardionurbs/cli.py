@@ -153,6 +153,15 @@ def build_parser() -> argparse.ArgumentParser:
     ph.add_argument("--snr", type=_positive_float, default=None,
                     help="tagged DICOM image SNR (myocardium over Rician channel noise; default 12)")
     ph.add_argument("--no-dicom", action="store_true", help="skip the synthetic DICOM images")
+    ph.add_argument("--n", type=_bounded(int, 1, 10_000_000), default=None, metavar="N",
+                    help="with --cohort: N subjects from the spec's mix (subject k takes "
+                         "spec subject k mod m, with its own seed), generated in parallel")
+    ph.add_argument("--jobs", type=_bounded(int, 1, 1024), default=1,
+                    help="with --n: worker processes (or Dask workers with --dask local)")
+    ph.add_argument("--dask", metavar="local|tcp://HOST:PORT", default=None,
+                    help="with --n: generate on Dask (a LocalCluster, or an existing scheduler)")
+    ph.add_argument("--resume", action="store_true",
+                    help="with --n: keep the subjects an earlier run of the same --out finished")
     ph.add_argument("--out", required=True, metavar="DIR",
                     help="new (or empty) output folder")
     ph.add_argument("--overwrite", action="store_true",

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
 from cardionurbs.errors import PhantomError
 from cardionurbs.phantom.generate import generate, generate_cohort, write_phantom
-from cardionurbs.phantom.presets import load_cohort_spec
+from cardionurbs.phantom.presets import SubjectSpec, load_cohort_spec
 
 
 def run_phantom(args: argparse.Namespace) -> int:
@@ -16,9 +17,15 @@ def run_phantom(args: argparse.Namespace) -> int:
     breath_hold_mm, snr, no_dicom, out). Exactly one of --pathology and --cohort is required."""
     if bool(args.pathology) == bool(args.cohort):
         raise PhantomError("phantom: give exactly one of --pathology and --cohort")
+    n = getattr(args, "n", None)
+    if n is not None and not args.cohort:
+        raise PhantomError("phantom: --n needs --cohort SPEC (the mix to draw from)")
+    if getattr(args, "resume", False) and n is None:
+        raise PhantomError("phantom: --resume goes with --cohort SPEC --n N")
     from cardionurbs.io.outputs import check_output_dir
     out = check_output_dir(args.out, inputs=[args.cohort] if args.cohort else [],
-                           overwrite=getattr(args, "overwrite", False))
+                           overwrite=getattr(args, "overwrite", False)
+                           or (n is not None and getattr(args, "resume", False)))
     dicom = not args.no_dicom
     if args.pathology:
         ph = generate(args.pathology, seed=args.seed, frames=args.frames, noise_px=args.noise_px,
@@ -31,9 +38,77 @@ def run_phantom(args: argparse.Namespace) -> int:
     from cardionurbs.io.atomic import atomic_dir
     spec = load_cohort_spec(args.cohort)
     extra = {"snr": args.snr} if getattr(args, "snr", None) is not None else {}
+    if getattr(args, "n", None) is not None:
+        return _run_mix(args, spec, out, dicom, extra)
     with atomic_dir(out) as tmp:                # the whole cohort, or the previous output
         generate_cohort(spec, tmp, dicom=dicom, noise_px=args.noise_px, tag_jumps=args.tag_jumps,
                         **extra,
                         report=lambda path, ph: print(f"{out / path.name}: {ph.study.summary()}",
                                                       file=sys.stdout))
     return 0
+
+
+# ------------------------------------------------------------------ --n: a mix at scale
+#: seed step between rounds of a cohort mix (subject k uses its template's seed + round * step)
+SEED_STEP = 100_000
+
+
+def mix_subjects(spec: list[SubjectSpec], n: int) -> list[SubjectSpec]:
+    """``n`` subjects drawn from a cohort spec used as a mix: subject k takes the spec's
+    subject k mod m (m subjects) as its template -- pathology, frames, faults -- with seed
+    template.seed + (k div m) * SEED_STEP and id ``<template id>`` in the first round,
+    ``<template id>_r<round>`` after it. Subject k is the same whatever ``n``, and the
+    first m subjects are the spec's own."""
+    if n < 1:
+        raise PhantomError(f"--n must be >= 1, got {n}")
+    m = len(spec)
+    out = []
+    for k in range(n):
+        t, r = spec[k % m], k // m
+        out.append(dataclasses.replace(t, seed=t.seed + r * SEED_STEP,
+                                       id=t.id if r == 0 else f"{t.id}_r{r}"))
+    return out
+
+
+def generate_subject(subject: SubjectSpec, out_dir: str, dicom: bool, noise_px: float,
+                     tag_jumps: int, extra: dict) -> dict:
+    """Generate and write one subject into ``out_dir/<id>`` (a worker task): a summary row."""
+    ph = generate(subject.pathology, seed=subject.seed, frames=subject.frames,
+                  noise_px=subject.noise_px or noise_px, tag_jumps=subject.tag_jumps or tag_jumps,
+                  breath_hold_mm=subject.breath_hold_mm, subject=subject.id, **extra)
+    path = write_phantom(ph, Path(out_dir) / subject.id, dicom=dicom)
+    return {"subject": subject.id, "status": "ok", "path": str(path), "summary": ph.study.summary()}
+
+
+def _run_mix(args: argparse.Namespace, spec: list[SubjectSpec], out: Path, dicom: bool,
+             extra: dict) -> int:
+    """``phantom --cohort SPEC --n N [--jobs J] [--dask ...] [--resume]``: N subjects of the
+    spec's mix, generated on local worker processes or Dask, each subject's folder written
+    atomically as it is done (a killed run keeps the finished ones; ``--resume`` skips them)."""
+    import shutil
+
+    from cardionurbs.executor import TaskFailure, run_tasks
+    from cardionurbs.io.atomic import MARKER, MARKER_TEXT
+
+    subjects = mix_subjects(spec, int(args.n))
+    resume = getattr(args, "resume", False)
+    if out.is_dir() and any(out.iterdir()) and not resume:
+        shutil.rmtree(out)                  # an earlier output, allowed by --overwrite
+    out.mkdir(parents=True, exist_ok=True)
+    (out / MARKER).write_text(MARKER_TEXT, encoding="utf-8")
+    todo = [s for s in subjects if not (resume and (out / s.id / "study.json").is_file())]
+    failed: list[str] = []
+
+    def done(k: int, result) -> None:
+        if isinstance(result, TaskFailure):
+            failed.append(f"{todo[k].id}: {result}")
+            print(f"{out / todo[k].id}: error: {result}", file=sys.stderr)
+        else:
+            print(f"{result['path']}: {result['summary']}", file=sys.stdout)
+
+    run_tasks(generate_subject, [(s, str(out), dicom, args.noise_px, args.tag_jumps, extra)
+                                 for s in todo], done, jobs=getattr(args, "jobs", 1) or 1,
+              dask=getattr(args, "dask", None))
+    print(f"phantom: {len(subjects) - len(failed)} of {len(subjects)} subjects in {out} "
+          f"({len(subjects) - len(todo)} kept from before), {len(failed)} failed", file=sys.stderr)
+    return 3 if failed else 0
