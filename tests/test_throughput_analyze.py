@@ -46,7 +46,8 @@ def test_metrics_only_writes_only_metrics_with_the_same_numbers(study_dir, full_
                                                                tmp_path, capsys):
     assert main(["analyze", str(study_dir), "--outputs", "metrics", "--progress",
                  "--out", str(tmp_path / "m")]) == 0
-    assert sorted(p.name for p in (tmp_path / "m").iterdir()) == ["metrics.json"]
+    assert sorted(p.name for p in (tmp_path / "m").iterdir()
+                  if not p.name.startswith(".")) == ["metrics.json"]
     err = capsys.readouterr().err
     for stage in ("load", "reconstruct", "measure", "tags", "metrics"):
         assert f"analyze: {stage} done (" in err
