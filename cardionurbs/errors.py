@@ -57,6 +57,11 @@ class TagError(StudyError):
     """Bad tag-line input (names family, index, slice and frame)."""
 
 
+class TagTrackingError(TagError):
+    """Tagged images that cannot be tracked: no SPAMM pattern (untagged or faded series), or
+    a tag spacing or orientation far from what the study expects (names file, slice, frame)."""
+
+
 class ExportError(CardioNurbsError):
     """Unsupported export format or unwritable output (names the path or format)."""
 
@@ -76,3 +81,16 @@ class CohortInputError(CardioNurbsError):
 class ChromiumError(RuntimeError):
     """Chromium could not be started or did not answer (an environment problem, not bad
     input: hence a RuntimeError, not a :class:`CardioNurbsError`)."""
+
+
+class OutputError(CardioNurbsError):
+    """An output path that would destroy data (an input, a folder cardionurbs did not
+    write, an existing file) or cannot be written; names the option (``--out``, ``--csv``)."""
+
+    def __init__(self, message: str, *, option: str | None = None) -> None:
+        self.option = option
+        super().__init__(" ".join(str(message).split()))
+
+
+class LimitError(StudyError):
+    """Input past a documented limit (points per contour, contours, frames, name length)."""

@@ -22,19 +22,21 @@ PACKAGE = ROOT / "cardionurbs"
 
 #: docs/architecture.md, "Layer order" (top-level part of the package -> layer).
 LAYERS = {
-    "errors": 0,
-    "nurbs": 1, "geometry": 1,
-    "imaging": 2,
-    "study": 3,
-    "io": 4,
-    "anatomy": 5, "phantom": 5,
-    "analysis": 6,
-    "report": 7,
-    "pipeline": 8,
-    "cohort": 9,
-    "demo": 10,
-    "cli": 11,
-    "": 12,          # the package facade, cardionurbs/__init__.py
+    "errors": 0, "limits": 0,
+    "safe": 1,
+    "confine": 2,
+    "nurbs": 3, "geometry": 3,
+    "imaging": 4,
+    "study": 5,
+    "io": 6,
+    "anatomy": 7, "phantom": 7,
+    "analysis": 8,
+    "report": 9,
+    "pipeline": 10,
+    "cohort": 11,
+    "demo": 12,
+    "cli": 13,
+    "": 14,          # the package facade, cardionurbs/__init__.py
 }
 
 
