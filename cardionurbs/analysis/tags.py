@@ -539,13 +539,8 @@ def tag_figure_data(study: Study, frame: int, long_axis: tuple | None = None,
     """
     from cardionurbs import nurbs
     if long_axis is None and study.tags_at(frame, "la"):
-<<<<<<< HEAD
-        long_axis = default_long_axis(study)
-    surfs = surfaces if surfaces is not None else build_tag_surfaces(study, frame, long_axis)
-=======
         long_axis = study_long_axis(study)
-    surfs = build_tag_surfaces(study, frame, long_axis)
->>>>>>> main
+    surfs = surfaces if surfaces is not None else build_tag_surfaces(study, frame, long_axis)
     if flags is None:
         flags = tag_qc(study, frames=[frame], long_axis=long_axis, surfaces={frame: surfs})
     bad = {(f.family, f.index, f.slice) for f in flags if f.frame == frame}
