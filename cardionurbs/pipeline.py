@@ -126,9 +126,13 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
         if "meshes" in outputs:
             progress.stage("meshes")
             mesh_dir = tmp / "meshes"
+            keep = {model.ed_frame, model.es_frame}
             for k, f in enumerate(model.frames):
+                model.volumes[f]                   # kept (the volume curve) ...
                 for name, m in model.meshes(f).items():
                     export_mesh(m, mesh_dir / f"frame_{f:02d}_{name}.{mesh_ext}")
+                if f not in keep:                  # ... the meshes written and let go
+                    model.release(f)
                 progress.step(k + 1, len(model.frames))
         res = None
         if "model" in outputs:

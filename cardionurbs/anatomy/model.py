@@ -333,6 +333,13 @@ class BiventricularModel:
                                    for k, m in self.solids(frame).items()}
         return self._meshes[frame]
 
+    def release(self, frame: int) -> None:
+        """Forget the cached solids and meshes of one frame (its volumes and surfaces are
+        kept): exporting every frame's meshes then holds one frame's at a time."""
+        self._meshes.pop(frame, None)
+        for key in [k for k in self._solid_cache if k[0] == frame]:
+            del self._solid_cache[key]
+
     # ------------------------------------------------------------- residuals
     @cached_property
     def residuals(self) -> pd.DataFrame:
