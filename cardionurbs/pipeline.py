@@ -30,6 +30,7 @@ from pathlib import Path
 
 from cardionurbs.analysis.function import measure, volume_curve
 from cardionurbs.anatomy.model import BiventricularModel, reconstruct
+from cardionurbs.errors import UsageError
 from cardionurbs.io import atomic, load_study
 from cardionurbs.io.export import export_mesh, export_model_3dm, write_json
 from cardionurbs.progress import Progress
@@ -208,7 +209,6 @@ def run_analyze(args: argparse.Namespace) -> int:
     try:
         outputs = parse_outputs(getattr(args, "outputs", None))
     except ValueError as exc:
-        from cardionurbs.cli import UsageError
         raise UsageError(str(exc)) from None
     if getattr(args, "no_figures", False):
         outputs = tuple(o for o in outputs if o not in ("figures", "report"))
