@@ -76,7 +76,7 @@ def is_native(path: str | Path) -> bool:
         return False
     try:
         return json.loads(manifest.read_text()).get("format") == FORMAT
-    except (OSError, ValueError, AttributeError):
+    except (OSError, ValueError, AttributeError, RecursionError):
         return False
 
 

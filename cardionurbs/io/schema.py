@@ -60,7 +60,10 @@ def load_manifest(path: Path) -> Any:
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise StudyError(f"not valid JSON ({' '.join(str(exc).split())[:120]})", file=path) from None
     if _depth(doc) > MAX_JSON_DEPTH:
-        raise StudyError(f"JSON nested deeper than {MAX_JSON_DEPTH} levels", file=path)
+        field = next((k for k, v in doc.items() if _depth(v) >= MAX_JSON_DEPTH), None) \
+            if isinstance(doc, dict) else None
+        raise StudyError(f"JSON nested deeper than {MAX_JSON_DEPTH} levels", file=path,
+                         field=field)
     return doc
 
 
