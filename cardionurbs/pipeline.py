@@ -34,6 +34,7 @@ from cardionurbs.errors import UsageError
 from cardionurbs.io import atomic, load_study
 from cardionurbs.io.export import export_mesh, export_model_3dm, write_json
 from cardionurbs.progress import Progress
+from cardionurbs.safe import csv_safe_table
 from cardionurbs.study import Study
 
 #: what ``analyze`` can write (``--outputs``), in the order it is produced
@@ -151,7 +152,7 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
             else:
                 export_model_3dm(model, tmp / "model.3dm")
             res = model.residual_table()            # ED and ES (every frame: model.residuals)
-            atomic.write_text(tmp / "residuals.csv", res.to_csv(index=False))
+            atomic.write_text(tmp / "residuals.csv", csv_safe_table(res).to_csv(index=False))
         if "metrics" in outputs:
             progress.stage("metrics")
             if res is None:
