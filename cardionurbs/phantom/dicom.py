@@ -35,7 +35,8 @@ Annex G; encoded and decoded by pydicom without plugins, read by every DICOM
 toolkit), or uncompressed Explicit VR Little Endian with ``compression=None``.
 Lossless compression cannot go below the entropy of the Rician noise: at the
 default σ = 0.025 (75 of 4095 grey levels) about 8.3 bits per pixel, and RLE
-stores about 2/3 of the uncompressed 16 bits; a higher ``snr`` compresses further. One MR series per view (``sa`` with all SA slices, ``la_2ch``,
+stores about 2/3 of the uncompressed 16 bits; a higher ``snr`` compresses further.
+One MR series per view (``sa`` with all SA slices, ``la_2ch``,
 ``la_3ch``, ``la_4ch``), file ``dicom/<series>/<slice>_<frame>.dcm``, with
 ImagePositionPatient, ImageOrientationPatient, PixelSpacing, SliceThickness,
 SliceLocation, TriggerTime, HeartRate, NominalInterval, CardiacNumberOfImages
