@@ -73,11 +73,18 @@ def build_parser() -> argparse.ArgumentParser:
     ph.add_argument("--breath-hold-mm", type=_nonneg_float, default=0.0,
                     help="breath-hold fault: random in-plane shifts of the SA slices, mm (std)")
     ph.add_argument("--no-dicom", action="store_true", help="skip the synthetic DICOM images")
+    ph.add_argument("--labels", choices=["acdc", "ukbb", "mnms"], default=None,
+                    help="also write NIfTI label maps (and a cine-like image) in this "
+                         "convention and layout, in DIR/labelmaps")
     ph.add_argument("--out", required=True, metavar="DIR")
 
     an = sub.add_parser("analyze", help="reconstruct and measure one study")
     an.add_argument("study", metavar="STUDY")
-    an.add_argument("--format", default="auto", choices=["auto", "native", "sunnybrook", "gpfile"])
+    an.add_argument("--format", default="auto",
+                    choices=["auto", "native", "sunnybrook", "gpfile", "nifti"])
+    an.add_argument("--labels", default=None, metavar="PRESET|MAPPING",
+                    help="label-map convention: acdc, ukbb, mnms, bivme or lv=N,myo=N,rv=N "
+                         "(default: the layout's, or inferred from topology)")
     an.add_argument("--heart-rate", type=float, default=None, help="bpm, when the input has none")
     an.add_argument("--no-figures", action="store_true", help="skip PNG figures and HTML report")
     an.add_argument("--out", required=True, metavar="DIR")
@@ -86,7 +93,10 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("studies", nargs="+", metavar="STUDY")
     co.add_argument("--csv", required=True, metavar="FILE")
     co.add_argument("--jobs", type=_positive_int, default=1)
-    co.add_argument("--format", default="auto", choices=["auto", "native", "sunnybrook", "gpfile"])
+    co.add_argument("--format", default="auto",
+                    choices=["auto", "native", "sunnybrook", "gpfile", "nifti"])
+    co.add_argument("--labels", default=None, metavar="PRESET|MAPPING",
+                    help="label-map convention (see analyze --labels)")
 
     de = sub.add_parser("demo", help="the paper's 12-subject phantom cohort, end to end")
     de.add_argument("--out", metavar="DIR", default=None)

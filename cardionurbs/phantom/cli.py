@@ -22,9 +22,11 @@ def run_phantom(args: argparse.Namespace) -> int:
         ph = generate(args.pathology, seed=args.seed, frames=args.frames, noise_px=args.noise_px,
                       tag_jumps=args.tag_jumps,
                       breath_hold_mm=getattr(args, "breath_hold_mm", 0.0))
-        write_phantom(ph, out, dicom=dicom)
+        write_phantom(ph, out, dicom=dicom, labels=getattr(args, "labels", None))
         print(f"{out}: {ph.study.summary()}", file=sys.stdout)
         return 0
+    if getattr(args, "labels", None):
+        raise PhantomError("phantom: --labels applies to one --pathology subject, not a --cohort")
     generate_cohort(load_cohort_spec(args.cohort), out, dicom=dicom, noise_px=args.noise_px,
                     tag_jumps=args.tag_jumps,
                     report=lambda path, ph: print(f"{path}: {ph.study.summary()}", file=sys.stdout))
