@@ -12,11 +12,7 @@ import os
 import sys
 from typing import Sequence
 
-from cardionurbs.errors import CardioNurbsError
-
-
-class UsageError(CardioNurbsError):
-    """Bad command-line usage."""
+from cardionurbs.errors import CardioNurbsError, UsageError
 
 
 class _Parser(argparse.ArgumentParser):

@@ -4,7 +4,7 @@ Pipeline of :func:`generate`: preset → seeded draw (presets.sample_subject) �
 ED anatomy solved to the draw (presets.solve_anatomy) → imaging planes
 (geometry) → frame-aligned volume curve with ED = frame 0 and ES =
 round(es_fraction · N) → motion whose twist amplitude is solved so that the
-METRICS.md twist between the outermost tag levels equals the draw → contours,
+docs/metrics.md twist between the outermost tag levels equals the draw → contours,
 landmarks and tag lines on every plane and frame (annotate) → faults → truth.
 
 Everything random is drawn from numpy Generators seeded by (seed, pathology,
@@ -109,7 +109,7 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
 
     Parameters
     ----------
-    pathology : ``"normal"``, ``"mr"`` or ``"phtn"`` (preset in phantoms/).
+    pathology : ``"normal"``, ``"mr"`` or ``"phtn"`` (packaged preset, ``cardionurbs/data/<name>.toml``).
     seed : subject variability and fault seed (same seed → identical output).
     frames : cardiac phases N >= 2 over one RR interval; frame 0 = ED.
     noise_px, tag_jumps, breath_hold_mm : faults (see :mod:`cardionurbs.phantom.faults`).
