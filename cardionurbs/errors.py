@@ -57,6 +57,11 @@ class TagError(StudyError):
     """Bad tag-line input (names family, index, slice and frame)."""
 
 
+class TagTrackingError(TagError):
+    """Tagged images that cannot be tracked: no SPAMM pattern (untagged or faded series), or
+    a tag spacing or orientation far from what the study expects (names file, slice, frame)."""
+
+
 class ExportError(CardioNurbsError):
     """Unsupported export format or unwritable output (names the path or format)."""
 
