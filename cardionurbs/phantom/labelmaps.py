@@ -196,6 +196,8 @@ def write_labelmaps(phantom, folder: str | Path, convention: str = "ukbb", *,
     lut = convention_lut(convention)
     if convention == "ukbb":
         fr = list(range(n)) if frames is None else list(frames)
+        if fr != list(range(fr[0], fr[0] + len(fr))):
+            dt = None                          # a subset of frames has no constant interval
         codes, planes = _stack(phantom, sa_ids, fr, supersample, cache)
         aff = plane_affine_ras(planes)
         out.append(_save(lut[codes], aff, dt, folder / "seg_sa.nii.gz"))
