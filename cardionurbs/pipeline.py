@@ -124,9 +124,20 @@ def _label_option(args: argparse.Namespace) -> dict:
     return {} if labels is None else {"labels": labels}
 
 
+def study_folder(path: str | Path) -> Path:
+    """The folder of a study given as a folder or as a file in it (its study.json)."""
+    p = Path(path)
+    return p if p.is_dir() or not p.exists() else p.parent
+
+
 def run_analyze(args: argparse.Namespace) -> int:
-    """Load, reconstruct, measure and write one study (outputs: docs/formats.md)."""
-    study = load_study(args.study, format=args.format, **_label_option(args))
+    """Load, reconstruct, measure and write one study (outputs: docs/formats.md); ``--out`` is checked
+    (cardionurbs.io.outputs) before anything is read."""
+    from cardionurbs.io.outputs import check_output_dir
+    check_output_dir(args.out, inputs=[study_folder(args.study)],
+                     overwrite=getattr(args, "overwrite", False))
+    study = load_study(args.study, format=args.format,
+                       allow_outside=getattr(args, "allow_outside", False), **_label_option(args))
     model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None))
     write_analysis(model, metrics, args.out, figures=not getattr(args, "no_figures", False),
                    tags=tags)

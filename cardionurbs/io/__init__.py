@@ -63,8 +63,8 @@ def _extra_detectors():
             lambda p: "sunnybrook" if sb(p) else None]
 
 
-def load_study(path: str | Path, format: str = "auto", *, labels=None,
-               ed_frame: int | None = None, es_frame: int | None = None) -> Study:
+def load_study(path: str | Path, format: str = "auto", *, allow_outside: bool = False,
+               labels=None, ed_frame: int | None = None, es_frame: int | None = None) -> Study:
     """Read a study from ``path`` in ``format`` (``auto`` tells it from the files), then
     check it (:func:`cardionurbs.io.checks.check_study`).
 
@@ -72,6 +72,10 @@ def load_study(path: str | Path, format: str = "auto", *, labels=None,
     the same way; ``truth.json`` beside it is not part of the Study). For a
     native study whose images name DICOM files that exist, the manifest's
     geometry is cross-checked against the DICOM headers.
+
+    Every file the study names must lie inside its folder (no absolute paths,
+    ``..`` or symbolic links leading out) unless ``allow_outside``
+    (:mod:`cardionurbs.confine`).
 
     Returns the Study with ``study.warnings`` (list of one-line
     strings). Raises StudyError for unreadable or inconsistent input.
@@ -81,6 +85,14 @@ def load_study(path: str | Path, format: str = "auto", *, labels=None,
     infers the roles from topology for a single file (see :mod:`cardionurbs.io.labels`).
     ``ed_frame``/``es_frame`` (NIfTI only) give ED and ES frame indices (0-based).
     """
+    from cardionurbs.confine import allow_outside as _allow
+
+    with _allow(allow_outside):
+        return _load_study(path, format, labels=labels, ed_frame=ed_frame, es_frame=es_frame)
+
+
+def _load_study(path: str | Path, format: str, *, labels=None, ed_frame: int | None = None,
+                es_frame: int | None = None) -> Study:
     if format not in FORMATS:
         raise StudyError(f"unknown format {format!r}; expected one of {', '.join(FORMATS)}",
                          field="format")
