@@ -255,3 +255,29 @@ def test_boundary_area_matches_the_ellipse(a, b, cx, cy, phi):
     perim = np.pi * (3 * (a + b) - np.sqrt((3 * a + b) * (a + 3 * b)))
     assert abs(area - np.pi * a * b) < 0.25 * perim
     assert np.allclose(polygon_centroid(loop), [cx, cy], atol=0.3)
+
+
+def test_ukbb_ed_es_files_layout(layouts, phantom, tmp_path):
+    """seg_sa_ED + seg_sa_ES (ukbb_cardiac's 3-D maps): frames 0 (ED) and 1 (ES)."""
+    import nibabel as nib
+
+    img = nib.load(str(layouts / "ukbb" / "seg_sa.nii.gz"))
+    data = np.asarray(img.dataobj)
+    for name, t in (("ED", 0), ("ES", phantom.es_frame)):
+        nib.save(nib.Nifti1Image(data[..., t], img.affine, img.header), str(tmp_path / f"seg_sa_{name}.nii.gz"))
+    study = load_study(tmp_path)
+    assert study.meta["layout"] == "ukbb" and (study.ed_frame, study.es_frame) == (0, 1)
+    assert study.contoured_frames == [0, 1]
+    _planes_match(study, phantom)
+
+
+def test_phantom_cli_writes_label_maps(tmp_path):
+    from cardionurbs.cli import main
+
+    out = tmp_path / "ph"
+    assert main(["phantom", "--pathology", "mr", "--frames", "2", "--no-dicom", "--labels", "acdc",
+                 "--out", str(out)]) == 0
+    names = sorted(p.name for p in (out / "labelmaps").iterdir())
+    assert "Info.cfg" in names and "mr_000_frame01_gt.nii.gz" in names and "mr_000_4d.nii.gz" in names
+    study = load_study(out / "labelmaps")
+    assert study.meta["layout"] == "acdc" and study.contoured_frames == [0, 1]

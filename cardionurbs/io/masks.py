@@ -145,6 +145,26 @@ def cyclic_runs(flag: np.ndarray) -> list[np.ndarray]:
     return [(np.arange(a, b) + start) % len(flag) for a, b, v in _runs(f) if v]
 
 
+def _cropped(fn):
+    """Run a slice-contour function on the bounding box of the labels (plus a margin), and
+    shift its pixel coordinates back: the heart fills a small part of the field of view."""
+    def wrapper(labels: np.ndarray, roles: LabelRoles, sigma: float = SIGMA_PX) -> SliceContours:
+        idx = np.argwhere(labels)
+        if not len(idx):
+            return SliceContours()
+        margin = int(np.ceil(4 * sigma)) + 4
+        lo = np.maximum(idx.min(axis=0) - margin, 0)
+        hi = np.minimum(idx.max(axis=0) + margin + 1, labels.shape)
+        out = fn(labels[lo[0]:hi[0], lo[1]:hi[1]], roles, sigma)
+        out.closed = {k: v + lo for k, v in out.closed.items()}
+        out.open = {k: [v + lo for v in parts] for k, parts in out.open.items()}
+        out.landmarks = {k: v + lo for k, v in out.landmarks.items()}
+        return out
+    wrapper.__doc__, wrapper.__name__ = fn.__doc__, fn.__name__
+    return wrapper
+
+
+@_cropped
 def sa_slice_contours(labels: np.ndarray, roles: LabelRoles, sigma: float = SIGMA_PX) -> SliceContours:
     """Contours of one short-axis label image (see the module docstring)."""
     out = SliceContours()
@@ -236,6 +256,7 @@ def _open_part(loop: np.ndarray, keep: np.ndarray) -> np.ndarray | None:
     return loop[run]
 
 
+@_cropped
 def la_slice_contours(labels: np.ndarray, roles: LabelRoles, sigma: float = SIGMA_PX) -> SliceContours:
     """Open contours of one long-axis label image (see the module docstring)."""
     out = SliceContours()
