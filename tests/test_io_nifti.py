@@ -8,11 +8,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from cardionurbs import StudyError, load_study
-from cardionurbs.analysis.function import polygon_centroid
 from cardionurbs.imaging.dicom import read_header
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import masks, nifti
-from cardionurbs.io.checks import polygon_area_mm2
+from cardionurbs.geometry import polygon_area, polygon_centroid
 from cardionurbs.io.labels import PRESETS, LabelRoles, infer_roles, parse_labels
 from cardionurbs.phantom.generate import generate, write_phantom
 from cardionurbs.phantom.labelmaps import convention_lut, plane_codes, write_labelmaps
@@ -188,11 +187,11 @@ def test_real_bivme_segmentation_contours(tmp_path):
     assert len(by) >= 20
     for sl, d in by.items():
         assert {"lv_endo", "lv_epi"} <= set(d), sl
-        a_endo, a_epi = polygon_area_mm2(d["lv_endo"].points), polygon_area_mm2(d["lv_epi"].points)
+        a_endo, a_epi = polygon_area(d["lv_endo"].points), polygon_area(d["lv_epi"].points)
         assert 0 < a_endo < a_epi
     vol = nifti.read_label_volume(path)
     lv_px = int((vol.data[:, :, 0, 0] == 1).sum())
-    a = polygon_area_mm2(by["sa_00"]["lv_endo"].points)
+    a = polygon_area(by["sa_00"]["lv_endo"].points)
     assert abs(a - lv_px) < 0.1 * lv_px                 # 1 mm pixels: area ~ pixel count
 
 

@@ -25,6 +25,7 @@ NominalCardiacTriggerDelayTime); each frame is one image with id
 
 from __future__ import annotations
 
+import math
 import re
 import warnings
 from contextlib import contextmanager
@@ -37,6 +38,7 @@ import pydicom
 from pydicom.errors import InvalidDicomError
 
 from cardionurbs.errors import StudyError, UnsupportedInputError
+from cardionurbs.geometry import slice_spacing, stack_normal
 from cardionurbs.confine import files_inside
 from cardionurbs.safe import excerpt
 from cardionurbs.imaging import phases, stack
@@ -93,6 +95,9 @@ class DicomHeader:
     nominal_interval: float | None
     cardiac_number_of_images: int | None
     frame_number: int | None = None  # 1-based frame of a multi-frame (enhanced) object
+    patient_id: str = ""
+    study_instance_uid: str = ""
+    frame_of_reference_uid: str = ""
 
     @property
     def normal(self) -> np.ndarray:
@@ -136,6 +141,23 @@ def _dcmread(path: Path, pixels: bool):
     except Exception as exc:  # noqa: BLE001 - struct.error and friends from a truncated file
         raise StudyError(f"unreadable DICOM ({type(exc).__name__}: {_first_line(exc)})",
                          file=path) from None
+
+
+def _dcmread_header(path: Path):
+    """(dataset without pixel data, file offset of the PixelData element or None)."""
+    try:
+        with open(path, "rb") as f:
+            with _quiet_pydicom():
+                ds = pydicom.dcmread(f, stop_before_pixels=True)
+            offset = f.tell()
+    except StudyError:
+        raise
+    except OSError:
+        return _dcmread(path, pixels=False), None
+    except Exception:  # noqa: BLE001 - the path-based read names the problem
+        return _dcmread(path, pixels=False), None
+    at_pixels = offset < path.stat().st_size
+    return ds, offset if at_pixels else None
 
 
 def _first_line(exc: BaseException) -> str:
@@ -280,12 +302,70 @@ def _header_from_dataset(ds, path: Path) -> DicomHeader:
             heart_rate=_opt_number(ds, "HeartRate", path),
             nominal_interval=_opt_number(ds, "NominalInterval", path),
             cardiac_number_of_images=None if n_img is None or n_img < 1 else int(n_img),
+            **_identity(ds),
         )
     except StudyError:
         raise
     except Exception as exc:  # noqa: BLE001 - malformed values in a damaged header
         raise StudyError(f"unreadable DICOM header ({type(exc).__name__}: {_first_line(exc)})",
                          file=path) from None
+
+
+def _identity(ds) -> dict[str, str]:
+    """PatientID, StudyInstanceUID and FrameOfReferenceUID of a dataset ('' when absent)."""
+    return {"patient_id": str(ds.get("PatientID", "") or "").strip(),
+            "study_instance_uid": str(ds.get("StudyInstanceUID", "") or "").strip(),
+            "frame_of_reference_uid": str(ds.get("FrameOfReferenceUID", "") or "").strip()}
+
+
+#: header fields that must agree across every image of one study
+IDENTITY_FIELDS = (("patient_id", "PatientID"), ("study_instance_uid", "StudyInstanceUID"),
+                   ("frame_of_reference_uid", "FrameOfReferenceUID"))
+
+
+def check_one_subject(headers: list[DicomHeader]) -> None:
+    """StudyError when the images belong to more than one patient (PatientID) or study
+    (StudyInstanceUID), a missing value counting as one more; or, when every series keeps
+    one FrameOfReferenceUID, when series disagree on it (a patient repositioned between
+    series). Series that give each image its own FrameOfReferenceUID (as the Sunnybrook
+    export does) are not compared. The message names one file of each."""
+    series_for: dict[str, set[str]] = {}
+    for h in headers:
+        series_for.setdefault(h.series_instance_uid, set()).add(h.frame_of_reference_uid)
+    check_for = all(len(v) == 1 for v in series_for.values())
+    for attr, keyword in IDENTITY_FIELDS:
+        if attr == "frame_of_reference_uid" and not check_for:
+            continue
+        first: dict[str, Path] = {}
+        for h in headers:
+            v = getattr(h, attr)
+            if v not in first:
+                first[v] = h.file
+        if len(first) > 1:
+            (a, fa), (b, fb) = list(first.items())[:2]
+            raise StudyError(f"images of more than one {keyword}: {fa.name} has {excerpt(a)}, "
+                             f"{fb.name} has {excerpt(b)} (one study per folder)", file=fb,
+                             field=keyword)
+
+
+def _pixel_data_short(path: Path, ds, offset: int | None) -> str | None:
+    """A message when the file holds fewer pixel-data bytes than Rows x Columns x
+    SamplesPerPixel x BitsAllocated/8 x NumberOfFrames promise (uncompressed data only)."""
+    try:
+        ts = ds.file_meta.get("TransferSyntaxUID") if hasattr(ds, "file_meta") else None
+        if ts is not None and getattr(ts, "is_compressed", False):
+            return None
+        need = (int(ds.Rows) * int(ds.Columns) * int(ds.get("SamplesPerPixel", 1) or 1)
+                * int(ds.get("BitsAllocated", 16) or 16) // 8 * int(ds.get("NumberOfFrames", 1) or 1))
+    except Exception:  # noqa: BLE001 - the header checks report bad values
+        return None
+    size = path.stat().st_size
+    if offset is None or offset >= size:
+        return f"no pixel data ({need} bytes promised)" if need else None
+    have = size - offset - 12 if ts is None or not ts.is_implicit_VR else size - offset - 8
+    if have < need:
+        return f"pixel data holds {max(have, 0)} of the {need} bytes its header promises (truncated)"
+    return None
 
 
 def read_header(path: str | Path) -> DicomHeader:
@@ -306,7 +386,12 @@ def read_file_headers(path: str | Path) -> list[DicomHeader]:
     """
     path = Path(path)
     try:
-        return headers_from_dataset(_dcmread(path, pixels=False), path)
+        ds, offset = _dcmread_header(path)
+        headers = headers_from_dataset(ds, path)
+        short = _pixel_data_short(path, ds, offset)
+        if short:
+            raise StudyError(short, file=path, field="PixelData")
+        return headers
     except UnsupportedInputError:
         raise
     except StudyError as exc:
@@ -437,16 +522,6 @@ class DicomSeries:
             self.pixels[image_id] = read_pixels(h.file, h.frame_number)
         return self.pixels[image_id]
 
-    def to_study(self, subject: str | None = None):
-        """An annotation-free :class:`~cardionurbs.study.Study` of these images."""
-        from cardionurbs.study import Study
-
-        return Study(subject=subject or self.root.name, images=list(self.images),
-                     frame_times_ms=dict(self.frame_times_ms), heart_rate_bpm=self.heart_rate_bpm,
-                     source=str(self.root),
-                     meta={"format": "dicom", "slice_spacing_mm": self.slice_spacing_mm,
-                           "base_apex_rule": self.base_apex_rule})
-
 
 _LA_NAME = re.compile(r"(?<![0-9])([234])\s*-?\s*ch", re.IGNORECASE)
 
@@ -480,6 +555,7 @@ def read_dicom_folder(folder: str | Path, *, pixels: bool = False,
     headers = read_headers(find_dicom_files(root, exclude))
     if not headers:
         raise StudyError("no DICOM image found", file=root)
+    check_one_subject(headers)
     base = Path(relative_to) if relative_to is not None else (root if root.is_dir() else root.parent)
     seen: dict[str, Path] = {}
     for h in headers:
@@ -553,10 +629,11 @@ def _name_slices(slices: list[list[DicomHeader]]):
     spacing = rule = None
     sa_idx = np.flatnonzero(is_sa)
     if sa_idx.size:
-        n = stack.stack_normal(normals[sa_idx])
+        n = stack_normal(normals[sa_idx])
         u, rule = stack.base_to_apex_direction(n, centers[sa_idx])
         depth = centers[sa_idx] @ u
-        spacing = stack.slice_spacing(np.array([slices[i][0].position for i in sa_idx]) @ u)
+        spacing = slice_spacing(np.array([slices[i][0].position for i in sa_idx]) @ u)
+        spacing = None if math.isnan(spacing) else spacing
         for k, i in enumerate(sa_idx[np.argsort(depth, kind="stable")]):
             names[i] = f"sa_{k:02d}"
     used: set[str] = set()

@@ -117,5 +117,6 @@ def _load_study(path: str | Path, format: str, *, labels=None, ed_frame: int | N
         study = read_study(path, labels=labels, ed_frame=ed_frame, es_frame=es_frame)
     else:  # pragma: no cover - FORMATS and this list agree
         raise StudyError(f"format {fmt!r} is not readable", file=path)
-    study.warnings = list(study.meta.pop("reader_warnings", [])) + check_study(study)
+    study.warnings = (list(study.meta.pop("reader_warnings", [])) + list(study.warnings or [])
+                      + check_study(study))
     return study

@@ -43,6 +43,7 @@ import numpy as np
 from scipy import ndimage
 from skimage.measure import find_contours
 
+from cardionurbs.geometry import polygon_area
 from cardionurbs.io.labels import LabelRoles
 
 SIGMA_PX = 0.5            # Gaussian smoothing of the indicator, pixels
@@ -94,8 +95,8 @@ def boundary_loop(mask: np.ndarray, sigma: float = SIGMA_PX) -> np.ndarray | Non
 
 
 def _area(xy: np.ndarray) -> float:
-    x, y = xy[:, 0], xy[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+    """Signed shoelace area (pixels², positive counter-clockwise in (c, r))."""
+    return polygon_area(xy, signed=True)
 
 
 def outside_labels(loop: np.ndarray, labels: np.ndarray, push_px: float = 0.75) -> np.ndarray:

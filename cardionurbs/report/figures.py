@@ -44,6 +44,7 @@ from matplotlib.figure import Figure
 from mpl_toolkits.mplot3d import proj3d
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
+from cardionurbs.safe import plain_text
 from cardionurbs import nurbs
 from cardionurbs.io import atomic
 
@@ -264,7 +265,7 @@ def draw_panel(ax, meshes: Sequence[Mesh], view: View, *, lines: Sequence[tuple]
         a.set_pane_color((1, 1, 1, 0))
         a.set_major_locator(matplotlib.ticker.MaxNLocator(3))
     if title:
-        ax.set_title(title, fontsize=9, pad=0)
+        ax.set_title(plain_text(title), fontsize=9, pad=0)
     ax.grid(False)
     if marker:
         orientation_marker(ax)
@@ -303,7 +304,8 @@ def _new_figure(n_panels: int, caption: str, *, width: float = 4.6, height: floa
     fig.subplots_adjust(left=0.02 if three_d else 0.1, right=0.98 if three_d else 0.88, top=0.93,
                         bottom=0.13 if three_d else 0.22, wspace=0.05 if three_d else 0.3)
     chars = int(width * n_panels * 17)          # ~17 characters per inch at 7.5 pt
-    fig.text(0.01, 0.01, textwrap.fill(caption, chars), fontsize=7.5, ha="left", va="bottom")
+    fig.text(0.01, 0.01, plain_text(textwrap.fill(caption, chars)), fontsize=7.5, ha="left",
+             va="bottom")
     return fig, axes
 
 
@@ -385,21 +387,6 @@ def _make_view(model, frames: Sequence[int], axis, raise_deg: float = 0.0) -> Vi
             pts.append(np.asarray(s.control_points)[..., :3].reshape(-1, 3))
     centre, half = _bounds(pts)
     return _camera(w, up, centre, half)
-
-
-def _model_axis(model) -> tuple[np.ndarray, np.ndarray]:
-    try:
-        apex, base = model.long_axis()
-        if np.all(np.isfinite(apex)) and np.all(np.isfinite(base)) and np.linalg.norm(base - apex) > 1:
-            return apex, base
-    except (KeyError, AttributeError, TypeError, ValueError):
-        pass
-    s = model.surfaces[model.ed_frame]["lv_endo"]
-    v, _ = nurbs.tessellate(s, 12, 12)
-    c = v.mean(axis=0)
-    d = np.linalg.svd(v - c, full_matrices=False)[2][0]
-    t = (v - c) @ d
-    return c + t.min() * d, c + t.max() * d
 
 
 def tag_data(model, tags: Any = None, frames: Sequence[int] | None = None,
@@ -686,7 +673,8 @@ def fig12_twist_time(ctx, out):
     fig = Figure(figsize=(6.4, 5.0), dpi=DPI)
     ax, ax2 = fig.subplots(2, 1, sharex=True)
     fig.subplots_adjust(left=0.12, right=0.97, top=0.95, bottom=0.2, hspace=0.12)
-    fig.text(0.01, 0.01, textwrap.fill(caption, 110), fontsize=7.5, ha="left", va="bottom")
+    fig.text(0.01, 0.01, plain_text(textwrap.fill(caption, 110)), fontsize=7.5, ha="left",
+             va="bottom")
     c1, c2 = OKABE_ITO["bluish_green"], OKABE_ITO["reddish_purple"]
     ax.plot(x, [over[f]["Twist (deg)"] for f in frames], "-o", color=c1, ms=3.5, lw=2.0,
             label="twist (measured)")
@@ -747,7 +735,7 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
     out.mkdir(parents=True, exist_ok=True)
     fs = FigureSet()
     names = list(FIGURES) if only is None else [n for n in FIGURES if n in set(only)]
-    axis = _model_axis(model)
+    axis = model.long_axis()
     ed, es = int(model.ed_frame), int(model.es_frame)
     view = _make_view(model, sorted({ed, es}), axis)
     oblique = _make_view(model, sorted({ed, es}), axis, OBLIQUE_DEG)

@@ -34,6 +34,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from cardionurbs.safe import json_for_script
 from cardionurbs import nurbs
 from cardionurbs.errors import ReportInputError
 from cardionurbs.io import atomic
@@ -103,6 +104,26 @@ def _merge(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.n
 
 
 # ----------------------------------------------------------------- inputs
+def _local_path(path: str | None, out: Path) -> str | None:
+    """A path as the report shows it: relative to the analysis folder when inside it, else
+    its last two components (never an absolute local path)."""
+    if not path:
+        return path
+    p = Path(path)
+    try:
+        return p.resolve().relative_to(Path(out).resolve()).as_posix()
+    except ValueError:
+        return Path(*p.parts[-2:]).as_posix()
+
+
+def _strip_local(text: str, source) -> str:
+    """A warning without the absolute study folder: the folder's name instead."""
+    if source:
+        text = str(text).replace(str(Path(source)), Path(source).name)
+    return str(text)
+
+
+
 def _read_json(path: Path) -> Any:
     try:
         return json.loads(path.read_text())
@@ -216,7 +237,7 @@ def report_payload(output_dir: str | Path) -> dict:
             figures.append({"name": item["name"], "caption": item["caption"],
                             "src": "data:image/png;base64," + _b64(np.frombuffer(p.read_bytes(),
                                                                                    np.uint8))})
-    apex, base = _axis(model)
+    apex, base = model.long_axis()
     ed, es = int(model.ed_frame), int(model.es_frame)
     from cardionurbs.report.figures import view_frame
     side = None
@@ -230,10 +251,12 @@ def report_payload(output_dir: str | Path) -> dict:
         "origin": origin.tolist(), "quantum_mm": QUANTUM_MM,
         "camera": {"eye": (2.1 * eye).tolist(), "up": up.tolist()},
         "faces": pool.items, "groups": groups,
-        "metrics": rows, "truth_file": truth_path, "has_truth": truth is not None,
+        "metrics": rows, "truth_file": _local_path(truth_path, out),
+        "has_truth": truth is not None,
         "flags": flags, "tags_note": tags_note,
         "volume_curve": metrics.get("volume_curve"),
-        "warnings": list(metrics.get("warnings", []))[:50],
+        "warnings": [_strip_local(w, model.study.source) for w in
+                     list(metrics.get("warnings", []))[:50]],
         "skipped": (fig_index or {}).get("skipped", {}), "figures": figures,
     }
 
@@ -244,15 +267,6 @@ def _num(x: Any) -> Any:
     if isinstance(x, (int, float)):
         return None if not math.isfinite(float(x)) else float(x)
     return x
-
-
-def _axis(model) -> tuple[np.ndarray, np.ndarray]:
-    try:
-        a, b = model.long_axis()
-        return np.asarray(a, float), np.asarray(b, float)
-    except (KeyError, AttributeError, TypeError, ValueError):
-        v, _ = nurbs.tessellate(model.surfaces[model.ed_frame]["lv_endo"], 8, 8)
-        return v.min(axis=0), v.max(axis=0)
 
 
 # ----------------------------------------------------------------- page
@@ -396,8 +410,8 @@ def render_html(payload: Mapping) -> str:
     warns = "".join(f"<li>{esc(w)}</li>" for w in p["warnings"])
     gallery = "".join(f"<figure><img alt='{esc(f['name'])}' src='{f['src']}'>"
                       f"<figcaption>{esc(f['caption'])}</figcaption></figure>" for f in p["figures"])
-    data = json.dumps({k: v for k, v in p.items() if k not in ("figures",)}, separators=(",", ":"))
-    data = data.replace("</", "<\\/")
+    data = json_for_script({k: v for k, v in p.items() if k not in ("figures",)},
+                           separators=(",", ":"))
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
 <meta http-equiv="Content-Security-Policy" content="default-src 'none'; script-src 'unsafe-inline' 'unsafe-eval'; style-src 'unsafe-inline'; img-src data: blob:; font-src data:; connect-src 'none'; worker-src blob:">
