@@ -39,6 +39,7 @@ from cardionurbs.anatomy.model import BiventricularModel
 from cardionurbs.errors import ReportInputError
 from cardionurbs.io import atomic
 from cardionurbs.report.figures import view_frame
+from cardionurbs.safe import json_for_script
 
 __all__ = ["write_report", "run_report", "report_payload", "ReportInputError", "SURFACE_GRID"]
 
@@ -105,6 +106,26 @@ def _merge(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.n
 
 
 # ----------------------------------------------------------------- inputs
+def _local_path(path: str | None, out: Path) -> str | None:
+    """A path as the report shows it: relative to the analysis folder when inside it, else
+    its last two components (never an absolute local path)."""
+    if not path:
+        return path
+    p = Path(path)
+    try:
+        return p.resolve().relative_to(Path(out).resolve()).as_posix()
+    except ValueError:
+        return Path(*p.parts[-2:]).as_posix()
+
+
+def _strip_local(text: str, source) -> str:
+    """A warning without the absolute study folder: the folder's name instead."""
+    if source:
+        text = str(text).replace(str(Path(source)), Path(source).name)
+    return str(text)
+
+
+
 def _read_json(path: Path) -> Any:
     try:
         return json.loads(path.read_text())
@@ -261,11 +282,12 @@ def report_payload(output_dir: str | Path) -> dict:
         "origin": origin.tolist(), "quantum_mm": QUANTUM_MM,
         "camera": _camera(model, tess),
         "faces": pool.items, "groups": groups + tag_groups,
-        "metrics": _metric_rows(metrics, truth), "truth_file": truth_path,
+        "metrics": _metric_rows(metrics, truth), "truth_file": _local_path(truth_path, out),
         "has_truth": truth is not None,
         "flags": flags, "tags_note": tags_note,
         "volume_curve": metrics.get("volume_curve"),
-        "warnings": list(metrics.get("warnings", []))[:50],
+        "warnings": [_strip_local(w, model.study.source) for w in
+                     list(metrics.get("warnings", []))[:50]],
         "skipped": (fig_index or {}).get("skipped", {}), "figures": _figure_images(fig_dir, fig_index),
     }
 
@@ -419,8 +441,8 @@ def render_html(payload: Mapping) -> str:
     warns = "".join(f"<li>{esc(w)}</li>" for w in p["warnings"])
     gallery = "".join(f"<figure><img alt='{esc(f['name'])}' src='{f['src']}'>"
                       f"<figcaption>{esc(f['caption'])}</figcaption></figure>" for f in p["figures"])
-    data = json.dumps({k: v for k, v in p.items() if k not in ("figures",)}, separators=(",", ":"))
-    data = data.replace("</", "<\\/")
+    data = json_for_script({k: v for k, v in p.items() if k not in ("figures",)},
+                           separators=(",", ":"))
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
 <meta http-equiv="Content-Security-Policy" content="default-src 'none'; script-src 'unsafe-inline' 'unsafe-eval'; style-src 'unsafe-inline'; img-src data: blob:; font-src data:; connect-src 'none'; worker-src blob:">
