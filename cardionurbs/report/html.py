@@ -345,10 +345,11 @@ const traces = D.groups.map(function(g){
   if(g.kind==='lines') return Object.assign({type:'scatter3d',mode:'lines',name:g.name,
       line:{color:g.colour,width:7},hoverinfo:'name'}, d);
   return Object.assign({type:'mesh3d',name:g.name,color:g.colour,opacity:g.opacity,flatshading:false,
-      lighting:{ambient:0.55,diffuse:0.7,specular:0.1},hoverinfo:'name',showlegend:true}, d);
+      lighting:{ambient:0.55,diffuse:0.7,specular:0.1},hoverinfo:'name'}, d);
 });
 const w = D.camera.eye, u = D.camera.up;
-const layout = {margin:{l:0,r:0,t:0,b:0}, showlegend:true, legend:{x:0,y:1,font:{size:11}},
+// one legend: the colour swatches of the toggles above the plot (no plotly legend beside it)
+const layout = {margin:{l:0,r:0,t:0,b:0}, showlegend:false,
   scene:{aspectmode:'data', camera:{eye:{x:w[0],y:w[1],z:w[2]}, up:{x:u[0],y:u[1],z:u[2]}},
     xaxis:{title:{text:'x (mm, →L)'}}, yaxis:{title:{text:'y (mm, →P)'}}, zaxis:{title:{text:'z (mm, →H)'}}}};
 const gd = document.getElementById('plot');
