@@ -71,15 +71,17 @@ def ignore_interrupts() -> None:
 
 
 def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None = None,
-                  allow_outside: bool = False) -> dict:
-    """One cohort row for the study at ``path`` (never raises for a bad study)."""
+                  allow_outside: bool = False, labels: str | None = None) -> dict:
+    """One cohort row for the study at ``path`` (never raises for a bad study); label-map
+    studies add the voxel-count columns (cardionurbs.analysis.voxels.VOXEL_COLUMNS)."""
     _test_fault(path)
     row = {c: NAN for c in COLUMNS}
     row["subject"] = Path(path).name
     try:
         from cardionurbs.io import load_study
         from cardionurbs.pipeline import analyse_study
-        study = load_study(path, format=format, allow_outside=allow_outside)
+        study = load_study(path, format=format, allow_outside=allow_outside,
+                           **({} if labels is None else {"labels": labels}))
         row["subject"] = study.subject
         _, metrics = analyse_study(study, heart_rate_bpm=heart_rate_bpm)
         row.update(metrics)
@@ -149,16 +151,18 @@ class RowStore:
             return None                      # absent (or, impossibly, torn): measure again
         if d.get("path") != path or d.get("format") != format:
             return None
-        return {k: (NAN if v is None and k in COLUMNS else v) for k, v in d["row"].items()}
+        return {k: (NAN if v is None and k not in ("subject", "status") else v)
+                for k, v in d["row"].items()}
 
 
 def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "auto",
            progress: bool = False, heart_rate_bpm: float | None = None,
            dask: str | None = None, timeout: float | None = None,
            run_dir: str | os.PathLike | None = None, resume: bool = False,
-           allow_outside: bool = False) -> pd.DataFrame:
+           allow_outside: bool = False, labels: str | None = None) -> pd.DataFrame:
     """Measure every study: a DataFrame with ``subject``, ``status`` and the docs/metrics.md
-    columns in order, one row per path (input order).
+    columns in order, one row per path (input order); when any study is a label map
+    the voxel-count columns follow (``labels``: its convention, see load_study).
 
     ``jobs``: worker processes (or Dask workers for ``dask="local"``); ``dask``: run on a
     Dask cluster (``"local"`` or a scheduler address); ``timeout``: seconds per study
@@ -200,18 +204,21 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
         if dask is None and jobs <= 1 and timeout is None:
             for k, i in enumerate(todo):             # in this process: no worker to start
                 try:
-                    result = measure_study(paths[i], format, heart_rate_bpm, allow_outside)
+                    result = measure_study(paths[i], format, heart_rate_bpm, allow_outside,
+                                           labels)
                 except Exception as exc:  # noqa: BLE001 - as a worker would report it
                     result = TaskFailure("error", f"{type(exc).__name__}: {_one_line(exc)}")
                 finished(k, result)
         else:
-            run_tasks(measure_study, [(paths[i], format, heart_rate_bpm, allow_outside)
+            run_tasks(measure_study, [(paths[i], format, heart_rate_bpm, allow_outside, labels)
                                       for i in todo],
                       finished, jobs=jobs, dask=dask, timeout=timeout)
     finally:
         if bar is not None:
             bar.close()
-    return pd.DataFrame(rows, columns=list(CSV_COLUMNS))
+    from cardionurbs.analysis.voxels import VOXEL_COLUMNS
+    extra = [c for c in VOXEL_COLUMNS if any(c in r for r in rows if r)]
+    return pd.DataFrame(rows, columns=list(CSV_COLUMNS) + extra)
 
 
 def write_csv(table: pd.DataFrame, path: str | os.PathLike) -> Path:
@@ -245,7 +252,8 @@ def run_cohort(args: argparse.Namespace) -> int:
                    progress=sys.stderr.isatty(), dask=getattr(args, "dask", None),
                    timeout=getattr(args, "timeout", None), run_dir=run_dir,
                    resume=getattr(args, "resume", False),
-                   allow_outside=getattr(args, "allow_outside", False))
+                   allow_outside=getattr(args, "allow_outside", False),
+                   labels=getattr(args, "labels", None))
     write_csv(table, csv)
     wrote = [str(csv)]
     if getattr(args, "parquet", False):

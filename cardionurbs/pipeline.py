@@ -4,7 +4,7 @@ Output folder (written atomically: complete or absent)::
 
     DIR/metrics.json        {"subject", "metrics": {docs/metrics.md column: value},
                              "ed_frame", "es_frame", "volume_curve", "residuals",
-                             "warnings"}
+                             "notes", "warnings"}   (notes: metric -> why it is null)
     DIR/model.json          the NURBS model (BiventricularModel.to_dict)
     DIR/model.3dm           the ED surfaces as Rhino NURBS (with the ``cad`` extra)
     DIR/residuals.csv       contour-point-to-surface distances per slice, at ED and ES
@@ -103,6 +103,10 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
     tags = tag_metrics_hook(model, over_time=over_time)
     if tags is not None:
         metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
+    voxels = study.meta.get("voxel_volumes_ml") if isinstance(study.meta, dict) else None
+    if voxels:                              # label maps: voxel counting beside the model
+        from cardionurbs.analysis.voxels import voxel_metrics
+        metrics.update(voxel_metrics(voxels, model.ed_frame, model.es_frame))
     return model, metrics, tags
 
 
@@ -169,6 +173,7 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                         "volume_curve": volume_curve(model), "residuals": summary,
                         "residual_frames": sorted({model.ed_frame, model.es_frame}),
                         "tags": None if tags is None else tags.to_json(),
+                        "notes": dict(model.study.meta.get("metric_notes") or {}),
                         "warnings": model.warnings}, tmp / "metrics.json")
         if "figures" in outputs:
             progress.stage("figures")
@@ -196,6 +201,12 @@ def _report(out_dir: Path) -> Path | None:
     return write_report(out_dir, Path(out_dir) / "report.html")
 
 
+def _label_option(args: argparse.Namespace) -> dict:
+    """``labels=`` for load_study when ``--labels`` was given (NIfTI label maps)."""
+    labels = getattr(args, "labels", None)
+    return {} if labels is None else {"labels": labels}
+
+
 def study_folder(path: str | Path) -> Path:
     """The folder of a study given as a folder or as a file in it (its study.json)."""
     p = Path(path)
@@ -218,7 +229,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     progress = Progress(True if getattr(args, "progress", False) else None, prefix="analyze")
     progress.stage("load")
     study = load_study(args.study, format=args.format,
-                       allow_outside=getattr(args, "allow_outside", False))
+                       allow_outside=getattr(args, "allow_outside", False), **_label_option(args))
     model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None),
                                    over_time=bool({"figures", "report"} & set(outputs)),
                                    progress=progress)
