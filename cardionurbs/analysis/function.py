@@ -21,13 +21,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cardionurbs.analysis.regional_columns import REGIONAL_COLUMNS
+
 if TYPE_CHECKING:  # pragma: no cover
     from cardionurbs.anatomy.model import BiventricularModel
 
 MYOCARDIAL_DENSITY_G_PER_ML = 1.05
 
 #: The cohort CSV's metric columns, in METRICS.md order (``subject`` and
-#: ``status`` come first in the CSV).
+#: ``status`` come first in the CSV); the regional columns
+#: (:mod:`cardionurbs.analysis.regional_columns`) come last.
 COLUMNS = (
     "HR (bpm)",
     "LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVCO (L/min)", "LVM (g)",
@@ -37,7 +40,7 @@ COLUMNS = (
     "EI ES",
     "Twist (deg)", "Twist 2D (deg)", "Torsion (deg/cm)", "CL shear (deg)", "LS (%)",
     "Tag QC flags",
-)
+) + REGIONAL_COLUMNS
 TAG_COLUMNS = ("Twist (deg)", "Twist 2D (deg)", "Torsion (deg/cm)", "CL shear (deg)", "LS (%)",
                "Tag QC flags")
 NAN = float("nan")
@@ -171,6 +174,9 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None)
     out["RV/LV EDV ratio"] = _ratio(out["RVEDV (mL)"], out["LVEDV (mL)"])
     out["RV/LV mass ratio"] = _ratio(out["RVM (g)"], out["LVM (g)"])
     out["EI ES"] = eccentricity_index_es(model)
+    from cardionurbs.analysis.rates import model_filling_rates
+    rates, _ = model_filling_rates(model)
+    out.update(rates)
     return {k: (float(x) if x is not None and math.isfinite(float(x)) else NAN)
             for k, x in out.items()}
 

@@ -26,7 +26,7 @@ from pydicom.uid import generate_uid
 from cardionurbs.errors import PhantomError
 from cardionurbs.io import atomic
 from cardionurbs.io.native import write_study
-from cardionurbs.phantom import annotate, faults, truth
+from cardionurbs.phantom import annotate, faults, regional, truth
 from cardionurbs.phantom.anatomy import Anatomy
 from cardionurbs.phantom.geometry import Acquisition, HeartPose, SliceSpec, image_plane, slice_specs
 from cardionurbs.phantom.motion import Motion, VolumeCurve
@@ -215,6 +215,7 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
 
     metrics, tag_truth = truth.compute_metrics(anatomy, motion, grid, specs, phases, es_frame, float(hr),
                                                len(jumps))
+    metrics.update(regional.filling_rate_truth(anatomy, motion, frames, es_frame, rr))
     fault_record = {"noise_px": float(noise_px), "tag_jumps": jumps,
                     "breath_hold_mm": float(breath_hold_mm),
                     "breath_hold_shifts_mm": ({k: [float(x) for x in v] for k, v in shifts.items()}
