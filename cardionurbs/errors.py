@@ -55,3 +55,7 @@ class ReconstructionError(CardioNurbsError):
 
 class TagError(StudyError):
     """Bad tag-line input (names family, index, slice and frame)."""
+
+
+class SegmentError(StudyError):
+    """The AHA segments cannot be placed (e.g. no RV insertion points nor RV contours)."""

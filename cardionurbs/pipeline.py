@@ -63,6 +63,10 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None):
     tags = tag_metrics_hook(model)
     if tags is not None:
         metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
+    from cardionurbs.analysis.regional import regional_metrics
+    regional = regional_metrics(model)
+    metrics.update({k: float(v) for k, v in regional.items() if k in metrics})
+    model.regional = regional                     # kept for metrics.json and the figures
     return model, metrics, tags
 
 
@@ -107,6 +111,8 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                     "volume_curve": volume_curve(model), "residuals": summary,
                     "residual_frames": sorted({model.ed_frame, model.es_frame}),
                     "tags": None if tags is None else tags.to_json(),
+                    "regional": (None if getattr(model, "regional", None) is None
+                                 else model.regional.to_json()),
                     "warnings": model.warnings}, tmp / "metrics.json")
         if figures:
             figures_hook(model, metrics, tmp, tags=tags)

@@ -7,5 +7,6 @@ analyses and the phantom truth share one list without importing each other.
 from __future__ import annotations
 
 from cardionurbs.analysis.rates import RATE_COLUMNS
+from cardionurbs.analysis.thickness import THICKNESS_COLUMNS
 
-REGIONAL_COLUMNS: tuple[str, ...] = RATE_COLUMNS
+REGIONAL_COLUMNS: tuple[str, ...] = RATE_COLUMNS + THICKNESS_COLUMNS

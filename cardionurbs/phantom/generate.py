@@ -216,6 +216,7 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     metrics, tag_truth = truth.compute_metrics(anatomy, motion, grid, specs, phases, es_frame, float(hr),
                                                len(jumps))
     metrics.update(regional.filling_rate_truth(anatomy, motion, frames, es_frame, rr))
+    metrics.update(regional.wall_thickness_truth(anatomy, motion, pose, specs, f_es))
     fault_record = {"noise_px": float(noise_px), "tag_jumps": jumps,
                     "breath_hold_mm": float(breath_hold_mm),
                     "breath_hold_shifts_mm": ({k: [float(x) for x in v] for k, v in shifts.items()}
