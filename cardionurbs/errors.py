@@ -83,5 +83,18 @@ class ChromiumError(RuntimeError):
     input: hence a RuntimeError, not a :class:`CardioNurbsError`)."""
 
 
+class OutputError(CardioNurbsError):
+    """An output path that would destroy data (an input, a folder cardionurbs did not
+    write, an existing file) or cannot be written; names the option (``--out``, ``--csv``)."""
+
+    def __init__(self, message: str, *, option: str | None = None) -> None:
+        self.option = option
+        super().__init__(" ".join(str(message).split()))
+
+
+class LimitError(StudyError):
+    """Input past a documented limit (points per contour, contours, frames, name length)."""
+
+
 class SegmentError(StudyError):
     """The AHA segments cannot be placed (e.g. no RV insertion points nor RV contours)."""
