@@ -64,7 +64,7 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None):
     if tags is not None:
         metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
     from cardionurbs.analysis.regional import regional_metrics
-    regional = regional_metrics(model)
+    regional = regional_metrics(model, tags)
     metrics.update({k: float(v) for k, v in regional.items() if k in metrics})
     model.regional = regional                     # kept for metrics.json and the figures
     return model, metrics, tags

@@ -2,8 +2,8 @@
 
 Axis and levels
     The long axis runs from the apex a to the centre b of the mitral valve
-    plane (:func:`cardionurbs.anatomy.sections.long_axis`, the same axis as
-    the tag metrics). A point's height is h = (x − a)·ê with ê = (b − a)/|b − a|.
+    plane (:func:`cardionurbs.geometry.long_axis`, the project's one rule,
+    at the frame being segmented). A point's height is h = (x − a)·ê with ê = (b − a)/|b − a|.
     The apical cap (segment 17) is the myocardium beyond the end of the
     cavity, h < h_cap with h_cap the height of the LV endocardial apex; the
     rest, h_cap ≤ h ≤ |b − a|, is cut into three equal thirds perpendicular
@@ -48,6 +48,7 @@ import numpy as np
 from cardionurbs.anatomy.sections import septal_mask
 from cardionurbs.analysis.tag_surfaces import axis_frame
 from cardionurbs.errors import SegmentError
+from cardionurbs.geometry import long_axis
 from cardionurbs.study import Study
 
 #: AHA segment names, 1..17
@@ -200,13 +201,19 @@ def aha_frame(study: Study, frame: int, apex: np.ndarray, base: np.ndarray,
 
 def model_aha_frame(model, frame: int) -> AhaFrame:
     """:func:`aha_frame` of a reconstructed model at ``frame``: the long axis of
-    :func:`cardionurbs.anatomy.sections.long_axis` (the ED axis of :meth:`long_axis` at ED),
-    the cap at the model's LV endocardial apex."""
-    from cardionurbs.anatomy.sections import long_axis
+    :func:`cardionurbs.geometry.long_axis` with that frame's landmarks and model apex and
+    valve plane (at ED the model's own :meth:`long_axis`), the cap at the model's LV
+    endocardial apex."""
     if frame == model.ed_frame:
         apex, base = model.long_axis()
     else:
-        apex, base = long_axis(model.study, frame, model.geometry[frame])
+        ap = model.apex_points.get(frame, {})
+        valve = model.base_planes.get(frame, {}).get("lv")
+        apex, base = long_axis([lm.point for lm in model.study.landmarks_at(frame, "apex")],
+                               [lm.point for lm in model.study.landmarks_at(frame, "mitral")],
+                               model_apex=ap.get("lv_epi", ap.get("lv_endo")),
+                               valve_origin=None if valve is None else valve.origin,
+                               where=f"frame {frame}")
     endo_apex = model.apex_points[frame].get("lv_endo")
     ehat = (base - apex) / np.linalg.norm(base - apex)
     cap = max(float((np.asarray(endo_apex) - apex) @ ehat), 0.0) if endo_apex is not None else 0.0

@@ -54,7 +54,7 @@ def orient_outward(points: np.ndarray, normals: np.ndarray, apex: np.ndarray,
 
 
 def ray_surface_distance(surface, origins: np.ndarray, directions: np.ndarray,
-                         grid: tuple[int, int] = (96, 64), iterations: int = 12,
+                         grid: tuple[int, int] = (64, 48), iterations: int = 12,
                          tol_mm: float = 1e-3,
                          probe_mm: tuple[float, ...] = (1.0, 3.0, 6.0, 10.0, 15.0, 22.0)
                          ) -> np.ndarray:
@@ -111,7 +111,7 @@ def segment_means(values: np.ndarray, weights: np.ndarray, labels: np.ndarray,
 
 
 def thickness_by_segment(endo, epi, aha: AhaFrame, base_plane=None,
-                         samples: tuple[int, int] = (64, 48)) -> tuple[dict[int, float], dict]:
+                         samples: tuple[int, int] = (48, 36)) -> tuple[dict[int, float], dict]:
     """Segment (1..16) -> mean wall thickness (mm) of one frame, and the samples
     (``points``, ``thickness``, ``segment``, ``weight``) for figures.
 
@@ -124,7 +124,8 @@ def thickness_by_segment(endo, epi, aha: AhaFrame, base_plane=None,
     P, N, W = P[keep], N[keep], W[keep]
     t = ray_surface_distance(epi, P, N)
     lab = aha.segments(P)
-    return segment_means(t, W, lab), {"points": P, "thickness": t, "segment": lab, "weight": W}
+    return segment_means(t, W, lab), {"points": P, "normals": N, "thickness": t, "segment": lab,
+                                      "weight": W}
 
 
 def thickness_columns(ed: dict[int, float], es: dict[int, float]) -> dict[str, float]:

@@ -232,7 +232,11 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     metrics, tag_truth = truth.compute_metrics(anatomy, motion, grid, specs, phases, es_frame, float(hr),
                                                len(jumps))
     metrics.update(regional.filling_rate_truth(anatomy, motion, frames, es_frame, rr))
-    metrics.update(regional.wall_thickness_truth(anatomy, motion, pose, specs, f_es))
+    metrics.update(regional.wall_thickness_truth(anatomy, motion, specs, f_es))
+    strain = regional.strain_truth(anatomy, motion, specs, tag_truth["levels"], f_es)
+    metrics.update(strain["columns"])
+    metrics.update(regional.surface_strain_truth(anatomy, motion, specs, f_es))
+    tag_truth["det_F_es"] = strain["det_F"]
     fault_record = {"noise_px": float(noise_px), "tag_jumps": jumps,
                     "breath_hold_mm": float(breath_hold_mm),
                     "breath_hold_shifts_mm": ({k: [float(x) for x in v] for k, v in shifts.items()}

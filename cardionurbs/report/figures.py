@@ -46,6 +46,7 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
 from cardionurbs import nurbs
 from cardionurbs.io import atomic
+from cardionurbs.report.bullseye import QUANTITIES as BULLSEYE_QUANTITIES, quantity_figure
 
 __all__ = ["write_figures", "render_figures", "FigureSet", "FigureResult", "OKABE_ITO",
            "STRUCTURE_COLOURS", "FAMILY_COLOURS", "FLAG_COLOUR", "tag_data", "view_frame"]
@@ -387,21 +388,6 @@ def _make_view(model, frames: Sequence[int], axis, raise_deg: float = 0.0) -> Vi
     return _camera(w, up, centre, half)
 
 
-def _model_axis(model) -> tuple[np.ndarray, np.ndarray]:
-    try:
-        apex, base = model.long_axis()
-        if np.all(np.isfinite(apex)) and np.all(np.isfinite(base)) and np.linalg.norm(base - apex) > 1:
-            return apex, base
-    except (KeyError, AttributeError, TypeError, ValueError):
-        pass
-    s = model.surfaces[model.ed_frame]["lv_endo"]
-    v, _ = nurbs.tessellate(s, 12, 12)
-    c = v.mean(axis=0)
-    d = np.linalg.svd(v - c, full_matrices=False)[2][0]
-    t = (v - c) @ d
-    return c + t.min() * d, c + t.max() * d
-
-
 def tag_data(model, tags: Any = None, frames: Sequence[int] | None = None,
              grid: tuple[int, int] = TAG_GRID) -> tuple[Any, dict[int, list[dict]], str | None]:
     """(TagMetrics, {frame: tag_figure_data}, note): tag surfaces of the model's study.
@@ -716,6 +702,17 @@ FIGURES: dict[str, FigureFn] = {
 }
 
 
+def _bullseye(quantity: tuple) -> FigureFn:
+    """Figure function of one AHA bull's-eye (:mod:`cardionurbs.report.bullseye`)."""
+    def fig(ctx, out):
+        res = quantity_figure(ctx.metrics, quantity, ctx.subject, out)
+        return res if isinstance(res, str) else FigureResult(quantity[0], res[0], res[1], {}, [])
+    return fig
+
+
+FIGURES.update({q[0]: _bullseye(q) for q in BULLSEYE_QUANTITIES})
+
+
 # ----------------------------------------------------------------- driver
 def _load_truth(model, truth) -> Mapping | None:
     if truth is not None and not isinstance(truth, (str, Path)):
@@ -747,7 +744,7 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
     out.mkdir(parents=True, exist_ok=True)
     fs = FigureSet()
     names = list(FIGURES) if only is None else [n for n in FIGURES if n in set(only)]
-    axis = _model_axis(model)
+    axis = model.long_axis()
     ed, es = int(model.ed_frame), int(model.es_frame)
     view = _make_view(model, sorted({ed, es}), axis)
     oblique = _make_view(model, sorted({ed, es}), axis, OBLIQUE_DEG)
