@@ -8,7 +8,9 @@ Motion field
     about the ED long axis (ζ along ê = base → apex, θ right-handed about ê)
     to (r'², θ' − θ, ζ') about the frame's long axis (its e1 the ED e1 turned
     onto the new axis). Each of the three is fitted by linear least squares (a
-    tiny ridge, 1e-8 of the normal matrix's trace) on the tensor-product basis
+    tiny ridge, 1e-8 of the normal matrix's trace; points the first fit misses by
+    more than :data:`OUTLIER_MM` and 4 × the median are left out and the fit
+    repeated once) on the tensor-product basis
 
         P_a(ζ̃) · q̃^b · {1, cos mθ, sin mθ}_{m ≤ 2},  a ≤ 3, b ≤ 1,
         with the q̃ terms (b = 1) only for a ≤ 1                           (S1)
@@ -59,6 +61,8 @@ STRAIN_COLUMNS = tuple(f"{k}_AHA_{s} (%)" if s != "Global" else f"{k}_Global (%)
 #: basis orders of eq. S1: Legendre in height, powers of radius, Fourier harmonics
 ORDERS = (3, 1, 2)
 TRANSMURAL_ORDER = 1
+#: a tracked point farther than this (mm, and 4 x the median) from the first fit is left out
+OUTLIER_MM = 1.5
 MIN_POINTS = 80
 
 
@@ -102,11 +106,15 @@ class CylindricalMotionFit:
         self.z0, self.sz = float(0.5 * (zeta.max() + zeta.min())), float(0.5 * np.ptp(zeta)) or 1.0
         target = np.column_stack([r1 * r1, np.angle(np.exp(1j * (th1 - th))), zeta1])
         A = self._design(q, th, zeta)[0]
-        N = A.T @ A
-        N += ridge * np.trace(N) / len(N) * np.eye(len(N))
-        self.coef = np.linalg.solve(N, A.T @ target)              # (n_basis, 3)
-        back = self._position(A @ self.coef, th)
-        self.residual_mm = float(np.sqrt(np.mean(np.sum((back - x) ** 2, axis=1))))
+        use = np.ones(len(X), bool)
+        for _ in range(2):          # fit, leave out gross outliers (mistracked points), refit
+            N = A[use].T @ A[use]
+            N += ridge * np.trace(N) / len(N) * np.eye(len(N))
+            self.coef = np.linalg.solve(N, A[use].T @ target[use])      # (n_basis, 3)
+            err = np.linalg.norm(self._position(A @ self.coef, th) - x, axis=1)
+            use = err <= max(OUTLIER_MM, 4.0 * float(np.median(err)))
+        self.outliers = int((~use).sum())
+        self.residual_mm = float(np.sqrt(np.mean(err[use] ** 2)))
 
     def _position(self, m: np.ndarray, th: np.ndarray) -> np.ndarray:
         e1, e2, e = self.frame1
@@ -144,7 +152,7 @@ class CylindricalMotionFit:
         m = A @ self.coef
         J = np.stack([Aq @ self.coef, At @ self.coef, Az @ self.coef], axis=2)   # (n, 3 out, 3 in)
         J[:, 1, 1] += 1.0                                       # θ' = θ + g2
-        rr = np.sqrt(np.maximum(m[:, 0], 1e-12))
+        rr = np.sqrt(np.maximum(m[:, 0], 1.0))                  # r' >= 1 mm (never near the axis)
         J[:, 0, :] /= (2.0 * rr)[:, None]                       # rows: r', θ', ζ'
         e1, e2, e = self.frame0
         c, s = np.cos(th)[:, None], np.sin(th)[:, None]
@@ -251,4 +259,4 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     det = np.linalg.det(F)
     return {"columns": cols, "det_F": float(det.mean()),
             "det_F_range": [float(det.min()), float(det.max())], "n_points": int(ok.sum()),
-            "counts": counts, "fit_residual_mm": fit.residual_mm}
+            "outliers": fit.outliers, "counts": counts, "fit_residual_mm": fit.residual_mm}

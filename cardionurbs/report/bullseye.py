@@ -104,14 +104,14 @@ def segment_values(metrics: Mapping[str, float] | None, stem: str) -> dict[int, 
 
 
 def quantity_figure(metrics: Mapping[str, float] | None, quantity: tuple, subject: str,
-                    out: Path) -> tuple[Path, str] | str:
+                    out: Path, frames: str = "") -> tuple[Path, str] | str:
     """The bull's-eye PNG of one entry of :data:`QUANTITIES`: (path, caption), or the reason
     it is not drawn (no value in any segment)."""
     name, stem, title, unit, cmap, diverging = quantity
     vals = segment_values(metrics, stem)
     if not any(np.isfinite(v) for v in vals.values()):
         return f"no {stem.split('_AHA')[0]} values per AHA segment for this study"
-    caption = (f"{subject}: {title.lower()} per AHA segment (1-6 basal, 7-12 mid, 13-16 apical; "
+    caption = (f"{subject}{', ' + frames if frames else ''}: {title} per AHA segment (1-6 basal, 7-12 mid, 13-16 apical; "
                "anterior up, septum left, seen from the apex). Grey hatched: no value.")
     label = stem.split("_AHA")[0].replace("WT", "Wall thickness")
     path = bullseye_figure(vals, title, unit, Path(out) / f"{name}.png", cmap=cmap,

@@ -702,10 +702,26 @@ FIGURES: dict[str, FigureFn] = {
 }
 
 
+def _regional_columns(ctx) -> Mapping:
+    """The metrics with the regional columns: as given, else the model's regional analysis
+    (kept on the model by the pipeline, else computed once here)."""
+    m = dict(ctx.metrics or {})
+    if any(isinstance(m.get(f"WT_AHA_{k} (mm)"), float) and np.isfinite(m[f"WT_AHA_{k} (mm)"])
+           for k in range(1, 17)):
+        return m
+    reg = getattr(ctx.model, "regional", None)
+    if reg is None:
+        from cardionurbs.analysis.regional import regional_metrics
+        reg = regional_metrics(ctx.model, ctx.tags)
+        ctx.model.regional = reg
+    return {**m, **dict(reg)}
+
+
 def _bullseye(quantity: tuple) -> FigureFn:
     """Figure function of one AHA bull's-eye (:mod:`cardionurbs.report.bullseye`)."""
     def fig(ctx, out):
-        res = quantity_figure(ctx.metrics, quantity, ctx.subject, out)
+        res = quantity_figure(_regional_columns(ctx), quantity, ctx.subject, out,
+                              frames=f"ED frame {ctx.ed}, ES frame {ctx.es}")
         return res if isinstance(res, str) else FigureResult(quantity[0], res[0], res[1], {}, [])
     return fig
 
