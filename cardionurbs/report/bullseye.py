@@ -15,6 +15,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import io
+import textwrap
 
 import matplotlib
 import numpy as np
@@ -22,6 +23,7 @@ from matplotlib import cm, colors
 from matplotlib.figure import Figure
 
 from cardionurbs.io import atomic
+from cardionurbs.safe import plain_text
 
 #: (figure name, column stem, title, unit, colour map, diverging)
 QUANTITIES = (
@@ -86,8 +88,9 @@ def bullseye_figure(values: Mapping[int, float], title: str, unit: str, path: Pa
     sm = cm.ScalarMappable(norm=norm, cmap=matplotlib.colormaps[cmap])
     cax = fig.add_axes([0.8, 0.2, 0.04, 0.62])
     fig.colorbar(sm, cax=cax, label=f"{label} ({unit})")
-    fig.suptitle(title, fontsize=9)
-    fig.text(0.02, 0.02, caption, fontsize=6.5, ha="left", va="bottom", wrap=True)
+    fig.suptitle(plain_text(title), fontsize=9)
+    fig.text(0.02, 0.02, plain_text(textwrap.fill(caption, 95)), fontsize=6.5, ha="left",
+             va="bottom")
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
     atomic.write_bytes(path, buf.getvalue())
