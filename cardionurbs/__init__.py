@@ -8,6 +8,7 @@ Public API (README.md, "Python API")::
     meshes = model.meshes(frame)         # closed manifold trimesh.Trimesh
     m = cn.measure(model)                # docs/metrics.md column -> float
     table = cn.cohort(paths)             # pandas.DataFrame
+    tracked = cn.track_tags(study)       # tag lines tracked from the tagged DICOM (HARP)
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ __all__ = [
     "CardioNurbsError", "NurbsInputError", "PhantomError", "ReconstructionError",
     "StudyError", "TagError", "UnsupportedInputError",
     "Study", "Contour", "TagLine", "Landmark",
-    "load_study", "reconstruct", "measure", "cohort", "nurbs",
+    "load_study", "reconstruct", "measure", "cohort", "nurbs", "track_tags",
 ]
 
 
@@ -38,6 +39,9 @@ def __getattr__(name):  # lazy: keep `import cardionurbs` light and acyclic
     if name == "measure":
         from cardionurbs.analysis.function import measure
         return measure
+    if name == "track_tags":
+        from cardionurbs.tracking import track_tags
+        return track_tags
     if name == "cohort":
         from cardionurbs.cohort import cohort
         return cohort

@@ -88,7 +88,13 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--format", default="auto", choices=["auto", "native", "sunnybrook", "gpfile"])
     an.add_argument("--heart-rate", type=float, default=None, help="bpm, when the input has none")
     an.add_argument("--no-figures", action="store_true", help="skip PNG figures and HTML report")
+    an.add_argument("--track-tags", action="store_true",
+                    help="track the tag lines from the study's tagged DICOM (HARP) first")
     an.add_argument("--out", required=True, metavar="DIR")
+
+    tr = sub.add_parser("track", help="track tag lines from a study's tagged DICOM images (HARP)")
+    tr.add_argument("study", metavar="STUDY")
+    tr.add_argument("--out", required=True, metavar="DIR")
 
     co = sub.add_parser("cohort", help="measure many studies into one CSV")
     co.add_argument("studies", nargs="+", metavar="STUDY")
@@ -114,6 +120,9 @@ def _run(args: argparse.Namespace) -> int:
     if args.command == "analyze":
         from cardionurbs.pipeline import run_analyze
         return run_analyze(args)
+    if args.command == "track":
+        from cardionurbs.tracking.track import run_track
+        return run_track(args)
     if args.command == "cohort":
         from cardionurbs.cohort import run_cohort
         return run_cohort(args)
@@ -123,7 +132,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.command == "report":
         from cardionurbs.report.html import run_report
         return run_report(args)
-    raise UsageError("cardionurbs: a command is required (phantom, analyze, cohort, demo, report)")
+    raise UsageError("cardionurbs: a command is required (phantom, analyze, track, cohort, demo, report)")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -116,6 +116,9 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
 def run_analyze(args: argparse.Namespace) -> int:
     """Load, reconstruct, measure and write one study (outputs: docs/formats.md)."""
     study = load_study(args.study, format=args.format)
+    if getattr(args, "track_tags", False):
+        from cardionurbs.tracking import track_tags
+        study = track_tags(study)
     model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None))
     write_analysis(model, metrics, args.out, figures=not getattr(args, "no_figures", False),
                    tags=tags)
