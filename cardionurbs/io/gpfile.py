@@ -63,7 +63,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cardionurbs.confine import files_inside, study_file
 from cardionurbs.errors import StudyError
+from cardionurbs.safe import excerpt
 from cardionurbs.imaging import stack
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import atomic
@@ -122,7 +124,7 @@ def read_slice_info(path: str | Path) -> list[dict]:
                 nums = []
             if len(nums) != n or not np.all(np.isfinite(nums)):
                 raise StudyError(f"line {k}: {key.rstrip(':')} needs {n} finite number(s), got "
-                                 f"{' '.join(vals)!r}", file=path, field=key.rstrip(":"))
+                                 f"{excerpt(' '.join(vals))}", file=path, field=key.rstrip(":"))
             rec[key] = (nums, vals)
         sid = rec["sliceID:"][0][0]
         if sid != int(sid):
@@ -176,7 +178,7 @@ def read_gp_table(path: str | Path) -> tuple[pd.DataFrame, str, int | None]:
             what = "NaN or infinite" if table[col].iloc[i].lower() in ("nan", "inf", "-inf") \
                 else "not a number"
             raise StudyError(f"line {table['line'].iloc[i]}: {col} is {what} "
-                             f"({table[col].iloc[i]!r})", file=path,
+                             f"({excerpt(table[col].iloc[i])})", file=path,
                              field="frameID" if col == "slice" else col)
         if col in ("x", "y", "z"):
             table[col] = num
@@ -236,7 +238,10 @@ def read_study(path: str | Path) -> Study:
     files = _gp_files(folder)
     if not files:
         raise StudyError("no GPFile_NNN.txt files in this folder", file=folder)
+    files_inside(folder, [folder / SLICE_INFO] + [f for _, f in files], what="GPFile")
     slices = read_slice_info(folder / SLICE_INFO)
+    for s in slices:                           # names only (never opened), kept confined
+        study_file(folder, s["file"], file=folder / SLICE_INFO, field="file")
     slice_by_id = {s["id"]: s for s in slices}
     tables = []
     header = None
@@ -355,7 +360,7 @@ def _read_blocks(t: pd.DataFrame, frame: int, f: Path, names: dict, views: dict,
             continue
         prefix, _, base = gp_type.partition("_")
         if prefix not in VIEW_PREFIX or base not in CONTOUR_TYPES:
-            raise StudyError(f"line {lines[s]}: unknown contour type {gp_type!r}; expected "
+            raise StudyError(f"line {lines[s]}: unknown contour type {excerpt(gp_type)}; expected "
                              f"SAX_/LAX_ + {', '.join(CONTOUR_TYPES)} or a landmark "
                              f"({', '.join(LANDMARK_TYPES)})", file=f, field="contour type")
         if VIEW_PREFIX[prefix] != view:

@@ -717,7 +717,8 @@ def _link_or_copy(src: Path, dst: Path) -> None:
 
 
 def write_tracked_study(study: Study, out: str | Path) -> Path:
-    """Write a tracked study as a native study folder ``out``, atomically (complete or absent).
+    """Write a tracked study as a native study folder ``out``, atomically (complete or absent;
+    the CLI checks ``out`` first with :func:`cardionurbs.io.outputs.check_output_dir`).
 
     The DICOM files it references are hard-linked (copied across file systems) beside it under
     the same relative paths, and ``truth.json`` (phantoms) with them, so the folder stands alone.
@@ -744,7 +745,11 @@ def run_track(args) -> int:
     tagged DICOM (:func:`track_tags`), written as a native study (exit 2 on bad input)."""
     import sys
     from cardionurbs.io import load_study
-    study = load_study(args.study)
+    from cardionurbs.io.outputs import check_output_dir
+    from cardionurbs.pipeline import study_folder
+    check_output_dir(args.out, inputs=[study_folder(args.study)],
+                     overwrite=getattr(args, "overwrite", False))
+    study = load_study(args.study, allow_outside=getattr(args, "allow_outside", False))
     tracked = track_tags(study)
     write_tracked_study(tracked, args.out)
     info = tracked.meta["tag_tracking"]
