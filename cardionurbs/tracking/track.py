@@ -55,8 +55,15 @@ from scipy import fft as sfft
 from scipy.ndimage import binary_dilation
 from scipy.spatial import cKDTree
 
+from cardionurbs.analysis.tag_surfaces import family_direction
+from cardionurbs.analysis.tagqc import tag_spacing
+from cardionurbs.anatomy.sections import study_long_axis
 from cardionurbs.errors import StudyError, TagTrackingError
+from cardionurbs.imaging.dicom import read_pixels
 from cardionurbs.imaging.geometry import ImagePlane
+from cardionurbs.io import atomic, load_study
+from cardionurbs.io.native import write_study
+from cardionurbs.io.outputs import check_output_dir
 from cardionurbs.study import Study, TagLine
 from cardionurbs.tracking import harp, spectral
 
@@ -91,7 +98,6 @@ def _slice_images(study: Study) -> dict[str, list[ImagePlane]]:
 
 
 def _read_frames(study: Study, images: list[ImagePlane]) -> np.ndarray:
-    from cardionurbs.imaging.dicom import read_pixels
     folder = Path(study.source)
     arrs = []
     for im in images:
@@ -205,8 +211,6 @@ def expected_tag_planes(study: Study) -> dict[str, TagPlanes]:
         return out
     if not study.tags:
         return out
-    from cardionurbs.analysis.tag_surfaces import family_direction
-    from cardionurbs.analysis.tagqc import tag_spacing
     f0 = study.tagged_frames[0]
     for fam in ("sa1", "sa2", "la"):
         lines = study.tags_at(f0, fam)
@@ -216,9 +220,8 @@ def expected_tag_planes(study: Study) -> dict[str, TagPlanes]:
         if not np.isfinite(d) or d <= 0:
             continue
         if fam == "la":
-            from cardionurbs.analysis.tags import default_long_axis
             try:
-                apex, base = default_long_axis(study)
+                apex, base = study_long_axis(study)
             except StudyError:
                 continue
             n = (base - apex) / np.linalg.norm(base - apex)
@@ -723,8 +726,6 @@ def write_tracked_study(study: Study, out: str | Path) -> Path:
     The DICOM files it references are hard-linked (copied across file systems) beside it under
     the same relative paths, and ``truth.json`` (phantoms) with them, so the folder stands alone.
     """
-    from cardionurbs.io import atomic
-    from cardionurbs.io.native import write_study
     src = Path(study.source)
     out = Path(out)
     if out.resolve() == src.resolve():
@@ -744,10 +745,9 @@ def run_track(args) -> int:
     """``cardionurbs track STUDY --out DIR``: the study with its tag lines tracked from its
     tagged DICOM (:func:`track_tags`), written as a native study (exit 2 on bad input)."""
     import sys
-    from cardionurbs.io import load_study
-    from cardionurbs.io.outputs import check_output_dir
-    from cardionurbs.pipeline import study_folder
-    check_output_dir(args.out, inputs=[study_folder(args.study)],
+    given = Path(args.study)
+    folder = given if given.is_dir() or not given.exists() else given.parent
+    check_output_dir(args.out, inputs=[folder],
                      overwrite=getattr(args, "overwrite", False))
     study = load_study(args.study, allow_outside=getattr(args, "allow_outside", False))
     tracked = track_tags(study)
