@@ -99,5 +99,5 @@ def _load_study(path: str | Path, format: str) -> Study:
         study = read_study(path)
     else:  # pragma: no cover - FORMATS and this list agree
         raise StudyError(f"format {fmt!r} is not readable", file=path)
-    study.warnings = check_study(study)
+    study.warnings = list(study.warnings or []) + check_study(study)
     return study
