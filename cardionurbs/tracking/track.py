@@ -30,10 +30,14 @@ images name DICOM files,
    so the tag surfaces, material points, metrics and QC use the lines as
    they are.
 5. **Tracking**: every first-frame line point is HARP-tracked through the
-   cycle; at frame t the lines are again the iso-phase lines φ_t = π in the
-   myocardium of frame t (the nearest contoured frame when t has none), and
-   each piece takes the index voted by the tracked points of its family
-   nearest to it (within half a spacing).
+   cycle (temporal prior: the contours' motion). SA grids: the line at frame
+   t is its tracked material points (both phases pin them), less those a
+   spacing off the rest (slipped onto a neighbouring tag: a robust quadratic
+   across the line). LA views: the iso-phase lines φ_t = π, each point
+   labelled by the nearest line predicted from the previous frame plus the
+   whole spacings between them. Both are moved onto the tag trough and kept
+   inside frame t's myocardium, 1 px from its borders. A slice whose contours
+   stop (a basal slice leaving the ventricle in systole) stops being tracked.
 6. **Confidence** per line (``study.meta["tag_tracking"]["lines"]``, one
    column per field): ``magnitude`` — median harmonic magnitude along the
    line over the first frame's median myocardial magnitude (1 at the first
@@ -480,6 +484,27 @@ def _contour_prior(contours, offset: np.ndarray):
     return prior
 
 
+def _on_one_tag(P: np.ndarray, k: np.ndarray, tol: float = 0.35) -> np.ndarray:
+    """Mask of the points of one tracked line that lie on one tag: a robust quadratic of the
+    offset along k against the position along the tag (iteratively refitted on the points
+    within ``tol`` spacings of it); points a spacing off (slipped onto a neighbouring tag)
+    are left out."""
+    n = len(P)
+    if n < 5:
+        return np.ones(n, bool)
+    period = 1.0 / float(np.linalg.norm(k))
+    khat = k / np.linalg.norm(k)
+    u = P @ np.array([-khat[1], khat[0]])
+    o = P @ khat
+    keep = np.abs(o - np.median(o)) <= 0.5 * period + 0.1 * np.ptp(u)   # a tilt of ~6 deg
+    for deg in (1, 2, 2):
+        if keep.sum() <= deg + 2:
+            return np.ones(n, bool)
+        c = np.polyfit(u[keep], o[keep], deg)
+        keep = np.abs(o - np.polyval(c, u)) <= tol * period
+    return keep
+
+
 def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myocardium],
                 geom: SliceGeometry, tag_planes: dict[str, TagPlanes], box,
                 study_contours=None) -> SliceTracking:
@@ -499,7 +524,12 @@ def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myoc
     T = len(images)
     for t in range(1, len(images)):
         if inner[t] is None:
-            continue
+            # the slice has left the ventricle (basal slices in systole): its material points
+            # cannot be followed through tissue that is not there, so tracking stops
+            T = t
+            notes.append(f"slice {plane.slice}: no LV contour at frame {images[t].frame}; tracked "
+                         f"up to frame {images[t - 1].frame}")
+            break
         ratio = min(float(np.median(np.abs(hs.baseband[t])[inner[t]])) / ref[fam]
                     for fam, hs in hs_by_fam.items())
         if ratio < FADED:
@@ -556,6 +586,7 @@ def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myoc
                     if REFINE:
                         P = harp.trough_refine(crop[t], P, hs.sample(t, P)[1], reach)
                     P = P[myos[t].contains(P + offset, BORDER_MARGIN_PX)]
+                    P = P[_on_one_tag(P, hs.k)]
                     if len(P):
                         by_index[int(idx)].append(P)
             else:
