@@ -64,6 +64,10 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None):
     tags = tag_metrics_hook(model)
     if tags is not None:
         metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
+    from cardionurbs.analysis.regional import regional_metrics
+    regional = regional_metrics(model, tags)
+    metrics.update({k: float(v) for k, v in regional.items() if k in metrics})
+    model.regional = regional                     # kept for metrics.json and the figures
     voxels = study.meta.get("voxel_volumes_ml") if isinstance(study.meta, dict) else None
     if voxels:                              # label maps: voxel counting beside the model
         from cardionurbs.analysis.voxels import voxel_metrics
@@ -112,6 +116,8 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                     "volume_curve": volume_curve(model), "residuals": summary,
                     "residual_frames": sorted({model.ed_frame, model.es_frame}),
                     "tags": None if tags is None else tags.to_json(),
+                    "regional": (None if getattr(model, "regional", None) is None
+                                 else model.regional.to_json()),
                     "notes": dict(model.study.meta.get("metric_notes") or {}),
                     "warnings": model.warnings}, tmp / "metrics.json")
         if figures:
