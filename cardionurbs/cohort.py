@@ -35,14 +35,16 @@ def ignore_interrupts() -> None:
 
 
 def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None = None,
-                  allow_outside: bool = False) -> dict:
-    """One cohort row for the study at ``path`` (never raises for a bad study)."""
+                  allow_outside: bool = False, labels: str | None = None) -> dict:
+    """One cohort row for the study at ``path`` (never raises for a bad study); label-map
+    studies add the voxel-count columns (cardionurbs.analysis.voxels.VOXEL_COLUMNS)."""
     row = {c: NAN for c in COLUMNS}
     row["subject"] = Path(path).name
     try:
         from cardionurbs.io import load_study
         from cardionurbs.pipeline import analyse_study
-        study = load_study(path, format=format, allow_outside=allow_outside)
+        study = load_study(path, format=format, allow_outside=allow_outside,
+                           **({} if labels is None else {"labels": labels}))
         row["subject"] = study.subject
         _, metrics = analyse_study(study, heart_rate_bpm=heart_rate_bpm)
         row.update(metrics)
@@ -56,9 +58,10 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
 
 def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "auto",
            progress: bool = False, heart_rate_bpm: float | None = None,
-           allow_outside: bool = False) -> pd.DataFrame:
+           allow_outside: bool = False, labels: str | None = None) -> pd.DataFrame:
     """Measure every study: a DataFrame with ``subject``, ``status`` and the docs/metrics.md
-    columns in order, one row per path (input order)."""
+    columns in order, one row per path (input order); when any study is a label map
+    the voxel-count columns follow (``labels``: its convention, see load_study)."""
     paths = [str(p) for p in paths]
     rows: list[dict | None] = [None] * len(paths)
     bar = None
@@ -68,13 +71,14 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
     try:
         if jobs <= 1 or len(paths) <= 1:
             for i, p in enumerate(paths):
-                rows[i] = measure_study(p, format, heart_rate_bpm, allow_outside)
+                rows[i] = measure_study(p, format, heart_rate_bpm, allow_outside, labels)
                 if bar is not None:
                     bar.update(1)
         else:
             with ProcessPoolExecutor(max_workers=min(jobs, len(paths)),
                                      initializer=ignore_interrupts) as pool:
-                futs = {pool.submit(measure_study, p, format, heart_rate_bpm, allow_outside): i
+                futs = {pool.submit(measure_study, p, format, heart_rate_bpm, allow_outside,
+                                    labels): i
                         for i, p in enumerate(paths)}
                 for fut in as_completed(futs):
                     rows[futs[fut]] = fut.result()
@@ -83,7 +87,9 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
     finally:
         if bar is not None:
             bar.close()
-    return pd.DataFrame(rows, columns=list(CSV_COLUMNS))
+    from cardionurbs.analysis.voxels import VOXEL_COLUMNS
+    extra = [c for c in VOXEL_COLUMNS if any(c in r for r in rows if r)]
+    return pd.DataFrame(rows, columns=list(CSV_COLUMNS) + extra)
 
 
 def write_csv(table: pd.DataFrame, path: str | os.PathLike) -> Path:
@@ -99,7 +105,8 @@ def run_cohort(args: argparse.Namespace) -> int:
     from cardionurbs.pipeline import study_folder
     check_output_file(args.csv, inputs=[study_folder(s) for s in args.studies], option="--csv")
     table = cohort(args.studies, jobs=args.jobs, format=getattr(args, "format", "auto"),
-                   progress=True, allow_outside=getattr(args, "allow_outside", False))
+                   progress=True, allow_outside=getattr(args, "allow_outside", False),
+                   labels=getattr(args, "labels", None))
     write_csv(table, args.csv)
     failed = table[table["status"] != "ok"]
     print(f"{len(table) - len(failed)} of {len(table)} studies measured; wrote {args.csv}",

@@ -47,6 +47,7 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 from cardionurbs.safe import plain_text
 from cardionurbs import nurbs
 from cardionurbs.io import atomic
+from cardionurbs.report.bullseye import QUANTITIES as BULLSEYE_QUANTITIES, quantity_figure
 
 __all__ = ["write_figures", "render_figures", "FigureSet", "FigureResult", "OKABE_ITO",
            "STRUCTURE_COLOURS", "FAMILY_COLOURS", "FLAG_COLOUR", "tag_data", "view_frame"]
@@ -705,6 +706,33 @@ FIGURES: dict[str, FigureFn] = {
     "fig10_biventricular_tags": fig10_biventricular, "fig11_volume_time": fig11_volume_time,
     "fig12_twist_time": fig12_twist_time,
 }
+
+
+def _regional_columns(ctx) -> Mapping:
+    """The metrics with the regional columns: as given, else the model's regional analysis
+    (kept on the model by the pipeline, else computed once here)."""
+    m = dict(ctx.metrics or {})
+    if any(isinstance(m.get(f"WT_AHA_{k} (mm)"), float) and np.isfinite(m[f"WT_AHA_{k} (mm)"])
+           for k in range(1, 17)):
+        return m
+    reg = getattr(ctx.model, "regional", None)
+    if reg is None:
+        from cardionurbs.analysis.regional import regional_metrics
+        reg = regional_metrics(ctx.model, ctx.tags)
+        ctx.model.regional = reg
+    return {**m, **dict(reg)}
+
+
+def _bullseye(quantity: tuple) -> FigureFn:
+    """Figure function of one AHA bull's-eye (:mod:`cardionurbs.report.bullseye`)."""
+    def fig(ctx, out):
+        res = quantity_figure(_regional_columns(ctx), quantity, ctx.subject, out,
+                              frames=f"ED frame {ctx.ed}, ES frame {ctx.es}")
+        return res if isinstance(res, str) else FigureResult(quantity[0], res[0], res[1], {}, [])
+    return fig
+
+
+FIGURES.update({q[0]: _bullseye(q) for q in BULLSEYE_QUANTITIES})
 
 
 # ----------------------------------------------------------------- driver
