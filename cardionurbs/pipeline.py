@@ -145,6 +145,9 @@ def run_analyze(args: argparse.Namespace) -> int:
                      overwrite=getattr(args, "overwrite", False))
     study = load_study(args.study, format=args.format,
                        allow_outside=getattr(args, "allow_outside", False), **_label_option(args))
+    if getattr(args, "track_tags", False):
+        from cardionurbs.tracking import track_tags
+        study = track_tags(study)
     model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None))
     write_analysis(model, metrics, args.out, figures=not getattr(args, "no_figures", False),
                    tags=tags)

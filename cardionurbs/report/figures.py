@@ -798,7 +798,8 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
 def _tags_json(tag_frames: Mapping[int, list[dict]], tags: Any) -> dict:
     """Coarse tag surfaces per frame (vertices rounded to 0.1 mm) with QC flags."""
     flags = [{"family": g.family, "index": g.index, "slice": g.slice, "frame": g.frame,
-              "departure_spacings": round(float(g.departure), 3)}
+              "departure_spacings": (round(float(g.departure), 3) if np.isfinite(g.departure)
+                                     else None), "reason": getattr(g, "reason", "jump")}
              for g in (getattr(tags, "flags", None) or [])]
     return {"frames": {str(f): [{"family": d["family"], "index": int(d["index"]),
                                  "flagged": bool(d["flagged"]),
