@@ -208,13 +208,17 @@ class BiventricularModel:
         if not la:
             return surface
         targets = np.concatenate(la)
+        wl = geo.la_weights.get(structure) or []
+        weights = np.concatenate(wl) if len(wl) == len(la) else np.ones(len(targets))
         plane = geo.base_planes.get("lv")
         if plane is not None:
-            targets = targets[plane.signed_distance(targets) >= 0]
+            keep = plane.signed_distance(targets) >= 0
+            targets, weights = targets[keep], weights[keep]
         # the SA points every ~2 mm along each contour suffice to hold the surface
         anchors = np.concatenate([_every(sec.source_points, 2.0) for sec in geo.sections[structure]])
-        return refine_surface(surface, anchors, _every(targets, 2.0), anchor_weight=self.anchor_weight,
-                              passes=2)
+        every = _every_index(targets, 2.0)
+        return refine_surface(surface, anchors, targets[every], anchor_weight=self.anchor_weight,
+                              target_weights=weights[every], passes=2)
 
     def _all_surfaces(self, frame: int) -> dict:
         geo = self.geometry[frame]
@@ -423,10 +427,15 @@ class BiventricularModel:
 
 def _every(points: np.ndarray, spacing_mm: float) -> np.ndarray:
     """A subsample of ordered contour points about ``spacing_mm`` apart."""
+    return points[_every_index(points, spacing_mm)]
+
+
+def _every_index(points: np.ndarray, spacing_mm: float) -> slice:
+    """The slice of ordered contour points that keeps them about ``spacing_mm`` apart."""
     if len(points) < 3:
-        return points
+        return slice(None)
     step = float(np.median(np.linalg.norm(np.diff(points, axis=0), axis=1))) or spacing_mm
-    return points[:: max(1, int(round(spacing_mm / step)))]
+    return slice(None, None, max(1, int(round(spacing_mm / step))))
 
 
 def _pixel_mm(plane) -> float:

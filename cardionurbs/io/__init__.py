@@ -88,5 +88,5 @@ def load_study(path: str | Path, format: str = "auto") -> Study:
         study = read_study(path)
     else:  # pragma: no cover - FORMATS and this list agree
         raise StudyError(f"format {fmt!r} is not readable", file=path)
-    study.warnings = check_study(study)
+    study.warnings = list(study.warnings) + check_study(study)  # the reader's, then the checks'
     return study
