@@ -87,6 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--csv", required=True, metavar="FILE")
     co.add_argument("--jobs", type=_positive_int, default=1)
     co.add_argument("--format", default="auto", choices=["auto", "native", "sunnybrook", "gpfile"])
+    co.add_argument("--strict", action="store_true",
+                    help="a study whose metrics carry a quality flag (QC) is a failure")
 
     de = sub.add_parser("demo", help="the paper's 12-subject phantom cohort, end to end")
     de.add_argument("--out", metavar="DIR", default=None)

@@ -18,38 +18,52 @@ from typing import Iterable
 import pandas as pd
 
 from cardionurbs.analysis.function import COLUMNS, NAN
+from cardionurbs.analysis.quality import QC_COLUMNS
 from cardionurbs.io import atomic
 
-CSV_COLUMNS = ("subject", "status") + COLUMNS
+#: subject, status, the metrics, then their evidence (fit residuals per surface, contours
+#: left out) and ``QC``, what failed (cardionurbs.analysis.quality)
+CSV_COLUMNS = ("subject", "status") + COLUMNS + QC_COLUMNS
 
 
 def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
-def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None = None) -> dict:
-    """One cohort row for the study at ``path`` (never raises for a bad study)."""
-    row = {c: NAN for c in COLUMNS}
+def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None = None,
+                  strict: bool = False) -> dict:
+    """One cohort row for the study at ``path`` (never raises for a bad study).
+
+    ``strict``: a row whose metrics carry a quality flag (``QC`` not empty) is a
+    failure: ``status = "error: QC: <flags>"`` and its numbers are emptied."""
+    row = {c: NAN for c in COLUMNS + QC_COLUMNS}
     row["subject"] = Path(path).name
     try:
         from cardionurbs.io import load_study
         from cardionurbs.pipeline import analyse_study
         study = load_study(path, format=format)
         row["subject"] = study.subject
-        _, metrics = analyse_study(study, heart_rate_bpm=heart_rate_bpm)
+        from cardionurbs.analysis.quality import assess
+        model, metrics = analyse_study(study, heart_rate_bpm=heart_rate_bpm)
         row.update(metrics)
+        row.update(assess(model, metrics).row())
         row["status"] = "ok"
+        if strict and row["QC"]:
+            row.update({c: NAN for c in COLUMNS})
+            row["status"] = f"error: QC: {row['QC']}"
     except Exception as exc:  # noqa: BLE001 - recorded in the row, the run goes on
         kind = "" if isinstance(exc, ValueError) else f"{type(exc).__name__}: "
-        row.update({c: NAN for c in COLUMNS})
+        row.update({c: NAN for c in COLUMNS + QC_COLUMNS})
         row["status"] = f"error: {kind}{_one_line(exc)}"
     return row
 
 
 def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "auto",
-           progress: bool = False, heart_rate_bpm: float | None = None) -> pd.DataFrame:
-    """Measure every study: a DataFrame with ``subject``, ``status`` and the METRICS.md
-    columns in order, one row per path (input order)."""
+           progress: bool = False, heart_rate_bpm: float | None = None,
+           strict: bool = False) -> pd.DataFrame:
+    """Measure every study: a DataFrame with ``subject``, ``status``, the METRICS.md
+    columns in order and the quality columns, one row per path (input order);
+    ``strict``: flagged rows are failures (:func:`measure_study`)."""
     paths = [str(p) for p in paths]
     rows: list[dict | None] = [None] * len(paths)
     bar = None
@@ -59,12 +73,12 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
     try:
         if jobs <= 1 or len(paths) <= 1:
             for i, p in enumerate(paths):
-                rows[i] = measure_study(p, format, heart_rate_bpm)
+                rows[i] = measure_study(p, format, heart_rate_bpm, strict)
                 if bar is not None:
                     bar.update(1)
         else:
             with ProcessPoolExecutor(max_workers=min(jobs, len(paths))) as pool:
-                futs = {pool.submit(measure_study, p, format, heart_rate_bpm): i
+                futs = {pool.submit(measure_study, p, format, heart_rate_bpm, strict): i
                         for i, p in enumerate(paths)}
                 for fut in as_completed(futs):
                     rows[futs[fut]] = fut.result()
@@ -84,7 +98,7 @@ def write_csv(table: pd.DataFrame, path: str | os.PathLike) -> Path:
 def run_cohort(args: argparse.Namespace) -> int:
     """`cardionurbs cohort STUDY... --csv FILE [--jobs N]`."""
     table = cohort(args.studies, jobs=args.jobs, format=getattr(args, "format", "auto"),
-                   progress=True)
+                   progress=True, strict=getattr(args, "strict", False))
     write_csv(table, args.csv)
     failed = table[table["status"] != "ok"]
     print(f"{len(table) - len(failed)} of {len(table)} studies measured; wrote {args.csv}",

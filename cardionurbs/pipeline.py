@@ -4,7 +4,9 @@ Output folder (written atomically: complete or absent)::
 
     DIR/metrics.json        {"subject", "metrics": {METRICS.md column: value},
                              "ed_frame", "es_frame", "volume_curve", "residuals",
-                             "warnings"}
+                             "quality": {per metric: flags, surfaces, frames; per
+                             surface and frame: fit residual median/p95/max in mm
+                             and px; contours left out}, "QC", "warnings"}
     DIR/model.json          the NURBS model (BiventricularModel.to_dict)
     DIR/model.3dm           the ED surfaces as Rhino NURBS (with the ``cad`` extra)
     DIR/residuals.csv       contour-point-to-surface distances per slice, at ED and ES
@@ -18,6 +20,7 @@ Output folder (written atomically: complete or absent)::
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from pathlib import Path
 
@@ -95,6 +98,8 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
         else:
             export_model_3dm(model, tmp / "model.3dm")
         res = model.residual_table()            # ED and ES (every frame: model.residuals)
+        from cardionurbs.analysis.quality import assess
+        quality = assess(model, metrics)
         atomic.write_text(tmp / "residuals.csv", res.to_csv(index=False))
         summary = {}
         for s, g in res.groupby("structure"):
@@ -107,6 +112,7 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                     "volume_curve": volume_curve(model), "residuals": summary,
                     "residual_frames": sorted({model.ed_frame, model.es_frame}),
                     "tags": None if tags is None else tags.to_json(),
+                    "quality": quality.to_json(), "QC": "; ".join(quality.flags),
                     "warnings": model.warnings}, tmp / "metrics.json")
         if figures:
             figures_hook(model, metrics, tmp, tags=tags)
@@ -122,4 +128,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     print(f"{study.subject}: ED frame {model.ed_frame}, ES frame {model.es_frame}; "
           f"LVEDV {metrics['LVEDV (mL)']:.1f} mL, LVEF {metrics['LVEF (%)']:.1f} %; "
           f"wrote {args.out}")
+    qc = json.loads((Path(args.out) / "metrics.json").read_text()).get("QC")
+    if qc:
+        print(f"QC: {qc}")
     return 0

@@ -342,20 +342,47 @@ class BiventricularModel:
         """Distance of every contour point to its surface (closest-point projection,
         :func:`cardionurbs.nurbs.closest_points`), per (structure, frame, slice, view):
         columns structure, frame, slice, view, n_points, mean_mm, max_mm, mean_px,
-        max_px, for the given frames (default ED and ES). SA points are the contour
-        points of each slice (for the RV, the free wall: the septal part is the LV
-        epicardium's); LA points are the LA contours. Empty for a model read back
-        without its study's contours."""
+        max_px, for the given frames (default ED and ES); see :meth:`point_residuals`
+        for which points and which distance. Empty for a model read back without its
+        study's contours."""
         cols = ["structure", "frame", "slice", "view", "n_points", "mean_mm", "max_mm",
                 "mean_px", "max_px"]
-        rows = []
+        pts = self.point_residuals(frames)
+        if pts.empty:
+            return pd.DataFrame([], columns=cols)
+        g = pts.groupby(["structure", "frame", "slice", "view"], sort=False)
+        out = g.agg(n_points=("dist_mm", "size"), mean_mm=("dist_mm", "mean"),
+                    max_mm=("dist_mm", "max"), mean_px=("dist_px", "mean"),
+                    max_px=("dist_px", "max")).reset_index()
+        return out[cols]
+
+    def point_residuals(self, frames=None) -> pd.DataFrame:
+        """Every contour point's distance to the surface it was fitted by (mm and pixels of
+        its image), at the given frames (default ED and ES): columns structure, frame,
+        slice, view, dist_mm, dist_px.
+
+        SA points are the contour points of each slice (for the RV, the free wall: the
+        septal part is the LV epicardium's); LA points are the LA contours. An RV point's
+        distance is to the boundary of the RV solids, which the RV surface and the LV
+        epicardium make together (RV cavity = RV endo − LV epi): the nearer of the two
+        surfaces, so that the septal run of an LA RV contour, which lies on the LV
+        epicardium, is measured where it lies."""
+        cols = ["structure", "frame", "slice", "view", "dist_mm", "dist_px"]
         if not self.study.contours:
-            return pd.DataFrame(rows, columns=cols)
+            return pd.DataFrame([], columns=cols)
         if frames is None:
             frames = sorted({self.ed_frame, self.es_frame})
+        key = ("point_residuals", tuple(frames))
+        if key not in self._solid_cache:
+            self._solid_cache[key] = self._point_residuals(frames, cols)
+        return self._solid_cache[key].copy()
+
+    def _point_residuals(self, frames, cols) -> pd.DataFrame:
+        parts = []
         for f in frames:
             geo = self.geometry[f]
-            for s, surf in self.surfaces[f].items():
+            surfs = self.surfaces[f]
+            for s, surf in surfs.items():
                 items = [(sec.slice, "SA", free_wall_points(sec, geo.direction), _pixel_mm(sec.plane))
                          for sec in self.sections[f].get(s, []) if sec.source_points is not None]
                 items += [(sl, "LA", pts, px) for sl, pts, px in
@@ -363,16 +390,20 @@ class BiventricularModel:
                               geo.la_pixel_mm.get(s, []))]
                 if not items:
                     continue
-                d = surface_distance(surf, np.concatenate([it[2] for it in items]))
-                k = 0
-                for sl, view, pts, px in items:
-                    di = d[k:k + len(pts)]
-                    k += len(pts)
-                    rows.append({"structure": s, "frame": f, "slice": sl, "view": view,
-                                 "n_points": len(pts), "mean_mm": float(di.mean()),
-                                 "max_mm": float(di.max()), "mean_px": float(di.mean() / px),
-                                 "max_px": float(di.max() / px)})
-        return pd.DataFrame(rows, columns=cols)
+                allp = np.concatenate([it[2] for it in items])
+                d = surface_distance(surf, allp)
+                if s.startswith("rv") and "lv_epi" in surfs:
+                    d = np.minimum(d, surface_distance(surfs["lv_epi"], allp))
+                n = [len(it[2]) for it in items]
+                px = np.repeat([it[3] for it in items], n)
+                parts.append(pd.DataFrame({
+                    "structure": s, "frame": f,
+                    "slice": np.repeat(np.array([it[0] for it in items], dtype=object), n),
+                    "view": np.repeat([it[1] for it in items], n), "dist_mm": d,
+                    "dist_px": d / px}))
+        if not parts:
+            return pd.DataFrame([], columns=cols)
+        return pd.concat(parts, ignore_index=True)[cols]
 
     # ------------------------------------------------------------- (de)serialise
     def to_dict(self) -> dict:

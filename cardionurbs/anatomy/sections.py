@@ -67,6 +67,7 @@ class FrameGeometry:
     la_slices: dict[str, list[str]] = field(default_factory=dict)
     la_pixel_mm: dict[str, list[float]] = field(default_factory=dict)
     la_weights: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    left_out: list[tuple[str, str | None, str]] = field(default_factory=list)  # (structure, slice, why)
     thickness: float = 8.0
     reference: np.ndarray | None = None     # in-plane LV -> RV direction (section seams)
     warnings: list[str] = field(default_factory=list)
@@ -535,7 +536,8 @@ def isoperimetric_quotient(points: np.ndarray, normal: np.ndarray) -> float:
 MIN_BASAL_AREA_RATIO = 0.35
 
 
-def _drop_degenerate_loops(secs: list, n: np.ndarray, warnings: list[str]) -> list:
+def _drop_degenerate_loops(secs: list, n: np.ndarray, warnings: list[str],
+                           left_out: list | None = None) -> list:
     """Leave out LV loops (sorted base -> apex) that cannot be whole cross-sections.
 
     Two signs of a partial or back-and-forth tracing (typically a basal slice
@@ -547,6 +549,8 @@ def _drop_degenerate_loops(secs: list, n: np.ndarray, warnings: list[str]) -> li
     as full sections they bend the surface and distort the cavity volume.
     """
     def drop(sec, why):
+        if left_out is not None:
+            left_out.append((sec.structure, sec.slice, why))
         warnings.append(f"frame {sec.frame}: slice {sec.slice}: {sec.structure} contour {why}; "
                         "left out of the surface (a partial tracing?)")
 
@@ -591,7 +595,7 @@ def frame_geometry(study: Study, frame: int) -> FrameGeometry:
             secs.append(Section(s, frame, pts, slice=sl, plane=planes.get(sl), source_points=src))
         secs.sort(key=lambda sec: float(sec.points.mean(axis=0) @ n))
         if s in ("lv_endo", "lv_epi"):
-            secs = _drop_degenerate_loops(secs, n, geo.warnings)
+            secs = _drop_degenerate_loops(secs, n, geo.warnings, geo.left_out)
         geo.sections[s] = secs
     lv_epi = {sec.slice: sec for sec in geo.sections.get("lv_epi", [])}
     for s in ("rv_endo", "rv_epi"):
