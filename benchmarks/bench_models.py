@@ -313,7 +313,7 @@ def run_validation(out: Path, jobs: int = 2) -> None:
               "to the pulmonary valve, with valve rims that follow the annulus points. The outflow "
               "tract above the tricuspid annulus is not covered by this patient's SA contours, so "
               "our RV stops at the tricuspid plane: most of the RV volume and wall difference. "
-              "(Tilting the RV plane through the pulmonary landmarks as well, which METRICS.md "
+              "(Tilting the RV plane through the pulmonary landmarks as well, which docs/metrics.md "
               "allows, gave +10 % RVEDV but -21 % RVESV against biv-me: the region above the "
               "most basal RV contour is then an extrapolation, so we do not use them.)",
               "- Myocardial mass: biv-me's template LV wall continues into the basal ring around the "

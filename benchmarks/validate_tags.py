@@ -45,7 +45,7 @@ NOTES = """## Notes
   *spokes* of the 2-, 3- and 4-chamber lines (each line cut where it crosses the axis); material
   points are the intersections of one surface of each family, by batched Newton on the six
   surface parameters, kept where the ED point lies in the LV myocardium (SA contours).
-- **Levels** follow contracts.md: LA tags whose material points lie strictly between the most
+- **Levels** follow docs/metrics.md: LA tags whose material points lie strictly between the most
   basal and most apical SA slices tagged at ED *and* ES, at ED and at ES. At ED a level is placed
   by the mean stack height of its points (the surfaces extended linearly beyond the stack so that
   a level just outside is placed, not clamped onto the end slice); at ES by the pooled map

@@ -1,12 +1,12 @@
 """cardionurbs: NURBS models of the heart's ventricles from cardiac MR.
 
-Public API (see API.md)::
+Public API (README.md, "Python API")::
 
     import cardionurbs as cn
     study = cn.load_study(path)          # native | sunnybrook | gpfile | phantom
     model = cn.reconstruct(study)        # NURBS surfaces per frame, scanner mm
     meshes = model.meshes(frame)         # closed manifold trimesh.Trimesh
-    m = cn.measure(model)                # METRICS.md column -> float
+    m = cn.measure(model)                # docs/metrics.md column -> float
     table = cn.cohort(paths)             # pandas.DataFrame
 """
 

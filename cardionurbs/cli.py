@@ -12,11 +12,7 @@ import os
 import sys
 from typing import Sequence
 
-from cardionurbs.errors import CardioNurbsError
-
-
-class UsageError(CardioNurbsError):
-    """Bad command-line usage."""
+from cardionurbs.errors import CardioNurbsError, UsageError
 
 
 class _Parser(argparse.ArgumentParser):
@@ -46,6 +42,16 @@ def _nonneg_float(text: str) -> float:
     return v
 
 
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (v > 0 and v < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return v
+
+
 def _nonneg_int(text: str) -> int:
     try:
         v = int(text)
@@ -72,6 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="number of (slice, frame) pairs with a tag-jumping fault")
     ph.add_argument("--breath-hold-mm", type=_nonneg_float, default=0.0,
                     help="breath-hold fault: random in-plane shifts of the SA slices, mm (std)")
+    ph.add_argument("--snr", type=_positive_float, default=None,
+                    help="tagged DICOM image SNR (myocardium over Rician channel noise; default 12)")
     ph.add_argument("--no-dicom", action="store_true", help="skip the synthetic DICOM images")
     ph.add_argument("--out", required=True, metavar="DIR")
 

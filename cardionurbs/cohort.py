@@ -1,4 +1,4 @@
-"""Many studies -> one table (METRICS.md columns, one row per study).
+"""Many studies -> one table (docs/metrics.md columns, one row per study).
 
 A study that fails (bad input, a surface that cannot be built) is recorded
 in its row as ``status = "error: <one line>"`` with empty numbers, and the
@@ -61,7 +61,7 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
 def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "auto",
            progress: bool = False, heart_rate_bpm: float | None = None,
            strict: bool = False) -> pd.DataFrame:
-    """Measure every study: a DataFrame with ``subject``, ``status``, the METRICS.md
+    """Measure every study: a DataFrame with ``subject``, ``status``, the docs/metrics.md
     columns in order and the quality columns, one row per path (input order);
     ``strict``: flagged rows are failures (:func:`measure_study`)."""
     paths = [str(p) for p in paths]

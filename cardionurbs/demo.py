@@ -3,7 +3,7 @@
 Generates the subjects of ``paper12.toml`` (5 normal, 3 mitral
 regurgitation, 4 pulmonary hypertension; 20 phases each) into ``--out`` (or
 a temporary folder), reconstructs and measures every subject, writes the
-cohort CSV (``cohort.csv``, METRICS.md columns) beside ``truth.csv`` (the
+cohort CSV (``cohort.csv``, docs/metrics.md columns) beside ``truth.csv`` (the
 phantoms' analytic ground truth), and prints every metric beside its truth.
 
 The studies are written in the native format without synthetic DICOM images

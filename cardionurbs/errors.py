@@ -55,3 +55,29 @@ class ReconstructionError(CardioNurbsError):
 
 class TagError(StudyError):
     """Bad tag-line input (names family, index, slice and frame)."""
+
+
+class TagTrackingError(TagError):
+    """Tagged images that cannot be tracked: no SPAMM pattern (untagged or faded series), or
+    a tag spacing or orientation far from what the study expects (names file, slice, frame)."""
+
+
+class ExportError(CardioNurbsError):
+    """Unsupported export format or unwritable output (names the path or format)."""
+
+
+class UsageError(CardioNurbsError):
+    """Bad command-line usage (the CLI prints it as one line, exit code 2)."""
+
+
+class ReportInputError(CardioNurbsError):
+    """The analysis folder given to ``report`` is missing or incomplete (names the file)."""
+
+
+class CohortInputError(CardioNurbsError):
+    """A cohort or truth table for the cohort figures is missing or malformed (names the file)."""
+
+
+class ChromiumError(RuntimeError):
+    """Chromium could not be started or did not answer (an environment problem, not bad
+    input: hence a RuntimeError, not a :class:`CardioNurbsError`)."""

@@ -2,7 +2,7 @@
 
 Output folder (written atomically: complete or absent)::
 
-    DIR/metrics.json        {"subject", "metrics": {METRICS.md column: value},
+    DIR/metrics.json        {"subject", "metrics": {docs/metrics.md column: value},
                              "ed_frame", "es_frame", "volume_curve", "residuals",
                              "quality": {per metric: flags, surfaces, frames; per
                              surface and frame: fit residual median/p95/max in mm
@@ -33,7 +33,7 @@ from cardionurbs.study import Study
 
 def tag_metrics_hook(model: BiventricularModel):
     """Tag metrics (Twist, Twist 2D, Torsion, CL shear, LS, QC flags) from
-    ``cardionurbs.analysis.tags.tag_metrics(model)`` -- a mapping METRICS.md column ->
+    ``cardionurbs.analysis.tags.tag_metrics(model)`` -- a mapping docs/metrics.md column ->
     float, with the level table, QC flags and tag surfaces as attributes -- when the
     study has tag lines; None otherwise (the columns then stay NaN). Twist and LS over
     time are included when three or more frames are tagged, so this one result serves
@@ -60,7 +60,7 @@ def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path, tags=N
 
 
 def analyse(study: Study, *, heart_rate_bpm: float | None = None):
-    """Reconstruct and measure one loaded study: (model, METRICS.md dict, tag result or None)."""
+    """Reconstruct and measure one loaded study: (model, docs/metrics.md dict, tag result or None)."""
     model = reconstruct(study)
     metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
     tags = tag_metrics_hook(model)
@@ -71,7 +71,7 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None):
 
 def analyse_study(study: Study, *, heart_rate_bpm: float | None = None
                   ) -> tuple[BiventricularModel, dict[str, float]]:
-    """Reconstruct and measure one loaded study: (model, METRICS.md dict)."""
+    """Reconstruct and measure one loaded study: (model, docs/metrics.md dict)."""
     model, metrics, _ = analyse(study, heart_rate_bpm=heart_rate_bpm)
     return model, metrics
 
@@ -120,7 +120,7 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
 
 
 def run_analyze(args: argparse.Namespace) -> int:
-    """Load, reconstruct, measure and write one study (see API.md)."""
+    """Load, reconstruct, measure and write one study (outputs: docs/formats.md)."""
     study = load_study(args.study, format=args.format)
     model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None))
     write_analysis(model, metrics, args.out, figures=not getattr(args, "no_figures", False),

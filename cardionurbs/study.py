@@ -165,7 +165,7 @@ class Study:
     frame_times_ms : dict frame -> ms
         Trigger time of each frame, where known.
     heart_rate_bpm : float or None
-        See METRICS.md (Frames).
+        See docs/metrics.md (Frames).
     ed_frame, es_frame : int or None
         ED/ES labels given by the input (the label wins when only two frames
         are contoured).

@@ -10,7 +10,7 @@ from cardionurbs.analysis.function import COLUMNS
 from cardionurbs.cli import main
 from cardionurbs.cohort import CSV_COLUMNS
 
-presets = pytest.importorskip("cardionurbs.phantom.presets", reason="phantom generator not built")
+from cardionurbs.phantom import presets
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ from hypothesis.extra.numpy import arrays
 
 from broken.corpus import synthetic_study
 from cardionurbs import StudyError
-from cardionurbs.io.checks import check_study, ed_es_frames, polygon_area_mm2, self_intersections
+from cardionurbs.io.checks import check_study, input_ed_es_frames, polygon_area_mm2, self_intersections
 
 
 def _brute(xy, closed):
@@ -108,7 +108,7 @@ def test_tilted_and_duplicate_slices_are_fatal():
 def test_unlabelled_ed_es_estimated_from_areas():
     s = synthetic_study()
     s.ed_frame = s.es_frame = None
-    assert ed_es_frames(s) == (0, 1, "estimated from SA lv_endo areas")
+    assert input_ed_es_frames(s) == (0, 1, "estimated from SA lv_endo areas")
 
 
 def test_contour_on_wrong_image_is_fatal():

@@ -11,13 +11,11 @@ from cardionurbs import StudyError, load_study
 from cardionurbs.imaging.dicom import read_dicom_folder
 from cardionurbs.io.native import read_study_from_dicom
 
-generate_mod = pytest.importorskip("cardionurbs.phantom.generate",
-                                   reason="phantom generator not available")
+from cardionurbs import phantom as generate_mod
 
 
 @pytest.fixture(scope="module")
 def phantom(tmp_path_factory):
-    pytest.importorskip("cardionurbs.phantom.dicom", reason="phantom DICOM writer not available")
     ph = generate_mod.generate("normal", seed=3, frames=2, volume_check=False)
     out = generate_mod.write_phantom(ph, tmp_path_factory.mktemp("ph") / "normal_003")
     return ph, out

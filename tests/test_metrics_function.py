@@ -1,4 +1,4 @@
-"""Metric formulas (METRICS.md), ED/ES detection, eccentricity index, Simpson's disks."""
+"""Metric formulas (docs/metrics.md), ED/ES detection, eccentricity index, Simpson's disks."""
 
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ from cardionurbs.analysis.function import measure
 from cardionurbs.analysis.simpson import simpson_metrics
 from cardionurbs.anatomy.model import reconstruct
 
-phantom = pytest.importorskip("cardionurbs.phantom.generate", reason="phantom generator not built")
+from cardionurbs import phantom
 
 VOLUMES = ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "RVESV (mL)")
 

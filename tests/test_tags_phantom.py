@@ -12,7 +12,7 @@ import pytest
 from cardionurbs.analysis.tagqc import tag_departures, tag_qc
 from cardionurbs.analysis.tags import tag_metrics
 
-phantom = pytest.importorskip("cardionurbs.phantom")
+from cardionurbs import phantom
 
 
 def _levels(res, truth):

@@ -1,6 +1,6 @@
-"""Global cardiac function from a biventricular model (METRICS.md, paper §5).
+"""Global cardiac function from a biventricular model (docs/metrics.md, paper §5).
 
-:func:`measure` returns every column of the cohort CSV (METRICS.md, in
+:func:`measure` returns every column of the cohort CSV (docs/metrics.md, in
 order) as a float, NaN where the input does not allow it: RV columns without
 RV contours, CO without a heart rate, tag columns (filled in by
 :mod:`cardionurbs.analysis.tags` where tag lines exist).
@@ -26,7 +26,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 MYOCARDIAL_DENSITY_G_PER_ML = 1.05
 
-#: The cohort CSV's metric columns, in METRICS.md order (``subject`` and
+#: The cohort CSV's metric columns, in docs/metrics.md order (``subject`` and
 #: ``status`` come first in the CSV).
 COLUMNS = (
     "HR (bpm)",
@@ -105,7 +105,7 @@ def chord_length(xy: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> f
 
 
 def eccentricity_index(lv_xy: np.ndarray, rv_xy: np.ndarray) -> float:
-    """LV eccentricity index on one SA slice (contracts.md).
+    """LV eccentricity index on one SA slice (docs/metrics.md).
 
     ``lv_xy``, ``rv_xy``: LV and RV cavity boundaries in in-plane mm. The
     septum direction is perpendicular to (RV centroid − LV centroid); EI is the
@@ -120,7 +120,7 @@ def eccentricity_index(lv_xy: np.ndarray, rv_xy: np.ndarray) -> float:
 
 
 def eccentricity_index_es(model: "BiventricularModel") -> float:
-    """EI at ES on the mid-ventricular SA slice (contracts.md), NaN without RV contours."""
+    """EI at ES on the mid-ventricular SA slice (docs/metrics.md), NaN without RV contours."""
     fr = model.es_frame
     secs = model.sections.get(fr, {})
     lv = {s.slice: s for s in secs.get("lv_endo", []) if s.slice is not None}
@@ -142,10 +142,10 @@ def eccentricity_index_es(model: "BiventricularModel") -> float:
 
 
 def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None) -> dict[str, float]:
-    """Every METRICS.md column for one model, as floats (NaN where not measurable).
+    """Every docs/metrics.md column for one model, as floats (NaN where not measurable).
 
     ``heart_rate_bpm`` is used when the study carries no heart rate (the
-    user-given value of METRICS.md, Frames). Tag columns are NaN here.
+    user-given value of docs/metrics.md, Frames). Tag columns are NaN here.
     """
     hr = model.study.heart_rate_bpm
     if hr is None or not np.isfinite(hr):

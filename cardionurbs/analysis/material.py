@@ -2,7 +2,7 @@
 
 Tag planes are laid down in the tissue at ED and move with it, so the point
 where tag surfaces ``sa1 #i``, ``sa2 #j`` and ``la #k`` meet is the same
-piece of myocardium at every frame (METRICS.md, Tags). For every triple
+piece of myocardium at every frame (docs/metrics.md, Tags). For every triple
 (i, j, k) and frame we solve
 
     S1(u1, v1) = S2(u2, v2) = S3(u3, v3)                                  (M1)

@@ -45,7 +45,7 @@ def disk_volumes(study: Study, frame: int, spacing: float | None = None) -> dict
     rv_cavity, rv_myocardium (NaN where contours are missing).
 
     RV cavity area = area(rv_endo); RV wall area = area(rv_epi) − area(rv_endo)
-    (contracts.md: rv_epi encloses the RV cavity and free wall).
+    (docs/metrics.md: rv_epi encloses the RV cavity and free wall).
     """
     n, _ = stacking_direction(study, frame)
     if spacing is None:
@@ -71,7 +71,7 @@ def disk_volumes(study: Study, frame: int, spacing: float | None = None) -> dict
 
 def simpson_metrics(study: Study, ed_frame: int, es_frame: int,
                     heart_rate_bpm: float | None = None) -> dict[str, float]:
-    """The volume columns of METRICS.md by disk summation at the given ED/ES frames."""
+    """The volume columns of docs/metrics.md by disk summation at the given ED/ES frames."""
     hr = study.heart_rate_bpm if study.heart_rate_bpm is not None else heart_rate_bpm
     hr = float(hr) if hr is not None else NAN
     ed, es = disk_volumes(study, ed_frame), disk_volumes(study, es_frame)

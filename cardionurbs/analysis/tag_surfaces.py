@@ -301,7 +301,7 @@ def axis_frame(apex: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
     ``e`` points from the base to the apex, so an angle measured
     right-handed about ``e`` (from e1 towards e2) is counter-clockwise as
-    seen from the apex looking toward the base (METRICS.md sign).
+    seen from the apex looking toward the base (docs/metrics.md sign).
     """
     e = np.asarray(apex, float) - np.asarray(base, float)
     e /= np.linalg.norm(e)

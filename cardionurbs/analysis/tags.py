@@ -1,4 +1,4 @@
-"""LV twist, torsion, CL shear and longitudinal shortening from tag surfaces (METRICS.md, Tags).
+"""LV twist, torsion, CL shear and longitudinal shortening from tag surfaces (docs/metrics.md, Tags).
 
 Public API (the pipeline's ``measure``/``analyze`` call these):
 
@@ -9,8 +9,8 @@ Public API (the pipeline's ``measure``/``analyze`` call these):
 - :func:`tag_figure_data` (study, frame) -> tessellated tag surfaces with flag status
 - :func:`tag_surfaces_dict` (study) -> JSON-safe tag surfaces to save with the model
 
-Definitions (METRICS.md and the project contracts)
---------------------------------------------------
+Definitions (docs/metrics.md)
+------------------------------
 Long axis
     From the apex (the ``apex`` landmark at ED, or the model's apex) to the
     centre of the mitral valve plane (mean of the ``mitral`` landmarks), at ED.
@@ -25,14 +25,14 @@ Rotation φ of a level (LA tag plane ``k``)
 Levels
     LA tag planes with at least 2 material points tracked at ED and ES whose
     mean position lies strictly between the most basal and the most apical
-    SA slices tagged at both ED and ES, at ED and at ES (contracts.md). The
+    SA slices tagged at both ED and ES, at ED and at ES (docs/metrics.md). The
     ES position of a level is read off the pooled map h_ES = a + b h_ED
     fitted on all material points (:func:`longitudinal_height_map`), not
     off the level's own few noisy points, so noise cannot move a level
     across an end slice.
     Distance from the apex
     z_k = mean over the level's points of (x_ED − apex)·ê, ê = unit(base − apex).
-Twist, torsion, CL shear (METRICS.md)
+Twist, torsion, CL shear (docs/metrics.md)
     Twist = φ_apex − φ_base between the most apical and most basal levels;
     D = z_base − z_apex (mm); Torsion = Twist / (D / 10) deg/cm;
     CL shear = Twist (ρ_apex + ρ_base) / (2 D) deg, ρ = mean LV epicardial
@@ -334,11 +334,11 @@ def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base:
 # ---------------------------------------------------------------- results
 @dataclass
 class TagMetrics(Mapping):
-    """Tag metrics of one study; a read-only mapping METRICS.md column -> float.
+    """Tag metrics of one study; a read-only mapping docs/metrics.md column -> float.
 
     ``dict(result)`` gives the columns; the rest are attributes:
 
-    columns : METRICS.md tag columns -> float (NaN when not measurable)
+    columns : docs/metrics.md tag columns -> float (NaN when not measurable)
     levels : list of dicts (index, distance_from_apex_mm, rotation_deg,
         epi_radius_mm, n_points, in_twist) sorted apex → base
     flags : list of TagFlag
@@ -459,7 +459,7 @@ def level_table(mp: MaterialPoints, frame: int, apex: np.ndarray, base: np.ndarr
 
 
 def twist_from_levels(levels: list[dict]) -> dict[str, float]:
-    """Twist, Torsion, CL shear and LS from a level table (METRICS.md formulas)."""
+    """Twist, Torsion, CL shear and LS from a level table (docs/metrics.md formulas)."""
     if len(levels) < 2:
         return {"Twist (deg)": NAN, "Torsion (deg/cm)": NAN, "CL shear (deg)": NAN, "LS (%)": NAN}
     a, b = levels[0], levels[-1]
@@ -477,7 +477,7 @@ def twist_from_levels(levels: list[dict]) -> dict[str, float]:
 def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = None,
                 long_axis: tuple | None = None, qc: bool = True, over_time: bool = False,
                 threshold: float = 0.5, exclude_flagged: bool = True) -> TagMetrics:
-    """Twist, Twist 2D, Torsion, CL shear, LS and tag QC of a study (METRICS.md, Tags).
+    """Twist, Twist 2D, Torsion, CL shear, LS and tag QC of a study (docs/metrics.md, Tags).
 
     Parameters
     ----------

@@ -4,7 +4,7 @@ A ventricular surface tessellates to a tube closed at its collapsed apex and
 open at its base ring. :func:`solid` caps every open boundary loop with a
 planar triangulation (manifold3d's ear clipper), orients the result outward,
 turns it into a :class:`manifold3d.Manifold` and trims it by the valve plane.
-Cavities and walls are then booleans of these solids (METRICS.md):
+Cavities and walls are then booleans of these solids (docs/metrics.md):
 
     lv_cavity     = LV endo solid ∩ H_mitral
     lv_myocardium = (LV epi solid − LV endo solid) ∩ H_mitral

@@ -4,7 +4,7 @@
 the surfaces lv_endo, lv_epi, rv_endo, rv_epi (those the contours allow) in
 scanner mm (:mod:`cardionurbs.anatomy.surfaces`), their valve planes and apex
 points (:mod:`cardionurbs.anatomy.sections`), and finds ED and ES
-(METRICS.md, Frames). Meshes and volumes follow lazily from the surfaces
+(docs/metrics.md, Frames). Meshes and volumes follow lazily from the surfaces
 (:mod:`cardionurbs.anatomy.mesh`).
 """
 
@@ -37,7 +37,7 @@ RESOLUTION = (56, 36)
 
 def ed_es_frames(lv_volumes: dict[int, float], ed_label: int | None = None,
                  es_label: int | None = None) -> tuple[int, int]:
-    """ED = frame of maximum, ES = frame of minimum LV cavity volume (METRICS.md);
+    """ED = frame of maximum, ES = frame of minimum LV cavity volume (docs/metrics.md);
     when exactly two frames are measured and both labels name them, the labels win."""
     vols = {f: v for f, v in lv_volumes.items() if v is not None and math.isfinite(v)}
     if not vols:
@@ -149,7 +149,7 @@ class BiventricularModel:
             k: meshing.volume_ml(m) for k, m in self.solids(f).items()})
         labels = (study.ed_frame, study.es_frame)
         if ed_es is None and len(self.frames) == 2 and set(labels) == set(self.frames):
-            ed_es = labels                # METRICS.md: two contoured frames, the labels win
+            ed_es = labels                # docs/metrics.md: two contoured frames, the labels win
         if ed_es is not None:            # known (labels, or a deserialised model)
             ed, es = int(ed_es[0]), int(ed_es[1])
         else:
@@ -235,7 +235,7 @@ class BiventricularModel:
 
     # ------------------------------------------------------------- geometry
     def long_axis(self) -> tuple[np.ndarray, np.ndarray]:
-        """(apex (3,), base centre (3,)) at ED per contracts.md: the epicardial apex
+        """(apex (3,), base centre (3,)) at ED per docs/metrics.md: the epicardial apex
         landmark (else the model's LV epicardial, else endocardial apex) to the mean
         of the mitral landmarks (else the LV valve plane's origin)."""
         fr = self.ed_frame
@@ -283,7 +283,7 @@ class BiventricularModel:
             rv_cavity     = (RV endo − L) ∩ H_rv
             rv_myocardium = (RV epi − RV endo − L) ∩ H_rv,   L = LV epi ∩ H_lv
 
-        H = the apical half-space of the valve plane (METRICS.md). The booleans act
+        H = the apical half-space of the valve plane (docs/metrics.md). The booleans act
         on the untrimmed solids and the trim comes last, so no two faces of a
         boolean are coplanar (which would pinch the result); L is trimmed 0.01 mm
         beyond the mitral plane for the same reason when the two valve planes

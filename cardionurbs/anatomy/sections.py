@@ -340,7 +340,7 @@ def embed_septum(rv_loop: np.ndarray, lv_epi_loop: np.ndarray, normal: np.ndarra
     """Move the septal part of an RV loop into the LV wall; returns (loop, free-wall points).
 
     The septal part of an SA rv_endo / rv_epi contour lies on the LV epicardium
-    (contracts.md), meeting the free wall in sharp corners at the insertion
+    (docs/metrics.md), meeting the free wall in sharp corners at the insertion
     points that no smooth curve follows within a pixel. Since the RV meshes
     subtract the LV epicardial solid anyway, the septal points
     (:func:`septal_mask`: within ``near_mm`` of the LV epicardial contour, or
@@ -373,7 +373,7 @@ def stacking_direction(study: Study, frame: int) -> tuple[np.ndarray, float]:
     """Mean SA plane normal oriented base -> apex, and the mean SA slice thickness (mm).
 
     Orientation: towards the apex landmark when given; else towards increasing
-    ``sa_NN`` slice number (contracts.md: numbered from base to apex); else
+    ``sa_NN`` slice number (docs/metrics.md: numbered from base to apex); else
     towards the end with the smaller LV endocardial area.
     """
     ims = [im for im in study.images if im.view == "SA" and im.frame == frame]
@@ -579,7 +579,7 @@ def frame_geometry(study: Study, frame: int) -> FrameGeometry:
     the most apical point of the LA lv_epi contours; lv_endo, rv_endo, rv_epi =
     the most apical point of their LA contours (where the contours turn);
     without any of these, half a slice thickness beyond the most apical contour
-    centroid along the stacking direction (METRICS.md).
+    centroid along the stacking direction (docs/metrics.md).
     Valve planes: ``mitral`` (LV) and ``tricuspid`` (RV) landmarks; else the
     most basal SA contour's plane moved half a slice thickness towards the base.
     """
@@ -642,7 +642,7 @@ def frame_geometry(study: Study, frame: int) -> FrameGeometry:
 
 
 def long_axis(study: Study, frame: int, geo: FrameGeometry | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(apex (3,), base centre (3,)) per contracts.md: the epicardial apex landmark
+    """(apex (3,), base centre (3,)) per docs/metrics.md: the epicardial apex landmark
     (else the model's LV apex) and the mean of the mitral landmarks (else the LV
     valve plane's origin)."""
     geo = geo or frame_geometry(study, frame)

@@ -86,7 +86,7 @@ def rr_interval_ms(heart_rate_bpm: float | None = None,
 
 def heart_rate_bpm(heart_rates: Sequence[float | None],
                    nominal_intervals_ms: Sequence[float | None] = ()) -> float | None:
-    """Heart rate of a series (METRICS.md, Frames): the mean DICOM HeartRate (0018,1088)
+    """Heart rate of a series (docs/metrics.md, Frames): the mean DICOM HeartRate (0018,1088)
     of its images; else 60000 / mean NominalInterval (0018,1062); else None.
 
     Zero or missing values (scanners write 0 when they do not know) are ignored.

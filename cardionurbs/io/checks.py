@@ -365,9 +365,11 @@ def _check_annotations(study: Study, warnings: list[str]) -> None:
                         "them against")
 
 
-def ed_es_frames(study: Study) -> tuple[int | None, int | None, str]:
-    """ED and ES frames: the input's labels, else estimated as the frames of largest and
-    smallest summed SA ``lv_endo`` area (a volume proxy); and how they were found."""
+def input_ed_es_frames(study: Study) -> tuple[int | None, int | None, str]:
+    """ED and ES frames *for the input checks*: the input's labels, else estimated as the
+    frames of largest and smallest summed SA ``lv_endo`` area (a volume proxy); and how
+    they were found. The metrics use the model's rule instead
+    (:func:`cardionurbs.anatomy.model.ed_es_frames`, docs/metrics.md, Frames)."""
     ed, es = study.ed_frame, study.es_frame
     if ed is not None and es is not None:
         return ed, es, "labelled"
@@ -388,7 +390,7 @@ def _check_frames(study: Study, warnings: list[str]) -> None:
     if not any(c.structure == "lv_endo" for c in study.contours):
         raise StudyError("no LV endocardial (lv_endo) contour in the study: nothing to "
                          "reconstruct", file=study.source)
-    ed, es, how = ed_es_frames(study)
+    ed, es, how = input_ed_es_frames(study)
     present: dict[tuple[str, str], set[int]] = defaultdict(set)
     for c in study.contours:
         present[(c.structure, c.view)].add(c.frame)

@@ -16,14 +16,10 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from cardionurbs.errors import CardioNurbsError
+from cardionurbs.errors import ExportError
 from cardionurbs.io import atomic
 
 MESH_FORMATS = ("stl", "ply", "obj", "glb")
-
-
-class ExportError(CardioNurbsError):
-    """Unsupported export format or unwritable output."""
 
 
 def mesh_format(path: str | os.PathLike) -> str:

@@ -5,7 +5,7 @@ Public API::
     from cardionurbs import phantom
     ph = phantom.generate("normal", seed=0, frames=20)     # -> Phantom (.study, .truth, model)
     phantom.write_phantom(ph, "out/normal_000", dicom=True) # study.json, points.csv, dicom/, truth.json
-    subjects = phantom.load_cohort_spec("phantoms/paper12.toml")
+    subjects = phantom.load_cohort_spec(phantom.presets.data_path("paper12.toml"))
     phantom.generate_cohort(subjects, "out/paper12")
 
 Modules: anatomy (ED shapes), motion (analytic volume-preserving map),

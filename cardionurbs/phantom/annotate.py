@@ -13,7 +13,7 @@ contain the axis, so the material angle of a point at height z' on the ray α is
 spheroid angle μ for the LV, z for the RV). No root finding is needed except
 the RV sector edges and apex, solved by bisection.
 
-Tag lines (contracts.md): ``sa1``/``sa2`` are the tissue planes n_k · x = c_i
+Tag lines (docs/metrics.md): ``sa1``/``sa2`` are the tissue planes n_k · x = c_i
 (n_1 ⟂ n_2 ⟂ e_z) laid at ED with spacing d = 7 pixels; in an SA plane at
 phase f they are the images of the material lines {n_k·x = c_i, z = h/λ},
 clipped to the LV myocardium (gap over the cavity). ``la`` are the tissue

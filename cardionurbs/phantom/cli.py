@@ -13,7 +13,7 @@ from cardionurbs.phantom.presets import load_cohort_spec
 
 def run_phantom(args: argparse.Namespace) -> int:
     """Run the ``phantom`` command (args: pathology, cohort, seed, frames, noise_px, tag_jumps,
-    breath_hold_mm, no_dicom, out). Exactly one of --pathology and --cohort is required."""
+    breath_hold_mm, snr, no_dicom, out). Exactly one of --pathology and --cohort is required."""
     if bool(args.pathology) == bool(args.cohort):
         raise PhantomError("phantom: give exactly one of --pathology and --cohort")
     out = Path(args.out)
@@ -21,11 +21,13 @@ def run_phantom(args: argparse.Namespace) -> int:
     if args.pathology:
         ph = generate(args.pathology, seed=args.seed, frames=args.frames, noise_px=args.noise_px,
                       tag_jumps=args.tag_jumps,
-                      breath_hold_mm=getattr(args, "breath_hold_mm", 0.0))
+                      breath_hold_mm=getattr(args, "breath_hold_mm", 0.0),
+                      snr=getattr(args, "snr", None))
         write_phantom(ph, out, dicom=dicom)
         print(f"{out}: {ph.study.summary()}", file=sys.stdout)
         return 0
+    extra = {"snr": args.snr} if getattr(args, "snr", None) is not None else {}
     generate_cohort(load_cohort_spec(args.cohort), out, dicom=dicom, noise_px=args.noise_px,
-                    tag_jumps=args.tag_jumps,
+                    tag_jumps=args.tag_jumps, **extra,
                     report=lambda path, ph: print(f"{path}: {ph.study.summary()}", file=sys.stdout))
     return 0

@@ -16,8 +16,19 @@ Image model (per pixel, evaluated at the pixel centre of the image plane):
    the nearest plane of family k. The depth a(t) = 0.9 exp(−t / T1),
    T1 = 850 ms, fades through the cycle; in blood it is reduced to 15 %
    (inflow washes tags out).
-4. Rician noise: |I + n_1 + i n_2|, n ~ N(0, 0.025²), scaled to 16-bit
-   (MONOCHROME2, stored 0..4095).
+4. Rician noise on the magnitude image: |I + n_1 + i n_2| with n_1, n_2 ~
+   N(0, σ²) i.i.d. (the real and imaginary channel noise of the complex MR
+   signal; Gudbjartsson & Patz 1995). ``snr`` = S sets σ = 0.3 / S, i.e. S is
+   the untagged myocardial signal over the channel noise; the default σ =
+   0.025 is S = 12. Seeded per (seed, frame, slice): the same phantom and S
+   give identical pixels. Scaled to 16-bit (MONOCHROME2, stored 0..4095).
+
+The contrast is that of a spoiled-gradient-echo SPAMM cine (e.g. Axel &
+Dougherty 1989; Zerhouni et al. 1988): bright inflowing blood, myocardium
+about a third of it, darker mediastinum and almost no lung signal; tags
+dark and fading with T1 through the cycle (they are ~0 % left at t ≈ 2 T1),
+washed out in the blood. Every tag plane's position at every frame is known
+in closed form (the tag lines in the native study are those planes' cuts).
 
 DICOM: one MR series per view (``sa`` with all SA slices, ``la_2ch``,
 ``la_3ch``, ``la_4ch``), file ``dicom/<series>/<slice>_<frame>.dcm``, with
@@ -44,6 +55,13 @@ NOISE = 0.025
 SCALE = 3000.0
 
 
+def noise_sigma(snr: float | None) -> float:
+    """Channel noise σ (same units as the signal, myocardium = 0.3) for an SNR; default 0.025."""
+    if snr is None:
+        return NOISE
+    return MYO / float(snr)
+
+
 def _tag_band(u: np.ndarray, spacing: float, offset: float, sigma: float) -> np.ndarray:
     d = np.mod(u - offset + 0.5 * spacing, spacing) - 0.5 * spacing
     return np.exp(-0.5 * (d / sigma) ** 2)
@@ -67,8 +85,14 @@ def pixel_heart_points(phantom, plane: ImagePlane) -> tuple[np.ndarray, np.ndarr
 
 
 def render_image(phantom, plane: ImagePlane, rng: np.random.Generator | None = None,
-                 roi_points: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-    """Float image (rows, columns) of one plane at its frame, before 16-bit scaling."""
+                 roi_points: tuple[np.ndarray, np.ndarray] | None = None,
+                 sigma: float | None = None, tag_depth: float | None = None) -> np.ndarray:
+    """Float image (rows, columns) of one plane at its frame, before 16-bit scaling.
+
+    ``rng`` adds Rician noise of channel standard deviation ``sigma`` (default
+    from the phantom's ``snr``); ``tag_depth`` the SPAMM depth at t = 0 (default
+    the phantom's, 0.9; 0 gives an untagged image).
+    """
     an, mo, grid = phantom.anatomy, phantom.motion, phantom.tag_grid
     f = float(phantom.phases[plane.frame])
     hp, roi = roi_points if roi_points is not None else pixel_heart_points(phantom, plane)
@@ -89,7 +113,9 @@ def render_image(phantom, plane: ImagePlane, rng: np.random.Generator | None = N
     img = np.where(blood, BLOOD, img)
     # SPAMM modulation in material coordinates
     t_ms = plane.trigger_time or 0.0
-    depth = TAG_DEPTH * np.exp(-t_ms / T1_MS)
+    if tag_depth is None:
+        tag_depth = float(phantom.config.get("tag_depth", TAG_DEPTH))
+    depth = tag_depth * np.exp(-t_ms / T1_MS)
     sig = TAG_SIGMA_PX * plane.pixel_spacing[0]
     if plane.view == "SA":
         mod = np.ones_like(img)
@@ -104,7 +130,9 @@ def render_image(phantom, plane: ImagePlane, rng: np.random.Generator | None = N
     full[roi] = img * mod
     img = full
     if rng is not None:
-        img = np.hypot(img + rng.normal(0, NOISE, img.shape), rng.normal(0, NOISE, img.shape))
+        if sigma is None:
+            sigma = noise_sigma(phantom.config.get("snr"))
+        img = np.hypot(img + rng.normal(0, sigma, img.shape), rng.normal(0, sigma, img.shape))
     return img.reshape(plane.rows, plane.columns)
 
 

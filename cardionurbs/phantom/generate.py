@@ -4,7 +4,7 @@ Pipeline of :func:`generate`: preset → seeded draw (presets.sample_subject) �
 ED anatomy solved to the draw (presets.solve_anatomy) → imaging planes
 (geometry) → frame-aligned volume curve with ED = frame 0 and ES =
 round(es_fraction · N) → motion whose twist amplitude is solved so that the
-METRICS.md twist between the outermost tag levels equals the draw → contours,
+docs/metrics.md twist between the outermost tag levels equals the draw → contours,
 landmarks and tag lines on every plane and frame (annotate) → faults → truth.
 
 Everything random is drawn from numpy Generators seeded by (seed, pathology,
@@ -104,23 +104,33 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
              tag_jumps: int = 0, sa_spacing_mm: float = 10.0, sa_thickness_mm: float = 8.0,
              n_sa: int | None = None, breath_hold_mm: float = 0.0, subject: str | None = None,
              tag_spacing_px: float = 7.0, fov_mm: float = 300.0, matrix: int = 256,
-             volume_check: bool = True, anatomy: dict | None = None) -> Phantom:
+             volume_check: bool = True, anatomy: dict | None = None, snr: float | None = None,
+             tag_depth: float | None = None) -> Phantom:
     """Generate one phantom subject.
 
     Parameters
     ----------
-    pathology : ``"normal"``, ``"mr"`` or ``"phtn"`` (preset in phantoms/).
+    pathology : ``"normal"``, ``"mr"`` or ``"phtn"`` (packaged preset, ``cardionurbs/data/<name>.toml``).
     seed : subject variability and fault seed (same seed → identical output).
     frames : cardiac phases N >= 2 over one RR interval; frame 0 = ED.
     noise_px, tag_jumps, breath_hold_mm : faults (see :mod:`cardionurbs.phantom.faults`).
     sa_spacing_mm, sa_thickness_mm, n_sa : SA stack (n_sa None = cover base to apex).
     tag_spacing_px : SPAMM tag spacing in pixels (7 in the paper).
     volume_check : also compute the method-B mesh volumes at ED and ES into the truth.
+    snr : image SNR of the tagged DICOM (untagged myocardium over the Rician channel noise σ;
+        default σ = 0.025, i.e. 12); see :mod:`cardionurbs.phantom.dicom`.
+    tag_depth : SPAMM tag depth at t = 0 in (0, 1] (default 0.9; 0 writes untagged images).
     anatomy : optional overrides of the solved ED geometry (Anatomy field -> mm), e.g.
         ``{"r_short_endo": 30.0}``; the truth is computed from the overridden shape (the
         preset's target ranges then no longer apply).
     """
     _check_args(pathology, seed, frames, noise_px, tag_jumps, breath_hold_mm)
+    if snr is not None and not (isinstance(snr, (int, float, np.floating)) and np.isfinite(snr)
+                                and snr > 0):
+        raise PhantomError(f"snr must be a finite number > 0, got {snr!r}")
+    if tag_depth is not None and not (isinstance(tag_depth, (int, float, np.floating))
+                                      and 0.0 <= tag_depth <= 1.0):
+        raise PhantomError(f"tag_depth must be a number in [0, 1], got {tag_depth!r}")
     frames, seed, tag_jumps = int(frames), int(seed), int(tag_jumps)
     preset = load_preset(pathology)
     draw = sample_subject(preset, _rng(seed, pathology, "subject"))
@@ -158,6 +168,12 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
                   sa_thickness_mm=float(sa_thickness_mm), n_sa=n_sa, breath_hold_mm=float(breath_hold_mm),
                   tag_spacing_px=float(tag_spacing_px), fov_mm=float(fov_mm), matrix=int(matrix),
                   subject=subject)
+    # image options enter the config (and so the UIDs) only when set, so that phantoms
+    # written before they existed keep their UIDs
+    if snr is not None:
+        config["snr"] = float(snr)
+    if tag_depth is not None:
+        config["tag_depth"] = float(tag_depth)
     uid_base = json.dumps(config, sort_keys=True)
 
     def uid(*parts) -> str:
@@ -231,9 +247,36 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     if volume_check:
         tr["volumes"] = truth.volume_table(anatomy, motion, phases, [0, es_frame])
     study.meta["truth"] = "truth.json"
+    study.meta["tag_planes"] = tag_planes_scanner(grid, pose, anatomy)
+    tr["imaging"] = _imaging_record(config)
     return Phantom(study=study, truth=_json_safe(tr), anatomy=anatomy, motion=motion, pose=pose,
                    acquisition=acq, slices=specs, tag_grid=grid, phases=phases, es_frame=es_frame,
                    draw=draw, config=config, shifts=shifts)
+
+
+def tag_planes_scanner(grid: annotate.TagGrid, pose: HeartPose, anatomy: Anatomy) -> dict:
+    """The SPAMM tag planes at ED in scanner mm, per family: unit ``normal``, ``spacing_mm``
+    and ``index0_mm`` — plane ``i`` of the family is {X : normal · X = index0_mm + i spacing_mm}.
+
+    This is what the scanner protocol knows (spacing, orientation, where the grid starts);
+    the tag tracker cross-checks the images against it and takes its index labels from it.
+    """
+    out = {}
+    for fam in ("sa1", "sa2", "la"):
+        n_heart = grid.sa_normal(fam) if fam != "la" else np.array([0.0, 0.0, 1.0])
+        first = float(grid.sa_positions()[0]) if fam != "la" else float(grid.la_offset)
+        n = pose.direction_to_scanner(n_heart)
+        out[fam] = {"normal": [float(v) for v in n], "spacing_mm": float(grid.spacing),
+                    "index0_mm": float(first + n @ pose.origin)}
+    return out
+
+
+def _imaging_record(config: dict) -> dict:
+    from cardionurbs.phantom import dicom as _d
+    return {"snr": config.get("snr", _d.MYO / _d.NOISE), "noise_sigma": _d.noise_sigma(config.get("snr")),
+            "tag_depth": config.get("tag_depth", _d.TAG_DEPTH), "tag_t1_ms": _d.T1_MS,
+            "signal": {"blood": _d.BLOOD, "myocardium": _d.MYO, "mediastinum": _d.BODY,
+                       "lung": _d.LUNG}}
 
 
 def _json_safe(obj):

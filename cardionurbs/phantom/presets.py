@@ -1,4 +1,4 @@
-"""Pathology presets (``phantoms/*.toml``), per-subject sampling and cohort specifications.
+"""Pathology presets (package data ``cardionurbs/data/*.toml``), per-subject sampling and cohort specifications.
 
 A preset TOML has three tables:
 
@@ -16,7 +16,7 @@ A preset TOML has three tables:
     RVEDV = RVSV / RVEF) or ``regurgitant_fraction_pct`` and ``rvedv_ml``
     (mitral regurgitation: RVSV = LVSV (1 − RF)).
 ``[targets]``
-    Ranges ``[lo, hi]`` keyed by METRICS.md column that every subject's truth
+    Ranges ``[lo, hi]`` keyed by docs/metrics.md column that every subject's truth
     must satisfy. Sampling rejects draws whose predicted metrics fall outside
     them; the geometry is then solved so that the truth hits the draw exactly
     (LV size in closed form, wall thicknesses and RV size by Brent's method).

@@ -18,7 +18,7 @@ Method A gives the truth values; method B is reported beside it
 (``truth["volumes"]``: relative differences ~3e-4 at the default resolution,
 O(h²) convergence, see reports/benchmark-phantom.md).
 
-Tags and twist follow METRICS.md and contracts.md. The SA slices bounding the
+Tags and twist follow docs/metrics.md. The SA slices bounding the
 levels are those carrying tag lines at both ED and ES (basal slices above the
 descended base at ES have none); a level is an LA tag plane z = z_j with
 h_apical < z_j < h_basal and h_apical < λ_ES z_j < h_basal (:func:`tag_levels`).
@@ -171,7 +171,7 @@ def tagged_sa_slices(anatomy: Anatomy, motion: Motion, specs: list[SliceSpec], f
 
 def tag_levels(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, specs: list[SliceSpec],
                f_es: float) -> list[dict]:
-    """LA tag planes with material points (contracts.md): z_j strictly between the most apical
+    """LA tag planes with material points (docs/metrics.md): z_j strictly between the most apical
     and most basal tagged SA planes at ED, and λ_ES z_j also between them at ES."""
     tagged = tagged_sa_slices(anatomy, motion, specs, f_es)
     if len(tagged) < 2:
@@ -190,7 +190,7 @@ def tag_levels(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, specs: 
 
 
 def twist_from_levels(levels: list[dict], f_es_lambda: float) -> dict[str, float]:
-    """Twist, torsion, CL shear and LS from the most apical and most basal levels (METRICS.md)."""
+    """Twist, torsion, CL shear and LS from the most apical and most basal levels (docs/metrics.md)."""
     if len(levels) < 2:
         nan = float("nan")
         return {"Twist (deg)": nan, "Torsion (deg/cm)": nan, "CL shear (deg)": nan, "LS (%)": nan}
@@ -248,7 +248,7 @@ def twist_2d(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, specs: li
 
 
 def eccentricity_index(anatomy: Anatomy, motion: Motion, specs: list[SliceSpec], f_es: float) -> tuple[float, str]:
-    """EI at ES on the mid-ventricular SA slice (contracts.md definition)."""
+    """EI at ES on the mid-ventricular SA slice (docs/metrics.md definition)."""
     lam = float(motion.lam(f_es))
     target = lam * 0.5 * (anatomy.z_endo_apex + anatomy.z_base)
     best = None
@@ -272,7 +272,7 @@ def eccentricity_index(anatomy: Anatomy, motion: Motion, specs: list[SliceSpec],
 # ----------------------------------------------------------------- all metrics
 def compute_metrics(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, specs: list[SliceSpec],
                     phases: np.ndarray, es_frame: int, heart_rate: float, n_tag_jumps: int) -> tuple[dict, dict]:
-    """METRICS.md columns (method A) and the tag-level truth."""
+    """docs/metrics.md columns (method A) and the tag-level truth."""
     f_es = float(phases[es_frame])
     ed, es = analytic_volumes(anatomy, motion, float(phases[0])), analytic_volumes(anatomy, motion, f_es)
     m: dict[str, float] = {"HR (bpm)": heart_rate}

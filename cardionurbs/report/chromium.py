@@ -33,6 +33,8 @@ import urllib.request
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from cardionurbs.errors import ChromiumError
+
 __all__ = ["find_chromium", "open_page", "PageRun", "ChromiumError", "CHROMIUM_FLAGS"]
 
 CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
@@ -41,10 +43,6 @@ CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic
                   "--enable-unsafe-swiftshader", "--use-angle=swiftshader",
                   "--disable-extensions", "--mute-audio", "--hide-scrollbars",
                   "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1")
-
-
-class ChromiumError(RuntimeError):
-    """Chromium could not be started or did not answer."""
 
 
 def find_chromium() -> str | None:

@@ -4,10 +4,10 @@ Inputs
 ------
 cohort CSV
     ``cardionurbs cohort`` / ``demo`` output: ``subject``, ``status`` and the
-    METRICS.md columns, one row per study (rows whose status is not ``ok`` are
+    docs/metrics.md columns, one row per study (rows whose status is not ``ok`` are
     left out of the plots and counted in the caption).
 truth (optional, phantoms)
-    the demo's ``truth.csv`` (``subject``, ``pathology``, METRICS.md columns), a
+    the demo's ``truth.csv`` (``subject``, ``pathology``, docs/metrics.md columns), a
     folder holding ``<subject>/truth.json`` phantom folders, or a DataFrame.
 groups
     ``normal``, ``MR``, ``PHTN``: from a ``group`` or ``pathology`` column of the
@@ -42,7 +42,7 @@ from typing import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from cardionurbs.errors import CardioNurbsError
+from cardionurbs.errors import CohortInputError
 from cardionurbs.report.figures import DPI, OKABE_ITO, FigureResult, FigureSet, _result
 
 __all__ = ["write_cohort_figures", "bland_altman", "BlandAltman", "read_truth", "cohort_groups",
@@ -56,10 +56,6 @@ GROUP_ORDER = ("normal", "MR", "PHTN")
 GROUP_COLOURS = {"normal": OKABE_ITO["blue"], "MR": OKABE_ITO["vermillion"],
                  "PHTN": OKABE_ITO["bluish_green"], "all": OKABE_ITO["black"]}
 _EXTRA = (OKABE_ITO["reddish_purple"], OKABE_ITO["orange"], OKABE_ITO["sky_blue"])
-
-
-class CohortInputError(CardioNurbsError, ValueError):
-    """The cohort CSV or truth input cannot be read."""
 
 
 @dataclass(frozen=True)
@@ -101,7 +97,7 @@ def _read_csv(path: Path, what: str) -> pd.DataFrame:
 
 
 def read_truth(truth: str | Path | pd.DataFrame | None) -> pd.DataFrame | None:
-    """Truth table (subject, [pathology], METRICS.md columns) from a CSV, a folder of
+    """Truth table (subject, [pathology], docs/metrics.md columns) from a CSV, a folder of
     phantom studies (``*/truth.json``), or a DataFrame; None stays None."""
     if truth is None or isinstance(truth, pd.DataFrame):
         return truth

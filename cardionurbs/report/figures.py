@@ -802,7 +802,7 @@ def write_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = Non
     out_dir : folder for the PNGs (created), plus ``figures.json`` (captions and the
         reasons figures were left out), ``skipped.txt`` (one line per figure left
         out) and ``report_tags.json`` (tag surfaces for the HTML report).
-    metrics : METRICS.md dict (optional; captions).
+    metrics : docs/metrics.md dict (optional; captions).
     truth : phantom truth dict or path to truth.json; default: ``truth.json`` beside
         the study source when present.
     tags : TagMetrics from ``cardionurbs.analysis.tags.tag_metrics`` (QC flags,

@@ -35,7 +35,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from cardionurbs import nurbs
-from cardionurbs.errors import CardioNurbsError
+from cardionurbs.errors import ReportInputError
 from cardionurbs.io import atomic
 
 __all__ = ["write_report", "run_report", "report_payload", "ReportInputError", "SURFACE_GRID"]
@@ -50,10 +50,6 @@ FLAG_COLOUR = "#D55E00"
 NAMES = {"lv_endo": "LV endocardium", "lv_epi": "LV epicardium", "rv_endo": "RV endocardium",
          "rv_epi": "RV epicardium", "sa1": "tags SA family 1", "sa2": "tags SA family 2",
          "la": "tags LA family", "flagged": "tag surfaces with QC flags"}
-
-
-class ReportInputError(CardioNurbsError, ValueError):
-    """The analysis folder given to ``report`` is missing or incomplete."""
 
 
 # ----------------------------------------------------------------- encoding
