@@ -1,4 +1,4 @@
-"""Quality flags: the evidence behind every metric (docs: README, "Quality flags").
+"""Quality flags: the evidence behind every metric (docs/metrics.md, Quality flags).
 
 Every metric comes from some surfaces at some frames (its *sources*): LVEDV
 from the LV endocardium at ED, RVM from the RV endo- and epicardium and the LV
