@@ -9,6 +9,8 @@ import importlib
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cardionurbs import load_study, measure, reconstruct
 from cardionurbs.io import gpfile
@@ -193,3 +195,26 @@ def test_refine_weights_scale_the_pull_of_the_targets():
         d[w] = float(surface_distance(r, targets).mean())
     assert d[0.0] == pytest.approx(float(surface_distance(surf, targets).mean()), abs=0.01)
     assert d[0.0] > d[0.2] > d[1.0]
+
+
+_INFO = ("img{k}.dcm\tframeID:\t{k}\tImagePositionPatient\t{x}\t-20.5\t3.25\tImageOrientationPatient"
+         "\t1\t0\t0\t0\t1\t0\tPixelSpacing\t1.25\t1.25")
+
+
+@settings(max_examples=25, deadline=None)
+@given(order=st.lists(st.integers(0, 3), min_size=4, max_size=16), spaces=st.booleans())
+def test_slice_info_lines_merge_whatever_their_order_and_separator(tmp_path_factory, order, spaces):
+    """Repeated identical lines, in any order, tabs or spaces: one slice per number, same geometry."""
+    order = order + [0, 1, 2, 3]
+    lines = [_INFO.format(k=k + 1, x=10.0 * k) for k in order]
+    if spaces:
+        lines = [ln.replace("\t", " ") for ln in lines]
+    p = tmp_path_factory.mktemp("si") / "SliceInfoFile.txt"
+    p.write_text("\n".join(lines) + "\n")
+    slices = gpfile.read_slice_info(p)
+    assert sorted(s["id"] for s in slices) == [1, 2, 3, 4]
+    for s in slices:
+        assert s["position"] == [10.0 * (s["id"] - 1), -20.5, 3.25]
+        assert len(s["entries"]) == order.count(s["id"] - 1)
+    assert slices[0]["style"]["sep"] == (" " if spaces else "\t")
+    assert slices[0]["style"]["label"] == "frameID:"
