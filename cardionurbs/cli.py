@@ -1,8 +1,14 @@
 """The ``cardionurbs`` command line.
 
-Exit codes: 0 ok; 2 bad input or usage (one line on stderr, no traceback);
-1 an internal error (one line on stderr; ``CARDIONURBS_DEBUG=1`` shows the
-traceback).
+Exit codes, always:
+
+* 0 -- done;
+* 2 -- bad input or usage: one line on stderr, ``cardionurbs: error: ...``, naming the
+  argument, file, slice, frame or field at fault; nothing written;
+* 1 -- internal error: one line on stderr and the path of a file holding the full
+  traceback (``--debug`` or ``CARDIONURBS_DEBUG=1`` prints it instead);
+* 130 -- interrupted (Ctrl-C, SIGINT); 143 -- terminated (SIGTERM). Outputs are
+  written atomically, so an interrupted run leaves the previous output intact.
 """
 
 from __future__ import annotations
@@ -13,13 +19,21 @@ import sys
 from typing import Sequence
 
 from cardionurbs.errors import CardioNurbsError, UsageError
+from cardionurbs.limits import MAX_FRAMES
+from cardionurbs.safe import excerpt, printable
 
 
 class _Parser(argparse.ArgumentParser):
     """argparse with usage errors as one line and exit code 2."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        raise UsageError(f"{self.prog}: {message}")
+        cmd = self.prog.split(" ", 1)[1] if " " in self.prog else ""
+        raise UsageError(f"{cmd}: {message}" if cmd else message)
+
+
+def _excerpt(text: object, n: int = 40) -> str:
+    """A short printable quotation of user input (at most ``n`` characters)."""
+    return excerpt(text, n)
 
 
 def _positive_int(text: str) -> int:
@@ -62,50 +76,127 @@ def _nonneg_int(text: str) -> int:
     return v
 
 
+def _heart_rate(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of beats per minute, got "
+                                         f"{_excerpt(text)}") from None
+    if not (HEART_RATE_RANGE_BPM[0] <= v <= HEART_RATE_RANGE_BPM[1]):
+        raise argparse.ArgumentTypeError(
+            f"must be between {HEART_RATE_RANGE_BPM[0]:g} and {HEART_RATE_RANGE_BPM[1]:g} bpm, "
+            f"got {_excerpt(text)}")
+    return v
+
+
+def _bounded(kind, lo, hi, unit=""):
+    """An argparse type: a number of ``kind`` in [lo, hi]."""
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a {'whole ' if kind is int else ''}number, "
+                                             f"got {_excerpt(text)}") from None
+        if not (lo <= v <= hi):
+            raise argparse.ArgumentTypeError(f"must be between {lo:g} and {hi:g}{unit}, got "
+                                             f"{_excerpt(text)}")
+        return v
+    parse.__name__ = kind.__name__
+    return parse
+
+
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Help with every option's default (argparse's ArgumentDefaultsHelpFormatter), except
+    for required options and options without a default (None), where it says nothing."""
+
+    def _get_help_string(self, action):
+        if action.required or action.default is None or action.help is None:
+            return action.help
+        return super()._get_help_string(action)
+
+
+#: accepted --heart-rate, beats per minute
+HEART_RATE_RANGE_BPM = (20.0, 300.0)
+
+DESCRIPTION = """NURBS models of the left and right ventricle from cardiac MR contours and
+tag lines: reconstruct and measure studies, generate phantoms with known ground truth,
+and build reports. Exit codes: 0 done; 2 bad input or usage (one line on stderr);
+1 internal error (one line and the file holding the traceback); 130 interrupted
+(Ctrl-C), 143 terminated (SIGTERM)."""
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = _Parser(prog="cardionurbs", description=__doc__.splitlines()[0])
+    p = _Parser(prog="cardionurbs", description=DESCRIPTION, formatter_class=_HelpFormatter)
     p.add_argument("--version", action="version", version="cardionurbs 0.1.0")
+    p.add_argument("--debug", action="store_true",
+                   help="on an internal error, print the full traceback")
     sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
-    ph = sub.add_parser("phantom", help="generate a phantom study (or a cohort of them)")
-    ph.add_argument("--pathology", choices=["normal", "mr", "phtn"])
+    def command(name, help):
+        return sub.add_parser(name, help=help, description=help, formatter_class=_HelpFormatter)
+
+    ph = command("phantom", "generate a phantom study (or a cohort of them)")
+    ph.add_argument("--pathology", choices=["normal", "mr", "phtn"],
+                    help="the preset to generate (or use --cohort)")
     ph.add_argument("--cohort", metavar="SPEC.toml", help="a cohort spec (phantoms/*.toml)")
-    ph.add_argument("--seed", type=_nonneg_int, default=0)
-    ph.add_argument("--frames", type=_positive_int, default=20)
-    ph.add_argument("--noise-px", type=_nonneg_float, default=0.0,
+    ph.add_argument("--seed", type=_nonneg_int, default=0, help="random seed")
+    ph.add_argument("--frames", type=_bounded(int, 1, MAX_FRAMES), default=20,
+                    help="cardiac phases over one cycle")
+    ph.add_argument("--noise-px", type=_bounded(float, 0.0, 100.0, " px"), default=0.0,
                     help="contour and tag noise, pixels (standard deviation)")
-    ph.add_argument("--tag-jumps", type=_nonneg_int, default=0,
+    ph.add_argument("--tag-jumps", type=_bounded(int, 0, 10_000), default=0,
                     help="number of (slice, frame) pairs with a tag-jumping fault")
-    ph.add_argument("--breath-hold-mm", type=_nonneg_float, default=0.0,
+    ph.add_argument("--breath-hold-mm", type=_bounded(float, 0.0, 100.0, " mm"), default=0.0,
                     help="breath-hold fault: random in-plane shifts of the SA slices, mm (std)")
     ph.add_argument("--snr", type=_positive_float, default=None,
                     help="tagged DICOM image SNR (myocardium over Rician channel noise; default 12)")
     ph.add_argument("--no-dicom", action="store_true", help="skip the synthetic DICOM images")
-    ph.add_argument("--out", required=True, metavar="DIR")
+    ph.add_argument("--out", required=True, metavar="DIR",
+                    help="new (or empty) output folder")
+    ph.add_argument("--overwrite", action="store_true",
+                    help="replace --out when it holds an earlier cardionurbs output")
 
-    an = sub.add_parser("analyze", help="reconstruct and measure one study")
-    an.add_argument("study", metavar="STUDY")
-    an.add_argument("--format", default="auto", choices=["auto", "native", "sunnybrook", "gpfile"])
-    an.add_argument("--heart-rate", type=float, default=None, help="bpm, when the input has none")
+    an = command("analyze", "reconstruct and measure one study")
+    an.add_argument("study", metavar="STUDY", help="study folder (or its study.json)")
+    an.add_argument("--format", default="auto", choices=["auto", "native", "sunnybrook", "gpfile"],
+                    help="input format")
+    an.add_argument("--heart-rate", type=_heart_rate, default=None, metavar="BPM",
+                    help="bpm (20-300), when the input has none")
     an.add_argument("--no-figures", action="store_true", help="skip PNG figures and HTML report")
-    an.add_argument("--out", required=True, metavar="DIR")
+    an.add_argument("--out", required=True, metavar="DIR",
+                    help="new (or empty) output folder, outside the study")
+    an.add_argument("--overwrite", action="store_true",
+                    help="replace --out when it holds an earlier cardionurbs output")
+    an.add_argument("--allow-outside", action="store_true",
+                    help="let study.json name files outside the study folder")
 
-    co = sub.add_parser("cohort", help="measure many studies into one CSV")
-    co.add_argument("studies", nargs="+", metavar="STUDY")
-    co.add_argument("--csv", required=True, metavar="FILE")
-    co.add_argument("--jobs", type=_positive_int, default=1)
-    co.add_argument("--format", default="auto", choices=["auto", "native", "sunnybrook", "gpfile"])
+    co = command("cohort", "measure many studies into one CSV")
+    co.add_argument("studies", nargs="+", metavar="STUDY", help="study folders")
+    co.add_argument("--csv", required=True, metavar="FILE",
+                    help="output CSV (replaced atomically when it exists)")
+    co.add_argument("--jobs", type=_bounded(int, 1, 1024), default=1, help="worker processes")
+    co.add_argument("--format", default="auto", choices=["auto", "native", "sunnybrook", "gpfile"],
+                    help="input format of every study")
+    co.add_argument("--allow-outside", action="store_true",
+                    help="let study.json name files outside the study folder")
     co.add_argument("--strict", action="store_true",
                     help="a study whose metrics carry a quality flag (QC) is a failure")
 
-    de = sub.add_parser("demo", help="the paper's 12-subject phantom cohort, end to end")
-    de.add_argument("--out", metavar="DIR", default=None)
-    de.add_argument("--jobs", type=_positive_int, default=None,
+    de = command("demo", "the paper's 12-subject phantom cohort, end to end")
+    de.add_argument("--out", metavar="DIR", default=None,
+                    help="new (or empty) output folder; default: a temporary folder, "
+                         "removed at the end unless --keep")
+    de.add_argument("--overwrite", action="store_true",
+                    help="replace --out when it holds an earlier cardionurbs output")
+    de.add_argument("--keep", action="store_true",
+                    help="keep the temporary folder (when no --out is given)")
+    de.add_argument("--jobs", type=_bounded(int, 1, 1024), default=None,
                     help="worker processes (default: one per CPU core)")
 
-    rp = sub.add_parser("report", help="self-contained offline HTML viewer of an analysis folder")
-    rp.add_argument("output_dir", metavar="OUTPUT_DIR")
-    rp.add_argument("--out", required=True, metavar="report.html")
+    rp = command("report", "self-contained offline HTML viewer of an analysis folder")
+    rp.add_argument("output_dir", metavar="OUTPUT_DIR", help="a folder written by analyze")
+    rp.add_argument("--out", required=True, metavar="report.html",
+                    help="the HTML file to write (replaced atomically when it exists)")
     return p
 
 
@@ -125,34 +216,87 @@ def _run(args: argparse.Namespace) -> int:
     if args.command == "report":
         from cardionurbs.report.html import run_report
         return run_report(args)
-    raise UsageError("cardionurbs: a command is required (phantom, analyze, cohort, demo, report)")
+    raise UsageError("a command is required (phantom, analyze, cohort, demo, report)")
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread so that cleanup (atomic outputs) runs."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_terminated(signum, frame):  # noqa: ARG001 - signal handler signature
+    raise Terminated(signum)
+
+
+def _install_signal_handlers() -> None:
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        return
+    signal.signal(signal.SIGTERM, _raise_terminated)
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # e.g. started with nohup &
+        return
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def _write_traceback(exc: BaseException, argv) -> str:
+    """Write the full traceback of an internal error to a file; return its path."""
+    import tempfile
+    import traceback
+    fd, path = tempfile.mkstemp(prefix="cardionurbs-traceback-", suffix=".txt")
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(f"cardionurbs {' '.join(map(str, argv))}\n\n")
+        f.write("".join(traceback.format_exception(type(exc), exc, exc.__traceback__)))
+    return path
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``cardionurbs`` console script."""
+    """Entry point of the ``cardionurbs`` console script (exit codes: module docstring)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv[:argv.index("--")] if "--" in argv else "--debug" in argv
+    debug = debug or bool(os.environ.get("CARDIONURBS_DEBUG"))
+    argv = [a for a in argv if a != "--debug"] if debug else argv
     try:
+        _install_signal_handlers()
         args = build_parser().parse_args(argv)
         return int(_run(args) or 0)
-    except CardioNurbsError as exc:
-        print(f"cardionurbs: error: {_one_line(exc)}", file=sys.stderr)
-        return 2
-    except (FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError) as exc:
-        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
-        print(f"cardionurbs: error: {where}{exc.strerror or exc}", file=sys.stderr)
-        return 2
+    except Terminated as exc:
+        print("cardionurbs: terminated", file=sys.stderr)
+        return 128 + exc.signum
     except KeyboardInterrupt:
         print("cardionurbs: interrupted", file=sys.stderr)
         return 130
-    except Exception as exc:  # noqa: BLE001 - the CLI never shows a traceback
-        if os.environ.get("CARDIONURBS_DEBUG"):
-            raise
-        print(f"cardionurbs: internal error: {type(exc).__name__}: {_one_line(exc)}",
+    except CardioNurbsError as exc:
+        print(f"cardionurbs: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except (FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError,
+            FileExistsError) as exc:
+        where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+        print(f"cardionurbs: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # noqa: BLE001 - the CLI never shows a traceback unasked
+        if debug:
+            import traceback
+            traceback.print_exc()
+            return 1
+        try:
+            where = f"; traceback in {_write_traceback(exc, argv)}"
+        except OSError:
+            where = "; rerun with --debug for the traceback"
+        print(f"cardionurbs: internal error: {type(exc).__name__}: {_one_line(exc)}{where}",
               file=sys.stderr)
         return 1
 
 
 def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
+    text = printable(" ".join(str(exc).split()))
+    text = text.removeprefix("cardionurbs: error: ").removeprefix("cardionurbs: ")
+    if len(text) > 2000:
+        text = text[:2000] + f"... ({len(text)} characters)"
+    return text or type(exc).__name__
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -30,8 +30,15 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
+def ignore_interrupts() -> None:
+    """Worker-process initializer: Ctrl-C reaches the whole process group, but only the
+    parent handles it (one message, exit 130), so workers ignore SIGINT."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None = None,
-                  strict: bool = False) -> dict:
+                  allow_outside: bool = False, strict: bool = False) -> dict:
     """One cohort row for the study at ``path`` (never raises for a bad study).
 
     ``strict``: a row whose metrics carry a quality flag (``QC`` not empty) is a
@@ -41,7 +48,7 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
     try:
         from cardionurbs.io import load_study
         from cardionurbs.pipeline import analyse_study
-        study = load_study(path, format=format)
+        study = load_study(path, format=format, allow_outside=allow_outside)
         row["subject"] = study.subject
         from cardionurbs.analysis.quality import assess
         model, metrics = analyse_study(study, heart_rate_bpm=heart_rate_bpm)
@@ -60,7 +67,7 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
 
 def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "auto",
            progress: bool = False, heart_rate_bpm: float | None = None,
-           strict: bool = False) -> pd.DataFrame:
+           allow_outside: bool = False, strict: bool = False) -> pd.DataFrame:
     """Measure every study: a DataFrame with ``subject``, ``status``, the docs/metrics.md
     columns in order and the quality columns, one row per path (input order);
     ``strict``: flagged rows are failures (:func:`measure_study`)."""
@@ -73,12 +80,14 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
     try:
         if jobs <= 1 or len(paths) <= 1:
             for i, p in enumerate(paths):
-                rows[i] = measure_study(p, format, heart_rate_bpm, strict)
+                rows[i] = measure_study(p, format, heart_rate_bpm, allow_outside, strict)
                 if bar is not None:
                     bar.update(1)
         else:
-            with ProcessPoolExecutor(max_workers=min(jobs, len(paths))) as pool:
-                futs = {pool.submit(measure_study, p, format, heart_rate_bpm, strict): i
+            with ProcessPoolExecutor(max_workers=min(jobs, len(paths)),
+                                     initializer=ignore_interrupts) as pool:
+                futs = {pool.submit(measure_study, p, format, heart_rate_bpm, allow_outside,
+                                    strict): i
                         for i, p in enumerate(paths)}
                 for fut in as_completed(futs):
                     rows[futs[fut]] = fut.result()
@@ -92,13 +101,19 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
 
 def write_csv(table: pd.DataFrame, path: str | os.PathLike) -> Path:
     """Write the cohort table as CSV, atomically (empty cells for NaN)."""
-    return atomic.write_text(path, table.to_csv(index=False, float_format="%.6g"))
+    from cardionurbs.safe import csv_safe_table
+    return atomic.write_text(path, csv_safe_table(table).to_csv(index=False, float_format="%.6g"))
 
 
 def run_cohort(args: argparse.Namespace) -> int:
-    """`cardionurbs cohort STUDY... --csv FILE [--jobs N]`."""
+    """`cardionurbs cohort STUDY... --csv FILE [--jobs N]`; ``--csv`` is checked
+    (cardionurbs.io.outputs) before any study is read."""
+    from cardionurbs.io.outputs import check_output_file
+    from cardionurbs.pipeline import study_folder
+    check_output_file(args.csv, inputs=[study_folder(s) for s in args.studies], option="--csv")
     table = cohort(args.studies, jobs=args.jobs, format=getattr(args, "format", "auto"),
-                   progress=True, strict=getattr(args, "strict", False))
+                   progress=True, allow_outside=getattr(args, "allow_outside", False),
+                   strict=getattr(args, "strict", False))
     write_csv(table, args.csv)
     failed = table[table["status"] != "ok"]
     print(f"{len(table) - len(failed)} of {len(table)} studies measured; wrote {args.csv}",

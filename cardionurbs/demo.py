@@ -23,7 +23,7 @@ from pathlib import Path
 import pandas as pd
 
 from cardionurbs.analysis.function import COLUMNS, NAN
-from cardionurbs.cohort import CSV_COLUMNS, _one_line, write_csv
+from cardionurbs.cohort import CSV_COLUMNS, _one_line, ignore_interrupts, write_csv
 
 #: metrics whose error is shown in percentage points (already percentages) or absolute units
 _ABSOLUTE = ("LVEF (%)", "RVEF (%)", "MR RegFrac (%)", "LS (%)", "EI ES", "Twist (deg)",
@@ -102,14 +102,38 @@ def format_comparison(comp: pd.DataFrame, measured: pd.DataFrame) -> str:
 
 
 def run_demo(args: argparse.Namespace) -> int:
-    """`cardionurbs demo [--out DIR] [--jobs N]` (default: one job per CPU core)."""
+    """`cardionurbs demo [--out DIR [--overwrite]] [--keep] [--jobs N]` (default: one job per
+    CPU core). With ``--out`` the folder is checked first and written atomically; without it
+    the demo works in a temporary folder, removed at the end unless ``--keep``."""
+    import shutil
+
+    from cardionurbs.io.atomic import atomic_dir
+    from cardionurbs.io.outputs import check_output_dir
     from cardionurbs.phantom.presets import data_path, load_cohort_spec
 
+    if getattr(args, "out", None):
+        out = check_output_dir(args.out, overwrite=getattr(args, "overwrite", False))
+        with atomic_dir(out) as tmp:
+            _demo(args, tmp, shown=out, load=(data_path, load_cohort_spec))
+        return 0
+    tmp = Path(tempfile.mkdtemp(prefix="cardionurbs-demo-"))
+    keep = bool(getattr(args, "keep", False))
+    try:
+        _demo(args, tmp, shown=tmp, load=(data_path, load_cohort_spec))
+    finally:
+        if not keep:
+            shutil.rmtree(tmp, ignore_errors=True)
+    print(f"kept {tmp}" if keep else f"removed the temporary folder {tmp} (--keep or --out "
+          "DIR keeps the output)", file=sys.stderr)
+    return 0
+
+
+def _demo(args: argparse.Namespace, out: Path, shown: Path, load) -> None:
+    """Generate, measure and compare the paper12 cohort into ``out`` (printed as ``shown``)."""
+    data_path, load_cohort_spec = load
     subjects = load_cohort_spec(data_path("paper12.toml"))
-    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="cardionurbs-demo-"))
-    out.mkdir(parents=True, exist_ok=True)
     jobs = max(1, int(getattr(args, "jobs", None) or os.cpu_count() or 1))
-    print(f"generating and analysing {len(subjects)} phantom subjects in {out} "
+    print(f"generating and analysing {len(subjects)} phantom subjects in {shown} "
           f"({jobs} job{'s' if jobs > 1 else ''})", file=sys.stderr)
     from tqdm import tqdm
     results: list = [None] * len(subjects)
@@ -119,7 +143,8 @@ def run_demo(args: argparse.Namespace) -> int:
                 results[i] = demo_subject(s, str(out))
                 bar.update(1)
         else:
-            with ProcessPoolExecutor(max_workers=min(jobs, len(subjects))) as pool:
+            with ProcessPoolExecutor(max_workers=min(jobs, len(subjects)),
+                                     initializer=ignore_interrupts) as pool:
                 futs = {pool.submit(demo_subject, s, str(out)): i for i, s in enumerate(subjects)}
                 from concurrent.futures import as_completed
                 for fut in as_completed(futs):
@@ -137,7 +162,7 @@ def run_demo(args: argparse.Namespace) -> int:
     for name, why in figs.skipped.items():
         print(f"figure {name} left out: {why}", file=sys.stderr)
     ok = int((measured["status"] == "ok").sum())
-    print(f"\n{ok} of {len(measured)} subjects measured; wrote {out / 'cohort.csv'}, "
-          f"{out / 'truth.csv'}, {out / 'comparison.csv'} and {len(figs.figures)} cohort figures "
-          f"in {out / 'figures'} (distributions by group, measured vs truth, Bland-Altman)")
-    return 0
+    print(f"\n{ok} of {len(measured)} subjects measured; wrote {shown / 'cohort.csv'}, "
+          f"{shown / 'truth.csv'}, {shown / 'comparison.csv'} and {len(figs.figures)} cohort "
+          f"figures in {shown / 'figures'} (distributions by group, measured vs truth, "
+          "Bland-Altman)")

@@ -81,3 +81,16 @@ class CohortInputError(CardioNurbsError):
 class ChromiumError(RuntimeError):
     """Chromium could not be started or did not answer (an environment problem, not bad
     input: hence a RuntimeError, not a :class:`CardioNurbsError`)."""
+
+
+class OutputError(CardioNurbsError):
+    """An output path that would destroy data (an input, a folder cardionurbs did not
+    write, an existing file) or cannot be written; names the option (``--out``, ``--csv``)."""
+
+    def __init__(self, message: str, *, option: str | None = None) -> None:
+        self.option = option
+        super().__init__(" ".join(str(message).split()))
+
+
+class LimitError(StudyError):
+    """Input past a documented limit (points per contour, contours, frames, name length)."""

@@ -119,9 +119,20 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
     return Path(out)
 
 
+def study_folder(path: str | Path) -> Path:
+    """The folder of a study given as a folder or as a file in it (its study.json)."""
+    p = Path(path)
+    return p if p.is_dir() or not p.exists() else p.parent
+
+
 def run_analyze(args: argparse.Namespace) -> int:
-    """Load, reconstruct, measure and write one study (outputs: docs/formats.md)."""
-    study = load_study(args.study, format=args.format)
+    """Load, reconstruct, measure and write one study (outputs: docs/formats.md); ``--out`` is checked
+    (cardionurbs.io.outputs) before anything is read."""
+    from cardionurbs.io.outputs import check_output_dir
+    check_output_dir(args.out, inputs=[study_folder(args.study)],
+                     overwrite=getattr(args, "overwrite", False))
+    study = load_study(args.study, format=args.format,
+                       allow_outside=getattr(args, "allow_outside", False))
     model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None))
     write_analysis(model, metrics, args.out, figures=not getattr(args, "no_figures", False),
                    tags=tags)

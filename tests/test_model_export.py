@@ -56,10 +56,17 @@ def test_model_json_round_trip(analysis):
 
 
 def test_existing_output_is_replaced_atomically(study_dir, analysis, tmp_path):
+    from cardionurbs.io.atomic import MARKER
     out = tmp_path / "again"
     out.mkdir()
     (out / "stale.txt").write_text("old")
-    assert main(["analyze", str(study_dir), "--out", str(out), "--no-figures"]) == 0
+    # a folder cardionurbs did not write is never replaced (issue 10) ...
+    assert main(["analyze", str(study_dir), "--out", str(out), "--no-figures", "--overwrite"]) == 2
+    assert (out / "stale.txt").read_text() == "old"
+    # ... an earlier output is, with --overwrite, as a whole
+    (out / MARKER).write_text("")
+    assert main(["analyze", str(study_dir), "--out", str(out), "--no-figures"]) == 2
+    assert main(["analyze", str(study_dir), "--out", str(out), "--no-figures", "--overwrite"]) == 0
     assert not (out / "stale.txt").exists() and (out / "metrics.json").exists()
 
 

@@ -37,6 +37,8 @@ import pydicom
 from pydicom.errors import InvalidDicomError
 
 from cardionurbs.errors import StudyError, UnsupportedInputError
+from cardionurbs.confine import files_inside
+from cardionurbs.safe import excerpt
 from cardionurbs.imaging import phases, stack
 from cardionurbs.imaging.geometry import ImagePlane
 
@@ -109,9 +111,9 @@ def _numbers(ds, keyword: str, count: int, path: Path, required: bool = True):
         seq = list(value) if isinstance(value, (list, tuple, pydicom.multival.MultiValue)) else [value]
         arr = np.array([float(v) for v in seq], dtype=float)
     except (TypeError, ValueError):
-        raise StudyError(f"{keyword} is not numeric ({value!r})", file=path, field=keyword) from None
+        raise StudyError(f"{keyword} is not numeric ({excerpt(value)})", file=path, field=keyword) from None
     if arr.size != count or not np.all(np.isfinite(arr)):
-        raise StudyError(f"{keyword} must be {count} finite number(s), got {value!r}", file=path,
+        raise StudyError(f"{keyword} must be {count} finite number(s), got {excerpt(value)}", file=path,
                          field=keyword)
     return arr
 
@@ -371,7 +373,7 @@ def find_dicom_files(folder: str | Path, exclude: Iterable[str | Path] = ()) -> 
         if excl and any(e == p.resolve() or e in p.resolve().parents for e in excl):
             continue
         out.append(p)
-    return sorted(out, key=_natural_key)
+    return sorted(files_inside(folder, out, what="DICOM file"), key=_natural_key)
 
 
 def _natural_key(p: Path):

@@ -58,7 +58,7 @@ def _extra_detectors():
             lambda p: "sunnybrook" if sb(p) else None]
 
 
-def load_study(path: str | Path, format: str = "auto") -> Study:
+def load_study(path: str | Path, format: str = "auto", *, allow_outside: bool = False) -> Study:
     """Read a study from ``path`` in ``format`` (``auto`` tells it from the files), then
     check it (:func:`cardionurbs.io.checks.check_study`).
 
@@ -67,9 +67,20 @@ def load_study(path: str | Path, format: str = "auto") -> Study:
     native study whose images name DICOM files that exist, the manifest's
     geometry is cross-checked against the DICOM headers.
 
+    Every file the study names must lie inside its folder (no absolute paths,
+    ``..`` or symbolic links leading out) unless ``allow_outside``
+    (:mod:`cardionurbs.confine`).
+
     Returns the Study with ``study.warnings`` (list of one-line
     strings). Raises StudyError for unreadable or inconsistent input.
     """
+    from cardionurbs.confine import allow_outside as _allow
+
+    with _allow(allow_outside):
+        return _load_study(path, format)
+
+
+def _load_study(path: str | Path, format: str) -> Study:
     if format not in FORMATS:
         raise StudyError(f"unknown format {format!r}; expected one of {', '.join(FORMATS)}",
                          field="format")

@@ -1,27 +1,119 @@
-"""Write files so that a reader never sees a half-written one: temp file, then rename."""
+"""Write files so that a reader never sees a half-written one: temp file, then rename.
+
+Temporaries are hidden siblings named ``.<name>.<pid>-<random>.tmp`` (files
+and folders alike), so that the next run can tell those of a killed process
+(its pid no longer alive) from those of a run still going, and remove them
+(:func:`remove_stale_temporaries`). Files and folders are created with the
+permissions of the process umask (``0666 & ~umask``, ``0777 & ~umask``), as
+``open()`` and ``mkdir()`` would, not ``mkstemp``'s 0600.
+"""
 
 from __future__ import annotations
 
+import ctypes
 import os
+import re
 import shutil
 import tempfile
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
+
+#: file that marks a folder as an output cardionurbs wrote (see cardionurbs.io.outputs)
+MARKER = ".cardionurbs-output"
+MARKER_TEXT = "This folder was written by cardionurbs; --overwrite may replace it whole.\n"
+
+_umask_lock = threading.Lock()
+
+
+def current_umask() -> int:
+    """The process umask (read without changing it on Linux, else set and restored)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    with _umask_lock:
+        mask = os.umask(0o022)
+        os.umask(mask)
+    return mask
+
+
+def _prefix(path: Path) -> str:
+    return f".{path.name}.{os.getpid()}-"
+
+
+_TEMP = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)-[^.]*\.(?:tmp|old)$")
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True
+    return True
+
+
+def remove_stale_temporaries(path: str | os.PathLike) -> list[Path]:
+    """Remove the temporaries that killed runs left beside ``path`` (hidden
+    ``.<name>.<pid>-*.tmp`` / ``.old`` siblings whose process is gone); temporary
+    folders only when they hold the cardionurbs marker. When ``path`` itself is
+    missing but a killed run left the previous output as ``.<name>.<pid>-*.old``,
+    that output is put back first. Returns what was removed."""
+    path = Path(path)
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        return []
+    removed: list[Path] = []
+    try:
+        entries = list(os.scandir(parent))
+    except OSError:
+        return []
+    for e in sorted(entries, key=lambda e: e.name):
+        m = _TEMP.match(e.name)
+        if not m or m.group("name") != path.name or _pid_alive(int(m.group("pid"))):
+            continue
+        q = Path(e.path)
+        if q.is_symlink():
+            continue
+        if q.is_dir():
+            if not (q / MARKER).is_file():
+                continue
+            if e.name.endswith(".old") and not path.exists():
+                os.replace(q, path)             # the previous output, put back
+                continue
+            shutil.rmtree(q, ignore_errors=True)
+        else:
+            q.unlink(missing_ok=True)
+        removed.append(q)
+    return removed
+
+
+def _chmod_umask(path: Path, base: int) -> None:
+    os.chmod(path, base & ~current_umask())
 
 
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success.
 
-    On an exception the temporary file is removed and ``path`` is untouched.
+    On an exception (or an interrupt) the temporary file is removed and ``path``
+    is untouched. The file gets the umask's permissions.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=_prefix(path), suffix=".tmp", dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)
     try:
+        _chmod_umask(tmp_path, 0o666)
         yield tmp_path
         os.replace(tmp_path, path)
     except BaseException:
@@ -43,21 +135,48 @@ def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
     return Path(path)
 
 
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Atomically swap two existing paths (Linux renameat2 RENAME_EXCHANGE); False when
+    the system cannot."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    rc = fn(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE)
+    return rc == 0
+
+
 @contextmanager
 def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; on success it replaces ``path``.
 
     Used for whole outputs (a phantom study, an analysis folder) so that a
-    failure leaves no half-written folder behind. An existing ``path`` is
-    replaced only once the new content is complete.
+    failure or an interrupt leaves no half-written folder behind and the
+    previous content intact. The marker :data:`MARKER` is written first, so the
+    result (and any debris of a killed run) is recognisable as cardionurbs
+    output. An existing ``path`` is swapped with the new content in one atomic
+    step where the system allows (Linux ``renameat2``), else renamed aside just
+    before; callers check ``path`` first (:func:`cardionurbs.io.outputs.check_output_dir`).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    tmp = Path(tempfile.mkdtemp(prefix=_prefix(path), suffix=".tmp", dir=path.parent))
     try:
+        _chmod_umask(tmp, 0o777)
+        (tmp / MARKER).write_text(MARKER_TEXT, encoding="utf-8")
         yield tmp
         if path.exists():
-            old = path.with_name(f".{path.name}.old-{os.getpid()}")
+            if _exchange(tmp, path):
+                shutil.rmtree(tmp, ignore_errors=True)   # now holds the previous output
+                return
+            old = Path(tempfile.mkdtemp(prefix=_prefix(path), suffix=".old", dir=path.parent))
+            os.rmdir(old)
             os.replace(path, old)
             os.replace(tmp, path)
             shutil.rmtree(old, ignore_errors=True)

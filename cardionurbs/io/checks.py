@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from cardionurbs.errors import StudyError
+from cardionurbs.safe import excerpt
 from cardionurbs.imaging import stack
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.study import Study
@@ -185,7 +186,7 @@ def _check_images(study: Study, warnings: list[str]) -> dict[str, ImagePlane]:
     ids: dict[str, ImagePlane] = {}
     for im in study.images:
         if im.id in ids:
-            raise StudyError(f"image id {im.id!r} is used twice", file=_src(study, im.file),
+            raise StudyError(f"image id {excerpt(im.id)} is used twice", file=_src(study, im.file),
                              slice=im.slice, frame=im.frame)
         ids[im.id] = im
         key = (im.slice, im.frame)
@@ -279,10 +280,10 @@ def _plane_of(study: Study, ann, file) -> ImagePlane | None:
     if ann.image is not None:
         im = index.get(ann.image)
         if im is None:
-            raise StudyError(f"reference to image {ann.image!r} that does not exist in the study",
+            raise StudyError(f"reference to image {excerpt(ann.image)} that does not exist in the study",
                              file=_src(study, file), slice=ann.slice, frame=ann.frame, field="image")
         if (ann.slice and im.slice != ann.slice) or im.frame != ann.frame:
-            raise StudyError(f"image {ann.image!r} belongs to slice {im.slice}, frame {im.frame}",
+            raise StudyError(f"image {excerpt(ann.image)} belongs to slice {im.slice}, frame {im.frame}",
                              file=_src(study, file), slice=ann.slice, frame=ann.frame, field="image")
         return im
     if ann.slice is None:

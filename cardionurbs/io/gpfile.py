@@ -85,7 +85,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cardionurbs.confine import files_inside, study_file
 from cardionurbs.errors import StudyError
+from cardionurbs.safe import excerpt
 from cardionurbs.imaging import stack
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import atomic
@@ -196,7 +198,7 @@ def read_slice_info(path: str | Path) -> list[dict]:
                 nums = []
             if len(nums) != n or not np.all(np.isfinite(nums)):
                 raise StudyError(f"line {k}: {name} needs {n} finite number(s), got "
-                                 f"{' '.join(vals)!r}", file=path, field=name)
+                                 f"{excerpt(' '.join(vals))}", file=path, field=name)
             rec[name] = (nums, vals)
         time = None
         if "timeFrame" in tok:
@@ -205,7 +207,7 @@ def read_slice_info(path: str | Path) -> list[dict]:
             try:
                 time = int(val)
             except ValueError:
-                raise StudyError(f"line {k}: timeFrame needs a whole number, got {val!r}",
+                raise StudyError(f"line {k}: timeFrame needs a whole number, got {excerpt(val)}",
                                  file=path, field="timeFrame") from None
         sid = rec["sliceID"][0][0]
         if sid != int(sid):
@@ -303,7 +305,7 @@ def read_gp_table(path: str | Path) -> tuple[pd.DataFrame, str, int | None]:
             what = "NaN or infinite" if table[col].iloc[i].lower() in ("nan", "inf", "-inf") \
                 else "not a number"
             raise StudyError(f"line {table['line'].iloc[i]}: {col} is {what} "
-                             f"({table[col].iloc[i]!r})", file=path,
+                             f"({excerpt(table[col].iloc[i])})", file=path,
                              field="frameID" if col == "slice" else col)
         if col in ("x", "y", "z"):
             table[col] = num
@@ -367,8 +369,12 @@ def read_study(path: str | Path) -> Study:
     files = _gp_files(folder)
     if not files:
         raise StudyError("no GPFile_NNN.txt files in this folder", file=folder)
+    files_inside(folder, [folder / SLICE_INFO] + [f for _, f in files], what="GPFile")
     slices = read_slice_info(folder / SLICE_INFO)
     _frame_of_time(slices, files, folder / SLICE_INFO)
+    for s in slices:                           # names only (never opened), kept confined
+        for _, _, name in s["entries"]:
+            study_file(folder, name, file=folder / SLICE_INFO, field="file")
     slice_by_id = {s["id"]: s for s in slices}
     tables = []
     header = None
@@ -536,7 +542,7 @@ def _read_blocks(t: pd.DataFrame, frame: int, f: Path, names: dict, views: dict,
             continue
         kind = _contour_kind(gp_type)
         if kind is None:
-            raise StudyError(f"line {lines[s]}: unknown contour type {gp_type!r}; expected "
+            raise StudyError(f"line {lines[s]}: unknown contour type {excerpt(gp_type)}; expected "
                              f"SAX_/LAX_ + {', '.join(CONTOUR_TYPES)}, "
                              f"{', '.join([*SINGLE_VIEW_TYPES, *OTHER_TYPES])}, a landmark "
                              f"({', '.join(LANDMARK_TYPES)}) or EXCLUDED", file=f,

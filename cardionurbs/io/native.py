@@ -46,9 +46,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cardionurbs.confine import study_file
 from cardionurbs.errors import StudyError
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import atomic
+from cardionurbs.safe import excerpt
 from cardionurbs.study import Contour, Landmark, Study, TagLine
 
 FORMAT = "cardionurbs-native"
@@ -156,7 +158,7 @@ def read_study(path: str | Path) -> Study:
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise StudyError(f"field 'format' must be {FORMAT!r}", file=manifest_path)
     if manifest.get("version") != VERSION:
-        raise StudyError(f"unsupported version {manifest.get('version')!r}", file=manifest_path,
+        raise StudyError(f"unsupported version {excerpt(manifest.get('version'))}", file=manifest_path,
                          field="version")
     try:
         images = [ImagePlane.from_dict(d) for d in manifest.get("images", [])]
@@ -175,10 +177,19 @@ def read_study(path: str | Path) -> Study:
     ids = [im.id for im in images]
     if len(set(ids)) != len(ids):
         dup = next(i for i in ids if ids.count(i) > 1)
-        raise StudyError(f"image id {dup!r} appears twice", file=manifest_path, field="images")
-    points_path = folder / str(manifest.get("points", POINTS))
+        raise StudyError(f"image id {excerpt(dup)} appears twice", file=manifest_path, field="images")
+    points_path = _points_path(folder, manifest, manifest_path)
+    for im in images:
+        if im.file is not None:
+            study_file(folder, im.file, file=manifest_path, field="images.file", slice=im.slice,
+                       frame=im.frame)
     _read_points(study, points_path)
     return study
+
+
+def _points_path(folder: Path, manifest: dict, manifest_path: Path) -> Path:
+    """The points file the manifest names, confined to the study folder."""
+    return study_file(folder, manifest.get("points", POINTS), file=manifest_path, field="points")
 
 
 def _opt_float(v):
@@ -198,7 +209,7 @@ def _pixels_to_scanner(table: pd.DataFrame, need: np.ndarray, pix: np.ndarray, x
             raise StudyError(f"line {line}: no x, y, z and no image to map px, py",
                              file=points_path, field="image")
         if image_id not in images:
-            raise StudyError(f"line {line}: reference to image {image_id!r} that is not in the "
+            raise StudyError(f"line {line}: reference to image {excerpt(image_id)} that is not in the "
                              "manifest", file=points_path, field="image")
     p = pix[need]
     bad = ~np.isfinite(p).all(axis=1)
@@ -239,7 +250,8 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False) -
             bad |= num.isna() | (num != np.round(num))
         if bad.any():
             line = int(np.flatnonzero(bad.to_numpy())[0]) + 2
-            raise StudyError(f"line {line}: {col} is not a number ({table[col].iloc[line - 2]!r})",
+            raise StudyError(f"line {line}: {col} is not a number "
+                             f"({excerpt(table[col].iloc[line - 2])})",
                              file=points_path, field=col)
         table[col] = num
     xyz = table[["x", "y", "z"]].to_numpy(float)
@@ -266,7 +278,7 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False) -
     for s, e in zip(starts, ends):
         kind, image = kinds[s], imgs[s] or None
         if image is not None and image not in images:
-            raise StudyError(f"line {s + 2}: reference to image {image!r} that is not in the manifest",
+            raise StudyError(f"line {s + 2}: reference to image {excerpt(image)} that is not in the manifest",
                              file=points_path, field="image")
         try:
             if kind == "contour":
@@ -282,7 +294,7 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False) -
                                                     slice=slices[s] or None, view=views[s] or None,
                                                     image=image))
             else:
-                raise StudyError(f"line {s + 2}: unknown kind {kind!r} (contour, tag or landmark)",
+                raise StudyError(f"line {s + 2}: unknown kind {excerpt(kind)} (contour, tag or landmark)",
                                  file=points_path, field="kind")
         except StudyError as exc:
             if exc.file is not None:
@@ -306,9 +318,10 @@ def _dicom_files(study: Study) -> list[tuple[ImagePlane, Path]]:
     for im in study.images:
         if not im.file or Path(im.file).suffix.lower() not in ("", ".dcm", ".ima", ".dicom"):
             continue
-        path = folder / im.file
+        path = study_file(folder, im.file, file=folder / MANIFEST, field="images.file",
+                          slice=im.slice, frame=im.frame)
         if not path.is_file():
-            raise StudyError(f"image {im.id!r} refers to file {im.file!r}, which does not exist",
+            raise StudyError(f"image {excerpt(im.id)} refers to file {excerpt(im.file)}, which does not exist",
                              file=folder / MANIFEST, slice=im.slice, frame=im.frame, field="file")
         out.append((im, path))
     return out
@@ -328,10 +341,10 @@ def check_dicom_geometry(study: Study) -> int:
         d = float(np.linalg.norm(h.position - im.position))
         if d > DICOM_POSITION_TOL_MM:
             raise StudyError(f"ImagePositionPatient is {d:.3g} mm from study.json's position of "
-                             f"image {im.id!r}", field="ImagePositionPatient", **where)
+                             f"image {excerpt(im.id)}", field="ImagePositionPatient", **where)
         if np.abs(h.orientation / np.repeat(np.linalg.norm(h.orientation.reshape(2, 3), axis=1), 3)
                   - im.orientation).max() > DICOM_DIRECTION_TOL:
-            raise StudyError(f"ImageOrientationPatient differs from study.json's image {im.id!r}",
+            raise StudyError(f"ImageOrientationPatient differs from study.json's image {excerpt(im.id)}",
                              field="ImageOrientationPatient", **where)
         if np.abs(np.subtract(h.pixel_spacing, im.pixel_spacing)).max() > 1e-9 * max(im.pixel_spacing):
             raise StudyError(f"PixelSpacing {list(h.pixel_spacing)} differs from study.json's "
@@ -377,6 +390,6 @@ def read_study_from_dicom(path: str | Path) -> Study:
     study.contours, study.tags, study.landmarks = [], [], []
     folder = Path(study.source)
     manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
-    _read_points(study, folder / str(manifest.get("points", POINTS)), prefer_pixels=True)
+    _read_points(study, _points_path(folder, manifest, folder / MANIFEST), prefer_pixels=True)
     study.meta = dict(study.meta, geometry="dicom")
     return study

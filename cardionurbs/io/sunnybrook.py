@@ -29,8 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
+from cardionurbs.confine import files_inside
 from cardionurbs.errors import StudyError
 from cardionurbs.imaging.dicom import read_dicom_folder
+from cardionurbs.safe import excerpt
 from cardionurbs.study import Contour, Study
 
 CONTOUR_FILE = re.compile(r"^IM-(\d+)-(\d+)-([a-z0-9]+)contour-(manual|auto)\.txt$", re.IGNORECASE)
@@ -44,6 +46,12 @@ def contour_files(folder: str | Path) -> list[Path]:
     folder = Path(folder)
     return sorted(p for p in folder.rglob("*.txt") if LOOSE_CONTOUR_FILE.search(p.name)
                   and not any(part.startswith(".") for part in p.relative_to(folder).parts))
+
+
+def _confined_contour_files(folder: Path) -> list[Path]:
+    """:func:`contour_files`, each checked to resolve inside ``folder``
+    (:func:`cardionurbs.confine.files_inside`)."""
+    return files_inside(folder, contour_files(folder), what="contour file")
 
 
 def detect(path: str | Path) -> bool:
@@ -73,7 +81,8 @@ def read_contour_file(path: str | Path) -> np.ndarray:
         raise StudyError("empty contour file (expected one 'x y' pixel pair per line)", file=path)
     bad = next(((k, tok) for k, tok in lines if len(tok) != 2), None)
     if bad:
-        raise StudyError(f"line {bad[0]}: expected two numbers 'x y', got {' '.join(bad[1])!r}",
+        raise StudyError(f"line {bad[0]}: expected two numbers 'x y', got "
+                         f"{excerpt(' '.join(bad[1]))}",
                          file=path)
     try:
         pts = np.array([[float(a), float(b)] for _, (a, b) in lines])
@@ -82,7 +91,8 @@ def read_contour_file(path: str | Path) -> np.ndarray:
             try:
                 float(a), float(b)
             except ValueError:
-                raise StudyError(f"line {k}: not a number in {a + ' ' + b!r}", file=path) from None
+                raise StudyError(f"line {k}: not a number in {excerpt(a + ' ' + b)}",
+                                 file=path) from None
         raise
     finite = np.isfinite(pts).all(axis=1)
     if not finite.all():
@@ -101,7 +111,7 @@ def read_study(path: str | Path) -> Study:
     folder = Path(path)
     if not folder.is_dir():
         raise StudyError("a Sunnybrook study must be a folder", file=folder)
-    files = contour_files(folder)
+    files = _confined_contour_files(folder)
     if not files:
         raise StudyError("no *contour*.txt files in this folder", file=folder)
     dicom_root = folder / "dicom" if (folder / "dicom").is_dir() else folder
@@ -121,7 +131,7 @@ def read_study(path: str | Path) -> Study:
             skipped.append(f.relative_to(folder).as_posix())
             continue
         if kind not in STRUCTURE_OF_KIND:
-            raise StudyError(f"unknown contour kind {kind + 'contour'!r}; expected icontour "
+            raise StudyError(f"unknown contour kind {excerpt(kind + 'contour')}; expected icontour "
                              "(lv_endo), ocontour (lv_epi), p1contour or p2contour", file=f)
         inst = int(m.group(2))
         image = by_instance.get(inst)

@@ -16,7 +16,9 @@ def run_phantom(args: argparse.Namespace) -> int:
     breath_hold_mm, snr, no_dicom, out). Exactly one of --pathology and --cohort is required."""
     if bool(args.pathology) == bool(args.cohort):
         raise PhantomError("phantom: give exactly one of --pathology and --cohort")
-    out = Path(args.out)
+    from cardionurbs.io.outputs import check_output_dir
+    out = check_output_dir(args.out, inputs=[args.cohort] if args.cohort else [],
+                           overwrite=getattr(args, "overwrite", False))
     dicom = not args.no_dicom
     if args.pathology:
         ph = generate(args.pathology, seed=args.seed, frames=args.frames, noise_px=args.noise_px,
@@ -26,8 +28,12 @@ def run_phantom(args: argparse.Namespace) -> int:
         write_phantom(ph, out, dicom=dicom)
         print(f"{out}: {ph.study.summary()}", file=sys.stdout)
         return 0
+    from cardionurbs.io.atomic import atomic_dir
+    spec = load_cohort_spec(args.cohort)
     extra = {"snr": args.snr} if getattr(args, "snr", None) is not None else {}
-    generate_cohort(load_cohort_spec(args.cohort), out, dicom=dicom, noise_px=args.noise_px,
-                    tag_jumps=args.tag_jumps, **extra,
-                    report=lambda path, ph: print(f"{path}: {ph.study.summary()}", file=sys.stdout))
+    with atomic_dir(out) as tmp:                # the whole cohort, or the previous output
+        generate_cohort(spec, tmp, dicom=dicom, noise_px=args.noise_px, tag_jumps=args.tag_jumps,
+                        **extra,
+                        report=lambda path, ph: print(f"{out / path.name}: {ph.study.summary()}",
+                                                      file=sys.stdout))
     return 0

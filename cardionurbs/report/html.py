@@ -445,6 +445,10 @@ def write_report(output_dir: str | Path, out_path: str | Path) -> Path:
 
 def run_report(args: argparse.Namespace) -> int:
     """CLI: ``cardionurbs report OUTPUT_DIR --out report.html``."""
+    from cardionurbs.io.outputs import check_output_file
+    src = Path(args.output_dir)
+    check_output_file(args.out, inputs=[src / n for n in ("metrics.json", "model.json", "figures",
+                                                           "meshes", "residuals.csv")])
     path = write_report(args.output_dir, args.out)
     size = Path(path).stat().st_size / 1e6
     print(f"wrote {path} ({size:.1f} MB)")

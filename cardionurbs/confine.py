@@ -1,0 +1,89 @@
+"""Inputs stay inside the study: every file a study names resolves inside its folder.
+
+A study folder is read as a closed world: ``study.json``'s ``points`` and
+image ``file`` entries, SliceInfoFile's file names, Sunnybrook contour files
+and DICOM files found by walking the folder must all resolve inside the
+study folder -- no absolute paths, no ``..`` components, no symbolic links
+leading out. A study that needs files elsewhere is read with
+``load_study(..., allow_outside=True)`` (CLI ``--allow-outside``), which sets
+:func:`allow_outside` for the duration of the read.
+
+Messages name the offending entry through a short printable excerpt
+(:func:`cardionurbs.safe.excerpt`), never the content of the file it points to.
+"""
+
+from __future__ import annotations
+
+import os
+from contextlib import contextmanager
+from contextvars import ContextVar
+from pathlib import Path
+from typing import Iterable, Iterator
+
+from cardionurbs.errors import StudyError
+from cardionurbs.safe import excerpt
+
+_ALLOW_OUTSIDE: ContextVar[bool] = ContextVar("cardionurbs_allow_outside", default=False)
+
+HINT = "(files must lie inside the study folder; --allow-outside lifts this)"
+
+
+@contextmanager
+def allow_outside(flag: bool = True) -> Iterator[None]:
+    """Within this block, studies may name files outside their folder (when ``flag``)."""
+    token = _ALLOW_OUTSIDE.set(bool(flag))
+    try:
+        yield
+    finally:
+        _ALLOW_OUTSIDE.reset(token)
+
+
+def outside_allowed() -> bool:
+    """True inside :func:`allow_outside`."""
+    return _ALLOW_OUTSIDE.get()
+
+
+def is_inside(folder: str | os.PathLike, path: str | os.PathLike) -> bool:
+    """True when ``path``, every symbolic link followed, lies inside ``folder`` (also followed)."""
+    root = Path(os.path.realpath(folder))
+    return Path(os.path.realpath(path)).is_relative_to(root)
+
+
+def study_file(folder: str | os.PathLike, name: object, *, file: object, field: str,
+               slice: object = None, frame: object = None) -> Path:
+    """``folder / name`` for a file name read from a study (``file``'s ``field``), checked to
+    stay inside ``folder``: a non-empty relative path without ``..`` that, links followed,
+    resolves inside. Raises StudyError quoting only an excerpt of ``name``."""
+    where = dict(file=file, field=field, slice=slice, frame=frame)
+    if not isinstance(name, str) or not name.strip():
+        raise StudyError(f"a file name must be non-empty text, got {excerpt(name)}", **where)
+    if "\x00" in name:
+        raise StudyError(f"file name {excerpt(name)} holds a NUL character", **where)
+    p = Path(name)
+    if outside_allowed():
+        return Path(folder) / p
+    if p.is_absolute() or name.startswith(("/", "\\")) or (len(name) > 1 and name[1] == ":"):
+        raise StudyError(f"file name {excerpt(name)} is an absolute path {HINT}", **where)
+    if ".." in p.parts or ".." in name.replace("\\", "/").split("/"):
+        raise StudyError(f"file name {excerpt(name)} leads out of the study folder with '..' "
+                         f"{HINT}", **where)
+    full = Path(folder) / p
+    if not is_inside(folder, full):
+        raise StudyError(f"file {excerpt(name)} is a symbolic link leading out of the study "
+                         f"folder {HINT}", **where)
+    return full
+
+
+def files_inside(folder: str | os.PathLike, paths: Iterable[Path], *, what: str = "file"
+                 ) -> list[Path]:
+    """``paths`` (found by walking ``folder``), each checked to resolve inside ``folder``;
+    a symbolic link leading out raises StudyError naming the link (not its target)."""
+    paths = list(paths)
+    if outside_allowed():
+        return paths
+    root = Path(os.path.realpath(folder))
+    for p in paths:
+        if not Path(os.path.realpath(p)).is_relative_to(root):
+            raise StudyError(f"{what} is a symbolic link leading out of the study folder {HINT}",
+                             file=p)
+    return paths

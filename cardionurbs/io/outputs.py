@@ -1,0 +1,140 @@
+"""Output paths that never destroy anything: checked before any work, replaced atomically.
+
+Every command that writes a folder (``analyze``, ``phantom``, ``demo``) or a
+file (``cohort --csv``, ``report --out``) calls :func:`check_output_dir` or
+:func:`check_output_file` *before* it reads or computes anything:
+
+* an output folder must be absent, an empty folder, or a folder this package
+  wrote before (it holds the marker file :data:`MARKER`) and then only with
+  ``overwrite=True`` (the CLI's ``--overwrite``);
+* an existing file where a folder is asked for, or a folder where a file is
+  asked for, is refused; so is a symbolic link;
+* the output may not be, contain, or lie inside any input (the study read),
+  nor be or contain the current working folder;
+* an output file may not be one of the input files or lie inside an input
+  folder it would replace.
+
+The folder itself is then written by :func:`cardionurbs.io.atomic.atomic_dir`
+(a temporary sibling folder renamed onto the output when complete, the marker
+written first), so an interrupted run (Ctrl-C, SIGTERM, ``kill -9``) leaves
+the previous output intact; the temporary debris a killed run leaves is
+removed by the next run (:func:`cardionurbs.io.atomic.remove_stale_temporaries`).
+Violations raise :class:`~cardionurbs.errors.OutputError` (CLI exit 2).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Iterable
+
+from cardionurbs.errors import OutputError
+from cardionurbs.io.atomic import MARKER, remove_stale_temporaries
+
+__all__ = ["MARKER", "check_output_dir", "check_output_file", "is_cardionurbs_output"]
+
+
+def is_cardionurbs_output(path: str | os.PathLike) -> bool:
+    """True when ``path`` is a folder holding the marker this package writes into its outputs."""
+    p = Path(path)
+    return p.is_dir() and (p / MARKER).is_file()
+
+
+def _resolved(p: str | os.PathLike) -> Path:
+    return Path(os.path.abspath(os.path.realpath(os.fspath(p))))
+
+
+def _relation(a: Path, b: Path) -> str | None:
+    """How resolved path ``a`` relates to ``b``: 'is', 'inside', 'contains' or None."""
+    if a == b:
+        return "is"
+    if a.is_relative_to(b):
+        return "inside"
+    if b.is_relative_to(a):
+        return "contains"
+    return None
+
+
+def _check_against_inputs(out: Path, shown: str, inputs: Iterable, option: str) -> None:
+    words = {"is": "is", "inside": "lies inside", "contains": "contains"}
+    for inp in inputs:
+        if inp is None:
+            continue
+        rel = _relation(out, _resolved(inp))
+        if rel is not None:
+            raise OutputError(f"{option} {shown} {words[rel]} the input {inp}: choose a folder "
+                              "outside the study", option=option)
+    cwd = _resolved(os.getcwd())
+    if out == cwd or cwd.is_relative_to(out):
+        raise OutputError(f"{option} {shown} {'is' if out == cwd else 'contains'} the current "
+                          "folder: choose a new folder (e.g. a name that does not exist yet)",
+                          option=option)
+
+
+def check_output_dir(out: str | os.PathLike, *, inputs: Iterable = (), overwrite: bool = False,
+                     option: str = "--out") -> Path:
+    """Check that ``out`` may become this command's output folder; return it as given.
+
+    ``inputs`` are the files or folders the command reads (a study folder, its
+    manifest): ``out`` may not be, contain or lie inside any of them. ``out``
+    must be absent, empty, or -- with ``overwrite`` -- an earlier cardionurbs
+    output (it holds :data:`MARKER`). Stale temporaries of killed runs beside
+    ``out`` are removed. Raises :class:`OutputError` naming ``option``.
+    """
+    shown = os.fspath(out)
+    p = Path(out)
+    if p.is_symlink():
+        raise OutputError(f"{option} {shown} is a symbolic link: give the real folder",
+                          option=option)
+    resolved = _resolved(p)
+    _check_against_inputs(resolved, shown, inputs, option)
+    if p.exists() and not p.is_dir():
+        raise OutputError(f"{option} {shown} is an existing file, not a folder", option=option)
+    if p.parent.exists() and not p.parent.is_dir():
+        raise OutputError(f"{option} {shown}: {p.parent} is a file, not a folder", option=option)
+    remove_stale_temporaries(p)
+    if p.is_dir():
+        try:
+            entries = [e.name for e in os.scandir(p)]
+        except OSError as exc:
+            raise OutputError(f"{option} {shown} cannot be listed ({exc.strerror})",
+                              option=option) from None
+        if entries:
+            if MARKER not in entries:
+                raise OutputError(f"{option} {shown} is a folder with files cardionurbs did not "
+                                  "write: choose a new or empty folder", option=option)
+            if not overwrite:
+                raise OutputError(f"{option} {shown} holds an earlier cardionurbs output: pass "
+                                  "--overwrite to replace it", option=option)
+    return p
+
+
+def check_output_file(out: str | os.PathLike, *, inputs: Iterable = (), option: str = "--out"
+                      ) -> Path:
+    """Check that ``out`` may become this command's output file; return it as given.
+
+    An existing folder or symbolic link is refused; so is a path that is one of
+    ``inputs`` or lies inside an input folder, or contains an input. An existing
+    regular file elsewhere is replaced atomically when the command succeeds (the
+    usual ``-o FILE`` behaviour). Stale temporaries beside ``out`` are removed.
+    """
+    shown = os.fspath(out)
+    p = Path(out)
+    if p.is_symlink():
+        raise OutputError(f"{option} {shown} is a symbolic link: give a real file name",
+                          option=option)
+    if p.is_dir():
+        raise OutputError(f"{option} {shown} is an existing folder, not a file", option=option)
+    if p.parent.exists() and not p.parent.is_dir():
+        raise OutputError(f"{option} {shown}: {p.parent} is a file, not a folder", option=option)
+    resolved = _resolved(p)
+    for inp in inputs:
+        if inp is None:
+            continue
+        rel = _relation(resolved, _resolved(inp))
+        if rel is not None:
+            words = {"is": "is", "inside": "lies inside", "contains": "contains"}[rel]
+            raise OutputError(f"{option} {shown} {words} the input {inp}: write it elsewhere",
+                              option=option)
+    remove_stale_temporaries(p)
+    return p

@@ -1,0 +1,31 @@
+"""Documented limits on input size, so that any valid study finishes in bounded time and memory.
+
+Past a limit the readers raise :class:`~cardionurbs.errors.LimitError` (a
+:class:`~cardionurbs.errors.StudyError`: CLI exit 2, one line naming the file,
+slice and frame). The limits sit well above real cardiac MR studies (a
+Sunnybrook contour has ~100-300 points, a CAP study ~30 frames and a few
+thousand contours) and keep the work bounded: every per-contour step is
+O(n log n) in the points of the contour (the self-intersection test is a
+sorted sweep, :func:`cardionurbs.io.checks.self_intersections`), so a study at
+the limits is measured within minutes and a few GB; see ``reports/limits.md``
+for measured times and memory.
+"""
+
+from __future__ import annotations
+
+#: points in one contour, tag line or landmark group
+MAX_POINTS_PER_CONTOUR = 10_000
+#: contours (and separately tag lines) in one study
+MAX_CONTOURS_PER_STUDY = 50_000
+#: annotation points in one study (all contours, tags and landmarks)
+MAX_POINTS_PER_STUDY = 2_000_000
+#: cardiac frames (phases) in one study
+MAX_FRAMES = 512
+#: image planes in one study
+MAX_IMAGES = 100_000
+#: characters in a subject name, a slice id, an image id or a structure name
+MAX_NAME_LENGTH = 128
+#: nesting depth of study.json
+MAX_JSON_DEPTH = 16
+#: size of study.json, bytes
+MAX_MANIFEST_BYTES = 64 * 1024 * 1024

@@ -1,0 +1,110 @@
+"""Safe strings: names from input files are checked once, on load, and quoted safely on output.
+
+A subject, slice, image or structure name comes from a file the user may not
+control. On load (:func:`check_name`) it must be printable text of at most
+:data:`cardionurbs.limits.MAX_NAME_LENGTH` characters (no control characters,
+no path separators for names that become file names). On output each sink
+gets its own quoting:
+
+* messages: :func:`excerpt` -- at most a short, printable quotation;
+* figure text: :func:`plain_text` -- ``$`` escaped so that matplotlib never
+  starts mathtext on a name;
+* HTML ``<script type="application/json">`` blocks: :func:`json_for_script` --
+  ``<``, ``>``, ``&`` and the line separators written as ``\\u003c`` etc., so
+  ``</script>`` and ``<!--`` cannot end or comment out the block;
+* CSV cells: :func:`csv_cell` -- a cell starting with ``= + - @``, a tab or a
+  carriage return is prefixed with ``'`` (OWASP CSV-injection rule) so that
+  spreadsheets do not run it as a formula.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import unicodedata
+
+from cardionurbs.limits import MAX_NAME_LENGTH
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+
+
+def printable(text: object) -> str:
+    """``text`` with control characters shown as ``\\xNN`` escapes (one printable line)."""
+    s = str(text)
+    if not _CONTROL.search(s) and s.isprintable():
+        return s
+    return "".join(ch if ch.isprintable() else ch.encode("unicode_escape").decode("ascii")
+                   for ch in s)
+
+
+def excerpt(text: object, n: int = 40) -> str:
+    """A short printable quotation of user input: ``repr``-quoted, at most ``n`` characters
+    of it, ``...`` and the full length when cut."""
+    s = str(text)
+    cut = s[:n]
+    q = repr(printable(cut))
+    return q if len(s) <= n else f"{q}... ({len(s)} characters)"
+
+
+def check_name(value: object, what: str, *, file_name: bool = False,
+               max_length: int = MAX_NAME_LENGTH) -> str:
+    """Validate a name read from input (subject, slice id, image id, structure).
+
+    It must be a string of 1..``max_length`` printable characters; with
+    ``file_name`` also usable as one path component (no ``/``, ``\\``, not ``.``
+    or ``..``). Raises ValueError with a one-line message quoting at most an
+    excerpt; callers turn it into a StudyError naming file and field.
+    """
+    if not isinstance(value, str):
+        raise ValueError(f"{what} must be text, got {type(value).__name__}")
+    if not value:
+        raise ValueError(f"{what} is empty")
+    if len(value) > max_length:
+        raise ValueError(f"{what} has {len(value)} characters (limit {max_length}): "
+                         f"{excerpt(value)}")
+    if _CONTROL.search(value) or not value.isprintable():
+        raise ValueError(f"{what} holds control characters: {excerpt(value)}")
+    if file_name and (value in (".", "..") or "/" in value or "\\" in value):
+        raise ValueError(f"{what} cannot be used as a file name: {excerpt(value)}")
+    return value
+
+
+def file_name(value: str) -> str:
+    """``value`` as a safe single path component: letters, digits, ``._-`` kept (NFKC),
+    anything else as ``_``; never empty, ``.`` or ``..``."""
+    s = unicodedata.normalize("NFKC", str(value))
+    s = re.sub(r"[^\w.\-]", "_", s, flags=re.ASCII)[:MAX_NAME_LENGTH]
+    return s if s.strip(".") else "_" + s
+
+
+def plain_text(text: object) -> str:
+    """``text`` for matplotlib: every ``$`` escaped so mathtext never starts on it."""
+    return str(text).replace("$", r"\$")
+
+
+def json_for_script(obj, **kw) -> str:
+    """JSON text safe inside an HTML ``<script>`` element: ``<``, ``>``, ``&``, U+2028 and
+    U+2029 as ``\\uXXXX`` escapes (still the same JSON value)."""
+    s = json.dumps(obj, **kw)
+    return (s.replace("&", "\\u0026").replace("<", "\\u003c").replace(">", "\\u003e")
+            .replace("\u2028", "\\u2028").replace("\u2029", "\\u2029"))
+
+
+_FORMULA_START = ("=", "+", "-", "@", "\t", "\r")
+
+
+def csv_cell(value):
+    """A text cell that a spreadsheet shows as text: ``'`` before a leading ``= + - @``, tab
+    or carriage return (OWASP). Numbers and other non-text values are returned unchanged."""
+    if isinstance(value, str) and value.startswith(_FORMULA_START):
+        return "'" + value
+    return value
+
+
+def csv_safe_table(table):
+    """A copy of a pandas DataFrame with every text cell passed through :func:`csv_cell`."""
+    out = table.copy()
+    for col in out.columns:
+        if out[col].dtype == object:
+            out[col] = out[col].map(csv_cell)
+    return out
