@@ -42,7 +42,8 @@ from cardionurbs.analysis.material import SurfaceBatch, material_points  # noqa:
 from cardionurbs.analysis.tag_surfaces import (build_tag_surfaces, control_count,  # noqa: E402
                                                fit_tag_curves, loft_compatible)
 from cardionurbs.analysis.tagqc import tag_qc  # noqa: E402
-from cardionurbs.analysis.tags import long_axis_from_study, tag_metrics  # noqa: E402
+from cardionurbs.analysis.tags import tag_metrics  # noqa: E402
+from cardionurbs.anatomy.sections import study_long_axis  # noqa: E402
 from cardionurbs.io import atomic  # noqa: E402
 from cardionurbs.phantom import generate  # noqa: E402
 
@@ -63,7 +64,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     ph = generate("normal", seed=0, frames=2, volume_check=False)
     st, es = ph.study, ph.truth["es_frame"]
-    axis = long_axis_from_study(st, 0)
+    axis = study_long_axis(st, 0)
     n_lines = len(st.tags)
     per_fam = {f: len({t.index for t in st.tags if t.family == f}) for f in ("sa1", "sa2", "la")}
     rows = []

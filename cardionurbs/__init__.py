@@ -12,11 +12,11 @@ Public API (README.md, "Python API")::
 
 from __future__ import annotations
 
+import importlib
+
 from cardionurbs.errors import (CardioNurbsError, NurbsInputError, PhantomError,
                                 ReconstructionError, StudyError, TagError,
                                 UnsupportedInputError)
-from cardionurbs.io import load_study
-from cardionurbs.study import Contour, Landmark, Study, TagLine
 
 __version__ = "0.1.0"
 
@@ -27,18 +27,26 @@ __all__ = [
     "load_study", "reconstruct", "measure", "cohort", "nurbs",
 ]
 
+#: public name -> (module, attribute): resolved on first use, so that importing one layer
+#: (e.g. ``import cardionurbs.nurbs``) does not load the others (docs/architecture.md).
+_LAZY = {
+    "nurbs": ("cardionurbs.nurbs", None),
+    "Study": ("cardionurbs.study", "Study"), "Contour": ("cardionurbs.study", "Contour"),
+    "TagLine": ("cardionurbs.study", "TagLine"), "Landmark": ("cardionurbs.study", "Landmark"),
+    "load_study": ("cardionurbs.io", "load_study"),
+    "reconstruct": ("cardionurbs.anatomy.model", "reconstruct"),
+    "measure": ("cardionurbs.analysis.function", "measure"),
+    "cohort": ("cardionurbs.cohort", "cohort"),
+}
 
-def __getattr__(name):  # lazy: keep `import cardionurbs` light and acyclic
-    if name == "nurbs":
-        import importlib
-        return importlib.import_module("cardionurbs.nurbs")
-    if name == "reconstruct":
-        from cardionurbs.anatomy.model import reconstruct
-        return reconstruct
-    if name == "measure":
-        from cardionurbs.analysis.function import measure
-        return measure
-    if name == "cohort":
-        from cardionurbs.cohort import cohort
-        return cohort
-    raise AttributeError(f"module 'cardionurbs' has no attribute {name!r}")
+
+def __getattr__(name):
+    if name not in _LAZY:
+        raise AttributeError(f"module 'cardionurbs' has no attribute {name!r}")
+    module, attr = _LAZY[name]
+    mod = importlib.import_module(module)
+    return mod if attr is None else getattr(mod, attr)
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

@@ -12,7 +12,8 @@ from hypothesis.extra.numpy import arrays
 
 from broken.corpus import synthetic_study
 from cardionurbs import StudyError
-from cardionurbs.io.checks import check_study, input_ed_es_frames, polygon_area_mm2, self_intersections
+from cardionurbs.geometry import polygon_area
+from cardionurbs.io.checks import check_study, input_ed_es_frames, self_intersections
 
 
 def _brute(xy, closed):
@@ -68,7 +69,7 @@ def test_polygon_area_is_the_shoelace_area_in_any_plane(rx, ry, n):
     shoelace = 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
     q, _ = np.linalg.qr(np.random.default_rng(n).normal(size=(3, 3)))
     pts = np.c_[x, y, np.zeros(n)] @ q.T + [10, -20, 30]
-    assert polygon_area_mm2(pts) == pytest.approx(shoelace, rel=1e-9)
+    assert polygon_area(pts) == pytest.approx(shoelace, rel=1e-9)
 
 
 def test_synthetic_study_is_clean():

@@ -12,7 +12,7 @@ import pytest
 
 from cardionurbs import load_study
 from cardionurbs.io import detect_format
-from cardionurbs.io.checks import polygon_area_mm2
+from cardionurbs.geometry import polygon_area
 from conftest import shared_data
 
 pytestmark = pytest.mark.filterwarnings("ignore:Invalid value for VR UI")
@@ -97,7 +97,7 @@ def test_ed_es_labels_and_heart_rate(loaded):
 def test_slices_numbered_base_to_apex(loaded):
     """sa_00 is basal: the epicardial area shrinks towards the apex (last contoured slice)."""
     _, study = loaded
-    epi = sorted((c.slice, polygon_area_mm2(c.points)) for c in study.contours
+    epi = sorted((c.slice, polygon_area(c.points)) for c in study.contours
                  if c.structure == "lv_epi")
     assert epi[-1][1] < 0.5 * epi[0][1]
 
@@ -125,7 +125,7 @@ def test_edv_esv_match_independent_shoelace(loaded):
     ours = {}
     for c in study.contours:
         if c.structure == "lv_endo":
-            ours[c.frame] = ours.get(c.frame, 0.0) + polygon_area_mm2(c.points) \
+            ours[c.frame] = ours.get(c.frame, 0.0) + polygon_area(c.points) \
                 * study.meta["slice_spacing_mm"] / 1000.0
     assert study.meta["slice_spacing_mm"] == pytest.approx(spacing, abs=1e-6)
     assert set(vols) == set(ours) == {study.ed_frame, study.es_frame}

@@ -11,7 +11,8 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from cardionurbs.analysis import function as F
-from cardionurbs.analysis.simpson import disk_volumes, polygon_area, slice_spacing
+from cardionurbs.analysis.simpson import disk_volumes
+from cardionurbs.geometry import chord_length, polygon_area, polygon_centroid, slice_spacing
 from cardionurbs.anatomy.model import ed_es_frames
 from cardionurbs.errors import ReconstructionError
 from cardionurbs.imaging.geometry import ImagePlane
@@ -54,9 +55,9 @@ def test_eccentricity_index_of_an_ellipse(a, b, ang):
 
 def test_chord_length_and_centroid_of_a_square():
     sq = np.array([[0, 0], [4, 0], [4, 2], [0, 2]], float)
-    assert np.allclose(F.polygon_centroid(sq), [2, 1])
-    assert F.chord_length(sq, np.array([2.0, 1.0]), np.array([1.0, 0.0])) == pytest.approx(4.0)
-    assert F.chord_length(sq, np.array([2.0, 1.0]), np.array([0.0, 3.0])) == pytest.approx(2.0)
+    assert np.allclose(polygon_centroid(sq), [2, 1])
+    assert chord_length(sq, np.array([2.0, 1.0]), np.array([1.0, 0.0])) == pytest.approx(4.0)
+    assert chord_length(sq, np.array([2.0, 1.0]), np.array([0.0, 3.0])) == pytest.approx(2.0)
 
 
 def test_ed_es_detection_and_labels():

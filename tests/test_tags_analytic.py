@@ -284,9 +284,10 @@ def test_noise_half_pixel_within_one_degree(heart):
 
 
 def test_long_axis_argument_is_used(heart):
-    from cardionurbs.analysis.tags import long_axis_from_study, tag_metrics
+    from cardionurbs.analysis.tags import tag_metrics
+    from cardionurbs.anatomy.sections import study_long_axis
     st = heart.study()
-    axis = long_axis_from_study(st, 0)
+    axis = study_long_axis(st, 0)
     a = tag_metrics(st, 0, 1, long_axis=axis, qc=False).columns
     # without landmarks the axis must come from the argument
     st2 = heart.study(with_landmarks=False)

@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cardionurbs.geometry import chord_length, fit_plane, in_plane_basis, polygon_centroid
+
 if TYPE_CHECKING:  # pragma: no cover
     from cardionurbs.anatomy.model import BiventricularModel
 
@@ -71,39 +73,6 @@ def mass_g(myocardial_volume_ml: float) -> float:
     return MYOCARDIAL_DENSITY_G_PER_ML * myocardial_volume_ml
 
 
-def polygon_centroid(xy: np.ndarray) -> np.ndarray:
-    """Area centroid (2,) of a simple closed polygon (n, 2) (shoelace formula)."""
-    x, y = xy[:, 0], xy[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
-    cross = x * yn - xn * y
-    a = cross.sum() / 2.0
-    if abs(a) < 1e-12:
-        return xy.mean(axis=0)
-    return np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6.0 * a)
-
-
-def chord_length(xy: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> float:
-    """Length of the chord of a closed polygon along the line origin + t·direction.
-
-    All intersections of the line with the polygon's edges are found at once;
-    the chord runs from the smallest to the largest t (the polygon is assumed
-    star-shaped about ``origin``, as a cavity is about its centroid).
-    """
-    d = direction / np.linalg.norm(direction)
-    a, b = xy, np.roll(xy, -1, axis=0)
-    e = b - a
-    # solve origin + t d = a + s e  for (t, s), vectorised over edges (Cramer's rule)
-    den = d[0] * (-e[:, 1]) - d[1] * (-e[:, 0])
-    r = a - origin
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (r[:, 0] * (-e[:, 1]) - r[:, 1] * (-e[:, 0])) / den
-        s = (d[0] * r[:, 1] - d[1] * r[:, 0]) / den
-    ok = np.isfinite(t) & (s >= -1e-9) & (s <= 1 + 1e-9)   # a vertex hit counts
-    if not ok.any():
-        return NAN
-    return float(t[ok].max() - t[ok].min())
-
-
 def eccentricity_index(lv_xy: np.ndarray, rv_xy: np.ndarray) -> float:
     """LV eccentricity index on one SA slice (docs/metrics.md).
 
@@ -133,7 +102,6 @@ def eccentricity_index_es(model: "BiventricularModel") -> float:
     if apex is None or base is None:
         return NAN
     mid = 0.5 * (apex + base.origin)
-    from cardionurbs.anatomy.sections import fit_plane, in_plane_basis
     planes = {k: fit_plane(lv[k].points) for k in common}
     best = min(common, key=lambda k: abs((mid - planes[k][0]) @ planes[k][1]))
     c, nrm = planes[best]

@@ -29,7 +29,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cardionurbs.analysis.tag_surfaces import TagSurface, build_tag_surfaces
+from cardionurbs.analysis.tag_surfaces import TagSurface, build_tag_surfaces, resolve_frames
+from cardionurbs.anatomy.sections import stacking_direction, study_long_axis
+from cardionurbs.geometry import fit_plane
 from cardionurbs.nurbs.batch import CurveBatch, SplineData, SurfaceBatch  # noqa: F401 (re-export)
 from cardionurbs.study import Study
 
@@ -48,13 +50,6 @@ def surface_grid(surface, n: int = _GRID) -> tuple[np.ndarray, np.ndarray]:
     pts = np.asarray(surface.evaluate(t, t)).reshape(-1, 3)
     uu, vv = np.meshgrid(t, t, indexing="ij")
     return np.column_stack([uu.ravel(), vv.ravel()]), pts
-
-
-def best_fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares plane (centroid, unit normal) of (n, 3) points (smallest singular vector)."""
-    c = points.mean(axis=0)
-    n = np.linalg.svd(points - c, full_matrices=False)[2][-1]
-    return c, n
 
 
 # --------------------------------------------------------------- myocardium
@@ -84,7 +79,6 @@ def myocardium_margin(study: Study, frame: int, points: np.ndarray) -> np.ndarra
     along the stack normal; beyond the first or last contoured slice it is
     negative. None when the frame has no such contour pair.
     """
-    from cardionurbs.analysis.tag_surfaces import stack_normal
     rings = {}
     for c in study.contours_at(frame, ("lv_endo", "lv_epi"), view="SA"):
         if c.closed:
@@ -92,7 +86,7 @@ def myocardium_margin(study: Study, frame: int, points: np.ndarray) -> np.ndarra
     rings = {s: r for s, r in rings.items() if len(r) == 2}
     if not rings:
         return None
-    n = stack_normal(study)
+    n = stacking_direction(study)[0]
     pts = np.asarray(points, float).reshape(-1, 3)
     slices = sorted(rings, key=lambda s: float(rings[s]["lv_epi"].mean(axis=0) @ n))
     keys = np.array([float(rings[s]["lv_epi"].mean(axis=0) @ n) for s in slices])
@@ -224,7 +218,7 @@ def start_from_planes(surfs: _Surfaces, triples: np.ndarray) -> tuple[np.ndarray
     for f in FAMILIES:
         for k, ts in surfs.by_family[f].items():
             pts = np.vstack([s.points for s in ts.sections])
-            planes[(f, k)] = best_fit_plane(pts)
+            planes[(f, k)] = fit_plane(pts)
             grids[(f, k)] = surface_grid(ts.surface)
     A = np.empty((len(triples), 3, 3))
     b = np.empty((len(triples), 3))
@@ -330,13 +324,12 @@ def material_points(study: Study, ed_frame: int | None = None, es_frame: int | N
         myocardium is >= -margin_mm (mm): half a millimetre of tolerance,
         the order of contour tracing noise (no test without ED contours).
     """
-    from cardionurbs.analysis.tags import long_axis_from_study, resolve_frames
     ed_frame, es_frame = resolve_frames(study, ed_frame, es_frame)
     if frames is None:
         frames = [f for f in study.tagged_frames]
     frames = [ed_frame] + [f for f in dict.fromkeys([es_frame, *frames]) if f != ed_frame]
     if long_axis is None:
-        long_axis = long_axis_from_study(study, ed_frame)
+        long_axis = study_long_axis(study, ed_frame)
     surfaces = dict(surfaces or {})
     notes: list[str] = []
     for f in frames:

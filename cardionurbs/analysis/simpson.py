@@ -15,19 +15,8 @@ import numpy as np
 
 from cardionurbs.analysis.function import COLUMNS, NAN, mass_g, regurgitation, ventricular_function
 from cardionurbs.anatomy.sections import _sa_loops, stacking_direction
+from cardionurbs.geometry import polygon_area, slice_spacing
 from cardionurbs.study import Study
-
-
-def polygon_area(points: np.ndarray, normal: np.ndarray) -> float:
-    """Area (mm²) enclosed by a closed planar loop (n, 3), shoelace about ``normal``."""
-    p = points - points.mean(axis=0)
-    return float(abs(np.cross(p, np.roll(p, -1, axis=0)).sum(axis=0) @ normal) / 2.0)
-
-
-def slice_spacing(levels: np.ndarray) -> float:
-    """Median distance (mm) between neighbouring slice levels."""
-    lv = np.sort(np.unique(np.round(np.asarray(levels, float), 6)))
-    return float(np.median(np.diff(lv))) if len(lv) >= 2 else NAN
 
 
 def disk_areas(study: Study, frame: int) -> dict[str, dict[str, float]]:

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cardionurbs import nurbs
+from cardionurbs.anatomy.sections import stacking_direction, study_long_axis
 from cardionurbs.errors import TagError
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.nurbs.loft import loft_compatible  # noqa: F401  (old import path, benchmarks)
@@ -84,6 +85,19 @@ def check_tags(study: Study, ed_frame: int | None = None) -> None:
     if ed_frame is not None and study.tags and not any(t.frame == ed_frame for t in study.tags):
         raise TagError(f"tag lines exist (frames {study.tagged_frames}) but none at the ED frame "
                        f"{ed_frame}", field="ed_frame")
+
+
+def resolve_frames(study: Study, ed_frame: int | None, es_frame: int | None) -> tuple[int, int]:
+    """ED and ES frames: the arguments, else the study's labels; TagError when unknown."""
+    ed = study.ed_frame if ed_frame is None else int(ed_frame)
+    es = study.es_frame if es_frame is None else int(es_frame)
+    if ed is None:
+        raise TagError(f"tag lines exist (frames {study.tagged_frames}) but no ED frame is "
+                       "given or labelled", field="ed_frame")
+    check_tags(study, ed)
+    if es is None:
+        raise TagError("no ES frame is given or labelled for tag tracking", field="es_frame")
+    return ed, es
 
 
 # --------------------------------------------------------------- line helpers
@@ -245,32 +259,12 @@ def family_direction(lines: list[np.ndarray]) -> np.ndarray:
     return d / np.linalg.norm(d)
 
 
-def stack_normal(study: Study) -> np.ndarray:
-    """Unit normal of the SA stack pointing from the basal (``sa_00``) to the apical slices."""
-    planes = {}
-    for im in study.images:
-        if im.view == "SA" and im.slice not in planes:
-            planes[im.slice] = im
-    if not planes:
-        raise TagError("SA tag lines but no SA image planes in the study", field="images")
-    names = sorted(planes)
-    normals = np.array([planes[s].normal for s in names])
-    n = normals * np.where(normals @ normals[0] < 0, -1.0, 1.0)[:, None]
-    n = n.sum(axis=0)
-    n /= np.linalg.norm(n)
-    if len(names) > 1:
-        d = planes[names[-1]].position - planes[names[0]].position
-        if d @ n < 0:
-            n = -n
-    return n
-
-
 def sa_sections(study: Study, family: str, frame: int) -> dict[int, list[TagSection]]:
     """Oriented SA sections of every tag index of one family at one frame, ordered base → apex."""
     lines = [t for t in study.tags_at(frame, family)]
     if not lines:
         return {}
-    n_stack = stack_normal(study)
+    n_stack = stacking_direction(study)[0]
     d_fam = family_direction([t.points for t in lines])
     out: dict[int, list[TagSection]] = defaultdict(list)
     for t in lines:
@@ -413,8 +407,7 @@ def build_tag_surfaces(study: Study, frame: int, long_axis: tuple | None = None,
             if not study.tags_at(frame, "la"):
                 continue
             if long_axis is None:
-                from cardionurbs.analysis.tags import default_long_axis
-                long_axis = default_long_axis(study)
+                long_axis = study_long_axis(study)
             groups = la_sections(study, frame, *long_axis)
             periodic = True
         else:

@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cardionurbs.analysis.tag_surfaces import TagSection, family_direction
+from cardionurbs.anatomy.sections import study_long_axis
 from cardionurbs.study import TAG_FAMILIES, Study
 
 DEFAULT_THRESHOLD = 0.5
@@ -432,11 +433,7 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
 def _qc_axis(study: Study, long_axis: tuple | None) -> tuple | None:
     if long_axis is not None or not _can_axis(study, None):
         return long_axis
-    from cardionurbs.analysis.tags import long_axis_from_study
-    ed = study.ed_frame if study.ed_frame is not None else study.tagged_frames[0]
-    if not study.landmarks_at(ed, "apex"):
-        ed = next(lm.frame for lm in study.landmarks if lm.name == "apex")
-    return long_axis_from_study(study, ed)
+    return study_long_axis(study)
 
 
 def qc_sections(study: Study, frame: int, long_axis: tuple | None) -> dict[tuple[str, int], list]:

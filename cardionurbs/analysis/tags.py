@@ -59,17 +59,17 @@ from typing import Any
 
 import numpy as np
 
-from cardionurbs.anatomy.sections import loop_centroid
+from cardionurbs.anatomy.sections import stacking_direction, study_long_axis
 from cardionurbs.analysis.material import MaterialPoints, SplineData, material_points
-from cardionurbs.analysis.tag_surfaces import (axis_frame, build_tag_surfaces, check_tags,
-                                               fit_tag_curve, stack_normal, tag_surfaces)
+from cardionurbs.analysis.tag_surfaces import (axis_frame, build_tag_surfaces,
+                                               fit_tag_curve, resolve_frames, tag_surfaces)
 from cardionurbs.analysis.tagqc import TagFlag, tag_qc
-from cardionurbs.errors import TagError
+from cardionurbs.errors import CardioNurbsError
+from cardionurbs.geometry import polygon_centroid
 from cardionurbs.study import Study
 
 __all__ = ["tag_surfaces", "material_points", "tag_metrics", "tag_qc", "tag_figure_data",
-           "tag_surfaces_dict", "TagMetrics", "MaterialPoints", "TagFlag", "long_axis_from_study",
-           "default_long_axis", "TAG_COLUMNS"]
+           "tag_surfaces_dict", "TagMetrics", "MaterialPoints", "TagFlag", "TAG_COLUMNS"]
 
 TAG_COLUMNS = ("Twist (deg)", "Twist 2D (deg)", "Torsion (deg/cm)", "CL shear (deg)", "LS (%)",
                "Tag QC flags")
@@ -78,64 +78,6 @@ NAN = float("nan")
 
 
 # ------------------------------------------------------------ frames, axis
-def resolve_frames(study: Study, ed_frame: int | None, es_frame: int | None) -> tuple[int, int]:
-    """ED and ES frames: the arguments, else the study's labels; TagError when unknown."""
-    ed = study.ed_frame if ed_frame is None else int(ed_frame)
-    es = study.es_frame if es_frame is None else int(es_frame)
-    if ed is None:
-        raise TagError(f"tag lines exist (frames {study.tagged_frames}) but no ED frame is "
-                       "given or labelled", field="ed_frame")
-    check_tags(study, ed)
-    if es is None:
-        raise TagError("no ES frame is given or labelled for tag tracking", field="es_frame")
-    return ed, es
-
-
-def long_axis_from_study(study: Study, frame: int) -> tuple[np.ndarray, np.ndarray]:
-    """(apex, base centre) at ``frame`` from landmarks: ``apex`` and the mean of ``mitral``.
-
-    Without landmarks: a line fitted through the SA ``lv_endo`` centroids at
-    ``frame``, from half a slice gap beyond the most apical slice (apex) to
-    the most basal centroid (base). TagError when neither exists.
-    """
-    apex = [lm.point for lm in study.landmarks_at(frame, "apex")]
-    mitral = [lm.point for lm in study.landmarks_at(frame, "mitral")]
-    if apex and mitral:
-        return np.mean(apex, axis=0), np.mean(mitral, axis=0)
-    cents = []
-    for c in study.contours_at(frame, "lv_endo", view="SA"):
-        if c.closed:
-            cents.append((c.slice, c.points.mean(axis=0)))
-    if len(cents) >= 2:
-        n = stack_normal(study)          # base -> apex
-        cents.sort(key=lambda sc: float(sc[1] @ n))
-        P = np.array([c for _, c in cents])
-        ctr = P.mean(axis=0)
-        d = np.linalg.svd(P - ctr, full_matrices=False)[2][0]
-        if d @ n < 0:
-            d = -d
-        t = (P - ctr) @ d
-        gap = float(np.median(np.diff(np.sort(t)))) if len(t) > 1 else 0.0
-        base = ctr + t.min() * d
-        apex_pt = ctr + (t.max() + gap / 2) * d
-        if apex:
-            apex_pt = np.mean(apex, axis=0)
-        return apex_pt, base
-    raise TagError("no apex and mitral landmarks (nor SA contours) to define the long axis",
-                   frame=frame, field="landmarks")
-
-
-def default_long_axis(study: Study) -> tuple[np.ndarray, np.ndarray]:
-    """The long axis at ED (study label, else the first tagged frame) from landmarks or contours."""
-    ed = study.ed_frame if study.ed_frame is not None else \
-        (study.tagged_frames[0] if study.tagged_frames else 0)
-    if not study.landmarks_at(ed, "apex"):
-        with_apex = sorted({lm.frame for lm in study.landmarks if lm.name == "apex"})
-        if with_apex and not study.contours_at(ed, "lv_endo"):
-            ed = with_apex[0]
-    return long_axis_from_study(study, ed)
-
-
 def _wrap_deg(a: np.ndarray) -> np.ndarray:
     return (np.asarray(a) + 180.0) % 360.0 - 180.0
 
@@ -241,15 +183,8 @@ def curve_crossings(curves: list, raw: list[np.ndarray], pairs: np.ndarray,
 def _slice_centroid(study: Study, slice_id: str, frame: int, fallback: np.ndarray) -> np.ndarray:
     for c in study.contours_at(frame, "lv_endo", view="SA"):
         if c.slice == slice_id and c.closed and len(c.points) >= 3:
-            return _polygon_centroid(c.points)
+            return polygon_centroid(c.points)
     return fallback
-
-
-def _polygon_centroid(p: np.ndarray) -> np.ndarray:
-    """Area centroid (3,) of a planar closed polygon in 3D, in its best-fit plane
-    (:func:`cardionurbs.anatomy.sections.loop_centroid`)."""
-    normal = np.linalg.svd(p - p.mean(axis=0), full_matrices=False)[2][2]
-    return loop_centroid(p, normal)
 
 
 def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base: np.ndarray,
@@ -274,7 +209,7 @@ def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base:
         for t in study.tags_at(f):
             if t.family in ("sa1", "sa2") and (t.family, t.index, t.slice, f) not in exclude:
                 lines[(t.family, t.index, t.slice, f)] = t.points
-    n_stack = stack_normal(study)
+    n_stack = stacking_direction(study)[0]
     ax = (apex - base) / np.linalg.norm(apex - base)
     keys, curves, raw = [], [], []
     pairs, meta = [], []
@@ -389,7 +324,7 @@ def _empty(note: str) -> TagMetrics:
 
 def tagged_stack_range(study: Study, ed_frame: int, frame: int) -> tuple[np.ndarray, float, float] | None:
     """(stack normal, lowest, highest plane position) of the SA slices tagged at both frames."""
-    n = stack_normal(study)
+    n = stacking_direction(study)[0]
     both = ({t.slice for t in study.tags_at(ed_frame) if t.family != "la"}
             & {t.slice for t in study.tags_at(frame) if t.family != "la"})
     if len(both) < 2:
@@ -488,7 +423,7 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
         Default to the study's labels.
     long_axis : (apex, base centre) at ED, mm, optional
         From the model when given, else from the landmarks
-        (:func:`long_axis_from_study`).
+        (:func:`cardionurbs.anatomy.sections.study_long_axis`).
     qc : bool
         Run the tag-jump QC (:func:`tag_qc`) on every tagged frame and fill
         ``Tag QC flags`` (the number of flagged lines).
@@ -510,13 +445,13 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
         if long_axis is None and study.tags:
             try:
                 long_axis = model.long_axis()
-            except (KeyError, AttributeError, TypeError):
+            except (KeyError, AttributeError, TypeError, CardioNurbsError):
                 long_axis = None
     if not study.tags:
         return _empty("no tag lines: tag metrics not measured")
     ed_frame, es_frame = resolve_frames(study, ed_frame, es_frame)
     if long_axis is None:
-        long_axis = long_axis_from_study(study, ed_frame)
+        long_axis = study_long_axis(study, ed_frame)
     apex, base = (np.asarray(x, float) for x in long_axis)
     frames = study.tagged_frames if over_time else [ed_frame, es_frame]
     surfaces = {f: build_tag_surfaces(study, f, (apex, base)) for f in frames}
@@ -575,7 +510,7 @@ def tag_surfaces_dict(study: Study, frames: list[int] | None = None,
     surfaces = surfaces or {}
     frames = study.tagged_frames if frames is None else list(frames)
     if long_axis is None and any(study.tags_at(f, "la") for f in frames):
-        long_axis = default_long_axis(study)
+        long_axis = study_long_axis(study)
     out: dict = {"frames": {}}
     if long_axis is not None:
         out["long_axis"] = {"apex": [float(x) for x in long_axis[0]],
@@ -602,7 +537,7 @@ def tag_figure_data(study: Study, frame: int, long_axis: tuple | None = None,
     """
     from cardionurbs import nurbs
     if long_axis is None and study.tags_at(frame, "la"):
-        long_axis = default_long_axis(study)
+        long_axis = study_long_axis(study)
     surfs = build_tag_surfaces(study, frame, long_axis)
     if flags is None:
         flags = tag_qc(study, frames=[frame], long_axis=long_axis, surfaces={frame: surfs})

@@ -23,11 +23,11 @@ import trimesh
 from cardionurbs import nurbs
 from cardionurbs.anatomy import mesh as meshing
 from cardionurbs.anatomy.mesh import Plane
-from cardionurbs.anatomy.sections import (SURFACES, FrameGeometry, Section, frame_geometry,
-                                          loop_centroid)
+from cardionurbs.anatomy.sections import SURFACES, FrameGeometry, Section, frame_geometry
 from cardionurbs.anatomy.refine import refine_surface
 from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface, free_wall_points
 from cardionurbs.errors import ReconstructionError
+from cardionurbs.geometry import long_axis, polygon_centroid
 from cardionurbs.study import Study
 
 MESHES = ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium")
@@ -56,8 +56,8 @@ def _reference_direction(study: Study, geo: FrameGeometry) -> np.ndarray:
     lv = geo.sections.get("lv_endo") or geo.sections.get("lv_epi") or []
     rv = geo.sections.get("rv_endo") or geo.sections.get("rv_epi") or []
     if lv and rv:
-        d = (np.mean([loop_centroid(s.points, n) for s in rv], axis=0)
-             - np.mean([loop_centroid(s.points, n) for s in lv], axis=0))
+        d = (np.mean([polygon_centroid(s.points, n) for s in rv], axis=0)
+             - np.mean([polygon_centroid(s.points, n) for s in lv], axis=0))
     else:
         sa = [im for im in study.images if im.view == "SA"]
         d = sa[0].row_cosine if sa else np.cross(n, np.eye(3)[np.argmin(np.abs(n))])
@@ -235,16 +235,18 @@ class BiventricularModel:
 
     # ------------------------------------------------------------- geometry
     def long_axis(self) -> tuple[np.ndarray, np.ndarray]:
-        """(apex (3,), base centre (3,)) at ED per docs/metrics.md: the epicardial apex
-        landmark (else the model's LV epicardial, else endocardial apex) to the mean
-        of the mitral landmarks (else the LV valve plane's origin)."""
+        """The LV long axis at ED, (apex (3,), base centre (3,)) in mm, by the one rule of
+        :func:`cardionurbs.geometry.long_axis` (docs/metrics.md): the apex landmark, else
+        the model's LV epicardial (else endocardial) apex; the mean of the mitral
+        landmarks, else the LV valve plane's origin."""
         fr = self.ed_frame
-        lm = [lm.point for lm in self.study.landmarks_at(fr, "apex")]
         ap = self.apex_points.get(fr, {})
-        apex = np.mean(lm, axis=0) if lm else ap.get("lv_epi", ap.get("lv_endo"))
-        mitral = [lm.point for lm in self.study.landmarks_at(fr, "mitral")]
-        base = np.mean(mitral, axis=0) if mitral else self.base_planes[fr]["lv"].origin
-        return np.asarray(apex, float), np.asarray(base, float)
+        valve = self.base_planes.get(fr, {}).get("lv")
+        return long_axis([lm.point for lm in self.study.landmarks_at(fr, "apex")],
+                         [lm.point for lm in self.study.landmarks_at(fr, "mitral")],
+                         model_apex=ap.get("lv_epi", ap.get("lv_endo")),
+                         valve_origin=None if valve is None else valve.origin,
+                         where=f"frame {fr}")
 
     def _solid(self, frame: int, structure: str):
         """manifold3d solid bounded by one surface, capped beyond its valve plane but not

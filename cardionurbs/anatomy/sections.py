@@ -1,5 +1,5 @@
 """Cross-sections of the ventricles: contour ordering and closing, RV assembly,
-the long axis, apex points and valve planes of one frame.
+the stacking direction, apex points and valve planes of one frame.
 
 Everything here works on point arrays in scanner mm; the NURBS fitting and
 lofting is in :mod:`cardionurbs.anatomy.surfaces`.
@@ -26,6 +26,8 @@ from scipy.spatial import cKDTree
 
 from cardionurbs.anatomy.mesh import Plane
 from cardionurbs.errors import ReconstructionError
+from cardionurbs.geometry import (fit_plane, in_plane_basis, long_axis, polygon_area,
+                                  polygon_centroid, stack_normal)
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.study import Contour, Study
 
@@ -174,50 +176,6 @@ def join_open_parts(parts: list[np.ndarray]) -> np.ndarray:
 
 
 # --------------------------------------------------------------- plane helpers
-def fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares plane through points: (centroid (3,), unit normal (3,)) by SVD."""
-    p = np.asarray(points, dtype=float)
-    c = p.mean(axis=0)
-    _, _, vt = np.linalg.svd(p - c, full_matrices=False)
-    return c, vt[-1]
-
-
-def in_plane_basis(normal: np.ndarray) -> np.ndarray:
-    """(2, 3) orthonormal in-plane axes for a plane with this normal."""
-    n = np.asarray(normal, dtype=float)
-    n = n / np.sqrt(n @ n)
-    t = np.eye(3)[np.argmin(np.abs(n))]
-    e1 = _cross3(n, t)
-    e1 /= np.sqrt(e1 @ e1)
-    return np.stack([e1, _cross3(n, e1)])
-
-
-def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Cross product of two 3-vectors (np.cross has a large fixed overhead)."""
-    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
-def signed_area(points: np.ndarray, normal: np.ndarray) -> float:
-    """Signed area (mm²) of a closed loop about ``normal`` (positive = counter-clockwise)."""
-    p = points - points.mean(axis=0)
-    return float(np.cross(p, np.roll(p, -1, axis=0)).sum(axis=0) @ normal / 2.0)
-
-
-def loop_centroid(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """Area centroid (3,) of a planar closed loop (shoelace in its plane)."""
-    c0 = points.mean(axis=0)
-    b = in_plane_basis(normal)
-    xy = (points - c0) @ b.T
-    x, y = xy[:, 0], xy[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
-    cr = x * yn - xn * y
-    a = cr.sum() / 2.0
-    if abs(a) < 1e-9:
-        return c0
-    cxy = np.array([((x + xn) * cr).sum(), ((y + yn) * cr).sum()]) / (6.0 * a)
-    return c0 + cxy @ b
-
-
 def ray_exit(points: np.ndarray, origin: np.ndarray, direction: np.ndarray,
              normal: np.ndarray | None = None) -> float:
     """Largest t with origin + t·direction on the closed loop (in-plane, mm); NaN if none.
@@ -226,7 +184,7 @@ def ray_exit(points: np.ndarray, origin: np.ndarray, direction: np.ndarray,
     in the loop's plane, of normal ``normal`` — fitted when not given).
     """
     d = direction / np.linalg.norm(direction)
-    b = in_plane_basis(_loop_normal(points) if normal is None else normal)
+    b = in_plane_basis(fit_plane(points)[1] if normal is None else normal)
     xy = (points - origin) @ b.T
     dd = b @ d
     a, e = xy, np.roll(xy, -1, axis=0) - xy
@@ -236,10 +194,6 @@ def ray_exit(points: np.ndarray, origin: np.ndarray, direction: np.ndarray,
         s = (dd[0] * a[:, 1] - dd[1] * a[:, 0]) / den
     ok = np.isfinite(t) & (s >= -1e-9) & (s <= 1 + 1e-9) & (t > 0)   # a vertex hit counts
     return float(t[ok].max()) if ok.any() else float("nan")
-
-
-def _loop_normal(points: np.ndarray) -> np.ndarray:
-    return fit_plane(points)[1]
 
 
 # --------------------------------------------------------------- level planes
@@ -269,7 +223,7 @@ def scaled_section(template: Section, level: float, direction: np.ndarray,
     direction of q; without targets ``default_scale`` is used (None: no section).
     """
     t = template.points
-    ct = loop_centroid(t, direction) if anchor is None else anchor
+    ct = polygon_centroid(t, direction) if anchor is None else anchor
     rel = t - ct
     rel -= np.outer(rel @ direction, direction)           # in-plane
     centre = centre - (centre @ direction - level) * direction
@@ -322,7 +276,7 @@ def septal_mask(rv_points: np.ndarray, lv_epi_loop: np.ndarray, normal: np.ndarr
     loop, free-wall runs of at most ``max_gap`` points between septal ones are septal too
     (:func:`fill_short_gaps`)."""
     b = in_plane_basis(normal)
-    c = loop_centroid(lv_epi_loop, normal)
+    c = polygon_centroid(lv_epi_loop, normal)
     from matplotlib.path import Path as _Path
     poly = (lv_epi_loop - c) @ b.T
     xy = (rv_points - c) @ b.T
@@ -355,7 +309,7 @@ def embed_septum(rv_loop: np.ndarray, lv_epi_loop: np.ndarray, normal: np.ndarra
     if not sept.any() or sept.all():
         return rv_loop, rv_loop
     b = in_plane_basis(normal)
-    c = loop_centroid(lv_epi_loop, normal)
+    c = polygon_centroid(lv_epi_loop, normal)
     xy = (rv_loop[sept] - c) @ b.T
     r = np.linalg.norm(xy, axis=1, keepdims=True)
     moved = rv_loop.copy()
@@ -369,11 +323,13 @@ def _slice_rank(slice_id: str) -> tuple[int, str]:
     return (int(m.group(1)), "") if m else (10**6, slice_id or "")
 
 
-def stacking_direction(study: Study, frame: int) -> tuple[np.ndarray, float]:
+def stacking_direction(study: Study, frame: int | None = None) -> tuple[np.ndarray, float]:
     """Mean SA plane normal oriented base -> apex, and the mean SA slice thickness (mm).
 
-    Orientation: towards the apex landmark when given; else towards increasing
-    ``sa_NN`` slice number (docs/metrics.md: numbered from base to apex); else
+    The SA images of ``frame`` (all SA images when ``frame`` is None or has
+    none); their :func:`~cardionurbs.geometry.stack_normal`, oriented (docs/metrics.md,
+    Geometry conventions) towards the apex landmark when given; else towards
+    increasing ``sa_NN`` slice number (numbered from base to apex); else
     towards the end with the smaller LV endocardial area.
     """
     ims = [im for im in study.images if im.view == "SA" and im.frame == frame]
@@ -381,11 +337,7 @@ def stacking_direction(study: Study, frame: int) -> tuple[np.ndarray, float]:
         ims = [im for im in study.images if im.view == "SA"]
     if not ims:
         raise ReconstructionError(f"frame {frame}: no short-axis image planes")
-    normals = np.array([im.normal for im in ims])
-    n = normals[0] if len(normals) == 1 else normals.mean(axis=0)
-    normals_sign = np.sign(normals @ normals[0])
-    n = (normals * normals_sign[:, None]).mean(axis=0)
-    n /= np.linalg.norm(n)
+    n = stack_normal(np.array([im.normal for im in ims]))
     thickness = float(np.mean([im.thickness for im in ims]))
     apex = [lm.point for lm in study.landmarks_at(frame, "apex")] or \
         [lm.point for lm in study.landmarks if lm.name == "apex"]
@@ -403,11 +355,41 @@ def stacking_direction(study: Study, frame: int) -> tuple[np.ndarray, float]:
     endo = [c for c in study.contours_at(frame, "lv_endo", view="SA") if c.closed]
     if len(endo) >= 2:
         lev = np.array([c.points.mean(axis=0) @ n for c in endo])
-        area = np.array([abs(signed_area(c.points, n)) for c in endo])
+        area = np.array([polygon_area(c.points, n) for c in endo])
         lo, hi = np.argmin(lev), np.argmax(lev)
         if area[hi] > area[lo]:
             n = -n
     return n, thickness
+
+
+def study_long_axis(study: Study, frame: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The LV long axis (apex, base centre) of a study without a model, in mm.
+
+    :func:`cardionurbs.geometry.long_axis` (the one rule, docs/metrics.md) fed
+    with the ``apex`` and ``mitral`` landmarks of ``frame`` and, for an end
+    they leave open, the line through the centres (mean points) of the
+    closed SA ``lv_endo`` contours along the stacking direction.
+    ``frame`` None: ED (the study's label, else its first tagged frame, else
+    0); when that frame has no apex landmark and no LV contour, the first
+    frame that has an apex landmark.
+    """
+    if frame is None:
+        frame = study.ed_frame if study.ed_frame is not None else \
+            (study.tagged_frames[0] if study.tagged_frames else 0)
+        if not study.landmarks_at(frame, "apex"):
+            with_apex = sorted({lm.frame for lm in study.landmarks if lm.name == "apex"})
+            if with_apex and not study.contours_at(frame, "lv_endo"):
+                frame = with_apex[0]
+    cents = [c.points.mean(axis=0) for c in study.contours_at(frame, "lv_endo", view="SA")
+             if c.closed]
+    try:
+        direction = stacking_direction(study)[0] if len(cents) >= 2 else None
+    except ReconstructionError:
+        direction = None
+    return long_axis([lm.point for lm in study.landmarks_at(frame, "apex")],
+                     [lm.point for lm in study.landmarks_at(frame, "mitral")],
+                     sa_centroids=np.array(cents) if cents else None,
+                     stack_direction=direction, where=f"frame {frame}")
 
 
 def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.ndarray, np.ndarray]]]:
@@ -529,7 +511,7 @@ def isoperimetric_quotient(points: np.ndarray, normal: np.ndarray) -> float:
     perimeter = float(np.linalg.norm(np.diff(np.vstack([points, points[:1]]), axis=0), axis=1).sum())
     if perimeter <= 0:
         return 0.0
-    return 4.0 * np.pi * abs(signed_area(points, normal)) / perimeter ** 2
+    return 4.0 * np.pi * polygon_area(points, normal) / perimeter ** 2
 
 
 #: a basal LV loop smaller than this fraction of the next one is taken as a partial tracing
@@ -562,8 +544,8 @@ def _drop_degenerate_loops(secs: list, n: np.ndarray, warnings: list[str],
         else:
             kept.append(sec)
     while len(kept) >= 3:
-        a0 = abs(signed_area(kept[0].points, n))
-        a1 = abs(signed_area(kept[1].points, n))
+        a0 = polygon_area(kept[0].points, n)
+        a1 = polygon_area(kept[1].points, n)
         if a0 >= MIN_BASAL_AREA_RATIO * a1:
             break
         drop(kept[0], f"encloses {a0:.0f} mm^2, under {MIN_BASAL_AREA_RATIO:.0%} of the "
@@ -620,12 +602,12 @@ def frame_geometry(study: Study, frame: int) -> FrameGeometry:
             geo.apex[s] = tip + (far - tip @ n) * n
         else:
             last = secs[-1].points
-            geo.apex[s] = loop_centroid(last, n) + 0.5 * thick * n
+            geo.apex[s] = polygon_centroid(last, n) + 0.5 * thick * n
         if (geo.apex[s] - secs[-1].points.mean(axis=0)) @ n <= 0:
             geo.warnings.append(f"frame {frame}: {s} apex is not beyond the most apical section; "
                                 f"moved half a slice thickness beyond it")
             last = secs[-1].points
-            geo.apex[s] = loop_centroid(last, n) + 0.5 * thick * n
+            geo.apex[s] = polygon_centroid(last, n) + 0.5 * thick * n
 
     for side, lm_name, surf in (("lv", "mitral", "lv_endo"), ("rv", "tricuspid", "rv_endo")):
         lms = [lm.point for lm in study.landmarks_at(frame, lm_name)]
@@ -636,20 +618,6 @@ def frame_geometry(study: Study, frame: int) -> FrameGeometry:
             first = secs[0]
             nrm = first.plane.normal if first.plane is not None else n
             nrm = nrm if nrm @ n > 0 else -nrm
-            c = loop_centroid(first.points, nrm)
+            c = polygon_centroid(first.points, nrm)
             geo.base_planes[side] = Plane(c - 0.5 * thick * nrm, nrm)
     return geo
-
-
-def long_axis(study: Study, frame: int, geo: FrameGeometry | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(apex (3,), base centre (3,)) per docs/metrics.md: the epicardial apex landmark
-    (else the model's LV apex) and the mean of the mitral landmarks (else the LV
-    valve plane's origin)."""
-    geo = geo or frame_geometry(study, frame)
-    lm_apex = [lm.point for lm in study.landmarks_at(frame, "apex")]
-    apex = np.mean(lm_apex, axis=0) if lm_apex else geo.apex.get("lv_epi", geo.apex.get("lv_endo"))
-    mitral = [lm.point for lm in study.landmarks_at(frame, "mitral")]
-    base = np.mean(mitral, axis=0) if mitral else geo.base_planes["lv"].origin
-    if apex is None:
-        raise ReconstructionError(f"frame {frame}: no LV apex (no LV contours)")
-    return np.asarray(apex, float), np.asarray(base, float)

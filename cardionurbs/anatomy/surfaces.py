@@ -32,9 +32,10 @@ from scipy.spatial import cKDTree
 
 from cardionurbs import nurbs
 from cardionurbs.anatomy.sections import (FrameGeometry, Section, crossings, embed_septum,
-                                          fill_short_gaps, loop_centroid, ray_exit, scaled_section,
-                                          septal_mask, signed_area)
+                                          fill_short_gaps, ray_exit, scaled_section,
+                                          septal_mask)
 from cardionurbs.errors import ReconstructionError
+from cardionurbs.geometry import polygon_area, polygon_centroid
 
 #: control-point counts tried (common to all sections of a surface)
 N_CTRL_STEPS = (12, 16, 20, 26, 32, 40, 52)
@@ -80,7 +81,7 @@ def resample_loop(points: np.ndarray, direction: np.ndarray, ref: np.ndarray,
     counter-clockwise about ``direction``, starting where the ray from ``origin``
     (default: the loop's centroid) along ``ref`` leaves the loop."""
     p = np.asarray(points, dtype=float)
-    if signed_area(p, direction) < 0:
+    if polygon_area(p, direction, signed=True) < 0:
         p = p[::-1]
     spline, length = periodic_spline(p)
     dense_s = np.linspace(0.0, length, 8 * m, endpoint=False)
@@ -88,7 +89,7 @@ def resample_loop(points: np.ndarray, direction: np.ndarray, ref: np.ndarray,
     seg = np.linalg.norm(np.diff(np.vstack([dense, dense[:1]]), axis=0), axis=1)
     arc = np.concatenate([[0.0], np.cumsum(seg)])
     total = arc[-1]
-    o = loop_centroid(dense, direction) if origin is None else origin
+    o = polygon_centroid(dense, direction) if origin is None else origin
     r = ref - (ref @ direction) * direction
     t = ray_exit(dense, o, r, normal=direction)
     if np.isfinite(t):
@@ -155,9 +156,9 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
     def anchor_of(sec: Section) -> tuple[np.ndarray, np.ndarray | None]:
         """(centre of the shape, scaling anchor): the RV scales about the LV centre."""
         if rv and sec.septum_of is not None:
-            a = loop_centroid(sec.septum_of, n)
+            a = polygon_centroid(sec.septum_of, n)
             return a, a
-        return loop_centroid(sec.points, n), None
+        return polygon_centroid(sec.points, n), None
 
     c_last, a_last = anchor_of(last)
     apical = []

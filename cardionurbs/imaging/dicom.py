@@ -25,6 +25,7 @@ NominalCardiacTriggerDelayTime); each frame is one image with id
 
 from __future__ import annotations
 
+import math
 import re
 import warnings
 from contextlib import contextmanager
@@ -37,6 +38,7 @@ import pydicom
 from pydicom.errors import InvalidDicomError
 
 from cardionurbs.errors import StudyError, UnsupportedInputError
+from cardionurbs.geometry import slice_spacing, stack_normal
 from cardionurbs.confine import files_inside
 from cardionurbs.safe import excerpt
 from cardionurbs.imaging import phases, stack
@@ -437,16 +439,6 @@ class DicomSeries:
             self.pixels[image_id] = read_pixels(h.file, h.frame_number)
         return self.pixels[image_id]
 
-    def to_study(self, subject: str | None = None):
-        """An annotation-free :class:`~cardionurbs.study.Study` of these images."""
-        from cardionurbs.study import Study
-
-        return Study(subject=subject or self.root.name, images=list(self.images),
-                     frame_times_ms=dict(self.frame_times_ms), heart_rate_bpm=self.heart_rate_bpm,
-                     source=str(self.root),
-                     meta={"format": "dicom", "slice_spacing_mm": self.slice_spacing_mm,
-                           "base_apex_rule": self.base_apex_rule})
-
 
 _LA_NAME = re.compile(r"(?<![0-9])([234])\s*-?\s*ch", re.IGNORECASE)
 
@@ -553,10 +545,11 @@ def _name_slices(slices: list[list[DicomHeader]]):
     spacing = rule = None
     sa_idx = np.flatnonzero(is_sa)
     if sa_idx.size:
-        n = stack.stack_normal(normals[sa_idx])
+        n = stack_normal(normals[sa_idx])
         u, rule = stack.base_to_apex_direction(n, centers[sa_idx])
         depth = centers[sa_idx] @ u
-        spacing = stack.slice_spacing(np.array([slices[i][0].position for i in sa_idx]) @ u)
+        spacing = slice_spacing(np.array([slices[i][0].position for i in sa_idx]) @ u)
+        spacing = None if math.isnan(spacing) else spacing
         for k, i in enumerate(sa_idx[np.argsort(depth, kind="stable")]):
             names[i] = f"sa_{k:02d}"
     used: set[str] = set()

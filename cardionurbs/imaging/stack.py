@@ -18,14 +18,13 @@ reads the same way from every format:
   along ``(+1, -1, -1) / sqrt(3)`` (L = +x, P = +y, S = +z in DICOM), which
   holds for every patient position (HFS, FFS, ...) because LPS is attached to
   the patient, not to the scanner.
-* **Slice spacing** (:func:`slice_spacing`): median distance between
-  consecutive slice positions along the normal, from ImagePositionPatient,
-  never from SliceThickness.
+* **Stack normal and slice spacing** (:func:`cardionurbs.geometry.stack_normal`,
+  :func:`cardionurbs.geometry.slice_spacing`): the mean sign-aligned normal; the
+  median distance between consecutive slice positions along it, from
+  ImagePositionPatient, never from SliceThickness.
 """
 
 from __future__ import annotations
-
-from typing import Sequence
 
 import numpy as np
 
@@ -74,14 +73,6 @@ def split_stack(normals: np.ndarray, stack_angle_deg: float = 20.0) -> np.ndarra
     return labels == best
 
 
-def stack_normal(normals: np.ndarray) -> np.ndarray:
-    """Mean unit normal of a stack, each normal first signed like the first one."""
-    normals = np.asarray(normals, float).reshape(-1, 3)
-    signs = np.where(normals @ normals[0] < 0, -1.0, 1.0)
-    m = (normals * signs[:, None]).mean(axis=0)
-    return m / np.linalg.norm(m)
-
-
 def base_to_apex_direction(normal: np.ndarray, centers: np.ndarray, *,
                            apex: np.ndarray | None = None,
                            mitral: np.ndarray | None = None) -> tuple[np.ndarray, str]:
@@ -101,10 +92,3 @@ def base_to_apex_direction(normal: np.ndarray, centers: np.ndarray, *,
         d, rule = float(APEX_DIRECTION_LPS @ u), "LPS prior"
     return (u if d >= 0 else -u), rule
 
-
-def slice_spacing(positions_along_normal: Sequence[float]) -> float | None:
-    """Median gap (mm) between consecutive distinct slice positions; None for < 2 slices."""
-    s = np.unique(np.round(np.asarray(positions_along_normal, float), 6))
-    if s.size < 2:
-        return None
-    return float(np.median(np.diff(s)))

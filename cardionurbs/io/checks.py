@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from cardionurbs.errors import StudyError
+from cardionurbs.geometry import polygon_area, stack_normal
 from cardionurbs.safe import excerpt
 from cardionurbs.imaging import stack
 from cardionurbs.imaging.geometry import ImagePlane
@@ -53,16 +54,6 @@ GAP_FACTOR = 1.5
 
 
 # --------------------------------------------------------------------- geometry
-def polygon_area_mm2(points: np.ndarray) -> float:
-    """Area (mm^2) of a closed planar polygon in 3D: half the norm of the vector area
-    ``sum_i p_i x p_{i+1}`` (Stokes / shoelace formula); exact for planar polygons."""
-    p = np.asarray(points, float).reshape(-1, 3)
-    if len(p) < 3:
-        return 0.0
-    p = p - p.mean(axis=0)
-    return 0.5 * float(np.linalg.norm(np.cross(p, np.roll(p, -1, axis=0)).sum(axis=0)))
-
-
 def in_plane_coordinates(points: np.ndarray, plane: ImagePlane | None = None) -> np.ndarray:
     """(n, 2) coordinates of (n, 3) points in the image plane (mm along row and column
     cosines); without a plane, in the best-fit plane (SVD)."""
@@ -243,7 +234,7 @@ def _check_stack(study: Study, planes: dict[str, ImagePlane], warnings: list[str
     normals = np.array([p.normal for p in sa])
     groups = stack.group_parallel(normals, MAX_TILT_DEG)
     main = int(np.bincount(groups).argmax())
-    ref = stack.stack_normal(normals[groups == main])
+    ref = stack_normal(normals[groups == main])
     for p, g in zip(sa, groups):
         if g != main:
             tilt = np.degrees(np.arccos(np.clip(abs(float(p.normal @ ref)), 0, 1)))
@@ -377,7 +368,7 @@ def input_ed_es_frames(study: Study) -> tuple[int | None, int | None, str]:
     areas: dict[int, float] = defaultdict(float)
     for c in study.contours:
         if c.structure == "lv_endo" and c.view == "SA" and c.closed:
-            areas[c.frame] += polygon_area_mm2(c.points)
+            areas[c.frame] += polygon_area(c.points)
     if not areas:
         return ed, es, "labelled" if ed is not None or es is not None else "unknown"
     frames = sorted(areas)

@@ -13,11 +13,11 @@ import math
 import os
 from pathlib import Path
 
-import numpy as np
 import trimesh
 
 from cardionurbs.errors import ExportError
 from cardionurbs.io import atomic
+from cardionurbs.nurbs import write_3dm
 
 MESH_FORMATS = ("stl", "ply", "obj", "glb")
 
@@ -66,37 +66,17 @@ def export_model(model, path: str | os.PathLike) -> Path:
 
 
 def export_model_3dm(model, path: str | os.PathLike, frame: int | None = None) -> Path:
-    """Write one frame's NURBS surfaces as a Rhino .3dm file (needs the ``cad``
-    extra, rhino3dm). Frame defaults to ED."""
+    """Write one frame's NURBS surfaces (frame defaults to ED) as a Rhino .3dm file,
+    atomically, through :func:`cardionurbs.nurbs.write_3dm` (needs the ``cad`` extra,
+    rhino3dm). Objects are named ``<surface>_frame<N>``."""
+    frame = model.ed_frame if frame is None else frame
+    surfaces = model.surfaces[frame]
     try:
-        import rhino3dm
+        with atomic.atomic_path(path) as tmp:
+            write_3dm(tmp, list(surfaces.values()),
+                      names=[f"{name}_frame{frame}" for name in surfaces])
     except ImportError as exc:  # pragma: no cover - depends on the extra
         raise ExportError("writing .3dm needs rhino3dm: pip install 'cardionurbs[cad]'") from exc
-    frame = model.ed_frame if frame is None else frame
-    f3 = rhino3dm.File3dm()
-    for name, s in model.surfaces[frame].items():
-        c = s.to_clamped() if s.closed_u else s      # Rhino: clamped knots, no end knots
-        cp, w = c.control_points, c.weights
-        nu, nv = cp.shape[:2]
-        rational = not np.allclose(w, 1.0)
-        ns = rhino3dm.NurbsSurface.Create(3, rational, c.degree_u + 1, c.degree_v + 1, nu, nv)
-        for i in range(nu):
-            for j in range(nv):
-                x, y, z = cp[i, j]
-                wij = float(w[i, j])
-                if rational:
-                    ns.Points[i, j] = rhino3dm.Point4d(x * wij, y * wij, z * wij, wij)
-                else:
-                    ns.Points[i, j] = rhino3dm.Point4d(x, y, z, 1.0)
-        ku, kv = c.knots_u[1:-1], c.knots_v[1:-1]
-        for k, val in enumerate(ku):
-            ns.KnotsU[k] = float(val)
-        for k, val in enumerate(kv):
-            ns.KnotsV[k] = float(val)
-        attr = rhino3dm.ObjectAttributes()
-        attr.Name = f"{name}_frame{frame}"
-        f3.Objects.AddSurface(ns, attr)
-    with atomic.atomic_path(path) as tmp:
-        if not f3.Write(str(tmp), 7):
-            raise ExportError(f"{path}: rhino3dm could not write the file")
+    except OSError as exc:
+        raise ExportError(f"{path}: {exc}") from exc
     return Path(path)

@@ -87,6 +87,7 @@ import pandas as pd
 
 from cardionurbs.confine import files_inside, study_file
 from cardionurbs.errors import StudyError
+from cardionurbs.geometry import stack_normal
 from cardionurbs.safe import excerpt
 from cardionurbs.imaging import stack
 from cardionurbs.imaging.geometry import ImagePlane
@@ -463,7 +464,7 @@ def _slice_planes(slices: list[dict], tables: list[pd.DataFrame], folder: Path):
     if sa:
         sa_idx = np.flatnonzero(is_sa)
         u, rule = stack.base_to_apex_direction(
-            stack.stack_normal(normals[sa_idx]), centers[sa_idx],
+            stack_normal(normals[sa_idx]), centers[sa_idx],
             apex=apex.mean(axis=0) if len(apex) else None,
             mitral=mitral if len(mitral) else None)
         depth = centers[sa_idx] @ u

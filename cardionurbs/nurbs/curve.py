@@ -28,6 +28,7 @@ from cardionurbs.errors import NurbsInputError
 from cardionurbs.nurbs import _validate as V
 from cardionurbs.nurbs.basis import basis_function_derivatives, find_spans
 from cardionurbs.nurbs.knots import canonical_periodic, clamp_periodic
+from cardionurbs.nurbs.serialize import curve_fields, curve_to_dict
 
 __all__ = ["NurbsCurve", "rational_derivatives"]
 
@@ -192,11 +193,10 @@ class NurbsCurve:
 
     def to_dict(self) -> dict[str, Any]:
         """Lossless JSON-safe dict (floats round-trip exactly through json)."""
-        from cardionurbs.nurbs.serialize import curve_to_dict
         return curve_to_dict(self)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "NurbsCurve":
         """Inverse of :meth:`to_dict`."""
-        from cardionurbs.nurbs.serialize import curve_from_dict
-        return curve_from_dict(data)
+        args, kwargs = curve_fields(data)
+        return cls(*args, **kwargs)

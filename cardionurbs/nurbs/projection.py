@@ -17,7 +17,9 @@ from scipy.spatial import cKDTree
 
 from cardionurbs.errors import NurbsInputError
 from cardionurbs.nurbs import _validate as V
+from cardionurbs.nurbs.curve import NurbsCurve
 from cardionurbs.nurbs.knots import distinct_knots
+from cardionurbs.nurbs.surface import NurbsSurface
 
 __all__ = ["closest_points", "curve_closest_points", "surface_closest_points",
            "curve_distance_bounds"]
@@ -174,8 +176,6 @@ def closest_points(geometry: Any, points: Any, iterations: int = 16) -> tuple[np
     ``points`` (m, d), or a single point (d,) (then m = 1).
     Surface: ``(u, v, distance)``; curve: ``(u, distance)``; each (m,).
     """
-    from cardionurbs.nurbs.curve import NurbsCurve
-    from cardionurbs.nurbs.surface import NurbsSurface
     if isinstance(geometry, NurbsSurface):
         return surface_closest_points(geometry, points, iterations)
     if isinstance(geometry, NurbsCurve):

@@ -16,7 +16,6 @@ from typing import Any, Iterable
 import numpy as np
 
 from cardionurbs.errors import NurbsInputError
-from cardionurbs.io.atomic import atomic_path
 from cardionurbs.nurbs.curve import NurbsCurve
 from cardionurbs.nurbs.surface import NurbsSurface
 
@@ -73,7 +72,12 @@ def to_rhino(geometry: NurbsCurve | NurbsSurface) -> Any:
 
 def write_3dm(path: str | os.PathLike, geometries: Iterable[NurbsCurve | NurbsSurface],
               names: Iterable[str] | None = None, version: int = 7) -> Path:
-    """Write curves and surfaces to a ``.3dm`` file (atomically); returns the path."""
+    """Write curves and surfaces to a ``.3dm`` file; returns the path.
+
+    A plain write (this package knows no file policy): callers that must never
+    leave a half-written file write to a temporary path and rename it
+    (:func:`cardionurbs.io.export.export_model_3dm` does).
+    """
     r = _rhino3dm()
     model = r.File3dm()
     geoms = list(geometries)
@@ -89,7 +93,6 @@ def write_3dm(path: str | os.PathLike, geometries: Iterable[NurbsCurve | NurbsSu
             model.Objects.AddCurve(rg, attrs)
         else:
             model.Objects.AddSurface(rg, attrs)
-    with atomic_path(path) as tmp:
-        if not model.Write(str(tmp), version):
-            raise OSError(f"{path}: rhino3dm could not write the file")
+    if not model.Write(str(path), version):
+        raise OSError(f"{path}: rhino3dm could not write the file")
     return Path(path)

@@ -11,7 +11,7 @@ from typing import Any
 
 from cardionurbs.errors import NurbsInputError
 
-__all__ = ["curve_to_dict", "curve_from_dict", "surface_to_dict", "surface_from_dict"]
+__all__ = ["curve_to_dict", "curve_fields", "surface_to_dict", "surface_fields"]
 
 _FORMAT = 1
 
@@ -43,11 +43,11 @@ def _typed_fields(data: dict[str, Any], kind: str, keys: tuple[str, ...]) -> lis
     return [_field(data, key, kind) for key in keys]
 
 
-def curve_from_dict(data: dict[str, Any]) -> Any:
-    """Inverse of :func:`curve_to_dict`."""
-    from cardionurbs.nurbs.curve import NurbsCurve
+def curve_fields(data: dict[str, Any]) -> tuple[list[Any], dict[str, Any]]:
+    """Constructor arguments ``(args, kwargs)`` of the curve a :func:`curve_to_dict`
+    dict describes (``NurbsCurve.from_dict`` builds it; this module knows no class)."""
     fields = _typed_fields(data, "NurbsCurve", ("degree", "knots", "control_points", "weights"))
-    return NurbsCurve(*fields, closed=bool(data.get("closed", False)))
+    return fields, {"closed": bool(data.get("closed", False))}
 
 
 def surface_to_dict(surface: Any) -> dict[str, Any]:
@@ -62,9 +62,9 @@ def surface_to_dict(surface: Any) -> dict[str, Any]:
     }
 
 
-def surface_from_dict(data: dict[str, Any]) -> Any:
-    """Inverse of :func:`surface_to_dict`."""
-    from cardionurbs.nurbs.surface import NurbsSurface
+def surface_fields(data: dict[str, Any]) -> tuple[list[Any], dict[str, Any]]:
+    """Constructor arguments ``(args, kwargs)`` of the surface a :func:`surface_to_dict`
+    dict describes (``NurbsSurface.from_dict`` builds it)."""
     fields = _typed_fields(data, "NurbsSurface", ("degree_u", "degree_v", "knots_u", "knots_v",
                                                    "control_points", "weights"))
-    return NurbsSurface(*fields, closed_u=bool(data.get("closed_u", False)))
+    return fields, {"closed_u": bool(data.get("closed_u", False))}

@@ -26,6 +26,7 @@ from cardionurbs.errors import NurbsInputError
 from cardionurbs.nurbs import _validate as V
 from cardionurbs.nurbs.basis import basis_function_derivatives, basis_matrix, find_spans
 from cardionurbs.nurbs.knots import canonical_periodic, clamp_periodic
+from cardionurbs.nurbs.serialize import surface_fields, surface_to_dict
 
 __all__ = ["NurbsSurface", "rational_surface_derivatives"]
 
@@ -260,14 +261,13 @@ class NurbsSurface:
 
     def to_dict(self) -> dict[str, Any]:
         """Lossless JSON-safe dict."""
-        from cardionurbs.nurbs.serialize import surface_to_dict
         return surface_to_dict(self)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "NurbsSurface":
         """Inverse of :meth:`to_dict`."""
-        from cardionurbs.nurbs.serialize import surface_from_dict
-        return surface_from_dict(data)
+        args, kwargs = surface_fields(data)
+        return cls(*args, **kwargs)
 
 
 def _unit_normals(D: np.ndarray, v: np.ndarray, domain_v: tuple[float, float],

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from cardionurbs.geometry import chord_length, polygon_centroid
 from cardionurbs.phantom import annotate
 from cardionurbs.phantom.anatomy import Anatomy
 from cardionurbs.phantom.geometry import SliceSpec
@@ -128,31 +129,6 @@ def analytic_volumes(anatomy: Anatomy, motion: Motion, f: float) -> dict[str, fl
             "lv_myocardium": anatomy.lv_myocardial_volume() / 1000.0,
             "rv_cavity": float((1 - motion.rv_ef * f) * anatomy.rv_cavity_volume()) / 1000.0,
             "rv_myocardium": anatomy.rv_myocardial_volume() / 1000.0}
-
-
-# ----------------------------------------------------------------- planar helpers
-def polygon_centroid(poly: np.ndarray) -> np.ndarray:
-    """Area centroid of a closed 2-D polygon (shoelace)."""
-    x, y = poly[:, 0], poly[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
-    cr = x * yn - xn * y
-    a = cr.sum() / 2.0
-    return np.array([((x + xn) * cr).sum() / (6 * a), ((y + yn) * cr).sum() / (6 * a)])
-
-
-def chord_length(poly: np.ndarray, point: np.ndarray, direction: np.ndarray) -> float:
-    """Length of the chord of a closed 2-D polygon on the line point + t·direction (unit)."""
-    a, b = poly, np.roll(poly, -1, axis=0)
-    e = b - a
-    d = direction / np.linalg.norm(direction)
-    den = d[0] * e[:, 1] - d[1] * e[:, 0]
-    ap = a - point
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (ap[:, 0] * e[:, 1] - ap[:, 1] * e[:, 0]) / den
-        u = (ap[:, 0] * d[1] - ap[:, 1] * d[0]) / den
-    ok = np.isfinite(t) & (u >= 0) & (u < 1)
-    t = t[ok]
-    return float(t.max() - t.min())
 
 
 # ----------------------------------------------------------------- tag truth

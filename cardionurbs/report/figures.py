@@ -387,21 +387,6 @@ def _make_view(model, frames: Sequence[int], axis, raise_deg: float = 0.0) -> Vi
     return _camera(w, up, centre, half)
 
 
-def _model_axis(model) -> tuple[np.ndarray, np.ndarray]:
-    try:
-        apex, base = model.long_axis()
-        if np.all(np.isfinite(apex)) and np.all(np.isfinite(base)) and np.linalg.norm(base - apex) > 1:
-            return apex, base
-    except (KeyError, AttributeError, TypeError, ValueError):
-        pass
-    s = model.surfaces[model.ed_frame]["lv_endo"]
-    v, _ = nurbs.tessellate(s, 12, 12)
-    c = v.mean(axis=0)
-    d = np.linalg.svd(v - c, full_matrices=False)[2][0]
-    t = (v - c) @ d
-    return c + t.min() * d, c + t.max() * d
-
-
 def tag_data(model, tags: Any = None, frames: Sequence[int] | None = None,
              grid: tuple[int, int] = TAG_GRID) -> tuple[Any, dict[int, list[dict]], str | None]:
     """(TagMetrics, {frame: tag_figure_data}, note): tag surfaces of the model's study.
@@ -747,7 +732,7 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
     out.mkdir(parents=True, exist_ok=True)
     fs = FigureSet()
     names = list(FIGURES) if only is None else [n for n in FIGURES if n in set(only)]
-    axis = _model_axis(model)
+    axis = model.long_axis()
     ed, es = int(model.ed_frame), int(model.es_frame)
     view = _make_view(model, sorted({ed, es}), axis)
     oblique = _make_view(model, sorted({ed, es}), axis, OBLIQUE_DEG)

@@ -218,7 +218,7 @@ def report_payload(output_dir: str | Path) -> dict:
             figures.append({"name": item["name"], "caption": item["caption"],
                             "src": "data:image/png;base64," + _b64(np.frombuffer(p.read_bytes(),
                                                                                    np.uint8))})
-    apex, base = _axis(model)
+    apex, base = model.long_axis()
     ed, es = int(model.ed_frame), int(model.es_frame)
     from cardionurbs.report.figures import view_frame
     side = None
@@ -246,15 +246,6 @@ def _num(x: Any) -> Any:
     if isinstance(x, (int, float)):
         return None if not math.isfinite(float(x)) else float(x)
     return x
-
-
-def _axis(model) -> tuple[np.ndarray, np.ndarray]:
-    try:
-        a, b = model.long_axis()
-        return np.asarray(a, float), np.asarray(b, float)
-    except (KeyError, AttributeError, TypeError, ValueError):
-        v, _ = nurbs.tessellate(model.surfaces[model.ed_frame]["lv_endo"], 8, 8)
-        return v.min(axis=0), v.max(axis=0)
 
 
 # ----------------------------------------------------------------- page
