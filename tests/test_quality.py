@@ -15,7 +15,7 @@ import pytest
 
 from cardionurbs import load_study, measure, reconstruct
 from cardionurbs.analysis.quality import DERIVED, QC_COLUMNS, QC_LIMIT_PX, SOURCES, assess
-from cardionurbs.cohort import cohort
+from cardionurbs.cohort import cohort, measure_study
 from conftest import shared_data
 
 generate = importlib.import_module("cardionurbs.phantom.generate")
@@ -90,11 +90,12 @@ def test_noise_free_phantoms_raise_no_flag(phantoms, pathology):
         assert q.row()[f"{s.replace('_', ' ').upper()[:2]} {s[3:]} fit max (px)"] < 1.0
 
 
-def test_cohort_strict_turns_flagged_rows_into_failures(phantoms, tmp_path):
-    """An LA LV-endocardial point moved 12 mm within its plane: flagged; --strict fails it."""
+@pytest.fixture(scope="module")
+def flawed(phantoms, tmp_path_factory):
+    """The normal phantom with one LA LV-endocardial point moved 12 mm within its plane."""
     import shutil
     _, good = phantoms["normal"]
-    bad = tmp_path / "bad"
+    bad = tmp_path_factory.mktemp("flawed") / "bad"
     shutil.copytree(good, bad)
     pts = pd.read_csv(bad / "points.csv")
     k = pts.index[(pts["name"] == "lv_endo") & (pts["view"] == "LA") & (pts["frame"] == 0)][5]
@@ -106,23 +107,31 @@ def test_cohort_strict_turns_flagged_rows_into_failures(phantoms, tmp_path):
     px = np.asarray(px[0] if isinstance(px, tuple) else px).reshape(-1)
     pts.loc[k, ["px", "py"]] = px[:2]
     pts.to_csv(bad / "points.csv", index=False)
+    return good, bad
+
+
+def test_cohort_strict_turns_flagged_rows_into_failures(flawed):
+    good, bad = flawed
     loose = cohort([good, bad])
     assert list(loose["status"]) == ["ok", "ok"]
     assert loose.loc[0, "QC"] == "" and "LV endo fit max" in loose.loc[1, "QC"]
     assert loose.loc[1, "LV endo fit max (px)"] > QC_LIMIT_PX
-    strict = cohort([good, bad], strict=True)
-    assert strict.loc[0, "status"] == "ok"
-    assert strict.loc[1, "status"].startswith("error: QC: ") and math.isnan(strict.loc[1, "LVEDV (mL)"])
+    strict = measure_study(str(bad), strict=True)
+    assert strict["status"].startswith("error: QC: ") and math.isnan(strict["LVEDV (mL)"])
+    assert strict["QC"] == loose.loc[1, "QC"]
 
 
-def test_metrics_json_and_report_show_the_flags(bivme, tmp_path):
+def test_metrics_json_and_report_show_the_flags(flawed, tmp_path):
     from cardionurbs.pipeline import write_analysis
     from cardionurbs.report.html import write_report
-    model, metrics, q = bivme
+    model = reconstruct(load_study(flawed[1]))
+    metrics = measure(model)
+    q = assess(model, metrics)
+    assert q.flagged("LVEDV (mL)") and q.flagged("MR RegFrac (%)") and not q.flagged("RVEDV (mL)")
     out = write_analysis(model, metrics, tmp_path / "out", figures=False)
     doc = json.loads((out / "metrics.json").read_text())
     assert doc["QC"] == "; ".join(q.flags)
     assert doc["quality"]["metrics"]["MR RegFrac (%)"]["flags"] == q.metrics["MR RegFrac (%)"]["flags"]
     assert set(doc["quality"]["pooled"]) == {"lv_endo", "lv_epi", "rv_endo", "rv_epi"}
     page = write_report(out, tmp_path / "r.html").read_text()
-    assert "RV epi fit max" in page and "class='qcflag'" in page
+    assert "LV endo fit max" in page and "class='qcflag'" in page
