@@ -19,7 +19,7 @@ import sys
 from typing import Sequence
 
 from cardionurbs.errors import CardioNurbsError, UsageError
-from cardionurbs.limits import MAX_FRAMES
+from cardionurbs.limits import HEART_RATE_RANGE_BPM, MAX_FRAMES
 from cardionurbs.safe import excerpt, printable
 
 
@@ -115,8 +115,6 @@ class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
         return super()._get_help_string(action)
 
 
-#: accepted --heart-rate, beats per minute
-HEART_RATE_RANGE_BPM = (20.0, 300.0)
 
 DESCRIPTION = """NURBS models of the left and right ventricle from cardiac MR contours and
 tag lines: reconstruct and measure studies, generate phantoms with known ground truth,

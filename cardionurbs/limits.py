@@ -29,3 +29,9 @@ MAX_NAME_LENGTH = 128
 MAX_JSON_DEPTH = 16
 #: size of study.json, bytes
 MAX_MANIFEST_BYTES = 64 * 1024 * 1024
+#: plausible heart rate, beats per minute (study.json, DICOM HeartRate, --heart-rate)
+HEART_RATE_RANGE_BPM = (20.0, 300.0)
+#: plausible in-plane pixel spacing, mm (study.json, DICOM PixelSpacing)
+PIXEL_SPACING_RANGE_MM = (0.01, 50.0)
+#: plausible slice thickness, mm
+THICKNESS_RANGE_MM = (0.01, 500.0)

@@ -27,6 +27,7 @@ from pathlib import Path
 from cardionurbs.analysis.function import measure, volume_curve
 from cardionurbs.anatomy.model import BiventricularModel, reconstruct
 from cardionurbs.io import atomic, load_study
+from cardionurbs.safe import csv_safe_table
 from cardionurbs.io.export import export_mesh, export_model_3dm, write_json
 from cardionurbs.study import Study
 
@@ -100,7 +101,7 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
         res = model.residual_table()            # ED and ES (every frame: model.residuals)
         from cardionurbs.analysis.quality import assess
         quality = assess(model, metrics)
-        atomic.write_text(tmp / "residuals.csv", res.to_csv(index=False))
+        atomic.write_text(tmp / "residuals.csv", csv_safe_table(res).to_csv(index=False))
         summary = {}
         for s, g in res.groupby("structure"):
             summary[s] = {"mean_mm": float(g["mean_mm"].mean()), "max_mm": float(g["max_mm"].max()),

@@ -103,8 +103,9 @@ def csv_cell(value):
 
 def csv_safe_table(table):
     """A copy of a pandas DataFrame with every text cell passed through :func:`csv_cell`."""
+    import pandas as pd
     out = table.copy()
     for col in out.columns:
-        if out[col].dtype == object:
+        if out[col].dtype == object or pd.api.types.is_string_dtype(out[col].dtype):
             out[col] = out[col].map(csv_cell)
     return out

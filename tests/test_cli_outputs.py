@@ -153,13 +153,20 @@ sys.exit(main(sys.argv[2:]))
 """
 
 
+def _default_signals() -> None:
+    """As from a terminal: SIGINT and SIGTERM neither ignored nor blocked (a pytest-xdist
+    worker may have done either, and children inherit both)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+
+
 def _interrupt(out: Path, sentinel: Path, sig: int) -> int:
     args = ["phantom", "--pathology", "normal", "--frames", "2", "--no-dicom", "--seed", "9",
             "--out", str(out), "--overwrite"]
     p = subprocess.Popen([sys.executable, "-c", _SLOW, str(sentinel), *args], cwd=ROOT,
                          env=dict(os.environ, PYTHONPATH=str(ROOT)), stderr=subprocess.PIPE,
                          stdout=subprocess.DEVNULL, text=True,
-                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                         preexec_fn=_default_signals)
     t0 = time.monotonic()
     while not sentinel.exists():
         assert p.poll() is None, p.stderr.read()

@@ -95,6 +95,9 @@ class DicomHeader:
     nominal_interval: float | None
     cardiac_number_of_images: int | None
     frame_number: int | None = None  # 1-based frame of a multi-frame (enhanced) object
+    patient_id: str = ""
+    study_instance_uid: str = ""
+    frame_of_reference_uid: str = ""
 
     @property
     def normal(self) -> np.ndarray:
@@ -138,6 +141,23 @@ def _dcmread(path: Path, pixels: bool):
     except Exception as exc:  # noqa: BLE001 - struct.error and friends from a truncated file
         raise StudyError(f"unreadable DICOM ({type(exc).__name__}: {_first_line(exc)})",
                          file=path) from None
+
+
+def _dcmread_header(path: Path):
+    """(dataset without pixel data, file offset of the PixelData element or None)."""
+    try:
+        with open(path, "rb") as f:
+            with _quiet_pydicom():
+                ds = pydicom.dcmread(f, stop_before_pixels=True)
+            offset = f.tell()
+    except StudyError:
+        raise
+    except OSError:
+        return _dcmread(path, pixels=False), None
+    except Exception:  # noqa: BLE001 - the path-based read names the problem
+        return _dcmread(path, pixels=False), None
+    at_pixels = offset < path.stat().st_size
+    return ds, offset if at_pixels else None
 
 
 def _first_line(exc: BaseException) -> str:
@@ -282,12 +302,70 @@ def _header_from_dataset(ds, path: Path) -> DicomHeader:
             heart_rate=_opt_number(ds, "HeartRate", path),
             nominal_interval=_opt_number(ds, "NominalInterval", path),
             cardiac_number_of_images=None if n_img is None or n_img < 1 else int(n_img),
+            **_identity(ds),
         )
     except StudyError:
         raise
     except Exception as exc:  # noqa: BLE001 - malformed values in a damaged header
         raise StudyError(f"unreadable DICOM header ({type(exc).__name__}: {_first_line(exc)})",
                          file=path) from None
+
+
+def _identity(ds) -> dict[str, str]:
+    """PatientID, StudyInstanceUID and FrameOfReferenceUID of a dataset ('' when absent)."""
+    return {"patient_id": str(ds.get("PatientID", "") or "").strip(),
+            "study_instance_uid": str(ds.get("StudyInstanceUID", "") or "").strip(),
+            "frame_of_reference_uid": str(ds.get("FrameOfReferenceUID", "") or "").strip()}
+
+
+#: header fields that must agree across every image of one study
+IDENTITY_FIELDS = (("patient_id", "PatientID"), ("study_instance_uid", "StudyInstanceUID"),
+                   ("frame_of_reference_uid", "FrameOfReferenceUID"))
+
+
+def check_one_subject(headers: list[DicomHeader]) -> None:
+    """StudyError when the images belong to more than one patient (PatientID) or study
+    (StudyInstanceUID), a missing value counting as one more; or, when every series keeps
+    one FrameOfReferenceUID, when series disagree on it (a patient repositioned between
+    series). Series that give each image its own FrameOfReferenceUID (as the Sunnybrook
+    export does) are not compared. The message names one file of each."""
+    series_for: dict[str, set[str]] = {}
+    for h in headers:
+        series_for.setdefault(h.series_instance_uid, set()).add(h.frame_of_reference_uid)
+    check_for = all(len(v) == 1 for v in series_for.values())
+    for attr, keyword in IDENTITY_FIELDS:
+        if attr == "frame_of_reference_uid" and not check_for:
+            continue
+        first: dict[str, Path] = {}
+        for h in headers:
+            v = getattr(h, attr)
+            if v not in first:
+                first[v] = h.file
+        if len(first) > 1:
+            (a, fa), (b, fb) = list(first.items())[:2]
+            raise StudyError(f"images of more than one {keyword}: {fa.name} has {excerpt(a)}, "
+                             f"{fb.name} has {excerpt(b)} (one study per folder)", file=fb,
+                             field=keyword)
+
+
+def _pixel_data_short(path: Path, ds, offset: int | None) -> str | None:
+    """A message when the file holds fewer pixel-data bytes than Rows x Columns x
+    SamplesPerPixel x BitsAllocated/8 x NumberOfFrames promise (uncompressed data only)."""
+    try:
+        ts = ds.file_meta.get("TransferSyntaxUID") if hasattr(ds, "file_meta") else None
+        if ts is not None and getattr(ts, "is_compressed", False):
+            return None
+        need = (int(ds.Rows) * int(ds.Columns) * int(ds.get("SamplesPerPixel", 1) or 1)
+                * int(ds.get("BitsAllocated", 16) or 16) // 8 * int(ds.get("NumberOfFrames", 1) or 1))
+    except Exception:  # noqa: BLE001 - the header checks report bad values
+        return None
+    size = path.stat().st_size
+    if offset is None or offset >= size:
+        return f"no pixel data ({need} bytes promised)" if need else None
+    have = size - offset - 12 if ts is None or not ts.is_implicit_VR else size - offset - 8
+    if have < need:
+        return f"pixel data holds {max(have, 0)} of the {need} bytes its header promises (truncated)"
+    return None
 
 
 def read_header(path: str | Path) -> DicomHeader:
@@ -308,7 +386,12 @@ def read_file_headers(path: str | Path) -> list[DicomHeader]:
     """
     path = Path(path)
     try:
-        return headers_from_dataset(_dcmread(path, pixels=False), path)
+        ds, offset = _dcmread_header(path)
+        headers = headers_from_dataset(ds, path)
+        short = _pixel_data_short(path, ds, offset)
+        if short:
+            raise StudyError(short, file=path, field="PixelData")
+        return headers
     except UnsupportedInputError:
         raise
     except StudyError as exc:
@@ -472,6 +555,7 @@ def read_dicom_folder(folder: str | Path, *, pixels: bool = False,
     headers = read_headers(find_dicom_files(root, exclude))
     if not headers:
         raise StudyError("no DICOM image found", file=root)
+    check_one_subject(headers)
     base = Path(relative_to) if relative_to is not None else (root if root.is_dir() else root.parent)
     seen: dict[str, Path] = {}
     for h in headers:

@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cardionurbs.errors import StudyError
+from cardionurbs.limits import PIXEL_SPACING_RANGE_MM, THICKNESS_RANGE_MM
+from cardionurbs.safe import excerpt
 
 VIEWS = ("SA", "LA")
 
@@ -93,14 +95,17 @@ class ImagePlane:
             raise StudyError("ImageOrientationPatient is not two orthonormal vectors",
                              slice=self.slice, frame=self.frame, field="ImageOrientationPatient")
         sp = tuple(float(s) for s in np.asarray(self.pixel_spacing, dtype=float).reshape(-1))
-        if len(sp) != 2 or not all(np.isfinite(s) and s > 0 for s in sp):
-            raise StudyError(f"PixelSpacing must be two positive numbers, got {self.pixel_spacing!r}",
+        lo, hi = PIXEL_SPACING_RANGE_MM
+        if len(sp) != 2 or not all(np.isfinite(s) and lo <= s <= hi for s in sp):
+            raise StudyError(f"PixelSpacing must be two numbers in [{lo:g}, {hi:g}] mm, got "
+                             f"{excerpt(self.pixel_spacing)}",
                              slice=self.slice, frame=self.frame, field="PixelSpacing")
         if self.view not in VIEWS:
-            raise StudyError(f"view must be one of {VIEWS}, got {self.view!r}",
+            raise StudyError(f"view must be one of {VIEWS}, got {excerpt(self.view)}",
                              slice=self.slice, frame=self.frame, field="view")
-        if not (np.isfinite(self.thickness) and self.thickness > 0):
-            raise StudyError(f"SliceThickness must be positive, got {self.thickness!r}",
+        if not (np.isfinite(self.thickness) and 0 < self.thickness <= THICKNESS_RANGE_MM[1]):
+            raise StudyError(f"SliceThickness must be in (0, {THICKNESS_RANGE_MM[1]:g}] mm, got "
+                             f"{excerpt(self.thickness)}",
                              slice=self.slice, frame=self.frame, field="SliceThickness")
         object.__setattr__(self, "position", pos)
         # renormalise only what is visibly off, so written values read back bit-exact

@@ -99,5 +99,5 @@ def _load_study(path: str | Path, format: str) -> Study:
         study = read_study(path)
     else:  # pragma: no cover - FORMATS and this list agree
         raise StudyError(f"format {fmt!r} is not readable", file=path)
-    study.warnings = list(study.warnings) + check_study(study)  # the reader's, then the checks'
+    study.warnings = list(study.warnings or []) + check_study(study)  # the reader's, then the checks'
     return study

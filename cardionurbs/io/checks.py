@@ -38,9 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
-from cardionurbs.errors import StudyError
+from cardionurbs import limits
+from cardionurbs.errors import LimitError, StudyError
 from cardionurbs.geometry import polygon_area, stack_normal
-from cardionurbs.safe import excerpt
+from cardionurbs.safe import check_name, excerpt
 from cardionurbs.imaging import stack
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.study import Study
@@ -66,38 +67,58 @@ def in_plane_coordinates(points: np.ndarray, plane: ImagePlane | None = None) ->
     return c @ vt[:2].T
 
 
-def self_intersections(xy: np.ndarray, closed: bool) -> np.ndarray:
+def self_intersections(xy: np.ndarray, closed: bool, first: bool = False) -> np.ndarray:
     """(k, 2) index pairs (i, j) of non-adjacent segments of a 2-D polyline that meet.
 
     Segment i runs from point i to point i+1 (and the last to the first when
     ``closed``); repeated consecutive points are dropped first, so indices refer
     to the de-duplicated polyline. Two segments meet when each one's end points
     are not strictly on one side of the other's line (orientation-sign
-    predicate, with collinear segments tested for overlap) — crossings and
-    touchings both count, since either makes the curve non-simple. Curves
-    turning monotonically around their centroid are simple (fast path);
-    otherwise candidate pairs come from a bounding-box sweep, then the exact
-    predicate, all vectorised.
+    predicate, with collinear segments tested for overlap) -- crossings and
+    touchings both count, since either makes the curve non-simple. With
+    ``first`` only the first pair found is returned (what the checks need).
+
+    Cost: curves turning monotonically around their centroid are simple (O(n)
+    fast path); otherwise candidate pairs come from a sorted sweep of the
+    segments' extents along the best of four directions (0, 45, 90, 135 deg:
+    the one with the fewest overlapping extents, counted in O(n log n) by
+    binary search before any pair is made), then the exact predicate, in
+    vectorised chunks of at most ``_PAIR_CHUNK`` pairs, so memory stays
+    O(n + chunk) and time O(n log n + k) for k candidate pairs along that
+    direction (measured in reports/limits.md).
     """
     xy = np.asarray(xy, float).reshape(-1, 2)
     keep_pt = np.r_[True, np.any(np.diff(xy, axis=0) != 0, axis=1)]
     xy = xy[keep_pt]
     if closed and len(xy) > 1 and np.array_equal(xy[0], xy[-1]):
         xy = xy[:-1]
+    none = np.zeros((0, 2), dtype=int)
     if _angularly_monotone(xy, closed):
-        return np.zeros((0, 2), dtype=int)
+        return none
     a = xy if closed else xy[:-1]
     b = np.roll(xy, -1, axis=0) if closed else xy[1:]
     m = len(a)
     if m < 3:
-        return np.zeros((0, 2), dtype=int)
+        return none
     scale = max(float(np.ptp(xy, axis=0).max()), 1e-12)
     eps = 1e-12 * scale * scale
-    i, j = _overlapping_boxes(a, b)
-    pair = (j - i >= 2) & ~(closed & (i == 0) & (j == m - 1))
-    i, j = i[pair], j[pair]
-    A, B, C, D = a[i], b[i], a[j], b[j]
+    found = []
+    for i, j in _overlapping_extents(a, b):
+        pair = (j - i >= 2) & ~(closed & (i == 0) & (j == m - 1))
+        i, j = i[pair], j[pair]
+        hit = _segments_meet(a[i], b[i], a[j], b[j], eps)
+        if hit.any():
+            found.append(np.column_stack([i[hit], j[hit]]))
+            if first:
+                return found[0][:1]
+    if not found:
+        return none
+    out = np.concatenate(found)
+    return out[np.lexsort((out[:, 1], out[:, 0]))]
 
+
+def _segments_meet(A, B, C, D, eps: float) -> np.ndarray:
+    """Whether segments AB and CD (rows) meet: orientation signs, collinear overlap."""
     def side(p, q, r):
         o = (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
         return np.where(np.abs(o) <= eps, 0, np.sign(o))
@@ -111,24 +132,46 @@ def self_intersections(xy: np.ndarray, closed: bool) -> np.ndarray:
         lo, hi = np.minimum(t(C), t(D)), np.maximum(t(C), t(D))
         overlap = (hi >= 0) & (lo <= np.einsum("ij,ij->i", d, d))
         meet = np.where(collinear, overlap, meet)
-    return np.column_stack([i[meet], j[meet]])
+    return meet
 
 
-def _overlapping_boxes(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs i < j of segments a->b whose bounding boxes overlap (sweep over x:
-    sort by left end, each segment pairs with those starting before its right end)."""
+#: candidate segment pairs tested per vectorised chunk (bounds memory: ~100 bytes a pair)
+_PAIR_CHUNK = 1 << 20
+_SWEEP_DIRECTIONS = np.array([[1.0, 0.0], [np.sqrt(0.5), np.sqrt(0.5)], [0.0, 1.0],
+                              [-np.sqrt(0.5), np.sqrt(0.5)]])
+
+
+def _overlapping_extents(a: np.ndarray, b: np.ndarray):
+    """Yield chunks (i, j), i < j, of segment pairs a->b whose extents overlap along the
+    sweep direction with the fewest such pairs and whose bounding boxes overlap."""
     m = len(a)
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    order = np.argsort(lo[:, 0], kind="stable")
-    xs = lo[order, 0]
-    end = np.searchsorted(xs, hi[order, 0], side="right")
-    counts = np.maximum(end - np.arange(m) - 1, 0)
-    p = np.repeat(np.arange(m), counts)
-    q = p + 1 + (np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts))
-    i, j = order[p], order[q]
-    i, j = np.minimum(i, j), np.maximum(i, j)
-    keep = (lo[i, 1] <= hi[j, 1]) & (lo[j, 1] <= hi[i, 1])
-    return i[keep], j[keep]
+    best = None
+    for u in _SWEEP_DIRECTIONS:
+        pa, pb = a @ u, b @ u
+        lo, hi = np.minimum(pa, pb), np.maximum(pa, pb)
+        order = np.argsort(lo, kind="stable")
+        end = np.searchsorted(lo[order], hi[order], side="right")
+        counts = np.maximum(end - np.arange(m) - 1, 0)
+        total = int(counts.sum())
+        if best is None or total < best[0]:
+            best = (total, order, counts)
+    _, order, counts = best
+    blo, bhi = np.minimum(a, b), np.maximum(a, b)
+    csum = np.cumsum(counts)
+    start = 0
+    while start < m:
+        stop = int(np.searchsorted(csum, (csum[start - 1] if start else 0) + _PAIR_CHUNK,
+                                   side="right"))
+        stop = max(stop, start + 1)
+        c = counts[start:stop]
+        p = np.repeat(np.arange(start, stop), c)
+        q = p + 1 + (np.arange(int(c.sum())) - np.repeat(np.cumsum(c) - c, c))
+        i, j = order[p], order[q]
+        i, j = np.minimum(i, j), np.maximum(i, j)
+        keep = ((blo[i, 0] <= bhi[j, 0]) & (blo[j, 0] <= bhi[i, 0])
+                & (blo[i, 1] <= bhi[j, 1]) & (blo[j, 1] <= bhi[i, 1]))
+        yield i[keep], j[keep]
+        start = stop
 
 
 def _angularly_monotone(xy: np.ndarray, closed: bool) -> bool:
@@ -155,11 +198,69 @@ def check_study(study: Study) -> list[str]:
     """Check ``study`` (see module docstring): raise StudyError on the first fatal
     problem, else return the warnings, one line each."""
     warnings: list[str] = []
+    check_bounds(study)
     planes = _check_images(study, warnings)
     _check_stack(study, planes, warnings)
     _check_annotations(study, warnings)
     _check_frames(study, warnings)
     return warnings
+
+
+def check_bounds(study: Study) -> None:
+    """The documented limits (:mod:`cardionurbs.limits`) and safe names, checked once on
+    load: subject, slice, image, structure, tag family and landmark names are printable
+    text of at most MAX_NAME_LENGTH characters; at most MAX_IMAGES images, frame indices
+    0..MAX_FRAMES-1, MAX_CONTOURS_PER_STUDY contours (and tag lines), MAX_POINTS_PER_CONTOUR
+    points per contour or tag line, MAX_POINTS_PER_STUDY points in all. Raises LimitError /
+    StudyError naming the file, slice, frame and field."""
+    src = study.source
+    try:
+        check_name(study.subject, "subject")
+    except ValueError as exc:
+        raise StudyError(str(exc), file=src, field="subject") from None
+    if len(study.images) > limits.MAX_IMAGES:
+        raise LimitError(f"{len(study.images)} images (limit {limits.MAX_IMAGES})", file=src)
+    for what, items in (("contours", study.contours), ("tag lines", study.tags),
+                        ("landmarks", study.landmarks)):
+        if len(items) > limits.MAX_CONTOURS_PER_STUDY:
+            raise LimitError(f"{len(items)} {what} (limit {limits.MAX_CONTOURS_PER_STUDY})",
+                             file=src)
+    names: dict[str, set] = defaultdict(set)
+    frames: set = set()
+    total = 0
+    for im in study.images:
+        names["slice"].add(im.slice)
+        names["image id"].add(im.id)
+        frames.add(im.frame)
+    for ann, field, label in ([(c, "structure", c.structure) for c in study.contours]
+                              + [(t, "tag family", t.family) for t in study.tags]):
+        names[field].add(label)
+        if ann.slice is not None:
+            names["slice"].add(ann.slice)
+        frames.add(ann.frame)
+        n = len(ann.points)
+        total += n
+        if n > limits.MAX_POINTS_PER_CONTOUR:
+            raise LimitError(f"{label} has {n} points (limit {limits.MAX_POINTS_PER_CONTOUR} per "
+                             "contour or tag line)", file=src, slice=ann.slice, frame=ann.frame)
+    for lm in study.landmarks:
+        names["landmark"].add(lm.name)
+        frames.add(lm.frame)
+    total += len(study.landmarks)
+    if total > limits.MAX_POINTS_PER_STUDY:
+        raise LimitError(f"{total} points (limit {limits.MAX_POINTS_PER_STUDY})", file=src)
+    bad = [f for f in frames if not (0 <= int(f) < limits.MAX_FRAMES)]
+    if bad:
+        raise LimitError(f"frame index {excerpt(bad[0])} outside 0..{limits.MAX_FRAMES - 1}",
+                         file=src, field="frame")
+    for field, values in names.items():
+        for v in values:
+            if field == "slice" and not v:
+                continue
+            try:
+                check_name(v, field)
+            except ValueError as exc:
+                raise StudyError(str(exc), file=src, field=field) from None
 
 
 def _src(study: Study, file=None):
@@ -330,7 +431,7 @@ def _check_annotations(study: Study, warnings: list[str]) -> None:
             no_plane += 1
         else:
             _off_plane(study, plane, c.points, what, file, c, warnings, normals)
-        cross = self_intersections(in_plane_coordinates(c.points, plane), c.closed)
+        cross = self_intersections(in_plane_coordinates(c.points, plane), c.closed, first=True)
         if len(cross):
             i, j = map(int, cross[0])
             msg = (f"{what} crosses itself (segment {i}-{i + 1} crosses segment "

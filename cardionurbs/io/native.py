@@ -17,7 +17,12 @@ A native study is a folder::
      "images": [ {"id", "slice", "view", "frame", "position"[3],
                   "orientation"[6], "pixel_spacing"[2], "rows", "columns",
                   "thickness", "trigger_time"?, "file"?}, ... ],
-     "points": "points.csv", "meta": {...}}
+     "points": "points.csv", "points_rows": 1234,   # rows of points.csv
+     "meta": {...}}
+
+The full schema (types, ranges, depth) is :mod:`cardionurbs.io.schema`;
+``points_rows`` lets a truncated points.csv be caught (older manifests
+without it still load, with a warning).
 
 ``points.csv`` columns (one row per point, in drawing order):
 
@@ -50,6 +55,7 @@ from cardionurbs.confine import study_file
 from cardionurbs.errors import StudyError
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import atomic
+from cardionurbs.io.schema import check_manifest, load_manifest
 from cardionurbs.safe import excerpt
 from cardionurbs.study import Contour, Landmark, Study, TagLine
 
@@ -70,7 +76,7 @@ def is_native(path: str | Path) -> bool:
         return False
     try:
         return json.loads(manifest.read_text()).get("format") == FORMAT
-    except (OSError, ValueError, AttributeError):
+    except (OSError, ValueError, AttributeError, RecursionError):
         return False
 
 
@@ -127,7 +133,7 @@ def study_to_frames(study: Study, pixel_coordinates: bool = True) -> tuple[dict,
         "frame_times_ms": {str(k): float(v) for k, v in sorted(study.frame_times_ms.items())},
         "ed_frame": study.ed_frame, "es_frame": study.es_frame,
         "images": [im.to_dict() for im in study.images],
-        "points": POINTS, "meta": study.meta,
+        "points": POINTS, "points_rows": len(table), "meta": study.meta,
     }
     return manifest, table[COLUMNS]
 
@@ -151,15 +157,13 @@ def read_study(path: str | Path) -> Study:
     manifest_path = folder / MANIFEST
     if not manifest_path.is_file():
         raise StudyError("no study.json manifest in this folder", file=folder)
-    try:
-        manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise StudyError(f"not valid JSON ({exc})", file=manifest_path) from None
+    manifest = load_manifest(manifest_path)
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise StudyError(f"field 'format' must be {FORMAT!r}", file=manifest_path)
     if manifest.get("version") != VERSION:
         raise StudyError(f"unsupported version {excerpt(manifest.get('version'))}", file=manifest_path,
                          field="version")
+    check_manifest(manifest, manifest_path)
     try:
         images = [ImagePlane.from_dict(d) for d in manifest.get("images", [])]
     except StudyError as exc:
@@ -183,7 +187,7 @@ def read_study(path: str | Path) -> Study:
         if im.file is not None:
             study_file(folder, im.file, file=manifest_path, field="images.file", slice=im.slice,
                        frame=im.frame)
-    _read_points(study, points_path)
+    _read_points(study, points_path, expected_rows=manifest.get("points_rows"))
     return study
 
 
@@ -225,7 +229,28 @@ def _pixels_to_scanner(table: pd.DataFrame, need: np.ndarray, pix: np.ndarray, x
     xyz[need] = S + (p[:, 0] * dc)[:, None] * X + (p[:, 1] * dr)[:, None] * Y
 
 
-def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False) -> None:
+def _check_complete(points_path: Path, n_rows: int, expected_rows) -> str | None:
+    """A points file cut short is an error: it must end with a line break, and hold the
+    ``points_rows`` the manifest records; a manifest without the count (written before it
+    existed) gives a warning instead."""
+    with open(points_path, "rb") as f:
+        f.seek(0, 2)
+        if f.tell():
+            f.seek(-1, 2)
+            if f.read(1) not in (b"\n", b"\r"):
+                raise StudyError("the last row is cut short (no line break at the end): the "
+                                 "file is truncated", file=points_path)
+    if expected_rows is None:
+        return (f"{points_path}: study.json records no points_rows, so a truncated points "
+                "file cannot be detected (rewrite the study to add it)")
+    if n_rows != expected_rows:
+        raise StudyError(f"{n_rows} rows but study.json's points_rows says {expected_rows}: the "
+                         "file is truncated or was edited", file=points_path, field="points_rows")
+    return None
+
+
+def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False,
+                 expected_rows: int | None = None) -> None:
     if not points_path.is_file():
         raise StudyError("points file is missing", file=points_path)
     try:
@@ -238,6 +263,9 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False) -
     missing = [c for c in COLUMNS if c not in table.columns]
     if missing:
         raise StudyError(f"missing column(s) {', '.join(missing)}", file=points_path)
+    warning = _check_complete(points_path, len(table), expected_rows)
+    if warning:
+        study.warnings.append(warning)
     if table.empty:
         return
     for col in ("x", "y", "z", "px", "py", "frame", "index"):
@@ -389,7 +417,8 @@ def read_study_from_dicom(path: str | Path) -> Study:
     study.__dict__.pop("_image_cache", None)
     study.contours, study.tags, study.landmarks = [], [], []
     folder = Path(study.source)
-    manifest = json.loads((folder / MANIFEST).read_text(encoding="utf-8"))
-    _read_points(study, _points_path(folder, manifest, folder / MANIFEST), prefer_pixels=True)
+    manifest = load_manifest(folder / MANIFEST)
+    _read_points(study, _points_path(folder, manifest, folder / MANIFEST), prefer_pixels=True,
+                 expected_rows=manifest.get("points_rows"))
     study.meta = dict(study.meta, geometry="dicom")
     return study

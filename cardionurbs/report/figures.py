@@ -44,6 +44,7 @@ from matplotlib.figure import Figure
 from mpl_toolkits.mplot3d import proj3d
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
+from cardionurbs.safe import plain_text
 from cardionurbs import nurbs
 from cardionurbs.io import atomic
 
@@ -264,7 +265,7 @@ def draw_panel(ax, meshes: Sequence[Mesh], view: View, *, lines: Sequence[tuple]
         a.set_pane_color((1, 1, 1, 0))
         a.set_major_locator(matplotlib.ticker.MaxNLocator(3))
     if title:
-        ax.set_title(title, fontsize=9, pad=0)
+        ax.set_title(plain_text(title), fontsize=9, pad=0)
     ax.grid(False)
     if marker:
         orientation_marker(ax)
@@ -303,7 +304,8 @@ def _new_figure(n_panels: int, caption: str, *, width: float = 4.6, height: floa
     fig.subplots_adjust(left=0.02 if three_d else 0.1, right=0.98 if three_d else 0.88, top=0.93,
                         bottom=0.13 if three_d else 0.22, wspace=0.05 if three_d else 0.3)
     chars = int(width * n_panels * 17)          # ~17 characters per inch at 7.5 pt
-    fig.text(0.01, 0.01, textwrap.fill(caption, chars), fontsize=7.5, ha="left", va="bottom")
+    fig.text(0.01, 0.01, plain_text(textwrap.fill(caption, chars)), fontsize=7.5, ha="left",
+             va="bottom")
     return fig, axes
 
 
@@ -671,7 +673,8 @@ def fig12_twist_time(ctx, out):
     fig = Figure(figsize=(6.4, 5.0), dpi=DPI)
     ax, ax2 = fig.subplots(2, 1, sharex=True)
     fig.subplots_adjust(left=0.12, right=0.97, top=0.95, bottom=0.2, hspace=0.12)
-    fig.text(0.01, 0.01, textwrap.fill(caption, 110), fontsize=7.5, ha="left", va="bottom")
+    fig.text(0.01, 0.01, plain_text(textwrap.fill(caption, 110)), fontsize=7.5, ha="left",
+             va="bottom")
     c1, c2 = OKABE_ITO["bluish_green"], OKABE_ITO["reddish_purple"]
     ax.plot(x, [over[f]["Twist (deg)"] for f in frames], "-o", color=c1, ms=3.5, lw=2.0,
             label="twist (measured)")

@@ -34,6 +34,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from cardionurbs.safe import json_for_script
 from cardionurbs import nurbs
 from cardionurbs.errors import ReportInputError
 from cardionurbs.io import atomic
@@ -103,6 +104,26 @@ def _merge(parts: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.n
 
 
 # ----------------------------------------------------------------- inputs
+def _local_path(path: str | None, out: Path) -> str | None:
+    """A path as the report shows it: relative to the analysis folder when inside it, else
+    its last two components (never an absolute local path)."""
+    if not path:
+        return path
+    p = Path(path)
+    try:
+        return p.resolve().relative_to(Path(out).resolve()).as_posix()
+    except ValueError:
+        return Path(*p.parts[-2:]).as_posix()
+
+
+def _strip_local(text: str, source) -> str:
+    """A warning without the absolute study folder: the folder's name instead."""
+    if source:
+        text = str(text).replace(str(Path(source)), Path(source).name)
+    return str(text)
+
+
+
 def _read_json(path: Path) -> Any:
     try:
         return json.loads(path.read_text())
@@ -232,10 +253,12 @@ def report_payload(output_dir: str | Path) -> dict:
         "origin": origin.tolist(), "quantum_mm": QUANTUM_MM,
         "camera": {"eye": (2.1 * eye).tolist(), "up": up.tolist()},
         "faces": pool.items, "groups": groups,
-        "metrics": rows, "truth_file": truth_path, "has_truth": truth is not None,
+        "metrics": rows, "truth_file": _local_path(truth_path, out),
+        "has_truth": truth is not None,
         "flags": flags, "tags_note": tags_note,
         "volume_curve": metrics.get("volume_curve"),
-        "warnings": list(metrics.get("warnings", []))[:50],
+        "warnings": [_strip_local(w, model.study.source) for w in
+                     list(metrics.get("warnings", []))[:50]],
         "skipped": (fig_index or {}).get("skipped", {}), "figures": figures,
     }
 
@@ -392,8 +415,8 @@ def render_html(payload: Mapping) -> str:
     warns = "".join(f"<li>{esc(w)}</li>" for w in p["warnings"])
     gallery = "".join(f"<figure><img alt='{esc(f['name'])}' src='{f['src']}'>"
                       f"<figcaption>{esc(f['caption'])}</figcaption></figure>" for f in p["figures"])
-    data = json.dumps({k: v for k, v in p.items() if k not in ("figures",)}, separators=(",", ":"))
-    data = data.replace("</", "<\\/")
+    data = json_for_script({k: v for k, v in p.items() if k not in ("figures",)},
+                           separators=(",", ":"))
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
 <meta http-equiv="Content-Security-Policy" content="default-src 'none'; script-src 'unsafe-inline' 'unsafe-eval'; style-src 'unsafe-inline'; img-src data: blob:; font-src data:; connect-src 'none'; worker-src blob:">

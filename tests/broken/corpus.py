@@ -396,8 +396,11 @@ def _moved_copy_of_first(lines: list[str]) -> list[str]:
 
 
 def _native_csv(root: Path, fn: Callable[[list[str]], list[str]]) -> None:
+    """Edit points.csv as a careful user would: study.json's points_rows follows the edit."""
     p = root / "points.csv"
-    p.write_text("\n".join(fn(p.read_text().splitlines())) + "\n")
+    lines = fn(p.read_text().splitlines())
+    p.write_text("\n".join(lines) + "\n")
+    _native_manifest(root, lambda m: m.update(points_rows=len(lines) - 1))
 
 
 def _native_manifest(root: Path, fn: Callable[[dict], None]) -> None:
