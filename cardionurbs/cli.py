@@ -149,15 +149,23 @@ def build_parser() -> argparse.ArgumentParser:
     ph.add_argument("--snr", type=_positive_float, default=None,
                     help="tagged DICOM image SNR (myocardium over Rician channel noise; default 12)")
     ph.add_argument("--no-dicom", action="store_true", help="skip the synthetic DICOM images")
+    ph.add_argument("--labels", choices=["acdc", "ukbb", "mnms"], default=None,
+                    help="also write NIfTI label maps (and a cine-like image) in this "
+                         "convention and layout, in DIR/labelmaps")
     ph.add_argument("--out", required=True, metavar="DIR",
                     help="new (or empty) output folder")
     ph.add_argument("--overwrite", action="store_true",
                     help="replace --out when it holds an earlier cardionurbs output")
 
     an = command("analyze", "reconstruct and measure one study")
-    an.add_argument("study", metavar="STUDY", help="study folder (or its study.json)")
-    an.add_argument("--format", default="auto", choices=["auto", "native", "sunnybrook", "gpfile"],
+    an.add_argument("study", metavar="STUDY",
+                    help="study folder (or its study.json), or a NIfTI label map")
+    an.add_argument("--format", default="auto",
+                    choices=["auto", "native", "sunnybrook", "gpfile", "nifti"],
                     help="input format")
+    an.add_argument("--labels", default=None, metavar="PRESET|MAPPING",
+                    help="label-map convention: acdc, ukbb, mnms, bivme or lv=N,myo=N,rv=N "
+                         "(default: the layout's, or inferred from topology)")
     an.add_argument("--heart-rate", type=_heart_rate, default=None, metavar="BPM",
                     help="bpm (20-300), when the input has none")
     an.add_argument("--no-figures", action="store_true", help="skip PNG figures and HTML report")
@@ -169,12 +177,15 @@ def build_parser() -> argparse.ArgumentParser:
                     help="let study.json name files outside the study folder")
 
     co = command("cohort", "measure many studies into one CSV")
-    co.add_argument("studies", nargs="+", metavar="STUDY", help="study folders")
+    co.add_argument("studies", nargs="+", metavar="STUDY", help="study folders or label maps")
     co.add_argument("--csv", required=True, metavar="FILE",
                     help="output CSV (replaced atomically when it exists)")
     co.add_argument("--jobs", type=_bounded(int, 1, 1024), default=1, help="worker processes")
-    co.add_argument("--format", default="auto", choices=["auto", "native", "sunnybrook", "gpfile"],
+    co.add_argument("--format", default="auto",
+                    choices=["auto", "native", "sunnybrook", "gpfile", "nifti"],
                     help="input format of every study")
+    co.add_argument("--labels", default=None, metavar="PRESET|MAPPING",
+                    help="label-map convention (see analyze --labels)")
     co.add_argument("--allow-outside", action="store_true",
                     help="let study.json name files outside the study folder")
     co.add_argument("--strict", action="store_true",

@@ -38,8 +38,10 @@ def ignore_interrupts() -> None:
 
 
 def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None = None,
-                  allow_outside: bool = False, strict: bool = False) -> dict:
-    """One cohort row for the study at ``path`` (never raises for a bad study).
+                  allow_outside: bool = False, labels: str | None = None,
+                  strict: bool = False) -> dict:
+    """One cohort row for the study at ``path`` (never raises for a bad study); label-map
+    studies add the voxel-count columns (cardionurbs.analysis.voxels.VOXEL_COLUMNS).
 
     ``strict``: a row whose metrics carry a quality flag (``QC`` not empty) is a
     failure: ``status = "error: QC: <flags>"`` and its numbers are emptied."""
@@ -48,7 +50,8 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
     try:
         from cardionurbs.io import load_study
         from cardionurbs.pipeline import analyse_study
-        study = load_study(path, format=format, allow_outside=allow_outside)
+        study = load_study(path, format=format, allow_outside=allow_outside,
+                           **({} if labels is None else {"labels": labels}))
         row["subject"] = study.subject
         from cardionurbs.analysis.quality import assess
         model, metrics = analyse_study(study, heart_rate_bpm=heart_rate_bpm)
@@ -67,10 +70,12 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
 
 def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "auto",
            progress: bool = False, heart_rate_bpm: float | None = None,
-           allow_outside: bool = False, strict: bool = False) -> pd.DataFrame:
+           allow_outside: bool = False, labels: str | None = None,
+           strict: bool = False) -> pd.DataFrame:
     """Measure every study: a DataFrame with ``subject``, ``status``, the docs/metrics.md
-    columns in order and the quality columns, one row per path (input order);
-    ``strict``: flagged rows are failures (:func:`measure_study`)."""
+    columns in order and the quality columns, one row per path (input order); when any
+    study is a label map the voxel-count columns follow (``labels``: its convention, see
+    load_study); ``strict``: flagged rows are failures (:func:`measure_study`)."""
     paths = [str(p) for p in paths]
     rows: list[dict | None] = [None] * len(paths)
     bar = None
@@ -80,14 +85,14 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
     try:
         if jobs <= 1 or len(paths) <= 1:
             for i, p in enumerate(paths):
-                rows[i] = measure_study(p, format, heart_rate_bpm, allow_outside, strict)
+                rows[i] = measure_study(p, format, heart_rate_bpm, allow_outside, labels, strict)
                 if bar is not None:
                     bar.update(1)
         else:
             with ProcessPoolExecutor(max_workers=min(jobs, len(paths)),
                                      initializer=ignore_interrupts) as pool:
                 futs = {pool.submit(measure_study, p, format, heart_rate_bpm, allow_outside,
-                                    strict): i
+                                    labels, strict): i
                         for i, p in enumerate(paths)}
                 for fut in as_completed(futs):
                     rows[futs[fut]] = fut.result()
@@ -96,7 +101,9 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
     finally:
         if bar is not None:
             bar.close()
-    return pd.DataFrame(rows, columns=list(CSV_COLUMNS))
+    from cardionurbs.analysis.voxels import VOXEL_COLUMNS
+    extra = [c for c in VOXEL_COLUMNS if any(c in r for r in rows if r)]
+    return pd.DataFrame(rows, columns=list(CSV_COLUMNS) + extra)
 
 
 def write_csv(table: pd.DataFrame, path: str | os.PathLike) -> Path:
@@ -113,7 +120,7 @@ def run_cohort(args: argparse.Namespace) -> int:
     check_output_file(args.csv, inputs=[study_folder(s) for s in args.studies], option="--csv")
     table = cohort(args.studies, jobs=args.jobs, format=getattr(args, "format", "auto"),
                    progress=True, allow_outside=getattr(args, "allow_outside", False),
-                   strict=getattr(args, "strict", False))
+                   labels=getattr(args, "labels", None), strict=getattr(args, "strict", False))
     write_csv(table, args.csv)
     failed = table[table["status"] != "ok"]
     print(f"{len(table) - len(failed)} of {len(table)} studies measured; wrote {args.csv}",

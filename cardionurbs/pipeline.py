@@ -6,7 +6,8 @@ Output folder (written atomically: complete or absent)::
                              "ed_frame", "es_frame", "volume_curve", "residuals",
                              "quality": {per metric: flags, surfaces, frames; per
                              surface and frame: fit residual median/p95/max in mm
-                             and px; contours left out}, "QC", "warnings"}
+                             and px; contours left out}, "QC", "notes", "warnings"}
+                             (notes: metric -> why it is null)
     DIR/model.json          the NURBS model (BiventricularModel.to_dict)
     DIR/model.3dm           the ED surfaces as Rhino NURBS (with the ``cad`` extra)
     DIR/residuals.csv       contour-point-to-surface distances per slice, at ED and ES
@@ -67,6 +68,10 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None):
     tags = tag_metrics_hook(model)
     if tags is not None:
         metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
+    voxels = study.meta.get("voxel_volumes_ml") if isinstance(study.meta, dict) else None
+    if voxels:                              # label maps: voxel counting beside the model
+        from cardionurbs.analysis.voxels import voxel_metrics
+        metrics.update(voxel_metrics(voxels, model.ed_frame, model.es_frame))
     return model, metrics, tags
 
 
@@ -114,10 +119,17 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                     "residual_frames": sorted({model.ed_frame, model.es_frame}),
                     "tags": None if tags is None else tags.to_json(),
                     "quality": quality.to_json(), "QC": "; ".join(quality.flags),
+                    "notes": dict(model.study.meta.get("metric_notes") or {}),
                     "warnings": model.warnings}, tmp / "metrics.json")
         if figures:
             figures_hook(model, metrics, tmp, tags=tags)
     return Path(out)
+
+
+def _label_option(args: argparse.Namespace) -> dict:
+    """``labels=`` for load_study when ``--labels`` was given (NIfTI label maps)."""
+    labels = getattr(args, "labels", None)
+    return {} if labels is None else {"labels": labels}
 
 
 def study_folder(path: str | Path) -> Path:
@@ -133,7 +145,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     check_output_dir(args.out, inputs=[study_folder(args.study)],
                      overwrite=getattr(args, "overwrite", False))
     study = load_study(args.study, format=args.format,
-                       allow_outside=getattr(args, "allow_outside", False))
+                       allow_outside=getattr(args, "allow_outside", False), **_label_option(args))
     model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None))
     write_analysis(model, metrics, args.out, figures=not getattr(args, "no_figures", False),
                    tags=tags)

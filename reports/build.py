@@ -192,6 +192,9 @@ def main(argv=None) -> int:
              "beside Simpson's disks from the same contours; Sunnybrook and CAP (biv-me) results.",
              "- [validation-tags.md](validation-tags.md): twist, torsion, CL shear, LS and "
              "per-level rotation against truth; Twist 2D bias; tag-jump QC over 20 seeds.",
+             "- [validation-labelmaps.md](validation-labelmaps.md): NIfTI label maps of the "
+             "phantoms (UK Biobank and ACDC layouts) through mask contours and the model, "
+             "beside voxel counting (benchmarks/labelmaps.py validation).",
              "- [fitting.md](fitting.md): control points at 0.5 px on the Sunnybrook contours "
              "(uniform knots, eq. 9 knots, optimised weights).",
              "- [phantoms.md](phantoms.md): the presets, the paper's 12 subjects and their truth.",

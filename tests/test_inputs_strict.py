@@ -220,3 +220,11 @@ def test_self_intersection_check_is_not_quadratic_on_a_zigzag():
     finally:
         checks._segments_meet = orig
     assert sum(calls) < 10 * n
+
+
+def test_implausible_dicom_heart_rates_are_ignored():
+    from cardionurbs.imaging.phases import heart_rate_bpm
+    assert heart_rate_bpm([-60.0, 1e6, 0.0]) is None
+    assert heart_rate_bpm([None], [1e-3]) is None             # a 6e7 bpm NominalInterval
+    assert heart_rate_bpm([72.0, 1e6]) == 72.0
+    assert heart_rate_bpm([None], [1000.0]) == 60.0

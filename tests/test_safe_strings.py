@@ -77,3 +77,11 @@ def test_quoting_helpers():
     s = json_for_script({"k": "</script><!--&\u2028"})
     assert "<" not in s and ">" not in s and "&" not in s and "\u2028" not in s
     assert json.loads(s) == {"k": "</script><!--&\u2028"}
+
+
+def test_viewer_has_one_legend(nasty_analysis):
+    """The structure toggles carry the colour swatches; the 3-D plot adds no second legend."""
+    page = (nasty_analysis / "report.html").read_text()
+    js = page[page.rindex("<script>"):]
+    layout = js[js.index("const layout"):js.index("const gd")]
+    assert "showlegend:false" in layout and "showlegend:true" not in layout

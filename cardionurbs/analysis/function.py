@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cardionurbs.errors import CardioNurbsError
+from cardionurbs.limits import HEART_RATE_RANGE_BPM
 from cardionurbs.geometry import chord_length, fit_plane, in_plane_basis, polygon_centroid
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -113,8 +115,13 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None)
     """Every docs/metrics.md column for one model, as floats (NaN where not measurable).
 
     ``heart_rate_bpm`` is used when the study carries no heart rate (the
-    user-given value of docs/metrics.md, Frames). Tag columns are NaN here.
+    user-given value of docs/metrics.md, Frames); outside 20-300 bpm it is refused
+    (CardioNurbsError). Tag columns are NaN here.
     """
+    if heart_rate_bpm is not None and not (
+            HEART_RATE_RANGE_BPM[0] <= heart_rate_bpm <= HEART_RATE_RANGE_BPM[1]):
+        raise CardioNurbsError(f"heart_rate_bpm must be between {HEART_RATE_RANGE_BPM[0]:g} and "
+                               f"{HEART_RATE_RANGE_BPM[1]:g} bpm, got {heart_rate_bpm!r}")
     hr = model.study.heart_rate_bpm
     if hr is None or not np.isfinite(hr):
         hr = heart_rate_bpm

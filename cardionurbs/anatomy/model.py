@@ -157,6 +157,7 @@ class BiventricularModel:
                 lv = {f: self.lv_cavity_volume_unrefined(f) for f in self.frames}
             else:
                 lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
+            self.lv_volume_by_frame = lv      # the per-frame LV cavity volumes (mL) ED/ES came from
             ed, es = ed_es_frames(lv, study.ed_frame, study.es_frame)
         self.ed_frame, self.es_frame = ed, es
         if ed == es:

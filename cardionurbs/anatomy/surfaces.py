@@ -14,10 +14,15 @@ Steps for one surface (lv_endo, lv_epi, rv_endo or rv_epi):
    arc length from a start point on a common anatomical ray (towards the RV
    free wall) and in one winding sense, so that the same parameter u means
    the same side of the heart on every section (no twist in the loft).
-3. **Curve fit within tolerance (paper §3.2, eqs. 6–10).** Every section is
-   fitted with a closed degree-3 NURBS curve; the control-point count, common
-   to all sections of the surface, grows until each contour point lies within
-   ``tol_px`` pixels of its curve.
+3. **Curve fit within tolerance (paper §3.2, eqs. 6–10, §3.2.4).** Every
+   section is fitted with a closed (periodic) degree-3 NURBS curve by
+   :func:`cardionurbs.nurbs.fit_compatible_curves`: one knot vector for all
+   sections of the surface, by eq. 9 (periodic form) on their averaged
+   chord-length parameters, and the control-point count, common to all
+   sections, is the smallest of ``N_CTRL_STEPS`` (12, 16, 20, 26, 32, 40, 52)
+   at which every contour point lies within ``tol_px`` (default 1) pixel of
+   its section's curve (true closest-point distance); the largest count, with
+   a warning, when none does.
 4. **Lofting (paper §3.2.4).** The curves, base to apex, are lofted with
    degree 3 across sections and the apex as a collapsed end (a point).
 """
@@ -101,22 +106,6 @@ def resample_loop(points: np.ndarray, direction: np.ndarray, ref: np.ndarray,
     target = (start + total * np.arange(m) / m) % total
     s_of_arc = np.interp(target, arc, np.concatenate([dense_s, [length]]))
     return spline(s_of_arc)
-
-
-def curve_distance(curve, points: np.ndarray, n_eval: int = 400) -> np.ndarray:
-    """Distance (mm) of each point to a curve: nearest of a dense sampling, then
-    projected on the sampled polyline's adjacent segments (error ≪ 0.01 mm)."""
-    u = np.linspace(0.0, 1.0, n_eval)
-    c = curve.evaluate(u)
-    _, k = cKDTree(c).query(points)
-    best = np.full(len(points), np.inf)
-    for off in (-1, 0):
-        a = c[np.clip(k + off, 0, n_eval - 1)]
-        b = c[np.clip(k + off + 1, 0, n_eval - 1)]
-        ab = b - a
-        t = np.clip(np.einsum("ij,ij->i", points - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-18), 0, 1)
-        best = np.minimum(best, np.linalg.norm(points - (a + t[:, None] * ab), axis=1))
-    return best
 
 
 # ---------------------------------------------------------------- sections
@@ -269,55 +258,13 @@ def extension_section(basal: Section, geo: FrameGeometry, structure: str,
     return Section(structure, geo.frame, basal.points - t * n, synthetic=True)
 
 
-# ---------------------------------------------------------------- fitting
-def fit_sections(loops: list[np.ndarray], sources: list[np.ndarray | None], tol_mm: list[float],
-                 ) -> tuple[list, int, float, bool]:
-    """Closed cubic curves with a common control-point count: the smallest count in
-    N_CTRL_STEPS for which every source point is within its tolerance (mm) of its
-    section's curve (paper §3.2.3: start with few control points, add until the
-    error criterion holds).
-
-    Each section is tried with increasing counts only until it meets its own
-    tolerance; then all sections are fitted with the largest count needed, on
-    one uniform knot vector (so that they are compatible for lofting).
-    Returns (curves, n_ctrl, max error mm, tolerance met).
-    """
-    need = 0
-    ok_all = True
-    tried: dict[tuple[int, int], tuple] = {}    # (section, step) -> (curve, max error): fit once
-    for i, (lp, src, tol) in enumerate(zip(loops, sources, tol_mm)):
-        if src is None:
-            continue
-        met = False
-        for k in range(need, len(N_CTRL_STEPS)):
-            c = nurbs.fit_curve(lp, degree=3, closed=True, n_ctrl=N_CTRL_STEPS[k], knot_rule="uniform")
-            e = float(curve_distance(c, src).max())
-            tried[i, k] = (c, e)
-            if e <= tol:
-                need, met = k, True
-                break
-        if not met:
-            need, ok_all = len(N_CTRL_STEPS) - 1, False
-    n_ctrl = N_CTRL_STEPS[need]
-    curves, errs = [], []
-    for i, (lp, src) in enumerate(zip(loops, sources)):
-        if (i, need) in tried:
-            c, e = tried[i, need]
-        else:
-            c = nurbs.fit_curve(lp, degree=3, closed=True, n_ctrl=n_ctrl, knot_rule="uniform")
-            e = None if src is None else float(curve_distance(c, src).max())
-        curves.append(c)
-        if e is not None:
-            errs.append(e)
-    return curves, n_ctrl, max(errs, default=0.0), ok_all
-
-
+# ---------------------------------------------------------------- lofting
 def skin(curves: list, apex: np.ndarray, degree_v: int = 3):
     """Loft compatible closed sections and a collapsed apex into one surface
     (paper §3.2.4 steps 4–5; NURBS Book §10.3 skinning).
 
     The sections here already share degree, knot vector, orientation and seam
-    (:func:`resample_loop`, :func:`fit_sections`), so steps 1–3 of
+    (:func:`resample_loop`, :func:`cardionurbs.nurbs.fit_compatible_curves`), so steps 1–3 of
     :func:`cardionurbs.nurbs.loft` are identities; its seam re-alignment would
     only perturb the shared knots (and multiply the control points through knot
     merging), so only the interpolation across sections is done, by
@@ -363,7 +310,8 @@ def build_surface(geo: FrameGeometry, structure: str, ref: np.ndarray,
     loops = [s.points for s in stack]
     sources = [None if s.synthetic else s.source_points for s in stack]
     tol = [tol_px * (_pixel_mm(s) if not s.synthetic else 1.0) for s in stack]
-    curves, n_ctrl, err, ok = fit_sections(loops, sources, tol)
+    curves, n_ctrl, err, ok = nurbs.fit_compatible_curves(loops, degree=3, closed=True, tol=tol,
+                                                          error_points=sources, counts=N_CTRL_STEPS)
     if not ok:
         warnings.append(f"{structure}, frame {frame}: contour fit error {err:.2f} mm exceeds "
                         f"{tol_px:g} px with {n_ctrl} control points")

@@ -22,6 +22,7 @@ from typing import Sequence
 import numpy as np
 
 from cardionurbs.errors import StudyError
+from cardionurbs.limits import HEART_RATE_RANGE_BPM
 
 #: fraction of a phase interval added before flooring t * N / RR, so that a
 #: trigger time written with a few digits less than k * RR / N still gives k.
@@ -89,14 +90,16 @@ def heart_rate_bpm(heart_rates: Sequence[float | None],
     """Heart rate of a series (docs/metrics.md, Frames): the mean DICOM HeartRate (0018,1088)
     of its images; else 60000 / mean NominalInterval (0018,1062); else None.
 
-    Zero or missing values (scanners write 0 when they do not know) are ignored.
+    Zero or missing values (scanners write 0 when they do not know) are ignored, and so
+    are implausible ones (outside 20-300 bpm, or a NominalInterval giving such a rate).
     """
+    lo, hi = HEART_RATE_RANGE_BPM
     hr = np.array([h for h in heart_rates if h is not None], dtype=float)
-    hr = hr[np.isfinite(hr) & (hr > 0)]
+    hr = hr[np.isfinite(hr) & (hr >= lo) & (hr <= hi)]
     if hr.size:
         return float(hr.mean())
     ni = np.array([v for v in nominal_intervals_ms if v is not None], dtype=float)
-    ni = ni[np.isfinite(ni) & (ni > 0)]
+    ni = ni[np.isfinite(ni) & (ni >= 60000.0 / hi) & (ni <= 60000.0 / lo)]
     if ni.size:
         return float(60000.0 / ni.mean())
     return None

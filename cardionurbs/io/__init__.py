@@ -1,4 +1,4 @@
-"""Study file formats (native, Sunnybrook, CAP GPFile) and model/mesh export.
+"""Study file formats (native, Sunnybrook, CAP GPFile, NIfTI label maps) and model/mesh export.
 
 :func:`load_study` reads a study in any supported format and runs
 :func:`cardionurbs.io.checks.check_study` on it: fatal problems raise
@@ -15,7 +15,7 @@ from cardionurbs.errors import StudyError
 from cardionurbs.io.checks import check_study
 from cardionurbs.study import Study
 
-FORMATS = ("auto", "native", "sunnybrook", "gpfile", "phantom")
+FORMATS = ("auto", "native", "sunnybrook", "gpfile", "phantom", "nifti")
 __all__ = ["FORMATS", "detect_format", "load_study", "check_study"]
 
 
@@ -24,7 +24,8 @@ def detect_format(path: str | Path) -> str:
 
     ``native`` (a study.json manifest of format cardionurbs-native),
     ``gpfile`` (GPFile_NNN.txt + SliceInfoFile.txt), ``sunnybrook``
-    (``*contour-manual.txt`` files beside DICOM images).
+    (``*contour-manual.txt`` files beside DICOM images), ``nifti`` (a ``.nii``/``.nii.gz``
+    label map, or a folder in the ACDC, UK Biobank or M&Ms layout).
     """
     from cardionurbs.io import native
 
@@ -38,10 +39,12 @@ def detect_format(path: str | Path) -> str:
         if fmt:
             return fmt
     hint = ""
-    if p.is_dir() and _has_dicom(p):
+    if p.is_file():
+        hint = " (expected a .nii/.nii.gz label map or a study folder)"
+    elif p.is_dir() and _has_dicom(p):
         hint = " (DICOM images but no contours beside them)"
     raise StudyError("cannot tell the study format (expected a native study.json, Sunnybrook "
-                     "contour folders beside DICOM, or GPFile_*.txt + SliceInfoFile.txt)" + hint,
+                     "contour folders beside DICOM, GPFile_*.txt + SliceInfoFile.txt, or NIfTI label maps)" + hint,
                      file=p)
 
 
@@ -52,13 +55,16 @@ def _has_dicom(p: Path) -> bool:
 def _extra_detectors():
     """Detectors of the other formats; each returns a format name or None."""
     from cardionurbs.io.gpfile import detect as gp
+    from cardionurbs.io.nifti import detect as nii
     from cardionurbs.io.sunnybrook import detect as sb
 
-    return [lambda p: "gpfile" if gp(p) else None,
+    return [lambda p: "nifti" if nii(p) else None,
+            lambda p: "gpfile" if gp(p) else None,
             lambda p: "sunnybrook" if sb(p) else None]
 
 
-def load_study(path: str | Path, format: str = "auto", *, allow_outside: bool = False) -> Study:
+def load_study(path: str | Path, format: str = "auto", *, allow_outside: bool = False,
+               labels=None, ed_frame: int | None = None, es_frame: int | None = None) -> Study:
     """Read a study from ``path`` in ``format`` (``auto`` tells it from the files), then
     check it (:func:`cardionurbs.io.checks.check_study`).
 
@@ -73,20 +79,29 @@ def load_study(path: str | Path, format: str = "auto", *, allow_outside: bool = 
 
     Returns the Study with ``study.warnings`` (list of one-line
     strings). Raises StudyError for unreadable or inconsistent input.
+
+    ``labels`` (NIfTI label maps only): a preset (``acdc``, ``ukbb``, ``mnms``,
+    ``bivme``) or a ``lv=…,myo=…,rv=…`` mapping; None takes the layout's preset, or
+    infers the roles from topology for a single file (see :mod:`cardionurbs.io.labels`).
+    ``ed_frame``/``es_frame`` (NIfTI only) give ED and ES frame indices (0-based).
     """
     from cardionurbs.confine import allow_outside as _allow
 
     with _allow(allow_outside):
-        return _load_study(path, format)
+        return _load_study(path, format, labels=labels, ed_frame=ed_frame, es_frame=es_frame)
 
 
-def _load_study(path: str | Path, format: str) -> Study:
+def _load_study(path: str | Path, format: str, *, labels=None, ed_frame: int | None = None,
+                es_frame: int | None = None) -> Study:
     if format not in FORMATS:
         raise StudyError(f"unknown format {format!r}; expected one of {', '.join(FORMATS)}",
                          field="format")
     fmt = detect_format(path) if format == "auto" else format
     if not Path(path).exists():
         raise StudyError("no such file or folder", file=path)
+    if fmt != "nifti" and (labels is not None or ed_frame is not None or es_frame is not None):
+        raise StudyError(f"labels / ed_frame / es_frame apply to NIfTI label maps, not to the "
+                         f"{fmt} format", file=path, field="labels")
     if fmt in ("native", "phantom"):
         from cardionurbs.io.native import check_dicom_geometry, read_study
         study = read_study(path)
@@ -97,7 +112,11 @@ def _load_study(path: str | Path, format: str) -> Study:
     elif fmt == "gpfile":
         from cardionurbs.io.gpfile import read_study
         study = read_study(path)
+    elif fmt == "nifti":
+        from cardionurbs.io.nifti import read_study
+        study = read_study(path, labels=labels, ed_frame=ed_frame, es_frame=es_frame)
     else:  # pragma: no cover - FORMATS and this list agree
         raise StudyError(f"format {fmt!r} is not readable", file=path)
-    study.warnings = list(study.warnings or []) + check_study(study)  # the reader's, then the checks'
+    study.warnings = (list(study.meta.pop("reader_warnings", [])) + list(study.warnings or [])
+                      + check_study(study))
     return study

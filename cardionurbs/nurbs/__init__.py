@@ -18,7 +18,8 @@ from __future__ import annotations
 from cardionurbs.errors import NurbsInputError
 from cardionurbs.nurbs.batch import CurveBatch, SplineData, SurfaceBatch
 from cardionurbs.nurbs.curve import NurbsCurve
-from cardionurbs.nurbs.fitting import chord_length_parameters, fit_curve
+from cardionurbs.nurbs.fitting import (CompatibleFit, chord_length_parameters, fit_compatible_curves,
+                                       fit_curve)
 from cardionurbs.nurbs.loft import loft, loft_compatible
 from cardionurbs.nurbs.operations import (elevate_degree, insert_knots, make_compatible,
                                           rotate_seam)
@@ -30,7 +31,7 @@ from cardionurbs.nurbs.tessellate import tessellate
 
 __all__ = [
     "NurbsCurve", "NurbsSurface", "NurbsInputError",
-    "fit_curve", "chord_length_parameters", "loft", "loft_compatible", "tessellate",
+    "fit_curve", "fit_compatible_curves", "CompatibleFit", "chord_length_parameters", "loft", "loft_compatible", "tessellate",
     "elevate_degree", "insert_knots", "make_compatible", "rotate_seam",
     "closest_points", "curve_closest_points", "surface_closest_points",
     "to_rhino", "write_3dm", "CurveBatch", "SurfaceBatch", "SplineData",

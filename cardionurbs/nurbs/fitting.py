@@ -32,7 +32,7 @@ closed curves "eq9" and "book" are the same periodic rule.
 from __future__ import annotations
 
 import warnings
-from typing import Any
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 from scipy import linalg, sparse
@@ -46,9 +46,9 @@ from cardionurbs.nurbs.curve import NurbsCurve
 from cardionurbs.nurbs.knots import periodic_knot_vector
 from cardionurbs.nurbs.projection import curve_closest_points, curve_distance_bounds
 
-__all__ = ["fit_curve", "chord_length_parameters", "approximation_knots",
-           "periodic_approximation_breaks", "least_squares_curve", "solve_normal_equations",
-           "KNOT_RULES"]
+__all__ = ["fit_curve", "fit_compatible_curves", "CompatibleFit", "chord_length_parameters",
+           "approximation_knots", "periodic_approximation_breaks", "least_squares_curve",
+           "solve_normal_equations", "KNOT_RULES"]
 
 KNOT_RULES = ("eq9", "book", "uniform")
 
@@ -355,3 +355,100 @@ def fit_curve(points: Any, degree: int = 3, closed: bool = False, tol: float | N
             else:
                 lo = mid
     return found
+
+
+# ------------------------------------------------------- sections sharing knots
+class CompatibleFit(NamedTuple):
+    """Result of :func:`fit_compatible_curves`."""
+
+    curves: list[NurbsCurve]    #: one curve per section, all on the same knot vector
+    n_ctrl: int                 #: the common number of (distinct) control points
+    max_error: float            #: largest point-to-curve distance measured (points' units)
+    met: bool                   #: every section within its tolerance
+
+
+def fit_compatible_curves(point_sets: Sequence[Any], degree: int = 3, closed: bool = False,
+                          tol: float | Sequence[float] | None = None,
+                          error_points: Sequence[Any | None] | None = None,
+                          counts: Sequence[int] | None = None, knot_rule: str = "eq9"
+                          ) -> CompatibleFit:
+    """Fit sections that must share one knot vector, within a tolerance (paper §3.2.4).
+
+    Lofting needs compatible sections: same degree and knot vector. Every
+    section holds the same number of points m + 1 (resample them first); their
+    chord-length parameters (eqs. 6–8) are averaged over the sections, as for
+    surface fitting (NURBS Book §9.2.5), and the averaged parameters give the
+    one knot vector by eq. 9 (``knot_rule``; the periodic analogue when
+    ``closed``). Each section is then the least-squares fit (eq. 10) at its
+    own chord-length parameters on that knot vector.
+
+    The control-point count grows as in :func:`fit_curve` (paper §3.2.3, first
+    strategy) through ``counts`` (default: every count from p + 1 to m + 1):
+    sections are visited in order and the count is raised until each meets
+    its tolerance; the first count at which every section with a tolerance
+    holds is used for all. ``tol`` (one value or one per section, points'
+    units) bounds the true distance (closest point, :func:`max_distance`)
+    from ``error_points[i]`` (default: the section's own points; ``None`` for
+    a section means it is not judged) to the section's curve. When no count
+    meets every tolerance the largest is used and ``met`` is False.
+    """
+    p = V.degree_value(degree)
+    if knot_rule not in KNOT_RULES:
+        raise NurbsInputError(f"knot_rule: must be one of {KNOT_RULES}, got {knot_rule!r}")
+    Q = [V.finite_array(pts, f"point_sets[{i}]", ndim=2) for i, pts in enumerate(point_sets)]
+    if not Q:
+        raise NurbsInputError("point_sets: need at least one section")
+    shapes = {q.shape for q in Q}
+    if len(shapes) != 1:
+        raise NurbsInputError(f"point_sets: every section needs the same number of points and "
+                              f"coordinates (resample first), got shapes {sorted(shapes)}")
+    m1 = Q[0].shape[0]
+    if m1 < p + 1:
+        raise NurbsInputError(f"point_sets: degree {p} needs at least {p + 1} points, got {m1}")
+    if error_points is None:
+        error_points = Q
+    if len(error_points) != len(Q):
+        raise NurbsInputError(f"error_points: {len(error_points)} sets for {len(Q)} sections")
+    tols = np.broadcast_to(np.asarray(
+        1e-3 * max(float(np.linalg.norm(np.ptp(q, axis=0))) for q in Q) if tol is None else tol,
+        dtype=float), (len(Q),))
+    if not np.all(np.isfinite(tols)) or np.any(tols <= 0):
+        raise NurbsInputError(f"tol: must be finite numbers > 0, got {tol!r}")
+    steps = sorted({int(n) for n in (range(p + 1, m1 + 1) if counts is None else counts)})
+    if not steps or steps[0] < p + 1 or steps[-1] > m1:
+        raise NurbsInputError(f"counts: must lie in [{p + 1}, {m1}], got {list(counts or [])}")
+    own = [chord_length_parameters(q, closed) for q in Q]
+    params = np.mean(own, axis=0)
+    fitted: dict[int, list[NurbsCurve]] = {}
+
+    def curves_at(k: int) -> list[NurbsCurve]:
+        if k not in fitted:
+            n = steps[k]
+            U, _ = _design(params, p, n, closed, knot_rule)
+            curves = []
+            for q, u in zip(Q, own):
+                N = basis_matrix(U, p, u, n_periodic=n) if closed else basis_matrix(U, p, u)
+                P, _ = _control_points(N, np.ones(n), q, closed)
+                curves.append(NurbsCurve(p, U, P, closed=closed))
+            fitted[k] = curves
+        return fitted[k]
+
+    errors: dict[tuple[int, int], float] = {}
+    need, met = 0, True
+    for i, pts in enumerate(error_points):
+        if pts is None:
+            continue
+        pts = V.finite_array(pts, f"error_points[{i}]", ndim=2)
+        for k in range(need, len(steps)):
+            errors[i, k] = max_distance(curves_at(k)[i], pts)
+            if errors[i, k] <= tols[i]:
+                need = k
+                break
+        else:
+            need, met = len(steps) - 1, False
+    worst = 0.0
+    for i, pts in enumerate(error_points):
+        if pts is not None:
+            worst = max(worst, errors.get((i, need)) if (i, need) in errors else
+                        max_distance(curves_at(need)[i], np.asarray(pts, float)))
+    return CompatibleFit(curves_at(need), steps[need], worst, met)

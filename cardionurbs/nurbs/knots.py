@@ -48,6 +48,12 @@ __all__ = [
 _KNOT_EPS = 1e-12
 
 
+def _float_arrays(knots: np.ndarray, Pw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A knot vector and homogeneous control points as float arrays (not copied when
+    they already are)."""
+    return np.asarray(knots, dtype=float), np.asarray(Pw, dtype=float)
+
+
 def distinct_knots(values: np.ndarray, tol: float = _KNOT_EPS) -> tuple[np.ndarray, np.ndarray]:
     """Distinct values of a sorted knot sequence and their multiplicities."""
     v = np.asarray(values, dtype=float)
@@ -88,8 +94,7 @@ def insert_knot(knots: np.ndarray, Pw: np.ndarray, degree: int, u: float, times:
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Insert ``u`` ``times`` times (A5.1, Boehm).  Works on any knot vector
     (clamped or not) as long as ``U[p] <= u <= U[n]``.  Returns ``(U', Pw')``."""
-    U = np.asarray(knots, dtype=float)
-    Pw = np.asarray(Pw, dtype=float)
+    U, Pw = _float_arrays(knots, Pw)
     p = int(degree)
     r = int(times)
     if r <= 0:
@@ -123,8 +128,7 @@ def refine_knot_vector(knots: np.ndarray, Pw: np.ndarray, degree: int, X: np.nda
 
     For clamped knot vectors.  Returns ``(Ubar, Qw)``.
     """
-    U = np.asarray(knots, dtype=float)
-    Pw = np.asarray(Pw, dtype=float)
+    U, Pw = _float_arrays(knots, Pw)
     X = np.sort(np.asarray(X, dtype=float))
     if X.size == 0:
         return U.copy(), Pw.copy()
@@ -171,8 +175,7 @@ def insert_knot_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, u: floa
     ``u + k`` in the other periods are inserted implicitly, so the result is
     again periodic with ``n + 1`` control points.
     """
-    U = np.asarray(knots, dtype=float)
-    Pw = np.asarray(Pw, dtype=float)
+    U, Pw = _float_arrays(knots, Pw)
     p = int(degree)
     n = Pw.shape[0]
     u = float(u) % 1.0
@@ -201,8 +204,7 @@ def refine_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, X: np.ndarra
     ``tau_{j+1} .. tau_{j+p}``, evaluated by a de Boor triangle on the old
     span mu with ``T_mu <= tau_j < T_{mu+1}`` (indices cyclic).
     """
-    U = np.asarray(knots, dtype=float)
-    Pw = np.asarray(Pw, dtype=float)
+    U, Pw = _float_arrays(knots, Pw)
     p = int(degree)
     n = Pw.shape[0]
     X = np.sort(np.mod(np.asarray(X, dtype=float).ravel(), 1.0))
@@ -236,8 +238,7 @@ def rotate_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, shift: float
     """
     p = int(degree)
     s = float(shift) % 1.0
-    U = np.asarray(knots, dtype=float)
-    Pw = np.asarray(Pw, dtype=float)
+    U, Pw = _float_arrays(knots, Pw)
     if s < _KNOT_EPS or 1.0 - s < _KNOT_EPS:
         return U.copy(), Pw.copy()
     if knot_multiplicity(U[p:U.size - p], s) == 0:
@@ -277,8 +278,7 @@ def clamp_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int
     the curve point at the seam.
     """
     p = int(degree)
-    U = np.asarray(knots, dtype=float)
-    Pw = np.asarray(Pw, dtype=float)
+    U, Pw = _float_arrays(knots, Pw)
     n = Pw.shape[0]
     W = Pw[np.arange(n + p) % n]
     s0 = knot_multiplicity(U, 0.0)
@@ -310,8 +310,7 @@ def elevate_degree_clamped(knots: np.ndarray, Pw: np.ndarray, degree: int, times
     Every distinct interior knot gains multiplicity ``times`` (continuity is
     kept); exact for curves with interior knots.  Returns ``(Uh, Qw)``.
     """
-    U = np.asarray(knots, dtype=float)
-    Pw = np.asarray(Pw, dtype=float)
+    U, Pw = _float_arrays(knots, Pw)
     p = int(degree)
     t = int(times)
     if t <= 0:
@@ -415,8 +414,7 @@ def elevate_degree_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, time
     of degree p <= p + times), so its control points are the unique solution
     of a collocation at ``p + times + 1`` parameters per non-empty span.
     """
-    U = np.asarray(knots, dtype=float)
-    Pw = np.asarray(Pw, dtype=float)
+    U, Pw = _float_arrays(knots, Pw)
     p = int(degree)
     t = int(times)
     if t <= 0:

@@ -25,9 +25,11 @@ def run_phantom(args: argparse.Namespace) -> int:
                       tag_jumps=args.tag_jumps,
                       breath_hold_mm=getattr(args, "breath_hold_mm", 0.0),
                       snr=getattr(args, "snr", None))
-        write_phantom(ph, out, dicom=dicom)
+        write_phantom(ph, out, dicom=dicom, labels=getattr(args, "labels", None))
         print(f"{out}: {ph.study.summary()}", file=sys.stdout)
         return 0
+    if getattr(args, "labels", None):
+        raise PhantomError("phantom: --labels applies to one --pathology subject, not a --cohort")
     from cardionurbs.io.atomic import atomic_dir
     spec = load_cohort_spec(args.cohort)
     extra = {"snr": args.snr} if getattr(args, "snr", None) is not None else {}

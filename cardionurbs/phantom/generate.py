@@ -295,8 +295,11 @@ def _json_safe(obj):
     return obj
 
 
-def write_phantom(phantom: Phantom, out_dir: str | Path, dicom: bool = True) -> Path:
-    """Write the native study (study.json + points.csv), dicom/ and truth.json into ``out_dir``.
+def write_phantom(phantom: Phantom, out_dir: str | Path, dicom: bool = True,
+                  labels: str | None = None) -> Path:
+    """Write the native study (study.json + points.csv), dicom/ and truth.json into ``out_dir``;
+    with ``labels`` (``acdc``, ``ukbb``, ``mnms``) also NIfTI label maps in that layout in
+    ``out_dir/labelmaps`` (:mod:`cardionurbs.phantom.labelmaps`).
 
     The folder is replaced atomically; the same phantom gives byte-identical files.
     """
@@ -311,6 +314,9 @@ def write_phantom(phantom: Phantom, out_dir: str | Path, dicom: bool = True) -> 
         if dicom:
             from cardionurbs.phantom.dicom import write_dicom
             write_dicom(phantom, tmp)
+        if labels is not None:
+            from cardionurbs.phantom.labelmaps import write_labelmaps
+            write_labelmaps(phantom, tmp / "labelmaps", labels)
     return out_dir
 
 

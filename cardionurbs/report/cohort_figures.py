@@ -161,8 +161,8 @@ def _grid(n: int, caption: str, ncols: int = 4):
     fig = Figure(figsize=(3.1 * ncols, height), dpi=DPI)
     axes = [fig.add_subplot(nrows, ncols, i + 1) for i in range(n)]
     bottom = 0.55 / height
-    fig.subplots_adjust(left=0.06, right=0.99, top=1 - 0.7 / height,
-                        bottom=bottom + 0.08 / nrows, hspace=0.55, wspace=0.35)
+    fig.subplots_adjust(left=0.07, right=0.99, top=1 - 0.7 / height,
+                        bottom=bottom + 0.12 / nrows, hspace=0.7, wspace=0.42)
     fig.text(0.01, 0.005, textwrap.fill(caption, int(3.1 * ncols * 16)), fontsize=8, va="bottom")
     return fig, axes
 
@@ -229,14 +229,40 @@ def _measured_vs_truth(df, groups, pairs, colours, out, caption_tail) -> FigureR
     return _result("cohort_measured_vs_truth", fig, out, caption, colours)
 
 
-def _bland_altman_fig(df, groups, pairs, colours, out, caption_tail) -> tuple[FigureResult, dict]:
-    caption = ("Bland–Altman: measured − truth against their mean; solid: bias, dashed: 95 % "
-               "limits of agreement (bias ± 1.96 SD)" + caption_tail)
-    fig, axes = _grid(len(pairs), caption)
-    stats = {}
-    for ax, (m, (mv, tv)) in zip(axes, pairs.items()):
-        ba = bland_altman(mv, tv)
-        stats[m] = ba
+#: differences below this fraction of the values' magnitude are floating-point rounding, not
+#: disagreement: such metrics get no Bland-Altman panel (their line in the caption instead)
+ROUNDING_LEVEL = 1e-9
+
+
+def _at_rounding_level(mv, tv) -> bool:
+    fin = np.isfinite(mv) & np.isfinite(tv)
+    if not fin.any():
+        return False
+    scale = max(float(np.abs(tv[fin]).max()), float(np.abs(mv[fin]).max()), 1.0)
+    return float(np.abs(mv[fin] - tv[fin]).max()) <= ROUNDING_LEVEL * scale
+
+
+def _unit(metric: str) -> str:
+    """The unit in a column name 'LVEDV (mL)' -> ' (mL)'; '' when it has none."""
+    return f" ({metric.rsplit('(', 1)[1].rstrip(')')})" if metric.endswith(")") else ""
+
+
+def _bland_altman_fig(df, groups, pairs, colours, out, caption_tail
+                      ) -> tuple[FigureResult | None, dict]:
+    stats = {m: bland_altman(mv, tv) for m, (mv, tv) in pairs.items()}
+    exact = [m for m, (mv, tv) in pairs.items() if _at_rounding_level(mv, tv)]
+    shown = {m: p for m, p in pairs.items() if m not in exact}
+    caption = ("Bland–Altman: measured − truth (y) against the mean of measured and truth (x), "
+               "in the metric's unit; solid: bias, dashed: 95 % limits of agreement (bias ± "
+               "1.96 SD)"
+               + (f"; {', '.join(exact)}: measured equals truth to floating-point rounding "
+                  f"(|difference| ≤ {ROUNDING_LEVEL:g} of the values), no panel"
+                  if exact else "") + caption_tail)
+    if not shown:
+        return None, stats
+    fig, axes = _grid(len(shown), caption)
+    for ax, (m, (mv, tv)) in zip(axes, shown.items()):
+        ba = stats[m]
         mean, diff = (mv + tv) / 2, mv - tv
         for g, c in colours.items():
             sel = (groups == g).values
@@ -247,6 +273,8 @@ def _bland_altman_fig(df, groups, pairs, colours, out, caption_tail) -> tuple[Fi
                 ax.axhline(y, color="black", lw=0.8, ls="--")
         ax.set_title(f"{m}\nbias {ba.bias:.3g}, LoA [{ba.lower:.3g}, {ba.upper:.3g}]",
                      fontsize=7.5)
+        ax.set_xlabel(f"mean of measured and truth{_unit(m)}", fontsize=7)
+        ax.set_ylabel(f"measured − truth{_unit(m)}", fontsize=7)
         ax.tick_params(labelsize=7)
     _legend(fig, colours)
     return _result("cohort_bland_altman", fig, out, caption, colours), stats
@@ -297,7 +325,11 @@ def write_cohort_figures(cohort_csv: str | Path | pd.DataFrame, out_dir: str | P
             else:
                 fs.figures.append(_measured_vs_truth(ok, grp, pairs, colours, out, tail))
                 res, stats = _bland_altman_fig(ok, grp, pairs, colours, out, tail)
-                fs.figures.append(res)
+                if res is None:
+                    fs.skipped["cohort_bland_altman"] = ("every metric equals its truth to "
+                                                         "floating-point rounding")
+                else:
+                    fs.figures.append(res)
                 table = pd.DataFrame([{"metric": m, "n": s.n, "bias": s.bias, "sd": s.sd,
                                        "lower": s.lower, "upper": s.upper}
                                       for m, s in stats.items()])

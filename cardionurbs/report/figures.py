@@ -257,9 +257,9 @@ def draw_panel(ax, meshes: Sequence[Mesh], view: View, *, lines: Sequence[tuple]
     ax.set_box_aspect((1, 1, 1), zoom=1.2)
     ax.computed_zorder = False
     ax.view_init(elev=view.elev, azim=view.azim, roll=view.roll)
-    ax.set_xlabel("x (mm, →L)", fontsize=7, labelpad=-6)
-    ax.set_ylabel("y (mm, →P)", fontsize=7, labelpad=-6)
-    ax.set_zlabel("z (mm, →H)", fontsize=7, labelpad=-6)
+    ax.set_xlabel("x (mm)", fontsize=7, labelpad=-6)
+    ax.set_ylabel("y (mm)", fontsize=7, labelpad=-6)
+    ax.set_zlabel("z (mm)", fontsize=7, labelpad=-6)
     ax.tick_params(labelsize=6, pad=-2)
     for a in (ax.xaxis, ax.yaxis, ax.zaxis):
         a.set_pane_color((1, 1, 1, 0))
@@ -272,7 +272,8 @@ def draw_panel(ax, meshes: Sequence[Mesh], view: View, *, lines: Sequence[tuple]
 
 
 def orientation_marker(ax) -> None:
-    """Inset arrows (lower-left of a 3D panel) for the anterior (−y), left (+x) and head
+    """Inset arrows (upper-left of a 3D panel, clear of the axis labels below) for the
+    anterior (−y), left (+x) and head
     (+z) directions (LPS), projected with the panel's own camera; an arrow's length is
     its projected length relative to the longest of the three (short = toward the eye)."""
     M = ax.get_proj()
@@ -284,8 +285,9 @@ def orientation_marker(ax) -> None:
     vec /= max(float(np.linalg.norm(vec, axis=1).max()), 1e-12)
     pos = ax.get_position()
     size = 0.2 * min(pos.width, pos.height * ax.figure.get_figheight() / ax.figure.get_figwidth())
-    inset = ax.figure.add_axes([pos.x0 + 0.03 * pos.width, pos.y0 + 0.03 * pos.height, size,
-                                size * ax.figure.get_figwidth() / ax.figure.get_figheight()])
+    h_fig = size * ax.figure.get_figwidth() / ax.figure.get_figheight()
+    inset = ax.figure.add_axes([pos.x0 + 0.02 * pos.width, pos.y0 + 0.90 * pos.height - h_fig,
+                                size, h_fig])
     inset.set_xlim(-1.45, 1.45), inset.set_ylim(-1.45, 1.45)
     inset.axis("off")
     for v, (_, txt) in zip(vec, dirs):
@@ -301,8 +303,9 @@ def _new_figure(n_panels: int, caption: str, *, width: float = 4.6, height: floa
     fig = Figure(figsize=(width * n_panels, height), dpi=DPI)
     axes = [fig.add_subplot(1, n_panels, i + 1, projection="3d" if three_d else None)
             for i in range(n_panels)]
-    fig.subplots_adjust(left=0.02 if three_d else 0.1, right=0.98 if three_d else 0.88, top=0.93,
-                        bottom=0.13 if three_d else 0.22, wspace=0.05 if three_d else 0.3)
+    fig.subplots_adjust(left=0.02 if three_d else 0.1, right=0.93 if three_d else 0.88,
+                        top=0.90 if three_d else 0.93, bottom=0.13 if three_d else 0.22,
+                        wspace=0.15 if three_d else 0.3)
     chars = int(width * n_panels * 17)          # ~17 characters per inch at 7.5 pt
     fig.text(0.01, 0.01, plain_text(textwrap.fill(caption, chars)), fontsize=7.5, ha="left",
              va="bottom")
@@ -311,8 +314,8 @@ def _new_figure(n_panels: int, caption: str, *, width: float = 4.6, height: floa
 
 def _legend(fig: Figure, items: Sequence[tuple[str, str]]) -> None:
     from matplotlib.patches import Patch
-    fig.legend(handles=[Patch(facecolor=c, label=l) for l, c in items], loc="upper left",
-               fontsize=7, frameon=False, ncol=1)
+    fig.legend(handles=[Patch(facecolor=c, label=l) for l, c in items], loc="upper center",
+               fontsize=7, frameon=False, ncol=min(len(items), 6))
 
 
 def _save(fig: Figure, path: Path) -> tuple[Path, list]:

@@ -34,10 +34,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from cardionurbs.safe import json_for_script
 from cardionurbs import nurbs
+from cardionurbs.anatomy.model import BiventricularModel
 from cardionurbs.errors import ReportInputError
 from cardionurbs.io import atomic
+from cardionurbs.report.figures import view_frame
+from cardionurbs.safe import json_for_script
 
 __all__ = ["write_report", "run_report", "report_payload", "ReportInputError", "SURFACE_GRID"]
 
@@ -146,11 +148,9 @@ def _find_truth(out: Path, fig_index: Mapping | None) -> tuple[Mapping | None, s
     return None, None
 
 
-def report_payload(output_dir: str | Path) -> dict:
-    """The data embedded in the report (JSON-safe), from an ``analyze`` output folder."""
-    from cardionurbs.anatomy.model import BiventricularModel
-
-    out = Path(output_dir)
+def _load_analysis(out: Path):
+    """(model, metrics.json, figures folder, figures.json or None) of an analyze folder;
+    ReportInputError naming the file when something is missing or unreadable."""
     if not out.is_dir():
         raise ReportInputError(f"{out}: not a folder (expected the output of cardionurbs analyze)")
     for need in ("model.json", "metrics.json"):
@@ -162,76 +162,91 @@ def report_payload(output_dir: str | Path) -> dict:
     except (KeyError, TypeError, ValueError) as exc:
         raise ReportInputError(f"{out / 'model.json'}: not a cardionurbs model "
                                f"({type(exc).__name__}: {' '.join(str(exc).split())})") from None
-    metrics = _read_json(out / "metrics.json")
     fig_dir = out / "figures"
     fig_index = _read_json(fig_dir / "figures.json") if (fig_dir / "figures.json").is_file() else None
-    truth, truth_path = _find_truth(out, fig_index)
+    return model, _read_json(out / "metrics.json"), fig_dir, fig_index
 
-    frames = sorted(int(f) for f in model.frames)
+
+def _surface_groups(model, frames: list[int], pool: "_FacePool"):
+    """Viewer groups of the model's surfaces (tessellated per frame), the tessellations,
+    and the quantisation origin (centre of all their vertices, 0.1 mm)."""
     structures = [s for s in ("lv_endo", "lv_epi", "rv_endo", "rv_epi")
                   if any(s in model.surfaces[f] for f in frames)]
     tess = {f: {s: nurbs.tessellate(model.surfaces[f][s], *SURFACE_GRID)
                 for s in structures if s in model.surfaces[f]} for f in frames}
     allv = np.concatenate([v for d in tess.values() for v, _ in d.values()])
     origin = np.round((allv.min(axis=0) + allv.max(axis=0)) / 2, 1)
-    pool = _FacePool()
     groups = []
     for s in structures:
         per = {str(f): {"v": quantise(tess[f][s][0], origin), "f": pool.add(tess[f][s][1])}
                for f in frames if s in tess[f]}
         groups.append({"key": s, "name": NAMES[s], "colour": STRUCTURE_COLOURS[s],
                        "opacity": STRUCTURE_OPACITY[s], "kind": "mesh", "frames": per})
+    return groups, tess, origin
 
-    tags_note = None
-    flags: list = []
+
+def _flagged_lines(surfs: list[dict], origin: np.ndarray) -> str | None:
+    """The flagged tag lines of one frame, quantised, separated by a NaN row (sentinel
+    -32768), base64; None when there are none."""
+    pts = [np.asarray(p, float) for d in surfs for p in d.get("flagged_lines", [])]
+    if not pts:
+        return None
+    seq = np.concatenate([np.vstack([p, np.full((1, 3), np.nan)]) for p in pts])
+    q = np.rint((seq - origin) / QUANTUM_MM)
+    q[~np.isfinite(q)] = -32768
+    return _b64(q.astype("<i2"))
+
+
+def _tag_groups(fig_dir: Path, fig_index: dict | None, origin: np.ndarray, pool: "_FacePool"):
+    """(viewer groups of the tag surfaces per family and of the flagged lines, QC flags,
+    note saying why there are none or None) from ``figures/report_tags.json``."""
     tag_path = fig_dir / "report_tags.json"
-    if tag_path.is_file():
-        td = _read_json(tag_path)
-        flags = td.get("flags", [])
-        fams = ("sa1", "sa2", "la", "flagged")
-        per_fam: dict[str, dict] = {k: {} for k in fams}
-        lines: dict[str, str] = {}
-        for f, surfs in td.get("frames", {}).items():
-            parts: dict[str, list] = {k: [] for k in fams}
-            for d in surfs:
-                key = "flagged" if d.get("flagged") else d["family"]
-                parts[key].append((np.asarray(d["vertices"], float), np.asarray(d["faces"])))
-            for k in fams:
-                if parts[k]:
-                    v, fc = _merge(parts[k])
-                    per_fam[k][f] = {"v": quantise(v, origin), "f": pool.add(fc)}
-            pts = [np.asarray(p, float) for d in surfs for p in d.get("flagged_lines", [])]
-            if pts:
-                # lines separated by a NaN row, quantised with the NaN sentinel -32768
-                seq = np.concatenate([np.vstack([p, np.full((1, 3), np.nan)]) for p in pts])
-                q = np.rint((seq - origin) / QUANTUM_MM)
-                q[~np.isfinite(q)] = -32768
-                lines[f] = _b64(q.astype("<i2"))
-        for k in fams:
-            if per_fam[k]:
-                groups.append({"key": f"tags_{k}", "name": NAMES[k],
-                               "colour": FLAG_COLOUR if k == "flagged" else FAMILY_COLOURS[k],
-                               "opacity": 0.9 if k == "flagged" else 0.6, "kind": "mesh",
-                               "frames": per_fam[k]})
-        if lines:
-            groups.append({"key": "flagged_lines", "name": "tag lines flagged as mistracked",
-                           "colour": FLAG_COLOUR, "opacity": 1.0, "kind": "lines",
-                           "frames": lines})
-    else:
+    if not tag_path.is_file():
         skipped = (fig_index or {}).get("skipped", {})
-        tags_note = (skipped.get("fig09_all_tag_surfaces") or "no tag surfaces in this analysis"
-                     if fig_index else "no figures/report_tags.json: tag surfaces not available")
+        note = (skipped.get("fig09_all_tag_surfaces") or "no tag surfaces in this analysis"
+                if fig_index else "no figures/report_tags.json: tag surfaces not available")
+        return [], [], note
+    td = _read_json(tag_path)
+    fams = ("sa1", "sa2", "la", "flagged")
+    per_fam: dict[str, dict] = {k: {} for k in fams}
+    lines: dict[str, str] = {}
+    for f, surfs in td.get("frames", {}).items():
+        parts: dict[str, list] = {k: [] for k in fams}
+        for d in surfs:
+            key = "flagged" if d.get("flagged") else d["family"]
+            parts[key].append((np.asarray(d["vertices"], float), np.asarray(d["faces"])))
+        for k in fams:
+            if parts[k]:
+                v, fc = _merge(parts[k])
+                per_fam[k][f] = {"v": quantise(v, origin), "f": pool.add(fc)}
+        encoded = _flagged_lines(surfs, origin)
+        if encoded is not None:
+            lines[f] = encoded
+    groups = [{"key": f"tags_{k}", "name": NAMES[k],
+               "colour": FLAG_COLOUR if k == "flagged" else FAMILY_COLOURS[k],
+               "opacity": 0.9 if k == "flagged" else 0.6, "kind": "mesh", "frames": per_fam[k]}
+              for k in fams if per_fam[k]]
+    if lines:
+        groups.append({"key": "flagged_lines", "name": "tag lines flagged as mistracked",
+                       "colour": FLAG_COLOUR, "opacity": 1.0, "kind": "lines", "frames": lines})
+    return groups, td.get("flags", []), None
 
-    meas = metrics.get("metrics", {})
+
+def _metric_rows(metrics: dict, truth: dict | None) -> list[dict]:
+    """One row per measured metric with the phantom truth and the difference beside it."""
     tmet = (truth or {}).get("metrics", {})
     quality = (metrics.get("quality") or {}).get("metrics", {})
     rows = []
-    for k, v in meas.items():
+    for k, v in metrics.get("metrics", {}).items():
         t = tmet.get(k) if truth else None
         diff = (v - t) if isinstance(v, (int, float)) and isinstance(t, (int, float)) else None
         rows.append({"metric": k, "measured": _num(v), "truth": _num(t), "difference": _num(diff),
                      "qc": "; ".join((quality.get(k) or {}).get("flags", []))})
+    return rows
 
+
+def _figure_images(fig_dir: Path, fig_index: dict | None) -> list[dict]:
+    """The PNG figures (under 2 MB each) as data URIs, with name and caption."""
     figures = []
     for item in (fig_index or {}).get("figures", []):
         p = fig_dir / item["file"]
@@ -239,27 +254,43 @@ def report_payload(output_dir: str | Path) -> dict:
             figures.append({"name": item["name"], "caption": item["caption"],
                             "src": "data:image/png;base64," + _b64(np.frombuffer(p.read_bytes(),
                                                                                    np.uint8))})
-    apex, base = model.long_axis()
-    ed, es = int(model.ed_frame), int(model.es_frame)
-    from cardionurbs.report.figures import view_frame
+    return figures
+
+
+def _camera(model, tess: dict) -> dict:
+    """Initial viewer camera: looking along the long axis, the RV to one side."""
+    ed = int(model.ed_frame)
     side = None
     if {"lv_endo", "rv_endo"} <= set(tess[ed]):
         side = tess[ed]["rv_endo"][0].mean(axis=0) - tess[ed]["lv_endo"][0].mean(axis=0)
-    eye, up = view_frame((apex, base), side)
+    eye, up = view_frame(model.long_axis(), side)
+    return {"eye": (2.1 * eye).tolist(), "up": up.tolist()}
+
+
+def report_payload(output_dir: str | Path) -> dict:
+    """The data embedded in the report (JSON-safe), from an ``analyze`` output folder:
+    the surfaces and tag surfaces per frame, the metrics beside the truth, the figures."""
+    out = Path(output_dir)
+    model, metrics, fig_dir, fig_index = _load_analysis(out)
+    truth, truth_path = _find_truth(out, fig_index)
+    frames = sorted(int(f) for f in model.frames)
+    pool = _FacePool()
+    groups, tess, origin = _surface_groups(model, frames, pool)
+    tag_groups, flags, tags_note = _tag_groups(fig_dir, fig_index, origin, pool)
     return {
         "subject": str(metrics.get("subject", model.study.subject)),
-        "frames": frames, "ed_frame": ed, "es_frame": es,
+        "frames": frames, "ed_frame": int(model.ed_frame), "es_frame": int(model.es_frame),
         "frame_times_ms": (metrics.get("volume_curve") or {}).get("time_ms"),
         "origin": origin.tolist(), "quantum_mm": QUANTUM_MM,
-        "camera": {"eye": (2.1 * eye).tolist(), "up": up.tolist()},
-        "faces": pool.items, "groups": groups,
-        "metrics": rows, "truth_file": _local_path(truth_path, out),
+        "camera": _camera(model, tess),
+        "faces": pool.items, "groups": groups + tag_groups,
+        "metrics": _metric_rows(metrics, truth), "truth_file": _local_path(truth_path, out),
         "has_truth": truth is not None,
         "flags": flags, "tags_note": tags_note,
         "volume_curve": metrics.get("volume_curve"),
         "warnings": [_strip_local(w, model.study.source) for w in
                      list(metrics.get("warnings", []))[:50]],
-        "skipped": (fig_index or {}).get("skipped", {}), "figures": figures,
+        "skipped": (fig_index or {}).get("skipped", {}), "figures": _figure_images(fig_dir, fig_index),
     }
 
 
@@ -317,10 +348,11 @@ const traces = D.groups.map(function(g){
   if(g.kind==='lines') return Object.assign({type:'scatter3d',mode:'lines',name:g.name,
       line:{color:g.colour,width:7},hoverinfo:'name'}, d);
   return Object.assign({type:'mesh3d',name:g.name,color:g.colour,opacity:g.opacity,flatshading:false,
-      lighting:{ambient:0.55,diffuse:0.7,specular:0.1},hoverinfo:'name',showlegend:true}, d);
+      lighting:{ambient:0.55,diffuse:0.7,specular:0.1},hoverinfo:'name'}, d);
 });
 const w = D.camera.eye, u = D.camera.up;
-const layout = {margin:{l:0,r:0,t:0,b:0}, showlegend:true, legend:{x:0,y:1,font:{size:11}},
+// one legend: the colour swatches of the toggles above the plot (no plotly legend beside it)
+const layout = {margin:{l:0,r:0,t:0,b:0}, showlegend:false,
   scene:{aspectmode:'data', camera:{eye:{x:w[0],y:w[1],z:w[2]}, up:{x:u[0],y:u[1],z:u[2]}},
     xaxis:{title:{text:'x (mm, →L)'}}, yaxis:{title:{text:'y (mm, →P)'}}, zaxis:{title:{text:'z (mm, →H)'}}}};
 const gd = document.getElementById('plot');

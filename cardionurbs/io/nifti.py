@@ -1,0 +1,624 @@
+"""Segmentation label maps in NIfTI-1/2 (nibabel): one file, or the ACDC, UK Biobank and
+M&Ms folder layouts, read into a :class:`~cardionurbs.study.Study` of contours.
+
+Layouts (:func:`detect`)
+------------------------
+``file``   one ``.nii``/``.nii.gz`` label map: 3-D (x, y, slices) is one frame;
+           4-D has the frames along the last axis, their interval from the
+           header's ``pixdim[4]`` and time unit. Its slices form the SA stack.
+``acdc``   ``patientNNN_frameMM_gt.nii.gz`` (one 3-D map per labelled frame,
+           MM counted from 1) and ``Info.cfg`` (``ED:``, ``ES:``, ``Height:``,
+           ``Weight:``); label preset ``acdc``.
+``ukbb``   ukbb_cardiac output: ``seg_sa.nii.gz`` (4-D) or ``seg_sa_ED.nii.gz``
+           + ``seg_sa_ES.nii.gz``; long-axis ``seg4_la_4ch.nii.gz`` (preferred)
+           or ``seg_la_4ch``/``seg_la_2ch``/``seg_la_3ch.nii.gz`` when they hold
+           ventricles; label preset ``ukbb``. ED is frame 0 (ukbb_cardiac's
+           convention), ES the frame of least LV volume.
+``mnms``   ``<code>_sa_gt.nii.gz`` (4-D, only ED and ES labelled); ED/ES frame
+           indices from a CSV beside it or in the parent folder (columns
+           ``External code``, ``ED``, ``ES``) or the ``ed_frame``/``es_frame``
+           arguments, else the labelled frames; label preset ``mnms``.
+An image NIfTI beside the labels (``patientNNN_4d``, ``sa``/``la_*``,
+``<code>_sa``) is recorded in ``study.meta["image_files"]``.
+
+Geometry
+--------
+The voxel-to-world affine is the sform when its code is set, else the
+qform, else (with a warning) the voxel sizes alone. NIfTI world coordinates
+are RAS+; the study's scanner frame is DICOM patient LPS, so x and y change
+sign: ``A_lps = diag(-1, -1, 1, 1) · A_ras``. For slice k the image plane
+(DICOM Image Plane module) is: ImagePositionPatient = ``A_lps (0, 0, k, 1)``,
+row cosine = unit first column of ``A_lps`` (the direction in which the first
+array index grows), column cosine = unit second column, PixelSpacing = (length
+of the second column, length of the first), slice thickness = length of the
+third column. Pixel coordinates (c, r) are the first two array indices. The
+SA slices are named ``sa_00`` at the base towards the apex: the stack normal
+is signed from base to apex by the mitral annulus seen in the long-axis maps,
+else by the patient-frame prior of :mod:`cardionurbs.imaging.stack`.
+
+Contours come from :mod:`cardionurbs.io.masks`; what is left out is
+reported in ``study.warnings`` naming slice and frame. Voxel-count volumes
+(the figures ukbb_cardiac reports) are kept in
+``study.meta["voxel_volumes_ml"]`` (frame -> structure -> mL).
+"""
+
+from __future__ import annotations
+
+import csv
+import re
+import zlib
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from cardionurbs.errors import StudyError
+from cardionurbs.imaging import stack
+from cardionurbs.imaging.geometry import ImagePlane
+from cardionurbs.io import masks
+from cardionurbs.io.labels import PRESETS, LabelRoles, check_values, infer_roles, parse_labels
+from cardionurbs.study import Contour, Landmark, Study
+
+RAS_TO_LPS = np.diag([-1.0, -1.0, 1.0, 1.0])
+LAYOUTS = ("file", "acdc", "ukbb", "mnms")
+LA_FILES = {"la_4ch": ("seg4_la_4ch", "seg_la_4ch"), "la_2ch": ("seg_la_2ch",),
+            "la_3ch": ("seg_la_3ch",)}
+MAX_LABEL = 255
+_TIME_UNIT_MS = {"sec": 1000.0, "msec": 1.0, "usec": 1e-3}
+
+
+def is_nifti(path: str | Path) -> bool:
+    """True for a file named ``*.nii`` or ``*.nii.gz``."""
+    name = Path(path).name.lower()
+    return name.endswith(".nii") or name.endswith(".nii.gz")
+
+
+def _stem(path: Path) -> str:
+    return re.sub(r"\.nii(\.gz)?$", "", path.name, flags=re.I)
+
+
+def detect(path: str | Path) -> str | None:
+    """The layout of ``path`` (``file``, ``acdc``, ``ukbb``, ``mnms``) or None."""
+    p = Path(path)
+    if p.is_file():
+        return "file" if is_nifti(p) else None
+    if not p.is_dir():
+        return None
+    names = [q.name for q in p.iterdir() if is_nifti(q)]
+    if any(re.fullmatch(r".+_frame\d+_gt\.nii(\.gz)?", n) for n in names):
+        return "acdc"
+    if any(re.fullmatch(r"seg_sa(_ED|_ES)?\.nii(\.gz)?", n) for n in names):
+        return "ukbb"
+    if any(re.fullmatch(r".+_sa_gt\.nii(\.gz)?", n) for n in names):
+        return "mnms"
+    return None
+
+
+# ------------------------------------------------------------------ one file
+class LabelVolume:
+    """One label map: integer data (x, y, slices, frames), LPS affine, frame interval."""
+
+    def __init__(self, path: Path, data: np.ndarray, affine_lps: np.ndarray,
+                 dt_ms: float | None, warnings: list[str]) -> None:
+        self.path, self.data, self.affine, self.dt_ms = path, data, affine_lps, dt_ms
+        self.warnings = warnings
+
+    @property
+    def voxel_ml(self) -> float:
+        return abs(float(np.linalg.det(self.affine[:3, :3]))) / 1000.0
+
+    def same_grid(self, other: "LabelVolume") -> bool:
+        return (self.data.shape[:3] == other.data.shape[:3]
+                and np.allclose(self.affine, other.affine, atol=1e-4))
+
+
+def read_label_volume(path: str | Path) -> LabelVolume:
+    """Read one NIfTI label map (StudyError naming the file for anything unusable)."""
+    import nibabel as nib
+    from nibabel.filebasedimages import ImageFileError
+
+    path = Path(path)
+    where = str(path)
+    try:
+        img = nib.load(str(path))
+    except FileNotFoundError:
+        raise StudyError("no such file", file=where) from None
+    except (ImageFileError, EOFError, OSError, zlib.error, ValueError) as exc:
+        raise StudyError(f"not a readable NIfTI file ({' '.join(str(exc).split())[:120]})",
+                         file=where) from None
+    if not isinstance(img, (nib.Nifti1Image, nib.Nifti2Image)):
+        raise StudyError(f"not a NIfTI image ({type(img).__name__})", file=where)
+    shape = tuple(int(s) for s in img.shape)
+    while len(shape) > 4 and shape[-1] == 1:
+        shape = shape[:-1]
+    if len(shape) == 5 and shape[3] == 1:              # (x, y, z, 1, t): time in the 5th axis
+        shape = shape[:3] + shape[4:]
+    if len(shape) < 3:
+        raise StudyError(f"a {len(shape)}-D image: a label map must be 3-D (x, y, slices) or "
+                         "4-D (x, y, slices, frames)", file=where)
+    if len(shape) > 4:
+        raise StudyError(f"a {len(shape)}-D image of shape {shape}: expected 3-D or 4-D",
+                         file=where)
+    if len(shape) == 4 and shape[3] == 0:
+        raise StudyError("the time axis has length 0 (no frames)", file=where)
+    if min(shape) == 0:
+        raise StudyError(f"an empty image (shape {shape})", file=where)
+    try:
+        raw = np.asanyarray(img.dataobj)
+    except (EOFError, OSError, zlib.error, ValueError) as exc:
+        raise StudyError(f"cannot read the voxel data (truncated or corrupt file: "
+                         f"{' '.join(str(exc).split())[:80]})", file=where) from None
+    raw = raw.reshape(shape if len(shape) == 4 else shape + (1,))
+    if raw.dtype.kind == "f":
+        if not np.all(np.isfinite(raw)) or np.any(raw != np.round(raw)):
+            raise StudyError("the map holds non-integer values: an image, not a label map?",
+                             file=where)
+    elif raw.dtype.kind not in "iub":
+        raise StudyError(f"voxel type {raw.dtype} is not a label type", file=where)
+    if raw.size and (raw.min() < 0 or raw.max() > MAX_LABEL):
+        raise StudyError(f"label values must lie in 0..{MAX_LABEL}, got {raw.min():g}..{raw.max():g}: "
+                         "an image, not a label map?", file=where)
+    data = raw.astype(np.uint8)
+    warnings: list[str] = []
+    hdr = img.header
+    scode, qcode = int(hdr["sform_code"]), int(hdr["qform_code"])
+    if scode > 0:
+        aff = img.get_sform()
+    elif qcode > 0:
+        aff = img.get_qform()
+    else:
+        zooms = _raw_pixdim(path, type(hdr))
+        if not (np.all(np.isfinite(zooms)) and np.all(zooms > 0)):
+            raise StudyError("no affine (sform and qform codes 0) and no valid voxel sizes: the "
+                             "map has no geometry", file=where, field="affine")
+        aff = np.diag([*zooms, 1.0])
+        warnings.append(f"{where}: no sform or qform: voxel sizes only, identity orientation "
+                        "(positions and volumes in scanner mm are not real)")
+    aff = np.asarray(aff, float)
+    if not np.all(np.isfinite(aff)):
+        raise StudyError("the affine holds NaN or infinity", file=where, field="affine")
+    m = aff[:3, :3]
+    lengths = np.linalg.norm(m, axis=0)
+    if np.any(lengths < 1e-6) or abs(np.linalg.det(m)) < 1e-6 * np.prod(np.maximum(lengths, 1e-6)):
+        raise StudyError("singular affine (voxel axes of zero length or in one plane)",
+                         file=where, field="affine")
+    cos = abs(float(m[:, 0] @ m[:, 1]) / (lengths[0] * lengths[1]))
+    if cos > 1e-3:
+        raise StudyError(f"in-plane voxel axes are not perpendicular (cos {cos:.3g}): sheared "
+                         "affine", file=where, field="affine")
+    if scode > 0 and np.allclose(aff, np.eye(4)) or (scode == 0 and qcode > 0 and np.allclose(aff, np.eye(4))):
+        warnings.append(f"{where}: identity affine: 1 mm voxels at the origin, no real scanner "
+                        "position or orientation")
+    dt = None
+    if data.shape[3] > 1:
+        zooms = hdr.get_zooms()
+        t_unit = hdr.get_xyzt_units()[1]
+        if len(zooms) > 3 and np.isfinite(zooms[3]) and zooms[3] > 0:
+            scale = _TIME_UNIT_MS.get(t_unit)
+            if scale is None:
+                warnings.append(f"{where}: frame interval {zooms[3]:g} with unknown time unit "
+                                f"({t_unit}): taken as ms")
+                scale = 1.0
+            dt = float(zooms[3]) * scale
+    return LabelVolume(path, data, RAS_TO_LPS @ aff, dt, warnings)
+
+
+def _raw_pixdim(path: Path, header_class) -> np.ndarray:
+    """pixdim[1:4] as stored in the file (nibabel's load silently sets zeros to 1)."""
+    from nibabel.openers import ImageOpener
+
+    try:
+        with ImageOpener(str(path)) as fh:
+            raw = header_class.from_fileobj(fh, check=False)
+        return np.asarray(raw["pixdim"][1:4], float)
+    except Exception:  # noqa: BLE001 - an unreadable header has no voxel sizes either
+        return np.zeros(3)
+
+
+# ------------------------------------------------------------------ geometry
+def slice_plane(vol: LabelVolume, k: int, *, slice_id: str, view: str, frame: int,
+                trigger_time: float | None, image_id: str) -> ImagePlane:
+    """The image plane of slice k of a label volume (see the module docstring)."""
+    a = vol.affine
+    dc, dr, dk = (float(np.linalg.norm(a[:3, i])) for i in range(3))
+    return ImagePlane(id=image_id, slice=slice_id, view=view, frame=frame,
+                      position=a[:3, 3] + k * a[:3, 2], row_cosine=a[:3, 0] / dc,
+                      column_cosine=a[:3, 1] / dr, pixel_spacing=(dr, dc),
+                      rows=vol.data.shape[1], columns=vol.data.shape[0], thickness=dk,
+                      trigger_time=trigger_time, file=vol.path.name)
+
+
+def to_scanner(vol: LabelVolume, k: int, pixels: np.ndarray) -> np.ndarray:
+    """(n, 2) pixel coordinates (c, r) of slice k -> (n, 3) scanner LPS mm."""
+    p = np.asarray(pixels, float).reshape(-1, 2)
+    a = vol.affine
+    return a[:3, 3] + k * a[:3, 2] + p[:, :1] * a[:3, 0] + p[:, 1:2] * a[:3, 1]
+
+
+# ------------------------------------------------------------------ study assembly
+class _Builder:
+    """Collects planes, contours, landmarks and aggregated warnings of one study."""
+
+    def __init__(self, subject: str, source: Path, roles: LabelRoles) -> None:
+        self.study = Study(subject=subject, source=str(source))
+        self.roles = roles
+        self.files: list[str] = []
+        self.issues: dict[tuple[str, str], list[int]] = defaultdict(list)
+
+    def note(self, slice_id: str, message: str, frame: int) -> None:
+        self.issues[(slice_id, message)].append(frame)
+
+    def add_contour(self, structure, view, plane: ImagePlane, pts, closed, index=0) -> None:
+        self.study.contours.append(Contour(structure, view, plane.slice, plane.frame, pts,
+                                           image=plane.id, closed=closed, index=index))
+        self.files.append(plane.file)
+
+    def flush_warnings(self) -> list[str]:
+        out = []
+        for (sl, msg), frames in sorted(self.issues.items()):
+            fr = sorted(set(frames))
+            shown = ", ".join(map(str, fr[:8])) + (", ..." if len(fr) > 8 else "")
+            out.append(f"{self.study.source}: slice {sl}: {msg} (frame{'s' if len(fr) > 1 else ''} "
+                       f"{shown})")
+        return out
+
+
+def _frame_indices(vol: LabelVolume) -> list[int]:
+    """Frames of a volume that hold any label."""
+    return [t for t in range(vol.data.shape[3]) if vol.data[..., t].any()]
+
+
+def _add_la(b: _Builder, view_id: str, vol: LabelVolume, frames: dict[int, int],
+            times: dict[int, float]) -> None:
+    """Long-axis contours and annulus landmarks of one LA label map (every slice k)."""
+    for t_vol, frame in frames.items():
+        for k in range(vol.data.shape[2]):
+            sid = view_id if vol.data.shape[2] == 1 else f"{view_id}_{k}"
+            plane = slice_plane(vol, k, slice_id=sid, view="LA", frame=frame,
+                                trigger_time=times.get(frame), image_id=f"{sid}_f{frame:03d}")
+            b.study.images.append(plane)
+            sc = masks.la_slice_contours(vol.data[:, :, k, t_vol], b.roles)
+            for msg in sc.skipped:
+                b.note(sid, msg, frame)
+            for name, parts in sc.open.items():
+                for i, pix in enumerate(parts):
+                    b.add_contour(name, "LA", plane, to_scanner(vol, k, pix), False, i)
+            for name, pix in sc.landmarks.items():
+                for i, p in enumerate(to_scanner(vol, k, pix)):
+                    idx = len(b.study.landmarks_at(frame, name))
+                    b.study.landmarks.append(Landmark(name, frame, p, index=idx, slice=sid,
+                                                      view="LA", image=plane.id))
+
+
+def _sa_order(vol: LabelVolume, study: Study) -> list[int]:
+    """Slice indices k of an SA volume from base to apex."""
+    nk = vol.data.shape[2]
+    if nk == 1:
+        return [0]
+    a = vol.affine
+    normal = np.cross(a[:3, 0], a[:3, 1])
+    normal /= np.linalg.norm(normal)
+    centres = np.array([a[:3, 3] + k * a[:3, 2] for k in range(nk)])
+    mitral = np.array([lm.point for lm in study.landmarks if lm.name == "mitral"])
+    u, _ = stack.base_to_apex_direction(normal, centres, mitral=mitral if len(mitral) else None)
+    depth = centres @ u
+    return [int(k) for k in np.argsort(depth, kind="stable")]
+
+
+def _add_sa(b: _Builder, vol: LabelVolume, frames: dict[int, int], times: dict[int, float]) -> None:
+    """SA planes and contours of every labelled slice at the given (volume frame -> frame)."""
+    order = _sa_order(vol, b.study)
+    labelled = [k for k in order if any(vol.data[:, :, k, t].any() for t in frames)]
+    for k in order:
+        if k not in labelled:
+            b.note(f"k={k}", "no labels at any frame: slice left out", min(frames.values()))
+    for n, k in enumerate(labelled):
+        sid = f"sa_{n:02d}"
+        for t_vol, frame in frames.items():
+            plane = slice_plane(vol, k, slice_id=sid, view="SA", frame=frame,
+                                trigger_time=times.get(frame), image_id=f"{sid}_f{frame:03d}")
+            b.study.images.append(plane)
+            lab = vol.data[:, :, k, t_vol]
+            if not lab.any():
+                b.note(sid, "no labels (beyond the apex or base?): left out", frame)
+                continue
+            sc = masks.sa_slice_contours(lab, b.roles)
+            for msg in sc.skipped + sc.notes:
+                b.note(sid, msg, frame)
+            for name, pix in sc.closed.items():
+                b.add_contour(name, "SA", plane, to_scanner(vol, k, pix), True)
+            for name, parts in sc.open.items():
+                for i, pix in enumerate(parts):
+                    b.add_contour(name, "SA", plane, to_scanner(vol, k, pix), False, i)
+
+
+def voxel_volumes(vol: LabelVolume, roles: LabelRoles, frames: dict[int, int]) -> dict[int, dict]:
+    """Voxel-count volumes (mL) per frame: LV cavity, LV myocardium, RV cavity (and RV
+    myocardium where labelled) — number of voxels times the voxel volume."""
+    out = {}
+    for t_vol, frame in frames.items():
+        counts = np.bincount(vol.data[..., t_vol].ravel(), minlength=MAX_LABEL + 1)
+        d = {"lv_cavity": counts[roles.lv] * vol.voxel_ml,
+             "lv_myocardium": counts[roles.myo] * vol.voxel_ml}
+        if roles.rv is not None:
+            d["rv_cavity"] = counts[roles.rv] * vol.voxel_ml
+        if roles.rv_myo is not None:
+            d["rv_myocardium"] = counts[roles.rv_myo] * vol.voxel_ml
+        out[frame] = {k: float(v) for k, v in d.items()}
+    return out
+
+
+def _resolve_roles(labels, default: str | None, vol: LabelVolume, frames) -> tuple[LabelRoles, str | None]:
+    roles = parse_labels(labels)
+    if roles is None and default is not None:
+        roles = PRESETS[default]
+    note = None
+    if roles is None:
+        sample = list(frames)[:1] + list(frames)[-1:]
+        roles, note = infer_roles(vol.data[..., sorted(set(sample))], where=str(vol.path))
+    return roles, note
+
+
+def _check_roles(vol: LabelVolume, roles: LabelRoles) -> None:
+    present = {int(v) for v in np.unique(vol.data)}
+    check_values(present, roles, str(vol.path))
+    non_zero = sorted(present - {0})
+    if len(non_zero) == 1:
+        raise StudyError(f"the map holds a single label ({non_zero[0]}): an LV cavity and a "
+                         f"myocardium are needed ({roles.describe()})", file=str(vol.path),
+                         field="labels")
+    for role in ("lv", "myo"):
+        if getattr(roles, role) not in present:
+            raise StudyError(f"no {role} label ({getattr(roles, role)}) anywhere in the map "
+                             f"({roles.describe()})", file=str(vol.path), field="labels")
+
+
+def _build(subject: str, source: Path, sa: LabelVolume, frames: dict[int, int],
+           times: dict[int, float], roles: LabelRoles, note: str | None,
+           la: dict[str, tuple[LabelVolume, dict[int, int]]] | None = None,
+           meta: dict | None = None) -> Study:
+    b = _Builder(subject, source, roles)
+    for view_id, (lvol, lframes) in (la or {}).items():
+        _add_la(b, view_id, lvol, lframes, times)
+    _add_sa(b, sa, frames, times)
+    study = b.study
+    study.frame_times_ms = {f: times[f] for f in sorted(set(frames.values())) if f in times}
+    study.meta.update({"format": "nifti", "labels": roles.describe(),
+                       "voxel_volumes_ml": voxel_volumes(sa, roles, frames),
+                       "metric_notes": {"RVM (g)": "label maps have no RV wall: RV mass not "
+                                                   "measured"} if roles.rv_myo is None else {},
+                       "contour_files": b.files, **(meta or {})})
+    warn = list(sa.warnings) + [w for v, _ in (la or {}).values() for w in v.warnings]
+    if note:
+        warn.append(f"{source}: {note}")
+    study.meta["reader_warnings"] = warn + b.flush_warnings()
+    return study
+
+
+def _times(vol: LabelVolume, frames) -> dict[int, float]:
+    if vol.dt_ms is None:
+        return {}
+    return {f: round(f * vol.dt_ms, 6) for f in frames}
+
+
+# ------------------------------------------------------------------ layouts
+def read_file(path: Path, labels=None) -> Study:
+    """One 3-D or 4-D label map (all its slices are the SA stack)."""
+    vol = read_label_volume(path)
+    if not vol.data.any():
+        raise StudyError("the label map is empty (every voxel is 0)", file=str(path))
+    fr = _frame_indices(vol)
+    roles, note = _resolve_roles(labels, None, vol, fr)
+    _check_roles(vol, roles)
+    frames = {t: t for t in fr}
+    return _build(_stem(path), path, vol, frames, _times(vol, frames), roles, note,
+                  meta={"layout": "file", "label_files": [path.name]})
+
+
+def _info_cfg(path: Path) -> dict[str, str]:
+    out = {}
+    for line in path.read_text(errors="replace").splitlines():
+        if ":" in line:
+            k, v = line.split(":", 1)
+            out[k.strip()] = v.strip()
+    return out
+
+
+def read_acdc(folder: Path, labels=None) -> Study:
+    """ACDC: patientNNN_frameMM_gt.nii.gz per labelled frame + Info.cfg (ED, ES, Height, Weight)."""
+    gts = sorted(q for q in folder.iterdir() if re.fullmatch(r".+_frame\d+_gt\.nii(\.gz)?", q.name))
+    info_path = folder / "Info.cfg"
+    info = _info_cfg(info_path) if info_path.is_file() else {}
+    by_frame: dict[int, Path] = {}
+    for q in gts:
+        f = int(re.search(r"_frame(\d+)_gt", q.name).group(1)) - 1
+        by_frame[f] = q
+    ed = es = None
+    for key in ("ED", "ES"):
+        if key in info:
+            try:
+                v = int(float(info[key])) - 1
+            except ValueError:
+                raise StudyError(f"{key} is not a frame number: {info[key]!r}", file=str(info_path),
+                                 field=key) from None
+            if v not in by_frame:
+                raise StudyError(f"{key} is frame {v + 1} but there is no "
+                                 f"*_frame{v + 1:02d}_gt label map", file=str(info_path), field=key)
+            ed, es = (v, es) if key == "ED" else (ed, v)
+    vols = {f: read_label_volume(q) for f, q in sorted(by_frame.items())}
+    first = next(iter(vols.values()))
+    for f, v in vols.items():
+        if v.data.shape[3] != 1:
+            raise StudyError("an ACDC frame label map must be 3-D", file=str(v.path))
+        if not v.same_grid(first):
+            raise StudyError(f"frame {f + 1} does not share the grid (shape and affine) of "
+                             f"{first.path.name}: mismatched label maps", file=str(v.path))
+    data = np.concatenate([v.data for v in vols.values()], axis=3)
+    sa = LabelVolume(first.path.with_name(re.sub(r"_frame\d+_gt", "_gt", first.path.name)), data,
+                     first.affine, None, [w for v in vols.values() for w in v.warnings])
+    if not data.any():
+        raise StudyError("the label maps are empty (every voxel is 0)", file=str(first.path))
+    frames = {i: f for i, f in enumerate(vols)}
+    roles, note = _resolve_roles(labels, "acdc", sa, range(len(frames)))
+    for v in vols.values():
+        _check_roles(v, roles)
+    subject = re.sub(r"_frame\d+_gt.*$", "", first.path.name)
+    meta = {"layout": "acdc", "label_files": [v.path.name for v in vols.values()]}
+    for key, name in (("Height", "height_cm"), ("Weight", "weight_kg"), ("Group", "group")):
+        if key in info:
+            meta[name] = info[key]
+    images = [q.name for q in folder.iterdir() if re.fullmatch(r".+_4d\.nii(\.gz)?", q.name)]
+    if images:
+        meta["image_files"] = images
+    study = _build(subject, folder, sa, frames, {}, roles, note, meta=meta)
+    study.ed_frame, study.es_frame = ed, es
+    return study
+
+
+def _find(folder: Path, stem: str) -> Path | None:
+    for ext in (".nii.gz", ".nii"):
+        if (folder / (stem + ext)).is_file():
+            return folder / (stem + ext)
+    return None
+
+
+def read_ukbb(folder: Path, labels=None) -> Study:
+    """UK Biobank / ukbb_cardiac: seg_sa (4-D) or seg_sa_ED + seg_sa_ES; LA maps where present."""
+    sa_path = _find(folder, "seg_sa")
+    meta: dict = {"layout": "ukbb"}
+    if sa_path is not None:
+        sa = read_label_volume(sa_path)
+        files = [sa_path.name]
+    else:
+        ed_p, es_p = _find(folder, "seg_sa_ED"), _find(folder, "seg_sa_ES")
+        if ed_p is None or es_p is None:
+            raise StudyError("UK Biobank layout needs seg_sa.nii.gz, or both seg_sa_ED.nii.gz and "
+                             "seg_sa_ES.nii.gz", file=str(folder))
+        v_ed, v_es = read_label_volume(ed_p), read_label_volume(es_p)
+        for v in (v_ed, v_es):
+            if v.data.shape[3] != 1:
+                raise StudyError("seg_sa_ED/ES must be 3-D label maps", file=str(v.path))
+        if not v_ed.same_grid(v_es):
+            raise StudyError(f"seg_sa_ES does not share the grid (shape and affine) of {ed_p.name}: "
+                             "mismatched ED/ES label maps", file=str(es_p))
+        sa = LabelVolume(folder / "seg_sa_ED+ES", np.concatenate([v_ed.data, v_es.data], axis=3),
+                         v_ed.affine, None, v_ed.warnings + v_es.warnings)
+        files = [ed_p.name, es_p.name]
+    if not sa.data.any():
+        raise StudyError("the label map is empty (every voxel is 0)", file=str(sa.path))
+    fr = _frame_indices(sa)
+    roles, note = _resolve_roles(labels, "ukbb", sa, fr)
+    _check_roles(sa, roles)
+    frames = {t: t for t in fr}
+    times = _times(sa, frames)
+    la: dict = {}
+    skipped: list[str] = []
+    for view_id, stems in LA_FILES.items():
+        p = next((q for q in (_find(folder, s) for s in stems) if q is not None), None)
+        if p is None:
+            continue
+        v = read_label_volume(p)
+        if v.data.shape[3] != sa.data.shape[3]:
+            skipped.append(f"{p}: {v.data.shape[3]} frame(s) where the SA map has "
+                           f"{sa.data.shape[3]}: long-axis map left out")
+            continue
+        present = {int(x) for x in np.unique(v.data)} - {0}
+        if not {roles.lv, roles.myo} <= present:
+            skipped.append(f"{p}: no LV cavity and myocardium labels ({roles.describe()}): an "
+                           "atrial segmentation? long-axis map left out")
+            continue
+        check_values(present, roles, str(p))
+        la[view_id] = (v, frames)
+        files.append(p.name)
+    meta["label_files"] = files
+    images = [q.name for q in folder.iterdir()
+              if re.fullmatch(r"(sa|la_[234]ch)\.nii(\.gz)?", q.name)]
+    if images:
+        meta["image_files"] = sorted(images)
+    study = _build(folder.name, folder, sa, frames, times, roles, note, la=la, meta=meta)
+    study.meta["reader_warnings"] += skipped
+    if sa_path is not None:
+        study.ed_frame = 0 if 0 in frames else None     # ukbb_cardiac: ED is the first frame
+    else:
+        study.ed_frame, study.es_frame = 0, 1
+    return study
+
+
+def _mnms_csv(folder: Path, code: str) -> tuple[int, int] | None:
+    for d in (folder, folder.parent):
+        for q in sorted(d.glob("*.csv")):
+            try:
+                with q.open(newline="", errors="replace") as fh:
+                    for row in csv.DictReader(fh):
+                        row = {k.strip(): v for k, v in row.items() if k}
+                        if row.get("External code", "").strip() == code and "ED" in row and "ES" in row:
+                            return int(float(row["ED"])), int(float(row["ES"]))
+            except (OSError, ValueError, csv.Error):
+                continue
+    return None
+
+
+def read_mnms(folder: Path, labels=None, ed_frame: int | None = None,
+              es_frame: int | None = None) -> Study:
+    """M&Ms: <code>_sa_gt.nii.gz (4-D, ED and ES labelled); ED/ES from arguments or a CSV."""
+    gts = sorted(q for q in folder.iterdir() if re.fullmatch(r".+_sa_gt\.nii(\.gz)?", q.name))
+    if len(gts) != 1:
+        raise StudyError(f"M&Ms layout needs one *_sa_gt.nii.gz, found {len(gts)}", file=str(folder))
+    sa = read_label_volume(gts[0])
+    code = re.sub(r"_sa_gt.*$", "", gts[0].name)
+    if not sa.data.any():
+        raise StudyError("the label map is empty (every voxel is 0)", file=str(sa.path))
+    if ed_frame is None and es_frame is None:
+        got = _mnms_csv(folder, code)
+        if got is not None:
+            ed_frame, es_frame = got
+    n_t = sa.data.shape[3]
+    for name, v in (("ED", ed_frame), ("ES", es_frame)):
+        if v is not None and not (0 <= v < n_t):
+            raise StudyError(f"{name} frame {v} is outside the map's {n_t} frames", file=str(sa.path),
+                             field=name)
+        if v is not None and not sa.data[..., v].any():
+            raise StudyError(f"{name} frame {v} has no labels", file=str(sa.path), frame=v, field=name)
+    fr = _frame_indices(sa)
+    if ed_frame is not None and es_frame is not None:
+        fr = sorted({ed_frame, es_frame})
+    roles, note = _resolve_roles(labels, "mnms", sa, fr)
+    _check_roles(sa, roles)
+    frames = {t: t for t in fr}
+    meta = {"layout": "mnms", "label_files": [gts[0].name]}
+    img = _find(folder, f"{code}_sa")
+    if img is not None:
+        meta["image_files"] = [img.name]
+    study = _build(code, folder, sa, frames, _times(sa, frames), roles, note, meta=meta)
+    study.ed_frame, study.es_frame = ed_frame, es_frame
+    return study
+
+
+def read_study(path: str | Path, *, labels: "str | LabelRoles | None" = None,
+               ed_frame: int | None = None, es_frame: int | None = None) -> Study:
+    """Read a label-map study in any layout (:func:`detect`); ``labels`` is a preset name,
+    a ``lv=…,myo=…,rv=…`` mapping or None (the layout's preset; for a single file, inferred
+    from topology with a warning). Reader warnings are in ``study.meta["reader_warnings"]``."""
+    p = Path(path)
+    if not p.exists():
+        raise StudyError("no such file or folder", file=str(p))
+    layout = detect(p)
+    if layout is None:
+        if p.is_file():
+            raise StudyError("not a NIfTI file (expected a .nii or .nii.gz name)", file=str(p))
+        raise StudyError("no NIfTI label maps in a known layout (a single .nii/.nii.gz file, ACDC "
+                         "*_frameMM_gt, UK Biobank seg_sa, M&Ms *_sa_gt)", file=str(p))
+    if layout == "file":
+        study = read_file(p, labels)
+    elif layout == "acdc":
+        study = read_acdc(p, labels)
+    elif layout == "ukbb":
+        study = read_ukbb(p, labels)
+    else:
+        study = read_mnms(p, labels, ed_frame, es_frame)
+    if layout != "mnms":
+        if ed_frame is not None:
+            study.ed_frame = ed_frame
+        if es_frame is not None:
+            study.es_frame = es_frame
+    return study
