@@ -8,6 +8,7 @@ Public API (README.md, "Python API")::
     meshes = model.meshes(frame)         # closed manifold trimesh.Trimesh
     m = cn.measure(model)                # docs/metrics.md column -> float
     table = cn.cohort(paths)             # pandas.DataFrame
+    tracked = cn.track_tags(study)       # tag lines tracked from the tagged DICOM (HARP)
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ __all__ = [
     "CardioNurbsError", "NurbsInputError", "PhantomError", "ReconstructionError",
     "StudyError", "TagError", "UnsupportedInputError",
     "Study", "Contour", "TagLine", "Landmark",
-    "load_study", "reconstruct", "measure", "cohort", "nurbs",
+    "load_study", "reconstruct", "measure", "cohort", "nurbs", "track_tags",
 ]
 
 #: public name -> (module, attribute): resolved on first use, so that importing one layer
@@ -37,6 +38,7 @@ _LAZY = {
     "reconstruct": ("cardionurbs.anatomy.model", "reconstruct"),
     "measure": ("cardionurbs.analysis.function", "measure"),
     "cohort": ("cardionurbs.cohort", "cohort"),
+    "track_tags": ("cardionurbs.tracking", "track_tags"),
 }
 
 

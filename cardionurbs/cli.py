@@ -175,6 +175,17 @@ def build_parser() -> argparse.ArgumentParser:
                     help="replace --out when it holds an earlier cardionurbs output")
     an.add_argument("--allow-outside", action="store_true",
                     help="let study.json name files outside the study folder")
+    an.add_argument("--track-tags", action="store_true",
+                    help="track the tag lines from the study's tagged DICOM (HARP) first")
+
+    tr = command("track", "track tag lines from a study's tagged DICOM images (HARP)")
+    tr.add_argument("study", metavar="STUDY", help="native study folder whose images name DICOM files")
+    tr.add_argument("--out", required=True, metavar="DIR",
+                    help="new (or empty) output folder, outside the study")
+    tr.add_argument("--overwrite", action="store_true",
+                    help="replace --out when it holds an earlier cardionurbs output")
+    tr.add_argument("--allow-outside", action="store_true",
+                    help="let study.json name files outside the study folder")
 
     co = command("cohort", "measure many studies into one CSV")
     co.add_argument("studies", nargs="+", metavar="STUDY", help="study folders or label maps")
@@ -216,6 +227,9 @@ def _run(args: argparse.Namespace) -> int:
     if args.command == "analyze":
         from cardionurbs.pipeline import run_analyze
         return run_analyze(args)
+    if args.command == "track":
+        from cardionurbs.tracking.track import run_track
+        return run_track(args)
     if args.command == "cohort":
         from cardionurbs.cohort import run_cohort
         return run_cohort(args)
@@ -225,7 +239,7 @@ def _run(args: argparse.Namespace) -> int:
     if args.command == "report":
         from cardionurbs.report.html import run_report
         return run_report(args)
-    raise UsageError("a command is required (phantom, analyze, cohort, demo, report)")
+    raise UsageError("a command is required (phantom, analyze, track, cohort, demo, report)")
 
 
 class Terminated(KeyboardInterrupt):

@@ -94,3 +94,7 @@ class OutputError(CardioNurbsError):
 
 class LimitError(StudyError):
     """Input past a documented limit (points per contour, contours, frames, name length)."""
+
+
+class SegmentError(StudyError):
+    """The AHA segments cannot be placed (e.g. no RV insertion points nor RV contours)."""

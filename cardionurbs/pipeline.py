@@ -68,6 +68,10 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None):
     tags = tag_metrics_hook(model)
     if tags is not None:
         metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
+    from cardionurbs.analysis.regional import regional_metrics
+    regional = regional_metrics(model, tags)
+    metrics.update({k: float(v) for k, v in regional.items() if k in metrics})
+    model.regional = regional                     # kept for metrics.json and the figures
     voxels = study.meta.get("voxel_volumes_ml") if isinstance(study.meta, dict) else None
     if voxels:                              # label maps: voxel counting beside the model
         from cardionurbs.analysis.voxels import voxel_metrics
@@ -119,6 +123,8 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                     "residual_frames": sorted({model.ed_frame, model.es_frame}),
                     "tags": None if tags is None else tags.to_json(),
                     "quality": quality.to_json(), "QC": "; ".join(quality.flags),
+                    "regional": (None if getattr(model, "regional", None) is None
+                                 else model.regional.to_json()),
                     "notes": dict(model.study.meta.get("metric_notes") or {}),
                     "warnings": model.warnings}, tmp / "metrics.json")
         if figures:
@@ -146,6 +152,9 @@ def run_analyze(args: argparse.Namespace) -> int:
                      overwrite=getattr(args, "overwrite", False))
     study = load_study(args.study, format=args.format,
                        allow_outside=getattr(args, "allow_outside", False), **_label_option(args))
+    if getattr(args, "track_tags", False):
+        from cardionurbs.tracking import track_tags
+        study = track_tags(study)
     model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None))
     write_analysis(model, metrics, args.out, figures=not getattr(args, "no_figures", False),
                    tags=tags)

@@ -192,6 +192,9 @@ def main(argv=None) -> int:
              "beside Simpson's disks from the same contours; Sunnybrook and CAP (biv-me) results.",
              "- [validation-tags.md](validation-tags.md): twist, torsion, CL shear, LS and "
              "per-level rotation against truth; Twist 2D bias; tag-jump QC over 20 seeds.",
+             "- [validation-tracking.md](validation-tracking.md): tag lines tracked from the "
+             "tagged DICOM (HARP) against the true lines at SNR 20 and 10; tag indices; twist, "
+             "torsion, LS from tracked lines (`benchmarks/validate_tracking.py`).",
              "- [validation-labelmaps.md](validation-labelmaps.md): NIfTI label maps of the "
              "phantoms (UK Biobank and ACDC layouts) through mask contours and the model, "
              "beside voxel counting (benchmarks/labelmaps.py validation).",

@@ -31,7 +31,7 @@ LAYERS = {
     "io": 6,
     "anatomy": 7, "phantom": 7,
     "analysis": 8,
-    "report": 9,
+    "report": 9, "tracking": 9,
     "pipeline": 10,
     "cohort": 11,
     "demo": 12,

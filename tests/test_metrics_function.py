@@ -20,8 +20,11 @@ from cardionurbs.study import Contour, Study
 
 
 def test_columns_follow_metrics_md():
-    assert F.COLUMNS[0] == "HR (bpm)" and F.COLUMNS[-1] == "Tag QC flags"
-    assert len(F.COLUMNS) == len(set(F.COLUMNS)) == 23
+    from cardionurbs.analysis.regional_columns import REGIONAL_COLUMNS
+    n = len(F.COLUMNS) - len(REGIONAL_COLUMNS)
+    assert F.COLUMNS[0] == "HR (bpm)" and F.COLUMNS[n - 1] == "Tag QC flags"
+    assert F.COLUMNS[n:] == REGIONAL_COLUMNS
+    assert len(F.COLUMNS) == len(set(F.COLUMNS)) == 23 + len(REGIONAL_COLUMNS)
     assert set(F.TAG_COLUMNS) <= set(F.COLUMNS)
 
 

@@ -134,8 +134,9 @@ def test_tags_move_with_tissue(ph):
 
 def test_truth_file_content(ph):
     tr = ph.truth
+    from cardionurbs.analysis.regional_columns import REGIONAL_COLUMNS
     from cardionurbs.phantom.truth import METRIC_COLUMNS
-    assert tuple(tr["metrics"]) == METRIC_COLUMNS
+    assert tuple(tr["metrics"]) == METRIC_COLUMNS + REGIONAL_COLUMNS
     assert tr["volumes"]["max_relative_difference"] < 0.002
     lv = tr["tags"]["levels"]
     assert len(lv) >= 2 and lv[0]["in_twist"] and lv[-1]["in_twist"]

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cardionurbs.analysis.regional_columns import REGIONAL_COLUMNS
 from cardionurbs.errors import CardioNurbsError
 from cardionurbs.limits import HEART_RATE_RANGE_BPM
 from cardionurbs.geometry import chord_length, fit_plane, in_plane_basis, polygon_centroid
@@ -31,7 +32,8 @@ if TYPE_CHECKING:  # pragma: no cover
 MYOCARDIAL_DENSITY_G_PER_ML = 1.05
 
 #: The cohort CSV's metric columns, in docs/metrics.md order (``subject`` and
-#: ``status`` come first in the CSV).
+#: ``status`` come first in the CSV); the regional columns
+#: (:mod:`cardionurbs.analysis.regional_columns`) come last.
 COLUMNS = (
     "HR (bpm)",
     "LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVCO (L/min)", "LVM (g)",
@@ -41,7 +43,7 @@ COLUMNS = (
     "EI ES",
     "Twist (deg)", "Twist 2D (deg)", "Torsion (deg/cm)", "CL shear (deg)", "LS (%)",
     "Tag QC flags",
-)
+) + REGIONAL_COLUMNS
 TAG_COLUMNS = ("Twist (deg)", "Twist 2D (deg)", "Torsion (deg/cm)", "CL shear (deg)", "LS (%)",
                "Tag QC flags")
 NAN = float("nan")
@@ -146,6 +148,9 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None)
     out["RV/LV EDV ratio"] = _ratio(out["RVEDV (mL)"], out["LVEDV (mL)"])
     out["RV/LV mass ratio"] = _ratio(out["RVM (g)"], out["LVM (g)"])
     out["EI ES"] = eccentricity_index_es(model)
+    from cardionurbs.analysis.rates import model_filling_rates
+    rates, _ = model_filling_rates(model)
+    out.update(rates)
     return {k: (float(x) if x is not None and math.isfinite(float(x)) else NAN)
             for k, x in out.items()}
 

@@ -37,6 +37,9 @@ left out of the lofts before the others are measured again, so a jumped
 line (about one spacing) is flagged and its neighbours, measured again
 without it, are not.
 
+Tracked lines (:mod:`cardionurbs.tracking`) also carry a confidence per line;
+those below it are flagged with reason "low confidence" (:func:`confidence_flags`).
+
 Tag spacing: ``study.meta["tag_spacing_mm"]`` when given, else estimated
 per family and frame from neighbouring indices (median over slices of the
 distance between consecutive tag lines' centroids across the lines,
@@ -66,6 +69,7 @@ class TagFlag:
     slice: str
     frame: int
     departure: float
+    reason: str = "jump"     # "jump", or "low confidence" (tracked from images, see below)
 
     def as_tuple(self) -> tuple:
         return (self.family, self.index, self.slice, self.frame, self.departure)
@@ -529,4 +533,35 @@ def tag_qc(study: Study, threshold: float = DEFAULT_THRESHOLD, frames: list[int]
     """
     deps = tag_departures(study, threshold, frames, long_axis, surfaces)
     flags = [TagFlag(d.family, d.index, d.slice, d.frame, d.departure) for d in deps if d.flagged]
+    seen = {f.as_tuple()[:4] for f in flags}
+    flags += [f for f in confidence_flags(study, frames) if f.as_tuple()[:4] not in seen]
     return sorted(flags, key=lambda x: (x.frame, x.family, x.index, x.slice))
+
+
+#: tracked lines (``study.meta["tag_tracking"]["lines"]``) below this harmonic magnitude
+#: (relative to the first frame's) or above this phase residual (rad) are flagged
+MIN_MAGNITUDE = 0.15
+MAX_PHASE_RESIDUAL = 0.6
+
+
+def confidence_flags(study: Study, frames: list[int] | None = None) -> list[TagFlag]:
+    """Low-confidence tracked lines: the per-line confidence the image tracker
+    (:mod:`cardionurbs.tracking`) records — harmonic magnitude over the first frame's
+    below :data:`MIN_MAGNITUDE` (faded tags), or RMS phase residual of the line's tracked
+    points above :data:`MAX_PHASE_RESIDUAL` rad (points that lost their tag). ``departure``
+    is NaN for these flags (they are not measured against the other slices)."""
+    info = study.meta.get("tag_tracking") if isinstance(study.meta, dict) else None
+    cols = info.get("lines") if isinstance(info, dict) else None
+    if not isinstance(cols, dict) or not cols.get("family"):
+        return []
+    want = None if frames is None else set(frames)
+    out = []
+    for fam, idx, slc, fr, mag, res in zip(cols["family"], cols["index"], cols["slice"],
+                                           cols["frame"], cols["magnitude"], cols["phase_residual"]):
+        if want is not None and fr not in want:
+            continue
+        low = mag is not None and mag < MIN_MAGNITUDE
+        slip = res is not None and res > MAX_PHASE_RESIDUAL
+        if low or slip:
+            out.append(TagFlag(fam, int(idx), slc, int(fr), float("nan"), "low confidence"))
+    return out

@@ -310,7 +310,8 @@ class TagMetrics(Mapping):
             "columns": {k: num(v) for k, v in self.columns.items()},
             "levels": [{k: num(v) for k, v in lv.items()} for lv in self.levels],
             "flags": [{"family": f.family, "index": f.index, "slice": f.slice, "frame": f.frame,
-                       "departure_spacings": round(f.departure, 4)} for f in self.flags],
+                       "departure_spacings": num(round(f.departure, 4)), "reason": f.reason}
+                      for f in self.flags],
             "twist_2d_slices": self.slices_2d,
             "over_time": {str(k): {kk: num(vv) for kk, vv in v.items()}
                           for k, v in self.over_time.items()},

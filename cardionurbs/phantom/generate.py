@@ -26,7 +26,7 @@ from pydicom.uid import generate_uid
 from cardionurbs.errors import PhantomError
 from cardionurbs.io import atomic
 from cardionurbs.io.native import write_study
-from cardionurbs.phantom import annotate, faults, truth
+from cardionurbs.phantom import annotate, faults, regional, truth
 from cardionurbs.phantom.anatomy import Anatomy
 from cardionurbs.phantom.geometry import Acquisition, HeartPose, SliceSpec, image_plane, slice_specs
 from cardionurbs.phantom.motion import Motion, VolumeCurve
@@ -231,6 +231,12 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
 
     metrics, tag_truth = truth.compute_metrics(anatomy, motion, grid, specs, phases, es_frame, float(hr),
                                                len(jumps))
+    metrics.update(regional.filling_rate_truth(anatomy, motion, frames, es_frame, rr))
+    metrics.update(regional.wall_thickness_truth(anatomy, motion, specs, f_es))
+    strain = regional.strain_truth(anatomy, motion, specs, tag_truth["levels"], f_es)
+    metrics.update(strain["columns"])
+    metrics.update(regional.surface_strain_truth(anatomy, motion, specs, f_es))
+    tag_truth["det_F_es"] = strain["det_F"]
     fault_record = {"noise_px": float(noise_px), "tag_jumps": jumps,
                     "breath_hold_mm": float(breath_hold_mm),
                     "breath_hold_shifts_mm": ({k: [float(x) for x in v] for k, v in shifts.items()}

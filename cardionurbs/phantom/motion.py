@@ -84,6 +84,13 @@ class VolumeCurve:
         ts, fs = self.knots()
         return PchipInterpolator(ts, fs)(np.mod(np.asarray(tau, dtype=float), 1.0))
 
+    def derivative(self, tau: np.ndarray) -> np.ndarray:
+        """df/dτ, exact (the derivative of the piecewise cubic); one-sided at the knots
+        (at τ = 0 the slope of the start of the beat, τ -> 1 the end: the curve has a
+        corner at ED)."""
+        ts, fs = self.knots()
+        return PchipInterpolator(ts, fs).derivative()(np.mod(np.asarray(tau, dtype=float), 1.0))
+
 
 @dataclass(frozen=True)
 class Motion:

@@ -47,6 +47,7 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 from cardionurbs.safe import plain_text
 from cardionurbs import nurbs
 from cardionurbs.io import atomic
+from cardionurbs.report.bullseye import QUANTITIES as BULLSEYE_QUANTITIES, quantity_figure
 
 __all__ = ["write_figures", "render_figures", "FigureSet", "FigureResult", "OKABE_ITO",
            "STRUCTURE_COLOURS", "FAMILY_COLOURS", "FLAG_COLOUR", "tag_data", "view_frame"]
@@ -707,6 +708,33 @@ FIGURES: dict[str, FigureFn] = {
 }
 
 
+def _regional_columns(ctx) -> Mapping:
+    """The metrics with the regional columns: as given, else the model's regional analysis
+    (kept on the model by the pipeline, else computed once here)."""
+    m = dict(ctx.metrics or {})
+    if any(isinstance(m.get(f"WT_AHA_{k} (mm)"), float) and np.isfinite(m[f"WT_AHA_{k} (mm)"])
+           for k in range(1, 17)):
+        return m
+    reg = getattr(ctx.model, "regional", None)
+    if reg is None:
+        from cardionurbs.analysis.regional import regional_metrics
+        reg = regional_metrics(ctx.model, ctx.tags)
+        ctx.model.regional = reg
+    return {**m, **dict(reg)}
+
+
+def _bullseye(quantity: tuple) -> FigureFn:
+    """Figure function of one AHA bull's-eye (:mod:`cardionurbs.report.bullseye`)."""
+    def fig(ctx, out):
+        res = quantity_figure(_regional_columns(ctx), quantity, ctx.subject, out,
+                              frames=f"ED frame {ctx.ed}, ES frame {ctx.es}")
+        return res if isinstance(res, str) else FigureResult(quantity[0], res[0], res[1], {}, [])
+    return fig
+
+
+FIGURES.update({q[0]: _bullseye(q) for q in BULLSEYE_QUANTITIES})
+
+
 # ----------------------------------------------------------------- driver
 def _load_truth(model, truth) -> Mapping | None:
     if truth is not None and not isinstance(truth, (str, Path)):
@@ -770,7 +798,8 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
 def _tags_json(tag_frames: Mapping[int, list[dict]], tags: Any) -> dict:
     """Coarse tag surfaces per frame (vertices rounded to 0.1 mm) with QC flags."""
     flags = [{"family": g.family, "index": g.index, "slice": g.slice, "frame": g.frame,
-              "departure_spacings": round(float(g.departure), 3)}
+              "departure_spacings": (round(float(g.departure), 3) if np.isfinite(g.departure)
+                                     else None), "reason": getattr(g, "reason", "jump")}
              for g in (getattr(tags, "flags", None) or [])]
     return {"frames": {str(f): [{"family": d["family"], "index": int(d["index"]),
                                  "flagged": bool(d["flagged"]),

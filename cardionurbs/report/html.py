@@ -403,6 +403,12 @@ if(D.volume_curve && D.volume_curve.frame && D.volume_curve.frame.length>2){
 """
 
 
+def _departure(flag: dict) -> str:
+    """A flag's departure in spacings, or its reason when it has none (low tracking confidence)."""
+    d = flag.get("departure_spacings")
+    return f"{d:.2f}" if isinstance(d, (int, float)) else html.escape(str(flag.get("reason", "")))
+
+
 def _fmt(x: Any) -> str:
     if x is None:
         return "–"
@@ -431,7 +437,7 @@ def render_html(payload: Mapping) -> str:
     if p["flags"]:
         flag_rows = "".join(
             f"<tr><td>{esc(str(f['family']))} #{f['index']}</td><td>{esc(str(f['slice']))}</td>"
-            f"<td>{f['frame']}</td><td class='bad'>{f['departure_spacings']:.2f}</td></tr>"
+            f"<td>{f['frame']}</td><td class='bad'>{_departure(f)}</td></tr>"
             for f in p["flags"])
         n_fr = len({f["frame"] for f in p["flags"]})
         flags_html = (f"<p class='note'>{len(p['flags'])} tag line(s) flagged by the "

@@ -1,0 +1,128 @@
+"""Regional LV function of a reconstructed model (docs/metrics.md, Regional function).
+
+:func:`regional_metrics` gathers, for one model, the columns of
+:data:`cardionurbs.analysis.regional_columns.REGIONAL_COLUMNS` that are not
+global-volume based: wall thickness and thickening per AHA segment
+(:mod:`cardionurbs.analysis.thickness`, on the AHA geometry of
+:mod:`cardionurbs.analysis.aha`), Lagrangian strain from the tag material
+points (:mod:`cardionurbs.analysis.strain`; over time when >= 3 frames are
+tagged) and the contour-length strains (:mod:`cardionurbs.analysis.surface_strain`).
+Each part that cannot be measured leaves its columns NaN and says why in
+``notes``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cardionurbs.analysis.aha import AhaFrame, model_aha_frame
+from cardionurbs.analysis.strain import STRAIN_COLUMNS, STRAIN_KINDS, myocardium_samples, tag_strain
+from cardionurbs.analysis.surface_strain import SURFACE_STRAIN_COLUMNS, surface_strains
+from cardionurbs.analysis.thickness import THICKNESS_COLUMNS, thickness_by_segment, thickness_columns
+from cardionurbs.errors import CardioNurbsError
+
+NAN = float("nan")
+
+
+@dataclass
+class RegionalMetrics(Mapping):
+    """Regional columns -> float (a read-only mapping), with the segment geometry per frame
+    (``aha``: frame -> AhaFrame), the thickness samples per frame (``samples``) and ``notes``."""
+
+    columns: dict[str, float]
+    aha: dict[int, AhaFrame] = field(default_factory=dict)
+    samples: dict[int, dict] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    strain: dict = field(default_factory=dict)          # ES fit summary (det F, counts, ...)
+    over_time: dict[int, dict] = field(default_factory=dict)
+    surface: dict = field(default_factory=dict)
+
+    def __getitem__(self, key: str) -> float:
+        return self.columns[key]
+
+    def __iter__(self):
+        return iter(self.columns)
+
+    def __len__(self) -> int:
+        return len(self.columns)
+
+    def to_json(self) -> dict:
+        """JSON-safe summary for metrics.json (NaN -> None)."""
+        def num(x):
+            return None if x is None or not np.isfinite(x) else float(x)
+        def clean(d):
+            if isinstance(d, dict):
+                return {str(k): clean(v) for k, v in d.items()}
+            if isinstance(d, (list, tuple)):
+                return [clean(v) for v in d]
+            if isinstance(d, (float, np.floating)):
+                return num(float(d))
+            return d
+        peak = {}
+        if len(self.over_time) >= 3:
+            for kind in STRAIN_KINDS:
+                vals = [v["columns"][f"{kind}_Global (%)"] for v in self.over_time.values()]
+                vals = [x for x in vals if np.isfinite(x)]
+                if vals:
+                    peak[f"{kind}_Global (%)"] = max(vals) if kind == "Err" else min(vals)
+        return clean({"aha": {str(f): a.to_dict() for f, a in self.aha.items()},
+                      "strain": {k: v for k, v in self.strain.items() if k != "columns"},
+                      "strain_over_time": {f: {"det_F": v["det_F"],
+                                               **{f"{k}_Global (%)": v["columns"][f"{k}_Global (%)"]
+                                                  for k in STRAIN_KINDS}}
+                                           for f, v in self.over_time.items()},
+                      "strain_peak": peak, "surface_strain": self.surface,
+                      "notes": list(self.notes)})
+
+
+def regional_metrics(model, tags=None) -> RegionalMetrics:
+    """Regional columns of a model; ``tags``: its :class:`~cardionurbs.analysis.tags.TagMetrics`
+    (material points) when the study is tagged."""
+    cols = {c: NAN for c in THICKNESS_COLUMNS + STRAIN_COLUMNS + SURFACE_STRAIN_COLUMNS}
+    out = RegionalMetrics(cols)
+    ed, es = model.ed_frame, model.es_frame
+    try:
+        surf_cols, out.surface = surface_strains(model)
+        cols.update(surf_cols)
+    except CardioNurbsError as exc:
+        out.notes.append(f"surface strain not measured: {exc}")
+    try:
+        out.aha = {f: model_aha_frame(model, f) for f in dict.fromkeys((ed, es))}
+    except CardioNurbsError as exc:
+        out.notes.append(f"AHA segments not placed: {exc}")
+        return out
+    per = {}
+    for f in dict.fromkeys((ed, es)):
+        surf = model.surfaces[f]
+        if "lv_endo" not in surf or "lv_epi" not in surf:
+            out.notes.append(f"frame {f}: no LV epicardial surface; wall thickness not measured")
+            return out
+        per[f], out.samples[f] = thickness_by_segment(surf["lv_endo"], surf["lv_epi"], out.aha[f],
+                                                      model.base_planes[f].get("lv"))
+    cols.update(thickness_columns(per[ed], per[es]))
+    material = getattr(tags, "material", None)
+    if material is None or not len(material.triples):
+        out.notes.append("no tag material points: Ecc, Ell, Err not measured")
+        return out
+    smp = out.samples[ed]
+    P, N = smp["points"], smp["normals"]
+    a = out.aha[ed]
+    wall = myocardium_samples(P, N, smp["thickness"], smp["weight"], a.apex, a.base)
+    frames = [f for f in material.frames if f != material.ed_frame]
+    for f in frames:
+        ax = (out.aha[f].apex, out.aha[f].base) if f in out.aha else None
+        res = tag_strain(material, f, a.apex, a.base, P, N, a, axis=ax, myocardium=wall)
+        if res is not None:
+            out.over_time[f] = res
+    if es in out.over_time:
+        out.strain = out.over_time[es]
+        cols.update(out.strain["columns"])
+    else:
+        out.notes.append(f"fewer than the material points needed at ES (frame {es}): "
+                         "Ecc, Ell, Err not measured")
+    if len(frames) < 2:
+        out.over_time = {}
+    return out

@@ -1,0 +1,145 @@
+"""LV wall thickness and thickening per AHA segment (docs/metrics.md, Regional function).
+
+Thickness at an endocardial point p is the distance along the outward unit
+normal n of the endocardial NURBS surface to the epicardial NURBS surface:
+the smallest t > 0 with p + t n = S_epi(u, v). All rays are solved at once
+by Newton's method on (u, v, t) (residual S_epi(u, v) − p − t n, Jacobian
+[S_u, S_v, −n]), started from the epicardial grid node nearest each ray on its
+outward side (a k-d tree query at a few distances along the ray).
+
+The endocardium is sampled on a regular (u, v) grid below the mitral plane;
+each sample carries its surface area |S_u × S_v| Δu Δv, so a segment's
+thickness is the area-weighted mean over the endocardial surface in that
+segment (segment of the endocardial point, :mod:`cardionurbs.analysis.aha`).
+``WT_Global`` is the mean of the 16 segment values; thickening per segment is
+100 (WT_ES − WT_ED) / WT_ED and ``Thickening_Global`` the same of the global
+values. Rays that miss the epicardium (beyond its rim at the base) are left
+out.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from cardionurbs.analysis.aha import AhaFrame
+
+NAN = float("nan")
+WT_COLUMNS = tuple(f"WT_AHA_{k} (mm)" for k in range(1, 17)) + ("WT_Global (mm)",)
+WT_ES_COLUMNS = tuple(f"WT_ES_AHA_{k} (mm)" for k in range(1, 17)) + ("WT_ES_Global (mm)",)
+THICKENING_COLUMNS = tuple(f"Thickening_AHA_{k} (%)" for k in range(1, 17)) + ("Thickening_Global (%)",)
+THICKNESS_COLUMNS = WT_COLUMNS + WT_ES_COLUMNS + THICKENING_COLUMNS
+
+
+def surface_samples(surface, n_u: int = 96, n_v: int = 64, v_range=(0.0, 1.0)):
+    """Points (k, 3), unit normals (k, 3) and area weights (k,) on a cell-centred (u, v) grid."""
+    du, dv = 1.0 / n_u, (v_range[1] - v_range[0]) / n_v
+    u = (np.arange(n_u) + 0.5) * du
+    v = v_range[0] + (np.arange(n_v) + 0.5) * dv
+    D = surface.derivatives_grid(u, v, 1)                    # (n_u, n_v, 2, 2, 3)
+    P, Su, Sv = D[..., 0, 0, :], D[..., 1, 0, :], D[..., 0, 1, :]
+    n = np.cross(Su, Sv)
+    a = np.linalg.norm(n, axis=-1)
+    n = n / np.where(a > 0, a, 1.0)[..., None]
+    return P.reshape(-1, 3), n.reshape(-1, 3), (a * du * dv).ravel()
+
+
+def orient_outward(points: np.ndarray, normals: np.ndarray, apex: np.ndarray,
+                   base: np.ndarray) -> np.ndarray:
+    """Normals flipped, as a whole, to point away from the long axis on average."""
+    e = (base - apex) / np.linalg.norm(base - apex)
+    d = points - apex
+    radial = d - np.outer(d @ e, e)
+    return normals if float(np.einsum("ij,ij->", radial, normals)) >= 0 else -normals
+
+
+def ray_surface_distance(surface, origins: np.ndarray, directions: np.ndarray,
+                         grid: tuple[int, int] = (64, 48), iterations: int = 12,
+                         tol_mm: float = 1e-3,
+                         probe_mm: tuple[float, ...] = (1.0, 3.0, 6.0, 10.0, 15.0, 22.0)
+                         ) -> np.ndarray:
+    """Distance t (mm) along each unit ray origin + t·direction to a NURBS surface (the
+    intersection nearest the start node on the ray's forward side); NaN where Newton does
+    not land on the surface within ``tol_mm`` inside its parameter domain or t <= 0."""
+    o = np.asarray(origins, float)
+    d = np.asarray(directions, float)
+    nu, nv = grid
+    gu, gv = np.linspace(0, 1, nu, endpoint=False), np.linspace(0, 1, nv)
+    Q = surface.evaluate(gu, gv).reshape(-1, 3)
+    UU, VV = np.meshgrid(gu, gv, indexing="ij")
+    uv_grid = np.column_stack([UU.ravel(), VV.ravel()])
+    # start: of the grid nodes nearest to points along each ray, the one nearest the ray
+    tree = cKDTree(Q)
+    probes = np.asarray(probe_mm, float)
+    _, idx = tree.query((o[:, None, :] + probes[None, :, None] * d[:, None, :]).reshape(-1, 3))
+    idx = idx.reshape(len(o), len(probes))
+    rel = Q[idx] - o[:, None, :]
+    along = np.einsum("kmi,ki->km", rel, d)
+    dist2 = np.einsum("kmi,kmi->km", rel, rel) - along * along
+    start = idx[np.arange(len(o)), np.argmin(np.where(along > 0, dist2, np.inf), axis=1)]
+    u, v = uv_grid[start, 0].copy(), uv_grid[start, 1].copy()
+    t = np.einsum("ki,ki->k", Q[start] - o, d)
+    closed = bool(getattr(surface, "closed_u", False))
+    for _ in range(iterations):
+        D = surface.derivatives(u, v, 1)
+        S, Su, Sv = D[:, 0, 0], D[:, 1, 0], D[:, 0, 1]
+        F = S - o - t[:, None] * d
+        if float(np.abs(F).max(initial=0.0)) < 0.1 * tol_mm:
+            break
+        J = np.stack([Su, Sv, -d], axis=2)                      # (k, 3, 3)
+        with np.errstate(all="ignore"):
+            step = np.linalg.solve(J + 1e-12 * np.eye(3), -F[..., None])[..., 0]
+        step = np.nan_to_num(step)
+        step[:, :2] = np.clip(step[:, :2], -0.1, 0.1)
+        u = np.mod(u + step[:, 0], 1.0) if closed else np.clip(u + step[:, 0], 0.0, 1.0)
+        v = np.clip(v + step[:, 1], 0.0, 1.0)
+        t = t + step[:, 2]
+    S = surface.derivatives(u, v, 0)[:, 0, 0]
+    res = np.linalg.norm(S - o - t[:, None] * d, axis=1)
+    ok = (res < tol_mm) & (t > 0) & (v > 1e-6) & (v < 1 - 1e-6)
+    return np.where(ok, t, np.nan)
+
+
+def segment_means(values: np.ndarray, weights: np.ndarray, labels: np.ndarray,
+                  segments=range(1, 17)) -> dict[int, float]:
+    """Weighted mean of ``values`` per segment label (NaN values left out; NaN if empty)."""
+    out = {}
+    for k in segments:
+        m = (labels == k) & np.isfinite(values)
+        out[k] = float(np.average(values[m], weights=weights[m])) if m.any() else NAN
+    return out
+
+
+def thickness_by_segment(endo, epi, aha: AhaFrame, base_plane=None,
+                         samples: tuple[int, int] = (48, 36)) -> tuple[dict[int, float], dict]:
+    """Segment (1..16) -> mean wall thickness (mm) of one frame, and the samples
+    (``points``, ``thickness``, ``segment``, ``weight``) for figures.
+
+    ``endo``, ``epi``: NURBS surfaces (scanner mm); ``base_plane``: the mitral valve plane
+    (normal apical) — endocardial samples beyond it are left out.
+    """
+    P, N, W = surface_samples(endo, *samples)
+    N = orient_outward(P, N, aha.apex, aha.base)
+    keep = np.ones(len(P), bool) if base_plane is None else base_plane.signed_distance(P) >= 0
+    P, N, W = P[keep], N[keep], W[keep]
+    t = ray_surface_distance(epi, P, N)
+    lab = aha.segments(P)
+    return segment_means(t, W, lab), {"points": P, "normals": N, "thickness": t, "segment": lab,
+                                      "weight": W}
+
+
+def thickness_columns(ed: dict[int, float], es: dict[int, float]) -> dict[str, float]:
+    """The WT, WT_ES and Thickening columns from per-segment thickness at ED and ES (mm)."""
+    out: dict[str, float] = {}
+    g_ed = float(np.nanmean([ed[k] for k in range(1, 17)])) if any(np.isfinite(list(ed.values()))) else NAN
+    g_es = float(np.nanmean([es[k] for k in range(1, 17)])) if any(np.isfinite(list(es.values()))) else NAN
+    for k in range(1, 17):
+        out[f"WT_AHA_{k} (mm)"] = ed[k]
+    out["WT_Global (mm)"] = g_ed
+    for k in range(1, 17):
+        out[f"WT_ES_AHA_{k} (mm)"] = es[k]
+    out["WT_ES_Global (mm)"] = g_es
+    for k in range(1, 17):
+        out[f"Thickening_AHA_{k} (%)"] = 100.0 * (es[k] - ed[k]) / ed[k] if ed[k] else NAN
+    out["Thickening_Global (%)"] = 100.0 * (g_es - g_ed) / g_ed if g_ed else NAN
+    return out

@@ -1,0 +1,287 @@
+"""Regional ground truth of the analytic phantom (truth.json), independent of any reconstruction.
+
+Filling rates
+    The LV volume is V(τ) = V_ED (1 − EF f(τ)) exactly (motion eq. M3), so
+    dV/dt = −V_ED EF f'(τ) / RR with f' the exact derivative of the
+    piecewise-cubic phase curve (:meth:`VolumeCurve.derivative`). The peaks
+    are taken over the windows of the definitions (systole [0, τ_ES], early
+    diastole the first two thirds of [τ_ES, 1], atrial the last third) on a 20 000-point grid
+    plus the curve's knots (f' is piecewise quadratic, so its maximum over an
+    interval is at a knot, an end or a grid point within 1e-5 of the vertex).
+
+Wall thickness
+    On a cell-centred (μ, θ) grid of the ED endocardial spheroid (80 × 160
+    cells; the segment means change by < 0.002 mm from 240 × 480), each point
+    and its surface normal are moved by the exact motion, and the distance
+    along the normal to the moved epicardium is bisected on the analytic
+    inverse map (:func:`wall_thickness_samples`). Segments come from the
+    analytic apex, mitral centre, endocardial apex and RV insertion points
+    (:func:`truth_segments`); means are weighted by the moved surface area.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cardionurbs.phantom.anatomy import Anatomy
+from cardionurbs.phantom.motion import Motion
+
+NAN = float("nan")
+#: the rate columns and the fewest frames they are reported for (as the measurement)
+RATE_COLUMNS = ("PER (mL/s)", "PEFR (mL/s)", "PAFR (mL/s)", "E/A ratio")
+MIN_FRAMES = 10
+SEGMENTS = range(1, 17)
+
+
+def filling_rate_truth(anatomy: Anatomy, motion: Motion, n_frames: int, es_frame: int,
+                       rr_ms: float) -> dict[str, float]:
+    """PER, PEFR, PAFR (mL/s) and E/A ratio of the analytic LV volume curve; NaN below
+    MIN_FRAMES frames (the measurement's own rule)."""
+    if n_frames < MIN_FRAMES:
+        return {c: NAN for c in RATE_COLUMNS}
+    v_ed = anatomy.lv_cavity_volume() / 1000.0                      # mL
+    curve = motion.curve
+    e = es_frame / n_frames
+    ts, _ = curve.knots()
+    out = {}
+    windows = {"PER (mL/s)": (0.0, e), "PEFR (mL/s)": (e, e + 2 * (1 - e) / 3),
+               "PAFR (mL/s)": (e + 2 * (1 - e) / 3, 1.0)}
+    for col, (a, b) in windows.items():
+        tau = np.unique(np.r_[np.linspace(a, b, 20001), ts[(ts >= a) & (ts <= b)]])
+        tau = np.clip(tau, 0.0, 1.0 - 1e-12)                          # the end of the beat, not τ = 0
+        dvdt = -v_ed * motion.lv_ef * curve.derivative(tau) / rr_ms * 1000.0   # mL/s
+        out[col] = float(np.max(-dvdt if col == "PER (mL/s)" else dvdt))
+    out["E/A ratio"] = out["PEFR (mL/s)"] / out["PAFR (mL/s)"]
+    return out
+
+
+# ----------------------------------------------------------------- AHA segments
+def wrap(angle):
+    return (np.asarray(angle, float) + np.pi) % (2 * np.pi) - np.pi
+
+
+@dataclass(frozen=True)
+class TruthSegments:
+    """The AHA geometry of the phantom at one phase, in the heart frame (apex at the origin,
+    z along the axis): axis length, cap height and septal angle θ_s (rad; angles are
+    counter-clockwise seen from the apex, i.e. θ = −atan2(y, x))."""
+
+    length: float
+    cap: float
+    septal_angle: float
+
+    def segments(self, x: np.ndarray) -> np.ndarray:
+        """AHA segment 1..17 of heart-frame points (0 beyond the base); the rule of
+        docs/metrics.md written out independently of the measurement."""
+        x = np.asarray(x, float).reshape(-1, 3)
+        h = x[:, 2]
+        t = np.mod(-np.arctan2(x[:, 1], x[:, 0]) - self.septal_angle, 2 * np.pi)
+        third = (self.length - self.cap) / 3.0
+        ring = np.floor((h - self.cap) / third)
+        six = np.minimum(np.floor(np.mod(t + np.radians(120), 2 * np.pi) / np.radians(60)), 5)
+        four = np.minimum(np.floor(np.mod(t + np.radians(135), 2 * np.pi) / np.radians(90)), 3)
+        lab = np.where(ring >= 2, 1 + six, np.where(ring == 1, 7 + six, 13 + four))
+        lab = np.where(h < self.cap, 17, lab)
+        return np.where(h > self.length + 1e-9, 0, lab).astype(int)
+
+
+def truth_segments(anatomy: Anatomy, motion: Motion, specs, f: float) -> TruthSegments:
+    """Segments at phase f from analytic landmarks: the epicardial apex (fixed at the origin),
+    the mitral centre at height λ z_b, the endocardial apex at λ z_endo_apex, and θ_s the
+    midpoint between the mean angles of the anterior and of the inferior RV insertion points
+    (:func:`annotate.rv_insertion_points` on every SA slice at phase f)."""
+    from cardionurbs.phantom import annotate
+    lam = float(motion.lam(f))
+    pts = [annotate.rv_insertion_points(anatomy, motion, s, f) for s in specs if s.view == "SA"]
+    pts = [p for p in pts if p is not None]
+    means = []
+    for i in (0, 1):
+        th = -np.arctan2([p[i, 1] for p in pts], [p[i, 0] for p in pts])
+        means.append(float(np.arctan2(np.sin(th).mean(), np.cos(th).mean())))
+    septal = float(wrap(means[0] + wrap(means[1] - means[0]) / 2.0))
+    return TruthSegments(lam * anatomy.z_base, lam * anatomy.z_endo_apex, septal)
+
+
+def segment_means(values: np.ndarray, weights: np.ndarray, labels: np.ndarray) -> dict[int, float]:
+    """Weighted mean per segment 1..16 (NaN where a segment has no sample)."""
+    return {k: (float(np.average(values[labels == k], weights=weights[labels == k]))
+                if np.any(labels == k) else NAN) for k in SEGMENTS}
+
+
+def endocardial_grid(anatomy: Anatomy, n_mu: int, n_theta: int):
+    """Cell-centred material (μ, θ) grid on the ED LV endocardial spheroid below the base:
+    x = a sin μ cos θ, y = a sin μ sin θ, z = z_c − c cos μ (heart frame)."""
+    a, c, zc = anatomy.r_short_endo, anatomy.r_long_endo, anatomy.z_center
+    mu_b = float(np.arccos(-(anatomy.z_base - zc) / c))
+    dmu, dth = mu_b / n_mu, 2 * np.pi / n_theta
+    mu = (np.arange(n_mu) + 0.5) * dmu
+    th = (np.arange(n_theta) + 0.5) * dth
+    M, T = np.meshgrid(mu, th, indexing="ij")
+
+    def point(m, t):
+        return np.stack([a * np.sin(m) * np.cos(t), a * np.sin(m) * np.sin(t), zc - c * np.cos(m)],
+                        axis=-1).reshape(-1, 3)
+    return M.ravel(), T.ravel(), dmu, dth, point
+
+
+def wall_thickness_samples(anatomy: Anatomy, motion: Motion, f: float, n_mu: int = 80,
+                           n_theta: int = 160, iterations: int = 30):
+    """Endocardial points (heart frame, phase f), outward normals, area weights and the
+    thickness along the normal to the epicardium, all from the analytic model.
+
+    The endocardium at phase f is the ED spheroid mapped by φ_f; its tangents are central
+    differences (step 1e-6 rad) of the mapped (μ, θ) grid, the normal their cross product.
+    The epicardium at phase f is {x : s(φ_f⁻¹(x)) = s_epi(z(φ_f⁻¹(x)))} (the material
+    epicardium, moved); along each ray the root of s − s_epi (negative on the
+    endocardium, increasing outward) is bracketed in [0, 60] mm and bisected (30 halvings: 6e-8 mm).
+    """
+    M, T, dmu, dth, point = endocardial_grid(anatomy, n_mu, n_theta)
+    h = 1e-6
+    x = motion.forward(anatomy, point(M, T), f)
+    tm = (motion.forward(anatomy, point(M + h, T), f) - motion.forward(anatomy, point(M - h, T), f)) / (2 * h)
+    tt = (motion.forward(anatomy, point(M, T + h), f) - motion.forward(anatomy, point(M, T - h), f)) / (2 * h)
+    n = np.cross(tm, tt)
+    area = np.linalg.norm(n, axis=1)
+    n /= area[:, None]
+    radial = x.copy()
+    radial[:, 2] = 0.0
+    if float(np.einsum("ij,ij->", radial, n)) < 0:
+        n = -n
+    w = area * dmu * dth
+    lo, hi = np.zeros(len(x)), np.full(len(x), 60.0)
+
+    def g(t):
+        s, _, _, _, s2, _ = motion.inverse_cylindrical(anatomy, x + t[:, None] * n, f)
+        return s - s2
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        out = g(mid) > 0
+        hi = np.where(out, mid, hi)
+        lo = np.where(out, lo, mid)
+    return x, n, w, 0.5 * (lo + hi)
+
+
+def wall_thickness_truth(anatomy: Anatomy, motion: Motion, specs, f_es: float,
+                         n_mu: int = 80, n_theta: int = 160) -> dict[str, float]:
+    """WT, WT_ES and Thickening columns of the analytic phantom (mm, %), per AHA segment of
+    the frame's own geometry (:func:`truth_aha_frame`), area-weighted over the endocardium."""
+    per = {}
+    for key, f in (("ed", 0.0), ("es", f_es)):
+        x, _, w, t = wall_thickness_samples(anatomy, motion, f, n_mu, n_theta)
+        per[key] = segment_means(t, w, truth_segments(anatomy, motion, specs, f).segments(x))
+    ed, es = per["ed"], per["es"]
+    g_ed, g_es = float(np.mean([ed[k] for k in SEGMENTS])), float(np.mean([es[k] for k in SEGMENTS]))
+    out = {f"WT_AHA_{k} (mm)": ed[k] for k in SEGMENTS}
+    out["WT_Global (mm)"] = g_ed
+    out.update({f"WT_ES_AHA_{k} (mm)": es[k] for k in SEGMENTS})
+    out["WT_ES_Global (mm)"] = g_es
+    out.update({f"Thickening_AHA_{k} (%)": 100.0 * (es[k] - ed[k]) / ed[k] for k in SEGMENTS})
+    out["Thickening_Global (%)"] = 100.0 * (g_es - g_ed) / g_ed
+    return out
+
+
+# ----------------------------------------------------------------- strain
+def endocardial_normal_field(anatomy: Anatomy, n_mu: int = 200, n_theta: int = 400):
+    """Points on the ED endocardial spheroid (heart frame) and their outward unit normals,
+    the gradient of s / a² + (z − z_c)² / c² (for nearest-point queries)."""
+    M, T, _, _, point = endocardial_grid(anatomy, n_mu, n_theta)
+    p = point(M, T)
+    a, c = anatomy.r_short_endo, anatomy.r_long_endo
+    n = np.column_stack([p[:, 0] / a ** 2, p[:, 1] / a ** 2, (p[:, 2] - anatomy.z_center) / c ** 2])
+    return p, n / np.linalg.norm(n, axis=1)[:, None]
+
+
+def deformation_gradient(anatomy: Anatomy, motion: Motion, X: np.ndarray, f: float,
+                         h: float = 1e-3) -> np.ndarray:
+    """F = ∂φ_f/∂X (n, 3, 3), heart frame, by central differences of the exact motion
+    (step h mm; the map is smooth inside each tissue layer)."""
+    F = np.empty((len(X), 3, 3))
+    for j in range(3):
+        dx = np.zeros(3)
+        dx[j] = h
+        F[:, :, j] = (motion.forward(anatomy, X + dx, f) - motion.forward(anatomy, X - dx, f)) / (2 * h)
+    return F
+
+
+def strain_truth(anatomy: Anatomy, motion: Motion, specs, levels: list[dict], f: float,
+                 spacing_mm: float = 1.0) -> dict:
+    """Exact Ecc, Ell, Err (%) per AHA segment and global at phase f, and det F.
+
+    The tissue sampled is the ED LV myocardium between the most apical and most basal tag
+    levels (the LA tag planes that carry material points at ED and ES, ``levels``): a
+    ``spacing_mm`` cubic grid, at least 0.05 mm inside the endo- and epicardium (a volume
+    mean, like the measurement's over the tagged myocardium). Directions
+    at each point follow the measurement's definition with the analytic endocardium
+    (:func:`endocardial_normal_field`); segments are those of :func:`truth_segments` at ED.
+    """
+    from scipy.spatial import cKDTree
+
+    kinds = ("Ecc", "Ell", "Err")
+    if not levels:
+        return {"columns": {f"{k}_{s} (%)": NAN for k in kinds
+                            for s in [*(f"AHA_{j}" for j in SEGMENTS), "Global"]}, "det_F": NAN}
+    g = np.arange(-anatomy.r_short_epi * 1.2, anatomy.r_short_epi * 1.2, spacing_mm) + 0.5 * spacing_mm
+    gx, gy = np.meshgrid(g, g, indexing="ij")
+    zs = [lv["distance_from_apex_mm"] for lv in levels]
+    pts = []
+    for z in np.arange(min(zs), max(zs) + 1e-9, spacing_mm):
+        s = gx ** 2 + gy ** 2
+        s1, s2 = float(anatomy.s_lv_endo(z)), float(anatomy.s_lv_epi(z))
+        r = np.sqrt(s)
+        inside = (r > np.sqrt(s1) + 0.05) & (r < np.sqrt(s2) - 0.05)
+        pts.append(np.column_stack([gx[inside], gy[inside], np.full(inside.sum(), z)]))
+    X = np.concatenate(pts)
+    F = deformation_gradient(anatomy, motion, X, f)
+    E = 0.5 * (np.einsum("nki,nkj->nij", F, F) - np.eye(3))
+    ep, en = endocardial_normal_field(anatomy)
+    _, idx = cKDTree(ep).query(X)
+    rdir = en[idx]
+    th = np.arctan2(X[:, 1], X[:, 0])
+    c = np.column_stack([-np.sin(th), np.cos(th), np.zeros(len(th))])
+    c -= np.einsum("ni,ni->n", c, rdir)[:, None] * rdir
+    c /= np.linalg.norm(c, axis=1)[:, None]
+    dirs = np.stack([c, np.cross(rdir, c), rdir], axis=1)
+    vals = 100.0 * np.einsum("nki,nij,nkj->nk", dirs, E, dirs)
+    labels = truth_segments(anatomy, motion, specs, 0.0).segments(X)
+    cols = {}
+    for j, kind in enumerate(kinds):
+        seg = segment_means(vals[:, j], np.ones(len(X)), labels)
+        cols.update({f"{kind}_AHA_{k} (%)": seg[k] for k in SEGMENTS})
+        fin = [v for v in seg.values() if np.isfinite(v)]
+        cols[f"{kind}_Global (%)"] = float(np.mean(fin)) if fin else NAN
+    return {"columns": cols, "det_F": float(np.linalg.det(F).mean()),
+            "counts": {k: int((labels == k).sum()) for k in SEGMENTS}}
+
+
+# ----------------------------------------------------------------- surface strain
+def _polyline_length(p: np.ndarray, closed: bool) -> float:
+    q = np.vstack([p, p[:1]]) if closed else p
+    return float(np.linalg.norm(np.diff(q, axis=0), axis=1).sum())
+
+
+def surface_strain_truth(anatomy: Anatomy, motion: Motion, specs, f_es: float) -> dict[str, float]:
+    """GLS surface and GCS surface (%) of the analytic contours, finely sampled (the LA
+    endocardial curves with 600 points a side, the mid SA circumference with 2880 points);
+    the mid SA slice is the one nearest z_b / 2 at ED (the measurement's rule, with the
+    analytic apex and mitral centre)."""
+    from cardionurbs.phantom import annotate
+    gls = []
+    for s in specs:
+        if s.view != "LA":
+            continue
+        c0 = annotate.la_contours(anatomy, motion, s, 0.0, n_side=600).get("lv_endo")
+        c1 = annotate.la_contours(anatomy, motion, s, f_es, n_side=600).get("lv_endo")
+        if c0 is not None and c1 is not None:
+            l0, l1 = _polyline_length(c0, False), _polyline_length(c1, False)
+            gls.append(100.0 * (l1 - l0) / l0)
+    sa = [s for s in specs if s.view == "SA"]
+    mid = min(sa, key=lambda s: abs(s.height - 0.5 * anatomy.z_base))
+    c0 = annotate.sa_contours(anatomy, motion, mid, 0.0, n_lv=2880).get("lv_endo")
+    c1 = annotate.sa_contours(anatomy, motion, mid, f_es, n_lv=2880).get("lv_endo")
+    gcs = NAN
+    if c0 is not None and c1 is not None:
+        l0, l1 = _polyline_length(c0, True), _polyline_length(c1, True)
+        gcs = 100.0 * (l1 - l0) / l0
+    return {"GLS surface (%)": float(np.mean(gls)) if gls else NAN, "GCS surface (%)": gcs}

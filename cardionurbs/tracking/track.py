@@ -1,0 +1,792 @@
+"""Tag lines tracked from a study's SPAMM-tagged DICOM images (HARP), with 3-D tag indices.
+
+:func:`track_tags` (``cn.track_tags``): for every slice of the study whose
+images name DICOM files,
+
+1. **Tag geometry** (:mod:`cardionurbs.tracking.spectral`): the first frame's
+   spectral peaks give each family's k (one family in LA views, two in SA
+   grids); k in scanner mm (k_c / Δc · row cosine + k_r / Δr · column
+   cosine) gives the tag normal direction and spacing, cross-checked
+   against the tag planes the study expects (``study.meta["tag_planes"]``,
+   else the study's own tag lines at the first frame): a spacing off by
+   more than ``SPACING_TOL`` or a direction by more than ``ANGLE_TOL_DEG``
+   is a :class:`TagTrackingError`, and so is a first frame without a tag
+   pattern (peak contrast below :data:`spectral.MIN_CONTRAST`).
+2. **Harmonic phase** (:mod:`cardionurbs.tracking.harp`) of every frame, on a
+   crop around the slice's contours. A frame whose median myocardial
+   harmonic magnitude has fallen below ``FADED`` of the first frame's ends the
+   tracking of that slice (the tags have faded).
+3. **Tag lines at the first frame**: the iso-phase lines φ = π (the tag
+   minima: a dark tag's first harmonic has phase π at its centre) clipped to
+   the myocardium of the study's contours (SA: inside ``lv_epi`` and outside
+   ``lv_endo``; LA: between the open ``lv_epi`` and ``lv_endo`` curves closed
+   across the base), ordered along the tag.
+4. **Tag index** of each line: its position along the family's 3-D tag normal
+   N in scanner mm, p = median N·x over its points, gives
+   i = round((p − index0) / d) — the expected planes' ``index0_mm`` and
+   ``spacing_mm`` when the study has them, else index0 from the circular
+   mean of p mod d over every slice of the family, indices shifted to start
+   at 0. The same tag plane seen in different slices gets the same index,
+   so the tag surfaces, material points, metrics and QC use the lines as
+   they are.
+5. **Tracking**: every first-frame line point is HARP-tracked through the
+   cycle (temporal prior: the contours' motion). SA grids: the line at frame
+   t is its tracked material points (both phases pin them), less those a
+   spacing off the rest (slipped onto a neighbouring tag: a robust quadratic
+   across the line). LA views: the iso-phase lines φ_t = π, each point
+   labelled by the nearest line predicted from the previous frame plus the
+   whole spacings between them. Both are moved onto the tag trough and kept
+   inside frame t's myocardium, 1 px from its borders. A slice whose contours
+   stop (a basal slice leaving the ventricle in systole) stops being tracked.
+6. **Confidence** per line (``study.meta["tag_tracking"]["lines"]``, one
+   column per field): ``magnitude`` — median harmonic magnitude along the
+   line over the first frame's median myocardial magnitude (1 at the first
+   frame, falling as the tags fade); ``phase_residual`` — RMS over the
+   line's tracked points of the wrapped phase left after Newton (rad; a
+   point that lost its tag has a large one). The tag QC flags lines below
+   ``MIN_MAGNITUDE`` or above ``MAX_PHASE_RESIDUAL``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import fft as sfft
+from scipy.ndimage import binary_dilation
+from scipy.spatial import cKDTree
+
+from cardionurbs.analysis.tag_surfaces import family_direction
+from cardionurbs.analysis.tagqc import tag_spacing
+from cardionurbs.anatomy.sections import study_long_axis
+from cardionurbs.errors import StudyError, TagTrackingError
+from cardionurbs.imaging.dicom import read_pixels
+from cardionurbs.imaging.geometry import ImagePlane
+from cardionurbs.io import atomic, load_study
+from cardionurbs.io.native import write_study
+from cardionurbs.io.outputs import check_output_dir
+from cardionurbs.study import Study, TagLine
+from cardionurbs.tracking import harp, spectral
+
+SPACING_TOL = 0.2          # relative
+ANGLE_TOL_DEG = 15.0
+FADED = 0.15               # harmonic magnitude ratio to the first frame that ends tracking
+CROP_MARGIN_PX = 24
+MIN_LINE_POINTS = 3
+ON_PLANE = 0.25            # first frame: a line point within this many spacings of its plane
+TROUGH_REACH = 0.45        # trough search: this many spacings either side of the iso-phase line
+REFINE = True
+CONVERGED_RAD = 0.3        # a tracked point whose phase is further than this from its target
+                           # (Newton did not converge: low magnitude, phase singularity) is dropped
+BORDER_MARGIN_PX = 1.0     # line points closer than this to the endo/epicardium are left out:
+                           # there the filter mixes in blood and the tag runs into the border
+ON_LINE = 0.3              # later frames: within this many spacings of its tracked points
+MIN_MAGNITUDE = 0.15       # QC: confidence thresholds
+MAX_PHASE_RESIDUAL = 0.6   # rad
+FAMILIES = {"SA": ("sa1", "sa2"), "LA": ("la",)}
+
+
+# ------------------------------------------------------------------ inputs
+def _slice_images(study: Study) -> dict[str, list[ImagePlane]]:
+    """The study's images with a DICOM file, by slice, sorted by frame."""
+    out: dict[str, list[ImagePlane]] = defaultdict(list)
+    for im in study.images:
+        if im.file:
+            out[im.slice].append(im)
+    for ims in out.values():
+        ims.sort(key=lambda im: im.frame)
+    return dict(out)
+
+
+def _read_frames(study: Study, images: list[ImagePlane]) -> np.ndarray:
+    folder = Path(study.source)
+    arrs = []
+    for im in images:
+        path = folder / im.file
+        if not path.is_file():
+            raise StudyError(f"image {im.id!r} refers to file {im.file!r}, which does not exist",
+                             file=folder / "study.json", slice=im.slice, frame=im.frame, field="file")
+        a = read_pixels(path)
+        if a.shape != (im.rows, im.columns):
+            raise StudyError(f"pixel matrix {a.shape[0]}x{a.shape[1]} differs from the study's "
+                             f"{im.rows}x{im.columns}", file=path, slice=im.slice, frame=im.frame,
+                             field="Rows")
+        arrs.append(a)
+    return np.array(arrs)
+
+
+def _closed_polygon(points_px: np.ndarray):
+    from matplotlib.path import Path as MplPath
+    return MplPath(np.vstack([points_px, points_px[:1]]), closed=True)
+
+
+@dataclass
+class Myocardium:
+    """LV myocardium of one image as polygons in pixel coordinates (outer minus inner)."""
+
+    outer: object
+    inner: object | None
+
+    def contains(self, pts: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """Points (n, 2) px inside the myocardium, at least ``margin`` px from its borders."""
+        if len(pts) == 0:
+            return np.zeros(0, bool)
+        inside = self.outer.contains_points(pts)
+        if self.inner is not None:
+            inside &= ~self.inner.contains_points(pts)
+        if margin > 0 and inside.any():
+            for poly in (self.outer, self.inner):
+                if poly is not None:
+                    inside[inside] &= _distance_to_polygon(pts[inside], poly.vertices) >= margin
+        return inside
+
+
+def _distance_to_polygon(pts: np.ndarray, vertices: np.ndarray) -> np.ndarray:
+    """Distance (px) of points (n, 2) to a closed polygon's edges (vertices (m, 2), closed)."""
+    a, b = vertices[:-1], vertices[1:]
+    ab = b - a
+    t = np.clip(((pts[:, None, :] - a[None]) * ab[None]).sum(-1)
+                / np.maximum((ab * ab).sum(-1), 1e-12)[None], 0.0, 1.0)
+    d = pts[:, None, :] - (a[None] + t[..., None] * ab[None])
+    return np.sqrt((d * d).sum(-1).min(axis=1))
+
+
+def _myocardium(study: Study, plane: ImagePlane, frame: int) -> Myocardium | None:
+    """LV myocardium of ``plane``'s slice at ``frame`` from its lv_epi / lv_endo contours."""
+    cs = {c.structure: c for c in study.contours_at(frame, ("lv_epi", "lv_endo"))
+          if c.slice == plane.slice}
+    if "lv_epi" not in cs:
+        return None
+    outer = _closed_polygon(plane.scanner_to_pixel(cs["lv_epi"].points))
+    inner = _closed_polygon(plane.scanner_to_pixel(cs["lv_endo"].points)) if "lv_endo" in cs else None
+    return Myocardium(outer, inner)
+
+
+def _masks(study: Study, images: list[ImagePlane]) -> list[Myocardium | None]:
+    """Myocardium per frame of a slice. When most frames are contoured, a frame without a
+    contour is one where the slice has left the ventricle (None: no tag lines there); when
+    few are (e.g. ED and ES only), such frames take the nearest contoured frame's."""
+    own = [_myocardium(study, im, im.frame) for im in images]
+    have = [i for i, m in enumerate(own) if m is not None]
+    if not have or 2 * len(have) > len(images):
+        return own
+    return [own[i] if own[i] is not None else own[min(have, key=lambda j: abs(j - i))]
+            for i in range(len(images))]
+
+
+def _crop_box(study: Study, images: list[ImagePlane]) -> tuple[int, int, int, int]:
+    """(r0, r1, c0, c1) around the slice's contours at every frame, plus a margin."""
+    plane = images[0]
+    pts = [plane.scanner_to_pixel(c.points) for c in study.contours if c.slice == plane.slice]
+    if not pts:
+        return 0, plane.rows, 0, plane.columns
+    P = np.vstack(pts)
+    c0, r0 = np.floor(P.min(axis=0)).astype(int) - CROP_MARGIN_PX
+    c1, r1 = np.ceil(P.max(axis=0)).astype(int) + CROP_MARGIN_PX + 1
+    return max(r0, 0), min(r1, plane.rows), max(c0, 0), min(c1, plane.columns)
+
+
+# ------------------------------------------------------------ expectations
+@dataclass
+class TagPlanes:
+    """One family's 3-D tag planes: unit normal N (scanner), spacing d (mm), index0 (mm or None)."""
+
+    normal: np.ndarray
+    spacing: float
+    index0: float | None
+
+
+def expected_tag_planes(study: Study) -> dict[str, TagPlanes]:
+    """What the study expects: ``meta["tag_planes"]``, else its own tag lines at their first frame."""
+    out: dict[str, TagPlanes] = {}
+    given = study.meta.get("tag_planes") if isinstance(study.meta, dict) else None
+    if isinstance(given, dict):
+        for fam, d in given.items():
+            try:
+                n = np.asarray(d["normal"], float)
+                out[fam] = TagPlanes(n / np.linalg.norm(n), float(d["spacing_mm"]),
+                                     None if d.get("index0_mm") is None else float(d["index0_mm"]))
+            except (KeyError, TypeError, ValueError):
+                raise StudyError(f"tag_planes[{fam!r}] needs normal (3 numbers) and spacing_mm",
+                                 file=study.source, field="meta.tag_planes") from None
+        return out
+    if not study.tags:
+        return out
+    f0 = study.tagged_frames[0]
+    for fam in ("sa1", "sa2", "la"):
+        lines = study.tags_at(f0, fam)
+        if len(lines) < 2:
+            continue
+        d = tag_spacing(study, fam, f0)
+        if not np.isfinite(d) or d <= 0:
+            continue
+        if fam == "la":
+            try:
+                apex, base = study_long_axis(study)
+            except StudyError:
+                continue
+            n = (base - apex) / np.linalg.norm(base - apex)
+        else:
+            along = family_direction([t.points for t in lines])
+            n = np.cross(study.slice_plane(lines[0].slice).normal, along)
+            n /= np.linalg.norm(n)
+        off = np.array([float(np.median(t.points @ n)) - t.index * d for t in lines])
+        out[fam] = TagPlanes(n, float(d), float(np.median(off)))
+    return out
+
+
+# ------------------------------------------------------------------ per slice
+@dataclass
+class SliceGeometry:
+    """Tag families found in one slice: family -> (k px, in-plane scanner unit normal, spacing mm)."""
+
+    slice: str
+    view: str
+    k: dict[str, np.ndarray]
+    normal: dict[str, np.ndarray]
+    spacing_mm: dict[str, float]
+    contrast: dict[str, float]
+
+
+def _k_scanner(k: np.ndarray, plane: ImagePlane) -> np.ndarray:
+    """k (cycles/px, (c, r)) as a scanner-space wave vector (cycles/mm)."""
+    return (k[0] / plane.pixel_spacing[1]) * plane.row_cosine + (k[1] / plane.pixel_spacing[0]) * plane.column_cosine
+
+
+def _k_pixels(k_mm: np.ndarray, plane: ImagePlane) -> np.ndarray:
+    """A scanner wave vector (cycles/mm) as (k_c, k_r) cycles/px of ``plane`` (in-plane part)."""
+    return np.array([(k_mm @ plane.row_cosine) * plane.pixel_spacing[1],
+                     (k_mm @ plane.column_cosine) * plane.pixel_spacing[0]])
+
+
+def _in_plane(n: np.ndarray, plane: ImagePlane) -> np.ndarray:
+    return n - (n @ plane.normal) * plane.normal
+
+
+def first_frame_peaks(image: np.ndarray, plane: ImagePlane, path,
+                      expected: dict[str, TagPlanes]) -> list[spectral.TagPeak]:
+    """The tag peaks of one slice's first frame (one per family of its view), searched near the
+    expected spacing when the study has one (weak peaks included; the caller judges)."""
+    fams = FAMILIES[plane.view]
+    where = dict(file=path, slice=plane.slice, frame=plane.frame)
+    exp_px = []
+    for f in fams:
+        if f in expected:
+            e_in = _in_plane(expected[f].normal, plane)
+            if np.linalg.norm(e_in) < 0.5:
+                raise TagTrackingError(f"the expected {f} tag planes are nearly parallel to this "
+                                       "image plane", field="meta.tag_planes", **where)
+            exp_px.append(expected[f].spacing / np.linalg.norm(e_in)
+                          / float(np.mean(plane.pixel_spacing)))
+    peaks = spectral.tag_peaks(image, len(fams))
+    if exp_px:   # look near the expected spacing; keep the full band's answer to report it
+        near = spectral.tag_peaks(image, len(fams), min_period_px=max(min(exp_px) / 1.6, 2.0),
+                                  max_period_px=max(exp_px) / 0.6)
+        strong = len(peaks) == len(fams) and min(p.contrast for p in peaks) >= spectral.MIN_CONTRAST
+        good = len(near) == len(fams) and min(p.contrast for p in near) >= spectral.MIN_CONTRAST
+        if good or not strong:
+            return near
+    return peaks
+
+
+def resolve_geometry(group: list[tuple[ImagePlane, object, list[spectral.TagPeak]]],
+                     expected: dict[str, TagPlanes]) -> dict[str, SliceGeometry]:
+    """Tag families of a group of parallel slices (the SA stack, or one LA view), labelled,
+    oriented and cross-checked against ``expected``.
+
+    The group has a tag pattern when at least half its slices show every family's peak
+    above :data:`spectral.MIN_CONTRAST`; the consensus wave vector of each family (median
+    over those slices, scanner cycles/mm) then stands in for a slice whose own peak is weak,
+    more than ``ANGLE_TOL_DEG`` off or ``SPACING_TOL`` from it in spacing (a small apical
+    section has little tagged tissue, or its strongest peak is a harmonic).
+    """
+    plane0, path0, _ = group[0]
+    fams = FAMILIES[plane0.view]
+    where = dict(file=path0, slice=plane0.slice, frame=plane0.frame)
+    contrast = [min([p.contrast for p in pk], default=0.0) if len(pk) == len(fams) else 0.0
+                for _, _, pk in group]
+    strong = [i for i, c in enumerate(contrast) if c >= spectral.MIN_CONTRAST]
+    if 2 * len(strong) < len(group):
+        c = float(np.median(contrast))
+        raise TagTrackingError(f"no SPAMM tag pattern in the first frame (untagged series, or the "
+                               f"tags have faded): spectral peak {c:.1f} x its surroundings, needs "
+                               f">= {spectral.MIN_CONTRAST:g}", field="PixelData", **where)
+    # label and orient each strong slice's peaks, then average per family
+    refs = {f: expected[f].normal for f in fams if f in expected}
+    sums: dict[str, list] = {f: [] for f in fams}
+    for i in strong:
+        plane, _, pk = group[i]
+        kmm = [_k_scanner(p.k, plane) for p in pk]
+        for f in fams:
+            if f not in refs:
+                refs[f] = kmm[fams.index(f)] / np.linalg.norm(kmm[fams.index(f)])
+        order = [0]
+        if len(fams) == 2:
+            u = [k / np.linalg.norm(k) for k in kmm]
+            score = [abs(u[0] @ refs[fams[0]]) + abs(u[1] @ refs[fams[1]]),
+                     abs(u[1] @ refs[fams[0]]) + abs(u[0] @ refs[fams[1]])]
+            order = [0, 1] if score[0] >= score[1] else [1, 0]
+        for f, j in zip(fams, order):
+            k = kmm[j] if kmm[j] @ refs[f] >= 0 else -kmm[j]
+            sums[f].append(k)
+    # the median wave vector: one slice locked on a harmonic does not move it
+    consensus = {f: np.median(np.array(sums[f]), axis=0) for f in fams}
+    for f in fams:
+        if f not in expected:
+            continue
+        e = expected[f]
+        got_d = 1.0 / np.linalg.norm(consensus[f])
+        e_in = _in_plane(e.normal, plane0)
+        d_exp = e.spacing / np.linalg.norm(e_in)
+        if abs(got_d / d_exp - 1.0) > SPACING_TOL:
+            raise TagTrackingError(f"{f} tag spacing in the images is {got_d:.2f} mm, the study "
+                                   f"expects {d_exp:.2f} mm (tolerance {SPACING_TOL:.0%})",
+                                   field="tag spacing", **where)
+        ang = float(np.degrees(np.arccos(np.clip(
+            abs(consensus[f] @ e_in) / (np.linalg.norm(consensus[f]) * np.linalg.norm(e_in)), 0, 1))))
+        if ang > ANGLE_TOL_DEG:
+            raise TagTrackingError(f"{f} tag normal in the images is {ang:.1f} deg from the "
+                                   f"expected direction (tolerance {ANGLE_TOL_DEG:g} deg)",
+                                   field="tag orientation", **where)
+    out = {}
+    for i, (plane, path, pk) in enumerate(group):
+        ks, ns, ds, cs = {}, {}, {}, {}
+        kmm_own = [_k_scanner(p.k, plane) for p in pk] if i in strong else []
+        for f in fams:
+            c = consensus[f]
+            own = [k for k in kmm_own
+                   if np.degrees(np.arccos(np.clip(abs(k @ c) / (np.linalg.norm(k) * np.linalg.norm(c)),
+                                                   0, 1))) <= ANGLE_TOL_DEG
+                   and abs(np.linalg.norm(c) / np.linalg.norm(k) - 1.0) <= SPACING_TOL]
+            k = own[0] if own else _in_plane(c, plane)
+            k = k if k @ c >= 0 else -k
+            ks[f] = _k_pixels(k, plane)
+            ns[f] = k / np.linalg.norm(k)
+            ds[f] = float(1.0 / np.linalg.norm(k))
+            cs[f] = contrast[i]
+        out[plane.slice] = SliceGeometry(plane.slice, plane.view, ks, ns, ds, cs)
+    return out
+
+
+def _order_along(points: np.ndarray, k: np.ndarray) -> np.ndarray:
+    t = np.array([-k[1], k[0]])
+    return points[np.argsort(points @ t, kind="stable")]
+
+
+def _isolines_in_myocardium(hs: harp.HarmonicSeries, t: int, myo: Myocardium,
+                            offset: np.ndarray, grid_mask: np.ndarray,
+                            image: np.ndarray | None = None) -> list[np.ndarray]:
+    """Iso-phase π pieces (crop px) at frame t inside the myocardium (runs of inside points),
+    moved onto the tag trough of ``image`` when given (:func:`harp.trough_refine`)."""
+    pieces = []
+    reach = TROUGH_REACH / float(np.linalg.norm(hs.k))
+    for line in harp.phase_isolines(hs, t, np.pi, grid_mask):
+        if image is not None and REFINE:
+            line = harp.trough_refine(image, line, hs.sample(t, line)[1], reach)
+        inside = myo.contains(line + offset, BORDER_MARGIN_PX)
+        if not inside.any():
+            continue
+        edges = np.flatnonzero(np.diff(np.r_[0, inside.astype(int), 0]))
+        for a, b in zip(edges[::2], edges[1::2]):
+            if b - a >= 2:
+                pieces.append(line[a:b])
+    return pieces
+
+
+def _grid_mask(myo: Myocardium, box, dilate_px: int = 3) -> np.ndarray:
+    """The myocardium rasterised on the crop's pixel grid (scan-line polygon fill), dilated."""
+    from scipy.ndimage import binary_dilation
+    from skimage.draw import polygon
+    r0, r1, c0, c1 = box
+    shape = (r1 - r0, c1 - c0)
+
+    def fill(path) -> np.ndarray:
+        v = path.vertices
+        m = np.zeros(shape, bool)
+        rr, cc = polygon(v[:, 1] - r0, v[:, 0] - c0, shape)
+        m[rr, cc] = True
+        return m
+
+    m = fill(myo.outer)
+    if myo.inner is not None:
+        m &= ~fill(myo.inner)
+    return binary_dilation(m, iterations=dilate_px) if dilate_px > 0 else m
+
+
+@dataclass
+class SliceTracking:
+    """Tracked lines of one slice: [(family, index, frame, points px (full image), magnitude,
+    phase_residual)], and notes."""
+
+    lines: list[tuple]
+    notes: list[str]
+    frames_tracked: int
+
+
+def _first_frame_lines(hs_by_fam, geom, myo, box, mask, plane, tag_planes, image=None):
+    """[(family, index, points crop px)] of the first frame, indexed by position along N."""
+    offset = np.array([box[2], box[0]], float)
+    out = []
+    for fam, hs in hs_by_fam.items():
+        tp = tag_planes[fam]
+        for piece in _isolines_in_myocardium(hs, 0, myo, offset, mask, image):
+            s = (plane.pixel_to_scanner(piece + offset) @ tp.normal - tp.index0) / tp.spacing
+            i = np.round(np.median(s))
+            keep = np.abs(s - i) <= ON_PLANE      # points off the tag plane: not this line
+            if keep.sum() >= MIN_LINE_POINTS:
+                out.append((fam, int(i), piece[keep], float(np.median(s[keep]) - i)))
+    return out
+
+
+def _resample(P: np.ndarray, closed: bool, n: int = 96) -> np.ndarray:
+    Q = np.vstack([P, P[:1]]) if closed else P
+    s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(Q, axis=0), axis=1))]
+    u = np.linspace(0.0, s[-1], n, endpoint=not closed)
+    return np.column_stack([np.interp(u, s, Q[:, 0]), np.interp(u, s, Q[:, 1])])
+
+
+def slice_contours_px(study: Study, images: list[ImagePlane]) -> list[list[tuple[np.ndarray, bool]] | None]:
+    """Per frame of a slice: its lv_endo and lv_epi contours resampled by arc length (px), or
+    None when not both are drawn."""
+    out = []
+    for im in images:
+        cs = {c.structure: c for c in study.contours_at(im.frame, ("lv_endo", "lv_epi"))
+              if c.slice == im.slice}
+        if set(cs) != {"lv_endo", "lv_epi"}:
+            out.append(None)
+            continue
+        out.append([(_resample(im.scanner_to_pixel(cs[k].points), cs[k].closed), cs[k].closed)
+                    for k in ("lv_endo", "lv_epi")])
+    return out
+
+
+def _contour_prior(contours, offset: np.ndarray):
+    """Displacement prior for :func:`harp.track`: each point moves as the mean of the 4
+    nearest contour samples between frames t − 1 and t (closed contours matched by the cyclic
+    shift that fits best), or None when either frame lacks contours."""
+    def prior(t: int, prev: np.ndarray):
+        if t >= len(contours) or contours[t] is None or contours[t - 1] is None:
+            return None
+        P0, D = [], []
+        for (a, closed), (b, _) in zip(contours[t - 1], contours[t]):
+            if closed:
+                shifts = [np.roll(b, k, axis=0) for k in range(len(b))]
+                b = min(shifts, key=lambda q: float(((q - a) ** 2).sum()))
+            P0.append(a)
+            D.append(b - a)
+        P0, D = np.vstack(P0) - offset, np.vstack(D)
+        d, j = cKDTree(P0).query(prev, k=4)
+        w = 1.0 / np.maximum(d, 0.5)
+        return (D[j] * w[..., None]).sum(1) / w.sum(1)[:, None]
+    return prior
+
+
+def _on_one_tag(P: np.ndarray, k: np.ndarray, tol: float = 0.35) -> np.ndarray:
+    """Mask of the points of one tracked line that lie on one tag: a robust quadratic of the
+    offset along k against the position along the tag (iteratively refitted on the points
+    within ``tol`` spacings of it); points a spacing off (slipped onto a neighbouring tag)
+    are left out."""
+    n = len(P)
+    if n < 5:
+        return np.ones(n, bool)
+    period = 1.0 / float(np.linalg.norm(k))
+    khat = k / np.linalg.norm(k)
+    u = P @ np.array([-khat[1], khat[0]])
+    o = P @ khat
+    keep = np.abs(o - np.median(o)) <= 0.5 * period + 0.1 * np.ptp(u)   # a tilt of ~6 deg
+    for deg in (1, 2, 2):
+        if keep.sum() <= deg + 2:
+            return np.ones(n, bool)
+        c = np.polyfit(u[keep], o[keep], deg)
+        keep = np.abs(o - np.polyval(c, u)) <= tol * period
+    return keep
+
+
+def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myocardium],
+                geom: SliceGeometry, tag_planes: dict[str, TagPlanes], box,
+                study_contours=None) -> SliceTracking:
+    """HARP tracking of one slice's tag lines through its frames (module docstring, 2–6)."""
+    plane = images[0]
+    r0, r1, c0, c1 = box
+    offset = np.array([c0, r0], float)
+    crop = frames_px[:, r0:r1, c0:c1]
+    spectra = sfft.fft2(crop, axes=(-2, -1))
+    hs_by_fam = {fam: harp.HarmonicSeries.from_images(crop, geom.k[fam], spectra=spectra)
+                 for fam in geom.k}
+    inner = [_grid_mask(m, box, 0) if m is not None else None for m in myos]
+    masks = [binary_dilation(m, iterations=3) if m is not None else None for m in inner]
+    notes = []
+    # fading: median myocardial harmonic magnitude per frame over the first frame's
+    ref = {fam: float(np.median(np.abs(hs.baseband[0])[inner[0]])) for fam, hs in hs_by_fam.items()}
+    T = len(images)
+    for t in range(1, len(images)):
+        if inner[t] is None:
+            # the slice has left the ventricle (basal slices in systole): its material points
+            # cannot be followed through tissue that is not there, so tracking stops
+            T = t
+            notes.append(f"slice {plane.slice}: no LV contour at frame {images[t].frame}; tracked "
+                         f"up to frame {images[t - 1].frame}")
+            break
+        ratio = min(float(np.median(np.abs(hs.baseband[t])[inner[t]])) / ref[fam]
+                    for fam, hs in hs_by_fam.items())
+        if ratio < FADED:
+            T = t
+            notes.append(f"slice {plane.slice}: tags faded below {FADED:.0%} of the first frame's "
+                         f"harmonic magnitude at frame {images[t].frame}; tracked up to frame "
+                         f"{images[t - 1].frame}")
+            break
+    first = _first_frame_lines(hs_by_fam, geom, myos[0], box, masks[0], plane, tag_planes, crop[0])
+    lines = []
+    fam_list = list(hs_by_fam)
+    seeds, seed_fam, seed_idx = [], [], []
+    for fam, idx, piece, _ in first:
+        seeds.append(piece)
+        seed_fam.append(np.full(len(piece), fam_list.index(fam)))
+        seed_idx.append(np.full(len(piece), idx))
+    if not seeds:
+        return SliceTracking([], notes + [f"slice {plane.slice}: no tag line in the myocardium"], T)
+    S = np.vstack(seeds)
+    F = np.concatenate(seed_fam)
+    I = np.concatenate(seed_idx)
+    X, R = harp.track([hs_by_fam[f] for f in fam_list], S, frames=T,
+                      prior=_contour_prior(study_contours, offset) if study_contours else None)
+    # each line's last seen points and frame: the prediction at the next frame moves them by the
+    # median HARP displacement of the line's tracked points since then (robust to a few slips)
+    last: dict[tuple[int, int], tuple[int, np.ndarray]] = {}
+    for fam, idx, piece, _ in first:
+        fi = fam_list.index(fam)
+        prev = last.get((fi, idx))
+        last[(fi, idx)] = (0, piece if prev is None else np.vstack([prev[1], piece]))
+    for t in range(T):
+        if myos[t] is None:
+            continue
+        for fi, fam in enumerate(fam_list):
+            hs = hs_by_fam[fam]
+            sel = F == fi
+            if not sel.any():
+                continue
+            period = 1.0 / np.linalg.norm(hs.k)
+            by_index: dict[int, list[np.ndarray]] = defaultdict(list)
+            if t == 0:
+                for f_, idx, p, _ in first:
+                    if f_ == fam:
+                        by_index[idx].append(p)
+            elif len(fam_list) == 2:
+                # grids: the line is its tracked material points (both phases pin them), kept
+                # inside the frame's myocardium and moved onto the tag trough
+                reach = TROUGH_REACH * period
+                for idx in np.unique(I[sel]):
+                    mine = sel & (I == idx) & (R[t] <= CONVERGED_RAD)
+                    if not mine.any():
+                        continue
+                    P = _order_along(X[t, mine], hs.k)
+                    if REFINE:
+                        P = harp.trough_refine(crop[t], P, hs.sample(t, P)[1], reach)
+                    P = P[myos[t].contains(P + offset, BORDER_MARGIN_PX)]
+                    P = P[_on_one_tag(P, hs.k)]
+                    if len(P):
+                        by_index[int(idx)].append(P)
+            else:
+                pred, pred_idx = [], []
+                for key in [key for key in last if key[0] == fi]:
+                    t0, P0 = last[key]
+                    mine = sel & (I == key[1])
+                    shift = np.median(X[t, mine] - X[t0, mine], axis=0) if mine.any() else 0.0
+                    pred.append(P0 + shift)
+                    pred_idx.append(np.full(len(P0), key[1]))
+                tree = cKDTree(np.vstack(pred))
+                pidx = np.concatenate(pred_idx)
+                khat = hs.k / np.linalg.norm(hs.k)
+                for piece in _isolines_in_myocardium(hs, t, myos[t], offset, masks[t], crop[t]):
+                    # each point's index: its nearest predicted line point's index plus the
+                    # whole spacings between them along k (a line that enters the slice later,
+                    # by through-plane motion, gets its own index, not its neighbour's)
+                    _, j = tree.query(piece)
+                    o = ((piece - tree.data[j]) @ khat) / period
+                    n = np.round(o)
+                    idx_pt = pidx[j] + n.astype(int)
+                    ok = np.abs(o - n) <= ON_LINE
+                    if ok.sum() < 2:
+                        continue
+                    vals, counts = np.unique(idx_pt[ok], return_counts=True)
+                    idx = int(vals[np.argmax(counts)])
+                    keep = ok & (idx_pt == idx)
+                    if keep.sum() >= 2:
+                        by_index[idx].append(piece[keep])
+            mag_ref = ref[fam]
+            for idx, ps in by_index.items():
+                P = _order_along(np.vstack(ps), hs.k)
+                if len(P) < MIN_LINE_POINTS:
+                    continue
+                last[(fi, idx)] = (t, P)
+                mag = float(np.median(hs.sample(t, P)[2])) / mag_ref
+                mine = sel & (I == idx)
+                res = float(np.sqrt(np.mean(R[t, mine] ** 2))) if mine.any() else float("nan")
+                lines.append((fam, idx, images[t].frame, P + offset, mag, res))
+    return SliceTracking(lines, notes, T)
+
+
+# ------------------------------------------------------------------ study
+def _index_origins(firsts: dict[str, list], planes_by_fam: dict[str, TagPlanes]) -> None:
+    """index0 for families the study gives none: circular mean of p mod d, then the lowest
+    index shifted to 0 (``firsts``: family -> positions p along N of every first-frame line)."""
+    for fam, ps in firsts.items():
+        tp = planes_by_fam[fam]
+        if tp.index0 is not None or not ps:
+            continue
+        p = np.asarray(ps)
+        ang = 2 * np.pi * p / tp.spacing
+        c = float(np.angle(np.exp(1j * ang).mean())) * tp.spacing / (2 * np.pi)
+        lowest = np.floor((p.min() - c) / tp.spacing + 0.5)
+        tp.index0 = c + lowest * tp.spacing
+
+
+def track_tags(study: Study, slices: list[str] | None = None) -> Study:
+    """A copy of ``study`` whose tag lines are tracked from its tagged DICOM images (HARP).
+
+    See the module docstring. Every slice with DICOM files and LV epicardial contours is
+    tracked (or those named in ``slices``); the study's own tag lines (if any) are replaced. ``meta["tag_tracking"]`` records
+    the per-slice geometry and the per-line confidence. Raises :class:`TagTrackingError`
+    (untagged or faded series, spacing or orientation far from the expected) or
+    :class:`StudyError` (missing DICOM files), naming file, slice and frame.
+    """
+    if not study.source:
+        raise TagTrackingError("the study has no folder, so its DICOM images cannot be found",
+                               field="images")
+    by_slice = _slice_images(study)
+    if slices is not None:
+        by_slice = {s: v for s, v in by_slice.items() if s in set(slices)}
+    if not by_slice:
+        raise TagTrackingError("no image of this study names a DICOM file", file=study.source,
+                               field="images")
+    expected = expected_tag_planes(study)
+    folder = Path(study.source)
+    work: list[list] = []
+    notes: list[str] = []
+    positions: dict[str, list] = defaultdict(list)
+    order = sorted(by_slice, key=lambda s: (by_slice[s][0].view != "SA", s))
+    groups: dict[str, list] = defaultdict(list)
+    for slc in order:
+        images = by_slice[slc]
+        myos = _masks(study, images)
+        if myos[0] is None:
+            notes.append(f"slice {slc}: no lv_epi contour; not tracked")
+            continue
+        pix = _read_frames(study, images)
+        box = _crop_box(study, images)
+        first = pix[0, box[0]:box[1], box[2]:box[3]]
+        path = folder / images[0].file
+        peaks = first_frame_peaks(first, images[0], path, expected)
+        groups["SA" if images[0].view == "SA" else slc].append((images[0], path, peaks))
+        work.append([slc, images, myos, None, box, pix])
+    geoms: dict[str, SliceGeometry] = {}
+    for g in groups.values():
+        geoms.update(resolve_geometry(g, expected))
+    for w in work:
+        w[3] = geoms[w[0]]
+    # 3-D tag planes per family: expected, else from the measured directions
+    planes_by_fam: dict[str, TagPlanes] = {}
+    for fam in ("sa1", "sa2", "la"):
+        geoms = [g for _, _, _, g, _, _ in work if fam in g.normal]
+        if not geoms:
+            continue
+        if fam in expected:
+            planes_by_fam[fam] = dataclasses.replace(expected[fam])
+        else:
+            n = np.sum([g.normal[fam] for g in geoms], axis=0)
+            planes_by_fam[fam] = TagPlanes(n / np.linalg.norm(n),
+                                           float(np.median([g.spacing_mm[fam] for g in geoms])), None)
+    if any(tp.index0 is None for tp in planes_by_fam.values()):
+        for slc, images, myos, geom, box, pix in work:
+            crop = pix[:1, box[0]:box[1], box[2]:box[3]]
+            hs = {f: harp.HarmonicSeries.from_images(crop, geom.k[f]) for f in geom.k}
+            probe = {f: TagPlanes(planes_by_fam[f].normal, planes_by_fam[f].spacing, 0.0)
+                     for f in geom.k}
+            for fam, idx, piece, frac in _first_frame_lines(hs, geom, myos[0], box,
+                                                            _grid_mask(myos[0], box), images[0], probe):
+                positions[fam].append((idx + frac) * planes_by_fam[fam].spacing)
+        _index_origins(positions, planes_by_fam)
+    tags: list[TagLine] = []
+    rec = defaultdict(list)
+    series = {}
+    for slc, images, myos, geom, box, pix in work:
+        res = track_slice(pix, images, myos, geom, planes_by_fam, box,
+                          slice_contours_px(study, images))
+        notes += res.notes
+        frame_image = {im.frame: im for im in images}
+        for fam, idx, frame, P, mag, phres in res.lines:
+            im = frame_image[frame]
+            tags.append(TagLine(fam, idx, im.view, slc, frame, im.pixel_to_scanner(P), image=im.id))
+            for key, v in (("family", fam), ("index", idx), ("slice", slc), ("frame", frame),
+                           ("magnitude", round(mag, 4)),
+                           ("phase_residual", None if not np.isfinite(phres) else round(phres, 4))):
+                rec[key].append(v)
+        series[slc] = {"spacing_mm": {f: round(v, 4) for f, v in geom.spacing_mm.items()},
+                       "normal": {f: [round(float(x), 6) for x in v] for f, v in geom.normal.items()},
+                       "peak_contrast": {f: round(v, 2) for f, v in geom.contrast.items()},
+                       "frames_tracked": res.frames_tracked}
+    # duplicates (two pieces voted into one index are merged above; one index per line)
+    meta = dict(study.meta)
+    meta["tag_tracking"] = {
+        "method": "HARP (Osman et al. 1999/2000), cardionurbs.tracking",
+        "tag_planes": {f: {"normal": [float(x) for x in tp.normal], "spacing_mm": tp.spacing,
+                           "index0_mm": tp.index0} for f, tp in planes_by_fam.items()},
+        "series": series, "lines": dict(rec), "notes": notes}
+    out = dataclasses.replace(study, tags=tags, meta=meta, warnings=list(study.warnings) + notes)
+    return out
+
+
+# ------------------------------------------------------------------ output
+def _link_or_copy(src: Path, dst: Path) -> None:
+    import os
+    import shutil
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
+
+
+def write_tracked_study(study: Study, out: str | Path) -> Path:
+    """Write a tracked study as a native study folder ``out``, atomically (complete or absent;
+    the CLI checks ``out`` first with :func:`cardionurbs.io.outputs.check_output_dir`).
+
+    The DICOM files it references are hard-linked (copied across file systems) beside it under
+    the same relative paths, and ``truth.json`` (phantoms) with them, so the folder stands alone.
+    """
+    src = Path(study.source)
+    out = Path(out)
+    if out.resolve() == src.resolve():
+        raise StudyError("the output folder is the study itself; give another --out", file=out,
+                         field="--out")
+    with atomic.atomic_dir(out) as tmp:
+        for im in study.images:
+            if im.file and (src / im.file).is_file():
+                _link_or_copy(src / im.file, tmp / im.file)
+        if isinstance(study.meta.get("truth"), str) and (src / study.meta["truth"]).is_file():
+            _link_or_copy(src / study.meta["truth"], tmp / study.meta["truth"])
+        write_study(study, tmp)
+    return out
+
+
+def run_track(args) -> int:
+    """``cardionurbs track STUDY --out DIR``: the study with its tag lines tracked from its
+    tagged DICOM (:func:`track_tags`), written as a native study (exit 2 on bad input)."""
+    import sys
+    given = Path(args.study)
+    folder = given if given.is_dir() or not given.exists() else given.parent
+    check_output_dir(args.out, inputs=[folder],
+                     overwrite=getattr(args, "overwrite", False))
+    study = load_study(args.study, allow_outside=getattr(args, "allow_outside", False))
+    tracked = track_tags(study)
+    write_tracked_study(tracked, args.out)
+    info = tracked.meta["tag_tracking"]
+    n_slices = len(info["series"])
+    print(f"{tracked.subject}: {len(tracked.tags)} tag lines tracked on {n_slices} slices "
+          f"({len(tracked.tagged_frames)} frames); wrote {args.out}", file=sys.stdout)
+    for note in info["notes"]:
+        print(f"note: {note}", file=sys.stdout)
+    return 0
