@@ -227,6 +227,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="label-map convention (see analyze --labels)")
     co.add_argument("--allow-outside", action="store_true",
                     help="let study.json name files outside the study folder")
+    co.add_argument("--strict", action="store_true",
+                    help="a study whose metrics carry a quality flag (QC) is a failure")
 
     de = command("demo", "the paper's 12-subject phantom cohort, end to end")
     de.add_argument("--out", metavar="DIR", default=None,

@@ -31,9 +31,12 @@ from typing import Iterable
 import pandas as pd
 
 from cardionurbs.analysis.function import COLUMNS, NAN
+from cardionurbs.analysis.quality import QC_COLUMNS
 from cardionurbs.io import atomic
 
-CSV_COLUMNS = ("subject", "status") + COLUMNS
+#: subject, status, the metrics, then their evidence (fit residuals per surface, contours
+#: left out) and ``QC``, what failed (cardionurbs.analysis.quality)
+CSV_COLUMNS = ("subject", "status") + COLUMNS + QC_COLUMNS
 
 
 def _one_line(exc: BaseException) -> str:
@@ -71,11 +74,15 @@ def ignore_interrupts() -> None:
 
 
 def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None = None,
-                  allow_outside: bool = False, labels: str | None = None) -> dict:
+                  allow_outside: bool = False, labels: str | None = None,
+                  strict: bool = False) -> dict:
     """One cohort row for the study at ``path`` (never raises for a bad study); label-map
-    studies add the voxel-count columns (cardionurbs.analysis.voxels.VOXEL_COLUMNS)."""
+    studies add the voxel-count columns (cardionurbs.analysis.voxels.VOXEL_COLUMNS).
+
+    ``strict``: a row whose metrics carry a quality flag (``QC`` not empty) is a
+    failure: ``status = "error: QC: <flags>"`` and its numbers are emptied."""
     _test_fault(path)
-    row = {c: NAN for c in COLUMNS}
+    row = {c: NAN for c in COLUMNS + QC_COLUMNS}
     row["subject"] = Path(path).name
     try:
         from cardionurbs.io import load_study
@@ -83,19 +90,24 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
         study = load_study(path, format=format, allow_outside=allow_outside,
                            **({} if labels is None else {"labels": labels}))
         row["subject"] = study.subject
-        _, metrics = analyse_study(study, heart_rate_bpm=heart_rate_bpm)
+        from cardionurbs.analysis.quality import assess
+        model, metrics = analyse_study(study, heart_rate_bpm=heart_rate_bpm)
         row.update(metrics)
+        row.update(assess(model, metrics).row())
         row["status"] = "ok"
+        if strict and row["QC"]:
+            row.update({c: NAN for c in COLUMNS})
+            row["status"] = f"error: QC: {row['QC']}"
     except Exception as exc:  # noqa: BLE001 - recorded in the row, the run goes on
         kind = "" if isinstance(exc, ValueError) else f"{type(exc).__name__}: "
-        row.update({c: NAN for c in COLUMNS})
+        row.update({c: NAN for c in COLUMNS + QC_COLUMNS})
         row["status"] = f"error: {kind}{_one_line(exc)}"
     return row
 
 
 def failure_row(path: str, reason: str) -> dict:
     """The row of a study that gave no result (a hang, a dead worker): reason, empty numbers."""
-    row = {c: NAN for c in COLUMNS}
+    row = {c: NAN for c in COLUMNS + QC_COLUMNS}
     row["subject"] = Path(path).name
     row["status"] = f"error: {' '.join(str(reason).split())}"
     return row
@@ -159,7 +171,8 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
            progress: bool = False, heart_rate_bpm: float | None = None,
            dask: str | None = None, timeout: float | None = None,
            run_dir: str | os.PathLike | None = None, resume: bool = False,
-           allow_outside: bool = False, labels: str | None = None) -> pd.DataFrame:
+           allow_outside: bool = False, labels: str | None = None,
+           strict: bool = False) -> pd.DataFrame:
     """Measure every study: a DataFrame with ``subject``, ``status`` and the docs/metrics.md
     columns in order, one row per path (input order); when any study is a label map
     the voxel-count columns follow (``labels``: its convention, see load_study).
@@ -168,7 +181,7 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
     Dask cluster (``"local"`` or a scheduler address); ``timeout``: seconds per study
     before it becomes an error row; ``run_dir``: store each finished row durably there
     (:class:`RowStore`); ``resume``: keep the rows already in ``run_dir`` and measure only
-    the others.
+    the others; ``strict``: flagged rows are failures (:func:`measure_study`).
     """
     from cardionurbs.executor import TaskFailure, run_tasks
 
@@ -205,12 +218,13 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
             for k, i in enumerate(todo):             # in this process: no worker to start
                 try:
                     result = measure_study(paths[i], format, heart_rate_bpm, allow_outside,
-                                           labels)
+                                           labels, strict)
                 except Exception as exc:  # noqa: BLE001 - as a worker would report it
                     result = TaskFailure("error", f"{type(exc).__name__}: {_one_line(exc)}")
                 finished(k, result)
         else:
-            run_tasks(measure_study, [(paths[i], format, heart_rate_bpm, allow_outside, labels)
+            run_tasks(measure_study, [(paths[i], format, heart_rate_bpm, allow_outside, labels,
+                                       strict)
                                       for i in todo],
                       finished, jobs=jobs, dask=dask, timeout=timeout)
     finally:
@@ -253,7 +267,8 @@ def run_cohort(args: argparse.Namespace) -> int:
                    timeout=getattr(args, "timeout", None), run_dir=run_dir,
                    resume=getattr(args, "resume", False),
                    allow_outside=getattr(args, "allow_outside", False),
-                   labels=getattr(args, "labels", None))
+                   labels=getattr(args, "labels", None),
+                   strict=getattr(args, "strict", False))
     write_csv(table, csv)
     wrote = [str(csv)]
     if getattr(args, "parquet", False):

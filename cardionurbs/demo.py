@@ -45,8 +45,10 @@ def demo_subject(spec, out_dir: str) -> tuple[dict, dict]:
         truth.update({c: (NAN if ph.truth["metrics"].get(c) is None else float(ph.truth["metrics"][c]))
                       for c in COLUMNS})
         write_phantom(ph, Path(out_dir) / spec.id, dicom=False)
-        _, metrics = analyse_study(ph.study)
+        model, metrics = analyse_study(ph.study)
         row.update(metrics)
+        from cardionurbs.analysis.quality import assess
+        row.update(assess(model, metrics).row())
         row["status"] = "ok"
     except Exception as exc:  # noqa: BLE001 - recorded in the row, the demo goes on
         row.update({c: NAN for c in COLUMNS})

@@ -4,7 +4,10 @@ Output folder (written atomically: complete or absent)::
 
     DIR/metrics.json        {"subject", "metrics": {docs/metrics.md column: value},
                              "ed_frame", "es_frame", "volume_curve", "residuals",
-                             "notes", "warnings"}   (notes: metric -> why it is null)
+                             "quality": {per metric: flags, surfaces, frames; per
+                             surface and frame: fit residual median/p95/max in mm
+                             and px; contours left out}, "QC", "notes", "warnings"}
+                             (notes: metric -> why it is null)
     DIR/model.json          the NURBS model (BiventricularModel.to_dict)
     DIR/model.3dm           the ED surfaces as Rhino NURBS (with the ``cad`` extra)
     DIR/residuals.csv       contour-point-to-surface distances per slice, at ED and ES
@@ -25,6 +28,7 @@ the tags at ED and ES (twist and LS over time only for figures and report).
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from pathlib import Path
 
@@ -165,6 +169,8 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
             progress.stage("metrics")
             if res is None:
                 res = model.residual_table()
+            from cardionurbs.analysis.quality import assess
+            quality = assess(model, metrics)
             summary = {}
             for s, g in res.groupby("structure"):
                 summary[s] = {"mean_mm": float(g["mean_mm"].mean()),
@@ -177,6 +183,7 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                         "volume_curve": volume_curve(model), "residuals": summary,
                         "residual_frames": sorted({model.ed_frame, model.es_frame}),
                         "tags": None if tags is None else tags.to_json(),
+                        "quality": quality.to_json(), "QC": "; ".join(quality.flags),
                         "regional": (None if getattr(model, "regional", None) is None
                                      else model.regional.to_json()),
                         "notes": dict(model.study.meta.get("metric_notes") or {}),
@@ -246,4 +253,7 @@ def run_analyze(args: argparse.Namespace) -> int:
     print(f"{study.subject}: ED frame {model.ed_frame}, ES frame {model.es_frame}; "
           f"LVEDV {metrics['LVEDV (mL)']:.1f} mL, LVEF {metrics['LVEF (%)']:.1f} %; "
           f"wrote {args.out}")
+    qc = json.loads((Path(args.out) / "metrics.json").read_text()).get("QC")
+    if qc:
+        print(f"QC: {qc}")
     return 0

@@ -9,7 +9,14 @@ Vocabulary
 structures (``Contour.structure``)
     ``lv_endo``, ``lv_epi``, ``rv_endo``, ``rv_epi`` — closed in SA views;
     ``rv_septum`` and ``rv_freewall`` — the two open parts of an RV
-    endocardial contour as CAP guide points give it.
+    endocardial contour as CAP guide points give it; ``rv_outlet`` — the RV
+    endocardium of the outflow tract above the tricuspid valve (CAP
+    ``SAX_RV_OUTLET``).
+other structures (``OTHER_STRUCTURES``)
+    atria, veins and long-axis extents as CAP tools trace them (``la``,
+    ``ra``, ``laa``, ``lpv``, ``rpv``, ``svc``, ``ivc``, ``la_extent``,
+    ``ra_extent``, ``lv_extent``, ``rv_extent``): kept, never used for the
+    ventricles.
 tag families (``TagLine.family``)
     ``sa1``, ``sa2`` — the two orthogonal SA families of tag planes (parallel
     to the long axis), seen as lines in SA images; ``la`` — the planes
@@ -29,7 +36,10 @@ import numpy as np
 from cardionurbs.errors import StudyError
 from cardionurbs.imaging.geometry import VIEWS, ImagePlane
 
-STRUCTURES = ("lv_endo", "lv_epi", "rv_endo", "rv_epi", "rv_septum", "rv_freewall")
+STRUCTURES = ("lv_endo", "lv_epi", "rv_endo", "rv_epi", "rv_septum", "rv_freewall", "rv_outlet")
+#: non-ventricular structures some CAP tools trace (kept in the Study, not reconstructed)
+OTHER_STRUCTURES = ("la", "ra", "laa", "lpv", "rpv", "svc", "ivc", "la_extent", "ra_extent",
+                    "lv_extent", "rv_extent")
 CLOSED_STRUCTURES = ("lv_endo", "lv_epi", "rv_endo", "rv_epi")
 TAG_FAMILIES = ("sa1", "sa2", "la")
 LANDMARKS = ("apex", "mitral", "tricuspid", "aortic", "pulmonary", "rv_insert")
@@ -54,6 +64,8 @@ class Contour:
     ``closed`` is True for a closed loop (SA ``lv_endo`` etc.; the first point
     is not repeated at the end); LA contours and RV septum / free-wall parts are
     open. ``index`` tells apart several pieces of one structure on one image.
+    ``weights`` (optional, (n,) >= 0): each point's fitting weight as the input
+    gives it (CAP guide-point files); None means 1 for every point.
     """
 
     structure: str
@@ -64,18 +76,31 @@ class Contour:
     image: str | None = None
     closed: bool = True
     index: int = 0
+    weights: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        if self.structure not in STRUCTURES:
+        if self.structure not in STRUCTURES + OTHER_STRUCTURES:
             raise StudyError(f"unknown structure {self.structure!r}; expected one of "
-                             f"{', '.join(STRUCTURES)}", slice=self.slice, frame=self.frame,
-                             field="structure")
+                             f"{', '.join(STRUCTURES + OTHER_STRUCTURES)}", slice=self.slice,
+                             frame=self.frame, field="structure")
         if self.view not in VIEWS:
             raise StudyError(f"unknown view {self.view!r}", slice=self.slice, frame=self.frame,
                              field="view")
         self.frame = int(self.frame)
         self.points = _points(self.points, f"{self.structure} contour", slice=self.slice,
                               frame=self.frame)
+        if self.weights is not None:
+            w = np.asarray(self.weights, dtype=float).reshape(-1)
+            if w.shape != (len(self.points),) or not np.all(np.isfinite(w)) or np.any(w < 0):
+                raise StudyError(f"{self.structure} contour: weights must be {len(self.points)} "
+                                 "finite numbers >= 0", slice=self.slice, frame=self.frame,
+                                 field="weight")
+            self.weights = None if np.all(w == 1.0) else w
+
+    @property
+    def ventricular(self) -> bool:
+        """True for the structures the ventricles are reconstructed from."""
+        return self.structure in STRUCTURES
 
 
 @dataclass(eq=False)

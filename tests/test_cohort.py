@@ -10,6 +10,7 @@ import pytest
 
 from cardionurbs.analysis.function import COLUMNS
 from cardionurbs.cli import main
+from cardionurbs.analysis.quality import QC_COLUMNS
 from cardionurbs.cohort import CSV_COLUMNS, cohort
 from cardionurbs.io.native import write_study
 
@@ -39,7 +40,8 @@ def table(studies):
 
 def test_rows_in_input_order_with_metrics_columns(table):
     assert list(table.columns) == list(CSV_COLUMNS)
-    assert list(table.columns[2:]) == list(COLUMNS)
+    assert list(table.columns[2:2 + len(COLUMNS)]) == list(COLUMNS)
+    assert list(table.columns[2 + len(COLUMNS):]) == list(QC_COLUMNS)
     assert list(table["subject"]) == ["ell0", "does-not-exist", "broken", "ell1"]
     assert list(table["status"] == "ok") == [True, False, False, True]
 

@@ -213,13 +213,17 @@ class BiventricularModel:
         if not la:
             return surface
         targets = np.concatenate(la)
+        wl = geo.la_weights.get(structure) or []
+        weights = np.concatenate(wl) if len(wl) == len(la) else np.ones(len(targets))
         plane = geo.base_planes.get("lv")
         if plane is not None:
-            targets = targets[plane.signed_distance(targets) >= 0]
+            keep = plane.signed_distance(targets) >= 0
+            targets, weights = targets[keep], weights[keep]
         # the SA points every ~2 mm along each contour suffice to hold the surface
         anchors = np.concatenate([_every(sec.source_points, 2.0) for sec in geo.sections[structure]])
-        return refine_surface(surface, anchors, _every(targets, 2.0), anchor_weight=self.anchor_weight,
-                              passes=2)
+        every = _every_index(targets, 2.0)
+        return refine_surface(surface, anchors, targets[every], anchor_weight=self.anchor_weight,
+                              target_weights=weights[every], passes=2)
 
     def _all_surfaces(self, frame: int) -> dict:
         geo = self.geometry[frame]
@@ -352,20 +356,47 @@ class BiventricularModel:
         """Distance of every contour point to its surface (closest-point projection,
         :func:`cardionurbs.nurbs.closest_points`), per (structure, frame, slice, view):
         columns structure, frame, slice, view, n_points, mean_mm, max_mm, mean_px,
-        max_px, for the given frames (default ED and ES). SA points are the contour
-        points of each slice (for the RV, the free wall: the septal part is the LV
-        epicardium's); LA points are the LA contours. Empty for a model read back
-        without its study's contours."""
+        max_px, for the given frames (default ED and ES); see :meth:`point_residuals`
+        for which points and which distance. Empty for a model read back without its
+        study's contours."""
         cols = ["structure", "frame", "slice", "view", "n_points", "mean_mm", "max_mm",
                 "mean_px", "max_px"]
-        rows = []
+        pts = self.point_residuals(frames)
+        if pts.empty:
+            return pd.DataFrame([], columns=cols)
+        g = pts.groupby(["structure", "frame", "slice", "view"], sort=False)
+        out = g.agg(n_points=("dist_mm", "size"), mean_mm=("dist_mm", "mean"),
+                    max_mm=("dist_mm", "max"), mean_px=("dist_px", "mean"),
+                    max_px=("dist_px", "max")).reset_index()
+        return out[cols]
+
+    def point_residuals(self, frames=None) -> pd.DataFrame:
+        """Every contour point's distance to the surface it was fitted by (mm and pixels of
+        its image), at the given frames (default ED and ES): columns structure, frame,
+        slice, view, dist_mm, dist_px.
+
+        SA points are the contour points of each slice (for the RV, the free wall: the
+        septal part is the LV epicardium's); LA points are the LA contours. An RV point's
+        distance is to the boundary of the RV solids, which the RV surface and the LV
+        epicardium make together (RV cavity = RV endo − LV epi): the nearer of the two
+        surfaces, so that the septal run of an LA RV contour, which lies on the LV
+        epicardium, is measured where it lies."""
+        cols = ["structure", "frame", "slice", "view", "dist_mm", "dist_px"]
         if not self.study.contours:
-            return pd.DataFrame(rows, columns=cols)
+            return pd.DataFrame([], columns=cols)
         if frames is None:
             frames = sorted({self.ed_frame, self.es_frame})
+        key = ("point_residuals", tuple(frames))
+        if key not in self._solid_cache:
+            self._solid_cache[key] = self._point_residuals(frames, cols)
+        return self._solid_cache[key].copy()
+
+    def _point_residuals(self, frames, cols) -> pd.DataFrame:
+        parts = []
         for f in frames:
             geo = self.geometry[f]
-            for s, surf in self.surfaces[f].items():
+            surfs = self.surfaces[f]
+            for s, surf in surfs.items():
                 items = [(sec.slice, "SA", free_wall_points(sec, geo.direction), _pixel_mm(sec.plane))
                          for sec in self.sections[f].get(s, []) if sec.source_points is not None]
                 items += [(sl, "LA", pts, px) for sl, pts, px in
@@ -373,16 +404,20 @@ class BiventricularModel:
                               geo.la_pixel_mm.get(s, []))]
                 if not items:
                     continue
-                d = surface_distance(surf, np.concatenate([it[2] for it in items]))
-                k = 0
-                for sl, view, pts, px in items:
-                    di = d[k:k + len(pts)]
-                    k += len(pts)
-                    rows.append({"structure": s, "frame": f, "slice": sl, "view": view,
-                                 "n_points": len(pts), "mean_mm": float(di.mean()),
-                                 "max_mm": float(di.max()), "mean_px": float(di.mean() / px),
-                                 "max_px": float(di.max() / px)})
-        return pd.DataFrame(rows, columns=cols)
+                allp = np.concatenate([it[2] for it in items])
+                d = surface_distance(surf, allp)
+                if s.startswith("rv") and "lv_epi" in surfs:
+                    d = np.minimum(d, surface_distance(surfs["lv_epi"], allp))
+                n = [len(it[2]) for it in items]
+                px = np.repeat([it[3] for it in items], n)
+                parts.append(pd.DataFrame({
+                    "structure": s, "frame": f,
+                    "slice": np.repeat(np.array([it[0] for it in items], dtype=object), n),
+                    "view": np.repeat([it[1] for it in items], n), "dist_mm": d,
+                    "dist_px": d / px}))
+        if not parts:
+            return pd.DataFrame([], columns=cols)
+        return pd.concat(parts, ignore_index=True)[cols]
 
     # ------------------------------------------------------------- (de)serialise
     def to_dict(self) -> dict:
@@ -437,10 +472,15 @@ class BiventricularModel:
 
 def _every(points: np.ndarray, spacing_mm: float) -> np.ndarray:
     """A subsample of ordered contour points about ``spacing_mm`` apart."""
+    return points[_every_index(points, spacing_mm)]
+
+
+def _every_index(points: np.ndarray, spacing_mm: float) -> slice:
+    """The slice of ordered contour points that keeps them about ``spacing_mm`` apart."""
     if len(points) < 3:
-        return points
+        return slice(None)
     step = float(np.median(np.linalg.norm(np.diff(points, axis=0), axis=1))) or spacing_mm
-    return points[:: max(1, int(round(spacing_mm / step)))]
+    return slice(None, None, max(1, int(round(spacing_mm / step))))
 
 
 def _pixel_mm(plane) -> float:

@@ -82,12 +82,15 @@ def grid_projection(surface, points: np.ndarray, nu: int = 192, nv: int = 96
 
 def refine_surface(surface, anchors: np.ndarray, targets: np.ndarray, *,
                    smoothing: float = 0.05, ridge: float = 1e-4, passes: int = 2,
-                   anchor_weight: float = 1.0, max_step_mm: float = 10.0):
+                   anchor_weight: float = 1.0, max_step_mm: float = 10.0,
+                   target_weights: np.ndarray | None = None):
     """Correct ``surface`` towards ``targets`` (LA points) while keeping it through
     ``anchors`` (SA contour points); see module doc. Returns the new surface.
 
     ``smoothing`` (λ) and ``ridge`` (ε) are relative to the mean diagonal of the
-    normal equations, so they do not depend on the point counts.
+    normal equations, so they do not depend on the point counts. ``target_weights``
+    (len(targets),): each LA point's weight w_i in the least squares (the input's
+    guide-point weights; default 1).
     """
     if len(targets) == 0:
         return surface
@@ -113,6 +116,8 @@ def refine_surface(surface, anchors: np.ndarray, targets: np.ndarray, *,
         A = A[:, free]
         w = np.ones(len(pts))
         w[: len(anchors)] = anchor_weight
+        if target_weights is not None:
+            w[len(anchors):] = target_weights
         AtA = A.T @ (A * w[:, None])
         scale = float(np.mean(np.diag(AtA))) or 1.0
         M = AtA + smoothing * scale * L + ridge * scale * np.eye(AtA.shape[0])

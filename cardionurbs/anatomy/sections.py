@@ -68,6 +68,8 @@ class FrameGeometry:
     base_planes: dict[str, Plane] = field(default_factory=dict)
     la_slices: dict[str, list[str]] = field(default_factory=dict)
     la_pixel_mm: dict[str, list[float]] = field(default_factory=dict)
+    la_weights: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    left_out: list[tuple[str, str | None, str]] = field(default_factory=list)  # (structure, slice, why)
     thickness: float = 8.0
     reference: np.ndarray | None = None     # in-plane LV -> RV direction (section seams)
     warnings: list[str] = field(default_factory=list)
@@ -401,7 +403,7 @@ def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.n
     out: dict[str, list] = {s: [] for s in SURFACES}
     by_slice: dict[str, dict[str, list[Contour]]] = {}
     for c in study.contours_at(frame, view="SA"):
-        by_slice.setdefault(c.slice, {}).setdefault(c.structure, []).append(c)
+        by_slice.setdefault(c.slice, {}).setdefault(c.structure, []).append(weighted_part(c))
     for sl, d in by_slice.items():
         for s in ("lv_endo", "lv_epi"):
             for c in d.get(s, []):
@@ -410,15 +412,22 @@ def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.n
                                    c.points))
         sept = [c.points for c in d.get("rv_septum", [])]
         fw = [c.points for c in d.get("rv_freewall", [])]
-        rv_closed = [c for c in d.get("rv_endo", []) if c.closed]
-        if rv_closed:
-            for c in rv_closed:
+        rv_whole = [c for c in d.get("rv_endo", []) if len(c.points) >= 5]
+        if rv_whole:
+            # an undivided RV endocardial trace (closed, or open but round the whole cavity)
+            for c in rv_whole:
                 out["rv_endo"].append((sl, order_closed(c.points), c.points))
         elif fw:
             parts = fw + sept
             pts = np.concatenate(parts)
             if len(pts) >= 5:
                 out["rv_endo"].append((sl, join_open_parts(parts), pts))
+        open_epi = [c for c in d.get("rv_epi", []) if not c.closed]
+        if open_epi and not sept and rv_whole and d.get("lv_epi"):
+            # the septal part of an undivided RV endocardium, by its contact with the LV
+            # epicardium, closes an open RV epicardial trace
+            sept = septal_parts(np.concatenate([c.points for c in rv_whole]),
+                                d["lv_epi"][0].points)
         for c in d.get("rv_epi", []):
             if c.closed:
                 out["rv_epi"].append((sl, order_closed(c.points), c.points))
@@ -428,23 +437,48 @@ def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.n
     return out
 
 
+def septal_parts(rv_points: np.ndarray, lv_epi: np.ndarray, near_mm: float = 1.0
+                 ) -> list[np.ndarray]:
+    """The septal part of an undivided RV endocardial trace: its points on (within
+    ``near_mm`` of) or inside the LV epicardial contour of the same image, as one
+    array in trace order ([] when none touches it)."""
+    n = fit_plane(lv_epi)[1]
+    mask = septal_mask(rv_points, order_closed(lv_epi), n, near_mm)
+    return [rv_points[mask]] if mask.sum() >= 2 else []
+
+
 def _la_polylines(study: Study, frame: int) -> tuple[dict, dict, dict]:
     """LA contours per surface as ordered open polylines (CAP parts mapped to rv_endo),
-    with their slice ids and pixel sizes (mm)."""
+    with their slice ids, pixel sizes (mm) and point weights."""
     pts: dict[str, list[np.ndarray]] = {s: [] for s in SURFACES}
     sls: dict[str, list[str]] = {s: [] for s in SURFACES}
     pxs: dict[str, list[float]] = {s: [] for s in SURFACES}
+    wts: dict[str, list[np.ndarray]] = {s: [] for s in SURFACES}
     idx = study._image_index()
     for c in study.contours_at(frame, view="LA"):
         key = "rv_endo" if c.structure in ("rv_septum", "rv_freewall") else c.structure
-        if len(c.points) >= 3:
-            pts[key].append(order_open(c.points))
+        c = weighted_part(c)
+        if key in pts and len(c.points) >= 3:
+            ordered = order_open(c.points)
+            pts[key].append(ordered)
+            wts[key].append(np.ones(len(ordered)) if c.weights is None
+                            else c.weights[cKDTree(c.points).query(ordered)[1]])
             sls[key].append(c.slice)
             im = idx.get(c.image) if c.image else None
             if im is None:
                 im = next((i for i in study.images if i.slice == c.slice), None)
             pxs[key].append(float(np.mean(im.pixel_spacing)) if im is not None else 1.0)
-    return pts, sls, pxs
+    return pts, sls, pxs, wts
+
+
+def weighted_part(c: Contour) -> Contour:
+    """The contour without its zero-weight points (a weight of 0 in the input means: do not
+    fit this point); the contour itself when every weight is positive."""
+    if c.weights is None or np.all(c.weights > 0):
+        return c
+    keep = c.weights > 0
+    return Contour(c.structure, c.view, c.slice, c.frame, c.points[keep], image=c.image,
+                   closed=c.closed, index=c.index, weights=c.weights[keep])
 
 
 def valve_plane(points: np.ndarray, axis: np.ndarray) -> Plane:
@@ -484,7 +518,8 @@ def isoperimetric_quotient(points: np.ndarray, normal: np.ndarray) -> float:
 MIN_BASAL_AREA_RATIO = 0.35
 
 
-def _drop_degenerate_loops(secs: list, n: np.ndarray, warnings: list[str]) -> list:
+def _drop_degenerate_loops(secs: list, n: np.ndarray, warnings: list[str],
+                           left_out: list | None = None) -> list:
     """Leave out LV loops (sorted base -> apex) that cannot be whole cross-sections.
 
     Two signs of a partial or back-and-forth tracing (typically a basal slice
@@ -496,6 +531,8 @@ def _drop_degenerate_loops(secs: list, n: np.ndarray, warnings: list[str]) -> li
     as full sections they bend the surface and distort the cavity volume.
     """
     def drop(sec, why):
+        if left_out is not None:
+            left_out.append((sec.structure, sec.slice, why))
         warnings.append(f"frame {sec.frame}: slice {sec.slice}: {sec.structure} contour {why}; "
                         "left out of the surface (a partial tracing?)")
 
@@ -540,7 +577,7 @@ def frame_geometry(study: Study, frame: int) -> FrameGeometry:
             secs.append(Section(s, frame, pts, slice=sl, plane=planes.get(sl), source_points=src))
         secs.sort(key=lambda sec: float(sec.points.mean(axis=0) @ n))
         if s in ("lv_endo", "lv_epi"):
-            secs = _drop_degenerate_loops(secs, n, geo.warnings)
+            secs = _drop_degenerate_loops(secs, n, geo.warnings, geo.left_out)
         geo.sections[s] = secs
     lv_epi = {sec.slice: sec for sec in geo.sections.get("lv_epi", [])}
     for s in ("rv_endo", "rv_epi"):
@@ -548,7 +585,7 @@ def frame_geometry(study: Study, frame: int) -> FrameGeometry:
             ep = lv_epi.get(sec.slice)
             if ep is not None:
                 sec.septum_of = ep.points
-    geo.la_points, geo.la_slices, geo.la_pixel_mm = _la_polylines(study, frame)
+    geo.la_points, geo.la_slices, geo.la_pixel_mm, geo.la_weights = _la_polylines(study, frame)
 
     lm_apex = [lm.point for lm in study.landmarks_at(frame, "apex")]
     for s, secs in geo.sections.items():

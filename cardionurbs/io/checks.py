@@ -416,6 +416,11 @@ def _check_annotations(study: Study, warnings: list[str]) -> None:
     for c, file in zip(study.contours, files):
         what = f"{c.structure} contour" + (f" #{c.index}" if c.index else "")
         n = len(c.points)
+        if not c.ventricular:  # atrial / venous / extent traces: only their plane is checked
+            plane = _plane_of(study, c, file)
+            if plane is not None:
+                _off_plane(study, plane, c.points, what, file, c, warnings, normals)
+            continue
         if n < MIN_CONTOUR_POINTS:
             msg = f"{what} has {n} point(s), needs >= {MIN_CONTOUR_POINTS}"
             if c.closed or c.structure in ("lv_endo", "lv_epi"):

@@ -12,28 +12,50 @@ line, then one guide point per line in scanner mm::
 tool wrote it. Consecutive lines with the same (contour type, frameID) form
 one contour, in drawing order.
 
-``SliceInfoFile.txt``: one line per slice::
+``SliceInfoFile.txt``, in either of two styles (tabs or spaces between tokens)::
 
-    <dicom file>  sliceID:  <n>  ImagePositionPatient  x y z
-    ImageOrientationPatient  rx ry rz cx cy cz  PixelSpacing  dr dc
+    <image>  sliceID:  <n>  ImagePositionPatient  x y z
+    ImageOrientationPatient  rx ry rz cx cy cz  PixelSpacing  dr dc          (ours)
+
+    <image>  frameID:  <n>  [timeFrame  <t>]  ImagePositionPatient ...      (CAP exports)
+
+``<image>`` is a DICOM file name or a UID. The CAP export lists each slice once
+per frame; lines of one slice are merged when their geometry agrees (1e-3 mm,
+1e-5 in the direction cosines) and a StudyError names both lines when it does
+not. With ``timeFrame`` numbers, every GPFile frame must be listed (0- or
+1-based). :func:`write_study` writes a study back in the style it was read in
+(byte-identical for an unchanged study), or in the style asked for.
 
 Mapping to the Study vocabulary (view from the ``SAX_``/``LAX_`` prefix):
 
-==========================  =============  ==================================
-GPFile type                  Study           closed
-==========================  =============  ==================================
-SAX_/LAX_LV_ENDOCARDIAL      ``lv_endo``     SA closed, LA open
-SAX_/LAX_LV_EPICARDIAL       ``lv_epi``      SA closed, LA open
-SAX_/LAX_RV_FREEWALL         ``rv_freewall`` open
-SAX_/LAX_RV_SEPTUM           ``rv_septum``   open
-SAX_/LAX_RV_EPICARDIAL       ``rv_epi``      open (closed=False)
-MITRAL_VALVE                 landmark ``mitral``
-TRICUSPID_VALVE              landmark ``tricuspid``
-AORTA_VALVE                  landmark ``aortic``
-PULMONARY_VALVE              landmark ``pulmonary``
-APEX_POINT                   landmark ``apex``
-RV_INSERT                    landmark ``rv_insert``
-==========================  =============  ==================================
+==============================  ===================  ==============================
+GPFile type                      Study                closed
+==============================  ===================  ==============================
+SAX_/LAX_LV_ENDOCARDIAL          ``lv_endo``          SA closed, LA open
+SAX_/LAX_LV_EPICARDIAL           ``lv_epi``           SA closed, LA open
+SAX_/LAX_RV_ENDOCARDIAL          ``rv_endo``          SA: closed when it is a loop
+SAX_/LAX_RV_FREEWALL             ``rv_freewall``      open
+SAX_/LAX_RV_SEPTUM               ``rv_septum``        open
+SAX_/LAX_RV_EPICARDIAL           ``rv_epi``           SA: closed when it is a loop
+SAX_RV_OUTLET                    ``rv_outlet``        closed when it is a loop
+MITRAL/TRICUSPID/AORTA/          landmark ``mitral``, ``tricuspid``, ``aortic``,
+PULMONARY_VALVE (+ ``_PHANTOM``)  ``pulmonary``
+APEX_POINT, RV_INSERT            landmark ``apex``, ``rv_insert``
+LAX_LA, LAX_RA, SAX_LA, SAX_RA,  ``la``, ``ra``, ``laa``, ``lpv``, ``rpv``, ``svc``,
+SAX_LAA, SAX_LPV, SAX_RPV,       ``ivc``, ``<x>_extent``: kept, not used for the
+SAX_SVC, SAX_IVC, LAX_*_EXTENT   ventricles (counted in one warning)
+EXCLUDED                         dropped (counted in one warning)
+==============================  ===================  ==============================
+
+(``*_PHANTOM``: ``MITRAL_PHANTOM`` or ``MITRAL_VALVE_PHANTOM`` etc., the points a
+CAP tool adds to complete a valve ring.) "A loop": the trace's ends and every step
+along it are within 3 median point spacings, and closing it does not make it cross
+itself (:func:`is_loop`). An undivided RV endocardial trace is split into septum and
+free wall by its contact with the LV epicardium where the reconstruction needs the
+septum (:func:`cardionurbs.anatomy.sections.septal_parts`). The ``weight`` column
+becomes ``Contour.weights``: weight 0 leaves a point out of every fit, other weights
+weigh the long-axis points in the least-squares correction of the LV surfaces
+(:func:`cardionurbs.anatomy.refine.refine_surface`).
 
 Slice ids: the slices of SliceInfoFile whose normals are parallel (the largest
 such group, :func:`cardionurbs.imaging.stack.split_stack`) are the SA stack,
@@ -70,20 +92,40 @@ from cardionurbs.safe import excerpt
 from cardionurbs.imaging import stack
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import atomic
+from cardionurbs.io.checks import in_plane_coordinates, self_intersections
 from cardionurbs.study import Contour, Landmark, Study
 
 SLICE_INFO = "SliceInfoFile.txt"
 GP_FILE = re.compile(r"^GPFile_(\d+)\.txt$")
 HEADER = "x\ty\tz\tcontour type\tframeID\tweight\ttime frame"
 CONTOUR_TYPES = {"LV_ENDOCARDIAL": "lv_endo", "LV_EPICARDIAL": "lv_epi",
-                 "RV_FREEWALL": "rv_freewall", "RV_SEPTUM": "rv_septum",
-                 "RV_EPICARDIAL": "rv_epi"}
+                 "RV_ENDOCARDIAL": "rv_endo", "RV_FREEWALL": "rv_freewall",
+                 "RV_SEPTUM": "rv_septum", "RV_EPICARDIAL": "rv_epi"}
+#: contour types with one view only: GPFile type -> (structure, view)
+SINGLE_VIEW_TYPES = {"SAX_RV_OUTLET": ("rv_outlet", "SA")}
+#: atrial, venous and extent traces: kept in the Study, not used for the ventricles
+OTHER_TYPES = {"LAX_LA": ("la", "LA"), "LAX_RA": ("ra", "LA"), "SAX_LA": ("la", "SA"),
+               "SAX_RA": ("ra", "SA"), "SAX_LAA": ("laa", "SA"), "SAX_LPV": ("lpv", "SA"),
+               "SAX_RPV": ("rpv", "SA"), "SAX_SVC": ("svc", "SA"), "SAX_IVC": ("ivc", "SA"),
+               "LAX_LA_EXTENT": ("la_extent", "LA"), "LAX_RA_EXTENT": ("ra_extent", "LA"),
+               "LAX_LV_EXTENT": ("lv_extent", "LA"), "LAX_RV_EXTENT": ("rv_extent", "LA")}
 LANDMARK_TYPES = {"MITRAL_VALVE": "mitral", "TRICUSPID_VALVE": "tricuspid",
                   "AORTA_VALVE": "aortic", "PULMONARY_VALVE": "pulmonary",
-                  "APEX_POINT": "apex", "RV_INSERT": "rv_insert"}
+                  "APEX_POINT": "apex", "RV_INSERT": "rv_insert",
+                  # points a CAP tool adds around a valve ring to complete it
+                  "MITRAL_PHANTOM": "mitral", "TRICUSPID_PHANTOM": "tricuspid",
+                  "AORTA_PHANTOM": "aortic", "PULMONARY_PHANTOM": "pulmonary",
+                  "MITRAL_VALVE_PHANTOM": "mitral", "TRICUSPID_VALVE_PHANTOM": "tricuspid",
+                  "AORTA_VALVE_PHANTOM": "aortic", "PULMONARY_VALVE_PHANTOM": "pulmonary"}
+#: guide points a tool has marked as not to be used
+EXCLUDED_TYPES = ("EXCLUDED",)
 VIEW_PREFIX = {"SAX": "SA", "LAX": "LA"}
 GP_OF_STRUCTURE = {v: k for k, v in CONTOUR_TYPES.items()}
-GP_OF_LANDMARK = {v: k for k, v in LANDMARK_TYPES.items()}
+GP_OF_STRUCTURE.update({v[0]: k for k, v in SINGLE_VIEW_TYPES.items()})
+GP_OF_LANDMARK = {v: k for k, v in list(LANDMARK_TYPES.items())[:6]}
+#: an SA RV_ENDOCARDIAL / RV_OUTLET trace is a closed loop when its ends are no farther
+#: apart than this many times its median point spacing
+LOOP_GAP_STEPS = 3.0
 DEFAULT_ROWS = DEFAULT_COLUMNS = 256
 DEFAULT_THICKNESS_MM = 8.0
 #: rv_endo points closer than this to the LV epicardium are written as RV_SEPTUM, mm.
@@ -98,25 +140,57 @@ def detect(path: str | Path) -> bool:
 
 
 # ------------------------------------------------------------------ SliceInfoFile
+#: SliceInfoFile labels of the slice number: ours, and the CAP / biv-me exports' own
+SLICE_LABELS = ("sliceID:", "frameID:")
+#: geometry of two lines of one slice agrees within these (mm; direction cosines)
+SAME_POSITION_MM, SAME_COSINE = 1e-3, 1e-5
+
+
+def _slice_tokens(line: str) -> tuple[list[str], str]:
+    """Tokens of one SliceInfoFile line and its separator (a tab, or the whitespace run
+    that separates every token when the line has no tab)."""
+    if "\t" in line:
+        tok = [t.strip() for t in line.split("\t")]
+        return [t for t in tok if t != ""], "\t"
+    runs = set(re.findall(r"\s+", line.strip()))
+    return line.split(), (runs.pop() if len(runs) == 1 else " ")
+
+
 def read_slice_info(path: str | Path) -> list[dict]:
-    """Parse SliceInfoFile.txt: per line {file, id, position, orientation, pixel_spacing,
-    and the same numbers as written (``tokens``)}; StudyError names the line and field."""
+    """Parse SliceInfoFile.txt in either style: one line per slice labelled ``sliceID:``
+    (ours), or the CAP / biv-me export's ``frameID:`` lines, where each slice may be listed
+    once per frame (with an optional ``timeFrame N`` pair); tabs or spaces; the first token
+    names the image (a DICOM file name or a UID).
+
+    Lines of one slice number are merged when their geometry is the same; different
+    geometry for one slice is a StudyError naming both lines. Returns one dict per slice
+    (first-listed order): file, id, line, position, orientation, pixel_spacing, the numbers
+    as written (``tokens``) and ``entries`` [(line, time frame or None, image token)].
+    The style (label, separator, line order) is on the first dict's ``style``.
+    """
     path = Path(path)
     if not path.is_file():
         raise StudyError("SliceInfoFile.txt is missing", file=path)
     text = path.read_text(encoding="utf-8", errors="replace")
-    out, ids = [], set()
+    out: dict[int, dict] = {}
+    order, labels, seps = [], [], []
     for k, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
-        tok = [t.strip() for t in line.split("\t")]
-        tok = [t for t in tok if t != ""] if len(tok) > 1 else line.split()
+        tok, sep = _slice_tokens(line)
+        label = next((t for t in tok if t in SLICE_LABELS), None)
+        if label is None:
+            raise StudyError(f"line {k}: missing sliceID (expected a 'sliceID:' or 'frameID:' "
+                             "label before the slice number)", file=path, field="sliceID")
+        raw = next(t for t in line.split(sep) if t.strip() == label) if sep == "\t" else label
+        labels.append(raw)
+        seps.append(sep)
         rec = {"file": tok[0], "line": k}
-        for key, n in (("sliceID:", 1), ("ImagePositionPatient", 3),
+        for key, n in ((label, 1), ("ImagePositionPatient", 3),
                        ("ImageOrientationPatient", 6), ("PixelSpacing", 2)):
+            name = "sliceID" if key in SLICE_LABELS else key
             if key not in tok:
-                raise StudyError(f"line {k}: missing {key.rstrip(':')}", file=path,
-                                 field=key.rstrip(":"))
+                raise StudyError(f"line {k}: missing {name}", file=path, field=name)
             i = tok.index(key)
             vals = tok[i + 1:i + 1 + n]
             try:
@@ -124,26 +198,79 @@ def read_slice_info(path: str | Path) -> list[dict]:
             except ValueError:
                 nums = []
             if len(nums) != n or not np.all(np.isfinite(nums)):
-                raise StudyError(f"line {k}: {key.rstrip(':')} needs {n} finite number(s), got "
-                                 f"{excerpt(' '.join(vals))}", file=path, field=key.rstrip(":"))
-            rec[key] = (nums, vals)
-        sid = rec["sliceID:"][0][0]
+                raise StudyError(f"line {k}: {name} needs {n} finite number(s), got "
+                                 f"{excerpt(' '.join(vals))}", file=path, field=name)
+            rec[name] = (nums, vals)
+        time = None
+        if "timeFrame" in tok:
+            i = tok.index("timeFrame")
+            val = tok[i + 1] if i + 1 < len(tok) else ""
+            try:
+                time = int(val)
+            except ValueError:
+                raise StudyError(f"line {k}: timeFrame needs a whole number, got {excerpt(val)}",
+                                 file=path, field="timeFrame") from None
+        sid = rec["sliceID"][0][0]
         if sid != int(sid):
             raise StudyError(f"line {k}: sliceID must be a whole number", file=path, field="sliceID")
         sid = int(sid)
-        if sid in ids:
-            raise StudyError(f"line {k}: sliceID {sid} appears twice", file=path, field="sliceID")
-        ids.add(sid)
-        out.append({"file": rec["file"], "id": sid,
-                    "position": rec["ImagePositionPatient"][0],
-                    "orientation": rec["ImageOrientationPatient"][0],
-                    "pixel_spacing": rec["PixelSpacing"][0],
+        geo = {"position": rec["ImagePositionPatient"][0],
+               "orientation": rec["ImageOrientationPatient"][0],
+               "pixel_spacing": rec["PixelSpacing"][0]}
+        order.append([sid, time, rec["file"]])
+        if sid in out:
+            first = out[sid]
+            diff = _geometry_difference(first, geo)
+            if diff:
+                raise StudyError(f"lines {first['line']} and {k}: slice {sid} is listed with "
+                                 f"different geometry ({diff})", file=path, field="sliceID")
+            if time is not None and any(t == time for _, t, _ in first["entries"]):
+                raise StudyError(f"lines {first['line']} and {k}: slice {sid} is listed twice "
+                                 f"for timeFrame {time}", file=path, field="timeFrame")
+            first["entries"].append((k, time, rec["file"]))
+            continue
+        out[sid] = {"file": rec["file"], "id": sid, "line": k, **geo,
                     "tokens": {"position": rec["ImagePositionPatient"][1],
                                "orientation": rec["ImageOrientationPatient"][1],
-                               "pixel_spacing": rec["PixelSpacing"][1]}})
+                               "pixel_spacing": rec["PixelSpacing"][1]},
+                    "entries": [(k, time, rec["file"])]}
     if not out:
         raise StudyError("SliceInfoFile.txt has no slices", file=path)
-    return out
+    slices = list(out.values())
+    slices[0]["style"] = {"label": max(set(labels), key=labels.count),
+                          "sep": max(set(seps), key=seps.count), "order": order,
+                          "per_frame": len(order) > len(slices)}
+    return slices
+
+
+def _geometry_difference(a: dict, b: dict) -> str:
+    """'' when two slice geometries agree, else which field differs and by how much."""
+    dp = float(np.abs(np.subtract(a["position"], b["position"])).max())
+    if dp > SAME_POSITION_MM:
+        return f"ImagePositionPatient differs by {dp:.3g} mm"
+    do = float(np.abs(np.subtract(a["orientation"], b["orientation"])).max())
+    if do > SAME_COSINE:
+        return f"ImageOrientationPatient differs by {do:.3g}"
+    ds = float(np.abs(np.subtract(a["pixel_spacing"], b["pixel_spacing"])).max())
+    if ds > SAME_POSITION_MM:
+        return f"PixelSpacing differs by {ds:.3g} mm"
+    return ""
+
+
+def _frame_of_time(slices: list[dict], files: list[tuple[int, Path]], path: Path) -> int | None:
+    """Offset from the SliceInfoFile's timeFrame numbers to GPFile frame numbers (0, or 1
+    for 1-based exports), None when no line has a timeFrame. StudyError names the first
+    GPFile whose frame no SliceInfoFile line lists."""
+    times = {t for s in slices for _, t, _ in s["entries"] if t is not None}
+    if not times:
+        return None
+    frames = [f for f, _ in files]
+    offset = max((0, 1), key=lambda o: (sum(f + o in times for f in frames), -o))
+    for f, q in files:
+        if f + offset not in times:
+            raise StudyError(f"no line of {SLICE_INFO} lists this frame (its lines list timeFrame "
+                             f"{min(times)}-{max(times)})", file=q, frame=f, field="timeFrame")
+    return offset
 
 
 # ------------------------------------------------------------------------ GPFile
@@ -233,7 +360,11 @@ def _gp_files(folder: Path) -> list[tuple[int, Path]]:
 
 
 def read_study(path: str | Path) -> Study:
-    """Read a GPFile folder (GPFile_NNN.txt per frame + SliceInfoFile.txt) into a Study."""
+    """Read a GPFile folder (GPFile_NNN.txt per frame + SliceInfoFile.txt) into a Study.
+
+    EXCLUDED guide points are dropped; atrial, venous and extent traces are kept as
+    non-ventricular contours (one warning counts them); the weight column becomes each
+    contour's point weights (``Contour.weights``)."""
     p = Path(path)
     folder = p if p.is_dir() else p.parent
     files = _gp_files(folder)
@@ -241,16 +372,22 @@ def read_study(path: str | Path) -> Study:
         raise StudyError("no GPFile_NNN.txt files in this folder", file=folder)
     files_inside(folder, [folder / SLICE_INFO] + [f for _, f in files], what="GPFile")
     slices = read_slice_info(folder / SLICE_INFO)
+    _frame_of_time(slices, files, folder / SLICE_INFO)
     for s in slices:                           # names only (never opened), kept confined
-        study_file(folder, s["file"], file=folder / SLICE_INFO, field="file")
+        for _, _, name in s["entries"]:
+            study_file(folder, name, file=folder / SLICE_INFO, field="file")
     slice_by_id = {s["id"]: s for s in slices}
     tables = []
     header = None
     decimals = set()
+    excluded = 0
     for frame, f in files:
         t, h, dec = read_gp_table(f)
         header = h if header is None else header
         decimals.add(dec)
+        drop = t["type"].isin(EXCLUDED_TYPES).to_numpy()
+        excluded += int(drop.sum())
+        t = t[~drop].reset_index(drop=True)
         t["frame"] = frame
         t["file"] = f.name
         unknown = ~t["slice_id"].isin(list(slice_by_id))
@@ -259,6 +396,11 @@ def read_study(path: str | Path) -> Study:
             raise StudyError(f"line {t['line'].iloc[i]}: reference to slice (frameID) "
                              f"{t['slice_id'].iloc[i]} that is not in {SLICE_INFO}", file=f,
                              field="frameID")
+        w = t["weight"].astype(float).to_numpy()
+        if (w < 0).any():
+            i = int(np.flatnonzero(w < 0)[0])
+            raise StudyError(f"line {t['line'].iloc[i]}: weight must be >= 0, got "
+                             f"{t['weight'].iloc[i]!r}", file=f, field="weight")
         tables.append(t)
     planes, names, views, rule = _slice_planes(slices, tables, folder)
     frames = [fr for fr, _ in files]
@@ -275,16 +417,27 @@ def read_study(path: str | Path) -> Study:
     for (frame, f), t in zip(files, tables):
         blocks, runs = _read_blocks(t, frame, f, names, views, contours, landmarks)
         frame_meta[str(frame)] = {"file": f.name, "blocks": blocks, "runs": runs}
+    warnings = []
+    other = pd.Series([c.structure for c in contours if not c.ventricular], dtype=object)
+    if len(other):
+        counts = ", ".join(f"{k} x{v}" for k, v in other.value_counts().sort_index().items())
+        warnings.append(f"{folder}: {len(other)} atrial, venous or extent contour(s) kept but "
+                        f"not used for the ventricles ({counts})")
+    if excluded:
+        warnings.append(f"{folder}: {excluded} EXCLUDED guide point(s) dropped")
+    style = slices[0]["style"]
     meta = {"format": "gpfile", "base_apex_rule": rule,
             "gpfile": {"header": header, "frames": frame_meta,
                        "decimals": decimals.pop() if len(decimals) == 1 else None,
                        "slices": [{"slice": names[s["id"]], "id": s["id"], "file": s["file"],
                                    "tokens": s["tokens"]} for s in slices],
+                       "slice_info": {"label": style["label"], "sep": style["sep"],
+                                      "order": style["order"] if style["per_frame"] else None},
                        "n_contours": len(contours), "n_landmarks": len(landmarks),
                        "defaults": "rows, columns (256) and thickness (8 mm) are not in "
                                    "SliceInfoFile.txt"}}
     return Study(subject=folder.name, images=images, contours=contours, landmarks=landmarks,
-                 source=str(folder), meta=meta)
+                 source=str(folder), meta=meta, warnings=warnings)
 
 
 def _slice_planes(slices: list[dict], tables: list[pd.DataFrame], folder: Path):
@@ -332,6 +485,34 @@ def _slice_planes(slices: list[dict], tables: list[pd.DataFrame], folder: Path):
 _LA_VIEW = re.compile(r"(?<![0-9a-z])([234])\s*-?\s*ch(?![a-z])", re.IGNORECASE)
 
 
+def _contour_kind(gp_type: str) -> tuple[str, str | None] | None:
+    """(structure, view or None for either) of a GPFile contour type, None if unknown."""
+    if gp_type in SINGLE_VIEW_TYPES:
+        return SINGLE_VIEW_TYPES[gp_type]
+    if gp_type in OTHER_TYPES:
+        return OTHER_TYPES[gp_type]
+    prefix, _, base = gp_type.partition("_")
+    if prefix in VIEW_PREFIX and base in CONTOUR_TYPES:
+        return CONTOUR_TYPES[base], VIEW_PREFIX[prefix]
+    return None
+
+
+def is_loop(points: np.ndarray, gap_steps: float = LOOP_GAP_STEPS) -> bool:
+    """True when an ordered trace closes on itself: it has >= 5 points, its ends are no
+    farther apart than ``gap_steps`` times its median point spacing and than a quarter
+    of its extent, no step along it is longer than that either (an open arc written from
+    its middle jumps between its ends), and closing it does not make it cross itself."""
+    if len(points) < 5:
+        return False
+    step = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    gap = float(np.linalg.norm(points[-1] - points[0]))
+    extent = float(np.linalg.norm(points - points[0], axis=1).max())
+    limit = gap_steps * max(float(np.median(step)), 1e-9)
+    if gap > limit or gap > 0.25 * extent or float(step.max()) > limit:
+        return False
+    return len(self_intersections(in_plane_coordinates(points), True)) == 0
+
+
 def _read_blocks(t: pd.DataFrame, frame: int, f: Path, names: dict, views: dict,
                  contours: list, landmarks: list):
     """Contours and landmarks of one frame's table, in file order; the block order and the
@@ -339,6 +520,7 @@ def _read_blocks(t: pd.DataFrame, frame: int, f: Path, names: dict, views: dict,
     types = t["type"].to_numpy()
     sids = t["slice_id"].to_numpy()
     xyz = t[["x", "y", "z"]].to_numpy(float)
+    weights = t["weight"].astype(float).to_numpy()
     lines = t["line"].to_numpy()
     key = np.array([f"{a}\x1f{b}" for a, b in zip(types, sids)]) if len(t) else np.array([])
     starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(t) else np.array([], int)
@@ -359,23 +541,31 @@ def _read_blocks(t: pd.DataFrame, frame: int, f: Path, names: dict, views: dict,
                                           image=image))
                 lm_count[(name, slice_id)] = n + 1
             continue
-        prefix, _, base = gp_type.partition("_")
-        if prefix not in VIEW_PREFIX or base not in CONTOUR_TYPES:
+        kind = _contour_kind(gp_type)
+        if kind is None:
             raise StudyError(f"line {lines[s]}: unknown contour type {excerpt(gp_type)}; expected "
-                             f"SAX_/LAX_ + {', '.join(CONTOUR_TYPES)} or a landmark "
-                             f"({', '.join(LANDMARK_TYPES)})", file=f, field="contour type")
-        if VIEW_PREFIX[prefix] != view:
+                             f"SAX_/LAX_ + {', '.join(CONTOUR_TYPES)}, "
+                             f"{', '.join([*SINGLE_VIEW_TYPES, *OTHER_TYPES])}, a landmark "
+                             f"({', '.join(LANDMARK_TYPES)}) or EXCLUDED", file=f,
+                             field="contour type")
+        structure, want = kind
+        if want != view:
             raise StudyError(f"line {lines[s]}: {gp_type} on slice {sid} ({slice_id}), which is a "
                              f"{'short' if view == 'SA' else 'long'}-axis slice by its orientation",
                              file=f, field="contour type")
-        structure = CONTOUR_TYPES[base]
-        closed = view == "SA" and structure in ("lv_endo", "lv_epi")
+        pts = xyz[s:e]
+        if view == "SA" and structure in ("lv_endo", "lv_epi"):
+            closed = True
+        elif view == "SA" and structure in ("rv_endo", "rv_epi", "rv_outlet"):
+            closed = is_loop(pts)
+        else:
+            closed = False
         k = piece.get((structure, slice_id), 0)
         piece[(structure, slice_id)] = k + 1
         blocks.append(["c", len(contours), gp_type])
         try:
-            contours.append(Contour(structure, view, slice_id, frame, xyz[s:e], image=image,
-                                    closed=closed, index=k))
+            contours.append(Contour(structure, view, slice_id, frame, pts, image=image,
+                                    closed=closed, index=k, weights=weights[s:e]))
         except StudyError as exc:
             raise StudyError(f"line {lines[s]}: {exc}", file=f) from None
     wt = t["weight"].to_numpy()
@@ -414,40 +604,80 @@ def _fixed_decimals(columns: pd.DataFrame) -> int | None:
     return int(dec[0]) if digits.all() else None
 
 
-def write_study(study: Study, folder: str | Path) -> Path:
+#: SliceInfoFile styles :func:`write_study` can write: ours (one tab-separated line per
+#: slice labelled ``sliceID:``) and the CAP / biv-me export's (``frameID:``, each slice listed
+#: once per frame with its ``timeFrame``)
+SLICE_INFO_STYLES = {"sliceID": {"label": "sliceID: ", "sep": "\t", "per_frame": False},
+                     "frameID": {"label": "frameID:", "sep": "\t", "per_frame": True},
+                     "frameID-spaces": {"label": "frameID:", "sep": " ", "per_frame": True}}
+VOCABULARIES = ("parts", "undivided")
+
+
+def write_study(study: Study, folder: str | Path, *, style: str | None = None,
+                vocabulary: str = "parts") -> Path:
     """Write ``study`` as GPFile_NNN.txt (one per frame) + SliceInfoFile.txt into ``folder``.
 
-    Slice geometry must be static (one plane per slice). ``rv_endo`` contours
-    (no GPFile type) are split into RV_SEPTUM (points within 0.5 mm of the LV
-    epicardium of the same image) and RV_FREEWALL (the rest). Tag lines have
-    no GPFile type and are not written. Files are written atomically.
+    ``style``: the SliceInfoFile style (:data:`SLICE_INFO_STYLES`); default the style
+    the study was read in (a study read from GPFiles), else ``sliceID``.
+    ``vocabulary``: ``parts`` writes an ``rv_endo`` contour as RV_SEPTUM (points within
+    0.5 mm of the LV epicardium of the same image) and RV_FREEWALL (the rest);
+    ``undivided`` writes it as one RV_ENDOCARDIAL trace. Slice geometry must be static
+    (one plane per slice). Tag lines have no GPFile type and are not written. Files are
+    written atomically.
     """
+    if style is not None and style not in SLICE_INFO_STYLES:
+        raise StudyError(f"unknown SliceInfoFile style {style!r}; expected one of "
+                         f"{', '.join(SLICE_INFO_STYLES)}", field="style")
+    if vocabulary not in VOCABULARIES:
+        raise StudyError(f"unknown vocabulary {vocabulary!r}; expected one of "
+                         f"{', '.join(VOCABULARIES)}", field="vocabulary")
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     gp = study.meta.get("gpfile") if isinstance(study.meta.get("gpfile"), dict) else {}
     slice_ids, slice_files, slice_tokens = _slice_numbering(study, gp)
     planes = _static_planes(study)
-    lines = []
-    for sl, sid in sorted(slice_ids.items(), key=lambda kv: kv[1]):
+    if style is None:
+        si = gp.get("slice_info") or {}
+        fmt = {"label": si.get("label", "sliceID: "), "sep": si.get("sep", "\t"),
+               "per_frame": si.get("order") is not None}
+        order = si.get("order")
+    else:
+        fmt, order = SLICE_INFO_STYLES[style], None
+    geometry = {}
+    for sl, sid in slice_ids.items():
         im = planes[sl]
         tok = slice_tokens.get(sl)
         if tok is not None and _tokens_plane(tok, im).same_geometry(im, tol=1e-9):
-            pos, ori, sp = tok["position"], tok["orientation"], tok["pixel_spacing"]
+            geometry[sid] = [*tok["position"], "ImageOrientationPatient", *tok["orientation"],
+                             "PixelSpacing", *tok["pixel_spacing"]]
         else:
-            pos, ori, sp = _fmt(im.position), _fmt(im.orientation), _fmt(im.pixel_spacing)
-        name = slice_files.get(sl) or (Path(im.file).name if im.file else f"{sl}.dcm")
-        lines.append("\t".join([name, "sliceID: ", str(sid), "ImagePositionPatient", *pos,
-                                "ImageOrientationPatient", *ori, "PixelSpacing", *sp]))
+            geometry[sid] = [*_fmt(im.position), "ImageOrientationPatient", *_fmt(im.orientation),
+                             "PixelSpacing", *_fmt(im.pixel_spacing)]
+    name_of = {sid: slice_files.get(sl) or (Path(planes[sl].file).name if planes[sl].file
+                                             else f"{sl}.dcm") for sl, sid in slice_ids.items()}
+    known = set(slice_ids.values())
+    if fmt["per_frame"]:
+        if not order or {int(o[0]) for o in order} != known:
+            order = [[sid, fr, f"{name_of[sid]}"] for fr in study.frames for sid in sorted(known)]
+        rows = [(sid, t, name) for sid, t, name in order if int(sid) in known]
+    else:
+        rows = [(sid, None, name_of[sid]) for sid in sorted(known)]
+    lines = []
+    for sid, t, name in rows:
+        time = [] if t is None else ["timeFrame", str(t)]
+        lines.append(fmt["sep"].join([name, fmt["label"], str(sid), *time, "ImagePositionPatient",
+                                      *geometry[int(sid)]]))
     atomic.write_text(folder / SLICE_INFO, "\n".join(lines) + "\n")
     exact = (gp.get("n_contours") == len(study.contours)
-             and gp.get("n_landmarks") == len(study.landmarks))
+             and gp.get("n_landmarks") == len(study.landmarks) and vocabulary == "parts")
     frame_meta = gp.get("frames", {}) if exact else {}
     header = gp.get("header") or HEADER
     for frame in study.frames:
         fm = frame_meta.get(str(frame))
-        rows = _frame_rows(study, frame, fm, slice_ids, planes)
+        rows = _frame_rows(study, frame, fm, slice_ids, planes, vocabulary)
         n = sum(len(r[0]) for r in rows)
-        weights, times = ["1.0"] * n, [str(frame)] * n
+        weights = [w for r in rows for w in _fmt(r[3])]
+        times = [str(frame)] * n
         if fm and sum(r[0] for r in fm["runs"]) == n:
             weights = [w for c, w, _ in fm["runs"] for _ in range(c)]
             times = [tt for c, _, tt in fm["runs"] for _ in range(c)]
@@ -460,7 +690,7 @@ def write_study(study: Study, folder: str | Path) -> Path:
 
 
 def _expand(rows, decimals):
-    for pts, gp_type, sid in rows:
+    for pts, gp_type, sid, _ in rows:
         xs, ys, zs = (_fmt(pts[:, k], decimals) for k in range(3))
         for x, y, z in zip(xs, ys, zs):
             yield x, y, z, gp_type, sid
@@ -506,30 +736,39 @@ def _static_planes(study: Study) -> dict[str, ImagePlane]:
 
 
 def _gp_type(structure: str, view: str) -> str:
+    for gp_type, kind in (*SINGLE_VIEW_TYPES.items(), *OTHER_TYPES.items()):
+        if kind == (structure, view):
+            return gp_type
     return f"{'SAX' if view == 'SA' else 'LAX'}_{GP_OF_STRUCTURE[structure]}"
 
 
-def _frame_rows(study: Study, frame: int, fm: dict | None, slice_ids: dict,
-                planes: dict) -> list[tuple[np.ndarray, str, int]]:
-    """(points, GP type, slice number) blocks of one frame, in file order."""
+def _weights(c: Contour | None, n: int) -> np.ndarray:
+    return np.ones(n) if c is None or c.weights is None else np.asarray(c.weights, float)
+
+
+def _frame_rows(study: Study, frame: int, fm: dict | None, slice_ids: dict, planes: dict,
+                vocabulary: str = "parts") -> list[tuple[np.ndarray, str, int, np.ndarray]]:
+    """(points, GP type, slice number, weights) blocks of one frame, in file order."""
     out = []
     if fm:
         for b in fm["blocks"]:
             if b[0] == "c":
                 c = study.contours[b[1]]
-                out.append((c.points, b[2], slice_ids[c.slice]))
+                out.append((c.points, b[2], slice_ids[c.slice], _weights(c, len(c.points))))
             else:
                 lms = study.landmarks[b[1]:b[1] + b[2]]
-                out.append((np.array([lm.point for lm in lms]), b[3], slice_ids[lms[0].slice]))
+                out.append((np.array([lm.point for lm in lms]), b[3], slice_ids[lms[0].slice],
+                            np.ones(len(lms))))
         return out
     for c in study.contours_at(frame):
-        if c.structure == "rv_endo":
+        if c.structure == "rv_endo" and vocabulary == "parts":
             out.extend(_split_rv_endo(study, c, slice_ids))
         else:
-            out.append((c.points, _gp_type(c.structure, c.view), slice_ids[c.slice]))
+            out.append((c.points, _gp_type(c.structure, c.view), slice_ids[c.slice],
+                        _weights(c, len(c.points))))
     for lm in study.landmarks_at(frame):
         sl = lm.slice if lm.slice in slice_ids else _nearest_slice(study, lm, planes)
-        out.append((lm.point.reshape(1, 3), GP_OF_LANDMARK[lm.name], slice_ids[sl]))
+        out.append((lm.point.reshape(1, 3), GP_OF_LANDMARK[lm.name], slice_ids[sl], np.ones(1)))
     return out
 
 
@@ -541,23 +780,25 @@ def _nearest_slice(study: Study, lm: Landmark, planes: dict) -> str:
 def _split_rv_endo(study: Study, c: Contour, slice_ids: dict):
     """RV_SEPTUM (on the LV epicardium) and RV_FREEWALL runs of one rv_endo contour."""
     sid = slice_ids[c.slice]
+    w = _weights(c, len(c.points))
     epi = [e for e in study.contours_at(c.frame, "lv_epi") if e.slice == c.slice]
     kind = _gp_type("rv_freewall", c.view)
     if not epi:
-        return [(c.points, kind, sid)]
+        return [(c.points, kind, sid, w)]
     d = np.min([_distance_to_polyline(c.points, e.points, e.closed) for e in epi], axis=0)
     on = d < SEPTUM_TOL_MM
     if on.all() or not on.any():
-        return [(c.points, kind if not on.all() else _gp_type("rv_septum", c.view), sid)]
+        return [(c.points, kind if not on.all() else _gp_type("rv_septum", c.view), sid, w)]
     # rotate a closed loop so that it starts at a septum run's first point
     pts = c.points
     if c.closed:
         start = int(np.flatnonzero(on & ~np.roll(on, 1))[0])
-        pts, on = np.roll(pts, -start, axis=0), np.roll(on, -start)
+        pts, on, w = np.roll(pts, -start, axis=0), np.roll(on, -start), np.roll(w, -start)
     cuts = np.flatnonzero(np.diff(on.astype(int))) + 1
     out = []
-    for part_pts, part_on in zip(np.split(pts, cuts), np.split(on, cuts)):
-        out.append((part_pts, _gp_type("rv_septum" if part_on[0] else "rv_freewall", c.view), sid))
+    for part_pts, part_on, part_w in zip(np.split(pts, cuts), np.split(on, cuts), np.split(w, cuts)):
+        out.append((part_pts, _gp_type("rv_septum" if part_on[0] else "rv_freewall", c.view), sid,
+                    part_w))
     return out
 
 

@@ -235,11 +235,13 @@ def _tag_groups(fig_dir: Path, fig_index: dict | None, origin: np.ndarray, pool:
 def _metric_rows(metrics: dict, truth: dict | None) -> list[dict]:
     """One row per measured metric with the phantom truth and the difference beside it."""
     tmet = (truth or {}).get("metrics", {})
+    quality = (metrics.get("quality") or {}).get("metrics", {})
     rows = []
     for k, v in metrics.get("metrics", {}).items():
         t = tmet.get(k) if truth else None
         diff = (v - t) if isinstance(v, (int, float)) and isinstance(t, (int, float)) else None
-        rows.append({"metric": k, "measured": _num(v), "truth": _num(t), "difference": _num(diff)})
+        rows.append({"metric": k, "measured": _num(v), "truth": _num(t), "difference": _num(diff),
+                     "qc": "; ".join((quality.get(k) or {}).get("flags", []))})
     return rows
 
 
@@ -315,6 +317,7 @@ td:first-child,th:first-child{text-align:left} .bad{color:#D55E00;font-weight:60
 .gallery figure{margin:10px 0} .gallery img{max-width:100%;border:1px solid #eee}
 figcaption{font-size:12px;color:#444} #frameLabel{min-width:150px;display:inline-block}
 .note{font-size:12.5px;color:#555} #volplot{width:100%;height:260px}
+.qc{font-size:11.5px;color:#a33} .qcflag{color:#c22}
 """
 
 _JS = r"""
@@ -422,11 +425,13 @@ def render_html(payload: Mapping) -> str:
     p = payload
     has_truth = p["has_truth"]
     head = "<tr><th>metric</th><th>measured</th>" + (
-        "<th>truth</th><th>measured − truth</th>" if has_truth else "") + "</tr>"
+        "<th>truth</th><th>measured − truth</th>" if has_truth else "") + "<th>QC</th></tr>"
     body = "".join(
-        f"<tr><td>{esc(r['metric'])}</td><td>{_fmt(r['measured'])}</td>"
+        f"<tr><td>{esc(r['metric'])}</td><td>{_fmt(r['measured'])}"
+        + (" <span class='qcflag' title='quality flag'>&#9873;</span>" if r.get("qc") else "")
+        + "</td>"
         + (f"<td>{_fmt(r['truth'])}</td><td>{_fmt(r['difference'])}</td>" if has_truth else "")
-        + "</tr>" for r in p["metrics"])
+        + f"<td class='qc'>{esc(r.get('qc') or '')}</td></tr>" for r in p["metrics"])
     truth_note = (f"Truth: {esc(p['truth_file'])}" if has_truth
                   else "No truth.json found: measured values only.")
     if p["flags"]:

@@ -375,6 +375,26 @@ def _gp_off_plane(root: Path) -> None:
     p.write_text("\n".join(out) + "\n")
 
 
+def _gp_frameid(root: Path, change: Callable[[Path], None]) -> Path:
+    """The synthetic study written in the CAP export's SliceInfoFile style (frameID:, one line
+    per slice and frame with its timeFrame), then broken by ``change``."""
+    gpfile.write_study(synthetic_study(), root, style="frameID")
+    change(root)
+    return root
+
+
+def _slice_info_lines(root: Path, fn: Callable[[list[str]], list[str]]) -> None:
+    p = root / "SliceInfoFile.txt"
+    p.write_text("\n".join(fn(p.read_text().splitlines())) + "\n")
+
+
+def _moved_copy_of_first(lines: list[str]) -> list[str]:
+    tok = lines[0].split("\t")
+    k = tok.index("ImagePositionPatient") + 1
+    tok[k] = repr(float(tok[k]) + 4.0)
+    return lines + ["\t".join(tok)]
+
+
 def _native_csv(root: Path, fn: Callable[[list[str]], list[str]]) -> None:
     """Edit points.csv as a careful user would: study.json's points_rows follows the edit."""
     p = root / "points.csv"
@@ -479,6 +499,23 @@ CORPUS: list[Broken] = [
     Broken("sliceinfo_no_orientation", lambda r: _gp(r, lambda r: _edit(
         r / "SliceInfoFile.txt", lambda t: t.replace("ImageOrientationPatient", "Orientation", 1))),
         "missing ImageOrientationPatient"),
+    Broken("sliceinfo_conflicting_duplicate", lambda r: _gp(r, lambda r: _slice_info_lines(
+        r, _moved_copy_of_first)), "lines 1 and 5: slice 1 is listed with different geometry"),
+    Broken("sliceinfo_frame_without_entry", lambda r: _gp_frameid(r, lambda r: _slice_info_lines(
+        r, lambda ls: [ln for ln in ls if "timeFrame\t1\t" not in ln])),
+        "GPFile_001.txt: frame 1, field timeFrame: no line of SliceInfoFile.txt lists this frame"),
+    Broken("sliceinfo_no_label", lambda r: _gp(r, lambda r: _edit(
+        r / "SliceInfoFile.txt", lambda t: t.replace("sliceID: ", "slice", 1))),
+        "line 1: missing sliceID"),
+    Broken("sliceinfo_bad_time_frame", lambda r: _gp_frameid(r, lambda r: _edit(
+        r / "SliceInfoFile.txt", lambda t: t.replace("timeFrame\t0", "timeFrame\tfirst", 1))),
+        "line 1: timeFrame needs a whole number"),
+    Broken("sliceinfo_time_frame_twice", lambda r: _gp_frameid(r, lambda r: _slice_info_lines(
+        r, lambda ls: ls + ls[:1])), "slice 1 is listed twice for timeFrame 0"),
+    Broken("gpfile_weight_non_numeric", lambda r: _gp(r, lambda r: _gp_line(r, 2, _set(5, "high"))),
+           "GPFile_000.txt: field weight: line 3: weight is not a number"),
+    Broken("gpfile_weight_negative", lambda r: _gp(r, lambda r: _gp_line(r, 2, _set(5, "-1.0"))),
+           "line 3: weight must be >= 0"),
     # --- native
     Broken("native_unknown_structure", lambda r: _nat(r, lambda r: _native_csv(
         r, _replace_in_row(1, "lv_endo", "lv_papillary"))), "unknown structure"),

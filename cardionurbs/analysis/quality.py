@@ -1,0 +1,186 @@
+"""Quality flags: the evidence behind every metric (docs/metrics.md, Quality flags).
+
+Every metric comes from some surfaces at some frames (its *sources*): LVEDV
+from the LV endocardium at ED, RVM from the RV endo- and epicardium and the LV
+epicardium at ED, and so on (:data:`SOURCES`). The evidence for a metric is
+
+* the fit residuals of those surfaces at those frames — the distance of every
+  contour point to the boundary it was fitted by
+  (:meth:`cardionurbs.anatomy.model.BiventricularModel.point_residuals`):
+  median, 95th percentile and maximum, in mm and in pixels of each point's image;
+* the contours left out of those surfaces (partial tracings,
+  :func:`cardionurbs.anatomy.sections.frame_geometry`);
+* for CO, the heart rate; for tag metrics, the tag lines flagged as mistracked.
+
+A metric is *flagged* when any of its evidence fails:
+
+* a surface it uses has a contour point farther than ``QC_LIMIT_PX`` (3) pixels
+  from it, at a frame it uses — ``RV epi fit max 13.3 mm (9.4 px) > 3 px at frame 24``;
+* a contour of one of its surfaces was left out at one of its frames;
+* ``heart rate unknown`` (HR, CO); ``N tag line(s) flagged as mistracked`` (tag metrics).
+
+Derived metrics (SV, EF, CO, MR RegVol and RegFrac, the RV/LV ratios) inherit
+their inputs' flags: ``MR RegFrac`` is flagged when either ventricle's SV is.
+A metric that is not measured (NaN) carries no flag except an unknown heart rate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pandas as pd
+
+from cardionurbs.analysis.function import COLUMNS, TAG_COLUMNS
+
+if TYPE_CHECKING:  # pragma: no cover
+    from cardionurbs.anatomy.model import BiventricularModel
+
+#: a contour point farther than this from its surface flags the surface, pixels
+QC_LIMIT_PX = 3.0
+SURFACE_LABELS = {"lv_endo": "LV endo", "lv_epi": "LV epi", "rv_endo": "RV endo",
+                  "rv_epi": "RV epi"}
+_LV_CAV, _RV_CAV = ("lv_endo",), ("rv_endo", "lv_epi")     # RV cavity = RV endo − LV epi
+#: metric -> (surfaces, frames ('ED' / 'ES')) it is computed from
+SOURCES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "LVEDV (mL)": (_LV_CAV, ("ED",)), "LVESV (mL)": (_LV_CAV, ("ES",)),
+    "LVSV (mL)": (_LV_CAV, ("ED", "ES")), "LVEF (%)": (_LV_CAV, ("ED", "ES")),
+    "LVCO (L/min)": (_LV_CAV, ("ED", "ES")), "LVM (g)": (("lv_endo", "lv_epi"), ("ED",)),
+    "RVEDV (mL)": (_RV_CAV, ("ED",)), "RVESV (mL)": (_RV_CAV, ("ES",)),
+    "RVSV (mL)": (_RV_CAV, ("ED", "ES")), "RVEF (%)": (_RV_CAV, ("ED", "ES")),
+    "RVM (g)": (("rv_endo", "rv_epi", "lv_epi"), ("ED",)),
+    "EI ES": (("lv_endo", "rv_endo"), ("ES",)),
+}
+#: derived metric -> the metrics it is computed from (it inherits their flags)
+DERIVED: dict[str, tuple[str, ...]] = {
+    "MR RegVol (mL)": ("LVSV (mL)", "RVSV (mL)"), "MR RegFrac (%)": ("LVSV (mL)", "RVSV (mL)"),
+    "RV/LV EDV ratio": ("RVEDV (mL)", "LVEDV (mL)"), "RV/LV mass ratio": ("RVM (g)", "LVM (g)"),
+}
+_STATS = ("median", "p95", "max")
+#: the cohort CSV's quality columns (after the metric columns)
+QC_COLUMNS = tuple(f"{s} fit {q} ({u})" for s in SURFACE_LABELS.values() for u in ("mm", "px")
+                   for q in _STATS) + ("left out", "QC")
+
+
+def residual_stats(d_mm: np.ndarray, d_px: np.ndarray) -> dict[str, float]:
+    """Median, 95th percentile and maximum of point distances, in mm and pixels."""
+    out = {"n_points": int(len(d_mm))}
+    for unit, d in (("mm", np.asarray(d_mm, float)), ("px", np.asarray(d_px, float))):
+        q = np.percentile(d, [50, 95, 100]) if len(d) else [math.nan] * 3
+        out.update({f"{k}_{unit}": float(v) for k, v in zip(_STATS, q)})
+    return out
+
+
+@dataclass
+class Quality:
+    """The evidence and the flags of one model's metrics (see module doc).
+
+    ``surfaces[frame][surface]``: residual stats (:func:`residual_stats`);
+    ``left_out[frame]``: [(structure, slice, why)]; ``metrics[column]``: dict with
+    ``flags`` (list of str), ``surfaces`` and ``frames`` it comes from."""
+
+    surfaces: dict[int, dict[str, dict]] = field(default_factory=dict)
+    left_out: dict[int, list] = field(default_factory=dict)
+    metrics: dict[str, dict] = field(default_factory=dict)
+    limit_px: float = QC_LIMIT_PX
+
+    @property
+    def flags(self) -> list[str]:
+        """Every distinct flag of the metrics, in column order."""
+        out: list[str] = []
+        for m in self.metrics.values():
+            out += [f for f in m["flags"] if f not in out]
+        return out
+
+    def flagged(self, column: str) -> bool:
+        return bool(self.metrics.get(column, {}).get("flags"))
+
+    def row(self) -> dict:
+        """The cohort row's quality columns (:data:`QC_COLUMNS`): each surface's residuals
+        over ED and ES, the contours left out, and ``QC`` = the flags joined by '; '."""
+        out: dict = {c: math.nan for c in QC_COLUMNS}
+        for s, label in SURFACE_LABELS.items():
+            st = self._pooled.get(s)
+            if st is None:
+                continue
+            for u in ("mm", "px"):
+                for q in _STATS:
+                    out[f"{label} fit {q} ({u})"] = st[f"{q}_{u}"]
+        out["left out"] = "; ".join(f"frame {f} {s} {sl}" for f, lst in sorted(self.left_out.items())
+                                    for s, sl, _ in lst)
+        out["QC"] = "; ".join(self.flags)
+        return out
+
+    def to_json(self) -> dict:
+        return {"limit_px": self.limit_px,
+                "surfaces": {str(f): d for f, d in self.surfaces.items()},
+                "pooled": self._pooled,
+                "left_out": {str(f): [list(x) for x in lst] for f, lst in self.left_out.items()},
+                "metrics": self.metrics, "QC": "; ".join(self.flags)}
+
+    _pooled: dict[str, dict] = field(default_factory=dict)
+
+
+def assess(model: "BiventricularModel", metrics: dict[str, float]) -> Quality:
+    """The evidence and flags of every metric of ``model`` (module doc)."""
+    ed, es = model.ed_frame, model.es_frame
+    frames = sorted({ed, es})
+    q = Quality()
+    pts = model.point_residuals(frames) if model.study.contours else pd.DataFrame()
+    for f in frames:
+        q.surfaces[f] = {}
+        q.left_out[f] = list(model.geometry[f].left_out) if model.study.contours else []
+    if not pts.empty:
+        for (s, f), g in pts.groupby(["structure", "frame"]):
+            q.surfaces[int(f)][s] = residual_stats(g["dist_mm"].to_numpy(), g["dist_px"].to_numpy())
+        for s, g in pts.groupby("structure"):
+            q._pooled[s] = residual_stats(g["dist_mm"].to_numpy(), g["dist_px"].to_numpy())
+
+    def surface_flags(surfaces, which) -> list[str]:
+        out = []
+        fr = sorted({ed if w == "ED" else es for w in which})
+        for s in surfaces:
+            worst = None
+            for f in fr:
+                st = q.surfaces.get(f, {}).get(s)
+                if st and st["max_px"] > q.limit_px and (worst is None or st["max_px"] > worst[1]["max_px"]):
+                    worst = (f, st)
+            if worst:
+                f, st = worst
+                out.append(f"{SURFACE_LABELS[s]} fit max {st['max_mm']:.1f} mm "
+                           f"({st['max_px']:.1f} px) > {q.limit_px:g} px at frame {f}")
+            for f in fr:
+                out += [f"{s} slice {sl} left out at frame {f}" for st_, sl, _ in q.left_out.get(f, [])
+                        if st_ == s]
+        return out
+
+    hr = metrics.get("HR (bpm)", math.nan)
+    hr_flag = [] if isinstance(hr, (int, float)) and math.isfinite(hr) else ["heart rate unknown"]
+    for col in COLUMNS:
+        entry = {"flags": [], "surfaces": [], "frames": []}
+        if col in SOURCES:
+            surfaces, which = SOURCES[col]
+            entry["surfaces"] = list(surfaces)
+            entry["frames"] = sorted({ed if w == "ED" else es for w in which})
+            value = metrics.get(col, math.nan)
+            if isinstance(value, (int, float)) and math.isfinite(value):
+                entry["flags"] = surface_flags(surfaces, which)
+        if col in ("HR (bpm)", "LVCO (L/min)"):
+            entry["flags"] = entry["flags"] + hr_flag
+        if col in TAG_COLUMNS:
+            n = metrics.get("Tag QC flags", math.nan)
+            if isinstance(n, (int, float)) and math.isfinite(n) and n > 0:
+                entry["flags"] = [f"{int(n)} tag line(s) flagged as mistracked"]
+        q.metrics[col] = entry
+    for col, inputs in DERIVED.items():
+        e = q.metrics[col]
+        e["inputs"] = list(inputs)
+        e["surfaces"] = sorted({s for i in inputs for s in q.metrics[i]["surfaces"]})
+        e["frames"] = sorted({f for i in inputs for f in q.metrics[i]["frames"]})
+        value = metrics.get(col, math.nan)
+        if isinstance(value, (int, float)) and math.isfinite(value):
+            for i in inputs:
+                e["flags"] += [f for f in q.metrics[i]["flags"] if f not in e["flags"]]
+    return q
