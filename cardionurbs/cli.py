@@ -91,6 +91,14 @@ def _heart_rate(text: str) -> float:
     return v
 
 
+def _output_safety_options(parser: argparse.ArgumentParser) -> None:
+    """--overwrite and --allow-outside, as analyze and track take them."""
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace --out when it holds an earlier cardionurbs output")
+    parser.add_argument("--allow-outside", action="store_true",
+                        help="let study.json name files outside the study folder")
+
+
 def _bounded(kind, lo, hi, unit=""):
     """An argparse type: a number of ``kind`` in [lo, hi]."""
     def parse(text: str):
@@ -187,10 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="stage progress on stderr (default: only when stderr is a terminal)")
     an.add_argument("--out", required=True, metavar="DIR",
                     help="new (or empty) output folder, outside the study")
-    an.add_argument("--overwrite", action="store_true",
-                    help="replace --out when it holds an earlier cardionurbs output")
-    an.add_argument("--allow-outside", action="store_true",
-                    help="let study.json name files outside the study folder")
+    _output_safety_options(an)
     an.add_argument("--track-tags", action="store_true",
                     help="track the tag lines from the study's tagged DICOM (HARP) first")
 
@@ -198,10 +203,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("study", metavar="STUDY", help="native study folder whose images name DICOM files")
     tr.add_argument("--out", required=True, metavar="DIR",
                     help="new (or empty) output folder, outside the study")
-    tr.add_argument("--overwrite", action="store_true",
-                    help="replace --out when it holds an earlier cardionurbs output")
-    tr.add_argument("--allow-outside", action="store_true",
-                    help="let study.json name files outside the study folder")
+    _output_safety_options(tr)
 
     co = command("cohort", "measure many studies into one CSV")
     co.add_argument("studies", nargs="+", metavar="STUDY", help="study folders or label maps")

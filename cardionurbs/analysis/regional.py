@@ -13,7 +13,6 @@ Each part that cannot be measured leaves its columns NaN and says why in
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,13 +21,14 @@ from cardionurbs.analysis.aha import AhaFrame, model_aha_frame
 from cardionurbs.analysis.strain import STRAIN_COLUMNS, STRAIN_KINDS, myocardium_samples, tag_strain
 from cardionurbs.analysis.surface_strain import SURFACE_STRAIN_COLUMNS, surface_strains
 from cardionurbs.analysis.thickness import THICKNESS_COLUMNS, thickness_by_segment, thickness_columns
+from cardionurbs.analysis.columns import ColumnMapping
 from cardionurbs.errors import CardioNurbsError
 
 NAN = float("nan")
 
 
 @dataclass
-class RegionalMetrics(Mapping):
+class RegionalMetrics(ColumnMapping):
     """Regional columns -> float (a read-only mapping), with the segment geometry per frame
     (``aha``: frame -> AhaFrame), the thickness samples per frame (``samples``) and ``notes``."""
 
@@ -39,15 +39,6 @@ class RegionalMetrics(Mapping):
     strain: dict = field(default_factory=dict)          # ES fit summary (det F, counts, ...)
     over_time: dict[int, dict] = field(default_factory=dict)
     surface: dict = field(default_factory=dict)
-
-    def __getitem__(self, key: str) -> float:
-        return self.columns[key]
-
-    def __iter__(self):
-        return iter(self.columns)
-
-    def __len__(self) -> int:
-        return len(self.columns)
 
     def to_json(self) -> dict:
         """JSON-safe summary for metrics.json (NaN -> None)."""

@@ -53,7 +53,6 @@ Twist 2D
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -64,6 +63,7 @@ from cardionurbs.analysis.material import MaterialPoints, SplineData, material_p
 from cardionurbs.analysis.tag_surfaces import (axis_frame, build_tag_surfaces,
                                                fit_tag_curve, resolve_frames, tag_surfaces)
 from cardionurbs.analysis.tagqc import TagFlag, tag_qc
+from cardionurbs.analysis.columns import ColumnMapping
 from cardionurbs.errors import CardioNurbsError
 from cardionurbs.geometry import polygon_centroid
 from cardionurbs.study import Study
@@ -268,7 +268,7 @@ def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base:
 
 # ---------------------------------------------------------------- results
 @dataclass
-class TagMetrics(Mapping):
+class TagMetrics(ColumnMapping):
     """Tag metrics of one study; a read-only mapping docs/metrics.md column -> float.
 
     ``dict(result)`` gives the columns; the rest are attributes:
@@ -292,15 +292,6 @@ class TagMetrics(Mapping):
     over_time: dict[int, dict[str, float]] = field(default_factory=dict)
     material: MaterialPoints | None = None
     surfaces: dict = field(default_factory=dict)
-
-    def __getitem__(self, key: str) -> float:
-        return self.columns[key]
-
-    def __iter__(self):
-        return iter(self.columns)
-
-    def __len__(self) -> int:
-        return len(self.columns)
 
     def to_json(self) -> dict:
         """JSON-safe dict for metrics.json (NaN -> None)."""
