@@ -91,6 +91,16 @@ def _heart_rate(text: str) -> float:
     return v
 
 
+def _study_input_options(parser: argparse.ArgumentParser, format_help: str) -> None:
+    """--format and --labels, as analyze and cohort take them."""
+    parser.add_argument("--format", default="auto",
+                        choices=["auto", "native", "sunnybrook", "gpfile", "nifti"],
+                        help=format_help)
+    parser.add_argument("--labels", default=None, metavar="PRESET|MAPPING",
+                        help="label-map convention: acdc, ukbb, mnms, bivme or lv=N,myo=N,rv=N "
+                             "(default: the layout's, or inferred from topology)")
+
+
 def _output_safety_options(parser: argparse.ArgumentParser) -> None:
     """--overwrite and --allow-outside, as analyze and track take them."""
     parser.add_argument("--overwrite", action="store_true",
@@ -179,12 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
     an = command("analyze", "reconstruct and measure one study")
     an.add_argument("study", metavar="STUDY",
                     help="study folder (or its study.json), or a NIfTI label map")
-    an.add_argument("--format", default="auto",
-                    choices=["auto", "native", "sunnybrook", "gpfile", "nifti"],
-                    help="input format")
-    an.add_argument("--labels", default=None, metavar="PRESET|MAPPING",
-                    help="label-map convention: acdc, ukbb, mnms, bivme or lv=N,myo=N,rv=N "
-                         "(default: the layout's, or inferred from topology)")
+    _study_input_options(an, "input format")
     an.add_argument("--heart-rate", type=_heart_rate, default=None, metavar="BPM",
                     help="bpm (20-300), when the input has none")
     an.add_argument("--no-figures", action="store_true", help="skip PNG figures and HTML report")
@@ -222,11 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--parquet", action="store_true", help="also write the table as .parquet")
     co.add_argument("--allow-failures", action="store_true",
                     help="exit 0 even when some study failed (default: exit 3)")
-    co.add_argument("--format", default="auto",
-                    choices=["auto", "native", "sunnybrook", "gpfile", "nifti"],
-                    help="input format of every study")
-    co.add_argument("--labels", default=None, metavar="PRESET|MAPPING",
-                    help="label-map convention (see analyze --labels)")
+    _study_input_options(co, "input format of every study")
     co.add_argument("--allow-outside", action="store_true",
                     help="let study.json name files outside the study folder")
     co.add_argument("--strict", action="store_true",
