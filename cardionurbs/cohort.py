@@ -23,6 +23,7 @@ import hashlib
 import json
 import math
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -113,6 +114,9 @@ def failure_row(path: str, reason: str) -> dict:
     return row
 
 
+_ROW_FILE = re.compile(r"\.?[0-9a-f]{20}\.json(\.\d+\.tmp)?")
+
+
 class RowStore:
     """Finished rows of a cohort run, one small JSON file per subject under ``folder/rows``.
 
@@ -131,10 +135,13 @@ class RowStore:
         return hashlib.sha1(f"{format}\0{path}".encode()).hexdigest()[:20]
 
     def clear(self) -> None:
-        """Forget every stored row (a fresh run)."""
+        """Forget every stored row (a fresh run). Only files named as :meth:`put` names
+        them (``<20 hex digits>.json`` and their ``.<name>.<pid>.tmp`` temporaries) are
+        removed, so a ``--run-dir`` that holds anything else keeps it."""
         if self.rows_dir.is_dir():
             for f in self.rows_dir.iterdir():
-                f.unlink()
+                if f.is_file() and _ROW_FILE.fullmatch(f.name):
+                    f.unlink()
 
     def put(self, path: str, format: str, row: dict) -> None:
         self.rows_dir.mkdir(parents=True, exist_ok=True)

@@ -121,3 +121,15 @@ def test_exit_status_and_parquet(studies, tmp_path, monkeypatch):
     t = pd.read_parquet(tmp_path / "c.parquet")
     assert list(t["status"] == "ok") == [True, False]
     assert main(args + ["--resume", "--allow-failures"]) == 0
+
+
+def test_fresh_run_clears_only_row_files(tmp_path):
+    """A fresh run forgets stored rows but never removes a user's other files in --run-dir."""
+    from cardionurbs.cohort import RowStore
+    store = RowStore(tmp_path / "run")
+    store.put("a", "auto", {"subject": "a", "status": "ok"})
+    mine = store.rows_dir / "notes.txt"
+    mine.write_bytes(b"keep me")
+    store.clear()
+    assert store.get("a") is None
+    assert mine.read_bytes() == b"keep me"
