@@ -168,6 +168,16 @@ def build_parser() -> argparse.ArgumentParser:
                     help="breath-hold fault: random in-plane shifts of the SA slices, mm (std)")
     ph.add_argument("--snr", type=_positive_float, default=None,
                     help="tagged DICOM image SNR (myocardium over Rician channel noise; default 12)")
+    ph.add_argument("--anatomy", choices=["ideal", "realistic"], default="ideal",
+                    help="ideal spheroids (default) or realistic hearts: shape modes, segmental "
+                         "wall thickness, varying RV crescent, saddle mitral annulus, apex off "
+                         "the long axis (docs/phantoms.md)")
+    ph.add_argument("--infarct", choices=["lad", "rca", "lcx"], default=None,
+                    help="make this coronary territory thinner and hypokinetic (border zone "
+                         "included)")
+    ph.add_argument("--realism", choices=["clinical"], default=None,
+                    help="clinical acquisition faults at once: 0.5 px contour noise, 1.5 mm "
+                         "breath-hold shifts, image SNR 15 (unless given); truth unchanged")
     ph.add_argument("--no-dicom", action="store_true", help="skip the synthetic DICOM images")
     ph.add_argument("--n", type=_bounded(int, 1, 10_000_000), default=None, metavar="N",
                     help="with --cohort: N subjects from the spec's mix (subject k takes "

@@ -63,6 +63,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cardionurbs.errors import PhantomError
+from cardionurbs.phantom.shape import ShapeModes
 
 _GL_CACHE: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
@@ -111,6 +112,9 @@ class Anatomy:
     (semi-axis toward the free wall), ``r_wrap_endo`` (semi-axis along the
     septum), ``r_long_rv_endo``, ``rv_wall`` (free-wall thickness),
     ``rv_offset`` (section centre offset as a fraction of ``r_free_endo``).
+
+    ``shape`` (None for the ideal anatomy) adds the realistic departures of
+    :mod:`cardionurbs.phantom.shape`; every section function then needs the angle θ.
     """
 
     r_short_endo: float
@@ -123,6 +127,7 @@ class Anatomy:
     r_long_rv_endo: float
     rv_wall: float
     rv_offset: float
+    shape: ShapeModes | None = None
 
     def __post_init__(self) -> None:
         for name in ("r_short_endo", "r_short_epi", "r_long_endo", "r_long_epi", "r_free_endo",
@@ -158,13 +163,66 @@ class Anatomy:
         """Height of the LV endocardial apex (apical wall thickness), mm."""
         return self.r_long_epi - self.r_long_endo
 
-    def s_lv_endo(self, z: np.ndarray) -> np.ndarray:
-        """Squared LV endocardial radius at height z (eq. A1), mm²."""
-        return spheroid_section_s(z, self.r_short_endo, self.r_long_endo, self.z_center)
+    @property
+    def realistic(self) -> bool:
+        return self.shape is not None
 
-    def s_lv_epi(self, z: np.ndarray) -> np.ndarray:
-        """Squared LV epicardial radius at height z (eq. A1), mm²."""
-        return spheroid_section_s(z, self.r_short_epi, self.r_long_epi, self.z_center)
+    def _need_theta(self, theta) -> None:
+        if theta is None and self.shape is not None:
+            raise ValueError("a realistic anatomy's sections depend on the angle: pass theta")
+
+    def zeta(self, z) -> np.ndarray:
+        """Normalised height ζ = (z − z_c) / r_long_endo of the shape modes."""
+        return (np.asarray(z, dtype=float) - self.z_center) / self.r_long_endo
+
+    def s_lv_endo(self, z: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
+        """Squared LV endocardial radius at height z (eq. A1; × the modes of eq. R1), mm²."""
+        s = spheroid_section_s(z, self.r_short_endo, self.r_long_endo, self.z_center)
+        if self.shape is None:
+            return s
+        self._need_theta(theta)
+        return s * self.shape.endo_factor(theta, self.zeta(z))
+
+    def s_lv_epi(self, z: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
+        """Squared LV epicardial radius at height z (eq. A1; realistic: wall-following modes,
+        septal thickening and infarct thinning of :mod:`cardionurbs.phantom.shape`), mm²."""
+        s = spheroid_section_s(z, self.r_short_epi, self.r_long_epi, self.z_center)
+        if self.shape is None:
+            return s
+        self._need_theta(theta)
+        s_endo0 = spheroid_section_s(z, self.r_short_endo, self.r_long_endo, self.z_center)
+        ratio = np.sqrt(s_endo0 / np.where(s > 0, s, 1.0))
+        s_epi = s * self.shape.epi_factor(theta, self.zeta(z), ratio)
+        if self.shape.infarct is None:
+            return s_epi
+        w = self.shape.infarct_weight(theta, np.asarray(z, dtype=float) / self.z_base)
+        r1 = np.sqrt(np.maximum(self.s_lv_endo(z, theta), 0.0))
+        r2 = np.sqrt(np.maximum(s_epi, 0.0))
+        return (r1 + (r2 - r1) * (1.0 - self.shape.infarct_thinning * w)) ** 2
+
+    def lv_sections(self, z: np.ndarray, theta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(S_endo, S_epi) at (z, θ): :meth:`s_lv_endo` and :meth:`s_lv_epi` sharing one evaluation
+        of the shape modes, mm²."""
+        if self.shape is None or self.shape.infarct is not None:
+            return self.s_lv_endo(z, theta), self.s_lv_epi(z, theta)
+        z = np.asarray(z, dtype=float)
+        s1 = spheroid_section_s(z, self.r_short_endo, self.r_long_endo, self.z_center)
+        s2 = spheroid_section_s(z, self.r_short_epi, self.r_long_epi, self.z_center)
+        zeta = self.zeta(z)
+        m = self.shape.endo_factor(theta, zeta) - 1.0
+        ratio = np.sqrt(s1 / np.where(s2 > 0, s2, 1.0))
+        return s1 * (1.0 + m), s2 * (1.0 + ratio * m + self.shape.septal_thickening * np.cos(theta))
+
+    def z_top(self, theta: np.ndarray | None = None) -> np.ndarray:
+        """Height of the mitral annulus (top of the LV walls) at angle θ, mm: z_b (ideal) or
+        z_b + h cos 2(θ − θ_s) (saddle)."""
+        if self.shape is None:
+            return np.full(np.shape(theta) if theta is not None else (), self.z_base)
+        return self.z_base + self.shape.saddle(theta)
+
+    @property
+    def z_top_min(self) -> float:
+        return self.z_base - (self.shape.saddle_mm if self.shape is not None else 0.0)
 
     # ------------------------------------------------------------ RV
     @property
@@ -178,15 +236,65 @@ class Anatomy:
         u = (z - self.z_base) / c
         return np.where((u <= 0) & (u > -1), 1.0 - u * u, 0.0)
 
-    def rv_p(self, theta: np.ndarray, epi: bool = False) -> np.ndarray:
-        """P(θ) of eq. (A3) for the RV endocardial (or epicardial) shell, mm²."""
+    def rv_p(self, theta: np.ndarray, epi: bool = False, z: np.ndarray | None = None) -> np.ndarray:
+        """P(θ) of eq. (A3) for the RV endocardial (or epicardial) shell, mm²; realistic: the
+        ellipse stretched about the axis by the wrap factor w(z) and scaled by the reach factor."""
         t = self.rv_wall if epi else 0.0
-        return ellipse_far_radius_sq(theta, self.r_free_endo + t, self.r_wrap_endo + t,
-                                     self.rv_x_center)
+        if self.shape is None:
+            return ellipse_far_radius_sq(theta, self.r_free_endo + t, self.r_wrap_endo + t,
+                                         self.rv_x_center)
+        if z is None:
+            raise ValueError("a realistic RV section depends on the height: pass z")
+        u = 1.0 + (np.asarray(z, dtype=float) - self.z_base) / self.r_long_rv_endo
+        th = np.minimum(np.abs(np.asarray(theta, dtype=float)) / self.shape.rv_wrap(u), np.pi)
+        return (ellipse_far_radius_sq(th, self.r_free_endo + t, self.r_wrap_endo + t, self.rv_x_center)
+                * self.shape.rv_reach_factor(u))
 
     def s_rv(self, theta: np.ndarray, z: np.ndarray, epi: bool = False) -> np.ndarray:
         """Squared radius of the RV endo/epi shell along θ at height z, mm² (0 where absent)."""
-        return self.rv_g2(z, epi) * self.rv_p(theta, epi)
+        if self.shape is None:
+            return self.rv_g2(z, epi) * self.rv_p(theta, epi)
+        return self.rv_g2(z, epi) * self.rv_p(theta, epi, z)
+
+    def rv_sector(self, z: np.ndarray, epi: bool = False, n_table: int = 181) -> tuple[np.ndarray, np.ndarray]:
+        """(θ_lo, θ_hi): the RV crescent at height z spans θ_lo ≤ θ ≤ θ_hi (both 0 where there is
+        none). Ideal: ±θ_e(z). Realistic: going out both ways from the angle where the crescent is
+        widest (max of S_rv − S_epi on a 2 (n_table − 1) grid), the first sign change, refined by
+        eight regula falsi steps; both edges equal that angle where there is no crescent."""
+        z = np.atleast_1d(np.asarray(z, dtype=float))
+        if self.shape is None:
+            e = self.rv_sector_edge(z, epi)
+            return -e, e
+        n = 2 * (n_table - 1)
+        th = np.linspace(-np.pi, np.pi, n, endpoint=False)
+        step = 2 * np.pi / n
+        d = self.s_rv(th[None, :], z[:, None], epi) - self.s_lv_epi(z[:, None], th[None, :])
+        m = d.argmax(axis=1)
+        rows = np.arange(len(z))[:, None]
+        has = d[rows[:, 0], m] > 0
+        theta_m = th[m]
+
+        def dd(t):
+            return self.s_rv(t, z, epi) - self.s_lv_epi(z, t)
+
+        out = []
+        for sign in (-1.0, 1.0):
+            ring = d[rows, (m[:, None] + (sign * np.arange(n)).astype(int)[None, :]) % n]
+            ends = np.where(ring > 0, n, np.arange(n)[None, :]).min(axis=1)
+            full = ends >= n
+            j = np.clip(ends, 1, n - 1)
+            a, b = theta_m + sign * (j - 1) * step, theta_m + sign * j * step
+            fa, fb = dd(a), dd(b)
+            for _ in range(8):
+                mid = b - fb * (b - a) / np.where(fb != fa, fb - fa, 1.0)
+                fm = dd(mid)
+                left = np.sign(fm) == np.sign(fa)
+                a, fa = np.where(left, mid, a), np.where(left, fm, fa)
+                b, fb = np.where(left, b, mid), np.where(left, fb, fm)
+            edge = np.where(np.abs(fa) < np.abs(fb), a, b)
+            edge = np.where(full, theta_m + sign * np.pi, edge)
+            out.append(np.where(has, edge, theta_m))
+        return out[0], out[1]
 
     def _p_table(self, epi: bool) -> tuple[np.ndarray, np.ndarray]:
         key = "_ptab_epi" if epi else "_ptab_endo"
@@ -223,11 +331,20 @@ class Anatomy:
     def rv_onset(self, epi: bool = False, iters: int = 80) -> float:
         """Lowest height z0 where the RV shell leaves the LV epicardium (crescent onset), mm."""
         c = self.r_long_rv_endo + (self.rv_wall if epi else 0.0)
-        p0 = float(self.rv_p(np.array(0.0), epi))
         lo, hi = self.z_base - c, self.z_base
+        if self.shape is not None:
+            th = np.linspace(-np.pi, np.pi, 721)
+
+            def reaches(z):
+                return bool(np.any(self.s_rv(th, np.full_like(th, z), epi) > self.s_lv_epi(z, th)))
+        else:
+            p0 = float(self.rv_p(np.array(0.0), epi))
+
+            def reaches(z):
+                return float(self.rv_g2(z, epi)) * p0 > float(self.s_lv_epi(z))
         for _ in range(iters):
             mid = 0.5 * (lo + hi)
-            if float(self.rv_g2(mid, epi)) * p0 > float(self.s_lv_epi(mid)):
+            if reaches(mid):
                 hi = mid
             else:
                 lo = mid
@@ -235,6 +352,8 @@ class Anatomy:
 
     def validate(self) -> "Anatomy":
         """Check the RV crescent is a single sector on every section; PhantomError otherwise."""
+        if self.shape is not None:
+            return self._validate_realistic()
         th = np.linspace(0.0, np.pi, 1025)
         for epi in (False, True):
             p = self.rv_p(th, epi)
@@ -254,13 +373,55 @@ class Anatomy:
             raise PhantomError("the RV wraps all around the LV on some section")
         return self
 
+    def _validate_realistic(self) -> "Anatomy":
+        """Realistic shapes: positive, nested LV walls; one RV crescent per section, inside its
+        epicardium, never wrapping the LV."""
+        th = np.linspace(-np.pi, np.pi, 721, endpoint=False)
+        z = np.linspace(0.02 * self.z_base, self.z_top_min, 200)
+        T, Z = np.meshgrid(th, z)
+        s1, s2 = self.s_lv_endo(Z, T), self.s_lv_epi(Z, T)
+        if np.any(self.shape.endo_factor(T, self.zeta(Z)) <= 0.2):
+            raise PhantomError("endocardial shape modes fold the section (factor <= 0.2)")
+        if np.any(np.sqrt(s2) - np.sqrt(np.maximum(s1, 0.0)) < 1.0):
+            raise PhantomError("the realistic LV wall is thinner than 1 mm somewhere")
+        zr = np.linspace(self.z_base - self.r_long_rv_endo - self.rv_wall, self.z_base, 200)
+        for epi in (False, True):
+            d = self.s_rv(th[None, :], zr[:, None], epi) - self.s_lv_epi(zr[:, None], th[None, :])
+            runs = np.count_nonzero(np.diff((d > 0).astype(int), axis=1, append=(d[:, :1] > 0)) != 0,
+                                    axis=1)
+            if np.any(runs > 2):
+                raise PhantomError("realistic RV shape gives a section that is not a single crescent")
+            if np.all(d[-1] > 0):
+                raise PhantomError("the RV wraps all around the LV at the base")
+        lo_n, hi_n = self.rv_sector(zr)
+        lo_p, hi_p = self.rv_sector(zr, epi=True)
+        has = hi_n > lo_n
+        if np.any(lo_n[has] < lo_p[has] - 1e-6) or np.any(hi_n[has] > hi_p[has] + 1e-6):
+            raise PhantomError("the RV endocardium leaves its epicardium (rv_wall too thin)")
+        return self
+
     # ------------------------------------------------------------ volumes (method A)
+    def _section_quadrature(self, fn, z_lo: float, z_hi: float, n_z: int = 192, n_theta: int = 256) -> float:
+        """∫_{z_lo}^{z_hi} ½ ∮ fn(z, θ) dθ dz: Gauss–Legendre in z, the periodic trapezoid rule
+        (spectrally accurate for smooth periodic integrands) in θ, mm³."""
+        u, wu = gauss_legendre(n_z)
+        z = z_lo + (z_hi - z_lo) * u
+        th = np.linspace(0.0, 2 * np.pi, n_theta, endpoint=False)
+        area = 0.5 * fn(z[:, None], th[None, :]).mean(axis=1) * 2 * np.pi
+        return float((area * wu).sum() * (z_hi - z_lo))
+
     def lv_cavity_volume(self) -> float:
-        """LV cavity volume at ED closed by the base plane, mm³ (eq. A4)."""
+        """LV cavity volume at ED closed by the base plane z = z_b, mm³ (eq. A4; realistic:
+        section quadrature)."""
+        if self.shape is not None:
+            return self._section_quadrature(self.s_lv_endo, self.z_endo_apex, self.z_base)
         return truncated_spheroid_volume(self.r_short_endo, self.r_long_endo, self.z_center, self.z_base)
 
     def lv_epi_volume(self) -> float:
-        """Volume inside the LV epicardium below the base plane, mm³ (eq. A4)."""
+        """Volume inside the LV epicardium below the base plane, mm³ (eq. A4; realistic: section
+        quadrature)."""
+        if self.shape is not None:
+            return self._section_quadrature(self.s_lv_epi, 0.0, self.z_base)
         return truncated_spheroid_volume(self.r_short_epi, self.r_long_epi, self.z_center, self.z_base)
 
     def lv_myocardial_volume(self) -> float:
@@ -278,6 +439,15 @@ class Anatomy:
         u, wu = gauss_legendre(n_z)
         z = z0 + (self.z_base - z0) * u * u
         wz = wu * 2.0 * u * (self.z_base - z0)
+        if self.shape is not None:
+            v, wv = gauss_legendre(n_theta)
+            area = np.zeros(len(z))
+            for edge in self.rv_sector(z, epi):
+                th = edge[:, None] * v[None, :]
+                zz = z[:, None]
+                integrand = self.s_rv(th, zz, epi) - self.s_lv_epi(zz, th)
+                area += 0.5 * (integrand * wv[None, :]).sum(axis=1) * np.abs(edge)
+            return float((area * wz).sum())
         edge = self.rv_sector_edge(z, epi)
         v, wv = gauss_legendre(n_theta)
         th = edge[:, None] * v[None, :]
@@ -294,4 +464,8 @@ class Anatomy:
         return self.rv_shell_volume(epi=True) - self.rv_shell_volume(epi=False)
 
     def to_dict(self) -> dict:
-        return {k: float(getattr(self, k)) for k in self.__dataclass_fields__}
+        """The size parameters (mm; the shape modes are in :meth:`shape_dict`)."""
+        return {k: float(getattr(self, k)) for k in self.__dataclass_fields__ if k != "shape"}
+
+    def shape_dict(self) -> dict | None:
+        return None if self.shape is None else self.shape.to_dict()

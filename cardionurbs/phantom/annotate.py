@@ -87,6 +87,8 @@ def sa_contours(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float,
     """Closed SA contours (heart frame at phase f) of one SA plane: lv_endo, lv_epi, rv_endo, rv_epi."""
     z = sa_material_height(motion, spec, f)
     out: dict[str, np.ndarray] = {}
+    if anatomy.realistic:
+        return _sa_contours_realistic(anatomy, motion, spec, f, z, n_lv, n_rv_free, n_rv_septum)
     if not (0.0 < z <= anatomy.z_base - BASE_MARGIN_MM):
         return out
     psi = float(motion.psi(z, f))
@@ -109,6 +111,231 @@ def sa_contours(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float,
     return out
 
 
+def _sa_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float, z: float,
+                           n_lv: int, n_rv_free: int, n_rv_septum: int) -> dict[str, np.ndarray]:
+    """:func:`sa_contours` for a realistic anatomy: the same explicit polar curves with the
+    angle-dependent sections S(θ, z) and the asymmetric RV sector [θ_lo, θ_hi]."""
+    out: dict[str, np.ndarray] = {}
+    if not (0.0 < z <= anatomy.z_top_min - BASE_MARGIN_MM):
+        return out
+    psi = float(motion.psi(z, f))
+    th = np.linspace(0.0, 2 * np.pi, n_lv, endpoint=False)
+    s1, s2 = anatomy.s_lv_endo(z, th), anatomy.s_lv_epi(z, th)
+    if s2.mean() < MIN_RADIUS_MM ** 2:
+        return out
+    if s1.mean() >= MIN_RADIUS_MM ** 2:
+        out["lv_endo"] = _polar(motion.radial_map(anatomy, s1, th, z, f), th - psi, spec.height)
+    out["lv_epi"] = _polar(motion.radial_map(anatomy, s2, th, z, f), th - psi, spec.height)
+    for name, epi in (("rv_endo", False), ("rv_epi", True)):
+        lo, hi = (float(v[0]) for v in anatomy.rv_sector(z, epi))
+        mid = 0.5 * (lo + hi)
+        width = np.sqrt(float(anatomy.s_rv(mid, z, epi))) - np.sqrt(float(anatomy.s_lv_epi(z, mid)))
+        if hi - lo <= 0 or width < MIN_RV_WIDTH_MM:
+            continue
+        tf = np.linspace(lo, hi, n_rv_free)
+        ts = np.linspace(hi, lo, n_rv_septum + 2)[1:-1]
+        free = motion.radial_map(anatomy, anatomy.s_rv(tf, z, epi), tf, z, f)
+        sept = motion.radial_map(anatomy, anatomy.s_lv_epi(z, ts), ts, z, f)
+        out[name] = _polar(np.r_[free, sept], np.r_[tf, ts] - psi, spec.height)
+    return out
+
+
+# ----------------------------------------------------------------- realistic LA planes
+PLANE_STEP_MM = 1.0      # sampling of an LA plane for the realistic contours (marching squares),
+                         # each vertex then refined on its grid edge to the exact boundary
+
+
+def unbend(anatomy: Anatomy, points: np.ndarray) -> np.ndarray:
+    """Realistic heart-frame points -> the motion frame (the apex bend undone; identity if none)."""
+    p = np.asarray(points, dtype=float).reshape(-1, 3).copy()
+    if anatomy.shape is not None and anatomy.shape.bends:
+        p[:, :2] -= anatomy.shape.apex_shift(p[:, 2], anatomy.z_base)
+    return p
+
+
+def bend(anatomy: Anatomy, points: np.ndarray) -> np.ndarray:
+    """The motion frame -> realistic heart-frame points (the apex bend)."""
+    p = np.asarray(points, dtype=float).reshape(-1, 3).copy()
+    if anatomy.shape is not None and anatomy.shape.bends:
+        p[:, :2] += anatomy.shape.apex_shift(p[:, 2], anatomy.z_base)
+    return p
+
+
+def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: float) -> dict[str, np.ndarray]:
+    """Material coordinates of realistic heart-frame points at phase f and the signed region
+    functions (negative inside, material mm) of the four contoured regions: LV cavity, LV
+    epicardium, RV cavity and RV epicardium, each with its top (annulus) term kept apart so
+    that contour points on the valve closure can be told from points on the wall."""
+    x = unbend(anatomy, points)
+    s, th, z, s1, s2, s3 = motion.inverse_cylindrical(anatomy, x, f)
+    s4 = np.maximum(s3, anatomy.s_rv(th, z, epi=True))
+    r = np.sqrt(np.maximum(s, 0.0))
+    r1, r2 = np.sqrt(np.maximum(s1, 0.0)), np.sqrt(np.maximum(s2, 0.0))
+    r3, r4 = np.sqrt(np.maximum(s3, 0.0)), np.sqrt(np.maximum(s4, 0.0))
+    lv_top = z - anatomy.z_top(th)
+    rv_top = z - anatomy.z_base
+    return {"s": s, "theta": th, "z": z, "s1": s1, "s2": s2,
+            "lv_endo": (r - r1, lv_top), "lv_epi": (r - r2, lv_top),
+            "rv_endo": (np.maximum(r - r3, r2 - r), rv_top), "rv_epi": (np.maximum(r - r4, r2 - r), rv_top)}
+
+
+def _plane_grid(anatomy: Anatomy, spec: SliceSpec, step: float):
+    """(w, v) sample grid of a realistic LA plane covering the heart, and its 3-D points."""
+    reach = max(anatomy.r_short_epi, anatomy.r_free_endo * (1 + anatomy.rv_offset) + anatomy.rv_wall)
+    reach = 1.35 * reach + 12.0
+    z_hi = anatomy.z_base + (anatomy.shape.saddle_mm if anatomy.shape is not None else 0.0) + 6.0
+    col = spec.column
+    v_a, v_b = (z_hi - spec.center[2]) / col[2], (-6.0 - spec.center[2]) / col[2]
+    v = np.arange(min(v_a, v_b), max(v_a, v_b) + step, step)
+    w = np.arange(-reach, reach + step, step)
+    W, V = np.meshgrid(w, v, indexing="ij")
+    pts = spec.center[None, :] + W.reshape(-1, 1) * spec.row[None, :] + V.reshape(-1, 1) * col[None, :]
+    return w, v, pts
+
+
+def _refine_on_edges(loop: np.ndarray, grid: np.ndarray, exact, iters: int = 3) -> np.ndarray:
+    """Move marching-squares vertices (fractional grid indices (k, 2)) to the zero of the exact
+    field along their grid edge: regula falsi iterations, ``exact`` mapping
+    (k, 2) fractional indices to field values."""
+    loop = loop.copy()
+    along_w = np.abs(loop[:, 0] - np.round(loop[:, 0])) > 1e-9
+    a = np.where(along_w[:, None], np.column_stack([np.floor(loop[:, 0]), loop[:, 1]]),
+                 np.column_stack([loop[:, 0], np.floor(loop[:, 1])]))
+    b = a + np.where(along_w[:, None], [1.0, 0.0], [0.0, 1.0])
+    ia, ib = np.round(a).astype(int), np.round(b).astype(int)
+    ia = np.clip(ia, 0, np.array(grid.shape) - 1)
+    ib = np.clip(ib, 0, np.array(grid.shape) - 1)
+    fa, fb = grid[ia[:, 0], ia[:, 1]], grid[ib[:, 0], ib[:, 1]]
+    ta, tb = np.zeros(len(loop)), np.ones(len(loop))
+    ok = np.sign(fa) != np.sign(fb)
+    for _ in range(iters):
+        tm = np.where(ok, ta - fa * (tb - ta) / np.where(fb != fa, fb - fa, 1.0), 0.5 * (ta + tb))
+        fm = exact(a + tm[:, None] * (b - a))
+        left = np.sign(fm) == np.sign(fa)
+        ta, fa = np.where(left, tm, ta), np.where(left, fm, fa)
+        tb, fb = np.where(left, tb, tm), np.where(left, fb, fm)
+    t = np.where(np.abs(fa) < np.abs(fb), ta, tb)
+    return np.where(ok[:, None], a + t[:, None] * (b - a), loop)
+
+
+def _corners(w: np.ndarray, v: np.ndarray, fields, iters: int = 4, h: float = 1e-3) -> np.ndarray:
+    """Solve wall(w, v) = top(w, v) = 0 near each start point by Newton's method with a
+    central-difference Jacobian (plane coordinates, mm): (k, 2) corner points. The five
+    evaluations of a step go to ``fields`` in one call."""
+    p = np.column_stack([w, v]).astype(float)
+    k = len(p)
+    offs = np.array([[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
+    for _ in range(iters):
+        q = (p[None, :, :] + offs[:, None, :]).reshape(-1, 2)
+        val = np.column_stack(fields(q[:, 0], q[:, 1])).reshape(5, k, 2)
+        jac = np.stack([(val[1] - val[2]) / (2 * h), (val[3] - val[4]) / (2 * h)], axis=-1)
+        step = np.linalg.solve(jac, val[0][..., None])[..., 0]
+        p -= np.clip(step, -2.0, 2.0)
+    return p
+
+
+def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec, exact_fields,
+                  n: int, start_positive: bool = True) -> np.ndarray | None:
+    """The open contour (wall part) of one region on a sampled plane: marching squares on
+    max(wall, top), each vertex refined to the exact boundary on its grid edge, the vertices on
+    the top closure dropped, resampled by arc length to n points, starting at the annulus end
+    with the larger w when ``start_positive``."""
+    from skimage.measure import find_contours
+
+    wall, top = (a.reshape(shape) for a in fields[name])
+    field = np.maximum(wall, top)
+    loops = find_contours(field, 0.0)
+    if not loops:
+        return None
+    loop = max(loops, key=len)
+    if len(loop) < 8:
+        return None
+
+    def exact(idx):
+        e = exact_fields(np.interp(idx[:, 0], np.arange(len(w)), w), np.interp(idx[:, 1], np.arange(len(v)), v))
+        return np.maximum(*e[name])
+
+    loop = _refine_on_edges(loop, field, exact)
+    iw, iv = loop[:, 0], loop[:, 1]
+    ww = np.interp(iw, np.arange(len(w)), w)
+    vv = np.interp(iv, np.arange(len(v)), v)
+    a_wall, a_top = exact_fields(ww, vv)[name]
+    on_wall = a_wall >= a_top
+    if on_wall.all():
+        keep = np.arange(len(loop) - 1) if np.allclose(loop[0], loop[-1]) else np.arange(len(loop))
+    else:
+        first_cap = int(np.flatnonzero(~on_wall)[0])
+        order = np.roll(np.arange(len(loop)), -first_cap)
+        idx = np.flatnonzero(on_wall[order])
+        if len(idx) < 4:
+            return None
+        keep = order[idx[0]:idx[-1] + 1]
+        keep = keep[on_wall[keep]]
+    ww, vv = ww[keep], vv[keep]
+    if not on_wall.all():
+        # the annulus ends: where the wall meets the top closure (wall = top = 0), by Newton steps
+        # from the last wall vertex at each end
+        ends = _corners(np.array([ww[0], ww[-1]]), np.array([vv[0], vv[-1]]),
+                        lambda a, b: exact_fields(a, b)[name])
+        ww, vv = np.r_[ends[0, 0], ww, ends[1, 0]], np.r_[ends[0, 1], vv, ends[1, 1]]
+    if start_positive and ww[0] < ww[-1]:
+        ww, vv = ww[::-1], vv[::-1]
+    seg = np.hypot(np.diff(ww), np.diff(vv))
+    arc = np.r_[0.0, np.cumsum(seg)]
+    t = np.linspace(0.0, arc[-1], n)
+    ww, vv = np.interp(t, arc, ww), np.interp(t, arc, vv)
+    return spec.center[None, :] + ww[:, None] * spec.row[None, :] + vv[:, None] * spec.column[None, :]
+
+
+def _la_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float, n_side: int,
+                           with_rv: bool, step: float = PLANE_STEP_MM) -> dict[str, np.ndarray]:
+    """LA contours of a realistic anatomy: the plane is sampled every ``step`` mm, each region's
+    signed function (:func:`material_fields`) is contoured by marching squares, the valve
+    closure is dropped and the open wall contour is returned in the motion frame."""
+    w, v, pts = _plane_grid(anatomy, spec, step)
+    fields = material_fields(anatomy, motion, pts, f)
+
+    def exact_fields(ww, vv):
+        p = spec.center[None, :] + ww[:, None] * spec.row[None, :] + vv[:, None] * spec.column[None, :]
+        return material_fields(anatomy, motion, p, f)
+
+    out = {}
+    names = ("lv_endo", "lv_epi") + (("rv_endo", "rv_epi") if with_rv else ())
+    for name in names:
+        c = _open_contour(name, fields, (len(w), len(v)), w, v, spec, exact_fields, 2 * n_side - 1)
+        if c is not None:
+            out[name] = unbend(anatomy, c)
+    return out
+
+
+def _la_tag_lines_realistic(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpec, f: float,
+                            step: float) -> list[tuple[str, int, np.ndarray]]:
+    """LA tag lines of a realistic anatomy: the material planes z = z_j are at z' = λ z_j at phase f
+    (the bend keeps z), a line of the LA plane; it is sampled every step/8 and clipped to the LV
+    myocardium, and each run is resampled about once per ``step``."""
+    lam = float(motion.lam(f))
+    reach = 1.3 * max(anatomy.r_short_epi, 20.0) + 10.0
+    w = np.arange(-reach, reach, step / 8.0)
+    out = []
+    row, col, c = spec.row, spec.column, spec.center
+    for j, zj in enumerate(grid.la_positions(anatomy.z_top_min - BASE_MARGIN_MM)):
+        v = (lam * zj - c[2] - w * row[2]) / col[2]
+        pts = c[None, :] + w[:, None] * row[None, :] + v[:, None] * col[None, :]
+        fl = material_fields(anatomy, motion, pts, f)
+        inside = (fl["s"] >= fl["s1"]) & (fl["s"] <= fl["s2"]) & (fl["lv_epi"][1] <= 0)
+        if inside.sum() < 2:
+            continue
+        runs = np.split(np.flatnonzero(inside), np.flatnonzero(np.diff(np.flatnonzero(inside)) > 1) + 1)
+        ws = [_sample_segments([(w[r[0]], w[r[-1]])], step) for r in runs if len(r) >= 2]
+        if not ws:
+            continue
+        wj = np.concatenate(ws)
+        vj = (lam * zj - c[2] - wj * row[2]) / col[2]
+        p = c[None, :] + wj[:, None] * row[None, :] + vj[:, None] * col[None, :]
+        out.append(("la", j, unbend(anatomy, p)))
+    return out
+
+
 def _la_side(motion: Motion, alpha: float, z: np.ndarray, f: float):
     """Material angle of the ray α at material heights z (LA plane) at phase f."""
     return alpha + motion.psi(z, f)
@@ -117,6 +344,8 @@ def _la_side(motion: Motion, alpha: float, z: np.ndarray, f: float):
 def la_contours(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float, n_side: int = 30,
                 with_rv: bool = False) -> dict[str, np.ndarray]:
     """Open LA contours (annulus → apex → annulus) in an LA plane at phase f (heart frame)."""
+    if anatomy.realistic:
+        return _la_contours_realistic(anatomy, motion, spec, f, n_side, with_rv)
     out: dict[str, np.ndarray] = {}
     lam = float(motion.lam(f))
     u = np.array([np.cos(spec.azimuth), np.sin(spec.azimuth), 0.0])
@@ -176,6 +405,18 @@ def landmarks(anatomy: Anatomy, motion: Motion, f: float, n_mitral: int = 6) -> 
     tricuspid annulus points (4 on the RV free wall, 2 on the septum) at phase f, heart frame."""
     zb = anatomy.z_base
     th = np.linspace(0.0, 2 * np.pi, n_mitral, endpoint=False)
+    if anatomy.realistic:
+        # the saddle annulus: twelve points, on the endocardium at the annulus height of each angle
+        th = np.linspace(0.0, 2 * np.pi, 2 * n_mitral, endpoint=False)
+        zt = anatomy.z_top(th)
+        lo, hi = (float(v[0]) for v in anatomy.rv_sector(zb))
+        tf = lo + (hi - lo) * np.array([0.2, 0.4, 0.6, 0.8])
+        ts = lo + (hi - lo) * np.array([0.65, 0.35])
+        tri = np.r_[_polar(anatomy.s_rv(tf, np.full(4, zb)), tf, zb),
+                    _polar(anatomy.s_lv_epi(np.full(2, zb), ts), ts, zb)]
+        return {"apex": motion.forward(anatomy, np.zeros((1, 3)), f),
+                "mitral": motion.forward(anatomy, np.column_stack([_polar(anatomy.s_lv_endo(zt, th), th, 0.0)[:, :2], zt]), f),
+                "tricuspid": motion.forward(anatomy, tri, f)}
     mitral_mat = _polar(np.full(n_mitral, float(anatomy.s_lv_endo(zb))), th, zb)
     edge = float(anatomy.rv_sector_edge(zb)[0])
     tf = edge * np.array([-0.6, -0.2, 0.2, 0.6])
@@ -189,6 +430,16 @@ def landmarks(anatomy: Anatomy, motion: Motion, f: float, n_mitral: int = 6) -> 
 def rv_insertion_points(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float):
     """The two RV insertion points (RV epicardium meets LV epicardium) on an SA plane, or None."""
     z = sa_material_height(motion, spec, f)
+    if anatomy.realistic:
+        if not (0.0 < z <= anatomy.z_top_min - BASE_MARGIN_MM):
+            return None
+        lo, hi = (float(v[0]) for v in anatomy.rv_sector(z, epi=True))
+        mid = 0.5 * (lo + hi)
+        if (hi - lo <= 0 or np.sqrt(float(anatomy.s_rv(mid, z, True)))
+                - np.sqrt(float(anatomy.s_lv_epi(z, mid))) < MIN_RV_WIDTH_MM):
+            return None
+        th = np.array([hi, lo])
+        return motion.forward(anatomy, _polar(anatomy.s_lv_epi(np.full(2, z), th), th, z), f)
     if not (0.0 < z <= anatomy.z_base - BASE_MARGIN_MM):
         return None
     if np.sqrt(float(anatomy.s_rv(0.0, z, True))) - np.sqrt(float(anatomy.s_lv_epi(z))) < MIN_RV_WIDTH_MM:
@@ -223,6 +474,8 @@ def sa_tag_lines(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpe
                  step: float) -> list[tuple[str, int, np.ndarray]]:
     """(family, index, points) of the SA tag lines on one SA plane at phase f, clipped to the LV wall."""
     z = sa_material_height(motion, spec, f)
+    if anatomy.realistic:
+        return _sa_tag_lines_realistic(anatomy, motion, grid, spec, f, z, step)
     if not (0.0 < z <= anatomy.z_base - BASE_MARGIN_MM):
         return []
     s1, s2 = float(anatomy.s_lv_endo(z)), float(anatomy.s_lv_epi(z))
@@ -248,9 +501,56 @@ def sa_tag_lines(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpe
     return [(fam, i, pts) for (fam, i), pts in zip(keys, np.split(moved, cuts))]
 
 
+def _sa_tag_lines_realistic(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpec, f: float,
+                            z: float, step: float) -> list[tuple[str, int, np.ndarray]]:
+    """SA tag lines of a realistic anatomy. The tag planes are planes of the (bent) ED heart,
+    n · X = c; with the bend X = x + d(z) the material line in section z is n · x = c − n · d(z).
+    Each line is sampled every step/8, clipped to S_endo(θ) ≤ s ≤ S_epi(θ), and each run is
+    resampled about once per ``step``."""
+    if not (0.0 < z <= anatomy.z_top_min - BASE_MARGIN_MM):
+        return []
+    th_all = np.linspace(0.0, 2 * np.pi, 360, endpoint=False)
+    s2max = float(anatomy.s_lv_epi(z, th_all).max())
+    if anatomy.s_lv_epi(z, th_all).mean() < MIN_RADIUS_MM ** 2:
+        return []
+    reach = np.sqrt(s2max) + 1.0
+    wf = np.arange(-reach, reach + step / 8.0, step / 8.0)
+    d = anatomy.shape.apex_shift(z, anatomy.z_base)[0] if anatomy.shape.bends else np.zeros(2)
+    lines = [(fam, i, float(c) - float(grid.sa_normal(fam)[:2] @ d))
+             for fam in ("sa1", "sa2") for i, c in enumerate(grid.sa_positions())]
+    nrm = np.array([grid.sa_normal(fam) for fam, _, _ in lines])
+    ce = np.array([c for _, _, c in lines])[:, None]
+    x = ce * nrm[:, :1] - wf[None, :] * nrm[:, 1:2]
+    y = ce * nrm[:, 1:2] + wf[None, :] * nrm[:, :1]
+    s, th = x * x + y * y, np.arctan2(y, x)
+    inside = (s >= anatomy.s_lv_endo(z, th)) & (s <= anatomy.s_lv_epi(z, th))
+    keys, mats = [], []
+    for k in np.flatnonzero(inside.sum(axis=1) >= 2):
+        fam, i, c = lines[k]
+        idx = np.flatnonzero(inside[k])
+        runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+        segs = [(wf[r[0]], wf[r[-1]]) for r in runs if len(r) >= 2]
+        if not segs:
+            continue
+        n = grid.sa_normal(fam)
+        tv = np.array([-n[1], n[0], 0.0])
+        w = _sample_segments(segs, step)
+        mat = c * n[None, :] + w[:, None] * tv[None, :]
+        mat[:, 2] = z
+        keys.append((fam, i))
+        mats.append(mat)
+    if not mats:
+        return []
+    moved = motion.forward(anatomy, np.concatenate(mats), f)
+    cuts = np.cumsum([len(m) for m in mats])[:-1]
+    return [(fam, i, pts) for (fam, i), pts in zip(keys, np.split(moved, cuts))]
+
+
 def la_tag_lines(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpec, f: float,
                  step: float) -> list[tuple[str, int, np.ndarray]]:
     """(``"la"``, index, points) of the LA tag lines on one LA plane at phase f, clipped to the LV wall."""
+    if anatomy.realistic:
+        return _la_tag_lines_realistic(anatomy, motion, grid, spec, f, step)
     alpha = spec.azimuth
     u = np.array([np.cos(alpha), np.sin(alpha), 0.0])
     rs, ths, zs, signs, owners = [], [], [], [], []

@@ -27,11 +27,12 @@ def run_phantom(args: argparse.Namespace) -> int:
                            overwrite=getattr(args, "overwrite", False)
                            or (n is not None and getattr(args, "resume", False)))
     dicom = not args.no_dicom
+    shape = anatomy_options(args)
     if args.pathology:
         ph = generate(args.pathology, seed=args.seed, frames=args.frames, noise_px=args.noise_px,
                       tag_jumps=args.tag_jumps,
                       breath_hold_mm=getattr(args, "breath_hold_mm", 0.0),
-                      snr=getattr(args, "snr", None))
+                      snr=getattr(args, "snr", None), **shape)
         write_phantom(ph, out, dicom=dicom, labels=getattr(args, "labels", None))
         print(f"{out}: {ph.study.summary()}", file=sys.stdout)
         return 0
@@ -40,6 +41,7 @@ def run_phantom(args: argparse.Namespace) -> int:
     from cardionurbs.io.atomic import atomic_dir
     spec = load_cohort_spec(args.cohort)
     extra = {"snr": args.snr} if getattr(args, "snr", None) is not None else {}
+    extra.update(shape)
     if getattr(args, "n", None) is not None:
         return _run_mix(args, spec, out, dicom, extra)
     with atomic_dir(out) as tmp:                # the whole cohort, or the previous output
@@ -48,6 +50,19 @@ def run_phantom(args: argparse.Namespace) -> int:
                         report=lambda path, ph: print(f"{out / path.name}: {ph.study.summary()}",
                                                       file=sys.stdout))
     return 0
+
+
+def anatomy_options(args: argparse.Namespace) -> dict:
+    """generate() keywords of --anatomy, --infarct and --realism (only those that differ from the
+    defaults, so that older callers' phantoms stay byte-identical)."""
+    out = {}
+    if getattr(args, "anatomy", "ideal") not in (None, "ideal"):
+        out["anatomy_model"] = args.anatomy
+    if getattr(args, "infarct", None):
+        out["infarct"] = args.infarct
+    if getattr(args, "realism", None):
+        out["realism"] = args.realism
+    return out
 
 
 # ------------------------------------------------------------------ --n: a mix at scale

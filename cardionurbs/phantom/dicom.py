@@ -31,8 +31,8 @@ washed out in the blood. Every tag plane's position at every frame is known
 in closed form (the tag lines in the native study are those planes' cuts).
 
 DICOM: pixel data RLE Lossless (transfer syntax 1.2.840.10008.1.2.5, DICOM PS3.5
-Annex G; encoded and decoded by pydicom without plugins, read by every DICOM
-toolkit), or uncompressed Explicit VR Little Endian with ``compression=None``.
+Annex G; encoded by pylibjpeg-rle (pydicom's own encoder, byte-identical, when it is
+missing), decoded by pydicom without plugins, read by every DICOM toolkit), or uncompressed Explicit VR Little Endian with ``compression=None``.
 Lossless compression cannot go below the entropy of the Rician noise: at the
 default σ = 0.025 (75 of 4095 grey levels) about 8.3 bits per pixel, and RLE
 stores about 2/3 of the uncompressed 16 bits; a higher ``snr`` compresses further.
@@ -57,6 +57,7 @@ from pydicom.valuerep import format_number_as_ds
 from cardionurbs.imaging.geometry import ImagePlane
 
 BLOOD, MYO, BODY, LUNG = 1.0, 0.3, 0.14, 0.03
+ATRIUM_MM = 30.0
 TAG_DEPTH, T1_MS, TAG_SIGMA_PX, BLOOD_TAG = 0.9, 850.0, 0.6, 0.15
 NOISE = 0.025
 SCALE = 3000.0
@@ -72,6 +73,56 @@ def noise_sigma(snr: float | None) -> float:
 def _tag_band(u: np.ndarray, spacing: float, offset: float, sigma: float) -> np.ndarray:
     d = np.mod(u - offset + 0.5 * spacing, spacing) - 0.5 * spacing
     return np.exp(-0.5 * (d / sigma) ** 2)
+
+
+PAPILLARY = ((np.radians(130.0), 0.25, 0.65), (np.radians(-130.0), 0.2, 0.6))
+PAPILLARY_RADIUS_MM = 3.5
+PAPILLARY_DEPTH = 0.78            # muscle axis at this fraction of the endocardial radius
+BAND_HEIGHT, BAND_HALF_MM, BAND_HALF_RAD = 0.35, 1.5, 0.07
+
+
+def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarray, s2: np.ndarray,
+                 s3: np.ndarray) -> dict[str, np.ndarray]:
+    """Boolean masks of the tissues at material points (s, θ, z) with their section values
+    (motion inverse): ``lv_cav``, ``lv_myo``, ``rv_cav``, ``rv_myo``, the atria ``la``, ``ra``
+    (half-ellipsoid caps above the base), and, for a realistic anatomy, ``papillary`` and
+    ``band`` (papillary muscles and the RV trabecular band: muscle inside the cavities, which
+    the metric definitions count as cavity — drawn in images, labelled as cavity in label maps)."""
+    s4 = np.maximum(s3, an.s_rv(th, z, epi=True))
+    real = an.shape is not None
+    lv_top = an.z_top(th) if real else an.z_base
+    lv_heart = (z >= 0) & (z <= lv_top)
+    rv_heart = (z >= 0) & (z <= an.z_base)
+    out = {"lv_cav": lv_heart & (s < s1), "lv_myo": lv_heart & (s >= s1) & (s <= s2),
+           "rv_cav": rv_heart & (s > s2) & (s < s3),
+           "rv_myo": rv_heart & (s >= s3) & (s <= s4) & (s4 > s2)}
+    u = (z - lv_top) / ATRIUM_MM
+    cap = np.clip(1.0 - u * u, 0.0, None)
+    out["la"] = np.zeros(len(z), dtype=bool)
+    out["ra"] = np.zeros(len(z), dtype=bool)
+    above = np.flatnonzero(z > (an.z_top_min if real else an.z_base))     # atria: only up there
+    if len(above):
+        th_a, zb = th[above], np.full(len(above), an.z_base)
+        s_a = s[above]
+        s_mitral = an.s_lv_endo(zb, th_a) if real else float(an.s_lv_endo(an.z_base))
+        out["la"][above] = (u[above] > 0) & (s_a < s_mitral * cap[above])
+        ur = (z[above] - an.z_base) / ATRIUM_MM
+        cap_r = np.clip(1.0 - ur * ur, 0.0, None)
+        s2b = an.s_lv_epi(zb, th_a) if real else float(an.s_lv_epi(an.z_base))
+        out["ra"][above] = ((ur > 0) & ~out["la"][above] & (s_a > s2b)
+                            & (s_a < an.s_rv(th_a, zb) * cap_r))
+    if real:
+        out["papillary"] = np.zeros(len(z), dtype=bool)
+        for tp, lo, hi in PAPILLARY:
+            idx = np.flatnonzero(out["lv_cav"] & (z >= lo * an.z_base) & (z <= hi * an.z_base))
+            r = np.sqrt(np.maximum(s[idx], 0.0))
+            x, y = r * np.cos(th[idx]), r * np.sin(th[idx])
+            rc = PAPILLARY_DEPTH * np.sqrt(np.maximum(an.s_lv_endo(z[idx], np.full(len(idx), tp)), 0.0))
+            d2 = (x - rc * np.cos(tp)) ** 2 + (y - rc * np.sin(tp)) ** 2
+            out["papillary"][idx[d2 < PAPILLARY_RADIUS_MM ** 2]] = True
+        out["band"] = out["rv_cav"] & (np.abs(z - BAND_HEIGHT * an.z_base) < BAND_HALF_MM) & (
+            np.abs(np.angle(np.exp(1j * th))) < BAND_HALF_RAD)
+    return out
 
 
 def pixel_heart_points(phantom, plane: ImagePlane) -> tuple[np.ndarray, np.ndarray]:
@@ -106,18 +157,25 @@ def render_image(phantom, plane: ImagePlane, rng: np.random.Generator | None = N
     s, th, z, s1, s2, s3 = mo.inverse_cylindrical(an, hp, f)
     r = np.sqrt(np.maximum(s, 0.0))
     x, y = r * np.cos(th), r * np.sin(th)
-    s4 = np.maximum(s3, an.s_rv(th, z, epi=True))
-    heart = (z >= 0) & (z <= an.z_base)
-    lv_cav = heart & (s < s1)
-    lv_myo = heart & (s >= s1) & (s <= s2)
-    rv_cav = heart & (s > s2) & (s < s3)
-    rv_myo = heart & (s >= s3) & (s <= s4) & (s4 > s2)
-    u = (z - an.z_base) / 30.0
-    atria = (u > 0) & (s < float(an.s_lv_endo(an.z_base)) * (1.0 - u * u))
-    blood = lv_cav | rv_cav | atria
+    tm = tissue_masks(an, s, th, z, s1, s2, s3)
+    if an.shape is None:
+        # the ideal phantom's images as before: one atrial cap (30 mm) over the LV only
+        u = (z - an.z_base) / 30.0
+        atria = (u > 0) & (s < float(an.s_lv_endo(an.z_base)) * (1.0 - u * u))
+    else:
+        atria = tm["la"] | tm["ra"]
+    blood = tm["lv_cav"] | tm["rv_cav"] | atria
+    muscle = tm["lv_myo"] | tm["rv_myo"]
+    if "papillary" in tm:
+        blood &= ~(tm["papillary"] | tm["band"])
+        muscle |= tm["papillary"] | tm["band"]
     img = np.full(len(z), BODY)
-    img = np.where(lv_myo | rv_myo, MYO, img)
+    img = np.where(muscle, MYO, img)
     img = np.where(blood, BLOOD, img)
+    if an.shape is not None and an.shape.bends:
+        # the tag planes are planes of the bent ED heart: n · (x + d(z)) (see annotate)
+        dz = an.shape.apex_shift(z, an.z_base)
+        x, y = x + dz[:, 0], y + dz[:, 1]
     # SPAMM modulation in material coordinates
     t_ms = plane.trigger_time or 0.0
     if tag_depth is None:
@@ -145,6 +203,13 @@ def render_image(phantom, plane: ImagePlane, rng: np.random.Generator | None = N
 
 def _ds(v: float) -> str:
     return format_number_as_ds(float(v))
+
+
+def _rle_plugin() -> str:
+    """The RLE encoder: pylibjpeg-rle (compiled, a dependency; ~30x faster) when importable, else
+    pydicom's own pure-Python one. Both write the same bytes (PS3.5 Annex G is deterministic)."""
+    from pydicom.pixels.encoders import RLELosslessEncoder
+    return "pylibjpeg" if "pylibjpeg" in RLELosslessEncoder.available_plugins else "pydicom"
 
 
 def write_dicom(phantom, folder: str | Path, compression: str | None = "rle") -> list[Path]:
@@ -230,7 +295,7 @@ def write_dicom(phantom, folder: str | Path, compression: str | None = "rle") ->
         ds.WindowWidth = "2400"
         ds.PixelData = pix.tobytes()
         if compression == "rle":
-            ds.compress(RLELossless, pix, encoding_plugin="pydicom", generate_instance_uid=False)
+            ds.compress(RLELossless, pix, encoding_plugin=_rle_plugin(), generate_instance_uid=False)
         path = folder / plane.file
         path.parent.mkdir(parents=True, exist_ok=True)
         ds.save_as(path, enforce_file_format=True)

@@ -32,9 +32,12 @@ from cardionurbs.phantom.geometry import Acquisition, HeartPose, SliceSpec, imag
 from cardionurbs.phantom.motion import Motion, VolumeCurve
 from cardionurbs.phantom.presets import (PATHOLOGIES, SubjectDraw, SubjectSpec, load_preset,
                                          sample_subject, solve_anatomy)
+from cardionurbs.phantom.shape import ANATOMIES, TERRITORIES, draw_shape, infarct_only
 from cardionurbs.study import Contour, Landmark, Study, TagLine
 
 UID_PREFIX = "1.2.826.0.1.3680043.8.498."   # pydicom's registered root for generated UIDs
+#: the acquisition faults of ``realism="clinical"``
+CLINICAL = {"noise_px": 0.5, "breath_hold_mm": 1.5, "snr": 15.0}
 SERIES = {"SA": "sa", "la_2ch": "la_2ch", "la_3ch": "la_3ch", "la_4ch": "la_4ch"}
 
 
@@ -105,7 +108,8 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
              n_sa: int | None = None, breath_hold_mm: float = 0.0, subject: str | None = None,
              tag_spacing_px: float = 7.0, fov_mm: float = 300.0, matrix: int = 256,
              volume_check: bool = True, anatomy: dict | None = None, snr: float | None = None,
-             tag_depth: float | None = None) -> Phantom:
+             tag_depth: float | None = None, anatomy_model: str = "ideal", infarct: str | None = None,
+             realism: str | None = None) -> Phantom:
     """Generate one phantom subject.
 
     Parameters
@@ -123,6 +127,13 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     anatomy : optional overrides of the solved ED geometry (Anatomy field -> mm), e.g.
         ``{"r_short_endo": 30.0}``; the truth is computed from the overridden shape (the
         preset's target ranges then no longer apply).
+    anatomy_model : ``"ideal"`` (spheroids, the default) or ``"realistic"`` (shape modes, segmental
+        wall thickness, varying RV crescent, saddle mitral annulus, apex off the axis; drawn from
+        the seed, see :mod:`cardionurbs.phantom.shape`).
+    infarct : ``"lad"``, ``"rca"`` or ``"lcx"``: that coronary territory thinner and hypokinetic.
+    realism : ``"clinical"``: the acquisition faults of clinical data at once — 0.5 px contour
+        noise, 1.5 mm breath-hold slice shifts, image SNR 15 (each unless given explicitly);
+        the truth is unchanged.
     """
     _check_args(pathology, seed, frames, noise_px, tag_jumps, breath_hold_mm)
     if snr is not None and not (isinstance(snr, (int, float, np.floating)) and np.isfinite(snr)
@@ -131,11 +142,26 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     if tag_depth is not None and not (isinstance(tag_depth, (int, float, np.floating))
                                       and 0.0 <= tag_depth <= 1.0):
         raise PhantomError(f"tag_depth must be a number in [0, 1], got {tag_depth!r}")
+    if anatomy_model not in ANATOMIES:
+        raise PhantomError(f"unknown anatomy {anatomy_model!r}; expected one of {', '.join(ANATOMIES)}")
+    if infarct is not None and infarct not in TERRITORIES:
+        raise PhantomError(f"unknown infarct territory {infarct!r}; expected one of {', '.join(TERRITORIES)}")
+    if realism not in (None, "clinical"):
+        raise PhantomError(f"unknown realism {realism!r}; expected 'clinical'")
+    if realism == "clinical":
+        noise_px = noise_px or CLINICAL["noise_px"]
+        breath_hold_mm = breath_hold_mm or CLINICAL["breath_hold_mm"]
+        snr = snr if snr is not None else CLINICAL["snr"]
     frames, seed, tag_jumps = int(frames), int(seed), int(tag_jumps)
     preset = load_preset(pathology)
     draw = sample_subject(preset, _rng(seed, pathology, "subject"))
     overrides = anatomy
-    anatomy = solve_anatomy(draw)
+    shape = None
+    if anatomy_model == "realistic":
+        shape = draw_shape(_rng(seed, pathology, "shape"), infarct)
+    elif infarct is not None:
+        shape = infarct_only(infarct)
+    anatomy = solve_anatomy(draw, shape)
     if overrides:
         unknown = sorted(set(overrides) - set(Anatomy.__dataclass_fields__))
         if unknown:
@@ -145,7 +171,7 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
             fields = {**anatomy.to_dict(), **{k: float(v) for k, v in overrides.items()}}
         except (TypeError, ValueError):
             raise PhantomError("anatomy parameters must be numbers (mm)") from None
-        anatomy = Anatomy(**fields).validate()
+        anatomy = Anatomy(**fields, shape=shape).validate()
     acq = Acquisition(rows=matrix, columns=matrix, fov_mm=fov_mm, sa_spacing_mm=sa_spacing_mm,
                       sa_thickness_mm=sa_thickness_mm, n_sa=n_sa)
     if not (np.isfinite(tag_spacing_px) and tag_spacing_px > 0):
@@ -157,7 +183,7 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     f_es = float(phases[es_frame])
     grid = annotate.make_tag_grid(anatomy, tag_spacing_px * acq.pixel_mm)
     motion = _twist_motion(anatomy, draw, curve, specs, grid, f_es)
-    pose = HeartPose.default(anatomy.z_base)
+    pose = HeartPose.default(anatomy.z_base, bend=shape if shape is not None and shape.bends else None)
     hr = float(round(draw.values["heart_rate_bpm"]))   # integer bpm, as DICOM HeartRate (IS)
     rr = 60000.0 / hr
     times = {k: round(k * rr / frames, 3) for k in range(frames)}
@@ -172,6 +198,12 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     # written before they existed keep their UIDs
     if snr is not None:
         config["snr"] = float(snr)
+    if anatomy_model != "ideal":
+        config["anatomy_model"] = anatomy_model
+    if infarct is not None:
+        config["infarct"] = infarct
+    if realism is not None:
+        config["realism"] = realism
     if tag_depth is not None:
         config["tag_depth"] = float(tag_depth)
     uid_base = json.dumps(config, sort_keys=True)
@@ -231,12 +263,16 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
 
     metrics, tag_truth = truth.compute_metrics(anatomy, motion, grid, specs, phases, es_frame, float(hr),
                                                len(jumps))
-    metrics.update(regional.filling_rate_truth(anatomy, motion, frames, es_frame, rr))
-    metrics.update(regional.wall_thickness_truth(anatomy, motion, specs, f_es))
-    strain = regional.strain_truth(anatomy, motion, specs, tag_truth["levels"], f_es)
-    metrics.update(strain["columns"])
-    metrics.update(regional.surface_strain_truth(anatomy, motion, specs, f_es))
-    tag_truth["det_F_es"] = strain["det_F"]
+    if anatomy.realistic:
+        metrics.update(regional.realistic_regional_truth(anatomy, motion, specs, frames, es_frame, rr))
+        tag_truth["det_F_es"] = None
+    else:
+        metrics.update(regional.filling_rate_truth(anatomy, motion, frames, es_frame, rr))
+        metrics.update(regional.wall_thickness_truth(anatomy, motion, specs, f_es))
+        strain = regional.strain_truth(anatomy, motion, specs, tag_truth["levels"], f_es)
+        metrics.update(strain["columns"])
+        metrics.update(regional.surface_strain_truth(anatomy, motion, specs, f_es))
+        tag_truth["det_F_es"] = strain["det_F"]
     fault_record = {"noise_px": float(noise_px), "tag_jumps": jumps,
                     "breath_hold_mm": float(breath_hold_mm),
                     "breath_hold_shifts_mm": ({k: [float(x) for x in v] for k, v in shifts.items()}
@@ -246,7 +282,9 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
           "metrics": metrics, "tags": tag_truth,
           "motion": {**motion.to_dict(), "phase_per_frame": [float(x) for x in phases],
                      "lambda_per_frame": [float(x) for x in motion.lam(phases)]},
-          "anatomy": anatomy.to_dict(), "pose": pose.to_dict(), "draw": draw.values,
+          "anatomy": ({**anatomy.to_dict(), "model": anatomy_model, "shape": anatomy.shape_dict()}
+                      if anatomy.shape is not None else anatomy.to_dict()),
+          "pose": pose.to_dict(), "draw": draw.values,
           "acquisition": dataclasses.asdict(acq), "faults": fault_record,
           "slices": {s.id: ({"height_mm": s.height} if s.view == "SA"
                             else {"azimuth_deg": float(np.degrees(s.azimuth))}) for s in specs}}

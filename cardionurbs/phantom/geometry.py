@@ -40,35 +40,60 @@ def _unit(v) -> np.ndarray:
 
 @dataclass(frozen=True)
 class HeartPose:
-    """Rigid placement of the heart frame in scanner coordinates (LPS, mm)."""
+    """Placement of the heart frame in scanner coordinates (LPS, mm): a rigid map, preceded for a
+    realistic anatomy by the volume-preserving apex bend x ↦ x + d(z) of
+    :mod:`cardionurbs.phantom.shape` (``bend``, with the base height ``z_base`` it tapers to)."""
 
     origin: np.ndarray
     rotation: np.ndarray     # 3x3, columns e_x, e_y, e_z in scanner coordinates
+    bend: object = None      # ShapeModes with an apex shift, or None
+    z_base: float = 0.0
+
+    def _bend(self, p: np.ndarray, sign: float) -> np.ndarray:
+        if self.bend is None or not self.bend.bends:
+            return p
+        q = p.copy()
+        q[:, :2] += sign * self.bend.apex_shift(p[:, 2], self.z_base)
+        return q
+
+    def unbend(self, points: np.ndarray) -> np.ndarray:
+        """Realistic heart-frame positions -> the unbent (motion) frame; identity when ideal."""
+        return self._bend(np.asarray(points, dtype=float).reshape(-1, 3), -1.0)
+
+    def bent(self, points: np.ndarray) -> np.ndarray:
+        """The motion frame -> realistic heart-frame positions (the apex bend); identity when ideal."""
+        return self._bend(np.asarray(points, dtype=float).reshape(-1, 3), 1.0)
+
+    def rigid_to_scanner(self, points: np.ndarray) -> np.ndarray:
+        p = np.asarray(points, dtype=float).reshape(-1, 3)
+        return self.origin + p @ self.rotation.T
 
     @classmethod
     def default(cls, z_base: float, long_axis=(-0.55, 0.42, 0.72), rv_direction=(-0.45, -0.85, 0.05),
-                mitral_center=(4.0, -12.0, 18.0)) -> "HeartPose":
+                mitral_center=(4.0, -12.0, 18.0), bend=None) -> "HeartPose":
         """Realistic oblique pose: long axis right-posterior-superior, RV right-anterior."""
         ez = _unit(long_axis)
         ex = _unit(np.asarray(rv_direction, dtype=float) - np.dot(rv_direction, ez) * ez)
         ey = np.cross(ez, ex)
         rot = np.column_stack([ex, ey, ez])
         origin = np.asarray(mitral_center, dtype=float) - z_base * ez
-        return cls(origin=origin, rotation=rot)
+        return cls(origin=origin, rotation=rot, bend=bend, z_base=float(z_base))
 
     def to_scanner(self, points: np.ndarray) -> np.ndarray:
-        p = np.asarray(points, dtype=float).reshape(-1, 3)
-        return self.origin + p @ self.rotation.T
+        """Motion-frame heart points (as the annotation computes them) -> scanner mm."""
+        return self.rigid_to_scanner(self.bent(points))
 
     def to_heart(self, points: np.ndarray) -> np.ndarray:
+        """Scanner mm -> motion-frame heart points (the bend undone)."""
         p = np.asarray(points, dtype=float).reshape(-1, 3)
-        return (p - self.origin) @ self.rotation
+        return self.unbend((p - self.origin) @ self.rotation)
 
     def direction_to_scanner(self, v: np.ndarray) -> np.ndarray:
         return np.asarray(v, dtype=float) @ self.rotation.T
 
     def to_dict(self) -> dict:
-        return {"origin_mm": [float(v) for v in self.origin],
+        bend = {} if self.bend is None else {"apex_shift_mm": [float(v) for v in self.bend.apex_shift_mm]}
+        return {**bend, "origin_mm": [float(v) for v in self.origin],
                 "axes": {"x_to_rv": [float(v) for v in self.rotation[:, 0]],
                          "y": [float(v) for v in self.rotation[:, 1]],
                          "z_apex_to_base": [float(v) for v in self.rotation[:, 2]]}}
@@ -121,8 +146,9 @@ class Acquisition:
 
 
 def sa_heights(anatomy: Anatomy, acq: Acquisition) -> np.ndarray:
-    """Heights h_k (mm above the apex) of the SA slices, base to apex."""
-    top = anatomy.z_base - acq.sa_first_offset_mm
+    """Heights h_k (mm above the apex) of the SA slices, base to apex (the first one
+    ``sa_first_offset_mm`` below the base plane, or below the lowest point of a saddle annulus)."""
+    top = min(anatomy.z_base - acq.sa_first_offset_mm, anatomy.z_top_min - 2.0)
     if acq.n_sa is not None:
         h = top - acq.sa_spacing_mm * np.arange(acq.n_sa)
     else:
@@ -142,11 +168,21 @@ def slice_specs(anatomy: Anatomy, acq: Acquisition) -> list[SliceSpec]:
     col = np.cross([0.0, 0.0, 1.0], row)
     for k, h in enumerate(sa_heights(anatomy, acq)):
         out.append(SliceSpec(f"sa_{k:02d}", "SA", np.array([12.0, 0.0, h]), row, col, height=float(h)))
+    shape = anatomy.shape
+    apex = np.zeros(3)
+    axis = np.array([0.0, 0.0, 1.0])
+    if shape is not None and shape.bends:
+        # planned as a radiographer would: through the (bent) ED apex and the mitral centre
+        apex = np.r_[shape.apex_shift(0.0, anatomy.z_base)[0], 0.0]
+        axis = np.array([0.0, 0.0, anatomy.z_base]) - apex
+        axis = axis / np.linalg.norm(axis)
     for name in ("la_2ch", "la_3ch", "la_4ch"):
         a = np.radians(LA_VIEWS[name])
         u = np.array([np.cos(a), np.sin(a), 0.0])
-        centre = np.array([0.0, 0.0, 0.55 * anatomy.z_base]) + 10.0 * u
-        out.append(SliceSpec(name, "LA", centre, u, np.array([0.0, 0.0, -1.0]), azimuth=float(a)))
+        u = u - (u @ axis) * axis
+        u = u / np.linalg.norm(u)
+        centre = apex + 0.55 * anatomy.z_base / axis[2] * axis + 10.0 * u
+        out.append(SliceSpec(name, "LA", centre, u, -axis, azimuth=float(a)))
     return out
 
 
@@ -156,7 +192,7 @@ def image_plane(spec: SliceSpec, pose: HeartPose, acq: Acquisition, frame: int, 
     px = acq.pixel_mm
     row = pose.direction_to_scanner(spec.row)
     col = pose.direction_to_scanner(spec.column)
-    centre = pose.to_scanner(spec.center)[0]
+    centre = pose.rigid_to_scanner(spec.center)[0]
     position = centre - 0.5 * (acq.columns - 1) * px * row - 0.5 * (acq.rows - 1) * px * col
     thick = acq.sa_thickness_mm if spec.view == "SA" else acq.la_thickness_mm
     return ImagePlane(id=image_id, slice=spec.id, view=spec.view, frame=frame, position=position,

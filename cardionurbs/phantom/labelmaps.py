@@ -41,12 +41,11 @@ from cardionurbs.errors import PhantomError
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import atomic
 from cardionurbs.io.labels import PRESETS
-from cardionurbs.phantom.dicom import BLOOD, BODY, LUNG, MYO, pixel_heart_points
+from cardionurbs.phantom.dicom import ATRIUM_MM, BLOOD, BODY, LUNG, MYO, pixel_heart_points, tissue_masks
 
 #: tissue codes of :func:`tissue_codes`
 BG, LV, MYO_LV, RV, MYO_RV, LA, RA = range(7)
 LAYOUT_PRESETS = ("acdc", "ukbb", "mnms")
-ATRIUM_MM = 30.0
 LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
@@ -54,20 +53,14 @@ def tissue_codes(phantom, hp: np.ndarray, f: float) -> np.ndarray:
     """Tissue code (BG, LV, MYO_LV, RV, MYO_RV, LA, RA) of heart-frame points at phase f."""
     an, mo = phantom.anatomy, phantom.motion
     s, th, z, s1, s2, s3 = mo.inverse_cylindrical(an, hp, f)
-    s4 = np.maximum(s3, an.s_rv(th, z, epi=True))
-    heart = (z >= 0) & (z <= an.z_base)
+    tm = tissue_masks(an, s, th, z, s1, s2, s3)
     code = np.full(len(z), BG, dtype=np.uint8)
-    code[heart & (s >= s3) & (s <= s4) & (s4 > s2)] = MYO_RV
-    code[heart & (s > s2) & (s < s3)] = RV
-    code[heart & (s >= s1) & (s <= s2)] = MYO_LV
-    code[heart & (s < s1)] = LV
-    u = (z - an.z_base) / ATRIUM_MM
-    cap = np.clip(1.0 - u * u, 0.0, None)
-    zb = np.full(len(z), an.z_base)
-    above = u > 0
-    code[above & (s < float(an.s_lv_endo(an.z_base)) * cap)] = LA
-    s2b, s3b = float(an.s_lv_epi(an.z_base)), an.s_rv(th, zb) * cap
-    code[above & (s > s2b) & (s < s3b)] = RA
+    code[tm["rv_myo"]] = MYO_RV
+    code[tm["rv_cav"]] = RV
+    code[tm["lv_myo"]] = MYO_LV
+    code[tm["lv_cav"]] = LV
+    code[tm["la"]] = LA
+    code[tm["ra"] & ~tm["la"]] = RA
     return code
 
 

@@ -133,9 +133,16 @@ class Motion:
         a, b = np.radians(self.apex_rotation_deg), np.radians(self.base_rotation_deg)
         return np.asarray(f, dtype=float) * (a + (b - a) * np.asarray(z, dtype=float) / self.z_base)
 
-    def kappa_lv(self, theta, f) -> np.ndarray:
+    def kappa_lv(self, theta, f, z=None, anatomy: Anatomy | None = None) -> np.ndarray:
+        """κ_L(θ, f); with an infarcted realistic anatomy the ejection term is reduced by the
+        hypokinesis inside the territory: 1 − EF f (1 − η w_i(θ, z/z_b))."""
         f = np.asarray(f, dtype=float)
-        return (1.0 - self.lv_ef * f) * (1.0 - self.septal_flattening * f * np.cos(2.0 * np.asarray(theta)))
+        eject = self.lv_ef * f
+        shape = anatomy.shape if anatomy is not None else None
+        if shape is not None and shape.infarct is not None and z is not None:
+            w = shape.infarct_weight(theta, np.asarray(z, dtype=float) / anatomy.z_base)
+            eject = eject * (1.0 - shape.infarct_hypokinesis * w)
+        return (1.0 - eject) * (1.0 - self.septal_flattening * f * np.cos(2.0 * np.asarray(theta)))
 
     def kappa_rv(self, f) -> np.ndarray:
         return 1.0 - self.rv_ef * np.asarray(f, dtype=float)
@@ -145,9 +152,9 @@ class Motion:
         """s' = G(s; θ, z) of eq. (M3) for material (s, θ, z) at phase f."""
         s, theta, z = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (s, theta, z)))
         lam = self.lam(f)
-        s1, s2 = anatomy.s_lv_endo(z), anatomy.s_lv_epi(z)
+        s1, s2 = anatomy.lv_sections(z, theta)
         s3 = np.maximum(s2, anatomy.s_rv(theta, z))
-        kl, kr = self.kappa_lv(theta, f), self.kappa_rv(f)
+        kl, kr = self.kappa_lv(theta, f, z, anatomy), self.kappa_rv(f)
         b1 = kl * s1
         b2 = b1 + (s2 - s1)
         b3 = b2 + kr * (s3 - s2)
@@ -159,9 +166,9 @@ class Motion:
     def _inverse_layers(self, anatomy: Anatomy, s_def, theta, z, f):
         """Material s from deformed s' at material (θ, z) (inverse of eq. M3), with S1, S2, S3."""
         lam = self.lam(f)
-        s1, s2 = anatomy.s_lv_endo(z), anatomy.s_lv_epi(z)
+        s1, s2 = anatomy.lv_sections(z, theta)
         s3 = np.maximum(s2, anatomy.s_rv(theta, z))
-        kl, kr = self.kappa_lv(theta, f), self.kappa_rv(f)
+        kl, kr = self.kappa_lv(theta, f, z, anatomy), self.kappa_rv(f)
         u = s_def * lam
         b1 = kl * s1
         b2 = b1 + (s2 - s1)

@@ -285,3 +285,71 @@ def surface_strain_truth(anatomy: Anatomy, motion: Motion, specs, f_es: float) -
         l0, l1 = _polyline_length(c0, True), _polyline_length(c1, True)
         gcs = 100.0 * (l1 - l0) / l0
     return {"GLS surface (%)": float(np.mean(gls)) if gls else NAN, "GCS surface (%)": gcs}
+
+
+# ----------------------------------------------------------------- realistic anatomy
+def realistic_regional_truth(anatomy: Anatomy, motion: Motion, specs, n_frames: int, es_frame: int,
+                             rr_ms: float) -> dict[str, float]:
+    """Regional truth of a realistic anatomy (:mod:`cardionurbs.phantom.shape`).
+
+    Filling rates come from the method-A volume curve V(f) (quadratic in the phase f,
+    :func:`cardionurbs.phantom.truth_realistic.volume_curve`): dV/dt = V'(f) f'(τ) / RR over the
+    same windows as :func:`filling_rate_truth`. Surface GLS and GCS are measured as for the ideal
+    anatomy on the analytic contours, the LA ones taken back to the bent heart. Segmental wall
+    thickness and tag strain have no realistic truth yet: their columns are NaN (absent from
+    truth.json), so nothing is compared against a truth that was not computed.
+    """
+    from cardionurbs.phantom import annotate
+    from cardionurbs.phantom.truth_realistic import volume_curve
+
+    kinds = ("Ecc", "Ell", "Err")
+    out = {f"{k}_{s} (%)": NAN for k in kinds for s in [*(f"AHA_{j}" for j in SEGMENTS), "Global"]}
+    out.update({f"WT_AHA_{k} (mm)": NAN for k in SEGMENTS})
+    out["WT_Global (mm)"] = NAN
+    out.update({f"WT_ES_AHA_{k} (mm)": NAN for k in SEGMENTS})
+    out["WT_ES_Global (mm)"] = NAN
+    out.update({f"Thickening_AHA_{k} (%)": NAN for k in SEGMENTS})
+    out["Thickening_Global (%)"] = NAN
+    if n_frames < MIN_FRAMES:
+        out.update({c: NAN for c in RATE_COLUMNS})
+    else:
+        f_es = float(motion.curve(es_frame / n_frames))
+        vol = volume_curve(anatomy, motion, f_es)
+        v0, v1 = vol(0.0)["lv_cavity"], vol(1e-4)["lv_cavity"]
+        e = es_frame / n_frames
+        windows = {"PER (mL/s)": (0.0, e), "PEFR (mL/s)": (e, e + 2 * (1 - e) / 3),
+                   "PAFR (mL/s)": (e + 2 * (1 - e) / 3, 1.0)}
+        ts, _ = motion.curve.knots()
+        for col, (a, b) in windows.items():
+            tau = np.unique(np.r_[np.linspace(a, b, 20001), ts[(ts >= a) & (ts <= b)]])
+            tau = np.clip(tau, 0.0, 1.0 - 1e-12)
+            f = motion.curve(tau)
+            h = 1e-4
+            dvdf = np.array([(vol(x + h)["lv_cavity"] - vol(x - h)["lv_cavity"]) / (2 * h) for x in (0.0, 1.0)])
+            slope = dvdf[0] + (dvdf[1] - dvdf[0]) * f            # V'(f) is linear in f (V quadratic)
+            dvdt = slope * motion.curve.derivative(tau) / rr_ms * 1000.0      # mL/s
+            out[col] = float(np.max(-dvdt if col == "PER (mL/s)" else dvdt))
+        out["E/A ratio"] = out["PEFR (mL/s)"] / out["PAFR (mL/s)"]
+        del v0, v1
+    gls = []
+    for s in specs:
+        if s.view != "LA":
+            continue
+        c0 = annotate.la_contours(anatomy, motion, s, 0.0, n_side=600).get("lv_endo")
+        c1 = annotate.la_contours(anatomy, motion, s, float(motion.curve(es_frame / n_frames)),
+                                  n_side=600).get("lv_endo")
+        if c0 is not None and c1 is not None:
+            l0 = _polyline_length(annotate.bend(anatomy, c0), False)
+            l1 = _polyline_length(annotate.bend(anatomy, c1), False)
+            gls.append(100.0 * (l1 - l0) / l0)
+    sa = [s for s in specs if s.view == "SA"]
+    mid = min(sa, key=lambda s: abs(s.height - 0.5 * anatomy.z_base))
+    f_es = float(motion.curve(es_frame / n_frames))
+    c0 = annotate.sa_contours(anatomy, motion, mid, 0.0, n_lv=2880).get("lv_endo")
+    c1 = annotate.sa_contours(anatomy, motion, mid, f_es, n_lv=2880).get("lv_endo")
+    gcs = NAN
+    if c0 is not None and c1 is not None:
+        l0, l1 = _polyline_length(c0, True), _polyline_length(c1, True)
+        gcs = 100.0 * (l1 - l0) / l0
+    out.update({"GLS surface (%)": float(np.mean(gls)) if gls else NAN, "GCS surface (%)": gcs})
+    return out

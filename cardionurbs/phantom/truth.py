@@ -135,8 +135,9 @@ def analytic_volumes(anatomy: Anatomy, motion: Motion, f: float) -> dict[str, fl
 def sa_plane_cuts_wall(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float) -> bool:
     """True where an SA plane shows LV myocardium (and hence tag lines) at phase f."""
     z = annotate.sa_material_height(motion, spec, f)
-    return bool(0.0 < z <= anatomy.z_base - annotate.BASE_MARGIN_MM
-                and float(anatomy.s_lv_epi(z)) >= annotate.MIN_RADIUS_MM ** 2)
+    th = np.linspace(0.0, 2 * np.pi, 64, endpoint=False)
+    return bool(0.0 < z <= anatomy.z_top_min - annotate.BASE_MARGIN_MM
+                and float(np.mean(anatomy.s_lv_epi(z, th))) >= annotate.MIN_RADIUS_MM ** 2)
 
 
 def tagged_sa_slices(anatomy: Anatomy, motion: Motion, specs: list[SliceSpec], f_es: float) -> list[SliceSpec]:
@@ -155,11 +156,15 @@ def tag_levels(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, specs: 
     h_bas, h_ap = max(s.height for s in tagged), min(s.height for s in tagged)
     lam = float(motion.lam(f_es))
     levels = []
-    for j, zj in enumerate(grid.la_positions(anatomy.z_base - annotate.BASE_MARGIN_MM)):
+    th = np.linspace(0.0, 2 * np.pi, 360, endpoint=False)
+    for j, zj in enumerate(grid.la_positions(anatomy.z_top_min - annotate.BASE_MARGIN_MM)):
         if h_ap < zj < h_bas and h_ap < lam * zj < h_bas:
+            # the mean epicardial radius of the level (sqrt of the mean squared radius = the
+            # radius of the circle of the same area; exact for the ideal circular sections)
             levels.append({"index": j, "distance_from_apex_mm": float(zj),
                            "rotation_deg": float(np.degrees(motion.psi(zj, f_es))),
-                           "epi_radius_mm": float(np.sqrt(anatomy.s_lv_epi(zj))), "in_twist": False})
+                           "epi_radius_mm": float(np.sqrt(np.mean(anatomy.s_lv_epi(zj, th)))),
+                           "in_twist": False})
     if levels:
         levels[0]["in_twist"] = levels[-1]["in_twist"] = True
     return levels
@@ -191,18 +196,25 @@ def slice_rotation_deg(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid,
     n1, n2 = grid.sa_normal("sa1"), grid.sa_normal("sa2")
     c = grid.sa_positions()
     ci, cj = np.meshgrid(c, c, indexing="ij")
-    s = (ci * ci + cj * cj).ravel()
-    keep = np.ones_like(s, dtype=bool)
-    zs = {}
+    keep = np.ones(ci.size, dtype=bool)
+    zs, xys = {}, {}
     for f in (0.0, f_es):
         z = annotate.sa_material_height(motion, spec, f)
-        keep &= (s >= anatomy.s_lv_endo(z)) & (s <= anatomy.s_lv_epi(z))
-        zs[f] = z
+        # crossings of the ED tag planes in the material section z (shifted by the apex bend)
+        d = (anatomy.shape.apex_shift(z, anatomy.z_base)[0]
+             if anatomy.shape is not None and anatomy.shape.bends else np.zeros(2))
+        xy = ci.ravel()[:, None] * n1[None, :2] + cj.ravel()[:, None] * n2[None, :2] - d[None, :]
+        s, th = (xy ** 2).sum(axis=1), np.arctan2(xy[:, 1], xy[:, 0])
+        if anatomy.shape is None:
+            keep &= (s >= anatomy.s_lv_endo(z)) & (s <= anatomy.s_lv_epi(z))
+        else:
+            keep &= (s >= anatomy.s_lv_endo(z, th)) & (s <= anatomy.s_lv_epi(z, th))
+        zs[f], xys[f] = z, xy
     if not keep.any():
         return float("nan")
-    xy = ci.ravel()[keep, None] * n1[None, :2] + cj.ravel()[keep, None] * n2[None, :2]
     ang = {}
     for f in (0.0, f_es):
+        xy = xys[f][keep]
         mat = np.column_stack([xy, np.full(len(xy), zs[f])])
         p = motion.forward(anatomy, mat, f)[:, :2] - _lv_centroid(anatomy, motion, spec, f)
         ang[f] = np.arctan2(p[:, 1], p[:, 0])
@@ -250,7 +262,11 @@ def compute_metrics(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, sp
                     phases: np.ndarray, es_frame: int, heart_rate: float, n_tag_jumps: int) -> tuple[dict, dict]:
     """docs/metrics.md columns (method A) and the tag-level truth."""
     f_es = float(phases[es_frame])
-    ed, es = analytic_volumes(anatomy, motion, float(phases[0])), analytic_volumes(anatomy, motion, f_es)
+    if anatomy.realistic:
+        from cardionurbs.phantom.truth_realistic import section_volumes
+        ed, es = section_volumes(anatomy, motion, float(phases[0])), section_volumes(anatomy, motion, f_es)
+    else:
+        ed, es = analytic_volumes(anatomy, motion, float(phases[0])), analytic_volumes(anatomy, motion, f_es)
     m: dict[str, float] = {"HR (bpm)": heart_rate}
     m["LVEDV (mL)"], m["LVESV (mL)"] = ed["lv_cavity"], es["lv_cavity"]
     m["LVSV (mL)"] = m["LVEDV (mL)"] - m["LVESV (mL)"]
@@ -283,7 +299,27 @@ def compute_metrics(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, sp
 
 def volume_table(anatomy: Anatomy, motion: Motion, phases: np.ndarray, mesh_frames: list[int],
                  **mesh_kw) -> dict:
-    """Per-frame method-A volumes and method-B mesh volumes on ``mesh_frames`` with relative gaps."""
+    """Per-frame method-A volumes and method-B mesh volumes on ``mesh_frames`` with relative gaps.
+
+    A realistic anatomy has no closed form: method A (:func:`truth_realistic.section_volumes`)
+    runs on the mesh frames, and the other frames take the quadratic in the phase f through
+    method A at f = 0, f_max / 2 and f_max (:func:`truth_realistic.volume_curve`)."""
+    if anatomy.realistic:
+        from cardionurbs.phantom import truth_realistic as trr
+        curve = trr.volume_curve(anatomy, motion, float(np.max(phases)))
+        per_frame = [curve(float(f)) for f in phases]
+        check, worst = {}, 0.0
+        for k in mesh_frames:
+            a = trr.section_volumes(anatomy, motion, float(phases[k]))
+            b = trr.mesh_volumes(anatomy, motion, float(phases[k]))
+            per_frame[k] = a
+            rel = {key: abs(b[key] - a[key]) / a[key] for key in a}
+            worst = max(worst, max(rel.values()))
+            check[str(k)] = {"mesh_mL": b, "relative_difference": rel}
+        return {"analytic_mL": {str(k): v for k, v in enumerate(per_frame)}, "mesh_check": check,
+                "max_relative_difference": worst, "method_a": "sections (truth_realistic)",
+                "lv_myocardium_material_mL": {k: v["mesh_mL"]["lv_myocardium_material"]
+                                              for k, v in check.items()}}
     per_frame = [analytic_volumes(anatomy, motion, float(f)) for f in phases]
     check = {}
     worst = 0.0

@@ -1,0 +1,303 @@
+"""Ground-truth volumes of a realistic phantom by two independent numerical methods.
+
+A realistic anatomy (:mod:`cardionurbs.phantom.shape`) has no closed-form
+volumes once its mitral annulus is a saddle and the cavity is closed, as
+docs/metrics.md defines it, at the best-fit plane of the annulus points. The
+truth is therefore computed twice, by methods that share nothing but the
+analytic model:
+
+* **A — sections.** The heart is cut by planes z' = const of the deformed
+  (and bent) heart every ``dz`` mm. Each cut of a cavity or wall is an explicit
+  polar curve (the section functions S(θ, z) pushed through the radial map of
+  the motion, eq. M3), clipped by the valve half-plane; its area by the shoelace
+  formula is integrated over z' by the trapezoid rule.
+* **B — closed meshes.** Each region is sampled as a closed triangle mesh in
+  material coordinates (a (μ, θ) grid of the LV surfaces with a cap above the
+  annulus; rings of the RV crescent), every vertex mapped forward by the motion
+  and the apex bend, made a manifold3d solid, trimmed by the same valve plane,
+  and its volume taken.
+
+The valve planes come from the annulus landmarks the study carries (least
+squares; :func:`cardionurbs.geometry.fit_plane`). The material myocardium (LV
+wall up to the saddle annulus, RV free wall) is also meshed at every requested
+phase: its volume must not change, which checks that the motion is
+incompressible.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import manifold3d
+import numpy as np
+
+from cardionurbs.geometry import fit_plane
+from cardionurbs.phantom import annotate
+from cardionurbs.phantom.anatomy import Anatomy
+from cardionurbs.phantom.motion import Motion
+
+
+def valve_planes(anatomy: Anatomy, motion: Motion, f: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """(centroid, unit normal toward the base) of the mitral and tricuspid annulus points at
+    phase f, realistic heart frame (mm)."""
+    lm = annotate.landmarks(anatomy, motion, f)
+    out = {}
+    for key in ("mitral", "tricuspid"):
+        c, n = fit_plane(annotate.bend(anatomy, lm[key]))
+        out[key] = (c, n if n[2] > 0 else -n)
+    return out
+
+
+def clipped_areas(poly: np.ndarray, zp: np.ndarray, plane: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """Areas (mm²) of the parts of closed polygons (L, n, 2), each in its level z' = zp[l], below a
+    plane, all levels at once.
+
+    Shoelace over the clipped boundary: each edge contributes its inside part, P × Q; the closing
+    segments run along the cut line X = o + t u, where P × Q = (o × u)(t_Q − t_P) is linear in t,
+    so together they contribute (o × u)(Σ t_entry − Σ t_exit) whatever their pairing.
+    """
+    c, n = plane
+    nxy = n[:2]
+    if float(nxy @ nxy) < 1e-20:                                  # a horizontal plane: cut or not
+        full = 0.5 * np.abs((poly[..., 0] * np.roll(poly[..., 1], -1, axis=1)
+                             - poly[..., 1] * np.roll(poly[..., 0], -1, axis=1)).sum(axis=1))
+        return np.where(zp <= c[2], full, 0.0)
+    k = float(c @ n) - n[2] * zp                                   # n_xy · X = k on the cut line
+    d = poly @ nxy - k[:, None]                                   # > 0 above the plane
+    P, Q = poly, np.roll(poly, -1, axis=1)
+    dP, dQ = d, np.roll(d, -1, axis=1)
+    inP, inQ = dP <= 0, dQ <= 0
+    denom = np.where(dP != dQ, dP - dQ, 1.0)
+    X = P + (dP / denom)[..., None] * (Q - P)
+
+    def cross(a, b):
+        return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+    contrib = np.where(inP & inQ, cross(P, Q), 0.0)
+    contrib += np.where(inP & ~inQ, cross(P, X), 0.0)
+    contrib += np.where(~inP & inQ, cross(X, Q), 0.0)
+    nn = float(nxy @ nxy)
+    u = np.array([-nxy[1], nxy[0]]) / np.sqrt(nn)
+    o = k[:, None] * nxy[None, :] / nn
+    t = (X - o[:, None, :]) @ u
+    closing = (np.where(~inP & inQ, t, 0.0) - np.where(inP & ~inQ, t, 0.0)).sum(axis=1)
+    o_cross_u = o[:, 0] * u[1] - o[:, 1] * u[0]
+    return 0.5 * np.abs(contrib.sum(axis=1) + o_cross_u * closing)
+
+
+def _sections(anatomy: Anatomy, motion: Motion, f: float, zp: np.ndarray, region: str, n: int) -> np.ndarray:
+    """Polygons (L, m, 2) of one region's cuts by the deformed levels z' (realistic frame); a
+    level without the region gives a degenerate polygon of zero area."""
+    lam = float(motion.lam(f))
+    z = zp / lam
+    psi = motion.psi(z, f)[:, None]
+    shift = (anatomy.shape.apex_shift(zp, anatomy.z_base) if anatomy.shape.bends
+             else np.zeros((len(zp), 2)))
+    zz = z[:, None]
+    if region in ("lv_endo", "lv_epi"):
+        th = np.broadcast_to(np.linspace(0.0, 2 * np.pi, n, endpoint=False)[None, :], (len(z), n))
+        s = anatomy.s_lv_endo(zz, th) if region == "lv_endo" else anatomy.s_lv_epi(zz, th)
+        s = np.maximum(s, 0.0)
+    else:
+        epi = region == "rv_epi"
+        lo, hi = anatomy.rv_sector(np.minimum(z, anatomy.z_base), epi)
+        lo, hi = np.where(z <= anatomy.z_base, lo, 0.0), np.where(z <= anatomy.z_base, hi, 0.0)
+        v = np.linspace(0.0, 1.0, n)
+        tf = lo[:, None] + (hi - lo)[:, None] * v[None, :]
+        ts = lo[:, None] + (hi - lo)[:, None] * np.linspace(1.0, 0.0, n // 2 + 2)[None, 1:-1]
+        th = np.concatenate([tf, ts], axis=1)
+        s = np.concatenate([anatomy.s_rv(tf, np.broadcast_to(zz, tf.shape), epi),
+                            anatomy.s_lv_epi(np.broadcast_to(zz, ts.shape), ts)], axis=1)
+        s = np.where((hi > lo)[:, None], np.maximum(s, 0.0), 0.0)
+    sp = motion.radial_map(anatomy, s, th, np.broadcast_to(zz, th.shape), f)
+    r = np.sqrt(np.maximum(sp, 0.0))
+    return np.stack([r * np.cos(th - psi), r * np.sin(th - psi)], axis=-1) + shift[:, None, :]
+
+
+def _levels(top: float, planes, reach: float, dz: float, dz_fine: float) -> np.ndarray:
+    """Integration levels: every dz mm, and every dz_fine mm where a valve plane crosses the heart
+    (the section area changes fast, or jumps, there)."""
+    parts = [np.arange(0.0, top + dz, dz)]
+    for c, n in planes:
+        tilt = np.hypot(n[0], n[1]) / abs(n[2])
+        lo, hi = c[2] - tilt * reach - 0.5, c[2] + tilt * reach + 0.5
+        parts.append(np.arange(lo, hi, dz_fine))
+    return np.unique(np.concatenate(parts))
+
+
+def section_volumes(anatomy: Anatomy, motion: Motion, f: float, dz: float = 0.25, dz_fine: float = 0.02,
+                    n: int = 360) -> dict[str, float]:
+    """Method A: LV cavity, LV myocardium, RV cavity, RV myocardium (mL) at phase f."""
+    return dict(_section_volumes(anatomy, motion, float(f), dz, dz_fine, n))
+
+
+@functools.lru_cache(maxsize=16)
+def _section_volumes(anatomy: Anatomy, motion: Motion, f: float, dz: float, dz_fine: float,
+                     n: int) -> dict[str, float]:
+    planes = valve_planes(anatomy, motion, f)
+    lam = float(motion.lam(f))
+    top = lam * (anatomy.z_base + anatomy.shape.saddle_mm) + 8.0
+    reach = 1.5 * max(anatomy.r_short_epi, anatomy.r_free_endo + anatomy.rv_wall) + 10.0
+    vol = {}
+    for key in ("lv_endo", "lv_epi", "rv_endo", "rv_epi"):
+        plane = planes["mitral" if key.startswith("lv") else "tricuspid"]
+        zs = _levels(top, [plane], reach, dz, dz_fine)
+        zs = zs[(zs > 0) & (zs < top)]
+        area = clipped_areas(_sections(anatomy, motion, f, zs, key, n), zs, plane)
+        vol[key] = float(np.trapezoid(area, zs)) / 1000.0
+    return {"lv_cavity": vol["lv_endo"], "lv_myocardium": vol["lv_epi"] - vol["lv_endo"],
+            "rv_cavity": vol["rv_endo"], "rv_myocardium": vol["rv_epi"] - vol["rv_endo"]}
+
+
+# ----------------------------------------------------------------- method B: meshes
+def _grid_faces(n_rows: int, n_cols: int, offset: int = 0) -> np.ndarray:
+    """Quads of a (n_rows, n_cols) vertex grid, periodic in the columns, as triangles."""
+    i, j = np.meshgrid(np.arange(n_rows - 1), np.arange(n_cols), indexing="ij")
+    a = i * n_cols + j
+    b = i * n_cols + (j + 1) % n_cols
+    c = (i + 1) * n_cols + (j + 1) % n_cols
+    d = (i + 1) * n_cols + j
+    return offset + np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3),
+                                    np.stack([a, c, d], -1).reshape(-1, 3)])
+
+
+def _closed_tube(rings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closed mesh from (m, n, 3) rings: the first row collapsed to a pole, the last capped by a fan
+    about its centroid."""
+    m, n, _ = rings.shape
+    body = rings[1:].reshape(-1, 3)
+    pole = rings[0].mean(axis=0)
+    cap = rings[-1].mean(axis=0)
+    v = np.vstack([body, pole, cap])
+    ip, ic = len(body), len(body) + 1
+    f = [_grid_faces(m - 1, n)]
+    j = np.arange(n)
+    f.append(np.column_stack([np.full(n, ip), (j + 1) % n, j]))
+    last = (m - 2) * n
+    f.append(np.column_stack([np.full(n, ic), last + j, last + (j + 1) % n]))
+    faces = np.concatenate(f)
+    # orient outward
+    t = v[faces]
+    if np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() < 0:
+        faces = faces[:, ::-1]
+    return v, faces
+
+
+def _closed_sphere(rings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closed mesh from (m, n, 3) rings whose first and last rows are each collapsed to a pole."""
+    m, n, _ = rings.shape
+    body = rings[1:-1].reshape(-1, 3)
+    v = np.vstack([body, rings[0].mean(axis=0), rings[-1].mean(axis=0)])
+    i0, i1 = len(body), len(body) + 1
+    j = np.arange(n)
+    last = (m - 3) * n
+    faces = np.concatenate([_grid_faces(m - 2, n),
+                            np.column_stack([np.full(n, i0), (j + 1) % n, j]),
+                            np.column_stack([np.full(n, i1), last + j, last + (j + 1) % n])])
+    t = v[faces]
+    if np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() < 0:
+        faces = faces[:, ::-1]
+    return v, faces
+
+
+def myocardium_rings(anatomy: Anatomy, n_mu: int, n_theta: int, n_strip: int = 8) -> np.ndarray:
+    """Material rings of the closed LV myocardium: the epicardium from its apex up to the saddle
+    annulus, the annulus strip from epicardium to endocardium, the endocardium back down to its
+    apex."""
+    th = np.linspace(0.0, 2 * np.pi, n_theta, endpoint=False)
+    zt = anatomy.z_top(th)
+    epi = _lv_rings(anatomy, "lv_epi", zt, n_mu, n_theta)
+    endo = _lv_rings(anatomy, "lv_endo", zt, n_mu, n_theta)
+    r2 = np.sqrt(anatomy.s_lv_epi(zt, th))
+    r1 = np.sqrt(anatomy.s_lv_endo(zt, th))
+    a = np.linspace(0.0, 1.0, n_strip + 2)[1:-1, None]
+    r = r2[None, :] + a * (r1 - r2)[None, :]
+    strip = np.stack([r * np.cos(th), r * np.sin(th), np.broadcast_to(zt, r.shape)], axis=-1)
+    return np.concatenate([epi, strip, endo[::-1]], axis=0)
+
+
+def _volume(v: np.ndarray, faces: np.ndarray, plane=None) -> float:
+    """Volume (mL) of a closed, outward mesh: the divergence theorem, or manifold3d's solid trimmed
+    to the apical side of ``plane`` when one is given."""
+    if plane is None:
+        tri = v[faces]
+        return float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()) / 6000.0
+    mesh = manifold3d.Mesh64(vert_properties=np.ascontiguousarray(v, dtype=np.float64),
+                             tri_verts=np.ascontiguousarray(faces, dtype=np.uint64))
+    m = manifold3d.Manifold(mesh)
+    if m.status() != manifold3d.Error.NoError:
+        raise RuntimeError(f"phantom truth mesh is not a closed manifold ({m.status().name})")
+    if plane is not None:
+        c, n = plane
+        m = m.trim_by_plane(-n, float(-(c @ n)))
+    return float(m.volume()) / 1000.0
+
+
+def _lv_rings(anatomy: Anatomy, which: str, z_cap, n_mu: int, n_theta: int) -> np.ndarray:
+    """Material (μ, θ) vertex rings of an LV surface from its apex up to height z_cap(θ)."""
+    endo = which == "lv_endo"
+    c = anatomy.r_long_endo if endo else anatomy.r_long_epi
+    zc = anatomy.z_center
+    th = np.linspace(0.0, 2 * np.pi, n_theta, endpoint=False)
+    zcap = np.broadcast_to(np.asarray(z_cap, dtype=float), th.shape)
+    mu_cap = np.arccos(np.clip(-(zcap - zc) / c, -1.0, 1.0))
+    t = np.linspace(0.0, 1.0, n_mu + 1)[:, None]
+    mu = t * mu_cap[None, :]
+    z = zc - c * np.cos(mu)
+    T = np.broadcast_to(th[None, :], z.shape)
+    s = anatomy.s_lv_endo(z, T) if endo else anatomy.s_lv_epi(z, T)
+    r = np.sqrt(np.maximum(s, 0.0))
+    return np.stack([r * np.cos(T), r * np.sin(T), z], axis=-1)
+
+
+def _rv_rings(anatomy: Anatomy, epi: bool, n_z: int, n_v: int) -> np.ndarray:
+    """Material rings of the RV crescent (free wall lo → hi, back along the septum), onset → base."""
+    z0 = anatomy.rv_onset(epi)
+    u = np.linspace(0.0, 1.0, n_z + 1)
+    z = np.minimum(z0 + (anatomy.z_base - z0) * u * u, anatomy.z_base)   # no rounding past the base
+    lo, hi = anatomy.rv_sector(z, epi)
+    v = np.linspace(0.0, 1.0, n_v + 1)
+    th_free = lo[:, None] + (hi - lo)[:, None] * v[None, :]
+    th_sept = lo[:, None] + (hi - lo)[:, None] * v[::-1][None, 1:-1]
+    zz_f = np.broadcast_to(z[:, None], th_free.shape)
+    zz_s = np.broadcast_to(z[:, None], th_sept.shape)
+    s = np.concatenate([anatomy.s_rv(th_free, zz_f, epi), anatomy.s_lv_epi(zz_s, th_sept)], axis=1)
+    th = np.concatenate([th_free, th_sept], axis=1)
+    r = np.sqrt(np.maximum(s, 0.0))
+    zc = np.broadcast_to(z[:, None], th.shape)
+    return np.stack([r * np.cos(th), r * np.sin(th), zc], axis=-1)
+
+
+def _moved(anatomy: Anatomy, motion: Motion, rings: np.ndarray, f: float) -> np.ndarray:
+    p = motion.forward(anatomy, rings.reshape(-1, 3), f)
+    return annotate.bend(anatomy, p).reshape(rings.shape)
+
+
+def mesh_volumes(anatomy: Anatomy, motion: Motion, f: float, n_mu: int = 120, n_theta: int = 240,
+                 n_z_rv: int = 120, n_v_rv: int = 120) -> dict[str, float]:
+    """Method B: the same four volumes (mL) from closed meshes trimmed by the valve planes, and the
+    material myocardial volumes (LV wall up to the saddle annulus, RV free wall)."""
+    planes = valve_planes(anatomy, motion, f)
+    cap = anatomy.z_base + anatomy.shape.saddle_mm + 6.0
+    vols = {}
+    for key in ("lv_endo", "lv_epi"):
+        rings = _moved(anatomy, motion, _lv_rings(anatomy, key, cap, n_mu, n_theta), f)
+        vols[key] = _volume(*_closed_tube(rings), plane=planes["mitral"])
+    myo = _moved(anatomy, motion, myocardium_rings(anatomy, n_mu, n_theta), f)
+    vols["lv_myocardium_material"] = _volume(*_closed_sphere(myo))
+    for key, epi in (("rv_endo", False), ("rv_epi", True)):
+        rings = _moved(anatomy, motion, _rv_rings(anatomy, epi, n_z_rv, n_v_rv), f)
+        vols[key] = _volume(*_closed_tube(rings))
+    return {"lv_cavity": vols["lv_endo"], "lv_myocardium": vols["lv_epi"] - vols["lv_endo"],
+            "rv_cavity": vols["rv_endo"], "rv_myocardium": vols["rv_epi"] - vols["rv_endo"],
+            "lv_myocardium_material": vols["lv_myocardium_material"]}
+
+
+def volume_curve(anatomy: Anatomy, motion: Motion, f_max: float):
+    """V(f) for every phase: method A at f = 0, f_max / 2 and f_max and the quadratic in f through
+    them, per volume (the cavity scalings κ of the motion are quadratic in f; the valve planes
+    move smoothly), as a callable f -> dict of mL."""
+    fs = np.array([0.0, 0.5 * f_max, f_max])
+    vals = [section_volumes(anatomy, motion, float(f)) for f in fs]
+    coef = {k: np.polyfit(fs, [v[k] for v in vals], 2) for k in vals[0]}
+    return lambda f: {k: float(np.polyval(c, f)) for k, c in coef.items()}
