@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 from cardionurbs.phantom.anatomy import Anatomy
 from cardionurbs.phantom.geometry import SliceSpec
@@ -161,22 +162,46 @@ def bend(anatomy: Anatomy, points: np.ndarray) -> np.ndarray:
     return p
 
 
+def spheroid_s_unclamped(z, r_short: float, r_long: float, z_center: float) -> np.ndarray:
+    """a² (1 − ((z − z_c)/c)²): the spheroid's squared section radius, negative beyond its poles."""
+    u = (np.asarray(z, dtype=float) - z_center) / r_long
+    return r_short * r_short * (1.0 - u * u)
+
+
 def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: float) -> dict[str, np.ndarray]:
-    """Material coordinates of realistic heart-frame points at phase f and the signed region
-    functions (negative inside, material mm) of the four contoured regions: LV cavity, LV
-    epicardium, RV cavity and RV epicardium, each with its top (annulus) term kept apart so
-    that contour points on the valve closure can be told from points on the wall."""
+    """Signed region functions (negative inside) of realistic heart-frame points at phase f for
+    the four contoured regions — LV cavity, LV epicardium, RV cavity, RV epicardium — each as
+    a tuple of terms (inside where all are negative): the wall terms (the RV has two, free wall
+    and septum), then the top (valve closure) term, so that contour points on the closure can be
+    told from points on the wall and the corners between the parts found.
+
+    The wall terms compare the point's deformed squared radius s' with the deformed boundary's,
+    G(S_k(θ, z)) (motion eq. M3) at the point's material angle and height: smooth across the
+    boundary (the material s has a kink there, where the radial map changes slope). Beyond each
+    LV apex the spheroid's S (negative there) continues the section, so the field stays positive
+    below the apex instead of touching zero along the axis. Scaled by 1/50 mm to read roughly as
+    mm. Also returned: ``s`` (= s'), ``s1``, ``s2`` (the deformed LV boundaries), ``theta``, ``z``.
+    """
     x = unbend(anatomy, points)
-    s, th, z, s1, s2, s3 = motion.inverse_cylindrical(anatomy, x, f)
-    s4 = np.maximum(s3, anatomy.s_rv(th, z, epi=True))
-    r = np.sqrt(np.maximum(s, 0.0))
-    r1, r2 = np.sqrt(np.maximum(s1, 0.0)), np.sqrt(np.maximum(s2, 0.0))
-    r3, r4 = np.sqrt(np.maximum(s3, 0.0)), np.sqrt(np.maximum(s4, 0.0))
+    z = x[:, 2] / float(motion.lam(f))
+    th = np.arctan2(x[:, 1], x[:, 0]) + motion.psi(z, f)
+    sp = x[:, 0] ** 2 + x[:, 1] ** 2
+    s1, s2 = anatomy.lv_sections(z, th)
+    s1 = s1 + np.minimum(spheroid_s_unclamped(z, anatomy.r_short_endo, anatomy.r_long_endo,
+                                              anatomy.z_center), 0.0)
+    s2 = s2 + np.minimum(spheroid_s_unclamped(z, anatomy.r_short_epi, anatomy.r_long_epi,
+                                              anatomy.z_center), 0.0)
+    # the RV free-wall boundaries as such (not max'ed with the LV epicardium), so that the free
+    # wall and septum terms stay independent where they meet at the crescent's tip
+    s3, s4 = anatomy.s_rv(th, z), anatomy.s_rv(th, z, epi=True)
+    b1, b2, b3, b4 = (motion.radial_map(anatomy, sk, th, z, f) for sk in (s1, s2, s3, s4))
+    scale = 1.0 / 50.0
     lv_top = z - anatomy.z_top(th)
     rv_top = z - anatomy.z_base
-    return {"s": s, "theta": th, "z": z, "s1": s1, "s2": s2,
-            "lv_endo": (r - r1, lv_top), "lv_epi": (r - r2, lv_top),
-            "rv_endo": (np.maximum(r - r3, r2 - r), rv_top), "rv_epi": (np.maximum(r - r4, r2 - r), rv_top)}
+    return {"s": sp, "theta": th, "z": z, "s1": b1, "s2": b2,
+            "lv_endo": ((sp - b1) * scale, lv_top), "lv_epi": ((sp - b2) * scale, lv_top),
+            "rv_endo": ((sp - b3) * scale, (b2 - sp) * scale, rv_top),
+            "rv_epi": ((sp - b4) * scale, (b2 - sp) * scale, rv_top)}
 
 
 def _plane_grid(anatomy: Anatomy, spec: SliceSpec, step: float):
@@ -229,62 +254,95 @@ def _corners(w: np.ndarray, v: np.ndarray, fields, iters: int = 4, h: float = 1e
         q = (p[None, :, :] + offs[:, None, :]).reshape(-1, 2)
         val = np.column_stack(fields(q[:, 0], q[:, 1])).reshape(5, k, 2)
         jac = np.stack([(val[1] - val[2]) / (2 * h), (val[3] - val[4]) / (2 * h)], axis=-1)
-        step = np.linalg.solve(jac, val[0][..., None])[..., 0]
+        step = np.linalg.pinv(jac) @ val[0][..., None]
+        step = step[..., 0]
         p -= np.clip(step, -2.0, 2.0)
     return p
 
 
 def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec, exact_fields,
                   n: int, start_positive: bool = True) -> np.ndarray | None:
-    """The open contour (wall part) of one region on a sampled plane: marching squares on
-    max(wall, top), each vertex refined to the exact boundary on its grid edge, the vertices on
-    the top closure dropped, resampled by arc length to n points, starting at the annulus end
-    with the larger w when ``start_positive``."""
+    """The open contour (wall part) of one region on a sampled plane.
+
+    Marching squares on the max of the region's terms; each vertex refined to the exact boundary
+    on its grid edge; the vertices where the top (closure) term is active dropped; the exact
+    corners inserted where the active term changes (the annulus ends, the RV apex where free
+    wall meets septum, by Newton's method on the two terms); a cubic spline in arc length through
+    each smooth piece; resampled to n points by arc length, starting at the annulus end with the
+    larger w when ``start_positive``."""
     from skimage.measure import find_contours
 
-    wall, top = (a.reshape(shape) for a in fields[name])
-    field = np.maximum(wall, top)
+    terms = [a.reshape(shape) for a in fields[name]]
+    field = np.maximum.reduce(terms)
     loops = find_contours(field, 0.0)
     if not loops:
         return None
     loop = max(loops, key=len)
     if len(loop) < 8:
         return None
+    if np.allclose(loop[0], loop[-1]):
+        loop = loop[:-1]
 
-    def exact(idx):
-        e = exact_fields(np.interp(idx[:, 0], np.arange(len(w)), w), np.interp(idx[:, 1], np.arange(len(v)), v))
-        return np.maximum(*e[name])
+    def plane_uv(idx):
+        return np.interp(idx[:, 0], np.arange(len(w)), w), np.interp(idx[:, 1], np.arange(len(v)), v)
 
-    loop = _refine_on_edges(loop, field, exact)
-    iw, iv = loop[:, 0], loop[:, 1]
-    ww = np.interp(iw, np.arange(len(w)), w)
-    vv = np.interp(iv, np.arange(len(v)), v)
-    a_wall, a_top = exact_fields(ww, vv)[name]
-    on_wall = a_wall >= a_top
+    loop = _refine_on_edges(loop, field, lambda idx: np.maximum.reduce(exact_fields(*plane_uv(idx))[name]))
+    ww, vv = plane_uv(loop)
+    active = np.argmax(np.stack(exact_fields(ww, vv)[name]), axis=0)
+    top = len(terms) - 1
+    on_wall = active != top
     if on_wall.all():
-        keep = np.arange(len(loop) - 1) if np.allclose(loop[0], loop[-1]) else np.arange(len(loop))
+        keep = np.arange(len(loop))
     else:
-        first_cap = int(np.flatnonzero(~on_wall)[0])
-        order = np.roll(np.arange(len(loop)), -first_cap)
+        order = np.roll(np.arange(len(loop)), -int(np.flatnonzero(~on_wall)[0]))
         idx = np.flatnonzero(on_wall[order])
         if len(idx) < 4:
             return None
         keep = order[idx[0]:idx[-1] + 1]
         keep = keep[on_wall[keep]]
-    ww, vv = ww[keep], vv[keep]
+    ww, vv, act = ww[keep], vv[keep], active[keep]
+
+    def corner(p, i, j):
+        return _corners(np.array([p[0]]), np.array([p[1]]),
+                        lambda a, b: (exact_fields(a, b)[name][i], exact_fields(a, b)[name][j]))[0]
+
+    pieces, cur = [], [(ww[0], vv[0])]
     if not on_wall.all():
-        # the annulus ends: where the wall meets the top closure (wall = top = 0), by Newton steps
-        # from the last wall vertex at each end
-        ends = _corners(np.array([ww[0], ww[-1]]), np.array([vv[0], vv[-1]]),
-                        lambda a, b: exact_fields(a, b)[name])
-        ww, vv = np.r_[ends[0, 0], ww, ends[1, 0]], np.r_[ends[0, 1], vv, ends[1, 1]]
-    if start_positive and ww[0] < ww[-1]:
-        ww, vv = ww[::-1], vv[::-1]
-    seg = np.hypot(np.diff(ww), np.diff(vv))
-    arc = np.r_[0.0, np.cumsum(seg)]
-    t = np.linspace(0.0, arc[-1], n)
-    ww, vv = np.interp(t, arc, ww), np.interp(t, arc, vv)
-    return spec.center[None, :] + ww[:, None] * spec.row[None, :] + vv[:, None] * spec.column[None, :]
+        cur = [tuple(corner((ww[0], vv[0]), act[0], top)), (ww[0], vv[0])]
+    for k in range(1, len(ww)):
+        if act[k] != act[k - 1]:
+            c = tuple(corner((0.5 * (ww[k] + ww[k - 1]), 0.5 * (vv[k] + vv[k - 1])), act[k - 1], act[k]))
+            pieces.append(np.array(cur + [c]))
+            cur = [c]
+        cur.append((ww[k], vv[k]))
+    if not on_wall.all():
+        cur.append(tuple(corner((ww[-1], vv[-1]), act[-1], top)))
+    pieces.append(np.array(cur))
+    if start_positive and pieces[0][0, 0] < pieces[-1][-1, 0]:
+        pieces = [p[::-1] for p in pieces[::-1]]
+    # arc length per piece; a cubic spline through each smooth piece (chords of the ~1 mm vertex
+    # spacing would cut the apex by up to 0.05 mm), linear where a piece has < 4 points
+    curves, starts, total = [], [], 0.0
+    for p in pieces:
+        seg = np.hypot(*np.diff(p, axis=0).T)
+        p = p[np.r_[True, seg > 1e-9]]
+        arc = np.r_[0.0, np.cumsum(seg[seg > 1e-9])]
+        if len(p) >= 4:
+            cs = CubicSpline(arc, p)
+            curves.append(lambda s, cs=cs: cs(s))
+        else:
+            curves.append(lambda s, a=arc, q=p: np.column_stack([np.interp(s, a, q[:, 0]),
+                                                                 np.interp(s, a, q[:, 1])]))
+        starts.append(total)
+        total += arc[-1]
+    s_all = np.linspace(0.0, total, n)
+    which = np.clip(np.searchsorted(starts, s_all, side="right") - 1, 0, len(curves) - 1)
+    uv = np.empty((n, 2))
+    for k, cfun in enumerate(curves):
+        m = which == k
+        if m.any():
+            uv[m] = cfun(s_all[m] - starts[k])
+    return spec.center[None, :] + uv[:, :1] * spec.row[None, :] + uv[:, 1:] * spec.column[None, :]
 
 
 def _la_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float, n_side: int,

@@ -179,7 +179,7 @@ def draw_shape(rng: np.random.Generator, infarct: str | None = None) -> ShapeMod
     endocardial section departs from its best-fit ellipse by 1–2 mm RMS and the annulus from its
     plane by 2.5–4 mm at the high points)."""
     modes = []
-    for k, lo, hi in ((2, 0.06, 0.12), (3, 0.08, 0.12), (4, 0.05, 0.08)):
+    for k, lo, hi in ((2, 0.06, 0.12), (3, 0.11, 0.14), (4, 0.07, 0.09)):
         a0 = float(rng.uniform(lo, hi))
         a1 = float(rng.uniform(-0.3, 0.3)) * a0
         modes.append((k, a0, a1, float(rng.uniform(0.0, 360.0 / k))))
@@ -189,7 +189,7 @@ def draw_shape(rng: np.random.Generator, infarct: str | None = None) -> ShapeMod
         rv_wrap_base=float(rng.uniform(1.05, 1.15)),
         rv_wrap_apex=float(rng.uniform(0.8, 0.9)),
         rv_reach=float(rng.uniform(0.1, 0.25)),
-        saddle_mm=float(rng.uniform(2.8, 4.0)),
+        saddle_mm=float(rng.uniform(3.0, 4.0)),
         saddle_phase_deg=float(rng.uniform(-20.0, 20.0)),
         apex_shift_mm=_apex_shift(rng),
         infarct=infarct,
