@@ -85,6 +85,21 @@ def _check_args(pathology, seed, frames, noise_px, tag_jumps, breath_hold_mm) ->
         raise PhantomError(f"breath_hold_mm must be a finite number >= 0, got {breath_hold_mm!r}")
 
 
+def _realistic_anatomy(draw: SubjectDraw, rng: np.random.Generator, infarct: str | None,
+                       tries: int = 20):
+    """A realistic anatomy for the draw: shape modes drawn from ``rng`` until the solved anatomy
+    passes its validation (one RV crescent per section, nested walls) -- deterministic per seed,
+    as the draws come from the subject's own generator."""
+    last = None
+    for _ in range(tries):
+        shape = draw_shape(rng, infarct)
+        try:
+            return solve_anatomy(draw, shape), shape
+        except PhantomError as exc:
+            last = exc
+    raise PhantomError(f"no valid realistic anatomy in {tries} draws ({last})")
+
+
 def _twist_motion(anatomy: Anatomy, draw: SubjectDraw, curve: VolumeCurve, specs, grid, f_es) -> Motion:
     """Motion whose level-based twist at ES equals the drawn twist (linear ψ(z), eq. M2)."""
     v = draw.values
@@ -158,10 +173,11 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     overrides = anatomy
     shape = None
     if anatomy_model == "realistic":
-        shape = draw_shape(_rng(seed, pathology, "shape"), infarct)
-    elif infarct is not None:
-        shape = infarct_only(infarct)
-    anatomy = solve_anatomy(draw, shape)
+        anatomy, shape = _realistic_anatomy(draw, _rng(seed, pathology, "shape"), infarct)
+    else:
+        if infarct is not None:
+            shape = infarct_only(infarct)
+        anatomy = solve_anatomy(draw, shape)
     if overrides:
         unknown = sorted(set(overrides) - set(Anatomy.__dataclass_fields__))
         if unknown:
@@ -264,15 +280,15 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     metrics, tag_truth = truth.compute_metrics(anatomy, motion, grid, specs, phases, es_frame, float(hr),
                                                len(jumps))
     if anatomy.realistic:
+        # filling rates from the numerical volume curve, surface strain from bent contours
         metrics.update(regional.realistic_regional_truth(anatomy, motion, specs, frames, es_frame, rr))
-        tag_truth["det_F_es"] = None
     else:
         metrics.update(regional.filling_rate_truth(anatomy, motion, frames, es_frame, rr))
-        metrics.update(regional.wall_thickness_truth(anatomy, motion, specs, f_es))
-        strain = regional.strain_truth(anatomy, motion, specs, tag_truth["levels"], f_es)
-        metrics.update(strain["columns"])
         metrics.update(regional.surface_strain_truth(anatomy, motion, specs, f_es))
-        tag_truth["det_F_es"] = strain["det_F"]
+    metrics.update(regional.wall_thickness_truth(anatomy, motion, specs, f_es))
+    strain = regional.strain_truth(anatomy, motion, specs, tag_truth["levels"], f_es)
+    metrics.update(strain["columns"])
+    tag_truth["det_F_es"] = strain["det_F"]
     fault_record = {"noise_px": float(noise_px), "tag_jumps": jumps,
                     "breath_hold_mm": float(breath_hold_mm),
                     "breath_hold_shifts_mm": ({k: [float(x) for x in v] for k, v in shifts.items()}

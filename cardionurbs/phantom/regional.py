@@ -71,11 +71,17 @@ class TruthSegments:
     length: float
     cap: float
     septal_angle: float
+    origin: tuple = (0.0, 0.0, 0.0)     # the apex; realistic anatomy: the bent apex at the phase
+    basis: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))   # rows e1, e2, axis
+
+    def local(self, x: np.ndarray) -> np.ndarray:
+        """Heart-frame points in the axis frame (apex origin, z along apex → mitral centre)."""
+        return (np.asarray(x, float).reshape(-1, 3) - np.asarray(self.origin)) @ np.asarray(self.basis).T
 
     def segments(self, x: np.ndarray) -> np.ndarray:
         """AHA segment 1..17 of heart-frame points (0 beyond the base); the rule of
         docs/metrics.md written out independently of the measurement."""
-        x = np.asarray(x, float).reshape(-1, 3)
+        x = self.local(x)
         h = x[:, 2]
         t = np.mod(-np.arctan2(x[:, 1], x[:, 0]) - self.septal_angle, 2 * np.pi)
         third = (self.length - self.cap) / 3.0
@@ -96,12 +102,46 @@ def truth_segments(anatomy: Anatomy, motion: Motion, specs, f: float) -> TruthSe
     lam = float(motion.lam(f))
     pts = [annotate.rv_insertion_points(anatomy, motion, s, f) for s in specs if s.view == "SA"]
     pts = [p for p in pts if p is not None]
+    if anatomy.realistic:
+        return _realistic_segments(anatomy, motion, pts, f)
     means = []
     for i in (0, 1):
         th = -np.arctan2([p[i, 1] for p in pts], [p[i, 0] for p in pts])
         means.append(float(np.arctan2(np.sin(th).mean(), np.cos(th).mean())))
     septal = float(wrap(means[0] + wrap(means[1] - means[0]) / 2.0))
     return TruthSegments(lam * anatomy.z_base, lam * anatomy.z_endo_apex, septal)
+
+
+def axis_frame(anatomy: Anatomy, motion: Motion, f: float) -> tuple[np.ndarray, np.ndarray]:
+    """(origin, basis rows e1, e2, e) of a realistic heart at phase f, heart frame: the bent
+    epicardial apex, e toward the centroid of the (bent) mitral annulus points, e1 the heart x
+    axis made perpendicular to e, e2 = e × e1 (the heart frame's handedness)."""
+    from cardionurbs.phantom import annotate
+    lm = annotate.landmarks(anatomy, motion, f)
+    apex = annotate.bend(anatomy, lm["apex"])[0]
+    e = annotate.bend(anatomy, lm["mitral"]).mean(axis=0) - apex
+    e /= np.linalg.norm(e)
+    e1 = np.array([1.0, 0.0, 0.0]) - e[0] * e
+    e1 /= np.linalg.norm(e1)
+    return apex, np.array([e1, np.cross(e, e1), e])
+
+
+def _realistic_segments(anatomy: Anatomy, motion: Motion, pts: list, f: float) -> TruthSegments:
+    """:func:`truth_segments` of a realistic anatomy, in the axis frame of the phase."""
+    from cardionurbs.phantom import annotate
+    origin, basis = axis_frame(anatomy, motion, f)
+    probe = TruthSegments(1.0, 0.0, 0.0, tuple(origin), tuple(map(tuple, basis)))
+    lm = annotate.landmarks(anatomy, motion, f)
+    length = float(probe.local(annotate.bend(anatomy, lm["mitral"]).mean(axis=0))[0, 2])
+    endo_apex = annotate.bend(anatomy, motion.forward(anatomy, np.array([[0.0, 0.0, anatomy.z_endo_apex]]), f))
+    cap = float(probe.local(endo_apex)[0, 2])
+    means = []
+    for i in (0, 1):
+        q = probe.local(annotate.bend(anatomy, np.array([p[i] for p in pts])))
+        th = -np.arctan2(q[:, 1], q[:, 0])
+        means.append(float(np.arctan2(np.sin(th).mean(), np.cos(th).mean())))
+    septal = float(wrap(means[0] + wrap(means[1] - means[0]) / 2.0))
+    return TruthSegments(length, cap, septal, tuple(origin), tuple(map(tuple, basis)))
 
 
 def segment_means(values: np.ndarray, weights: np.ndarray, labels: np.ndarray) -> dict[int, float]:
@@ -121,9 +161,17 @@ def endocardial_grid(anatomy: Anatomy, n_mu: int, n_theta: int):
     M, T = np.meshgrid(mu, th, indexing="ij")
 
     def point(m, t):
-        return np.stack([a * np.sin(m) * np.cos(t), a * np.sin(m) * np.sin(t), zc - c * np.cos(m)],
-                        axis=-1).reshape(-1, 3)
+        r = a * np.sin(m)
+        if anatomy.shape is not None:           # the realistic modes on S: √ on the radius
+            r = r * np.sqrt(anatomy.shape.endo_factor(t, anatomy.zeta(zc - c * np.cos(m))))
+        return np.stack([r * np.cos(t), r * np.sin(t), zc - c * np.cos(m)], axis=-1).reshape(-1, 3)
     return M.ravel(), T.ravel(), dmu, dth, point
+
+
+def placed(anatomy: Anatomy, motion: Motion, x: np.ndarray, f: float) -> np.ndarray:
+    """Material heart-frame points -> positions at phase f in the (realistic, bent) heart frame."""
+    from cardionurbs.phantom import annotate
+    return annotate.bend(anatomy, x if motion is None else motion.forward(anatomy, x, f))
 
 
 def wall_thickness_samples(anatomy: Anatomy, motion: Motion, f: float, n_mu: int = 80,
@@ -137,11 +185,12 @@ def wall_thickness_samples(anatomy: Anatomy, motion: Motion, f: float, n_mu: int
     epicardium, moved); along each ray the root of s − s_epi (negative on the
     endocardium, increasing outward) is bracketed in [0, 60] mm and bisected (30 halvings: 6e-8 mm).
     """
+    from cardionurbs.phantom import annotate
     M, T, dmu, dth, point = endocardial_grid(anatomy, n_mu, n_theta)
     h = 1e-6
-    x = motion.forward(anatomy, point(M, T), f)
-    tm = (motion.forward(anatomy, point(M + h, T), f) - motion.forward(anatomy, point(M - h, T), f)) / (2 * h)
-    tt = (motion.forward(anatomy, point(M, T + h), f) - motion.forward(anatomy, point(M, T - h), f)) / (2 * h)
+    x = placed(anatomy, motion, point(M, T), f)
+    tm = (placed(anatomy, motion, point(M + h, T), f) - placed(anatomy, motion, point(M - h, T), f)) / (2 * h)
+    tt = (placed(anatomy, motion, point(M, T + h), f) - placed(anatomy, motion, point(M, T - h), f)) / (2 * h)
     n = np.cross(tm, tt)
     area = np.linalg.norm(n, axis=1)
     n /= area[:, None]
@@ -153,7 +202,7 @@ def wall_thickness_samples(anatomy: Anatomy, motion: Motion, f: float, n_mu: int
     lo, hi = np.zeros(len(x)), np.full(len(x), 60.0)
 
     def g(t):
-        s, _, _, _, s2, _ = motion.inverse_cylindrical(anatomy, x + t[:, None] * n, f)
+        s, _, _, _, s2, _ = motion.inverse_cylindrical(anatomy, annotate.unbend(anatomy, x + t[:, None] * n), f)
         return s - s2
     for _ in range(iterations):
         mid = 0.5 * (lo + hi)
@@ -188,6 +237,17 @@ def endocardial_normal_field(anatomy: Anatomy, n_mu: int = 200, n_theta: int = 4
     the gradient of s / a² + (z − z_c)² / c² (for nearest-point queries)."""
     M, T, _, _, point = endocardial_grid(anatomy, n_mu, n_theta)
     p = point(M, T)
+    if anatomy.realistic:
+        # the bent ED endocardium; normals from the grid's tangents (central differences)
+        h = 1e-6
+        x = placed(anatomy, None, p, 0.0)
+        tm = (placed(anatomy, None, point(M + h, T), 0.0) - placed(anatomy, None, point(M - h, T), 0.0)) / (2 * h)
+        tt = (placed(anatomy, None, point(M, T + h), 0.0) - placed(anatomy, None, point(M, T - h), 0.0)) / (2 * h)
+        n = np.cross(tm, tt)
+        n /= np.linalg.norm(n, axis=1)[:, None]
+        radial = x.copy()
+        radial[:, 2] = 0.0
+        return x, (n if float(np.einsum("ij,ij->", radial, n)) > 0 else -n)
     a, c = anatomy.r_short_endo, anatomy.r_long_endo
     n = np.column_stack([p[:, 0] / a ** 2, p[:, 1] / a ** 2, (p[:, 2] - anatomy.z_center) / c ** 2])
     return p, n / np.linalg.norm(n, axis=1)[:, None]
@@ -197,11 +257,18 @@ def deformation_gradient(anatomy: Anatomy, motion: Motion, X: np.ndarray, f: flo
                          h: float = 1e-3) -> np.ndarray:
     """F = ∂φ_f/∂X (n, 3, 3), heart frame, by central differences of the exact motion
     (step h mm; the map is smooth inside each tissue layer)."""
+    from cardionurbs.phantom import annotate
+
+    def phi(p):
+        if anatomy.realistic:             # ED bent frame -> bent frame at f
+            return placed(anatomy, motion, annotate.unbend(anatomy, p), f)
+        return motion.forward(anatomy, p, f)
+
     F = np.empty((len(X), 3, 3))
     for j in range(3):
         dx = np.zeros(3)
         dx[j] = h
-        F[:, :, j] = (motion.forward(anatomy, X + dx, f) - motion.forward(anatomy, X - dx, f)) / (2 * h)
+        F[:, :, j] = (phi(X + dx) - phi(X - dx)) / (2 * h)
     return F
 
 
@@ -222,13 +289,24 @@ def strain_truth(anatomy: Anatomy, motion: Motion, specs, levels: list[dict], f:
     if not levels:
         return {"columns": {f"{k}_{s} (%)": NAN for k in kinds
                             for s in [*(f"AHA_{j}" for j in SEGMENTS), "Global"]}, "det_F": NAN}
-    g = np.arange(-anatomy.r_short_epi * 1.2, anatomy.r_short_epi * 1.2, spacing_mm) + 0.5 * spacing_mm
+    from cardionurbs.phantom import annotate
+    reach = anatomy.r_short_epi * 1.2 * (1.3 if anatomy.realistic else 1.0)
+    if anatomy.shape is not None:
+        reach += float(np.hypot(*anatomy.shape.apex_shift_mm))
+    g = np.arange(-reach, reach, spacing_mm) + 0.5 * spacing_mm
     gx, gy = np.meshgrid(g, g, indexing="ij")
     zs = [lv["distance_from_apex_mm"] for lv in levels]
     pts = []
     for z in np.arange(min(zs), max(zs) + 1e-9, spacing_mm):
-        s = gx ** 2 + gy ** 2
-        s1, s2 = float(anatomy.s_lv_endo(z)), float(anatomy.s_lv_epi(z))
+        if anatomy.realistic:                     # ED bent frame: the section shifted by d(z)
+            q = annotate.unbend(anatomy, np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)]))
+            s, th = q[:, 0] ** 2 + q[:, 1] ** 2, np.arctan2(q[:, 1], q[:, 0])
+            s1, s2 = anatomy.lv_sections(np.full(len(s), z), th)
+            s = s.reshape(gx.shape)
+            s1, s2 = s1.reshape(gx.shape), s2.reshape(gx.shape)
+        else:
+            s = gx ** 2 + gy ** 2
+            s1, s2 = float(anatomy.s_lv_endo(z)), float(anatomy.s_lv_epi(z))
         r = np.sqrt(s)
         inside = (r > np.sqrt(s1) + 0.05) & (r < np.sqrt(s2) - 0.05)
         pts.append(np.column_stack([gx[inside], gy[inside], np.full(inside.sum(), z)]))
@@ -238,8 +316,13 @@ def strain_truth(anatomy: Anatomy, motion: Motion, specs, levels: list[dict], f:
     ep, en = endocardial_normal_field(anatomy)
     _, idx = cKDTree(ep).query(X)
     rdir = en[idx]
-    th = np.arctan2(X[:, 1], X[:, 0])
-    c = np.column_stack([-np.sin(th), np.cos(th), np.zeros(len(th))])
+    if anatomy.realistic:                         # circumferential about the ED long axis
+        origin, basis = axis_frame(anatomy, motion, 0.0)
+        c = np.cross(basis[2][None, :], X - origin[None, :])
+        c /= np.linalg.norm(c, axis=1)[:, None]
+    else:
+        th = np.arctan2(X[:, 1], X[:, 0])
+        c = np.column_stack([-np.sin(th), np.cos(th), np.zeros(len(th))])
     c -= np.einsum("ni,ni->n", c, rdir)[:, None] * rdir
     c /= np.linalg.norm(c, axis=1)[:, None]
     dirs = np.stack([c, np.cross(rdir, c), rdir], axis=1)
@@ -295,21 +378,14 @@ def realistic_regional_truth(anatomy: Anatomy, motion: Motion, specs, n_frames: 
     Filling rates come from the method-A volume curve V(f) (quadratic in the phase f,
     :func:`cardionurbs.phantom.truth_realistic.volume_curve`): dV/dt = V'(f) f'(τ) / RR over the
     same windows as :func:`filling_rate_truth`. Surface GLS and GCS are measured as for the ideal
-    anatomy on the analytic contours, the LA ones taken back to the bent heart. Segmental wall
-    thickness and tag strain have no realistic truth yet: their columns are NaN (absent from
-    truth.json), so nothing is compared against a truth that was not computed.
+    anatomy on the analytic contours, the LA ones taken back to the bent heart. (Wall thickness
+    and tag strain: :func:`wall_thickness_truth` and :func:`strain_truth`, which handle both
+    anatomies.)
     """
     from cardionurbs.phantom import annotate
     from cardionurbs.phantom.truth_realistic import volume_curve
 
-    kinds = ("Ecc", "Ell", "Err")
-    out = {f"{k}_{s} (%)": NAN for k in kinds for s in [*(f"AHA_{j}" for j in SEGMENTS), "Global"]}
-    out.update({f"WT_AHA_{k} (mm)": NAN for k in SEGMENTS})
-    out["WT_Global (mm)"] = NAN
-    out.update({f"WT_ES_AHA_{k} (mm)": NAN for k in SEGMENTS})
-    out["WT_ES_Global (mm)"] = NAN
-    out.update({f"Thickening_AHA_{k} (%)": NAN for k in SEGMENTS})
-    out["Thickening_Global (%)"] = NAN
+    out: dict[str, float] = {}
     if n_frames < MIN_FRAMES:
         out.update({c: NAN for c in RATE_COLUMNS})
     else:

@@ -1,0 +1,272 @@
+"""Validation on realistic phantom anatomy (ideal and realistic side by side).
+
+    python benchmarks/validate_realistic.py [--jobs 2] [--seeds 20] [--subjects 3]
+        -> reports/validation-realistic.md (+ reports/figures/realistic_*.png)
+
+1. Not toys: per realistic subject, the mid-ventricular ED endocardial section's RMS
+   distance to its best-fit ellipse, and the mitral annulus points' largest distance to
+   their best-fit plane.
+2. Truth: for --seeds seeds per preset (normal, mr, phtn) and the infarct option, the two
+   independent truth methods (sections, meshes) at ED and ES and the material myocardial
+   volume over the cycle.
+3. Accuracy, noise-free: --subjects seeds per preset and per infarct territory, realistic and
+   ideal anatomy from the same seeds, our reconstruction and Simpson's disks (same contours)
+   against the truth.
+4. Accuracy with ``realism="clinical"`` (0.5 px noise, 1.5 mm breath-hold shifts): the same
+   realistic subjects, errors reported (no bound), beside Simpson's disks.
+5. Generation time with DICOM of one 20-frame realistic subject, and of the ideal one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import resource
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from cardionurbs.analysis.simpson import simpson_metrics  # noqa: E402
+
+VOLS = ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "RVESV (mL)")
+MASS = ("LVM (g)", "RVM (g)")
+POINTS = ("LVEF (%)", "RVEF (%)", "Twist (deg)")
+BOUNDS = {"LVEDV (mL)": 2.0, "LVESV (mL)": 2.0, "RVEDV (mL)": 2.0, "RVESV (mL)": 2.0,
+          "LVM (g)": 4.0, "RVM (g)": 8.0, "LVEF (%)": 2.0, "RVEF (%)": 2.0, "Twist (deg)": 1.0}
+PRESETS = ("normal", "mr", "phtn")
+INFARCTS = ("lad", "rca", "lcx")
+
+
+def _err(c: str, v: float, t: float) -> float:
+    return v - t if c in POINTS else 100.0 * (v / t - 1.0)
+
+
+# ------------------------------------------------------------------ workers
+def not_a_toy(args) -> dict:
+    pathology, seed = args
+    from skimage.measure import EllipseModel
+
+    from cardionurbs.geometry import fit_plane
+    from cardionurbs.phantom import annotate
+    from cardionurbs.phantom.generate import generate
+    ph = generate(pathology, seed=seed, frames=2, anatomy_model="realistic", volume_check=False)
+    sa = [s for s in ph.slices if s.view == "SA"]
+    mid = min(sa, key=lambda s: abs(s.height - 0.5 * ph.anatomy.z_base))
+    c = annotate.sa_contours(ph.anatomy, ph.motion, mid, 0.0, n_lv=360)["lv_endo"][:, :2]
+    rms = float(np.sqrt(np.mean(EllipseModel.from_estimate(c).residuals(c) ** 2)))
+    lm = annotate.bend(ph.anatomy, annotate.landmarks(ph.anatomy, ph.motion, 0.0)["mitral"])
+    cen, n = fit_plane(lm)
+    return {"subject": f"{pathology}_{seed}", "ellipse_rms_mm": rms,
+            "annulus_max_mm": float(np.abs((lm - cen) @ n).max()),
+            "annulus_rms_mm": float(np.sqrt(np.mean(((lm - cen) @ n) ** 2))),
+            "apex_shift_mm": float(np.hypot(*ph.anatomy.shape.apex_shift_mm))}
+
+
+def truth_check(args) -> dict:
+    pathology, seed, infarct = args
+    from cardionurbs.phantom.generate import generate
+    t0, c0 = time.time(), time.process_time()
+    ph = generate(pathology, seed=seed, frames=2, anatomy_model="realistic", infarct=infarct)
+    vols = ph.truth["volumes"]
+    myo = list(vols["lv_myocardium_material_mL"].values())
+    return {"subject": f"{pathology}_{seed}" + (f"_{infarct}" if infarct else ""),
+            "max_rel": vols["max_relative_difference"],
+            "myo_rel": (max(myo) - min(myo)) / float(np.mean(myo)),
+            "wall_s": time.time() - t0, "cpu_s": time.process_time() - c0}
+
+
+def accuracy(args) -> dict:
+    pathology, seed, anatomy_model, infarct, realism = args
+    from cardionurbs.io import load_study
+    from cardionurbs.phantom.generate import generate, write_phantom
+    from cardionurbs.pipeline import analyse_study
+    ph = generate(pathology, seed=seed, frames=2, anatomy_model=anatomy_model, infarct=infarct,
+                  realism=realism, volume_check=False)
+    with tempfile.TemporaryDirectory() as tmp:
+        write_phantom(ph, Path(tmp) / "p", dicom=False)
+        model, m = analyse_study(load_study(Path(tmp) / "p"))
+    s = simpson_metrics(ph.study, model.ed_frame, model.es_frame)
+    t = ph.truth["metrics"]
+    row = {"subject": f"{pathology}_{seed}" + (f"_{infarct}" if infarct else ""), "anatomy": anatomy_model,
+           "realism": realism or "none"}
+    for c in VOLS + MASS + POINTS:
+        row[(c, "truth")], row[(c, "model")] = t[c], m[c]
+        row[(c, "disks")] = s.get(c, float("nan"))
+    return row
+
+
+def generation_time(anatomy_model: str) -> dict:
+    from cardionurbs.phantom.generate import generate, write_phantom
+    t0, c0 = time.time(), time.process_time()
+    ph = generate("normal", seed=1, frames=20, anatomy_model=anatomy_model)
+    with tempfile.TemporaryDirectory() as tmp:
+        write_phantom(ph, Path(tmp) / "p", dicom=True)
+    return {"anatomy": anatomy_model, "wall_s": time.time() - t0, "cpu_s": time.process_time() - c0,
+            "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+            "load": os.getloadavg()[0]}
+
+
+# ------------------------------------------------------------------ tables
+def accuracy_table(rows: list[dict], bounds: bool) -> list[str]:
+    cols = VOLS + MASS + POINTS
+    out = ["| subject | " + " | ".join(f"{c} model / disks" for c in cols) + " |",
+           "|---" * (len(cols) + 1) + "|"]
+    agg = {c: ([], []) for c in cols}
+    for r in rows:
+        cells = []
+        for c in cols:
+            em, ed = _err(c, r[(c, "model")], r[(c, "truth")]), _err(c, r[(c, "disks")], r[(c, "truth")])
+            agg[c][0].append(abs(em))
+            agg[c][1].append(abs(ed))
+            flag = " **!**" if bounds and abs(em) > BOUNDS[c] else ""
+            cells.append(f"{em:+.2f}{flag} / {ed:+.2f}")
+        out.append(f"| {r['subject']} | " + " | ".join(cells) + " |")
+    out += ["", "| metric | error unit | bound | model mean abs (max abs) | disks mean abs (max abs) |"
+            + (" met |" if bounds else ""), "|---|---|---|---|---|" + ("---|" if bounds else "")]
+    for c in cols:
+        m, d = np.array(agg[c][0]), np.array(agg[c][1])
+        unit = "points" if c in ("LVEF (%)", "RVEF (%)") else ("deg" if c in POINTS else "%")
+        met = f" {'yes' if m.max() <= BOUNDS[c] else 'NO'} |" if bounds else ""
+        out.append(f"| {c} | {unit} | {BOUNDS[c]:g} | {m.mean():.2f} ({m.max():.2f}) | "
+                   f"{np.nanmean(d):.2f} ({np.nanmax(d):.2f}) |{met}")
+    return out
+
+
+def figures(out_dir: Path) -> list[Path]:
+    """Realistic presets: mid SA contours and the 4-chamber LA contours at ED and ES, ideal beside."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cardionurbs.phantom import annotate
+    from cardionurbs.phantom.generate import generate
+    colors = {"lv_endo": "#e41a1c", "lv_epi": "#4daf4a", "rv_endo": "#377eb8", "rv_epi": "#ff7f00"}
+    paths = []
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for pathology in PRESETS:
+        fig, axes = plt.subplots(2, 2, figsize=(9, 9))
+        for col, model in enumerate(("ideal", "realistic")):
+            ph = generate(pathology, seed=0, frames=20, anatomy_model=model, volume_check=False)
+            an, mo = ph.anatomy, ph.motion
+            sa = [s for s in ph.slices if s.view == "SA"]
+            mid = min(sa, key=lambda s: abs(s.height - 0.5 * an.z_base))
+            la = [s for s in ph.slices if s.id == "la_4ch"][0]
+            for k, ls in ((0, "-"), (ph.es_frame, "--")):
+                f = float(ph.phases[k])
+                for name, pts in annotate.sa_contours(an, mo, mid, f, n_lv=180).items():
+                    p = np.vstack([pts, pts[:1]])
+                    axes[0, col].plot(p[:, 0], p[:, 1], ls, color=colors[name], lw=1.2)
+                for name, pts in annotate.la_contours(an, mo, la, f, with_rv=True).items():
+                    p = annotate.bend(an, pts)
+                    u = (p - la.center) @ la.row
+                    axes[1, col].plot(u, p[:, 2], ls, color=colors[name], lw=1.2)
+                if k == 0:
+                    mit = annotate.bend(an, annotate.landmarks(an, mo, f)["mitral"])
+                    axes[1, col].plot((mit - la.center) @ la.row, mit[:, 2], "k.", ms=4)
+            axes[0, col].set_title(f"{pathology}, {model}: mid SA (ED solid, ES dashed)")
+            axes[1, col].set_title(f"{pathology}, {model}: 4-chamber (mitral points dots)")
+            for ax in axes[:, col]:
+                ax.set_aspect("equal")
+                ax.set_xlabel("mm")
+        fig.tight_layout()
+        path = out_dir / f"realistic_{pathology}.png"
+        fig.savefig(path, dpi=90)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--seeds", type=int, default=20, help="truth sweep: seeds per preset")
+    ap.add_argument("--subjects", type=int, default=3, help="accuracy: seeds per preset")
+    ap.add_argument("--out", default=str(ROOT / "reports" / "validation-realistic.md"))
+    args = ap.parse_args()
+    started = time.time()
+    with ProcessPoolExecutor(args.jobs) as pool:
+        toys = list(pool.map(not_a_toy, [(p, s) for p in PRESETS for s in range(args.subjects)]))
+        checks = list(pool.map(truth_check, [(p, s, None) for p in PRESETS for s in range(args.seeds)]
+                               + [("normal", s, inf) for inf in INFARCTS for s in range(3)]))
+        acc_args = [(p, s, "realistic", None, None) for p in PRESETS for s in range(args.subjects)]
+        acc_args += [("normal", s, "realistic", inf, None) for inf in INFARCTS for s in range(1)]
+        real = list(pool.map(accuracy, acc_args))
+        ideal = list(pool.map(accuracy, [(p, s, "ideal", inf, None) for p, s, _, inf, _ in acc_args]))
+        clinical = list(pool.map(accuracy, [(p, s, "realistic", inf, "clinical")
+                                            for p, s, _, inf, _ in acc_args]))
+    gen = [generation_time("ideal"), generation_time("realistic")]
+    figs = figures(ROOT / "reports" / "figures")
+    cmd = "python benchmarks/validate_realistic.py " + " ".join(sys.argv[1:])
+    lines = ["# Validation on realistic phantom anatomy", "",
+             f"Command: `{cmd.strip()}` ({time.time() - started:.0f} s; {platform.node()}, "
+             f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f} at the end).", "",
+             "Realistic anatomy (`cardionurbs phantom --anatomy realistic`, docs/phantoms.md): "
+             "non-elliptic LV sections (shape modes k = 2-4), thicker septum, RV crescent whose wrap "
+             "and reach vary from base to apex, saddle-shaped mitral annulus, apex bent off the long "
+             "axis, papillary muscles and an RV trabecular band in the images; optional infarct "
+             "(thinner, hypokinetic coronary territory). No outflow tracts yet (see the end).", "",
+             "## 1. Not toys", "",
+             "Mid-ventricular ED endocardial section: RMS distance to its best-fit ellipse "
+             "(skimage EllipseModel, geometric residuals); mitral annulus: the 12 annulus points' "
+             "distances to their least-squares plane. Targets: ellipse RMS >= 1 mm, annulus >= 2 mm.", "",
+             "| subject | ellipse RMS (mm) | annulus max (mm) | annulus RMS (mm) | apex bend (mm) |",
+             "|---|---|---|---|---|"]
+    for r in toys:
+        lines.append(f"| {r['subject']} | {r['ellipse_rms_mm']:.2f} | {r['annulus_max_mm']:.2f} | "
+                     f"{r['annulus_rms_mm']:.2f} | {r['apex_shift_mm']:.1f} |")
+    lines += ["", f"Smallest ellipse RMS {min(r['ellipse_rms_mm'] for r in toys):.2f} mm, smallest "
+              f"annulus departure {min(r['annulus_max_mm'] for r in toys):.2f} mm.", "",
+              "## 2. Two truth methods", "",
+              "Method A integrates the exact sections (explicit polar curves of the motion) clipped by "
+              "the valve planes over 0.25 mm levels (0.02 mm where a plane crosses); method B meshes "
+              "each region in material coordinates, maps every vertex, trims the manifold3d solid by "
+              "the same plane. `max rel` is the largest relative difference over LV/RV cavity and "
+              "myocardium at ED and ES (target < 0.2 %); `myocardium` the change of the material LV "
+              "myocardial volume (wall up to the saddle annulus, meshed) from ED to ES (target < 0.1 %).",
+              "", "| subject | max rel (%) | myocardium change (%) | generation wall / CPU (s) |",
+              "|---|---|---|---|"]
+    for r in checks:
+        lines.append(f"| {r['subject']} | {100 * r['max_rel']:.3f} | {100 * r['myo_rel']:.4f} | "
+                     f"{r['wall_s']:.1f} / {r['cpu_s']:.1f} |")
+    lines += ["", f"Worst: {100 * max(r['max_rel'] for r in checks):.3f} % between methods, "
+              f"{100 * max(r['myo_rel'] for r in checks):.4f} % myocardial change, over "
+              f"{len(checks)} subjects.", "",
+              "## 3. Accuracy, noise-free contours", "",
+              "Errors of our reconstruction / of Simpson's disks on the same contours against the "
+              "truth: % for volumes and masses, points for EF, degrees for twist. Bounds (issue 17): "
+              "volumes 2 %, EF 2 points, LVM 4 %, RVM 8 %, twist 1 deg; **!** marks a miss.", "",
+              "### Realistic anatomy", ""]
+    lines += accuracy_table(real, True)
+    lines += ["", "### Ideal anatomy, same seeds", ""]
+    lines += accuracy_table(ideal, True)
+    lines += ["", "## 4. Clinical acquisition (`--realism clinical`)", "",
+              "0.5 px contour and tag noise, 1.5 mm breath-hold slice shifts (truth unchanged); "
+              "errors reported, no bound.", ""]
+    lines += accuracy_table(clinical, False)
+    lines += ["", "## 5. Generation time (20 frames, with DICOM)", "",
+              "| anatomy | wall (s) | CPU (s) | peak RSS (MB) | load average |", "|---|---|---|---|---|"]
+    for g in gen:
+        lines.append(f"| {g['anatomy']} | {g['wall_s']:.1f} | {g['cpu_s']:.1f} | {g['peak_mb']:.0f} | "
+                     f"{g['load']:.1f} |")
+    lines += ["", "## Figures", ""]
+    lines += [f"![{p.stem}](figures/{p.name})" for p in figs]
+    lines += ["", "## Not yet in the realistic anatomy", "",
+              "- Outflow tracts: no RV outflow tract to a pulmonary valve and no LV outflow tract to an "
+              "aortic valve; the RV is closed at its (planar) tricuspid annulus.",
+              "- Regional truth (segmental wall thickness, tag strain) is not computed for realistic "
+              "anatomy (NaN in truth.json); filling rates and surface GLS/GCS are."]
+    Path(args.out).write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
