@@ -201,6 +201,11 @@ def main(argv=None) -> int:
              "- [fitting.md](fitting.md): control points at 0.5 px on the Sunnybrook contours "
              "(uniform knots, eq. 9 knots, optimised weights).",
              "- [phantoms.md](phantoms.md): the presets, the paper's 12 subjects and their truth.",
+             "- [validation-realistic.md](validation-realistic.md): realistic phantom anatomy "
+             "(docs/phantoms.md) beside the ideal one from the same seeds -- volumes, masses, EF, "
+             "twist from our model and Simpson's disks, noise-free and with clinical acquisition "
+             "faults; the two truth methods over 20 seeds per preset "
+             "(`benchmarks/validate_realistic.py`).",
              ""]
     try:
         nfr = 5 if args.quick else 20

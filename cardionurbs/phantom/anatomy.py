@@ -181,24 +181,31 @@ class Anatomy:
         if self.shape is None:
             return s
         self._need_theta(theta)
-        return s * self.shape.endo_factor(theta, self.zeta(z))
+        s = s * self.shape.endo_factor(theta, self.zeta(z))
+        if self.shape.infarct is None:
+            return s
+        # infarct: the endocardium moves out toward the (unchanged) epicardium, r1 -> r2 − (r2 − r1)
+        # (1 − τ w), faded out over the last ~2 mm of radius before the endocardial apex
+        w = self.shape.infarct_weight(theta, np.asarray(z, dtype=float) / self.z_base) * (s / (s + 4.0))
+        r1 = np.sqrt(np.maximum(s, 0.0))
+        r2 = np.sqrt(np.maximum(self._s_epi(z, theta), 0.0))
+        return (r2 - (r2 - r1) * (1.0 - self.shape.infarct_thinning * w)) ** 2
 
     def s_lv_epi(self, z: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
-        """Squared LV epicardial radius at height z (eq. A1; realistic: wall-following modes,
-        septal thickening and infarct thinning of :mod:`cardionurbs.phantom.shape`), mm²."""
+        """Squared LV epicardial radius at height z (eq. A1; realistic: wall-following modes and
+        septal thickening of :mod:`cardionurbs.phantom.shape`), mm². An infarct thins the wall
+        from the inside (:meth:`s_lv_endo`): the epicardium, hence the RV, is unchanged."""
         s = spheroid_section_s(z, self.r_short_epi, self.r_long_epi, self.z_center)
         if self.shape is None:
             return s
         self._need_theta(theta)
+        return self._s_epi(z, theta)
+
+    def _s_epi(self, z, theta) -> np.ndarray:
+        s = spheroid_section_s(z, self.r_short_epi, self.r_long_epi, self.z_center)
         s_endo0 = spheroid_section_s(z, self.r_short_endo, self.r_long_endo, self.z_center)
         ratio = np.sqrt(s_endo0 / np.where(s > 0, s, 1.0))
-        s_epi = s * self.shape.epi_factor(theta, self.zeta(z), ratio)
-        if self.shape.infarct is None:
-            return s_epi
-        w = self.shape.infarct_weight(theta, np.asarray(z, dtype=float) / self.z_base)
-        r1 = np.sqrt(np.maximum(self.s_lv_endo(z, theta), 0.0))
-        r2 = np.sqrt(np.maximum(s_epi, 0.0))
-        return (r1 + (r2 - r1) * (1.0 - self.shape.infarct_thinning * w)) ** 2
+        return s * self.shape.epi_factor(theta, self.zeta(z), ratio)
 
     def lv_sections(self, z: np.ndarray, theta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(S_endo, S_epi) at (z, θ): :meth:`s_lv_endo` and :meth:`s_lv_epi` sharing one evaluation

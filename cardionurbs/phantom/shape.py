@@ -31,8 +31,10 @@ every property the truth and the motion rely on:
   its inverse is explicit.
 * **Infarct.** A coronary territory (``lad``, ``rca``, ``lcx``) is a smooth
   weight ``w_i(θ, z) ∈ [0, 1]`` (a cosine border zone of 20° around and 10 % of
-  the length along); inside it the wall is thinner and the cavity contraction
-  κ of the motion is reduced (hypokinesis), which reduces thickening and strain.
+  the length along); inside it the wall is thinner (the endocardium moves out, a
+  thinned and dilated segment; the epicardium and the RV are unchanged) and the
+  cavity contraction κ of the motion is reduced (hypokinesis), which reduces
+  thickening and strain.
 
 All amplitudes are drawn per seed from physiological ranges by :func:`draw_shape`.
 """
