@@ -26,8 +26,8 @@ from scipy.spatial import cKDTree
 
 from cardionurbs.anatomy.mesh import Plane
 from cardionurbs.errors import ReconstructionError
-from cardionurbs.geometry import (fit_plane, in_plane_basis, long_axis, polygon_area,
-                                  polygon_centroid, stack_normal)
+from cardionurbs.geometry import (fit_plane, in_plane_basis, long_axis, points_in_polygon,
+                                  polygon_area, polygon_centroid, stack_normal)
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.study import Contour, Study
 
@@ -277,10 +277,9 @@ def septal_mask(rv_points: np.ndarray, lv_epi_loop: np.ndarray, normal: np.ndarr
     (:func:`fill_short_gaps`)."""
     b = in_plane_basis(normal)
     c = polygon_centroid(lv_epi_loop, normal)
-    from matplotlib.path import Path as _Path
     poly = (lv_epi_loop - c) @ b.T
     xy = (rv_points - c) @ b.T
-    inside = _Path(poly).contains_points(xy)
+    inside = points_in_polygon(xy, poly)
     a, e = poly, np.roll(poly, -1, axis=0) - poly
     rel = xy[:, None, :] - a[None]
     t = np.clip(np.einsum("ijk,jk->ij", rel, e) / np.maximum((e * e).sum(1), 1e-18), 0, 1)
