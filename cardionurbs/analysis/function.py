@@ -167,14 +167,13 @@ def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> d
     frames = list(model.frames)
     times = [model.study.frame_times_ms.get(f) for f in frames]
     out: dict[str, list] = {"frame": frames, "time_ms": times}
-    if every_structure or not hasattr(model, "lv_cavity_solid"):
+    if every_structure or not hasattr(model, "lv_cavity_volume"):
         for key in ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium"):
             out[f"{key} (mL)"] = [float(model.volumes.get(f, {}).get(key, NAN)) for f in frames]
         return out
-    from cardionurbs.anatomy.mesh import volume_ml
     reported = {model.ed_frame, model.es_frame}
     out["lv_cavity (mL)"] = [float(model.volumes[f].get("lv_cavity", NAN)) if f in reported
-                             else volume_ml(model.lv_cavity_solid(f)) for f in frames]
+                             else model.lv_cavity_volume(f) for f in frames]
     for key in ("rv_cavity", "lv_myocardium", "rv_myocardium"):
         out[f"{key} (mL)"] = [float(model.volumes[f].get(key, NAN)) if f in reported else NAN
                               for f in frames]

@@ -101,16 +101,19 @@ def _nearest_neighbour_chain(points: np.ndarray, start: int) -> np.ndarray:
     order = [start]
     visited[start] = True
     cur = start
+    k0 = min(n, 8)
+    # every point's k0 nearest, queried once for all points; a point whose k0 nearest
+    # are all taken asks the tree again with more (as a query per step would)
+    near = np.asarray(tree.query(points, k=k0)[1]).reshape(n, k0).tolist()
     for _ in range(n - 1):
-        k = min(n, 8)
-        while True:
-            _, idx = tree.query(points[cur], k=k)
-            idx = np.atleast_1d(idx)
-            free = idx[~visited[idx]]
-            if free.size or k >= n:
-                break
+        nxt = next((j for j in near[cur] if not visited[j]), None)
+        k = k0
+        while nxt is None and k < n:
             k = min(n, k * 4)
-        nxt = int(free[0])
+            idx = np.atleast_1d(tree.query(points[cur], k=k)[1])
+            free = idx[~visited[idx]]
+            nxt = int(free[0]) if free.size else None
+        nxt = int(nxt)
         visited[nxt] = True
         order.append(nxt)
         cur = nxt

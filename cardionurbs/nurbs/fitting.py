@@ -247,8 +247,13 @@ def _optimise_weights(points: np.ndarray, params: np.ndarray, degree: int, n_ctr
 
 
 def max_distance(curve: NurbsCurve, points: np.ndarray) -> float:
-    """Maximum true distance from ``points`` to ``curve`` (points' units)."""
-    _, dist = curve_closest_points(curve, points)
+    """Maximum true distance from ``points`` to ``curve`` (points' units).
+
+    Only the points that can hold the maximum are projected: those whose upper
+    distance bound (:func:`curve_distance_bounds`) reaches the largest lower bound."""
+    points = V.point_rows(points, "points", curve.dimension)
+    lower, upper = curve_distance_bounds(curve, points)
+    _, dist = curve_closest_points(curve, points[upper >= lower.max()])
     return float(dist.max())
 
 
