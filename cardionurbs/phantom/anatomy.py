@@ -58,6 +58,7 @@ Gauss–Legendre rules on smooth intervals.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -268,6 +269,9 @@ class Anatomy:
         none). Ideal: ±θ_e(z). Realistic: going out both ways from the angle where the crescent is
         widest (max of S_rv − S_epi on a 2 (n_table − 1) grid), the first sign change, refined by
         eight regula falsi steps; both edges equal that angle where there is no crescent."""
+        if self.shape is not None and np.ndim(z) == 0 and n_table == 181:
+            lo, hi = self._rv_sector_scalar(float(z), bool(epi))     # SA contours, insertions
+            return np.array([lo]), np.array([hi])
         z = np.atleast_1d(np.asarray(z, dtype=float))
         if self.shape is None:
             e = self.rv_sector_edge(z, epi)
@@ -334,6 +338,11 @@ class Anatomy:
             th = np.clip(th - (self.rv_p(th, epi) - target) / dp, 0.0, np.pi)
         edge = np.where(has, th, 0.0)
         return np.where(full, np.pi, edge)
+
+    @functools.lru_cache(maxsize=4096)
+    def _rv_sector_scalar(self, z: float, epi: bool) -> tuple[float, float]:
+        lo, hi = self.rv_sector(np.array([z]), epi)
+        return float(lo[0]), float(hi[0])
 
     def rv_onset(self, epi: bool = False, iters: int = 80) -> float:
         """Lowest height z0 where the RV shell leaves the LV epicardium (crescent onset), mm."""

@@ -117,16 +117,19 @@ def _sa_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f:
     """:func:`sa_contours` for a realistic anatomy: the same explicit polar curves with the
     angle-dependent sections S(θ, z) and the asymmetric RV sector [θ_lo, θ_hi]."""
     out: dict[str, np.ndarray] = {}
-    if not (0.0 < z <= anatomy.z_top_min - BASE_MARGIN_MM):
+    # the LV is contoured below the lowest point of the saddle annulus (a plane through the saddle
+    # shows part wall, part atrium); the RV up to its planar tricuspid annulus
+    if not (0.0 < z <= anatomy.z_base - BASE_MARGIN_MM):
         return out
     psi = float(motion.psi(z, f))
     th = np.linspace(0.0, 2 * np.pi, n_lv, endpoint=False)
-    s1, s2 = anatomy.s_lv_endo(z, th), anatomy.s_lv_epi(z, th)
+    s1, s2 = anatomy.lv_sections(np.full(n_lv, z), th)
     if s2.mean() < MIN_RADIUS_MM ** 2:
         return out
-    if s1.mean() >= MIN_RADIUS_MM ** 2:
-        out["lv_endo"] = _polar(motion.radial_map(anatomy, s1, th, z, f), th - psi, spec.height)
-    out["lv_epi"] = _polar(motion.radial_map(anatomy, s2, th, z, f), th - psi, spec.height)
+    if z <= anatomy.z_top_min - BASE_MARGIN_MM:
+        if s1.mean() >= MIN_RADIUS_MM ** 2:
+            out["lv_endo"] = _polar(motion.radial_map(anatomy, s1, th, z, f), th - psi, spec.height)
+        out["lv_epi"] = _polar(motion.radial_map(anatomy, s2, th, z, f), th - psi, spec.height)
     for name, epi in (("rv_endo", False), ("rv_epi", True)):
         lo, hi = (float(v[0]) for v in anatomy.rv_sector(z, epi))
         mid = 0.5 * (lo + hi)
@@ -168,7 +171,8 @@ def spheroid_s_unclamped(z, r_short: float, r_long: float, z_center: float) -> n
     return r_short * r_short * (1.0 - u * u)
 
 
-def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: float) -> dict[str, np.ndarray]:
+def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: float,
+                    regions=None) -> dict[str, np.ndarray]:
     """Signed region functions (negative inside) of realistic heart-frame points at phase f for
     the four contoured regions — LV cavity, LV epicardium, RV cavity, RV epicardium — each as
     a tuple of terms (inside where all are negative): the wall terms (the RV has two, free wall
@@ -181,27 +185,40 @@ def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: flo
     LV apex the spheroid's S (negative there) continues the section, so the field stays positive
     below the apex instead of touching zero along the axis. Scaled by 1/50 mm to read roughly as
     mm. Also returned: ``s`` (= s'), ``s1``, ``s2`` (the deformed LV boundaries), ``theta``, ``z``.
+    ``regions``: only these regions' terms (all four by default).
     """
     x = unbend(anatomy, points)
     z = x[:, 2] / float(motion.lam(f))
     th = np.arctan2(x[:, 1], x[:, 0]) + motion.psi(z, f)
     sp = x[:, 0] ** 2 + x[:, 1] ** 2
     s1, s2 = anatomy.lv_sections(z, th)
+    rv = anatomy.s_rv(th, z)
+    layers = (s1, s2, np.maximum(s2, rv))
     s1 = s1 + np.minimum(spheroid_s_unclamped(z, anatomy.r_short_endo, anatomy.r_long_endo,
                                               anatomy.z_center), 0.0)
     s2 = s2 + np.minimum(spheroid_s_unclamped(z, anatomy.r_short_epi, anatomy.r_long_epi,
                                               anatomy.z_center), 0.0)
+    regions = set(regions or ("lv_endo", "lv_epi", "rv_endo", "rv_epi"))
     # the RV free-wall boundaries as such (not max'ed with the LV epicardium), so that the free
     # wall and septum terms stay independent where they meet at the crescent's tip
-    s3, s4 = anatomy.s_rv(th, z), anatomy.s_rv(th, z, epi=True)
-    b1, b2, b3, b4 = (motion.radial_map(anatomy, sk, th, z, f) for sk in (s1, s2, s3, s4))
+    want = {"b1": "lv_endo" in regions, "b2": True, "b3": "rv_endo" in regions,
+            "b4": "rv_epi" in regions}
+    src = {"b1": lambda: s1, "b2": lambda: s2, "b3": lambda: rv,
+           "b4": lambda: anatomy.s_rv(th, z, epi=True)}
+    b = {k: motion.radial_map(anatomy, src[k](), th, z, f, layers=layers) for k, on in want.items() if on}
     scale = 1.0 / 50.0
+    out = {"s": sp, "theta": th, "z": z, "s1": b.get("b1"), "s2": b["b2"]}
     lv_top = z - anatomy.z_top(th)
     rv_top = z - anatomy.z_base
-    return {"s": sp, "theta": th, "z": z, "s1": b1, "s2": b2,
-            "lv_endo": ((sp - b1) * scale, lv_top), "lv_epi": ((sp - b2) * scale, lv_top),
-            "rv_endo": ((sp - b3) * scale, (b2 - sp) * scale, rv_top),
-            "rv_epi": ((sp - b4) * scale, (b2 - sp) * scale, rv_top)}
+    if "lv_endo" in regions:
+        out["lv_endo"] = ((sp - b["b1"]) * scale, lv_top)
+    if "lv_epi" in regions:
+        out["lv_epi"] = ((sp - b["b2"]) * scale, lv_top)
+    if "rv_endo" in regions:
+        out["rv_endo"] = ((sp - b["b3"]) * scale, (b["b2"] - sp) * scale, rv_top)
+    if "rv_epi" in regions:
+        out["rv_epi"] = ((sp - b["b4"]) * scale, (b["b2"] - sp) * scale, rv_top)
+    return out
 
 
 def _plane_grid(anatomy: Anatomy, spec: SliceSpec, step: float):
@@ -303,8 +320,10 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec, exact_f
     ww, vv, act = ww[keep], vv[keep], active[keep]
 
     def corner(p, i, j):
-        return _corners(np.array([p[0]]), np.array([p[1]]),
-                        lambda a, b: (exact_fields(a, b)[name][i], exact_fields(a, b)[name][j]))[0]
+        def two(a, b):
+            e = exact_fields(a, b)[name]
+            return e[i], e[j]
+        return _corners(np.array([p[0]]), np.array([p[1]]), two)[0]
 
     pieces, cur = [], [(ww[0], vv[0])]
     if not on_wall.all():
@@ -351,15 +370,14 @@ def _la_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f:
     signed function (:func:`material_fields`) is contoured by marching squares, the valve
     closure is dropped and the open wall contour is returned in the motion frame."""
     w, v, pts = _plane_grid(anatomy, spec, step)
-    fields = material_fields(anatomy, motion, pts, f)
-
-    def exact_fields(ww, vv):
-        p = spec.center[None, :] + ww[:, None] * spec.row[None, :] + vv[:, None] * spec.column[None, :]
-        return material_fields(anatomy, motion, p, f)
-
-    out = {}
     names = ("lv_endo", "lv_epi") + (("rv_endo", "rv_epi") if with_rv else ())
+    fields = material_fields(anatomy, motion, pts, f, names)
+    out = {}
     for name in names:
+        def exact_fields(ww, vv, name=name):
+            p = spec.center[None, :] + ww[:, None] * spec.row[None, :] + vv[:, None] * spec.column[None, :]
+            return material_fields(anatomy, motion, p, f, (name,))
+
         c = _open_contour(name, fields, (len(w), len(v)), w, v, spec, exact_fields, 2 * n_side - 1)
         if c is not None:
             out[name] = unbend(anatomy, c)
@@ -376,11 +394,17 @@ def _la_tag_lines_realistic(anatomy: Anatomy, motion: Motion, grid: TagGrid, spe
     w = np.arange(-reach, reach, step / 8.0)
     out = []
     row, col, c = spec.row, spec.column, spec.center
-    for j, zj in enumerate(grid.la_positions(anatomy.z_top_min - BASE_MARGIN_MM)):
-        v = (lam * zj - c[2] - w * row[2]) / col[2]
-        pts = c[None, :] + w[:, None] * row[None, :] + v[:, None] * col[None, :]
-        fl = material_fields(anatomy, motion, pts, f)
-        inside = (fl["s"] >= fl["s1"]) & (fl["s"] <= fl["s2"]) & (fl["lv_epi"][1] <= 0)
+    levels = grid.la_positions(anatomy.z_top_min - BASE_MARGIN_MM)
+    if not len(levels):
+        return out
+    v_all = (lam * levels[:, None] - c[2] - w[None, :] * row[2]) / col[2]          # every level at once
+    pts = (c[None, None, :] + w[None, :, None] * row[None, None, :]
+           + v_all[:, :, None] * col[None, None, :]).reshape(-1, 3)
+    fl = material_fields(anatomy, motion, pts, f, ("lv_endo",))
+    inside_all = ((fl["s"] >= fl["s1"]) & (fl["s"] <= fl["s2"])
+                  & (fl["lv_endo"][1] <= 0)).reshape(len(levels), len(w))
+    for j, zj in enumerate(levels):
+        inside = inside_all[j]
         if inside.sum() < 2:
             continue
         runs = np.split(np.flatnonzero(inside), np.flatnonzero(np.diff(np.flatnonzero(inside)) > 1) + 1)
@@ -489,7 +513,7 @@ def rv_insertion_points(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: fl
     """The two RV insertion points (RV epicardium meets LV epicardium) on an SA plane, or None."""
     z = sa_material_height(motion, spec, f)
     if anatomy.realistic:
-        if not (0.0 < z <= anatomy.z_top_min - BASE_MARGIN_MM):
+        if not (0.0 < z <= anatomy.z_base - BASE_MARGIN_MM):
             return None
         lo, hi = (float(v[0]) for v in anatomy.rv_sector(z, epi=True))
         mid = 0.5 * (lo + hi)
@@ -581,7 +605,8 @@ def _sa_tag_lines_realistic(anatomy: Anatomy, motion: Motion, grid: TagGrid, spe
     x = ce * nrm[:, :1] - wf[None, :] * nrm[:, 1:2]
     y = ce * nrm[:, 1:2] + wf[None, :] * nrm[:, :1]
     s, th = x * x + y * y, np.arctan2(y, x)
-    inside = (s >= anatomy.s_lv_endo(z, th)) & (s <= anatomy.s_lv_epi(z, th))
+    s_endo, s_epi = anatomy.lv_sections(np.full(th.shape, z), th)
+    inside = (s >= s_endo) & (s <= s_epi)
     keys, mats = [], []
     for k in np.flatnonzero(inside.sum(axis=1) >= 2):
         fam, i, c = lines[k]

@@ -22,15 +22,30 @@ from cardionurbs.errors import PhantomError
 from cardionurbs.study import Study
 
 
-def add_noise(study: Study, sigma_px: float, rng: np.random.Generator) -> None:
-    """Add N(0, σ²) pixel noise to every contour and tag-line point, in place."""
+def add_noise(study: Study, sigma_px: float, rng: np.random.Generator, tries: int = 50) -> None:
+    """Add N(0, σ²) pixel noise to every contour and tag-line point, in place.
+
+    A closed contour is never drawn crossing itself (an analyst would not): a draw that makes one
+    cross (thin apical RV crescents, whose tips are narrower than the noise) is drawn again, up to
+    ``tries`` times, from the same generator -- still deterministic per seed.
+    """
+    from cardionurbs.io.checks import in_plane_coordinates, self_intersections
     if sigma_px <= 0:
         return
     for item in [*study.contours, *study.tags]:
         im = study.image(item.image)
-        d = rng.normal(0.0, sigma_px, size=(len(item.points), 2))
-        item.points = (item.points + d[:, :1] * im.pixel_spacing[1] * im.row_cosine
-                       + d[:, 1:] * im.pixel_spacing[0] * im.column_cosine)
+        for _ in range(tries):
+            d = rng.normal(0.0, sigma_px, size=(len(item.points), 2))
+            pts = (item.points + d[:, :1] * im.pixel_spacing[1] * im.row_cosine
+                   + d[:, 1:] * im.pixel_spacing[0] * im.column_cosine)
+            if not getattr(item, "closed", False) or not len(
+                    self_intersections(in_plane_coordinates(pts, im), True, first=True)):
+                break
+        else:
+            raise PhantomError(f"slice {item.slice}, frame {item.frame}: {item.structure} contour "
+                               f"crosses itself under every one of {tries} draws of "
+                               f"{sigma_px:g} px noise")
+        item.points = pts
 
 
 def inject_tag_jumps(study: Study, k: int, rng: np.random.Generator) -> list[dict]:

@@ -148,12 +148,16 @@ class Motion:
         return 1.0 - self.rv_ef * np.asarray(f, dtype=float)
 
     # ------------------------------------------------------------ the map
-    def radial_map(self, anatomy: Anatomy, s, theta, z, f) -> np.ndarray:
-        """s' = G(s; θ, z) of eq. (M3) for material (s, θ, z) at phase f."""
+    def radial_map(self, anatomy: Anatomy, s, theta, z, f, layers=None) -> np.ndarray:
+        """s' = G(s; θ, z) of eq. (M3) for material (s, θ, z) at phase f. ``layers``: the section
+        values (S1, S2, S3) at (θ, z) when the caller has them already (several s at one place)."""
         s, theta, z = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (s, theta, z)))
         lam = self.lam(f)
-        s1, s2 = anatomy.lv_sections(z, theta)
-        s3 = np.maximum(s2, anatomy.s_rv(theta, z))
+        if layers is None:
+            s1, s2 = anatomy.lv_sections(z, theta)
+            s3 = np.maximum(s2, anatomy.s_rv(theta, z))
+        else:
+            s1, s2, s3 = layers
         kl, kr = self.kappa_lv(theta, f, z, anatomy), self.kappa_rv(f)
         b1 = kl * s1
         b2 = b1 + (s2 - s1)
