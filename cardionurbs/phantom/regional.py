@@ -36,12 +36,21 @@ SEGMENTS = range(1, 17)
 
 
 def filling_rate_truth(anatomy: Anatomy, motion: Motion, n_frames: int, es_frame: int,
-                       rr_ms: float) -> dict[str, float]:
+                       rr_ms: float, dv_df=None) -> dict[str, float]:
     """PER, PEFR, PAFR (mL/s) and E/A ratio of the analytic LV volume curve; NaN below
-    MIN_FRAMES frames (the measurement's own rule)."""
+    MIN_FRAMES frames (the measurement's own rule).
+
+    dV/dt = dV/df · f'(τ) / RR. ``dv_df`` (mL per unit phase, a function of f): by default the
+    ideal anatomy's exact −V_ED EF; a realistic anatomy passes the derivative of its numerical
+    volume curve (:func:`realistic_regional_truth`)."""
     if n_frames < MIN_FRAMES:
         return {c: NAN for c in RATE_COLUMNS}
-    v_ed = anatomy.lv_cavity_volume() / 1000.0                      # mL
+    if dv_df is None:
+        v_ed = anatomy.lv_cavity_volume() / 1000.0                  # mL
+        slope = -v_ed * motion.lv_ef
+
+        def dv_df(f):
+            return np.full(np.shape(f), slope)
     curve = motion.curve
     e = es_frame / n_frames
     ts, _ = curve.knots()
@@ -51,7 +60,7 @@ def filling_rate_truth(anatomy: Anatomy, motion: Motion, n_frames: int, es_frame
     for col, (a, b) in windows.items():
         tau = np.unique(np.r_[np.linspace(a, b, 20001), ts[(ts >= a) & (ts <= b)]])
         tau = np.clip(tau, 0.0, 1.0 - 1e-12)                          # the end of the beat, not τ = 0
-        dvdt = -v_ed * motion.lv_ef * curve.derivative(tau) / rr_ms * 1000.0   # mL/s
+        dvdt = dv_df(curve(tau)) * curve.derivative(tau) / rr_ms * 1000.0   # mL/s
         out[col] = float(np.max(-dvdt if col == "PER (mL/s)" else dvdt))
     out["E/A ratio"] = out["PEFR (mL/s)"] / out["PAFR (mL/s)"]
     return out
@@ -357,7 +366,10 @@ def surface_strain_truth(anatomy: Anatomy, motion: Motion, specs, f_es: float) -
         c0 = annotate.la_contours(anatomy, motion, s, 0.0, n_side=600).get("lv_endo")
         c1 = annotate.la_contours(anatomy, motion, s, f_es, n_side=600).get("lv_endo")
         if c0 is not None and c1 is not None:
-            l0, l1 = _polyline_length(c0, False), _polyline_length(c1, False)
+            # lengths in the (bent) heart, where the LA planes are planes; the bend is the
+            # identity for the ideal anatomy
+            l0 = _polyline_length(annotate.bend(anatomy, c0), False)
+            l1 = _polyline_length(annotate.bend(anatomy, c1), False)
             gls.append(100.0 * (l1 - l0) / l0)
     sa = [s for s in specs if s.view == "SA"]
     mid = min(sa, key=lambda s: abs(s.height - 0.5 * anatomy.z_base))
@@ -376,56 +388,16 @@ def realistic_regional_truth(anatomy: Anatomy, motion: Motion, specs, n_frames: 
     """Regional truth of a realistic anatomy (:mod:`cardionurbs.phantom.shape`).
 
     Filling rates come from the method-A volume curve V(f) (quadratic in the phase f,
-    :func:`cardionurbs.phantom.truth_realistic.volume_curve`): dV/dt = V'(f) f'(τ) / RR over the
-    same windows as :func:`filling_rate_truth`. Surface GLS and GCS are measured as for the ideal
+    :func:`cardionurbs.phantom.truth_realistic.volume_polynomials`): dV/dt = V'(f) f'(τ) / RR,
+    by :func:`filling_rate_truth`. Surface GLS and GCS are measured as for the ideal
     anatomy on the analytic contours, the LA ones taken back to the bent heart. (Wall thickness
     and tag strain: :func:`wall_thickness_truth` and :func:`strain_truth`, which handle both
     anatomies.)
     """
-    from cardionurbs.phantom import annotate
-    from cardionurbs.phantom.truth_realistic import volume_curve
+    from cardionurbs.phantom.truth_realistic import volume_polynomials
 
-    out: dict[str, float] = {}
-    if n_frames < MIN_FRAMES:
-        out.update({c: NAN for c in RATE_COLUMNS})
-    else:
-        f_es = float(motion.curve(es_frame / n_frames))
-        vol = volume_curve(anatomy, motion, f_es)
-        v0, v1 = vol(0.0)["lv_cavity"], vol(1e-4)["lv_cavity"]
-        e = es_frame / n_frames
-        windows = {"PER (mL/s)": (0.0, e), "PEFR (mL/s)": (e, e + 2 * (1 - e) / 3),
-                   "PAFR (mL/s)": (e + 2 * (1 - e) / 3, 1.0)}
-        ts, _ = motion.curve.knots()
-        for col, (a, b) in windows.items():
-            tau = np.unique(np.r_[np.linspace(a, b, 20001), ts[(ts >= a) & (ts <= b)]])
-            tau = np.clip(tau, 0.0, 1.0 - 1e-12)
-            f = motion.curve(tau)
-            h = 1e-4
-            dvdf = np.array([(vol(x + h)["lv_cavity"] - vol(x - h)["lv_cavity"]) / (2 * h) for x in (0.0, 1.0)])
-            slope = dvdf[0] + (dvdf[1] - dvdf[0]) * f            # V'(f) is linear in f (V quadratic)
-            dvdt = slope * motion.curve.derivative(tau) / rr_ms * 1000.0      # mL/s
-            out[col] = float(np.max(-dvdt if col == "PER (mL/s)" else dvdt))
-        out["E/A ratio"] = out["PEFR (mL/s)"] / out["PAFR (mL/s)"]
-        del v0, v1
-    gls = []
-    for s in specs:
-        if s.view != "LA":
-            continue
-        c0 = annotate.la_contours(anatomy, motion, s, 0.0, n_side=600).get("lv_endo")
-        c1 = annotate.la_contours(anatomy, motion, s, float(motion.curve(es_frame / n_frames)),
-                                  n_side=600).get("lv_endo")
-        if c0 is not None and c1 is not None:
-            l0 = _polyline_length(annotate.bend(anatomy, c0), False)
-            l1 = _polyline_length(annotate.bend(anatomy, c1), False)
-            gls.append(100.0 * (l1 - l0) / l0)
-    sa = [s for s in specs if s.view == "SA"]
-    mid = min(sa, key=lambda s: abs(s.height - 0.5 * anatomy.z_base))
     f_es = float(motion.curve(es_frame / n_frames))
-    c0 = annotate.sa_contours(anatomy, motion, mid, 0.0, n_lv=2880).get("lv_endo")
-    c1 = annotate.sa_contours(anatomy, motion, mid, f_es, n_lv=2880).get("lv_endo")
-    gcs = NAN
-    if c0 is not None and c1 is not None:
-        l0, l1 = _polyline_length(c0, True), _polyline_length(c1, True)
-        gcs = 100.0 * (l1 - l0) / l0
-    out.update({"GLS surface (%)": float(np.mean(gls)) if gls else NAN, "GCS surface (%)": gcs})
+    dv_df = volume_polynomials(anatomy, motion, f_es)["lv_cavity"].deriv()
+    out = filling_rate_truth(anatomy, motion, n_frames, es_frame, rr_ms, dv_df=dv_df)
+    out.update(surface_strain_truth(anatomy, motion, specs, f_es))
     return out

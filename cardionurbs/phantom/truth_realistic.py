@@ -293,11 +293,16 @@ def mesh_volumes(anatomy: Anatomy, motion: Motion, f: float, n_mu: int = 120, n_
             "lv_myocardium_material": vols["lv_myocardium_material"]}
 
 
-def volume_curve(anatomy: Anatomy, motion: Motion, f_max: float):
-    """V(f) for every phase: method A at f = 0, f_max / 2 and f_max and the quadratic in f through
-    them, per volume (the cavity scalings κ of the motion are quadratic in f; the valve planes
-    move smoothly), as a callable f -> dict of mL."""
+def volume_polynomials(anatomy: Anatomy, motion: Motion, f_max: float) -> dict[str, np.poly1d]:
+    """V(f) per volume (mL) as the quadratic in the phase f through method A at f = 0, f_max / 2
+    and f_max (the cavity scalings κ of the motion are quadratic in f; the valve planes move
+    smoothly)."""
     fs = np.array([0.0, 0.5 * f_max, f_max])
     vals = [section_volumes(anatomy, motion, float(f)) for f in fs]
-    coef = {k: np.polyfit(fs, [v[k] for v in vals], 2) for k in vals[0]}
-    return lambda f: {k: float(np.polyval(c, f)) for k, c in coef.items()}
+    return {k: np.poly1d(np.polyfit(fs, [v[k] for v in vals], 2)) for k in vals[0]}
+
+
+def volume_curve(anatomy: Anatomy, motion: Motion, f_max: float):
+    """V(f) for every phase, from :func:`volume_polynomials`: a callable f -> dict of mL."""
+    poly = volume_polynomials(anatomy, motion, f_max)
+    return lambda f: {k: float(p(f)) for k, p in poly.items()}
