@@ -404,14 +404,10 @@ def _la_tag_lines_realistic(anatomy: Anatomy, motion: Motion, grid: TagGrid, spe
     inside_all = ((fl["s"] >= fl["s1"]) & (fl["s"] <= fl["s2"])
                   & (fl["lv_endo"][1] <= 0)).reshape(len(levels), len(w))
     for j, zj in enumerate(levels):
-        inside = inside_all[j]
-        if inside.sum() < 2:
+        segs = _inside_runs(inside_all[j], w)
+        if not segs:
             continue
-        runs = np.split(np.flatnonzero(inside), np.flatnonzero(np.diff(np.flatnonzero(inside)) > 1) + 1)
-        ws = [_sample_segments([(w[r[0]], w[r[-1]])], step) for r in runs if len(r) >= 2]
-        if not ws:
-            continue
-        wj = np.concatenate(ws)
+        wj = _sample_segments(segs, step)
         vj = (lam * zj - c[2] - wj * row[2]) / col[2]
         p = c[None, :] + wj[:, None] * row[None, :] + vj[:, None] * col[None, :]
         out.append(("la", j, unbend(anatomy, p)))
@@ -552,6 +548,30 @@ def _sample_segments(segs, step: float) -> np.ndarray:
     return np.concatenate(parts) if parts else np.empty(0)
 
 
+def _inside_runs(inside: np.ndarray, w: np.ndarray) -> list[tuple[float, float]]:
+    """(w_start, w_end) of each run of at least two consecutive True samples."""
+    idx = np.flatnonzero(inside)
+    runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1) if len(idx) else []
+    return [(w[r[0]], w[r[-1]]) for r in runs if len(r) >= 2]
+
+
+def _move_lines(anatomy: Anatomy, motion: Motion, keys: list, mats: list, f: float) -> list:
+    """(family, index, points at phase f) of material tag lines, moved in one call."""
+    if not mats:
+        return []
+    moved = motion.forward(anatomy, np.concatenate(mats), f)
+    cuts = np.cumsum([len(m) for m in mats])[:-1]
+    return [(fam, i, pts) for (fam, i), pts in zip(keys, np.split(moved, cuts))]
+
+
+def _sa_line(c: float, n: np.ndarray, segs, step: float, z: float) -> np.ndarray:
+    """Material points of the tag line {c n + w n⊥} in section z over the w-intervals ``segs``."""
+    w = _sample_segments(segs, step)
+    mat = c * n[None, :] + w[:, None] * np.array([-n[1], n[0], 0.0])[None, :]
+    mat[:, 2] = z
+    return mat
+
+
 def sa_tag_lines(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpec, f: float,
                  step: float) -> list[tuple[str, int, np.ndarray]]:
     """(family, index, points) of the SA tag lines on one SA plane at phase f, clipped to the LV wall."""
@@ -566,21 +586,12 @@ def sa_tag_lines(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpe
     keys, mats = [], []
     for fam in ("sa1", "sa2"):
         n = grid.sa_normal(fam)
-        t = np.array([-n[1], n[0], 0.0])
         for i, c in enumerate(grid.sa_positions()):
             segs = _segments(float(c), s1, s2)
-            if not segs:
-                continue
-            w = _sample_segments(segs, step)
-            mat = c * n[None, :] + w[:, None] * t[None, :]
-            mat[:, 2] = z
-            keys.append((fam, i))
-            mats.append(mat)
-    if not mats:
-        return []
-    moved = motion.forward(anatomy, np.concatenate(mats), f)
-    cuts = np.cumsum([len(m) for m in mats])[:-1]
-    return [(fam, i, pts) for (fam, i), pts in zip(keys, np.split(moved, cuts))]
+            if segs:
+                keys.append((fam, i))
+                mats.append(_sa_line(float(c), n, segs, step, z))
+    return _move_lines(anatomy, motion, keys, mats, f)
 
 
 def _sa_tag_lines_realistic(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpec, f: float,
@@ -610,23 +621,11 @@ def _sa_tag_lines_realistic(anatomy: Anatomy, motion: Motion, grid: TagGrid, spe
     keys, mats = [], []
     for k in np.flatnonzero(inside.sum(axis=1) >= 2):
         fam, i, c = lines[k]
-        idx = np.flatnonzero(inside[k])
-        runs = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
-        segs = [(wf[r[0]], wf[r[-1]]) for r in runs if len(r) >= 2]
-        if not segs:
-            continue
-        n = grid.sa_normal(fam)
-        tv = np.array([-n[1], n[0], 0.0])
-        w = _sample_segments(segs, step)
-        mat = c * n[None, :] + w[:, None] * tv[None, :]
-        mat[:, 2] = z
-        keys.append((fam, i))
-        mats.append(mat)
-    if not mats:
-        return []
-    moved = motion.forward(anatomy, np.concatenate(mats), f)
-    cuts = np.cumsum([len(m) for m in mats])[:-1]
-    return [(fam, i, pts) for (fam, i), pts in zip(keys, np.split(moved, cuts))]
+        segs = _inside_runs(inside[k], wf)
+        if segs:
+            keys.append((fam, i))
+            mats.append(_sa_line(c, grid.sa_normal(fam), segs, step, z))
+    return _move_lines(anatomy, motion, keys, mats, f)
 
 
 def la_tag_lines(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpec, f: float,
