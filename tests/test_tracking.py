@@ -292,3 +292,14 @@ def test_missing_dicom_and_far_spacing_are_one_line_exit_2(phantom_dir, tmp_path
     code, err = _run_bad(["track", str(src), "--out", str(tmp_path / "o")], capsys)
     assert code == 2 and len(err) == 1 and victim.name in err[0]
     assert not (tmp_path / "o").exists()
+
+
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(8, 96), k=st.integers(0, 200), seed=st.integers(0, 2 ** 16))
+def test_best_cyclic_shift_matches_the_brute_force_minimum(n, k, seed):
+    from cardionurbs.tracking.track import best_cyclic_shift
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(n, 2))
+    b = np.roll(a, -k, axis=0) + 0.01 * rng.normal(size=(n, 2))
+    brute = min(range(n), key=lambda j: float(((np.roll(b, j, axis=0) - a) ** 2).sum()))
+    assert best_cyclic_shift(a, b) == brute == k % n

@@ -506,6 +506,14 @@ def slice_contours_px(study: Study, images: list[ImagePlane]) -> list[list[tuple
     return out
 
 
+def best_cyclic_shift(a: np.ndarray, b: np.ndarray) -> int:
+    """The k minimising Σ |roll(b, k) − a|² for two closed curves of n samples (n, 2): the
+    maximum of the circular cross-correlation Σ_i a_i · b_{i−k}, by FFT."""
+    fa, fb = np.fft.rfft(a, axis=0), np.fft.rfft(b, axis=0)
+    corr = np.fft.irfft((fa * np.conj(fb)).sum(axis=1), n=len(a))
+    return int(np.argmax(corr))
+
+
 def _contour_prior(contours, offset: np.ndarray):
     """Displacement prior for :func:`harp.track`: each point moves as the mean of the 4
     nearest contour samples between frames t − 1 and t (closed contours matched by the cyclic
@@ -516,8 +524,7 @@ def _contour_prior(contours, offset: np.ndarray):
         P0, D = [], []
         for (a, closed), (b, _) in zip(contours[t - 1], contours[t]):
             if closed:
-                shifts = [np.roll(b, k, axis=0) for k in range(len(b))]
-                b = min(shifts, key=lambda q: float(((q - a) ** 2).sum()))
+                b = np.roll(b, best_cyclic_shift(a, b), axis=0)
             P0.append(a)
             D.append(b - a)
         P0, D = np.vstack(P0) - offset, np.vstack(D)
@@ -582,8 +589,10 @@ def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myoc
     offset = np.array([c0, r0], float)
     crop = frames_px[:, r0:r1, c0:c1]
     inner = [_grid_mask(m, box, 0) if m is not None else None for m in myos]
-    spectra = sfft.fft2(myocardial_window(crop, inner, [m is None or m.drawn for m in myos]),
-                        axes=(-2, -1))
+    # the harmonic phase and the tag trough are both taken on the windowed frames (outside
+    # the myocardium the dark lung would otherwise pass for a tag trough)
+    crop = myocardial_window(crop, inner, [m is None or m.drawn for m in myos])
+    spectra = sfft.fft2(crop, axes=(-2, -1))
     hs_by_fam = {fam: harp.HarmonicSeries.from_images(crop, geom.k[fam], spectra=spectra)
                  for fam in geom.k}
     masks = [binary_dilation(m, iterations=3) if m is not None else None for m in inner]
