@@ -493,13 +493,16 @@ def render_scale(r: dict) -> str:
     L = ["# Scale: UK Biobank on paper", "",
          "Generated with the throughput benchmark (numbers from `reports/throughput.json`):", "",
          "```",
-         "OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_throughput.py --repeat 3 --skip-cohort",
+         "OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_throughput.py --repeat 1 --skip-cohort "
+         "--baseline BASE",
          f"OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_throughput.py --n {r.get('n')} "
          "--repeat 1 --skip-analyze",
          "```", "",
          f"Measured {r.get('date')} on {r.get('machine')} (load average {r.get('load_start')} "
          f"at start, {r.get('load_end')} at end: the cores were shared, so CPU time, not wall "
-         "time, is used below).", "",
+         "time, is used below; at a load far above the core count even CPU times are inflated, "
+         "about twofold against the same work at a load of 4 -- see reports/benchmark-throughput.md "
+         "-- so the figures below are upper bounds).", "",
          "## Per-subject cost (measured)", "",
          "| study | CPU s per subject (metrics only, in a running worker) |", "|---|---:|",
          f"| 50-frame tagged phantom (9 SA + 3 LA slices, SA and LA tags) | {t50:.2f} |",
@@ -526,7 +529,9 @@ def render_scale(r: dict) -> str:
           "10 SA slices, so within ~10 %).",
           f"- cluster time = core-hours / (workers x parallel efficiency {100 * eff:.0f} %, the "
           f"measured 1 -> 2 worker efficiency in CPU time) x (1 + Dask overhead {100 * dask_over:.0f} %, "
-          "CPU time against plain processes, cluster start-up included); one single-threaded "
+          f"CPU time against plain processes on {r.get('cohort_subjects')} subjects, cluster "
+          "start-up included: a fixed cost that a small run does not amortise, so an upper bound "
+          "here); one single-threaded "
           "worker process per core. Scheduling 100,000 tasks is far below what one Dask "
           "scheduler handles (a few thousand tasks per second), so the scheduler is not the limit.",
           "- Input reading is included for native studies; reading the DICOM headers of UK "
