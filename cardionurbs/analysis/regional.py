@@ -117,7 +117,7 @@ def regional_metrics(model, tags=None) -> RegionalMetrics:
             if got is not None:
                 lines = (got[0], planes.normals[got[1]], planes.offsets[got[1]])
         res = tag_strain(material, f, a.apex, a.base, P, N, a, axis=ax, myocardium=wall,
-                         tag_lines=lines)
+                         tag_lines=lines, noise_mm=planes.rms_mm if planes is not None else 0.0)
         if res is not None:
             if planes is not None:
                 res["tag_noise_mm"] = planes.rms_mm

@@ -48,7 +48,8 @@ Per segment: the volume mean of the fitted strain over the ED myocardium of
 AHA segment k (:mod:`cardionurbs.analysis.aha`), sampled between the
 reconstructed endo- and epicardium (:func:`myocardium_samples`) within the
 height range of the tracked points (the fit is not extrapolated beyond the
-tagged tissue); global: the mean of the segment values 1–16.
+tagged tissue) and at least :data:`AXIS_CLEARANCE_MM` from the long axis;
+global: the mean of the segment values 1–16.
 """
 
 from __future__ import annotations
@@ -73,6 +74,12 @@ OUTLIER_MM = 1.5
 MIN_POINTS = 80
 #: radius (mm) over which endocardial normals are averaged for the radial direction
 NORMAL_SMOOTHING_MM = 6.0
+#: myocardium nearer the long axis than this (mm; the apical tip around the cavity apex) is
+#: left out of the segment means: the cylindrical chart (S1) is singular on the axis, where
+#: ∂r'/∂(r'²) = 1/(2r') amplifies any error of the fitted r'² (the phantom truth does the same)
+AXIS_CLEARANCE_MM = 10.0
+#: wall samples (about) used to choose the regularisation of the tag-line fit
+RISK_SAMPLES = 600
 
 
 def aligned_frame(e1: np.ndarray, apex: np.ndarray, base: np.ndarray):
@@ -229,6 +236,16 @@ def directional_strains(E: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     return 100.0 * np.einsum("nki,nij,nkj->nk", dirs, E, dirs)
 
 
+def segment_means(values: np.ndarray, labels: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(k, 3) weighted means of per-point (n, 3) values over the segments 1–16 present."""
+    out = []
+    for k in range(1, 17):
+        m = labels == k
+        if m.any():
+            out.append(np.average(values[m], axis=0, weights=weights[m]))
+    return np.array(out)
+
+
 def strain_columns(values: np.ndarray, labels: np.ndarray, weights: np.ndarray | None = None
                    ) -> tuple[dict[str, float], dict]:
     """Ecc/Ell/Err per segment and global from per-point (n, 3) strains (%), labels and
@@ -290,7 +307,8 @@ def smoothed_normals(points: np.ndarray, normals: np.ndarray, weights: np.ndarra
 def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_points: np.ndarray,
                endo_normals: np.ndarray, aha, axis: tuple | None = None,
                myocardium: tuple[np.ndarray, np.ndarray] | None = None,
-               tag_lines: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> dict | None:
+               tag_lines: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+               noise_mm: float = 0.0) -> dict | None:
     """Strain ED → ``frame`` from the tracked material points: {"columns", "det_F" (mean),
     "det_F_range", "n_points", "counts", "fit_residual_mm", "method"}; None with too few points.
     ``apex``, ``base``: the ED long axis; ``axis``: (apex, base) at ``frame`` (default ED's).
@@ -300,7 +318,8 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     ``tag_lines``: (points (n, 3), ED plane normals (n, 3), offsets (n,)) of the frame's tag
     points (:mod:`cardionurbs.analysis.tag_motion`): the fit of the material points is then
     refined on them by orthogonal-distance regression (method "tag lines"); else the
-    material points alone are fitted (method "material points")."""
+    material points alone are fitted (method "material points"). ``noise_mm``: the tag
+    tracking noise (the ED tag-plane residual), which sets the regularisation of that fit."""
     from cardionurbs.analysis.tag_motion import MIN_TAG_POINTS, fit_tag_motion
     ok = material.tracked(material.ed_frame, frame)
     if ok.sum() < MIN_POINTS:
@@ -311,20 +330,28 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     fit = CylindricalMotionFit(X, x, (apex, base), axis)
     info = {"n_points": int(ok.sum()), "outliers": fit.outliers, "fit_residual_mm": fit.residual_mm,
             "method": "material points"}
-    if tag_lines is not None and len(tag_lines[0]) >= MIN_TAG_POINTS:
-        out = fit_tag_motion(fit, *tag_lines)
-        info.update(method="tag lines", n_tag_points=out["n_points"],
-                    tag_outliers=out["outliers"], fit_residual_mm=out["residual_mm"])
     Y, vol = X, None
     if myocardium is not None:
         e = (base - apex) / np.linalg.norm(base - apex)
         h, hy = (X - apex) @ e, (myocardium[0] - apex) @ e
-        inside = (hy >= h.min()) & (hy <= h.max())
+        radial = myocardium[0] - apex - np.outer(hy, e)
+        inside = ((hy >= h.min()) & (hy <= h.max())
+                  & (np.linalg.norm(radial, axis=1) >= AXIS_CLEARANCE_MM))
         Y, vol = myocardium[0][inside], myocardium[1][inside]
-    F = fit.gradient(Y)
-    vals = directional_strains(green_lagrange(F), cardiac_directions(Y, endo_points, endo_normals,
-                                                                     apex, base))
+    dirs = cardiac_directions(Y, endo_points, endo_normals, apex, base)
     labels = aha.segments(Y)
+    w = np.ones(len(Y)) if vol is None else vol
+    if tag_lines is not None and len(tag_lines[0]) >= MIN_TAG_POINTS:
+        sub = slice(None, None, max(1, len(Y) // RISK_SAMPLES))
+
+        def segment_strains(f):       # the quantities the regularisation is chosen for
+            v = directional_strains(green_lagrange(f.gradient(Y[sub])), dirs[sub])
+            return segment_means(v, labels[sub], w[sub]).ravel()
+        out = fit_tag_motion(fit, *tag_lines, noise_mm=noise_mm, quantities=segment_strains)
+        info.update(method="tag lines", n_tag_points=out["n_points"], penalty=out["lambda"],
+                    tag_outliers=out["outliers"], fit_residual_mm=out["residual_mm"])
+    F = fit.gradient(Y)
+    vals = directional_strains(green_lagrange(F), dirs)
     cols, counts = strain_columns(vals, labels, vol)
     det = np.linalg.det(F)
     return {"columns": cols, "det_F": float(det.mean()),

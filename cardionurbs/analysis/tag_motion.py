@@ -48,6 +48,7 @@ are used.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,6 +64,10 @@ ITERATIONS = (2, 1)
 #: tag points kept at most this far (mm) outside the LV myocardium contours
 MARGIN_MM = 0.5
 MIN_TAG_POINTS = 300
+#: the penalty weights λ tried per group by :func:`choose_penalty` (0: no penalty)
+LAMBDA_GRID = np.r_[0.0, np.logspace(-2, 3, 11)]
+#: tracking noise (mm) below which the tags count as exact (no regularisation)
+NOISE_FLOOR_MM = 0.01
 
 
 @dataclass(frozen=True)
@@ -147,26 +152,99 @@ def _schur_step(J_coef: np.ndarray, J_pt: np.ndarray, res: np.ndarray, ridge: fl
     inv = np.linalg.inv(H_pp)
     M = inv @ H_pc                                                     # (n, 2, m)
     Jc = J_coef.reshape(-1, m)
-    S = Jc.T @ Jc - H_pc.reshape(-1, m).T @ M.reshape(-1, m)
+    S_data = Jc.T @ Jc - H_pc.reshape(-1, m).T @ M.reshape(-1, m)
     rhs = Jc.T @ res.reshape(-1) - np.einsum("nka,nk->a", M, g_p)
+    S = S_data
     if penalty is not None:
         S = S + penalty
         rhs = rhs + penalty @ coef
     S = S + ridge * np.trace(S) / m * np.eye(m)
     d_coef = -np.linalg.solve(S, rhs)
     d_pt = -np.einsum("nkl,nl->nk", inv, g_p + np.einsum("nka,a->nk", H_pc, d_coef))
-    return d_coef, d_pt
+    return d_coef, d_pt, S_data
+
+
+def quantity_jacobian(fit, quantities, coef: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """∂q/∂coef (k, m) of ``quantities(fit)`` by central differences, step 1e-3 × ``scale``
+    (the coefficients' standard errors), the fit's coefficients restored after."""
+    h = 1e-3 * np.maximum(scale, 1e-12)
+    cols = []
+    for j in range(len(coef)):
+        c = coef.copy()
+        c[j] += h[j]
+        fit.coef = c.reshape(3, -1).T
+        up = quantities(fit)
+        c[j] -= 2 * h[j]
+        fit.coef = c.reshape(3, -1).T
+        cols.append((up - quantities(fit)) / (2 * h[j]))
+    fit.coef = coef.reshape(3, -1).T
+    return np.array(cols).T
+
+
+def penalty_groups(fit) -> list[np.ndarray]:
+    """Masks over the flattened coefficients (``coef.T.ravel()``) of the terms (S1) that the
+    regulariser shrinks towards zero, one mask per group:
+
+    1. the *transmural variation*: the r² terms other than the constant one (how the
+       transmural gradient changes with height and angle) — the terms that carry the
+       noise of the radial strain, since only the tag spacing across a ~1 cm wall
+       informs them;
+    2. the highest Legendre order in height (the finest longitudinal detail)."""
+    a, b, m = fit._index
+    groups = [(b == 1) & ~((a == 0) & (m == 0)), (b == 0) & (a == a.max())]
+    return [np.tile(g, 3) for g in groups]
+
+
+def choose_penalty(S: np.ndarray, coef: np.ndarray, groups: list[np.ndarray], sigma_mm: float,
+                   B: np.ndarray, grid=LAMBDA_GRID, ridge: float = 1e-8) -> tuple[np.ndarray, tuple]:
+    """The quadratic regulariser P_λ = Σ_g λ_g Σ_{j∈g} S_jj c_j² that minimises an unbiased
+    estimate of the mean squared error of the quantities B·c (e.g. the segment strains,
+    B their derivative with respect to the coefficients) of the linearised fit (T2).
+
+    With c the unregularised optimum, Cov(c) = σ² S⁻¹ (S the reduced Gauss–Newton matrix,
+    σ the tag tracking noise in mm), A = (S + P_λ)⁻¹ and c_λ = A S c = c − A P_λ c, the
+    error B(c_λ − c_true) has mean square |B A P_λ c_true|² + σ² tr(B A S A Bᵀ), and
+
+        R(λ) = |B A P_λ c|² − σ² tr(B A P_λ S⁻¹ P_λ A Bᵀ) + σ² tr(B A S A Bᵀ)
+
+    estimates it without bias (Stein's unbiased risk estimate for a linear smoother; Vogel,
+    *Computational Methods for Inverse Problems*, 2002, §7.1). Scaling each coefficient's
+    penalty by S_jj makes λ dimensionless (λ = 1: as much prior as data on that
+    coefficient). With σ = 0, λ = 0. Returns (P (m, m), λ per group)."""
+    m = len(coef)
+    reg = ridge * np.trace(S) / m * np.eye(m)
+    d = np.diag(S)
+    S_inv = np.linalg.inv(S + reg)
+
+    def weights(lams):
+        return sum((lam * np.where(g, d, 0.0) for lam, g in zip(lams, groups)), np.zeros(m))
+    best, choice = np.inf, tuple(0.0 for _ in groups)
+    if sigma_mm >= NOISE_FLOOR_MM and groups:
+        s2 = sigma_mm ** 2
+        for lams in itertools.product(grid, repeat=len(groups)):
+            Pl = np.diag(weights(lams))
+            BA = np.linalg.solve(S + Pl + reg, B.T).T                  # B A (A symmetric)
+            BAP = BA @ Pl
+            risk = (float(np.sum((BAP @ coef) ** 2)) - s2 * float(np.sum((BAP @ S_inv) * BAP))
+                    + s2 * float(np.sum((BA @ S) * BA)))
+            if risk < best:
+                best, choice = risk, lams
+    return np.diag(weights(choice)), tuple(float(v) for v in choice)
 
 
 def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
-                   ridge: float = 1e-8, penalty=None) -> dict:
+                   noise_mm: float = 0.0, quantities=None, ridge: float = 1e-8) -> dict:
     """Refine a :class:`~cardionurbs.analysis.strain.CylindricalMotionFit` ``fit`` (ED → frame,
     started from the material points) on tag points (n, 3) whose ED planes are
     (``normals`` (n, 3), ``offsets`` (n,)) by (T2), in place.
 
-    ``penalty``: optional callable coef-count -> (m, m) quadratic regulariser on the
-    flattened coefficients. Returns {"residual_mm" (RMS distance to the fitted surfaces),
-    "outliers", "n_points", "ed_points" (the fitted X_i)}.
+    Regularisation: with tracking noise ``noise_mm`` (e.g. :attr:`TagPlanes.rms_mm`) of at
+    least :data:`NOISE_FLOOR_MM` and ``quantities`` (a callable: the fit -> the vector of
+    quantities the fit is for, e.g. the segment strains), the fit is refined once more
+    with the penalty of :func:`choose_penalty` on the groups of :func:`penalty_groups`,
+    its weights chosen to minimise the estimated mean squared error of those quantities.
+    Returns {"residual_mm" (RMS distance to the fitted surfaces), "outliers", "n_points",
+    "lambda" (penalty weight per group), "ed_points" (the fitted X_i)}.
     """
     x = np.asarray(points, float)
     n = np.asarray(normals, float)
@@ -178,20 +256,29 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
         X = X + (x - fit.position(X))
         X -= ((np.einsum("ni,ni->n", n, X) - d))[:, None] * n
     use = np.ones(len(x), bool)
-    R = None
+
+    def step(penalty=None):
+        pos, J_coef, F = fit.linearisation(X[use])
+        J_pt = F @ basis[use].transpose(0, 2, 1)                         # (n, 3, 2)
+        coef = fit.coef.T.reshape(-1)                                   # component-major
+        d_coef, d_pt, S = _schur_step(J_coef, J_pt, pos - x[use], ridge, penalty, coef)
+        fit.coef = (coef + d_coef).reshape(3, -1).T
+        X[use] += np.einsum("nk,nkj->nj", d_pt, basis[use])
+        return S
     for stage, iters in enumerate(ITERATIONS):
         for _ in range(iters):
-            pos, J_coef, F = fit.linearisation(X[use])
-            res = pos - x[use]
-            J_pt = F @ basis[use].transpose(0, 2, 1)                     # (n, 3, 2)
-            coef = fit.coef.T.reshape(-1)                               # component-major
-            if penalty is not None and R is None:
-                R = penalty(len(coef))
-            d_coef, d_pt = _schur_step(J_coef, J_pt, res, ridge, R, coef)
-            fit.coef = (coef + d_coef).reshape(3, -1).T
-            X[use] += np.einsum("nk,nkj->nj", d_pt, basis[use])
+            S = step()
         err = np.linalg.norm(fit.position(X) - x, axis=1)
         if stage == 0:
             use = err <= max(OUTLIER_MM, 4.0 * float(np.median(err)))
+    lams = ()
+    if noise_mm >= NOISE_FLOOR_MM and quantities is not None:
+        coef = fit.coef.T.reshape(-1)
+        B = quantity_jacobian(fit, quantities, coef, np.sqrt(np.diag(np.linalg.pinv(S))) * noise_mm)
+        P, lams = choose_penalty(S, coef, penalty_groups(fit), noise_mm, B)
+        if any(lams):
+            for _ in range(ITERATIONS[1]):
+                step(P)
+            err = np.linalg.norm(fit.position(X) - x, axis=1)
     return {"residual_mm": float(np.sqrt(np.mean(err[use] ** 2))), "outliers": int((~use).sum()),
-            "n_points": int(use.sum()), "ed_points": X[use]}
+            "n_points": int(use.sum()), "lambda": [float(v) for v in lams], "ed_points": X[use]}
