@@ -450,19 +450,30 @@ def fit_compatible_curves(point_sets: Sequence[Any], degree: int = 3, closed: bo
             fitted[k] = curves
         return fitted[k]
 
+    judged = [(i, V.finite_array(pts, f"error_points[{i}]", ndim=2))
+              for i, pts in enumerate(error_points) if pts is not None]
+
+    def holds(k: int, i: int, pts: np.ndarray) -> bool:
+        # the same decision as max_distance <= tol, projecting only the points the
+        # cheap distance bounds leave undecided (most counts fail or pass outright)
+        return bool(_error_within(curves_at(k)[i], pts, None, float(tols[i]))[0])
+
     need, met = 0, True
-    for i, pts in enumerate(error_points):
-        if pts is None:
-            continue
-        pts = V.finite_array(pts, f"error_points[{i}]", ndim=2)
-        for k in range(need, len(steps)):
-            # the same decision as max_distance <= tol, projecting only the points the
-            # cheap distance bounds leave undecided (most counts fail or pass outright)
-            if _error_within(curves_at(k)[i], pts, None, float(tols[i]))[0]:
-                need = k
+    while True:
+        for i, pts in judged:
+            k = next((k for k in range(need, len(steps)) if holds(k, i, pts)), None)
+            if k is None:
+                need, met = len(steps) - 1, False
                 break
-        else:
-            need, met = len(steps) - 1, False
+            need = k
+        # a least-squares fit is not monotone in its count: raising the count for a later
+        # section can lose an earlier one, so the count must hold for every section at once
+        if not met or all(holds(need, i, pts) for i, pts in judged):
+            break
+        if need == len(steps) - 1:
+            met = False
+            break
+        need += 1
     worst = 0.0
     for i, pts in enumerate(error_points):
         if pts is not None:
