@@ -22,30 +22,48 @@ from cardionurbs.errors import PhantomError
 from cardionurbs.study import Study
 
 
-def add_noise(study: Study, sigma_px: float, rng: np.random.Generator, tries: int = 50) -> None:
+def add_noise(study: Study, sigma_px: float, rng: np.random.Generator, tries: int = 50) -> list[dict]:
     """Add N(0, σ²) pixel noise to every contour and tag-line point, in place.
 
     A closed contour is never drawn crossing itself (an analyst would not): a draw that makes one
-    cross (thin apical RV crescents, whose tips are narrower than the noise) is drawn again, up to
-    ``tries`` times, from the same generator -- still deterministic per seed.
+    cross (thin apical RV crescents, whose tips are narrower than the noise) is drawn again from
+    a generator of its own (seeded from ``rng``'s draw for it, so every other contour gets
+    exactly the noise it would get without the redraws), up to ``tries`` times; a contour that
+    crosses under every draw is left out, as an analyst leaves out a crescent thinner than the
+    noise. Returns the left-out contours (slice, frame, structure).
     """
     from cardionurbs.io.checks import in_plane_coordinates, self_intersections
     if sigma_px <= 0:
-        return
+        return []
+    dropped, keep = [], []
     for item in [*study.contours, *study.tags]:
         im = study.image(item.image)
-        for _ in range(tries):
-            d = rng.normal(0.0, sigma_px, size=(len(item.points), 2))
-            pts = (item.points + d[:, :1] * im.pixel_spacing[1] * im.row_cosine
-                   + d[:, 1:] * im.pixel_spacing[0] * im.column_cosine)
-            if not getattr(item, "closed", False) or not len(
-                    self_intersections(in_plane_coordinates(pts, im), True, first=True)):
-                break
-        else:
-            raise PhantomError(f"slice {item.slice}, frame {item.frame}: {item.structure} contour "
-                               f"crosses itself under every one of {tries} draws of "
-                               f"{sigma_px:g} px noise")
+
+        def noisy(d):
+            return (item.points + d[:, :1] * im.pixel_spacing[1] * im.row_cosine
+                    + d[:, 1:] * im.pixel_spacing[0] * im.column_cosine)
+
+        d = rng.normal(0.0, sigma_px, size=(len(item.points), 2))
+        pts = noisy(d)
+
+        def crosses(p):
+            return bool(len(self_intersections(in_plane_coordinates(p, im), True, first=True)))
+
+        if getattr(item, "closed", False) and crosses(pts):
+            own = np.random.default_rng(np.abs(d[:4].ravel() * 1e6).astype(np.int64))
+            for _ in range(tries):
+                pts = noisy(own.normal(0.0, sigma_px, size=d.shape))
+                if not crosses(pts):
+                    break
+            else:
+                dropped.append({"slice": item.slice, "frame": int(item.frame),
+                                "structure": item.structure})
+                keep.append(id(item))
+                continue
         item.points = pts
+    if keep:
+        study.contours[:] = [c for c in study.contours if id(c) not in keep]
+    return dropped
 
 
 def inject_tag_jumps(study: Study, k: int, rng: np.random.Generator) -> list[dict]:

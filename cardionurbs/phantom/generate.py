@@ -275,21 +275,23 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
                 study.landmarks.append(Landmark(name, k, p, index=i))
 
     jumps = faults.inject_tag_jumps(study, tag_jumps, _rng(seed, pathology, "tag-jumps"))
-    faults.add_noise(study, float(noise_px), _rng(seed, pathology, "noise"))
+    dropped = faults.add_noise(study, float(noise_px), _rng(seed, pathology, "noise"))
 
     metrics, tag_truth = truth.compute_metrics(anatomy, motion, grid, specs, phases, es_frame, float(hr),
                                                len(jumps))
     if anatomy.realistic:
-        # filling rates from the numerical volume curve, surface strain from bent contours
+        # filling rates from the numerical volume curve (and surface strain, both anatomies' way)
         metrics.update(regional.realistic_regional_truth(anatomy, motion, specs, frames, es_frame, rr))
     else:
         metrics.update(regional.filling_rate_truth(anatomy, motion, frames, es_frame, rr))
-        metrics.update(regional.surface_strain_truth(anatomy, motion, specs, f_es))
     metrics.update(regional.wall_thickness_truth(anatomy, motion, specs, f_es))
     strain = regional.strain_truth(anatomy, motion, specs, tag_truth["levels"], f_es)
     metrics.update(strain["columns"])
+    surface = regional.surface_strain_truth(anatomy, motion, specs, f_es)
+    metrics.update(surface)
     tag_truth["det_F_es"] = strain["det_F"]
     fault_record = {"noise_px": float(noise_px), "tag_jumps": jumps,
+                    **({"contours_left_out": dropped} if dropped else {}),
                     "breath_hold_mm": float(breath_hold_mm),
                     "breath_hold_shifts_mm": ({k: [float(x) for x in v] for k, v in shifts.items()}
                                               if breath_hold_mm > 0 else {})}

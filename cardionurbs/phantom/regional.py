@@ -390,15 +390,12 @@ def realistic_regional_truth(anatomy: Anatomy, motion: Motion, specs, n_frames: 
 
     Filling rates come from the method-A volume curve V(f) (quadratic in the phase f,
     :func:`cardionurbs.phantom.truth_realistic.volume_polynomials`): dV/dt = V'(f) f'(τ) / RR,
-    by :func:`filling_rate_truth`. Surface GLS and GCS are measured as for the ideal
-    anatomy on the analytic contours, the LA ones taken back to the bent heart. (Wall thickness
-    and tag strain: :func:`wall_thickness_truth` and :func:`strain_truth`, which handle both
-    anatomies.)
+    by :func:`filling_rate_truth`. (Wall thickness, tag strain and surface strain:
+    :func:`wall_thickness_truth`, :func:`strain_truth` and :func:`surface_strain_truth`, which
+    handle both anatomies.)
     """
     from cardionurbs.phantom.truth_realistic import volume_polynomials
 
     f_es = float(motion.curve(es_frame / n_frames))
     dv_df = volume_polynomials(anatomy, motion, f_es)["lv_cavity"].deriv()
-    out = filling_rate_truth(anatomy, motion, n_frames, es_frame, rr_ms, dv_df=dv_df)
-    out.update(surface_strain_truth(anatomy, motion, specs, f_es))
-    return out
+    return filling_rate_truth(anatomy, motion, n_frames, es_frame, rr_ms, dv_df=dv_df)
