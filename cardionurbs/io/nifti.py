@@ -383,7 +383,7 @@ def _build(subject: str, source: Path, sa: LabelVolume, frames: dict[int, int],
     _add_sa(b, sa, frames, times)
     study = b.study
     study.frame_times_ms = {f: times[f] for f in sorted(set(frames.values())) if f in times}
-    study.meta.update({"format": "nifti", "labels": roles.describe(),
+    study.meta.update({"format": "nifti", "labels": roles.describe(), "sa_apex": "taper",
                        "voxel_volumes_ml": voxel_volumes(sa, roles, frames),
                        "metric_notes": {"RVM (g)": "label maps have no RV wall: RV mass not "
                                                    "measured"} if roles.rv_myo is None else {},
@@ -616,9 +616,28 @@ def read_study(path: str | Path, *, labels: "str | LabelRoles | None" = None,
         study = read_ukbb(p, labels)
     else:
         study = read_mnms(p, labels, ed_frame, es_frame)
-    if layout != "mnms":
+    given = {k: v for k, v in (("ED", ed_frame), ("ES", es_frame)) if v is not None}
+    if given:
+        _check_given_frames(study, given)
         if ed_frame is not None:
-            study.ed_frame = ed_frame
+            study.ed_frame = int(ed_frame)
         if es_frame is not None:
-            study.es_frame = es_frame
+            study.es_frame = int(es_frame)
+        study.meta["ed_es_given"] = sorted(given)
     return study
+
+
+def _check_given_frames(study: Study, given: dict[str, int]) -> None:
+    """ED/ES frames named by the user must be distinct labelled frames of the study."""
+    labelled = sorted({c.frame for c in study.contours if c.structure == "lv_endo"})
+    shown = ", ".join(map(str, labelled[:12])) + (", ..." if len(labelled) > 12 else "")
+    for name, v in given.items():
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise StudyError(f"{name} frame must be a whole number >= 0, got {v!r}",
+                             file=study.source, field=f"{name.lower()}_frame")
+        if v not in labelled:
+            raise StudyError(f"{name} frame {v} is not a labelled frame of the map (frames with an "
+                             f"LV cavity: {shown})", file=study.source, field=f"{name.lower()}_frame")
+    if len(given) == 2 and given["ED"] == given["ES"]:
+        raise StudyError(f"ED and ES are the same frame ({given['ED']})", file=study.source,
+                         field="es_frame")
