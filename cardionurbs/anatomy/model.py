@@ -211,10 +211,17 @@ class BiventricularModel:
         """LV cavity volume (mL) of the loft through the SA contours alone: what ED and
         ES are found with (cheap for every frame; the LA correction is applied only
         to the frames that are reported)."""
+        same = not (self.refine and self.geometry[frame].la_points.get("lv_endo"))
+        if same and (frame, "lv_cavity") in self._solid_cache:
+            return meshing.volume_ml(self._solid_cache[(frame, "lv_cavity")])
         surf = self.fit(frame, "lv_endo", refined=False).surface
         v, f = nurbs.tessellate(surf, *self.resolution)
         m = meshing.solid(v, f, what="lv_endo", frame=frame)
-        return meshing.volume_ml(self._trim(m, frame, "lv", what="lv_cavity"))
+        cavity = self._trim(m, frame, "lv", what="lv_cavity")
+        if same:       # no LA correction: this is the cavity the metrics report, kept for them
+            self._solid_cache[(frame, "lv_endo")] = m
+            self._solid_cache[(frame, "lv_cavity")] = cavity
+        return meshing.volume_ml(cavity)
 
     def _refined(self, geo: FrameGeometry, structure: str, surface):
         """The surface corrected towards the LA contour points on the apical side of the

@@ -360,7 +360,7 @@ def _resolve_roles(labels, default: str | None, vol: LabelVolume, frames) -> tup
 
 
 def _check_roles(vol: LabelVolume, roles: LabelRoles) -> None:
-    present = {int(v) for v in np.unique(vol.data)}
+    present = {int(v) for v in np.flatnonzero(np.bincount(vol.data.ravel(), minlength=MAX_LABEL + 1))}
     check_values(present, roles, str(vol.path))
     non_zero = sorted(present - {0})
     if len(non_zero) == 1:

@@ -261,6 +261,14 @@ def _error_within(curve: NurbsCurve, points: np.ndarray, params: np.ndarray,
     bound = float(np.max(np.linalg.norm(curve.evaluate(params) - points, axis=1)))
     if bound <= tol:
         return True, bound
+    return _distance_within(curve, points, tol)
+
+
+def _distance_within(curve: NurbsCurve, points: np.ndarray, tol: float) -> tuple[bool, float]:
+    """Whether the max true distance of ``points`` to ``curve`` is <= tol, and that distance
+    (or an upper bound <= tol): the cheap bounds of :func:`curve_distance_bounds` decide
+    where they can, the closest-point projection only for the points they leave open (the
+    answer is the same as :func:`max_distance`'s comparison)."""
     lower, upper = curve_distance_bounds(curve, points)
     if lower.max() > tol:                   # surely too far: skip the projection
         return False, float(upper.max())
@@ -363,7 +371,9 @@ class CompatibleFit(NamedTuple):
 
     curves: list[NurbsCurve]    #: one curve per section, all on the same knot vector
     n_ctrl: int                 #: the common number of (distinct) control points
-    max_error: float            #: largest point-to-curve distance measured (points' units)
+    max_error: float            #: largest point-to-curve distance measured (points' units; where
+                                #: cheap bounds already show a section within tolerance, their
+                                #: upper bound, <= tol)
     met: bool                   #: every section within its tolerance
 
 
@@ -440,8 +450,8 @@ def fit_compatible_curves(point_sets: Sequence[Any], degree: int = 3, closed: bo
             continue
         pts = V.finite_array(pts, f"error_points[{i}]", ndim=2)
         for k in range(need, len(steps)):
-            errors[i, k] = max_distance(curves_at(k)[i], pts)
-            if errors[i, k] <= tols[i]:
+            ok, errors[i, k] = _distance_within(curves_at(k)[i], pts, tols[i])
+            if ok:
                 need = k
                 break
         else:
