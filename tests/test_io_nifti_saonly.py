@@ -71,7 +71,7 @@ def test_taper_respects_an_empty_slice_and_refuses_a_widening_end():
 def acdc_phantom(tmp_path_factory):
     ph = generate("mr", seed=3, frames=6, matrix=176, volume_check=False)
     out = tmp_path_factory.mktemp("acdc") / "mr3"
-    write_labelmaps(ph, out, "acdc", frames=[0, ph.es_frame], images=False)
+    write_labelmaps(ph, out, "acdc", images=True)     # labels at ED and ES, the image 4-D
     return ph, out
 
 
@@ -141,3 +141,32 @@ def test_ed_es_frames_are_refused_for_contour_formats(tmp_path):
     write_phantom(ph, tmp_path / "ph")
     with pytest.raises(StudyError, match="NIfTI label maps"):
         load_study(tmp_path / "ph", ed_frame=0)
+
+
+# ------------------------------------------------------------------ the image beside the labels
+def test_contours_sit_on_the_image_beside_the_labels(acdc_phantom, tmp_path):
+    """The cine image NIfTI (its own file and header) under the contours from the labels:
+    blood is bright inside the LV endocardium, the myocardium between the LV contours dark,
+    and the figure is drawn for ED and ES."""
+    from matplotlib.path import Path as MplPath
+
+    from cardionurbs.report.figures import render_figures
+    from cardionurbs.report.overlay import sa_overlay
+
+    ph, out = acdc_phantom
+    study = load_study(out)
+    ov = sa_overlay(study, study.ed_frame)
+    assert not isinstance(ov, str), ov
+    cc, rr = np.meshgrid(np.arange(ov.image.shape[0]), np.arange(ov.image.shape[1]),
+                         indexing="ij")
+    pix = np.column_stack([cc.ravel(), rr.ravel()])
+    inside = {k: MplPath(ov.contours[k][0]).contains_points(pix).reshape(ov.image.shape)
+              for k in ("lv_endo", "lv_epi")}
+    blood = ov.image[inside["lv_endo"]].mean()
+    wall = ov.image[inside["lv_epi"] & ~inside["lv_endo"]]
+    assert blood > 2 * np.median(wall)
+    fs = render_figures(reconstruct(study), tmp_path / "fig", only=["fig13_labelmap_overlay"])
+    assert [f.name for f in fs.figures] == ["fig13_labelmap_overlay"], fs.skipped
+    no_image = load_study(out)
+    no_image.meta.pop("image_files")
+    assert "no short-axis image" in sa_overlay(no_image, no_image.ed_frame)

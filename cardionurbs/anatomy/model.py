@@ -309,8 +309,8 @@ class BiventricularModel:
         es = g_es.frame
         for key in [k for k in self._fits if k[0] == es and k[1] == "lv_epi"]:
             del self._fits[key]
-        for key in [k for k in self._solid_cache if k[0] == es]:
-            del self._solid_cache[key]
+        for key in ((es, "lv_epi"), (es, None)):
+            self._solid_cache.pop(key, None)
 
     # ------------------------------------------------------------- geometry
     def long_axis(self) -> tuple[np.ndarray, np.ndarray]:

@@ -635,7 +635,8 @@ def _taper_apices(study: Study, geo: FrameGeometry, n: np.ndarray) -> None:
     for s, secs in geo.sections.items():
         if not secs or geo.la_points.get(s) or (s == "lv_epi" and landmark):
             continue
-        levels = np.array([float(polygon_centroid(sec.points, n) @ n) for sec in secs])
+        # a section lies in its SA plane: the mean of its points has the plane's level
+        levels = np.array([float(sec.points.mean(axis=0) @ n) for sec in secs])
         areas = np.array([polygon_area(sec.points, n) for sec in secs])
         have = {sec.slice for sec in secs}
         beyond = [float(im.position @ n) for im in planes
