@@ -112,6 +112,21 @@ def polygon_centroid(points: np.ndarray, normal: np.ndarray | None = None) -> np
     return c0 + (cxy if b is None else cxy @ b)
 
 
+def points_in_polygon(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Which 2-D points (m, 2) lie inside a closed polygon (n, 2): the even-odd
+    crossing-number test (a horizontal ray from each point crosses the boundary an odd
+    number of times), vectorised over points and edges. Points exactly on the boundary
+    may fall either way, as with any floating-point inside test."""
+    p = np.asarray(xy, dtype=float).reshape(-1, 2)
+    a = np.asarray(polygon, dtype=float)
+    b = np.roll(a, -1, axis=0)
+    x, y = p[:, 0:1], p[:, 1:2]                                   # (m, 1)
+    straddles = (a[None, :, 1] > y) != (b[None, :, 1] > y)         # (m, n)
+    dy = np.where(b[:, 1] == a[:, 1], 1.0, b[:, 1] - a[:, 1])
+    x_cross = a[None, :, 0] + (y - a[None, :, 1]) * ((b[:, 0] - a[:, 0]) / dy)[None, :]
+    return (np.count_nonzero(straddles & (x < x_cross), axis=1) % 2) == 1
+
+
 def chord_length(xy: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> float:
     """Length of the chord of a closed polygon along the line origin + t·direction.
 

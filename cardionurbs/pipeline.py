@@ -180,7 +180,9 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                         "metrics": {k: (None if isinstance(v, float) and math.isnan(v) else v)
                                     for k, v in metrics.items()},
                         "ed_frame": model.ed_frame, "es_frame": model.es_frame,
-                        "volume_curve": volume_curve(model), "residuals": summary,
+                        "volume_curve": volume_curve(model, every_structure=bool(
+                            {"meshes", "figures", "report"} & set(outputs))),
+                        "residuals": summary,
                         "residual_frames": sorted({model.ed_frame, model.es_frame}),
                         "tags": None if tags is None else tags.to_json(),
                         "quality": quality.to_json(), "QC": "; ".join(quality.flags),

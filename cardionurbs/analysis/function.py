@@ -155,12 +155,26 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None)
             for k, x in out.items()}
 
 
-def volume_curve(model: "BiventricularModel") -> dict[str, list]:
+def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> dict[str, list]:
     """The volume–time curve: per reconstructed frame, trigger time (ms, None where
-    unknown) and the four volumes (mL; NaN where a structure is missing)."""
+    unknown) and the four volumes (mL; NaN where a structure is missing).
+
+    ``every_structure=False`` (a metrics-only analysis) reports what the metrics already
+    measured and builds nothing more: the LV cavity at every frame (the cavities ED, ES
+    and the filling rates come from) and the other three volumes at ED and ES only (NaN
+    at the other frames). Building every frame's other surfaces and booleans just for
+    this curve would cost several times the whole metrics analysis."""
     frames = list(model.frames)
     times = [model.study.frame_times_ms.get(f) for f in frames]
     out: dict[str, list] = {"frame": frames, "time_ms": times}
-    for key in ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium"):
-        out[f"{key} (mL)"] = [float(model.volumes.get(f, {}).get(key, NAN)) for f in frames]
+    if every_structure or not hasattr(model, "lv_cavity_volume"):
+        for key in ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium"):
+            out[f"{key} (mL)"] = [float(model.volumes.get(f, {}).get(key, NAN)) for f in frames]
+        return out
+    reported = {model.ed_frame, model.es_frame}
+    out["lv_cavity (mL)"] = [float(model.volumes[f].get("lv_cavity", NAN)) if f in reported
+                             else model.lv_cavity_volume(f) for f in frames]
+    for key in ("rv_cavity", "lv_myocardium", "rv_myocardium"):
+        out[f"{key} (mL)"] = [float(model.volumes[f].get(key, NAN)) if f in reported else NAN
+                              for f in frames]
     return out

@@ -297,13 +297,23 @@ def axis_frame(apex: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, np.ndarr
     right-handed about ``e`` (from e1 towards e2) is counter-clockwise as
     seen from the apex looking toward the base (docs/metrics.md sign).
     """
-    e = np.asarray(apex, float) - np.asarray(base, float)
-    e /= np.linalg.norm(e)
-    helper = np.eye(3)[np.argmin(np.abs(e))]
-    e1 = np.cross(e, helper)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(e, e1)
-    return e1, e2, e
+    apex, base = np.asarray(apex, float), np.asarray(base, float)
+    key = (apex.tobytes(), base.tobytes())
+    frame = _AXIS_FRAMES.get(key)
+    if frame is None:                     # asked thousands of times per study (tag QC)
+        e = apex - base
+        e /= np.linalg.norm(e)
+        helper = np.eye(3)[np.argmin(np.abs(e))]
+        e1 = np.cross(e, helper)
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(e, e1)
+        if len(_AXIS_FRAMES) > 64:
+            _AXIS_FRAMES.clear()
+        frame = _AXIS_FRAMES[key] = (e1, e2, e)
+    return tuple(x.copy() for x in frame)
+
+
+_AXIS_FRAMES: dict = {}
 
 
 def la_sections(study: Study, frame: int, apex: np.ndarray,

@@ -379,6 +379,17 @@ def _pair_residuals(points: np.ndarray, Ca: list[np.ndarray], Cb: list[np.ndarra
     return [float(m) if np.isfinite(d[k]).all() else None for k, m in enumerate(med)]
 
 
+def _weighted_polyfit(x: np.ndarray, y: np.ndarray, deg: int, w: np.ndarray) -> np.ndarray:
+    """Coefficients (highest power first) of the least-squares polynomial of degree
+    ``deg`` through (x, y) with weights ``w`` on the residuals: what ``np.polyfit(x, y,
+    deg, w=w)`` computes (scaled Vandermonde columns, SVD least squares), without its
+    per-call checks -- it runs thousands of times per study."""
+    A = np.vander(x, deg + 1) * w[:, None]
+    scale = np.sqrt((A * A).sum(axis=0))
+    c = np.linalg.lstsq(A / scale, y * w, rcond=len(x) * np.finfo(float).eps)[0]
+    return c / scale
+
+
 def _index_trend(values: list[tuple[int, float]], i: int, outlier: float) -> float:
     """Residual expected at tag index i from the other tags' (index, residual) in its slice.
 
@@ -401,7 +412,7 @@ def _index_trend(values: list[tuple[int, float]], i: int, outlier: float) -> flo
             return float(r[keep][0])
         deg = 2 if n >= 4 else 1
         w = 1.0 / (1.0 + np.abs(j[keep] - i)) ** 2
-        c = np.polyfit(j[keep] - i, r[keep], deg, w=np.sqrt(w))
+        c = _weighted_polyfit(j[keep] - i, r[keep], deg, np.sqrt(w))
         fit = np.polyval(c, j - i)
         new = np.abs(r - fit) <= outlier
         if new.sum() < 1 or np.array_equal(new, keep):

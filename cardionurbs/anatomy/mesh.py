@@ -139,6 +139,52 @@ def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6.0)
 
 
+def clipped_volume(vertices: np.ndarray, faces: np.ndarray, plane: Plane | None) -> float:
+    """Volume (units³) of the part of a closed, outward-oriented triangle mesh on the kept
+    side of ``plane`` (all of it when ``plane`` is None), without building the clipped solid.
+
+    Divergence theorem with the origin on the plane: V = Σ (a · (b × c)) / 6 over the
+    triangles clipped to the half-space (Sutherland–Hodgman against one plane: a
+    triangle with one vertex kept becomes one triangle, with two kept a quadrilateral,
+    two triangles). The cap that closes the cut lies in the plane through the origin,
+    where x · n = 0, so it adds nothing and is never built. Equals the volume of
+    :func:`solid` trimmed by the plane (manifold3d) to rounding; it does not check the
+    mesh (:func:`solid` does).
+    """
+    v = np.asarray(vertices, dtype=float)
+    f = np.asarray(faces, dtype=np.int64)
+    if plane is None:
+        return signed_volume(v, f)
+    t = v[f] - plane.origin                               # (m, 3, 3), origin on the plane
+    d = t @ plane.normal                                  # (m, 3) signed distances
+    kept = d >= 0
+    n_kept = kept.sum(axis=1)
+
+    def triple(a, b, c):
+        return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum())
+
+    total = triple(*(t[n_kept == 3].transpose(1, 0, 2)))
+    for count in (1, 2):
+        sel = np.flatnonzero(n_kept == count)
+        if sel.size == 0:
+            continue
+        # roll each triangle (keeping its orientation) so that its odd vertex comes first:
+        # the one kept vertex (count 1) or the one cut-off vertex (count 2)
+        odd = kept[sel] if count == 1 else ~kept[sel]
+        s = np.argmax(odd, axis=1)
+        idx = (s[:, None] + np.arange(3)[None, :]) % 3
+        tt = np.take_along_axis(t[sel], idx[:, :, None], axis=1)
+        dd = np.take_along_axis(d[sel], idx, axis=1)
+        a, b, c = tt[:, 0], tt[:, 1], tt[:, 2]
+        ab = a + (b - a) * (dd[:, 0] / (dd[:, 0] - dd[:, 1]))[:, None]
+        ac = a + (c - a) * (dd[:, 0] / (dd[:, 0] - dd[:, 2]))[:, None]
+        if count == 1:
+            total += triple(a, ab, ac)
+        else:                                           # a cut off: (ab, b, c), (ab, c, ac)
+            total += triple(ab, b, c) + triple(ab, c, ac)
+    return total / 6.0
+
+
 def to_manifold(vertices: np.ndarray, faces: np.ndarray, *, what: str = "surface",
                 frame: int | None = None) -> manifold3d.Manifold:
     """A manifold3d solid from a closed, outward-oriented triangle mesh.

@@ -211,17 +211,28 @@ class BiventricularModel:
         """LV cavity volume (mL) of the loft through the SA contours alone: what ED and
         ES are found with (cheap for every frame; the LA correction is applied only
         to the frames that are reported)."""
-        same = not (self.refine and self.geometry[frame].la_points.get("lv_endo"))
-        if same and (frame, "lv_cavity") in self._solid_cache:
-            return meshing.volume_ml(self._solid_cache[(frame, "lv_cavity")])
-        surf = self.fit(frame, "lv_endo", refined=False).surface
-        v, f = nurbs.tessellate(surf, *self.resolution)
-        m = meshing.solid(v, f, what="lv_endo", frame=frame)
-        cavity = self._trim(m, frame, "lv", what="lv_cavity")
-        if same:       # no LA correction: this is the cavity the metrics report, kept for them
-            self._solid_cache[(frame, "lv_endo")] = m
-            self._solid_cache[(frame, "lv_cavity")] = cavity
-        return meshing.volume_ml(cavity)
+        return self._clipped_cavity_ml(frame, self.fit(frame, "lv_endo", refined=False).surface)
+
+    def _clipped_cavity_ml(self, frame: int, surface) -> float:
+        """LV cavity volume (mL) inside one frame's LV endocardial ``surface``: its capped
+        tessellation clipped by the mitral plane
+        (:func:`cardionurbs.anatomy.mesh.clipped_volume`: the divergence theorem, no
+        manifold solid built)."""
+        v, f = meshing.closed_mesh(*nurbs.tessellate(surface, *self.resolution))
+        vol = meshing.clipped_volume(v, f, self.base_planes[frame].get("lv")) / 1000.0
+        if not vol > 0:
+            raise ReconstructionError(f"lv_cavity, frame {frame}: nothing lies on the apical "
+                                      "side of the valve plane")
+        return vol
+
+    def lv_cavity_volume(self, frame: int) -> float:
+        """The LV cavity volume (mL) of one frame, as :meth:`volumes` has it: at ED and ES
+        (and any frame whose solids exist) from the checked manifold solid; at the other
+        frames (the volume curve, filling rates) from the clipped tessellation of the same
+        surface, which gives the same volume to rounding without building the solid."""
+        if frame in (self.ed_frame, self.es_frame) or (frame, "lv_cavity") in self._solid_cache:
+            return meshing.volume_ml(self.lv_cavity_solid(frame))
+        return self._clipped_cavity_ml(frame, self._surface(frame, "lv_endo"))
 
     def _refined(self, geo: FrameGeometry, structure: str, surface):
         """The surface corrected towards the LA contour points on the apical side of the

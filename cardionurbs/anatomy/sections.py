@@ -26,8 +26,8 @@ from scipy.spatial import cKDTree
 
 from cardionurbs.anatomy.mesh import Plane
 from cardionurbs.errors import ReconstructionError
-from cardionurbs.geometry import (fit_plane, in_plane_basis, long_axis, polygon_area,
-                                  polygon_centroid, stack_normal)
+from cardionurbs.geometry import (fit_plane, in_plane_basis, long_axis, points_in_polygon,
+                                  polygon_area, polygon_centroid, stack_normal)
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.study import Contour, Study
 
@@ -104,16 +104,19 @@ def _nearest_neighbour_chain(points: np.ndarray, start: int) -> np.ndarray:
     order = [start]
     visited[start] = True
     cur = start
+    k0 = min(n, 8)
+    # every point's k0 nearest, queried once for all points; a point whose k0 nearest
+    # are all taken asks the tree again with more (as a query per step would)
+    near = np.asarray(tree.query(points, k=k0)[1]).reshape(n, k0).tolist()
     for _ in range(n - 1):
-        k = min(n, 8)
-        while True:
-            _, idx = tree.query(points[cur], k=k)
-            idx = np.atleast_1d(idx)
-            free = idx[~visited[idx]]
-            if free.size or k >= n:
-                break
+        nxt = next((j for j in near[cur] if not visited[j]), None)
+        k = k0
+        while nxt is None and k < n:
             k = min(n, k * 4)
-        nxt = int(free[0])
+            idx = np.atleast_1d(tree.query(points[cur], k=k)[1])
+            free = idx[~visited[idx]]
+            nxt = int(free[0]) if free.size else None
+        nxt = int(nxt)
         visited[nxt] = True
         order.append(nxt)
         cur = nxt
@@ -280,10 +283,9 @@ def septal_mask(rv_points: np.ndarray, lv_epi_loop: np.ndarray, normal: np.ndarr
     (:func:`fill_short_gaps`)."""
     b = in_plane_basis(normal)
     c = polygon_centroid(lv_epi_loop, normal)
-    from matplotlib.path import Path as _Path
     poly = (lv_epi_loop - c) @ b.T
     xy = (rv_points - c) @ b.T
-    inside = _Path(poly).contains_points(xy)
+    inside = points_in_polygon(xy, poly)
     a, e = poly, np.roll(poly, -1, axis=0) - poly
     rel = xy[:, None, :] - a[None]
     t = np.clip(np.einsum("ijk,jk->ij", rel, e) / np.maximum((e * e).sum(1), 1e-18), 0, 1)

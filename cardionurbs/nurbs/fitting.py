@@ -247,28 +247,28 @@ def _optimise_weights(points: np.ndarray, params: np.ndarray, degree: int, n_ctr
 
 
 def max_distance(curve: NurbsCurve, points: np.ndarray) -> float:
-    """Maximum true distance from ``points`` to ``curve`` (points' units)."""
-    _, dist = curve_closest_points(curve, points)
+    """Maximum true distance from ``points`` to ``curve`` (points' units).
+
+    Only the points that can hold the maximum are projected: those whose upper
+    distance bound (:func:`curve_distance_bounds`) reaches the largest lower bound."""
+    points = V.point_rows(points, "points", curve.dimension)
+    lower, upper = curve_distance_bounds(curve, points)
+    _, dist = curve_closest_points(curve, points[upper >= lower.max()])
     return float(dist.max())
 
 
-def _error_within(curve: NurbsCurve, points: np.ndarray, params: np.ndarray,
+def _error_within(curve: NurbsCurve, points: np.ndarray, params: np.ndarray | None,
                   tol: float) -> tuple[bool, float]:
     """Whether max distance <= tol, and that distance (or an upper bound <= tol).
 
-    The residual at the fit parameters ``max |Q_k - C(ū_k)|`` bounds the true
-    distance from above; the projection is computed only when it exceeds tol."""
-    bound = float(np.max(np.linalg.norm(curve.evaluate(params) - points, axis=1)))
-    if bound <= tol:
-        return True, bound
-    return _distance_within(curve, points, tol)
-
-
-def _distance_within(curve: NurbsCurve, points: np.ndarray, tol: float) -> tuple[bool, float]:
-    """Whether the max true distance of ``points`` to ``curve`` is <= tol, and that distance
-    (or an upper bound <= tol): the cheap bounds of :func:`curve_distance_bounds` decide
-    where they can, the closest-point projection only for the points they leave open (the
-    answer is the same as :func:`max_distance`'s comparison)."""
+    The residual at the fit parameters ``max |Q_k - C(ū_k)|`` (when ``params`` are
+    given) bounds the true distance from above; the cheap bounds of
+    :func:`curve_distance_bounds` settle most other points; the projection is computed
+    only for the points they leave undecided."""
+    if params is not None:
+        bound = float(np.max(np.linalg.norm(curve.evaluate(params) - points, axis=1)))
+        if bound <= tol:
+            return True, bound
     lower, upper = curve_distance_bounds(curve, points)
     if lower.max() > tol:                   # surely too far: skip the projection
         return False, float(upper.max())
@@ -371,9 +371,7 @@ class CompatibleFit(NamedTuple):
 
     curves: list[NurbsCurve]    #: one curve per section, all on the same knot vector
     n_ctrl: int                 #: the common number of (distinct) control points
-    max_error: float            #: largest point-to-curve distance measured (points' units; where
-                                #: cheap bounds already show a section within tolerance, their
-                                #: upper bound, <= tol)
+    max_error: float            #: largest point-to-curve distance measured (points' units)
     met: bool                   #: every section within its tolerance
 
 
@@ -443,15 +441,15 @@ def fit_compatible_curves(point_sets: Sequence[Any], degree: int = 3, closed: bo
             fitted[k] = curves
         return fitted[k]
 
-    errors: dict[tuple[int, int], float] = {}
     need, met = 0, True
     for i, pts in enumerate(error_points):
         if pts is None:
             continue
         pts = V.finite_array(pts, f"error_points[{i}]", ndim=2)
         for k in range(need, len(steps)):
-            ok, errors[i, k] = _distance_within(curves_at(k)[i], pts, tols[i])
-            if ok:
+            # the same decision as max_distance <= tol, projecting only the points the
+            # cheap distance bounds leave undecided (most counts fail or pass outright)
+            if _error_within(curves_at(k)[i], pts, None, float(tols[i]))[0]:
                 need = k
                 break
         else:
@@ -459,6 +457,5 @@ def fit_compatible_curves(point_sets: Sequence[Any], degree: int = 3, closed: bo
     worst = 0.0
     for i, pts in enumerate(error_points):
         if pts is not None:
-            worst = max(worst, errors.get((i, need)) if (i, need) in errors else
-                        max_distance(curves_at(need)[i], np.asarray(pts, float)))
+            worst = max(worst, max_distance(curves_at(need)[i], np.asarray(pts, float)))
     return CompatibleFit(curves_at(need), steps[need], worst, met)

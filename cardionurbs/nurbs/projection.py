@@ -135,11 +135,18 @@ def surface_closest_points(surface: Any, points: Any, iterations: int = 16,
     P0, P = P, np.repeat(P, k, axis=0)      # Newton from each of the k nearest seeds
     u, v = us[idx // vs.size], vs[idx % vs.size]
     dist = np.linalg.norm(surface.evaluate_points(u, v) - P, axis=1)
+    # A point whose step helps at no backtracking scale keeps (u, v), so the next
+    # iteration would compute the same step and fail again: it is done. Only the
+    # points still moving are iterated (the same result, a fraction of the work).
+    active = np.arange(u.size)
+    dot = lambda a, b: np.einsum("kd,kd->k", a, b)  # noqa: E731
     for _ in range(iterations):
-        D = surface.derivatives(u, v, 2)
-        r = D[:, 0, 0] - P
+        if active.size == 0:
+            break
+        ua, va, Pa, da = u[active], v[active], P[active], dist[active]
+        D = surface.derivatives(ua, va, 2)
+        r = D[:, 0, 0] - Pa
         Su, Sv = D[:, 1, 0], D[:, 0, 1]
-        dot = lambda a, b: np.einsum("kd,kd->k", a, b)  # noqa: E731
         gu, gv = dot(Su, r), dot(Sv, r)
         juu, juv, jvv = dot(Su, Su), dot(Su, Sv), dot(Sv, Sv)
         huu = juu + dot(D[:, 2, 0], r)
@@ -154,17 +161,19 @@ def surface_closest_points(surface: Any, points: Any, iterations: int = 16,
         det = huu * hvv - huv * huv
         du = -(hvv * gu - huv * gv) / det
         dv = -(huu * gv - huv * gu) / det
-        todo = np.ones(u.size, dtype=bool)
+        todo = np.ones(active.size, dtype=bool)
         for scale in _BACKTRACK:
-            cu = _wrap_or_clip(u + scale * du, ulo, uhi, surface.closed_u)
-            cv = np.clip(v + scale * dv, vlo, vhi)
-            cd = np.linalg.norm(surface.evaluate_points(cu, cv) - P, axis=1)
-            better = todo & (cd < dist)
-            u, v = np.where(better, cu, u), np.where(better, cv, v)
-            dist = np.where(better, cd, dist)
-            todo &= ~better
-        if np.all(todo):
-            break
+            idx = np.flatnonzero(todo)
+            if idx.size == 0:
+                break
+            cu = _wrap_or_clip(ua[idx] + scale * du[idx], ulo, uhi, surface.closed_u)
+            cv = np.clip(va[idx] + scale * dv[idx], vlo, vhi)
+            cd = np.linalg.norm(surface.evaluate_points(cu, cv) - Pa[idx], axis=1)
+            ok = cd < da[idx]
+            ua[idx[ok]], va[idx[ok]], da[idx[ok]] = cu[ok], cv[ok], cd[ok]
+            todo[idx[ok]] = False
+        u[active], v[active], dist[active] = ua, va, da
+        active = active[~todo]
     best = dist.reshape(m, k).argmin(axis=1) + np.arange(m) * k
     assert P[best].shape == P0.shape
     return u[best], v[best], dist[best]

@@ -13,14 +13,23 @@ images name DICOM files,
    is a :class:`TagTrackingError`, and so is a first frame without a tag
    pattern (peak contrast below :data:`spectral.MIN_CONTRAST`).
 2. **Harmonic phase** (:mod:`cardionurbs.tracking.harp`) of every frame, on a
-   crop around the slice's contours. A frame whose median myocardial
+   crop around the slice's contours, after a *myocardial window*
+   (:func:`myocardial_window`): everything outside the frame's myocardium is
+   set to the myocardium's mean intensity. The band-pass reaches a few pixels;
+   without the window the bright blood pool's edge adds its own spectrum at
+   the tag frequency and biases the phase near the endocardium by up to half
+   a spacing, a bias that moves with the wall (the main source of tag jumps
+   at end systole). A frame whose median myocardial
    harmonic magnitude has fallen below ``FADED`` of the first frame's ends the
    tracking of that slice (the tags have faded).
 3. **Tag lines at the first frame**: the iso-phase lines φ = π (the tag
    minima: a dark tag's first harmonic has phase π at its centre) clipped to
    the myocardium of the study's contours (SA: inside ``lv_epi`` and outside
    ``lv_endo``; LA: between the open ``lv_epi`` and ``lv_endo`` curves closed
-   across the base), ordered along the tag.
+   across the base), ordered along the tag. At the first frame a tag lies on
+   its plane: a piece whose median offset from the nearest plane exceeds
+   ``ON_PLANE_LINE`` spacings (a plane grazing the border leaves such a piece)
+   is no tag line.
 4. **Tag index** of each line: its position along the family's 3-D tag normal
    N in scanner mm, p = median N·x over its points, gives
    i = round((p − index0) / d) — the expected planes' ``index0_mm`` and
@@ -36,14 +45,20 @@ images name DICOM files,
    across the line). LA views: the iso-phase lines φ_t = π, each point
    labelled by the nearest line predicted from the previous frame plus the
    whole spacings between them. Both are moved onto the tag trough and kept
-   inside frame t's myocardium, 1 px from its borders. A slice whose contours
-   stop (a basal slice leaving the ventricle in systole) stops being tracked.
+   inside frame t's myocardium, 1 px from its borders. A slice without
+   contours at a frame the study contours elsewhere has left the ventricle (a
+   basal slice in systole: its tissue was above the base at ED, so no LV tag
+   runs through it — docs/metrics.md, Levels): its tracking stops there. Only
+   frames the study contours nowhere (e.g. ED + ES studies) borrow the
+   nearest contoured frame's myocardium.
 6. **Confidence** per line (``study.meta["tag_tracking"]["lines"]``, one
    column per field): ``magnitude`` — median harmonic magnitude along the
    line over the first frame's median myocardial magnitude (1 at the first
-   frame, falling as the tags fade); ``phase_residual`` — RMS over the
-   line's tracked points of the wrapped phase left after Newton (rad; a
-   point that lost its tag has a large one). The tag QC flags lines below
+   frame, falling as the tags fade); ``phase_residual`` — RMS of the wrapped
+   phase left after Newton over the tracked material points the line is made
+   of (SA) or over its index's tracked points (LA), rad (points that lost
+   their tag: SA lines leave out points above ``CONVERGED_RAD``, so a few
+   lost points near the border do not condemn a good line). The tag QC flags lines below
    ``MIN_MAGNITUDE`` or above ``MAX_PHASE_RESIDUAL``.
 """
 
@@ -77,13 +92,15 @@ FADED = 0.15               # harmonic magnitude ratio to the first frame that en
 CROP_MARGIN_PX = 24
 MIN_LINE_POINTS = 3
 ON_PLANE = 0.25            # first frame: a line point within this many spacings of its plane
+ON_PLANE_LINE = 0.12       # first frame: a line's median offset from its plane, at most (spacings)
 TROUGH_REACH = 0.45        # trough search: this many spacings either side of the iso-phase line
 REFINE = True
 CONVERGED_RAD = 0.3        # a tracked point whose phase is further than this from its target
                            # (Newton did not converge: low magnitude, phase singularity) is dropped
-BORDER_MARGIN_PX = 1.0     # line points closer than this to the endo/epicardium are left out:
+BORDER_MARGIN_PX = 1.0    # line points closer than this to the endo/epicardium are left out:
                            # there the filter mixes in blood and the tag runs into the border
 ON_LINE = 0.3              # later frames: within this many spacings of its tracked points
+WINDOW_BORROWED_PX = 4     # myocardium borrowed from another frame: window this much wider
 MIN_MAGNITUDE = 0.15       # QC: confidence thresholds
 MAX_PHASE_RESIDUAL = 0.6   # rad
 FAMILIES = {"SA": ("sa1", "sa2"), "LA": ("la",)}
@@ -129,6 +146,7 @@ class Myocardium:
 
     outer: object
     inner: object | None
+    drawn: bool = True      # False: borrowed from the slice's nearest contoured frame
 
     def contains(self, pts: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """Points (n, 2) px inside the myocardium, at least ``margin`` px from its borders."""
@@ -166,15 +184,27 @@ def _myocardium(study: Study, plane: ImagePlane, frame: int) -> Myocardium | Non
 
 
 def _masks(study: Study, images: list[ImagePlane]) -> list[Myocardium | None]:
-    """Myocardium per frame of a slice. When most frames are contoured, a frame without a
-    contour is one where the slice has left the ventricle (None: no tag lines there); when
-    few are (e.g. ED and ES only), such frames take the nearest contoured frame's."""
+    """Myocardium per frame of a slice, from its own contours at that frame.
+
+    A frame the study contours on other slices but not on this one is a frame where this
+    slice has left the ventricle (a basal slice in systole: the tissue in it was above the
+    base at ED, so no tag of the LV runs through it): None, no tag lines there. A frame the
+    study contours nowhere (e.g. a study contoured at ED and ES only) takes the slice's
+    nearest contoured frame's myocardium, marked ``drawn=False``.
+    """
     own = [_myocardium(study, im, im.frame) for im in images]
     have = [i for i, m in enumerate(own) if m is not None]
-    if not have or 2 * len(have) > len(images):
+    if not have:
         return own
-    return [own[i] if own[i] is not None else own[min(have, key=lambda j: abs(j - i))]
-            for i in range(len(images))]
+    contoured = {c.frame for c in study.contours if c.structure == "lv_epi"}
+    out = []
+    for i, im in enumerate(images):
+        if own[i] is not None or im.frame in contoured:
+            out.append(own[i])
+        else:
+            near = own[min(have, key=lambda j: abs(images[j].frame - im.frame))]
+            out.append(dataclasses.replace(near, drawn=False))
+    return out
 
 
 def _crop_box(study: Study, images: list[ImagePlane]) -> tuple[int, int, int, int]:
@@ -371,9 +401,13 @@ def resolve_geometry(group: list[tuple[ImagePlane, object, list[spectral.TagPeak
     return out
 
 
+def _order_along_index(points: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """Indices ordering points (n, 2) along the tag (perpendicular to k)."""
+    return np.argsort(points @ np.array([-k[1], k[0]]), kind="stable")
+
+
 def _order_along(points: np.ndarray, k: np.ndarray) -> np.ndarray:
-    t = np.array([-k[1], k[0]])
-    return points[np.argsort(points @ t, kind="stable")]
+    return points[_order_along_index(points, k)]
 
 
 def _isolines_in_myocardium(hs: harp.HarmonicSeries, t: int, myo: Myocardium,
@@ -426,8 +460,14 @@ class SliceTracking:
     frames_tracked: int
 
 
-def _first_frame_lines(hs_by_fam, geom, myo, box, mask, plane, tag_planes, image=None):
-    """[(family, index, points crop px)] of the first frame, indexed by position along N."""
+def _first_frame_lines(hs_by_fam, geom, myo, box, mask, plane, tag_planes, image=None,
+                       max_line_offset: float | None = None):
+    """[(family, index, points crop px, offset)] of the first frame, indexed by position along N.
+
+    offset: the line's median distance from its tag plane, in spacings. At the first frame a
+    tag lies on its plane; a piece whose offset exceeds ``max_line_offset`` (when given) is
+    no tag line — typically a short piece running along the border, where a plane that only
+    grazes the myocardium leaves an iso-phase line inside it."""
     offset = np.array([box[2], box[0]], float)
     out = []
     for fam, hs in hs_by_fam.items():
@@ -436,8 +476,11 @@ def _first_frame_lines(hs_by_fam, geom, myo, box, mask, plane, tag_planes, image
             s = (plane.pixel_to_scanner(piece + offset) @ tp.normal - tp.index0) / tp.spacing
             i = np.round(np.median(s))
             keep = np.abs(s - i) <= ON_PLANE      # points off the tag plane: not this line
-            if keep.sum() >= MIN_LINE_POINTS:
-                out.append((fam, int(i), piece[keep], float(np.median(s[keep]) - i)))
+            if keep.sum() < MIN_LINE_POINTS:
+                continue
+            frac = float(np.median(s[keep]) - i)
+            if max_line_offset is None or abs(frac) <= max_line_offset:
+                out.append((fam, int(i), piece[keep], frac))
     return out
 
 
@@ -463,6 +506,14 @@ def slice_contours_px(study: Study, images: list[ImagePlane]) -> list[list[tuple
     return out
 
 
+def best_cyclic_shift(a: np.ndarray, b: np.ndarray) -> int:
+    """The k minimising Σ |roll(b, k) − a|² for two closed curves of n samples (n, 2): the
+    maximum of the circular cross-correlation Σ_i a_i · b_{i−k}, by FFT."""
+    fa, fb = np.fft.rfft(a, axis=0), np.fft.rfft(b, axis=0)
+    corr = np.fft.irfft((fa * np.conj(fb)).sum(axis=1), n=len(a))
+    return int(np.argmax(corr))
+
+
 def _contour_prior(contours, offset: np.ndarray):
     """Displacement prior for :func:`harp.track`: each point moves as the mean of the 4
     nearest contour samples between frames t − 1 and t (closed contours matched by the cyclic
@@ -473,8 +524,7 @@ def _contour_prior(contours, offset: np.ndarray):
         P0, D = [], []
         for (a, closed), (b, _) in zip(contours[t - 1], contours[t]):
             if closed:
-                shifts = [np.roll(b, k, axis=0) for k in range(len(b))]
-                b = min(shifts, key=lambda q: float(((q - a) ** 2).sum()))
+                b = np.roll(b, best_cyclic_shift(a, b), axis=0)
             P0.append(a)
             D.append(b - a)
         P0, D = np.vstack(P0) - offset, np.vstack(D)
@@ -505,6 +555,31 @@ def _on_one_tag(P: np.ndarray, k: np.ndarray, tol: float = 0.35) -> np.ndarray:
     return keep
 
 
+def myocardial_window(crop: np.ndarray, myo_masks: list[np.ndarray | None],
+                      drawn: list[bool] | None = None) -> np.ndarray:
+    """Frames (T, rows, columns) with everything outside the myocardium set to the
+    myocardium's mean intensity (the image HARP band-passes; see module docstring, step 2).
+
+    The Gaussian band-pass has a support of a few pixels: next to the bright blood pool or
+    the RV, the edge's own spectrum at the tag frequency adds to the harmonic and biases the
+    phase by up to half a spacing — and the bias moves with the wall, so phase-invariant
+    tracking follows it (tag jumps near the endocardium at end systole). Inside the myocardium
+    the tags are a truncated sinusoid, whose band-passed phase stays that of the tags up to
+    the border. A frame whose myocardium is borrowed from a neighbouring frame
+    (``drawn[t]`` False) keeps ``WINDOW_BORROWED_PX`` more pixels around it; a frame without
+    one (None) is left as it is.
+    """
+    out = np.array(crop, float)
+    for t, m in enumerate(myo_masks):
+        if m is None or not m.any():
+            continue
+        if drawn is not None and not drawn[t]:
+            m = binary_dilation(m, iterations=WINDOW_BORROWED_PX)
+        mu = float(out[t][m].mean())
+        out[t][~m] = mu
+    return out
+
+
 def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myocardium],
                 geom: SliceGeometry, tag_planes: dict[str, TagPlanes], box,
                 study_contours=None) -> SliceTracking:
@@ -513,10 +588,13 @@ def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myoc
     r0, r1, c0, c1 = box
     offset = np.array([c0, r0], float)
     crop = frames_px[:, r0:r1, c0:c1]
+    inner = [_grid_mask(m, box, 0) if m is not None else None for m in myos]
+    # the harmonic phase and the tag trough are both taken on the windowed frames (outside
+    # the myocardium the dark lung would otherwise pass for a tag trough)
+    crop = myocardial_window(crop, inner, [m is None or m.drawn for m in myos])
     spectra = sfft.fft2(crop, axes=(-2, -1))
     hs_by_fam = {fam: harp.HarmonicSeries.from_images(crop, geom.k[fam], spectra=spectra)
                  for fam in geom.k}
-    inner = [_grid_mask(m, box, 0) if m is not None else None for m in myos]
     masks = [binary_dilation(m, iterations=3) if m is not None else None for m in inner]
     notes = []
     # fading: median myocardial harmonic magnitude per frame over the first frame's
@@ -538,7 +616,8 @@ def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myoc
                          f"harmonic magnitude at frame {images[t].frame}; tracked up to frame "
                          f"{images[t - 1].frame}")
             break
-    first = _first_frame_lines(hs_by_fam, geom, myos[0], box, masks[0], plane, tag_planes, crop[0])
+    first = _first_frame_lines(hs_by_fam, geom, myos[0], box, masks[0], plane, tag_planes, crop[0],
+                               max_line_offset=ON_PLANE_LINE)
     lines = []
     fam_list = list(hs_by_fam)
     seeds, seed_fam, seed_idx = [], [], []
@@ -570,6 +649,7 @@ def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myoc
                 continue
             period = 1.0 / np.linalg.norm(hs.k)
             by_index: dict[int, list[np.ndarray]] = defaultdict(list)
+            emitted: dict[int, list[np.ndarray]] = defaultdict(list)
             if t == 0:
                 for f_, idx, p, _ in first:
                     if f_ == fam:
@@ -579,16 +659,20 @@ def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myoc
                 # inside the frame's myocardium and moved onto the tag trough
                 reach = TROUGH_REACH * period
                 for idx in np.unique(I[sel]):
-                    mine = sel & (I == idx) & (R[t] <= CONVERGED_RAD)
-                    if not mine.any():
+                    mine = np.flatnonzero(sel & (I == idx) & (R[t] <= CONVERGED_RAD))
+                    if not len(mine):
                         continue
-                    P = _order_along(X[t, mine], hs.k)
+                    mine = mine[_order_along_index(X[t, mine], hs.k)]
+                    P = X[t, mine]
                     if REFINE:
                         P = harp.trough_refine(crop[t], P, hs.sample(t, P)[1], reach)
-                    P = P[myos[t].contains(P + offset, BORDER_MARGIN_PX)]
-                    P = P[_on_one_tag(P, hs.k)]
+                    ok = myos[t].contains(P + offset, BORDER_MARGIN_PX)
+                    P, mine = P[ok], mine[ok]
+                    ok = _on_one_tag(P, hs.k)
+                    P, mine = P[ok], mine[ok]
                     if len(P):
                         by_index[int(idx)].append(P)
+                        emitted[int(idx)].append(mine)
             else:
                 pred, pred_idx = [], []
                 for key in [key for key in last if key[0] == fi]:
@@ -623,8 +707,10 @@ def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myoc
                     continue
                 last[(fi, idx)] = (t, P)
                 mag = float(np.median(hs.sample(t, P)[2])) / mag_ref
-                mine = sel & (I == idx)
-                res = float(np.sqrt(np.mean(R[t, mine] ** 2))) if mine.any() else float("nan")
+                # SA: the points the line is made of; LA (iso-phase lines): the index's seeds
+                mine = np.concatenate(emitted[idx]) if emitted.get(idx) else \
+                    np.flatnonzero(sel & (I == idx))
+                res = float(np.sqrt(np.mean(R[t, mine] ** 2))) if len(mine) else float("nan")
                 lines.append((fam, idx, images[t].frame, P + offset, mag, res))
     return SliceTracking(lines, notes, T)
 

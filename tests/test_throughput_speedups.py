@@ -1,0 +1,100 @@
+"""The analyze speed-ups of issue 16 compute the same numbers as what they replace:
+the crossing-number inside test against matplotlib's, the clipped-tessellation volume
+against the analytic volume and manifold3d's trimmed solid, the one-query
+nearest-neighbour chain against a query per step, and the metrics-only volume curve."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import manifold3d
+import numpy as np
+from hypothesis import given, settings, strategies as st
+from scipy.spatial import cKDTree
+
+from cardionurbs.analysis.function import volume_curve
+from cardionurbs.anatomy.mesh import Plane, clipped_volume, closed_mesh, solid, volume_ml
+from cardionurbs.anatomy.sections import _nearest_neighbour_chain
+from cardionurbs.geometry import points_in_polygon
+from cardionurbs.study import Study
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(3, 40), st.integers(0, 2**31 - 1))
+def test_points_in_polygon_matches_matplotlib(n, seed):
+    from matplotlib.path import Path
+    rng = np.random.default_rng(seed)
+    ang = np.sort(rng.uniform(0, 2 * np.pi, n))
+    poly = np.c_[np.cos(ang), np.sin(ang)] * rng.uniform(5, 30, n)[:, None]
+    if seed % 2:
+        poly = poly[::-1]                                  # either orientation
+    xy = rng.uniform(-35, 35, (300, 2))
+    assert np.array_equal(points_in_polygon(xy, poly), Path(poly).contains_points(xy))
+
+
+def _box(lo, hi):
+    m = manifold3d.Manifold.cube(np.subtract(hi, lo)).translate(lo)
+    mesh = m.to_mesh64()
+    return np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts, dtype=np.int64)
+
+
+def test_clipped_volume_of_a_box_is_analytic():
+    v, f = _box((0, 0, 0), (10, 20, 30))
+    assert math.isclose(clipped_volume(v, f, None), 6000.0)
+    # the plane z = 12 keeping z >= 12: 10 x 20 x 18
+    assert math.isclose(clipped_volume(v, f, Plane([0, 0, 12], [0, 0, 1])), 3600.0)
+    # an oblique plane through the centre keeps half of the (centrally symmetric) box
+    assert math.isclose(clipped_volume(v, f, Plane([5, 10, 15], [1, 2, 3])), 3000.0)
+    assert clipped_volume(v, f, Plane([0, 0, 40], [0, 0, 1])) == 0.0
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.floats(-0.8, 0.8), st.floats(-0.8, 0.8), st.floats(-12, 12))
+def test_clipped_volume_equals_manifold_trim(nx, ny, offset):
+    """A capped open tube (a ventricle-like surface) clipped by a plane: the same volume as
+    manifold3d's trimmed solid."""
+    t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    z = np.linspace(-30, 20, 25)
+    r = 25 * np.sqrt(np.clip((z + 31) / 51, 0, 1))
+    v = np.c_[np.outer(r, np.cos(t)).ravel(), np.outer(r, np.sin(t)).ravel(), np.repeat(z, 40)]
+    i, j = np.meshgrid(np.arange(24), np.arange(40), indexing="ij")
+    a, b = i * 40 + j, i * 40 + (j + 1) % 40
+    f = np.concatenate([np.c_[a.ravel(), b.ravel(), a.ravel() + 40],
+                        np.c_[b.ravel(), b.ravel() + 40, a.ravel() + 40]])
+    vc, fc = closed_mesh(v, f)
+    plane = Plane([0, 0, offset], [nx, ny, -1.0])
+    ref = volume_ml(solid(v, f, plane=plane)) * 1000.0
+    assert math.isclose(clipped_volume(vc, fc, plane), ref, rel_tol=1e-9)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 120), st.integers(0, 2**31 - 1))
+def test_nearest_neighbour_chain_matches_a_query_per_step(n, seed):
+    pts = np.round(np.random.default_rng(seed).normal(size=(n, 2)), 1)   # with ties
+    start = seed % n
+    tree, visited, order, cur = cKDTree(pts), np.zeros(n, bool), [start], start
+    visited[start] = True
+    for _ in range(n - 1):
+        k = min(n, 8)
+        while True:
+            idx = np.atleast_1d(tree.query(pts[cur], k=k)[1])
+            free = idx[~visited[idx]]
+            if free.size or k >= n:
+                break
+            k = min(n, k * 4)
+        cur = int(free[0])
+        visited[cur] = True
+        order.append(cur)
+    assert _nearest_neighbour_chain(pts, start).tolist() == order
+
+
+def test_metrics_only_volume_curve_reports_what_was_measured():
+    vols = {0: {"lv_cavity": 150.0, "rv_cavity": 160.0}, 2: {"lv_cavity": 60.0, "rv_cavity": 90.0}}
+    model = SimpleNamespace(
+        study=Study(subject="s", frame_times_ms={0: 0.0, 1: 100.0, 2: 200.0}),
+        frames=[0, 1, 2], ed_frame=0, es_frame=2, volumes=vols,
+        lv_cavity_volume=lambda f: {1: 100.0}[f])
+    c = volume_curve(model, every_structure=False)
+    assert c["lv_cavity (mL)"] == [150.0, 100.0, 60.0]
+    assert c["rv_cavity (mL)"][0] == 160.0 and math.isnan(c["rv_cavity (mL)"][1])
