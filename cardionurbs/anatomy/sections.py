@@ -637,9 +637,11 @@ def _taper_apices(study: Study, geo: FrameGeometry, n: np.ndarray) -> None:
     for s, secs in geo.sections.items():
         if not secs or geo.la_points.get(s) or (s == "lv_epi" and landmark):
             continue
-        # a section lies in its SA plane: the mean of its points has the plane's level
+        # a section lies in its SA plane: the mean of its points has the plane's level; the
+        # taper needs the areas of the three most apical sections only
         levels = np.array([float(sec.points.mean(axis=0) @ n) for sec in secs])
-        areas = np.array([polygon_area(sec.points, n) for sec in secs])
+        areas = np.full(len(secs), np.nan)
+        areas[-3:] = [polygon_area(sec.points, n) for sec in secs[-3:]]
         have = {sec.slice for sec in secs}
         beyond = [float(im.position @ n) for im in planes
                   if im.slice not in have and float(im.position @ n) > levels[-1] + 0.5]
