@@ -66,14 +66,53 @@ def test_phantom_truth_is_the_volume_curve_derivative():
 
 
 @pytest.fixture(scope="module")
-def phantom_40():
-    ph = generate("phtn", seed=5, frames=40, volume_check=False)
+def phantom_20():
+    ph = generate("phtn", seed=5, frames=20, volume_check=False)
     return ph, reconstruct(ph.study)
 
 
-def test_phantom_rates_within_five_percent(phantom_40):
-    ph, model = phantom_40
+def test_phantom_rates_within_five_percent_at_20_frames(phantom_20):
+    """20 frames: the atrial kick spans two frame intervals and its steepest rate sits at the
+    ED corner (the not-a-knot spline overshot PAFR there by 15–25 %)."""
+    ph, model = phantom_20
     out, reason = model_filling_rates(model)
     assert reason == ""
     for c in RATE_COLUMNS:
         assert out[c] == pytest.approx(ph.truth["metrics"][c], rel=0.05), c
+
+
+def _wave_curve(e=0.36, fa=0.3, wa=0.035, te_gap=0.15, we=0.05):
+    """A C-infinity volume curve unlike the phantom's piecewise cubic: ejection 1 − cos, E and
+    A waves Gaussian in rate (erf in volume); V = 1 − 0.6 f, τ = t / RR."""
+    from scipy.special import erf
+    ta, te = 1 - 2.2 * wa, e + te_gap
+
+    def cdf(x, m, w):
+        return 0.5 * (1 + erf((x - m) / (np.sqrt(2) * w)))
+
+    def f(tau):
+        tau = np.asarray(tau, float)
+        fill = (1 - fa) * (cdf(tau, te, we) - cdf(e, te, we)) + fa * (cdf(tau, ta, wa) - cdf(e, ta, wa))
+        norm = (1 - fa) * (cdf(1, te, we) - cdf(e, te, we)) + fa * (cdf(1, ta, wa) - cdf(e, ta, wa))
+        return np.where(tau <= e, 0.5 * (1 - np.cos(np.pi * np.clip(tau / e, 0, 1))), 1 - fill / norm)
+    return lambda tau: 1 - 0.6 * f(tau)
+
+
+@pytest.mark.parametrize("frames", [20, 30])
+def test_rates_of_a_smooth_wave_curve_within_five_percent(frames):
+    """The estimator is not tied to the phantom's curve model: on a Gaussian-wave curve the
+    rates at 20 and 30 frames are within 5 % of the exact derivative's peaks."""
+    rr = 1000.0
+    V = _wave_curve()
+    es = int(round(0.36 * frames))
+    t = np.arange(frames) * rr / frames
+    out, reason = filling_rates(t, V(t / rr), 0, es, rr)
+    assert reason == ""
+    tf = np.linspace(0, rr, 200001)[:-1]
+    d = np.gradient(V(tf / rr), tf) * 1000.0
+    t_es, dia = t[es], rr - t[es]
+    exact = {"PER (mL/s)": -d[tf <= t_es].min(),
+             "PEFR (mL/s)": d[(tf >= t_es) & (tf <= t_es + 2 * dia / 3)].max(),
+             "PAFR (mL/s)": d[tf >= t_es + 2 * dia / 3].max()}
+    for c, v in exact.items():
+        assert out[c] == pytest.approx(v, rel=0.05), c

@@ -57,17 +57,73 @@ def test_homogeneous_stretch_gives_its_strain():
 
 
 def test_tag_strain_against_the_exact_strain(normal2):
+    """The bounds of reports/validation-regional.md (noise-free): segments within 1 (Ecc),
+    1.5 (Ell), 3 (Err) strain points, GCS/GLS within 0.5, det F within 5 % of 1."""
     ph, _, _, r = normal2
     t = ph.truth["metrics"]
+    assert r.strain["method"] == "tag lines"
     for k in range(1, 17):
-        assert abs(r[f"Ecc_AHA_{k} (%)"] - t[f"Ecc_AHA_{k} (%)"]) < 1.5, k
+        assert abs(r[f"Ecc_AHA_{k} (%)"] - t[f"Ecc_AHA_{k} (%)"]) < 1.0, k
         assert abs(r[f"Ell_AHA_{k} (%)"] - t[f"Ell_AHA_{k} (%)"]) < 1.5, k
+        assert abs(r[f"Err_AHA_{k} (%)"] - t[f"Err_AHA_{k} (%)"]) < 3.0, k
     assert abs(r["Ecc_Global (%)"] - t["Ecc_Global (%)"]) < 0.5
     assert abs(r["Ell_Global (%)"] - t["Ell_Global (%)"]) < 0.5
-    # Err and det F inherit the transmural bias of the ES tag surfaces (validation-regional.md):
-    # thickening is seen, but under-estimated
-    assert 0.3 * t["Err_Global (%)"] < r["Err_Global (%)"] < 1.2 * t["Err_Global (%)"]
-    assert 0.85 < r.strain["det_F"] < 1.05
+    assert abs(r.strain["det_F"] - 1.0) < 0.05
+    assert r.strain["tag_noise_mm"] < 0.01            # noise-free tags lie on their ED planes
+
+
+def _wall_sampler(an, lo=0.3, hi=0.9):
+    def inside(X):
+        z, s = X[:, 2], X[:, 0] ** 2 + X[:, 1] ** 2
+        return (z > lo * an.z_base) & (z < hi * an.z_base) & (s > an.s_lv_endo(z)) & (s < an.s_lv_epi(z))
+    return inside
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.5])
+def test_orthogonal_distance_fit_to_tag_planes_is_unbiased(normal2, sigma):
+    """Tag points on three families of ED planes (6 mm apart) moved by the exact phantom motion,
+    with σ mm of isotropic noise; the fit (T2) started from the noisy material points (the
+    planes' triple intersections) recovers the radial strain without bias: the mean error
+    of Err over the wall within 0.6 strain point (the start: > 1), det F within 1 %."""
+    from cardionurbs.analysis.tag_motion import fit_tag_motion
+    ph = normal2[0]
+    an, mo = ph.anatomy, ph.motion
+    f = float(ph.phases[ph.es_frame])
+    inside = _wall_sampler(an)
+    rng = np.random.default_rng(3)
+    R = float(np.sqrt(an.s_lv_epi(0.6 * an.z_base))) + 5.0
+    lo, hi = [-R, -R, 0.3 * an.z_base], [R, R, 0.9 * an.z_base]
+    c, zc = np.arange(-R, R, 6.0) + 1.0, np.arange(lo[2], hi[2], 6.0) + 1.0
+    pts, nrm, off = [], [], []
+    for fam, cs in ((0, c), (1, c), (2, zc)):
+        for v in cs:
+            X = rng.uniform(lo, hi, (800, 3))
+            X[:, fam] = v
+            X = X[inside(X)]
+            pts.append(X)
+            nrm.append(np.repeat(np.eye(3)[fam][None], len(X), 0))
+            off.append(np.full(len(X), v))
+    X, n, d = np.vstack(pts), np.vstack(nrm), np.concatenate(off)
+    G = np.array(np.meshgrid(c, c, zc, indexing="ij")).reshape(3, -1).T
+    G = G[inside(G)]
+    fit = S.CylindricalMotionFit(G, mo.forward(an, G, f) + rng.normal(0, sigma, G.shape),
+                                 (np.zeros(3), np.array([0.0, 0.0, an.z_base])))
+    Y = rng.uniform([-R, -R, 0.35 * an.z_base], [R, R, 0.85 * an.z_base], (6000, 3))
+    Y = Y[inside(Y)]
+    th = np.arctan2(Y[:, 1], Y[:, 0])
+    radial = np.column_stack([np.cos(th), np.sin(th), 0 * th])
+    E_true = S.green_lagrange(deformation_gradient(an, mo, Y, f))
+
+    def err_bias():
+        dE = S.green_lagrange(fit.gradient(Y)) - E_true
+        return float(np.mean(100 * np.einsum("ni,nij,nj->n", radial, dE, radial)))
+    start = err_bias()
+    out = fit_tag_motion(fit, mo.forward(an, X, f) + rng.normal(0, sigma, X.shape), n, d)
+    assert abs(err_bias()) < 0.6
+    assert abs(float(np.linalg.det(fit.gradient(Y)).mean()) - 1.0) < 0.01
+    assert out["residual_mm"] < max(1e-3, 1.2 * sigma)
+    if sigma:
+        assert abs(start) > 1.0
 
 
 def test_surface_strains_within_a_point(normal2):
@@ -105,3 +161,27 @@ def test_sunnybrook_gcs_in_heart_failure_range(sunnybrook_dir):
     r = regional_metrics(model, None)
     assert -13.8 <= r["GCS surface (%)"] <= 0.6
     assert math.isnan(r["GLS surface (%)"])            # no long-axis views
+
+
+def test_penalty_chosen_by_risk_shrinks_pure_noise_terms():
+    """A linear least-squares problem whose second group of coefficients is truly zero: with
+    noise, the weights chosen by the unbiased risk estimate shrink that group and lower the
+    error of the quantities; without noise no penalty is applied."""
+    from cardionurbs.analysis.tag_motion import choose_penalty
+    rng = np.random.default_rng(7)
+    A = rng.normal(size=(400, 12))
+    A[:, 6:] *= 0.05                                 # weakly informed terms, truly zero
+    c_true = np.r_[rng.normal(size=6), np.zeros(6)]
+    B = rng.normal(size=(20, 12))
+    S = A.T @ A
+    groups = [np.r_[np.zeros(6, bool), np.ones(6, bool)]]
+    P0, lam0 = choose_penalty(S, c_true, groups, 0.0, B)
+    assert lam0 == (0.0,) and not P0.any()
+    sigma, gain = 0.5, []
+    for _ in range(20):
+        y = A @ c_true + rng.normal(0, sigma, 400)
+        c = np.linalg.solve(S, A.T @ y)
+        P, lam = choose_penalty(S, c, groups, sigma, B)
+        c_reg = np.linalg.solve(S + P, S @ c)
+        gain.append(np.sum((B @ (c - c_true)) ** 2) - np.sum((B @ (c_reg - c_true)) ** 2))
+    assert np.mean(gain) > 0 and np.mean(np.array(gain) >= 0) > 0.7

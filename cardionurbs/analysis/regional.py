@@ -18,7 +18,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cardionurbs.analysis.aha import AhaFrame, model_aha_frame
-from cardionurbs.analysis.strain import STRAIN_COLUMNS, STRAIN_KINDS, myocardium_samples, tag_strain
+from cardionurbs.analysis.strain import (STRAIN_COLUMNS, STRAIN_KINDS, myocardium_samples,
+                                         smoothed_normals, tag_strain)
+from cardionurbs.analysis.tag_motion import ed_tag_planes, frame_tag_points
 from cardionurbs.analysis.surface_strain import SURFACE_STRAIN_COLUMNS, surface_strains
 from cardionurbs.analysis.thickness import THICKNESS_COLUMNS, thickness_by_segment, thickness_columns
 from cardionurbs.analysis.columns import ColumnMapping
@@ -99,14 +101,26 @@ def regional_metrics(model, tags=None) -> RegionalMetrics:
         out.notes.append("no tag material points: Ecc, Ell, Err not measured")
         return out
     smp = out.samples[ed]
-    P, N = smp["points"], smp["normals"]
+    P = smp["points"]
+    N = smoothed_normals(P, smp["normals"], smp["weight"])
     a = out.aha[ed]
-    wall = myocardium_samples(P, N, smp["thickness"], smp["weight"], a.apex, a.base)
+    wall = myocardium_samples(P, smp["normals"], smp["thickness"], smp["weight"], a.apex, a.base)
     frames = [f for f in material.frames if f != material.ed_frame]
+    study = model.study
+    flagged = {(fl.family, fl.index, fl.slice, fl.frame) for fl in getattr(tags, "flags", [])}
+    planes = ed_tag_planes(study, material.ed_frame, flagged)
     for f in frames:
         ax = (out.aha[f].apex, out.aha[f].base) if f in out.aha else None
-        res = tag_strain(material, f, a.apex, a.base, P, N, a, axis=ax, myocardium=wall)
+        lines = None
+        if planes is not None:
+            got = frame_tag_points(study, f, planes, flagged)
+            if got is not None:
+                lines = (got[0], planes.normals[got[1]], planes.offsets[got[1]])
+        res = tag_strain(material, f, a.apex, a.base, P, N, a, axis=ax, myocardium=wall,
+                         tag_lines=lines, noise_mm=planes.rms_mm if planes is not None else 0.0)
         if res is not None:
+            if planes is not None:
+                res["tag_noise_mm"] = planes.rms_mm
             out.over_time[f] = res
     if es in out.over_time:
         out.strain = out.over_time[es]

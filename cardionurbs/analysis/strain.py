@@ -21,6 +21,12 @@ Motion field
     same across the wall) exactly linear; twist, shortening, a cos 2θ
     flattening and a rigid turn of the axis are in the span too.
 
+    The fit of the material points is the start; with the frame's tag lines it is
+    refined by orthogonal-distance regression of the tag points to the moved ED
+    tag planes (:mod:`cardionurbs.analysis.tag_motion`), which resolves the
+    transmural gradient (one point per ~1 mm through the wall, not one material
+    point per tag spacing).
+
 Deformation gradient
     F = ∂x/∂X by the chain rule through (S1)::
 
@@ -32,7 +38,8 @@ Deformation gradient
 Strain
     Green–Lagrange E = ½ (FᵀF − I); Ecc = 100 cᵀEc, Ell = 100 lᵀEl,
     Err = 100 rᵀEr with r the outward unit normal of the ED endocardial
-    surface at its point nearest the material point, c the circumferential
+    surface at its point nearest the material point (averaged over 6 mm of
+    surface, :func:`smoothed_normals`), c the circumferential
     direction e_θ made orthogonal to r, and l = r × c (the base → apex
     direction projected off the normal, up to sign). det F is reported as
     the incompressibility check (1 for myocardium).
@@ -41,7 +48,8 @@ Per segment: the volume mean of the fitted strain over the ED myocardium of
 AHA segment k (:mod:`cardionurbs.analysis.aha`), sampled between the
 reconstructed endo- and epicardium (:func:`myocardium_samples`) within the
 height range of the tracked points (the fit is not extrapolated beyond the
-tagged tissue); global: the mean of the segment values 1–16.
+tagged tissue) and at least :data:`AXIS_CLEARANCE_MM` from the long axis;
+global: the mean of the segment values 1–16.
 """
 
 from __future__ import annotations
@@ -64,6 +72,14 @@ TRANSMURAL_ORDER = 1
 #: a tracked point farther than this (mm, and 4 x the median) from the first fit is left out
 OUTLIER_MM = 1.5
 MIN_POINTS = 80
+#: radius (mm) over which endocardial normals are averaged for the radial direction
+NORMAL_SMOOTHING_MM = 6.0
+#: myocardium nearer the long axis than this (mm; the apical tip around the cavity apex) is
+#: left out of the segment means: the cylindrical chart (S1) is singular on the axis, where
+#: ∂r'/∂(r'²) = 1/(2r') amplifies any error of the fitted r'² (the phantom truth does the same)
+AXIS_CLEARANCE_MM = 10.0
+#: wall samples (about) used to choose the regularisation of the tag-line fit
+RISK_SAMPLES = 600
 
 
 def aligned_frame(e1: np.ndarray, apex: np.ndarray, base: np.ndarray):
@@ -94,6 +110,7 @@ class CylindricalMotionFit:
         a, b, m = np.meshgrid(np.arange(pa + 1), np.arange(pb + 1), np.arange(2 * pm + 1), indexing="ij")
         # the transmural (q) terms vary along the axis up to TRANSMURAL_ORDER only
         self.keep = ((b == 0) | (a <= TRANSMURAL_ORDER)).ravel()
+        self._index = (a.ravel()[self.keep], b.ravel()[self.keep], m.ravel()[self.keep])
         self.apex0 = np.asarray(ed_axis[0], float)
         self.frame0 = axis_frame(*ed_axis)
         axis = ed_axis if axis is None else axis
@@ -105,7 +122,7 @@ class CylindricalMotionFit:
         self.q0, self.sq = float(q.mean()), float(q.std()) or 1.0
         self.z0, self.sz = float(0.5 * (zeta.max() + zeta.min())), float(0.5 * np.ptp(zeta)) or 1.0
         target = np.column_stack([r1 * r1, np.angle(np.exp(1j * (th1 - th))), zeta1])
-        A = self._design(q, th, zeta)[0]
+        A = self._design(q, th, zeta, derivatives=False)[0]
         use = np.ones(len(X), bool)
         for _ in range(2):          # fit, leave out gross outliers (mistracked points), refit
             N = A[use].T @ A[use]
@@ -123,33 +140,61 @@ class CylindricalMotionFit:
         return (self.apex1 + rr[:, None] * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
                 + m[:, 2:3] * e)
 
-    def _design(self, q, th, zeta):
-        """Basis values and derivatives d/dq, d/dθ, d/dζ: four (n, n_basis) arrays."""
+    def _design(self, q, th, zeta, derivatives: bool = True):
+        """Basis values and (with ``derivatives``) derivatives d/dq, d/dθ, d/dζ: (n, n_basis) arrays."""
         pa, pb, pm = self.orders
         zt = (zeta - self.z0) / self.sz
         qt = (q - self.q0) / self.sq
         eye = np.eye(pa + 1)
         L = np.stack([legendre.legval(zt, eye[a]) for a in range(pa + 1)], axis=1)
-        dL = np.stack([legendre.legval(zt, legendre.legder(eye[a])) for a in range(pa + 1)],
-                      axis=1) / self.sz
         R = np.stack([qt ** b for b in range(pb + 1)], axis=1)
-        dR = np.stack([b * qt ** max(b - 1, 0) for b in range(pb + 1)], axis=1) / self.sq
         T = [np.ones_like(th)]
         dT = [np.zeros_like(th)]
         for m in range(1, pm + 1):
-            T += [np.cos(m * th), np.sin(m * th)]
-            dT += [-m * np.sin(m * th), m * np.cos(m * th)]
+            c, s = np.cos(m * th), np.sin(m * th)
+            T += [c, s]
+            dT += [-m * s, m * c]
         T, dT = np.stack(T, axis=1), np.stack(dT, axis=1)
+        ia, ib, ic = self._index
 
         def outer(a, b, c):
-            return np.einsum("na,nb,nc->nabc", a, b, c).reshape(len(th), -1)[:, self.keep]
+            return a[:, ia] * b[:, ib] * c[:, ic]
+        if not derivatives:
+            return (outer(L, R, T),)
+        dL = np.stack([legendre.legval(zt, legendre.legder(eye[a])) for a in range(pa + 1)],
+                      axis=1) / self.sz
+        dR = np.stack([b * qt ** max(b - 1, 0) for b in range(pb + 1)], axis=1) / self.sq
         return outer(L, R, T), outer(L, dR, T), outer(L, R, dT), outer(dL, R, T)
+
+    def position(self, X: np.ndarray) -> np.ndarray:
+        """The fitted image x (n, 3) of ED points X (n, 3)."""
+        r, th, zeta = cylindrical(X, self.apex0, self.frame0)
+        return self._position(self._design(r * r, th, zeta, derivatives=False)[0] @ self.coef, th)
+
+    def linearisation(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(x (n, 3), ∂x/∂coef (n, 3, 3 m), F (n, 3, 3)) at ED points X: the image, its
+        derivative with respect to the coefficients (flattened component by component,
+        ``coef.T.ravel()``) and the deformation gradient."""
+        r, th, zeta = cylindrical(X, self.apex0, self.frame0)
+        D = self._design(r * r, th, zeta)
+        m = D[0] @ self.coef
+        e1, e2, e = self.frame1
+        rr = np.sqrt(np.maximum(m[:, 0], 1.0))
+        t = th + m[:, 1]
+        c, s = np.cos(t)[:, None], np.sin(t)[:, None]
+        dpos = np.stack([(c * e1 + s * e2) / (2.0 * rr[:, None]), rr[:, None] * (-s * e1 + c * e2),
+                         np.broadcast_to(e, (len(t), 3))], axis=2)      # (n, 3, 3): ∂x/∂(q', θ', ζ')
+        J = (dpos[:, :, :, None] * D[0][:, None, None, :]).reshape(len(t), 3, -1)
+        return self._position(m, th), J, self._gradient(r, th, D, m)
 
     def gradient(self, X: np.ndarray) -> np.ndarray:
         """F = ∂x/∂X (n, 3, 3), Cartesian, by the chain rule through (S1)."""
         r, th, zeta = cylindrical(X, self.apex0, self.frame0)
-        A, Aq, At, Az = self._design(r * r, th, zeta)
-        m = A @ self.coef
+        D = self._design(r * r, th, zeta)
+        return self._gradient(r, th, D, D[0] @ self.coef)
+
+    def _gradient(self, r, th, D, m) -> np.ndarray:
+        _, Aq, At, Az = D
         J = np.stack([Aq @ self.coef, At @ self.coef, Az @ self.coef], axis=2)   # (n, 3 out, 3 in)
         J[:, 1, 1] += 1.0                                       # θ' = θ + g2
         rr = np.sqrt(np.maximum(m[:, 0], 1.0))                  # r' >= 1 mm (never near the axis)
@@ -191,6 +236,16 @@ def directional_strains(E: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     return 100.0 * np.einsum("nki,nij,nkj->nk", dirs, E, dirs)
 
 
+def segment_means(values: np.ndarray, labels: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(k, 3) weighted means of per-point (n, 3) values over the segments 1–16 present."""
+    out = []
+    for k in range(1, 17):
+        m = labels == k
+        if m.any():
+            out.append(np.average(values[m], axis=0, weights=weights[m]))
+    return np.array(out)
+
+
 def strain_columns(values: np.ndarray, labels: np.ndarray, weights: np.ndarray | None = None
                    ) -> tuple[dict[str, float], dict]:
     """Ecc/Ell/Err per segment and global from per-point (n, 3) strains (%), labels and
@@ -229,15 +284,43 @@ def myocardium_samples(endo_points: np.ndarray, endo_normals: np.ndarray, thickn
     return np.concatenate(pts), np.concatenate(vol)
 
 
+def smoothed_normals(points: np.ndarray, normals: np.ndarray, weights: np.ndarray,
+                     radius_mm: float = NORMAL_SMOOTHING_MM) -> np.ndarray:
+    """Unit normals averaged (weighted by ``weights``, e.g. area) over the samples within
+    ``radius_mm`` of each sample.
+
+    The radial direction enters Ecc and Ell at second order: a normal tilted by α moves
+    Ecc by about α² (Err − Ecc), so the scatter of a surface fitted to noisy contours
+    biases Ecc up and Err down (≈ 1.7 strain points at 0.5 px contour noise). Averaging
+    over a disc of 6 mm — small against the ≥ 20 mm radii of curvature of the LV wall,
+    so a smooth surface's normal changes by < 0.1° — removes most of it."""
+    from scipy.sparse import csr_matrix
+    pairs = cKDTree(points).query_pairs(radius_mm, output_type="ndarray")
+    n = len(points)
+    rows = np.r_[pairs[:, 0], pairs[:, 1], np.arange(n)]
+    cols = np.r_[pairs[:, 1], pairs[:, 0], np.arange(n)]
+    W = csr_matrix((np.asarray(weights, float)[cols], (rows, cols)), shape=(n, n))
+    out = W @ np.asarray(normals, float)
+    return out / np.linalg.norm(out, axis=1)[:, None]
+
+
 def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_points: np.ndarray,
                endo_normals: np.ndarray, aha, axis: tuple | None = None,
-               myocardium: tuple[np.ndarray, np.ndarray] | None = None) -> dict | None:
+               myocardium: tuple[np.ndarray, np.ndarray] | None = None,
+               tag_lines: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+               noise_mm: float = 0.0) -> dict | None:
     """Strain ED → ``frame`` from the tracked material points: {"columns", "det_F" (mean),
-    "det_F_range", "n_points", "counts", "fit_residual_mm"}; None with too few points.
+    "det_F_range", "n_points", "counts", "fit_residual_mm", "method"}; None with too few points.
     ``apex``, ``base``: the ED long axis; ``axis``: (apex, base) at ``frame`` (default ED's).
     ``myocardium``: (points, volumes) filling the ED wall (:func:`myocardium_samples`): the
     fitted field is averaged over those between the most apical and most basal tracked
-    points (a volume mean over the tagged myocardium); default: the material points."""
+    points (a volume mean over the tagged myocardium); default: the material points.
+    ``tag_lines``: (points (n, 3), ED plane normals (n, 3), offsets (n,)) of the frame's tag
+    points (:mod:`cardionurbs.analysis.tag_motion`): the fit of the material points is then
+    refined on them by orthogonal-distance regression (method "tag lines"); else the
+    material points alone are fitted (method "material points"). ``noise_mm``: the tag
+    tracking noise (the ED tag-plane residual), which sets the regularisation of that fit."""
+    from cardionurbs.analysis.tag_motion import MIN_TAG_POINTS, fit_tag_motion
     ok = material.tracked(material.ed_frame, frame)
     if ok.sum() < MIN_POINTS:
         return None
@@ -245,18 +328,31 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     x = material.positions[frame][ok]
     apex, base = np.asarray(apex, float), np.asarray(base, float)
     fit = CylindricalMotionFit(X, x, (apex, base), axis)
+    info = {"n_points": int(ok.sum()), "outliers": fit.outliers, "fit_residual_mm": fit.residual_mm,
+            "method": "material points"}
     Y, vol = X, None
     if myocardium is not None:
         e = (base - apex) / np.linalg.norm(base - apex)
         h, hy = (X - apex) @ e, (myocardium[0] - apex) @ e
-        inside = (hy >= h.min()) & (hy <= h.max())
+        radial = myocardium[0] - apex - np.outer(hy, e)
+        inside = ((hy >= h.min()) & (hy <= h.max())
+                  & (np.linalg.norm(radial, axis=1) >= AXIS_CLEARANCE_MM))
         Y, vol = myocardium[0][inside], myocardium[1][inside]
-    F = fit.gradient(Y)
-    vals = directional_strains(green_lagrange(F), cardiac_directions(Y, endo_points, endo_normals,
-                                                                     apex, base))
+    dirs = cardiac_directions(Y, endo_points, endo_normals, apex, base)
     labels = aha.segments(Y)
+    w = np.ones(len(Y)) if vol is None else vol
+    if tag_lines is not None and len(tag_lines[0]) >= MIN_TAG_POINTS:
+        sub = slice(None, None, max(1, len(Y) // RISK_SAMPLES))
+
+        def segment_strains(f):       # the quantities the regularisation is chosen for
+            v = directional_strains(green_lagrange(f.gradient(Y[sub])), dirs[sub])
+            return segment_means(v, labels[sub], w[sub]).ravel()
+        out = fit_tag_motion(fit, *tag_lines, noise_mm=noise_mm, quantities=segment_strains)
+        info.update(method="tag lines", n_tag_points=out["n_points"], penalty=out["lambda"],
+                    tag_outliers=out["outliers"], fit_residual_mm=out["residual_mm"])
+    F = fit.gradient(Y)
+    vals = directional_strains(green_lagrange(F), dirs)
     cols, counts = strain_columns(vals, labels, vol)
     det = np.linalg.det(F)
     return {"columns": cols, "det_F": float(det.mean()),
-            "det_F_range": [float(det.min()), float(det.max())], "n_points": int(ok.sum()),
-            "outliers": fit.outliers, "counts": counts, "fit_residual_mm": fit.residual_mm}
+            "det_F_range": [float(det.min()), float(det.max())], "counts": counts, **info}

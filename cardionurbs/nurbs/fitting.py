@@ -44,7 +44,8 @@ from cardionurbs.nurbs import _validate as V
 from cardionurbs.nurbs.basis import basis_matrix
 from cardionurbs.nurbs.curve import NurbsCurve
 from cardionurbs.nurbs.knots import periodic_knot_vector
-from cardionurbs.nurbs.projection import curve_closest_points, curve_distance_bounds
+from cardionurbs.nurbs.projection import (curve_closest_points, curve_distance_bounds,
+                                          curve_seed_distances)
 
 __all__ = ["fit_curve", "fit_compatible_curves", "CompatibleFit", "chord_length_parameters",
            "approximation_knots", "periodic_approximation_breaks", "least_squares_curve",
@@ -247,14 +248,22 @@ def _optimise_weights(points: np.ndarray, params: np.ndarray, degree: int, n_ctr
 
 
 def max_distance(curve: NurbsCurve, points: np.ndarray) -> float:
-    """Maximum true distance from ``points`` to ``curve`` (points' units).
+    """Maximum true distance from ``points`` to ``curve`` (points' units), as the closest
+    points of :func:`curve_closest_points` give it.
 
-    Only the points that can hold the maximum are projected: those whose upper
-    distance bound (:func:`curve_distance_bounds`) reaches the largest lower bound."""
+    Each point's seed distance (:func:`curve_seed_distances`) bounds its projected
+    distance from above, so only the points whose seed distance exceeds the largest
+    projected distance found so far can hold the maximum: the 16 farthest by seed are
+    projected first, then only those of the rest that can still beat them."""
     points = V.point_rows(points, "points", curve.dimension)
-    lower, upper = curve_distance_bounds(curve, points)
-    _, dist = curve_closest_points(curve, points[upper >= lower.max()])
-    return float(dist.max())
+    seed = curve_seed_distances(curve, points)
+    order = np.argsort(-seed)
+    _, dist = curve_closest_points(curve, points[order[:16]])
+    best = float(dist.max())
+    rest = order[16:][seed[order[16:]] >= best - 1e-9 * max(best, 1.0)]
+    if rest.size:
+        best = max(best, float(curve_closest_points(curve, points[rest])[1].max()))
+    return best
 
 
 def _error_within(curve: NurbsCurve, points: np.ndarray, params: np.ndarray | None,

@@ -22,7 +22,7 @@ from cardionurbs.nurbs.knots import distinct_knots
 from cardionurbs.nurbs.surface import NurbsSurface
 
 __all__ = ["closest_points", "curve_closest_points", "surface_closest_points",
-           "curve_distance_bounds"]
+           "curve_distance_bounds", "curve_seed_distances"]
 
 # step fractions tried in turn (backtracking); a point keeps the first that helps
 _BACKTRACK = (1.0, 0.25, 1.0 / 16, 1.0 / 64)
@@ -56,7 +56,7 @@ def curve_closest_points(curve: Any, points: Any, iterations: int = 8,
     us = _span_samples(curve.knots, curve.degree, lo, hi, samples_per_span, curve.closed)
     _, idx = cKDTree(curve.evaluate(us)).query(Q)
     u = us[idx]
-    dist = np.linalg.norm(curve.evaluate(u) - Q, axis=1)
+    dist = np.linalg.norm(curve.evaluate(u) - Q, axis=1)   # the seed distance: Newton only lowers it
     active = np.arange(u.size)
     for _ in range(iterations):
         if active.size == 0:
@@ -83,6 +83,17 @@ def curve_closest_points(curve: Any, points: Any, iterations: int = 8,
         # keep iterating where the step helped and was not negligible
         active = active[~todo & (np.abs(step) > 1e-14 * (hi - lo))]
     return u, dist
+
+
+def curve_seed_distances(curve: Any, points: Any, samples_per_span: int = 16) -> np.ndarray:
+    """Distance of each point to the nearest of the samples :func:`curve_closest_points`
+    seeds its Newton iterations from (same ``samples_per_span``): an upper bound of the
+    distance that function returns for the point, since Newton only accepts steps that
+    bring the point closer."""
+    Q = V.point_rows(points, "points", curve.dimension)
+    lo, hi = curve.domain
+    us = _span_samples(curve.knots, curve.degree, lo, hi, samples_per_span, curve.closed)
+    return cKDTree(curve.evaluate(us)).query(Q)[0]
 
 
 def curve_distance_bounds(curve: Any, points: np.ndarray, samples_per_span: int = 16

@@ -206,13 +206,14 @@ def deformation_gradient(anatomy: Anatomy, motion: Motion, X: np.ndarray, f: flo
 
 
 def strain_truth(anatomy: Anatomy, motion: Motion, specs, levels: list[dict], f: float,
-                 spacing_mm: float = 1.0) -> dict:
+                 spacing_mm: float = 1.0, axis_clearance_mm: float = 10.0) -> dict:
     """Exact Ecc, Ell, Err (%) per AHA segment and global at phase f, and det F.
 
     The tissue sampled is the ED LV myocardium between the most apical and most basal tag
     levels (the LA tag planes that carry material points at ED and ES, ``levels``): a
-    ``spacing_mm`` cubic grid, at least 0.05 mm inside the endo- and epicardium (a volume
-    mean, like the measurement's over the tagged myocardium). Directions
+    ``spacing_mm`` cubic grid, at least 0.05 mm inside the endo- and epicardium and at least
+    ``axis_clearance_mm`` from the long axis (a volume mean over the region the measurement
+    averages: the tagged myocardium away from the apical tip around the axis). Directions
     at each point follow the measurement's definition with the analytic endocardium
     (:func:`endocardial_normal_field`); segments are those of :func:`truth_segments` at ED.
     """
@@ -230,7 +231,7 @@ def strain_truth(anatomy: Anatomy, motion: Motion, specs, levels: list[dict], f:
         s = gx ** 2 + gy ** 2
         s1, s2 = float(anatomy.s_lv_endo(z)), float(anatomy.s_lv_epi(z))
         r = np.sqrt(s)
-        inside = (r > np.sqrt(s1) + 0.05) & (r < np.sqrt(s2) - 0.05)
+        inside = (r > np.sqrt(s1) + 0.05) & (r < np.sqrt(s2) - 0.05) & (r >= axis_clearance_mm)
         pts.append(np.column_stack([gx[inside], gy[inside], np.full(inside.sum(), z)]))
     X = np.concatenate(pts)
     F = deformation_gradient(anatomy, motion, X, f)

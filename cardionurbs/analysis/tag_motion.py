@@ -1,0 +1,284 @@
+"""The myocardial motion fitted to the tag lines themselves (docs/metrics.md, Regional function).
+
+Tags are laid down as planes at ED (the R-wave trigger) and move with the
+tissue, so every point x_i tracked on tag (family, index) k at frame t is the
+image of some material point X_i of the ED tag plane Π_k = {X : n_k·X = d_k}:
+
+    x_i = φ(X_i) + δ_i,   n_k·X_i = d_k                                    (T1)
+
+with φ the motion ED → t and δ_i the tracking noise (in the image plane).
+φ is the cylindrical map (S1) of :class:`cardionurbs.analysis.strain.CylindricalMotionFit`;
+X_i has two free coordinates in its plane. (φ, X_1 … X_n) minimise
+
+    Σ_i |φ(X_i) − x_i|²      over the coefficients of φ and X_i ∈ Π_k(i)     (T2)
+
+— an orthogonal-distance regression: at the optimum x_i − φ(X_i) is the
+normal distance of the tag point to the deformed tag surface φ(Π_k). Unlike
+a regression of the ED plane coordinate n·φ⁻¹(x) on the noisy points x (which
+shrinks the fitted transmural gradient by the ratio of the noise variance to
+the spread of the points across the wall and so over-states radial strain),
+the noise enters (T2) only as the misfit, so it leaves the fit unbiased to
+first order.
+
+Why tag points and not material points
+    The material points (:mod:`cardionurbs.analysis.material`) are
+    intersections of tag surfaces lofted from tag *curves*, each a cubic with
+    one control point per ~12 mm: too smooth to follow an end-systolic tag
+    line's bend across a thickening wall, and with one material point every
+    tag spacing (6–8 mm) there are one or two across the wall. The tag lines
+    carry a point every ~1 mm through the wall, so (T2) resolves the
+    transmural gradient the radial strain needs, and each point constrains the
+    motion only where it was measured.
+
+Solution
+    Gauss–Newton on (T2) with the point unknowns eliminated per point (a
+    Schur complement, as in bundle adjustment: Triggs et al., *Bundle
+    adjustment — a modern synthesis*, 2000, §6.1), started from the fit of
+    the material points (:func:`cardionurbs.analysis.strain.CylindricalMotionFit`)
+    with each X_i its point's fixed-point preimage projected on Π_k. Points
+    farther than :data:`OUTLIER_MM` and 4 × the median from the fitted surface
+    after the first iterations (a mistracked line) are left out.
+
+The ED planes are the total-least-squares planes of each tag's ED lines;
+their RMS residual (mm) is the tracking noise normal to the tag, reported as
+``tag_noise_mm``. Only points inside the LV myocardium at their frame (SA
+contours of that frame, :func:`cardionurbs.analysis.material.myocardium_margin`)
+are used.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+from cardionurbs.analysis.material import myocardium_margin
+from cardionurbs.geometry import fit_plane
+from cardionurbs.study import Study
+
+#: a tag point farther than this (mm, and 4 x the median) from the fitted surface is left out
+OUTLIER_MM = 1.5
+#: Gauss–Newton iterations of (T2) before and after leaving out outliers
+ITERATIONS = (2, 1)
+#: tag points kept at most this far (mm) outside the LV myocardium contours
+MARGIN_MM = 0.5
+MIN_TAG_POINTS = 300
+#: the penalty weights λ tried per group by :func:`choose_penalty` (0: no penalty)
+LAMBDA_GRID = np.r_[0.0, np.logspace(-2, 3, 11)]
+#: tracking noise (mm) below which the tags count as exact (no regularisation)
+NOISE_FLOOR_MM = 0.01
+
+
+@dataclass(frozen=True)
+class TagPlanes:
+    """The ED tag planes: keys (family, index), unit normals (k, 3), offsets d (k,) with
+    n·X = d on the plane, and the RMS distance (mm) of the ED tag points to them."""
+
+    keys: tuple
+    normals: np.ndarray
+    offsets: np.ndarray
+    rms_mm: float
+
+    def index(self) -> dict:
+        return {k: j for j, k in enumerate(self.keys)}
+
+
+def ed_tag_planes(study: Study, ed_frame: int, exclude: frozenset | set = frozenset()) -> TagPlanes | None:
+    """Total-least-squares plane of every tag's ED lines (two or more lines, or one LA line);
+    ``exclude``: {(family, index, slice, frame)} lines left out. None without tags at ED."""
+    groups: dict[tuple, list[np.ndarray]] = {}
+    for t in study.tags_at(ed_frame):
+        if (t.family, t.index, t.slice, t.frame) in exclude:
+            continue
+        groups.setdefault((t.family, t.index), []).append(np.asarray(t.points, float))
+    keys, normals, offsets, sq, count = [], [], [], 0.0, 0
+    for k, lines in sorted(groups.items()):
+        P = np.vstack(lines)
+        if len(P) < 3:
+            continue
+        c, n = fit_plane(P)
+        keys.append(k)
+        normals.append(n)
+        offsets.append(float(n @ c))
+        sq += float(np.sum(((P - c) @ n) ** 2))
+        count += len(P)
+    if not keys:
+        return None
+    return TagPlanes(tuple(keys), np.array(normals), np.array(offsets), float(np.sqrt(sq / count)))
+
+
+def frame_tag_points(study: Study, frame: int, planes: TagPlanes,
+                     exclude: frozenset | set = frozenset(), margin_mm: float = MARGIN_MM):
+    """Tag points of ``frame`` on tags with an ED plane, inside the LV myocardium of that frame:
+    (points (n, 3), plane index (n,)); None when the frame has no SA myocardial contours."""
+    where = planes.index()
+    pts, idx = [], []
+    for t in study.tags_at(frame):
+        j = where.get((t.family, t.index))
+        if j is None or (t.family, t.index, t.slice, t.frame) in exclude:
+            continue
+        pts.append(np.asarray(t.points, float))
+        idx.append(np.full(len(t.points), j))
+    if not pts:
+        return np.zeros((0, 3)), np.zeros(0, int)
+    x, k = np.vstack(pts), np.concatenate(idx)
+    margin = myocardium_margin(study, frame, x)
+    if margin is None:
+        return None
+    keep = margin >= -margin_mm
+    return x[keep], k[keep]
+
+
+def plane_bases(normals: np.ndarray) -> np.ndarray:
+    """(n, 2, 3) orthonormal in-plane axes of planes with unit ``normals`` (n, 3), vectorised
+    :func:`cardionurbs.geometry.in_plane_basis`."""
+    helper = np.eye(3)[np.argmin(np.abs(normals), axis=1)]
+    e1 = np.cross(normals, helper)
+    e1 /= np.linalg.norm(e1, axis=1)[:, None]
+    return np.stack([e1, np.cross(normals, e1)], axis=1)
+
+
+def _schur_step(J_coef: np.ndarray, J_pt: np.ndarray, res: np.ndarray, ridge: float,
+                penalty: np.ndarray | None = None, coef: np.ndarray | None = None):
+    """One Gauss–Newton step of (T2): (Δcoef, Δw) with the per-point 2-vectors w eliminated.
+
+    ``J_coef`` (n, 3, m), ``J_pt`` (n, 3, 2), ``res`` (n, 3); ``penalty`` (m, m) a quadratic
+    regulariser coefᵀ R coef added to the objective (with the current ``coef`` (m,))."""
+    m = J_coef.shape[2]
+    H_pp = np.einsum("nik,nil->nkl", J_pt, J_pt)
+    H_pc = np.matmul(J_pt.transpose(0, 2, 1), J_coef)                 # (n, 2, m)
+    g_p = np.einsum("nik,ni->nk", J_pt, res)
+    inv = np.linalg.inv(H_pp)
+    M = inv @ H_pc                                                     # (n, 2, m)
+    Jc = J_coef.reshape(-1, m)
+    S_data = Jc.T @ Jc - H_pc.reshape(-1, m).T @ M.reshape(-1, m)
+    rhs = Jc.T @ res.reshape(-1) - np.einsum("nka,nk->a", M, g_p)
+    S = S_data
+    if penalty is not None:
+        S = S + penalty
+        rhs = rhs + penalty @ coef
+    S = S + ridge * np.trace(S) / m * np.eye(m)
+    d_coef = -np.linalg.solve(S, rhs)
+    d_pt = -np.einsum("nkl,nl->nk", inv, g_p + np.einsum("nka,a->nk", H_pc, d_coef))
+    return d_coef, d_pt, S_data
+
+
+def quantity_jacobian(fit, quantities, coef: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """∂q/∂coef (k, m) of ``quantities(fit)`` by central differences, step 1e-3 × ``scale``
+    (the coefficients' standard errors), the fit's coefficients restored after."""
+    h = 1e-3 * np.maximum(scale, 1e-12)
+    cols = []
+    for j in range(len(coef)):
+        c = coef.copy()
+        c[j] += h[j]
+        fit.coef = c.reshape(3, -1).T
+        up = quantities(fit)
+        c[j] -= 2 * h[j]
+        fit.coef = c.reshape(3, -1).T
+        cols.append((up - quantities(fit)) / (2 * h[j]))
+    fit.coef = coef.reshape(3, -1).T
+    return np.array(cols).T
+
+
+def penalty_groups(fit) -> list[np.ndarray]:
+    """Masks over the flattened coefficients (``coef.T.ravel()``) of the terms (S1) that the
+    regulariser shrinks towards zero, one mask per group:
+
+    1. the *transmural variation*: the r² terms other than the constant one (how the
+       transmural gradient changes with height and angle) — the terms that carry the
+       noise of the radial strain, since only the tag spacing across a ~1 cm wall
+       informs them;
+    2. the highest Legendre order in height (the finest longitudinal detail)."""
+    a, b, m = fit._index
+    groups = [(b == 1) & ~((a == 0) & (m == 0)), (b == 0) & (a == a.max())]
+    return [np.tile(g, 3) for g in groups]
+
+
+def choose_penalty(S: np.ndarray, coef: np.ndarray, groups: list[np.ndarray], sigma_mm: float,
+                   B: np.ndarray, grid=LAMBDA_GRID, ridge: float = 1e-8) -> tuple[np.ndarray, tuple]:
+    """The quadratic regulariser P_λ = Σ_g λ_g Σ_{j∈g} S_jj c_j² that minimises an unbiased
+    estimate of the mean squared error of the quantities B·c (e.g. the segment strains,
+    B their derivative with respect to the coefficients) of the linearised fit (T2).
+
+    With c the unregularised optimum, Cov(c) = σ² S⁻¹ (S the reduced Gauss–Newton matrix,
+    σ the tag tracking noise in mm), A = (S + P_λ)⁻¹ and c_λ = A S c = c − A P_λ c, the
+    error B(c_λ − c_true) has mean square |B A P_λ c_true|² + σ² tr(B A S A Bᵀ), and
+
+        R(λ) = |B A P_λ c|² − σ² tr(B A P_λ S⁻¹ P_λ A Bᵀ) + σ² tr(B A S A Bᵀ)
+
+    estimates it without bias (Stein's unbiased risk estimate for a linear smoother; Vogel,
+    *Computational Methods for Inverse Problems*, 2002, §7.1). Scaling each coefficient's
+    penalty by S_jj makes λ dimensionless (λ = 1: as much prior as data on that
+    coefficient). With σ = 0, λ = 0. Returns (P (m, m), λ per group)."""
+    m = len(coef)
+    reg = ridge * np.trace(S) / m * np.eye(m)
+    d = np.diag(S)
+    S_inv = np.linalg.inv(S + reg)
+
+    def weights(lams):
+        return sum((lam * np.where(g, d, 0.0) for lam, g in zip(lams, groups)), np.zeros(m))
+    best, choice = np.inf, tuple(0.0 for _ in groups)
+    if sigma_mm >= NOISE_FLOOR_MM and groups:
+        s2 = sigma_mm ** 2
+        for lams in itertools.product(grid, repeat=len(groups)):
+            Pl = np.diag(weights(lams))
+            BA = np.linalg.solve(S + Pl + reg, B.T).T                  # B A (A symmetric)
+            BAP = BA @ Pl
+            risk = (float(np.sum((BAP @ coef) ** 2)) - s2 * float(np.sum((BAP @ S_inv) * BAP))
+                    + s2 * float(np.sum((BA @ S) * BA)))
+            if risk < best:
+                best, choice = risk, lams
+    return np.diag(weights(choice)), tuple(float(v) for v in choice)
+
+
+def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
+                   noise_mm: float = 0.0, quantities=None, ridge: float = 1e-8) -> dict:
+    """Refine a :class:`~cardionurbs.analysis.strain.CylindricalMotionFit` ``fit`` (ED → frame,
+    started from the material points) on tag points (n, 3) whose ED planes are
+    (``normals`` (n, 3), ``offsets`` (n,)) by (T2), in place.
+
+    Regularisation: with tracking noise ``noise_mm`` (e.g. :attr:`TagPlanes.rms_mm`) of at
+    least :data:`NOISE_FLOOR_MM` and ``quantities`` (a callable: the fit -> the vector of
+    quantities the fit is for, e.g. the segment strains), the fit is refined once more
+    with the penalty of :func:`choose_penalty` on the groups of :func:`penalty_groups`,
+    its weights chosen to minimise the estimated mean squared error of those quantities.
+    Returns {"residual_mm" (RMS distance to the fitted surfaces), "outliers", "n_points",
+    "lambda" (penalty weight per group), "ed_points" (the fitted X_i)}.
+    """
+    x = np.asarray(points, float)
+    n = np.asarray(normals, float)
+    d = np.asarray(offsets, float)
+    basis = plane_bases(n)                                             # (n, 2, 3)
+    # start: the fixed-point preimage of each point under the start map, on its plane
+    X = x.copy()
+    for _ in range(3):
+        X = X + (x - fit.position(X))
+        X -= ((np.einsum("ni,ni->n", n, X) - d))[:, None] * n
+    use = np.ones(len(x), bool)
+
+    def step(penalty=None):
+        pos, J_coef, F = fit.linearisation(X[use])
+        J_pt = F @ basis[use].transpose(0, 2, 1)                         # (n, 3, 2)
+        coef = fit.coef.T.reshape(-1)                                   # component-major
+        d_coef, d_pt, S = _schur_step(J_coef, J_pt, pos - x[use], ridge, penalty, coef)
+        fit.coef = (coef + d_coef).reshape(3, -1).T
+        X[use] += np.einsum("nk,nkj->nj", d_pt, basis[use])
+        return S
+    for stage, iters in enumerate(ITERATIONS):
+        for _ in range(iters):
+            S = step()
+        err = np.linalg.norm(fit.position(X) - x, axis=1)
+        if stage == 0:
+            use = err <= max(OUTLIER_MM, 4.0 * float(np.median(err)))
+    lams = ()
+    if noise_mm >= NOISE_FLOOR_MM and quantities is not None:
+        coef = fit.coef.T.reshape(-1)
+        B = quantity_jacobian(fit, quantities, coef, np.sqrt(np.diag(np.linalg.pinv(S))) * noise_mm)
+        P, lams = choose_penalty(S, coef, penalty_groups(fit), noise_mm, B)
+        if any(lams):
+            for _ in range(ITERATIONS[1]):
+                step(P)
+            err = np.linalg.norm(fit.position(X) - x, axis=1)
+    return {"residual_mm": float(np.sqrt(np.mean(err[use] ** 2))), "outliers": int((~use).sum()),
+            "n_points": int(use.sum()), "lambda": [float(v) for v in lams], "ed_points": X[use]}
