@@ -202,6 +202,10 @@ def build_parser() -> argparse.ArgumentParser:
     _study_input_options(an, "input format")
     an.add_argument("--heart-rate", type=_heart_rate, default=None, metavar="BPM",
                     help="bpm (20-300), when the input has none")
+    for which in ("ED", "ES"):
+        an.add_argument(f"--{which.lower()}-frame", type=_bounded(int, 0, 9999), default=None,
+                        metavar="N", help=f"{which} frame index (0-based) of a NIfTI label-map "
+                                          "study, used as given (for layouts that do not say)")
     an.add_argument("--no-figures", action="store_true", help="skip PNG figures and HTML report")
     an.add_argument("--outputs", default="all", metavar="LIST",
                     help="comma-separated subset of metrics,model,meshes,figures,report "

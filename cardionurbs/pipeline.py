@@ -217,9 +217,10 @@ def _report(out_dir: Path) -> Path | None:
 
 
 def _label_option(args: argparse.Namespace) -> dict:
-    """``labels=`` for load_study when ``--labels`` was given (NIfTI label maps)."""
-    labels = getattr(args, "labels", None)
-    return {} if labels is None else {"labels": labels}
+    """``labels=``, ``ed_frame=``, ``es_frame=`` for load_study when ``--labels``,
+    ``--ed-frame``, ``--es-frame`` were given (NIfTI label maps)."""
+    opts = {k: getattr(args, k, None) for k in ("labels", "ed_frame", "es_frame")}
+    return {k: v for k, v in opts.items() if v is not None}
 
 
 def study_folder(path: str | Path) -> Path:

@@ -150,6 +150,9 @@ class BiventricularModel:
         labels = (study.ed_frame, study.es_frame)
         if ed_es is None and len(self.frames) == 2 and set(labels) == set(self.frames):
             ed_es = labels                # docs/metrics.md: two contoured frames, the labels win
+        given = set(study.meta.get("ed_es_given") or ())
+        if ed_es is None and given == {"ED", "ES"} and set(labels) <= set(self.frames):
+            ed_es = labels                # docs/metrics.md: frames the user names are used as given
         if ed_es is not None:            # known (labels, or a deserialised model)
             ed, es = int(ed_es[0]), int(ed_es[1])
         else:
@@ -163,9 +166,16 @@ class BiventricularModel:
                 lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
             self.lv_volume_by_frame = lv      # the per-frame LV cavity volumes (mL) ED/ES came from
             ed, es = ed_es_frames(lv, study.ed_frame, study.es_frame)
+            if "ED" in given and study.ed_frame in lv:      # one frame named by the user
+                ed = int(study.ed_frame)
+            if "ES" in given and study.es_frame in lv:
+                es = int(study.es_frame)
         self.ed_frame, self.es_frame = ed, es
         if ed == es:
             self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, SV = 0")
+        self.base_shift_mm: dict[int, float] = {}
+        if surfaces is None and ed != es:
+            self._conserve_myocardium(ed, es)
 
     # ------------------------------------------------------------- lazy construction
     def _frame_geometry(self, frame: int) -> FrameGeometry:
@@ -255,6 +265,63 @@ class BiventricularModel:
         if isinstance(self.surfaces, LazyFrames) and frame not in self.surfaces.computed:
             return self.fit(frame, structure).surface
         return self.surfaces[frame][structure]
+
+    def _conserve_myocardium(self, ed: int, es: int, samples: int = 9) -> None:
+        """The ES valve planes of a short-axis-only label map (docs/metrics.md, Cavities
+        and walls): the half-slice plane at ES is moved along its normal, within the slab
+        the stack allows (from the most basal section to the next slice), to where the
+        LV myocardial volume at ES equals that at ED — the myocardium is nearly
+        incompressible — and the RV plane by the same amount (the atrioventricular
+        plane moves as one). Only when both frames' LV valve planes come from the
+        half-slice rule and both have LV endo- and epicardial surfaces."""
+        g_ed, g_es = self.geometry[ed], self.geometry[es]
+        if not (g_es.base_slack > 0 and "lv" in g_es.base_from_slices
+                and "lv" in g_ed.base_from_slices):
+            return
+        need = ("lv_endo", "lv_epi")
+        if not all(s in self._structures(f) for f in (ed, es) for s in need):
+            return
+        self._stationary_epicardial_apex(g_ed, g_es)
+        target = meshing.volume_ml(self.solids(ed)["lv_myocardium"])
+        myo = self._solid(es, "lv_epi") - self._solid(es, "lv_endo")
+        plane = g_es.base_planes["lv"]
+        shifts = np.linspace(-0.5 * g_es.thickness, g_es.base_slack, samples)
+        level = float(plane.origin @ plane.normal)
+        vols = np.array([meshing.volume_ml(myo.trim_by_plane(plane.normal, level - d))
+                         for d in shifts])
+        vols = np.maximum.accumulate(vols)            # more basal plane, never less wall
+        shift = float(np.interp(target, vols, shifts))
+        for side in g_es.base_from_slices:
+            p = g_es.base_planes[side]
+            g_es.base_planes[side] = Plane(p.origin - shift * p.normal, p.normal)
+        self.base_shift_mm[es] = shift
+        for key in [k for k in self._solid_cache if k[0] == es and k[1] not in SURFACES]:
+            del self._solid_cache[key]
+        self._meshes.pop(es, None)
+
+    def _stationary_epicardial_apex(self, g_ed: FrameGeometry, g_es: FrameGeometry) -> None:
+        """The LV epicardial apex of a taper-closed surface at ES is put at the level found
+        at ED (docs/metrics.md): the apex hardly moves over the cycle, the base moves
+        towards it, and the ellipsoidal taper describes the relaxed ventricle at ED
+        better than the thickened apical wall at ES (never short of the ES endocardial
+        apex)."""
+        a, b = g_ed.taper.get("lv_epi"), g_es.taper.get("lv_epi")
+        if a is None or b is None:
+            return
+        n = g_es.direction
+        level = float(g_ed.apex["lv_epi"] @ n)
+        endo = g_es.taper.get("lv_endo")
+        level = max(level, endo.apex if endo is not None else b.level)
+        if level <= b.level:
+            return
+        g_es.taper["lv_epi"] = dataclasses.replace(b, apex=level)
+        c = polygon_centroid(g_es.sections["lv_epi"][-1].points, n)
+        g_es.apex["lv_epi"] = c + (level - float(c @ n)) * n
+        es = g_es.frame
+        for key in [k for k in self._fits if k[0] == es and k[1] == "lv_epi"]:
+            del self._fits[key]
+        for key in ((es, "lv_epi"), (es, None)):
+            self._solid_cache.pop(key, None)
 
     # ------------------------------------------------------------- geometry
     def long_axis(self) -> tuple[np.ndarray, np.ndarray]:

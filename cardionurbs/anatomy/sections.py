@@ -72,6 +72,9 @@ class FrameGeometry:
     left_out: list[tuple[str, str | None, str]] = field(default_factory=list)  # (structure, slice, why)
     thickness: float = 8.0
     reference: np.ndarray | None = None     # in-plane LV -> RV direction (section seams)
+    taper: dict[str, "ApicalTaper"] = field(default_factory=dict)  # SA-only apex (label maps)
+    base_from_slices: set = field(default_factory=set)  # 'lv'/'rv' planes by the half-slice rule
+    base_slack: float = 0.0     # how far (mm) a half-slice valve plane may later move basally
     warnings: list[str] = field(default_factory=list)
 
 
@@ -556,6 +559,105 @@ def _drop_degenerate_loops(secs: list, n: np.ndarray, warnings: list[str],
     return kept
 
 
+#: ``study.meta["sa_apex"]`` value that asks for the apex from the taper of the section areas
+SA_APEX_TAPER = "taper"
+
+
+@dataclass(frozen=True)
+class ApicalTaper:
+    """Section area beyond the most apical SA section of an SA-only surface.
+
+    ``level`` is the last section's level and ``apex`` the apex level (mm along
+    the stacking direction); ``coeffs`` the area profile A(h) (mm², highest power
+    first) fitted to the apical sections, whose root beyond ``level`` is ``root``.
+    When the apex is held before that root (a more apical slice without the
+    structure), the profile is compressed into [level, apex].
+    """
+
+    level: float
+    apex: float
+    root: float
+    coeffs: tuple[float, ...]
+
+    def area_ratio(self, h: np.ndarray | float) -> np.ndarray:
+        """A(h) / A(level) for levels between the last section and the apex (0 beyond)."""
+        h = np.asarray(h, float)
+        t = np.clip((h - self.level) / max(self.apex - self.level, 1e-9), 0.0, 1.0)
+        hp = self.level + t * (self.root - self.level)
+        a0 = float(np.polyval(self.coeffs, self.level))
+        return np.clip(np.polyval(self.coeffs, hp) / a0, 0.0, 1.0)
+
+
+def apical_taper(levels: np.ndarray, areas: np.ndarray,
+                 limit: float | None = None) -> ApicalTaper | None:
+    """The apex of a surface known from SA sections alone, from the taper of their areas.
+
+    A prolate spheroid (the classical ellipsoidal model of the LV, as in the
+    area–length method) cut perpendicular to its long axis has section areas
+    quadratic in the level h: A(h) = π a² (1 − (h − h_c)² / c²). The parabola
+    through the (level, area) pairs of the three most apical sections is
+    therefore extrapolated to its first zero beyond the last section. When it
+    is not concave (the areas taper like a cone or slower), the straight line
+    through the last two areas is used instead (a paraboloid tip), which ends
+    sooner. The apex is held at most the sectioned length beyond the last
+    section, and at most at ``limit`` (a more apical slice that shows no such
+    structure). None when there are fewer than three sections or the areas do
+    not decrease towards the apex (the half-slice rule applies then).
+    """
+    h = np.asarray(levels, float)[-3:]
+    a = np.asarray(areas, float)[-3:]
+    if len(h) < 3 or not (np.all(np.diff(h) > 0) and a[2] < a[1] and a[2] > 0):
+        return None
+    c = np.polyfit(h, a, 2)
+    root = None
+    if c[0] < 0:
+        r = np.roots(c)
+        r = r[np.isreal(r)].real
+        r = r[r > h[-1]]
+        root = float(r.min()) if len(r) else None
+    if root is None:
+        slope = (a[2] - a[1]) / (h[2] - h[1])
+        c = np.array([0.0, slope, a[2] - slope * h[2]])
+        root = float(h[2] - a[2] / slope)
+    apex = min(root, h[2] + (h[2] - float(np.asarray(levels, float)[0])))
+    if limit is not None:
+        apex = min(apex, float(limit))
+    if apex <= h[2]:
+        return None
+    return ApicalTaper(level=float(h[2]), apex=float(apex), root=root,
+                       coeffs=tuple(float(x) for x in c))
+
+
+def _taper_apices(study: Study, geo: FrameGeometry, n: np.ndarray) -> None:
+    """geo.taper and geo.apex of the surfaces that have neither LA contours nor an apex
+    landmark, for studies that ask for it (label maps: a slice without a label shows
+    that the structure is absent there, which a missing hand-drawn contour does not)."""
+    planes = [im for im in study.images if im.view == "SA" and im.frame == geo.frame]
+    landmark = bool(study.landmarks_at(geo.frame, "apex"))
+    for s, secs in geo.sections.items():
+        if not secs or geo.la_points.get(s) or (s == "lv_epi" and landmark):
+            continue
+        # a section lies in its SA plane: the mean of its points has the plane's level; the
+        # taper needs the areas of the three most apical sections only
+        levels = np.array([float(sec.points.mean(axis=0) @ n) for sec in secs])
+        areas = np.full(len(secs), np.nan)
+        areas[-3:] = [polygon_area(sec.points, n) for sec in secs[-3:]]
+        have = {sec.slice for sec in secs}
+        beyond = [float(im.position @ n) for im in planes
+                  if im.slice not in have and float(im.position @ n) > levels[-1] + 0.5]
+        tp = apical_taper(levels, areas, limit=min(beyond) if beyond else None)
+        if tp is not None:
+            geo.taper[s] = tp
+    for endo, epi in (("lv_endo", "lv_epi"), ("rv_endo", "rv_epi")):
+        a, b = geo.taper.get(endo), geo.taper.get(epi)
+        if a is not None and b is not None and b.apex < a.apex:   # the wall encloses the cavity
+            geo.taper[epi] = ApicalTaper(b.level, a.apex, b.root, b.coeffs)
+    for s, tp in geo.taper.items():
+        last = geo.sections[s][-1].points
+        c = polygon_centroid(last, n)
+        geo.apex[s] = c + (tp.apex - float(c @ n)) * n
+
+
 def frame_geometry(study: Study, frame: int) -> FrameGeometry:
     """Sections, LA polylines, apex points and valve planes of one frame.
 
@@ -610,6 +712,8 @@ def frame_geometry(study: Study, frame: int) -> FrameGeometry:
                                 f"moved half a slice thickness beyond it")
             last = secs[-1].points
             geo.apex[s] = polygon_centroid(last, n) + 0.5 * thick * n
+    if study.meta.get("sa_apex") == SA_APEX_TAPER:
+        _taper_apices(study, geo, n)
 
     for side, lm_name, surf in (("lv", "mitral", "lv_endo"), ("rv", "tricuspid", "rv_endo")):
         lms = [lm.point for lm in study.landmarks_at(frame, lm_name)]
@@ -622,4 +726,7 @@ def frame_geometry(study: Study, frame: int) -> FrameGeometry:
             nrm = nrm if nrm @ n > 0 else -nrm
             c = polygon_centroid(first.points, nrm)
             geo.base_planes[side] = Plane(c - 0.5 * thick * nrm, nrm)
+            geo.base_from_slices.add(side)
+    if study.meta.get("sa_apex") == SA_APEX_TAPER and geo.base_from_slices:
+        geo.base_slack = 0.5 * thick      # up to the next slice (BiventricularModel, ES base)
     return geo

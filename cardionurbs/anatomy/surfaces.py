@@ -133,6 +133,8 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
     """Synthetic (basal, apical) sections from LA contour crossings (see module doc)."""
     n = geo.direction
     la = geo.la_points.get(structure, [])
+    if not la and secs and structure in geo.taper:
+        return [], taper_sections(geo, structure, secs)
     if not la or not secs:
         return [], []
     rv = structure.startswith("rv")
@@ -186,6 +188,31 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
                                     template=0))
             h -= SYNTHETIC_STEP_MM
     return basal, apical
+
+
+def taper_sections(geo: FrameGeometry, structure: str, secs: list[Section]) -> list[Section]:
+    """Synthetic apical sections of an SA-only surface: the most apical section scaled so
+    that its area follows the fitted taper (:class:`~cardionurbs.anatomy.sections.ApicalTaper`)
+    at every ``SYNTHETIC_STEP_MM`` up to the apex, its centre moving to the apex (the RV
+    crescent scales about the LV centre, as for the LA-guided sections)."""
+    n, tp = geo.direction, geo.taper[structure]
+    last = secs[-1]
+    rv = structure.startswith("rv")
+    anchor = polygon_centroid(last.septum_of, n) if rv and last.septum_of is not None else None
+    centre0 = polygon_centroid(last.points, n) if anchor is None else anchor
+    apex = geo.apex[structure]
+    gap = tp.apex - tp.level
+    out = []
+    k = int(np.ceil(gap / SYNTHETIC_STEP_MM))
+    for f in np.arange(1, k) / k:
+        h = tp.level + f * gap
+        scale = float(np.sqrt(tp.area_ratio(h)))
+        if scale <= 0.02:
+            break
+        centre = centre0 if anchor is not None else (1 - f) * centre0 + f * apex
+        res = scaled_section(last, h, n, centre, None, default_scale=scale, anchor=anchor)
+        out.append(Section(structure, geo.frame, res[0], synthetic=True, scale=res[1], template=-1))
+    return out
 
 
 def embed_septa(real: list[Section], synthetic: list[Section], direction: np.ndarray,
@@ -245,11 +272,12 @@ def free_wall_points(sec: Section, direction: np.ndarray, near_px: float = SEPTU
 def extension_section(basal: Section, geo: FrameGeometry, structure: str,
                       margin_mm: float = 2.0) -> Section:
     """The basal section moved along −n until all of it lies ≥ ``margin_mm`` beyond
-    the valve plane (and at least half a slice thickness), so that trimming by
+    the valve plane (and at least half a slice thickness, plus ``geo.base_slack``
+    and the margin when the plane may still move basally), so that trimming by
     the plane leaves a clean planar base."""
     n = geo.direction
     plane = geo.base_planes.get("lv" if structure.startswith("lv") else "rv")
-    t = 0.5 * geo.thickness
+    t = 0.5 * geo.thickness + (geo.base_slack + margin_mm if geo.base_slack > 0 else 0.0)
     if plane is not None:
         k = float(n @ plane.normal)
         if k > 0.05:

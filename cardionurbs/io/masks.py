@@ -74,24 +74,46 @@ def largest_component(mask: np.ndarray) -> tuple[np.ndarray, int, int]:
     return lab == k, n - 1, int(sizes.sum() - sizes[k - 1])
 
 
+def fill_holes(mask: np.ndarray) -> np.ndarray:
+    """The mask with its holes filled: background pixels not 4-connected to the image
+    border become foreground (what :func:`scipy.ndimage.binary_fill_holes` does, by one
+    labelling pass instead of an iterated dilation)."""
+    bg, n = ndimage.label(~mask)
+    if n == 0:
+        return mask.copy()
+    edge = np.unique(np.concatenate([bg[0], bg[-1], bg[:, 0], bg[:, -1]]))
+    outside = np.zeros(n + 1, bool)
+    outside[edge] = True
+    outside[0] = False
+    return ~outside[bg]
+
+
+def _bbox(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first, last) indices of the True pixels along each axis of a non-empty 2-D mask."""
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    return np.array([rows[0], cols[0]]), np.array([rows[-1], cols[-1]])
+
+
 def boundary_loop(mask: np.ndarray, sigma: float = SIGMA_PX) -> np.ndarray | None:
     """The outer boundary of a binary mask as one closed (n, 2) loop in pixels (c, r),
     first point not repeated; None when the mask is empty or smaller than MIN_AREA_PX."""
     if mask.sum() < MIN_AREA_PX:
         return None
-    idx = np.argwhere(mask)
-    lo = np.maximum(idx.min(axis=0) - 3, 0)
-    hi = np.minimum(idx.max(axis=0) + 4, mask.shape)
+    first, last = _bbox(mask)
+    lo = np.maximum(first - 3, 0)
+    hi = np.minimum(last + 4, mask.shape)
     crop = np.zeros(tuple(hi - lo + 2), float)           # one background pixel all round
     crop[1:-1, 1:-1] = mask[lo[0]:hi[0], lo[1]:hi[1]]
     f = ndimage.gaussian_filter(crop, sigma) if sigma > 0 else crop
-    loops = [c for c in find_contours(f, 0.5) if len(c) >= 4 and np.allclose(c[0], c[-1])]
+    loops = [c for c in find_contours(f, 0.5)
+             if len(c) >= 4 and np.all(np.abs(c[0] - c[-1]) <= 1e-8 + 1e-5 * np.abs(c[-1]))]
     if not loops:
         return None
-    loop = max(loops, key=lambda c: abs(_area(c)))
-    if abs(_area(loop)) < MIN_AREA_PX:
+    areas = [abs(_area(c)) for c in loops]
+    k = int(np.argmax(areas))
+    if areas[k] < MIN_AREA_PX:
         return None
-    return loop[:-1] + (lo - 1)
+    return loops[k][:-1] + (lo - 1)
 
 
 def _area(xy: np.ndarray) -> float:
@@ -150,12 +172,12 @@ def _cropped(fn):
     """Run a slice-contour function on the bounding box of the labels (plus a margin), and
     shift its pixel coordinates back: the heart fills a small part of the field of view."""
     def wrapper(labels: np.ndarray, roles: LabelRoles, sigma: float = SIGMA_PX) -> SliceContours:
-        idx = np.argwhere(labels)
-        if not len(idx):
+        if not labels.any():
             return SliceContours()
+        first, last = _bbox(labels)
         margin = int(np.ceil(4 * sigma)) + 4
-        lo = np.maximum(idx.min(axis=0) - margin, 0)
-        hi = np.minimum(idx.max(axis=0) + margin + 1, labels.shape)
+        lo = np.maximum(first - margin, 0)
+        hi = np.minimum(last + margin + 1, labels.shape)
         out = fn(labels[lo[0]:hi[0], lo[1]:hi[1]], roles, sigma)
         out.closed = {k: v + lo for k, v in out.closed.items()}
         out.open = {k: [v + lo for v in parts] for k, parts in out.open.items()}
@@ -175,13 +197,13 @@ def sa_slice_contours(labels: np.ndarray, roles: LabelRoles, sigma: float = SIGM
         lv, n_isl, px = largest_component(lv)
         if n_isl:
             out.notes.append(f"LV cavity: {n_isl} island(s) of {px} pixel(s) left out")
-        lv = ndimage.binary_fill_holes(lv)
+        lv = fill_holes(lv)
     wall = lv | myo
     if wall.any():
         wall, n_isl, px = largest_component(wall)
         if n_isl:
             out.notes.append(f"LV myocardium: {n_isl} island(s) of {px} pixel(s) left out")
-        wall = ndimage.binary_fill_holes(wall)
+        wall = fill_holes(wall)
         lv &= wall
     endo = boundary_loop(lv, sigma) if lv.any() else None
     if endo is not None:
@@ -213,7 +235,7 @@ def _rv_contours(labels, roles: LabelRoles, wall: np.ndarray, sigma: float, out:
     rv, n_isl, px = largest_component(rv)
     if n_isl:
         out.notes.append(f"RV cavity: {n_isl} island(s) of {px} pixel(s) left out")
-    rv = ndimage.binary_fill_holes(rv) & ~wall
+    rv = fill_holes(rv) & ~wall
     loop = boundary_loop(rv, sigma)
     if loop is None:
         out.skipped.append("RV cavity smaller than the smallest contour: left out")
@@ -233,7 +255,7 @@ def _rv_contours(labels, roles: LabelRoles, wall: np.ndarray, sigma: float, out:
         out.closed["rv_endo"] = loop
     if roles.rv_myo is not None and (labels == roles.rv_myo).any():
         rvw, _, _ = largest_component((labels == roles.rv_myo) | rv)
-        rvw = ndimage.binary_fill_holes(rvw) & ~wall
+        rvw = fill_holes(rvw) & ~wall
         epi = boundary_loop(rvw, sigma)
         if epi is not None:
             out.closed["rv_epi"] = epi
@@ -267,7 +289,7 @@ def la_slice_contours(labels: np.ndarray, roles: LabelRoles, sigma: float = SIGM
             out.skipped.append("long-axis view without both LV cavity and myocardium: left out")
         return out
     lv, _, _ = largest_component(lv)
-    lv = ndimage.binary_fill_holes(lv)
+    lv = fill_holes(lv)
     wall, _, _ = largest_component(lv | myo)
     loop = boundary_loop(lv, sigma)
     if loop is not None:

@@ -332,12 +332,19 @@ def _add_sa(b: _Builder, vol: LabelVolume, frames: dict[int, int], times: dict[i
                     b.add_contour(name, "SA", plane, to_scanner(vol, k, pix), False, i)
 
 
+def label_counts(data: np.ndarray) -> np.ndarray:
+    """Number of voxels of each label value 1..MAX_LABEL (index = value; index 0 left 0):
+    counted over the labelled voxels only, which a heart fills a few per cent of."""
+    lab = data[data != 0]
+    return np.bincount(lab, minlength=MAX_LABEL + 1)
+
+
 def voxel_volumes(vol: LabelVolume, roles: LabelRoles, frames: dict[int, int]) -> dict[int, dict]:
     """Voxel-count volumes (mL) per frame: LV cavity, LV myocardium, RV cavity (and RV
     myocardium where labelled) — number of voxels times the voxel volume."""
     out = {}
     for t_vol, frame in frames.items():
-        counts = np.bincount(vol.data[..., t_vol].ravel(), minlength=MAX_LABEL + 1)
+        counts = label_counts(vol.data[..., t_vol])
         d = {"lv_cavity": counts[roles.lv] * vol.voxel_ml,
              "lv_myocardium": counts[roles.myo] * vol.voxel_ml}
         if roles.rv is not None:
@@ -360,7 +367,7 @@ def _resolve_roles(labels, default: str | None, vol: LabelVolume, frames) -> tup
 
 
 def _check_roles(vol: LabelVolume, roles: LabelRoles) -> None:
-    present = {int(v) for v in np.unique(vol.data)}
+    present = {0} | set(label_counts(vol.data).nonzero()[0].tolist())
     check_values(present, roles, str(vol.path))
     non_zero = sorted(present - {0})
     if len(non_zero) == 1:
@@ -383,7 +390,7 @@ def _build(subject: str, source: Path, sa: LabelVolume, frames: dict[int, int],
     _add_sa(b, sa, frames, times)
     study = b.study
     study.frame_times_ms = {f: times[f] for f in sorted(set(frames.values())) if f in times}
-    study.meta.update({"format": "nifti", "labels": roles.describe(),
+    study.meta.update({"format": "nifti", "labels": roles.describe(), "sa_apex": "taper",
                        "voxel_volumes_ml": voxel_volumes(sa, roles, frames),
                        "metric_notes": {"RVM (g)": "label maps have no RV wall: RV mass not "
                                                    "measured"} if roles.rv_myo is None else {},
@@ -616,9 +623,28 @@ def read_study(path: str | Path, *, labels: "str | LabelRoles | None" = None,
         study = read_ukbb(p, labels)
     else:
         study = read_mnms(p, labels, ed_frame, es_frame)
-    if layout != "mnms":
+    given = {k: v for k, v in (("ED", ed_frame), ("ES", es_frame)) if v is not None}
+    if given:
+        _check_given_frames(study, given)
         if ed_frame is not None:
-            study.ed_frame = ed_frame
+            study.ed_frame = int(ed_frame)
         if es_frame is not None:
-            study.es_frame = es_frame
+            study.es_frame = int(es_frame)
+        study.meta["ed_es_given"] = sorted(given)
     return study
+
+
+def _check_given_frames(study: Study, given: dict[str, int]) -> None:
+    """ED/ES frames named by the user must be distinct labelled frames of the study."""
+    labelled = sorted({c.frame for c in study.contours if c.structure == "lv_endo"})
+    shown = ", ".join(map(str, labelled[:12])) + (", ..." if len(labelled) > 12 else "")
+    for name, v in given.items():
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise StudyError(f"{name} frame must be a whole number >= 0, got {v!r}",
+                             file=study.source, field=f"{name.lower()}_frame")
+        if v not in labelled:
+            raise StudyError(f"{name} frame {v} is not a labelled frame of the map (frames with an "
+                             f"LV cavity: {shown})", file=study.source, field=f"{name.lower()}_frame")
+    if len(given) == 2 and given["ED"] == given["ES"]:
+        raise StudyError(f"ED and ES are the same frame ({given['ED']})", file=study.source,
+                         field="es_frame")

@@ -703,6 +703,53 @@ def fig12_twist_time(ctx, out):
     return _result("fig12_twist_time", fig, out, caption, {"twist": c1, "LS": c2})
 
 
+def fig13_labelmap_overlay(ctx, out):
+    """Label-map studies with an image NIfTI beside them: the mid-ventricular SA image at
+    ED and ES with the contours the label map gave drawn over it
+    (:func:`cardionurbs.report.overlay.sa_overlay`)."""
+    from cardionurbs.report.overlay import sa_overlay
+
+    frames = sorted({ctx.ed, ctx.es})
+    panels = []
+    for f in frames:                  # the same slice at ES as at ED where it has contours
+        res = sa_overlay(ctx.model.study, f, panels[0].slice) if panels else None
+        if res is None or isinstance(res, str) or not res.contours.get("lv_endo"):
+            res = sa_overlay(ctx.model.study, f)
+        if isinstance(res, str):
+            return res
+        panels.append(res)
+    palette = {**STRUCTURE_COLOURS, "rv_freewall": STRUCTURE_COLOURS["rv_endo"],
+               "rv_septum": OKABE_ITO["bluish_green"]}
+    order = ["lv_endo", "lv_epi", "rv_endo", "rv_freewall", "rv_septum", "rv_epi"]
+    found = {k for p in panels for k in p.contours}
+    colours = {k: palette.get(k, "#ffffff") for k in [*order, *sorted(found - set(order))]
+               if k in found}
+    caption = (f"Subject {ctx.subject}: the short-axis image beside the label map (slice "
+               f"{', '.join(sorted({p.slice for p in panels}))}) with the contours taken from "
+               "the labels, at "
+               + " and ".join(ctx.frame_label(p.frame) for p in panels)
+               + ". Contours mapped into the image through its own header: they should sit "
+                 "on the blood-muscle edges.")
+    fig, axes = _new_figure(len(panels), caption, width=4.2, height=4.4, three_d=False)
+    for ax, p in zip(axes, panels):
+        pts = np.concatenate([q for parts in p.contours.values() for q in parts])
+        lo = np.maximum(np.floor(pts.min(axis=0)) - 15, 0).astype(int)
+        hi = np.minimum(np.ceil(pts.max(axis=0)) + 15, p.image.shape).astype(int)
+        ax.imshow(p.image[lo[0]:hi[0], lo[1]:hi[1]].T, cmap="gray", origin="upper",
+                  extent=(lo[0] - 0.5, hi[0] - 0.5, hi[1] - 0.5, lo[1] - 0.5))
+        for k, parts in p.contours.items():
+            for q in parts:
+                closed = k in ("lv_endo", "lv_epi", "rv_endo", "rv_epi")
+                q = np.vstack([q, q[:1]]) if closed else q
+                ax.plot(q[:, 0], q[:, 1], "-", color=colours[k], lw=1.2)
+        ax.set_title(f"slice {p.slice}, {ctx.frame_label(p.frame)}", fontsize=8)
+        ax.set_xlabel("pixel column", fontsize=7)
+        ax.set_ylabel("pixel row", fontsize=7)
+        ax.tick_params(labelsize=6)
+    _legend(fig, [(k.replace("_", " "), c) for k, c in colours.items()])
+    return _result("fig13_labelmap_overlay", fig, out, caption, colours)
+
+
 FIGURES: dict[str, FigureFn] = {
     "fig03_lv_endo_ed_es": fig03_lv_endo, "fig04_lv_endo_epi": fig04_lv_endo_epi,
     "fig05_rv_endo_ed_es": fig05_rv_endo, "fig06_rv_with_lv": fig06_rv_lv,
@@ -711,6 +758,8 @@ FIGURES: dict[str, FigureFn] = {
     "fig10_biventricular_tags": fig10_biventricular, "fig11_volume_time": fig11_volume_time,
     "fig12_twist_time": fig12_twist_time,
 }
+#: figures drawn only for label-map studies (format nifti)
+LABEL_MAP_FIGURES: dict[str, FigureFn] = {"fig13_labelmap_overlay": fig13_labelmap_overlay}
 
 
 def _regional_columns(ctx) -> Mapping:
@@ -770,7 +819,10 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     fs = FigureSet()
-    names = list(FIGURES) if only is None else [n for n in FIGURES if n in set(only)]
+    registry = dict(FIGURES)
+    if model.study.meta.get("format") == "nifti":
+        registry.update(LABEL_MAP_FIGURES)
+    names = list(registry) if only is None else [n for n in registry if n in set(only)]
     axis = model.long_axis()
     ed, es = int(model.ed_frame), int(model.es_frame)
     view = _make_view(model, sorted({ed, es}), axis)
@@ -780,7 +832,7 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
                    _load_truth(model, truth), tags_m, tag_frames, tag_note)
     for name in names:
         try:
-            res = FIGURES[name](ctx, out)
+            res = registry[name](ctx, out)
         except (ValueError, KeyError, np.linalg.LinAlgError) as exc:   # never crash analyze
             res = f"not drawn: {type(exc).__name__}: {' '.join(str(exc).split())}"
         if isinstance(res, FigureResult):
@@ -836,6 +888,7 @@ def write_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = Non
     Figures: fig03 LV endo ED/ES (paper Fig. 3), fig04 LV endo+epi (Fig. 4), fig05/06 RV
     (Figs. 5-6), fig07 one tag surface ED/ES (Fig. 7), fig08 tag QC (Fig. 8), fig09 all
     tag surfaces (Fig. 9), fig10 biventricular + tag planes (Fig. 10), fig11
-    volume–time, fig12 twist–time.
+    volume–time, fig12 twist–time; label-map studies also fig13, the SA image NIfTI beside
+    the labels with their contours over it (when the image is there).
     """
     return render_figures(model, out_dir, metrics=metrics, truth=truth, tags=tags).paths
