@@ -261,8 +261,8 @@ def main() -> int:
     lines += ["", "## Not yet in the realistic anatomy", "",
               "- Outflow tracts: no RV outflow tract to a pulmonary valve and no LV outflow tract to an "
               "aortic valve; the RV is closed at its (planar) tricuspid annulus.",
-              "- The tricuspid annulus is planar (the mitral one is a saddle); regional truth (wall thickness, strain) is in "
-              "truth.json but not yet validated in this report."]
+              "- The tricuspid annulus is planar (the mitral one is a saddle); regional truth "
+              "(wall thickness, strain) is in truth.json but not yet validated in this report."]
     Path(args.out).write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
