@@ -251,6 +251,9 @@ def render(r: dict, a) -> str:
          f"nice -n 10 env OPENBLAS_NUM_THREADS=1 python benchmarks/bench_throughput.py --n {r.get('n')} "
          "--repeat 1 --skip-analyze                                # cohorts",
          "```", "",
+         "(The figures below were measured without `nice`, the two halves written to separate "
+         "`--json` files and merged into `reports/throughput.json`; at the load of that hour "
+         "`nice -n 10` would have left the runs almost no CPU.)", "",
          "(results in `reports/throughput.json`; `--render-only` rewrites this file and "
          "`reports/scale.md` from it)", "",
          f"- Date: {r.get('date')}; machine: {r.get('machine')}",
