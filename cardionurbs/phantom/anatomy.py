@@ -77,10 +77,17 @@ def gauss_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
     return _GL_CACHE[n]
 
 
+def spheroid_s_unclamped(z, r_short: float, r_long: float, z_center: float) -> np.ndarray:
+    """a² (1 − ((z − z_c)/c)²): the spheroid's squared section radius (eq. A1), negative beyond its
+    poles (the continuation the realistic LA contours use below an apex)."""
+    u = (np.asarray(z, dtype=float) - z_center) / r_long
+    return r_short * r_short * (1.0 - u * u)
+
+
 def spheroid_section_s(z: np.ndarray, r_short: float, r_long: float, z_center: float) -> np.ndarray:
     """Squared radius of a prolate spheroid's section at height z (eq. A1); 0 outside it."""
     u = (np.asarray(z, dtype=float) - z_center) / r_long
-    return np.where(np.abs(u) < 1.0, r_short * r_short * (1.0 - u * u), 0.0)
+    return np.where(np.abs(u) < 1.0, spheroid_s_unclamped(z, r_short, r_long, z_center), 0.0)
 
 
 def truncated_spheroid_volume(r_short: float, r_long: float, z_center: float, z_top: float) -> float:

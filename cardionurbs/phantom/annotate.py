@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from cardionurbs.phantom.anatomy import Anatomy
+from cardionurbs.phantom.anatomy import Anatomy, spheroid_s_unclamped
 from cardionurbs.phantom.geometry import SliceSpec
 from cardionurbs.phantom.motion import Motion
 
@@ -127,15 +127,17 @@ def _sa_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f:
     if s2.mean() < MIN_RADIUS_MM ** 2:
         return out
     if z <= anatomy.z_top_min - BASE_MARGIN_MM:
+        layers = (s1, s2, np.maximum(s2, anatomy.s_rv(th, np.full(n_lv, z))))   # evaluated once
         if s1.mean() >= MIN_RADIUS_MM ** 2:
-            out["lv_endo"] = _polar(motion.radial_map(anatomy, s1, th, z, f), th - psi, spec.height)
-        out["lv_epi"] = _polar(motion.radial_map(anatomy, s2, th, z, f), th - psi, spec.height)
+            out["lv_endo"] = _polar(motion.radial_map(anatomy, s1, th, z, f, layers=layers), th - psi,
+                                    spec.height)
+        out["lv_epi"] = _polar(motion.radial_map(anatomy, s2, th, z, f, layers=layers), th - psi,
+                               spec.height)
     for name, epi in (("rv_endo", False), ("rv_epi", True)):
-        lo, hi = (float(v[0]) for v in anatomy.rv_sector(z, epi))
-        mid = 0.5 * (lo + hi)
-        width = np.sqrt(float(anatomy.s_rv(mid, z, epi))) - np.sqrt(float(anatomy.s_lv_epi(z, mid)))
-        if hi - lo <= 0 or width < MIN_RV_WIDTH_MM:
+        sector = _contoured_crescent(anatomy, z, epi)
+        if sector is None:
             continue
+        lo, hi = sector
         tf = np.linspace(lo, hi, n_rv_free)
         ts = np.linspace(hi, lo, n_rv_septum + 2)[1:-1]
         free = motion.radial_map(anatomy, anatomy.s_rv(tf, z, epi), tf, z, f)
@@ -144,31 +146,32 @@ def _sa_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f:
     return out
 
 
+def _contoured_crescent(anatomy: Anatomy, z: float, epi: bool) -> tuple[float, float] | None:
+    """(θ_lo, θ_hi) of a realistic RV crescent at material height z, or None where there is none or
+    it is thinner than MIN_RV_WIDTH_MM at its middle angle (not contoured)."""
+    lo, hi = (float(v[0]) for v in anatomy.rv_sector(z, epi))
+    mid = 0.5 * (lo + hi)
+    width = np.sqrt(float(anatomy.s_rv(mid, z, epi))) - np.sqrt(float(anatomy.s_lv_epi(z, mid)))
+    return None if hi - lo <= 0 or width < MIN_RV_WIDTH_MM else (lo, hi)
+
+
 # ----------------------------------------------------------------- realistic LA planes
 PLANE_STEP_MM = 1.0      # sampling of an LA plane for the realistic contours (marching squares),
                          # each vertex then refined on its grid edge to the exact boundary
 
 
 def unbend(anatomy: Anatomy, points: np.ndarray) -> np.ndarray:
-    """Realistic heart-frame points -> the motion frame (the apex bend undone; identity if none)."""
-    p = np.asarray(points, dtype=float).reshape(-1, 3).copy()
-    if anatomy.shape is not None and anatomy.shape.bends:
-        p[:, :2] -= anatomy.shape.apex_shift(p[:, 2], anatomy.z_base)
-    return p
+    """Realistic heart-frame points -> the motion frame (the apex bend undone; a copy)."""
+    if anatomy.shape is None:
+        return np.array(points, dtype=float).reshape(-1, 3)
+    return anatomy.shape.displace(points, anatomy.z_base, -1.0)
 
 
 def bend(anatomy: Anatomy, points: np.ndarray) -> np.ndarray:
-    """The motion frame -> realistic heart-frame points (the apex bend)."""
-    p = np.asarray(points, dtype=float).reshape(-1, 3).copy()
-    if anatomy.shape is not None and anatomy.shape.bends:
-        p[:, :2] += anatomy.shape.apex_shift(p[:, 2], anatomy.z_base)
-    return p
-
-
-def spheroid_s_unclamped(z, r_short: float, r_long: float, z_center: float) -> np.ndarray:
-    """a² (1 − ((z − z_c)/c)²): the spheroid's squared section radius, negative beyond its poles."""
-    u = (np.asarray(z, dtype=float) - z_center) / r_long
-    return r_short * r_short * (1.0 - u * u)
+    """The motion frame -> realistic heart-frame points (the apex bend; a copy)."""
+    if anatomy.shape is None:
+        return np.array(points, dtype=float).reshape(-1, 3)
+    return anatomy.shape.displace(points, anatomy.z_base, 1.0)
 
 
 def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: float,
@@ -511,12 +514,10 @@ def rv_insertion_points(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: fl
     if anatomy.realistic:
         if not (0.0 < z <= anatomy.z_base - BASE_MARGIN_MM):
             return None
-        lo, hi = (float(v[0]) for v in anatomy.rv_sector(z, epi=True))
-        mid = 0.5 * (lo + hi)
-        if (hi - lo <= 0 or np.sqrt(float(anatomy.s_rv(mid, z, True)))
-                - np.sqrt(float(anatomy.s_lv_epi(z, mid))) < MIN_RV_WIDTH_MM):
+        sector = _contoured_crescent(anatomy, z, epi=True)
+        if sector is None:
             return None
-        th = np.array([hi, lo])
+        th = np.array(sector[::-1])
         return motion.forward(anatomy, _polar(anatomy.s_lv_epi(np.full(2, z), th), th, z), f)
     if not (0.0 < z <= anatomy.z_base - BASE_MARGIN_MM):
         return None

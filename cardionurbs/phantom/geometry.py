@@ -50,11 +50,7 @@ class HeartPose:
     z_base: float = 0.0
 
     def _bend(self, p: np.ndarray, sign: float) -> np.ndarray:
-        if self.bend is None or not self.bend.bends:
-            return p
-        q = p.copy()
-        q[:, :2] += sign * self.bend.apex_shift(p[:, 2], self.z_base)
-        return q
+        return p if self.bend is None else self.bend.displace(p, self.z_base, sign)
 
     def unbend(self, points: np.ndarray) -> np.ndarray:
         """Realistic heart-frame positions -> the unbent (motion) frame; identity when ideal."""

@@ -169,6 +169,14 @@ class ShapeModes:
     def bends(self) -> bool:
         return bool(np.any(np.asarray(self.apex_shift_mm) != 0.0))
 
+    def displace(self, points: np.ndarray, z_base: float, sign: float = 1.0) -> np.ndarray:
+        """(n, 3) points moved by ``sign`` · d(z) within their z-planes (+1: the apex bend, −1: its
+        inverse, exact because z is kept); a copy."""
+        p = np.array(points, dtype=float).reshape(-1, 3)
+        if self.bends:
+            p[:, :2] += sign * self.apex_shift(p[:, 2], z_base)
+        return p
+
     def to_dict(self) -> dict:
         d = asdict(self)
         d["endo_modes"] = [list(m) for m in self.endo_modes]
