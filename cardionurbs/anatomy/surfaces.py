@@ -66,7 +66,8 @@ class SurfaceFit:
     sections: list[Section]
     apex: np.ndarray
     n_ctrl: int
-    curve_error_mm: float          # max distance of a contour point to its section curve
+    curve_error_mm: float          # max distance of a contour point to its section curve when
+    #                                it exceeds the tolerance; NaN when every section met it
     warnings: list[str] = field(default_factory=list)
 
 
@@ -438,7 +439,8 @@ def build_surface(geo: FrameGeometry, structure: str, ref: np.ndarray,
     sources = [None if s.synthetic else s.source_points for s in stack]
     tol = [tol_px * (_pixel_mm(s) if not s.synthetic else 1.0) for s in stack]
     curves, n_ctrl, err, ok = nurbs.fit_compatible_curves(loops, degree=3, closed=True, tol=tol,
-                                                          error_points=sources, counts=N_CTRL_STEPS)
+                                                          error_points=sources, counts=N_CTRL_STEPS,
+                                                          measure_error=False)
     if not ok:
         warnings.append(f"{structure}, frame {frame}: contour fit error {err:.2f} mm exceeds "
                         f"{tol_px:g} px with {n_ctrl} control points")
