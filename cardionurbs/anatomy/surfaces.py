@@ -195,10 +195,10 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
 
 def septal_anchor(sec: Section, direction: np.ndarray) -> np.ndarray | None:
     """The middle of an RV section's septal run (of its points on the LV epicardium, the one
-    nearest their centroid), the point a tapering crescent shrinks towards: scaled about it, the crescent keeps its
-    septal middle on the septum and its area falls as s², whereas scaled about the LV
-    centre it would sink into the LV wall, which the RV solids subtract. None without
-    an LV epicardial loop or septal points (then the crescent scales about its centroid)."""
+    nearest their centroid): the point a tapering crescent shrinks towards, so that it keeps
+    its septal middle on the septum (scaled about the LV centre it would sink into the LV
+    wall, which the RV solids subtract). None without an LV epicardial loop or septal
+    points (then the crescent scales about its centroid)."""
     if sec.septum_of is None:
         return None
     sept = septal_mask(sec.points, sec.septum_of, direction, SEPTUM_NEAR_MM_TAPER)
