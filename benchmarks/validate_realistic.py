@@ -1,7 +1,11 @@
 """Validation on realistic phantom anatomy (ideal and realistic side by side).
 
-    python benchmarks/validate_realistic.py [--jobs 2] [--seeds 20] [--subjects 3]
+    python benchmarks/validate_realistic.py [--jobs 2] [--seeds 20] [--subjects 3] [--outflow]
         -> reports/validation-realistic.md (+ reports/figures/realistic_*.png)
+
+With ``--outflow`` every realistic subject has its RV and LV outflow tracts (docs/phantoms.md),
+and section 1 also measures them: the RVOT's share of the RV end-diastolic volume, the pulmonary
+valve's height above the tricuspid plane, the LVOT's share of the LV volume.
 
 1. Not toys: per realistic subject, the mid-ventricular ED endocardial section's RMS
    distance to its best-fit ellipse, and the mitral annulus points' largest distance to
@@ -43,6 +47,7 @@ BOUNDS = {"LVEDV (mL)": 2.0, "LVESV (mL)": 2.0, "RVEDV (mL)": 2.0, "RVESV (mL)":
           "LVM (g)": 4.0, "RVM (g)": 8.0, "LVEF (%)": 2.0, "RVEF (%)": 2.0, "Twist (deg)": 1.0}
 PRESETS = ("normal", "mr", "phtn")
 INFARCTS = ("lad", "rca", "lcx")
+OUTFLOW = {"outflow": False}     # set by --outflow (workers get it in their arguments)
 
 
 def _err(c: str, v: float, t: float) -> float:
@@ -51,30 +56,42 @@ def _err(c: str, v: float, t: float) -> float:
 
 # ------------------------------------------------------------------ workers
 def not_a_toy(args) -> dict:
-    pathology, seed = args
+    pathology, seed, outflow = args
     from skimage.measure import EllipseModel
 
     from cardionurbs.geometry import fit_plane
     from cardionurbs.phantom import annotate
     from cardionurbs.phantom.generate import generate
-    ph = generate(pathology, seed=seed, frames=2, anatomy_model="realistic", volume_check=False)
+    ph = generate(pathology, seed=seed, frames=2, anatomy_model="realistic", volume_check=False,
+                  outflow=outflow)
     sa = [s for s in ph.slices if s.view == "SA"]
     mid = min(sa, key=lambda s: abs(s.height - 0.5 * ph.anatomy.z_base))
     c = annotate.sa_contours(ph.anatomy, ph.motion, mid, 0.0, n_lv=360)["lv_endo"][:, :2]
     rms = float(np.sqrt(np.mean(EllipseModel.from_estimate(c).residuals(c) ** 2)))
     lm = annotate.bend(ph.anatomy, annotate.landmarks(ph.anatomy, ph.motion, 0.0)["mitral"])
     cen, n = fit_plane(lm)
-    return {"subject": f"{pathology}_{seed}", "ellipse_rms_mm": rms,
-            "annulus_max_mm": float(np.abs((lm - cen) @ n).max()),
-            "annulus_rms_mm": float(np.sqrt(np.mean(((lm - cen) @ n) ** 2))),
-            "apex_shift_mm": float(np.hypot(*ph.anatomy.shape.apex_shift_mm))}
+    out = {"subject": f"{pathology}_{seed}", "ellipse_rms_mm": rms,
+           "annulus_max_mm": float(np.abs((lm - cen) @ n).max()),
+           "annulus_rms_mm": float(np.sqrt(np.mean(((lm - cen) @ n) ** 2))),
+           "apex_shift_mm": float(np.hypot(*ph.anatomy.shape.apex_shift_mm))}
+    if outflow:
+        from cardionurbs.phantom import truth_realistic as trr
+        planes = trr.valve_planes(ph.anatomy, ph.motion, 0.0)
+        tc, tn = planes["tricuspid"]
+        pul = annotate.bend(ph.anatomy, annotate.landmarks(ph.anatomy, ph.motion, 0.0)["pulmonary"])
+        tract = trr.ed_outflow_volumes(ph.anatomy)
+        m = ph.truth["metrics"]
+        out.update(rvot_frac=tract["rv_endo"] / m["RVEDV (mL)"], lvot_frac=tract["lv_endo"] / m["LVEDV (mL)"],
+                   pv_min_mm=float(((pul - tc) @ tn).min()), pv_mean_mm=float(((pul - tc) @ tn).mean()))
+    return out
 
 
 def truth_check(args) -> dict:
-    pathology, seed, infarct = args
+    pathology, seed, infarct, outflow = args
     from cardionurbs.phantom.generate import generate
     t0, c0 = time.time(), time.process_time()
-    ph = generate(pathology, seed=seed, frames=2, anatomy_model="realistic", infarct=infarct)
+    ph = generate(pathology, seed=seed, frames=2, anatomy_model="realistic", infarct=infarct,
+                  outflow=outflow)
     vols = ph.truth["volumes"]
     myo = list(vols["lv_myocardium_material_mL"].values())
     return {"subject": f"{pathology}_{seed}" + (f"_{infarct}" if infarct else ""),
@@ -84,12 +101,12 @@ def truth_check(args) -> dict:
 
 
 def accuracy(args) -> dict:
-    pathology, seed, anatomy_model, infarct, realism = args
+    pathology, seed, anatomy_model, infarct, realism, outflow = args
     from cardionurbs.io import load_study
     from cardionurbs.phantom.generate import generate, write_phantom
     from cardionurbs.pipeline import analyse_study
     ph = generate(pathology, seed=seed, frames=2, anatomy_model=anatomy_model, infarct=infarct,
-                  realism=realism, volume_check=False)
+                  realism=realism, volume_check=False, outflow=outflow and anatomy_model == "realistic")
     with tempfile.TemporaryDirectory() as tmp:
         write_phantom(ph, Path(tmp) / "p", dicom=False)
         model, m = analyse_study(load_study(Path(tmp) / "p"))
@@ -103,13 +120,14 @@ def accuracy(args) -> dict:
     return row
 
 
-def generation_time(anatomy_model: str) -> dict:
+def generation_time(anatomy_model: str, outflow: bool = False) -> dict:
     from cardionurbs.phantom.generate import generate, write_phantom
     t0, c0 = time.time(), time.process_time()
-    ph = generate("normal", seed=1, frames=20, anatomy_model=anatomy_model)
+    ph = generate("normal", seed=1, frames=20, anatomy_model=anatomy_model, outflow=outflow)
     with tempfile.TemporaryDirectory() as tmp:
         write_phantom(ph, Path(tmp) / "p", dicom=True)
-    return {"anatomy": anatomy_model, "wall_s": time.time() - t0, "cpu_s": time.process_time() - c0,
+    name = anatomy_model + (" + outflow tracts" if outflow else "")
+    return {"anatomy": name, "wall_s": time.time() - t0, "cpu_s": time.process_time() - c0,
             "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             "load": os.getloadavg()[0]}
 
@@ -190,19 +208,24 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=20, help="truth sweep: seeds per preset")
     ap.add_argument("--subjects", type=int, default=3, help="accuracy: seeds per preset")
     ap.add_argument("--out", default=str(ROOT / "reports" / "validation-realistic.md"))
+    ap.add_argument("--outflow", action="store_true",
+                    help="realistic subjects with their RV and LV outflow tracts")
     args = ap.parse_args()
+    ot = bool(args.outflow)
     started = time.time()
     with ProcessPoolExecutor(args.jobs) as pool:
-        toys = list(pool.map(not_a_toy, [(p, s) for p in PRESETS for s in range(args.subjects)]))
-        checks = list(pool.map(truth_check, [(p, s, None) for p in PRESETS for s in range(args.seeds)]
-                               + [("normal", s, inf) for inf in INFARCTS for s in range(3)]))
-        acc_args = [(p, s, "realistic", None, None) for p in PRESETS for s in range(args.subjects)]
-        acc_args += [("normal", s, "realistic", inf, None) for inf in INFARCTS for s in range(1)]
+        toys = list(pool.map(not_a_toy, [(p, s, ot) for p in PRESETS for s in range(args.subjects)]))
+        checks = list(pool.map(truth_check, [(p, s, None, ot) for p in PRESETS for s in range(args.seeds)]
+                               + [("normal", s, inf, ot) for inf in INFARCTS for s in range(3)]))
+        acc_args = [(p, s, "realistic", None, None, ot) for p in PRESETS for s in range(args.subjects)]
+        acc_args += [("normal", s, "realistic", inf, None, ot) for inf in INFARCTS for s in range(1)]
         real = list(pool.map(accuracy, acc_args))
-        ideal = list(pool.map(accuracy, [(p, s, "ideal", inf, None) for p, s, _, inf, _ in acc_args]))
-        clinical = list(pool.map(accuracy, [(p, s, "realistic", inf, "clinical")
-                                            for p, s, _, inf, _ in acc_args]))
+        ideal = list(pool.map(accuracy, [(p, s, "ideal", inf, None, False) for p, s, _, inf, _, _ in acc_args]))
+        clinical = list(pool.map(accuracy, [(p, s, "realistic", inf, "clinical", ot)
+                                            for p, s, _, inf, _, _ in acc_args]))
     gen = [generation_time("ideal"), generation_time("realistic")]
+    if ot:
+        gen.append(generation_time("realistic", outflow=True))
     figs = figures(ROOT / "reports" / "figures")
     cmd = "python benchmarks/validate_realistic.py " + " ".join(sys.argv[1:])
     lines = ["# Validation on realistic phantom anatomy", "",
@@ -212,7 +235,10 @@ def main() -> int:
              "non-elliptic LV sections (shape modes k = 2-4), thicker septum, RV crescent whose wrap "
              "and reach vary from base to apex, saddle-shaped mitral annulus, apex bent off the long "
              "axis, papillary muscles and an RV trabecular band in the images; optional infarct "
-             "(thinner, hypokinetic coronary territory). No outflow tracts yet (see the end).", "",
+             "(thinner, hypokinetic coronary territory)" + (
+                 "; every realistic subject here has its RV outflow tract to a pulmonary valve and "
+                 "its LV outflow tract to an aortic valve (`--outflow`)." if ot else
+                 ". No outflow tracts in this run (`--outflow` adds them).") + "", "",
              "## 1. Not toys", "",
              "Mid-ventricular ED endocardial section: RMS distance to its best-fit ellipse "
              "(skimage EllipseModel, geometric residuals); mitral annulus: the 12 annulus points' "
@@ -223,7 +249,24 @@ def main() -> int:
         lines.append(f"| {r['subject']} | {r['ellipse_rms_mm']:.2f} | {r['annulus_max_mm']:.2f} | "
                      f"{r['annulus_rms_mm']:.2f} | {r['apex_shift_mm']:.1f} |")
     lines += ["", f"Smallest ellipse RMS {min(r['ellipse_rms_mm'] for r in toys):.2f} mm, smallest "
-              f"annulus departure {min(r['annulus_max_mm'] for r in toys):.2f} mm.", "",
+              f"annulus departure {min(r['annulus_max_mm'] for r in toys):.2f} mm.", ""]
+    if ot:
+        lines += ["### Outflow tracts", "",
+                  "RVOT share = the tract's lumen above the tricuspid plane and below the pulmonary valve "
+                  "plane over RVEDV (method A at ED); pulmonary valve height = the pulmonary annulus "
+                  "points' distances above the best-fit tricuspid plane (smallest / mean); LVOT share = "
+                  "the LVOT lumen above the mitral plane over LVEDV. Done-when: the RV cavity includes an "
+                  "outflow tract above the tricuspid plane.", "",
+                  "| subject | RVOT share of RVEDV (%) | pulmonary valve above tricuspid plane, min / mean (mm) "
+                  "| LVOT share of LVEDV (%) |", "|---|---|---|---|"]
+        for r in toys:
+            lines.append(f"| {r['subject']} | {100 * r['rvot_frac']:.1f} | {r['pv_min_mm']:.1f} / "
+                         f"{r['pv_mean_mm']:.1f} | {100 * r['lvot_frac']:.1f} |")
+        lines += ["", f"Every subject's RV cavity includes an outflow tract: RVOT share "
+                  f"{100 * min(r['rvot_frac'] for r in toys):.1f}-{100 * max(r['rvot_frac'] for r in toys):.1f} %, "
+                  f"pulmonary annulus at least {min(r['pv_min_mm'] for r in toys):.1f} mm above the "
+                  f"tricuspid plane.", ""]
+    lines += [
               "## 2. Two truth methods", "",
               "Method A integrates the exact sections (explicit polar curves of the motion) clipped by "
               "the valve planes over 0.25 mm levels (0.02 mm where a plane crosses); method B meshes "
@@ -259,10 +302,10 @@ def main() -> int:
     lines += ["", "## Figures", ""]
     lines += [f"![{p.stem}](figures/{p.name})" for p in figs]
     lines += ["", "## Not yet in the realistic anatomy", "",
-              "- Outflow tracts: no RV outflow tract to a pulmonary valve and no LV outflow tract to an "
-              "aortic valve; the RV is closed at its (planar) tricuspid annulus.",
               "- The tricuspid annulus is planar (the mitral one is a saddle); regional truth "
-              "(wall thickness, strain) is in truth.json but not yet validated in this report."]
+              "(wall thickness, strain) is in truth.json but not yet validated in this report.",
+              "- The outflow tracts' lumen contracts with the RV (LV) cavity's scaling, so the pulmonary "
+              "annulus narrows at end-systole more than a real one does."]
     Path(args.out).write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0

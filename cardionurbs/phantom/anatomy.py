@@ -299,7 +299,8 @@ class Anatomy:
         widest (max of S_rv − S_epi on a 2 (n_table − 1) grid), the first sign change, refined by
         eight regula falsi steps; both edges equal that angle where there is no crescent."""
         if self.shape is not None and np.ndim(z) == 0 and n_table == 181:
-            lo, hi = self._rv_sector_scalar(float(z), bool(epi))     # SA contours, insertions
+            hit = self.__dict__.get("_sector_cache", {}).get((float(z), bool(epi)))
+            lo, hi = hit if hit is not None else self._rv_sector_scalar(float(z), bool(epi))
             return np.array([lo]), np.array([hi])
         z = np.atleast_1d(np.asarray(z, dtype=float))
         if self.shape is None:
@@ -367,6 +368,18 @@ class Anatomy:
             th = np.clip(th - (self.rv_p(th, epi) - target) / dp, 0.0, np.pi)
         edge = np.where(has, th, 0.0)
         return np.where(full, np.pi, edge)
+
+    def prime_rv_sectors(self, z: np.ndarray) -> None:
+        """Solve the realistic RV sectors (endo and epi) at many heights in one vectorised call, for
+        the scalar look-ups of the SA contours and insertion points (the same arithmetic
+        element by element, so the same values)."""
+        if self.shape is None:
+            return
+        z = np.unique(np.asarray(z, dtype=float))
+        cache = self.__dict__.setdefault("_sector_cache", {})
+        for epi in (False, True):
+            lo, hi = self.rv_sector(z, epi)
+            cache.update({(float(a), epi): (float(b), float(c)) for a, b, c in zip(z, lo, hi)})
 
     @functools.lru_cache(maxsize=4096)
     def _rv_sector_scalar(self, z: float, epi: bool) -> tuple[float, float]:

@@ -267,8 +267,11 @@ def _outflow_terms(anatomy: Anatomy, motion: Motion, out: dict, regions, sp, th,
     r = np.sqrt(np.maximum(motion.inverse_radial_map(anatomy, sp, th, z, f, layers=layers), 0.0))
     x, y = r * np.cos(th), r * np.sin(th)
     if "lv_endo" in regions:
+        # (2- and 4-chamber views never reach the cylinder: the terms only keep the tree's shape)
         out["lv_endo"] = out["lv_endo"] + (ofl.lvot_cylinder_term(anatomy, x, y),
                                            ofl.lvot_top_term(anatomy, x, y, z))
+    if not {"rv_endo", "rv_epi"} & set(regions):
+        return
     pulmonary = ofl.rvot_top_term(anatomy, x, y, z)
     bottom = (anatomy.z_base - 1.0) - z
     for name, epi in (("rv_endo", False), ("rv_epi", True)):
@@ -296,6 +299,14 @@ def region_logic(name: str, n_terms: int) -> tuple[tuple, set, dict]:
     return ("max", 0, 1, 2), {2}, {0: 0, 1: 1}
 
 
+def tree_value(tree, terms) -> np.ndarray:
+    """The value of a min/max tree over arrays of terms (:func:`tree_eval` without the index)."""
+    if isinstance(tree, int):
+        return terms[tree]
+    op, *kids = tree
+    return (np.maximum if op == "max" else np.minimum).reduce([tree_value(k, terms) for k in kids])
+
+
 def tree_eval(tree, terms) -> tuple[np.ndarray, np.ndarray]:
     """(value, index of the term that gives it) of a min/max tree over arrays of terms."""
     if isinstance(tree, int):
@@ -312,10 +323,11 @@ def _plane_grid(anatomy: Anatomy, spec: SliceSpec, step: float):
     reach = max(anatomy.r_short_epi, anatomy.r_free_endo * (1 + anatomy.rv_offset) + anatomy.rv_wall)
     reach = 1.35 * reach + 12.0
     z_hi = anatomy.z_base + (anatomy.shape.saddle_mm if anatomy.shape is not None else 0.0) + 6.0
-    if anatomy.outflow is not None:
+    if anatomy.outflow is not None and spec.id in ("la_3ch", "la_rvot"):
+        # the views that cut a tract (the 2- and 4-chamber views pass beside both)
         from cardionurbs.phantom import outflow as ofl
-        z_hi = max(z_hi, float(ofl.pulmonary_ring(anatomy)[:, 2].max()) + 8.0,
-                   float(ofl.aortic_ring(anatomy)[:, 2].max()) + 8.0)
+        ring = ofl.aortic_ring(anatomy) if spec.id == "la_3ch" else ofl.pulmonary_ring(anatomy)
+        z_hi = max(z_hi, float(ring[:, 2].max()) + 8.0)
     col = spec.column
     v_a, v_b = (z_hi - spec.center[2]) / col[2], (-6.0 - spec.center[2]) / col[2]
     v = np.arange(min(v_a, v_b), max(v_a, v_b) + step, step)
@@ -381,7 +393,7 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec, exact_f
 
     terms = [a.reshape(shape) for a in fields[name]]
     tree, closures, parts = region_logic(name, len(terms))
-    field = tree_eval(tree, terms)[0]
+    field = tree_value(tree, terms)
     loops = find_contours(field, 0.0)
     if not loops:
         return None
@@ -394,7 +406,7 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec, exact_f
     def plane_uv(idx):
         return np.interp(idx[:, 0], np.arange(len(w)), w), np.interp(idx[:, 1], np.arange(len(v)), v)
 
-    loop = _refine_on_edges(loop, field, lambda idx: tree_eval(tree, exact_fields(*plane_uv(idx))[name])[0])
+    loop = _refine_on_edges(loop, field, lambda idx: tree_value(tree, exact_fields(*plane_uv(idx))[name]))
     ww, vv = plane_uv(loop)
     active = tree_eval(tree, exact_fields(ww, vv)[name])[1]
     on_wall = ~np.isin(active, list(closures))

@@ -246,6 +246,9 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
                   meta={"generator": "cardionurbs.phantom", "pathology": pathology, "seed": seed,
                         "study_uid": uid("study"), "frame_of_reference_uid": uid("for")})
     step = acq.pixel_mm
+    # every SA plane's material height at every frame: the RV sectors there in one call
+    anatomy.prime_rv_sectors([annotate.sa_material_height(motion, s, float(f))
+                              for s in specs if s.view == "SA" for f in phases])
     for spec in specs:
         series = SERIES["SA"] if spec.view == "SA" else SERIES[spec.id]
         for k in range(frames):

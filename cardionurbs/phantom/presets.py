@@ -30,6 +30,7 @@ optional defaults such as ``frames``) and ``[[subject]]`` entries with ``id``,
 from __future__ import annotations
 
 import dataclasses
+import functools
 import sys
 from dataclasses import dataclass
 from importlib import resources
@@ -190,7 +191,7 @@ def solve_anatomy(draw: SubjectDraw, shape=None) -> Anatomy:
         from cardionurbs.phantom.truth_realistic import ed_outflow_volumes
         for _ in range(3):
             probe = dataclasses.replace(_lv_anatomy(a, c, h, k, t), shape=shape)
-            extra = ed_outflow_volumes(probe, parts=("lv",))["lv_endo"] * 1000.0
+            extra = ed_outflow_volumes(probe, ("lv",), 0.5, 64, exact_planes=False)["lv_endo"] * 1000.0
             a, c, h, t = lv_sizes(vol - extra)
 
     def lv(t: float, **rv) -> Anatomy:
@@ -217,12 +218,14 @@ def solve_anatomy(draw: SubjectDraw, shape=None) -> Anatomy:
     def rv_real(A2: float, wall2: float) -> Anatomy:
         return dataclasses.replace(rv(A2, wall2), shape=shape)
 
+    @functools.lru_cache(maxsize=8)
+    def tract_volumes(an: Anatomy) -> dict:
+        from cardionurbs.phantom.truth_realistic import ed_outflow_volumes
+        return ed_outflow_volumes(an, ("rv",), 0.5, 64, exact_planes=False)
+
     def tract(an: Anatomy, key: str) -> float:
         """The RVOT's ED lumen (rv_endo) or lumen and wall (rv_epi), mm³ (0 without one)."""
-        if outflow is None:
-            return 0.0
-        from cardionurbs.phantom.truth_realistic import ed_outflow_volumes
-        return ed_outflow_volumes(an, parts=("rv",))[key] * 1000.0
+        return 0.0 if outflow is None else tract_volumes(an)[key] * 1000.0
 
     def rv_cavity(an: Anatomy) -> float:
         return an.rv_shell_volume(False, 96, 48) + tract(an, "rv_endo")

@@ -196,16 +196,34 @@ def _outflow_levels(lo: float, hi: float, dz: float) -> np.ndarray:
     return np.linspace(lo, hi, max(int(np.ceil((hi - lo) / dz)), 2) + 1)
 
 
-def ed_outflow_volumes(anatomy: Anatomy, parts=("rv", "lv"), dz: float = 0.25, n: int = 96) -> dict[str, float]:
+def ed_outflow_volumes(anatomy: Anatomy, parts=("rv", "lv"), dz: float = 0.25, n: int = 96,
+                       exact_planes: bool = True) -> dict[str, float]:
     """Method A at end-diastole for the outflow tracts alone (mL; ``rv_endo``, ``rv_epi``,
-    ``lv_endo`` as in :func:`section_volumes`): what the preset solver adds to the body volumes."""
+    ``lv_endo`` as in :func:`section_volumes`): what the preset solver adds to the body volumes.
+    ``exact_planes=False`` (the solver): the material valve planes, the mitral one fitted to the
+    unbent annulus (the apex bend moves it by ~0.01 mm at the base)."""
     still = Motion(ls=0.0, lv_ef=0.0, rv_ef=0.0, septal_flattening=0.0, apex_rotation_deg=0.0,
                    base_rotation_deg=0.0, z_base=anatomy.z_base)
-    return _outflow_section_volumes(anatomy, still, 0.0, valve_planes(anatomy, still, 0.0), n, dz, parts)
+    if exact_planes:
+        planes = valve_planes(anatomy, still, 0.0)
+    else:
+        planes = {}
+        if "rv" in parts:
+            fr = ofl.rvot_frame(anatomy)
+            planes["pulmonary"] = (np.asarray(fr.plane_point), np.asarray(fr.plane_normal))
+        if "lv" in parts:
+            fl = ofl.lvot_frame(anatomy)
+            planes["aortic"] = (np.asarray(fl.plane_point), np.asarray(fl.plane_normal))
+            th = np.linspace(0.0, 2 * np.pi, 12, endpoint=False)
+            zt = anatomy.z_top(th)
+            r = np.sqrt(anatomy.s_lv_endo(zt, th))
+            c, nrm = fit_plane(np.column_stack([r * np.cos(th), r * np.sin(th), zt]))
+            planes["mitral"] = (c, nrm if nrm[2] > 0 else -nrm)
+    return _outflow_section_volumes(anatomy, still, 0.0, planes, n, dz, parts)
 
 
 def _outflow_section_volumes(anatomy: Anatomy, motion: Motion, f: float, planes: dict, n: int,
-                             dz: float = 0.1, parts=("rv", "lv")) -> dict[str, float]:
+                             dz: float = 0.25, parts=("rv", "lv")) -> dict[str, float]:
     """Method A for the outflow tracts, added to the body volumes (mm³ -> mL): the RVOT lumen and
     wall above the tricuspid plane z' = λ z_b and below the pulmonary valve plane; the LVOT as
     |D ∩ aortic⁻| − |D ∩ mitral⁻| (the LVOT lumen above the mitral plane, D below the aortic plane
