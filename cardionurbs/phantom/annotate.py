@@ -277,7 +277,7 @@ def _outflow_terms(anatomy: Anatomy, motion: Motion, out: dict, regions, sp, th,
     for name, epi in (("rv_endo", False), ("rv_epi", True)):
         if name not in regions:
             continue
-        s_ot = ofl.s_rvot(anatomy, th, z, epi)
+        s_ot = ofl.s_rvot(anatomy, th, z, epi, s_epi=layers[1])
         s_ot = np.where(z > anatomy.z_base, s_ot, np.minimum(s_ot, anatomy.s_rv_body(th, z, epi)))
         wall = (sp - motion.radial_map(anatomy, s_ot, th, z, f, layers=layers)) * scale
         out[name] = out[name] + (wall, pulmonary, bottom)
@@ -425,23 +425,38 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec, exact_f
         keep = keep[on_wall[keep]]
     ww, vv, act = ww[keep], vv[keep], active[keep]
 
-    def corner(p, i, j):
-        def two(a, b):
-            e = exact_fields(a, b)[name]
-            return e[i], e[j]
-        return _corners(np.array([p[0]]), np.array([p[1]]), two)[0]
-
-    pieces, cur = [], [(ww[0], vv[0])]
+    # the corners: the annulus ends (wall meets closure) and the changes of wall part (the RV apex),
+    # all solved in one vectorised Newton iteration
+    turns = [k for k in range(1, len(ww)) if parts[int(act[k])] != parts[int(act[k - 1])]]
+    req = [(0.5 * (ww[k] + ww[k - 1]), 0.5 * (vv[k] + vv[k - 1]), act[k - 1], act[k]) for k in turns]
     if not on_wall.all():
-        cur = [tuple(corner((ww[0], vv[0]), act[0], top_first)), (ww[0], vv[0])]
+        req = [(ww[0], vv[0], act[0], top_first)] + req + [(ww[-1], vv[-1], act[-1], top_last)]
+    corners = {}
+    if req:
+        ci = np.array([r[2] for r in req], dtype=int)
+        cj = np.array([r[3] for r in req], dtype=int)
+
+        def two(a, b):
+            e = np.stack(exact_fields(a, b)[name])
+            cols = np.arange(e.shape[1])
+            return e[np.tile(ci, 5), cols], e[np.tile(cj, 5), cols]
+
+        solved = _corners(np.array([r[0] for r in req]), np.array([r[1] for r in req]), two)
+        corners = {i: tuple(c) for i, c in enumerate(solved)}
+    first = 0 if not on_wall.all() else None
+    pieces, cur = [], [(ww[0], vv[0])]
+    if first is not None:
+        cur = [corners[0], (ww[0], vv[0])]
+    n_turn = 0
     for k in range(1, len(ww)):
         if parts[int(act[k])] != parts[int(act[k - 1])]:
-            c = tuple(corner((0.5 * (ww[k] + ww[k - 1]), 0.5 * (vv[k] + vv[k - 1])), act[k - 1], act[k]))
+            c = corners[n_turn + (1 if first is not None else 0)]
+            n_turn += 1
             pieces.append(np.array(cur + [c]))
             cur = [c]
         cur.append((ww[k], vv[k]))
-    if not on_wall.all():
-        cur.append(tuple(corner((ww[-1], vv[-1]), act[-1], top_last)))
+    if first is not None:
+        cur.append(corners[len(req) - 1])
     pieces.append(np.array(cur))
     if start_positive and pieces[0][0, 0] < pieces[-1][-1, 0]:
         pieces = [p[::-1] for p in pieces[::-1]]

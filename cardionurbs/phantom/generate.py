@@ -111,6 +111,9 @@ def _twist_motion(anatomy: Anatomy, draw: SubjectDraw, curve: VolumeCurve, specs
     eps = (v["ei_es"] ** 2 - 1.0) / (v["ei_es"] ** 2 + 1.0)
     kw = dict(ls=v["ls_pct"] / 100.0, lv_ef=v["lvef_pct"] / 100.0, rv_ef=pm["RVEF (%)"] / 100.0,
               septal_flattening=eps, z_base=anatomy.z_base, curve=curve)
+    if anatomy.outflow is not None:
+        # the tracts rise above the LV walls: they turn with the highest point of the annulus
+        kw["z_twist_max"] = anatomy.z_base + anatomy.shape.saddle_mm
     probe = Motion(apex_rotation_deg=0.0, base_rotation_deg=0.0, **kw)
     levels = truth.tag_levels(anatomy, probe, grid, specs, f_es)
     if len(levels) < 2:

@@ -9,6 +9,8 @@ time t. With the cycle phase f(t) ∈ [0, 1] (0 at ED, 1 at ES, see
     θ' = θ − ψ(z),                ψ(z) = f [ψ_apex + (ψ_base − ψ_apex) z / z_b]   (M2)
     s' = G(s; θ, z)               piecewise linear in s                  (M3)
 
+With outflow tracts (:mod:`cardionurbs.phantom.outflow`) ψ is held at its value at
+``z_twist_max`` (the top of the mitral saddle) above it: the tracts turn with the base.
 ψ is the rotation counter-clockwise **as seen from the apex looking toward the
 base** (a negative rotation about +z), so ψ_apex > 0 and ψ_base < 0 give the
 normal wringing twist. With the ED section radii² S1 = s_endo(z),
@@ -113,6 +115,7 @@ class Motion:
     base_rotation_deg: float
     z_base: float
     curve: VolumeCurve = field(default_factory=VolumeCurve)
+    z_twist_max: float | None = None    # ψ(z) is held at ψ(z_twist_max) above this height (mm)
 
     def __post_init__(self) -> None:
         for name, lo, hi in (("ls", 0.0, 0.5), ("lv_ef", 0.0, 0.95), ("rv_ef", 0.0, 0.95),
@@ -131,7 +134,11 @@ class Motion:
     def psi(self, z, f) -> np.ndarray:
         """ψ(z, f) of eq. (M2), radians, CCW seen from the apex."""
         a, b = np.radians(self.apex_rotation_deg), np.radians(self.base_rotation_deg)
-        return np.asarray(f, dtype=float) * (a + (b - a) * np.asarray(z, dtype=float) / self.z_base)
+        z = np.asarray(z, dtype=float)
+        if self.z_twist_max is not None:
+            # the outflow tracts above the LV walls turn with the base, not beyond it
+            z = np.minimum(z, self.z_twist_max)
+        return np.asarray(f, dtype=float) * (a + (b - a) * z / self.z_base)
 
     def kappa_lv(self, theta, f, z=None, anatomy: Anatomy | None = None) -> np.ndarray:
         """κ_L(θ, f); with an infarcted realistic anatomy the ejection term is reduced by the
@@ -222,4 +229,5 @@ class Motion:
                 "apex_rotation_deg": self.apex_rotation_deg,
                 "base_rotation_deg": self.base_rotation_deg, "z_base_mm": self.z_base,
                 "es_fraction": self.curve.es_fraction, "rapid_filling": self.curve.rapid_filling,
-                "diastasis": self.curve.diastasis}
+                "diastasis": self.curve.diastasis,
+                **({} if self.z_twist_max is None else {"z_twist_max_mm": self.z_twist_max})}

@@ -71,8 +71,11 @@ class OutflowTracts:
             raise PhantomError("rvot_narrowing must be in [0.3, 1]")
         if not 0.0 <= self.pulmonary_tilt_deg <= 25.0 or not 0.0 <= self.aortic_tilt_deg <= 20.0:
             raise PhantomError("valve tilts must be in [0, 25] (pulmonary) and [0, 20] (aortic) degrees")
-        if not (0.0 < self.lvot_radius < self.lvot_offset < 0.8 and self.lvot_radius < 0.6 * self.lvot_offset):
-            raise PhantomError("the LVOT cylinder must lie off the LV axis: 0 < radius < 0.6 offset < 0.48")
+        if not (0.0 < self.lvot_radius < 0.62 * self.lvot_offset and self.lvot_offset < 0.8):
+            # (the cylinder then spans less than ±39° about its azimuth: the 2- and 4-chamber
+            # views, 45° away, pass beside it)
+            raise PhantomError("the LVOT cylinder must lie off the LV axis: 0 < radius < 0.62 offset, "
+                               "offset < 0.8")
         if not 6.0 <= self.aortic_height_mm <= 25.0:
             raise PhantomError("aortic_height_mm must be in [6, 25]")
 
@@ -88,8 +91,8 @@ def draw_outflow(rng: np.random.Generator) -> OutflowTracts:
                          rvot_narrowing=float(rng.uniform(0.55, 0.7)),
                          rvot_width_mm=float(rng.uniform(12.0, 16.0)),
                          pulmonary_tilt_deg=float(rng.uniform(8.0, 20.0)),
-                         lvot_offset=float(rng.uniform(0.6, 0.64)),
-                         lvot_radius=float(rng.uniform(0.34, 0.38)),
+                         lvot_offset=float(rng.uniform(0.61, 0.64)),
+                         lvot_radius=float(rng.uniform(0.34, 0.37)),
                          aortic_height_mm=float(rng.uniform(11.0, 15.0)),
                          aortic_tilt_deg=float(rng.uniform(5.0, 15.0)))
 
@@ -166,21 +169,23 @@ def rvot_frame(anatomy) -> RvotFrame:
                      plane_normal=tuple(float(v) for v in normal))
 
 
-def rvot_radius(anatomy, theta, z, epi: bool = False) -> np.ndarray:
-    """R_ot(θ, z) of eq. (O1) (endo- or epicardial), mm; below r_2 outside the window."""
+def rvot_radius(anatomy, theta, z, epi: bool = False, s_epi=None) -> np.ndarray:
+    """R_ot(θ, z) of eq. (O1) (endo- or epicardial), mm; below r_2 outside the window. ``s_epi``:
+    the LV epicardial S(θ, z) when the caller has it."""
     fr = rvot_frame(anatomy)
     theta = np.asarray(theta, dtype=float)
     z = np.asarray(z, dtype=float)
     beta, w = fr.profile(z, epi)
     cb = np.cos(beta)
     k = (np.cos(theta - fr.alpha) - cb) / (1.0 - cb)
-    r2 = np.sqrt(np.maximum(anatomy.s_lv_epi(z, theta), 0.0))
+    s2 = anatomy.s_lv_epi(z, theta) if s_epi is None else s_epi
+    r2 = np.sqrt(np.maximum(s2, 0.0))
     return np.minimum(_rb(anatomy, theta, epi), r2 + w * k)
 
 
-def s_rvot(anatomy, theta, z, epi: bool = False) -> np.ndarray:
+def s_rvot(anatomy, theta, z, epi: bool = False, s_epi=None) -> np.ndarray:
     """Squared radius of the RVOT endo- (epi-)cardial shell, mm² (below S_epi outside the tract)."""
-    r = rvot_radius(anatomy, theta, z, epi)
+    r = rvot_radius(anatomy, theta, z, epi, s_epi)
     return np.maximum(r, 0.0) ** 2
 
 
