@@ -140,3 +140,57 @@ def test_bivme_without_outflow_evidence_is_closed_at_the_tricuspid_plane(bivme_m
     assert without.outflow[24] == {} and without.outflow[9] == {}
     assert without.volumes[24]["rv_cavity"] == pytest.approx(146.6, abs=0.05)
     assert without.volumes[9]["rv_cavity"] == pytest.approx(61.3, abs=0.05)
+
+
+# ----------------------------------------------------------------- lofted outlet loops
+def _prism_loops(section_xy, top_z, spacing=4.0):
+    """Loops of a vertical prism (axis z, body plane z = 0, apical side z < 0) in the planes
+    z = 2, 2 + spacing, ... below ``top_z``."""
+    return [np.column_stack([section_xy, np.full(len(section_xy), z)])
+            for z in np.arange(2.0, top_z - 0.5, spacing)]
+
+
+def _crescent_polygon(r_out=22.0, r_in=15.0, shift=9.0, n=80):
+    # outer arc of the big circle outside the small one, inner arc of the small circle inside
+    # the big one; both circles meet where |x - c| = r: solve for the tips' angle
+    x_tip = (r_out ** 2 - r_in ** 2 + shift ** 2) / (2 * shift) - shift   # in small-circle frame
+    a_in = math.acos(x_tip / r_in)
+    a_out = math.acos((x_tip + shift) / r_out)
+    t_out = np.linspace(-a_out, a_out, n)
+    outer = np.column_stack([r_out * np.cos(t_out), r_out * np.sin(t_out)])
+    t_in = np.linspace(a_in, -a_in, n)
+    inner = np.column_stack([-shift + r_in * np.cos(t_in), r_in * np.sin(t_in)])
+    return np.vstack([outer, inner[1:-1]])
+
+
+def _shoelace(p):
+    return 0.5 * abs(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
+
+
+@pytest.mark.parametrize("section", ["ellipse", "crescent"])
+def test_lofted_prism_volume_is_analytic(section):
+    """A vertical prism between the body plane z = 0 and the plane of its most basal
+    outlet loop (no annulus landmark): volume = section area x height, the crescent
+    included (a non-convex RV-like section)."""
+    from cardionurbs.anatomy.outflow import loft_tract
+    if section == "ellipse":
+        w = np.linspace(0, 2 * np.pi, 90, endpoint=False)
+        xy = np.column_stack([14.0 * np.cos(w), 9.0 * np.sin(w)])
+    else:
+        xy = _crescent_polygon()
+    loops = _prism_loops(xy, 23.0)
+    body = Plane(np.zeros(3), np.array([0.0, 0.0, -1.0]))
+    t = loft_tract("rv_endo", None, loops, body, np.array([0.0, 0.0, -1.0]),
+                   np.array([1.0, 0.0, 0.0]))
+    top = max(q[0, 2] for q in loops)
+    truth = _shoelace(xy) * top / 1000.0
+    assert volume_ml(tract_solid(t, overlap_mm=0.0)) == pytest.approx(truth, rel=0.01)
+    # and with a tilted annulus of ring points above the loops (ellipse: star-shaped)
+    if section == "ellipse":
+        tilt = math.radians(15)
+        H = 30.0
+        ring = np.column_stack([xy[::9], H + math.tan(tilt) * xy[::9, 0]])
+        t2 = loft_tract("rv_endo", ring, loops, body, np.array([0.0, 0.0, -1.0]),
+                        np.array([1.0, 0.0, 0.0]))
+        truth2 = _shoelace(xy) * H / 1000.0        # prism cut by a plane: area x height at centroid
+        assert volume_ml(tract_solid(t2, overlap_mm=0.0)) == pytest.approx(truth2, rel=0.02)
