@@ -185,12 +185,74 @@ def test_lofted_prism_volume_is_analytic(section):
     top = max(q[0, 2] for q in loops)
     truth = _shoelace(xy) * top / 1000.0
     assert volume_ml(tract_solid(t, overlap_mm=0.0)) == pytest.approx(truth, rel=0.01)
-    # and with a tilted annulus of ring points above the loops (ellipse: star-shaped)
-    if section == "ellipse":
-        tilt = math.radians(15)
-        H = 30.0
-        ring = np.column_stack([xy[::9], H + math.tan(tilt) * xy[::9, 0]])
-        t2 = loft_tract("rv_endo", ring, loops, body, np.array([0.0, 0.0, -1.0]),
-                        np.array([1.0, 0.0, 0.0]))
-        truth2 = _shoelace(xy) * H / 1000.0        # prism cut by a plane: area x height at centroid
-        assert volume_ml(tract_solid(t2, overlap_mm=0.0)) == pytest.approx(truth2, rel=0.02)
+
+
+def test_lofted_prism_with_a_tilted_annulus():
+    """A circular prism closed by a tilted annulus plane through 8 ring points above its
+    outlet loops: volume = area x height at the axis (a prism cut by a plane)."""
+    from cardionurbs.anatomy.outflow import loft_tract
+    w = np.linspace(0, 2 * np.pi, 96, endpoint=False)
+    xy = np.column_stack([11.0 * np.cos(w), 11.0 * np.sin(w)])
+    loops = _prism_loops(xy, 23.0)
+    body = Plane(np.zeros(3), np.array([0.0, 0.0, -1.0]))
+    H = 30.0
+    ring = np.column_stack([xy[::12], H + math.tan(math.radians(15)) * xy[::12, 0]])
+    t = loft_tract("rv_endo", ring, loops, body, np.array([0.0, 0.0, -1.0]),
+                   np.array([1.0, 0.0, 0.0]))
+    truth = _shoelace(xy) * H / 1000.0
+    assert volume_ml(tract_solid(t, overlap_mm=0.0)) == pytest.approx(truth, rel=0.01)
+
+
+# ----------------------------------------------------------------- a phantom given an outlet
+@pytest.fixture(scope="module")
+def phantom_with_prism_outlet():
+    """A noise-free phantom (no outflow tract of its own) given a straight circular RVOT:
+    a prism of radius R along the stacking direction over the RV free-wall side, with
+    SA-parallel rv_outlet loops, outlet-only RV epicardial loops (wall W), and a ring of
+    pulmonary annulus points H mm beyond the tricuspid plane (at the prism axis)."""
+    from cardionurbs.anatomy.model import reconstruct
+    from cardionurbs.phantom.generate import generate
+    from cardionurbs.study import Contour, Landmark
+    ph = generate("normal", seed=0, frames=2, volume_check=False)
+    study = ph.study
+    study.tags = []
+    plain = reconstruct(study)
+    R, W, H = 6.0, 3.0, 14.0
+    added_c, added_l, heights = [], [], {}
+    for f in plain.frames:
+        geo = plain.geometry[f]
+        n, tri = geo.direction, geo.base_planes["rv"]
+        basal = geo.sections["rv_endo"][0].points
+        ref = geo.reference
+        far = basal[np.argmax(basal @ ref)]
+        axis_pt = far - (R + W + 4.0) * ref                 # inside the RV, off the free wall
+        axis_pt = axis_pt - (tri.signed_distance(axis_pt[None])[0] / (n @ tri.normal)) * n
+        u, v = in_plane_basis(n)
+        w = np.linspace(0, 2 * np.pi, 96, endpoint=False)
+        circ = np.cos(w)[:, None] * u + np.sin(w)[:, None] * v
+        for k, h in enumerate((3.0, 7.0, 11.0)):
+            c = axis_pt - h * n
+            added_c += [Contour("rv_outlet", "SA", f"outlet_{k}", f, c + R * circ, closed=True),
+                        Contour("rv_epi", "SA", f"outlet_{k}", f, c + (R + W) * circ, closed=True)]
+        ring = axis_pt - H * n + R * circ[::12]
+        added_l += [Landmark("pulmonary", f, p, i) for i, p in enumerate(ring)]
+        heights[f] = H
+    given = dataclasses.replace(study, contours=study.contours + added_c,
+                                landmarks=study.landmarks + added_l)
+    return plain, reconstruct(given), R, W, heights
+
+
+def test_phantom_outlet_adds_the_prism_beyond_the_tricuspid_plane(phantom_with_prism_outlet):
+    """The RV cavity gains pi R^2 H (the prism between the tricuspid plane, cut at the axis
+    height, and the pulmonary plane: area x axial height for planar cuts), the RV
+    myocardium the wall pi ((R+W)^2 - R^2) H; LV volumes and masses are unchanged."""
+    plain, given, R, W, heights = phantom_with_prism_outlet
+    ring48 = 48 * math.sin(2 * math.pi / 48) / (2 * math.pi)
+    for f in plain.frames:
+        a, b = plain.volumes[f], given.volumes[f]
+        lumen = math.pi * R * R * heights[f] * ring48 / 1000.0
+        wall = math.pi * ((R + W) ** 2 - R ** 2) * heights[f] * ring48 / 1000.0
+        assert b["rv_cavity"] - a["rv_cavity"] == pytest.approx(lumen, rel=0.01)
+        assert b["rv_myocardium"] - a["rv_myocardium"] == pytest.approx(wall, rel=0.02)
+        for k in ("lv_cavity", "lv_myocardium"):
+            assert b[k] == a[k]
