@@ -256,3 +256,15 @@ def test_phantom_outlet_adds_the_prism_beyond_the_tricuspid_plane(phantom_with_p
         assert b["rv_myocardium"] - a["rv_myocardium"] == pytest.approx(wall, rel=0.02)
         for k in ("lv_cavity", "lv_myocardium"):
             assert b[k] == a[k]
+
+
+def test_model_file_keeps_the_outflow_tracts(phantom_with_prism_outlet):
+    """model.json round trip: the read-back model has the same RV volumes (tracts kept)."""
+    import json
+    from cardionurbs.anatomy.model import BiventricularModel
+    _, given, *_ = phantom_with_prism_outlet
+    back = BiventricularModel.from_dict(json.loads(json.dumps(given.to_dict())))
+    for f in given.frames:
+        assert set(back.outflow[f]) == set(given.outflow[f])
+        for k in ("rv_cavity", "rv_myocardium"):
+            assert back.volumes[f][k] == pytest.approx(given.volumes[f][k], rel=1e-9)

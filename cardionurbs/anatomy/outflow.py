@@ -88,6 +88,24 @@ class OutflowTract:
     evidence: np.ndarray
     rings: np.ndarray | None = None     # (k, m, 3) lofted sections (outlet loops), else circles
 
+    def to_dict(self) -> dict:
+        """JSON-safe tract (the model file keeps it beside the surfaces)."""
+        def arr(a):
+            return None if a is None else np.asarray(a, float).tolist()
+        return {"structure": self.structure, "valve": self.valve.to_dict(),
+                "body_plane": self.body_plane.to_dict(), "axis": arr(self.axis),
+                "levels": arr(self.levels), "centres": arr(self.centres),
+                "radii": arr(self.radii), "evidence": arr(self.evidence),
+                "rings": arr(self.rings)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "OutflowTract":
+        def arr(a):
+            return None if a is None else np.asarray(a, float)
+        return cls(d["structure"], Plane.from_dict(d["valve"]), Plane.from_dict(d["body_plane"]),
+                   arr(d["axis"]), arr(d["levels"]), arr(d["centres"]), arr(d["radii"]),
+                   arr(d["evidence"]).reshape(-1, 3), rings=arr(d.get("rings")))
+
     def ring_points(self, around: int = AROUND) -> np.ndarray:
         """(k, m, 3) the tube's sections as point rings, valve end first."""
         if self.rings is not None:
