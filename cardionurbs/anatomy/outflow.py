@@ -24,8 +24,10 @@ Construction (one tube per surface, scanner mm):
   crossings of the tract's contours (the LA contour points of that surface on the basal
   side of the body's valve plane that are nearer the outflow valve than the body's valve
   centre, and the ``rv_outlet`` loops) fit a circle (≥ 3 crossings: least squares; 2:
-  their midpoint and half distance; 1: the distance to the interpolated centre); centres
-  and radii of sections without crossings are interpolated along ``h``;
+  their midpoint and half distance; 1: the distance to the interpolated centre, but no
+  more than the radius interpolated from the sections seen across — one wall seen narrows
+  a section, never widens it); centres and radii of sections without crossings are
+  interpolated along ``h``;
 * the circles are joined into a closed triangulated tube (ruled between sections, so
   its volume is the Cavalieri sum of the section areas), which the model trims to the
   apical side of the outflow valve plane and the basal side of the body's valve plane.
@@ -316,8 +318,11 @@ def build_tract(structure: str, annulus: np.ndarray | None, runs: list[np.ndarra
     off_all = np.column_stack([np.interp(lv, kh, off[:, i]) for i in range(3)])
     centres = c0 + np.outer(lv, a) + off_all
     rs = {k: fits[k][1] for k in ks}
+    across = np.interp(lv, kh, [fits[k][1] for k in ks])
     for k, p in single.items():
-        rs[k] = float(np.linalg.norm((p - centres[k]) - ((p - centres[k]) @ a) * a))
+        # one wall seen: it narrows the section, never widens it (the other wall is unseen)
+        rs[k] = min(float(np.linalg.norm((p - centres[k]) - ((p - centres[k]) @ a) * a)),
+                    float(across[k]))
     kr = np.array(sorted(rs))
     radii = np.interp(lv, lv[kr], [rs[k] for k in kr])
     radii[0] = radii[1]
