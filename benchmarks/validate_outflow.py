@@ -1,7 +1,7 @@
 """Outflow tracts: the reconstruction against the realistic phantom's truth, with and without
 its outflow tracts (same seeds), and what the tracts add.
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/validate_outflow.py [--jobs 2] [--subjects 2]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/validate_outflow.py [--jobs 2] [--subjects 3]
         -> reports/validation-outflow.md (+ reports/figures/validation/outflow_phantom.png)
 
 Per preset (normal, mr, phtn) and seed: the noise-free realistic phantom generated with
@@ -29,7 +29,29 @@ COLS = ("LVEDV (mL)", "LVESV (mL)", "LVEF (%)", "LVM (g)", "RVEDV (mL)", "RVESV 
         "RVEF (%)", "RVM (g)")
 POINTS = ("LVEF (%)", "RVEF (%)")
 PRESETS = ("normal", "mr", "phtn")
-COMMAND = "OPENBLAS_NUM_THREADS=1 python benchmarks/validate_outflow.py --jobs 2 --subjects 2"
+COMMAND = "OPENBLAS_NUM_THREADS=1 python benchmarks/validate_outflow.py --jobs 2 --subjects 3"
+
+
+FINDINGS = [
+    "- RV: RVEDV within 1 % of the truth on every subject (tracts included), the RVOT lumen "
+    "within 5 % of the phantom's (lofted through the rv_outlet contours). RVESV within 1 % but "
+    "on two subjects (-2.3 %, -3.7 %), against at most -1.7 % for the same seeds without tracts: "
+    "not explained yet.",
+    "- LV: LVEDV within 0.7 %, the LVOT lumen within 12 % of the phantom's (a small volume: "
+    "circular sections from one 3-chamber wall and the aortic annulus). LVESV within 0.6 % but "
+    "on two subjects (+2.0 %, +3.5 %): not explained yet.",
+    "- LVM +2.6 to +4.1 %: the LV myocardium does not involve the tracts (it is the same "
+    "construction with and without them), and for normal seed 1 the phantom's own material LV "
+    "myocardium volume (`truth['volumes']['lv_myocardium_material_mL']`, 113.09 mL) agrees with "
+    "ours (112.6 mL) within 0.5 %; the phantom's LVM column is lower by about the LVOT lumen "
+    "(the LVOT added to the endocardial volume and subtracted from the wall), reported to the "
+    "phantom's owner (issue 17).",
+    "- Quality flags are raised on every phantom with tracts (none without): LV endocardial "
+    "3-chamber points that run up the aortic root 15-20 mm from any surface we build, and RV "
+    "LA points 4-6 mm from the RV surfaces. The target 'no flag on noise-free phantoms' is not "
+    "met with outflow tracts.",
+    "- Two seeds are not measured: the phantom generator rejects their outflow draw.",
+]
 
 
 def _err(c: str, v: float, t: float) -> float:
@@ -44,7 +66,12 @@ def subject(args) -> dict:
     from cardionurbs.anatomy.model import reconstruct
     from cardionurbs.phantom import truth_realistic as trr
     from cardionurbs.phantom.generate import generate
-    ph = generate(pathology, seed=seed, frames=2, anatomy_model="realistic", outflow=outflow)
+    from cardionurbs.errors import PhantomError
+    try:
+        ph = generate(pathology, seed=seed, frames=2, anatomy_model="realistic", outflow=outflow,
+                      volume_check=False)
+    except PhantomError as exc:      # a draw the phantom rejects: reported, not measured
+        return {"pathology": pathology, "seed": seed, "outflow": outflow, "failed": str(exc)}
     st = ph.study
     st.tags = []
     t0 = time.perf_counter()
@@ -104,13 +131,16 @@ def figure(rows: list[dict], path: Path) -> None:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--subjects", type=int, default=2, help="seeds per preset")
+    ap.add_argument("--subjects", type=int, default=3, help="seeds per preset")
     a = ap.parse_args()
     jobs = [(p, s, o) for p in PRESETS for s in range(a.subjects) for o in (True, False)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=a.jobs) as ex:
         rows = list(ex.map(subject, jobs))
     wall = time.perf_counter() - t0
+    failed = [r for r in rows if "failed" in r]
+    bad = {(r["pathology"], r["seed"]) for r in failed}
+    rows = [r for r in rows if (r["pathology"], r["seed"]) not in bad]
     fig = "figures/validation/outflow_phantom.png"
     figure(rows, ROOT / "reports" / fig)
     lines = ["# Outflow tracts on realistic phantoms", "", f"Command: `{COMMAND}`", "",
@@ -120,6 +150,11 @@ def main() -> None:
              "plane to the aortic valve (docs/metrics.md, Cavities and walls). Errors of our metrics "
              "against the phantom's truth (%; EF in points); `flags`: the quality flags raised "
              "(heart rate left out).", "", "## With outflow tracts", ""]
+    if failed:
+        lines += ["Not measured (the phantom generator rejected the draw; the same seed without "
+                  "tracts left out too): " + "; ".join(
+                      f"{r['pathology']} seed {r['seed']} outflow={r['outflow']}: {r['failed']}"
+                      for r in failed) + ".", ""]
     lines += table(rows, True)
     lines += ["", "## The same seeds without outflow tracts", ""]
     lines += table(rows, False)
@@ -135,6 +170,7 @@ def main() -> None:
             t = r["tracts"]
             lines.append(f"| {r['pathology']} seed {r['seed']} | {t['rv_endo'][0]:.1f} | "
                          f"{t['rv_endo'][1]:.1f} | {t['lv_endo'][0]:.1f} | {t['lv_endo'][1]:.1f} |")
+    lines += ["", "## Reading", "", *FINDINGS]
     (ROOT / "reports" / "validation-outflow.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 

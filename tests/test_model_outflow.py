@@ -268,3 +268,46 @@ def test_model_file_keeps_the_outflow_tracts(phantom_with_prism_outlet):
         assert set(back.outflow[f]) == set(given.outflow[f])
         for k in ("rv_cavity", "rv_myocardium"):
             assert back.volumes[f][k] == pytest.approx(given.volumes[f][k], rel=1e-9)
+
+
+# ----------------------------------------------------------------- the phantom's own tracts
+@pytest.fixture(scope="module")
+def outflow_phantom():
+    """The realistic phantom with its outflow tracts (issue 17: RVOT to a pulmonary valve,
+    LVOT to an aortic valve; truth by the convention of docs/metrics.md), noise-free."""
+    from cardionurbs.analysis.function import measure
+    from cardionurbs.anatomy.model import reconstruct
+    from cardionurbs.phantom.generate import generate
+    ph = generate("normal", seed=1, frames=2, anatomy_model="realistic", outflow=True,
+                  volume_check=False)      # the truth by sections; its mesh cross-check is #17's test
+    ph.study.tags = []
+    m = reconstruct(ph.study)
+    return ph, m, measure(m)
+
+
+def test_outflow_phantom_volumes_within_two_percent(outflow_phantom):
+    """Cavity volumes (tracts included) within 2 %, EF within 2 points (the realistic
+    anatomy's bound), RVM (RVOT free wall included) within 3 %."""
+    ph, m, got = outflow_phantom
+    truth = ph.truth["metrics"]
+    for key in ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "RVESV (mL)"):
+        assert got[key] == pytest.approx(truth[key], rel=0.02), key
+    for key in ("LVEF (%)", "RVEF (%)"):
+        assert abs(got[key] - truth[key]) < 2.0, key
+    assert got["RVM (g)"] == pytest.approx(truth["RVM (g)"], rel=0.03)
+    # the tracts are built from the phantom's evidence: the RVOT lofted through rv_outlet
+    for f in m.frames:
+        assert set(m.outflow[f]) == {"rv_endo", "rv_epi", "lv_endo"}
+        assert m.outflow[f]["rv_endo"].rings is not None
+
+
+def test_outflow_phantom_tract_lumen_at_ed(outflow_phantom):
+    """What the reconstruction adds beyond the tricuspid / mitral plane at ED against the
+    phantom's tract lumen (truth by sections, independent of the reconstruction)."""
+    from cardionurbs.anatomy.mesh import volume_ml
+    from cardionurbs.phantom import truth_realistic as trr
+    ph, m, _ = outflow_phantom
+    truth = trr.ed_outflow_volumes(ph.anatomy)
+    ed = m.ed_frame
+    assert volume_ml(m._tract_part(ed, "rv_endo")) == pytest.approx(truth["rv_endo"], rel=0.15)
+    assert volume_ml(m._tract_part(ed, "lv_endo")) == pytest.approx(truth["lv_endo"], rel=0.2)

@@ -198,6 +198,13 @@ def section_circle(points: np.ndarray, diameter_pair: bool = True
     return 0.5 * (p[i] + p[j]), 0.5 * float(d[i, j])
 
 
+def _into_ventricle(direction: np.ndarray, body: Plane) -> np.ndarray:
+    """A tract's axis points from its valve into the ventricle, i.e. towards the apical side
+    of the body's valve plane: ``direction`` when it does, else the body plane's normal
+    (contour points beyond the valve, up the great artery, must not turn the tract round)."""
+    return direction if float(direction @ body.normal) > 0.1 else body.normal
+
+
 def _annulus(points: np.ndarray, axis_guess: np.ndarray) -> tuple[Plane, np.ndarray, float]:
     """Valve plane, centre and radius of annulus points."""
     plane = valve_plane(points, axis_guess)
@@ -277,7 +284,7 @@ def build_tract(structure: str, annulus: np.ndarray | None, runs: list[np.ndarra
     guess = (ev.mean(axis=0) - centre0) if len(ev) else fallback_axis
     if np.linalg.norm(guess) < 1e-6:
         guess = fallback_axis
-    guess = guess / np.linalg.norm(guess)
+    guess = _into_ventricle(guess / np.linalg.norm(guess), body)
     valve, c0, r0 = _annulus(annulus, guess)
     a = valve.normal
     if body.signed_distance(c0[None])[0] >= 0:
@@ -379,7 +386,7 @@ def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarra
     else:
         annulus = np.atleast_2d(np.asarray(annulus, float))
         guess = ev.mean(axis=0) - annulus.mean(axis=0)
-        valve, c0, r0 = _annulus(annulus, guess / np.linalg.norm(guess))
+        valve, c0, r0 = _annulus(annulus, _into_ventricle(guess / np.linalg.norm(guess), body))
         top = annulus_ring(valve, c0, r0, n, ref)
     if body.signed_distance(valve.origin[None])[0] >= 0:
         return None
