@@ -109,7 +109,7 @@ def noise_rows(rows):
     """Per noisy phantom: the fit's standard errors (Cramér–Rao bound within the motion model)
     of the segment strains, and the chance an unbiased estimator meets the bound on all 16."""
     out = ["| phantom | Err SE median / max | P(all 16 Err within 6) | Ell SE median / max | "
-           "P(all 16 Ell within 3) | Ecc SE max | Err err max / SE at that segment |",
+           "P(all 16 Ell within 3) | Ecc SE max | Err seg error max |",
            "|" + "---|" * 7]
     for r in rows:
         se = r["se"]
@@ -375,9 +375,9 @@ NOTES = """## Notes
   0.01 mm) nothing changes.
 - **Radial strain is noise-limited.** The table of standard errors above is the fit's own
   covariance: with one or two tag lines across a 1 cm wall the transmural gradient is what
-  the tags measure least well, and the standard error of a segment's Err is 3–11 strain
-  points at σ ≈ 0.6 mm (largest at the apex, where the wall is oblique to the tag planes),
-  against 0.2–1 for Ecc. An unbiased estimator with those errors puts all 16 segments within
+  the tags measure least well, and the standard error of a segment's Err is a median of
+  3–6 strain points at σ ≈ 0.6 mm and up to 25 in an apical segment (where few tag lines
+  cross the wall, obliquely), against at most 0.2–1.3 for Ecc. An unbiased estimator with those errors puts all 16 segments within
   6 points with the probability shown (well below 1), so the Err target of 6 points is out
   of reach at this noise level for any unbiased estimate within the motion model; the
   regularised fit (which trades bias for variance) does better than that on some phantoms
