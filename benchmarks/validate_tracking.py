@@ -235,14 +235,31 @@ NOTES = """## Method and notes
   flags lines below 0.15 or above 0.6 rad as "low confidence", beside the leave-one-out
   tag-jump test. "QC flags (all lines)" counts every flag raised on the tracked study (false
   alarms included), "wrong ones flagged" those on a wrong index.
-- **Residual twist error.** The tracked lines' own rotation about each slice's centre is
-  within 0.2° of the truth at every slice, but the tag surfaces lofted through them give
-  material points whose end-systolic positions scatter by about 0.3 mm circumferentially
-  near the apex (radius ~15 mm, i.e. ~1°), against 0.05 mm from the phantom's own lines: the
-  tracked lines stop 1 px short of the borders, at slightly different places in each slice,
-  and the loft between slices carries that. Twist (the difference of two levels' mean
-  rotations over 10–20 points each) inherits a few tenths of a degree of it, up to ~1° on
-  the MR phantom's apical levels.
+- **Short-axis line model (Twist bias).** The tracked SA lines after the first frame are moved
+  onto one least-squares quadratic of their offset along k against their position along the
+  tag (`tag_curve`, across both wall pieces of a line). Before, every phantom's Twist and
+  Torsion from tracked lines came out too large (Twist +0.36 to +0.97 deg, Torsion +0.09 to
+  +0.17 deg/cm, MR above the 0.15 bound), although each line's own rotation was within a
+  few tenths of a degree. What was looked at, on MR seed 0 (levels, common material points,
+  hybrids of own and tracked lines): the LA lines are not the cause (own SA + tracked LA
+  lines: Twist within 0.03 deg); the 1 px clipping is not (own lines cut to the tracked
+  lines' extent: within 0.1 deg); the missing material points are not (the bias is the
+  same on the points both have). The tracked SA lines at end systole carry a
+  point-to-point jitter of ~0.2 px from the trough search, and the lofted tag surfaces and
+  their three-way intersections amplify it into material-point errors of 0.5–1 mm, whose
+  level means come out biased. The quadratic removes it (five phantoms, SNR 20: mean Twist
+  error +0.66 → +0.29 deg, Torsion +0.130 → +0.056 deg/cm); a fit per wall piece does not,
+  nor do a re-centred (unbiased) trough search, a wider median along the line, a wider
+  band-pass or band-limited extrapolation of the tags past the myocardium (tried, not
+  kept). On the phantoms' own lines the model changes Twist by < 0.02 deg; it is not exact
+  for them at end systole (points moved by up to ~0.5 px at the ends), which is why PHTN's
+  p95 rose a little. The Twist bias that is left is positive in every case above: its
+  cause is not found.
+- **Label maps.** `track_tags(study, labels=...)` / `cardionurbs track --label-maps PATH` clip
+  the lines to the myocardium pixels of NIfTI label maps on the tagged images' pixel grid
+  (tests/test_tracking_labelmaps.py: on the phantom's ukbb maps the lines lie on the true
+  lines inside the labelled myocardium; with the maps eroded by 1 px no point is in the
+  removed rim, where ~7 % of the contour-clipped points are).
 """
 
 
