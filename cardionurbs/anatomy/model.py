@@ -23,6 +23,7 @@ import trimesh
 from cardionurbs import nurbs
 from cardionurbs.anatomy import mesh as meshing
 from cardionurbs.anatomy.mesh import Plane
+from cardionurbs.anatomy.outflow import OutflowTract, outflow_tracts, tract_solid
 from cardionurbs.anatomy.sections import SURFACES, FrameGeometry, Section, frame_geometry
 from cardionurbs.anatomy.refine import refine_surface
 from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface, free_wall_points
@@ -145,6 +146,9 @@ class BiventricularModel:
         else:                         # a deserialised model
             self.surfaces, self.base_planes = surfaces, base_planes
             self.apex_points, self.sections = apex_points, sections or {}
+        #: frame -> {'rv_endo'|'rv_epi'|'lv_endo': OutflowTract} (anatomy.outflow); {} read back
+        self.outflow = LazyFrames(self.frames, self._outflow) if surfaces is None else \
+            LazyFrames(self.frames, lambda f: {})
         self.volumes = LazyFrames(self.frames, lambda f: {
             k: meshing.volume_ml(m) for k, m in self.solids(f).items()})
         labels = (study.ed_frame, study.es_frame)
@@ -184,6 +188,26 @@ class BiventricularModel:
         geo.reference = _reference_direction(self.study, geo)
         return geo
 
+    def _outflow(self, frame: int) -> dict[str, OutflowTract]:
+        return outflow_tracts(self.study, self.geometry[frame])
+
+    def _tract_part(self, frame: int, structure: str):
+        """The outflow tube of one surface trimmed to its tract (cached; None without one):
+        the apical side of the outflow valve plane (the RV epicardial tube: of the
+        pulmonary plane of the endocardial one) and the basal side of the body's valve
+        plane, overlapping the body by 0.01 mm so that the union has no coplanar faces
+        (docs/metrics.md, Cavities and walls)."""
+        key = (frame, "tract", structure)
+        if key not in self._solid_cache:
+            tracts = self.outflow[frame]
+            t = tracts.get(structure)
+            m = None
+            if t is not None:
+                valve = tracts.get("rv_endo", t).valve if structure == "rv_epi" else t.valve
+                m = tract_solid(t, valve, frame=frame)
+            self._solid_cache[key] = m
+        return self._solid_cache[key]
+
     def _structures(self, frame: int) -> list[str]:
         """Surfaces that frame's contours allow (SA contours on >= 2 slices)."""
         geo = self.geometry[frame]
@@ -220,6 +244,9 @@ class BiventricularModel:
         manifold solid built)."""
         v, f = meshing.closed_mesh(*nurbs.tessellate(surface, *self.resolution))
         vol = meshing.clipped_volume(v, f, self.base_planes[frame].get("lv")) / 1000.0
+        lvot = self._tract_part(frame, "lv_endo")
+        if lvot is not None:      # the LVOT lies beyond the mitral plane: the volumes add
+            vol += meshing.volume_ml(lvot)
         if not vol > 0:
             raise ReconstructionError(f"lv_cavity, frame {frame}: nothing lies on the apical "
                                       "side of the valve plane")
@@ -360,11 +387,13 @@ class BiventricularModel:
         return out
 
     def lv_cavity_solid(self, frame: int):
-        """The LV cavity of one frame: LV endocardial solid trimmed by the mitral plane."""
+        """The LV cavity of one frame: LV endocardial solid trimmed by the mitral plane,
+        united with the LVOT lumen where the frame has one (:meth:`_tract_part`)."""
         key = (frame, "lv_cavity")
         if key not in self._solid_cache:
-            self._solid_cache[key] = self._trim(self._solid(frame, "lv_endo"), frame, "lv",
-                                                what="lv_cavity")
+            m = self._trim(self._solid(frame, "lv_endo"), frame, "lv", what="lv_cavity")
+            lvot = self._tract_part(frame, "lv_endo")
+            self._solid_cache[key] = m if lvot is None else m + lvot
         return self._solid_cache[key]
 
     def solids(self, frame: int) -> dict:
@@ -398,11 +427,20 @@ class BiventricularModel:
         if "rv_endo" in sol:
             rc = sol["rv_endo"] if lv_epi is None else sol["rv_endo"] - lv_epi
             out["rv_cavity"] = self._trim(rc, frame, "rv", what="rv_cavity")
+            rvot = self._tract_part(frame, "rv_endo")
+            if rvot is not None:          # the RVOT lumen (docs/metrics.md)
+                out["rv_cavity"] = out["rv_cavity"] + (rvot if lv_epi is None else rvot - lv_epi)
             if "rv_epi" in sol:
                 rm = sol["rv_epi"] - sol["rv_endo"]
                 if lv_epi is not None:
                     rm = rm - lv_epi
                 out["rv_myocardium"] = self._trim(rm, frame, "rv", what="rv_myocardium")
+                wall = self._tract_part(frame, "rv_epi")
+                if rvot is not None and wall is not None:   # the RVOT free wall
+                    wall = wall - rvot
+                    if lv_epi is not None:
+                        wall = wall - lv_epi
+                    out["rv_myocardium"] = (out["rv_myocardium"] + wall) - out["rv_cavity"]
         for k, m in out.items():
             if m.status() != manifold3d.Error.NoError or m.is_empty():
                 raise ReconstructionError(f"{k}, frame {frame}: boolean result is empty or not "
@@ -493,6 +531,9 @@ class BiventricularModel:
                 d = surface_distance(surf, allp)
                 if s.startswith("rv") and "lv_epi" in surfs:
                     d = np.minimum(d, surface_distance(surfs["lv_epi"], allp))
+                tract = self.outflow[f].get(s)
+                if tract is not None:     # the outflow tract's wall is the surface there
+                    d = np.minimum(d, tract.distance(allp))
                 n = [len(it[2]) for it in items]
                 px = np.repeat([it[3] for it in items], n)
                 parts.append(pd.DataFrame({

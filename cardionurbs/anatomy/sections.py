@@ -433,6 +433,8 @@ def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.n
             # epicardium, closes an open RV epicardial trace
             sept = septal_parts(np.concatenate([c.points for c in rv_whole]),
                                 d["lv_epi"][0].points)
+        if "rv_outlet" in d and not (rv_whole or fw or sept):
+            continue      # an outlet-only slice: its RV epicardium is the RVOT's (anatomy.outflow)
         for c in d.get("rv_epi", []):
             if c.closed:
                 out["rv_epi"].append((sl, order_closed(c.points), c.points))

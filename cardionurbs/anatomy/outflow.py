@@ -1,0 +1,347 @@
+"""Outflow tracts: the RV lumen from the tricuspid plane to the pulmonary valve (RVOT) and
+the LV lumen from the mitral plane to the aortic valve (LVOT).
+
+Convention (docs/metrics.md, Cavities and walls): the RV cavity is the RV body (apical
+side of the tricuspid plane) united with the RVOT, the lumen on the basal side of the
+tricuspid plane up to the pulmonary valve plane; the RV myocardium gains the RVOT free
+wall (between the RVOT's endo- and epicardial tubes). The LV cavity gains the LVOT lumen
+between the mitral and aortic planes; the LV myocardium is unchanged.
+
+Evidence for a tract at one frame: valve landmarks (``pulmonary`` / ``aortic``, points on
+the annulus) or, for the RV, ``rv_outlet`` SA contours. Without either, no tract is built
+and every volume is what the ventricle's body gives (the RV closed at the tricuspid plane,
+the LV at the mitral plane).
+
+Construction (one tube per surface, scanner mm):
+
+* valve centre ``c`` and radius ``r0``: the annulus points (≥ 3: least-squares circle in
+  their plane; 2: their midpoint and half their distance; the most distal ``rv_outlet``
+  contour when there is no landmark);
+* axis ``a``: the valve plane's normal (through the annulus points, as perpendicular as
+  they allow to the direction from ``c`` to the tract's contour points);
+* sections: planes ``(x − c)·a = h`` every :data:`STEP_MM`, from the valve (h = 0) until
+  the section lies wholly on the apical side of the body's valve plane; on each, the
+  crossings of the tract's contours (the LA contour points of that surface on the basal
+  side of the body's valve plane that are nearer the outflow valve than the body's valve
+  centre, and the ``rv_outlet`` loops) fit a circle (≥ 3 crossings: least squares; 2:
+  their midpoint and half distance; 1: the distance to the interpolated centre); centres
+  and radii of sections without crossings are interpolated along ``h``;
+* the circles are joined into a closed triangulated tube (ruled between sections, so
+  its volume is the Cavalieri sum of the section areas), which the model trims to the
+  apical side of the outflow valve plane and the basal side of the body's valve plane.
+
+The epicardial RVOT tube is the endocardial one widened by the RVOT wall thickness: the
+median distance outside the lumen of the RV epicardial contour points of the tract (LA
+runs selected as above, and epicardial outlet loops); no epicardial evidence, no RVOT
+wall.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cardionurbs.anatomy.mesh import Plane, closed_mesh
+from cardionurbs.anatomy.sections import FrameGeometry, crossings, valve_plane
+from cardionurbs.geometry import in_plane_basis
+from cardionurbs.study import Study
+
+#: spacing (mm) of the tube's sections along its axis
+STEP_MM = 2.0
+#: points round each tube section
+AROUND = 48
+#: the longest tube (mm along its axis) before it must reach the body's valve plane
+MAX_LENGTH_MM = 80.0
+#: the tube starts this far (mm) beyond its valve plane, so the trim by that plane cuts it
+OVERHANG_MM = 1.0
+
+#: which body valve plane, outflow valve landmark and LA contours each tract uses
+TRACTS = {"rv_endo": ("rv", "pulmonary"), "rv_epi": ("rv", "pulmonary"),
+          "lv_endo": ("lv", "aortic")}
+
+
+@dataclass(eq=False)
+class OutflowTract:
+    """One outflow tube of one frame (scanner mm).
+
+    ``valve``: the outflow valve plane (normal into the ventricle, the kept side);
+    ``body_plane``: the ventricle body's valve plane (tricuspid / mitral);
+    ``levels`` (k,), ``centres`` (k, 3), ``radii`` (k,): the circular sections at
+    distance ``levels`` along ``axis`` from the valve centre; ``evidence``: the contour
+    points it was fitted to (m, 3).
+    """
+
+    structure: str
+    valve: Plane
+    body_plane: Plane
+    axis: np.ndarray
+    levels: np.ndarray
+    centres: np.ndarray
+    radii: np.ndarray
+    evidence: np.ndarray
+
+    def mesh(self, around: int = AROUND) -> tuple[np.ndarray, np.ndarray]:
+        """Closed, outward-oriented triangle mesh of the tube (its two ends capped)."""
+        u, v = in_plane_basis(self.axis)
+        t = np.linspace(0.0, 2.0 * np.pi, around, endpoint=False)
+        ring = np.cos(t)[:, None] * u + np.sin(t)[:, None] * v          # (m, 3)
+        pts = self.centres[:, None, :] + self.radii[:, None, None] * ring[None]
+        k, m = len(self.levels), around
+        idx = np.arange(k * m).reshape(k, m)
+        a, b = idx[:-1], np.roll(idx[:-1], -1, axis=1)
+        c, d = idx[1:], np.roll(idx[1:], -1, axis=1)
+        faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3),
+                                np.stack([a, d, c], -1).reshape(-1, 3)])
+        return closed_mesh(pts.reshape(-1, 3), faces)
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance (mm) of points to the tube's wall within its tract: to the section
+        circle at the point's level (the nearest end section beyond the tube's ends);
+        infinite for points on the apical side of the body's valve plane, where the
+        body's surface bounds the cavity instead."""
+        p = np.asarray(points, float)
+        h = (p - self.valve.origin) @ self.axis
+        hc = np.clip(h, 0.0, self.levels[-1])
+        c = np.column_stack([np.interp(hc, self.levels, self.centres[:, i]) for i in range(3)])
+        q = p - c
+        rho = np.linalg.norm(q - np.outer(q @ self.axis, self.axis), axis=1)
+        d = np.hypot(h - hc, rho - np.interp(hc, self.levels, self.radii))
+        return np.where(self.body_plane.signed_distance(p) > 0, np.inf, d)
+
+
+def tract_solid(t: OutflowTract, valve: Plane | None = None, overlap_mm: float = 0.01,
+                frame: int | None = None):
+    """The tube as a manifold3d solid trimmed to its tract: the apical side of ``valve``
+    (default its own valve plane) and the basal side of the body's valve plane moved
+    ``overlap_mm`` apically, so that its union with the body has no coplanar faces.
+    None when nothing is left."""
+    from cardionurbs.anatomy.mesh import to_manifold
+    valve = t.valve if valve is None else valve
+    m = to_manifold(*t.mesh(), what=f"{t.structure} outflow tract", frame=frame)
+    m = m.trim_by_plane(valve.normal, float(valve.origin @ valve.normal))
+    b = t.body_plane
+    m = m.trim_by_plane(-b.normal, -float(b.origin @ b.normal) - overlap_mm)
+    return None if m.is_empty() else m
+
+
+def circle_fit(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares circle (Kåsa: x² + y² + D x + E y + F = 0) through (k, 2) points,
+    k ≥ 3: (centre (2,), radius)."""
+    x, y = points[:, 0], points[:, 1]
+    A = np.column_stack([x, y, np.ones_like(x)])
+    sol, *_ = np.linalg.lstsq(A, -(x * x + y * y), rcond=None)
+    c = -0.5 * sol[:2]
+    return c, float(np.sqrt(max(c @ c - sol[2], 0.0)))
+
+
+def section_circle(points: np.ndarray, diameter_pair: bool = True
+                   ) -> tuple[np.ndarray, float] | None:
+    """Centre (2,) and radius of a section from its in-plane points: ≥ 3 points not on one
+    line, spanning an arc that pins the circle (radius at most twice their spread):
+    least-squares circle; otherwise, when ``diameter_pair`` (crossings of LA planes
+    through the tract, which cut it across), the two farthest apart: their midpoint and
+    half their distance. None when neither applies."""
+    p = np.asarray(points, float)
+    if len(p) < 2:
+        return None
+    d = np.linalg.norm(p[:, None] - p[None], axis=2)
+    i, j = np.unravel_index(np.argmax(d), d.shape)
+    if len(p) >= 3:
+        q = p - p.mean(axis=0)
+        s = np.linalg.svd(q, compute_uv=False)
+        if s[1] > 0.05 * s[0]:
+            c, r = circle_fit(p)
+            if r <= 2.0 * d[i, j]:     # an arc of at least ~30 degrees pins the circle
+                return c, r
+    if not diameter_pair:
+        return None
+    return 0.5 * (p[i] + p[j]), 0.5 * float(d[i, j])
+
+
+def _annulus(points: np.ndarray, axis_guess: np.ndarray) -> tuple[Plane, np.ndarray, float]:
+    """Valve plane, centre and radius of annulus points."""
+    plane = valve_plane(points, axis_guess)
+    if len(points) >= 3:
+        u, v = in_plane_basis(plane.normal)
+        xy = np.column_stack([(points - plane.origin) @ u, (points - plane.origin) @ v])
+        c2, r = section_circle(xy)
+        centre = plane.origin + c2[0] * u + c2[1] * v
+    else:
+        centre = points.mean(axis=0)
+        r = 0.5 * float(np.linalg.norm(points[0] - points[-1]))
+    return Plane(centre, plane.normal), centre, r
+
+
+def outlet_loops(study: Study, frame: int) -> dict[str, list[np.ndarray]]:
+    """The RV outlet loops of one frame: ``rv_endo`` the ``rv_outlet`` SA contours,
+    ``rv_epi`` the SA RV epicardial contours of slices that have an outlet but no RV
+    body (endocardial) contour — each as its (k, 3) points."""
+    by_slice: dict = {}
+    for c in study.contours_at(frame, view="SA"):
+        by_slice.setdefault(c.slice, {}).setdefault(c.structure, []).append(c.points)
+    out: dict[str, list[np.ndarray]] = {"rv_endo": [], "rv_epi": []}
+    for d in by_slice.values():
+        if "rv_outlet" not in d:
+            continue
+        out["rv_endo"] += [p for p in d["rv_outlet"] if len(p) >= 3]
+        if not any(k in d for k in ("rv_endo", "rv_freewall", "rv_septum")):
+            out["rv_epi"] += [p for p in d.get("rv_epi", []) if len(p) >= 3]
+    return out
+
+
+def outlet_only_slices(study: Study, frame: int) -> set:
+    """SA slices of one frame that cut the RV outlet and no RV body: their RV epicardial
+    contours belong to the RVOT, not to the RV body's surface."""
+    by_slice: dict = {}
+    for c in study.contours_at(frame, view="SA"):
+        by_slice.setdefault(c.slice, set()).add(c.structure)
+    return {sl for sl, s in by_slice.items()
+            if "rv_outlet" in s and not s & {"rv_endo", "rv_freewall", "rv_septum"}}
+
+
+def _tract_runs(geo: FrameGeometry, structure: str, body: Plane,
+                valve_centre: np.ndarray) -> list[np.ndarray]:
+    """The LA contour runs that describe a tract: LA polylines of ``structure`` cut to
+    their points on the basal side of the body plane and nearer the outflow valve centre
+    than the body plane's centre (consecutive runs of >= 2 points)."""
+    runs = []
+    for pl in geo.la_points.get(structure, []):
+        keep = ((body.signed_distance(pl) < 0)
+                & (np.linalg.norm(pl - valve_centre, axis=1)
+                   < np.linalg.norm(pl - body.origin, axis=1)))
+        if keep.sum() < 2:
+            continue
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], keep.astype(int), [0]])))
+        for s, e in zip(edges[::2], edges[1::2]):
+            if e - s >= 2:
+                runs.append(pl[s:e])
+    return runs
+
+
+def build_tract(structure: str, annulus: np.ndarray | None, runs: list[np.ndarray],
+                body: Plane, fallback_axis: np.ndarray, loops: list[np.ndarray] = (),
+                wall_mm: float = 0.0) -> OutflowTract | None:
+    """One outflow tube (module docstring) from annulus points (None: the most distal
+    outlet loop is the annulus), the tract's open contour runs (LA: their crossings with
+    each section), its outlet loops (SA: their points within half a step of each section,
+    projected along the axis), and the body's valve plane. ``wall_mm`` is added to the
+    annulus radius."""
+    loops = [np.asarray(q, float) for q in loops]
+    if annulus is None or len(annulus) == 0:
+        if not loops:
+            return None
+        annulus = min(loops, key=lambda r: float(body.signed_distance(r).mean()))
+    annulus = np.atleast_2d(np.asarray(annulus, float))
+    centre0 = annulus.mean(axis=0)
+    ev = np.concatenate(list(runs) + loops) if (len(runs) or loops) else np.empty((0, 3))
+    guess = (ev.mean(axis=0) - centre0) if len(ev) else fallback_axis
+    if np.linalg.norm(guess) < 1e-6:
+        guess = fallback_axis
+    guess = guess / np.linalg.norm(guess)
+    valve, c0, r0 = _annulus(annulus, guess)
+    a = valve.normal
+    if body.signed_distance(c0[None])[0] >= 0:
+        return None                     # the outflow valve is not beyond the body's valve plane
+    u, v = in_plane_basis(a)
+    levels = [-OVERHANG_MM, 0.0]
+    fits: dict[int, tuple] = {0: (c0, r0 + wall_mm)}
+    single: dict[int, np.ndarray] = {}
+    h = 0.0
+    while True:
+        h += STEP_MM
+        k = len(levels)
+        levels.append(h)
+        la = [crossings(r, a, float(c0 @ a) + h) for r in runs]
+        near = [q[np.abs((q - c0) @ a - h) <= 0.5 * STEP_MM] for q in loops]
+        near = [q for q in near if len(q)]
+        pts = np.concatenate(la + near) if (la or near) else np.empty((0, 3))
+        if len(pts):
+            pts = pts[body.signed_distance(pts) < 0]
+        o = c0 + h * a
+        xy = np.column_stack([(pts - o) @ u, (pts - o) @ v])   # projected along the axis
+        fit = section_circle(xy, diameter_pair=not near)
+        if fit is not None:
+            fits[k] = (o + fit[0][0] * u + fit[0][1] * v, fit[1])
+        elif len(xy) == 1 and not near:
+            single[k] = pts[0]
+        # stop once a section around the axis, as wide as the widest so far, is wholly apical
+        rmax = max(f[1] for f in fits.values())
+        tilt = np.sqrt(max(0.0, 1.0 - float(a @ body.normal) ** 2))
+        if body.signed_distance(o[None])[0] - rmax * tilt > 0 or h >= MAX_LENGTH_MM:
+            break
+    lv = np.asarray(levels)
+    ks = sorted(fits)
+    kh = lv[ks]
+    cs = np.array([fits[k][0] for k in ks])
+    # centres: offsets from the axis interpolated along h (held beyond the last fit)
+    off = cs - c0 - np.outer(kh, a)
+    off_all = np.column_stack([np.interp(lv, kh, off[:, i]) for i in range(3)])
+    centres = c0 + np.outer(lv, a) + off_all
+    rs = {k: fits[k][1] for k in ks}
+    for k, p in single.items():
+        rs[k] = float(np.linalg.norm((p - centres[k]) - ((p - centres[k]) @ a) * a))
+    kr = np.array(sorted(rs))
+    radii = np.interp(lv, lv[kr], [rs[k] for k in kr])
+    radii[0] = radii[1]
+    centres[0] = centres[1] - OVERHANG_MM * a
+    return OutflowTract(structure, valve, body, a, lv, centres, np.maximum(radii, 0.5), ev)
+
+
+def offset_tract(endo: OutflowTract, epi_points: np.ndarray, structure: str = "rv_epi"
+                 ) -> OutflowTract | None:
+    """The epicardial tube of a tract: the endocardial tube's sections widened by the wall
+    thickness, the median distance of the epicardial contour points outside the lumen
+    (None when that median is not positive: the points do not lie outside it)."""
+    d = -endo_signed_depth(endo, epi_points)
+    wall = float(np.median(d)) if len(d) else 0.0
+    if not wall > 0:
+        return None
+    return OutflowTract(structure, endo.valve, endo.body_plane, endo.axis, endo.levels,
+                        endo.centres, endo.radii + wall, np.asarray(epi_points, float))
+
+
+def endo_signed_depth(t: OutflowTract, points: np.ndarray) -> np.ndarray:
+    """Signed distance (mm) of points inside the tube from its wall, section by section
+    (positive inside): the section radius at the point's level minus its distance from the
+    section centre; points beyond the tube's ends are measured at the end sections."""
+    p = np.asarray(points, float)
+    h = (p - t.valve.origin) @ t.axis
+    c = np.column_stack([np.interp(h, t.levels, t.centres[:, i]) for i in range(3)])
+    r = np.interp(h, t.levels, t.radii)
+    q = p - c
+    q = q - np.outer(q @ t.axis, t.axis)
+    return r - np.linalg.norm(q, axis=1)
+
+
+def outflow_tracts(study: Study, geo: FrameGeometry) -> dict[str, OutflowTract]:
+    """The outflow tubes one frame's evidence allows: ``rv_endo`` / ``rv_epi`` (RVOT lumen
+    and outer wall) and ``lv_endo`` (LVOT lumen); {} without evidence (module docstring)."""
+    frame = geo.frame
+    loops = outlet_loops(study, frame)
+    out: dict[str, OutflowTract] = {}
+    for s, (side, landmark) in TRACTS.items():
+        body = geo.base_planes.get(side)
+        if body is None or not geo.sections.get(s):
+            continue
+        annulus = np.array([lm.point for lm in study.landmarks_at(frame, landmark)])
+        tract_loops = loops.get(s, []) if side == "rv" else []
+        if len(annulus) == 0 and not loops.get("rv_endo" if side == "rv" else "none"):
+            continue
+        if s == "rv_epi":
+            endo = out.get("rv_endo")
+            if endo is None:
+                continue
+            ev = _tract_runs(geo, s, body, endo.valve.origin) + tract_loops
+            if not ev:
+                continue                # no epicardial evidence: no RVOT wall
+            t = offset_tract(endo, np.concatenate(ev), s)
+        else:
+            guess_centre = annulus.mean(axis=0) if len(annulus) else \
+                np.concatenate(loops["rv_endo"]).mean(axis=0)
+            runs = _tract_runs(geo, s, body, guess_centre)
+            t = build_tract(s, annulus if len(annulus) else None, runs, body, geo.direction,
+                            loops=tract_loops)
+        if t is not None:
+            out[s] = t
+    return out
