@@ -182,7 +182,7 @@ def report(cases: list[dict], sp: dict, args, elapsed: float) -> str:
               f"`track_tags` end to end (DICOM read, spectra, harmonic phase, tracking, lines), best "
               f"of 3: **{sp['seconds']:.2f} s** wall ({sp['cpu']:.2f} s CPU; load average "
               f"{sp['load'][0][0]:.1f} before, {sp['load'][1][0]:.1f} after"
-              + ("; the last `--speed-only` run" if args.no_speed else "") + "), "
+              + ("; the last `--speed-only` run" if sp.get("speed_only") else "") + "), "
               f"**{1000 * sp['seconds'] / sp['images']:.1f} ms per image**; {sp['lines']} tag lines.", "",
               "Per-study tracking times of the cases above (one run each, machine shared; wall / "
               "CPU): " +
@@ -248,13 +248,17 @@ NOTES = """## Method and notes
   point-to-point jitter of ~0.2 px from the trough search, and the lofted tag surfaces and
   their three-way intersections amplify it into material-point errors of 0.5–1 mm, whose
   level means come out biased. The quadratic removes it (five phantoms, SNR 20: mean Twist
-  error +0.66 → +0.29 deg, Torsion +0.130 → +0.056 deg/cm); a fit per wall piece does not,
-  nor do a re-centred (unbiased) trough search, a wider median along the line, a wider
-  band-pass or band-limited extrapolation of the tags past the myocardium (tried, not
-  kept). On the phantoms' own lines the model changes Twist by < 0.02 deg; it is not exact
-  for them at end systole (points moved by up to ~0.5 px at the ends), which is why PHTN's
-  p95 rose a little. The Twist bias that is left is positive in every case above: its
-  cause is not found.
+  error +0.66 → +0.29 deg, Torsion +0.130 → +0.056 deg/cm; seed 0 in the table above: Twist
+  +0.71 / +0.97 / +0.36 deg and Torsion +0.14 / +0.17 / +0.09 deg/cm in this report's
+  previous version, +0.23 / +0.55 / +0.20 and +0.05 / +0.09 / +0.05 now). A fit per wall
+  piece does not help, nor do a re-centred (unbiased) trough search, a wider median along
+  the line, a wider band-pass or band-limited extrapolation of the tags past the
+  myocardium (tried on the MR and normal seed-0 phantoms, not kept). On the phantoms' own
+  lines the model changes Twist by < 0.02 deg; it is not exact for them at end systole
+  (points moved by up to ~0.5 px at the ends), which is why the SA p95 of PHTN rose from
+  0.20 to 0.34 px while those of normal and MR fell. The Twist error left at SNR 20 is
+  +0.20 to +0.55 deg in five cases of six (−0.03 in the sixth): a smaller positive bias
+  whose cause is not found.
 - **Label maps.** `track_tags(study, labels=...)` / `cardionurbs track --label-maps PATH` clip
   the lines to the myocardium pixels of NIfTI label maps on the tagged images' pixel grid
   (tests/test_tracking_labelmaps.py: on the phantom's ukbb maps the lines lie on the true
@@ -325,7 +329,7 @@ def main() -> int:
         return 0
     if args.speed_only:
         with tempfile.TemporaryDirectory() as d:
-            sp = speed(args.frames, args.seed, Path(d))
+            sp = dict(speed(args.frames, args.seed, Path(d)), speed_only=True)
         speed_cache.write_bytes(pickle.dumps(sp))
         print(f"speed: {sp['seconds']:.2f} s wall, {sp['cpu']:.2f} s CPU for {sp['images']} images; "
               f"load {sp['load']}", flush=True)
