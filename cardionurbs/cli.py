@@ -175,6 +175,10 @@ def build_parser() -> argparse.ArgumentParser:
     ph.add_argument("--infarct", choices=["lad", "rca", "lcx"], default=None,
                     help="make this coronary territory thinner and hypokinetic (border zone "
                          "included)")
+    ph.add_argument("--outflow", action=argparse.BooleanOptionalAction, default=False,
+                    help="realistic anatomy: add the RV outflow tract to a pulmonary valve and the "
+                         "LV outflow tract to an aortic valve (RVOT view, rv_outlet SA contours, "
+                         "pulmonary/aortic landmarks; default off)")
     ph.add_argument("--realism", choices=["clinical"], default=None,
                     help="clinical acquisition faults at once: 0.5 px contour noise, 1.5 mm "
                          "breath-hold shifts, image SNR 15 (unless given); truth unchanged")

@@ -19,9 +19,13 @@ Executors:
   PBS). At most as many tasks are in flight as the cluster has worker threads, so
   a task starts when it is submitted and its timeout is measured from then; a
   worker holding an overrun task is restarted (its nanny starts a fresh process).
-  A task whose worker dies fails at once (the local cluster is started with
-  ``distributed.scheduler.allowed-failures = 0``; set the same on a scheduler of
-  your own, or the scheduler retries the task on other workers first).
+  A task whose worker dies is submitted once more (a worker can die under a task
+  that did nothing wrong: the scheduler may have placed it beside a task that
+  crashed the process, or on a worker being restarted for an overrun) and fails
+  as ``worker died`` when its second worker dies too. The local cluster is
+  started with ``distributed.scheduler.allowed-failures = 0`` so that this rule,
+  not the scheduler's own retries, decides; set the same on a scheduler of your
+  own.
 """
 
 from __future__ import annotations
@@ -37,6 +41,8 @@ from typing import Any, Callable, Sequence
 
 #: executor names accepted besides a Dask scheduler address
 LOCAL = "processes"
+#: submissions of a Dask task whose worker died before it is reported as ``worker died``
+MAX_ATTEMPTS_KILLED = 2
 
 
 @dataclass(frozen=True)
@@ -202,10 +208,12 @@ def _run_dask(fn, tasks, on_result, *, jobs: int, address: str, timeout: float |
         todo = deque(range(len(tasks)))
         inflight: dict = {}            # future -> (task index, deadline)
         token = f"{os.getpid()}-{time.time_ns()}"
+        attempts = [0] * len(tasks)
 
         def submit(i: int) -> None:
-            fut = client.submit(fn, *tasks[i], key=f"cardionurbs-{token}-{i}", pure=False,
-                                retries=0)
+            attempts[i] += 1
+            fut = client.submit(fn, *tasks[i], key=f"cardionurbs-{token}-{i}-{attempts[i]}",
+                                pure=False, retries=0)
             inflight[fut] = (i, time.monotonic() + timeout if timeout else float("inf"))
 
         while todo or inflight:
@@ -227,6 +235,9 @@ def _run_dask(fn, tasks, on_result, *, jobs: int, address: str, timeout: float |
                     else:
                         exc = fut.exception()
                         name = type(exc).__name__
+                        if name == "KilledWorker" and attempts[i] < MAX_ATTEMPTS_KILLED:
+                            todo.appendleft(i)     # once more, on another worker
+                            continue
                         kind = "worker died" if name == "KilledWorker" else "error"
                         result = TaskFailure(kind, f"{name}: {_one_line(exc)}")
                     on_result(i, result)

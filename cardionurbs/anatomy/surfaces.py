@@ -40,10 +40,12 @@ from cardionurbs.anatomy.sections import (FrameGeometry, Section, crossings, emb
                                           fill_short_gaps, ray_exit, scaled_section,
                                           septal_mask)
 from cardionurbs.errors import ReconstructionError
-from cardionurbs.geometry import polygon_area, polygon_centroid
+from cardionurbs.geometry import in_plane_basis, points_in_polygon, polygon_area, polygon_centroid
 
 #: control-point counts tried (common to all sections of a surface)
 N_CTRL_STEPS = (12, 16, 20, 26, 32, 40, 52)
+#: distance (mm) within which an RV section point counts as septal for the taper anchor
+SEPTUM_NEAR_MM_TAPER = 1.5
 #: points per resampled section
 N_SAMPLES = 120
 #: spacing (mm) of synthetic sections built from LA contours
@@ -64,7 +66,8 @@ class SurfaceFit:
     sections: list[Section]
     apex: np.ndarray
     n_ctrl: int
-    curve_error_mm: float          # max distance of a contour point to its section curve
+    curve_error_mm: float          # max distance of a contour point to its section curve when
+    #                                it exceeds the tolerance; NaN when every section met it
     warnings: list[str] = field(default_factory=list)
 
 
@@ -190,29 +193,126 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
     return basal, apical
 
 
+def septal_anchor(sec: Section, direction: np.ndarray) -> np.ndarray | None:
+    """The middle of an RV section's septal run (of its points on the LV epicardium, the one
+    nearest their centroid): the point a tapering crescent shrinks towards, so that it keeps
+    its septal middle on the septum (scaled about the LV centre it would sink into the LV
+    wall, which the RV solids subtract). None without an LV epicardial loop or septal
+    points (then the crescent scales about its centroid)."""
+    if sec.septum_of is None:
+        return None
+    sept = septal_mask(sec.points, sec.septum_of, direction, SEPTUM_NEAR_MM_TAPER)
+    if not sept.any() or sept.all():
+        return None
+    run = sec.points[sept]
+    return run[np.argmin(np.linalg.norm(run - run.mean(axis=0), axis=1))]
+
+
 def taper_sections(geo: FrameGeometry, structure: str, secs: list[Section]) -> list[Section]:
     """Synthetic apical sections of an SA-only surface: the most apical section scaled so
     that its area follows the fitted taper (:class:`~cardionurbs.anatomy.sections.ApicalTaper`)
-    at every ``SYNTHETIC_STEP_MM`` up to the apex, its centre moving to the apex (the RV
-    crescent scales about the LV centre, as for the LA-guided sections)."""
+    at every ``SYNTHETIC_STEP_MM`` up to the apex, its centre moving to the apex.
+
+    An RV crescent shrinks towards its septal run (:func:`septal_anchor`), and its scale
+    is chosen so that the part outside the LV epicardium at that level (the RV solids
+    subtract the LV) has the tapered area (:func:`crescent_scale`); scaled by the square
+    root of the area ratio alone, its tips would sink into the LV wall and the RV apex
+    would come out too small."""
     n, tp = geo.direction, geo.taper[structure]
     last = secs[-1]
     rv = structure.startswith("rv")
-    anchor = polygon_centroid(last.septum_of, n) if rv and last.septum_of is not None else None
+    anchor = septal_anchor(last, n) if rv else None
     centre0 = polygon_centroid(last.points, n) if anchor is None else anchor
     apex = geo.apex[structure]
+    a_last = polygon_area(last.points, n)
     gap = tp.apex - tp.level
     out = []
     k = int(np.ceil(gap / SYNTHETIC_STEP_MM))
     for f in np.arange(1, k) / k:
         h = tp.level + f * gap
-        scale = float(np.sqrt(tp.area_ratio(h)))
+        ratio = float(tp.area_ratio(h))
+        scale = float(np.sqrt(ratio))
         if scale <= 0.02:
             break
+        if anchor is not None:
+            lv = lv_epi_loop_at(geo, h)
+            if lv is not None:
+                scale = crescent_scale(last.points, anchor, ratio * a_last, lv, n)
         centre = centre0 if anchor is not None else (1 - f) * centre0 + f * apex
         res = scaled_section(last, h, n, centre, None, default_scale=scale, anchor=anchor)
         out.append(Section(structure, geo.frame, res[0], synthetic=True, scale=res[1], template=-1))
     return out
+
+
+def _polar_loop(loop: np.ndarray, centre: np.ndarray, basis: np.ndarray,
+                phi: np.ndarray) -> np.ndarray:
+    """Radii (mm) of a star-shaped loop about ``centre`` at the in-plane angles ``phi``."""
+    xy = (loop - centre) @ basis.T
+    ang = np.arctan2(xy[:, 1], xy[:, 0])
+    order = np.argsort(ang)
+    return np.interp(phi, ang[order], np.linalg.norm(xy, axis=1)[order], period=2 * np.pi)
+
+
+def lv_epi_loop_at(geo: FrameGeometry, level: float, n_angles: int = 180) -> np.ndarray | None:
+    """The LV epicardial section at ``level`` (mm along the stacking direction) of an SA-only
+    frame: between two SA sections the radii about their centroids interpolated linearly in
+    the level; beyond the most apical one, that section scaled by its apical taper; None
+    where there is no LV epicardium."""
+    secs = geo.sections.get("lv_epi") or []
+    if not secs:
+        return None
+    n = geo.direction
+    basis = in_plane_basis(n)
+    levels = np.array([float(sec.points.mean(axis=0) @ n) for sec in secs])
+    phi = np.linspace(-np.pi, np.pi, n_angles, endpoint=False)
+    ring = np.stack([np.cos(phi), np.sin(phi)], axis=1) @ basis
+    if level > levels[-1]:
+        tp = geo.taper.get("lv_epi")
+        ratio = float(tp.area_ratio(level)) if tp is not None else 0.0
+        if ratio <= 0.0:
+            return None
+        c = polygon_centroid(secs[-1].points, n)
+        r = np.sqrt(ratio) * _polar_loop(secs[-1].points, c, basis, phi)
+    else:
+        i = int(np.clip(np.searchsorted(levels, level) - 1, 0, len(secs) - 2)) if len(secs) > 1 else 0
+        j = min(i + 1, len(secs) - 1)
+        t = 0.0 if j == i else float(np.clip((level - levels[i]) / (levels[j] - levels[i]), 0, 1))
+        ci, cj = polygon_centroid(secs[i].points, n), polygon_centroid(secs[j].points, n)
+        c = (1 - t) * ci + t * cj
+        r = ((1 - t) * _polar_loop(secs[i].points, ci, basis, phi)
+             + t * _polar_loop(secs[j].points, cj, basis, phi))
+    c = c + (level - float(c @ n)) * n
+    return c + r[:, None] * ring
+
+
+def crescent_scale(template: np.ndarray, anchor: np.ndarray, target_area: float,
+                   lv_epi: np.ndarray, normal: np.ndarray, samples: int = 60) -> float:
+    """The scale s of ``anchor + s·(template − anchor)`` (in-plane) whose part outside the LV
+    epicardial loop ``lv_epi`` has ``target_area`` (mm²): the template's interior sampled on a
+    grid (``samples`` steps across its extent), each sample weighing s²·dA, bisection on s
+    in (0, 1] (the crescent only shrinks towards the apex)."""
+    basis = in_plane_basis(normal)
+    t = (template - anchor) @ basis.T
+    lv = (lv_epi - anchor) @ basis.T
+    lo, hi = t.min(axis=0), t.max(axis=0)
+    step = float((hi - lo).max()) / samples
+    gx, gy = np.meshgrid(np.arange(lo[0], hi[0], step) + step / 2,
+                         np.arange(lo[1], hi[1], step) + step / 2)
+    grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    inside = grid[points_in_polygon(grid, t)]
+    if not len(inside) or target_area <= 0:
+        return 0.0
+
+    def outside_area(s: float) -> float:
+        return s * s * step * step * np.count_nonzero(~points_in_polygon(s * inside, lv))
+
+    if outside_area(1.0) <= target_area:
+        return 1.0
+    a, b = 0.0, 1.0
+    for _ in range(10):                 # to 1e-3 of the scale
+        m = 0.5 * (a + b)
+        a, b = (m, b) if outside_area(m) < target_area else (a, m)
+    return 0.5 * (a + b)
 
 
 def embed_septa(real: list[Section], synthetic: list[Section], direction: np.ndarray,
@@ -339,7 +439,8 @@ def build_surface(geo: FrameGeometry, structure: str, ref: np.ndarray,
     sources = [None if s.synthetic else s.source_points for s in stack]
     tol = [tol_px * (_pixel_mm(s) if not s.synthetic else 1.0) for s in stack]
     curves, n_ctrl, err, ok = nurbs.fit_compatible_curves(loops, degree=3, closed=True, tol=tol,
-                                                          error_points=sources, counts=N_CTRL_STEPS)
+                                                          error_points=sources, counts=N_CTRL_STEPS,
+                                                          measure_error=False)
     if not ok:
         warnings.append(f"{structure}, frame {frame}: contour fit error {err:.2f} mm exceeds "
                         f"{tol_px:g} px with {n_ctrl} control points")

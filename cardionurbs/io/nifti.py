@@ -333,10 +333,11 @@ def _add_sa(b: _Builder, vol: LabelVolume, frames: dict[int, int], times: dict[i
 
 
 def label_counts(data: np.ndarray) -> np.ndarray:
-    """Number of voxels of each label value 1..MAX_LABEL (index = value; index 0 left 0):
-    counted over the labelled voxels only, which a heart fills a few per cent of."""
-    lab = data[data != 0]
-    return np.bincount(lab, minlength=MAX_LABEL + 1)
+    """Number of voxels of each label value 1..MAX_LABEL (index = value; index 0 set to 0);
+    the label values are whole numbers ≥ 0 (checked when the map is read)."""
+    counts = np.bincount(data.ravel(), minlength=MAX_LABEL + 1)
+    counts[0] = 0
+    return counts
 
 
 def voxel_volumes(vol: LabelVolume, roles: LabelRoles, frames: dict[int, int]) -> dict[int, dict]:

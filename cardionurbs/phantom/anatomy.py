@@ -269,7 +269,29 @@ class Anatomy:
         """Squared radius of the RV endo/epi shell along θ at height z, mm² (0 where absent)."""
         if self.shape is None:
             return self.rv_g2(z, epi) * self.rv_p(theta, epi)
+        body = self.rv_g2(z, epi) * self.rv_p(theta, epi, z)
+        if self.shape.outflow is None:
+            return body
+        # above the tricuspid plane: the RV outflow tract (phantom/outflow.py, eq. O1)
+        theta, z = np.broadcast_arrays(np.asarray(theta, dtype=float), np.asarray(z, dtype=float))
+        above = z > self.z_base
+        if not np.any(above):
+            return body
+        from cardionurbs.phantom.outflow import s_rvot
+        out = np.array(np.broadcast_to(body, z.shape), dtype=float)
+        out[above] = s_rvot(self, theta[above], z[above], epi)
+        return out
+
+    def s_rv_body(self, theta: np.ndarray, z: np.ndarray, epi: bool = False) -> np.ndarray:
+        """The RV body's shell alone (0 above the tricuspid plane, also with an outflow tract), mm²."""
+        if self.shape is None:
+            return self.rv_g2(z, epi) * self.rv_p(theta, epi)
         return self.rv_g2(z, epi) * self.rv_p(theta, epi, z)
+
+    @property
+    def outflow(self):
+        """The OutflowTracts of a realistic anatomy that has them, else None."""
+        return None if self.shape is None else self.shape.outflow
 
     def rv_sector(self, z: np.ndarray, epi: bool = False, n_table: int = 181) -> tuple[np.ndarray, np.ndarray]:
         """(θ_lo, θ_hi): the RV crescent at height z spans θ_lo ≤ θ ≤ θ_hi (both 0 where there is

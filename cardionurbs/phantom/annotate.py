@@ -117,6 +117,8 @@ def _sa_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f:
     """:func:`sa_contours` for a realistic anatomy: the same explicit polar curves with the
     angle-dependent sections S(θ, z) and the asymmetric RV sector [θ_lo, θ_hi]."""
     out: dict[str, np.ndarray] = {}
+    if anatomy.outflow is not None and z > anatomy.z_base + BASE_MARGIN_MM:
+        return _sa_outlet(anatomy, motion, spec, f, z, n_rv_free, n_rv_septum)
     # the LV is contoured below the lowest point of the saddle annulus (a plane through the saddle
     # shows part wall, part atrium); the RV up to its planar tricuspid annulus
     if not (0.0 < z <= anatomy.z_base - BASE_MARGIN_MM):
@@ -143,6 +145,34 @@ def _sa_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f:
         free = motion.radial_map(anatomy, anatomy.s_rv(tf, z, epi), tf, z, f)
         sept = motion.radial_map(anatomy, anatomy.s_lv_epi(z, ts), ts, z, f)
         out[name] = _polar(np.r_[free, sept], np.r_[tf, ts] - psi, spec.height)
+    return out
+
+
+def _sa_outlet(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float, z: float, n_free: int,
+               n_septum: int) -> dict[str, np.ndarray]:
+    """SA contours of the RV outflow tract above the tricuspid plane (material height z): the
+    ``rv_outlet`` endocardial crescent and, when its wall is cut too, the ``rv_epi`` of the outlet;
+    each only when the whole section lies below the pulmonary valve plane and is at least
+    MIN_RV_WIDTH_MM wide."""
+    from cardionurbs.phantom import outflow as ofl
+    fr = ofl.rvot_frame(anatomy)
+    psi = float(motion.psi(z, f))
+    out: dict[str, np.ndarray] = {}
+    for name, epi in (("rv_outlet", False), ("rv_epi", True)):
+        lo, hi = (float(v) for v in fr.window(z, epi))
+        tf = np.linspace(lo, hi, n_free)
+        ts = np.linspace(hi, lo, n_septum + 2)[1:-1]
+        s_f = ofl.s_rvot(anatomy, tf, np.full(n_free, z), epi)
+        s_s = anatomy.s_lv_epi(np.full(len(ts), z), ts)
+        th = np.r_[tf, ts]
+        r = np.sqrt(np.maximum(np.r_[s_f, s_s], 0.0))
+        below = np.all(ofl.rvot_top_term(anatomy, r * np.cos(th), r * np.sin(th), z) < 0)
+        mid = n_free // 2
+        width = np.sqrt(s_f[mid]) - np.sqrt(float(anatomy.s_lv_epi(np.array([z]), tf[mid:mid + 1])[0]))
+        if not below or width < MIN_RV_WIDTH_MM or (epi and "rv_outlet" not in out):
+            continue
+        sp = motion.radial_map(anatomy, np.r_[s_f, s_s], th, np.full(len(th), z), f)
+        out[name] = _polar(sp, th - psi, spec.height)
     return out
 
 
@@ -221,7 +251,60 @@ def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: flo
         out["rv_endo"] = ((sp - b["b3"]) * scale, (b["b2"] - sp) * scale, rv_top)
     if "rv_epi" in regions:
         out["rv_epi"] = ((sp - b["b4"]) * scale, (b["b2"] - sp) * scale, rv_top)
+    if anatomy.outflow is not None:
+        _outflow_terms(anatomy, motion, out, regions, sp, th, z, f, layers, scale)
     return out
+
+
+def _outflow_terms(anatomy: Anatomy, motion: Motion, out: dict, regions, sp, th, z, f, layers,
+                   scale: float) -> None:
+    """Append the outflow tracts' terms to the region functions (see :func:`region_logic`):
+    LV endocardium + (LVOT cylinder, aortic valve plane); RV endo/epicardium + (tract free wall,
+    pulmonary valve plane, tract bottom 1 mm below the tricuspid plane, where the tract lies
+    inside the body). The valve planes and the cylinder are material: the point's material radius
+    comes from the inverse radial map."""
+    from cardionurbs.phantom import outflow as ofl
+    r = np.sqrt(np.maximum(motion.inverse_radial_map(anatomy, sp, th, z, f, layers=layers), 0.0))
+    x, y = r * np.cos(th), r * np.sin(th)
+    if "lv_endo" in regions:
+        out["lv_endo"] = out["lv_endo"] + (ofl.lvot_cylinder_term(anatomy, x, y),
+                                           ofl.lvot_top_term(anatomy, x, y, z))
+    pulmonary = ofl.rvot_top_term(anatomy, x, y, z)
+    bottom = (anatomy.z_base - 1.0) - z
+    for name, epi in (("rv_endo", False), ("rv_epi", True)):
+        if name not in regions:
+            continue
+        s_ot = ofl.s_rvot(anatomy, th, z, epi)
+        s_ot = np.where(z > anatomy.z_base, s_ot, np.minimum(s_ot, anatomy.s_rv_body(th, z, epi)))
+        wall = (sp - motion.radial_map(anatomy, s_ot, th, z, f, layers=layers)) * scale
+        out[name] = out[name] + (wall, pulmonary, bottom)
+
+
+def region_logic(name: str, n_terms: int) -> tuple[tuple, set, dict]:
+    """How a region's terms (:func:`material_fields`) combine: (tree, closure terms, wall parts).
+
+    The tree nests ``("max", …)`` (inside all) and ``("min", …)`` (inside any) over term
+    indices; closure terms are valve planes and the LVOT's aorto-mitral curtain (not contoured);
+    wall parts group the wall terms that continue one another (the RV body's and the outflow
+    tract's free wall), between which no corner is solved."""
+    if name.startswith("lv"):
+        if n_terms == 4:        # LV endocardium with the LVOT: wall ∧ (mitral ∨ (cylinder ∧ aortic))
+            return ("max", 0, ("min", 1, ("max", 2, 3))), {1, 2, 3}, {0: 0}
+        return ("max", 0, 1), {1}, {0: 0}
+    if n_terms == 6:    # RV with the RVOT: septum ∧ ((body ∧ tricuspid) ∨ (tract ∧ pulmonary ∧ bottom))
+        return ("max", 1, ("min", ("max", 0, 2), ("max", 3, 4, 5))), {2, 4, 5}, {0: 0, 3: 0, 1: 1}
+    return ("max", 0, 1, 2), {2}, {0: 0, 1: 1}
+
+
+def tree_eval(tree, terms) -> tuple[np.ndarray, np.ndarray]:
+    """(value, index of the term that gives it) of a min/max tree over arrays of terms."""
+    if isinstance(tree, int):
+        return terms[tree], np.full(np.shape(terms[tree]), tree)
+    op, *kids = tree
+    vals, acts = zip(*(tree_eval(k, terms) for k in kids))
+    v, a = np.stack(vals), np.stack(acts)
+    i = (np.argmax if op == "max" else np.argmin)(v, axis=0)[None]
+    return np.take_along_axis(v, i, 0)[0], np.take_along_axis(a, i, 0)[0]
 
 
 def _plane_grid(anatomy: Anatomy, spec: SliceSpec, step: float):
@@ -229,6 +312,10 @@ def _plane_grid(anatomy: Anatomy, spec: SliceSpec, step: float):
     reach = max(anatomy.r_short_epi, anatomy.r_free_endo * (1 + anatomy.rv_offset) + anatomy.rv_wall)
     reach = 1.35 * reach + 12.0
     z_hi = anatomy.z_base + (anatomy.shape.saddle_mm if anatomy.shape is not None else 0.0) + 6.0
+    if anatomy.outflow is not None:
+        from cardionurbs.phantom import outflow as ofl
+        z_hi = max(z_hi, float(ofl.pulmonary_ring(anatomy)[:, 2].max()) + 8.0,
+                   float(ofl.aortic_ring(anatomy)[:, 2].max()) + 8.0)
     col = spec.column
     v_a, v_b = (z_hi - spec.center[2]) / col[2], (-6.0 - spec.center[2]) / col[2]
     v = np.arange(min(v_a, v_b), max(v_a, v_b) + step, step)
@@ -293,7 +380,8 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec, exact_f
     from skimage.measure import find_contours
 
     terms = [a.reshape(shape) for a in fields[name]]
-    field = np.maximum.reduce(terms)
+    tree, closures, parts = region_logic(name, len(terms))
+    field = tree_eval(tree, terms)[0]
     loops = find_contours(field, 0.0)
     if not loops:
         return None
@@ -306,11 +394,11 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec, exact_f
     def plane_uv(idx):
         return np.interp(idx[:, 0], np.arange(len(w)), w), np.interp(idx[:, 1], np.arange(len(v)), v)
 
-    loop = _refine_on_edges(loop, field, lambda idx: np.maximum.reduce(exact_fields(*plane_uv(idx))[name]))
+    loop = _refine_on_edges(loop, field, lambda idx: tree_eval(tree, exact_fields(*plane_uv(idx))[name])[0])
     ww, vv = plane_uv(loop)
-    active = np.argmax(np.stack(exact_fields(ww, vv)[name]), axis=0)
-    top = len(terms) - 1
-    on_wall = active != top
+    active = tree_eval(tree, exact_fields(ww, vv)[name])[1]
+    on_wall = ~np.isin(active, list(closures))
+    top_first = top_last = None
     if on_wall.all():
         keep = np.arange(len(loop))
     else:
@@ -318,6 +406,9 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec, exact_f
         idx = np.flatnonzero(on_wall[order])
         if len(idx) < 4:
             return None
+        # the closure terms next to the wall's two ends (the valve planes the annulus corners are on)
+        top_first = int(active[order[idx[0] - 1]])
+        top_last = int(active[order[(idx[-1] + 1) % len(order)]])
         keep = order[idx[0]:idx[-1] + 1]
         keep = keep[on_wall[keep]]
     ww, vv, act = ww[keep], vv[keep], active[keep]
@@ -330,15 +421,15 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec, exact_f
 
     pieces, cur = [], [(ww[0], vv[0])]
     if not on_wall.all():
-        cur = [tuple(corner((ww[0], vv[0]), act[0], top)), (ww[0], vv[0])]
+        cur = [tuple(corner((ww[0], vv[0]), act[0], top_first)), (ww[0], vv[0])]
     for k in range(1, len(ww)):
-        if act[k] != act[k - 1]:
+        if parts[int(act[k])] != parts[int(act[k - 1])]:
             c = tuple(corner((0.5 * (ww[k] + ww[k - 1]), 0.5 * (vv[k] + vv[k - 1])), act[k - 1], act[k]))
             pieces.append(np.array(cur + [c]))
             cur = [c]
         cur.append((ww[k], vv[k]))
     if not on_wall.all():
-        cur.append(tuple(corner((ww[-1], vv[-1]), act[-1], top)))
+        cur.append(tuple(corner((ww[-1], vv[-1]), act[-1], top_last)))
     pieces.append(np.array(cur))
     if start_positive and pieces[0][0, 0] < pieces[-1][-1, 0]:
         pieces = [p[::-1] for p in pieces[::-1]]
@@ -368,12 +459,13 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec, exact_f
 
 
 def _la_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float, n_side: int,
-                           with_rv: bool, step: float = PLANE_STEP_MM) -> dict[str, np.ndarray]:
+                           with_rv: bool, step: float = PLANE_STEP_MM,
+                           with_lv: bool = True) -> dict[str, np.ndarray]:
     """LA contours of a realistic anatomy: the plane is sampled every ``step`` mm, each region's
     signed function (:func:`material_fields`) is contoured by marching squares, the valve
     closure is dropped and the open wall contour is returned in the motion frame."""
     w, v, pts = _plane_grid(anatomy, spec, step)
-    names = ("lv_endo", "lv_epi") + (("rv_endo", "rv_epi") if with_rv else ())
+    names = (("lv_endo", "lv_epi") if with_lv else ()) + (("rv_endo", "rv_epi") if with_rv else ())
     fields = material_fields(anatomy, motion, pts, f, names)
     out = {}
     for name in names:
@@ -423,10 +515,11 @@ def _la_side(motion: Motion, alpha: float, z: np.ndarray, f: float):
 
 
 def la_contours(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float, n_side: int = 30,
-                with_rv: bool = False) -> dict[str, np.ndarray]:
-    """Open LA contours (annulus → apex → annulus) in an LA plane at phase f (heart frame)."""
+                with_rv: bool = False, with_lv: bool = True) -> dict[str, np.ndarray]:
+    """Open LA contours (annulus → apex → annulus) in an LA plane at phase f (heart frame); a
+    realistic anatomy's ``la_rvot`` view has RV contours only (``with_lv=False``)."""
     if anatomy.realistic:
-        return _la_contours_realistic(anatomy, motion, spec, f, n_side, with_rv)
+        return _la_contours_realistic(anatomy, motion, spec, f, n_side, with_rv, with_lv=with_lv)
     out: dict[str, np.ndarray] = {}
     lam = float(motion.lam(f))
     u = np.array([np.cos(spec.azimuth), np.sin(spec.azimuth), 0.0])
@@ -495,9 +588,21 @@ def landmarks(anatomy: Anatomy, motion: Motion, f: float, n_mitral: int = 6) -> 
         ts = lo + (hi - lo) * np.array([0.65, 0.35])
         tri = np.r_[_polar(anatomy.s_rv(tf, np.full(4, zb)), tf, zb),
                     _polar(anatomy.s_lv_epi(np.full(2, zb), ts), ts, zb)]
-        return {"apex": motion.forward(anatomy, np.zeros((1, 3)), f),
-                "mitral": motion.forward(anatomy, np.column_stack([_polar(anatomy.s_lv_endo(zt, th), th, 0.0)[:, :2], zt]), f),
-                "tricuspid": motion.forward(anatomy, tri, f)}
+        if anatomy.outflow is not None:
+            # the tricuspid orifice is the part of the base crescent outside the RVOT window
+            from cardionurbs.phantom.outflow import rvot_frame
+            hi = float(rvot_frame(anatomy).window(zb)[0])
+            tf = lo + (hi - lo) * np.array([0.15, 0.4, 0.65, 0.9])
+            ts = lo + (hi - lo) * np.array([0.7, 0.3])
+            tri = np.r_[_polar(anatomy.s_rv(tf, np.full(4, zb)), tf, zb),
+                        _polar(anatomy.s_lv_epi(np.full(2, zb), ts), ts, zb)]
+        mitral = np.column_stack([_polar(anatomy.s_lv_endo(zt, th), th, 0.0)[:, :2], zt])
+        out = {"apex": motion.forward(anatomy, np.zeros((1, 3)), f),
+               "mitral": motion.forward(anatomy, mitral, f),
+               "tricuspid": motion.forward(anatomy, tri, f)}
+        if anatomy.outflow is not None:
+            out.update(outflow_landmarks(anatomy, motion, f))
+        return out
     mitral_mat = _polar(np.full(n_mitral, float(anatomy.s_lv_endo(zb))), th, zb)
     edge = float(anatomy.rv_sector_edge(zb)[0])
     tf = edge * np.array([-0.6, -0.2, 0.2, 0.6])
@@ -506,6 +611,26 @@ def landmarks(anatomy: Anatomy, motion: Motion, f: float, n_mitral: int = 6) -> 
     return {"apex": motion.forward(anatomy, np.zeros((1, 3)), f),
             "mitral": motion.forward(anatomy, mitral_mat, f),
             "tricuspid": motion.forward(anatomy, tri_mat, f)}
+
+
+def outflow_landmarks(anatomy: Anatomy, motion: Motion, f: float, n_ring: int = 6) -> dict[str, np.ndarray]:
+    """``pulmonary`` and ``aortic`` annulus points at phase f (motion frame): first the two points
+    where the RVOT view (``la_rvot``), resp. the 3-chamber view, cuts the annulus, then ``n_ring``
+    points evenly spaced around it (docs/phantoms.md)."""
+    from cardionurbs.phantom import outflow as ofl
+    from cardionurbs.phantom.geometry import la_plane
+    out = {}
+    for name, ring_mat, view in (("pulmonary", ofl.pulmonary_ring(anatomy, 97), "la_rvot"),
+                                 ("aortic", ofl.aortic_ring(anatomy, 192), "la_3ch")):
+        spec = la_plane(anatomy, view)
+        ring = bend(anatomy, motion.forward(anatomy, ring_mat, f))
+        cut = ofl.plane_crossings(ring, spec.center, spec.normal)
+        if len(cut) != 2:
+            from cardionurbs.errors import PhantomError
+            raise PhantomError(f"the {view} view cuts the {name} annulus {len(cut)} times, not twice")
+        idx = np.round(np.linspace(0, len(ring), n_ring, endpoint=False)).astype(int)
+        out[name] = unbend(anatomy, np.r_[cut, ring[idx]])
+    return out
 
 
 def rv_insertion_points(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float):

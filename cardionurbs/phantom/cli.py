@@ -62,6 +62,8 @@ def anatomy_options(args: argparse.Namespace) -> dict:
         out["infarct"] = args.infarct
     if getattr(args, "realism", None):
         out["realism"] = args.realism
+    if getattr(args, "outflow", False):
+        out["outflow"] = True
     return out
 
 

@@ -96,6 +96,8 @@ def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarra
     out = {"lv_cav": lv_heart & (s < s1), "lv_myo": lv_heart & (s >= s1) & (s <= s2),
            "rv_cav": rv_heart & (s > s2) & (s < s3),
            "rv_myo": rv_heart & (s >= s3) & (s <= s4) & (s4 > s2)}
+    if real and an.shape.outflow is not None:
+        _add_outflow(an, out, s, th, z, s1, s2, s3, s4)
     u = (z - lv_top) / ATRIUM_MM
     cap = np.clip(1.0 - u * u, 0.0, None)
     out["la"] = np.zeros(len(z), dtype=bool)
@@ -111,6 +113,10 @@ def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarra
         s2b = an.s_lv_epi(zb, th_a) if real else float(an.s_lv_epi(an.z_base))
         out["ra"][above] = ((ur > 0) & ~out["la"][above] & (s_a > s2b)
                             & (s_a < an.s_rv(th_a, zb) * cap_r))
+        if real and an.shape.outflow is not None:       # the atria end where the tracts begin
+            tracts = out["lv_cav"] | out["rv_cav"] | out["rv_myo"]
+            out["la"] &= ~tracts
+            out["ra"] &= ~tracts
     if real:
         out["papillary"] = np.zeros(len(z), dtype=bool)
         for tp, lo, hi in PAPILLARY:
@@ -123,6 +129,20 @@ def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarra
         out["band"] = out["rv_cav"] & (np.abs(z - BAND_HEIGHT * an.z_base) < BAND_HALF_MM) & (
             np.abs(np.angle(np.exp(1j * th))) < BAND_HALF_RAD)
     return out
+
+
+def _add_outflow(an, out: dict, s, th, z, s1, s2, s3, s4) -> None:
+    """Add the outflow tracts (phantom/outflow.py) to the cavity and wall masks: the RVOT lumen and
+    free wall above the tricuspid plane and below the pulmonary valve plane, the LVOT lumen (inside
+    the LV endocardium and the LVOT cylinder, below the aortic valve plane)."""
+    from cardionurbs.phantom import outflow as ofl
+    r = np.sqrt(np.maximum(s, 0.0))
+    x, y = r * np.cos(th), r * np.sin(th)
+    tract = (z > an.z_base) & (ofl.rvot_top_term(an, x, y, z) < 0)
+    out["rv_cav"] |= tract & (s > s2) & (s < s3)
+    out["rv_myo"] |= tract & (s >= s3) & (s <= s4) & (s4 > s2)
+    out["lv_cav"] |= ((z >= 0) & (s < s1) & (ofl.lvot_cylinder_term(an, x, y) < 0)
+                      & (ofl.lvot_top_term(an, x, y, z) < 0))
 
 
 def pixel_heart_points(phantom, plane: ImagePlane) -> tuple[np.ndarray, np.ndarray]:

@@ -32,13 +32,14 @@ from cardionurbs.phantom.geometry import Acquisition, HeartPose, SliceSpec, imag
 from cardionurbs.phantom.motion import Motion, VolumeCurve
 from cardionurbs.phantom.presets import (PATHOLOGIES, SubjectDraw, SubjectSpec, load_preset,
                                          sample_subject, solve_anatomy)
+from cardionurbs.phantom.outflow import draw_outflow
 from cardionurbs.phantom.shape import ANATOMIES, TERRITORIES, draw_shape, infarct_only
 from cardionurbs.study import Contour, Landmark, Study, TagLine
 
 UID_PREFIX = "1.2.826.0.1.3680043.8.498."   # pydicom's registered root for generated UIDs
 #: the acquisition faults of ``realism="clinical"``
 CLINICAL = {"noise_px": 0.5, "breath_hold_mm": 1.5, "snr": 15.0}
-SERIES = {"SA": "sa", "la_2ch": "la_2ch", "la_3ch": "la_3ch", "la_4ch": "la_4ch"}
+SERIES = {"SA": "sa", "la_2ch": "la_2ch", "la_3ch": "la_3ch", "la_4ch": "la_4ch", "la_rvot": "la_rvot"}
 
 
 @dataclass
@@ -86,13 +87,16 @@ def _check_args(pathology, seed, frames, noise_px, tag_jumps, breath_hold_mm) ->
 
 
 def _realistic_anatomy(draw: SubjectDraw, rng: np.random.Generator, infarct: str | None,
-                       tries: int = 20):
+                       tries: int = 20, outflow=None):
     """A realistic anatomy for the draw: shape modes drawn from ``rng`` until the solved anatomy
     passes its validation (one RV crescent per section, nested walls) -- deterministic per seed,
-    as the draws come from the subject's own generator."""
+    as the draws come from the subject's own generator. ``outflow``: OutflowTracts to add (the
+    sizes are then solved with the tracts' lumen and wall counted)."""
     last = None
     for _ in range(tries):
         shape = draw_shape(rng, infarct)
+        if outflow is not None:
+            shape = dataclasses.replace(shape, outflow=outflow)
         try:
             return solve_anatomy(draw, shape), shape
         except PhantomError as exc:
@@ -124,7 +128,7 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
              tag_spacing_px: float = 7.0, fov_mm: float = 300.0, matrix: int = 256,
              volume_check: bool = True, anatomy: dict | None = None, snr: float | None = None,
              tag_depth: float | None = None, anatomy_model: str = "ideal", infarct: str | None = None,
-             realism: str | None = None) -> Phantom:
+             realism: str | None = None, outflow: bool = False) -> Phantom:
     """Generate one phantom subject.
 
     Parameters
@@ -149,6 +153,9 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     realism : ``"clinical"``: the acquisition faults of clinical data at once — 0.5 px contour
         noise, 1.5 mm breath-hold slice shifts, image SNR 15 (each unless given explicitly);
         the truth is unchanged.
+    outflow : realistic anatomy only: add the RV outflow tract to a pulmonary valve and the LV
+        outflow tract to an aortic valve (:mod:`cardionurbs.phantom.outflow`), with their
+        ``la_rvot`` view, ``rv_outlet`` SA contours, ``pulmonary``/``aortic`` landmarks and truth.
     """
     _check_args(pathology, seed, frames, noise_px, tag_jumps, breath_hold_mm)
     if snr is not None and not (isinstance(snr, (int, float, np.floating)) and np.isfinite(snr)
@@ -161,6 +168,8 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
         raise PhantomError(f"unknown anatomy {anatomy_model!r}; expected one of {', '.join(ANATOMIES)}")
     if infarct is not None and infarct not in TERRITORIES:
         raise PhantomError(f"unknown infarct territory {infarct!r}; expected one of {', '.join(TERRITORIES)}")
+    if outflow and anatomy_model != "realistic":
+        raise PhantomError("outflow tracts need the realistic anatomy (anatomy_model='realistic')")
     if realism not in (None, "clinical"):
         raise PhantomError(f"unknown realism {realism!r}; expected 'clinical'")
     if realism == "clinical":
@@ -173,7 +182,8 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     overrides = anatomy
     shape = None
     if anatomy_model == "realistic":
-        anatomy, shape = _realistic_anatomy(draw, _rng(seed, pathology, "shape"), infarct)
+        tracts = draw_outflow(_rng(seed, pathology, "outflow")) if outflow else None
+        anatomy, shape = _realistic_anatomy(draw, _rng(seed, pathology, "shape"), infarct, outflow=tracts)
     else:
         if infarct is not None:
             shape = infarct_only(infarct)
@@ -220,6 +230,8 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
         config["infarct"] = infarct
     if realism is not None:
         config["realism"] = realism
+    if outflow:
+        config["outflow"] = True
     if tag_depth is not None:
         config["tag_depth"] = float(tag_depth)
     uid_base = json.dumps(config, sort_keys=True)
@@ -250,7 +262,7 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
 
             if spec.view == "SA":
                 cont = annotate.sa_contours(anatomy, motion, spec, f)
-                for name in ("lv_endo", "lv_epi", "rv_endo", "rv_epi"):
+                for name in ("lv_endo", "lv_epi", "rv_endo", "rv_epi", "rv_outlet"):
                     if name in cont:
                         study.contours.append(Contour(name, "SA", spec.id, k, scan(cont[name]),
                                                       image=plane.id, closed=True))
@@ -261,12 +273,15 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
                         study.landmarks.append(Landmark("rv_insert", k, p, index=i, slice=spec.id,
                                                         view="SA", image=plane.id))
             else:
-                cont = annotate.la_contours(anatomy, motion, spec, f, with_rv=spec.id == "la_4ch")
+                cont = annotate.la_contours(anatomy, motion, spec, f, with_rv=spec.id in ("la_4ch", "la_rvot"),
+                                            with_lv=spec.id != "la_rvot")
                 for name in ("lv_endo", "lv_epi", "rv_endo", "rv_epi"):
                     if name in cont:
                         study.contours.append(Contour(name, "LA", spec.id, k, scan(cont[name]),
                                                       image=plane.id, closed=False))
-                tags = annotate.la_tag_lines(anatomy, motion, grid, spec, f, step)
+                # the RVOT view carries RV contours only (no LV tag lines)
+                tags = ([] if spec.id == "la_rvot"
+                        else annotate.la_tag_lines(anatomy, motion, grid, spec, f, step))
             for fam, idx, pts in tags:
                 study.tags.append(TagLine(fam, idx, spec.view, spec.id, k, scan(pts), image=plane.id))
     for k in range(frames):

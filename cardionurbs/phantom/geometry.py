@@ -162,8 +162,39 @@ def slice_specs(anatomy: Anatomy, acq: Acquisition) -> list[SliceSpec]:
     g = np.radians(acq.sa_rotation_deg)
     row = np.array([-np.cos(g), -np.sin(g), 0.0])
     col = np.cross([0.0, 0.0, 1.0], row)
-    for k, h in enumerate(sa_heights(anatomy, acq)):
+    heights = sa_heights(anatomy, acq)
+    if anatomy.outflow is not None:
+        heights = np.r_[outlet_heights(anatomy, heights[0], acq.sa_spacing_mm), heights]
+    for k, h in enumerate(heights):
         out.append(SliceSpec(f"sa_{k:02d}", "SA", np.array([12.0, 0.0, h]), row, col, height=float(h)))
+    for name in ("la_2ch", "la_3ch", "la_4ch"):
+        out.append(la_plane(anatomy, name))
+    if anatomy.outflow is not None:
+        out.append(la_plane(anatomy, "la_rvot"))
+    return out
+
+
+def outlet_heights(anatomy: Anatomy, top: float, spacing: float) -> np.ndarray:
+    """SA heights above the stack's top slice that cut the RV outflow tract wholly below the
+    pulmonary valve at ED (the stack continued at its spacing), highest first."""
+    from cardionurbs.phantom.outflow import pulmonary_ring
+    z_valve = float(pulmonary_ring(anatomy)[:, 2].min()) - 1.0
+    h = top + spacing * np.arange(1, 20)
+    h = h[(h > anatomy.z_base + 1.0) & (h < z_valve)]
+    return h[::-1]
+
+
+def la_plane(anatomy: Anatomy, name: str) -> SliceSpec:
+    """One LA view (heart frame). The 2-, 3- and 4-chamber views are planned as a radiographer
+    would: through the (bent) ED apex and the mitral centre at their azimuths. ``la_rvot`` (an
+    anatomy with outflow tracts) contains the LV axis and the RVOT centreline: the plane through
+    the axis at the tract's azimuth α (the bend is zero above the base)."""
+    if name == "la_rvot":
+        from cardionurbs.phantom.outflow import rvot_frame
+        a = rvot_frame(anatomy).alpha
+        u = np.array([np.cos(a), np.sin(a), 0.0])
+        centre = np.array([0.0, 0.0, 0.6 * anatomy.z_base]) + 25.0 * u
+        return SliceSpec(name, "LA", centre, u, np.array([0.0, 0.0, -1.0]), azimuth=float(a))
     shape = anatomy.shape
     apex = np.zeros(3)
     axis = np.array([0.0, 0.0, 1.0])
@@ -172,14 +203,12 @@ def slice_specs(anatomy: Anatomy, acq: Acquisition) -> list[SliceSpec]:
         apex = np.r_[shape.apex_shift(0.0, anatomy.z_base)[0], 0.0]
         axis = np.array([0.0, 0.0, anatomy.z_base]) - apex
         axis = axis / np.linalg.norm(axis)
-    for name in ("la_2ch", "la_3ch", "la_4ch"):
-        a = np.radians(LA_VIEWS[name])
-        u = np.array([np.cos(a), np.sin(a), 0.0])
-        u = u - (u @ axis) * axis
-        u = u / np.linalg.norm(u)
-        centre = apex + 0.55 * anatomy.z_base / axis[2] * axis + 10.0 * u
-        out.append(SliceSpec(name, "LA", centre, u, -axis, azimuth=float(a)))
-    return out
+    a = np.radians(LA_VIEWS[name])
+    u = np.array([np.cos(a), np.sin(a), 0.0])
+    u = u - (u @ axis) * axis
+    u = u / np.linalg.norm(u)
+    centre = apex + 0.55 * anatomy.z_base / axis[2] * axis + 10.0 * u
+    return SliceSpec(name, "LA", centre, u, -axis, azimuth=float(a))
 
 
 def image_plane(spec: SliceSpec, pose: HeartPose, acq: Acquisition, frame: int, image_id: str,

@@ -167,11 +167,15 @@ class Motion:
                                 np.where(s <= s3, b2 + kr * (s - s2), b3 + (s - s3))))
         return out / lam
 
-    def _inverse_layers(self, anatomy: Anatomy, s_def, theta, z, f):
-        """Material s from deformed s' at material (θ, z) (inverse of eq. M3), with S1, S2, S3."""
+    def _inverse_layers(self, anatomy: Anatomy, s_def, theta, z, f, layers=None):
+        """Material s from deformed s' at material (θ, z) (inverse of eq. M3), with S1, S2, S3
+        (``layers``: those section values when the caller has them already)."""
         lam = self.lam(f)
-        s1, s2 = anatomy.lv_sections(z, theta)
-        s3 = np.maximum(s2, anatomy.s_rv(theta, z))
+        if layers is None:
+            s1, s2 = anatomy.lv_sections(z, theta)
+            s3 = np.maximum(s2, anatomy.s_rv(theta, z))
+        else:
+            s1, s2, s3 = layers
         kl, kr = self.kappa_lv(theta, f, z, anatomy), self.kappa_rv(f)
         u = s_def * lam
         b1 = kl * s1
@@ -182,10 +186,10 @@ class Motion:
                               np.where(u <= b3, s2 + (u - b2) / kr, s3 + (u - b3))))
         return s, s1, s2, s3
 
-    def inverse_radial_map(self, anatomy: Anatomy, s_def, theta, z, f) -> np.ndarray:
+    def inverse_radial_map(self, anatomy: Anatomy, s_def, theta, z, f, layers=None) -> np.ndarray:
         """Material s from deformed s' at material (θ, z): inverse of eq. (M3)."""
         sp, theta, z = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (s_def, theta, z)))
-        return self._inverse_layers(anatomy, sp, theta, z, f)[0]
+        return self._inverse_layers(anatomy, sp, theta, z, f, layers)[0]
 
     def forward(self, anatomy: Anatomy, points: np.ndarray, f: float) -> np.ndarray:
         """φ_f: (n, 3) material heart-frame points (ED, mm) -> positions at phase f (mm)."""

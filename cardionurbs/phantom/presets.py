@@ -173,17 +173,29 @@ def solve_anatomy(draw: SubjectDraw, shape=None) -> Anatomy:
     pm = draw.predicted_metrics()
     rho, eta, k = v["lv_long_short_ratio"], v["base_height_ratio"], v["apex_wall_ratio"]
     vol = v["lvedv_ml"] * 1000.0
-    a = (vol / (np.pi * rho * (2.0 / 3.0 + eta - eta ** 3 / 3.0))) ** (1.0 / 3.0)
-    c, h = rho * a, eta * rho * a
     v_myo = v["lvm_g"] / DENSITY * 1000.0
+    outflow = getattr(shape, "outflow", None)
+
+    def lv_sizes(vol_body: float) -> tuple[float, float, float, float]:
+        a = (vol_body / (np.pi * rho * (2.0 / 3.0 + eta - eta ** 3 / 3.0))) ** (1.0 / 3.0)
+        c, h = rho * a, eta * rho * a
+        t = brentq(lambda t: _lv_anatomy(a, c, h, k, t).lv_myocardial_volume() - v_myo, 0.5, 0.9 * a,
+                   xtol=1e-10)
+        return a, c, h, t
+
+    a, c, h, t = lv_sizes(vol)
+    if outflow is not None:
+        # the LVOT lumen counts in the LV volume: the body is solved for the rest (a fixed point,
+        # the LVOT scaling with the LV)
+        from cardionurbs.phantom.truth_realistic import ed_outflow_volumes
+        for _ in range(3):
+            probe = dataclasses.replace(_lv_anatomy(a, c, h, k, t), shape=shape)
+            extra = ed_outflow_volumes(probe, parts=("lv",))["lv_endo"] * 1000.0
+            a, c, h, t = lv_sizes(vol - extra)
 
     def lv(t: float, **rv) -> Anatomy:
-        base = dict(r_free_endo=a, r_wrap_endo=a, r_long_rv_endo=0.5 * c, rv_wall=3.0, rv_offset=0.5)
-        base.update(rv)
-        return Anatomy(r_short_endo=a, r_short_epi=a + t, r_long_endo=c, r_long_epi=c + k * t,
-                       base_height=h, **base)
+        return _lv_anatomy(a, c, h, k, t, **rv)
 
-    t = brentq(lambda t: lv(t).lv_myocardial_volume() - v_myo, 0.5, 0.9 * a, xtol=1e-10)
     zb = lv(t).z_base
     q, beta, ell = v["rv_offset"], v["rv_wrap_ratio"], v["rv_length_ratio"]
 
@@ -205,16 +217,36 @@ def solve_anatomy(draw: SubjectDraw, shape=None) -> Anatomy:
     def rv_real(A2: float, wall2: float) -> Anatomy:
         return dataclasses.replace(rv(A2, wall2), shape=shape)
 
+    def tract(an: Anatomy, key: str) -> float:
+        """The RVOT's ED lumen (rv_endo) or lumen and wall (rv_epi), mm³ (0 without one)."""
+        if outflow is None:
+            return 0.0
+        from cardionurbs.phantom.truth_realistic import ed_outflow_volumes
+        return ed_outflow_volumes(an, parts=("rv",))[key] * 1000.0
+
+    def rv_cavity(an: Anatomy) -> float:
+        return an.rv_shell_volume(False, 96, 48) + tract(an, "rv_endo")
+
+    def rv_muscle(an: Anatomy) -> float:
+        return an.rv_shell_volume(True, 96, 48) + tract(an, "rv_epi") - rv_cavity(an)
+
     try:
         # quadrature orders well inside the 0.2 % truth budget (the truth is computed anew)
-        A = brentq(lambda x: rv_real(x, wall).rv_shell_volume(False, 96, 48) - rvedv, 0.8 * A, 1.25 * A,
-                   xtol=1e-3)
-        wall = brentq(lambda w: rv_real(A, w).rv_shell_volume(True, 96, 48)
-                      - rv_real(A, w).rv_shell_volume(False, 96, 48) - rvm, 0.5 * wall, 2.0 * wall,
-                      xtol=1e-3)
+        lo_a = 0.6 if outflow is not None else 0.8
+        A = brentq(lambda x: rv_cavity(rv_real(x, wall)) - rvedv, lo_a * A, 1.25 * A, xtol=1e-3)
+        wall = brentq(lambda w: rv_muscle(rv_real(A, w)) - rvm, 0.5 * wall, 2.0 * wall, xtol=1e-3)
     except ValueError:
         raise PhantomError("the realistic RV cannot reach the drawn RV volume or mass") from None
     return rv_real(A, wall).validate()
+
+
+def _lv_anatomy(a: float, c: float, h: float, k: float, t: float, **rv) -> Anatomy:
+    """The LV sizes (endocardial semi-axes a, c, base height h, wall t, apical ratio k) with
+    placeholder RV sizes unless given."""
+    base = dict(r_free_endo=a, r_wrap_endo=a, r_long_rv_endo=0.5 * c, rv_wall=3.0, rv_offset=0.5)
+    base.update(rv)
+    return Anatomy(r_short_endo=a, r_short_epi=a + t, r_long_endo=c, r_long_epi=c + k * t,
+                   base_height=h, **base)
 
 
 # ----------------------------------------------------------------- cohorts

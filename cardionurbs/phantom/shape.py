@@ -90,6 +90,7 @@ class ShapeModes:
     infarct: str | None = None
     infarct_thinning: float = 0.0
     infarct_hypokinesis: float = 0.0
+    outflow: object = None      # OutflowTracts (phantom/outflow.py) or None
 
     def __post_init__(self) -> None:
         total = sum(abs(a0) + abs(a1) for _, a0, a1, _ in self.endo_modes)
@@ -181,6 +182,10 @@ class ShapeModes:
         d = asdict(self)
         d["endo_modes"] = [list(m) for m in self.endo_modes]
         d["apex_shift_mm"] = [float(v) for v in self.apex_shift_mm]
+        if self.outflow is None:        # absent, as before outflow tracts existed
+            del d["outflow"]
+        else:
+            d["outflow"] = self.outflow.to_dict()
         return d
 
 

@@ -31,8 +31,10 @@ import functools
 import manifold3d
 import numpy as np
 
+from cardionurbs.errors import PhantomError
 from cardionurbs.geometry import fit_plane
 from cardionurbs.phantom import annotate
+from cardionurbs.phantom import outflow as ofl
 from cardionurbs.phantom.anatomy import Anatomy
 from cardionurbs.phantom.motion import Motion
 
@@ -42,7 +44,8 @@ def valve_planes(anatomy: Anatomy, motion: Motion, f: float) -> dict[str, tuple[
     phase f, realistic heart frame (mm)."""
     lm = annotate.landmarks(anatomy, motion, f)
     out = {}
-    for key in ("mitral", "tricuspid"):
+    keys = ("mitral", "tricuspid") + (("pulmonary", "aortic") if anatomy.outflow is not None else ())
+    for key in keys:
         c, n = fit_plane(annotate.bend(anatomy, lm[key]))
         out[key] = (c, n if n[2] > 0 else -n)
     return out
@@ -145,8 +148,95 @@ def _section_volumes(anatomy: Anatomy, motion: Motion, f: float, dz: float, dz_f
         zs = zs[(zs > 0) & (zs < top)]
         area = clipped_areas(_sections(anatomy, motion, f, zs, key, n), zs, plane)
         vol[key] = float(np.trapezoid(area, zs)) / 1000.0
+    if anatomy.outflow is not None:
+        for key, v in _outflow_section_volumes(anatomy, motion, f, planes, n).items():
+            vol[key] += v
     return {"lv_cavity": vol["lv_endo"], "lv_myocardium": vol["lv_epi"] - vol["lv_endo"],
             "rv_cavity": vol["rv_endo"], "rv_myocardium": vol["rv_epi"] - vol["rv_endo"]}
+
+
+# ----------------------------------------------------------------- outflow tracts
+def _rvot_material(anatomy: Anatomy, z: np.ndarray, epi: bool, n: int, n_back: int | None = None) -> np.ndarray:
+    """Material (s, θ) of the RVOT section polygons at heights z (> z_b): the free wall over the
+    window θ_lo → θ_hi (n points), back along the LV epicardium (``n_back`` interior points, n//2
+    by default; n − 2 puts them at the free wall's angles); (L, n + n_back, 2)."""
+    n_back = n // 2 if n_back is None else n_back
+    fr = ofl.rvot_frame(anatomy)
+    lo, hi = fr.window(z, epi)
+    v = np.linspace(0.0, 1.0, n)
+    tf = lo[:, None] + (hi - lo)[:, None] * v[None, :]
+    ts = lo[:, None] + (hi - lo)[:, None] * np.linspace(1.0, 0.0, n_back + 2)[None, 1:-1]
+    zz = z[:, None]
+    s = np.concatenate([ofl.s_rvot(anatomy, tf, np.broadcast_to(zz, tf.shape), epi),
+                        anatomy.s_lv_epi(np.broadcast_to(zz, ts.shape), ts)], axis=1)
+    return np.stack([np.maximum(s, 0.0), np.concatenate([tf, ts], axis=1)], axis=-1)
+
+
+def _lvot_material(anatomy: Anatomy, z: np.ndarray, n: int) -> np.ndarray:
+    """Material (s, θ) of the LVOT section polygons at heights z: (L, n, 2)."""
+    phi = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    xy = ofl.lvot_boundary(anatomy, phi[None, :], z[:, None])
+    return np.stack([xy[..., 0] ** 2 + xy[..., 1] ** 2, np.arctan2(xy[..., 1], xy[..., 0])], axis=-1)
+
+
+def _deform_polar(anatomy: Anatomy, motion: Motion, f: float, st: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Material section polygons (s, θ) at heights z -> deformed, bent (x, y) at phase f."""
+    s, th = st[..., 0], st[..., 1]
+    zz = np.broadcast_to(z[:, None], s.shape)
+    sp = motion.radial_map(anatomy, s, th, zz, f)
+    r = np.sqrt(np.maximum(sp, 0.0))
+    a = th - motion.psi(zz, f)
+    xy = np.stack([r * np.cos(a), r * np.sin(a)], axis=-1)
+    if anatomy.shape.bends:
+        xy = xy + anatomy.shape.apex_shift(float(motion.lam(f)) * z, anatomy.z_base)[:, None, :]
+    return xy
+
+
+def _outflow_levels(lo: float, hi: float, dz: float) -> np.ndarray:
+    return np.linspace(lo, hi, max(int(np.ceil((hi - lo) / dz)), 2) + 1)
+
+
+def ed_outflow_volumes(anatomy: Anatomy, parts=("rv", "lv"), dz: float = 0.25, n: int = 96) -> dict[str, float]:
+    """Method A at end-diastole for the outflow tracts alone (mL; ``rv_endo``, ``rv_epi``,
+    ``lv_endo`` as in :func:`section_volumes`): what the preset solver adds to the body volumes."""
+    still = Motion(ls=0.0, lv_ef=0.0, rv_ef=0.0, septal_flattening=0.0, apex_rotation_deg=0.0,
+                   base_rotation_deg=0.0, z_base=anatomy.z_base)
+    return _outflow_section_volumes(anatomy, still, 0.0, valve_planes(anatomy, still, 0.0), n, dz, parts)
+
+
+def _outflow_section_volumes(anatomy: Anatomy, motion: Motion, f: float, planes: dict, n: int,
+                             dz: float = 0.1, parts=("rv", "lv")) -> dict[str, float]:
+    """Method A for the outflow tracts, added to the body volumes (mm³ -> mL): the RVOT lumen and
+    wall above the tricuspid plane z' = λ z_b and below the pulmonary valve plane; the LVOT as
+    |D ∩ aortic⁻| − |D ∩ mitral⁻| (the LVOT lumen above the mitral plane, D below the aortic plane
+    wherever it is below the mitral one). The section areas are continuous in z' (tilted planes,
+    the tract starting at z_b), so the trapezoid rule needs no refinement at the planes."""
+    lam = float(motion.lam(f))
+    out = {}
+    zb = anatomy.z_base
+    top = lam * (float(ofl.pulmonary_ring(anatomy)[:, 2].max()) + 6.0)
+    zs = _outflow_levels(lam * zb, top, dz)
+    for key, epi in (("rv_endo", False), ("rv_epi", True)) if "rv" in parts else ():
+        poly = _deform_polar(anatomy, motion, f, _rvot_material(anatomy, zs / lam, epi, n), zs / lam)
+        out[key] = float(np.trapezoid(clipped_areas(poly, zs, planes["pulmonary"]), zs)) / 1000.0
+    if "lv" not in parts:
+        return out
+    lo = lam * (anatomy.z_top_min - 4.0)
+    hi = lam * (float(ofl.aortic_ring(anatomy)[:, 2].max()) + 4.0)
+    zs = _outflow_levels(lo, hi, dz)
+    poly = _deform_polar(anatomy, motion, f, _lvot_material(anatomy, zs / lam, n), zs / lam)
+    above_mitral = clipped_areas(poly, zs, planes["aortic"]) - clipped_areas(poly, zs, planes["mitral"])
+    out["lv_endo"] = float(np.trapezoid(above_mitral, zs)) / 1000.0
+    return out
+
+
+def _lvot_check(anatomy: Anatomy, motion: Motion, f: float, planes: dict) -> None:
+    """The LVOT formula needs the aortic plane above the mitral one over the LVOT: checked on the
+    aortic annulus points."""
+    ring = annotate.bend(anatomy, motion.forward(anatomy, np.asarray(ofl.aortic_ring(anatomy)), f))
+    c, nrm = planes["mitral"]
+    if np.any((ring - c) @ nrm <= 0):
+        raise PhantomError("the aortic annulus dips below the mitral valve plane")
 
 
 # ----------------------------------------------------------------- method B: meshes
@@ -280,6 +370,8 @@ def mesh_volumes(anatomy: Anatomy, motion: Motion, f: float, n_mu: int = 120, n_
     planes = valve_planes(anatomy, motion, f)
     cap = anatomy.z_base + anatomy.shape.saddle_mm + 6.0
     vols = {}
+    if anatomy.outflow is not None:
+        _lvot_check(anatomy, motion, f, planes)
     for key in ("lv_endo", "lv_epi"):
         rings = _moved(anatomy, motion, _lv_rings(anatomy, key, cap, n_mu, n_theta), f)
         vols[key] = _volume(*_closed_tube(rings), plane=planes["mitral"])
@@ -288,9 +380,69 @@ def mesh_volumes(anatomy: Anatomy, motion: Motion, f: float, n_mu: int = 120, n_
     for key, epi in (("rv_endo", False), ("rv_epi", True)):
         rings = _moved(anatomy, motion, _rv_rings(anatomy, epi, n_z_rv, n_v_rv), f)
         vols[key] = _volume(*_closed_tube(rings))
+    if anatomy.outflow is not None:
+        for key, v in _outflow_mesh_volumes(anatomy, motion, f, planes, n_z_rv, n_v_rv).items():
+            vols[key] += v
     return {"lv_cavity": vols["lv_endo"], "lv_myocardium": vols["lv_epi"] - vols["lv_endo"],
             "rv_cavity": vols["rv_endo"], "rv_myocardium": vols["rv_epi"] - vols["rv_endo"],
             "lv_myocardium_material": vols["lv_myocardium_material"]}
+
+
+def _ladder_cap(n: int, offset: int, flip: bool) -> np.ndarray:
+    """Triangles closing a crescent ring (free wall 0 … n−1, then the inner wall back, 2n − 2
+    vertices, tips shared) by rungs between the points of equal angle on the two walls."""
+    m = 2 * n - 2
+    i = np.arange(n - 1)
+    f0, f1 = i, i + 1
+    s0, s1 = (2 * n - 2 - i) % m, (2 * n - 3 - i) % m
+    t1 = np.column_stack([f0, f1, s1])[: n - 2]            # the last one is degenerate (tip)
+    t2 = np.column_stack([f0, s1, s0])[1:]                 # the first one is degenerate (tip)
+    tri = np.concatenate([t1, t2]) + offset
+    return tri[:, ::-1] if flip else tri
+
+
+def _crescent_tube(rings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closed mesh of a tube of crescent rings (L, 2n − 2, 3), capped at both ends by rungs."""
+    L, m, _ = rings.shape
+    n = (m + 2) // 2
+    v = rings.reshape(-1, 3)
+    faces = np.concatenate([_grid_faces(L, m), _ladder_cap(n, 0, True), _ladder_cap(n, (L - 1) * m, False)])
+    t = v[faces]
+    if np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() < 0:
+        faces = faces[:, ::-1]
+    return v, faces
+
+
+def _outflow_mesh_volumes(anatomy: Anatomy, motion: Motion, f: float, planes: dict, n_z: int,
+                          n_v: int) -> dict[str, float]:
+    """Method B for the outflow tracts: closed material meshes of the RVOT (from the tricuspid
+    plane up past the pulmonary valve) and of the LVOT cylinder-in-endocardium D, every vertex
+    moved, trimmed by the valve planes (mL)."""
+    lam = float(motion.lam(f))
+    zb = anatomy.z_base
+    out = {}
+    z_top = float(ofl.pulmonary_ring(anatomy)[:, 2].max()) + 6.0
+    z = zb + (z_top - zb) * np.linspace(0.0, 1.0, n_z + 1)
+    for key, epi in (("rv_endo", False), ("rv_epi", True)):
+        st = _rvot_material(anatomy, z, epi, n_v + 1, n_v - 1)
+        rings = _rings_3d(anatomy, motion, f, st, z)
+        out[key] = _volume(*_crescent_tube(rings), plane=planes["pulmonary"])
+    fr = ofl.lvot_frame(anatomy)
+    z = np.linspace(anatomy.z_top_min - 4.0, float(ofl.aortic_ring(anatomy)[:, 2].max()) + 4.0, n_z + 1)
+    st = _lvot_material(anatomy, z, 2 * n_v)
+    rings = _rings_3d(anatomy, motion, f, st, z)
+    pole = _moved(anatomy, motion, np.array([[[fr.center[0], fr.center[1], z[0]]]]), f)
+    mesh = _closed_tube(np.concatenate([np.broadcast_to(pole, (1,) + rings.shape[1:]), rings], axis=0))
+    out["lv_endo"] = _volume(*mesh, plane=planes["aortic"]) - _volume(*mesh, plane=planes["mitral"])
+    return out
+
+
+def _rings_3d(anatomy: Anatomy, motion: Motion, f: float, st: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Material (s, θ) rings at heights z -> moved, bent 3-D rings (L, m, 3)."""
+    r = np.sqrt(st[..., 0])
+    th = st[..., 1]
+    mat = np.stack([r * np.cos(th), r * np.sin(th), np.broadcast_to(z[:, None], r.shape)], axis=-1)
+    return _moved(anatomy, motion, mat, f)
 
 
 def volume_polynomials(anatomy: Anatomy, motion: Motion, f_max: float) -> dict[str, np.poly1d]:
