@@ -341,8 +341,8 @@ def bivme_residual_figure(model, path: Path) -> list[str]:
     rv = df[df["structure"].str.startswith("rv") & beyond]
     return rows + ["", f"RV LA points beyond 3 px: {len(rv)}, of which {int((rv['height_mm'] < 0).sum())} "
                    f"lie beyond the tricuspid plane (up to {-rv['height_mm'].min():.0f} mm, on slices "
-                   f"{', '.join(sorted(set(rv.loc[rv['height_mm'] < 0, 'slice'])))}: the outflow tract "
-                   "towards the pulmonary valve)."]
+                   f"{', '.join(sorted(set(rv.loc[rv['height_mm'] < 0, 'slice'])))}), where neither the RV "
+                   "body nor the outflow tract meets them."]
 
 
 BIVME_RVOT_FIGURE = "figures/validation/bivme-patient1/rvot_in_outflow_view.png"
@@ -499,10 +499,10 @@ def bivme_section() -> list[str]:
               "tricuspid annulus through the outflow tract to the pulmonary valve; ours now does too "
               "(docs/metrics.md, Cavities and walls: a tube of circular sections fitted to the RV LA "
               "contour crossings beyond the tricuspid plane, closed by the plane through the two "
-              "PULMONARY_VALVE points). At ED it adds 16 mL of lumen and the RVOT free wall, which "
-              "brings RVEDV and RVM within 5 % of biv-me's. At frame 9 the pulmonary valve lies only "
-              "0.6–6.5 mm beyond the tricuspid plane (the figure: the tricuspid plane passes next to "
-              "the annulus), so the tract beyond the plane holds 3.5 mL and the frame-9 RV difference "
+              "PULMONARY_VALVE points). At ED it adds the RVOT lumen and free wall of the table above, "
+              "which brings RVEDV and RVM within 5 % of biv-me's. At frame 9 the pulmonary valve lies "
+              "only 0.6–6.5 mm beyond the tricuspid plane (the figure: the tricuspid plane passes next "
+              "to the annulus), so the tract beyond the plane is small and the frame-9 RV difference "
               "is the RV body's (next item). Without the valve landmarks nothing is added "
               "(tests/test_model_outflow.py checks the RV body volumes are those before the tract).",
               "- RV LA points 5–11 mm off 40–70 mm below the tricuspid plane (towards the RV apex): "

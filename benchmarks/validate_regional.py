@@ -71,6 +71,7 @@ def one(pathology, seed, noise):
     row["noise mm"] = r.strain.get("tag_noise_mm", float("nan"))
     row["residual mm"] = r.strain.get("fit_residual_mm", float("nan"))
     row["penalty"] = r.strain.get("penalty") or []
+    row["se"] = {k: np.array(list(v.values())) for k, v in (r.strain.get("segment_se") or {}).items()}
     return row
 
 
@@ -91,6 +92,47 @@ def table(rows):
                    f"{d('GLS surface (%)'):+.2f} | {d('GCS surface (%)'):+.2f} | "
                    f"{r['tag points']} / {r['noise mm']:.2f} / {r['residual mm']:.2f} | "
                    f"{', '.join(f'{v:g}' for v in r['penalty']) or '—'} |")
+    return out
+
+
+BOUNDS_NOISY = (("Ecc", 2.0), ("Ell", 3.0), ("Err", 6.0), ("WT ED", 1.0), ("WT ES", 1.0))
+
+
+def chance_within(se: np.ndarray, bound: float) -> float:
+    """Probability that every segment error of an unbiased Gaussian estimate with standard
+    errors ``se`` lies within ``bound``: Π_k (2Φ(bound / se_k) − 1)."""
+    from scipy.stats import norm
+    return float(np.prod(2 * norm.cdf(bound / se) - 1)) if len(se) else float("nan")
+
+
+def noise_rows(rows):
+    """Per noisy phantom: the fit's standard errors (Cramér–Rao bound within the motion model)
+    of the segment strains, and the chance an unbiased estimator meets the bound on all 16."""
+    out = ["| phantom | Err SE median / max | P(all 16 Err within 6) | Ell SE median / max | "
+           "P(all 16 Ell within 3) | Ecc SE max | Err seg error max |",
+           "|" + "---|" * 7]
+    for r in rows:
+        se = r["se"]
+        if not se:
+            continue
+        out.append(f"| {r['subject']} | {np.median(se['Err']):.1f} / {se['Err'].max():.1f} | "
+                   f"{chance_within(se['Err'], 6.0):.3f} | {np.median(se['Ell']):.1f} / "
+                   f"{se['Ell'].max():.1f} | {chance_within(se['Ell'], 3.0):.3f} | "
+                   f"{se['Ecc'].max():.2f} | {r['Err'][0]:.1f} |")
+    return out
+
+
+def bound_summary(rows):
+    """How many noisy phantoms meet each twice-the-noise-free bound on all 16 segments."""
+    out = ["| quantity | bound | phantoms within / all | worst segment error |", "|---|---|---|---|"]
+    for name, b in BOUNDS_NOISY:
+        worst = [r[name][0] for r in rows]
+        out.append(f"| {name} | {b:g} | {sum(w <= b for w in worst)} / {len(rows)} | {max(worst):.2f} |")
+    for name, b in (("Ecc_Global (%)", 1.0), ("Ell_Global (%)", 1.0)):
+        worst = [abs(r[name][0] - r[name][1]) for r in rows]
+        out.append(f"| {name} | {b:g} | {sum(w <= b for w in worst)} / {len(rows)} | {max(worst):.2f} |")
+    worst = [abs(r["det F"] - 1.0) for r in rows]
+    out.append(f"| det F − 1 | 0.1 | {sum(w <= 0.1 for w in worst)} / {len(rows)} | {max(worst):.3f} |")
     return out
 
 
@@ -213,20 +255,23 @@ def timing():
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=1)
+    ap.add_argument("--noise-seeds", type=int, default=4,
+                    help="noisy phantoms per preset (seeds s, s + 1, ...: each its own noise draw)")
     ap.add_argument("--out", default=str(ROOT / "reports" / "validation-regional.md"))
     ap.add_argument("--bench-out", default=str(ROOT / "reports" / "benchmark-regional.md"),
                     help="the speed section for reports/benchmark.md ('' to skip)")
     a = ap.parse_args(argv)
     presets = [(p, s + k) for p, s in PRESETS for k in range(a.seeds)]
     clean = [one(p, s, 0.0) for p, s in presets]
-    noisy = [one(p, s, 0.5) for p, s in presets]
+    noisy = [one(p, s + k, 0.5) for p, s in PRESETS for k in range(max(a.seeds, a.noise_seeds))]
     rr = [x for n in (20, 30, 40) for x in rates(n)]
     kinds, comparison = estimator_comparison()
     sb = sunnybrook()
     med, cpu = timing()
     L = ["# Validation: regional function (AHA segments, wall thickness, strain, rates)", "",
          "Command: `.venv/bin/python benchmarks/validate_regional.py"
-         + (f" --seeds {a.seeds}" if a.seeds != 1 else "") + "`", "",
+         + (f" --seeds {a.seeds}" if a.seeds != 1 else "")
+         + (f" --noise-seeds {a.noise_seeds}" if a.noise_seeds != 4 else "") + "`", "",
          f"Generated {_dt.datetime.now(_dt.timezone.utc):%Y-%m-%d %H:%M} UTC on {platform.node()} "
          f"({os.cpu_count()} cores, Python {platform.python_version()}). Truth: `truth.json` of "
          "each phantom, computed from the analytic model (`cardionurbs.phantom.regional`), "
@@ -235,7 +280,17 @@ def main(argv=None) -> int:
          "## 1. Noise-free phantoms (2 frames: ED, ES)", ""]
     L += table(clean)
     L += ["", "Truth values of the global columns:", ""] + truth_rows(clean)
-    L += ["", "## 2. With 0.5 px contour and tag noise", ""] + table(noisy)
+    L += ["", "## 2. With 0.5 px contour and tag noise", "",
+          f"{max(a.seeds, a.noise_seeds)} phantoms per preset (seeds s, s + 1, …; each phantom "
+          "its own noise draw), all reported.", ""] + table(noisy)
+    L += ["", "Twice the noise-free bounds (the issue's target with 0.5 px noise), over these "
+          "phantoms:", ""] + bound_summary(noisy)
+    L += ["", "What the tags can tell: the standard error of each segment strain of the "
+          "unregularised tag-line fit, σ √diag(B S⁻¹ Bᵀ) (σ the ED-plane noise, S the fit's "
+          "reduced Gauss–Newton matrix, B the derivative of the segment means with respect to "
+          "the coefficients) — the Cramér–Rao bound of any unbiased estimate within the motion "
+          "model (S1) — and the chance that an unbiased estimator with those errors puts all 16 "
+          "segments within the bound, Π (2Φ(b / SE) − 1):", ""] + noise_rows(noisy)
     L += ["", "## 3. Filling and ejection rates (noise-free, relative error %)", "",
           "| phantom | frames | PER | PEFR | PAFR | E/A | truth PER / PEFR / PAFR (mL/s) |",
           "|---|---|---|---|---|---|---|"]
@@ -317,11 +372,25 @@ NOTES = """## Notes
   gradient vary with height and angle, and on the highest order in height, with weights
   (λ, column "penalty") chosen to minimise Stein's unbiased estimate of the mean squared
   error of the 48 segment strains, from the ED-plane noise. Noise-free (noise below
-  0.01 mm) nothing changes. The fit's own covariance (σ² S⁻¹) puts the standard error of a
-  segment's Err at 3–7 strain points at σ = 0.57 mm (Ecc 0.2–0.4, Ell 0.3–1.2): with one
-  or two tag lines across a 1 cm wall, the transmural gradient is what the tags measure
-  least well, so Err within 6 points per segment is about one standard error and is not met
-  on every noisy phantom.
+  0.01 mm) nothing changes.
+- **Radial strain is noise-limited.** The table of standard errors above is the fit's own
+  covariance: with one or two tag lines across a 1 cm wall the transmural gradient is what
+  the tags measure least well, and the standard error of a segment's Err is a median of
+  3–6 strain points at σ ≈ 0.6 mm and up to 25 in an apical segment (where few tag lines
+  cross the wall, obliquely), against at most 0.2–1.3 for Ecc. An unbiased estimator with those errors puts all 16 segments within
+  6 points with the probability shown (well below 1), so the Err target of 6 points is out
+  of reach at this noise level for any unbiased estimate within the motion model; the
+  regularised fit (which trades bias for variance) does better than that on some phantoms
+  and not on others. Also tried: the reconstructed endo- and epicardium at ED and ES as
+  material surfaces, added to the tag-line fit as point-to-surface residuals with weights
+  from their own residual variance (Young and Axel's combined tag-and-contour fit). Their
+  pointwise error with 0.5 px contour noise (RMS 0.7–1 mm) is larger than the tags', they
+  biased Err low, and they did not reduce the segment errors on the normal phantom, so they
+  are not used.
+- **Thickness with contour noise.** The rays follow the endocardial normal averaged over 6 mm
+  (as the strain directions do): a ray tilted by α crosses a wall of thickness T over
+  T / cos α, so the raw normals of a surface fitted to noisy contours over-stated the
+  end-systolic thickness by ~0.3 mm on average and up to 1.4 mm per segment.
 - **Speed** is given as CPU time (single-threaded BLAS) because the shared 2-core machine ran
   other engineers' test suites (load average up to ~20), which inflates wall time several
   fold; the tag-line fit (a few Gauss–Newton steps on ~3000 points, noise-free: no

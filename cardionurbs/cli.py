@@ -226,6 +226,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("study", metavar="STUDY", help="native study folder whose images name DICOM files")
     tr.add_argument("--out", required=True, metavar="DIR",
                     help="new (or empty) output folder, outside the study")
+    tr.add_argument("--label-maps", default=None, metavar="PATH",
+                    help="NIfTI label maps of the tagged images (a file or an ACDC / UK Biobank "
+                         "/ M&Ms folder): clip the lines to their myocardium pixels")
     _output_safety_options(tr)
 
     co = command("cohort", "measure many studies into one CSV")

@@ -319,7 +319,9 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     points (:mod:`cardionurbs.analysis.tag_motion`): the fit of the material points is then
     refined on them by orthogonal-distance regression (method "tag lines"); else the
     material points alone are fitted (method "material points"). ``noise_mm``: the tag
-    tracking noise (the ED tag-plane residual), which sets the regularisation of that fit."""
+    tracking noise (the ED tag-plane residual), which sets the regularisation of that fit;
+    with it the result also has "segment_se": {kind: {segment: standard error (strain
+    points)}} of the unregularised fit (a Cramér–Rao bound for unbiased estimates in (S1))."""
     from cardionurbs.analysis.tag_motion import MIN_TAG_POINTS, fit_tag_motion
     ok = material.tracked(material.ed_frame, frame)
     if ok.sum() < MIN_POINTS:
@@ -350,6 +352,11 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
         out = fit_tag_motion(fit, *tag_lines, noise_mm=noise_mm, quantities=segment_strains)
         info.update(method="tag lines", n_tag_points=out["n_points"], penalty=out["lambda"],
                     tag_outliers=out["outliers"], fit_residual_mm=out["residual_mm"])
+        if out["quantity_se"] is not None:     # per segment present, (Ecc, Ell, Err) each
+            se = out["quantity_se"].reshape(-1, 3)
+            present = [k for k in range(1, 17) if (labels[sub] == k).any()]
+            info["segment_se"] = {kind: {str(k): float(v) for k, v in zip(present, se[:, j])}
+                                  for j, kind in enumerate(STRAIN_KINDS)}
     F = fit.gradient(Y)
     vals = directional_strains(green_lagrange(F), dirs)
     cols, counts = strain_columns(vals, labels, vol)

@@ -244,7 +244,9 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
     with the penalty of :func:`choose_penalty` on the groups of :func:`penalty_groups`,
     its weights chosen to minimise the estimated mean squared error of those quantities.
     Returns {"residual_mm" (RMS distance to the fitted surfaces), "outliers", "n_points",
-    "lambda" (penalty weight per group), "ed_points" (the fitted X_i)}.
+    "lambda" (penalty weight per group), "ed_points" (the fitted X_i), "quantity_se" (the
+    standard errors σ √diag(B S⁻¹ Bᵀ) of the quantities for the unregularised fit, B their
+    derivative with respect to the coefficients; None without regularisation)}.
     """
     x = np.asarray(points, float)
     n = np.asarray(normals, float)
@@ -271,14 +273,18 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
         err = np.linalg.norm(fit.position(X) - x, axis=1)
         if stage == 0:
             use = err <= max(OUTLIER_MM, 4.0 * float(np.median(err)))
-    lams = ()
+    lams, se = (), None
     if noise_mm >= NOISE_FLOOR_MM and quantities is not None:
         coef = fit.coef.T.reshape(-1)
         B = quantity_jacobian(fit, quantities, coef, np.sqrt(np.diag(np.linalg.pinv(S))) * noise_mm)
+        # the unregularised fit's standard errors of the quantities, σ √diag(B S⁻¹ Bᵀ): the
+        # Cramér–Rao bound of any unbiased estimate within the motion model (S1)
+        se = noise_mm * np.sqrt(np.maximum(np.einsum("ka,ab,kb->k", B, np.linalg.pinv(S), B), 0.0))
         P, lams = choose_penalty(S, coef, penalty_groups(fit), noise_mm, B)
         if any(lams):
             for _ in range(ITERATIONS[1]):
                 step(P)
             err = np.linalg.norm(fit.position(X) - x, axis=1)
     return {"residual_mm": float(np.sqrt(np.mean(err[use] ** 2))), "outliers": int((~use).sum()),
-            "n_points": int(use.sum()), "lambda": [float(v) for v in lams], "ed_points": X[use]}
+            "n_points": int(use.sum()), "lambda": [float(v) for v in lams], "ed_points": X[use],
+            "quantity_se": se}

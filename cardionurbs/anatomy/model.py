@@ -122,6 +122,7 @@ class BiventricularModel:
 
     def __init__(self, study: Study, frames: list[int], *, surfaces: Mapping | None = None,
                  base_planes: Mapping | None = None, apex_points: Mapping | None = None,
+                 outflow: Mapping | None = None,
                  sections: Mapping | None = None, tol_px: float = 1.0,
                  refine: bool = True, anchor_weight: float = 10.0,
                  ed_es: tuple[int, int] | None = None, warnings: list[str] | None = None,
@@ -148,7 +149,7 @@ class BiventricularModel:
             self.apex_points, self.sections = apex_points, sections or {}
         #: frame -> {'rv_endo'|'rv_epi'|'lv_endo': OutflowTract} (anatomy.outflow); {} read back
         self.outflow = LazyFrames(self.frames, self._outflow) if surfaces is None else \
-            LazyFrames(self.frames, lambda f: {})
+            LazyFrames(self.frames, lambda f: dict((outflow or {}).get(f, {})))
         self.volumes = LazyFrames(self.frames, lambda f: {
             k: meshing.volume_ml(m) for k, m in self.solids(f).items()})
         labels = (study.ed_frame, study.es_frame)
@@ -547,7 +548,8 @@ class BiventricularModel:
 
     # ------------------------------------------------------------- (de)serialise
     def to_dict(self) -> dict:
-        """JSON-safe model: surfaces (NURBS), valve planes, apex points, SA sections, ED/ES."""
+        """JSON-safe model: surfaces (NURBS), valve planes, apex points, SA sections, outflow
+        tracts (frames that have them), ED/ES."""
         def arr(a):
             return np.asarray(a, float).tolist()
         return {
@@ -564,6 +566,8 @@ class BiventricularModel:
                             for f, d in self.apex_points.items()},
             "sections": {str(f): {s: [{"slice": sec.slice, "points": arr(sec.points)} for sec in secs]
                                   for s, secs in d.items()} for f, d in self.sections.items()},
+            "outflow": {str(f): {s: t.to_dict() for s, t in self.outflow[f].items()}
+                        for f in self.frames if self.outflow[f]},
             "landmarks": [{"name": lm.name, "frame": lm.frame, "index": lm.index,
                            "point": arr(lm.point)} for lm in self.study.landmarks
                           if lm.name in ("apex", "mitral")],
@@ -590,7 +594,10 @@ class BiventricularModel:
                                  for x in secs] for s, secs in dd.items()}
                     for f, dd in d.get("sections", {}).items()}
         ed_es = (d["ed_frame"], d["es_frame"]) if "ed_frame" in d and "es_frame" in d else None
+        outflow = {int(f): {s: OutflowTract.from_dict(td) for s, td in dd.items()}
+                   for f, dd in d.get("outflow", {}).items()}
         m = cls(study, d["frames"], surfaces=surfaces, base_planes=planes, apex_points=apex,
+                outflow=outflow,
                 sections=sections, warnings=d.get("warnings"), ed_es=ed_es,
                 resolution=tuple(d.get("resolution", RESOLUTION)))
         return m

@@ -24,11 +24,18 @@ Construction (one tube per surface, scanner mm):
   crossings of the tract's contours (the LA contour points of that surface on the basal
   side of the body's valve plane that are nearer the outflow valve than the body's valve
   centre, and the ``rv_outlet`` loops) fit a circle (≥ 3 crossings: least squares; 2:
-  their midpoint and half distance; 1: the distance to the interpolated centre); centres
-  and radii of sections without crossings are interpolated along ``h``;
+  their midpoint and half distance; 1: the distance to the interpolated centre, but no
+  more than the radius interpolated from the sections seen across — one wall seen narrows
+  a section, never widens it); centres and radii of sections without crossings are
+  interpolated along ``h``;
 * the circles are joined into a closed triangulated tube (ruled between sections, so
   its volume is the Cavalieri sum of the section areas), which the model trims to the
   apical side of the outflow valve plane and the basal side of the body's valve plane.
+
+With SA ``rv_outlet`` contours (planes across the tract) the RVOT is lofted through them
+instead (:func:`loft_tract`): from the valve ring (the annulus circle; without landmarks the most basal outlet contour closes the
+tract) through the outlet contours to the most apical one moved along the stacking
+direction past the tricuspid plane, the sections matched point to point by arc length.
 
 The epicardial RVOT tube is the endocardial one widened by the RVOT wall thickness: the
 median distance outside the lumen of the RV epicardial contour points of the tract (LA
@@ -41,10 +48,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from cardionurbs.anatomy.mesh import Plane, closed_mesh
 from cardionurbs.anatomy.sections import FrameGeometry, crossings, valve_plane
-from cardionurbs.geometry import in_plane_basis
+from cardionurbs.geometry import fit_plane, in_plane_basis, polygon_area
 from cardionurbs.study import Study
 
 #: spacing (mm) of the tube's sections along its axis
@@ -80,14 +88,39 @@ class OutflowTract:
     centres: np.ndarray
     radii: np.ndarray
     evidence: np.ndarray
+    rings: np.ndarray | None = None     # (k, m, 3) lofted sections (outlet loops), else circles
 
-    def mesh(self, around: int = AROUND) -> tuple[np.ndarray, np.ndarray]:
-        """Closed, outward-oriented triangle mesh of the tube (its two ends capped)."""
+    def to_dict(self) -> dict:
+        """JSON-safe tract (the model file keeps it beside the surfaces)."""
+        def arr(a):
+            return None if a is None else np.asarray(a, float).tolist()
+        return {"structure": self.structure, "valve": self.valve.to_dict(),
+                "body_plane": self.body_plane.to_dict(), "axis": arr(self.axis),
+                "levels": arr(self.levels), "centres": arr(self.centres),
+                "radii": arr(self.radii), "evidence": arr(self.evidence),
+                "rings": arr(self.rings)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "OutflowTract":
+        def arr(a):
+            return None if a is None else np.asarray(a, float)
+        return cls(d["structure"], Plane.from_dict(d["valve"]), Plane.from_dict(d["body_plane"]),
+                   arr(d["axis"]), arr(d["levels"]), arr(d["centres"]), arr(d["radii"]),
+                   arr(d["evidence"]).reshape(-1, 3), rings=arr(d.get("rings")))
+
+    def ring_points(self, around: int = AROUND) -> np.ndarray:
+        """(k, m, 3) the tube's sections as point rings, valve end first."""
+        if self.rings is not None:
+            return self.rings
         u, v = in_plane_basis(self.axis)
         t = np.linspace(0.0, 2.0 * np.pi, around, endpoint=False)
         ring = np.cos(t)[:, None] * u + np.sin(t)[:, None] * v          # (m, 3)
-        pts = self.centres[:, None, :] + self.radii[:, None, None] * ring[None]
-        k, m = len(self.levels), around
+        return self.centres[:, None, :] + self.radii[:, None, None] * ring[None]
+
+    def mesh(self, around: int = AROUND) -> tuple[np.ndarray, np.ndarray]:
+        """Closed, outward-oriented triangle mesh of the tube (its two ends capped)."""
+        pts = self.ring_points(around)
+        k, m = pts.shape[:2]
         idx = np.arange(k * m).reshape(k, m)
         a, b = idx[:-1], np.roll(idx[:-1], -1, axis=1)
         c, d = idx[1:], np.roll(idx[1:], -1, axis=1)
@@ -101,6 +134,12 @@ class OutflowTract:
         infinite for points on the apical side of the body's valve plane, where the
         body's surface bounds the cavity instead."""
         p = np.asarray(points, float)
+        if self.rings is not None:        # lofted rings: to the densely sampled wall
+            r = self.rings
+            w = np.linspace(0.0, 1.0, 5)[:-1]
+            dense = np.concatenate([(1 - t) * r[:-1] + t * r[1:] for t in w] + [r[-1:]])
+            d = cKDTree(dense.reshape(-1, 3)).query(p)[0]
+            return np.where(self.body_plane.signed_distance(p) > 0, np.inf, d)
         h = (p - self.valve.origin) @ self.axis
         hc = np.clip(h, 0.0, self.levels[-1])
         c = np.column_stack([np.interp(hc, self.levels, self.centres[:, i]) for i in range(3)])
@@ -157,6 +196,13 @@ def section_circle(points: np.ndarray, diameter_pair: bool = True
     if not diameter_pair:
         return None
     return 0.5 * (p[i] + p[j]), 0.5 * float(d[i, j])
+
+
+def _into_ventricle(direction: np.ndarray, body: Plane) -> np.ndarray:
+    """A tract's axis points from its valve into the ventricle, i.e. towards the apical side
+    of the body's valve plane: ``direction`` when it does, else the body plane's normal
+    (contour points beyond the valve, up the great artery, must not turn the tract round)."""
+    return direction if float(direction @ body.normal) > 0.1 else body.normal
 
 
 def _annulus(points: np.ndarray, axis_guess: np.ndarray) -> tuple[Plane, np.ndarray, float]:
@@ -238,7 +284,7 @@ def build_tract(structure: str, annulus: np.ndarray | None, runs: list[np.ndarra
     guess = (ev.mean(axis=0) - centre0) if len(ev) else fallback_axis
     if np.linalg.norm(guess) < 1e-6:
         guess = fallback_axis
-    guess = guess / np.linalg.norm(guess)
+    guess = _into_ventricle(guess / np.linalg.norm(guess), body)
     valve, c0, r0 = _annulus(annulus, guess)
     a = valve.normal
     if body.signed_distance(c0[None])[0] >= 0:
@@ -279,8 +325,11 @@ def build_tract(structure: str, annulus: np.ndarray | None, runs: list[np.ndarra
     off_all = np.column_stack([np.interp(lv, kh, off[:, i]) for i in range(3)])
     centres = c0 + np.outer(lv, a) + off_all
     rs = {k: fits[k][1] for k in ks}
+    across = np.interp(lv, kh, [fits[k][1] for k in ks])
     for k, p in single.items():
-        rs[k] = float(np.linalg.norm((p - centres[k]) - ((p - centres[k]) @ a) * a))
+        # one wall seen: it narrows the section, never widens it (the other wall is unseen)
+        rs[k] = min(float(np.linalg.norm((p - centres[k]) - ((p - centres[k]) @ a) * a)),
+                    float(across[k]))
     kr = np.array(sorted(rs))
     radii = np.interp(lv, lv[kr], [rs[k] for k in kr])
     radii[0] = radii[1]
@@ -288,17 +337,106 @@ def build_tract(structure: str, annulus: np.ndarray | None, runs: list[np.ndarra
     return OutflowTract(structure, valve, body, a, lv, centres, np.maximum(radii, 0.5), ev)
 
 
+def ring_from(points: np.ndarray, normal: np.ndarray, ref: np.ndarray, m: int = AROUND
+              ) -> np.ndarray:
+    """``m`` points uniformly spaced in arc length round a closed loop, counter-clockwise
+    about ``normal``, starting at the loop's point farthest along ``ref`` (so that the
+    sections of one tract correspond point to point)."""
+    p = np.asarray(points, float)
+    if polygon_area(p, normal, signed=True) < 0:
+        p = p[::-1]
+    p = np.roll(p, -int(np.argmax(p @ ref)), axis=0)
+    closed = np.vstack([p, p[:1]])
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
+    t = arc[-1] * np.arange(m) / m
+    return np.column_stack([np.interp(t, arc, closed[:, i]) for i in range(3)])
+
+
+def annulus_ring(valve: Plane, centre: np.ndarray, radius: float, normal: np.ndarray,
+                 ref: np.ndarray) -> np.ndarray:
+    """The valve section as a ring: the annulus circle (centre and radius from the annulus
+    points, :func:`_annulus`) in the valve plane. A valve annulus is nearly round, and a
+    few ring points joined as a polygon would cut its area (8 points: by 10 %)."""
+    u, v = in_plane_basis(valve.normal)
+    t = np.linspace(0.0, 2.0 * np.pi, 8 * AROUND, endpoint=False)
+    circle = centre + radius * (np.cos(t)[:, None] * u + np.sin(t)[:, None] * v)
+    return ring_from(circle, normal, ref)
+
+
+def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarray],
+               body: Plane, direction: np.ndarray, ref: np.ndarray) -> OutflowTract | None:
+    """An outflow tube lofted through its outlet loops (SA ``rv_outlet`` contours, planes
+    across the tract): from the valve ring (:func:`annulus_ring`; without annulus points
+    the most basal loop closes the tract) through the loops in stacking order to the
+    most apical loop moved along the stacking ``direction`` until it lies wholly on the
+    apical side of the body's valve plane. Sections correspond by arc length from their
+    point farthest along ``ref`` (the LV → RV direction)."""
+    loops = [np.asarray(q, float) for q in loops if len(q) >= 3]
+    if not loops:
+        return None
+    n = direction / np.linalg.norm(direction)
+    ref = ref - (ref @ n) * n
+    loops.sort(key=lambda q: float(q.mean(axis=0) @ n))
+    ev = np.concatenate(loops)
+    if annulus is None or len(annulus) == 0:
+        annulus, loops = loops[0], loops[1:]
+        c0, nrm = fit_plane(annulus)
+        valve = Plane(c0, nrm if nrm @ n > 0 else -nrm)
+        top = ring_from(annulus, n, ref)
+    else:
+        annulus = np.atleast_2d(np.asarray(annulus, float))
+        guess = ev.mean(axis=0) - annulus.mean(axis=0)
+        valve, c0, r0 = _annulus(annulus, _into_ventricle(guess / np.linalg.norm(guess), body))
+        top = annulus_ring(valve, c0, r0, n, ref)
+    if body.signed_distance(valve.origin[None])[0] >= 0:
+        return None
+    loops = [q for q in loops if valve.signed_distance(q).mean() > 0]
+    rings = [top - OVERHANG_MM * valve.normal, top] + [ring_from(q, n, ref) for q in loops]
+    last = rings[-1]
+    # the most apical section, moved along the stacking direction past the body's plane
+    depth = -body.signed_distance(last).min() / max(float(n @ body.normal), 0.2) + 1.0
+    if depth > 0:
+        rings.append(last + min(depth, MAX_LENGTH_MM) * n)
+    rings = np.asarray(rings)
+    centres = rings.mean(axis=1)
+    levels = (centres - valve.origin) @ valve.normal
+    radii = np.linalg.norm(rings - centres[:, None], axis=2).mean(axis=1)
+    return OutflowTract(structure, valve, body, valve.normal, levels, centres, radii, ev,
+                        rings=rings)
+
+
 def offset_tract(endo: OutflowTract, epi_points: np.ndarray, structure: str = "rv_epi"
                  ) -> OutflowTract | None:
     """The epicardial tube of a tract: the endocardial tube's sections widened by the wall
     thickness, the median distance of the epicardial contour points outside the lumen
     (None when that median is not positive: the points do not lie outside it)."""
-    d = -endo_signed_depth(endo, epi_points)
+    if endo.rings is not None:
+        d = endo.distance(epi_points)
+        d = d[np.isfinite(d)]
+    else:
+        d = -endo_signed_depth(endo, epi_points)
     wall = float(np.median(d)) if len(d) else 0.0
     if not wall > 0:
         return None
+    rings = None if endo.rings is None else offset_rings(endo.rings, wall)
     return OutflowTract(structure, endo.valve, endo.body_plane, endo.axis, endo.levels,
-                        endo.centres, endo.radii + wall, np.asarray(epi_points, float))
+                        endo.centres, endo.radii + wall, np.asarray(epi_points, float),
+                        rings=rings)
+
+
+def offset_rings(rings: np.ndarray, by: float) -> np.ndarray:
+    """Each ring moved ``by`` mm outward in its own plane (vertex normals of the
+    counter-clockwise ring)."""
+    out = []
+    for r in rings:
+        nrm = fit_plane(r)[1]
+        if polygon_area(r, nrm, signed=True) < 0:
+            nrm = -nrm
+        t = np.roll(r, -1, axis=0) - np.roll(r, 1, axis=0)
+        o = np.cross(t, nrm)
+        o /= np.maximum(np.linalg.norm(o, axis=1, keepdims=True), 1e-12)
+        out.append(r + by * o)
+    return np.asarray(out)
 
 
 def endo_signed_depth(t: OutflowTract, points: np.ndarray) -> np.ndarray:
@@ -336,12 +474,13 @@ def outflow_tracts(study: Study, geo: FrameGeometry) -> dict[str, OutflowTract]:
             if not ev:
                 continue                # no epicardial evidence: no RVOT wall
             t = offset_tract(endo, np.concatenate(ev), s)
-        else:
-            guess_centre = annulus.mean(axis=0) if len(annulus) else \
-                np.concatenate(loops["rv_endo"]).mean(axis=0)
-            runs = _tract_runs(geo, s, body, guess_centre)
-            t = build_tract(s, annulus if len(annulus) else None, runs, body, geo.direction,
-                            loops=tract_loops)
+        elif tract_loops:               # SA outlet contours: loft through them
+            ref = geo.reference if geo.reference is not None else in_plane_basis(geo.direction)[0]
+            t = loft_tract(s, annulus if len(annulus) else None, tract_loops, body,
+                           geo.direction, ref)
+        else:                           # valve landmarks and LA contour crossings
+            runs = _tract_runs(geo, s, body, annulus.mean(axis=0))
+            t = build_tract(s, annulus, runs, body, geo.direction)
         if t is not None:
             out[s] = t
     return out
