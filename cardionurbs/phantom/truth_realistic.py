@@ -148,10 +148,11 @@ def _section_volumes(anatomy: Anatomy, motion: Motion, f: float, dz: float, dz_f
         zs = zs[(zs > 0) & (zs < top)]
         area = clipped_areas(_sections(anatomy, motion, f, zs, key, n), zs, plane)
         vol[key] = float(np.trapezoid(area, zs)) / 1000.0
+    lv_myocardium = vol["lv_epi"] - vol["lv_endo"]       # the LVOT adds lumen, no wall
     if anatomy.outflow is not None:
         for key, v in _outflow_section_volumes(anatomy, motion, f, planes, n).items():
             vol[key] += v
-    return {"lv_cavity": vol["lv_endo"], "lv_myocardium": vol["lv_epi"] - vol["lv_endo"],
+    return {"lv_cavity": vol["lv_endo"], "lv_myocardium": lv_myocardium,
             "rv_cavity": vol["rv_endo"], "rv_myocardium": vol["rv_epi"] - vol["rv_endo"]}
 
 
@@ -398,10 +399,11 @@ def mesh_volumes(anatomy: Anatomy, motion: Motion, f: float, n_mu: int = 120, n_
     for key, epi in (("rv_endo", False), ("rv_epi", True)):
         rings = _moved(anatomy, motion, _rv_rings(anatomy, epi, n_z_rv, n_v_rv), f)
         vols[key] = _volume(*_closed_tube(rings))
+    lv_myocardium = vols["lv_epi"] - vols["lv_endo"]     # the LVOT adds lumen, no wall
     if anatomy.outflow is not None:
         for key, v in _outflow_mesh_volumes(anatomy, motion, f, planes, n_z_rv, n_v_rv).items():
             vols[key] += v
-    return {"lv_cavity": vols["lv_endo"], "lv_myocardium": vols["lv_epi"] - vols["lv_endo"],
+    return {"lv_cavity": vols["lv_endo"], "lv_myocardium": lv_myocardium,
             "rv_cavity": vols["rv_endo"], "rv_myocardium": vols["rv_epi"] - vols["rv_endo"],
             "lv_myocardium_material": vols["lv_myocardium_material"]}
 
