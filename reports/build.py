@@ -206,6 +206,15 @@ def main(argv=None) -> int:
              "twist from our model and Simpson's disks, noise-free and with clinical acquisition "
              "faults; the two truth methods over 20 seeds per preset "
              "(`benchmarks/validate_realistic.py`).",
+             "- [validation-realistic-outflow.md](validation-realistic-outflow.md): the same with "
+             "the RV and LV outflow tracts (`benchmarks/validate_realistic.py --outflow`).",
+             "- [validation-outflow.md](validation-outflow.md): the reconstruction's outflow "
+             "tracts on realistic phantoms with and without them (`benchmarks/validate_outflow.py`).",
+             "- [validation-regional.md](validation-regional.md): AHA segments, wall thickness, "
+             "tag strain, surface GLS/GCS and filling rates against the phantoms' exact regional "
+             "truth, noise-free and with 0.5 px noise (`benchmarks/validate_regional.py`).",
+             "- [validation-quality.md](validation-quality.md): the quality flags on the paper's "
+             "12 phantoms and on bivme-patient1.",
              ""]
     try:
         nfr = 5 if args.quick else 20
