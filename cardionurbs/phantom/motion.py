@@ -155,39 +155,36 @@ class Motion:
         return 1.0 - self.rv_ef * np.asarray(f, dtype=float)
 
     # ------------------------------------------------------------ the map
+    def _knots(self, anatomy: Anatomy, theta, z, f, layers=None):
+        """The piecewise-linear map (M3) at material (θ, z), phase f, before the 1/λ: its knots
+        S1, S2, S3 (``layers`` when the caller has them), the slopes κ_LV, κ_RV of the cavity
+        layers and the images λ·G(S_k) = B1, B2, B3 of the knots (slope 1 in the walls)."""
+        if layers is None:
+            s1, s2 = anatomy.lv_sections(z, theta)
+            s3 = np.maximum(s2, anatomy.s_rv(theta, z))
+        else:
+            s1, s2, s3 = layers
+        kl, kr = self.kappa_lv(theta, f, z, anatomy), self.kappa_rv(f)
+        b1 = kl * s1
+        b2 = b1 + (s2 - s1)
+        b3 = b2 + kr * (s3 - s2)
+        return (s1, s2, s3), (kl, kr), (b1, b2, b3)
+
     def radial_map(self, anatomy: Anatomy, s, theta, z, f, layers=None) -> np.ndarray:
         """s' = G(s; θ, z) of eq. (M3) for material (s, θ, z) at phase f. ``layers``: the section
         values (S1, S2, S3) at (θ, z) when the caller has them already (several s at one place)."""
         s, theta, z = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (s, theta, z)))
-        lam = self.lam(f)
-        if layers is None:
-            s1, s2 = anatomy.lv_sections(z, theta)
-            s3 = np.maximum(s2, anatomy.s_rv(theta, z))
-        else:
-            s1, s2, s3 = layers
-        kl, kr = self.kappa_lv(theta, f, z, anatomy), self.kappa_rv(f)
-        b1 = kl * s1
-        b2 = b1 + (s2 - s1)
-        b3 = b2 + kr * (s3 - s2)
+        (s1, s2, s3), (kl, kr), (b1, b2, b3) = self._knots(anatomy, theta, z, f, layers)
         out = np.where(s <= s1, kl * s,
                        np.where(s <= s2, b1 + (s - s1),
                                 np.where(s <= s3, b2 + kr * (s - s2), b3 + (s - s3))))
-        return out / lam
+        return out / self.lam(f)
 
     def _inverse_layers(self, anatomy: Anatomy, s_def, theta, z, f, layers=None):
         """Material s from deformed s' at material (θ, z) (inverse of eq. M3), with S1, S2, S3
         (``layers``: those section values when the caller has them already)."""
-        lam = self.lam(f)
-        if layers is None:
-            s1, s2 = anatomy.lv_sections(z, theta)
-            s3 = np.maximum(s2, anatomy.s_rv(theta, z))
-        else:
-            s1, s2, s3 = layers
-        kl, kr = self.kappa_lv(theta, f, z, anatomy), self.kappa_rv(f)
-        u = s_def * lam
-        b1 = kl * s1
-        b2 = b1 + (s2 - s1)
-        b3 = b2 + kr * (s3 - s2)
+        (s1, s2, s3), (kl, kr), (b1, b2, b3) = self._knots(anatomy, theta, z, f, layers)
+        u = s_def * self.lam(f)
         s = np.where(u <= b1, u / kl,
                      np.where(u <= b2, s1 + (u - b1),
                               np.where(u <= b3, s2 + (u - b2) / kr, s3 + (u - b3))))
