@@ -36,6 +36,7 @@ from cardionurbs.analysis.function import measure  # noqa: E402
 from cardionurbs.analysis.simpson import disk_volumes, simpson_metrics  # noqa: E402
 from cardionurbs.anatomy.model import reconstruct  # noqa: E402
 from cardionurbs.io import load_study  # noqa: E402
+from _accuracy import subject_error_table  # noqa: E402
 
 VOLS = ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "RVESV (mL)")
 MASS = ("LVM (g)", "RVM (g)")
@@ -208,28 +209,13 @@ def phantom_subject(args) -> dict:
     return row
 
 
-def _err(c: str, v: float, t: float) -> float:
-    return v - t if c in POINTS else 100.0 * (v / t - 1.0)
-
-
 def phantom_tables(rows: list[dict]) -> list[str]:
-    out = []
     cols = VOLS + MASS + POINTS
-    out.append("| subject | " + " | ".join(f"{c} model / disks" for c in cols) + " |")
-    out.append("|---" * (len(cols) + 1) + "|")
-    agg = {c: ([], []) for c in cols}
-    for r in rows:
-        cells = []
-        for c in cols:
-            em, ed = _err(c, r[(c, "model")], r[(c, "truth")]), _err(c, r[(c, "disks")], r[(c, "truth")])
-            agg[c][0].append(abs(em))
-            agg[c][1].append(abs(ed))
-            cells.append(f"{em:+.2f} / {ed:+.2f}")
-        out.append(f"| {r['subject']} | " + " | ".join(cells) + " |")
+    out, agg = subject_error_table(rows, cols)
     out += ["", "| metric | unit of error | model mean abs (max abs) | disks mean abs (max abs) | "
             "error ratio disks/model |", "|---|---|---|---|---|"]
     for c in cols:
-        m, d = np.array(agg[c][0]), np.array(agg[c][1])
+        m, d = agg[c]
         unit = "points" if c in POINTS else "%"
         out.append(f"| {c} | {unit} | {m.mean():.3f} ({m.max():.3f}) | {d.mean():.3f} ({d.max():.3f}) "
                    f"| {d.mean() / max(m.mean(), 1e-9):.1f} |")
@@ -559,7 +545,8 @@ def anatomy_section(jobs: int = 2) -> list[str]:
     tasks = [(s.id, s.pathology, s.seed, 2, 0.0, a) for a in ("ideal", "realistic") for s in subjects]
     with ProcessPoolExecutor(max_workers=jobs) as pool:
         rows = list(pool.map(phantom_subject, tasks))
-    by = {"ideal": rows[:len(subjects)], "realistic": rows[len(subjects):]}
+    errors = {"ideal": subject_error_table(rows[:len(subjects)], VOLS + MASS + POINTS)[1],
+              "realistic": subject_error_table(rows[len(subjects):], VOLS + MASS + POINTS)[1]}
     out = [ANATOMY_TITLE, "",
            "Regenerated alone by `OPENBLAS_NUM_THREADS=1 python benchmarks/bench_models.py anatomy`. "
            "The same 12 presets and seeds, once with `--anatomy ideal` (prolate spheroids, crescent "
@@ -574,9 +561,9 @@ def anatomy_section(jobs: int = 2) -> list[str]:
     for c in VOLS + MASS + POINTS:
         cells, met = [], True
         for a in ("ideal", "realistic"):
-            for kind in ("model", "disks"):
-                e = np.abs([_err(c, r[(c, kind)], r[(c, "truth")]) for r in by[a]
-                            if np.isfinite(r[(c, kind)]) and np.isfinite(r[(c, "truth")])])
+            for k, kind in enumerate(("model", "disks")):
+                e = errors[a][c][k]
+                e = e[np.isfinite(e)]
                 cells.append(f"{e.mean():.2f} ({e.max():.2f})" if len(e) else "—")
                 if kind == "model" and len(e):
                     met &= bool(e.max() <= _bound(a, c))

@@ -27,6 +27,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _accuracy import metric_error  # noqa: E402
 from cardionurbs.geometry import polygon_area  # noqa: E402
 from cardionurbs.io import load_study  # noqa: E402
 from cardionurbs.phantom.generate import generate  # noqa: E402
@@ -70,13 +71,6 @@ def header(title: str, command: str) -> list[str]:
             f"{load[2]:.1f} (2 cores shared with other work: wall times are upper bounds)", ""]
 
 
-def error(metric: str, value: float, truth: float) -> float:
-    """Relative error in % for volumes and masses; difference in points for EF."""
-    if metric.endswith("(%)"):
-        return value - truth
-    return 100.0 * (value / truth - 1.0)
-
-
 def validate_subject(pathology: str, seed: int, matrix: int, layout: str, work: Path) -> dict:
     ph = generate(pathology, seed=seed, frames=20, matrix=matrix, fov_mm=FOV_MM, volume_check=False)
     folder = work / f"{pathology}{seed}_{layout}"
@@ -97,9 +91,9 @@ def validate_subject(pathology: str, seed: int, matrix: int, layout: str, work: 
                                     if sec is not None else float("nan"))
     row["ES base shift (mm)"] = model.base_shift_mm.get(model.es_frame, float("nan"))
     for k in (*VOLS, "LVM (g)", "LVEF (%)", "RVEF (%)"):
-        row[k] = error(k, m[k], t[k])
+        row[k] = metric_error(k, m[k], t[k])
         vk = k.replace(" (", " voxel (")
-        row[vk] = error(k, m[vk], t[k]) if vk in m and np.isfinite(m[vk]) else float("nan")
+        row[vk] = metric_error(k, m[vk], t[k]) if vk in m and np.isfinite(m[vk]) else float("nan")
     return row
 
 

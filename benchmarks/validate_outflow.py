@@ -25,9 +25,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _accuracy import metric_error  # noqa: E402
+
 COLS = ("LVEDV (mL)", "LVESV (mL)", "LVEF (%)", "LVM (g)", "RVEDV (mL)", "RVESV (mL)",
         "RVEF (%)", "RVM (g)")
-POINTS = ("LVEF (%)", "RVEF (%)")
 PRESETS = ("normal", "mr", "phtn")
 COMMAND = "OPENBLAS_NUM_THREADS=1 python benchmarks/validate_outflow.py --jobs 2 --subjects 3"
 
@@ -53,10 +54,6 @@ FINDINGS = [
 ]
 
 
-def _err(c: str, v: float, t: float) -> float:
-    return v - t if c in POINTS else 100.0 * (v / t - 1.0)
-
-
 def subject(args) -> dict:
     pathology, seed, outflow = args
     from cardionurbs.analysis.function import measure
@@ -79,7 +76,7 @@ def subject(args) -> dict:
     secs = time.perf_counter() - t0
     truth = ph.truth["metrics"]
     out = {"pathology": pathology, "seed": seed, "outflow": outflow, "seconds": secs,
-           "err": {c: _err(c, got[c], truth[c]) for c in COLS},
+           "err": {c: metric_error(c, got[c], truth[c]) for c in COLS},
            "flags": [f for f in assess(m, got).flags if "heart rate" not in f]}
     if outflow:
         ed = m.ed_frame

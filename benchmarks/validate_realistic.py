@@ -39,6 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from cardionurbs.analysis.simpson import simpson_metrics  # noqa: E402
+from _accuracy import subject_error_table  # noqa: E402
 
 VOLS = ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "RVESV (mL)")
 MASS = ("LVM (g)", "RVM (g)")
@@ -48,10 +49,6 @@ BOUNDS = {"LVEDV (mL)": 2.0, "LVESV (mL)": 2.0, "RVEDV (mL)": 2.0, "RVESV (mL)":
 PRESETS = ("normal", "mr", "phtn")
 INFARCTS = ("lad", "rca", "lcx")
 OUTFLOW = {"outflow": False}     # set by --outflow (workers get it in their arguments)
-
-
-def _err(c: str, v: float, t: float) -> float:
-    return v - t if c in POINTS else 100.0 * (v / t - 1.0)
 
 
 # ------------------------------------------------------------------ workers
@@ -135,22 +132,11 @@ def generation_time(anatomy_model: str, outflow: bool = False) -> dict:
 # ------------------------------------------------------------------ tables
 def accuracy_table(rows: list[dict], bounds: bool) -> list[str]:
     cols = VOLS + MASS + POINTS
-    out = ["| subject | " + " | ".join(f"{c} model / disks" for c in cols) + " |",
-           "|---" * (len(cols) + 1) + "|"]
-    agg = {c: ([], []) for c in cols}
-    for r in rows:
-        cells = []
-        for c in cols:
-            em, ed = _err(c, r[(c, "model")], r[(c, "truth")]), _err(c, r[(c, "disks")], r[(c, "truth")])
-            agg[c][0].append(abs(em))
-            agg[c][1].append(abs(ed))
-            flag = " **!**" if bounds and abs(em) > BOUNDS[c] else ""
-            cells.append(f"{em:+.2f}{flag} / {ed:+.2f}")
-        out.append(f"| {r['subject']} | " + " | ".join(cells) + " |")
+    out, agg = subject_error_table(rows, cols, (lambda c, e: abs(e) > BOUNDS[c]) if bounds else None)
     out += ["", "| metric | error unit | bound | model mean abs (max abs) | disks mean abs (max abs) |"
             + (" met |" if bounds else ""), "|---|---|---|---|---|" + ("---|" if bounds else "")]
     for c in cols:
-        m, d = np.array(agg[c][0]), np.array(agg[c][1])
+        m, d = agg[c]
         unit = "points" if c in ("LVEF (%)", "RVEF (%)") else ("deg" if c in POINTS else "%")
         met = f" {'yes' if m.max() <= BOUNDS[c] else 'NO'} |" if bounds else ""
         out.append(f"| {c} | {unit} | {BOUNDS[c]:g} | {m.mean():.2f} ({m.max():.2f}) | "
