@@ -25,7 +25,7 @@ import numpy as np
 from cardionurbs.errors import ReconstructionError
 
 __all__ = ["fit_plane", "in_plane_basis", "polygon_area", "polygon_centroid", "chord_length", "stack_normal",
-           "slice_spacing", "long_axis", "centroid_line_axis"]
+           "slice_spacing", "long_axis", "centroid_line_axis", "polyline_crossings"]
 
 
 # ----------------------------------------------------------------- planes
@@ -110,6 +110,21 @@ def polygon_centroid(points: np.ndarray, normal: np.ndarray | None = None) -> np
         return c0
     cxy = np.array([((x + xn) * cr).sum(), ((y + yn) * cr).sum()]) / (6.0 * a)
     return c0 + (cxy if b is None else cxy @ b)
+
+
+def polyline_crossings(polyline: np.ndarray, direction: np.ndarray, level: float,
+                       closed: bool = False) -> np.ndarray:
+    """Points (k, 3) where a polyline (n, 3) crosses the plane x·direction = level: linear
+    interpolation on every segment that changes side (a vertex on the plane counts once);
+    ``closed``: the last point joins the first."""
+    p = np.vstack([polyline, polyline[:1]]) if closed else np.asarray(polyline)
+    h = p @ direction - level
+    a, b = h[:-1], h[1:]
+    idx = np.nonzero((a == 0) | (a * b < 0))[0]
+    if idx.size == 0:
+        return np.empty((0, 3))
+    t = a[idx] / np.where(a[idx] - b[idx] == 0, 1.0, a[idx] - b[idx])
+    return p[idx] + t[:, None] * (p[idx + 1] - p[idx])
 
 
 def points_in_polygon(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:

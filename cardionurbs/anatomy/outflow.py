@@ -51,8 +51,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cardionurbs.anatomy.mesh import Plane, closed_mesh
-from cardionurbs.anatomy.sections import FrameGeometry, crossings, valve_plane
-from cardionurbs.geometry import fit_plane, in_plane_basis, polygon_area
+from cardionurbs.anatomy.sections import FrameGeometry, valve_plane
+from cardionurbs.geometry import fit_plane, in_plane_basis, polygon_area, polyline_crossings
 from cardionurbs.study import Study
 
 #: spacing (mm) of the tube's sections along its axis
@@ -298,7 +298,7 @@ def build_tract(structure: str, annulus: np.ndarray | None, runs: list[np.ndarra
         h += STEP_MM
         k = len(levels)
         levels.append(h)
-        la = [crossings(r, a, float(c0 @ a) + h) for r in runs]
+        la = [polyline_crossings(r, a, float(c0 @ a) + h) for r in runs]
         near = [q[np.abs((q - c0) @ a - h) <= 0.5 * STEP_MM] for q in loops]
         near = [q for q in near if len(q)]
         pts = np.concatenate(la + near) if (la or near) else np.empty((0, 3))

@@ -203,18 +203,6 @@ def ray_exit(points: np.ndarray, origin: np.ndarray, direction: np.ndarray,
 
 
 # --------------------------------------------------------------- level planes
-def crossings(polyline: np.ndarray, direction: np.ndarray, level: float) -> np.ndarray:
-    """Points (k, 3) where an open polyline crosses the plane x·direction = level
-    (linear interpolation on every segment that changes side)."""
-    h = polyline @ direction - level
-    a, b = h[:-1], h[1:]
-    idx = np.nonzero((a == 0) | (a * b < 0))[0]
-    if idx.size == 0:
-        return np.empty((0, 3))
-    t = a[idx] / np.where(a[idx] - b[idx] == 0, 1.0, a[idx] - b[idx])
-    return polyline[idx] + t[:, None] * (polyline[idx + 1] - polyline[idx])
-
-
 def scaled_section(template: Section, level: float, direction: np.ndarray,
                    centre: np.ndarray, targets: np.ndarray | None,
                    default_scale: float | None = None,

@@ -36,11 +36,12 @@ from scipy.interpolate import CubicSpline
 from scipy.spatial import cKDTree
 
 from cardionurbs import nurbs
-from cardionurbs.anatomy.sections import (FrameGeometry, Section, crossings, embed_septum,
+from cardionurbs.anatomy.sections import (FrameGeometry, Section, embed_septum,
                                           fill_short_gaps, ray_exit, scaled_section,
                                           septal_mask)
 from cardionurbs.errors import ReconstructionError
-from cardionurbs.geometry import in_plane_basis, points_in_polygon, polygon_area, polygon_centroid
+from cardionurbs.geometry import (in_plane_basis, points_in_polygon, polygon_area, polygon_centroid,
+                                  polyline_crossings)
 
 #: control-point counts tried (common to all sections of a surface)
 N_CTRL_STEPS = (12, 16, 20, 26, 32, 40, 52)
@@ -161,7 +162,7 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
         k = int(np.ceil(gap / SYNTHETIC_STEP_MM))
         for f in np.arange(1, k) / k:
             h = hk + f * gap
-            targets = np.concatenate([crossings(pl, n, h) for pl in la])
+            targets = np.concatenate([polyline_crossings(pl, n, h) for pl in la])
             centre = c_last if a_last is not None else (1 - f) * c_last + f * apex
             res = scaled_section(last, h, n, centre, free_wall_targets(targets, centre, side),
                                  anchor=a_last)
@@ -177,7 +178,7 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
         h_top = float(_level(la_all, n).min())
         h = h0 - SYNTHETIC_STEP_MM
         while h > h_top + 0.5:
-            targets = np.concatenate([crossings(pl, n, h) for pl in la])
+            targets = np.concatenate([polyline_crossings(pl, n, h) for pl in la])
             # only LA crossings on the apical side of the valve plane
             if len(targets):
                 targets = targets[plane.signed_distance(targets) >= -0.5]

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from cardionurbs.geometry import polyline_crossings
 from cardionurbs.phantom.anatomy import Anatomy, spheroid_s_unclamped
 from cardionurbs.phantom.geometry import SliceSpec
 from cardionurbs.phantom.motion import Motion
@@ -651,7 +652,7 @@ def outflow_landmarks(anatomy: Anatomy, motion: Motion, f: float, n_ring: int = 
                                  ("aortic", ofl.aortic_ring(anatomy, 192), "la_3ch")):
         spec = la_plane(anatomy, view)
         ring = bend(anatomy, motion.forward(anatomy, ring_mat, f))
-        cut = ofl.plane_crossings(ring, spec.center, spec.normal)
+        cut = polyline_crossings(ring, spec.normal, float(spec.center @ spec.normal), closed=True)
         if len(cut) != 2:
             from cardionurbs.errors import PhantomError
             raise PhantomError(f"the {view} view cuts the {name} annulus {len(cut)} times, not twice")

@@ -320,12 +320,3 @@ def aortic_ring(anatomy, n: int = 96) -> np.ndarray:
                             np.full(n, fr.plane_point[2]))
     pts.setflags(write=False)
     return pts
-
-
-def plane_crossings(ring: np.ndarray, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    """Points where a closed polyline (n, 3) crosses a plane, linearly interpolated: (k, 3)."""
-    d = (ring - point) @ normal
-    dn = np.roll(d, -1)
-    i = np.flatnonzero(np.sign(d) != np.sign(dn))
-    t = d[i] / (d[i] - dn[i])
-    return ring[i] + t[:, None] * (np.roll(ring, -1, axis=0)[i] - ring[i])
