@@ -255,7 +255,7 @@ def render(r: dict, a) -> str:
          "Commands (from the project root; `BASE` is the code before the change, "
          "`git archive <commit> | tar -x -C BASE`):", "",
          "```",
-         "nice -n 10 env OPENBLAS_NUM_THREADS=1 python benchmarks/bench_throughput.py --repeat 3 "
+         f"nice -n 10 env OPENBLAS_NUM_THREADS=1 python benchmarks/bench_throughput.py --repeat {r.get('repeat')} "
          "--skip-cohort --baseline BASE --baseline-label <commit>   # analyze, files",
          f"nice -n 10 env OPENBLAS_NUM_THREADS=1 python benchmarks/bench_throughput.py --n {r.get('n')} "
          "--repeat 1 --skip-analyze                                # cohorts",
@@ -277,7 +277,9 @@ def render(r: dict, a) -> str:
     if "phantom20_all" in r:
         L += ["## analyze", "",
               "`cardionurbs analyze STUDY --outputs LIST --out DIR` as a fresh process (Python "
-              "start-up and imports included)" + (f"; *before* = the same command on {base}" if base else "")
+              "start-up and imports included)" + (f"; *before* = the same command on {base} "
+                                                   "(on the same phantom with its points as "
+                                                   "points.csv, which that code reads)" if base else "")
               + ":", "",
               "| study | outputs | code | wall (s) | CPU (s) | peak memory (MB) | load | target |",
               "|---|---|---|---:|---:|---:|---:|---|"]
@@ -399,7 +401,8 @@ def bench_analyze(work: Path, repeat: int, baseline: Path | None = None) -> dict
                               "points": (ph / points).stat().st_size,
                               "study.json": (ph / "study.json").stat().st_size}
     from cardionurbs.io import native
-    csv = work / "ph20_csv"                 # the same study with its points as CSV
+    csv = work / "ph20_csv"                 # the same study (and DICOM) with its points as CSV:
+    shutil.copytree(ph, csv)                # what code before points.parquet can read
     native.write_study(native.read_study(ph), csv, points="csv")
     out["phantom20_csv_points_bytes"] = (csv / "points.csv").stat().st_size
     out["phantom20_sizes"] = size_study(ph, csv / "points.csv")
@@ -407,6 +410,7 @@ def bench_analyze(work: Path, repeat: int, baseline: Path | None = None) -> dict
     out["native_load_csv"] = native_load(csv, max(repeat, 5))
     cases = {"phantom20_all": ("analyze", str(ph), "--outputs", "all"),
              "phantom20_metrics": ("analyze", str(ph), "--outputs", "metrics")}
+    before_study = {str(ph): str(csv)}      # the baseline reads the CSV form of the same study
     biv = SHARED / "bivme-patient1"
     if biv.is_dir():
         cases["bivme25_metrics"] = ("analyze", str(biv), "--outputs", "metrics")
@@ -415,14 +419,15 @@ def bench_analyze(work: Path, repeat: int, baseline: Path | None = None) -> dict
         out[name] = median_of(lambda: run(cli(*args, "--out", str(dest), "--overwrite")), repeat)
         if baseline is not None:             # the same command on the code before the change
             bdest = work / f"before_{name}"
+            bargs = tuple(before_study.get(x, x) for x in args)
             out[f"before_{name}"] = median_of(lambda: run(
-                cli(*args, "--out", str(bdest), "--overwrite"), root=baseline), repeat)
+                cli(*bargs, "--out", str(bdest), "--overwrite"), root=baseline), repeat)
     dest = work / "out_phantom20_all"
     out["phantom20_all_output_bytes"] = {f.name: du(f) if f.is_dir() else f.stat().st_size
                                          for f in dest.iterdir()}
     if baseline is not None:                 # the metrics must not move (1e-6 relative)
-        studies = [str(ph)] + [str(x) for x in (biv, SHARED / "sunnybrook" / "SC-HF-I-1")
-                               if x.is_dir()]
+        studies = [str(csv)] + [str(x) for x in (biv, SHARED / "sunnybrook" / "SC-HF-I-1")
+                                if x.is_dir()]
         rec = work / "metrics_baseline.json"
         run([sys.executable, "benchmarks/metrics_regression.py", "record", str(rec), *studies],
             root=baseline)
