@@ -19,8 +19,8 @@ h the grid steps: for z = (a x² + b y²)/2 the mean of a x(h − x)/2 over a ce
 Each vertex is therefore moved along the unit normal N by −N·(Δ²_u S + Δ²_v S)/12, with Δ²
 the grid's second differences (≈ S_uu Δu², S_vv Δv²): the mesh's volume and section areas
 then err by O(h⁴) instead of O(h²) (a circle's N-gon loses πR²(2π/N)²/6 of its area; the
-corrected one about (2π/N)² less of that). Collapsed (apex) rows and the ends of an open
-direction are not moved.
+corrected one about (2π/N)² less of that). Collapsed (apex) rows and the ends of an open u
+are not moved; the open v ends take the u term only.
 """
 
 from __future__ import annotations
@@ -89,8 +89,8 @@ def volume_correction(grid: np.ndarray, closed_u: bool, collapsed_start: bool,
                       collapsed_end: bool) -> np.ndarray:
     """Displacements (nu, nv, 3) that make a grid's mesh hold its surface's volume to
     O(h⁴): −N (N·(Δ²_u S + Δ²_v S)) / 12 at every vertex (module doc), N the unit normal
-    from the grid's central differences; zero on collapsed rows, at the ends of an open u
-    and on the first and last v rows."""
+    from the grid's central differences; zero on collapsed rows and at the ends of an open
+    u; the first and last v rows (open ends) take the u term only."""
     S = np.asarray(grid, float)
     if closed_u:
         d2u = np.roll(S, -1, axis=0) - 2 * S + np.roll(S, 1, axis=0)
