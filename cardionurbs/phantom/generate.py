@@ -380,7 +380,8 @@ def _json_safe(obj):
 
 def write_phantom(phantom: Phantom, out_dir: str | Path, dicom: bool = True,
                   labels: str | None = None) -> Path:
-    """Write the native study (study.json + points.csv), dicom/ and truth.json into ``out_dir``;
+    """Write the native study (study.json + points.csv, or points.parquet for a large study),
+    dicom/ and truth.json into ``out_dir``;
     with ``labels`` (``acdc``, ``ukbb``, ``mnms``) also NIfTI label maps in that layout in
     ``out_dir/labelmaps`` (:mod:`cardionurbs.phantom.labelmaps`).
 
