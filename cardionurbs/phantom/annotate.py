@@ -422,7 +422,8 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec,
     call; it returns the contour.
 
     Marching squares on the max of the region's terms; each vertex refined to the exact boundary
-    on its grid edge; the vertices where the top (closure) term is active dropped; the exact
+    on its grid edge; the vertices where the top (closure) term is active dropped, and with them
+    any wall run that closures cut off from the longest one; the exact
     corners inserted where the active term changes (the annulus ends, the RV apex where free
     wall meets septum, by Newton's method on the two terms); a cubic spline in arc length through
     each smooth piece; resampled to n points by arc length, starting at the annulus end with the
@@ -459,14 +460,18 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec,
         keep = np.arange(len(loop))
     else:
         order = np.roll(np.arange(len(loop)), -int(np.flatnonzero(~on_wall)[0]))
-        idx = np.flatnonzero(on_wall[order])
-        if len(idx) < 4:
+        # the wall's runs between closures: the ventricle's wall is the longest; a shorter one
+        # (the LVOT's septal wall between the cylinder and the aortic plane) is cut off from it
+        # by closure terms and is not joined to it across them
+        edges = np.flatnonzero(np.diff(np.r_[0, on_wall[order].astype(int), 0]))
+        starts, ends = edges[::2], edges[1::2]
+        j = int(np.argmax(ends - starts))
+        if ends[j] - starts[j] < 4:
             return None
         # the closure terms next to the wall's two ends (the valve planes the annulus corners are on)
-        top_first = int(active[order[idx[0] - 1]])
-        top_last = int(active[order[(idx[-1] + 1) % len(order)]])
-        keep = order[idx[0]:idx[-1] + 1]
-        keep = keep[on_wall[keep]]
+        top_first = int(active[order[starts[j] - 1]])
+        top_last = int(active[order[ends[j] % len(order)]])
+        keep = order[starts[j]:ends[j]]
     ww, vv, act = ww[keep], vv[keep], active[keep]
 
     # the corners: the annulus ends (wall meets closure) and the changes of wall part (the RV apex),
