@@ -204,7 +204,8 @@ class ShapeModes:
 def draw_shape(rng: np.random.Generator, infarct: str | None = None) -> ShapeModes:
     """Realistic shape departures drawn per subject (ranges chosen so that a mid-ventricular
     endocardial section departs from its best-fit ellipse by 1–2 mm RMS and the annulus from its
-    plane by 2.5–4 mm at the high points; the tricuspid annulus dips 3–5 mm)."""
+    plane by 2.5–4 mm at the high points). The tricuspid dip comes from its own generator
+    (:func:`draw_tricuspid_dip`), so that adding it changed no other draw."""
     modes = []
     for k, lo, hi in ((2, 0.06, 0.12), (3, 0.11, 0.14), (4, 0.07, 0.09)):
         a0 = float(rng.uniform(lo, hi))
@@ -219,10 +220,14 @@ def draw_shape(rng: np.random.Generator, infarct: str | None = None) -> ShapeMod
         saddle_mm=float(rng.uniform(3.0, 4.0)),
         saddle_phase_deg=float(rng.uniform(-20.0, 20.0)),
         apex_shift_mm=_apex_shift(rng),
-        tricuspid_dip_mm=float(rng.uniform(3.0, 5.0)),    # drawn last: the earlier draws stay
         infarct=infarct,
         infarct_thinning=INFARCT_THINNING if infarct else 0.0,
         infarct_hypokinesis=INFARCT_HYPOKINESIS if infarct else 0.0)
+
+
+def draw_tricuspid_dip(rng: np.random.Generator) -> float:
+    """h_t, how far the saddle-shaped tricuspid annulus dips below the base plane: 3–5 mm."""
+    return float(rng.uniform(3.0, 5.0))
 
 
 def _apex_shift(rng: np.random.Generator) -> tuple:
