@@ -106,15 +106,17 @@ def native_load(path: Path, repeat: int) -> dict:
     return {"cpu_s": statistics.median(cpus)}
 
 
-def size_study(ph: Path, every: int = 10) -> dict:
+def size_study(ph: Path, csv_points: Path, every: int = 10) -> dict:
     """Where the bytes of a phantom study go and how far lossless coding can take them.
 
-    On every ``every``-th DICOM image (scaled to all): the stored size (RLE Lossless), the
+    On every ``every``-th DICOM image (scaled to all): the stored size (JPEG-LS Lossless), the
+    same image re-encoded RLE Lossless, the
     same image re-encoded by pydicom as Deflated Explicit VR Little Endian, the raw
     pixels under zlib -9, zlib -9 of the high and low byte planes apart, and xz -9; and
     two entropy estimates that bound any lossless codec that models pixels one at a
     time: the order-0 entropy of the grey levels and the entropy of the residual of the
-    JPEG-LS (LOCO-I) median edge predictor. points.csv under gzip -6 and xz -6.
+    JPEG-LS (LOCO-I) median edge predictor. ``csv_points`` (the study's points as CSV)
+    under gzip -6 and xz -6.
     """
     import gzip
     import io
@@ -123,7 +125,7 @@ def size_study(ph: Path, every: int = 10) -> dict:
 
     import numpy as np
     import pydicom
-    from pydicom.uid import DeflatedExplicitVRLittleEndian
+    from pydicom.uid import DeflatedExplicitVRLittleEndian, RLELossless
 
     def entropy_bits(x) -> float:
         _, c = np.unique(x, return_counts=True)
@@ -132,12 +134,13 @@ def size_study(ph: Path, every: int = 10) -> dict:
 
     files = sorted(f for f in (ph / "dicom").rglob("*") if f.is_file())
     sample = files[::every]
-    out = {"images": len(files), "sampled": len(sample), "stored_rle": 0, "deflated": 0,
+    out = {"images": len(files), "sampled": len(sample), "stored": 0, "rle": 0, "deflated": 0,
            "raw": 0, "zlib9": 0, "zlib9_byte_planes": 0, "xz9": 0,
            "entropy_order0_bits": 0.0, "entropy_med_residual_bits": 0.0, "pixels": 0}
     for f in sample:
         ds = pydicom.dcmread(f)
-        out["stored_rle"] += f.stat().st_size
+        out["stored"] += f.stat().st_size
+        out["transfer_syntax"] = str(ds.file_meta.TransferSyntaxUID.name)
         a = ds.pixel_array.astype(np.int64)
         raw = a.astype("<u2").tobytes()
         out["raw"] += len(raw)
@@ -153,19 +156,25 @@ def size_study(ph: Path, every: int = 10) -> dict:
         out["entropy_med_residual_bits"] += entropy_bits(a - med)
         out["pixels"] += a.size
         ds.decompress()
+        r = pydicom.dcmread(f)
+        r.decompress()
+        r.compress(RLELossless, a.astype(np.uint16), generate_instance_uid=False)
+        buf = io.BytesIO()
+        r.save_as(buf, enforce_file_format=True)
+        out["rle"] += len(buf.getvalue())
         ds.file_meta.TransferSyntaxUID = DeflatedExplicitVRLittleEndian
         buf = io.BytesIO()
         ds.save_as(buf, enforce_file_format=True)
         out["deflated"] += len(buf.getvalue())
     scale = len(files) / len(sample)
-    for k in ("stored_rle", "deflated", "raw", "zlib9", "zlib9_byte_planes", "xz9"):
+    for k in ("stored", "rle", "deflated", "raw", "zlib9", "zlib9_byte_planes", "xz9"):
         out[k] = out[k] * scale
     out["bits_per_pixel_order0"] = out.pop("entropy_order0_bits") / out["pixels"]
     out["bits_per_pixel_med"] = out.pop("entropy_med_residual_bits") / out["pixels"]
     n_pix = out.pop("pixels") * scale
     out["bound_order0"] = out["bits_per_pixel_order0"] * n_pix / 8
     out["bound_med"] = out["bits_per_pixel_med"] * n_pix / 8
-    data = (ph / "points.csv").read_bytes()
+    data = Path(csv_points).read_bytes()
     out["points_csv"] = len(data)
     out["points_csv_gzip6"] = len(gzip.compress(data, 6))
     out["points_csv_xz6"] = len(lzma.compress(data, preset=6))
@@ -246,7 +255,7 @@ def render(r: dict, a) -> str:
          "Commands (from the project root; `BASE` is the code before the change, "
          "`git archive <commit> | tar -x -C BASE`):", "",
          "```",
-         "nice -n 10 env OPENBLAS_NUM_THREADS=1 python benchmarks/bench_throughput.py --repeat 3 "
+         f"nice -n 10 env OPENBLAS_NUM_THREADS=1 python benchmarks/bench_throughput.py --repeat {r.get('repeat')} "
          "--skip-cohort --baseline BASE --baseline-label <commit>   # analyze, files",
          f"nice -n 10 env OPENBLAS_NUM_THREADS=1 python benchmarks/bench_throughput.py --n {r.get('n')} "
          "--repeat 1 --skip-analyze                                # cohorts",
@@ -268,7 +277,9 @@ def render(r: dict, a) -> str:
     if "phantom20_all" in r:
         L += ["## analyze", "",
               "`cardionurbs analyze STUDY --outputs LIST --out DIR` as a fresh process (Python "
-              "start-up and imports included)" + (f"; *before* = the same command on {base}" if base else "")
+              "start-up and imports included)" + (f"; *before* = the same command on {base} "
+                                                   "(on the same phantom with its points as "
+                                                   "points.csv, which that code reads)" if base else "")
               + ":", "",
               "| study | outputs | code | wall (s) | CPU (s) | peak memory (MB) | load | target |",
               "|---|---|---|---:|---:|---:|---:|---|"]
@@ -302,27 +313,30 @@ def render(r: dict, a) -> str:
                 L.append(f"| {label} | {r[key]['wall_s']:.2f} | {r[key]['cpu_s']:.2f} | "
                          f"{r[key].get('load_1min', float('nan')):.1f} |")
         b = r["phantom20_bytes"]
-        L += ["", "## Study files", "",
-              "| 20-frame tagged phantom | bytes |", "|---|---:|",
-              f"| whole folder (native + RLE DICOM + truth) | {b['total'] / 1e6:.1f} MB |",
-              f"| dicom/ (240 images 256 x 256, RLE Lossless) | {b['dicom'] / 1e6:.1f} MB |",
-              f"| points.csv (3 decimals) | {b['points.csv'] / 1e6:.1f} MB |",
+        L += ["## Study files", "",
+              "| 20-frame tagged phantom (`phantom --pathology normal --seed 1 --frames 20`) | bytes |",
+              "|---|---:|",
+              f"| whole folder (native + DICOM + truth) | {b['total'] / 1e6:.1f} MB |",
+              f"| dicom/ (240 images 256 x 256, "
+              f"{r.get('phantom20_sizes', {}).get('transfer_syntax', 'JPEG-LS Lossless')}) | {b['dicom'] / 1e6:.1f} MB |",
+              f"| {b['points_file']} (the points file) | {b['points'] / 1e6:.1f} MB |",
+              f"| (the same points as points.csv, 3 decimals) | {r['phantom20_csv_points_bytes'] / 1e6:.1f} MB |",
               f"| study.json | {b['study.json'] / 1e6:.2f} MB |",
-              f"| points.parquet sidecar (optional) | {r['phantom20_sidecar_bytes'] / 1e6:.1f} MB |",
-              "", f"Native load (`native.read_study`, CPU, median): CSV "
-              f"{r['native_load_csv']['cpu_s']:.3f} s, with the sidecar "
-              f"{r['native_load_sidecar']['cpu_s']:.3f} s (target < 0.2 s: "
-              f"{_ok(r['native_load_csv']['cpu_s'] < 0.2)} from the CSV, "
-              f"{_ok(r['native_load_sidecar']['cpu_s'] < 0.2)} with the sidecar). "
+              "", f"Native load (`native.read_study`, CPU, median): as written ({b['points_file']}) "
+              f"{r['native_load']['cpu_s']:.3f} s, the same study with points.csv "
+              f"{r['native_load_csv']['cpu_s']:.3f} s (target < 0.2 s: "
+              f"{_ok(r['native_load']['cpu_s'] < 0.2)} as written). "
               f"Whole folder < 12 MB: {_ok(b['total'] < 12e6)}.", ""]
         z = r.get("phantom20_sizes")
         if z:
             L += [f"How far lossless coding can take it (measured on every "
                   f"{z['images'] // z['sampled']}th of the {z['images']} images, scaled to all; "
-                  "`size_study` in the benchmark):", "",
+                  "`size_study` in the benchmark; grey-level step matched to the noise, "
+                  "docs/phantoms.md):", "",
                   "| DICOM pixel data, all images | MB |", "|---|---:|",
                   f"| uncompressed 16-bit | {z['raw'] / 1e6:.1f} |",
-                  f"| as stored: RLE Lossless (pydicom decodes it natively) | {z['stored_rle'] / 1e6:.1f} |",
+                  f"| as stored: {z.get('transfer_syntax', '')} (pydicom + pyjpegls) | {z['stored'] / 1e6:.1f} |",
+                  f"| RLE Lossless (pydicom decodes it natively) | {z['rle'] / 1e6:.1f} |",
                   f"| Deflated Explicit VR Little Endian (pydicom encodes and decodes it) | {z['deflated'] / 1e6:.1f} |",
                   f"| zlib -9 of the raw pixels | {z['zlib9'] / 1e6:.1f} |",
                   f"| zlib -9 of the high and low byte planes apart | {z['zlib9_byte_planes'] / 1e6:.1f} |",
@@ -331,7 +345,8 @@ def render(r: dict, a) -> str:
                   f"| entropy bound, JPEG-LS median-edge-predictor residual ({z['bits_per_pixel_med']:.2f} bits/pixel) | {z['bound_med'] / 1e6:.1f} |",
                   "", f"points.csv ({z['points_rows']:,} rows): {z['points_csv'] / 1e6:.1f} MB as "
                   f"written, {z['points_csv_gzip6'] / 1e6:.1f} MB under gzip -6, "
-                  f"{z['points_csv_xz6'] / 1e6:.1f} MB under xz -6.", ""]
+                  f"{z['points_csv_xz6'] / 1e6:.1f} MB under xz -6; as Parquet (zstd) "
+                  f"{b['points'] / 1e6:.1f} MB.", ""]
     if "cohort_processes_1" in r:
         p1, p2, d2 = r["cohort_processes_1"], r["cohort_processes_2"], r["cohort_dask_local_2"]
         n = r["cohort_subjects"]
@@ -381,18 +396,21 @@ def bench_analyze(work: Path, repeat: int, baseline: Path | None = None) -> dict
     ph = work / "ph20"
     g = run(cli("phantom", "--pathology", "normal", "--seed", "1", "--frames", "20", "--out", str(ph)))
     out["phantom20_generate"] = {k: g[k] for k in ("wall_s", "cpu_s", "rss_mb")}
-    out["phantom20_bytes"] = {"total": du(ph), "dicom": du(ph / "dicom"),
-                              "points.csv": (ph / "points.csv").stat().st_size,
+    points = json.loads((ph / "study.json").read_text())["points"]
+    out["phantom20_bytes"] = {"total": du(ph), "dicom": du(ph / "dicom"), "points_file": points,
+                              "points": (ph / points).stat().st_size,
                               "study.json": (ph / "study.json").stat().st_size}
     from cardionurbs.io import native
-    sc = work / "ph20_sidecar"
-    native.write_study(native.read_study(ph), sc, sidecar=True)
-    out["phantom20_sidecar_bytes"] = (sc / "points.parquet").stat().st_size
-    out["phantom20_sizes"] = size_study(ph)
-    out["native_load_csv"] = native_load(ph, max(repeat, 5))
-    out["native_load_sidecar"] = native_load(sc, max(repeat, 5))
+    csv = work / "ph20_csv"                 # the same study (and DICOM) with its points as CSV:
+    shutil.copytree(ph, csv)                # what code before points.parquet can read
+    native.write_study(native.read_study(ph), csv, points="csv")
+    out["phantom20_csv_points_bytes"] = (csv / "points.csv").stat().st_size
+    out["phantom20_sizes"] = size_study(ph, csv / "points.csv")
+    out["native_load"] = native_load(ph, max(repeat, 5))
+    out["native_load_csv"] = native_load(csv, max(repeat, 5))
     cases = {"phantom20_all": ("analyze", str(ph), "--outputs", "all"),
              "phantom20_metrics": ("analyze", str(ph), "--outputs", "metrics")}
+    before_study = {str(ph): str(csv)}      # the baseline reads the CSV form of the same study
     biv = SHARED / "bivme-patient1"
     if biv.is_dir():
         cases["bivme25_metrics"] = ("analyze", str(biv), "--outputs", "metrics")
@@ -401,14 +419,15 @@ def bench_analyze(work: Path, repeat: int, baseline: Path | None = None) -> dict
         out[name] = median_of(lambda: run(cli(*args, "--out", str(dest), "--overwrite")), repeat)
         if baseline is not None:             # the same command on the code before the change
             bdest = work / f"before_{name}"
+            bargs = tuple(before_study.get(x, x) for x in args)
             out[f"before_{name}"] = median_of(lambda: run(
-                cli(*args, "--out", str(bdest), "--overwrite"), root=baseline), repeat)
+                cli(*bargs, "--out", str(bdest), "--overwrite"), root=baseline), repeat)
     dest = work / "out_phantom20_all"
     out["phantom20_all_output_bytes"] = {f.name: du(f) if f.is_dir() else f.stat().st_size
                                          for f in dest.iterdir()}
     if baseline is not None:                 # the metrics must not move (1e-6 relative)
-        studies = [str(ph)] + [str(x) for x in (biv, SHARED / "sunnybrook" / "SC-HF-I-1")
-                               if x.is_dir()]
+        studies = [str(csv)] + [str(x) for x in (biv, SHARED / "sunnybrook" / "SC-HF-I-1")
+                                if x.is_dir()]
         rec = work / "metrics_baseline.json"
         run([sys.executable, "benchmarks/metrics_regression.py", "record", str(rec), *studies],
             root=baseline)

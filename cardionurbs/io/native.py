@@ -4,7 +4,7 @@ A native study is a folder::
 
     STUDY/
       study.json      manifest (below)
-      points.csv      every annotation point, one per row
+      points.csv      every annotation point, one per row (points.parquet for large studies)
       dicom/...       optional image files referenced by the manifest
       truth.json      optional ground truth (phantoms)
 
@@ -52,7 +52,17 @@ about 8 MB. ``write_study(..., decimals=None)`` writes 17 significant digits
 (lossless for any float); files of either kind, and files written before the
 precision was fixed (no ``coordinate_decimals``), load alike.
 
-Sidecar: ``write_study(..., sidecar=True)`` also writes ``points.parquet``
+Large studies: a study of more than ``PARQUET_ROWS`` points (a tagged phantom of more than
+about ten frames) is written with ``points.parquet`` as its points file instead of the CSV
+(the manifest's ``points`` names it): the same table, same columns and meaning, in Apache
+Parquet (columnar, binary, zstd-compressed), with x, y, z, px, py stored as the decimal
+values the CSV would hold (the nearest double to the 3-decimal number). A 20-frame tagged
+phantom's points go from 13.7 MB of CSV to 2.2 MB, and load about four times faster.
+``write_study(..., points="csv")`` (or ``"parquet"``) chooses the form whatever the size.
+A Parquet points file is read with pyarrow (``pandas.read_parquet`` reads it too); a
+truncated one fails its footer check, and ``points_rows`` is checked as for the CSV.
+
+Sidecar (older option, still read): ``write_study(..., sidecar=True)`` also writes ``points.parquet``
 (the same table, columnar binary, named by the manifest's ``points_sidecar``)
 for large studies, which loads several times faster than the CSV. The CSV
 stays the reference: the sidecar carries the CRC-32 of the CSV it was made
@@ -81,12 +91,17 @@ VERSION = 1
 MANIFEST = "study.json"
 POINTS = "points.csv"
 SIDECAR = "points.parquet"
+POINTS_PARQUET = "points.parquet"
+#: studies with more points than this get points.parquet as their points file (module doc)
+PARQUET_ROWS = 50_000
+POINT_FORMATS = ("auto", "csv", "parquet")
 #: decimals of x, y, z (mm) and px, py (pixels) in points.csv: 1 µm, 1/1000 pixel
 DECIMALS = 3
 _CRC_KEY = b"cardionurbs.points_csv_crc32"
 COLUMNS = ["kind", "name", "index", "view", "slice", "frame", "image", "closed",
            "x", "y", "z", "px", "py"]
 _KEY = ["kind", "name", "index", "view", "slice", "frame", "image"]
+_TEXT = ("kind", "name", "view", "slice", "image", "closed")
 
 
 def is_native(path: str | Path) -> bool:
@@ -167,15 +182,30 @@ def study_to_frames(study: Study, pixel_coordinates: bool = True,
 
 
 def write_study(study: Study, folder: str | Path, pixel_coordinates: bool = True,
-                decimals: int | None = DECIMALS, sidecar: bool = False) -> Path:
+                decimals: int | None = DECIMALS, sidecar: bool = False,
+                points: str = "auto") -> Path:
     """Write ``study`` as a native study into ``folder`` (files written atomically).
 
     ``decimals``: fixed decimals of the coordinates (default 3: 1 µm, 1/1000 pixel);
-    None writes 17 significant digits (lossless). ``sidecar``: also write
-    ``points.parquet`` (see the module docstring)."""
+    None writes 17 significant digits (lossless). ``points``: the points file's form,
+    ``"csv"``, ``"parquet"`` or ``"auto"`` (Parquet above ``PARQUET_ROWS`` points).
+    ``sidecar``: with a CSV points file, also write ``points.parquet`` beside it (see the
+    module docstring)."""
+    if points not in POINT_FORMATS:
+        raise ValueError(f"points must be one of {', '.join(POINT_FORMATS)}, got {points!r}")
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     manifest, table = study_to_frames(study, pixel_coordinates, decimals)
+    if points == "parquet" or (points == "auto" and not sidecar and len(table) > PARQUET_ROWS):
+        if decimals is not None:
+            manifest["coordinate_decimals"] = int(decimals)
+        _write_parquet_points(table, folder / POINTS_PARQUET, decimals)
+        manifest["points"] = POINTS_PARQUET
+        for stale in (POINTS,):              # a CSV left by an earlier write would mislead
+            if (folder / stale).is_file():
+                (folder / stale).unlink()
+        atomic.write_text(folder / MANIFEST, json.dumps(manifest, indent=1, sort_keys=False) + "\n")
+        return folder
     fmt = "%.17g" if decimals is None else f"%.{int(decimals)}f"
     text = table.to_csv(index=False, float_format=fmt, lineterminator="\n")
     if decimals is not None:
@@ -187,6 +217,27 @@ def write_study(study: Study, folder: str | Path, pixel_coordinates: bool = True
         manifest["points_sidecar"] = SIDECAR
     atomic.write_text(folder / MANIFEST, json.dumps(manifest, indent=1, sort_keys=False) + "\n")
     return folder
+
+
+def _write_parquet_points(table: pd.DataFrame, path: Path, decimals: int | None) -> Path:
+    """The points table as Parquet: string columns as written in the CSV, index and frame as
+    64-bit integers, coordinates as the nearest doubles to their ``decimals``-decimal values
+    (rint(v · 10^d) / 10^d, one correctly rounded division), empty ones null."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    table = table.copy()
+    if decimals is not None:
+        scale = 10.0 ** int(decimals)
+        for col in ("x", "y", "z", "px", "py"):
+            table[col] = np.rint(table[col].to_numpy(float) * scale) / scale
+    for col in ("index", "frame"):
+        table[col] = table[col].astype(np.int64)
+    for col in ("kind", "name", "view", "slice", "image", "closed"):
+        table[col] = table[col].astype(str)
+    arrow = pa.Table.from_pandas(table[COLUMNS], preserve_index=False)
+    with atomic.atomic_path(path) as tmp:
+        pq.write_table(arrow, tmp, compression="zstd")
+    return path
 
 
 def _write_sidecar(csv_path: Path, path: Path, crc: int) -> Path:
@@ -305,12 +356,14 @@ def _pixels_to_scanner(table: pd.DataFrame, need: np.ndarray, pix: np.ndarray, x
 
 
 def _check_complete(points_path: Path, n_rows: int, expected_rows) -> str | None:
-    """A points file cut short is an error: it must end with a line break, and hold the
+    """A points file cut short is an error: a CSV must end with a line break (Parquet and
+    gzip files carry their own footer and checksum), and every file must hold the
     ``points_rows`` the manifest records; a manifest without the count (written before it
     existed) gives a warning instead."""
+    text = points_path.suffix.lower() not in (".parquet", ".gz")   # binary: own integrity checks
     with open(points_path, "rb") as f:
         f.seek(0, 2)
-        if f.tell():
+        if text and f.tell():
             f.seek(-1, 2)
             if f.read(1) not in (b"\n", b"\r"):
                 raise StudyError("the last row is cut short (no line break at the end): the "
@@ -325,7 +378,11 @@ def _check_complete(points_path: Path, n_rows: int, expected_rows) -> str | None
 
 
 def _points_table(points_path: Path) -> pd.DataFrame:
-    """points.csv as a DataFrame (strings kept as written, empty coordinates NaN)."""
+    """The points file as a DataFrame (strings kept as written, empty coordinates NaN):
+    Parquet when its name ends in ``.parquet``, else CSV (gzip-compressed when it ends in
+    ``.gz``, as pandas infers)."""
+    if points_path.suffix.lower() == ".parquet":
+        return _parquet_table(points_path)
     try:
         return pd.read_csv(points_path, dtype={"kind": str, "name": str, "view": str, "slice": str,
                                                "image": str, "closed": str},
@@ -335,12 +392,40 @@ def _points_table(points_path: Path) -> pd.DataFrame:
         raise StudyError(f"cannot parse CSV ({str(exc).splitlines()[0]})", file=points_path) from None
 
 
+def _codes(column: pd.Series) -> tuple[np.ndarray, np.ndarray]:
+    """(integer codes, values) of a text column: values[codes] is the column (a categorical
+    column's own codes, else pandas.factorize)."""
+    if isinstance(column.dtype, pd.CategoricalDtype):
+        return column.cat.codes.to_numpy(), np.asarray(column.cat.categories, dtype=object)
+    codes, uniques = pd.factorize(column, use_na_sentinel=False)
+    return codes, np.asarray(uniques, dtype=object)
+
+
+def _parquet_table(points_path: Path) -> pd.DataFrame:
+    """A Parquet points file as a DataFrame (the CSV's columns; null strings read as empty)."""
+    import pyarrow.parquet as pq
+    try:
+        table = pq.read_table(points_path, read_dictionary=[
+            c for c in _TEXT if c in pq.read_schema(points_path).names]).to_pandas()
+    except Exception as exc:  # noqa: BLE001 - pyarrow raises several types for a broken file
+        raise StudyError(f"cannot read Parquet ({_first_line(exc)})", file=points_path) from None
+    for col in _TEXT:
+        if col in table.columns and table[col].isna().any():
+            table[col] = table[col].astype(object).fillna("").astype(str)
+    return table
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return excerpt(text.splitlines()[0] if text else type(exc).__name__)
+
+
 def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False,
                  expected_rows: int | None = None, sidecar: Path | None = None) -> None:
     if not points_path.is_file():
         raise StudyError("points file is missing", file=points_path)
     table = None
-    if sidecar is not None and sidecar.is_file():
+    if sidecar is not None and sidecar.is_file() and sidecar != points_path:
         table = _sidecar_table(sidecar, points_path)
     if table is None:
         table = _points_table(points_path)
@@ -376,34 +461,35 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False,
         need |= np.isfinite(pix).all(axis=1) & table["image"].isin(list(images)).to_numpy()
     if need.any():
         _pixels_to_scanner(table, need, pix, xyz, images, points_path)
-    # a new annotation starts where any key column differs from the row before (vectorised)
+    # a new annotation starts where any key column differs from the row before (vectorised,
+    # on integer codes of the text columns: no per-row Python strings)
+    coded = {col: _codes(table[col]) for col in ("kind", "name", "view", "slice", "image", "closed")}
     change = np.zeros(max(len(table) - 1, 0), dtype=bool)
     for col in _KEY:
-        values = table[col].to_numpy()
+        values = coded[col][0] if col in coded else table[col].to_numpy()
         change |= values[1:] != values[:-1]
     starts = np.flatnonzero(np.r_[True, change])
     ends = np.r_[starts[1:], len(table)]
-    kinds, names = table["kind"].to_numpy(), table["name"].to_numpy()
-    views, slices = table["view"].to_numpy(), table["slice"].to_numpy()
-    frames, idxs = table["frame"].to_numpy(int), table["index"].to_numpy(int)
-    imgs, closed = table["image"].to_numpy(), table["closed"].to_numpy()
-    for s, e in zip(starts, ends):
-        kind, image = kinds[s], imgs[s] or None
+    kinds, names, views, slices, imgs, closed = (
+        coded[col][1][coded[col][0][starts]] for col in ("kind", "name", "view", "slice", "image", "closed"))
+    frames, idxs = table["frame"].to_numpy(int)[starts], table["index"].to_numpy(int)[starts]
+    for k, (s, e) in enumerate(zip(starts, ends)):
+        kind, image = kinds[k], imgs[k] or None
         if image is not None and image not in images:
             raise StudyError(f"line {s + 2}: reference to image {excerpt(image)} that is not in the manifest",
                              file=points_path, field="image")
         try:
             if kind == "contour":
-                study.contours.append(Contour(names[s], views[s], slices[s], frames[s], xyz[s:e],
-                                              image=image, closed=str(closed[s]).strip() != "0",
-                                              index=idxs[s]))
+                study.contours.append(Contour(names[k], views[k], slices[k], frames[k], xyz[s:e],
+                                              image=image, closed=str(closed[k]).strip() != "0",
+                                              index=idxs[k]))
             elif kind == "tag":
-                study.tags.append(TagLine(names[s], idxs[s], views[s], slices[s], frames[s],
+                study.tags.append(TagLine(names[k], idxs[k], views[k], slices[k], frames[k],
                                           xyz[s:e], image=image))
             elif kind == "landmark":
-                for k in range(s, e):
-                    study.landmarks.append(Landmark(names[s], frames[s], xyz[k], index=idxs[s],
-                                                    slice=slices[s] or None, view=views[s] or None,
+                for row in range(s, e):
+                    study.landmarks.append(Landmark(names[k], frames[k], xyz[row], index=idxs[k],
+                                                    slice=slices[k] or None, view=views[k] or None,
                                                     image=image))
             else:
                 raise StudyError(f"line {s + 2}: unknown kind {excerpt(kind)} (contour, tag or landmark)",

@@ -21,7 +21,15 @@ Image model (per pixel, evaluated at the pixel centre of the image plane):
    signal; Gudbjartsson & Patz 1995). ``snr`` = S sets σ = 0.3 / S, i.e. S is
    the untagged myocardial signal over the channel noise; the default σ =
    0.025 is S = 12. Seeded per (seed, frame, slice): the same phantom and S
-   give identical pixels. Scaled to 16-bit (MONOCHROME2, stored 0..4095).
+   give identical pixels.
+5. Grey levels (MONOCHROME2, 16 bits allocated, 12 stored): the image is stored
+   at a grey-level step matched to its noise, pixel = round(I / Δ) with
+   Δ = σ / NOISE_GREY_LEVELS (σ spans 2.2 grey levels; at most SCALE = 3000
+   levels per unit signal, so noise-free images keep 0..4095). Rounding adds a
+   uniform error of variance Δ²/12 = σ² / (12 · 2.2²), 1.7 % of the noise
+   variance (0.9 % of its standard deviation): the SNR is unchanged, and the
+   noise, which no lossless coder can compress, is not stored at a finer step
+   than it has (at the default σ the blood pool is about 88 grey levels).
 
 The contrast is that of a spoiled-gradient-echo SPAMM cine (e.g. Axel &
 Dougherty 1989; Zerhouni et al. 1988): bright inflowing blood, myocardium
@@ -30,12 +38,14 @@ dark and fading with T1 through the cycle (they are ~0 % left at t ≈ 2 T1),
 washed out in the blood. Every tag plane's position at every frame is known
 in closed form (the tag lines in the native study are those planes' cuts).
 
-DICOM: pixel data RLE Lossless (transfer syntax 1.2.840.10008.1.2.5, DICOM PS3.5
-Annex G; encoded by pylibjpeg-rle (pydicom's own encoder, byte-identical, when it is
-missing), decoded by pydicom without plugins, read by every DICOM toolkit), or uncompressed Explicit VR Little Endian with ``compression=None``.
-Lossless compression cannot go below the entropy of the Rician noise: at the
-default σ = 0.025 (75 of 4095 grey levels) about 8.3 bits per pixel, and RLE
-stores about 2/3 of the uncompressed 16 bits; a higher ``snr`` compresses further.
+DICOM: pixel data JPEG-LS Lossless (transfer syntax 1.2.840.10008.1.2.4.80, ISO/IEC
+14495-1, DICOM PS3.5 A.4.3; encoded and decoded by pydicom through the pyjpegls
+plugin (CharLS), read by every major DICOM toolkit), or RLE Lossless (``compression="rle"``,
+1.2.840.10008.1.2.5, PS3.5 Annex G, decoded by pydicom without plugins), or uncompressed
+Explicit VR Little Endian with ``compression=None``. No lossless coder can go below the
+entropy of the noise: JPEG-LS (a context-modelled predictor with Golomb coding) stores the
+default phantom at about 4 bits per pixel, a quarter of the uncompressed 16 bits; RLE,
+which cannot code noise, about 2/3 of them (measured in reports/benchmark-throughput.md).
 One MR series per view (``sa`` with all SA slices, ``la_2ch``,
 ``la_3ch``, ``la_4ch``), file ``dicom/<series>/<slice>_<frame>.dcm``, with
 ImagePositionPatient, ImageOrientationPatient, PixelSpacing, SliceThickness,
@@ -50,8 +60,8 @@ from pathlib import Path
 
 import numpy as np
 from pydicom.dataset import Dataset, FileMetaDataset
-from pydicom.uid import (ExplicitVRLittleEndian, MRImageStorage, PYDICOM_IMPLEMENTATION_UID, RLELossless,
-                        generate_uid)
+from pydicom.uid import (ExplicitVRLittleEndian, JPEGLSLossless, MRImageStorage, PYDICOM_IMPLEMENTATION_UID,
+                        RLELossless, generate_uid)
 from pydicom.valuerep import format_number_as_ds
 
 from cardionurbs.imaging.geometry import ImagePlane
@@ -60,7 +70,9 @@ BLOOD, MYO, BODY, LUNG = 1.0, 0.3, 0.14, 0.03
 ATRIUM_MM = 30.0
 TAG_DEPTH, T1_MS, TAG_SIGMA_PX, BLOOD_TAG = 0.9, 850.0, 0.6, 0.15
 NOISE = 0.025
-SCALE = 3000.0
+SCALE = 3000.0                    # most grey levels per unit signal (blood = 1)
+NOISE_GREY_LEVELS = 2.2           # the channel noise σ spans this many grey levels
+COMPRESSIONS = ("jpegls", "rle", None)
 
 
 def noise_sigma(snr: float | None) -> float:
@@ -68,6 +80,14 @@ def noise_sigma(snr: float | None) -> float:
     if snr is None:
         return NOISE
     return MYO / float(snr)
+
+
+def grey_levels_per_unit(sigma: float) -> float:
+    """Grey levels per unit signal (1/Δ) for channel noise σ: NOISE_GREY_LEVELS / σ, at most
+    SCALE (noise-free or very high SNR images)."""
+    if not sigma > 0:
+        return SCALE
+    return min(SCALE, NOISE_GREY_LEVELS / float(sigma))
 
 
 def _tag_band(u: np.ndarray, spacing: float, offset: float, sigma: float) -> np.ndarray:
@@ -232,11 +252,12 @@ def _rle_plugin() -> str:
     return "pylibjpeg" if "pylibjpeg" in RLELosslessEncoder.available_plugins else "pydicom"
 
 
-def write_dicom(phantom, folder: str | Path, compression: str | None = "rle") -> list[Path]:
+def write_dicom(phantom, folder: str | Path, compression: str | None = "jpegls") -> list[Path]:
     """Write every image of the phantom's study under ``folder`` (paths = ImagePlane.file);
-    ``compression``: ``"rle"`` (RLE Lossless, default) or None (uncompressed)."""
-    if compression not in ("rle", None):
-        raise ValueError(f"compression must be 'rle' or None, got {compression!r}")
+    ``compression``: ``"jpegls"`` (JPEG-LS Lossless, default), ``"rle"`` (RLE Lossless) or
+    None (uncompressed). The grey-level step is matched to the noise (module docstring, 5)."""
+    if compression not in COMPRESSIONS:
+        raise ValueError(f"compression must be 'jpegls', 'rle' or None, got {compression!r}")
     folder = Path(folder)
     study = phantom.study
     cfg = phantom.config
@@ -246,6 +267,8 @@ def write_dicom(phantom, folder: str | Path, compression: str | None = "rle") ->
     rr = 60000.0 / study.heart_rate_bpm
     out = []
     cache: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    sigma = noise_sigma(cfg.get("snr"))
+    levels = grey_levels_per_unit(sigma)
     for plane in study.images:
         series = Path(plane.file).parent.name
         if series not in series_uid:
@@ -254,8 +277,8 @@ def write_dicom(phantom, folder: str | Path, compression: str | None = "rle") ->
             [cfg["seed"], plane.frame, int.from_bytes(plane.slice.encode()[:6].ljust(6, b"_"), "little")]))
         if plane.slice not in cache:
             cache[plane.slice] = pixel_heart_points(phantom, plane)
-        img = render_image(phantom, plane, rng, cache[plane.slice])
-        pix = np.clip(np.round(img * SCALE), 0, 4095).astype(np.uint16)
+        img = render_image(phantom, plane, rng, cache[plane.slice], sigma=sigma)
+        pix = np.clip(np.round(img * levels), 0, 4095).astype(np.uint16)
         meta = FileMetaDataset()
         meta.MediaStorageSOPClassUID = MRImageStorage
         meta.MediaStorageSOPInstanceUID = plane.id
@@ -311,10 +334,12 @@ def write_dicom(phantom, folder: str | Path, compression: str | None = "rle") ->
         ds.BitsStored = 12
         ds.HighBit = 11
         ds.PixelRepresentation = 0
-        ds.WindowCenter = "1200"
-        ds.WindowWidth = "2400"
+        ds.WindowCenter = _ds(round(0.4 * levels, 1))       # myocardium to blood
+        ds.WindowWidth = _ds(round(0.8 * levels, 1))
         ds.PixelData = pix.tobytes()
-        if compression == "rle":
+        if compression == "jpegls":
+            ds.compress(JPEGLSLossless, pix, encoding_plugin="pyjpegls", generate_instance_uid=False)
+        elif compression == "rle":
             ds.compress(RLELossless, pix, encoding_plugin=_rle_plugin(), generate_instance_uid=False)
         path = folder / plane.file
         path.parent.mkdir(parents=True, exist_ok=True)
