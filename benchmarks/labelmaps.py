@@ -60,13 +60,11 @@ NOTE_SA_ONLY = ("Without long-axis maps (ACDC and M&Ms layouts) the model has no
                 "inherit the ED offset through the myocardial volume. With a real stack the ED "
                 "offset is anywhere in the gap, so an SA-only volume carries up to "
                 "± (half a slice) × (base %/mm) from the base alone, whatever the method. "
-                "The error budget of the ACDC section measures it: the valve-plane placement is "
-                "-1.5 % of LVEDV and -2.5 % of RVEDV on average, the sections (pixel sampling) "
-                "-0.15 % and the rest (the NURBS fit of sharply curved crescent tips, and the "
-                "interpolation between slices) -0.2 to -0.3 %. Without the base term every "
-                "SA-only ED volume would be within 1 %; with it RVEDV sits at -2.6 to -3.1 %, "
-                "around the 3 % target, and no rule that reads only the stack can tell where "
-                "in the gap the valve lies.")
+                "The error budget of the ACDC section measures it: the valve-plane placement "
+                "is most of every SA-only ED volume error, the sections (pixel sampling of "
+                "the map) and the rest (surface fit and interpolation between slices) "
+                "little; no rule that reads only the stack can tell where in the gap the "
+                "valve lies.")
 
 
 def header(title: str, command: str) -> list[str]:
