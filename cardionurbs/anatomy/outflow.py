@@ -33,14 +33,18 @@ Construction (one tube per surface, scanner mm):
   apical side of the outflow valve plane and the basal side of the body's valve plane.
 
 With SA ``rv_outlet`` contours (planes across the tract) the RVOT is lofted through them
-instead (:func:`loft_tract`): from the valve ring (the annulus circle; without landmarks the most basal outlet contour closes the
-tract) through the outlet contours to the most apical one moved along the stacking
-direction past the tricuspid plane, the sections matched point to point by arc length.
+instead (:func:`loft_tract`): from the valve ring (the spline through the annulus points,
+the annulus circle with fewer than four; without landmarks the most basal outlet contour
+closes the tract) through the outlet contours to the most apical one moved along the
+stacking direction past the tricuspid plane (stretched through the tract's LA crossings
+on the way), the sections matched point to point by arc length.
 
-The epicardial RVOT tube is the endocardial one widened by the RVOT wall thickness: the
-median distance outside the lumen of the RV epicardial contour points of the tract (LA
-runs selected as above, and epicardial outlet loops); no epicardial evidence, no RVOT
-wall.
+The epicardial RVOT tube is the endocardial one widened by the RVOT wall thickness, from
+the RV epicardial contour points of the tract (LA runs selected as above, and epicardial
+outlet loops): a lofted tube position by position round its rings by the local thickness
+those points show (the tract's septal side, on the LV epicardium and aortic root, has no RV
+wall), a tube of circles by their median distance outside the lumen; no epicardial
+evidence, no RVOT wall.
 """
 
 from __future__ import annotations
@@ -426,10 +430,11 @@ def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarra
     point farthest along ``ref`` (the LV → RV direction).
 
     Between the most apical loop and the body's valve plane no SA contour shows the tract;
-    where its LA contour ``runs`` (:func:`_tract_runs`) do, the moved loop is placed every
+    where its LA contour ``runs`` (:func:`_tract_runs`) do, the section is moved on every
     :data:`STEP_MM` and stretched through their crossings of each section plane
-    (:func:`ring_through_crossings`): the tract widens there into the ventricle's body, which
-    the moved loop alone would miss."""
+    (:func:`ring_through_crossings`), each from the one before, so that a wall no longer
+    seen keeps where it was last seen: the tract widens there into the ventricle's body,
+    which the moved loop alone would miss."""
     loops = [np.asarray(q, float) for q in loops if len(q) >= 3]
     if not loops:
         return None
@@ -457,16 +462,17 @@ def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarra
     if depth > 0:
         depth = min(depth, MAX_LENGTH_MM)
         runs = [np.asarray(r, float) for r in runs if len(r) >= 2]
-        end = last + depth * n
+        prev, h_prev = last, 0.0
         for h in np.arange(STEP_MM, depth, STEP_MM) if runs else ():
-            ring = last + h * n
+            ring = prev + (h - h_prev) * n
             level = float(ring.mean(axis=0) @ n)
             cut = np.concatenate([polyline_crossings(r, n, level) for r in runs])
             if len(cut):
-                rings.append(ring_through_crossings(ring, n, cut))
-                # the end ring as the last stretched one (no crossings past the body's plane)
-                end = rings[-1] + (depth - h) * n
-        rings.append(end)
+                # the previous section stretched on: a wall no longer seen keeps its place
+                prev, h_prev = ring_through_crossings(ring, n, cut), h
+                rings.append(prev)
+        # the end ring as the last stretched one (no crossings past the body's plane)
+        rings.append(prev + (depth - h_prev) * n)
     rings = np.asarray(rings)
     centres = rings.mean(axis=1)
     levels = (centres - valve.origin) @ valve.normal
