@@ -125,13 +125,14 @@ def test_phantom_lv_la_contours_lie_on_the_phantoms_boundaries(outflow_phantoms)
 
 def test_outflow_phantom_volumes_within_two_percent(outflow_phantoms):
     """The end-systolic volumes (and the rest of the volume metrics) of the two subjects
-    whose tracts were read wrong are within 2 % of the truth; the LV endocardium meets all
-    of its contour points within 3 px (no LV endo flag)."""
+    whose tracts were read wrong are within 2 % of the truth, and no quality flag is raised
+    (every contour point within 3 px of its surface; before, LV endo up to 16.6 mm and RV up
+    to 7.6 mm; the heart rate is not given by these studies)."""
     for ph, m, got, q in outflow_phantoms:
         truth = ph.truth["metrics"]
         for col in ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "RVESV (mL)"):
             assert got[col] == pytest.approx(truth[col], rel=0.02), (ph.truth["seed"], col)
-        assert not [f for f in q.flags if f.startswith("LV endo")], q.flags
+        assert [f for f in q.flags if "heart rate" not in f] == [], q.flags
 
 
 # ----------------------------------------------------------------- valve ring and RVOT wall
