@@ -20,7 +20,8 @@ def ph(request):
     # generate() keeps the tracts' tricuspid annulus planar for now; the saddle with tracts is
     # built here from the same draw (its truth: the tract's lumen starts at the tricuspid plane)
     import dataclasses
-    from cardionurbs.phantom import generate as gen_mod
+    import importlib
+    gen_mod = importlib.import_module("cardionurbs.phantom.generate")
     orig = gen_mod._realistic_anatomy
 
     def with_saddle(draw, rng, infarct, tries=20, outflow=None, tricuspid_dip=0.0):
