@@ -362,7 +362,10 @@ def _annotation_files(study: Study) -> list:
     if isinstance(gp, dict) and isinstance(gp.get("frames"), dict):
         return [gp["frames"].get(str(c.frame), {}).get("file") for c in study.contours]
     if study.meta.get("format") in (None, "cardionurbs-native") and study.source:
-        return ["points.csv"] * len(study.contours)
+        name = "points.csv"                 # a large native study's points file is Parquet
+        if not (Path(study.source) / name).is_file() and (Path(study.source) / "points.parquet").is_file():
+            name = "points.parquet"
+        return [name] * len(study.contours)
     return [None] * len(study.contours)
 
 
