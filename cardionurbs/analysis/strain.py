@@ -48,7 +48,8 @@ Per segment: the volume mean of the fitted strain over the ED myocardium of
 AHA segment k (:mod:`cardionurbs.analysis.aha`), sampled between the
 reconstructed endo- and epicardium (:func:`myocardium_samples`) within the
 height range of the tracked points (the fit is not extrapolated beyond the
-tagged tissue) and at least :data:`AXIS_CLEARANCE_MM` from the long axis;
+tagged tissue) and at least :data:`AXIS_CLEARANCE_MM` from the long axis at ED and,
+moved by the fitted map, from the frame's long axis (the near-axis rule);
 global: the mean of the segment values 1–16.
 """
 
@@ -74,9 +75,11 @@ OUTLIER_MM = 1.5
 MIN_POINTS = 80
 #: radius (mm) over which endocardial normals are averaged for the radial direction
 NORMAL_SMOOTHING_MM = 6.0
-#: myocardium nearer the long axis than this (mm; the apical tip around the cavity apex) is
-#: left out of the segment means: the cylindrical chart (S1) is singular on the axis, where
-#: ∂r'/∂(r'²) = 1/(2r') amplifies any error of the fitted r'² (the phantom truth does the same)
+#: the near-axis rule: myocardium nearer the long axis than this (mm) at ED, or whose image at
+#: the frame is nearer the frame's long axis than this (the apical tip around the cavity apex),
+#: is left out of the segment means: the cylindrical chart (S1) is singular on the axis, where
+#: ∂r'/∂(r'²) = 1/(2r') amplifies any error of the fitted r'² (the phantom truth applies the
+#: same rule with the exact motion)
 AXIS_CLEARANCE_MM = 10.0
 #: wall samples (about) used to choose the regularisation of the tag-line fit
 RISK_SAMPLES = 600
@@ -165,6 +168,13 @@ class CylindricalMotionFit:
                       axis=1) / self.sz
         dR = np.stack([b * qt ** max(b - 1, 0) for b in range(pb + 1)], axis=1) / self.sq
         return outer(L, R, T), outer(L, dR, T), outer(L, R, dT), outer(dL, R, T)
+
+    def image_radius(self, X: np.ndarray) -> np.ndarray:
+        """r' (mm): the fitted distance of the images of ED points X (n, 3) from the frame's
+        long axis (the square root of the fitted r'², 0 where that is negative)."""
+        r, th, zeta = cylindrical(X, self.apex0, self.frame0)
+        m = self._design(r * r, th, zeta, derivatives=False)[0] @ self.coef
+        return np.sqrt(np.maximum(m[:, 0], 0.0))
 
     def position(self, X: np.ndarray) -> np.ndarray:
         """The fitted image x (n, 3) of ED points X (n, 3)."""
@@ -344,9 +354,12 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     labels = aha.segments(Y)
     w = np.ones(len(Y)) if vol is None else vol
     if tag_lines is not None and len(tag_lines[0]) >= MIN_TAG_POINTS:
-        sub = slice(None, None, max(1, len(Y) // RISK_SAMPLES))
+        # the quantities the regularisation is chosen for: the segment strains over a
+        # subsample of the wall, the near-axis rule applied with the material-point fit
+        sub = np.flatnonzero(fit.image_radius(Y) >= AXIS_CLEARANCE_MM)
+        sub = sub[::max(1, len(sub) // RISK_SAMPLES)]
 
-        def segment_strains(f):       # the quantities the regularisation is chosen for
+        def segment_strains(f):
             v = directional_strains(green_lagrange(f.gradient(Y[sub])), dirs[sub])
             return segment_means(v, labels[sub], w[sub]).ravel()
         out = fit_tag_motion(fit, *tag_lines, noise_mm=noise_mm, quantities=segment_strains)
@@ -357,6 +370,11 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
             present = [k for k in range(1, 17) if (labels[sub] == k).any()]
             info["segment_se"] = {kind: {str(k): float(v) for k, v in zip(present, se[:, j])}
                                   for j, kind in enumerate(STRAIN_KINDS)}
+    # the near-axis rule at the frame, with the final fit
+    clear = fit.image_radius(Y) >= AXIS_CLEARANCE_MM
+    info["near_axis_excluded"] = int((~clear).sum())
+    Y, dirs, labels = Y[clear], dirs[clear], labels[clear]
+    vol = None if vol is None else vol[clear]
     F = fit.gradient(Y)
     vals = directional_strains(green_lagrange(F), dirs)
     cols, counts = strain_columns(vals, labels, vol)

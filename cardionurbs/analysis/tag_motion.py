@@ -68,6 +68,11 @@ MIN_TAG_POINTS = 300
 LAMBDA_GRID = np.r_[0.0, np.logspace(-2, 3, 11)]
 #: tracking noise (mm) below which the tags count as exact (no regularisation)
 NOISE_FLOOR_MM = 0.01
+#: tag points are kept up to this many times the tracking noise outside the myocardium
+#: contours (and at least MARGIN_MM): a tighter cut selects points by their noise
+NOISE_MARGIN = 3.0
+#: confidence level of the F-test that keeps a tag family's planes separate (:func:`tag_grid`)
+GRID_TEST_LEVEL = 0.999
 
 
 @dataclass(frozen=True)
@@ -105,13 +110,72 @@ def ed_tag_planes(study: Study, ed_frame: int, exclude: frozenset | set = frozen
         count += len(P)
     if not keys:
         return None
-    return TagPlanes(tuple(keys), np.array(normals), np.array(offsets), float(np.sqrt(sq / count)))
+    planes = TagPlanes(tuple(keys), np.array(normals), np.array(offsets), float(np.sqrt(sq / count)))
+    return tag_grid(planes, {k: np.vstack(v) for k, v in groups.items()})
+
+
+def tag_grid(planes: TagPlanes, points: dict, level: float = GRID_TEST_LEVEL) -> TagPlanes:
+    """The ED tag planes of each family as one SPAMM grid.
+
+    SPAMM lays the tags of a family down as parallel, equally spaced planes (the
+    modulation is periodic along one direction). Fitted so, a family's planes share one
+    normal — the least-squares normal of all the family's ED points, each about its own
+    plane's centroid — and have offsets d_k = a + b k (k the tag index; weighted least
+    squares, weights the point counts): every plane is then estimated from all of the
+    family's points, not its own few. Separately fitted planes carry an offset error of
+    σ / √n_k each (n_k ≈ 20–60 points per LA tag), which the strain fit reads as real
+    stretch between neighbouring tags (≈ 1 strain point of Ell between two tags 8 mm apart
+    at σ = 0.6 mm) and which the fit's own standard errors do not include.
+
+    A family keeps its separately fitted planes when it has fewer than three, or when the
+    grid is rejected by the F-test of the nested least-squares fits (3 parameters per plane
+    against 4 per family) at ``level``: its tags are not one parallel, equally spaced set."""
+    from scipy.stats import f as fisher
+    fam_of = [k[0] for k in planes.keys]
+    normals, offsets = planes.normals.copy(), planes.offsets.copy()
+    for fam in dict.fromkeys(fam_of):
+        rows = [j for j, f in enumerate(fam_of) if f == fam]
+        if len(rows) < 3:
+            continue
+        P = [points[planes.keys[j]] for j in rows]
+        ref = planes.normals[rows[0]]
+        C = [p.mean(axis=0) for p in P]
+        scatter = sum((p - c).T @ (p - c) for p, c in zip(P, C))
+        n = np.linalg.eigh(scatter)[1][:, 0]
+        n = n if n @ ref >= 0 else -n
+        idx = np.array([planes.keys[j][1] for j in rows], float)
+        w = np.array([len(p) for p in P], float)
+        dc = np.array([n @ c for c in C])
+        A = np.column_stack([np.ones_like(idx), idx]) * np.sqrt(w)[:, None]
+        ab = np.linalg.lstsq(A, dc * np.sqrt(w), rcond=None)[0]
+        d = ab[0] + ab[1] * idx
+        sep = sum(float(np.sum(((p - p.mean(axis=0)) @ planes.normals[j]) ** 2)) for p, j in zip(P, rows))
+        grid = sum(float(np.sum((p @ n - dk) ** 2)) for p, dk in zip(P, d))
+        n_pts, dfn = int(w.sum()), 3 * len(rows) - 4
+        dfd = n_pts - 3 * len(rows)
+        exact = grid <= 1e-12 * n_pts                  # both fits exact (noise-free tags)
+        if not exact and (dfd < 1 or (grid - sep) / dfn > fisher.ppf(level, dfn, dfd) * sep / dfd):
+            continue
+        normals[rows] = n
+        offsets[rows] = d
+    return TagPlanes(planes.keys, normals, offsets, planes.rms_mm)
 
 
 def frame_tag_points(study: Study, frame: int, planes: TagPlanes,
-                     exclude: frozenset | set = frozenset(), margin_mm: float = MARGIN_MM):
+                     exclude: frozenset | set = frozenset(), margin_mm: float | None = None):
     """Tag points of ``frame`` on tags with an ED plane, inside the LV myocardium of that frame:
-    (points (n, 3), plane index (n,)); None when the frame has no SA myocardial contours."""
+    (points (n, 3), plane index (n,)); None when the frame has no SA myocardial contours.
+
+    "Inside" allows ``margin_mm`` outside the contours; default :data:`NOISE_MARGIN` × the
+    tracking noise (:attr:`TagPlanes.rms_mm`), at least :data:`MARGIN_MM`. The noise moves a
+    tag point along its line as well as across it; a cut at the contours drops the points
+    near the endo- and epicardium that the noise moved out of the wall and keeps those it
+    moved in, so for a line crossing the wall obliquely it shifts the kept points across
+    the tag near both surfaces, in opposite directions — a bias of the transmural gradient
+    (at 0.6 mm noise a 0.5 mm margin made the mean segment Err of a phantom 1–4 points lower
+    than 1.75 mm did)."""
+    if margin_mm is None:
+        margin_mm = max(MARGIN_MM, NOISE_MARGIN * planes.rms_mm)
     where = planes.index()
     pts, idx = [], []
     for t in study.tags_at(frame):

@@ -363,14 +363,52 @@ def annulus_ring(valve: Plane, centre: np.ndarray, radius: float, normal: np.nda
     return ring_from(circle, normal, ref)
 
 
+def ring_through_crossings(ring: np.ndarray, normal: np.ndarray, crossings: np.ndarray,
+                           limits: tuple[float, float] = (0.5, 2.5)) -> np.ndarray:
+    """A section ring stretched in its plane (normal ``normal``) about its centroid so that
+    it passes through wall points seen on that plane (``crossings``, e.g. the LA contours'
+    crossings of the section plane).
+
+    Each crossing at polar angle φ_i about the centroid, at distance ρ_i, gives the radial
+    scale s_i = ρ_i / r(φ_i), r(φ) the ring's own distance at that angle (piecewise linear
+    in φ between its vertices); each ring vertex is scaled by s(φ), the periodic linear
+    interpolation of the s_i in φ. One crossing seen scales its side only (s = 1 at the
+    opposite angle). The scales are kept within ``limits``. Points off the section plane
+    are used as projected along ``normal``."""
+    ring = np.asarray(ring, float)
+    x = np.asarray(crossings, float).reshape(-1, 3)
+    if not len(x):
+        return ring
+    n = normal / np.linalg.norm(normal)
+    u, v = in_plane_basis(n)
+    c = ring.mean(axis=0)
+    q, p = ring - c, x - c
+    phi_r, r_r = np.arctan2(q @ v, q @ u), np.hypot(q @ u, q @ v)
+    phi_x, rho_x = np.arctan2(p @ v, p @ u), np.hypot(p @ u, p @ v)
+    o = np.argsort(phi_r)
+    r_at = np.interp(phi_x, phi_r[o], r_r[o], period=2.0 * np.pi)
+    s = np.clip(rho_x / np.maximum(r_at, 1e-9), *limits)
+    if len(s) == 1:
+        phi_x, s = np.r_[phi_x, phi_x + np.pi], np.r_[s, 1.0]
+    scale = np.interp(phi_r, phi_x, s, period=2.0 * np.pi)
+    return c + q * scale[:, None]
+
+
 def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarray],
-               body: Plane, direction: np.ndarray, ref: np.ndarray) -> OutflowTract | None:
+               body: Plane, direction: np.ndarray, ref: np.ndarray,
+               runs: list[np.ndarray] = ()) -> OutflowTract | None:
     """An outflow tube lofted through its outlet loops (SA ``rv_outlet`` contours, planes
     across the tract): from the valve ring (:func:`annulus_ring`; without annulus points
     the most basal loop closes the tract) through the loops in stacking order to the
     most apical loop moved along the stacking ``direction`` until it lies wholly on the
     apical side of the body's valve plane. Sections correspond by arc length from their
-    point farthest along ``ref`` (the LV → RV direction)."""
+    point farthest along ``ref`` (the LV → RV direction).
+
+    Between the most apical loop and the body's valve plane no SA contour shows the tract;
+    where its LA contour ``runs`` (:func:`_tract_runs`) do, the moved loop is placed every
+    :data:`STEP_MM` and stretched through their crossings of each section plane
+    (:func:`ring_through_crossings`): the tract widens there into the ventricle's body, which
+    the moved loop alone would miss."""
     loops = [np.asarray(q, float) for q in loops if len(q) >= 3]
     if not loops:
         return None
@@ -396,7 +434,18 @@ def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarra
     # the most apical section, moved along the stacking direction past the body's plane
     depth = -body.signed_distance(last).min() / max(float(n @ body.normal), 0.2) + 1.0
     if depth > 0:
-        rings.append(last + min(depth, MAX_LENGTH_MM) * n)
+        depth = min(depth, MAX_LENGTH_MM)
+        runs = [np.asarray(r, float) for r in runs if len(r) >= 2]
+        end = last + depth * n
+        for h in np.arange(STEP_MM, depth, STEP_MM) if runs else ():
+            ring = last + h * n
+            level = float(ring.mean(axis=0) @ n)
+            cut = np.concatenate([polyline_crossings(r, n, level) for r in runs])
+            if len(cut):
+                rings.append(ring_through_crossings(ring, n, cut))
+                # the end ring as the last stretched one (no crossings past the body's plane)
+                end = rings[-1] + (depth - h) * n
+        rings.append(end)
     rings = np.asarray(rings)
     centres = rings.mean(axis=1)
     levels = (centres - valve.origin) @ valve.normal
@@ -476,8 +525,10 @@ def outflow_tracts(study: Study, geo: FrameGeometry) -> dict[str, OutflowTract]:
             t = offset_tract(endo, np.concatenate(ev), s)
         elif tract_loops:               # SA outlet contours: loft through them
             ref = geo.reference if geo.reference is not None else in_plane_basis(geo.direction)[0]
+            centre = annulus.mean(axis=0) if len(annulus) else \
+                min(tract_loops, key=lambda r: float(body.signed_distance(r).mean())).mean(axis=0)
             t = loft_tract(s, annulus if len(annulus) else None, tract_loops, body,
-                           geo.direction, ref)
+                           geo.direction, ref, runs=_tract_runs(geo, s, body, centre))
         else:                           # valve landmarks and LA contour crossings
             runs = _tract_runs(geo, s, body, annulus.mean(axis=0))
             t = build_tract(s, annulus, runs, body, geo.direction)

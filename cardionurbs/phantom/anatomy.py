@@ -265,11 +265,16 @@ class Anatomy:
         return (ellipse_far_radius_sq(th, self.r_free_endo + t, self.r_wrap_endo + t, self.rv_x_center)
                 * self.shape.rv_reach_factor(u))
 
-    def s_rv(self, theta: np.ndarray, z: np.ndarray, epi: bool = False) -> np.ndarray:
-        """Squared radius of the RV endo/epi shell along θ at height z, mm² (0 where absent)."""
+    def s_rv(self, theta: np.ndarray, z: np.ndarray, epi: bool = False, body=None,
+             r_b=None) -> np.ndarray:
+        """Squared radius of the RV endo/epi shell along θ at height z, mm² (0 where absent).
+        ``body`` (:meth:`s_rv_body`) and ``r_b`` (the tract's base radius,
+        :func:`cardionurbs.phantom.outflow.rvot_base_radius`) at the same (θ, z) when the caller
+        has them already (the same values)."""
         if self.shape is None:
             return self.rv_g2(z, epi) * self.rv_p(theta, epi)
-        body = self.rv_g2(z, epi) * self.rv_p(theta, epi, z)
+        if body is None:
+            body = self.rv_g2(z, epi) * self.rv_p(theta, epi, z)
         if self.shape.outflow is None:
             return body
         # above the tricuspid plane: the RV outflow tract (phantom/outflow.py, eq. O1)
@@ -279,7 +284,8 @@ class Anatomy:
             return body
         from cardionurbs.phantom.outflow import s_rvot
         out = np.array(np.broadcast_to(body, z.shape), dtype=float)
-        out[above] = s_rvot(self, theta[above], z[above], epi)
+        out[above] = s_rvot(self, theta[above], z[above], epi,
+                            r_b=None if r_b is None else np.broadcast_to(r_b, z.shape)[above])
         return out
 
     def s_rv_body(self, theta: np.ndarray, z: np.ndarray, epi: bool = False) -> np.ndarray:
@@ -402,6 +408,8 @@ class Anatomy:
                 return float(self.rv_g2(z, epi)) * p0 > float(self.s_lv_epi(z))
         for _ in range(iters):
             mid = 0.5 * (lo + hi)
+            if mid <= lo or mid >= hi:      # the bracket is two neighbouring floats: converged
+                break
             if reaches(mid):
                 hi = mid
             else:

@@ -226,7 +226,8 @@ def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: flo
     th = np.arctan2(x[:, 1], x[:, 0]) + motion.psi(z, f)
     sp = x[:, 0] ** 2 + x[:, 1] ** 2
     s1, s2 = anatomy.lv_sections(z, th)
-    rv = anatomy.s_rv(th, z)
+    shells = _RvShells(anatomy, th, z)
+    rv = shells.s_rv(False)
     layers = (s1, s2, np.maximum(s2, rv))
     s1 = s1 + np.minimum(spheroid_s_unclamped(z, anatomy.r_short_endo, anatomy.r_long_endo,
                                               anatomy.z_center), 0.0)
@@ -238,8 +239,9 @@ def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: flo
     want = {"b1": "lv_endo" in regions, "b2": True, "b3": "rv_endo" in regions,
             "b4": "rv_epi" in regions}
     src = {"b1": lambda: s1, "b2": lambda: s2, "b3": lambda: rv,
-           "b4": lambda: anatomy.s_rv(th, z, epi=True)}
-    b = {k: motion.radial_map(anatomy, src[k](), th, z, f, layers=layers) for k, on in want.items() if on}
+           "b4": lambda: shells.s_rv(True)}
+    knots = motion.knots(anatomy, th, z, f, layers)      # shared by every boundary's map
+    b = {k: motion.radial_map(anatomy, src[k](), th, z, f, knots=knots) for k, on in want.items() if on}
     scale = 1.0 / 50.0
     out = {"s": sp, "theta": th, "z": z, "s1": b.get("b1"), "s2": b["b2"]}
     lv_top = z - anatomy.z_top(th)
@@ -253,19 +255,46 @@ def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: flo
     if "rv_epi" in regions:
         out["rv_epi"] = ((sp - b["b4"]) * scale, (b["b2"] - sp) * scale, rv_top)
     if anatomy.outflow is not None:
-        _outflow_terms(anatomy, motion, out, regions, sp, th, z, f, layers, scale)
+        _outflow_terms(anatomy, motion, out, regions, sp, th, z, f, layers, scale, knots, shells)
     return out
 
 
+class _RvShells:
+    """The RV shells' squared radii at one set of material (θ, z), each evaluated once: the body
+    (:meth:`Anatomy.s_rv_body`), the tract's base radius and the whole shell (:meth:`Anatomy.s_rv`)."""
+
+    def __init__(self, anatomy: Anatomy, th: np.ndarray, z: np.ndarray) -> None:
+        self.anatomy, self.th, self.z, self._memo = anatomy, th, z, {}
+
+    def _get(self, key, fn):
+        if key not in self._memo:
+            self._memo[key] = fn()
+        return self._memo[key]
+
+    def body(self, epi: bool) -> np.ndarray:
+        return self._get(("body", epi), lambda: self.anatomy.s_rv_body(self.th, self.z, epi))
+
+    def base_radius(self, epi: bool):
+        if self.anatomy.outflow is None:
+            return None
+        from cardionurbs.phantom.outflow import rvot_base_radius
+        return self._get(("r_b", epi), lambda: rvot_base_radius(self.anatomy, self.th, epi))
+
+    def s_rv(self, epi: bool) -> np.ndarray:
+        return self._get(("s_rv", epi), lambda: self.anatomy.s_rv(
+            self.th, self.z, epi, body=self.body(epi), r_b=self.base_radius(epi)))
+
+
 def _outflow_terms(anatomy: Anatomy, motion: Motion, out: dict, regions, sp, th, z, f, layers,
-                   scale: float) -> None:
+                   scale: float, knots=None, shells: "_RvShells | None" = None) -> None:
     """Append the outflow tracts' terms to the region functions (see :func:`region_logic`):
     LV endocardium + (LVOT cylinder, aortic valve plane); RV endo/epicardium + (tract free wall,
     pulmonary valve plane, tract bottom 1 mm below the tricuspid plane, where the tract lies
     inside the body). The valve planes and the cylinder are material: the point's material radius
     comes from the inverse radial map."""
     from cardionurbs.phantom import outflow as ofl
-    r = np.sqrt(np.maximum(motion.inverse_radial_map(anatomy, sp, th, z, f, layers=layers), 0.0))
+    r = np.sqrt(np.maximum(motion.inverse_radial_map(anatomy, sp, th, z, f, layers=layers,
+                                                     knots=knots), 0.0))
     x, y = r * np.cos(th), r * np.sin(th)
     if "lv_endo" in regions:
         # (2- and 4-chamber views never reach the cylinder: the terms only keep the tree's shape)
@@ -278,9 +307,10 @@ def _outflow_terms(anatomy: Anatomy, motion: Motion, out: dict, regions, sp, th,
     for name, epi in (("rv_endo", False), ("rv_epi", True)):
         if name not in regions:
             continue
-        s_ot = ofl.s_rvot(anatomy, th, z, epi, s_epi=layers[1])
-        s_ot = np.where(z > anatomy.z_base, s_ot, np.minimum(s_ot, anatomy.s_rv_body(th, z, epi)))
-        wall = (sp - motion.radial_map(anatomy, s_ot, th, z, f, layers=layers)) * scale
+        shells = shells or _RvShells(anatomy, th, z)
+        s_ot = ofl.s_rvot(anatomy, th, z, epi, s_epi=layers[1], r_b=shells.base_radius(epi))
+        s_ot = np.where(z > anatomy.z_base, s_ot, np.minimum(s_ot, shells.body(epi)))
+        wall = (sp - motion.radial_map(anatomy, s_ot, th, z, f, layers=layers, knots=knots)) * scale
         out[name] = out[name] + (wall, pulmonary, bottom)
 
 
@@ -338,10 +368,11 @@ def _plane_grid(anatomy: Anatomy, spec: SliceSpec, step: float):
     return w, v, pts
 
 
-def _refine_on_edges(loop: np.ndarray, grid: np.ndarray, exact, iters: int = 3) -> np.ndarray:
+def _refine_on_edges(loop: np.ndarray, grid: np.ndarray, iters: int = 3):
     """Move marching-squares vertices (fractional grid indices (k, 2)) to the zero of the exact
-    field along their grid edge: regula falsi iterations, ``exact`` mapping
-    (k, 2) fractional indices to field values."""
+    field along their grid edge: regula falsi iterations. A generator (see :func:`_open_contour`):
+    it yields the (k, 2) fractional indices where it needs the exact field, is sent the field's
+    values there, and returns the refined vertices."""
     loop = loop.copy()
     along_w = np.abs(loop[:, 0] - np.round(loop[:, 0])) > 1e-9
     a = np.where(along_w[:, None], np.column_stack([np.floor(loop[:, 0]), loop[:, 1]]),
@@ -355,7 +386,7 @@ def _refine_on_edges(loop: np.ndarray, grid: np.ndarray, exact, iters: int = 3) 
     ok = np.sign(fa) != np.sign(fb)
     for _ in range(iters):
         tm = np.where(ok, ta - fa * (tb - ta) / np.where(fb != fa, fb - fa, 1.0), 0.5 * (ta + tb))
-        fm = exact(a + tm[:, None] * (b - a))
+        fm = yield a + tm[:, None] * (b - a)
         left = np.sign(fm) == np.sign(fa)
         ta, fa = np.where(left, tm, ta), np.where(left, fm, fa)
         tb, fb = np.where(left, tb, tm), np.where(left, fb, fm)
@@ -363,16 +394,17 @@ def _refine_on_edges(loop: np.ndarray, grid: np.ndarray, exact, iters: int = 3) 
     return np.where(ok[:, None], a + t[:, None] * (b - a), loop)
 
 
-def _corners(w: np.ndarray, v: np.ndarray, fields, iters: int = 4, h: float = 1e-3) -> np.ndarray:
+def _corners(w: np.ndarray, v: np.ndarray, iters: int = 4, h: float = 1e-3):
     """Solve wall(w, v) = top(w, v) = 0 near each start point by Newton's method with a
-    central-difference Jacobian (plane coordinates, mm): (k, 2) corner points. The five
-    evaluations of a step go to ``fields`` in one call."""
+    central-difference Jacobian (plane coordinates, mm): (k, 2) corner points. A generator (see
+    :func:`_open_contour`): the five evaluations of a step are yielded at once as plane
+    coordinates (w, v) and the pair (wall, top) is sent back."""
     p = np.column_stack([w, v]).astype(float)
     k = len(p)
     offs = np.array([[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
     for _ in range(iters):
         q = (p[None, :, :] + offs[:, None, :]).reshape(-1, 2)
-        val = np.column_stack(fields(q[:, 0], q[:, 1])).reshape(5, k, 2)
+        val = np.column_stack((yield q[:, 0], q[:, 1])).reshape(5, k, 2)
         jac = np.stack([(val[1] - val[2]) / (2 * h), (val[3] - val[4]) / (2 * h)], axis=-1)
         step = np.linalg.pinv(jac) @ val[0][..., None]
         step = step[..., 0]
@@ -380,12 +412,18 @@ def _corners(w: np.ndarray, v: np.ndarray, fields, iters: int = 4, h: float = 1e
     return p
 
 
-def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec, exact_fields,
-                  n: int, start_positive: bool = True) -> np.ndarray | None:
-    """The open contour (wall part) of one region on a sampled plane.
+def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec,
+                  n: int, start_positive: bool = True):
+    """The open contour (wall part) of one region on a sampled plane, or None.
+
+    A generator: wherever it needs the exact region terms it yields plane coordinates
+    ``(w, v)`` and is sent the region's terms there (:func:`material_fields`), so that
+    :func:`_run_contours` can evaluate the requests of every region and view of a frame in one
+    call; it returns the contour.
 
     Marching squares on the max of the region's terms; each vertex refined to the exact boundary
-    on its grid edge; the vertices where the top (closure) term is active dropped; the exact
+    on its grid edge; the vertices where the top (closure) term is active dropped, and with them
+    any wall run that closures cut off from the longest one; the exact
     corners inserted where the active term changes (the annulus ends, the RV apex where free
     wall meets septum, by Newton's method on the two terms); a cubic spline in arc length through
     each smooth piece; resampled to n points by arc length, starting at the annulus end with the
@@ -407,23 +445,33 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec, exact_f
     def plane_uv(idx):
         return np.interp(idx[:, 0], np.arange(len(w)), w), np.interp(idx[:, 1], np.arange(len(v)), v)
 
-    loop = _refine_on_edges(loop, field, lambda idx: tree_value(tree, exact_fields(*plane_uv(idx))[name]))
+    refine = _refine_on_edges(loop, field)
+    try:
+        idx = next(refine)
+        while True:
+            idx = refine.send(tree_value(tree, (yield plane_uv(idx))))
+    except StopIteration as done:
+        loop = done.value
     ww, vv = plane_uv(loop)
-    active = tree_eval(tree, exact_fields(ww, vv)[name])[1]
+    active = tree_eval(tree, (yield ww, vv))[1]
     on_wall = ~np.isin(active, list(closures))
     top_first = top_last = None
     if on_wall.all():
         keep = np.arange(len(loop))
     else:
         order = np.roll(np.arange(len(loop)), -int(np.flatnonzero(~on_wall)[0]))
-        idx = np.flatnonzero(on_wall[order])
-        if len(idx) < 4:
+        # the wall's runs between closures: the ventricle's wall is the longest; a shorter one
+        # (the LVOT's septal wall between the cylinder and the aortic plane) is cut off from it
+        # by closure terms and is not joined to it across them
+        edges = np.flatnonzero(np.diff(np.r_[0, on_wall[order].astype(int), 0]))
+        starts, ends = edges[::2], edges[1::2]
+        j = int(np.argmax(ends - starts))
+        if ends[j] - starts[j] < 4:
             return None
         # the closure terms next to the wall's two ends (the valve planes the annulus corners are on)
-        top_first = int(active[order[idx[0] - 1]])
-        top_last = int(active[order[(idx[-1] + 1) % len(order)]])
-        keep = order[idx[0]:idx[-1] + 1]
-        keep = keep[on_wall[keep]]
+        top_first = int(active[order[starts[j] - 1]])
+        top_last = int(active[order[ends[j] % len(order)]])
+        keep = order[starts[j]:ends[j]]
     ww, vv, act = ww[keep], vv[keep], active[keep]
 
     # the corners: the annulus ends (wall meets closure) and the changes of wall part (the RV apex),
@@ -437,12 +485,15 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec, exact_f
         ci = np.array([r[2] for r in req], dtype=int)
         cj = np.array([r[3] for r in req], dtype=int)
 
-        def two(a, b):
-            e = np.stack(exact_fields(a, b)[name])
-            cols = np.arange(e.shape[1])
-            return e[np.tile(ci, 5), cols], e[np.tile(cj, 5), cols]
-
-        solved = _corners(np.array([r[0] for r in req]), np.array([r[1] for r in req]), two)
+        newton = _corners(np.array([r[0] for r in req]), np.array([r[1] for r in req]))
+        try:
+            q = next(newton)
+            while True:
+                e = np.stack((yield q))
+                cols = np.arange(e.shape[1])
+                q = newton.send((e[np.tile(ci, 5), cols], e[np.tile(cj, 5), cols]))
+        except StopIteration as done:
+            solved = done.value
         corners = {i: tuple(c) for i, c in enumerate(solved)}
     first = 0 if not on_wall.all() else None
     pieces, cur = [], [(ww[0], vv[0])]
@@ -492,19 +543,59 @@ def _la_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f:
     """LA contours of a realistic anatomy: the plane is sampled every ``step`` mm, each region's
     signed function (:func:`material_fields`) is contoured by marching squares, the valve
     closure is dropped and the open wall contour is returned in the motion frame."""
-    w, v, pts = _plane_grid(anatomy, spec, step)
-    names = (("lv_endo", "lv_epi") if with_lv else ()) + (("rv_endo", "rv_epi") if with_rv else ())
-    fields = material_fields(anatomy, motion, pts, f, names)
-    out = {}
-    for name in names:
-        def exact_fields(ww, vv, name=name):
-            p = spec.center[None, :] + ww[:, None] * spec.row[None, :] + vv[:, None] * spec.column[None, :]
-            return material_fields(anatomy, motion, p, f, (name,))
+    return la_contours_realistic_views(anatomy, motion, [(spec, with_rv, with_lv)], f, n_side,
+                                       step)[spec.id]
 
-        c = _open_contour(name, fields, (len(w), len(v)), w, v, spec, exact_fields, 2 * n_side - 1)
+
+def la_contours_realistic_views(anatomy: Anatomy, motion: Motion, views, f: float, n_side: int = 30,
+                                step: float = PLANE_STEP_MM) -> dict[str, dict[str, np.ndarray]]:
+    """:func:`la_contours` of a realistic anatomy for several LA views at one phase f: ``views`` is
+    a list of (spec, with_rv, with_lv); returns spec id -> contours. The exact region terms every
+    view's contours ask for are evaluated together, in one :func:`material_fields` call per step
+    (the same values as one view at a time: every term is computed point by point)."""
+    jobs, out = [], {}
+    for spec, with_rv, with_lv in views:
+        w, v, pts = _plane_grid(anatomy, spec, step)
+        names = (("lv_endo", "lv_epi") if with_lv else ()) + (("rv_endo", "rv_epi") if with_rv else ())
+        fields = material_fields(anatomy, motion, pts, f, names)
+        out[spec.id] = {}
+        for name in names:
+            gen = _open_contour(name, fields, (len(w), len(v)), w, v, spec, 2 * n_side - 1)
+            jobs.append((spec, name, gen))
+    for (spec, name, _), c in zip(jobs, _run_contours(anatomy, motion, f, jobs)):
         if c is not None:
-            out[name] = unbend(anatomy, c)
-    return out
+            out[spec.id][name] = unbend(anatomy, c)
+    return {spec.id: out[spec.id] for spec, _, _ in views}
+
+
+def _run_contours(anatomy: Anatomy, motion: Motion, f: float, jobs) -> list:
+    """Run :func:`_open_contour` generators ``jobs`` ((spec, region, generator), ...) side by side:
+    each round, the plane coordinates every running generator asks for are mapped to heart-frame
+    points of its view, the region terms of all of them are computed in one
+    :func:`material_fields` call and each generator is sent its own. Returns the contours."""
+    result = [None] * len(jobs)
+    asks = {}
+    for i, (_, _, gen) in enumerate(jobs):
+        try:
+            asks[i] = next(gen)
+        except StopIteration as done:
+            result[i] = done.value
+    while asks:
+        order = list(asks)
+        pts = [jobs[i][0].center[None, :] + asks[i][0][:, None] * jobs[i][0].row[None, :]
+               + asks[i][1][:, None] * jobs[i][0].column[None, :] for i in order]
+        fields = material_fields(anatomy, motion, np.concatenate(pts), f, {jobs[i][1] for i in order})
+        ends = np.cumsum([len(p) for p in pts])
+        nxt = {}
+        starts = ends - np.array([len(p) for p in pts])
+        for i, lo, hi in zip(order, starts, ends):
+            terms = tuple(t[lo:hi] for t in fields[jobs[i][1]])
+            try:
+                nxt[i] = jobs[i][2].send(terms)
+            except StopIteration as done:
+                result[i] = done.value
+        asks = nxt
+    return result
 
 
 def _la_tag_lines_realistic(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpec, f: float,

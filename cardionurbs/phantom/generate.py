@@ -252,6 +252,15 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     # every SA plane's material height at every frame: the RV sectors there in one call
     anatomy.prime_rv_sectors([annotate.sa_material_height(motion, s, float(f))
                               for s in specs if s.view == "SA" for f in phases])
+    # the realistic LA contours of every view at once per frame (their exact refinements share
+    # one evaluation of the region functions per step; the same contours as view by view)
+    la_views = [(s, s.id in ("la_4ch", "la_rvot"), s.id != "la_rvot") for s in specs if s.view != "SA"]
+    la_done = {}
+    if anatomy.realistic and la_views:
+        for k in range(frames):
+            for sid, cont in annotate.la_contours_realistic_views(anatomy, motion, la_views,
+                                                                  float(phases[k])).items():
+                la_done[sid, k] = cont
     for spec in specs:
         series = SERIES["SA"] if spec.view == "SA" else SERIES[spec.id]
         for k in range(frames):
@@ -279,8 +288,9 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
                         study.landmarks.append(Landmark("rv_insert", k, p, index=i, slice=spec.id,
                                                         view="SA", image=plane.id))
             else:
-                cont = annotate.la_contours(anatomy, motion, spec, f, with_rv=spec.id in ("la_4ch", "la_rvot"),
-                                            with_lv=spec.id != "la_rvot")
+                cont = la_done[spec.id, k] if (spec.id, k) in la_done else annotate.la_contours(
+                    anatomy, motion, spec, f, with_rv=spec.id in ("la_4ch", "la_rvot"),
+                    with_lv=spec.id != "la_rvot")
                 for name in ("lv_endo", "lv_epi", "rv_endo", "rv_epi"):
                     if name in cont:
                         study.contours.append(Contour(name, "LA", spec.id, k, scan(cont[name]),

@@ -170,28 +170,45 @@ class Motion:
         b3 = b2 + kr * (s3 - s2)
         return (s1, s2, s3), (kl, kr), (b1, b2, b3)
 
-    def radial_map(self, anatomy: Anatomy, s, theta, z, f, layers=None) -> np.ndarray:
+    def knots(self, anatomy: Anatomy, theta, z, f, layers=None):
+        """The knots, slopes and knot images of (M3) at material (θ, z), phase f (:meth:`_knots`),
+        to pass as ``knots=`` to :meth:`radial_map` and :meth:`inverse_radial_map` when several
+        maps share one place (the same values as computing them in each call)."""
+        return self._knots(anatomy, np.asarray(theta, dtype=float), np.asarray(z, dtype=float), f,
+                           layers)
+
+    def radial_map(self, anatomy: Anatomy, s, theta, z, f, layers=None, knots=None) -> np.ndarray:
         """s' = G(s; θ, z) of eq. (M3) for material (s, θ, z) at phase f. ``layers``: the section
-        values (S1, S2, S3) at (θ, z) when the caller has them already (several s at one place)."""
-        s, theta, z = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (s, theta, z)))
-        (s1, s2, s3), (kl, kr), (b1, b2, b3) = self._knots(anatomy, theta, z, f, layers)
+        values (S1, S2, S3) at (θ, z) when the caller has them already (several s at one place);
+        ``knots``: :meth:`knots` at (θ, z), f, likewise."""
+        if knots is None:
+            s, theta, z = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (s, theta, z)))
+            knots = self._knots(anatomy, theta, z, f, layers)
+        else:
+            s = np.asarray(s, dtype=float)
+        (s1, s2, s3), (kl, kr), (b1, b2, b3) = knots
         out = np.where(s <= s1, kl * s,
                        np.where(s <= s2, b1 + (s - s1),
                                 np.where(s <= s3, b2 + kr * (s - s2), b3 + (s - s3))))
         return out / self.lam(f)
 
-    def _inverse_layers(self, anatomy: Anatomy, s_def, theta, z, f, layers=None):
+    def _inverse_layers(self, anatomy: Anatomy, s_def, theta, z, f, layers=None, knots=None):
         """Material s from deformed s' at material (θ, z) (inverse of eq. M3), with S1, S2, S3
-        (``layers``: those section values when the caller has them already)."""
-        (s1, s2, s3), (kl, kr), (b1, b2, b3) = self._knots(anatomy, theta, z, f, layers)
+        (``layers``: those section values when the caller has them already; ``knots``: :meth:`knots`)."""
+        (s1, s2, s3), (kl, kr), (b1, b2, b3) = (knots if knots is not None
+                                                else self._knots(anatomy, theta, z, f, layers))
         u = s_def * self.lam(f)
         s = np.where(u <= b1, u / kl,
                      np.where(u <= b2, s1 + (u - b1),
                               np.where(u <= b3, s2 + (u - b2) / kr, s3 + (u - b3))))
         return s, s1, s2, s3
 
-    def inverse_radial_map(self, anatomy: Anatomy, s_def, theta, z, f, layers=None) -> np.ndarray:
+    def inverse_radial_map(self, anatomy: Anatomy, s_def, theta, z, f, layers=None,
+                           knots=None) -> np.ndarray:
         """Material s from deformed s' at material (θ, z): inverse of eq. (M3)."""
+        if knots is not None:
+            return self._inverse_layers(anatomy, np.asarray(s_def, dtype=float), theta, z, f,
+                                        knots=knots)[0]
         sp, theta, z = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (s_def, theta, z)))
         return self._inverse_layers(anatomy, sp, theta, z, f, layers)[0]
 

@@ -135,6 +135,12 @@ class RvotFrame:
         return c[2] - (n[0] * (np.asarray(x) - c[0]) + n[1] * (np.asarray(y) - c[1])) / n[2]
 
 
+def rvot_base_radius(anatomy, theta, epi: bool = False) -> np.ndarray:
+    """r_b(θ): the RV body's endo- (epi-)cardial radius in the base plane, mm (the cap of the
+    tract's radius, eq. O1)."""
+    return _rb(anatomy, theta, epi)
+
+
 def _rb(anatomy, theta, epi: bool) -> np.ndarray:
     """r_b(θ): the RV body's endo- (epi-)cardial radius in the base plane, mm."""
     th = np.asarray(theta, dtype=float)
@@ -169,9 +175,9 @@ def rvot_frame(anatomy) -> RvotFrame:
                      plane_normal=tuple(float(v) for v in normal))
 
 
-def rvot_radius(anatomy, theta, z, epi: bool = False, s_epi=None) -> np.ndarray:
+def rvot_radius(anatomy, theta, z, epi: bool = False, s_epi=None, r_b=None) -> np.ndarray:
     """R_ot(θ, z) of eq. (O1) (endo- or epicardial), mm; below r_2 outside the window. ``s_epi``:
-    the LV epicardial S(θ, z) when the caller has it."""
+    the LV epicardial S(θ, z), ``r_b``: :func:`rvot_base_radius` at θ, when the caller has them."""
     fr = rvot_frame(anatomy)
     theta = np.asarray(theta, dtype=float)
     z = np.asarray(z, dtype=float)
@@ -180,12 +186,12 @@ def rvot_radius(anatomy, theta, z, epi: bool = False, s_epi=None) -> np.ndarray:
     k = (np.cos(theta - fr.alpha) - cb) / (1.0 - cb)
     s2 = anatomy.s_lv_epi(z, theta) if s_epi is None else s_epi
     r2 = np.sqrt(np.maximum(s2, 0.0))
-    return np.minimum(_rb(anatomy, theta, epi), r2 + w * k)
+    return np.minimum(_rb(anatomy, theta, epi) if r_b is None else r_b, r2 + w * k)
 
 
-def s_rvot(anatomy, theta, z, epi: bool = False, s_epi=None) -> np.ndarray:
+def s_rvot(anatomy, theta, z, epi: bool = False, s_epi=None, r_b=None) -> np.ndarray:
     """Squared radius of the RVOT endo- (epi-)cardial shell, mm² (below S_epi outside the tract)."""
-    r = rvot_radius(anatomy, theta, z, epi, s_epi)
+    r = rvot_radius(anatomy, theta, z, epi, s_epi, r_b)
     return np.maximum(r, 0.0) ** 2
 
 

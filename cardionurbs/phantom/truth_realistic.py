@@ -14,8 +14,8 @@ analytic model:
 * **B — closed meshes.** Each region is sampled as a closed triangle mesh in
   material coordinates (a (μ, θ) grid of the LV surfaces with a cap above the
   annulus; rings of the RV crescent), every vertex mapped forward by the motion
-  and the apex bend, made a manifold3d solid, trimmed by the same valve plane,
-  and its volume taken.
+  and the apex bend, and its volume taken by the divergence theorem over the
+  triangles clipped by the same valve plane.
 
 The valve planes come from the annulus landmarks the study carries (least
 squares; :func:`cardionurbs.geometry.fit_plane`). The material myocardium (LV
@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import functools
 
-import manifold3d
 import numpy as np
 
 from cardionurbs.errors import PhantomError
@@ -326,20 +325,63 @@ def myocardium_rings(anatomy: Anatomy, n_mu: int, n_theta: int, n_strip: int = 8
 
 
 def _volume(v: np.ndarray, faces: np.ndarray, plane=None) -> float:
-    """Volume (mL) of a closed, outward mesh: the divergence theorem, or manifold3d's solid trimmed
-    to the apical side of ``plane`` when one is given."""
+    """Volume (mL) of a closed, outward mesh by the divergence theorem, V = Σ det(p0, p1, p2) / 6;
+    with a ``plane`` (point c, unit normal n) only its part on the apical side n·(x − c) ≤ 0.
+
+    The trimmed solid is bounded by the clipped triangles and a cap in the plane. With the origin
+    moved to c the cap's tetrahedra are flat, so the volume is the sum over the clipped triangles
+    alone: each triangle keeps all of itself (no vertex above), a quadrilateral (one above), a
+    triangle (two above) or nothing, cut where the edges cross the plane. The mesh must be closed
+    and consistently oriented (checked: every edge is used once in each direction)."""
+    _check_closed(faces)
     if plane is None:
         tri = v[faces]
         return float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()) / 6000.0
-    mesh = manifold3d.Mesh64(vert_properties=np.ascontiguousarray(v, dtype=np.float64),
-                             tri_verts=np.ascontiguousarray(faces, dtype=np.uint64))
-    m = manifold3d.Manifold(mesh)
-    if m.status() != manifold3d.Error.NoError:
-        raise RuntimeError(f"phantom truth mesh is not a closed manifold ({m.status().name})")
-    if plane is not None:
-        c, n = plane
-        m = m.trim_by_plane(-n, float(-(c @ n)))
-    return float(m.volume()) / 1000.0
+    c, n = (np.asarray(a, dtype=float) for a in plane)
+    q = v - c[None, :]
+    d = q @ n
+    tri, dt = q[faces], d[faces]
+    above = dt > 0.0
+    k = above.sum(axis=1)
+
+    def det(a, b, e):
+        return np.einsum("ij,ij->i", a, np.cross(b, e))
+
+    def cut(a, b, da, db):
+        return a + (b - a) * (da / (da - db))[:, None]
+
+    total = det(*(tri[k == 0].transpose(1, 0, 2))).sum()
+    for n_above in (1, 2):
+        m = k == n_above
+        if not m.any():
+            continue
+        t, dd, ab = tri[m], dt[m], above[m]
+        # roll each triangle (keeping its orientation) so that the odd vertex out comes first:
+        # the one above (one above) or the one below (two above)
+        lone = np.argmax(ab if n_above == 1 else ~ab, axis=1)
+        idx = (lone[:, None] + np.arange(3)[None, :]) % 3
+        t = np.take_along_axis(t, idx[:, :, None], axis=1)
+        dd = np.take_along_axis(dd, idx, axis=1)
+        p0, p1, p2 = t[:, 0], t[:, 1], t[:, 2]
+        x01 = cut(p0, p1, dd[:, 0], dd[:, 1])
+        x20 = cut(p2, p0, dd[:, 2], dd[:, 0])
+        if n_above == 1:        # kept: x01, p1, p2, x20
+            total += (det(x01, p1, p2) + det(x01, p2, x20)).sum()
+        else:                   # kept: p0, x01, x20
+            total += det(p0, x01, x20).sum()
+    return float(total) / 6000.0
+
+
+def _check_closed(faces: np.ndarray) -> None:
+    """PhantomError unless every directed edge of ``faces`` occurs once and its reverse once (a
+    closed, consistently oriented triangle mesh)."""
+    f = np.asarray(faces, dtype=np.int64)
+    n = int(f.max()) + 1
+    a = f.ravel()
+    b = np.roll(f, -1, axis=1).ravel()
+    fwd, bwd = np.sort(a * n + b), np.sort(b * n + a)
+    if np.any(fwd[1:] == fwd[:-1]) or not np.array_equal(fwd, bwd):
+        raise PhantomError("phantom truth mesh is not closed and consistently oriented")
 
 
 def _lv_rings(anatomy: Anatomy, which: str, z_cap, n_mu: int, n_theta: int) -> np.ndarray:
