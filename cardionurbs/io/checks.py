@@ -149,8 +149,12 @@ def _overlapping_extents(a: np.ndarray, b: np.ndarray):
     for u in _SWEEP_DIRECTIONS:
         pa, pb = a @ u, b @ u
         lo, hi = np.minimum(pa, pb), np.maximum(pa, pb)
+        # extents that touch may miss each other by a rounding error of the projection
+        # (a point on another segment projects 1e-16 beyond it along a diagonal): widen by
+        # a relative 1e-9, which only adds candidates for the exact predicate
+        tol = 1e-9 * max(float(np.abs(hi).max()), float(np.abs(lo).max()), 1e-300)
         order = np.argsort(lo, kind="stable")
-        end = np.searchsorted(lo[order], hi[order], side="right")
+        end = np.searchsorted(lo[order], hi[order] + tol, side="right")
         counts = np.maximum(end - np.arange(m) - 1, 0)
         total = int(counts.sum())
         if best is None or total < best[0]:
