@@ -28,7 +28,12 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
+# single-threaded BLAS, as the speed section reports (set before numpy is imported: a
+# multi-threaded BLAS spinning on a loaded machine inflates the CPU time several fold)
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))

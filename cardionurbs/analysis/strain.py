@@ -79,8 +79,9 @@ NORMAL_SMOOTHING_MM = 6.0
 #: A tilt α of r raises Ecc by about α² (Err − Ecc) ≈ 85 α² strain points, always upward, so
 #: the residual tilt of a surface fitted to noisy contours biases Ecc even where it barely
 #: changes a thickness (T / cos α): with 0.5 px contour noise the mean segment Ecc error was
-#: +0.26 points at 6 mm and +0.10 at 10 mm, while a smooth LV wall's averaged normal moves
-#: by < 0.5° (noise-free segment strains change by ≤ 0.2 points)
+#: +0.25 points at 6 mm (24 noisy phantoms, reports/validation-regional.md). The cost: on a
+#: smooth LV-sized spheroid the 10 mm average tilts the normal by ~1° on average where
+#: strain is measured (α² · 85 < 0.1 point), and noise-free segment strains change by ≤ 0.2
 DIRECTION_SMOOTHING_MM = 10.0
 #: the near-axis rule: myocardium nearer the long axis than this (mm) at ED, or whose image at
 #: the frame is nearer the frame's long axis than this (the apical tip around the cavity apex),
