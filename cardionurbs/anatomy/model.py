@@ -243,7 +243,8 @@ class BiventricularModel:
         tessellation clipped by the mitral plane
         (:func:`cardionurbs.anatomy.mesh.clipped_volume`: the divergence theorem, no
         manifold solid built)."""
-        v, f = meshing.closed_mesh(*nurbs.tessellate(surface, *self.resolution))
+        v, f = meshing.closed_mesh(*nurbs.tessellate(surface, *self.resolution,
+                                                    volume_corrected=True))
         vol = meshing.clipped_volume(v, f, self.base_planes[frame].get("lv")) / 1000.0
         lvot = self._tract_part(frame, "lv_endo")
         if lvot is not None:      # the LVOT lies beyond the mitral plane: the volumes add
@@ -372,7 +373,7 @@ class BiventricularModel:
         key = (frame, structure)
         if key not in self._solid_cache:
             surf = self._surface(frame, structure)
-            v, f = nurbs.tessellate(surf, *self.resolution)
+            v, f = nurbs.tessellate(surf, *self.resolution, volume_corrected=True)
             self._solid_cache[key] = meshing.solid(v, f, what=structure, frame=frame)
         return self._solid_cache[key]
 
