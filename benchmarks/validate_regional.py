@@ -447,9 +447,10 @@ NOTES = """## Notes
   F, so noise in the fitted field raises its mean by ½ tr(∇²E Cov); computed from the fit's
   covariance by symmetric sigma points) changed segment strains by ≤ 0.02 points; the fit
   without any penalty (λ = 0) left the Ell errors as they were, so the regularisation is not
-  the source of the Ell errors either. The remaining Ecc bias (+0.2–0.3 points on average,
-  up to +2 in apical segments) comes about half from the contour noise (directions and the
-  sampled wall, with exact tags) and half from the tag noise at the apex.
+  the source of the Ell errors either. Of the Ecc bias left with 6 mm directions (+0.25
+  points on average, up to +2 in apical segments) about half came from the contour noise
+  (with exact tags) and half from the tag noise at the apex; the 10 mm directions (below)
+  remove most of the first half.
 - **Radial strain is noise-limited.** The table of standard errors above is the fit's own
   covariance: with one or two tag lines across a 1 cm wall the transmural gradient is what
   the tags measure least well, and the standard error of a segment's Err is a median of
