@@ -287,17 +287,17 @@ def outflow_phantom():
 
 def test_outflow_phantom_volumes_within_two_percent(outflow_phantom):
     """Cavity volumes (tracts included) within 2 %, EF within 2 points, RVM (RVOT free
-    wall included) within 8 % (the realistic anatomy's bounds). RVM reads +3.1 % here:
-    the epicardial tube puts a wall all round the lumen, where the phantom's RVOT has its
-    inner side on the LV epicardium (it read +2.7 % while the meshes lost 0.3 % of every
-    volume to their chords)."""
+    wall included) within 3 %. RVM reads -1.1 % here (reports/validation-outflow.md); it
+    read +3.1 % while the epicardial tube put a wall all round the lumen, where the
+    phantom's RVOT has its inner side on the LV epicardium (now widened by the local wall
+    thickness of the epicardial contours)."""
     ph, m, got = outflow_phantom
     truth = ph.truth["metrics"]
     for key in ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "RVESV (mL)"):
         assert got[key] == pytest.approx(truth[key], rel=0.02), key
     for key in ("LVEF (%)", "RVEF (%)"):
         assert abs(got[key] - truth[key]) < 2.0, key
-    assert got["RVM (g)"] == pytest.approx(truth["RVM (g)"], rel=0.08)
+    assert got["RVM (g)"] == pytest.approx(truth["RVM (g)"], rel=0.03)
     # the tracts are built from the phantom's evidence: the RVOT lofted through rv_outlet
     for f in m.frames:
         assert set(m.outflow[f]) == {"rv_endo", "rv_epi", "lv_endo"}

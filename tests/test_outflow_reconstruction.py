@@ -125,10 +125,61 @@ def test_phantom_lv_la_contours_lie_on_the_phantoms_boundaries(outflow_phantoms)
 
 def test_outflow_phantom_volumes_within_two_percent(outflow_phantoms):
     """The end-systolic volumes (and the rest of the volume metrics) of the two subjects
-    whose tracts were read wrong are within 2 % of the truth; the LV endocardium meets all
-    of its contour points within 3 px (no LV endo flag)."""
+    whose tracts were read wrong are within 2 % of the truth, and no quality flag is raised
+    (every contour point within 3 px of its surface; before, LV endo up to 16.6 mm and RV up
+    to 7.6 mm; the heart rate is not given by these studies)."""
     for ph, m, got, q in outflow_phantoms:
         truth = ph.truth["metrics"]
         for col in ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "RVESV (mL)"):
             assert got[col] == pytest.approx(truth[col], rel=0.02), (ph.truth["seed"], col)
-        assert not [f for f in q.flags if f.startswith("LV endo")], q.flags
+        assert [f for f in q.flags if "heart rate" not in f] == [], q.flags
+
+
+# ----------------------------------------------------------------- valve ring and RVOT wall
+def test_annulus_ring_passes_through_its_points():
+    """Six points on a tilted, non-round annulus (an ellipse 14 x 8 mm, listed out of order):
+    the valve section passes within 0.2 mm of each; with three points it is their circle."""
+    from cardionurbs.anatomy.outflow import _annulus, annulus_ring
+    from cardionurbs.geometry import in_plane_basis
+    nrm = np.array([0.2, -0.1, 1.0])
+    nrm /= np.linalg.norm(nrm)
+    u, v = in_plane_basis(nrm)
+    ang = np.array([0.3, 2.5, 1.2, 4.0, 5.2, 3.1])
+    pts = 14.0 * np.cos(ang)[:, None] * u + 8.0 * np.sin(ang)[:, None] * v + [5.0, 2.0, 30.0]
+    valve, c0, r0 = _annulus(pts, nrm)
+    ring = annulus_ring(valve, c0, r0, nrm, u, points=pts)
+    dense = np.concatenate([(1 - t) * ring + t * np.roll(ring, -1, axis=0)
+                            for t in np.linspace(0, 1, 20, endpoint=False)])
+    gaps = np.min(np.linalg.norm(pts[:, None] - dense[None], axis=2), axis=1)
+    assert gaps.max() < 0.2
+    circle = annulus_ring(valve, c0, r0, nrm, u, points=pts[:3])
+    assert np.allclose(np.linalg.norm(circle - c0, axis=1), r0)
+
+
+def test_rvot_wall_is_local():
+    """A straight tube of radius 10 mm; epicardial points 3 mm outside it on its +x half and
+    on its wall on the -x half (the septal side): the wall reads 3 mm facing +x, 0 facing
+    -x, and the epicardial rings are widened accordingly."""
+    from cardionurbs.anatomy.outflow import (OutflowTract, offset_tract, ring_from,
+                                             ring_wall_thickness)
+    n = np.array([0.0, 0.0, 1.0])
+    ref = np.array([1.0, 0.0, 0.0])
+    w = np.linspace(0.0, 2.0 * np.pi, 360, endpoint=False)
+    rings = np.array([ring_from(np.column_stack([10 * np.cos(w), 10 * np.sin(w), np.full(360, z)]),
+                                n, ref) for z in (0.0, 5.0, 10.0, 15.0)])
+    a = np.linspace(-1.2, 1.2, 25)
+    zz = np.array([2.0, 7.0, 12.0])
+    outside = [np.column_stack([13 * np.cos(a), 13 * np.sin(a), np.full(a.shape, z)]) for z in zz]
+    on_wall = [np.column_stack([-10 * np.cos(a), 10 * np.sin(a), np.full(a.shape, z)]) for z in zz]
+    pts = np.concatenate(outside + on_wall)
+    wall = ring_wall_thickness(rings, pts)
+    ang = np.arctan2(rings[0, :, 1], rings[0, :, 0])
+    assert np.allclose(wall[np.abs(ang) < 1.0], 3.0, atol=0.05)
+    assert np.allclose(wall[np.abs(ang) > np.pi - 1.0], 0.0, atol=0.05)
+    body = Plane(np.zeros(3), -n)          # the tract on its basal side, z > 0
+    endo = OutflowTract("rv_endo", Plane(np.array([0, 0, 15.0]), -n), body, -n,
+                        np.zeros(4), rings.mean(axis=1), np.full(4, 10.0), pts, rings=rings)
+    epi = offset_tract(endo, pts)
+    r = np.linalg.norm(epi.rings[1][:, :2], axis=1)
+    assert np.allclose(r[np.abs(ang) < 1.0], 13.0, atol=0.1)
+    assert np.allclose(r[np.abs(ang) > np.pi - 1.0], 10.0, atol=0.1)

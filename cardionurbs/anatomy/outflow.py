@@ -33,14 +33,18 @@ Construction (one tube per surface, scanner mm):
   apical side of the outflow valve plane and the basal side of the body's valve plane.
 
 With SA ``rv_outlet`` contours (planes across the tract) the RVOT is lofted through them
-instead (:func:`loft_tract`): from the valve ring (the annulus circle; without landmarks the most basal outlet contour closes the
-tract) through the outlet contours to the most apical one moved along the stacking
-direction past the tricuspid plane, the sections matched point to point by arc length.
+instead (:func:`loft_tract`): from the valve ring (the spline through the annulus points,
+the annulus circle with fewer than four; without landmarks the most basal outlet contour
+closes the tract) through the outlet contours to the most apical one moved along the
+stacking direction past the tricuspid plane (stretched through the tract's LA crossings
+on the way), the sections matched point to point by arc length.
 
-The epicardial RVOT tube is the endocardial one widened by the RVOT wall thickness: the
-median distance outside the lumen of the RV epicardial contour points of the tract (LA
-runs selected as above, and epicardial outlet loops); no epicardial evidence, no RVOT
-wall.
+The epicardial RVOT tube is the endocardial one widened by the RVOT wall thickness, from
+the RV epicardial contour points of the tract (LA runs selected as above, and epicardial
+outlet loops): a lofted tube position by position round its rings by the local thickness
+those points show (the tract's septal side, on the LV epicardium and aortic root, has no RV
+wall), a tube of circles by their median distance outside the lumen; no epicardial
+evidence, no RVOT wall.
 """
 
 from __future__ import annotations
@@ -63,6 +67,11 @@ AROUND = 48
 MAX_LENGTH_MM = 80.0
 #: the tube starts this far (mm) beyond its valve plane, so the trim by that plane cuts it
 OVERHANG_MM = 1.0
+#: annulus points from which a lofted tract's valve section is the spline through them
+ANNULUS_SPLINE_MIN = 4
+#: a lofted tract's wall thickness at one ring position is taken from the epicardial
+#: evidence whose nearest lumen point lies within this many positions of it (of AROUND)
+WALL_WINDOW = 2
 
 #: which body valve plane, outflow valve landmark and LA contours each tract uses
 TRACTS = {"rv_endo": ("rv", "pulmonary"), "rv_epi": ("rv", "pulmonary"),
@@ -353,11 +362,27 @@ def ring_from(points: np.ndarray, normal: np.ndarray, ref: np.ndarray, m: int = 
 
 
 def annulus_ring(valve: Plane, centre: np.ndarray, radius: float, normal: np.ndarray,
-                 ref: np.ndarray) -> np.ndarray:
-    """The valve section as a ring: the annulus circle (centre and radius from the annulus
-    points, :func:`_annulus`) in the valve plane. A valve annulus is nearly round, and a
-    few ring points joined as a polygon would cut its area (8 points: by 10 %)."""
+                 ref: np.ndarray, points: np.ndarray | None = None) -> np.ndarray:
+    """The valve section as a ring in the valve plane. With at least
+    :data:`ANNULUS_SPLINE_MIN` annulus ``points``: the closed cubic spline (chord length)
+    through them, projected on the plane, in angular order about their centroid, so that
+    the section passes through every annulus point whatever the annulus shape (a crescent
+    RVOT annulus is not round: its least-squares circle missed the points by up to 4.5 mm);
+    fewer points: the annulus circle (centre and radius from the points, :func:`_annulus`).
+    Joined as a polygon, a few ring points would cut the area (8 points: by 10 %)."""
     u, v = in_plane_basis(valve.normal)
+    if points is not None and len(points) >= ANNULUS_SPLINE_MIN:
+        from cardionurbs.anatomy.surfaces import periodic_spline
+        p = np.asarray(points, float)
+        p = p - np.outer(valve.signed_distance(p), valve.normal)
+        q = p - p.mean(axis=0)
+        p = p[np.argsort(np.arctan2(q @ v, q @ u))]
+        keep = np.r_[True, np.linalg.norm(np.diff(p, axis=0), axis=1) > 0.5]
+        keep[-1] &= bool(np.linalg.norm(p[-1] - p[0]) > 0.5)
+        if keep.sum() >= ANNULUS_SPLINE_MIN:
+            spline, length = periodic_spline(p[keep])
+            return ring_from(spline(np.linspace(0.0, length, 8 * AROUND, endpoint=False)),
+                             normal, ref)
     t = np.linspace(0.0, 2.0 * np.pi, 8 * AROUND, endpoint=False)
     circle = centre + radius * (np.cos(t)[:, None] * u + np.sin(t)[:, None] * v)
     return ring_from(circle, normal, ref)
@@ -405,10 +430,11 @@ def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarra
     point farthest along ``ref`` (the LV → RV direction).
 
     Between the most apical loop and the body's valve plane no SA contour shows the tract;
-    where its LA contour ``runs`` (:func:`_tract_runs`) do, the moved loop is placed every
+    where its LA contour ``runs`` (:func:`_tract_runs`) do, the section is moved on every
     :data:`STEP_MM` and stretched through their crossings of each section plane
-    (:func:`ring_through_crossings`): the tract widens there into the ventricle's body, which
-    the moved loop alone would miss."""
+    (:func:`ring_through_crossings`), each from the one before, so that a wall no longer
+    seen keeps where it was last seen: the tract widens there into the ventricle's body,
+    which the moved loop alone would miss."""
     loops = [np.asarray(q, float) for q in loops if len(q) >= 3]
     if not loops:
         return None
@@ -425,7 +451,7 @@ def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarra
         annulus = np.atleast_2d(np.asarray(annulus, float))
         guess = ev.mean(axis=0) - annulus.mean(axis=0)
         valve, c0, r0 = _annulus(annulus, _into_ventricle(guess / np.linalg.norm(guess), body))
-        top = annulus_ring(valve, c0, r0, n, ref)
+        top = annulus_ring(valve, c0, r0, n, ref, points=annulus)
     if body.signed_distance(valve.origin[None])[0] >= 0:
         return None
     loops = [q for q in loops if valve.signed_distance(q).mean() > 0]
@@ -436,16 +462,17 @@ def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarra
     if depth > 0:
         depth = min(depth, MAX_LENGTH_MM)
         runs = [np.asarray(r, float) for r in runs if len(r) >= 2]
-        end = last + depth * n
+        prev, h_prev = last, 0.0
         for h in np.arange(STEP_MM, depth, STEP_MM) if runs else ():
-            ring = last + h * n
+            ring = prev + (h - h_prev) * n
             level = float(ring.mean(axis=0) @ n)
             cut = np.concatenate([polyline_crossings(r, n, level) for r in runs])
             if len(cut):
-                rings.append(ring_through_crossings(ring, n, cut))
-                # the end ring as the last stretched one (no crossings past the body's plane)
-                end = rings[-1] + (depth - h) * n
-        rings.append(end)
+                # the previous section stretched on: a wall no longer seen keeps its place
+                prev, h_prev = ring_through_crossings(ring, n, cut), h
+                rings.append(prev)
+        # the end ring as the last stretched one (no crossings past the body's plane)
+        rings.append(prev + (depth - h_prev) * n)
     rings = np.asarray(rings)
     centres = rings.mean(axis=1)
     levels = (centres - valve.origin) @ valve.normal
@@ -457,8 +484,14 @@ def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarra
 def offset_tract(endo: OutflowTract, epi_points: np.ndarray, structure: str = "rv_epi"
                  ) -> OutflowTract | None:
     """The epicardial tube of a tract: the endocardial tube's sections widened by the wall
-    thickness, the median distance of the epicardial contour points outside the lumen
-    (None when that median is not positive: the points do not lie outside it)."""
+    thickness (None when the epicardial points do not lie outside the lumen: their median
+    distance outside it is not positive).
+
+    A lofted tube (rings) is widened position by position round its rings by the local wall
+    thickness the epicardial points give (:func:`ring_wall_thickness`): the RVOT has a free
+    wall, but on its septal side the RV epicardial contours run on the lumen's wall (the LV
+    epicardium, the aortic root), where a uniform widening would add a wall no contour
+    shows. A tube of circles is widened by the median distance outside it."""
     if endo.rings is not None:
         d = endo.distance(epi_points)
         d = d[np.isfinite(d)]
@@ -467,25 +500,57 @@ def offset_tract(endo: OutflowTract, epi_points: np.ndarray, structure: str = "r
     wall = float(np.median(d)) if len(d) else 0.0
     if not wall > 0:
         return None
-    rings = None if endo.rings is None else offset_rings(endo.rings, wall)
+    rings = None
+    if endo.rings is not None:
+        local = ring_wall_thickness(endo.rings, np.asarray(epi_points, float))
+        rings = offset_rings(endo.rings, local)
+        wall = float(local.mean())
     return OutflowTract(structure, endo.valve, endo.body_plane, endo.axis, endo.levels,
                         endo.centres, endo.radii + wall, np.asarray(epi_points, float),
                         rings=rings)
 
 
-def offset_rings(rings: np.ndarray, by: float) -> np.ndarray:
+def ring_normals(r: np.ndarray) -> np.ndarray:
+    """(m, 3) unit outward normals, in its own plane, of a counter-clockwise ring's vertices."""
+    nrm = fit_plane(r)[1]
+    if polygon_area(r, nrm, signed=True) < 0:
+        nrm = -nrm
+    o = np.cross(np.roll(r, -1, axis=0) - np.roll(r, 1, axis=0), nrm)
+    return o / np.maximum(np.linalg.norm(o, axis=1, keepdims=True), 1e-12)
+
+
+def ring_wall_thickness(rings: np.ndarray, points: np.ndarray, window: int = WALL_WINDOW
+                        ) -> np.ndarray:
+    """(m,) wall thickness (mm) at each position round the rings (k, m, 3) of a lofted
+    lumen, from epicardial points: each point's signed distance outside the lumen (to the
+    nearest point of the rings, densely interpolated between them, along its outward
+    normal; inside counts 0) is assigned to that point's ring position j; the thickness at
+    j is the median over the points at positions within ``window`` of j (round the ring),
+    and positions without points take the periodic linear interpolation of the others.
+    The rings correspond position to position (:func:`ring_from`), so position j is one
+    side of the tract along its length."""
+    k, m = rings.shape[:2]
+    w = np.linspace(0.0, 1.0, 5)[:-1]
+    dense = np.concatenate([(1 - t) * rings[:-1] + t * rings[1:] for t in w] + [rings[-1:]])
+    normals = np.stack([ring_normals(r) for r in dense])
+    _, idx = cKDTree(dense.reshape(-1, 3)).query(points)
+    near, out = dense.reshape(-1, 3)[idx], normals.reshape(-1, 3)[idx]
+    depth = np.maximum(np.einsum("ij,ij->i", points - near, out), 0.0)
+    pos = idx % m
+    wall = np.full(m, np.nan)
+    for j in range(m):
+        sel = np.abs((pos - j + m // 2) % m - m // 2) <= window
+        if sel.any():
+            wall[j] = float(np.median(depth[sel]))
+    have = np.flatnonzero(np.isfinite(wall))
+    return np.interp(np.arange(m), have, wall[have], period=m)
+
+
+def offset_rings(rings: np.ndarray, by) -> np.ndarray:
     """Each ring moved ``by`` mm outward in its own plane (vertex normals of the
-    counter-clockwise ring)."""
-    out = []
-    for r in rings:
-        nrm = fit_plane(r)[1]
-        if polygon_area(r, nrm, signed=True) < 0:
-            nrm = -nrm
-        t = np.roll(r, -1, axis=0) - np.roll(r, 1, axis=0)
-        o = np.cross(t, nrm)
-        o /= np.maximum(np.linalg.norm(o, axis=1, keepdims=True), 1e-12)
-        out.append(r + by * o)
-    return np.asarray(out)
+    counter-clockwise ring); ``by`` a number or one value per ring position (m,)."""
+    by = np.broadcast_to(np.asarray(by, float), (rings.shape[1],))[:, None]
+    return np.asarray([r + by * ring_normals(r) for r in rings])
 
 
 def endo_signed_depth(t: OutflowTract, points: np.ndarray) -> np.ndarray:
