@@ -313,7 +313,7 @@ def render(r: dict, a) -> str:
                 L.append(f"| {label} | {r[key]['wall_s']:.2f} | {r[key]['cpu_s']:.2f} | "
                          f"{r[key].get('load_1min', float('nan')):.1f} |")
         b = r["phantom20_bytes"]
-        L += ["## Study files", "",
+        L += ["", "## Study files", "",
               "| 20-frame tagged phantom (`phantom --pathology normal --seed 1 --frames 20`) | bytes |",
               "|---|---:|",
               f"| whole folder (native + DICOM + truth) | {b['total'] / 1e6:.1f} MB |",

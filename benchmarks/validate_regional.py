@@ -28,7 +28,12 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
+# single-threaded BLAS, as the speed section reports (set before numpy is imported: a
+# multi-threaded BLAS spinning on a loaded machine inflates the CPU time several fold)
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -402,9 +407,14 @@ NOTES = """## Notes
   `analysis.tags`) is unchanged, so reports/validation-tags.md stands.
 - **ED-plane noise** is the RMS distance of the ED tag points to their tag's least-squares
   plane: an estimate of the tracking noise normal to the tags (0.5 px ≈ 0.6 mm here).
-- **Directions.** r is the endocardial normal averaged over 6 mm of surface: with 0.5 px
+- **Directions.** r is the endocardial normal averaged over 10 mm of surface: with 0.5 px
   contour noise the raw NURBS normals tilt enough to bias Ecc by +1.7 and Err by −1.6 points
-  (a tilt α moves Ecc by ≈ α² (Err − Ecc)).
+  (a tilt α moves Ecc by ≈ α² (Err − Ecc), upward whatever the tilt's sign). Averaged over
+  6 mm (as the thickness rays still are) the residual tilt left a mean segment Ecc error of
+  +0.25 points over these 24 noisy phantoms (mean z +0.88; normal 2's apical segment 14 at
+  +2.08, over the bound); the table above gives it over 10 mm. Noise-free, the segment
+  strains stay within 0.2 points of the 6 mm values. With exact tags and noisy contours
+  alone, normal 1's mean Ecc error was +0.17 with 6 mm and +0.02 with 10 mm.
 - **Near the axis.** Segment means (and the truth) leave out the myocardium within 10 mm of
   the ED long axis, and the myocardium whose image at the frame lies within 10 mm of that
   frame's long axis (the measurement with its fitted map, the truth with the exact motion;
@@ -437,9 +447,10 @@ NOTES = """## Notes
   F, so noise in the fitted field raises its mean by ½ tr(∇²E Cov); computed from the fit's
   covariance by symmetric sigma points) changed segment strains by ≤ 0.02 points; the fit
   without any penalty (λ = 0) left the Ell errors as they were, so the regularisation is not
-  the source of the Ell errors either. The remaining Ecc bias (+0.2–0.3 points on average,
-  up to +2 in apical segments) comes about half from the contour noise (directions and the
-  sampled wall, with exact tags) and half from the tag noise at the apex.
+  the source of the Ell errors either. Of the Ecc bias left with 6 mm directions (+0.25
+  points on average, up to +2 in apical segments) about half came from the contour noise
+  (with exact tags) and half from the tag noise at the apex; the 10 mm directions (below)
+  remove most of the first half.
 - **Radial strain is noise-limited.** The table of standard errors above is the fit's own
   covariance: with one or two tag lines across a 1 cm wall the transmural gradient is what
   the tags measure least well, and the standard error of a segment's Err is a median of

@@ -124,3 +124,12 @@ def test_no_lv_endo_is_fatal():
     s.contours = [c for c in s.contours if c.structure != "lv_endo"]
     with pytest.raises(StudyError, match="no LV endocardial"):
         check_study(s)
+
+
+def test_touching_segment_found_when_the_diagonal_sweep_rounds_past_it():
+    """A segment starting on another (non-adjacent) one touches it: found even though along
+    the 135-degree sweep direction the two extents miss each other by a 1e-16 rounding of
+    the projection (a case hypothesis found)."""
+    xy = np.array([[-5.0, -5.0], [3.0, 3.0], [0.0, 0.0], [1.0, 0.0]])
+    assert self_intersections(xy, closed=False).tolist() == [[0, 2]]
+    assert _brute(xy, False) == [(0, 2)]

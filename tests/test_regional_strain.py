@@ -318,3 +318,29 @@ def test_tag_grid_recovers_any_exact_grid(nx, ny, nz, spacing, first, k0, count,
     d = _offsets_along(out, n)
     assert np.allclose(d, [first + spacing * k for k in idx], atol=1e-6)
     assert np.allclose(np.abs(out.normals @ n), 1.0, atol=1e-9)
+
+
+def test_direction_smoothing_keeps_a_smooth_wall_normal():
+    """Normals of a prolate spheroid (semi-axes 25 mm and 60 mm, an LV-sized cavity) averaged
+    over the strain-direction radius (10 mm), where strain is measured (≥ 10 mm from the
+    axis, ≥ 12 mm from the apex): within 1.5° of the exact normal on average (a tilt α
+    moves Ecc by about α² (Err − Ecc): < 0.06 strain points at Err − Ecc = 85), and a 5°
+    random pointwise tilt brought below 2°."""
+    a, c = 25.0, 60.0
+    u, v = np.meshgrid(np.linspace(0.05, 0.5 * np.pi, 50), np.linspace(-np.pi, np.pi, 100,
+                                                                      endpoint=False), indexing="ij")
+    u, v = u.ravel(), v.ravel()
+    P = np.column_stack([a * np.sin(u) * np.cos(v), a * np.sin(u) * np.sin(v), -c * np.cos(u)])
+    N = np.column_stack([P[:, 0] / a ** 2, P[:, 1] / a ** 2, P[:, 2] / c ** 2])
+    N /= np.linalg.norm(N, axis=1)[:, None]
+    W = a * np.sin(u) * np.sqrt((a * np.cos(u)) ** 2 + (c * np.sin(u)) ** 2)   # area element
+    inner = (P[:, 2] < -12.0) & (np.hypot(P[:, 0], P[:, 1]) >= 10.0)
+
+    def angle(M):
+        return np.degrees(np.arccos(np.clip(np.einsum("ni,ni->n", M, N), -1, 1)))[inner]
+    assert angle(S.smoothed_normals(P, N, W, S.DIRECTION_SMOOTHING_MM)).mean() < 1.5
+    rng = np.random.default_rng(5)
+    noisy = N + np.radians(5.0) * rng.normal(size=N.shape) / np.sqrt(2)
+    noisy /= np.linalg.norm(noisy, axis=1)[:, None]
+    assert np.sqrt(np.mean(angle(noisy) ** 2)) > 4.0
+    assert np.sqrt(np.mean(angle(S.smoothed_normals(P, noisy, W, S.DIRECTION_SMOOTHING_MM)) ** 2)) < 2.0

@@ -98,3 +98,25 @@ def test_metrics_only_volume_curve_reports_what_was_measured():
     c = volume_curve(model, every_structure=False)
     assert c["lv_cavity (mL)"] == [150.0, 100.0, 60.0]
     assert c["rv_cavity (mL)"][0] == 160.0 and math.isnan(c["rv_cavity (mL)"][1])
+
+
+def test_metrics_only_analyze_imports_no_mesh_or_figure_library(tmp_path):
+    """A metrics-only `analyze` (what every cohort row costs) imports neither trimesh (and
+    through it networkx and scipy.ndimage) nor matplotlib: they are loaded where meshes and
+    figures are made."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from cardionurbs.phantom import generate, write_phantom
+    root = Path(__file__).resolve().parents[1]
+    write_phantom(generate("normal", seed=3, frames=2, volume_check=False), tmp_path / "s", dicom=False)
+    code = ("import sys; from cardionurbs.cli import main\n"
+            f"rc = main(['analyze', {str(tmp_path / 's')!r}, '--outputs', 'metrics', '--out', "
+            f"{str(tmp_path / 'o')!r}])\n"
+            "print(rc, sorted(m for m in ('trimesh', 'networkx', 'matplotlib') if m in sys.modules))")
+    r = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True,
+                       env={**__import__("os").environ, "PYTHONPATH": str(root)}, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().splitlines()[-1] == "0 []"
+    assert (tmp_path / "o" / "metrics.json").is_file()

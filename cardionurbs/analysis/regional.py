@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cardionurbs.analysis.aha import AhaFrame, model_aha_frame
-from cardionurbs.analysis.strain import STRAIN_COLUMNS, STRAIN_KINDS, myocardium_samples, tag_strain
+from cardionurbs.analysis.strain import (DIRECTION_SMOOTHING_MM, STRAIN_COLUMNS, STRAIN_KINDS,
+                                         myocardium_samples, smoothed_normals, tag_strain)
 from cardionurbs.analysis.tag_motion import ed_tag_planes, frame_tag_points
 from cardionurbs.analysis.surface_strain import SURFACE_STRAIN_COLUMNS, surface_strains
 from cardionurbs.analysis.thickness import THICKNESS_COLUMNS, thickness_by_segment, thickness_columns
@@ -101,9 +102,11 @@ def regional_metrics(model, tags=None) -> RegionalMetrics:
         return out
     smp = out.samples[ed]
     P = smp["points"]
-    N = smp["normals"]              # averaged over 6 mm by thickness_by_segment
+    N = smp["normals"]              # averaged over 6 mm by thickness_by_segment: the wall rays
     a = out.aha[ed]
     wall = myocardium_samples(P, N, smp["thickness"], smp["weight"], a.apex, a.base)
+    # the strain directions: the normals averaged over DIRECTION_SMOOTHING_MM
+    N = smoothed_normals(P, smp["raw_normals"], smp["weight"], DIRECTION_SMOOTHING_MM)
     frames = [f for f in material.frames if f != material.ed_frame]
     study = model.study
     flagged = {(fl.family, fl.index, fl.slice, fl.frame) for fl in getattr(tags, "flags", [])}

@@ -38,8 +38,8 @@ Deformation gradient
 Strain
     Green–Lagrange E = ½ (FᵀF − I); Ecc = 100 cᵀEc, Ell = 100 lᵀEl,
     Err = 100 rᵀEr with r the outward unit normal of the ED endocardial
-    surface at its point nearest the material point (averaged over 6 mm of
-    surface, :func:`smoothed_normals`), c the circumferential
+    surface at its point nearest the material point (averaged over 10 mm of
+    surface, :func:`smoothed_normals`, :data:`DIRECTION_SMOOTHING_MM`), c the circumferential
     direction e_θ made orthogonal to r, and l = r × c (the base → apex
     direction projected off the normal, up to sign). det F is reported as
     the incompressibility check (1 for myocardium).
@@ -73,8 +73,16 @@ TRANSMURAL_ORDER = 1
 #: a tracked point farther than this (mm, and 4 x the median) from the first fit is left out
 OUTLIER_MM = 1.5
 MIN_POINTS = 80
-#: radius (mm) over which endocardial normals are averaged for the radial direction
+#: radius (mm) over which endocardial normals are averaged for the wall-thickness rays
 NORMAL_SMOOTHING_MM = 6.0
+#: radius (mm) over which endocardial normals are averaged for the strain directions (r, c, l).
+#: A tilt α of r raises Ecc by about α² (Err − Ecc) ≈ 85 α² strain points, always upward, so
+#: the residual tilt of a surface fitted to noisy contours biases Ecc even where it barely
+#: changes a thickness (T / cos α): with 0.5 px contour noise the mean segment Ecc error was
+#: +0.25 points at 6 mm (24 noisy phantoms, reports/validation-regional.md). The cost: on a
+#: smooth LV-sized spheroid the 10 mm average tilts the normal by ~1° on average where
+#: strain is measured (α² · 85 < 0.1 point), and noise-free segment strains change by ≤ 0.2
+DIRECTION_SMOOTHING_MM = 10.0
 #: the near-axis rule: myocardium nearer the long axis than this (mm) at ED, or whose image at
 #: the frame is nearer the frame's long axis than this (the apical tip around the cavity apex),
 #: is left out of the segment means: the cylindrical chart (S1) is singular on the axis, where
@@ -302,8 +310,10 @@ def smoothed_normals(points: np.ndarray, normals: np.ndarray, weights: np.ndarra
     The radial direction enters Ecc and Ell at second order: a normal tilted by α moves
     Ecc by about α² (Err − Ecc), so the scatter of a surface fitted to noisy contours
     biases Ecc up and Err down (≈ 1.7 strain points at 0.5 px contour noise). Averaging
-    over a disc of 6 mm — small against the ≥ 20 mm radii of curvature of the LV wall,
-    so a smooth surface's normal changes by < 0.1° — removes most of it."""
+    over a disc of 6 mm (:data:`NORMAL_SMOOTHING_MM`, the thickness rays) — small against
+    the ≥ 20 mm radii of curvature of the LV wall, so a smooth surface's normal changes by
+    < 0.1° — removes most of it; 10 mm (:data:`DIRECTION_SMOOTHING_MM`, the strain
+    directions) most of the rest."""
     from scipy.sparse import csr_matrix
     pairs = cKDTree(points).query_pairs(radius_mm, output_type="ndarray")
     n = len(points)

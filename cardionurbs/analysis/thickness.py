@@ -129,18 +129,20 @@ def thickness_by_segment(endo, epi, aha: AhaFrame, base_plane=None,
     (normal apical) — endocardial samples beyond it are left out. The rays follow the
     endocardial normal averaged over ``smoothing_mm`` of surface
     (:func:`cardionurbs.analysis.strain.smoothed_normals`; 0: the raw NURBS normal), and the
-    samples' ``normals`` are those averaged normals.
+    samples' ``normals`` are those averaged normals (``raw_normals``: the outward NURBS
+    normals before averaging).
     """
     P, N, W = surface_samples(endo, *samples)
     N = orient_outward(P, N, aha.apex, aha.base)
     keep = np.ones(len(P), bool) if base_plane is None else base_plane.signed_distance(P) >= 0
     P, N, W = P[keep], N[keep], W[keep]
+    raw = N
     if smoothing_mm > 0:
         N = smoothed_normals(P, N, W, smoothing_mm)
     t = ray_surface_distance(epi, P, N)
     lab = aha.segments(P)
     return segment_means(t, W, lab), {"points": P, "normals": N, "thickness": t, "segment": lab,
-                                      "weight": W}
+                                      "weight": W, "raw_normals": raw}
 
 
 def thickness_columns(ed: dict[int, float], es: dict[int, float]) -> dict[str, float]:

@@ -20,12 +20,15 @@ structure and frame.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import manifold3d
 import numpy as np
-import trimesh
 
 from cardionurbs.errors import ReconstructionError
+
+if TYPE_CHECKING:    # trimesh (~0.3 s to import) only where meshes are made
+    import trimesh
 
 
 @dataclass(frozen=True)
@@ -229,6 +232,7 @@ def to_trimesh(m: manifold3d.Manifold, *, what: str = "mesh",
     if m.status() != manifold3d.Error.NoError or m.is_empty():
         raise ReconstructionError(f"{what}, frame {frame}: boolean result is empty or not "
                                   f"manifold ({m.status().name})")
+    import trimesh
     mesh = m.to_mesh64()
     tm = trimesh.Trimesh(vertices=np.asarray(mesh.vert_properties)[:, :3],
                          faces=np.asarray(mesh.tri_verts, dtype=np.int64), process=False)

@@ -14,11 +14,11 @@ import dataclasses
 import math
 from collections.abc import Mapping
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import manifold3d
 import numpy as np
 import pandas as pd
-import trimesh
 
 from cardionurbs import nurbs
 from cardionurbs.anatomy import mesh as meshing
@@ -30,6 +30,9 @@ from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface, free_wall_po
 from cardionurbs.errors import ReconstructionError
 from cardionurbs.geometry import long_axis, polygon_centroid
 from cardionurbs.study import Study
+
+if TYPE_CHECKING:    # trimesh (~0.3 s to import) only where meshes are made
+    import trimesh
 
 MESHES = ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium")
 #: default tessellation (around, along) of each surface before the booleans
@@ -136,6 +139,7 @@ class BiventricularModel:
         self._meshes: dict[int, dict[str, trimesh.Trimesh]] = {}
         self._solid_cache: dict[tuple[int, str], object] = {}
         self._fits: dict[tuple[int, str], SurfaceFit] = {}
+        self._clipped_ml: dict[int, float] = {}     # lv_cavity_volume of frames without solids
         self.geometry = LazyFrames(self.frames, self._frame_geometry)
         if surfaces is None:          # reconstruct lazily from the study
             self.surfaces = LazyFrames(self.frames, self._all_surfaces)
@@ -261,7 +265,9 @@ class BiventricularModel:
         surface, which gives the same volume to rounding without building the solid."""
         if frame in (self.ed_frame, self.es_frame) or (frame, "lv_cavity") in self._solid_cache:
             return meshing.volume_ml(self.lv_cavity_solid(frame))
-        return self._clipped_cavity_ml(frame, self._surface(frame, "lv_endo"))
+        if frame not in self._clipped_ml:           # the filling rates and the volume curve ask
+            self._clipped_ml[frame] = self._clipped_cavity_ml(frame, self._surface(frame, "lv_endo"))
+        return self._clipped_ml[frame]
 
     def _refined(self, geo: FrameGeometry, structure: str, surface):
         """The surface corrected towards the LA contour points on the apical side of the

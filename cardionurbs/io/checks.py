@@ -149,8 +149,12 @@ def _overlapping_extents(a: np.ndarray, b: np.ndarray):
     for u in _SWEEP_DIRECTIONS:
         pa, pb = a @ u, b @ u
         lo, hi = np.minimum(pa, pb), np.maximum(pa, pb)
+        # extents that touch may miss each other by a rounding error of the projection
+        # (a point on another segment projects 1e-16 beyond it along a diagonal): widen by
+        # a relative 1e-9, which only adds candidates for the exact predicate
+        tol = 1e-9 * max(float(np.abs(hi).max()), float(np.abs(lo).max()), 1e-300)
         order = np.argsort(lo, kind="stable")
-        end = np.searchsorted(lo[order], hi[order], side="right")
+        end = np.searchsorted(lo[order], hi[order] + tol, side="right")
         counts = np.maximum(end - np.arange(m) - 1, 0)
         total = int(counts.sum())
         if best is None or total < best[0]:
@@ -362,7 +366,10 @@ def _annotation_files(study: Study) -> list:
     if isinstance(gp, dict) and isinstance(gp.get("frames"), dict):
         return [gp["frames"].get(str(c.frame), {}).get("file") for c in study.contours]
     if study.meta.get("format") in (None, "cardionurbs-native") and study.source:
-        return ["points.csv"] * len(study.contours)
+        name = "points.csv"                 # a large native study's points file is Parquet
+        if not (Path(study.source) / name).is_file() and (Path(study.source) / "points.parquet").is_file():
+            name = "points.parquet"
+        return [name] * len(study.contours)
     return [None] * len(study.contours)
 
 

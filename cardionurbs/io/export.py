@@ -12,12 +12,14 @@ import json
 import math
 import os
 from pathlib import Path
-
-import trimesh
+from typing import TYPE_CHECKING
 
 from cardionurbs.errors import ExportError
 from cardionurbs.io import atomic
 from cardionurbs.nurbs import write_3dm
+
+if TYPE_CHECKING:    # trimesh (~0.3 s to import) only where meshes are made
+    import trimesh
 
 MESH_FORMATS = ("stl", "ply", "obj", "glb")
 
