@@ -84,10 +84,6 @@ def annulus_mean(mag: np.ndarray, inner: int = 2, outer: int = 6) -> np.ndarray:
     return (big - small) / (a * a - b * b)
 
 
-def _bin(k: np.ndarray, shape: tuple[int, int]) -> tuple[int, int]:
-    return int(round(k[1] * shape[0])) % shape[0], int(round(k[0] * shape[1])) % shape[1]
-
-
 def _refine(mag: np.ndarray, r: int, c: int) -> tuple[float, float]:
     """Sub-bin offsets (dr, dc) of a peak from parabolas through the log magnitudes."""
     R, C = mag.shape
@@ -146,11 +142,12 @@ def tag_peaks(image: np.ndarray, families: int, min_period_px: float = 3.0,
                    key=lambda ij: mag[ij] if band[ij] else -1.0)
         dr, dc = _refine(mag, r, c)
         k = np.array([kc[r, c] + dc / mag.shape[1], kr[r, c] + dr / mag.shape[0]])
-        peaks.append(TagPeak(k, float(mag[r, c]), 0.0))
+        # the contrast of the peak's own bin: the refined k may round to a bin across the
+        # half-plane's edge (a wave vector along ±c), outside the band where white = -1
+        peaks.append(TagPeak(k, float(mag[r, c]), float(white[r, c])))
         if n == 0:
             k1 = k
             cosang = np.abs(kc * k1[0] + kr * k1[1]) / np.maximum(rad * np.linalg.norm(k1), 1e-12)
             ratio = rad / np.linalg.norm(k1)
             allowed = band & (cosang < np.cos(np.radians(50.0))) & (ratio > 0.6) & (ratio < 1.6)
-    out = [TagPeak(p.k, p.magnitude, float(white[_bin(p.k, mag.shape)])) for p in peaks]
-    return out
+    return peaks
