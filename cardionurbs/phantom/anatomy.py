@@ -239,6 +239,45 @@ class Anatomy:
     def z_top_min(self) -> float:
         return self.z_base - (self.shape.saddle_mm if self.shape is not None else 0.0)
 
+    @property
+    def tricuspid_dip(self) -> float:
+        """h_t, mm: how far the tricuspid annulus dips below the base plane (0: planar)."""
+        return float(self.shape.tricuspid_dip_mm) if self.shape is not None else 0.0
+
+    def tricuspid_span(self) -> tuple[float, float]:
+        """(θ_0, θ_1): the angles of the tricuspid annulus' dip — the endocardial RV crescent at the
+        base, with an outflow tract only up to the tract's epicardial window (the tract and its
+        side wall rise from the plane z = z_b)."""
+        span = self.__dict__.get("_tricuspid_span")
+        if span is None:
+            lo, hi = (float(v[0]) for v in self.rv_sector(np.array([self.z_base])))
+            if self.outflow is not None:
+                from cardionurbs.phantom.outflow import rvot_frame
+                hi = min(hi, float(rvot_frame(self).window(self.z_base, epi=True)[0]))
+            span = (lo, hi)
+            object.__setattr__(self, "_tricuspid_span", span)
+        return span
+
+    def z_top_rv(self, theta) -> np.ndarray:
+        """Height of the tricuspid annulus (top of the RV walls and cavity) at angle θ, mm: z_b, or
+        with a dip h_t (realistic) z_b − h_t sin²(π (θ − θ_0) / (θ_1 − θ_0)) over the tricuspid
+        span [θ_0, θ_1] (:meth:`tricuspid_span`) and z_b outside it. The crescent's tips stay at
+        z_b and its free wall and septum dip at the middle angle: around the annulus ring (free
+        wall out, septum back) two highs and two lows, a saddle."""
+        theta = np.asarray(theta, dtype=float)
+        if self.tricuspid_dip == 0.0:
+            return np.full(theta.shape, self.z_base)
+        lo, hi = self.tricuspid_span()
+        mid = 0.5 * (lo + hi)
+        t = np.angle(np.exp(1j * (theta - mid))) + mid             # θ wrapped about the span
+        u = np.clip((t - lo) / (hi - lo), 0.0, 1.0)
+        return self.z_base - self.tricuspid_dip * np.sin(np.pi * u) ** 2
+
+    @property
+    def z_top_rv_min(self) -> float:
+        """Lowest point of the tricuspid annulus, mm."""
+        return self.z_base - self.tricuspid_dip
+
     # ------------------------------------------------------------ RV
     @property
     def rv_x_center(self) -> float:

@@ -121,7 +121,7 @@ def _sa_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f:
     if anatomy.outflow is not None and z > anatomy.z_base + BASE_MARGIN_MM:
         return _sa_outlet(anatomy, motion, spec, f, z, n_rv_free, n_rv_septum)
     # the LV is contoured below the lowest point of the saddle annulus (a plane through the saddle
-    # shows part wall, part atrium); the RV up to its planar tricuspid annulus
+    # shows part wall, part atrium); the RV likewise below the lowest point of its annulus
     if not (0.0 < z <= anatomy.z_base - BASE_MARGIN_MM):
         return out
     psi = float(motion.psi(z, f))
@@ -137,7 +137,7 @@ def _sa_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f:
         out["lv_epi"] = _polar(motion.radial_map(anatomy, s2, th, z, f, layers=layers), th - psi,
                                spec.height)
     for name, epi in (("rv_endo", False), ("rv_epi", True)):
-        sector = _contoured_crescent(anatomy, z, epi)
+        sector = _contoured_crescent(anatomy, z, epi) if z <= anatomy.z_top_rv_min - BASE_MARGIN_MM else None
         if sector is None:
             continue
         lo, hi = sector
@@ -245,7 +245,7 @@ def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: flo
     scale = 1.0 / 50.0
     out = {"s": sp, "theta": th, "z": z, "s1": b.get("b1"), "s2": b["b2"]}
     lv_top = z - anatomy.z_top(th)
-    rv_top = z - anatomy.z_base
+    rv_top = z - anatomy.z_top_rv(th)     # the tricuspid annulus (z_b where it is planar)
     if "lv_endo" in regions:
         out["lv_endo"] = ((sp - b["b1"]) * scale, lv_top)
     if "lv_epi" in regions:
@@ -695,7 +695,8 @@ def _la_rv(anatomy: Anatomy, motion: Motion, alpha: float, f: float, epi: bool, 
 # ----------------------------------------------------------------- landmarks
 def landmarks(anatomy: Anatomy, motion: Motion, f: float, n_mitral: int = 6) -> dict[str, np.ndarray]:
     """Apex (LV epicardial apex), mitral annulus (on the LV endocardium in the base plane) and
-    tricuspid annulus points (4 on the RV free wall, 2 on the septum) at phase f, heart frame."""
+    tricuspid annulus points (4 on the RV free wall, 2 on the septum; realistic: at the annulus
+    height of each angle, :meth:`Anatomy.z_top_rv`) at phase f, heart frame."""
     zb = anatomy.z_base
     th = np.linspace(0.0, 2 * np.pi, n_mitral, endpoint=False)
     if anatomy.realistic:
@@ -705,16 +706,15 @@ def landmarks(anatomy: Anatomy, motion: Motion, f: float, n_mitral: int = 6) -> 
         lo, hi = (float(v[0]) for v in anatomy.rv_sector(zb))
         tf = lo + (hi - lo) * np.array([0.2, 0.4, 0.6, 0.8])
         ts = lo + (hi - lo) * np.array([0.65, 0.35])
-        tri = np.r_[_polar(anatomy.s_rv(tf, np.full(4, zb)), tf, zb),
-                    _polar(anatomy.s_lv_epi(np.full(2, zb), ts), ts, zb)]
         if anatomy.outflow is not None:
             # the tricuspid orifice is the part of the base crescent outside the RVOT window
             from cardionurbs.phantom.outflow import rvot_frame
             hi = float(rvot_frame(anatomy).window(zb)[0])
             tf = lo + (hi - lo) * np.array([0.15, 0.4, 0.65, 0.9])
             ts = lo + (hi - lo) * np.array([0.7, 0.3])
-            tri = np.r_[_polar(anatomy.s_rv(tf, np.full(4, zb)), tf, zb),
-                        _polar(anatomy.s_lv_epi(np.full(2, zb), ts), ts, zb)]
+        # on the annulus: the top of the RV walls at each angle (z_b where it is planar)
+        zf, zs = anatomy.z_top_rv(tf), anatomy.z_top_rv(ts)
+        tri = np.r_[_polar(anatomy.s_rv(tf, zf), tf, zf), _polar(anatomy.s_lv_epi(zs, ts), ts, zs)]
         mitral = np.column_stack([_polar(anatomy.s_lv_endo(zt, th), th, 0.0)[:, :2], zt])
         out = {"apex": motion.forward(anatomy, np.zeros((1, 3)), f),
                "mitral": motion.forward(anatomy, mitral, f),
@@ -756,7 +756,7 @@ def rv_insertion_points(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: fl
     """The two RV insertion points (RV epicardium meets LV epicardium) on an SA plane, or None."""
     z = sa_material_height(motion, spec, f)
     if anatomy.realistic:
-        if not (0.0 < z <= anatomy.z_base - BASE_MARGIN_MM):
+        if not (0.0 < z <= anatomy.z_top_rv_min - BASE_MARGIN_MM):
             return None
         sector = _contoured_crescent(anatomy, z, epi=True)
         if sector is None:

@@ -112,7 +112,7 @@ def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarra
     real = an.shape is not None
     lv_top = an.z_top(th) if real else an.z_base
     lv_heart = (z >= 0) & (z <= lv_top)
-    rv_heart = (z >= 0) & (z <= an.z_base)
+    rv_heart = (z >= 0) & (z <= (an.z_top_rv(th) if real else an.z_base))
     out = {"lv_cav": lv_heart & (s < s1), "lv_myo": lv_heart & (s >= s1) & (s <= s2),
            "rv_cav": rv_heart & (s > s2) & (s < s3),
            "rv_myo": rv_heart & (s >= s3) & (s <= s4) & (s4 > s2)}
@@ -122,7 +122,7 @@ def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarra
     cap = np.clip(1.0 - u * u, 0.0, None)
     out["la"] = np.zeros(len(z), dtype=bool)
     out["ra"] = np.zeros(len(z), dtype=bool)
-    above = np.flatnonzero(z > (an.z_top_min if real else an.z_base))     # atria: only up there
+    above = np.flatnonzero(z > (min(an.z_top_min, an.z_top_rv_min) if real else an.z_base))  # atria
     if len(above):
         th_a, zb = th[above], np.full(len(above), an.z_base)
         s_a = s[above]
@@ -133,6 +133,9 @@ def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarra
         s2b = an.s_lv_epi(zb, th_a) if real else float(an.s_lv_epi(an.z_base))
         out["ra"][above] = ((ur > 0) & ~out["la"][above] & (s_a > s2b)
                             & (s_a < an.s_rv(th_a, zb) * cap_r))
+        if real:    # below a dipping tricuspid annulus: the RV body's lumen there is atrium
+            out["ra"][above] |= ((z[above] > an.z_top_rv(th_a)) & (z[above] <= an.z_base)
+                                 & (s_a > s2[above]) & (s_a < s3[above]))
         if real and an.shape.outflow is not None:       # the atria end where the tracts begin
             tracts = out["lv_cav"] | out["rv_cav"] | out["rv_myo"]
             out["la"] &= ~tracts

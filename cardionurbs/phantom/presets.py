@@ -227,11 +227,19 @@ def solve_anatomy(draw: SubjectDraw, shape=None) -> Anatomy:
         """The RVOT's ED lumen (rv_endo) or lumen and wall (rv_epi), mm³ (0 without one)."""
         return 0.0 if outflow is None else tract_volumes(an)[key] * 1000.0
 
+    @functools.lru_cache(maxsize=8)
+    def cap(an: Anatomy) -> dict:
+        """The tricuspid closure's change to the body volumes (a dipping annulus closes the RV at
+        its best-fit plane, below the base plane)."""
+        from cardionurbs.phantom.truth_realistic import ed_tricuspid_correction
+        return ed_tricuspid_correction(an)
+
     def rv_cavity(an: Anatomy) -> float:
-        return an.rv_shell_volume(False, 96, 48) + tract(an, "rv_endo")
+        return an.rv_shell_volume(False, 96, 48) + tract(an, "rv_endo") + cap(an)["rv_endo"]
 
     def rv_muscle(an: Anatomy) -> float:
-        return an.rv_shell_volume(True, 96, 48) + tract(an, "rv_epi") - rv_cavity(an)
+        return (an.rv_shell_volume(True, 96, 48) + tract(an, "rv_epi") + cap(an)["rv_epi"]
+                - rv_cavity(an))
 
     try:
         # quadrature orders well inside the 0.2 % truth budget (the truth is computed anew)

@@ -24,6 +24,12 @@ every property the truth and the motion rely on:
 * **Saddle-shaped mitral annulus.** The LV endo- and epicardium end at
   ``z_top(θ) = z_b + h cos 2(θ − θ_s)`` instead of the plane z = z_b; the
   cavity is closed at the best-fit plane of the annulus points (docs/metrics.md).
+* **Saddle-shaped tricuspid annulus.** The RV walls end at
+  ``z_tri(θ) = z_b − h_t sin²(π (θ − θ_0) / (θ_1 − θ_0))`` over the tricuspid span
+  [θ_0, θ_1] of the base crescent (the whole crescent, or with an outflow tract the part
+  short of the tract's window) and at z_b elsewhere: the annulus is high at the crescent's
+  tips and dips at the middle of the free wall and of the septum — two highs and two lows
+  around the ring, a saddle (see :meth:`cardionurbs.phantom.anatomy.Anatomy.z_top_rv`).
 * **Apex off the long axis.** Positions are displaced within their z-plane by
   ``d(z) = D (1 − z / z_b)²`` (D a 2-vector of a few mm) after the motion. The
   map (x, y, z) ↦ (x + d_x(z), y + d_y(z), z) has unit Jacobian, so volumes,
@@ -75,6 +81,7 @@ class ShapeModes:
     rv_wrap_base, rv_wrap_apex : wrap factor w of the RV section at the base and at the RV apex.
     rv_reach : ν, relative change of the RV free-wall reach from base (+ν/2) to apex (−ν/2).
     saddle_mm, saddle_phase_deg : mitral annulus height amplitude h and orientation θ_s.
+    tricuspid_dip_mm : h_t, how far the tricuspid annulus dips below the base plane (0: planar).
     apex_shift_mm : D, the in-plane displacement of the apex (x, y) in mm.
     infarct : territory name or None; infarct_thinning, infarct_hypokinesis in [0, 1).
     """
@@ -87,6 +94,7 @@ class ShapeModes:
     saddle_mm: float = 0.0
     saddle_phase_deg: float = 0.0
     apex_shift_mm: tuple = (0.0, 0.0)
+    tricuspid_dip_mm: float = 0.0
     infarct: str | None = None
     infarct_thinning: float = 0.0
     infarct_hypokinesis: float = 0.0
@@ -109,6 +117,8 @@ class ShapeModes:
                 raise PhantomError(f"{name} must be in [0, 1)")
         if self.saddle_mm < 0:
             raise PhantomError("saddle_mm must be >= 0")
+        if not 0 <= self.tricuspid_dip_mm <= 8.0:
+            raise PhantomError("tricuspid_dip_mm must be in [0, 8] mm")
 
     # ------------------------------------------------------------ LV
     def endo_factor(self, theta, zeta) -> np.ndarray:
@@ -186,13 +196,16 @@ class ShapeModes:
             del d["outflow"]
         else:
             d["outflow"] = self.outflow.to_dict()
+        if self.tricuspid_dip_mm == 0.0:    # absent for a planar tricuspid annulus (ideal + infarct)
+            del d["tricuspid_dip_mm"]
         return d
 
 
 def draw_shape(rng: np.random.Generator, infarct: str | None = None) -> ShapeModes:
     """Realistic shape departures drawn per subject (ranges chosen so that a mid-ventricular
     endocardial section departs from its best-fit ellipse by 1–2 mm RMS and the annulus from its
-    plane by 2.5–4 mm at the high points)."""
+    plane by 2.5–4 mm at the high points). The tricuspid dip comes from its own generator
+    (:func:`draw_tricuspid_dip`), so that adding it changed no other draw."""
     modes = []
     for k, lo, hi in ((2, 0.06, 0.12), (3, 0.11, 0.14), (4, 0.07, 0.09)):
         a0 = float(rng.uniform(lo, hi))
@@ -210,6 +223,11 @@ def draw_shape(rng: np.random.Generator, infarct: str | None = None) -> ShapeMod
         infarct=infarct,
         infarct_thinning=INFARCT_THINNING if infarct else 0.0,
         infarct_hypokinesis=INFARCT_HYPOKINESIS if infarct else 0.0)
+
+
+def draw_tricuspid_dip(rng: np.random.Generator) -> float:
+    """h_t, how far the saddle-shaped tricuspid annulus dips below the base plane: 3–5 mm."""
+    return float(rng.uniform(3.0, 5.0))
 
 
 def _apex_shift(rng: np.random.Generator) -> tuple:

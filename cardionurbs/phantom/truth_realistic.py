@@ -151,8 +151,87 @@ def _section_volumes(anatomy: Anatomy, motion: Motion, f: float, dz: float, dz_f
     if anatomy.outflow is not None:
         for key, v in _outflow_section_volumes(anatomy, motion, f, planes, n).items():
             vol[key] += v
+        if anatomy.tricuspid_dip > 0:
+            for key, (_, window) in tricuspid_cap_volumes(anatomy, motion, f, planes["tricuspid"],
+                                                          n, dz_fine=0.1, body=False).items():
+                vol[key] += window
     return {"lv_cavity": vol["lv_endo"], "lv_myocardium": lv_myocardium,
             "rv_cavity": vol["rv_endo"], "rv_myocardium": vol["rv_epi"] - vol["rv_endo"]}
+
+
+# ----------------------------------------------------------------- tricuspid annulus
+def _cap_levels(anatomy: Anatomy) -> tuple[float, float]:
+    """Material heights between which a dipping tricuspid annulus' best-fit plane can cut the RV
+    body: from well below its lowest point to the base plane, mm."""
+    return anatomy.z_base - 2.0 * anatomy.tricuspid_dip - 6.0, anatomy.z_base
+
+
+def _window_material(anatomy: Anatomy, z: np.ndarray, epi: bool, n: int, n_back: int | None = None) -> np.ndarray:
+    """Material (s, θ) polygons (L, n + n_back, 2) of the RV body's part inside the outflow tract's
+    base window (:meth:`RvotFrame.window` at z_b) at heights z ≤ z_b: the free wall over the window
+    ∩ the crescent, back along the LV epicardium (``n_back`` interior points, n − 2 at the free
+    wall's angles); a degenerate polygon where the window misses the crescent."""
+    n_back = n // 2 if n_back is None else n_back
+    w_lo, w_hi = (float(v) for v in ofl.rvot_frame(anatomy).window(anatomy.z_base, epi))
+    lo, hi = anatomy.rv_sector(z, epi)
+    a, b = np.maximum(lo, w_lo), np.minimum(hi, w_hi)
+    b = np.maximum(a, b)
+    v = np.linspace(0.0, 1.0, n)
+    tf = a[:, None] + (b - a)[:, None] * v[None, :]
+    ts = a[:, None] + (b - a)[:, None] * np.linspace(1.0, 0.0, n_back + 2)[None, 1:-1]
+    zz = z[:, None]
+    s = np.concatenate([anatomy.s_rv_body(tf, np.broadcast_to(zz, tf.shape), epi),
+                        anatomy.s_lv_epi(np.broadcast_to(zz, ts.shape), ts)], axis=1)
+    s = np.where((b > a)[:, None], np.maximum(s, 0.0), 0.0)
+    return np.stack([s, np.concatenate([tf, ts], axis=1)], axis=-1)
+
+
+def _polygon_areas(poly: np.ndarray) -> np.ndarray:
+    """Shoelace areas (mm²) of closed polygons (L, m, 2)."""
+    return 0.5 * np.abs((poly[..., 0] * np.roll(poly[..., 1], -1, axis=1)
+                         - poly[..., 1] * np.roll(poly[..., 0], -1, axis=1)).sum(axis=1))
+
+
+def tricuspid_cap_volumes(anatomy: Anatomy, motion: Motion, f: float, plane, n: int = 360,
+                          dz_fine: float = 0.1, body: bool = True) -> dict[str, tuple[float, float]]:
+    """Method A, for a dipping tricuspid annulus: per RV surface (``rv_endo``, ``rv_epi``) the
+    volumes (mL) at phase f, on the basal side of the tricuspid ``plane`` and below z' = λ z_b, of
+    (1) the whole RV body and (2) its part in the outflow tract's base window (0 without tracts).
+
+    The RV cavity (docs/metrics.md) is the body closed at the tricuspid plane united with the
+    tract's lumen above that plane: below z_b the tract is the body's window part, so with
+    tracts (2) is added to the body below the plane; (1) is what the body's volume up to z_b
+    (the preset solver's) overcounts (``body=False``: not computed, 0)."""
+    lam = float(motion.lam(f))
+    z_lo, z_hi = _cap_levels(anatomy)
+    zs = _outflow_levels(lam * z_lo, lam * z_hi, dz_fine)
+    out = {}
+    for key, epi in (("rv_endo", False), ("rv_epi", True)):
+        whole = 0.0
+        if body:
+            poly = _sections(anatomy, motion, f, zs, key, n)
+            whole = float(np.trapezoid(_polygon_areas(poly) - clipped_areas(poly, zs, plane), zs)) / 1000.0
+        window = 0.0
+        if anatomy.outflow is not None:
+            wpoly = _deform_polar(anatomy, motion, f, _window_material(anatomy, zs / lam, epi, n), zs / lam)
+            window = float(np.trapezoid(_polygon_areas(wpoly) - clipped_areas(wpoly, zs, plane), zs)) / 1000.0
+        out[key] = (whole, window)
+    return out
+
+
+def ed_tricuspid_correction(anatomy: Anatomy, n: int = 64, dz_fine: float = 0.25) -> dict[str, float]:
+    """What the tricuspid closure changes at end-diastole (mm³; ``rv_endo``, ``rv_epi``) against the
+    RV body up to the base plane (the preset solver's volumes): minus the body on the basal side of
+    the best-fit tricuspid plane, plus, with tracts, the window's part there (the tract's lumen
+    starting at the plane). 0 for a planar annulus."""
+    if anatomy.tricuspid_dip == 0.0:
+        return {"rv_endo": 0.0, "rv_epi": 0.0}
+    still = Motion(ls=0.0, lv_ef=0.0, rv_ef=0.0, septal_flattening=0.0, apex_rotation_deg=0.0,
+                   base_rotation_deg=0.0, z_base=anatomy.z_base)
+    lm = annotate.landmarks(anatomy, still, 0.0)["tricuspid"]
+    c, nrm = fit_plane(annotate.bend(anatomy, lm))
+    caps = tricuspid_cap_volumes(anatomy, still, 0.0, (c, nrm if nrm[2] > 0 else -nrm), n, dz_fine)
+    return {k: (w - b) * 1000.0 for k, (b, w) in caps.items()}
 
 
 # ----------------------------------------------------------------- outflow tracts
@@ -440,11 +519,21 @@ def mesh_volumes(anatomy: Anatomy, motion: Motion, f: float, n_mu: int = 120, n_
     vols["lv_myocardium_material"] = _volume(*_closed_sphere(myo))
     for key, epi in (("rv_endo", False), ("rv_epi", True)):
         rings = _moved(anatomy, motion, _rv_rings(anatomy, epi, n_z_rv, n_v_rv), f)
-        vols[key] = _volume(*_closed_tube(rings))
+        # (a planar tricuspid annulus is the top ring itself: no trim)
+        vols[key] = _volume(*_closed_tube(rings),
+                            plane=planes["tricuspid"] if anatomy.tricuspid_dip > 0 else None)
     lv_myocardium = vols["lv_epi"] - vols["lv_endo"]     # the LVOT adds lumen, no wall
     if anatomy.outflow is not None:
         for key, v in _outflow_mesh_volumes(anatomy, motion, f, planes, n_z_rv, n_v_rv).items():
             vols[key] += v
+        if anatomy.tricuspid_dip > 0:
+            # the tract's lumen above the tricuspid plane and below z_b: the body's window part
+            z_lo, z_hi = _cap_levels(anatomy)
+            z = np.linspace(z_lo, z_hi, n_z_rv + 1)
+            for key, epi in (("rv_endo", False), ("rv_epi", True)):
+                mesh = _crescent_tube(_rings_3d(anatomy, motion, f,
+                                                _window_material(anatomy, z, epi, n_v_rv + 1, n_v_rv - 1), z))
+                vols[key] += _volume(*mesh) - _volume(*mesh, plane=planes["tricuspid"])
     return {"lv_cavity": vols["lv_endo"], "lv_myocardium": lv_myocardium,
             "rv_cavity": vols["rv_endo"], "rv_myocardium": vols["rv_epi"] - vols["rv_endo"],
             "lv_myocardium_material": vols["lv_myocardium_material"]}
