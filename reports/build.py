@@ -86,8 +86,11 @@ def study_section(s: dict, fig_root: Path) -> list[str]:
     """Markdown for one analysed study; copies its figures and a report screenshot."""
     from cardionurbs.report.chromium import find_chromium, open_page
     dst = fig_root / s["subject"]
-    shutil.rmtree(dst, ignore_errors=True)
-    dst.mkdir(parents=True)
+    dst.mkdir(parents=True, exist_ok=True)
+    # only what this section writes: the folder also holds other benchmarks' figures
+    # (bench_models.py bivme draws bivme-patient1's residual and outflow figures there)
+    for old in [*dst.glob("fig*.png"), dst / "report_screenshot.png"]:
+        old.unlink(missing_ok=True)
     idx = json.loads((s["out"] / "figures" / "figures.json").read_text())
     lines = [f"## {s['subject']}", "",
              f"{len(s['frames'])} reconstructed frame(s), ED frame {s['ed']}, ES frame {s['es']}; "
