@@ -156,6 +156,28 @@ def order_closed(points: np.ndarray) -> np.ndarray:
     return p[_nearest_neighbour_chain(p, 0)]
 
 
+#: a trace in drawing order whose ends are farther apart than this many median point
+#: spacings is an open arc, not a loop
+ARC_GAP_STEPS = 3.0
+
+
+def is_open_arc(points: np.ndarray, gap_steps: float = ARC_GAP_STEPS) -> bool:
+    """True when a trace, ordered from one end to the other (:func:`order_open`: a trace
+    written from the middle of its arc is rotated), leaves a gap between its ends wider
+    than ``gap_steps`` median point spacings and a quarter of its extent (an arc, such as
+    a CAP LV epicardial trace that stops at the RV insertions); False for a loop."""
+    p = np.asarray(points, float)
+    if len(p) < 5:
+        return False
+    p = order_open(p)
+    if not _in_drawing_order(p, closed=False):
+        return False
+    step = float(np.median(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+    gap = float(np.linalg.norm(p[-1] - p[0]))
+    extent = float(np.linalg.norm(p - p[0], axis=1).max())
+    return gap > gap_steps * max(step, 1e-9) and gap > 0.25 * extent
+
+
 def join_open_parts(parts: list[np.ndarray]) -> np.ndarray:
     """Join open curves end to end into one closed loop.
 
@@ -391,19 +413,28 @@ def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.n
     Closed contours are ordered; CAP open parts are joined: rv_endo =
     rv_freewall + rv_septum; an open rv_epi is closed through the slice's
     rv_septum (the septal part lies on the LV epicardium, which the RV
-    myocardium boolean removes anyway).
+    myocardium boolean removes anyway); an lv_epi traced over the free wall
+    only (:func:`is_open_arc`) is closed through the slice's rv_septum, the
+    LV epicardium across the septum (docs/metrics.md, RV contours).
     """
     out: dict[str, list] = {s: [] for s in SURFACES}
     by_slice: dict[str, dict[str, list[Contour]]] = {}
     for c in study.contours_at(frame, view="SA"):
         by_slice.setdefault(c.slice, {}).setdefault(c.structure, []).append(weighted_part(c))
     for sl, d in by_slice.items():
+        sept = [c.points for c in d.get("rv_septum", [])]
         for s in ("lv_endo", "lv_epi"):
             for c in d.get(s, []):
-                if len(c.points) >= 5:
-                    out[s].append((sl, order_closed(c.points) if c.closed else order_open(c.points),
-                                   c.points))
-        sept = [c.points for c in d.get("rv_septum", [])]
+                if len(c.points) < 5:
+                    continue
+                if s == "lv_epi" and sept and is_open_arc(c.points):
+                    # CAP convention: the LV epicardium is traced over the free wall only;
+                    # across the septum it is the RV septal endocardium
+                    parts = [c.points] + sept
+                    out[s].append((sl, join_open_parts(parts), np.concatenate(parts)))
+                    continue
+                out[s].append((sl, order_closed(c.points) if c.closed else order_open(c.points),
+                               c.points))
         fw = [c.points for c in d.get("rv_freewall", [])]
         rv_whole = [c for c in d.get("rv_endo", []) if len(c.points) >= 5]
         if rv_whole:
