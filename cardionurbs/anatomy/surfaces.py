@@ -7,7 +7,9 @@ Steps for one surface (lv_endo, lv_epi, rv_endo or rv_epi):
    stack: between the most apical SA slice and the apex, and between the most
    basal SA slice and the valve plane, the nearest SA section's shape is
    scaled about a centre line to pass through the LA contours' crossings of
-   the level plane (:func:`cardionurbs.anatomy.sections.scaled_section`).
+   the level plane (:func:`cardionurbs.anatomy.sections.scaled_section`),
+   every half SA slice spacing (:func:`synthetic_step`: an evenly spaced
+   stack, which the loft does not overshoot between).
    One more section, the basal one moved beyond the valve plane, lets the
    mesh be cut exactly by that plane.
 2. **Common parameterisation.** Each closed section is resampled uniformly in
@@ -49,8 +51,10 @@ N_CTRL_STEPS = (12, 16, 20, 26, 32, 40, 52)
 SEPTUM_NEAR_MM_TAPER = 1.5
 #: points per resampled section
 N_SAMPLES = 120
-#: spacing (mm) of synthetic sections built from LA contours
+#: smallest spacing (mm) of synthetic sections (and the spacing of an SA-only taper's)
 SYNTHETIC_STEP_MM = 2.5
+#: synthetic sections from LA contours are spaced this fraction of the SA slice spacing
+SYNTHETIC_STEP_OF_SPACING = 0.5
 #: RV contour points within this many pixels of the LV epicardial contour are septal
 SEPTUM_NEAR_PX = 0.5
 #: free-wall runs shorter than this fraction of an RV loop, between septal points, are septal
@@ -132,9 +136,25 @@ def free_wall_targets(targets: np.ndarray, centre: np.ndarray,
     return rv_side[[int(np.argmax(np.linalg.norm(rv_side - centre, axis=1)))]]
 
 
+def synthetic_step(secs: list[Section], direction: np.ndarray) -> float:
+    """Spacing (mm) of the synthetic sections beyond a stack of SA sections: half the median
+    spacing of the SA sections (at least ``SYNTHETIC_STEP_MM``).
+
+    The loft interpolates its sections with a degree-3 B-spline across them; a cluster of
+    closely spaced synthetic sections next to a wide gap between SA slices makes it
+    overshoot in the gap (bivme-patient1 at ES: the RV cross-section falls to a quarter
+    of both neighbouring slices' areas between them). Sampling the LA contours about as
+    densely as the SA slices keeps the stack evenly spaced."""
+    levels = np.array([float(sec.points.mean(axis=0) @ direction) for sec in secs])
+    if len(levels) < 2:
+        return SYNTHETIC_STEP_MM
+    return max(SYNTHETIC_STEP_MM, SYNTHETIC_STEP_OF_SPACING * float(np.median(np.diff(levels))))
+
+
 def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
                        apex: np.ndarray) -> tuple[list[Section], list[Section]]:
-    """Synthetic (basal, apical) sections from LA contour crossings (see module doc)."""
+    """Synthetic (basal, apical) sections from LA contour crossings (see module doc), every
+    :func:`synthetic_step` along the stacking direction."""
     n = geo.direction
     la = geo.la_points.get(structure, [])
     if not la and secs and structure in geo.taper:
@@ -156,10 +176,11 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
         return polygon_centroid(sec.points, n), None
 
     c_last, a_last = anchor_of(last)
+    step = synthetic_step(secs, n)
     apical = []
     gap = ha - hk
-    if gap > SYNTHETIC_STEP_MM:
-        k = int(np.ceil(gap / SYNTHETIC_STEP_MM))
+    if gap > step:
+        k = int(np.ceil(gap / step))
         for f in np.arange(1, k) / k:
             h = hk + f * gap
             targets = np.concatenate([polyline_crossings(pl, n, h) for pl in la])
@@ -176,7 +197,7 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
         # the most basal level any part of the valve plane reaches inside the LA contours
         la_all = np.concatenate(la)
         h_top = float(_level(la_all, n).min())
-        h = h0 - SYNTHETIC_STEP_MM
+        h = h0 - step
         while h > h_top + 0.5:
             targets = np.concatenate([polyline_crossings(pl, n, h) for pl in la])
             # only LA crossings on the apical side of the valve plane
@@ -190,7 +211,7 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
                 break
             basal.insert(0, Section(structure, geo.frame, res[0], synthetic=True, scale=res[1],
                                     template=0))
-            h -= SYNTHETIC_STEP_MM
+            h -= step
     return basal, apical
 
 
