@@ -458,7 +458,7 @@ def bivme_where_lines(st) -> list[str]:
     import bivme_where as bw
     model, t = bw.where_section(st, ROOT / "reports")
     lvm = 1.05 * model.volumes[24]["lv_myocardium"]
-    return [
+    return ([
         "", "### Why the RV and the masses differ from biv-me", "",
         "Measured on a model of frames 24 and 9 (`benchmarks/bivme_where.py`): each SA slice's "
         "contour areas against the model's solids cut by the same image plane; the model's "
@@ -491,10 +491,12 @@ def bivme_where_lines(st) -> list[str]:
         "The LA epicardial points beyond the plane, and the wall between our (untrimmed) LV "
         "surfaces from the plane to the farthest of them:", ""]
     + t["ring"] + [
-        "", "That basal ring would add about 4 g at ED. The remaining ~4 % lie between the SA "
-        "slices 17.7 mm apart, where the wall comes from the loft and the LA correction and the "
-        "LA and SA contours of this patient disagree by up to 8 mm at the base (residual table "
-        "above); nothing in the contours locates it further.",
+        "", f"That basal ring would add {t['ring_g'][24]:.1f} g at ED, of the "
+        f"{131.3 - lvm:.1f} g difference; the remaining {131.3 - lvm - t['ring_g'][24]:.1f} g "
+        f"({100 * (131.3 - lvm - t['ring_g'][24]) / 131.3:.1f} %) is within what the wall "
+        "between SA slices 17.7 mm apart is known to (it comes from the loft and the LA "
+        "correction, and the LA and SA contours of this patient disagree by up to 8 mm at the "
+        "base, residual table above); nothing in the contours locates it further.",
         "", f"![Area profiles]({bw.PROFILE_FIGURE})", "",
         "Cross-section areas of the RV and LV cavities along the stacking direction (lines), "
         "the SA contours' areas (circles), the levels of the RV endocardium's synthetic "
@@ -518,9 +520,9 @@ def bivme_where_lines(st) -> list[str]:
         "The LA views at frame 9: the model's solids cut by each view's plane and the view's "
         "contour points (la_7: RV inflow and apex; la_11: the RV outflow view).", ""]
     + t["la"] + [
-        "", "What the LA table leaves: the RV cut stays smaller than the RV contour in every "
-        "view (most on la_11, the outflow view, where the outflow tract's tube is a circular "
-        "approximation), and the LV cut at frame 9 is larger than the LV contour on la_8 and "
+        "", "What the LA table leaves: the RV cut stays smaller than the RV contour in the "
+        "views through the RV body and outflow (la_7, la_11: 7-21 %; the outflow tract's tube "
+        "is a circular approximation), and the LV cut at frame 9 is larger than the LV contour on la_8 and "
         "la_9 — the LA LV contours end at their last traced points, short of the mitral plane "
         "fitted to the annulus landmarks, which closes our cavity; the LV cavity volumes agree "
         "with biv-me's within the table's figures.",
@@ -530,7 +532,7 @@ def bivme_where_lines(st) -> list[str]:
         "plane, so the tract adds little there (table above).",
         "- ES frame: the LV volume curve is flat between frames 9 and 10 (within 4 mL); we pick "
         "the minimum, frame 10; biv-me reports frame 9 (the table compares frame 9 itself).",
-    ]
+    ])
 
 
 def bivme_section() -> list[str]:

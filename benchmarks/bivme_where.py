@@ -255,12 +255,13 @@ def la_rows_and_figure(model, frames, path: Path, figure_frame: int = 9) -> list
     return out
 
 
-def basal_ring_rows(model, frames) -> list[str]:
-    """The LV wall a basal ring beyond the mitral plane would add: the LA epicardial points
-    beyond the plane (how many, how far) and the wall between the model's untrimmed LV
+def basal_ring_rows(model, frames) -> tuple[list[str], dict]:
+    """The LV wall a basal ring beyond the mitral plane would add (table; grams per frame):
+    the LA epicardial points beyond the plane (how many, how far) and the wall between the model's untrimmed LV
     epi- and endocardial solids in the slab from the plane to the farthest such point."""
     out = ["| frame | LA lv_epi points beyond the mitral plane (of all) | farthest per view (mm) "
            "| wall in that slab (mL; g at 1.05 g/mL) |", "|---|---|---|---|"]
+    grams = {}
     for f in frames:
         geo = model.geometry[f]
         pl = model.base_planes[f]["lv"]
@@ -276,7 +277,8 @@ def basal_ring_rows(model, frames) -> list[str]:
         ring = wall.trim_by_plane(-pl.normal, -lev).trim_by_plane(pl.normal, lev - H)
         v = ring.volume() / 1000
         out.append(f"| {f} | {beyond} of {total} | {', '.join(far)} | {v:.1f}; {1.05 * v:.1f} |")
-    return out
+        grams[f] = 1.05 * v
+    return out, grams
 
 
 def septum_rule_rows(study, model, frames) -> list[str]:
@@ -348,11 +350,13 @@ def where_section(study, root: Path, frames=(24, 9)) -> tuple[object, dict]:
     """Tables and figures of where the model differs (lines for the report; the model)."""
     model = reconstruct(study, frames=list(frames))
     steps, septum_only = step_by_step(study, model, frames)
+    ring, ring_g = basal_ring_rows(model, frames)
     parts = {
         "steps": steps,
         "septum": septum_rule_rows(study, model, frames),
         "sa": sa_table(model, frames),
-        "ring": basal_ring_rows(model, frames),
+        "ring": ring,
+        "ring_g": ring_g,
         "profile": profile_figure(model, frames, root / PROFILE_FIGURE, before=septum_only),
         "la": la_rows_and_figure(model, frames, root / LA_FIGURE),
     }
