@@ -197,7 +197,26 @@ def main(argv=None) -> int:
                     help="a source tree of the code before the change (e.g. `git archive` of "
                          "an older commit): the analyze commands are also timed on it")
     ap.add_argument("--baseline-label", default=None, help="how to name --baseline in the report")
+    ap.add_argument("--confirm", type=int, default=None, metavar="N",
+                    help="only a second cohort run of N subjects, kept beside the main one "
+                         "(`cohort_confirm` in --json): the same executors on newer code")
+    ap.add_argument("--confirm-why", default="", help="one sentence: why the second run")
     a = ap.parse_args(argv)
+    if a.confirm:
+        res = json.loads(Path(a.json).read_text())
+        work = Path(tempfile.mkdtemp(prefix="cn-throughput-"))
+        try:
+            c = bench_cohort(work, a.confirm, a.repeat)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+        code = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                              capture_output=True, text=True).stdout.strip() or "this code"
+        res["cohort_confirm"] = {**c, "code": code, "why": a.confirm_why,
+                                 "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+        Path(a.json).write_text(json.dumps(res, indent=1) + "\n")
+        Path(a.md).write_text(render(res, a))
+        print(f"wrote {a.json} and {a.md}")
+        return 0
     if a.render_only:
         res = json.loads(Path(a.json).read_text())
         Path(a.md).write_text(render(res, a))
@@ -228,6 +247,46 @@ def main(argv=None) -> int:
         Path(a.scale).write_text(render_scale(res))
     print(f"wrote {a.json} and {a.md}")
     return 0
+
+
+def _cohort_section(r: dict, title: str, why: str = "") -> list[str]:
+    """The cohort table and its verdicts (1 worker, 2 workers, Dask) of one bench_cohort run."""
+    L: list[str] = []
+    p1, p2, d2 = r["cohort_processes_1"], r["cohort_processes_2"], r["cohort_dask_local_2"]
+    n = r["cohort_subjects"]
+    g = r["cohort_generate_2jobs"]
+    L += [title, "", *([why, ""] if why else []),
+          f"{n} subjects generated (`phantom --cohort MIX --n {n} --jobs 2 --no-dicom`, "
+          f"{g['wall_s']:.1f} s wall, {g['cpu_s']:.1f} s CPU, load {g.get('load_1min', float('nan')):.1f}) "
+          "and measured with `cardionurbs cohort STUDY... --csv FILE --timeout 600 "
+          "--allow-failures` (each finished row fsynced to its file):", "",
+          "| executor | wall (s) | CPU (s) | subjects / core-second (CPU) | subjects / s (wall) | load | row file bytes / subject |",
+          "|---|---:|---:|---:|---:|---:|---:|"]
+    for label, x in (("1 local worker process (`--jobs 1`)", p1),
+                     ("2 local worker processes (`--jobs 2`)", p2),
+                     ("Dask LocalCluster, 2 workers on 127.0.0.1 started by the run (`--jobs 2 --dask local`)", d2)):
+        L.append(f"| {label} | {x['wall_s']:.1f} | {x['cpu_s']:.1f} | "
+                 f"{x['subjects_per_core_s']:.2f} | {n / x['wall_s']:.2f} | "
+                 f"{x.get('load_1min', float('nan')):.1f} | {x['row_files_bytes']:.0f} |")
+    L += ["", f"- Scaling 1 -> 2 workers, wall time (t1 / 2 t2): "
+          f"{100 * r['scaling_efficiency_1_to_2']:.0f} % (target >= 90 %: "
+          f"{_ok(r['scaling_efficiency_1_to_2'] >= 0.9)})."]
+    if "scaling_efficiency_cpu_1_to_2" in r:
+        L.append(f"- Scaling 1 -> 2 workers, CPU time (CPU of 1 worker / CPU of 2 workers "
+                 f"for the same subjects: no extra work per subject = 100 %): "
+                 f"{100 * r['scaling_efficiency_cpu_1_to_2']:.0f} % "
+                 f"({_ok(r['scaling_efficiency_cpu_1_to_2'] >= 0.9)} against 90 %).")
+    L.append(f"- Dask against plain processes, wall (cluster start-up included): "
+             f"{100 * r['dask_overhead_vs_processes']:+.0f} % (target <= 10 %: "
+             f"{_ok(r['dask_overhead_vs_processes'] <= 0.10)}).")
+    if "dask_overhead_cpu_vs_processes" in r:
+        L.append(f"- Dask against plain processes, CPU (scheduler, nannies and cluster "
+                 f"start-up included): {100 * r['dask_overhead_cpu_vs_processes']:+.0f} % "
+                 f"({_ok(r['dask_overhead_cpu_vs_processes'] <= 0.10)} against 10 %).")
+    L += [f"- The three CSVs are byte-identical: {r['cohort_csvs_identical']}.",
+          f"- Native files per subject (2 frames, no DICOM): "
+          f"{r['cohort_native_bytes_per_subject'] / 1e3:.0f} kB.", ""]
+    return L
 
 
 def _ok(cond: bool) -> str:
@@ -348,43 +407,14 @@ def render(r: dict, a) -> str:
                   f"{z['points_csv_xz6'] / 1e6:.1f} MB under xz -6; as Parquet (zstd) "
                   f"{b['points'] / 1e6:.1f} MB.", ""]
     if "cohort_processes_1" in r:
-        p1, p2, d2 = r["cohort_processes_1"], r["cohort_processes_2"], r["cohort_dask_local_2"]
-        n = r["cohort_subjects"]
-        g = r["cohort_generate_2jobs"]
-        L += ["## Cohorts: synthetic subjects, ED + ES frames, tagged, metrics only", "",
-              f"{n} subjects generated (`phantom --cohort MIX --n {n} --jobs 2 --no-dicom`, "
-              f"{g['wall_s']:.1f} s wall, {g['cpu_s']:.1f} s CPU, load {g.get('load_1min', float('nan')):.1f}) "
-              "and measured with `cardionurbs cohort STUDY... --csv FILE --timeout 600 "
-              "--allow-failures` (each finished row fsynced to its file):", "",
-              "| executor | wall (s) | CPU (s) | subjects / core-second (CPU) | subjects / s (wall) | load | row file bytes / subject |",
-              "|---|---:|---:|---:|---:|---:|---:|"]
-        for label, x in (("1 local worker process (`--jobs 1`)", p1),
-                         ("2 local worker processes (`--jobs 2`)", p2),
-                         ("Dask LocalCluster, 2 workers on 127.0.0.1 started by the run (`--jobs 2 --dask local`)", d2)):
-            L.append(f"| {label} | {x['wall_s']:.1f} | {x['cpu_s']:.1f} | "
-                     f"{x['subjects_per_core_s']:.2f} | {n / x['wall_s']:.2f} | "
-                     f"{x.get('load_1min', float('nan')):.1f} | {x['row_files_bytes']:.0f} |")
-        L += ["", f"- Scaling 1 -> 2 workers, wall time (t1 / 2 t2): "
-              f"{100 * r['scaling_efficiency_1_to_2']:.0f} % (target >= 90 %: "
-              f"{_ok(r['scaling_efficiency_1_to_2'] >= 0.9)})."]
-        if "scaling_efficiency_cpu_1_to_2" in r:
-            L.append(f"- Scaling 1 -> 2 workers, CPU time (CPU of 1 worker / CPU of 2 workers "
-                     f"for the same subjects: no extra work per subject = 100 %): "
-                     f"{100 * r['scaling_efficiency_cpu_1_to_2']:.0f} % "
-                     f"({_ok(r['scaling_efficiency_cpu_1_to_2'] >= 0.9)} against 90 %).")
-        L.append(f"- Dask against plain processes, wall (cluster start-up included): "
-                 f"{100 * r['dask_overhead_vs_processes']:+.0f} % (target <= 10 %: "
-                 f"{_ok(r['dask_overhead_vs_processes'] <= 0.10)}).")
-        if "dask_overhead_cpu_vs_processes" in r:
-            L.append(f"- Dask against plain processes, CPU (scheduler, nannies and cluster "
-                     f"start-up included): {100 * r['dask_overhead_cpu_vs_processes']:+.0f} % "
-                     f"({_ok(r['dask_overhead_cpu_vs_processes'] <= 0.10)} against 10 %).")
-        L += [f"- The three CSVs are byte-identical: {r['cohort_csvs_identical']}.",
-              f"- Native files per subject (2 frames, no DICOM): "
-              f"{r['cohort_native_bytes_per_subject'] / 1e3:.0f} kB.", ""]
+        L += _cohort_section(r, "## Cohorts: synthetic subjects, ED + ES frames, tagged, metrics only")
         ext = _extrapolation(r)
         if ext:
             L += [ext.strip(), ""]
+    if "cohort_confirm" in r:
+        c = r["cohort_confirm"]
+        L += _cohort_section(c, f"## Cohorts again, {c['cohort_subjects']} subjects, on {c['code']} "
+                             f"({c['date']})", c.get("why", ""))
     notes = ROOT / "reports" / "throughput-notes.md"     # the discussion, by hand
     if notes.is_file():
         L += [notes.read_text().rstrip(), ""]
