@@ -201,7 +201,22 @@ def main(argv=None) -> int:
                     help="only a second cohort run of N subjects, kept beside the main one "
                          "(`cohort_confirm` in --json): the same executors on newer code")
     ap.add_argument("--confirm-why", default="", help="one sentence: why the second run")
+    ap.add_argument("--pair", type=int, default=None, metavar="N",
+                    help="only the scaling diagnostic on N subjects (`pair` in --json): one "
+                         "worker alone, two independent 1-worker commands at once, 2 workers")
     a = ap.parse_args(argv)
+    if a.pair:
+        res = json.loads(Path(a.json).read_text())
+        work = Path(tempfile.mkdtemp(prefix="cn-throughput-"))
+        try:
+            res["pair"] = {**bench_pair(work, a.pair), "load_end": loadavg(),
+                           "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())}
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+        Path(a.json).write_text(json.dumps(res, indent=1) + "\n")
+        Path(a.md).write_text(render(res, a))
+        print(f"wrote {a.json} and {a.md}")
+        return 0
     if a.confirm:
         res = json.loads(Path(a.json).read_text())
         work = Path(tempfile.mkdtemp(prefix="cn-throughput-"))
@@ -415,6 +430,18 @@ def render(r: dict, a) -> str:
         ext = _extrapolation(r)
         if ext:
             L += [ext.strip(), ""]
+    if "pair" in r:
+        q = r["pair"]
+        c = q["cpu_per_subject"]
+        L += [f"## Does 1 -> 2 workers lose to the executor or to the machine? ({q['date']})", "",
+              f"`--pair {q['subjects']}`: the subjects split in halves A and B; CPU-s per subject "
+              "(user + system of the command and its workers):", "",
+              "| run | CPU-s per subject |", "|---|---:|",
+              *[f"| {k} | {v:.3f} |" for k, v in c.items()], "",
+              f"Two independent 1-worker commands at once cost "
+              f"{100 * (c['two 1-worker commands at once'] / c['1 worker alone'] - 1):+.0f} % per "
+              f"subject against one alone; one 2-worker command "
+              f"{100 * (c['2 workers'] / c['1 worker alone'] - 1):+.0f} %.", ""]
     if "cohort_confirm" in r:
         c = r["cohort_confirm"]
         L += _cohort_section(c, f"## Cohorts again, {c['cohort_subjects']} subjects, on {c['code']} "
@@ -528,6 +555,47 @@ def bench_cohort(work: Path, n: int, repeat: int) -> dict:
     return out
 
 
+
+
+def bench_pair(work: Path, n: int) -> dict:
+    """Is 1 -> 2 worker scaling limited by the executor or by the machine? ``n`` subjects of the
+    benchmark mix, halves A and B: A on 1 worker alone; A and B on 1 worker each, as two
+    independent cohort commands at the same time (no shared executor); A + B on 2 workers.
+    CPU-s per subject of each: if the two independent commands slow down as much as the
+    2-worker run, the loss is the machine's (two busy vCPUs run slower than one), not ours."""
+    mix = work / "mix.toml"
+    subjects = [("normal", 5), ("mr", 3), ("phtn", 4)]
+    entries = [f'[[subject]]\nid = "{name}{k:02d}"\npathology = "{name}"\nseed = {k}\n'
+               for k, name in enumerate(x for name, c in subjects for x in [name] * c)]
+    mix.write_text(MIX.format(subjects="\n".join(entries)))
+    gen = work / "pair"
+    run(cli("phantom", "--cohort", str(mix), "--n", str(n), "--jobs", "2", "--no-dicom",
+            "--out", str(gen)))
+    studies = sorted(str(p) for p in gen.iterdir() if p.is_dir())
+    half = [studies[0::2], studies[1::2]]
+    opts = ["--timeout", "600", "--allow-failures"]
+    out: dict = {"subjects": len(studies)}
+    out["a_alone"] = run(cli("cohort", *half[0], "--csv", str(work / "a.csv"), "--jobs", "1",
+                             *opts))
+    t = time.perf_counter()
+    procs = [subprocess.Popen(cli("cohort", *h, "--csv", str(work / f"ab{k}.csv"), "--jobs", "1",
+                                  *opts), cwd=ROOT, env=ENV, stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL) for k, h in enumerate(half)]
+    together = []
+    for p in procs:
+        _, status, ru = os.wait4(p.pid, 0)
+        together.append({"wall_s": time.perf_counter() - t, "cpu_s": ru.ru_utime + ru.ru_stime,
+                         "exit": os.waitstatus_to_exitcode(status)})
+    out["a_and_b_together"] = together
+    out["both_2_workers"] = run(cli("cohort", *studies, "--csv", str(work / "w2.csv"),
+                                    "--jobs", "2", *opts))
+    for x in [out["a_alone"], out["both_2_workers"]]:
+        x.pop("stderr", None)
+    out["cpu_per_subject"] = {
+        "1 worker alone": out["a_alone"]["cpu_s"] / len(half[0]),
+        "two 1-worker commands at once": sum(x["cpu_s"] for x in together) / len(studies),
+        "2 workers": out["both_2_workers"]["cpu_s"] / len(studies)}
+    return out
 
 
 def render_scale(r: dict) -> str:
