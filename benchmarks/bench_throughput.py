@@ -442,6 +442,22 @@ def render(r: dict, a) -> str:
               f"{100 * (c['two 1-worker commands at once'] / c['1 worker alone'] - 1):+.0f} % per "
               f"subject against one alone; one 2-worker command "
               f"{100 * (c['2 workers'] / c['1 worker alone'] - 1):+.0f} %.", ""]
+        half = q["subjects"] // 2
+        alone, two = q["a_alone"], q["both_2_workers"]
+        tog_wall = max(x["wall_s"] for x in q["a_and_b_together"])
+        tog_cpu = sum(x["cpu_s"] for x in q["a_and_b_together"])
+        L += ["| run | wall (s) | subjects / s | wall efficiency against 2 x alone | "
+              "cores used (CPU / wall) |", "|---|---:|---:|---:|---:|",
+              f"| 1 worker alone, {half} subjects | {alone['wall_s']:.1f} | "
+              f"{half / alone['wall_s']:.3f} | | {alone['cpu_s'] / alone['wall_s']:.2f} |",
+              f"| two 1-worker commands at once, {q['subjects']} subjects | {tog_wall:.1f} | "
+              f"{q['subjects'] / tog_wall:.3f} | "
+              f"{100 * (q['subjects'] / tog_wall) / (2 * half / alone['wall_s']):.0f} % | "
+              f"{tog_cpu / tog_wall:.2f} |",
+              f"| 2 workers, {q['subjects']} subjects | {two['wall_s']:.1f} | "
+              f"{q['subjects'] / two['wall_s']:.3f} | "
+              f"{100 * (q['subjects'] / two['wall_s']) / (2 * half / alone['wall_s']):.0f} % | "
+              f"{two['cpu_s'] / two['wall_s']:.2f} |", ""]
     if "cohort_confirm" in r:
         c = r["cohort_confirm"]
         L += _cohort_section(c, f"## Cohorts again, {c['cohort_subjects']} subjects, on {c['code']} "
