@@ -628,6 +628,10 @@ def render_scale(r: dict) -> str:
     # CPU-time ratios when measured (wall ratios on a shared machine measure the other jobs)
     eff = min(r.get("scaling_efficiency_cpu_1_to_2", r["scaling_efficiency_1_to_2"]), 1.0)
     dask_over = max(r.get("dask_overhead_cpu_vs_processes", r["dask_overhead_vs_processes"]), 0.0)
+    dask_n = r.get("cohort_subjects")
+    if "cohort_confirm" in r:        # the later run measured the executor as it now is
+        dask_over = max(r["cohort_confirm"]["dask_overhead_cpu_vs_processes"], 0.0)
+        dask_n = f"{r['cohort_confirm']['cohort_subjects']} (with executor.WORKER_CONFIG)"
     row_bytes = p2["row_files_bytes"]
     out20 = sum(r.get("phantom20_all_output_bytes", {}).values())
     L = ["# Scale: UK Biobank on paper", "",
@@ -669,7 +673,7 @@ def render_scale(r: dict) -> str:
           "10 SA slices, so within ~10 %).",
           f"- cluster time = core-hours / (workers x parallel efficiency {100 * eff:.0f} %, the "
           f"measured 1 -> 2 worker efficiency in CPU time) x (1 + Dask overhead {100 * dask_over:.0f} %, "
-          f"CPU time against plain processes on {r.get('cohort_subjects')} subjects, cluster "
+          f"CPU time against plain processes on {dask_n} subjects, cluster "
           "start-up included: a fixed cost that a small run does not amortise, so an upper bound "
           "here); one single-threaded "
           "worker process per core. Scheduling 100,000 tasks is far below what one Dask "
