@@ -134,20 +134,21 @@ def level_profile(model, frame: int, key: str, step: float = 0.5) -> tuple[np.nd
 def profile_figure(model, frames, path: Path, before=None) -> list[str]:
     """RV and LV cavity area against level, with the SA contour areas and the levels of the
     RV endocardium's synthetic sections (and, dashed, the RV cavity of ``before``: the model
-    with synthetic sections every 2.5 mm); and a table of the RV cavity per slab (ours,
-    ``before``'s, the trapezoid of the contour areas)."""
+    with synthetic sections every half slice spacing, tried and not adopted); and a table of
+    the RV cavity per slab (ours, ``before``'s, the trapezoid of the contour areas)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, len(frames), figsize=(6 * len(frames), 4.2), sharey=True)
     table = ["| frame | slab (levels, mm) | RV cavity: ours (mL) | with synthetic sections every "
-             "2.5 mm (mL) | trapezoid of the SA contour areas (mL) |", "|---|---|---|---|---|"]
+             "half slice spacing (tried; mL) | trapezoid of the SA contour areas (mL) |",
+             "|---|---|---|---|---|"]
     for ax, f in zip(np.atleast_1d(axes), frames):
         rows = sa_rows(model, f)
         if before is not None:
             hb, ab = level_profile(before, f, "rv_cavity")
             ax.plot(hb, ab, color="tab:green", ls="--", lw=1.0,
-                    label="rv_cavity, synthetic sections every 2.5 mm (before)")
+                    label="rv_cavity, sections every half slice spacing (tried)")
             syn_b = [float(s_.points.mean(axis=0) @ model.geometry[f].direction)
                      for s_ in before.fit(f, "rv_endo").sections if s_.synthetic]
             ax.plot(syn_b, np.full(len(syn_b), -120.0), "|", color="0.5", ms=8,
@@ -308,11 +309,18 @@ def sa_table(model, frames) -> list[str]:
     return out
 
 
-def fixed_synthetic_step(mm: float = 2.5):
-    """A patch: synthetic sections every ``mm`` whatever the SA slice spacing (as before
-    :func:`cardionurbs.anatomy.surfaces.synthetic_step`)."""
+def half_spacing_step(fraction: float = 0.5, least_mm: float = 2.5):
+    """A patch (tried, not adopted): synthetic sections every ``fraction`` of the median SA
+    slice spacing, at least ``least_mm``, instead of
+    :func:`cardionurbs.anatomy.surfaces.synthetic_step`'s fixed 2.5 mm."""
     from cardionurbs.anatomy import surfaces
-    return mock.patch.object(surfaces, "synthetic_step", lambda secs, direction: mm)
+
+    def step(secs, direction):
+        levels = np.array([float(sec.points.mean(axis=0) @ direction) for sec in secs])
+        if len(levels) < 2:
+            return least_mm
+        return max(least_mm, fraction * float(np.median(np.abs(np.diff(levels)))))
+    return mock.patch.object(surfaces, "synthetic_step", step)
 
 
 def spline_across_septum():
@@ -325,31 +333,32 @@ BIVME = {(24, "lv_cavity"): 179.0, (24, "rv_cavity"): 167.8, (24, "lv_myocardium
 
 
 def step_by_step(study, model, frames) -> tuple[list[str], object]:
-    """bivme-patient1 against biv-me before the two rules, with the septum rule, with both
-    (now); returns the table and the model with the septum rule only (2.5 mm step)."""
-    with spline_across_septum(), fixed_synthetic_step():
+    """bivme-patient1 against biv-me before the septum rule, with it (now), and with synthetic
+    sections every half slice spacing as well (tried, not adopted); returns the table and the
+    model of the last."""
+    with spline_across_septum():
         before = reconstruct(study, frames=list(frames))
         vb = {f: dict(before.volumes[f]) for f in frames}
-    with fixed_synthetic_step():
-        septum = reconstruct(study, frames=list(frames))
-        vs = {f: dict(septum.volumes[f]) for f in frames}
-    out = ["| frame | quantity | biv-me | before: spline across the septum, synthetic sections "
-           "every 2.5 mm | + LV epicardium through the RV septum | + synthetic sections every "
-           "half slice spacing (now) |", "|---|---|---|---|---|---|"]
+    with half_spacing_step():
+        tried = reconstruct(study, frames=list(frames))
+        vt = {f: dict(tried.volumes[f]) for f in frames}
+    out = ["| frame | quantity | biv-me | before: spline across the septum | + LV epicardium "
+           "through the RV septum (now) | + synthetic sections every half slice spacing "
+           "(tried, not adopted) |", "|---|---|---|---|---|---|"]
     for (f, k), ref in BIVME.items():
         mass = "myocardium" in k
         cells = []
-        for v in (vb, vs, {f: model.volumes[f]}):
+        for v in (vb, {f: model.volumes[f]}, vt):
             x = v[f][k] * (1.05 if mass else 1.0)
             cells.append(f"{x:.1f} ({100 * (x / ref - 1):+.1f} %)")
         out.append(f"| {f} | {k}{' mass (g)' if mass else ' (mL)'} | {ref} | " + " | ".join(cells) + " |")
-    return out, septum
+    return out, tried
 
 
 def where_section(study, root: Path, frames=(24, 9)) -> tuple[object, dict]:
     """Tables and figures of where the model differs (lines for the report; the model)."""
     model = reconstruct(study, frames=list(frames))
-    steps, septum_only = step_by_step(study, model, frames)
+    steps, tried = step_by_step(study, model, frames)
     ring, ring_g = basal_ring_rows(model, frames)
     parts = {
         "steps": steps,
@@ -357,7 +366,7 @@ def where_section(study, root: Path, frames=(24, 9)) -> tuple[object, dict]:
         "sa": sa_table(model, frames),
         "ring": ring,
         "ring_g": ring_g,
-        "profile": profile_figure(model, frames, root / PROFILE_FIGURE, before=septum_only),
+        "profile": profile_figure(model, frames, root / PROFILE_FIGURE, before=tried),
         "la": la_rows_and_figure(model, frames, root / LA_FIGURE),
     }
     sa_figure(model, frames[0], root / SA_FIGURE)

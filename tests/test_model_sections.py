@@ -71,16 +71,3 @@ def test_septal_mask_keeps_a_noisy_septum_contiguous():
     closed = septal_mask(loop, lv, N, near_mm=0.5, max_gap=len(loop) // 8)
     assert not raw[:60].all()                 # noise alone splits the septum
     assert closed[:60].all() and not closed[62:-2].any()
-
-
-def test_synthetic_sections_spaced_half_the_slice_spacing():
-    """Synthetic sections from LA contours are spaced half the SA slice spacing (median), at
-    least SYNTHETIC_STEP_MM: an evenly sampled stack for the loft."""
-    from cardionurbs.anatomy.surfaces import SYNTHETIC_STEP_MM, synthetic_step
-    secs = [_sec(_ellipse(20, 15, z), f"sa_{k}") for k, z in enumerate((0.0, 10.0, 20.0, 38.0))]
-    assert synthetic_step(secs, N) == 5.0
-    wide = [_sec(_ellipse(20, 15, z), f"sa_{k}") for k, z in enumerate((0.0, 17.7, 35.4))]
-    assert abs(synthetic_step(wide, N) - 8.85) < 1e-9
-    thin = [_sec(_ellipse(20, 15, z), f"sa_{k}") for k, z in enumerate((0.0, 3.0, 6.0))]
-    assert synthetic_step(thin, N) == SYNTHETIC_STEP_MM
-    assert synthetic_step(secs[:1], N) == SYNTHETIC_STEP_MM

@@ -7,9 +7,7 @@ Steps for one surface (lv_endo, lv_epi, rv_endo or rv_epi):
    stack: between the most apical SA slice and the apex, and between the most
    basal SA slice and the valve plane, the nearest SA section's shape is
    scaled about a centre line to pass through the LA contours' crossings of
-   the level plane (:func:`cardionurbs.anatomy.sections.scaled_section`),
-   every half SA slice spacing (:func:`synthetic_step`: an evenly spaced
-   stack, which the loft does not overshoot between).
+   the level plane (:func:`cardionurbs.anatomy.sections.scaled_section`).
    One more section, the basal one moved beyond the valve plane, lets the
    mesh be cut exactly by that plane.
 2. **Common parameterisation.** Each closed section is resampled uniformly in
@@ -51,10 +49,8 @@ N_CTRL_STEPS = (12, 16, 20, 26, 32, 40, 52)
 SEPTUM_NEAR_MM_TAPER = 1.5
 #: points per resampled section
 N_SAMPLES = 120
-#: smallest spacing (mm) of synthetic sections (and the spacing of an SA-only taper's)
+#: spacing (mm) of synthetic sections built from LA contours
 SYNTHETIC_STEP_MM = 2.5
-#: synthetic sections from LA contours are spaced this fraction of the SA slice spacing
-SYNTHETIC_STEP_OF_SPACING = 0.5
 #: RV contour points within this many pixels of the LV epicardial contour are septal
 SEPTUM_NEAR_PX = 0.5
 #: free-wall runs shorter than this fraction of an RV loop, between septal points, are septal
@@ -137,24 +133,16 @@ def free_wall_targets(targets: np.ndarray, centre: np.ndarray,
 
 
 def synthetic_step(secs: list[Section], direction: np.ndarray) -> float:
-    """Spacing (mm) of the synthetic sections beyond a stack of SA sections: half the median
-    spacing of the SA sections (at least ``SYNTHETIC_STEP_MM``).
-
-    The loft interpolates its sections with a degree-3 B-spline across them; a cluster of
-    closely spaced synthetic sections next to a wide gap between SA slices makes it
-    overshoot in the gap (bivme-patient1 at ES: the RV cross-section falls to a quarter
-    of both neighbouring slices' areas between them). Sampling the LA contours about as
-    densely as the SA slices keeps the stack evenly spaced."""
-    levels = np.array([float(sec.points.mean(axis=0) @ direction) for sec in secs])
-    if len(levels) < 2:
-        return SYNTHETIC_STEP_MM
-    return max(SYNTHETIC_STEP_MM, SYNTHETIC_STEP_OF_SPACING * float(np.median(np.diff(levels))))
+    """Spacing (mm) of the synthetic sections beyond a stack of SA sections:
+    ``SYNTHETIC_STEP_MM`` whatever the SA slice spacing. (A loft through 2.5 mm synthetic
+    sections next to a much wider SA gap can overshoot in the gap; spacing them half the
+    slice spacing was tried and not adopted, reports/validation-function.md, bivme-patient1.)"""
+    return SYNTHETIC_STEP_MM
 
 
 def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
                        apex: np.ndarray) -> tuple[list[Section], list[Section]]:
-    """Synthetic (basal, apical) sections from LA contour crossings (see module doc), every
-    :func:`synthetic_step` along the stacking direction."""
+    """Synthetic (basal, apical) sections from LA contour crossings (see module doc)."""
     n = geo.direction
     la = geo.la_points.get(structure, [])
     if not la and secs and structure in geo.taper:
