@@ -169,7 +169,11 @@ def is_open_arc(points: np.ndarray, gap_steps: float = ARC_GAP_STEPS) -> bool:
     p = np.asarray(points, float)
     if len(p) < 5:
         return False
-    p = order_open(p)
+    # the ends of a trace in drawing order (from any point of it) are where its largest
+    # step, the closing one included, is: cut there, else order the points from scratch
+    steps = np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1)
+    p_cut = np.roll(p, -(int(np.argmax(steps)) + 1), axis=0)
+    p = p_cut if _in_drawing_order(p_cut, closed=False) else order_open(p)
     if not _in_drawing_order(p, closed=False):
         return False
     step = float(np.median(np.linalg.norm(np.diff(p, axis=0), axis=1)))
