@@ -474,6 +474,21 @@ NOTES = """## Notes
   (λ, column "penalty") chosen to minimise Stein's unbiased estimate of the mean squared
   error of the 48 segment strains, from the ED-plane noise. Noise-free (noise below
   0.01 mm) nothing changes.
+- **Near-incompressibility.** With noisy tags the regulariser also has the term
+  ½ κ Σ_s w_s (J̄_s − 1)², J̄_s the volume mean of det F over segment s (w_s its volume),
+  re-linearised at every Gauss–Newton step; κ (the third penalty weight) is chosen jointly
+  with the ridge weights by the same risk estimate, so it is large only when the tags agree
+  with a volume-preserving motion within their noise. Myocardium keeps its volume within a
+  few per cent, and det F ties the transmural stretch (measured worst) to the in-plane ones.
+  The phantoms' truth is incompressible, so this prior favours them: the det F of the final
+  fit is no longer an independent check, and the table reports the det F of the
+  unregularised fit beside it (the check used in the bounds table). Its effect is in the
+  ridge-only / with-incompressibility table: it mainly helps Ell (the Ell errors that the
+  ridge-only fit left over 3 points); Err stays noise-limited (next note). Tried before
+  settling on segment means: det F penalised at 600 wall samples (pointwise), which did no
+  better (17 of these phantoms: worst Ell 2.98 against 2.57, Err RMS 3.68 against 3.50),
+  and fixed large κ, which made Err worse on a phantom with noisy tags and exact contours
+  (normal 5: Err RMS 3.5 at κ = 1–10, 5.4 at κ = 10⁴), so κ is left to the risk estimate.
 - **Also tried, not kept:** removing the second-order bias of the strains (E is quadratic in
   F, so noise in the fitted field raises its mean by ½ tr(∇²E Cov); computed from the fit's
   covariance by symmetric sigma points) changed segment strains by ≤ 0.02 points; the fit
@@ -489,8 +504,10 @@ NOTES = """## Notes
   cross the wall, obliquely), against at most 0.2–1.3 for Ecc. An unbiased estimator with those errors puts all 16 segments within
   6 points with the probability shown (well below 1), so the Err target of 6 points is out
   of reach at this noise level for any unbiased estimate within the motion model; the
-  regularised fit (which trades bias for variance) does better than that on some phantoms
-  and not on others. Also tried: the reconstructed endo- and epicardium at ED and ES as
+  regularised fit (which trades bias for variance, with or without the incompressibility
+  term) does better than that on some phantoms and not on others: its own standard
+  deviations (last column) are 1–3 points, but its bias, which the risk estimate can only
+  estimate, makes up the rest of the error. Also tried: the reconstructed endo- and epicardium at ED and ES as
   material surfaces, added to the tag-line fit as point-to-surface residuals with weights
   from their own residual variance (Young and Axel's combined tag-and-contour fit). Their
   pointwise error with 0.5 px contour noise (RMS 0.7–1 mm) is larger than the tags', they
