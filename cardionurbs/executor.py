@@ -26,6 +26,14 @@ Executors:
   started with ``distributed.scheduler.allowed-failures = 0`` so that this rule,
   not the scheduler's own retries, decides; set the same on a scheduler of your
   own.
+
+Dask's worker diagnostics cost a CPU-bound, GIL-holding task like ours about a
+quarter of its time: the statistical profiler samples the task thread's stack every
+10 ms, and the event loop wakes 50 times a second (the blocked-loop check) and takes
+the GIL from the task each time. :data:`WORKER_CONFIG` turns the profiler off and
+slows those checks to once a second; the local cluster is started with it, and a
+cluster of your own should be too (its workers' Dask config). Measured in
+reports/benchmark-throughput.md.
 """
 
 from __future__ import annotations
@@ -43,6 +51,18 @@ from typing import Any, Callable, Sequence
 LOCAL = "processes"
 #: submissions of a Dask task whose worker died before it is reported as ``worker died``
 MAX_ATTEMPTS_KILLED = 2
+
+
+#: Dask config for the workers that run studies: no statistical profiler (it samples the
+#: task thread every 10 ms), and the event-loop tick, system monitor and memory monitor at
+#: 1-5 s instead of 20-500 ms (each wake takes the GIL from the running task). Only the
+#: dashboard's profile plots and the reaction time of the memory limit change.
+WORKER_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.worker.memory.monitor-interval": "1s",
+}
 
 
 @dataclass(frozen=True)
@@ -185,7 +205,7 @@ def dask_client(address: str, jobs: int):
     from distributed import Client, LocalCluster
 
     if address == "local":
-        with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with dask.config.set({"distributed.scheduler.allowed-failures": 0, **WORKER_CONFIG}):
             cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True,
                                    host="127.0.0.1", dashboard_address=None)
         return Client(cluster), cluster

@@ -6,6 +6,7 @@ Usage (from the project root)::
     .venv/bin/python reports/build.py --cohort DIR     # reuse a demo output (cohort.csv, truth.csv)
     .venv/bin/python reports/build.py --benchmarks     # also re-run benchmarks/bench_*.py first
     .venv/bin/python reports/build.py --quick          # 5-frame phantom, first 3 CAP frames
+    .venv/bin/python reports/build.py --benchmark-only # only reassemble reports/benchmark.md
 
 What it does
 ------------
@@ -174,7 +175,12 @@ def main(argv=None) -> int:
     ap.add_argument("--benchmarks", action="store_true", help="re-run benchmarks/bench_*.py first")
     ap.add_argument("--quick", action="store_true", help="5-frame phantom, 3 CAP frames")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--benchmark-only", action="store_true",
+                    help="only reassemble reports/benchmark.md from reports/benchmark-*.md")
     args = ap.parse_args(argv)
+    if args.benchmark_only:
+        print(benchmark_report(args.benchmarks))
+        return 0
     from cardionurbs.phantom import generate
     from cardionurbs.phantom.generate import write_phantom
 

@@ -133,3 +133,23 @@ def test_fresh_run_clears_only_row_files(tmp_path):
     store.clear()
     assert store.get("a") is None
     assert mine.read_bytes() == b"keep me"
+
+
+def _worker_diagnostics() -> tuple:
+    import dask
+    return (dask.config.get("distributed.worker.profile.enabled"),
+            dask.config.get("distributed.admin.tick.interval"))
+
+
+def test_dask_local_workers_run_without_the_profiler_and_with_slow_ticks():
+    """The local cluster's workers get WORKER_CONFIG (the profiler and the 20 ms tick cost a
+    CPU-bound task a quarter of its time; reports/benchmark-throughput.md)."""
+    pytest.importorskip("distributed")
+    from cardionurbs.executor import WORKER_CONFIG, dask_client
+    client, cluster = dask_client("local", 1)
+    try:
+        seen = set(client.run(_worker_diagnostics).values())
+    finally:
+        client.close()
+        cluster.close()
+    assert seen == {(False, WORKER_CONFIG["distributed.admin.tick.interval"])}

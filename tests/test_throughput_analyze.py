@@ -103,3 +103,74 @@ def test_compact_json_reads_back_equal_with_nan_as_null(tmp_path):
                                                              "b": {"c": None}, "3": 4}
     write_json({"a": [0.1, 2]}, tmp_path / "y.json", indent=None)
     assert (tmp_path / "y.json").read_text() == '{"a": [0.1, 2]}\n'
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10_000), st.integers(1, 12))
+def test_pair_residuals_of_many_lines_equal_line_by_line(seed, problems):
+    """Lines of different lengths in different planes, one batch, against blend_trace and
+    signed_distance_to_trace line by line (a pair that misses the plane goes one by one)."""
+    from cardionurbs.analysis.tagqc import _pair_residuals_many
+    rng = np.random.default_rng(seed)
+    u = np.linspace(0, 1, 48)
+    pts, Ca, Cb, O, N = [], [], [], [], []
+    for k in range(problems):
+        normal = rng.normal(0, 0.15, 3) + [0, 0, 1]
+        normal /= np.linalg.norm(normal)
+        origin = rng.normal(0, 2, 3)
+        base = np.column_stack([40 * u - 20, 3 * np.sin(3 * u + k), np.zeros_like(u)]) + origin
+        a = base + [0, rng.normal(0, 2), -5 - 5 * rng.random()] + rng.normal(0, 0.2, (48, 3))
+        b = base + [0, rng.normal(0, 2), 5 + 5 * rng.random()] + rng.normal(0, 0.2, (48, 3))
+        if rng.random() < 0.15:          # a pair whose samples do not all cut the plane
+            b[:5] = a[:5]
+        n = int(rng.integers(0, 30))
+        p = np.column_stack([rng.uniform(-15, 15, n), rng.normal(0, 1, n), np.zeros(n)]) + origin
+        pts.append(p), Ca.append(a), Cb.append(b), O.append(origin), N.append(normal)
+    got = _pair_residuals_many(pts, Ca, Cb, O, N)
+    for g, p, a, b, o, n in zip(got, pts, Ca, Cb, O, N):
+        T, tan = blend_trace(a, b, o, n)
+        d = signed_distance_to_trace(p, T, tan, n)
+        if len(d) == 0 or not np.isfinite(d).all():
+            assert g is None
+        else:
+            assert g == pytest.approx(float(np.median(d)), abs=1e-9)
+
+
+def _index_trend_reference(values, i, outlier):
+    """The tag-index trend as np.polyfit computes it, one problem at a time."""
+    if not values:
+        return 0.0
+    j = np.array([v[0] for v in values], float)
+    r = np.array([v[1] for v in values], float)
+    keep = np.ones(len(j), bool)
+    for _ in range(2):
+        n = int(keep.sum())
+        if n == 0:
+            return 0.0
+        if n == 1:
+            return float(r[keep][0])
+        w = 1.0 / (1.0 + np.abs(j[keep] - i)) ** 2
+        c = np.polyfit(j[keep] - i, r[keep], 2 if n >= 4 else 1, w=np.sqrt(w))
+        new = np.abs(r - np.polyval(c, j - i)) <= outlier
+        if new.sum() < 1 or np.array_equal(new, keep):
+            break
+        keep = new
+    return float(c[-1])
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 10_000), st.integers(1, 25))
+def test_batched_index_trends_equal_polyfit_one_by_one(seed, problems):
+    from cardionurbs.analysis.tagqc import _index_trends
+    rng = np.random.default_rng(seed)
+    vals, at = [], []
+    for _ in range(problems):
+        i = int(rng.integers(-6, 7))
+        others = [j for j in range(-7, 8) if j != i and rng.random() < 0.6]
+        a, b, c = rng.normal(0, [0.5, 0.1, 0.02])
+        v = [(j, float(a + b * j + c * j * j + rng.normal(0, 0.05)
+                       + (3.0 if rng.random() < 0.15 else 0.0))) for j in others]
+        vals.append(v), at.append(i)
+    got = _index_trends(vals, at, 1.0)
+    for g, v, i in zip(got, vals, at):
+        assert g == pytest.approx(_index_trend_reference(v, i, 1.0), rel=1e-9, abs=1e-9)

@@ -130,7 +130,7 @@ def tag_grid(planes: TagPlanes, points: dict, level: float = GRID_TEST_LEVEL) ->
     A family keeps its separately fitted planes when it has fewer than three, or when the
     grid is rejected by the F-test of the nested least-squares fits (3 parameters per plane
     against 4 per family) at ``level``: its tags are not one parallel, equally spaced set."""
-    from scipy.stats import f as fisher
+    from scipy.special import fdtri  # the F distribution's quantile (scipy.stats.f.ppf calls it)
     fam_of = [k[0] for k in planes.keys]
     normals, offsets = planes.normals.copy(), planes.offsets.copy()
     for fam in dict.fromkeys(fam_of):
@@ -154,7 +154,7 @@ def tag_grid(planes: TagPlanes, points: dict, level: float = GRID_TEST_LEVEL) ->
         n_pts, dfn = int(w.sum()), 3 * len(rows) - 4
         dfd = n_pts - 3 * len(rows)
         exact = grid <= 1e-12 * n_pts                  # both fits exact (noise-free tags)
-        if not exact and (dfd < 1 or (grid - sep) / dfn > fisher.ppf(level, dfn, dfd) * sep / dfd):
+        if not exact and (dfd < 1 or (grid - sep) / dfn > fdtri(dfn, dfd, level) * sep / dfd):
             continue
         normals[rows] = n
         offsets[rows] = d

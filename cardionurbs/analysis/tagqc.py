@@ -314,26 +314,35 @@ def loo_residuals(secs: list[TagSection], samples: list[np.ndarray],
     {slice: {(slice_a, slice_b): median signed in-plane distance of the line's
     points from the degree-1 loft of sections a, b}} (module docstring, steps 1–3).
     """
-    names = [s.slice for s in secs if s.slice not in exclude]
-    out: dict[str, dict[tuple[str, str], float]] = {}
-    if len(names) < 3:
-        return out
-    for i, sec in enumerate(secs):
-        if sec.slice in exclude:
+    return loo_residuals_many([(secs, samples, exclude)])[0]
+
+
+def loo_residuals_many(tags: list[tuple[list[TagSection], list[np.ndarray], set[str]]]
+                       ) -> list[dict[str, dict[tuple[str, str], float]]]:
+    """:func:`loo_residuals` of several tags, ``tags`` = [(secs, samples, exclude)], with
+    every (left-out line, predictor pair) of all of them measured in one batch
+    (:func:`_pair_residuals_many`): the same numbers, without a numpy call per line."""
+    lines = []            # (tag, slice, pair names) per problem
+    points, Ca, Cb, origins, normals = [], [], [], [], []
+    for t, (secs, samples, exclude) in enumerate(tags):
+        if len([s for s in secs if s.slice not in exclude]) < 3:
             continue
-        keep = [k for k, s in enumerate(secs) if k != i and s.slice not in exclude]
-        keys = np.array([secs[k].key for k in keep])
-        plane = sec.plane
-        res = {}
-        pairs = _neighbour_pairs(keys, sec.key)
-        medians = _pair_residuals(sec.points, [samples[keep[a]] for a, _ in pairs],
-                                  [samples[keep[b]] for _, b in pairs], plane.position,
-                                  plane.normal)
-        for (a, b), m in zip(pairs, medians):
-            if m is not None:
-                res[(secs[keep[a]].slice, secs[keep[b]].slice)] = m
-        if res:
-            out[sec.slice] = res
+        for i, sec in enumerate(secs):
+            if sec.slice in exclude:
+                continue
+            keep = [k for k, s in enumerate(secs) if k != i and s.slice not in exclude]
+            keys = np.array([secs[k].key for k in keep])
+            for a, b in _neighbour_pairs(keys, sec.key):
+                lines.append((t, sec.slice, (secs[keep[a]].slice, secs[keep[b]].slice)))
+                points.append(sec.points)
+                Ca.append(samples[keep[a]])
+                Cb.append(samples[keep[b]])
+                origins.append(sec.plane.position)
+                normals.append(sec.plane.normal)
+    out: list[dict] = [{} for _ in tags]
+    for (t, slc, pair), m in zip(lines, _pair_residuals_many(points, Ca, Cb, origins, normals)):
+        if m is not None:
+            out[t].setdefault(slc, {})[pair] = m
     return out
 
 
@@ -341,42 +350,87 @@ def _pair_residuals(points: np.ndarray, Ca: list[np.ndarray], Cb: list[np.ndarra
                     origin: np.ndarray, normal: np.ndarray) -> list[float | None]:
     """Median signed distance (mm) of ``points`` from the trace of every predictor pair
     (:func:`blend_trace` of Ca[k], Cb[k] cut by the plane, then
-    :func:`signed_distance_to_trace`); None where it is undefined.
+    :func:`signed_distance_to_trace`); None where it is undefined."""
+    n = len(Ca)
+    return _pair_residuals_many([points] * n, Ca, Cb, [origin] * n, [normal] * n)
 
-    All pairs at once (arrays (pairs, samples, 3)) when every sample of every pair
-    cuts the plane, which is the rule; pair by pair otherwise (the trace then loses
-    samples and differs in length between pairs).
-    """
-    if not Ca:
-        return []
-    A, B = np.stack(Ca), np.stack(Cb)
-    da = (A - origin) @ normal
-    db = (B - origin) @ normal
-    den = da - db
-    if len(points) == 0 or A.shape[1] < 2 or not (np.abs(den) > 1e-9).all():
-        out = []
-        for a, b in zip(Ca, Cb):
-            trace, tan = blend_trace(a, b, origin, normal)
-            d = signed_distance_to_trace(points, trace, tan, normal)
-            out.append(float(np.median(d)) if len(d) and np.isfinite(d).all() else None)
+
+def _pair_residual_one(points, a, b, origin, normal) -> float | None:
+    trace, tan = blend_trace(a, b, origin, normal)
+    d = signed_distance_to_trace(points, trace, tan, normal)
+    return float(np.median(d)) if len(d) and np.isfinite(d).all() else None
+
+
+#: the largest (problems x points x samples) block :func:`_pair_residuals_many` forms at once
+_BLOCK = 400_000
+
+
+def _pair_residuals_many(points: list[np.ndarray], Ca: list[np.ndarray], Cb: list[np.ndarray],
+                         origins: list[np.ndarray], normals: list[np.ndarray]
+                         ) -> list[float | None]:
+    """Median signed distance (mm) of ``points[k]`` from the trace of ``Ca[k]``, ``Cb[k]``
+    in the plane (``origins[k]``, ``normals[k]``), for every k: :func:`blend_trace`, then
+    :func:`signed_distance_to_trace`, then the median; None where it is undefined.
+
+    Problems in blocks of similar point counts (arrays (problems, points, samples, 3),
+    the shorter point sets padded with NaN and left out of the median) when every sample
+    of the pair cuts the plane, which is the rule; one by one otherwise (the trace then
+    loses samples)."""
+    K = len(points)
+    out: list[float | None] = [None] * K
+    if K == 0:
         return out
-    t = da / den
-    T = A + t[..., None] * (B - A)
-    T -= ((T - origin) @ normal)[..., None] * normal
-    tan = np.gradient(T, axis=1)
-    tan -= (tan @ normal)[..., None] * normal
-    tan /= np.maximum(np.linalg.norm(tan, axis=2, keepdims=True), 1e-12)
-    diff = points[None, :, None, :] - T[:, None, :, :]          # (pairs, points, samples, 3)
-    j = np.argmin((diff ** 2).sum(-1), axis=2)                   # (pairs, points)
-    P = np.arange(len(A))[:, None]
-    dd = diff[P, np.arange(len(points))[None, :], j]             # (pairs, points, 3)
-    tj = tan[P, j]
-    across = np.stack([normal[1] * tj[..., 2] - normal[2] * tj[..., 1],
-                       normal[2] * tj[..., 0] - normal[0] * tj[..., 2],
-                       normal[0] * tj[..., 1] - normal[1] * tj[..., 0]], axis=-1)
-    d = (dd * across).sum(-1)
-    med = np.median(d, axis=1)
-    return [float(m) if np.isfinite(d[k]).all() else None for k, m in enumerate(med)]
+    A, B = np.stack(Ca), np.stack(Cb)                               # (K, S, 3)
+    O, N = np.stack(origins), np.stack(normals)                     # (K, 3)
+    da = ((A - O[:, None]) @ N[:, :, None])[..., 0]
+    db = ((B - O[:, None]) @ N[:, :, None])[..., 0]
+    den = da - db
+    npts = np.array([len(p) for p in points])
+    batch = (npts > 0) & (np.abs(den) > 1e-9).all(axis=1) & (A.shape[1] >= 2)
+    for k in np.flatnonzero(~batch):
+        out[k] = _pair_residual_one(points[k], A[k], B[k], O[k], N[k])
+    todo = np.flatnonzero(batch)
+    todo = todo[np.argsort(npts[todo], kind="stable")]
+    S = A.shape[1]
+    start = 0
+    while start < len(todo):
+        stop = start + 1
+        while stop < len(todo) and (stop + 1 - start) * npts[todo[stop]] * S <= _BLOCK:
+            stop += 1
+        ks = todo[start:stop]
+        start = stop
+        M = int(npts[ks].max())
+        P = np.full((len(ks), M, 3), np.nan)
+        for r, k in enumerate(ks):
+            P[r, :npts[k]] = points[k]
+        n, o = N[ks], O[ks]
+        t = da[ks] / den[ks]
+        T = A[ks] + t[..., None] * (B[ks] - A[ks])
+        T -= ((T - o[:, None]) @ n[:, :, None]) * n[:, None, :]
+        tan = np.gradient(T, axis=1)
+        tan -= (tan @ n[:, :, None]) * n[:, None, :]
+        tan /= np.maximum(np.linalg.norm(tan, axis=2, keepdims=True), 1e-12)
+        sq = 0.0                                                     # (k, points, samples)
+        for c in range(3):
+            dc = P[:, :, None, c] - T[:, None, :, c]
+            sq = sq + dc * dc
+        j = np.argmin(sq, axis=2)                                    # (k, points)
+        R = np.arange(len(ks))[:, None]
+        dd = P - T[R, j]                                             # (k, points, 3)
+        tj = tan[R, j]
+        nn = n[:, None, :]
+        across = np.stack([nn[..., 1] * tj[..., 2] - nn[..., 2] * tj[..., 1],
+                           nn[..., 2] * tj[..., 0] - nn[..., 0] * tj[..., 2],
+                           nn[..., 0] * tj[..., 1] - nn[..., 1] * tj[..., 0]], axis=-1)
+        d = (dd * across).sum(-1)                                     # (k, points), NaN padded
+        real = np.arange(M)[None, :] < npts[ks][:, None]
+        finite = (np.isfinite(d) | ~real).all(axis=1)
+        d = np.sort(np.where(real, d, np.inf), axis=1)
+        m = npts[ks]
+        med = (d[R[:, 0], (m - 1) // 2] + d[R[:, 0], m // 2]) / 2  # np.median's middle
+        for r, k in enumerate(ks):
+            out[k] = float(med[r]) if finite[r] else None
+    return out
 
 
 def _weighted_polyfit(x: np.ndarray, y: np.ndarray, deg: int, w: np.ndarray) -> np.ndarray:
@@ -399,26 +453,66 @@ def _index_trend(values: list[tuple[int, float]], i: int, outlier: float) -> flo
     depart from the first fit by more than ``outlier`` (jumped lines);
     evaluated at i. No other tag: 0 (no correction).
     """
-    if not values:
-        return 0.0
-    j = np.array([v[0] for v in values], float)
-    r = np.array([v[1] for v in values], float)
-    keep = np.ones(len(j), bool)
+    return float(_index_trends([values], [i], outlier)[0])
+
+
+def _weighted_polyfits(x: np.ndarray, y: np.ndarray, w: np.ndarray, n: np.ndarray,
+                       deg: int) -> np.ndarray:
+    """Coefficients (rows, highest power first) of the weighted least-squares polynomials
+    of degree ``deg`` through the rows of (x, y), weights ``w`` on the residuals (0 where a
+    row has no point), ``n`` points per row: :func:`_weighted_polyfit` of every row at once
+    (scaled Vandermonde columns, least squares by SVD with its cut-off n·eps)."""
+    A = (x[..., None] ** np.arange(deg, -1, -1)) * w[..., None]          # (rows, m, deg + 1)
+    scale = np.sqrt((A * A).sum(axis=1))                                   # (rows, deg + 1)
+    U, sv, Vt = np.linalg.svd(A / scale[:, None, :], full_matrices=False)
+    cut = (n * np.finfo(float).eps)[:, None] * sv[:, :1]
+    inv = np.where(sv > cut, 1.0 / np.where(sv > 0, sv, 1.0), 0.0)
+    c = np.einsum("rji,rj,rkj,rk->ri", Vt, inv, U, y * w)
+    return c / scale
+
+
+def _index_trends(values: list[list[tuple[int, float]]], at: list[int],
+                  outlier: float) -> np.ndarray:
+    """:func:`_index_trend` of many (values, i) at once: the weighted fits of every
+    problem with the same number of kept tags solved as one batch."""
+    P = len(values)
+    out = np.zeros(P)
+    m = np.array([len(v) for v in values])
+    if P == 0 or m.max(initial=0) == 0:
+        return out
+    M = int(m.max())
+    J, Rv = np.zeros((P, M)), np.zeros((P, M))
+    valid = np.arange(M)[None, :] < m[:, None]
+    for p, v in enumerate(values):
+        if v:
+            J[p, :len(v)] = [x[0] for x in v]
+            Rv[p, :len(v)] = [x[1] for x in v]
+    X = J - np.asarray(at, float)[:, None]
+    keep = valid.copy()
+    active = m > 0
     for _ in range(2):
-        n = int(keep.sum())
-        if n == 0:
-            return 0.0
-        if n == 1:
-            return float(r[keep][0])
-        deg = 2 if n >= 4 else 1
-        w = 1.0 / (1.0 + np.abs(j[keep] - i)) ** 2
-        c = _weighted_polyfit(j[keep] - i, r[keep], deg, np.sqrt(w))
-        fit = np.polyval(c, j - i)
-        new = np.abs(r - fit) <= outlier
-        if new.sum() < 1 or np.array_equal(new, keep):
+        n = keep.sum(axis=1)
+        for p in np.flatnonzero(active & (n == 0)):
+            out[p] = 0.0
+        for p in np.flatnonzero(active & (n == 1)):
+            out[p] = Rv[p][keep[p]][0]
+        active &= n >= 2
+        if not active.any():
             break
-        keep = new
-    return float(c[-1])
+        fit = np.zeros((P, M))
+        for deg in (1, 2):
+            rows = np.flatnonzero(active & ((n >= 4) if deg == 2 else (n < 4)))
+            if not len(rows):
+                continue
+            w = np.where(keep[rows], 1.0 / (1.0 + np.abs(X[rows])), 0.0)   # sqrt of 1/(1+|j-i|)^2
+            c = _weighted_polyfits(X[rows], Rv[rows], w, n[rows], deg)
+            out[rows] = c[:, -1]
+            fit[rows] = np.einsum("rmd,rd->rm", X[rows][..., None] ** np.arange(deg, -1, -1), c)
+        new = (np.abs(Rv - fit) <= outlier) & valid
+        stop = (new.sum(axis=1) < 1) | (new == keep).all(axis=1)
+        active &= ~stop
+        keep = np.where(active[:, None], new, keep)
+    return out
 
 
 def _is_extrapolated(secs: list[TagSection], slc: str, exclude: set[str]) -> bool:
@@ -468,21 +562,30 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
     R = dict(residuals) if residuals is not None else \
         {i: loo_residuals(groups[i], samples[i]) for i in groups}
 
-    def departure(i: int, slc: str) -> float:
-        best = np.inf
-        extrap = bool(temporal) and _is_extrapolated(groups[i], slc, excl[i])
-        for pair, r in R[i][slc].items():
-            trends = _time_witnesses(temporal, i, slc, pair) if extrap else []
-            if len(trends) < 2:      # not bracketed in time: the index trend
-                nb = [(j, R[j][slc][pair]) for j in R
-                      if j != i and slc in R[j] and pair in R[j][slc]]
-                trends = [_index_trend(nb, i, 0.5 * spacing)]
-            best = min(best, abs(r), *(abs(r - t) for t in trends))
-        return best / spacing
+    def departures() -> dict[tuple[int, str], float]:
+        lines, index_problems = [], []        # index trends of every line, one batch
+        for i in R:
+            for slc in R[i]:
+                extrap = bool(temporal) and _is_extrapolated(groups[i], slc, excl[i])
+                for pair, r in R[i][slc].items():
+                    trends = _time_witnesses(temporal, i, slc, pair) if extrap else []
+                    if len(trends) < 2:      # not bracketed in time: the index trend
+                        nb = [(j, R[j][slc][pair]) for j in R
+                              if j != i and slc in R[j] and pair in R[j][slc]]
+                        index_problems.append((nb, i))
+                        trends = None
+                    lines.append(((i, slc), r, trends))
+        fitted = iter(_index_trends([v for v, _ in index_problems], [i for _, i in index_problems],
+                                    0.5 * spacing))
+        best: dict[tuple[int, str], float] = {}
+        for key, r, trends in lines:
+            trends = [float(next(fitted))] if trends is None else trends
+            best[key] = min(best.get(key, np.inf), abs(r), *(abs(r - t) for t in trends))
+        return {k: v / spacing for k, v in best.items()}
 
     flagged: dict[tuple[int, str], float] = {}
     while True:
-        deps = {(i, slc): departure(i, slc) for i in R for slc in R[i]}
+        deps = departures()
         over = {k: v for k, v in deps.items() if v > threshold}
         if not over:
             break
@@ -539,9 +642,11 @@ def tag_departures(study: Study, threshold: float = DEFAULT_THRESHOLD,
         else:
             groups_at[f] = qc_sections(study, f, long_axis)
         spacing_at[f] = {fam: tag_spacing(study, fam, f) for fam in TAG_FAMILIES}
+        sa = [(fam, i, secs) for (fam, i), secs in groups_at[f].items() if fam in ("sa1", "sa2")]
+        res = loo_residuals_many([(secs, [_samples(s) for s in secs], frozenset())
+                                  for _, _, secs in sa])
         for fam in ("sa1", "sa2"):
-            R0[(f, fam)] = {i: loo_residuals(secs, [_samples(s) for s in secs])
-                            for (g, i), secs in groups_at[f].items() if g == fam}
+            R0[(f, fam)] = {i: r for (g, i, _), r in zip(sa, res) if g == fam}
     for n, f in enumerate(frames):
         groups, spacing = groups_at[f], spacing_at[f]
         near = [frames[m] for m in (n - 1, n + 1) if 0 <= m < len(frames)]
