@@ -71,9 +71,11 @@ class RegionalMetrics(ColumnMapping):
                       "notes": list(self.notes)})
 
 
-def regional_metrics(model, tags=None) -> RegionalMetrics:
+def regional_metrics(model, tags=None, incompressibility: bool = True) -> RegionalMetrics:
     """Regional columns of a model; ``tags``: its :class:`~cardionurbs.analysis.tags.TagMetrics`
-    (material points) when the study is tagged."""
+    (material points) when the study is tagged. ``incompressibility``: let the tag-strain fit
+    of noisy tags use the near-incompressibility penalty (:mod:`cardionurbs.analysis.tag_motion`;
+    False: the ridge penalties alone, for comparison)."""
     cols = {c: NAN for c in THICKNESS_COLUMNS + STRAIN_COLUMNS + SURFACE_STRAIN_COLUMNS}
     out = RegionalMetrics(cols)
     ed, es = model.ed_frame, model.es_frame
@@ -119,7 +121,8 @@ def regional_metrics(model, tags=None) -> RegionalMetrics:
             if got is not None:
                 lines = (got[0], planes.normals[got[1]], planes.offsets[got[1]])
         res = tag_strain(material, f, a.apex, a.base, P, N, a, axis=ax, myocardium=wall,
-                         tag_lines=lines, noise_mm=planes.rms_mm if planes is not None else 0.0)
+                         tag_lines=lines, noise_mm=planes.rms_mm if planes is not None else 0.0,
+                         incompressibility=incompressibility)
         if res is not None:
             if planes is not None:
                 res["tag_noise_mm"] = planes.rms_mm

@@ -42,7 +42,10 @@ Strain
     surface, :func:`smoothed_normals`, :data:`DIRECTION_SMOOTHING_MM`), c the circumferential
     direction e_θ made orthogonal to r, and l = r × c (the base → apex
     direction projected off the normal, up to sign). det F is reported as
-    the incompressibility check (1 for myocardium).
+    the incompressibility check (1 for myocardium); with noisy tags the fit is
+    penalised towards segment-mean det F = 1 (:mod:`cardionurbs.analysis.tag_motion`,
+    near-incompressibility), so the check is then the det F of the unregularised
+    fit, reported beside it.
 
 Per segment: the volume mean of the fitted strain over the ED myocardium of
 AHA segment k (:mod:`cardionurbs.analysis.aha`), sampled between the
@@ -328,7 +331,7 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
                endo_normals: np.ndarray, aha, axis: tuple | None = None,
                myocardium: tuple[np.ndarray, np.ndarray] | None = None,
                tag_lines: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-               noise_mm: float = 0.0) -> dict | None:
+               noise_mm: float = 0.0, incompressibility: bool = True) -> dict | None:
     """Strain ED → ``frame`` from the tracked material points: {"columns", "det_F" (mean),
     "det_F_range", "n_points", "counts", "fit_residual_mm", "method"}; None with too few points.
     ``apex``, ``base``: the ED long axis; ``axis``: (apex, base) at ``frame`` (default ED's).
@@ -341,7 +344,12 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     material points alone are fitted (method "material points"). ``noise_mm``: the tag
     tracking noise (the ED tag-plane residual), which sets the regularisation of that fit;
     with it the result also has "segment_se": {kind: {segment: standard error (strain
-    points)}} of the unregularised fit (a Cramér–Rao bound for unbiased estimates in (S1))."""
+    points)}} of the unregularised fit (a Cramér–Rao bound for unbiased estimates in (S1)),
+    "segment_sd" (the same for the regularised fit: its noise, without its bias), and
+    "det_F_unregularised" (volume mean over the wall samples the penalty is evaluated on) with
+    "det_F_unregularised_range": det F of the fit before the penalties, the incompressibility
+    check that the near-incompressibility penalty does not pull towards 1.
+    ``incompressibility``: False leaves that penalty out (the ridge penalties alone)."""
     from cardionurbs.analysis.tag_motion import MIN_TAG_POINTS, fit_tag_motion
     ok = material.tracked(material.ed_frame, frame)
     if ok.sum() < MIN_POINTS:
@@ -372,14 +380,19 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
         def segment_strains(f):
             v = directional_strains(green_lagrange(f.gradient(Y[sub])), dirs[sub])
             return segment_means(v, labels[sub], w[sub]).ravel()
-        out = fit_tag_motion(fit, *tag_lines, noise_mm=noise_mm, quantities=segment_strains)
+        out = fit_tag_motion(fit, *tag_lines, noise_mm=noise_mm, quantities=segment_strains,
+                             volume_samples=(Y[sub], w[sub], labels[sub]) if incompressibility else None)
         info.update(method="tag lines", n_tag_points=out["n_points"], penalty=out["lambda"],
                     tag_outliers=out["outliers"], fit_residual_mm=out["residual_mm"])
-        if out["quantity_se"] is not None:     # per segment present, (Ecc, Ell, Err) each
-            se = out["quantity_se"].reshape(-1, 3)
-            present = [k for k in range(1, 17) if (labels[sub] == k).any()]
-            info["segment_se"] = {kind: {str(k): float(v) for k, v in zip(present, se[:, j])}
-                                  for j, kind in enumerate(STRAIN_KINDS)}
+        if out["det_F_unregularised"] is not None:
+            info["det_F_unregularised"] = out["det_F_unregularised"][0]
+            info["det_F_unregularised_range"] = list(out["det_F_unregularised"][1:])
+        present = [k for k in range(1, 17) if (labels[sub] == k).any()]
+        for key, name in (("quantity_se", "segment_se"), ("regularised_sd", "segment_sd")):
+            if out[key] is not None:     # per segment present, (Ecc, Ell, Err) each
+                se = out[key].reshape(-1, 3)
+                info[name] = {kind: {str(k): float(v) for k, v in zip(present, se[:, j])}
+                              for j, kind in enumerate(STRAIN_KINDS)}
     # the near-axis rule at the frame, with the final fit
     clear = fit.image_radius(Y) >= AXIS_CLEARANCE_MM
     info["near_axis_excluded"] = int((~clear).sum())

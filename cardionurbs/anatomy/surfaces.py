@@ -13,7 +13,9 @@ Steps for one surface (lv_endo, lv_epi, rv_endo or rv_epi):
 2. **Common parameterisation.** Each closed section is resampled uniformly in
    arc length from a start point on a common anatomical ray (towards the RV
    free wall) and in one winding sense, so that the same parameter u means
-   the same side of the heart on every section (no twist in the loft).
+   the same side of the heart on every section (no twist in the loft). RV
+   sections are resampled so again once their septal run has been moved into
+   the LV wall (:func:`embed_septa`).
 3. **Curve fit within tolerance (paper §3.2, eqs. 6–10, §3.2.4).** Every
    section is fitted with a closed (periodic) degree-3 NURBS curve by
    :func:`cardionurbs.nurbs.fit_compatible_curves`: one knot vector for all
@@ -326,11 +328,20 @@ def crescent_scale(template: np.ndarray, anchor: np.ndarray, target_area: float,
 
 
 def embed_septa(real: list[Section], synthetic: list[Section], direction: np.ndarray,
-                near_px: float) -> None:
+                near_px: float, ref: np.ndarray | None = None) -> None:
     """Move the septal part of RV sections into the LV wall (see
     :func:`cardionurbs.anatomy.sections.embed_septum`), in place, after the
     common resampling: real sections by their slice's LV epicardial loop,
-    synthetic ones by their template's displacement times their scale."""
+    synthetic ones by their template's displacement times their scale.
+
+    With ``ref`` (the seam direction of :func:`resample_loop`) every moved loop is then
+    resampled again, uniformly in arc length from the same seam: the septal run moves a
+    fixed depth, which opens a step of about that depth at each insertion between two
+    neighbouring samples. On a section a few millimetres across (the last slice before the
+    RV apex) such a step spans many sample spacings; fitted on the loop's uniform
+    parameters the curve must jump there, its control points swing tens of millimetres
+    out, and the loft folds through them (a negative volume that the divergence theorem
+    subtracts from the cavity)."""
     disp = []
     for sec in real:
         d = np.zeros_like(sec.points)
@@ -344,6 +355,9 @@ def embed_septa(real: list[Section], synthetic: list[Section], direction: np.nda
         sec.points = sec.points + d
     for sec in synthetic:
         sec.points = sec.points + sec.scale * disp[sec.template]
+    if ref is not None:
+        for sec in real + synthetic:
+            sec.points = resample_loop(sec.points, direction, ref, m=len(sec.points))
 
 
 def septum_gap(n_points: int) -> int:
@@ -441,7 +455,7 @@ def build_surface(geo: FrameGeometry, structure: str, ref: np.ndarray,
                     False, s.source_points, s.septum_of) for s in secs]
     basal, apical = synthetic_sections(geo, structure, real, apex)
     if structure.startswith("rv"):
-        embed_septa(real, basal + apical, n, SEPTUM_NEAR_PX)
+        embed_septa(real, basal + apical, n, SEPTUM_NEAR_PX, ref)
     stack = basal + real + apical
     ext = extension_section(stack[0], geo, structure)
     stack = [ext] + stack
