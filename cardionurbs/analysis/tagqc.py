@@ -433,17 +433,6 @@ def _pair_residuals_many(points: list[np.ndarray], Ca: list[np.ndarray], Cb: lis
     return out
 
 
-def _weighted_polyfit(x: np.ndarray, y: np.ndarray, deg: int, w: np.ndarray) -> np.ndarray:
-    """Coefficients (highest power first) of the least-squares polynomial of degree
-    ``deg`` through (x, y) with weights ``w`` on the residuals: what ``np.polyfit(x, y,
-    deg, w=w)`` computes (scaled Vandermonde columns, SVD least squares), without its
-    per-call checks -- it runs thousands of times per study."""
-    A = np.vander(x, deg + 1) * w[:, None]
-    scale = np.sqrt((A * A).sum(axis=0))
-    c = np.linalg.lstsq(A / scale, y * w, rcond=len(x) * np.finfo(float).eps)[0]
-    return c / scale
-
-
 def _index_trend(values: list[tuple[int, float]], i: int, outlier: float) -> float:
     """Residual expected at tag index i from the other tags' (index, residual) in its slice.
 
@@ -460,8 +449,9 @@ def _weighted_polyfits(x: np.ndarray, y: np.ndarray, w: np.ndarray, n: np.ndarra
                        deg: int) -> np.ndarray:
     """Coefficients (rows, highest power first) of the weighted least-squares polynomials
     of degree ``deg`` through the rows of (x, y), weights ``w`` on the residuals (0 where a
-    row has no point), ``n`` points per row: :func:`_weighted_polyfit` of every row at once
-    (scaled Vandermonde columns, least squares by SVD with its cut-off n·eps)."""
+    row has no point), ``n`` points per row: what ``np.polyfit(x, y, deg, w=w)`` computes, for
+    every row at once (scaled Vandermonde columns, least squares by SVD with its cut-off
+    n·eps)."""
     A = (x[..., None] ** np.arange(deg, -1, -1)) * w[..., None]          # (rows, m, deg + 1)
     scale = np.sqrt((A * A).sum(axis=1))                                   # (rows, deg + 1)
     U, sv, Vt = np.linalg.svd(A / scale[:, None, :], full_matrices=False)

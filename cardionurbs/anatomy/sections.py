@@ -123,6 +123,13 @@ def _nearest_neighbour_chain(points: np.ndarray, start: int) -> np.ndarray:
     return np.asarray(order)
 
 
+def _cut_at_largest_step(p: np.ndarray) -> np.ndarray:
+    """The points rotated so that their largest step, the closing one (last to first)
+    included, falls between the last point and the first."""
+    steps = np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1)
+    return np.roll(p, -(int(np.argmax(steps)) + 1), axis=0)
+
+
 def order_open(points: np.ndarray) -> np.ndarray:
     """Order an open contour's points from one end to the other.
 
@@ -135,9 +142,7 @@ def order_open(points: np.ndarray) -> np.ndarray:
         return p
     if _in_drawing_order(p, closed=False):
         return p
-    steps = np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1)
-    cut = int(np.argmax(steps))
-    rolled = np.roll(p, -(cut + 1), axis=0)
+    rolled = _cut_at_largest_step(p)
     if _in_drawing_order(rolled, closed=False):
         return rolled
     d = np.linalg.norm(p[:, None] - p[None], axis=2)
@@ -171,8 +176,7 @@ def is_open_arc(points: np.ndarray, gap_steps: float = ARC_GAP_STEPS) -> bool:
         return False
     # the ends of a trace in drawing order (from any point of it) are where its largest
     # step, the closing one included, is: cut there, else order the points from scratch
-    steps = np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1)
-    p_cut = np.roll(p, -(int(np.argmax(steps)) + 1), axis=0)
+    p_cut = _cut_at_largest_step(p)
     p = p_cut if _in_drawing_order(p_cut, closed=False) else order_open(p)
     if not _in_drawing_order(p, closed=False):
         return False
