@@ -525,20 +525,23 @@ def bench_analyze(work: Path, repeat: int, baseline: Path | None = None) -> dict
     return out
 
 
-def bench_cohort(work: Path, n: int, repeat: int) -> dict:
-    out: dict = {}
+def generate_mix(work: Path, n: int, out: Path) -> dict:
+    """``n`` synthetic subjects of the benchmark mix (normal, MR, PHTN 5 : 3 : 4; ED + ES,
+    tagged, no DICOM) into ``out`` on 2 processes; the generation's timings."""
     mix = work / "mix.toml"
     subjects = [("normal", 5), ("mr", 3), ("phtn", 4)]
-    entries, k = [], 0
-    for path, count in subjects:
-        for _ in range(count):
-            entries.append(f'[[subject]]\nid = "{path}{k:02d}"\npathology = "{path}"\nseed = {k}\n')
-            k += 1
+    entries = [f'[[subject]]\nid = "{name}{k:02d}"\npathology = "{name}"\nseed = {k}\n'
+               for k, name in enumerate(x for name, c in subjects for x in [name] * c)]
     mix.write_text(MIX.format(subjects="\n".join(entries)))
+    return {k: v for k, v in run(cli("phantom", "--cohort", str(mix), "--n", str(n), "--jobs",
+                                     "2", "--no-dicom", "--out", str(out))).items()
+            if k != "stderr"}
+
+
+def bench_cohort(work: Path, n: int, repeat: int) -> dict:
+    out: dict = {}
     gen = work / "cohort"
-    out["cohort_generate_2jobs"] = {k_: v for k_, v in run(cli(
-        "phantom", "--cohort", str(mix), "--n", str(n), "--jobs", "2", "--no-dicom",
-        "--out", str(gen))).items() if k_ != "stderr"}
+    out["cohort_generate_2jobs"] = generate_mix(work, n, gen)
     studies = sorted(str(p) for p in gen.iterdir() if p.is_dir())
     out["cohort_native_bytes_per_subject"] = du(gen) / len(studies)
     configs = {"processes_1": ["--jobs", "1", "--timeout", "600", "--allow-failures"],
@@ -576,14 +579,8 @@ def bench_pair(work: Path, n: int) -> dict:
     independent cohort commands at the same time (no shared executor); A + B on 2 workers.
     CPU-s per subject of each: if the two independent commands slow down as much as the
     2-worker run, the loss is the machine's (two busy vCPUs run slower than one), not ours."""
-    mix = work / "mix.toml"
-    subjects = [("normal", 5), ("mr", 3), ("phtn", 4)]
-    entries = [f'[[subject]]\nid = "{name}{k:02d}"\npathology = "{name}"\nseed = {k}\n'
-               for k, name in enumerate(x for name, c in subjects for x in [name] * c)]
-    mix.write_text(MIX.format(subjects="\n".join(entries)))
     gen = work / "pair"
-    run(cli("phantom", "--cohort", str(mix), "--n", str(n), "--jobs", "2", "--no-dicom",
-            "--out", str(gen)))
+    generate_mix(work, n, gen)
     studies = sorted(str(p) for p in gen.iterdir() if p.is_dir())
     half = [studies[0::2], studies[1::2]]
     opts = ["--timeout", "600", "--allow-failures"]
