@@ -7,8 +7,11 @@ Steps for one surface (lv_endo, lv_epi, rv_endo or rv_epi):
    stack: between the most apical SA slice and the apex, and between the most
    basal SA slice and the valve plane, the nearest SA section's shape is
    scaled about a centre line to pass through the LA contours' crossings of
-   the level plane (:func:`cardionurbs.anatomy.sections.scaled_section`).
-   One more section, the basal one moved beyond the valve plane, lets the
+   the level plane (:func:`cardionurbs.anatomy.sections.scaled_section`),
+   every ``SYNTHETIC_STEP_MM``; for the RV surfaces the spacing next to the
+   SA stack is graded from half the SA gap down to that step
+   (:func:`synthetic_offsets`), so that the loft does not overshoot in a wide
+   SA gap next to closely spaced sections. One more section, the basal one moved beyond the valve plane, lets the
    mesh be cut exactly by that plane.
 2. **Common parameterisation.** Each closed section is resampled uniformly in
    arc length from a start point on a common anatomical ray (towards the RV
@@ -53,8 +56,11 @@ SEPTUM_NEAR_MM_TAPER = 1.5
 N_SAMPLES = 120
 #: spacing (mm) of synthetic sections built from LA contours
 SYNTHETIC_STEP_MM = 2.5
-#: largest ratio of neighbouring section intervals in an RV stack (:func:`synthetic_offsets`)
+#: largest ratio of neighbouring section intervals in a graded stack (:func:`synthetic_offsets`)
 GRADING_RATIO = 2.0
+#: surfaces whose synthetic sections are graded next to the SA stack (the LV surfaces are
+#: corrected towards the LA points afterwards, anatomy.refine, and keep every 2.5 mm)
+GRADED_STRUCTURES = ("rv_endo", "rv_epi")
 #: RV contour points within this many pixels of the LV epicardial contour are septal
 SEPTUM_NEAR_PX = 0.5
 #: free-wall runs shorter than this fraction of an RV loop, between septal points, are septal
@@ -144,13 +150,14 @@ def synthetic_step(secs: list[Section], direction: np.ndarray) -> float:
 
 
 def synthetic_offsets(span: float, step: float, sa_gap: float | None = None,
-                      ratio: float = GRADING_RATIO, reach_end: bool = False) -> np.ndarray:
+                      ratio: float | None = None, reach_end: bool = False) -> np.ndarray:
     """Distances (mm, increasing) from the end SA section of a stack to its synthetic
     sections, all within ``span`` (the distance to the valve plane's reach, or to the apex).
 
     Without ``sa_gap``: every ``step`` mm. With ``sa_gap`` (the spacing between the end SA
     section and its neighbour in the stack) the spacing is *graded*: the first interval is
-    ``sa_gap / ratio``, each next one ``ratio`` times smaller, until it reaches ``step``;
+    ``sa_gap / ratio`` (default ``GRADING_RATIO``), each next one ``ratio`` times smaller,
+    until it reaches ``step``;
     so no two neighbouring intervals of the whole stack (SA gap included) differ by more
     than ``ratio``. A degree-3 interpolating loft across sections inherits the slope of its
     closely spaced sections into a wide neighbouring interval and overshoots there (the
@@ -161,6 +168,7 @@ def synthetic_offsets(span: float, step: float, sa_gap: float | None = None,
     ``reach_end``: the sections divide the rest of the span into equal intervals of at most
     ``step`` up to its end (the apex, which is itself a section of the loft); otherwise they
     continue every ``step`` while inside the span."""
+    ratio = GRADING_RATIO if ratio is None else float(ratio)
     graded: list[float] = []
     d = 0.0
     if sa_gap is not None:
@@ -197,6 +205,7 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
     if not la or not secs:
         return [], []
     rv = structure.startswith("rv")
+    graded = structure in GRADED_STRUCTURES
     side = geo.reference if rv else None
     first, last = secs[0], secs[-1]
     h0 = float(_level(first.points, n).mean())
@@ -215,7 +224,7 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
     apical = []
     gap = ha - hk
     if gap > step:
-        for f in synthetic_offsets(gap, step, sa_gap=end_gap(secs, n, -1) if rv else None,
+        for f in synthetic_offsets(gap, step, sa_gap=end_gap(secs, n, -1) if graded else None,
                                    reach_end=True) / gap:
             h = hk + f * gap
             targets = np.concatenate([polyline_crossings(pl, n, h) for pl in la])
@@ -233,7 +242,7 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
         la_all = np.concatenate(la)
         h_top = float(_level(la_all, n).min())
         for off in synthetic_offsets(h0 - h_top - 0.5, step,
-                                     sa_gap=end_gap(secs, n, 0) if rv else None):
+                                     sa_gap=end_gap(secs, n, 0) if graded else None):
             h = h0 - off
             targets = np.concatenate([polyline_crossings(pl, n, h) for pl in la])
             # only LA crossings on the apical side of the valve plane
