@@ -456,7 +456,7 @@ def _minima_text(minima, frame: int, which: int) -> str:
     """The smallest RV cross-section between neighbouring SA slices against the smaller slice's
     contour area (which 0: now, 1: with RV sections every 2.5 mm)."""
     return "; ".join(f"{a}–{b} {m:.0f} mm² against {c:.0f} mm²"
-                     for a, b, m, c in minima[frame][which])
+                     for a, b, m, c in minima[frame][which][:-1])   # the apical pair's vanish
 
 
 def bivme_where_lines(st) -> list[str]:
@@ -519,7 +519,9 @@ def bivme_where_lines(st) -> list[str]:
         "at each level, scales 0.94-1.41: the LA and SA contours disagree), then 17.7 mm to "
         "sa_03. A degree-3 interpolating loft carries the slope of closely spaced sections that "
         "disagree with the SA section next to them into the wide SA gap, and overshoots there "
-        f"(dashed line): {_minima_text(t['minima'], 9, 1)}. Graded sections (solid line; the first "
+        "(dashed line; the smallest RV cross-section between neighbouring SA slices against "
+        f"the smaller slice's contour area): {_minima_text(t['minima'], 9, 1)}. Graded "
+        "sections (solid line; the first "
         "interval half the SA gap, each next one half the previous, down to 2.5 mm, so that "
         "no two neighbouring intervals differ by more than a factor 2) leave no slope the SA "
         f"gap cannot carry: {_minima_text(t['minima'], 9, 0)}. The same on circles in "
