@@ -42,10 +42,10 @@ Strain
     surface, :func:`smoothed_normals`, :data:`DIRECTION_SMOOTHING_MM`), c the circumferential
     direction e_θ made orthogonal to r, and l = r × c (the base → apex
     direction projected off the normal, up to sign). det F is reported as
-    the incompressibility check (1 for myocardium); with noisy tags the fit is
-    penalised towards segment-mean det F = 1 (:mod:`cardionurbs.analysis.tag_motion`,
-    near-incompressibility), so the check is then the det F of the unregularised
-    fit, reported beside it.
+    the incompressibility check (1 for myocardium); with noisy tags the fit carries
+    the prior that each segment's mean det F is N(1, s²) with a stated s
+    (:mod:`cardionurbs.analysis.tag_motion`, near-incompressibility as a prior), so the
+    check is then the det F of the unregularised fit, reported beside it.
 
 Per segment: the volume mean of the fitted strain over the ED myocardium of
 AHA segment k (:mod:`cardionurbs.analysis.aha`), sampled between the
