@@ -529,6 +529,10 @@ NOTES = """## Notes
   source: (WT_ES / WT_ED)² mapped to Err missed the truth by up to 19 points with noise
   (RMS 7.8 on mr 7) and by 5–7.5 points noise-free (thickness along the ES normal of
   the ES segment is not the Lagrangian radial stretch), so it has no precision to add.
+- **Seeds not looked at while choosing the estimator.** The estimator was chosen on the first
+  24 noisy phantoms (8 seeds per preset); on the 12 of the next four seeds of each preset,
+  Err is within 6 on all 16 segments on 9 (the risk-chosen κ before it: 7), Ecc within 2 on
+  12 (before: 12) and Ell within 3 on 11 (before: 11).
 - **Also tried, not kept:** removing the second-order bias of the strains (E is quadratic in
   F, so noise in the fitted field raises its mean by ½ tr(∇²E Cov); computed from the fit's
   covariance by symmetric sigma points) changed segment strains by ≤ 0.02 points; the fit
