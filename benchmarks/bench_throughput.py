@@ -37,11 +37,18 @@ frames = 2
 """
 
 
-def run(cmd: list[str], root: Path = ROOT, **kw) -> dict:
+#: the BLAS thread variables (cardionurbs.cli.BLAS_THREAD_VARIABLES)
+BLAS_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def run(cmd: list[str], root: Path = ROOT, user_env: bool = False, **kw) -> dict:
     """Run a command (from source tree ``root``); wall s, CPU s (user + sys of it and its
-    children), peak RSS MB, and the 1-minute load average when it ended."""
+    children), peak RSS MB, and the 1-minute load average when it ended. ``user_env``: as
+    a user would run it, without the BLAS thread variables this benchmark sets."""
     t = time.perf_counter()
     env = dict(ENV, PYTHONPATH=str(root))
+    if user_env:
+        env = {k: v for k, v in env.items() if k not in BLAS_VARS}
     p = subprocess.Popen(cmd, cwd=root, env=env, stdout=subprocess.DEVNULL,
                          stderr=subprocess.PIPE, **kw)
     _, status, ru = os.wait4(p.pid, 0)
@@ -371,6 +378,18 @@ def render(r: dict, a) -> str:
             if f"before_{key}" in r:
                 L.append(f"| {label} | {outs} | before | {_t(r[f'before_{key}'])} | |")
             L.append(f"| {label} | {outs} | after | {_t(x)} | {verdict} |")
+        if any(f"{k}_user_env" in r for k in targets):
+            L += ["", "The 20-frame commands as a user runs them (the rows above set "
+                  "`OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1` for every command; here the BLAS "
+                  "thread variables are left unset, so OpenBLAS starts one thread per core unless "
+                  "the code limits it):", "",
+                  "| study | outputs | code | wall (s) | CPU (s) | peak memory (MB) | load |",
+                  "|---|---|---|---:|---:|---:|---:|"]
+            for key, (label, outs, _) in targets.items():
+                for code in ("before", "after"):
+                    k = f"{key}_user_env" if code == "after" else f"before_{key}_user_env"
+                    if k in r:
+                        L.append(f"| {label} | {outs} | {code} | {_t(r[k])} |")
         if "metrics_regression" in r:
             mr = r["metrics_regression"]
             L += ["", f"Same metrics before and after (`benchmarks/metrics_regression.py record` on "
@@ -488,14 +507,19 @@ def bench_analyze(work: Path, repeat: int, baseline: Path | None = None) -> dict
     biv = SHARED / "bivme-patient1"
     if biv.is_dir():
         cases["bivme25_metrics"] = ("analyze", str(biv), "--outputs", "metrics")
+    # the 20-frame commands also as a user runs them: BLAS threads as the environment gives
+    cases.update({f"{k}_user_env": cases[k] for k in ("phantom20_all", "phantom20_metrics")})
     for name, args in cases.items():
         dest = work / f"out_{name}"
-        out[name] = median_of(lambda: run(cli(*args, "--out", str(dest), "--overwrite")), repeat)
+        user = name.endswith("_user_env")
+        out[name] = median_of(lambda: run(cli(*args, "--out", str(dest), "--overwrite"),
+                                          user_env=user), repeat)
         if baseline is not None:             # the same command on the code before the change
             bdest = work / f"before_{name}"
             bargs = tuple(before_study.get(x, x) for x in args)
             out[f"before_{name}"] = median_of(lambda: run(
-                cli(*bargs, "--out", str(bdest), "--overwrite"), root=baseline), repeat)
+                cli(*bargs, "--out", str(bdest), "--overwrite"), root=baseline, user_env=user),
+                repeat)
     dest = work / "out_phantom20_all"
     out["phantom20_all_output_bytes"] = {f.name: du(f) if f.is_dir() else f.stat().st_size
                                          for f in dest.iterdir()}

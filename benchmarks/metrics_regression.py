@@ -43,6 +43,16 @@ def differences(before: dict, after: dict, rel_tol: float = REL_TOL) -> list[str
     return out
 
 
+def largest_change(before: dict, after: dict) -> float:
+    """The largest relative change of any metric (0 when every value is the same)."""
+    out = 0.0
+    for k in set(before) & set(after):
+        a, b = before[k], after[k]
+        if a is not None and b is not None and a != b:
+            out = max(out, abs(a - b) / max(abs(a), abs(b)))
+    return out
+
+
 def main(argv: list[str]) -> int:
     cmd, baseline = argv[0], Path(argv[1])
     if cmd == "record":
@@ -57,9 +67,11 @@ def main(argv: list[str]) -> int:
     bad = 0
     for p, before in rec.items():
         t = time.perf_counter()
-        diff = differences(before, measure(p))
+        after = measure(p)
+        diff = differences(before, after)
         print(f"{p}: {time.perf_counter() - t:.2f} s, {len(before)} metrics, "
-              f"{len(diff)} differ beyond {REL_TOL:g} relative", file=sys.stderr)
+              f"{len(diff)} differ beyond {REL_TOL:g} relative (largest relative change "
+              f"{largest_change(before, after):.1e})", file=sys.stderr)
         for line in diff:
             print("   ", line, file=sys.stderr)
         bad += bool(diff)

@@ -329,8 +329,31 @@ def _write_traceback(exc: BaseException, argv) -> str:
     return path
 
 
+#: the thread-count variables of the BLAS libraries numpy and scipy may load
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def one_blas_thread() -> bool:
+    """Run numpy's BLAS on one thread in this process and the workers it starts, unless
+    the user set any of :data:`BLAS_THREAD_VARIABLES` or numpy is already loaded (the
+    library reads them once, when it loads). True when the limit was set.
+
+    The analysis multiplies small matrices (control grids of tens to hundreds of
+    points) thousands of times; OpenBLAS's default of one thread per core spends more
+    CPU waking and spinning its threads than it saves: a metrics-only ``analyze`` of a
+    20-frame phantom took about 60 % more CPU time with the default threads than with
+    one (reports/benchmark-throughput.md), and a cohort runs one worker per core anyway.
+    """
+    if "numpy" in sys.modules or any(v in os.environ for v in BLAS_THREAD_VARIABLES):
+        return False
+    for v in BLAS_THREAD_VARIABLES:
+        os.environ[v] = "1"
+    return True
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``cardionurbs`` console script (exit codes: module docstring)."""
+    one_blas_thread()
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv[:argv.index("--")] if "--" in argv else "--debug" in argv
     debug = debug or bool(os.environ.get("CARDIONURBS_DEBUG"))

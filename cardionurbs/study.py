@@ -237,7 +237,22 @@ class Study:
                 and (view is None or c.view == view)]
 
     def tags_at(self, frame: int, family: str | None = None) -> list[TagLine]:
-        return [t for t in self.tags if t.frame == frame and (family is None or t.family == family)]
+        """Tag lines of one frame (optionally of one family), in the order of ``tags``."""
+        return list(self._tag_index().get((frame, family), ()))
+
+    def _tag_index(self) -> dict[tuple[int, str | None], list[TagLine]]:
+        """{(frame, family or None): lines}, rebuilt when ``tags`` is replaced or changes
+        length (the analysis asks for one frame's lines thousands of times: a scan of
+        every line each time was quadratic in the study's size)."""
+        cache = self.__dict__.get("_tag_cache")
+        if cache is None or cache[0] is not self.tags or cache[1] != len(self.tags):
+            idx: dict[tuple[int, str | None], list[TagLine]] = {}
+            for t in self.tags:
+                idx.setdefault((t.frame, None), []).append(t)
+                idx.setdefault((t.frame, t.family), []).append(t)
+            cache = (self.tags, len(self.tags), idx)
+            self.__dict__["_tag_cache"] = cache
+        return cache[2]
 
     def landmarks_at(self, frame: int, name: str | None = None) -> list[Landmark]:
         return [lm for lm in self.landmarks if lm.frame == frame and (name is None or lm.name == name)]

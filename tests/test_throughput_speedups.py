@@ -120,3 +120,71 @@ def test_metrics_only_analyze_imports_no_mesh_or_figure_library(tmp_path):
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip().splitlines()[-1] == "0 []"
     assert (tmp_path / "o" / "metrics.json").is_file()
+
+
+def _fresh_python(code: str, env: dict) -> str:
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True,
+                       env={**env, "PYTHONPATH": str(root)}, timeout=120)
+    assert r.returncode == 0, r.stderr
+    return r.stdout.strip()
+
+
+def test_cli_runs_blas_on_one_thread_unless_the_user_chose():
+    """The CLI limits the BLAS libraries to one thread before numpy loads; a user's own
+    setting of any thread variable, or numpy already loaded, leaves everything as it is."""
+    import os
+    from cardionurbs.cli import BLAS_THREAD_VARIABLES
+    clean = {k: v for k, v in os.environ.items() if k not in BLAS_THREAD_VARIABLES}
+    code = ("import os{extra}; from cardionurbs.cli import one_blas_thread, BLAS_THREAD_VARIABLES\n"
+            "print(one_blas_thread(), [os.environ.get(v) for v in BLAS_THREAD_VARIABLES])")
+    assert _fresh_python(code.format(extra=""), clean) == "True ['1', '1', '1']"
+    assert _fresh_python(code.format(extra=""), {**clean, "OMP_NUM_THREADS": "3"}) == \
+        "False [None, '3', None]"
+    assert _fresh_python(code.format(extra="; import numpy"), clean) == \
+        "False [None, None, None]"
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 3), st.sampled_from(["sa1", "sa2", "la"])),
+                min_size=0, max_size=30), st.integers(0, 5))
+def test_tags_at_index_equals_a_scan_and_follows_changes(keys, more):
+    """Study.tags_at (an index rebuilt when the list is replaced or grows) gives the lines a
+    scan of every line gives, in the same order."""
+    from cardionurbs.study import TagLine
+
+    def line(frame, fam, k):
+        return TagLine(fam, k, "LA" if fam == "la" else "SA", f"s{k % 3}", frame,
+                       np.full((3, 3), float(k)))
+
+    def scan(study, f, fam):
+        return [t for t in study.tags if t.frame == f and (fam is None or t.family == fam)]
+
+    s = Study(subject="x", images=[], contours=[], tags=[line(f, fam, k)
+                                                         for k, (f, fam) in enumerate(keys)])
+    for step in range(3):
+        for f in range(4):
+            for fam in (None, "sa1", "sa2", "la"):
+                assert s.tags_at(f, fam) == scan(s, f, fam)
+        if step == 0:            # the list grows in place
+            s.tags.extend(line(k % 4, "sa1", 100 + k) for k in range(more))
+        else:                    # the list is replaced
+            s.tags = [t for t in s.tags if t.family != "sa2"]
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 10_000), st.integers(1, 12))
+def test_principal_directions_equal_one_line_at_a_time(seed, n):
+    """principal_directions (one batch) gives _principal_direction of every line, also for a
+    line whose ends coincide (the principal axis instead)."""
+    from cardionurbs.analysis.tag_surfaces import _principal_direction, principal_directions
+    rng = np.random.default_rng(seed)
+    lines = [rng.normal(size=(int(rng.integers(2, 9)), 3)) * 20 for _ in range(n)]
+    lines[0][-1] = lines[0][0]                       # a closed line: ends coincide
+    got = principal_directions(lines)
+    want = np.array([_principal_direction(p) for p in lines])
+    assert np.allclose(got, want, rtol=0, atol=1e-12)

@@ -250,9 +250,22 @@ def _principal_direction(points: np.ndarray) -> np.ndarray:
     return d / n
 
 
-def family_direction(lines: list[np.ndarray]) -> np.ndarray:
-    """Mean unit direction of a family's lines (signs aligned to the first line)."""
-    dirs = np.array([_principal_direction(p) for p in lines])
+def principal_directions(lines: list[np.ndarray]) -> np.ndarray:
+    """(n, 3) unit direction of each line: :func:`_principal_direction` of every line in one
+    batch (first to last point; the principal axis where the two nearly coincide)."""
+    d = np.array([p[-1] for p in lines], dtype=float) - np.array([p[0] for p in lines], dtype=float)
+    n = np.linalg.norm(d, axis=1)
+    short = n < 1e-9
+    if short.any():
+        d[short] = [_principal_direction(np.asarray(lines[k], float)) for k in np.flatnonzero(short)]
+        n[short] = 1.0
+    return d / n[:, None]
+
+
+def family_direction(lines: list[np.ndarray], dirs: np.ndarray | None = None) -> np.ndarray:
+    """Mean unit direction of a family's lines (signs aligned to the first line);
+    ``dirs``: their :func:`principal_directions` when already known."""
+    dirs = principal_directions(lines) if dirs is None else np.array(dirs)
     ref = dirs[0]
     dirs *= np.where(dirs @ ref < 0, -1.0, 1.0)[:, None]
     d = dirs.sum(axis=0)
@@ -265,11 +278,13 @@ def sa_sections(study: Study, family: str, frame: int) -> dict[int, list[TagSect
     if not lines:
         return {}
     n_stack = stacking_direction(study)[0]
-    d_fam = family_direction([t.points for t in lines])
+    dirs = principal_directions([t.points for t in lines])
+    d_fam = family_direction([t.points for t in lines], dirs)
+    flip = dirs @ d_fam < 0
     out: dict[int, list[TagSection]] = defaultdict(list)
-    for t in lines:
+    for t, reverse in zip(lines, flip):
         pts = np.asarray(t.points, dtype=float)
-        if _principal_direction(pts) @ d_fam < 0:
+        if reverse:
             pts = pts[::-1]
         plane = _plane_of(study, t)
         out[t.index].append(TagSection(t.family, t.index, t.slice, t.frame, pts, plane,

@@ -75,7 +75,7 @@ def grid_projection(surface, points: np.ndarray, nu: int = 192, nv: int = 96
     ug = lo_u + (hi_u - lo_u) * (np.arange(nu) / nu if surface.closed_u else np.linspace(0, 1, nu))
     vg = np.linspace(lo_v, hi_v, nv)
     G = surface.evaluate(ug, vg).reshape(-1, 3)
-    _, k = cKDTree(G).query(points)
+    _, k = cKDTree(G, balanced_tree=False, compact_nodes=False).query(points)
     u, v = ug[k // nv], vg[k % nv]
     return u, v, G[k], surface.normal_points(u, v)      # normals at the chosen nodes only
 

