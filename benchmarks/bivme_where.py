@@ -10,6 +10,7 @@ it, less the endocardial loop; the RV cavity: the RV loop outside the LV epicard
 
 from __future__ import annotations
 
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from unittest import mock
 
@@ -134,25 +135,25 @@ def level_profile(model, frame: int, key: str, step: float = 0.5) -> tuple[np.nd
 def profile_figure(model, frames, path: Path, before=None) -> list[str]:
     """RV and LV cavity area against level, with the SA contour areas and the levels of the
     RV endocardium's synthetic sections (and, dashed, the RV cavity of ``before``: the model
-    with synthetic sections every half slice spacing, tried and not adopted); and a table of
-    the RV cavity per slab (ours, ``before``'s, the trapezoid of the contour areas)."""
+    with ungraded RV sections every 2.5 mm, as before the grading); and a table of the RV
+    cavity per slab (ours, ``before``'s, the trapezoid of the contour areas)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, len(frames), figsize=(6 * len(frames), 4.2), sharey=True)
-    table = ["| frame | slab (levels, mm) | RV cavity: ours (mL) | with synthetic sections every "
-             "half slice spacing (tried; mL) | trapezoid of the SA contour areas (mL) |",
+    table = ["| frame | slab (levels, mm) | RV cavity: ours, graded (mL) | RV sections every "
+             "2.5 mm (before; mL) | trapezoid of the SA contour areas (mL) |",
              "|---|---|---|---|---|"]
     for ax, f in zip(np.atleast_1d(axes), frames):
         rows = sa_rows(model, f)
         if before is not None:
             hb, ab = level_profile(before, f, "rv_cavity")
             ax.plot(hb, ab, color="tab:green", ls="--", lw=1.0,
-                    label="rv_cavity, sections every half slice spacing (tried)")
+                    label="rv_cavity, RV sections every 2.5 mm (before)")
             syn_b = [float(s_.points.mean(axis=0) @ model.geometry[f].direction)
                      for s_ in before.fit(f, "rv_endo").sections if s_.synthetic]
             ax.plot(syn_b, np.full(len(syn_b), -120.0), "|", color="0.5", ms=8,
-                    label="its synthetic RV sections")
+                    label="its synthetic RV sections (before)")
         for key, col in (("rv_cavity", "tab:green"), ("lv_cavity", "tab:red")):
             h, a = level_profile(model, f, key)
             ax.plot(h, a, color=col, lw=1.2, label=f"{key}, ours")
@@ -179,7 +180,7 @@ def profile_figure(model, frames, path: Path, before=None) -> list[str]:
         syn = [float(s.points.mean(axis=0) @ n) for s in model.fit(f, "rv_endo").sections
                if s.synthetic]
         ax.plot(syn, np.zeros(len(syn)), "|", color="tab:green", ms=12,
-                label="RV endocardium: synthetic sections")
+                label="RV endocardium: synthetic sections (graded, now)")
         ax.axvline(float(model.base_planes[f]["rv"].origin @ n), color="tab:green", ls=":",
                    lw=0.8, label="tricuspid plane (centre)")
         ax.set_xlabel("level along the stacking direction, mm (base → apex)")
@@ -310,9 +311,8 @@ def sa_table(model, frames) -> list[str]:
 
 
 def half_spacing_step(fraction: float = 0.5, least_mm: float = 2.5):
-    """A patch (tried, not adopted): synthetic sections every ``fraction`` of the median SA
-    slice spacing, at least ``least_mm``, instead of
-    :func:`cardionurbs.anatomy.surfaces.synthetic_step`'s fixed 2.5 mm."""
+    """A patch (tried in session 6, not adopted): synthetic sections of every surface every
+    ``fraction`` of the median SA slice spacing, at least ``least_mm``, ungraded."""
     from cardionurbs.anatomy import surfaces
 
     def step(secs, direction):
@@ -320,7 +320,28 @@ def half_spacing_step(fraction: float = 0.5, least_mm: float = 2.5):
         if len(levels) < 2:
             return least_mm
         return max(least_mm, fraction * float(np.median(np.abs(np.diff(levels)))))
-    return mock.patch.object(surfaces, "synthetic_step", step)
+    return _patches(mock.patch.object(surfaces, "synthetic_step", step),
+                    mock.patch.object(surfaces, "GRADED_STRUCTURES", ()))
+
+
+def graded(structures=("rv_endo", "rv_epi"), ratio: float | None = None):
+    """A patch: the synthetic sections of ``structures`` graded next to the SA stack
+    (:func:`cardionurbs.anatomy.surfaces.synthetic_offsets`) with ``ratio`` (None: the
+    default); ``structures=()``: every surface every 2.5 mm (as before the rule)."""
+    from cardionurbs.anatomy import surfaces
+    ps = [mock.patch.object(surfaces, "GRADED_STRUCTURES", tuple(structures))]
+    if ratio is not None:
+        ps.append(mock.patch.object(surfaces, "GRADING_RATIO", float(ratio)))
+    return _patches(*ps)
+
+
+@contextmanager
+def _patches(*ps):
+    """Several patches (context managers) entered together."""
+    with ExitStack() as stack:
+        for p in ps:
+            stack.enter_context(p)
+        yield
 
 
 def spline_across_septum():
@@ -332,42 +353,82 @@ BIVME = {(24, "lv_cavity"): 179.0, (24, "rv_cavity"): 167.8, (24, "lv_myocardium
          (24, "rv_myocardium"): 51.9, (9, "lv_cavity"): 72.0, (9, "rv_cavity"): 76.7}
 
 
-def step_by_step(study, model, frames) -> tuple[list[str], object]:
-    """bivme-patient1 against biv-me before the septum rule, with it (now), and with synthetic
-    sections every half slice spacing as well (tried, not adopted); returns the table and the
-    model of the last."""
-    with spline_across_septum():
-        before = reconstruct(study, frames=list(frames))
-        vb = {f: dict(before.volumes[f]) for f in frames}
-    with half_spacing_step():
-        tried = reconstruct(study, frames=list(frames))
-        vt = {f: dict(tried.volumes[f]) for f in frames}
-    out = ["| frame | quantity | biv-me | before: spline across the septum | + LV epicardium "
-           "through the RV septum (now) | + synthetic sections every half slice spacing "
-           "(tried, not adopted) |", "|---|---|---|---|---|---|"]
-    for (f, k), ref in BIVME.items():
+def _cells(volumes, frames_keys=BIVME) -> list[str]:
+    cells = []
+    for (f, k), ref in frames_keys.items():
+        x = volumes[f][k] * (1.05 if "myocardium" in k else 1.0)
+        cells.append(f"{x:.1f} ({100 * (x / ref - 1):+.1f} %)")
+    return cells
+
+
+def step_by_step(study, model, frames) -> tuple[list[str], list[str], object]:
+    """bivme-patient1 against biv-me before the septum rule, with it (RV sections every 2.5 mm,
+    as before the grading), and now (RV sections graded); then the variants of the grading
+    tried beside it (its ratio, the LV graded as well, the earlier half-spacing rule). Returns
+    the two tables and the model without the grading."""
+    def volumes(*patches):
+        with _patches(*patches):
+            m = reconstruct(study, frames=list(frames))
+            return m, {f: dict(m.volumes[f]) for f in frames}
+    _, vb = volumes(spline_across_septum(), graded(()))
+    ungraded, vu = volumes(graded(()))
+    now = {f: model.volumes[f] for f in frames}
+    out = ["| frame | quantity | biv-me | before: spline across the septum, sections every 2.5 mm "
+           "| + LV epicardium through the RV septum | + RV sections graded next to the SA stack "
+           "(now) |", "|---|---|---|---|---|---|"]
+    cols = [_cells(v) for v in (vb, vu, now)]
+    for i, ((f, k), ref) in enumerate(BIVME.items()):
         mass = "myocardium" in k
-        cells = []
-        for v in (vb, {f: model.volumes[f]}, vt):
-            x = v[f][k] * (1.05 if mass else 1.0)
-            cells.append(f"{x:.1f} ({100 * (x / ref - 1):+.1f} %)")
-        out.append(f"| {f} | {k}{' mass (g)' if mass else ' (mL)'} | {ref} | " + " | ".join(cells) + " |")
-    return out, tried
+        out.append(f"| {f} | {k}{' mass (g)' if mass else ' (mL)'} | {ref} | "
+                   + " | ".join(c[i] for c in cols) + " |")
+    variants = [("graded, ratio 2 (now)", now)]
+    for label, patch in (("graded, ratio 1.5", graded(ratio=1.5)),
+                         ("graded, ratio 3", graded(ratio=3.0)),
+                         ("graded, ratio 4", graded(ratio=4.0)),
+                         ("graded, ratio 2, LV surfaces graded too",
+                          graded(("lv_endo", "lv_epi", "rv_endo", "rv_epi"))),
+                         ("every surface every half slice spacing (session 6, not adopted)",
+                          half_spacing_step()),
+                         ("every surface every 2.5 mm (before)", None)):
+        variants.append((label, vu if patch is None else volumes(patch)[1]))
+    var = ["| synthetic sections | " + " | ".join(
+        f"{f} {k.replace('_cavity', '').replace('_myocardium', ' mass')}" for f, k in BIVME) + " |",
+        "|---|" + "---|" * len(BIVME)]
+    for label, v in variants:
+        var.append(f"| {label} | " + " | ".join(
+            c.split(" (")[1].rstrip(")") for c in _cells(v)) + " |")
+    return out, var, ungraded
+
+
+def gap_minima(model, frame: int) -> list[tuple[str, str, float, float]]:
+    """Per pair of neighbouring SA slices: (slice, slice, the smallest RV cavity cross-section
+    between them (mm², planes parallel to the slices, every 0.5 mm), the smaller of the two
+    slices' RV contour areas)."""
+    rows = [r for r in sa_rows(model, frame) if "rv_cavity" in r]
+    h, a = level_profile(model, frame, "rv_cavity")
+    out = []
+    for r0, r1 in zip(rows[:-1], rows[1:]):
+        inside = (h > r0["level"]) & (h < r1["level"])
+        out.append((r0["slice"], r1["slice"], float(a[inside].min()),
+                    min(r0["rv_cavity"][0], r1["rv_cavity"][0])))
+    return out
 
 
 def where_section(study, root: Path, frames=(24, 9)) -> tuple[object, dict]:
     """Tables and figures of where the model differs (lines for the report; the model)."""
     model = reconstruct(study, frames=list(frames))
-    steps, tried = step_by_step(study, model, frames)
+    steps, variants, ungraded = step_by_step(study, model, frames)
     ring, ring_g = basal_ring_rows(model, frames)
     parts = {
         "steps": steps,
+        "variants": variants,
         "septum": septum_rule_rows(study, model, frames),
         "sa": sa_table(model, frames),
         "ring": ring,
         "ring_g": ring_g,
-        "profile": profile_figure(model, frames, root / PROFILE_FIGURE, before=tried),
+        "profile": profile_figure(model, frames, root / PROFILE_FIGURE, before=ungraded),
         "la": la_rows_and_figure(model, frames, root / LA_FIGURE),
+        "minima": {f: (gap_minima(model, f), gap_minima(ungraded, f)) for f in frames},
     }
     sa_figure(model, frames[0], root / SA_FIGURE)
     return model, parts

@@ -134,8 +134,8 @@ def test_bivme_rvot_brings_the_rv_to_biv_me(bivme_models):
 
 def test_bivme_within_the_issue_bounds_of_biv_me(bivme_models):
     """Issue 13, Done when: biv-me's published ED (frame 24) and ES (frame 9) figures, LV and
-    RV volumes within 5 %, LVM within 8 %, RVM within 15 % (1.05 g/mL). The frame-9 RV is
-    not yet within 5 % (test below)."""
+    RV volumes within 5 %, LVM within 8 %, RVM within 15 % (1.05 g/mL); the frame-9 RV in
+    the test below."""
     m, _ = bivme_models
     for (f, k), (ref, rel) in {(24, "lv_cavity"): (179.0, 0.05), (24, "rv_cavity"): (167.8, 0.05),
                                (9, "lv_cavity"): (72.0, 0.05),
@@ -144,20 +144,17 @@ def test_bivme_within_the_issue_bounds_of_biv_me(bivme_models):
         assert m.volumes[f][k] == pytest.approx(ref, rel=rel), (f, k)
 
 
-@pytest.mark.xfail(strict=True, reason="known: the RV loft overshoots between its 2.5 mm synthetic "
-                   "sections and a 17.7 mm SA gap at frame 9 (reports/validation-function.md)")
 def test_bivme_frame9_rv_within_5_percent_of_biv_me(bivme_models):
     m, _ = bivme_models
     assert m.volumes[9]["rv_cavity"] == pytest.approx(76.7, rel=0.05)
 
 
-@pytest.mark.xfail(strict=True, reason="known: the RV loft overshoots between its 2.5 mm synthetic "
-                   "sections and a 17.7 mm SA gap at frame 9 (reports/validation-function.md)")
 def test_bivme_rv_loft_does_not_pinch_between_slices(bivme_models):
     """Between two neighbouring SA slices the RV cavity's cross-section (planes parallel to
     the slices) stays above half the smaller slice's contour area: the loft does not
-    overshoot between its synthetic sections and the SA slices (with sections every 2.5 mm
-    it fell to a quarter, ~440 mm², between sa_02 and sa_03 at frame 9)."""
+    overshoot between its synthetic sections and the SA slices (with ungraded sections every
+    2.5 mm it fell to a quarter, ~440 mm², between sa_02 and sa_03 at frame 9;
+    anatomy.surfaces.synthetic_offsets)."""
     m, _ = bivme_models
     for f in (9, 24):
         geo = m.geometry[f]
@@ -174,13 +171,15 @@ def test_bivme_rv_loft_does_not_pinch_between_slices(bivme_models):
 
 def test_bivme_without_outflow_evidence_is_closed_at_the_tricuspid_plane(bivme_models):
     """No pulmonary / aortic landmark and no rv_outlet contour: no tract, the volumes
-    those of the RV body alone (147.0 mL at ED, 65.7 mL at frame 9 with volume-corrected
-    meshes, the LV epicardium closed through the RV septum and RV sections resampled after
-    their septal move; 146.6 and 61.3 mL on the surfaces' plain tessellation before all)."""
+    those of the RV body alone (150.8 mL at ED, 71.6 mL at frame 9 with volume-corrected
+    meshes, the LV epicardium closed through the RV septum, RV sections resampled after
+    their septal move and RV synthetic sections graded next to the SA stack; 147.0 and
+    65.7 mL before the grading, 146.6 and 61.3 mL on the surfaces' plain tessellation before
+    all)."""
     _, without = bivme_models
     assert without.outflow[24] == {} and without.outflow[9] == {}
-    assert without.volumes[24]["rv_cavity"] == pytest.approx(147.0, abs=0.05)
-    assert without.volumes[9]["rv_cavity"] == pytest.approx(65.65, abs=0.05)
+    assert without.volumes[24]["rv_cavity"] == pytest.approx(150.78, abs=0.05)
+    assert without.volumes[9]["rv_cavity"] == pytest.approx(71.65, abs=0.05)
 
 
 # ----------------------------------------------------------------- lofted outlet loops

@@ -71,11 +71,13 @@ class RegionalMetrics(ColumnMapping):
                       "notes": list(self.notes)})
 
 
-def regional_metrics(model, tags=None, incompressibility: bool = True) -> RegionalMetrics:
+def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
+                     volume_prior_sd: float | None = None) -> RegionalMetrics:
     """Regional columns of a model; ``tags``: its :class:`~cardionurbs.analysis.tags.TagMetrics`
-    (material points) when the study is tagged. ``incompressibility``: let the tag-strain fit
-    of noisy tags use the near-incompressibility penalty (:mod:`cardionurbs.analysis.tag_motion`;
-    False: the ridge penalties alone, for comparison)."""
+    (material points) when the study is tagged. ``incompressibility``: how the tag-strain fit
+    of noisy tags uses near-incompressibility (:func:`cardionurbs.analysis.strain.tag_strain`:
+    "prior", the default, with its spread ``volume_prior_sd`` (default: the stated one);
+    "risk" or False for comparison)."""
     cols = {c: NAN for c in THICKNESS_COLUMNS + STRAIN_COLUMNS + SURFACE_STRAIN_COLUMNS}
     out = RegionalMetrics(cols)
     ed, es = model.ed_frame, model.es_frame
@@ -122,7 +124,7 @@ def regional_metrics(model, tags=None, incompressibility: bool = True) -> Region
                 lines = (got[0], planes.normals[got[1]], planes.offsets[got[1]])
         res = tag_strain(material, f, a.apex, a.base, P, N, a, axis=ax, myocardium=wall,
                          tag_lines=lines, noise_mm=planes.rms_mm if planes is not None else 0.0,
-                         incompressibility=incompressibility)
+                         incompressibility=incompressibility, volume_prior_sd=volume_prior_sd)
         if res is not None:
             if planes is not None:
                 res["tag_noise_mm"] = planes.rms_mm

@@ -42,10 +42,10 @@ Strain
     surface, :func:`smoothed_normals`, :data:`DIRECTION_SMOOTHING_MM`), c the circumferential
     direction e_θ made orthogonal to r, and l = r × c (the base → apex
     direction projected off the normal, up to sign). det F is reported as
-    the incompressibility check (1 for myocardium); with noisy tags the fit is
-    penalised towards segment-mean det F = 1 (:mod:`cardionurbs.analysis.tag_motion`,
-    near-incompressibility), so the check is then the det F of the unregularised
-    fit, reported beside it.
+    the incompressibility check (1 for myocardium); with noisy tags the fit carries
+    the prior that each segment's mean det F is N(1, s²) with a stated s
+    (:mod:`cardionurbs.analysis.tag_motion`, near-incompressibility as a prior), so the
+    check is then the det F of the unregularised fit, reported beside it.
 
 Per segment: the volume mean of the fitted strain over the ED myocardium of
 AHA segment k (:mod:`cardionurbs.analysis.aha`), sampled between the
@@ -331,7 +331,8 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
                endo_normals: np.ndarray, aha, axis: tuple | None = None,
                myocardium: tuple[np.ndarray, np.ndarray] | None = None,
                tag_lines: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-               noise_mm: float = 0.0, incompressibility: bool = True) -> dict | None:
+               noise_mm: float = 0.0, incompressibility: bool | str = "prior",
+               volume_prior_sd: float | None = None) -> dict | None:
     """Strain ED → ``frame`` from the tracked material points: {"columns", "det_F" (mean),
     "det_F_range", "n_points", "counts", "fit_residual_mm", "method"}; None with too few points.
     ``apex``, ``base``: the ED long axis; ``axis``: (apex, base) at ``frame`` (default ED's).
@@ -349,8 +350,15 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     "det_F_unregularised" (volume mean over the wall samples the penalty is evaluated on) with
     "det_F_unregularised_range": det F of the fit before the penalties, the incompressibility
     check that the near-incompressibility penalty does not pull towards 1.
-    ``incompressibility``: False leaves that penalty out (the ridge penalties alone)."""
-    from cardionurbs.analysis.tag_motion import MIN_TAG_POINTS, fit_tag_motion
+    ``incompressibility``: how the noisy-tag fit uses the near-incompressibility of myocardium
+    (:mod:`cardionurbs.analysis.tag_motion`): "prior" (or True; the default) — the Bayesian
+    prior J̄_s ~ N(1, s²) on each segment's mean det F with the stated s
+    (:data:`~cardionurbs.analysis.tag_motion.VOLUME_PRIOR_SD`), the ridge weights chosen by
+    the evidence; "risk" — a penalty whose weight the unbiased risk estimate chooses with the
+    ridge weights (the estimator before the prior); False — the ridge penalties alone.
+    ``volume_prior_sd``: the prior's s (default :data:`~cardionurbs.analysis.tag_motion.VOLUME_PRIOR_SD`;
+    other values only to show how much the result depends on it)."""
+    from cardionurbs.analysis.tag_motion import MIN_TAG_POINTS, VOLUME_PRIOR_SD, fit_tag_motion
     ok = material.tracked(material.ed_frame, frame)
     if ok.sum() < MIN_POINTS:
         return None
@@ -380,10 +388,18 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
         def segment_strains(f):
             v = directional_strains(green_lagrange(f.gradient(Y[sub])), dirs[sub])
             return segment_means(v, labels[sub], w[sub]).ravel()
+        if incompressibility not in (True, False, None, "prior", "risk"):
+            raise ValueError(f"incompressibility: 'prior', 'risk' or False, not {incompressibility!r}")
+        prior_sd = None
+        if incompressibility in (True, "prior"):
+            prior_sd = VOLUME_PRIOR_SD if volume_prior_sd is None else float(volume_prior_sd)
         out = fit_tag_motion(fit, *tag_lines, noise_mm=noise_mm, quantities=segment_strains,
-                             volume_samples=(Y[sub], w[sub], labels[sub]) if incompressibility else None)
+                             volume_samples=(Y[sub], w[sub], labels[sub]) if incompressibility else None,
+                             volume_prior_sd=prior_sd)
         info.update(method="tag lines", n_tag_points=out["n_points"], penalty=out["lambda"],
                     tag_outliers=out["outliers"], fit_residual_mm=out["residual_mm"])
+        if prior_sd is not None and out["lambda"]:
+            info["volume_prior_sd"] = prior_sd
         if out["det_F_unregularised"] is not None:
             info["det_F_unregularised"] = out["det_F_unregularised"][0]
             info["det_F_unregularised_range"] = list(out["det_F_unregularised"][1:])

@@ -39,25 +39,28 @@ Solution
     farther than :data:`OUTLIER_MM` and 4 × the median from the fitted surface
     after the first iterations (a mistracked line) are left out.
 
-Near-incompressibility
+Near-incompressibility, as a prior
     Myocardium keeps its volume to within a few per cent over the cycle, so det F ≈ 1. The
-    tags measure the in-plane stretches (Ecc, Ell) far better than the transmural one
-    (one or two tag lines across a ~1 cm wall), and det F ties the three together. With
-    noisy tags the fit (T2) is therefore refined with, besides the ridge groups of
-    :func:`penalty_groups`, the penalty ½ κ Σ_s w_s (J̄_s − 1)² on the volume mean J̄_s of
-    det F over each AHA segment s (w_s its volume; :func:`incompressibility_term`). κ is
-    not fixed: it is chosen with the ridge weights by Stein's unbiased estimate of the mean
-    squared error of the segment strains (:func:`choose_penalty`), from the fit's own noise
-    estimate — large when the data agree with incompressibility within their noise, zero
-    when they do not (a study whose myocardium changes volume is not forced to keep it).
-    The constraint is on segment means, not pointwise: the smooth map (S1) need not hold
-    det F = 1 exactly at every point of an incompressible motion, and a pointwise penalty
-    (tried: det F at 600 wall samples) did not do better on the noisy phantoms of
-    reports/validation-regional.md (Ell worst segment error 2.98 against 2.57 over 17 of
-    them); with either, a very large κ made the segment Err worse on a phantom whose tags
-    alone were noisy, so κ is left to the risk estimate. Since the penalty pulls det F towards 1, the det F of the final fit is
-    no independent check any more: the det F of the unregularised fit is reported beside
-    it (``det_F_unregularised``).
+    tags measure the in-plane stretches (Ecc, Ell) far better than the transmural one (one
+    or two tag lines across a ~1 cm wall), and det F ties the three together. With noisy
+    tags (tracking noise σ) the fit (T2) is therefore read as a Bayesian estimate: the data
+    term Σ_i |φ(X_i) − x_i|² / (2σ²) (the profile likelihood of the tag points) plus the
+    prior that each AHA segment's volume mean J̄_s of det F is independently N(1, s²), with
+    s = :data:`VOLUME_PRIOR_SD` fixed a priori from the literature (systolic volume losses of
+    4–10 % across the wall), not from the data. Multiplied by σ², the prior is the penalty
+    ½ (σ² / s²) Σ_s (J̄_s − 1)² (:func:`volume_prior_weight`), re-linearised at every
+    Gauss–Newton step: its weight against the data is the ratio of the fit's own noise
+    estimate to the stated spread, so noise-free tags (σ → 0) are not pulled at all, and
+    a segment whose tags say clearly that its volume changed keeps that change. The ridge
+    groups of :func:`penalty_groups` are Gaussian priors too; their weights are chosen by
+    maximising the marginal likelihood (the evidence; :func:`choose_penalty` with
+    ``criterion="evidence"``) — less variable than the unbiased risk estimate used before,
+    which, with the prior weight free as well, swung from 0 to 1000 between phantoms of the
+    same kind. Because the prior pulls det F towards 1, the det F of the final fit is no
+    independent check any more: the det F of the unregularised fit is reported beside it
+    (``det_F_unregularised``). The earlier estimator (the prior weight κ chosen by the risk
+    estimate with the ridge weights) stays available for comparison: ``volume_prior_sd=None``
+    with ``volume_samples``.
 
 The ED planes are the total-least-squares planes of each tag's ED lines;
 their RMS residual (mm) is the tracking noise normal to the tag, reported as
@@ -94,6 +97,14 @@ NOISE_MARGIN = 3.0
 #: Gauss–Newton iterations of (T2) with the chosen regulariser (its incompressibility term is
 #: not quadratic in the coefficients: its gradient is re-evaluated at every step)
 REGULARISED_ITERATIONS = 2
+#: a priori standard deviation s of each AHA segment's mean volume ratio J̄_s = mean det F
+#: (ED → frame; prior J̄_s ~ N(1, s²)). Myocardium loses some volume in systole as
+#: intramyocardial blood is squeezed out: in the canine LV the largest systolic decrease was
+#: 4.1, 6.8 and 10.3 % at the subepicardium, midwall and subendocardium (Ashikaga et al.,
+#: Am J Physiol Heart Circ Physiol 295:H610–H618, 2008, implanted markers). A zero-mean
+#: prior with s = 5 % puts the wall-average decrease (~7 %) at 1.4 s and the subendocardial
+#: one at 2 s: it states "a few per cent", not incompressibility.
+VOLUME_PRIOR_SD = 0.05
 #: confidence level of the F-test that keeps a tag family's planes separate (:func:`tag_grid`)
 GRID_TEST_LEVEL = 0.999
 
@@ -285,7 +296,8 @@ def penalty_groups(fit) -> list[np.ndarray]:
 
 def choose_penalty(S: np.ndarray, coef: np.ndarray, groups: list[np.ndarray], sigma_mm: float,
                    B: np.ndarray, grid=LAMBDA_GRID, ridge: float = 1e-8,
-                   terms: tuple = ()) -> tuple[np.ndarray, tuple]:
+                   terms: tuple = (), fixed: tuple = (), criterion: str = "risk"
+                   ) -> tuple[np.ndarray, tuple]:
     """The regulariser that minimises an unbiased estimate of the mean squared error of the
     quantities B·c (e.g. the segment strains, B their derivative with respect to the
     coefficients) of the linearised fit (T2), over weights λ on a grid.
@@ -305,7 +317,26 @@ def choose_penalty(S: np.ndarray, coef: np.ndarray, groups: list[np.ndarray], si
     estimates it without bias (Stein's unbiased risk estimate for a linear smoother; Vogel,
     *Computational Methods for Inverse Problems*, 2002, §7.1). Scaling each ridge
     coefficient by S_jj makes λ dimensionless (λ = 1: as much prior as data on that
-    coefficient). With σ = 0, λ = 0. Returns (P_λ (m, m), λ per group then per term)."""
+    coefficient). ``fixed``: further (Q, r) quadratics with weight 1 in every candidate (a
+    prior whose strength is stated, not chosen: :func:`volume_prior_weight`); they are part
+    of P_λ and ρ_λ.
+
+    ``criterion="evidence"`` chooses the ridge weights instead by the marginal likelihood
+    of the linearised model (type-II maximum likelihood: MacKay, *Bayesian interpolation*,
+    Neural Computation 4:415–447, 1992; for smoothing parameters it varies less than
+    risk-type criteria and undersmooths less often: Wahba, Ann. Statist. 13:1378–1402, 1985;
+    Reiss & Ogden, J. R. Stat. Soc. B 71:505–523, 2009). Reading the ridge g as the prior
+    c_j ~ N(0, σ² / (λ_g S_jj)) on its n_g coefficients and the ``fixed`` terms as a prior
+    of stated strength, the data as c ~ N(c_true, σ² S⁻¹), it minimises
+
+        −2 log p(data | λ) = [Σ_g λ_g cᵀQ_g c − ρ_λᵀ (S + P_λ)⁻¹ ρ_λ] / σ²
+                             + log det(S + P_λ) − Σ_g n_g log λ_g  + const
+
+    over the positive grid values (λ = 0 is a flat prior, whose evidence vanishes); it
+    needs no ``B`` and takes no ``terms``. With σ = 0, λ = 0 (and no fixed term).
+    Returns (P_λ (m, m) including the fixed terms, λ per group then per term)."""
+    if criterion not in ("risk", "evidence") or (criterion == "evidence" and terms):
+        raise ValueError(f"criterion {criterion!r}: 'risk', or 'evidence' without terms")
     m = len(coef)
     reg = ridge * np.trace(S) / m * np.eye(m)
     d = np.diag(S)
@@ -313,18 +344,32 @@ def choose_penalty(S: np.ndarray, coef: np.ndarray, groups: list[np.ndarray], si
     Qs = [np.diag(np.where(g, d, 0.0)) for g in groups] + [np.asarray(Q, float) for Q, _ in terms]
     rs = [Q @ coef for Q in Qs[:len(groups)]] + [np.asarray(r, float) for _, r in terms]
     best, choice = np.inf, tuple(0.0 for _ in Qs)
-    if sigma_mm >= NOISE_FLOOR_MM and Qs:
+    if sigma_mm < NOISE_FLOOR_MM:
+        return np.zeros((m, m)), choice
+    P0 = sum((np.asarray(Q, float) for Q, _ in fixed), np.zeros((m, m)))
+    r0 = sum((np.asarray(r, float) for _, r in fixed), np.zeros(m))
+    if Qs or fixed:
         s2 = sigma_mm ** 2
         for lams in itertools.product(grid, repeat=len(Qs)):
-            Pl = sum((lam * Q for lam, Q in zip(lams, Qs) if lam), np.zeros((m, m)))
-            rho = sum((lam * r for lam, r in zip(lams, rs) if lam), np.zeros(m))
-            BA = np.linalg.solve(S + Pl + reg, B.T).T                  # B A (A symmetric)
-            BAP = BA @ Pl
-            risk = (float(np.sum((BA @ rho) ** 2)) - s2 * float(np.sum((BAP @ S_inv) * BAP))
-                    + s2 * float(np.sum((BA @ S) * BA)))
+            Pl = sum((lam * Q for lam, Q in zip(lams, Qs) if lam), P0.copy())
+            rho = sum((lam * r for lam, r in zip(lams, rs) if lam), r0.copy())
+            if criterion == "evidence":
+                if not all(lams[:len(groups)]):
+                    continue                      # a flat prior: the evidence vanishes
+                H = S + Pl + reg
+                logdet = np.linalg.slogdet(H)[1]
+                shift = np.linalg.solve(H, rho)
+                risk = ((sum(lam * float(coef @ Q @ coef) for lam, Q in zip(lams, Qs))
+                         - float(rho @ shift)) / s2 + logdet
+                        - sum(int(g.sum()) * np.log(lam) for lam, g in zip(lams, groups)))
+            else:
+                BA = np.linalg.solve(S + Pl + reg, B.T).T              # B A (A symmetric)
+                BAP = BA @ Pl
+                risk = (float(np.sum((BA @ rho) ** 2)) - s2 * float(np.sum((BAP @ S_inv) * BAP))
+                        + s2 * float(np.sum((BA @ S) * BA)))
             if risk < best:
                 best, choice = risk, lams
-    P = sum((lam * Q for lam, Q in zip(choice, Qs) if lam), np.zeros((m, m)))
+    P = sum((lam * Q for lam, Q in zip(choice, Qs) if lam), P0)
     return P, tuple(float(v) for v in choice)
 
 
@@ -338,6 +383,13 @@ def incompressibility_term(G: np.ndarray, g: np.ndarray, weights: np.ndarray, sc
     (:func:`incompressibility_scale`) makes κ dimensionless."""
     w = np.asarray(weights, float) / np.sum(weights)
     return scale * (G.T @ (w[:, None] * G)), scale * (G.T @ (w * g))
+
+
+def volume_prior_weight(noise_mm: float, prior_sd: float) -> float:
+    """σ² / s²: the weight of ½ Σ_s (J̄_s − 1)² beside the data term ½ Σ_i |φ(X_i) − x_i|² (mm²)
+    when the segment-mean volume ratios J̄_s are a priori independent N(1, s²) and the tag
+    points have isotropic tracking noise σ (mm): the negative log posterior times σ²."""
+    return float(noise_mm) ** 2 / float(prior_sd) ** 2
 
 
 def incompressibility_scale(G: np.ndarray, weights: np.ndarray, S: np.ndarray) -> float:
@@ -358,7 +410,8 @@ def segment_mean_matrix(labels: np.ndarray, volumes: np.ndarray) -> tuple[np.nda
 
 def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
                    noise_mm: float = 0.0, quantities=None, ridge: float = 1e-8,
-                   volume_samples: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> dict:
+                   volume_samples: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                   volume_prior_sd: float | None = None) -> dict:
     """Refine a :class:`~cardionurbs.analysis.strain.CylindricalMotionFit` ``fit`` (ED → frame,
     started from the material points) on tag points (n, 3) whose ED planes are
     (``normals`` (n, 3), ``offsets`` (n,)) by (T2), in place.
@@ -366,14 +419,17 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
     Regularisation: with tracking noise ``noise_mm`` (e.g. :attr:`TagPlanes.rms_mm`) of at
     least :data:`NOISE_FLOOR_MM` and ``quantities`` (a callable: the fit -> the vector of
     quantities the fit is for, e.g. the segment strains), the fit is refined once more
-    with the penalty of :func:`choose_penalty` on the groups of :func:`penalty_groups` and,
-    given ``volume_samples`` ((k, 3) ED wall points, (k,) their volumes, (k,) their AHA
-    segments), the near-incompressibility penalty of :func:`incompressibility_term` on the
-    segments' mean det F, the weights chosen to minimise the estimated mean squared error of
-    those quantities (see "Near-incompressibility" above).
+    with the ridge penalties of :func:`choose_penalty` on the groups of :func:`penalty_groups`
+    and, given ``volume_samples`` ((k, 3) ED wall points, (k,) their volumes, (k,) their AHA
+    segments), a near-incompressibility term on the segments' mean det F
+    (:func:`incompressibility_term`): with ``volume_prior_sd`` s the prior J̄_s ~ N(1, s²)
+    (weight σ² / s², :func:`volume_prior_weight`) and the ridge weights that maximise the
+    evidence; with ``volume_prior_sd=None`` a weight κ chosen with the ridge weights to
+    minimise the estimated mean squared error of the quantities (see
+    "Near-incompressibility, as a prior" above).
     Returns {"residual_mm" (RMS distance to the fitted surfaces), "outliers", "n_points",
     "lambda" (penalty weight per group, then the incompressibility weight κ with
-    ``volume_samples``), "ed_points" (the fitted X_i), "quantity_se" (the standard errors
+    ``volume_samples`` and no ``volume_prior_sd``), "ed_points" (the fitted X_i), "quantity_se" (the standard errors
     σ √diag(B S⁻¹ Bᵀ) of the quantities for the unregularised fit, B their derivative with
     respect to the coefficients; None without regularisation), "regularised_sd" (the
     standard deviations σ √diag(B A S A Bᵀ) of the regularised fit's quantities, A = (S +
@@ -433,18 +489,23 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
         # Cramér–Rao bound of any unbiased estimate within the motion model (S1)
         se = noise_mm * np.sqrt(np.maximum(np.einsum("ka,ab,kb->k", B, S_inv, B), 0.0))
         groups = penalty_groups(fit)
-        terms, scale = (), 0.0
-        if volume_samples is not None:
+        terms, fixed, scale, inc_w = (), (), 0.0, seg_vol if volume_samples is not None else None
+        if volume_samples is not None and volume_prior_sd is not None:
+            # the prior J̄_s ~ N(1, s²), independent per segment, against the data's σ
+            inc_w, scale = np.ones(len(seg_vol)), len(seg_vol) * volume_prior_weight(noise_mm, volume_prior_sd)
+            fixed = (incompressibility_term(J[k:], segment_volume_change(fit), inc_w, scale),)
+        elif volume_samples is not None:
             scale = incompressibility_scale(J[k:], seg_vol, S)
             terms = (incompressibility_term(J[k:], segment_volume_change(fit), seg_vol, scale),)
-        P, lams = choose_penalty(S, coef, groups, noise_mm, B, terms=terms)
+        P, lams = choose_penalty(S, coef, groups, noise_mm, B, terms=terms, fixed=fixed,
+                                 criterion="evidence" if fixed else "risk")
         A = np.linalg.inv(S + P + ridge * np.trace(S) / len(coef) * np.eye(len(coef)))
         sd = noise_mm * np.sqrt(np.maximum(np.einsum("ka,ab,kb->k", B, A @ S @ A, B), 0.0))
-        if any(lams):
+        if any(lams) or fixed:
             diag = np.diag(S)
             ridge_P = sum((lam * np.diag(np.where(gr, diag, 0.0)) for lam, gr in zip(lams, groups)),
                           np.zeros((len(coef), len(coef))))
-            kappa = lams[-1] if terms else 0.0
+            kappa = lams[-1] if terms else (1.0 if fixed else 0.0)
             for _ in range(REGULARISED_ITERATIONS):
                 # Gauss–Newton on data + penalty: the incompressibility term re-linearised
                 # at the current coefficients
@@ -452,7 +513,7 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
                 P, grad = ridge_P, ridge_P @ c
                 if kappa:
                     G = quantity_jacobian(fit, segment_volume_change, c, step_scale)
-                    Q, r = incompressibility_term(G, segment_volume_change(fit), seg_vol, scale)
+                    Q, r = incompressibility_term(G, segment_volume_change(fit), inc_w, scale)
                     P, grad = P + kappa * Q, grad + kappa * r
                 step(P, grad)
             err = np.linalg.norm(fit.position(X) - x, axis=1)

@@ -7,8 +7,11 @@ Steps for one surface (lv_endo, lv_epi, rv_endo or rv_epi):
    stack: between the most apical SA slice and the apex, and between the most
    basal SA slice and the valve plane, the nearest SA section's shape is
    scaled about a centre line to pass through the LA contours' crossings of
-   the level plane (:func:`cardionurbs.anatomy.sections.scaled_section`).
-   One more section, the basal one moved beyond the valve plane, lets the
+   the level plane (:func:`cardionurbs.anatomy.sections.scaled_section`),
+   every ``SYNTHETIC_STEP_MM``; for the RV surfaces the spacing next to the
+   SA stack is graded from half the SA gap down to that step
+   (:func:`synthetic_offsets`), so that the loft does not overshoot in a wide
+   SA gap next to closely spaced sections. One more section, the basal one moved beyond the valve plane, lets the
    mesh be cut exactly by that plane.
 2. **Common parameterisation.** Each closed section is resampled uniformly in
    arc length from a start point on a common anatomical ray (towards the RV
@@ -53,6 +56,11 @@ SEPTUM_NEAR_MM_TAPER = 1.5
 N_SAMPLES = 120
 #: spacing (mm) of synthetic sections built from LA contours
 SYNTHETIC_STEP_MM = 2.5
+#: largest ratio of neighbouring section intervals in a graded stack (:func:`synthetic_offsets`)
+GRADING_RATIO = 2.0
+#: surfaces whose synthetic sections are graded next to the SA stack (the LV surfaces are
+#: corrected towards the LA points afterwards, anatomy.refine, and keep every 2.5 mm)
+GRADED_STRUCTURES = ("rv_endo", "rv_epi")
 #: RV contour points within this many pixels of the LV epicardial contour are septal
 SEPTUM_NEAR_PX = 0.5
 #: free-wall runs shorter than this fraction of an RV loop, between septal points, are septal
@@ -135,11 +143,56 @@ def free_wall_targets(targets: np.ndarray, centre: np.ndarray,
 
 
 def synthetic_step(secs: list[Section], direction: np.ndarray) -> float:
-    """Spacing (mm) of the synthetic sections beyond a stack of SA sections:
-    ``SYNTHETIC_STEP_MM`` whatever the SA slice spacing. (A loft through 2.5 mm synthetic
-    sections next to a much wider SA gap can overshoot in the gap; spacing them half the
-    slice spacing was tried and not adopted, reports/validation-function.md, bivme-patient1.)"""
+    """Spacing (mm) of the synthetic sections beyond a stack of SA sections, away from the
+    stack: ``SYNTHETIC_STEP_MM`` whatever the SA slice spacing (next to the stack an RV
+    surface's spacing is graded, :func:`synthetic_offsets`)."""
     return SYNTHETIC_STEP_MM
+
+
+def synthetic_offsets(span: float, step: float, sa_gap: float | None = None,
+                      ratio: float | None = None, reach_end: bool = False) -> np.ndarray:
+    """Distances (mm, increasing) from the end SA section of a stack to its synthetic
+    sections, all within ``span`` (the distance to the valve plane's reach, or to the apex).
+
+    Without ``sa_gap``: every ``step`` mm. With ``sa_gap`` (the spacing between the end SA
+    section and its neighbour in the stack) the spacing is *graded*: the first interval is
+    ``sa_gap / ratio`` (default ``GRADING_RATIO``), each next one ``ratio`` times smaller,
+    until it reaches ``step``;
+    so no two neighbouring intervals of the whole stack (SA gap included) differ by more
+    than ``ratio``. A degree-3 interpolating loft across sections inherits the slope of its
+    closely spaced sections into a wide neighbouring interval and overshoots there (the
+    mesh-ratio condition of spline interpolation: de Boor, *A Practical Guide to Splines*,
+    ch. XII; NURBS Book §9.2.1 on chord-length parameters with uneven spacing); a bounded
+    ratio keeps that slope to what the SA gap itself resolves.
+
+    ``reach_end``: the sections divide the rest of the span into equal intervals of at most
+    ``step`` up to its end (the apex, which is itself a section of the loft); otherwise they
+    continue every ``step`` while inside the span."""
+    ratio = GRADING_RATIO if ratio is None else float(ratio)
+    graded: list[float] = []
+    d = 0.0
+    if sa_gap is not None:
+        inc = sa_gap / ratio
+        while inc > step and d + inc + step <= span:
+            d += inc
+            graded.append(d)
+            inc /= ratio
+    rest = span - d
+    if rest <= 0:
+        return np.asarray(graded)
+    k = int(np.ceil(rest / step))
+    tail = d + (rest * np.arange(1, k) / k if reach_end else step * np.arange(1, k))
+    return np.concatenate([graded, tail])
+
+
+def end_gap(secs: list[Section], direction: np.ndarray, end: int) -> float | None:
+    """Spacing (mm) along ``direction`` between the end SA section (``end`` 0: basal, -1:
+    apical) and its neighbour; None for a single section."""
+    if len(secs) < 2:
+        return None
+    nb = 1 if end == 0 else -2
+    return abs(float(_level(secs[nb].points, direction).mean())
+               - float(_level(secs[end].points, direction).mean()))
 
 
 def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
@@ -152,6 +205,7 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
     if not la or not secs:
         return [], []
     rv = structure.startswith("rv")
+    graded = structure in GRADED_STRUCTURES
     side = geo.reference if rv else None
     first, last = secs[0], secs[-1]
     h0 = float(_level(first.points, n).mean())
@@ -170,8 +224,8 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
     apical = []
     gap = ha - hk
     if gap > step:
-        k = int(np.ceil(gap / step))
-        for f in np.arange(1, k) / k:
+        for f in synthetic_offsets(gap, step, sa_gap=end_gap(secs, n, -1) if graded else None,
+                                   reach_end=True) / gap:
             h = hk + f * gap
             targets = np.concatenate([polyline_crossings(pl, n, h) for pl in la])
             centre = c_last if a_last is not None else (1 - f) * c_last + f * apex
@@ -187,8 +241,9 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
         # the most basal level any part of the valve plane reaches inside the LA contours
         la_all = np.concatenate(la)
         h_top = float(_level(la_all, n).min())
-        h = h0 - step
-        while h > h_top + 0.5:
+        for off in synthetic_offsets(h0 - h_top - 0.5, step,
+                                     sa_gap=end_gap(secs, n, 0) if graded else None):
+            h = h0 - off
             targets = np.concatenate([polyline_crossings(pl, n, h) for pl in la])
             # only LA crossings on the apical side of the valve plane
             if len(targets):
@@ -201,7 +256,6 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
                 break
             basal.insert(0, Section(structure, geo.frame, res[0], synthetic=True, scale=res[1],
                                     template=0))
-            h -= step
     return basal, apical
 
 
