@@ -46,7 +46,8 @@ def main(argv=None) -> int:
     agg = {k: [] for k in ("mit", "tri0", "area", "diam", "narrow")}
     for p in ("normal", "mr", "phtn"):
         for seed in range(args.seeds):
-            body = generate(p, seed=seed, frames=4, anatomy_model="realistic", volume_check=False)
+            body = generate(p, seed=seed, frames=4, anatomy_model="realistic", outflow=False,
+                            volume_check=False)
             mit = departure(annotate.bend(body.anatomy, annotate.landmarks(body.anatomy, body.motion,
                                                                             0.0)["mitral"]))
             tri0 = departure(annotate.bend(body.anatomy, annotate.landmarks(body.anatomy, body.motion,

@@ -170,15 +170,16 @@ def build_parser() -> argparse.ArgumentParser:
                     help="tagged DICOM image SNR (myocardium over Rician channel noise; default 12)")
     ph.add_argument("--anatomy", choices=["ideal", "realistic"], default="ideal",
                     help="ideal spheroids (default) or realistic hearts: shape modes, segmental "
-                         "wall thickness, varying RV crescent, saddle mitral annulus, apex off "
-                         "the long axis (docs/phantoms.md)")
+                         "wall thickness, varying RV crescent, saddle mitral and tricuspid annuli, "
+                         "apex off the long axis, outflow tracts (docs/phantoms.md)")
     ph.add_argument("--infarct", choices=["lad", "rca", "lcx"], default=None,
                     help="make this coronary territory thinner and hypokinetic (border zone "
                          "included)")
-    ph.add_argument("--outflow", action=argparse.BooleanOptionalAction, default=False,
-                    help="realistic anatomy: add the RV outflow tract to a pulmonary valve and the "
-                         "LV outflow tract to an aortic valve (RVOT view, rv_outlet SA contours, "
-                         "pulmonary/aortic landmarks; default off)")
+    ph.add_argument("--outflow", action=argparse.BooleanOptionalAction, default=None,
+                    help="the RV outflow tract to a pulmonary valve and the LV outflow tract to "
+                         "an aortic valve (RVOT view, rv_outlet SA contours, pulmonary/aortic "
+                         "landmarks): on by default with --anatomy realistic, --no-outflow leaves "
+                         "them out; the ideal anatomy has none")
     ph.add_argument("--realism", choices=["clinical"], default=None,
                     help="clinical acquisition faults at once: 0.5 px contour noise, 1.5 mm "
                          "breath-hold shifts, image SNR 15 (unless given); truth unchanged")

@@ -211,12 +211,11 @@ def main(argv=None) -> int:
              "(uniform knots, eq. 9 knots, optimised weights).",
              "- [phantoms.md](phantoms.md): the presets, the paper's 12 subjects and their truth.",
              "- [validation-realistic.md](validation-realistic.md): realistic phantom anatomy "
-             "(docs/phantoms.md) beside the ideal one from the same seeds -- volumes, masses, EF, "
+             "(docs/phantoms.md; with its RV and LV outflow tracts and saddle annuli, the "
+             "default) beside the ideal one from the same seeds -- volumes, masses, EF, "
              "twist from our model and Simpson's disks, noise-free and with clinical acquisition "
-             "faults; the two truth methods over 20 seeds per preset "
+             "faults; the two truth methods and the LA contours over 20 seeds per preset "
              "(`benchmarks/validate_realistic.py`).",
-             "- [validation-realistic-outflow.md](validation-realistic-outflow.md): the same with "
-             "the RV and LV outflow tracts (`benchmarks/validate_realistic.py --outflow`).",
              "- [validation-outflow.md](validation-outflow.md): the reconstruction's outflow "
              "tracts on realistic phantoms with and without them (`benchmarks/validate_outflow.py`).",
              "- [validation-regional.md](validation-regional.md): AHA segments, wall thickness, "

@@ -157,15 +157,23 @@ def test_motion_is_invertible_in_the_tracts(ot, u, v, h, f):
 def test_outflow_switch_and_errors(tmp_path):
     with pytest.raises(PhantomError):
         generate("normal", seed=1, frames=2, outflow=True)           # the ideal anatomy has none
-    out = tmp_path / "p"
+    out = tmp_path / "p"          # the realistic default: with the tracts
     assert cli_main(["phantom", "--pathology", "phtn", "--seed", "2", "--frames", "2", "--anatomy",
-                     "realistic", "--outflow", "--no-dicom", "--out", str(out)]) == 0
+                     "realistic", "--no-dicom", "--out", str(out)]) == 0
     tr = json.loads((out / "truth.json").read_text())
-    assert "outflow" in tr["anatomy"]["shape"]
+    assert "outflow" in tr["anatomy"]["shape"] and tr["anatomy"]["shape"]["tricuspid_dip_mm"] > 0
     study = read_study(out)
     assert any(c.slice == "la_rvot" for c in study.contours)
     assert any(c.structure == "rv_outlet" for c in study.contours)
     assert {"pulmonary", "aortic"} <= {l.name for l in study.landmarks}
+    out = tmp_path / "r"          # --no-outflow: the body alone, its tricuspid saddle kept
+    assert cli_main(["phantom", "--pathology", "phtn", "--seed", "2", "--frames", "2", "--anatomy",
+                     "realistic", "--no-outflow", "--no-dicom", "--out", str(out)]) == 0
+    tr = json.loads((out / "truth.json").read_text())
+    assert "outflow" not in tr["anatomy"]["shape"] and tr["anatomy"]["shape"]["tricuspid_dip_mm"] > 0
+    study = read_study(out)
+    assert not any(c.slice == "la_rvot" or c.structure == "rv_outlet" for c in study.contours)
+    assert not {"pulmonary", "aortic"} & {l.name for l in study.landmarks}
     assert cli_main(["phantom", "--pathology", "phtn", "--outflow", "--no-dicom",
                      "--out", str(tmp_path / "q")]) == 2
     assert not (tmp_path / "q").exists()

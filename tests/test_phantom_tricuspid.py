@@ -15,26 +15,9 @@ from cardionurbs.phantom.generate import generate
 
 @pytest.fixture(scope="module", params=[False, True], ids=["body", "outflow"])
 def ph(request):
-    if not request.param:
-        return generate("mr", seed=2, frames=3, anatomy_model="realistic")
-    # generate() keeps the tracts' tricuspid annulus planar for now; the saddle with tracts is
-    # built here from the same draw (its truth: the tract's lumen starts at the tricuspid plane)
-    import dataclasses
-    import importlib
-    gen_mod = importlib.import_module("cardionurbs.phantom.generate")
-    orig = gen_mod._realistic_anatomy
-
-    def with_saddle(draw, rng, infarct, tries=20, outflow=None, tricuspid_dip=0.0):
-        from cardionurbs.phantom.presets import solve_anatomy
-        from cardionurbs.phantom.shape import draw_shape
-        shape = dataclasses.replace(draw_shape(rng, infarct), outflow=outflow, tricuspid_dip_mm=4.1)
-        return solve_anatomy(draw, shape), shape
-
-    gen_mod._realistic_anatomy = with_saddle
-    try:
-        return generate("mr", seed=2, frames=3, anatomy_model="realistic", outflow=True)
-    finally:
-        gen_mod._realistic_anatomy = orig
+    # the realistic default has the outflow tracts; ``outflow=False`` leaves them out
+    return generate("mr", seed=2, frames=3, anatomy_model="realistic",
+                    **({} if request.param else {"outflow": False}))
 
 
 def test_annulus_points_are_a_saddle_on_the_rv_walls(ph):
@@ -106,12 +89,23 @@ def test_truth_closes_the_rv_at_the_best_fit_plane(ph):
         assert 0.0 < caps["rv_endo"][1] < caps["rv_endo"][0]          # the tract's part of it
 
 
-def test_outflow_phantoms_keep_a_planar_tricuspid_annulus_for_now():
-    ph = generate("normal", seed=1, frames=2, anatomy_model="realistic", outflow=True, volume_check=False)
-    assert ph.anatomy.tricuspid_dip == 0.0
+def test_realistic_default_has_the_tracts_and_the_tricuspid_saddle(ph):
+    """The realistic default (``outflow`` not given) has both outflow tracts and the saddle
+    tricuspid annulus: the six annulus points depart from their best-fit plane; with
+    ``outflow=False`` the saddle stays and the tracts, their view and landmarks are left out."""
     tri = np.array([l.point for l in ph.study.landmarks if l.name == "tricuspid" and l.frame == 0])
     c, n = fit_plane(tri)
-    assert np.abs((tri - c) @ n).max() < 1e-9
+    assert np.abs((tri - c) @ n).max() > 0.5
+    names = {l.name for l in ph.study.landmarks}
+    views = {c.slice for c in ph.study.contours}
+    structures = {c.structure for c in ph.study.contours}
+    if ph.anatomy.outflow is not None:
+        assert ph.config["outflow"] is True
+        assert {"pulmonary", "aortic"} <= names and "la_rvot" in views and "rv_outlet" in structures
+    else:
+        assert "outflow" not in ph.config and "outflow" not in ph.truth["anatomy"]["shape"]
+        assert not {"pulmonary", "aortic"} & names and "la_rvot" not in views
+        assert "rv_outlet" not in structures
 
 
 def test_ideal_tricuspid_annulus_stays_planar():

@@ -412,6 +412,20 @@ def _corners(w: np.ndarray, v: np.ndarray, iters: int = 4, h: float = 1e-3):
     return p
 
 
+def _annulus_corner(solved: np.ndarray, start: np.ndarray, value: np.ndarray, wall: np.ndarray,
+                    top: np.ndarray, tol: float = 1e-4) -> np.ndarray:
+    """The annulus end of a wall run among its candidate corners ``solved`` (k, 2), each solved
+    by Newton from ``start`` against one closure term (the first: the closure the sampling
+    grid saw next to the wall): the nearest one where the wall term, its closure term and the
+    region's function (``value``, the min/max tree) all vanish to ``tol``; the first candidate
+    when none does."""
+    ok = (np.abs(value) < tol) & (np.abs(wall) < tol) & (np.abs(top) < tol)
+    if not ok.any():
+        return solved[0]
+    d = np.where(ok, np.hypot(*(solved - start).T), np.inf)
+    return solved[int(np.argmin(d))]
+
+
 def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec,
                   n: int, start_positive: bool = True):
     """The open contour (wall part) of one region on a sampled plane, or None.
@@ -478,8 +492,15 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec,
     # all solved in one vectorised Newton iteration
     turns = [k for k in range(1, len(ww)) if parts[int(act[k])] != parts[int(act[k - 1])]]
     req = [(0.5 * (ww[k] + ww[k - 1]), 0.5 * (vv[k] + vv[k - 1]), act[k - 1], act[k]) for k in turns]
-    if not on_wall.all():
-        req = [(ww[0], vv[0], act[0], top_first)] + req + [(ww[-1], vv[-1], act[-1], top_last)]
+    # an annulus end is solved against every closure term: the grid vertex after the wall run can
+    # show a closure that only binds a grid step further on (the LVOT cylinder 0.3 mm inside the
+    # septal wall past the mitral corner, whose own corner with the wall is 8 mm up the tract);
+    # the end is the nearest solution that lies on the region's boundary (_annulus_corner)
+    ends = [top_first, top_last] if not on_wall.all() else []
+    cands = [[t] + sorted(closures - {t}) for t in ends]
+    if ends:
+        req = ([(ww[0], vv[0], act[0], t) for t in cands[0]] + req
+               + [(ww[-1], vv[-1], act[-1], t) for t in cands[1]])
     corners = {}
     if req:
         ci = np.array([r[2] for r in req], dtype=int)
@@ -494,6 +515,15 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec,
                 q = newton.send((e[np.tile(ci, 5), cols], e[np.tile(cj, 5), cols]))
         except StopIteration as done:
             solved = done.value
+        if ends:
+            e = np.stack((yield solved[:, 0], solved[:, 1]))
+            cols = np.arange(len(req))
+            n0, n1 = len(cands[0]), len(cands[1])
+            start = np.array([r[:2] for r in req], dtype=float)
+            pick = [_annulus_corner(solved[sl], start[sl], tree_value(tree, list(e[:, sl])),
+                                    e[ci[sl], cols[sl]], e[cj[sl], cols[sl]])
+                    for sl in (slice(0, n0), slice(len(req) - n1, len(req)))]
+            solved = np.r_[pick[0][None], solved[n0:len(req) - n1], pick[1][None]]
         corners = {i: tuple(c) for i, c in enumerate(solved)}
     first = 0 if not on_wall.all() else None
     pieces, cur = [], [(ww[0], vv[0])]
@@ -508,7 +538,7 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec,
             cur = [c]
         cur.append((ww[k], vv[k]))
     if first is not None:
-        cur.append(corners[len(req) - 1])
+        cur.append(corners[len(corners) - 1])
     pieces.append(np.array(cur))
     if start_positive and pieces[0][0, 0] < pieces[-1][-1, 0]:
         pieces = [p[::-1] for p in pieces[::-1]]

@@ -53,8 +53,9 @@ def run_phantom(args: argparse.Namespace) -> int:
 
 
 def anatomy_options(args: argparse.Namespace) -> dict:
-    """generate() keywords of --anatomy, --infarct and --realism (only those that differ from the
-    defaults, so that older callers' phantoms stay byte-identical)."""
+    """generate() keywords of --anatomy, --infarct, --realism and --[no-]outflow (only those
+    given, so that older callers' phantoms stay byte-identical; generate() decides the tracts'
+    default from the anatomy)."""
     out = {}
     if getattr(args, "anatomy", "ideal") not in (None, "ideal"):
         out["anatomy_model"] = args.anatomy
@@ -62,8 +63,8 @@ def anatomy_options(args: argparse.Namespace) -> dict:
         out["infarct"] = args.infarct
     if getattr(args, "realism", None):
         out["realism"] = args.realism
-    if getattr(args, "outflow", False):
-        out["outflow"] = True
+    if getattr(args, "outflow", None) is not None:
+        out["outflow"] = bool(args.outflow)
     return out
 
 

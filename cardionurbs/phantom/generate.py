@@ -132,7 +132,7 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
              tag_spacing_px: float = 7.0, fov_mm: float = 300.0, matrix: int = 256,
              volume_check: bool = True, anatomy: dict | None = None, snr: float | None = None,
              tag_depth: float | None = None, anatomy_model: str = "ideal", infarct: str | None = None,
-             realism: str | None = None, outflow: bool = False) -> Phantom:
+             realism: str | None = None, outflow: bool | None = None) -> Phantom:
     """Generate one phantom subject.
 
     Parameters
@@ -151,15 +151,17 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
         ``{"r_short_endo": 30.0}``; the truth is computed from the overridden shape (the
         preset's target ranges then no longer apply).
     anatomy_model : ``"ideal"`` (spheroids, the default) or ``"realistic"`` (shape modes, segmental
-        wall thickness, varying RV crescent, saddle mitral annulus, apex off the axis; drawn from
-        the seed, see :mod:`cardionurbs.phantom.shape`).
+        wall thickness, varying RV crescent, saddle mitral and tricuspid annuli, apex off the axis,
+        outflow tracts; drawn from the seed, see :mod:`cardionurbs.phantom.shape`).
     infarct : ``"lad"``, ``"rca"`` or ``"lcx"``: that coronary territory thinner and hypokinetic.
     realism : ``"clinical"``: the acquisition faults of clinical data at once — 0.5 px contour
         noise, 1.5 mm breath-hold slice shifts, image SNR 15 (each unless given explicitly);
         the truth is unchanged.
-    outflow : realistic anatomy only: add the RV outflow tract to a pulmonary valve and the LV
-        outflow tract to an aortic valve (:mod:`cardionurbs.phantom.outflow`), with their
-        ``la_rvot`` view, ``rv_outlet`` SA contours, ``pulmonary``/``aortic`` landmarks and truth.
+    outflow : the RV outflow tract to a pulmonary valve and the LV outflow tract to an aortic
+        valve (:mod:`cardionurbs.phantom.outflow`), with their ``la_rvot`` view, ``rv_outlet`` SA
+        contours, ``pulmonary``/``aortic`` landmarks and truth. ``None`` (default): on for the
+        realistic anatomy, off for the ideal one; ``False`` leaves them out of a realistic heart;
+        ``True`` with the ideal anatomy is an error (the spheroids have no tracts).
     """
     _check_args(pathology, seed, frames, noise_px, tag_jumps, breath_hold_mm)
     if snr is not None and not (isinstance(snr, (int, float, np.floating)) and np.isfinite(snr)
@@ -172,6 +174,8 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
         raise PhantomError(f"unknown anatomy {anatomy_model!r}; expected one of {', '.join(ANATOMIES)}")
     if infarct is not None and infarct not in TERRITORIES:
         raise PhantomError(f"unknown infarct territory {infarct!r}; expected one of {', '.join(TERRITORIES)}")
+    if outflow is None:
+        outflow = anatomy_model == "realistic"
     if outflow and anatomy_model != "realistic":
         raise PhantomError("outflow tracts need the realistic anatomy (anatomy_model='realistic')")
     if realism not in (None, "clinical"):
@@ -187,10 +191,8 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     shape = None
     if anatomy_model == "realistic":
         tracts = draw_outflow(_rng(seed, pathology, "outflow")) if outflow else None
-        # the saddle-shaped tricuspid annulus, from its own generator; with the tracts it stays
-        # planar for now (docs/phantoms.md): the truth handles the saddle there too, but the
-        # 3-chamber LVOT contour extraction is not yet robust to the changed subjects
-        dip = 0.0 if outflow else draw_tricuspid_dip(_rng(seed, pathology, "tricuspid"))
+        # the saddle-shaped tricuspid annulus, from its own generator (with or without the tracts)
+        dip = draw_tricuspid_dip(_rng(seed, pathology, "tricuspid"))
         anatomy, shape = _realistic_anatomy(draw, _rng(seed, pathology, "shape"), infarct, outflow=tracts,
                                             tricuspid_dip=dip)
     else:

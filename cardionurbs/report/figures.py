@@ -41,6 +41,7 @@ import matplotlib.colors
 import matplotlib.ticker
 import numpy as np
 from matplotlib.figure import Figure
+from matplotlib.patches import FancyArrowPatch
 from mpl_toolkits.mplot3d import proj3d
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
@@ -284,19 +285,24 @@ def orientation_marker(ax) -> None:
     vec = np.array([np.array(proj3d.proj_transform(*(np.asarray(d) * span), M)[:2]) - origin
                     for d, _ in dirs])
     vec /= max(float(np.linalg.norm(vec, axis=1).max()), 1e-12)
+    fig = ax.figure
     pos = ax.get_position()
-    size = 0.2 * min(pos.width, pos.height * ax.figure.get_figheight() / ax.figure.get_figwidth())
-    h_fig = size * ax.figure.get_figwidth() / ax.figure.get_figheight()
-    inset = ax.figure.add_axes([pos.x0 + 0.02 * pos.width, pos.y0 + 0.90 * pos.height - h_fig,
-                                size, h_fig])
-    inset.set_xlim(-1.45, 1.45), inset.set_ylim(-1.45, 1.45)
-    inset.axis("off")
+    size = 0.2 * min(pos.width, pos.height * fig.get_figheight() / fig.get_figwidth())
+    h_fig = size * fig.get_figwidth() / fig.get_figheight()
+    x0, y0 = pos.x0 + 0.02 * pos.width, pos.y0 + 0.90 * pos.height - h_fig
+
+    def at(p) -> tuple[float, float]:
+        """A point of the marker's square (-1.45 .. 1.45 each way) in figure coordinates:
+        the arrows are drawn on the figure itself, not on an inset axes of their own
+        (an axes with its ticks costs more to make than the arrows to draw)."""
+        return (x0 + (p[0] + 1.45) / 2.9 * size, y0 + (p[1] + 1.45) / 2.9 * h_fig)
+
     for v, (_, txt) in zip(vec, dirs):
-        inset.annotate("", xy=tuple(v), xytext=(0.0, 0.0),
-                       arrowprops=dict(arrowstyle="-|>", lw=1.1, color="black", shrinkA=0,
-                                       shrinkB=0))
+        fig.add_artist(FancyArrowPatch(at((0.0, 0.0)), at(v), transform=fig.transFigure,
+                                       arrowstyle="-|>", mutation_scale=10, lw=1.1,
+                                       color="black", shrinkA=0, shrinkB=0))
         u = v / max(float(np.linalg.norm(v)), 1e-9)
-        inset.text(*(v + 0.3 * u), txt, fontsize=7, fontweight="bold", ha="center", va="center")
+        fig.text(*at(v + 0.3 * u), txt, fontsize=7, fontweight="bold", ha="center", va="center")
 
 
 def _new_figure(n_panels: int, caption: str, *, width: float = 4.6, height: float = 4.8,
