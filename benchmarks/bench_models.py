@@ -465,8 +465,9 @@ def grading_subject(args) -> dict:
     sid, pathology, seed, anatomy = args
     from cardionurbs.anatomy import surfaces
     from cardionurbs.phantom.generate import generate
+    # without outflow tracts (as the anatomy section): the grading acts on the RV body's loft
     ph = generate(pathology, seed=seed, frames=2, subject=sid, volume_check=False,
-                  anatomy_model=anatomy)
+                  anatomy_model=anatomy, outflow=False)
     t = ph.truth["metrics"]
     out = {"subject": sid, "anatomy": anatomy}
     for graded in (False, True):
