@@ -314,13 +314,21 @@ def half_spacing_step(fraction: float = 0.5, least_mm: float = 2.5):
     """A patch (tried in session 6, not adopted): synthetic sections of every surface every
     ``fraction`` of the median SA slice spacing, at least ``least_mm``, ungraded."""
     from cardionurbs.anatomy import surfaces
+    plain = surfaces.synthetic_sections
 
     def step(secs, direction):
         levels = np.array([float(sec.points.mean(axis=0) @ direction) for sec in secs])
         if len(levels) < 2:
             return least_mm
         return max(least_mm, fraction * float(np.median(np.abs(np.diff(levels)))))
-    return _patches(mock.patch.object(surfaces, "synthetic_step", step),
+
+    def synthetic_sections(geo, structure, secs, apex):
+        # the step of the sections built from LA crossings (the tapered ends keep theirs)
+        if not geo.la_points.get(structure) or not secs:
+            return plain(geo, structure, secs, apex)
+        with mock.patch.object(surfaces, "SYNTHETIC_STEP_MM", step(secs, geo.direction)):
+            return plain(geo, structure, secs, apex)
+    return _patches(mock.patch.object(surfaces, "synthetic_sections", synthetic_sections),
                     mock.patch.object(surfaces, "GRADED_STRUCTURES", ()))
 
 

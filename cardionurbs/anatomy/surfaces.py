@@ -142,13 +142,6 @@ def free_wall_targets(targets: np.ndarray, centre: np.ndarray,
     return rv_side[[int(np.argmax(np.linalg.norm(rv_side - centre, axis=1)))]]
 
 
-def synthetic_step(secs: list[Section], direction: np.ndarray) -> float:
-    """Spacing (mm) of the synthetic sections beyond a stack of SA sections, away from the
-    stack: ``SYNTHETIC_STEP_MM`` whatever the SA slice spacing (next to the stack an RV
-    surface's spacing is graded, :func:`synthetic_offsets`)."""
-    return SYNTHETIC_STEP_MM
-
-
 def synthetic_offsets(span: float, step: float, sa_gap: float | None = None,
                       ratio: float | None = None, reach_end: bool = False) -> np.ndarray:
     """Distances (mm, increasing) from the end SA section of a stack to its synthetic
@@ -220,7 +213,7 @@ def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
         return polygon_centroid(sec.points, n), None
 
     c_last, a_last = anchor_of(last)
-    step = synthetic_step(secs, n)
+    step = SYNTHETIC_STEP_MM      # next to the stack an RV surface is graded (synthetic_offsets)
     apical = []
     gap = ha - hk
     if gap > step:
