@@ -43,7 +43,8 @@ from cardionurbs.analysis.regional import regional_metrics  # noqa: E402
 from cardionurbs.analysis.tags import tag_metrics  # noqa: E402
 from cardionurbs.anatomy.model import reconstruct  # noqa: E402
 from cardionurbs.io import atomic  # noqa: E402
-from cardionurbs.phantom.generate import generate  # noqa: E402
+from cardionurbs.phantom.faults import add_noise  # noqa: E402
+from cardionurbs.phantom.generate import _rng, generate  # noqa: E402
 
 PRESETS = (("normal", 1), ("mr", 2), ("phtn", 3))
 SEG = range(1, 17)
@@ -65,13 +66,19 @@ def seg_err(m, t, fmt):
     return float(np.nanmax(e)), float(np.nanmean(e))
 
 
-def one(pathology, seed, noise):
-    ph = generate(pathology, seed=seed, frames=2, volume_check=False, noise_px=noise)
+def one(pathology, seed, noise, noise_on="both"):
+    """One phantom's row; ``noise_on="tags"``: the noise on the tag lines only, the contours
+    exact (the issue's condition), drawn from the phantom's own noise generator."""
+    if noise_on == "tags":
+        ph = generate(pathology, seed=seed, frames=2, volume_check=False)
+        add_noise(ph.study, noise, _rng(seed, pathology, "noise"), targets=("tags",))
+    else:
+        ph = generate(pathology, seed=seed, frames=2, volume_check=False, noise_px=noise)
     model = reconstruct(ph.study)
     tags = tag_metrics(model)
     r = regional_metrics(model, tags)
     t = ph.truth["metrics"]
-    row = {"subject": f"{pathology} {seed}", "noise": noise}
+    row = {"subject": f"{pathology} {seed}", "noise": noise, "noise on": noise_on}
     for name, fmt in (("WT ED", "WT_AHA_{} (mm)"), ("WT ES", "WT_ES_AHA_{} (mm)"),
                       ("Thickening", "Thickening_AHA_{} (%)"), ("Ecc", "Ecc_AHA_{} (%)"),
                       ("Ell", "Ell_AHA_{} (%)"), ("Err", "Err_AHA_{} (%)")):
@@ -97,7 +104,7 @@ def one(pathology, seed, noise):
     sd = r.strain.get("segment_sd") or {}
     row["sd"] = {k: np.array(list(v.values())) for k, v in sd.items()}
     row["prior sd"] = r.strain.get("volume_prior_sd")
-    if noise:
+    if noise and noise_on == "both":
         # the same tags fitted by the other estimators (ESTIMATORS) and with other prior spreads
         row["estimators"] = {"volume prior (reported)": row["signed"]}
         for name, kw in ESTIMATORS:
@@ -210,6 +217,21 @@ def ablation(rows):
                          f"{np.sqrt(np.nanmean(allv ** 2)):.2f} / {np.nanmean(allv):+.2f}")
         out.append(f"| {k} | {b:g} | " + " | ".join(cells) + " |")
     return out
+
+
+def offset_rows(rows):
+    """The signed Err error split into each phantom's mean over its segments (an offset shared
+    by the whole ventricle) and the segments' spread about it."""
+    e = [r["signed"]["Err"] for r in rows]
+    means = np.array([np.nanmean(x) for x in e])
+    spread = np.concatenate([x - m for x, m in zip(e, means)])
+    worst = [r["Err"][0] for r in rows]
+    fail = [f"{r['subject']} ({m:+.1f})" for r, m, w in zip(rows, means, worst) if w > 6.0]
+    return ["| quantity | value |", "|---|---|",
+            f"| SD over phantoms of the per-phantom mean Err error | {np.std(means, ddof=1):.2f} |",
+            f"| mean of the per-phantom mean Err error | {np.mean(means):+.2f} |",
+            f"| RMS of the segment errors about their phantom's mean | {np.sqrt(np.nanmean(spread ** 2)):.2f} |",
+            f"| phantoms over the Err bound (their mean Err error) | {', '.join(fail) or 'none'} |"]
 
 
 def truth_rows(rows):
@@ -339,15 +361,18 @@ def main(argv=None) -> int:
                     help="the speed section for reports/benchmark.md ('' to skip)")
     a = ap.parse_args(argv)
     presets = [(p, s + k) for p, s in PRESETS for k in range(a.seeds)]
-    jobs = [(p, s, 0.0) for p, s in presets] + [
-        (p, s + k, 0.5) for p, s in PRESETS for k in range(max(a.seeds, a.noise_seeds))]
+    noisy_seeds = [(p, s + k) for p, s in PRESETS for k in range(max(a.seeds, a.noise_seeds))]
+    jobs = ([(p, s, 0.0, "both") for p, s in presets] + [(p, s, 0.5, "both") for p, s in noisy_seeds]
+            + [(p, s, 0.5, "tags") for p, s in noisy_seeds])
     if a.jobs > 1:
         from concurrent.futures import ProcessPoolExecutor
         with ProcessPoolExecutor(a.jobs) as pool:
             rows = list(pool.map(one, *zip(*jobs)))
     else:
         rows = [one(*j) for j in jobs]
-    clean, noisy = rows[:len(presets)], rows[len(presets):]
+    clean = rows[:len(presets)]
+    noisy = [r for r in rows[len(presets):] if r["noise on"] == "both"]
+    tag_noisy = [r for r in rows[len(presets):] if r["noise on"] == "tags"]
     rr = [x for n in (20, 30, 40) for x in rates(n)]
     kinds, comparison = estimator_comparison()
     sb = sunnybrook()
@@ -390,6 +415,18 @@ def main(argv=None) -> int:
           "the coefficients) — the Cramér–Rao bound of any unbiased estimate within the motion "
           "model (S1) — and the chance that an unbiased estimator with those errors puts all 16 "
           "segments within the bound, Π (2Φ(b / SE) − 1):", ""] + noise_rows(noisy)
+    L += ["", "## 2b. With 0.5 px tag noise only (the issue's condition), contours exact", "",
+          "The issue asks for twice the noise-free bounds \"with 0.5 px tag noise\". Section 2 adds "
+          "the noise to the contours as well, which also moves the surfaces the strain directions, "
+          "the AHA segments and the wall samples come from. Here the same phantoms get 0.5 px "
+          "noise on the tag points only (`phantom.faults.add_noise(..., targets=(\"tags\",))`, "
+          "drawn from each phantom's own noise generator), the contours stay exact; same "
+          "estimator (the volume prior, s = 5 %).", ""] + table(tag_noisy)
+    L += ["", "Twice the noise-free bounds over these phantoms:", ""] + bound_summary(tag_noisy)
+    L += ["", "Bias and calibration over these phantoms:", ""] + calibration(tag_noisy)
+    L += ["", "Where the remaining Err error is: the mean over the 16 segments of each phantom's "
+          "signed Err error (a whole-ventricle offset, shared by every segment) against the spread "
+          "of the errors about that mean:", ""] + offset_rows(tag_noisy)
     L += ["", "## 3. Filling and ejection rates (noise-free, relative error %)", "",
           "| phantom | frames | PER | PEFR | PAFR | E/A | truth PER / PEFR / PAFR (mL/s) |",
           "|---|---|---|---|---|---|---|"]
