@@ -106,7 +106,7 @@ def one(pathology, seed, noise, noise_on="both"):
     row["prior sd"] = r.strain.get("volume_prior_sd")
     if noise:
         # the same tags fitted by the other estimators (ESTIMATORS) and with other prior spreads
-        row["estimators"] = {"volume prior (reported)": row["signed"]}
+        row["estimators"] = {"tags + contours, volume prior (reported)": row["signed"]}
         for name, kw in ESTIMATORS if noise_on == "both" else ESTIMATORS[:2]:
             rv = regional_metrics(model, tags, **kw)
             row["estimators"][name] = {k: seg_signed(rv, t, k + "_AHA_{} (%)") for k in ("Ecc", "Ell", "Err")}
@@ -587,16 +587,19 @@ NOTES = """## Notes
   remove most of the first half.
 - **Radial strain is noise-limited.** The table of standard errors above is the fit's own
   covariance: with one or two tag lines across a 1 cm wall the transmural gradient is what
-  the tags measure least well, and the standard error of a segment's Err is a median of
-  3–6 strain points at σ ≈ 0.6 mm and up to 25 in an apical segment (where few tag lines
-  cross the wall, obliquely), against at most 0.2–1.3 for Ecc. An unbiased estimator with those errors puts all 16 segments within
-  6 points with the probability shown (well below 1), so the Err target of 6 points is out
-  of reach at this noise level for any unbiased estimate within the motion model; the
-  regularised fit (which trades bias for variance through its priors) does better than
-  that on most phantoms: its own standard deviations (last column) are 1–3 points, and its
-  bias makes up the rest of the error. With the tags alone, most of that error is one offset
-  shared by the whole ventricle (section 2b: the per-phantom mean Err error), which the
-  contours measure (next note).
+  the tags measure least well. With the tags alone the standard error of a segment's Err was
+  a median of 3–6 strain points at σ ≈ 0.6 mm (up to 25 in an apical segment, where few tag
+  lines cross the wall, obliquely), against at most 0.2–1.3 for Ecc, and an unbiased
+  estimator put all 16 segments within 6 points with a probability of 0.001–0.22 per
+  phantom. With the contours in the fit it is 2–3 points (the table above), and the
+  regularised fit's own standard deviations (last column) about 1 point. That table
+  treats every contour point's noise as independent; the ED surface the points slide on
+  carries the ED contours' noise into all of them at once, so with contour noise it
+  over-states what the contours add (the Err errors of section 2 exceed those standard
+  errors on a few phantoms), while with exact contours (section 2b) the errors are within
+  them. With the tags alone, most of the Err error was one offset shared by the whole
+  ventricle (section 2b: the per-phantom mean Err error), which the contours measure (next
+  note).
 - **Contours as material boundaries** (reported estimator). The frame's LV endo- and
   epicardial contour points join the tag-line fit as images of points of the same ED
   surface (term (T3) of `analysis.tag_motion`: each slides on the tangent plane of its
