@@ -395,7 +395,8 @@ def main(argv=None) -> int:
     L += ["", "## 2. With 0.5 px contour and tag noise", "",
           f"{max(a.seeds, a.noise_seeds)} phantoms per preset (seeds s, s + 1, …; each phantom "
           "its own noise draw), all reported.", ""] + table(noisy)
-    L += ["", "Twice the noise-free bounds (the issue's target with 0.5 px noise), over these "
+    L += ["", "Twice the noise-free bounds (the issue's target with 0.5 px tag noise; here the contours "
+          "are noisy too), over these "
           "phantoms:", ""] + bound_summary(noisy)
     partial = [f"{r['subject']} ({r['segments']})" for r in noisy + clean if r["segments"] < 16]
     if partial:
