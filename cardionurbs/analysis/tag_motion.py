@@ -478,12 +478,17 @@ def boundary_start(fit, boundary, ed_tag_points: np.ndarray):
     for _ in range(3):
         Y, B = slide(Y)
         J = fit.gradient(Y) @ B.transpose(0, 2, 1)                     # (c, 3, 2)
-        step = np.linalg.solve(np.einsum("nik,nil->nkl", J, J),
-                               np.einsum("nik,ni->nk", J, fit.position(Y) - y)[:, :, None])[:, :, 0]
+        H = np.einsum("nik,nil->nkl", J, J)
+        H += 1e-9 * (np.trace(H, axis1=1, axis2=2) + 1e-12)[:, None, None] * np.eye(2)
+        g = np.einsum("nik,ni->nk", J, fit.position(Y) - y)
+        ok = np.isfinite(H).all(axis=(1, 2)) & np.isfinite(g).all(axis=1)
+        step = np.zeros_like(g)
+        step[ok] = np.linalg.solve(H[ok], g[ok][:, :, None])[:, :, 0]
         Y = Y - np.einsum("nk,nkj->nj", step, B)
     zeta = cylindrical(Y, fit.apex0, fit.frame0)[2]
     z_tag = cylindrical(ed_tag_points, fit.apex0, fit.frame0)[2]
-    inside = (zeta >= z_tag.min()) & (zeta <= z_tag.max())
+    inside = ((zeta >= z_tag.min()) & (zeta <= z_tag.max())
+              & np.isfinite(fit.position(Y)).all(axis=1))
     y, Y, label = y[inside], Y[inside], label[inside]
 
     def slide_inside(P):
