@@ -103,6 +103,27 @@ def in_process_cost(path: Path, repeat: int, drop_tags: bool = False) -> dict:
             "load_1min": os.getloadavg()[0]}
 
 
+def in_process_cost_of(root: Path, path: Path, repeat: int) -> dict:
+    """:func:`in_process_cost` of the source tree ``root`` (e.g. the code before a change), in
+    a child process that imports cardionurbs from there."""
+    code = ("import json, os, statistics, time\n"
+            "from cardionurbs.io import load_study\n"
+            "from cardionurbs.pipeline import analyse_study\n"
+            f"path, repeat = {str(path)!r}, {int(repeat)}\n"
+            "analyse_study(load_study(path))\n"
+            "walls, cpus = [], []\n"
+            "for _ in range(repeat):\n"
+            "    w, c = time.perf_counter(), time.process_time()\n"
+            "    analyse_study(load_study(path))\n"
+            "    walls.append(time.perf_counter() - w)\n"
+            "    cpus.append(time.process_time() - c)\n"
+            "print(json.dumps({'wall_s': statistics.median(walls), 'cpu_s': statistics.median(cpus),"
+            " 'load_1min': os.getloadavg()[0]}))\n")
+    r = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True,
+                       env=dict(ENV, PYTHONPATH=str(root)), check=True)
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
 def native_load(path: Path, repeat: int) -> dict:
     from cardionurbs.io import native
     cpus = []
@@ -350,7 +371,7 @@ def render(r: dict, a) -> str:
          f"- Date: {r.get('date')}; machine: {r.get('machine')}",
          f"- Load average (1 / 5 / 15 min) at start {r.get('load_start')}, at end "
          f"{r.get('load_end')}; the 1-minute load when each command ended is in the `load` "
-         "column. The 2 cores are shared with four other engineers' jobs, so wall times "
+         "column. The 2 cores are shared with other engineers' jobs, so wall times "
          "are inflated whenever the load exceeds 2; CPU time (user + system of the command "
          "and its worker processes) is what the work costs a core and is the verdict's "
          "basis (an idle machine's wall time for one process is close to it).",
@@ -359,9 +380,11 @@ def render(r: dict, a) -> str:
     if "phantom20_all" in r:
         L += ["## analyze", "",
               "`cardionurbs analyze STUDY --outputs LIST --out DIR` as a fresh process (Python "
-              "start-up and imports included)" + (f"; *before* = the same command on {base} "
-                                                   "(on the same phantom with its points as "
-                                                   "points.csv, which that code reads)" if base else "")
+              "start-up and imports included)" + (
+                  "" if not base else f"; *before* = the same command on {base} (on the same "
+                  "study files)" if r.get("before_points") == "parquet" else
+                  f"; *before* = the same command on {base} (on the same phantom with its points "
+                  "as points.csv, which that code reads)")
               + ":", "",
               "| study | outputs | code | wall (s) | CPU (s) | peak memory (MB) | load | target |",
               "|---|---|---|---:|---:|---:|---:|---|"]
@@ -397,15 +420,16 @@ def render(r: dict, a) -> str:
                   f"**{'passed' if mr['passed'] else 'FAILED'}**", "", "```"] + mr["lines"][-8:] + ["```"]
         L += ["", "The per-study cost inside a running process (`load_study` + `analyse_study`: "
               "what one cohort row costs a worker, no start-up):", "",
-              "| study | wall (s) | CPU (s) | load |", "|---|---:|---:|---:|"]
+              "| study | code | wall (s) | CPU (s) | load |", "|---|---|---:|---:|---:|"]
         for key, label in (("phantom20_row_in_process", "20-frame tagged phantom"),
                            ("bivme25_row_in_process", "bivme-patient1, 25 frames"),
                            ("phantom2_row_in_process", "2-frame (ED + ES) tagged phantom"),
                            ("phantom50_row_in_process", "50-frame tagged phantom"),
                            ("phantom50_untagged_row_in_process", "50-frame phantom, tags dropped")):
-            if key in r:
-                L.append(f"| {label} | {r[key]['wall_s']:.2f} | {r[key]['cpu_s']:.2f} | "
-                         f"{r[key].get('load_1min', float('nan')):.1f} |")
+            for code, k in (("before", f"before_{key}"), ("after", key)):
+                if k in r:
+                    L.append(f"| {label} | {code} | {r[k]['wall_s']:.2f} | {r[k]['cpu_s']:.2f} | "
+                             f"{r[k].get('load_1min', float('nan')):.1f} |")
         b = r["phantom20_bytes"]
         L += ["", "## Study files", "",
               "| 20-frame tagged phantom (`phantom --pathology normal --seed 1 --frames 20`) | bytes |",
@@ -503,7 +527,12 @@ def bench_analyze(work: Path, repeat: int, baseline: Path | None = None) -> dict
     out["native_load_csv"] = native_load(csv, max(repeat, 5))
     cases = {"phantom20_all": ("analyze", str(ph), "--outputs", "all"),
              "phantom20_metrics": ("analyze", str(ph), "--outputs", "metrics")}
-    before_study = {str(ph): str(csv)}      # the baseline reads the CSV form of the same study
+    # the baseline reads the same study files when it reads Parquet points, else their CSV form
+    reads_parquet = baseline is not None and "def _parquet_table" in \
+        (baseline / "cardionurbs" / "io" / "native.py").read_text()
+    before_study = {} if reads_parquet else {str(ph): str(csv)}
+    if baseline is not None:
+        out["before_points"] = "parquet" if reads_parquet else "csv"
     biv = SHARED / "bivme-patient1"
     if biv.is_dir():
         cases["bivme25_metrics"] = ("analyze", str(biv), "--outputs", "metrics")
@@ -537,6 +566,11 @@ def bench_analyze(work: Path, repeat: int, baseline: Path | None = None) -> dict
     out["phantom20_row_in_process"] = in_process_cost(ph, repeat)
     if biv.is_dir():
         out["bivme25_row_in_process"] = in_process_cost(biv, repeat)
+    if baseline is not None:                 # the same in-process cost on the code before
+        for key, path in (("phantom20", before_study.get(str(ph), str(ph))), ("bivme25", biv)):
+            if Path(path).is_dir():
+                out[f"before_{key}_row_in_process"] = in_process_cost_of(baseline, Path(path),
+                                                                         repeat)
     # per-subject cost against frames, for the projection (reports/scale.md)
     for frames in (2, 50):
         p = work / f"ph{frames}"

@@ -10,6 +10,7 @@ from types import SimpleNamespace
 
 import manifold3d
 import numpy as np
+import pytest
 from hypothesis import given, settings, strategies as st
 from scipy.spatial import cKDTree
 
@@ -103,7 +104,7 @@ def test_metrics_only_volume_curve_reports_what_was_measured():
 def test_metrics_only_analyze_imports_no_mesh_or_figure_library(tmp_path):
     """A metrics-only `analyze` (what every cohort row costs) imports neither trimesh (and
     through it networkx and scipy.ndimage) nor matplotlib: they are loaded where meshes and
-    figures are made."""
+    figures are made; nor pydicom for a study that names no DICOM file."""
     import subprocess
     import sys
     from pathlib import Path
@@ -114,7 +115,8 @@ def test_metrics_only_analyze_imports_no_mesh_or_figure_library(tmp_path):
     code = ("import sys; from cardionurbs.cli import main\n"
             f"rc = main(['analyze', {str(tmp_path / 's')!r}, '--outputs', 'metrics', '--out', "
             f"{str(tmp_path / 'o')!r}])\n"
-            "print(rc, sorted(m for m in ('trimesh', 'networkx', 'matplotlib') if m in sys.modules))")
+            "print(rc, sorted(m for m in ('trimesh', 'networkx', 'matplotlib', 'pydicom') "
+            "if m in sys.modules))")
     r = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True,
                        env={**__import__("os").environ, "PYTHONPATH": str(root)}, timeout=300)
     assert r.returncode == 0, r.stderr
@@ -188,3 +190,90 @@ def test_principal_directions_equal_one_line_at_a_time(seed, n):
     got = principal_directions(lines)
     want = np.array([_principal_direction(p) for p in lines])
     assert np.allclose(got, want, rtol=0, atol=1e-12)
+
+
+# ------------------------------------------------------------------ session 8 (issue 16)
+def _grid_faces(nx: int, ny: int) -> np.ndarray:
+    """Triangles of an nx x ny vertex grid, consistently oriented."""
+    i, j = np.meshgrid(np.arange(nx - 1), np.arange(ny - 1), indexing="ij")
+    a = (i * ny + j).ravel()
+    b, c, d = a + ny, a + ny + 1, a + 1
+    return np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(2, 9), st.integers(2, 9), st.integers(0, 2**31 - 1))
+def test_boundary_edges_are_those_whose_reverse_no_face_has(nx, ny, seed):
+    """boundary_loops finds the boundary with one sort: its loops run exactly the directed
+    edges whose reverse belongs to no face (checked against a set of every edge)."""
+    from cardionurbs.anatomy.mesh import boundary_loops
+    from cardionurbs.errors import ReconstructionError
+    faces = _grid_faces(nx, ny)
+    faces = faces[np.random.default_rng(seed).permutation(len(faces))]
+    edges = {(int(f[k]), int(f[(k + 1) % 3])) for f in faces for k in range(3)}
+    expect = {e for e in edges if (e[1], e[0]) not in edges}
+    loops = boundary_loops(faces)
+    got = {(int(lp[k]), int(lp[(k + 1) % len(lp)])) for lp in loops for k in range(len(lp))}
+    assert got == expect and sum(len(lp) for lp in loops) == len(expect)
+    with pytest.raises(ReconstructionError, match="directed edge used twice"):
+        boundary_loops(np.concatenate([faces, faces[:1]]))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.integers(1, 30), min_size=1, max_size=8), st.integers(0, 2**31 - 1))
+def test_polyline_lengths_equal_one_line_at_a_time(sizes, seed):
+    from cardionurbs.analysis.tag_surfaces import control_count, polyline_lengths
+    rng = np.random.default_rng(seed)
+    lines = [rng.normal(scale=20.0, size=(n, 3)) for n in sizes]
+    one = np.array([np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p in lines])
+    assert np.allclose(polyline_lengths(lines), one, rtol=1e-12, atol=0)
+    assert control_count(lines) == int(np.clip(round(float(np.median(one)) / 12.0) + 3, 4, 8))
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(2, 6), st.floats(0.0, 3.0), st.floats(0.05, 1.0))
+def test_compatible_fit_fits_each_section_at_the_chosen_count(k, wobble, tol):
+    """fit_compatible_curves fits a section at a count only when the search asks for it;
+    the curves it returns are each section's own least-squares fit at the chosen count
+    (the same as a fit offered that count alone), not another section's."""
+    from cardionurbs import nurbs
+    t = np.linspace(0, 2 * np.pi, 90, endpoint=False)
+    secs = [np.column_stack([(30 - 2 * s) * np.cos(t), (20 - s) * np.sin(t)
+                             + wobble * np.sin((5 + s) * t), np.full(t.size, 8.0 * s)])
+            for s in range(k)]
+    fit = nurbs.fit_compatible_curves(secs, closed=True, tol=tol)
+    alone = nurbs.fit_compatible_curves(secs, closed=True, tol=tol, counts=[fit.n_ctrl])
+    for a, b in zip(fit.curves, alone.curves):
+        assert np.array_equal(a.knots, b.knots)
+        assert np.array_equal(a.control_points, b.control_points)
+
+
+def test_la_departures_with_shared_spoke_profiles_equal_spoke_by_spoke():
+    """loo_departures of the LA spoke fan computes each neighbouring spoke's profile once;
+    every departure equals the median of spoke_height_departure taken spoke by spoke
+    (so no profile is attached to the wrong spoke), at every frame of a phantom with
+    jumped tag lines."""
+    from cardionurbs.analysis.tagqc import (_neighbours_cyclic, _samples, loo_departures,
+                                            qc_sections, spoke_height_departure)
+    from cardionurbs.anatomy.sections import study_long_axis
+    from cardionurbs.phantom import generate
+    study = generate("mr", seed=4, frames=2, tag_jumps=4, volume_check=False).study
+    axis = study_long_axis(study)
+    checked = 0
+    for f in study.tagged_frames:
+        for (fam, _), secs in qc_sections(study, f, axis).items():
+            if fam != "la":
+                continue
+            samples = [_samples(s) for s in secs]
+            got = loo_departures(secs, samples, 1.0, True, axis=axis)
+            for left, value in got.items():
+                keep = [k for k, s in enumerate(secs) if s.slice != left]
+                keys = np.array([secs[k].key for k in keep])
+                dist = []
+                for k in (k for k, s in enumerate(secs) if s.slice == left):
+                    a, b = _neighbours_cyclic(keys, secs[k].key)
+                    dist.append(spoke_height_departure(secs[k].points[1:], samples[keep[a]],
+                                                       samples[keep[b]], axis))
+                assert value == float(np.median(np.concatenate(dist)))
+                checked += 1
+    assert checked > 0

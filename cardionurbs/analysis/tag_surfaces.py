@@ -129,8 +129,25 @@ def uniform_knots(n_ctrl: int, degree: int = 3) -> np.ndarray:
 
 def control_count(lines: list[np.ndarray]) -> int:
     """Control points for a family's tag lines: one per ~12 mm of the median line, 4..8."""
-    lengths = [float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in lines]
+    lengths = polyline_lengths(lines)
     return int(np.clip(round(float(np.median(lengths)) / 12.0) + 3, 4, 8))
+
+
+def polyline_lengths(lines: list[np.ndarray]) -> np.ndarray:
+    """Length (mm) of each polyline (sum of its steps), all lines in one batch."""
+    n = np.array([len(p) for p in lines])
+    if len(lines) == 0:
+        return np.zeros(0)
+    Q = np.concatenate([np.asarray(p, float).reshape(-1, 3) for p in lines])
+    steps = np.linalg.norm(np.diff(Q, axis=0), axis=1)
+    steps = np.r_[steps, 0.0]
+    ends = np.cumsum(n) - 1
+    steps[ends[n > 0]] = 0.0                       # no step from one line to the next
+    starts = np.r_[0, np.cumsum(n)[:-1]]
+    out = np.zeros(len(lines))
+    nz = n > 0
+    out[nz] = np.add.reduceat(steps, starts[nz])
+    return out
 
 
 def fit_tag_curves(lines: list[np.ndarray], n_ctrl: int, degree: int = 3,

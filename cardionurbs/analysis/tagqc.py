@@ -242,26 +242,45 @@ def spoke_height_departure(points: np.ndarray, Ca: np.ndarray, Cb: np.ndarray,
     straight blend of two radial spokes would follow their chord, far inside
     the wall at the left-out angle.
     """
+    frame = _axis_cylinder(axis)
+    return _spoke_departure(_cylindrical(points, frame), _spoke_profile(Ca, frame),
+                            _spoke_profile(Cb, frame))
+
+
+def _axis_cylinder(axis: tuple[np.ndarray, np.ndarray]) -> tuple:
+    """(apex, e1, e2, e): the cylindrical frame about the long axis (apex, base)."""
     from cardionurbs.analysis.tag_surfaces import axis_frame
     apex, base = axis
     e1, e2, e = axis_frame(apex, base)
+    return apex, e1, e2, e
 
-    def cyl(P):
-        d = P - apex
-        z = d @ e
-        x, y = d @ e1, d @ e2
-        return np.hypot(x, y), np.arctan2(y, x), z
 
-    rp, tp, zp = cyl(points)
-    ra, ta, za = cyl(Ca)
-    rb, tb, zb = cyl(Cb)
-    tha = float(np.angle(np.exp(1j * ta[ra > 0.5 * ra.max()]).mean()))
-    thb = float(np.angle(np.exp(1j * tb[rb > 0.5 * rb.max()]).mean()))
+def _cylindrical(P: np.ndarray, frame: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(r, θ, z) of points in the frame of :func:`_axis_cylinder`."""
+    apex, e1, e2, e = frame
+    d = P - apex
+    z = d @ e
+    x, y = d @ e1, d @ e2
+    return np.hypot(x, y), np.arctan2(y, x), z
+
+
+def _spoke_profile(C: np.ndarray, frame: tuple) -> tuple[float, np.ndarray, np.ndarray]:
+    """A neighbouring spoke's angle (circular mean of its outer half) and its heights
+    z(r) sorted by radius: what :func:`spoke_height_departure` interpolates."""
+    r, t, z = _cylindrical(C, frame)
+    th = float(np.angle(np.exp(1j * t[r > 0.5 * r.max()]).mean()))
+    o = np.argsort(r)
+    return th, r[o], z[o]
+
+
+def _spoke_departure(cyl: tuple, prof_a: tuple, prof_b: tuple) -> np.ndarray:
+    rp, tp, zp = cyl
+    tha, ra, za = prof_a
+    thb, rb, zb = prof_b
     span = (thb - tha) % (2 * np.pi)
     w = np.clip(((tp - tha) % (2 * np.pi)) / max(span, 1e-9), 0.0, 1.0)
-    oa, ob = np.argsort(ra), np.argsort(rb)
-    z_a = np.interp(rp, ra[oa], za[oa])
-    z_b = np.interp(rp, rb[ob], zb[ob])
+    z_a = np.interp(rp, ra, za)
+    z_b = np.interp(rp, rb, zb)
     return np.abs(zp - ((1 - w) * z_a + w * z_b))
 
 
@@ -281,6 +300,14 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
     out: dict[str, float] = {}
     if len(names) < 3:
         return out
+    if periodic:       # each spoke's profile once, however many left-out spokes it predicts
+        cyl = _axis_cylinder(axis)
+        profiles: dict[int, tuple] = {}
+
+        def profile(k: int) -> tuple:
+            if k not in profiles:
+                profiles[k] = _spoke_profile(samples[k], cyl)
+            return profiles[k]
     for left in names:
         keep = [k for k, s in enumerate(secs) if s.slice != left and s.slice not in exclude]
         mine = [k for k, s in enumerate(secs) if s.slice == left]
@@ -290,8 +317,8 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
             for k in mine:
                 nb = _neighbours_cyclic(keys, secs[k].key)
                 if nb is not None:   # a spoke's first point is the cut on the axis, not data
-                    dist.append(spoke_height_departure(secs[k].points[1:], samples[keep[nb[0]]],
-                                                       samples[keep[nb[1]]], axis))
+                    dist.append(_spoke_departure(_cylindrical(secs[k].points[1:], cyl),
+                                                 profile(keep[nb[0]]), profile(keep[nb[1]])))
             if dist:
                 out[left] = float(np.median(np.concatenate(dist)) / spacing)
             continue

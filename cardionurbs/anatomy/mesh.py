@@ -69,10 +69,13 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     n = int(f.max()) + 1 if f.size else 0
     key = e[:, 0] * n + e[:, 1]
     rkey = e[:, 1] * n + e[:, 0]
-    if np.unique(key).size != key.size:
+    # one sort serves both questions (np.unique and np.isin would each sort again)
+    sk = np.sort(key)
+    if (sk[1:] == sk[:-1]).any():
         raise ReconstructionError("surface mesh has a directed edge used twice (inconsistent "
                                   "orientation or a non-manifold edge)")
-    bnd = e[~np.isin(key, rkey)]
+    pos = np.minimum(np.searchsorted(sk, rkey), sk.size - 1)
+    bnd = e[sk[pos] != rkey]                  # edges whose reverse belongs to no face
     if bnd.size == 0:
         return []
     nxt = {}

@@ -542,10 +542,13 @@ def check_dicom_geometry(study: Study) -> int:
     """Cross-check each image's manifest geometry against the header of the DICOM file it
     names (ImagePositionPatient, ImageOrientationPatient, PixelSpacing, Rows, Columns, and
     SOPInstanceUID = image id when the id looks like a UID). Returns the number of images
-    checked; StudyError names the DICOM file, slice, frame and field that disagree."""
+    checked; StudyError names the DICOM file, slice, frame and field that disagree.
+    pydicom is imported only when the study names DICOM files (0.2 s of a start-up)."""
+    pairs = _dicom_files(study)
+    if not pairs:
+        return 0
     from cardionurbs.imaging.dicom import read_header
 
-    pairs = _dicom_files(study)
     for im, path in pairs:
         h = read_header(path)
         where = dict(file=path, slice=im.slice, frame=im.frame)

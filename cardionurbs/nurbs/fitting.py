@@ -166,11 +166,17 @@ def _rational_basis(B: np.ndarray, weights: np.ndarray) -> np.ndarray:
 def _design(params: np.ndarray, degree: int, n_ctrl: int, closed: bool, rule: str
             ) -> tuple[np.ndarray, np.ndarray]:
     """Knot vector and B-spline design matrix ``N[k, i] = N_i,p(ū_k)`` (folded when closed)."""
+    U = _knots(params, degree, n_ctrl, closed, rule)
     if closed:
-        U = periodic_knot_vector(periodic_approximation_breaks(params, n_ctrl, rule), degree)
         return U, basis_matrix(U, degree, params, n_periodic=n_ctrl)
-    U = approximation_knots(params, n_ctrl, degree, rule)
     return U, basis_matrix(U, degree, params)
+
+
+def _knots(params: np.ndarray, degree: int, n_ctrl: int, closed: bool, rule: str) -> np.ndarray:
+    """The knot vector of :func:`_design` alone (paper eq. 9, or its periodic analogue)."""
+    if closed:
+        return periodic_knot_vector(periodic_approximation_breaks(params, n_ctrl, rule), degree)
+    return approximation_knots(params, n_ctrl, degree, rule)
 
 
 def _control_points(N: np.ndarray, w: np.ndarray, Q: np.ndarray, closed: bool
@@ -442,19 +448,24 @@ def fit_compatible_curves(point_sets: Sequence[Any], degree: int = 3, closed: bo
         raise NurbsInputError(f"counts: must lie in [{p + 1}, {m1}], got {list(counts or [])}")
     own = [chord_length_parameters(q, closed) for q in Q]
     params = np.mean(own, axis=0)
-    fitted: dict[int, list[NurbsCurve]] = {}
+    knots_at: dict[int, np.ndarray] = {}
+    fitted: dict[tuple[int, int], NurbsCurve] = {}
+
+    def curve_at(k: int, i: int) -> NurbsCurve:
+        # each section is fitted only when asked: the search raises the count for one
+        # section at a time, and the other sections' fits at a rejected count are never used
+        if (k, i) not in fitted:
+            n = steps[k]
+            if k not in knots_at:
+                knots_at[k] = _knots(params, p, n, closed, knot_rule)
+            U = knots_at[k]
+            N = basis_matrix(U, p, own[i], n_periodic=n) if closed else basis_matrix(U, p, own[i])
+            P, _ = _control_points(N, np.ones(n), Q[i], closed)
+            fitted[(k, i)] = NurbsCurve(p, U, P, closed=closed)
+        return fitted[(k, i)]
 
     def curves_at(k: int) -> list[NurbsCurve]:
-        if k not in fitted:
-            n = steps[k]
-            U, _ = _design(params, p, n, closed, knot_rule)
-            curves = []
-            for q, u in zip(Q, own):
-                N = basis_matrix(U, p, u, n_periodic=n) if closed else basis_matrix(U, p, u)
-                P, _ = _control_points(N, np.ones(n), q, closed)
-                curves.append(NurbsCurve(p, U, P, closed=closed))
-            fitted[k] = curves
-        return fitted[k]
+        return [curve_at(k, i) for i in range(len(Q))]
 
     judged = [(i, V.finite_array(pts, f"error_points[{i}]", ndim=2))
               for i, pts in enumerate(error_points) if pts is not None]
@@ -462,7 +473,7 @@ def fit_compatible_curves(point_sets: Sequence[Any], degree: int = 3, closed: bo
     def holds(k: int, i: int, pts: np.ndarray) -> bool:
         # the same decision as max_distance <= tol, projecting only the points the
         # cheap distance bounds leave undecided (most counts fail or pass outright)
-        return bool(_error_within(curves_at(k)[i], pts, None, float(tols[i]))[0])
+        return bool(_error_within(curve_at(k, i), pts, None, float(tols[i]))[0])
 
     need, met = 0, True
     while True:

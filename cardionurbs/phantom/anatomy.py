@@ -100,9 +100,21 @@ def truncated_spheroid_volume(r_short: float, r_long: float, z_center: float, z_
     return float(np.pi * r_short ** 2 * ((hi - lo) - (hi ** 3 - lo ** 3) / (3.0 * r_long ** 2)))
 
 
+def wrap_angle(theta) -> np.ndarray:
+    """θ wrapped to [−π, π] (radians): θ − 2π round(θ / 2π), without complex exponentials."""
+    theta = np.asarray(theta, dtype=float)
+    return theta - (2.0 * np.pi) * np.round(theta / (2.0 * np.pi))
+
+
 def ellipse_far_radius_sq(theta: np.ndarray, a_free: float, b_wrap: float, x_center: float) -> np.ndarray:
     """P(θ) = ρ(θ)²: squared distance from the origin to the ellipse boundary along θ (eq. A3)."""
-    ct, st = np.cos(theta), np.sin(theta)
+    return ellipse_far_radius_sq_cs(np.cos(theta), np.sin(theta), a_free, b_wrap, x_center)
+
+
+def ellipse_far_radius_sq_cs(ct: np.ndarray, st: np.ndarray, a_free: float, b_wrap: float,
+                             x_center: float) -> np.ndarray:
+    """:func:`ellipse_far_radius_sq` from cos θ and sin θ (several ellipses along the same rays
+    share them)."""
     a = ct * ct / a_free ** 2 + st * st / b_wrap ** 2
     b = x_center * ct / a_free ** 2
     c = x_center ** 2 / a_free ** 2 - 1.0
@@ -224,9 +236,10 @@ class Anatomy:
         s1 = spheroid_section_s(z, self.r_short_endo, self.r_long_endo, self.z_center)
         s2 = spheroid_section_s(z, self.r_short_epi, self.r_long_epi, self.z_center)
         zeta = self.zeta(z)
-        m = self.shape.endo_factor(theta, zeta) - 1.0
+        e = np.exp(1j * np.asarray(theta, dtype=float))        # its real part is cos θ
+        m = self.shape.endo_factor(theta, zeta, e) - 1.0
         ratio = np.sqrt(s1 / np.where(s2 > 0, s2, 1.0))
-        return s1 * (1.0 + m), s2 * (1.0 + ratio * m + self.shape.septal_thickening * np.cos(theta))
+        return s1 * (1.0 + m), s2 * (1.0 + ratio * m + self.shape.septal_thickening * e.real)
 
     def z_top(self, theta: np.ndarray | None = None) -> np.ndarray:
         """Height of the mitral annulus (top of the LV walls) at angle θ, mm: z_b (ideal) or
@@ -269,7 +282,7 @@ class Anatomy:
             return np.full(theta.shape, self.z_base)
         lo, hi = self.tricuspid_span()
         mid = 0.5 * (lo + hi)
-        t = np.angle(np.exp(1j * (theta - mid))) + mid             # θ wrapped about the span
+        t = wrap_angle(theta - mid) + mid                           # θ wrapped about the span
         u = np.clip((t - lo) / (hi - lo), 0.0, 1.0)
         return self.z_base - self.tricuspid_dip * np.sin(np.pi * u) ** 2
 
@@ -304,12 +317,53 @@ class Anatomy:
         return (ellipse_far_radius_sq(th, self.r_free_endo + t, self.r_wrap_endo + t, self.rv_x_center)
                 * self.shape.rv_reach_factor(u))
 
+    def rv_p_pair(self, theta: np.ndarray, z: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(P_endo, P_epi) of :meth:`rv_p` at the same (θ, z): both ellipses along the same rays
+        (one cosine and sine of the ray angle for both; the same values as two calls)."""
+        t = self.rv_wall
+        if self.shape is None:
+            th, reach = np.asarray(theta, dtype=float), 1.0
+        else:
+            if z is None:
+                raise ValueError("a realistic RV section depends on the height: pass z")
+            u = 1.0 + (np.asarray(z, dtype=float) - self.z_base) / self.r_long_rv_endo
+            th = np.minimum(np.abs(np.asarray(theta, dtype=float)) / self.shape.rv_wrap(u), np.pi)
+            reach = self.shape.rv_reach_factor(u)
+        ct, st = np.cos(th), np.sin(th)
+        out = tuple(ellipse_far_radius_sq_cs(ct, st, self.r_free_endo + w, self.r_wrap_endo + w,
+                                             self.rv_x_center) for w in (0.0, t))
+        return (out[0], out[1]) if self.shape is None else (out[0] * reach, out[1] * reach)
+
+    def s_rv_pair(self, theta: np.ndarray, z: np.ndarray, s_epi=None) -> tuple[np.ndarray, np.ndarray]:
+        """(S_rv_endo, S_rv_epi) of :meth:`s_rv` at the same (θ, z), sharing every common factor
+        (the ray's cosine and sine, the tract's inputs); ``s_epi``: the LV epicardial S at (θ, z)
+        when the caller has it (the RVOT's inner side). The same values as two calls."""
+        theta, z = np.broadcast_arrays(np.asarray(theta, dtype=float), np.asarray(z, dtype=float))
+        p_endo, p_epi = self.rv_p_pair(theta, z)
+        body = (self.rv_g2(z, False) * p_endo, self.rv_g2(z, True) * p_epi)
+        if self.outflow is None:
+            return body
+        above = z > self.z_base
+        if not np.any(above):
+            return body
+        from cardionurbs.phantom.outflow import s_rvot_pair
+        th_a, z_a = theta[above], z[above]
+        rb_endo, rb_epi = self.rv_p_pair(th_a, np.full(th_a.shape, self.z_base))
+        s2 = None if s_epi is None else np.broadcast_to(s_epi, z.shape)[above]
+        tract = s_rvot_pair(self, th_a, z_a, s_epi=s2, r_b=(np.sqrt(rb_endo), np.sqrt(rb_epi)))
+        out = []
+        for b, t in zip(body, tract):
+            o = np.array(b, dtype=float)
+            o[above] = t
+            out.append(o)
+        return out[0], out[1]
+
     def s_rv(self, theta: np.ndarray, z: np.ndarray, epi: bool = False, body=None,
-             r_b=None) -> np.ndarray:
+             r_b=None, s_epi=None) -> np.ndarray:
         """Squared radius of the RV endo/epi shell along θ at height z, mm² (0 where absent).
-        ``body`` (:meth:`s_rv_body`) and ``r_b`` (the tract's base radius,
-        :func:`cardionurbs.phantom.outflow.rvot_base_radius`) at the same (θ, z) when the caller
-        has them already (the same values)."""
+        ``body`` (:meth:`s_rv_body`), ``r_b`` (the tract's base radius,
+        :func:`cardionurbs.phantom.outflow.rvot_base_radius`) and ``s_epi`` (the LV epicardial S)
+        at the same (θ, z) when the caller has them already (the same values)."""
         if self.shape is None:
             return self.rv_g2(z, epi) * self.rv_p(theta, epi)
         if body is None:
@@ -324,6 +378,7 @@ class Anatomy:
         from cardionurbs.phantom.outflow import s_rvot
         out = np.array(np.broadcast_to(body, z.shape), dtype=float)
         out[above] = s_rvot(self, theta[above], z[above], epi,
+                            s_epi=None if s_epi is None else np.broadcast_to(s_epi, z.shape)[above],
                             r_b=None if r_b is None else np.broadcast_to(r_b, z.shape)[above])
         return out
 
@@ -360,26 +415,29 @@ class Anatomy:
         has = d[rows[:, 0], m] > 0
         theta_m = th[m]
 
-        def dd(t):
-            return self.s_rv(t, z, epi) - self.s_lv_epi(z, t)
+        # both edges at once: row 0 going down in θ from θ_m, row 1 going up (element by element
+        # the same arithmetic as one side at a time)
+        z2 = np.broadcast_to(z[None, :], (2, len(z)))
 
-        out = []
-        for sign in (-1.0, 1.0):
-            ring = d[rows, (m[:, None] + (sign * np.arange(n)).astype(int)[None, :]) % n]
-            ends = np.where(ring > 0, n, np.arange(n)[None, :]).min(axis=1)
-            full = ends >= n
-            j = np.clip(ends, 1, n - 1)
-            a, b = theta_m + sign * (j - 1) * step, theta_m + sign * j * step
-            fa, fb = dd(a), dd(b)
-            for _ in range(8):
-                mid = b - fb * (b - a) / np.where(fb != fa, fb - fa, 1.0)
-                fm = dd(mid)
-                left = np.sign(fm) == np.sign(fa)
-                a, fa = np.where(left, mid, a), np.where(left, fm, fa)
-                b, fb = np.where(left, b, mid), np.where(left, fb, fm)
-            edge = np.where(np.abs(fa) < np.abs(fb), a, b)
-            edge = np.where(full, theta_m + sign * np.pi, edge)
-            out.append(np.where(has, edge, theta_m))
+        def dd(t):
+            return self.s_rv(t, z2, epi) - self.s_lv_epi(z2, t)
+
+        sign = np.array([-1.0, 1.0])[:, None]
+        ring = d[rows[None, :, :], (m[None, :, None] + (sign[:, :, None] * np.arange(n)).astype(int)) % n]
+        ends = np.where(ring > 0, n, np.arange(n)[None, None, :]).min(axis=2)
+        full = ends >= n
+        j = np.clip(ends, 1, n - 1)
+        a, b = theta_m + sign * (j - 1) * step, theta_m + sign * j * step
+        fa, fb = dd(a), dd(b)
+        for _ in range(8):
+            mid = b - fb * (b - a) / np.where(fb != fa, fb - fa, 1.0)
+            fm = dd(mid)
+            left = np.sign(fm) == np.sign(fa)
+            a, fa = np.where(left, mid, a), np.where(left, fm, fa)
+            b, fb = np.where(left, b, mid), np.where(left, fb, fm)
+        edge = np.where(np.abs(fa) < np.abs(fb), a, b)
+        edge = np.where(full, theta_m + sign * np.pi, edge)
+        out = np.where(has, edge, theta_m)
         return out[0], out[1]
 
     def _p_table(self, epi: bool) -> tuple[np.ndarray, np.ndarray]:

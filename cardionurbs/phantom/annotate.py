@@ -226,14 +226,18 @@ def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: flo
     th = np.arctan2(x[:, 1], x[:, 0]) + motion.psi(z, f)
     sp = x[:, 0] ** 2 + x[:, 1] ** 2
     s1, s2 = anatomy.lv_sections(z, th)
-    shells = _RvShells(anatomy, th, z)
+    shells = _RvShells(anatomy, th, z, s2)
+    regions = set(regions or ("lv_endo", "lv_epi", "rv_endo", "rv_epi"))
+    if anatomy.outflow is not None:
+        for name, epi in (("rv_endo", False), ("rv_epi", True)):
+            if name in regions:     # the tract's terms need it at every point: the shell takes it
+                shells.tract(epi)
     rv = shells.s_rv(False)
     layers = (s1, s2, np.maximum(s2, rv))
     s1 = s1 + np.minimum(spheroid_s_unclamped(z, anatomy.r_short_endo, anatomy.r_long_endo,
                                               anatomy.z_center), 0.0)
     s2 = s2 + np.minimum(spheroid_s_unclamped(z, anatomy.r_short_epi, anatomy.r_long_epi,
                                               anatomy.z_center), 0.0)
-    regions = set(regions or ("lv_endo", "lv_epi", "rv_endo", "rv_epi"))
     # the RV free-wall boundaries as such (not max'ed with the LV epicardium), so that the free
     # wall and septum terms stay independent where they meet at the crescent's tip
     want = {"b1": "lv_endo" in regions, "b2": True, "b3": "rv_endo" in regions,
@@ -263,8 +267,9 @@ class _RvShells:
     """The RV shells' squared radii at one set of material (θ, z), each evaluated once: the body
     (:meth:`Anatomy.s_rv_body`), the tract's base radius and the whole shell (:meth:`Anatomy.s_rv`)."""
 
-    def __init__(self, anatomy: Anatomy, th: np.ndarray, z: np.ndarray) -> None:
-        self.anatomy, self.th, self.z, self._memo = anatomy, th, z, {}
+    def __init__(self, anatomy: Anatomy, th: np.ndarray, z: np.ndarray, s_epi=None) -> None:
+        """``s_epi``: the LV epicardial S at (θ, z) when the caller has it (the tract's inner side)."""
+        self.anatomy, self.th, self.z, self.s_epi, self._memo = anatomy, th, z, s_epi, {}
 
     def _get(self, key, fn):
         if key not in self._memo:
@@ -280,9 +285,20 @@ class _RvShells:
         from cardionurbs.phantom.outflow import rvot_base_radius
         return self._get(("r_b", epi), lambda: rvot_base_radius(self.anatomy, self.th, epi))
 
+    def tract(self, epi: bool) -> np.ndarray:
+        """The RVOT shell's S (:func:`cardionurbs.phantom.outflow.s_rvot`) at every point."""
+        from cardionurbs.phantom.outflow import s_rvot
+        return self._get(("tract", epi), lambda: s_rvot(self.anatomy, self.th, self.z, epi, s_epi=self.s_epi,
+                                                        r_b=self.base_radius(epi)))
+
     def s_rv(self, epi: bool) -> np.ndarray:
+        """:meth:`Anatomy.s_rv`: the body, and above the tricuspid plane the tract (taken from
+        :meth:`tract` when that has been asked for: the same values)."""
+        if ("tract", epi) in self._memo:
+            return self._get(("s_rv", epi), lambda: np.where(self.z > self.anatomy.z_base, self.tract(epi),
+                                                             self.body(epi)))
         return self._get(("s_rv", epi), lambda: self.anatomy.s_rv(
-            self.th, self.z, epi, body=self.body(epi), r_b=self.base_radius(epi)))
+            self.th, self.z, epi, body=self.body(epi), r_b=self.base_radius(epi), s_epi=self.s_epi))
 
 
 def _outflow_terms(anatomy: Anatomy, motion: Motion, out: dict, regions, sp, th, z, f, layers,
@@ -307,8 +323,8 @@ def _outflow_terms(anatomy: Anatomy, motion: Motion, out: dict, regions, sp, th,
     for name, epi in (("rv_endo", False), ("rv_epi", True)):
         if name not in regions:
             continue
-        shells = shells or _RvShells(anatomy, th, z)
-        s_ot = ofl.s_rvot(anatomy, th, z, epi, s_epi=layers[1], r_b=shells.base_radius(epi))
+        shells = shells or _RvShells(anatomy, th, z, layers[1])
+        s_ot = shells.tract(epi)
         s_ot = np.where(z > anatomy.z_base, s_ot, np.minimum(s_ot, shells.body(epi)))
         wall = (sp - motion.radial_map(anatomy, s_ot, th, z, f, layers=layers, knots=knots)) * scale
         out[name] = out[name] + (wall, pulmonary, bottom)
@@ -723,10 +739,12 @@ def _la_rv(anatomy: Anatomy, motion: Motion, alpha: float, f: float, epi: bool, 
 
 
 # ----------------------------------------------------------------- landmarks
-def landmarks(anatomy: Anatomy, motion: Motion, f: float, n_mitral: int = 6) -> dict[str, np.ndarray]:
+def landmarks(anatomy: Anatomy, motion: Motion, f: float, n_mitral: int = 6,
+              outflow: bool = True) -> dict[str, np.ndarray]:
     """Apex (LV epicardial apex), mitral annulus (on the LV endocardium in the base plane) and
     tricuspid annulus points (4 on the RV free wall, 2 on the septum; realistic: at the annulus
-    height of each angle, :meth:`Anatomy.z_top_rv`) at phase f, heart frame."""
+    height of each angle, :meth:`Anatomy.z_top_rv`) at phase f, heart frame; with outflow tracts
+    also their valves' (:func:`outflow_landmarks`) unless ``outflow`` is False."""
     zb = anatomy.z_base
     th = np.linspace(0.0, 2 * np.pi, n_mitral, endpoint=False)
     if anatomy.realistic:
@@ -749,7 +767,7 @@ def landmarks(anatomy: Anatomy, motion: Motion, f: float, n_mitral: int = 6) -> 
         out = {"apex": motion.forward(anatomy, np.zeros((1, 3)), f),
                "mitral": motion.forward(anatomy, mitral, f),
                "tricuspid": motion.forward(anatomy, tri, f)}
-        if anatomy.outflow is not None:
+        if anatomy.outflow is not None and outflow:
             out.update(outflow_landmarks(anatomy, motion, f))
         return out
     mitral_mat = _polar(np.full(n_mitral, float(anatomy.s_lv_endo(zb))), th, zb)

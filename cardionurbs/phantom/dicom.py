@@ -65,6 +65,7 @@ from pydicom.uid import (ExplicitVRLittleEndian, JPEGLSLossless, MRImageStorage,
 from pydicom.valuerep import format_number_as_ds
 
 from cardionurbs.imaging.geometry import ImagePlane
+from cardionurbs.phantom.anatomy import wrap_angle
 
 BLOOD, MYO, BODY, LUNG = 1.0, 0.3, 0.14, 0.03
 ATRIUM_MM = 30.0
@@ -91,7 +92,9 @@ def grey_levels_per_unit(sigma: float) -> float:
 
 
 def _tag_band(u: np.ndarray, spacing: float, offset: float, sigma: float) -> np.ndarray:
-    d = np.mod(u - offset + 0.5 * spacing, spacing) - 0.5 * spacing
+    """exp(−d² / 2σ²), d the signed distance of u to the nearest plane offset + k · spacing."""
+    d = u - offset + 0.5 * spacing
+    d = d - spacing * np.floor(d / spacing) - 0.5 * spacing
     return np.exp(-0.5 * (d / sigma) ** 2)
 
 
@@ -101,14 +104,33 @@ PAPILLARY_DEPTH = 0.78            # muscle axis at this fraction of the endocard
 BAND_HEIGHT, BAND_HALF_MM, BAND_HALF_RAD = 0.35, 1.5, 0.07
 
 
+def material_sections(an, mo, points: np.ndarray, f: float):
+    """φ_f⁻¹ of (n, 3) heart-frame positions at phase f with every section value there computed
+    once: material (s, θ, z) and S1 = s_endo, S2 = s_epi, S3 = max(S2, S_rv_endo),
+    S4 = max(S3, S_rv_epi) at (θ, z) (the values of :meth:`Motion.inverse_cylindrical` and of
+    :meth:`Anatomy.s_rv`, each factor shared between the surfaces that need it)."""
+    p = np.asarray(points, dtype=float).reshape(-1, 3)
+    z = p[:, 2] / mo.lam(f)
+    th = np.arctan2(p[:, 1], p[:, 0]) + mo.psi(z, f)
+    s1, s2 = an.lv_sections(z, th)
+    rv_endo, rv_epi = an.s_rv_pair(th, z, s_epi=s2 if an.shape is not None else None)
+    s3 = np.maximum(s2, rv_endo)
+    knots = mo.knots(an, th, z, f, (s1, s2, s3))
+    s = mo.inverse_radial_map(an, p[:, 0] ** 2 + p[:, 1] ** 2, th, z, f, knots=knots)
+    return s, th, z, s1, s2, s3, np.maximum(s3, rv_epi)
+
+
 def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarray, s2: np.ndarray,
-                 s3: np.ndarray) -> dict[str, np.ndarray]:
+                 s3: np.ndarray, s4: np.ndarray | None = None,
+                 xy: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """Boolean masks of the tissues at material points (s, θ, z) with their section values
     (motion inverse): ``lv_cav``, ``lv_myo``, ``rv_cav``, ``rv_myo``, the atria ``la``, ``ra``
     (half-ellipsoid caps above the base), and, for a realistic anatomy, ``papillary`` and
     ``band`` (papillary muscles and the RV trabecular band: muscle inside the cavities, which
-    the metric definitions count as cavity — drawn in images, labelled as cavity in label maps)."""
-    s4 = np.maximum(s3, an.s_rv(th, z, epi=True))
+    the metric definitions count as cavity — drawn in images, labelled as cavity in label maps).
+    ``s4`` = max(S3, S_rv_epi) and ``xy`` = the material (x, y) when the caller has them."""
+    if s4 is None:
+        s4 = np.maximum(s3, an.s_rv(th, z, epi=True))
     real = an.shape is not None
     lv_top = an.z_top(th) if real else an.z_base
     lv_heart = (z >= 0) & (z <= lv_top)
@@ -117,7 +139,7 @@ def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarra
            "rv_cav": rv_heart & (s > s2) & (s < s3),
            "rv_myo": rv_heart & (s >= s3) & (s <= s4) & (s4 > s2)}
     if real and an.shape.outflow is not None:
-        _add_outflow(an, out, s, th, z, s1, s2, s3, s4)
+        _add_outflow(an, out, s, th, z, s1, s2, s3, s4, xy)
     u = (z - lv_top) / ATRIUM_MM
     cap = np.clip(1.0 - u * u, 0.0, None)
     out["la"] = np.zeros(len(z), dtype=bool)
@@ -126,11 +148,11 @@ def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarra
     if len(above):
         th_a, zb = th[above], np.full(len(above), an.z_base)
         s_a = s[above]
-        s_mitral = an.s_lv_endo(zb, th_a) if real else float(an.s_lv_endo(an.z_base))
+        s_mitral, s2b = an.lv_sections(zb, th_a) if real else (float(an.s_lv_endo(an.z_base)),
+                                                               float(an.s_lv_epi(an.z_base)))
         out["la"][above] = (u[above] > 0) & (s_a < s_mitral * cap[above])
         ur = (z[above] - an.z_base) / ATRIUM_MM
         cap_r = np.clip(1.0 - ur * ur, 0.0, None)
-        s2b = an.s_lv_epi(zb, th_a) if real else float(an.s_lv_epi(an.z_base))
         out["ra"][above] = ((ur > 0) & ~out["la"][above] & (s_a > s2b)
                             & (s_a < an.s_rv(th_a, zb) * cap_r))
         if real:    # below a dipping tricuspid annulus: the RV body's lumen there is atrium
@@ -144,23 +166,29 @@ def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarra
         out["papillary"] = np.zeros(len(z), dtype=bool)
         for tp, lo, hi in PAPILLARY:
             idx = np.flatnonzero(out["lv_cav"] & (z >= lo * an.z_base) & (z <= hi * an.z_base))
-            r = np.sqrt(np.maximum(s[idx], 0.0))
-            x, y = r * np.cos(th[idx]), r * np.sin(th[idx])
+            if xy is None:
+                r = np.sqrt(np.maximum(s[idx], 0.0))
+                x, y = r * np.cos(th[idx]), r * np.sin(th[idx])
+            else:
+                x, y = xy[0][idx], xy[1][idx]
             rc = PAPILLARY_DEPTH * np.sqrt(np.maximum(an.s_lv_endo(z[idx], np.full(len(idx), tp)), 0.0))
             d2 = (x - rc * np.cos(tp)) ** 2 + (y - rc * np.sin(tp)) ** 2
             out["papillary"][idx[d2 < PAPILLARY_RADIUS_MM ** 2]] = True
         out["band"] = out["rv_cav"] & (np.abs(z - BAND_HEIGHT * an.z_base) < BAND_HALF_MM) & (
-            np.abs(np.angle(np.exp(1j * th))) < BAND_HALF_RAD)
+            np.abs(wrap_angle(th)) < BAND_HALF_RAD)
     return out
 
 
-def _add_outflow(an, out: dict, s, th, z, s1, s2, s3, s4) -> None:
+def _add_outflow(an, out: dict, s, th, z, s1, s2, s3, s4, xy=None) -> None:
     """Add the outflow tracts (phantom/outflow.py) to the cavity and wall masks: the RVOT lumen and
     free wall above the tricuspid plane and below the pulmonary valve plane, the LVOT lumen (inside
     the LV endocardium and the LVOT cylinder, below the aortic valve plane)."""
     from cardionurbs.phantom import outflow as ofl
-    r = np.sqrt(np.maximum(s, 0.0))
-    x, y = r * np.cos(th), r * np.sin(th)
+    if xy is None:
+        r = np.sqrt(np.maximum(s, 0.0))
+        x, y = r * np.cos(th), r * np.sin(th)
+    else:
+        x, y = xy
     tract = (z > an.z_base) & (ofl.rvot_top_term(an, x, y, z) < 0)
     out["rv_cav"] |= tract & (s > s2) & (s < s3)
     out["rv_myo"] |= tract & (s >= s3) & (s <= s4) & (s4 > s2)
@@ -197,10 +225,10 @@ def render_image(phantom, plane: ImagePlane, rng: np.random.Generator | None = N
     an, mo, grid = phantom.anatomy, phantom.motion, phantom.tag_grid
     f = float(phantom.phases[plane.frame])
     hp, roi = roi_points if roi_points is not None else pixel_heart_points(phantom, plane)
-    s, th, z, s1, s2, s3 = mo.inverse_cylindrical(an, hp, f)
+    s, th, z, s1, s2, s3, s4 = material_sections(an, mo, hp, f)
     r = np.sqrt(np.maximum(s, 0.0))
     x, y = r * np.cos(th), r * np.sin(th)
-    tm = tissue_masks(an, s, th, z, s1, s2, s3)
+    tm = tissue_masks(an, s, th, z, s1, s2, s3, s4, (x, y))
     if an.shape is None:
         # the ideal phantom's images as before: one atrial cap (30 mm) over the LV only
         u = (z - an.z_base) / 30.0
@@ -240,7 +268,13 @@ def render_image(phantom, plane: ImagePlane, rng: np.random.Generator | None = N
     if rng is not None:
         if sigma is None:
             sigma = noise_sigma(phantom.config.get("snr"))
-        img = np.hypot(img + rng.normal(0, sigma, img.shape), rng.normal(0, sigma, img.shape))
+        # the real then the imaginary channel's noise (one draw of 2n standard normals: the same
+        # numbers as two draws of n), and the magnitude |I + n_1 + i n_2|
+        noise = rng.standard_normal(2 * img.size)
+        noise *= sigma
+        re = img + noise[:img.size]
+        im = noise[img.size:]
+        img = np.sqrt(re * re + im * im)
     return img.reshape(plane.rows, plane.columns)
 
 
@@ -253,6 +287,53 @@ def _rle_plugin() -> str:
     pydicom's own pure-Python one. Both write the same bytes (PS3.5 Annex G is deterministic)."""
     from pydicom.pixels.encoders import RLELosslessEncoder
     return "pylibjpeg" if "pylibjpeg" in RLELosslessEncoder.available_plugins else "pydicom"
+
+
+def _series_header(phantom, series: str, series_uid: str, series_number: int, levels: float) -> Dataset:
+    """The data elements every image of one series has in common (patient, study, series,
+    sequence, pixel format, display window), set once per series."""
+    study, cfg = phantom.study, phantom.config
+    rr = 60000.0 / study.heart_rate_bpm
+    ds = Dataset()
+    ds.SpecificCharacterSet = "ISO_IR 100"
+    ds.ImageType = ["ORIGINAL", "PRIMARY", "M", "ND"]
+    ds.SOPClassUID = MRImageStorage
+    ds.StudyDate = ds.SeriesDate = ds.ContentDate = "20000101"
+    ds.StudyTime = ds.SeriesTime = ds.ContentTime = "120000"
+    ds.Modality = "MR"
+    ds.Manufacturer = "cardionurbs phantom"
+    ds.InstitutionName = "synthetic"
+    ds.StudyDescription = f"cardionurbs phantom {cfg['pathology']}"
+    ds.SeriesDescription = f"tagged cine {series}"
+    ds.PatientName = study.subject
+    ds.PatientID = study.subject
+    ds.PatientSex = "O"
+    ds.BodyPartExamined = "HEART"
+    ds.ScanningSequence = "GR"
+    ds.SequenceVariant = "SP"
+    ds.ScanOptions = "CG"
+    ds.MRAcquisitionType = "2D"
+    ds.RepetitionTime = "5.2"
+    ds.EchoTime = "1.82"
+    ds.MagneticFieldStrength = "1.5"
+    ds.FlipAngle = "45"
+    ds.NominalInterval = str(int(round(rr)))
+    ds.HeartRate = str(int(round(study.heart_rate_bpm)))
+    ds.CardiacNumberOfImages = str(len(phantom.phases))
+    ds.StudyInstanceUID = study.meta["study_uid"]
+    ds.SeriesInstanceUID = series_uid
+    ds.StudyID = "1"
+    ds.SeriesNumber = str(series_number)
+    ds.FrameOfReferenceUID = study.meta["frame_of_reference_uid"]
+    ds.SamplesPerPixel = 1
+    ds.PhotometricInterpretation = "MONOCHROME2"
+    ds.BitsAllocated = 16
+    ds.BitsStored = 12
+    ds.HighBit = 11
+    ds.PixelRepresentation = 0
+    ds.WindowCenter = _ds(round(0.4 * levels, 1))       # myocardium to blood
+    ds.WindowWidth = _ds(round(0.8 * levels, 1))
+    return ds
 
 
 def write_dicom(phantom, folder: str | Path, compression: str | None = "jpegls") -> list[Path]:
@@ -270,6 +351,7 @@ def write_dicom(phantom, folder: str | Path, compression: str | None = "jpegls")
     rr = 60000.0 / study.heart_rate_bpm
     out = []
     cache: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    headers: dict[str, Dataset] = {}
     sigma = noise_sigma(cfg.get("snr"))
     levels = grey_levels_per_unit(sigma)
     for plane in study.images:
@@ -287,58 +369,26 @@ def write_dicom(phantom, folder: str | Path, compression: str | None = "jpegls")
         meta.MediaStorageSOPInstanceUID = plane.id
         meta.TransferSyntaxUID = ExplicitVRLittleEndian
         meta.ImplementationClassUID = PYDICOM_IMPLEMENTATION_UID
+        if series not in headers:
+            headers[series] = _series_header(phantom, series, series_uid[series],
+                                             series_num.get(series, 9), levels)
+        # the series header's elements are shared by its images, never changed: every element
+        # set below is new to the header
         ds = Dataset()
+        ds.update(headers[series])
         ds.file_meta = meta
-        ds.SpecificCharacterSet = "ISO_IR 100"
-        ds.ImageType = ["ORIGINAL", "PRIMARY", "M", "ND"]
-        ds.SOPClassUID = MRImageStorage
         ds.SOPInstanceUID = plane.id
-        ds.StudyDate = ds.SeriesDate = ds.ContentDate = "20000101"
-        ds.StudyTime = ds.SeriesTime = ds.ContentTime = "120000"
-        ds.Modality = "MR"
-        ds.Manufacturer = "cardionurbs phantom"
-        ds.InstitutionName = "synthetic"
-        ds.StudyDescription = f"cardionurbs phantom {cfg['pathology']}"
-        ds.SeriesDescription = f"tagged cine {series}"
-        ds.PatientName = study.subject
-        ds.PatientID = study.subject
-        ds.PatientSex = "O"
-        ds.BodyPartExamined = "HEART"
-        ds.ScanningSequence = "GR"
-        ds.SequenceVariant = "SP"
-        ds.ScanOptions = "CG"
-        ds.MRAcquisitionType = "2D"
         ds.SliceThickness = _ds(plane.thickness)
-        ds.RepetitionTime = "5.2"
-        ds.EchoTime = "1.82"
-        ds.MagneticFieldStrength = "1.5"
-        ds.FlipAngle = "45"
         ds.TriggerTime = _ds(plane.trigger_time or 0.0)
-        ds.NominalInterval = str(int(round(rr)))
-        ds.HeartRate = str(int(round(study.heart_rate_bpm)))
-        ds.CardiacNumberOfImages = str(len(phantom.phases))
-        ds.StudyInstanceUID = study.meta["study_uid"]
-        ds.SeriesInstanceUID = series_uid[series]
-        ds.StudyID = "1"
-        ds.SeriesNumber = str(series_num.get(series, 9))
         ds.InstanceNumber = str(plane.frame + 1 + 100 * int(plane.slice[3:]) if plane.view == "SA"
                                 else plane.frame + 1)
         ds.ImagePositionPatient = [_ds(v) for v in plane.position]
         ds.ImageOrientationPatient = [_ds(v) for v in plane.orientation]
-        ds.FrameOfReferenceUID = study.meta["frame_of_reference_uid"]
         ds.SliceLocation = _ds(float(np.dot(plane.position, plane.normal)))
         ds.ImageComments = (f"slice {plane.slice} frame {plane.frame}; SPAMM tag spacing "
                             f"{cfg['tag_spacing_px']:g} px; {base}")
-        ds.SamplesPerPixel = 1
-        ds.PhotometricInterpretation = "MONOCHROME2"
         ds.Rows, ds.Columns = plane.rows, plane.columns
         ds.PixelSpacing = [_ds(plane.pixel_spacing[0]), _ds(plane.pixel_spacing[1])]
-        ds.BitsAllocated = 16
-        ds.BitsStored = 12
-        ds.HighBit = 11
-        ds.PixelRepresentation = 0
-        ds.WindowCenter = _ds(round(0.4 * levels, 1))       # myocardium to blood
-        ds.WindowWidth = _ds(round(0.8 * levels, 1))
         ds.PixelData = pix.tobytes()
         if compression == "jpegls":
             ds.compress(JPEGLSLossless, pix, encoding_plugin="pyjpegls", generate_instance_uid=False)

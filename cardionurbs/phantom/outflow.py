@@ -189,6 +189,24 @@ def rvot_radius(anatomy, theta, z, epi: bool = False, s_epi=None, r_b=None) -> n
     return np.minimum(_rb(anatomy, theta, epi) if r_b is None else r_b, r2 + w * k)
 
 
+def s_rvot_pair(anatomy, theta, z, s_epi=None, r_b=None) -> tuple[np.ndarray, np.ndarray]:
+    """(:func:`s_rvot` endo, epi) at the same (θ, z), sharing cos(θ − α) and the LV epicardium;
+    ``r_b``: the pair of base radii when the caller has them. The same values as two calls."""
+    fr = rvot_frame(anatomy)
+    theta = np.asarray(theta, dtype=float)
+    z = np.asarray(z, dtype=float)
+    s2 = anatomy.s_lv_epi(z, theta) if s_epi is None else s_epi
+    r2 = np.sqrt(np.maximum(s2, 0.0))
+    c = np.cos(theta - fr.alpha)
+    out = []
+    for k, epi in enumerate((False, True)):
+        beta, w = fr.profile(z, epi)
+        cb = np.cos(beta)
+        rb = _rb(anatomy, theta, epi) if r_b is None else r_b[k]
+        out.append(np.maximum(np.minimum(rb, r2 + w * ((c - cb) / (1.0 - cb))), 0.0) ** 2)
+    return out[0], out[1]
+
+
 def s_rvot(anatomy, theta, z, epi: bool = False, s_epi=None, r_b=None) -> np.ndarray:
     """Squared radius of the RVOT endo- (epi-)cardial shell, mm² (below S_epi outside the tract)."""
     r = rvot_radius(anatomy, theta, z, epi, s_epi, r_b)

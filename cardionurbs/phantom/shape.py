@@ -121,15 +121,16 @@ class ShapeModes:
             raise PhantomError("tricuspid_dip_mm must be in [0, 8] mm")
 
     # ------------------------------------------------------------ LV
-    def endo_factor(self, theta, zeta) -> np.ndarray:
+    def endo_factor(self, theta, zeta, e=None) -> np.ndarray:
         """1 + Σ a_k(ζ) cos k(θ − φ_k): the zero-mean modulation of eq. (R1) (powers of e^{iθ}
-        instead of one cosine per mode)."""
+        instead of one cosine per mode; ``e`` = e^{iθ} when the caller has it)."""
         theta = np.asarray(theta, dtype=float)
         zeta = np.clip(np.asarray(zeta, dtype=float), -1.0, 1.0)
         out = np.ones(np.broadcast(theta, zeta).shape)
         if not self.endo_modes:
             return out
-        e = np.exp(1j * theta)
+        if e is None:
+            e = np.exp(1j * theta)
         power, k_now = np.ones_like(e), 0
         for k, a0, a1, ph in sorted(self.endo_modes):
             while k_now < k:
@@ -141,8 +142,9 @@ class ShapeModes:
         """Epicardial modulation: the endocardial modes scaled by ``ratio`` = sqrt(S_endo/S_epi)
         (equal radial displacement), plus the septal ``cos θ`` mode."""
         theta = np.asarray(theta, dtype=float)
-        return (1.0 + np.asarray(ratio) * (self.endo_factor(theta, zeta) - 1.0)
-                + self.septal_thickening * np.cos(theta))
+        e = np.exp(1j * theta)          # shared by the modes and the septal cos θ (its real part)
+        return (1.0 + np.asarray(ratio) * (self.endo_factor(theta, zeta, e) - 1.0)
+                + self.septal_thickening * e.real)
 
     def infarct_weight(self, theta, zn) -> np.ndarray:
         """w_i(θ, z/z_b) ∈ [0, 1]: 1 in the infarcted territory, 0 outside, cosine border zone."""

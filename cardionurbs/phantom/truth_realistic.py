@@ -97,9 +97,13 @@ def _sections(anatomy: Anatomy, motion: Motion, f: float, zp: np.ndarray, region
              else np.zeros((len(zp), 2)))
     zz = z[:, None]
     if region in ("lv_endo", "lv_epi"):
-        th = np.broadcast_to(np.linspace(0.0, 2 * np.pi, n, endpoint=False)[None, :], (len(z), n))
-        s = anatomy.s_lv_endo(zz, th) if region == "lv_endo" else anatomy.s_lv_epi(zz, th)
-        s = np.maximum(s, 0.0)
+        th = np.linspace(0.0, 2 * np.pi, n, endpoint=False)[None, :]
+        # the LV sections at (θ, z) once (θ a row, z a column: the angular factors are computed
+        # per angle, not per point): the cut's own S and the knots of the radial map (M3) (on
+        # the LV boundaries G needs S1 and S2 only, so S3 = S2 stands in for the RV's)
+        s1, s2 = anatomy.lv_sections(zz, th)
+        s = np.maximum(s1 if region == "lv_endo" else s2, 0.0)
+        sp = motion.radial_map(anatomy, s, th, zz, f, knots=motion.knots(anatomy, th, zz, f, (s1, s2, s2)))
     else:
         epi = region == "rv_epi"
         lo, hi = anatomy.rv_sector(np.minimum(z, anatomy.z_base), epi)
@@ -108,10 +112,17 @@ def _sections(anatomy: Anatomy, motion: Motion, f: float, zp: np.ndarray, region
         tf = lo[:, None] + (hi - lo)[:, None] * v[None, :]
         ts = lo[:, None] + (hi - lo)[:, None] * np.linspace(1.0, 0.0, n // 2 + 2)[None, 1:-1]
         th = np.concatenate([tf, ts], axis=1)
-        s = np.concatenate([anatomy.s_rv(tf, np.broadcast_to(zz, tf.shape), epi),
-                            anatomy.s_lv_epi(np.broadcast_to(zz, ts.shape), ts)], axis=1)
+        # every section value once: the free wall's S_rv (endo for the knot S3; epi too for the
+        # epicardial cut), S1 and S2 everywhere (on the septum the cut is S2 itself, where G
+        # needs S1 and S2 only: S3 = S2 stands in)
+        zf = np.broadcast_to(zz, tf.shape)
+        rv_endo = anatomy.s_rv(tf, zf, False)
+        s1, s2 = anatomy.lv_sections(np.broadcast_to(zz, th.shape), th)
+        nf = tf.shape[1]
+        s = np.concatenate([anatomy.s_rv(tf, zf, True) if epi else rv_endo, s2[:, nf:]], axis=1)
         s = np.where((hi > lo)[:, None], np.maximum(s, 0.0), 0.0)
-    sp = motion.radial_map(anatomy, s, th, np.broadcast_to(zz, th.shape), f)
+        s3 = np.concatenate([np.maximum(s2[:, :nf], rv_endo), s2[:, nf:]], axis=1)
+        sp = motion.radial_map(anatomy, s, th, np.broadcast_to(zz, th.shape), f, layers=(s1, s2, s3))
     r = np.sqrt(np.maximum(sp, 0.0))
     return np.stack([r * np.cos(th - psi), r * np.sin(th - psi)], axis=-1) + shift[:, None, :]
 
@@ -228,7 +239,7 @@ def ed_tricuspid_correction(anatomy: Anatomy, n: int = 64, dz_fine: float = 0.25
         return {"rv_endo": 0.0, "rv_epi": 0.0}
     still = Motion(ls=0.0, lv_ef=0.0, rv_ef=0.0, septal_flattening=0.0, apex_rotation_deg=0.0,
                    base_rotation_deg=0.0, z_base=anatomy.z_base)
-    lm = annotate.landmarks(anatomy, still, 0.0)["tricuspid"]
+    lm = annotate.landmarks(anatomy, still, 0.0, outflow=False)["tricuspid"]
     c, nrm = fit_plane(annotate.bend(anatomy, lm))
     caps = tricuspid_cap_volumes(anatomy, still, 0.0, (c, nrm if nrm[2] > 0 else -nrm), n, dz_fine)
     return {k: (w - b) * 1000.0 for k, (b, w) in caps.items()}
