@@ -66,19 +66,24 @@ def seg_err(m, t, fmt):
     return float(np.nanmax(e)), float(np.nanmean(e))
 
 
-def one(pathology, seed, noise, noise_on="both"):
+def one(pathology, seed, noise, noise_on="both", anatomy="ideal", infarct=None):
     """One phantom's row; ``noise_on="tags"``: the noise on the tag lines only, the contours
-    exact (the issue's condition), drawn from the phantom's own noise generator."""
+    exact (the issue's condition), drawn from the phantom's own noise generator;
+    ``anatomy``, ``infarct``: as :func:`cardionurbs.phantom.generate.generate`'s
+    ``anatomy_model`` and ``infarct``."""
+    kw = dict(frames=2, volume_check=False, anatomy_model=anatomy, infarct=infarct)
     if noise_on == "tags":
-        ph = generate(pathology, seed=seed, frames=2, volume_check=False)
+        ph = generate(pathology, seed=seed, **kw)
         add_noise(ph.study, noise, _rng(seed, pathology, "noise"), targets=("tags",))
     else:
-        ph = generate(pathology, seed=seed, frames=2, volume_check=False, noise_px=noise)
+        ph = generate(pathology, seed=seed, noise_px=noise, **kw)
     model = reconstruct(ph.study)
     tags = tag_metrics(model)
     r = regional_metrics(model, tags)
     t = ph.truth["metrics"]
-    row = {"subject": f"{pathology} {seed}", "noise": noise, "noise on": noise_on}
+    label = f"{pathology} {seed}" + (f" {anatomy}" if anatomy != "ideal" else "") + (
+        f" infarct {infarct}" if infarct else "")
+    row = {"subject": label, "noise": noise, "noise on": noise_on}
     for name, fmt in (("WT ED", "WT_AHA_{} (mm)"), ("WT ES", "WT_ES_AHA_{} (mm)"),
                       ("Thickening", "Thickening_AHA_{} (%)"), ("Ecc", "Ecc_AHA_{} (%)"),
                       ("Ell", "Ell_AHA_{} (%)"), ("Err", "Err_AHA_{} (%)")):
@@ -361,7 +366,12 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(ROOT / "reports" / "validation-regional.md"))
     ap.add_argument("--bench-out", default=str(ROOT / "reports" / "benchmark-regional.md"),
                     help="the speed section for reports/benchmark.md ('' to skip)")
+    ap.add_argument("--anatomy", choices=("ideal", "realistic"), default="ideal",
+                    help="realistic: only the noise-free tag strain on realistic phantoms, "
+                         "into reports/validation-regional-realistic.md")
     a = ap.parse_args(argv)
+    if a.anatomy == "realistic":
+        return realistic_report(a)
     presets = [(p, s + k) for p, s in PRESETS for k in range(a.seeds)]
     noisy_seeds = [(p, s + k) for p, s in PRESETS for k in range(max(a.seeds, a.noise_seeds))]
     jobs = ([(p, s, 0.0, "both") for p, s in presets] + [(p, s, 0.5, "both") for p, s in noisy_seeds]
@@ -484,6 +494,66 @@ def main(argv=None) -> int:
             f"({med * 1000:.0f} ms wall on the shared machine; 5 runs, single-threaded BLAS) to a "
             "2-frame tagged normal phantom study after its surfaces are built. Target: < 0.5 s.",
             ""]) + "\n")
+    print("\n".join(L))
+    return 0
+
+
+REALISTIC_INFARCTS = (("normal", 1, "lad"), ("mr", 2, "rca"), ("phtn", 3, "lcx"))
+
+
+def realistic_report(a) -> int:
+    """Noise-free regional rows on realistic anatomy (section 1's table, the same estimator),
+    written to reports/validation-regional-realistic.md unless ``--out`` says otherwise."""
+    out = (ROOT / "reports" / "validation-regional-realistic.md"
+           if a.out == str(ROOT / "reports" / "validation-regional.md") else Path(a.out))
+    jobs = ([(p, s + k, 0.0, "both", "realistic", None) for p, s in PRESETS for k in range(a.seeds)]
+            + [(p, s, 0.0, "both", "realistic", inf) for p, s, inf in REALISTIC_INFARCTS])
+    if a.jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+        with ProcessPoolExecutor(a.jobs) as pool:
+            rows = list(pool.map(one, *zip(*jobs)))
+    else:
+        rows = [one(*j) for j in jobs]
+    L = ["# Validation: regional function on realistic anatomy (noise-free)", "",
+         "Command: `.venv/bin/python benchmarks/validate_regional.py --anatomy realistic"
+         + (f" --seeds {a.seeds}" if a.seeds != 1 else "")
+         + (f" --jobs {a.jobs}" if a.jobs != 1 else "") + "`", "",
+         f"Generated {_dt.datetime.now(_dt.timezone.utc):%Y-%m-%d %H:%M} UTC on {platform.node()} "
+         f"({os.cpu_count()} cores, Python {platform.python_version()}). Realistic phantoms "
+         "(`--anatomy realistic`: shape modes, segmental wall thickness, apex off the axis, saddle "
+         "annuli, outflow tracts; docs/phantoms.md), 2 frames, no noise, against their `truth.json`; "
+         "the columns are those of section 1 of reports/validation-regional.md (bounds there: "
+         "thickness 0.5 mm, Ecc 1, Ell 1.5, Err 3 strain points, GCS/GLS 0.5).", ""]
+    L += table(rows)
+    L += ["", "Truth values of the global columns:", ""] + truth_rows(rows)
+    L += ["", "## Reading", "",
+          "- **Wall thickness, thickening and surface GLS/GCS** are measured from the NURBS "
+          "surfaces and hold on realistic anatomy without an infarct as on the ideal one. With "
+          "an infarct, the ED thickness holds too (the truth's endocardial grid now follows the "
+          "infarct's thinning; before, it ignored it and the truth kept the healthy wall); at ES "
+          "the segments at the territory's edge read up to ~1.7 mm thinner than the truth, "
+          "probably because the thickness changes steeply there (a thin, hypokinetic territory "
+          "beside a wall thickening by half) and the measured and the analytic ES segment "
+          "boundaries (the ES long axis and RV insertion points) differ slightly: a segment "
+          "mean across a steep edge moves with its boundary. Not resolved; the ES thickness "
+          "and thickening of infarct phantoms are not validated.",
+          "- **Tag strain does not.** On the ideal phantoms the smooth map (S1) of "
+          "`analysis.strain` (Legendre order 3 in height, 2 Fourier harmonics, a transmural "
+          "term linear in r²) reproduces the motion to ~0.002 mm; on these phantoms it leaves "
+          "0.3–0.4 mm on exact tags (column \"fit residual\"): their wall thickness and shape "
+          "vary by segment with more angular detail than 2 harmonics carry, so the least-squares "
+          "map bends its weakest-determined part, the transmural gradient, to absorb the misfit "
+          "— Ecc and Ell stay within a few points, Err does not, and det F of the unregularised "
+          "fit departs from 1 by up to ~10 %. Raising the orders of the refined map (tried: "
+          "4 and 6 harmonics, height order 4) lowered the misfit and the mean Err error but made "
+          "single segments unstable (Ecc and Ell off by tens of points where few tags cross the "
+          "wall) and moved the ideal phantoms' strains out of their bounds; the map needs "
+          "regional detail with a prior that keeps it stable (a finite-element or B-spline map "
+          "in prolate coordinates, as in the model-based tag analyses), which is not built. "
+          "Until then the tag strain columns of a heart that is not close to a spheroid carry "
+          "this error; `regional.strain.fit_residual_mm` in metrics.json shows it (well above "
+          "the tags' noise `tag_noise_mm`)."]
+    atomic.write_text(out, "\n".join(L) + "\n")
     print("\n".join(L))
     return 0
 

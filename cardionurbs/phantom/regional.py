@@ -160,8 +160,9 @@ def segment_means(values: np.ndarray, weights: np.ndarray, labels: np.ndarray) -
 
 
 def endocardial_grid(anatomy: Anatomy, n_mu: int, n_theta: int):
-    """Cell-centred material (μ, θ) grid on the ED LV endocardial spheroid below the base:
-    x = a sin μ cos θ, y = a sin μ sin θ, z = z_c − c cos μ (heart frame)."""
+    """Cell-centred material (μ, θ) grid on the ED LV endocardium below the base: z = z_c − c cos μ
+    and, at that height, x = r cos θ, y = r sin θ with r = a sin μ (ideal spheroid) or the
+    realistic section's √S_endo(z, θ) (shape modes and an infarct's thinning; heart frame)."""
     a, c, zc = anatomy.r_short_endo, anatomy.r_long_endo, anatomy.z_center
     mu_b = float(np.arccos(-(anatomy.z_base - zc) / c))
     dmu, dth = mu_b / n_mu, 2 * np.pi / n_theta
@@ -170,10 +171,12 @@ def endocardial_grid(anatomy: Anatomy, n_mu: int, n_theta: int):
     M, T = np.meshgrid(mu, th, indexing="ij")
 
     def point(m, t):
-        r = a * np.sin(m)
-        if anatomy.shape is not None:           # the realistic modes on S: √ on the radius
-            r = r * np.sqrt(anatomy.shape.endo_factor(t, anatomy.zeta(zc - c * np.cos(m))))
-        return np.stack([r * np.cos(t), r * np.sin(t), zc - c * np.cos(m)], axis=-1).reshape(-1, 3)
+        z = zc - c * np.cos(m)
+        if anatomy.shape is None:
+            r = a * np.sin(m)
+        else:                                   # the realistic section S(z, θ), infarct included
+            r = np.sqrt(np.maximum(anatomy.s_lv_endo(z, t), 0.0))
+        return np.stack([r * np.cos(t), r * np.sin(t), z], axis=-1).reshape(-1, 3)
     return M.ravel(), T.ravel(), dmu, dth, point
 
 
