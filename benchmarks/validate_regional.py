@@ -537,6 +537,10 @@ def realistic_report(a) -> int:
           "boundaries (the ES long axis and RV insertion points) differ slightly: a segment "
           "mean across a steep edge moves with its boundary. Not resolved; the ES thickness "
           "and thickening of infarct phantoms are not validated.",
+          "- **The strain truth's directions** on realistic anatomy follow the measurement's "
+          "definition: the ED endocardial normal averaged over 10 mm (until now the truth took "
+          "the raw normal, and on an infarct phantom that of the healthy wall; the averaged normal "
+          "moves an infarct segment's Ecc truth by up to ~5 points, a non-infarct one's by less).",
           "- **Tag strain does not.** On the ideal phantoms the smooth map (S1) of "
           "`analysis.strain` (Legendre order 3 in height, 2 Fourier harmonics, a transmural "
           "term linear in r²) reproduces the motion to ~0.002 mm; on these phantoms it leaves "
