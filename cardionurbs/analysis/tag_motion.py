@@ -457,8 +457,6 @@ def boundary_start(fit, boundary, ed_tag_points: np.ndarray):
     surface by Gauss–Newton with the motion held (three steps), so that φ(Y) − y is y's
     distance from the moved surface."""
     from scipy.spatial import cKDTree
-
-    from cardionurbs.analysis.strain import cylindrical
     trees = [cKDTree(b.samples) for b in boundary]
     label = np.concatenate([np.full(len(b.points), i) for i, b in enumerate(boundary)])
 
@@ -485,8 +483,9 @@ def boundary_start(fit, boundary, ed_tag_points: np.ndarray):
         step = np.zeros_like(g)
         step[ok] = np.linalg.solve(H[ok], g[ok][:, :, None])[:, :, 0]
         Y = Y - np.einsum("nk,nkj->nj", step, B)
-    zeta = cylindrical(Y, fit.apex0, fit.frame0)[2]
-    z_tag = cylindrical(ed_tag_points, fit.apex0, fit.frame0)[2]
+    axis = fit.frame0[2]                               # heights along the ED long axis
+    zeta = (Y - fit.apex0) @ axis
+    z_tag = (ed_tag_points - fit.apex0) @ axis
     inside = ((zeta >= z_tag.min()) & (zeta <= z_tag.max())
               & np.isfinite(fit.position(Y)).all(axis=1))
     y, Y, label = y[inside], Y[inside], label[inside]
