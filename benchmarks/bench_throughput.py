@@ -689,8 +689,8 @@ def render_scale(r: dict) -> str:
     L = ["# Scale: UK Biobank on paper", "",
          "Generated with the throughput benchmark (numbers from `reports/throughput.json`):", "",
          "```",
-         "OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_throughput.py --repeat 1 --skip-cohort "
-         "--baseline BASE",
+         f"OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_throughput.py --repeat "
+         f"{r.get('repeat')} --skip-cohort --baseline BASE",
          f"OPENBLAS_NUM_THREADS=1 .venv/bin/python benchmarks/bench_throughput.py --n {r.get('n')} "
          "--repeat 1 --skip-analyze",
          "```", "",

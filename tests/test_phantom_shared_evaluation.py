@@ -77,7 +77,8 @@ def test_material_sections_equal_the_motion_inverse(which, request):
     plane = next(im for im in ph.study.images if im.view != "SA")
     hp, _ = phantom_dicom.pixel_heart_points(ph, plane)
     f = float(ph.phases[1])
-    s, th, z, s1, s2, s3, s4 = phantom_dicom.material_sections(an, mo, hp, f)
+    s, th, z, s1, s2, s3, s4, e = phantom_dicom.material_sections(an, mo, hp, f)
+    assert np.array_equal(e.real, np.cos(th)) and np.array_equal(e.imag, np.sin(th))
     ref = mo.inverse_cylindrical(an, hp, f)
     for a, b in zip((s, th, z, s1, s2, s3), ref):
         assert np.array_equal(a, b)
@@ -106,3 +107,28 @@ def test_wrap_angle_is_the_principal_angle(x):
     assert abs(np.cos(w) - np.cos(x)) < 1e-12 and abs(np.sin(w) - np.sin(x)) < 1e-12
     if abs(abs(w) - np.pi) > 1e-9:
         assert abs(w - float(np.angle(np.exp(1j * x)))) < 1e-12
+
+
+def test_la_grid_points_left_out_have_every_region_term_positive(real):
+    """The LA sampling grids skip the points where no contour can pass (annotate._outside_heart):
+    there every region term is positive, at ED and at the last phase, in every view."""
+    an, mo = real.anatomy, real.motion
+    names = ("lv_endo", "lv_epi", "rv_endo", "rv_epi")
+    skipped = 0
+    for spec in (s for s in real.slices if s.view != "SA"):
+        w, v, pts = annotate._plane_grid(an, spec, annotate.PLANE_STEP_MM)
+        for f in (0.0, float(real.phases[-1])):
+            out = annotate._outside_heart(an, mo, pts, f, (len(w), len(v)))
+            fields = annotate.material_fields(an, mo, pts[out], f, names)
+            for name in names:
+                tree = annotate.region_logic(name, len(fields[name]))[0]
+                assert np.all(annotate.tree_value(tree, fields[name]) > 0)
+                assert all(np.all(t > 0) for t in fields[name][:1])
+            skipped += int(out.sum())
+            # and the grid's fields equal the full evaluation wherever it computed them
+            grid = annotate._grid_fields(an, mo, pts, f, names, (len(w), len(v)))
+            full = annotate.material_fields(an, mo, pts, f, names)
+            for name in names:
+                for a, b in zip(grid[name], full[name]):
+                    assert np.array_equal(a[~out], b[~out])
+    assert skipped > 0

@@ -85,9 +85,9 @@ def spheroid_s_unclamped(z, r_short: float, r_long: float, z_center: float) -> n
 
 
 def spheroid_section_s(z: np.ndarray, r_short: float, r_long: float, z_center: float) -> np.ndarray:
-    """Squared radius of a prolate spheroid's section at height z (eq. A1); 0 outside it."""
-    u = (np.asarray(z, dtype=float) - z_center) / r_long
-    return np.where(np.abs(u) < 1.0, spheroid_s_unclamped(z, r_short, r_long, z_center), 0.0)
+    """Squared radius of a prolate spheroid's section at height z (eq. A1); 0 outside it (where
+    the continuation of :func:`spheroid_s_unclamped` is ≤ 0)."""
+    return np.maximum(spheroid_s_unclamped(z, r_short, r_long, z_center), 0.0)
 
 
 def truncated_spheroid_volume(r_short: float, r_long: float, z_center: float, z_top: float) -> float:
@@ -98,6 +98,12 @@ def truncated_spheroid_volume(r_short: float, r_long: float, z_center: float, z_
     z_top = min(max(z_top, z_center - r_long), z_center + r_long)
     lo, hi = -r_long, z_top - z_center
     return float(np.pi * r_short ** 2 * ((hi - lo) - (hi ** 3 - lo ** 3) / (3.0 * r_long ** 2)))
+
+
+def unit_phasor(theta) -> np.ndarray:
+    """e^{iθ}: its real and imaginary parts are exactly ``np.cos(θ)`` and ``np.sin(θ)`` (one
+    evaluation serves the shape modes and every cos θ, sin θ of the same angles)."""
+    return np.exp(1j * np.asarray(theta, dtype=float))
 
 
 def wrap_angle(theta) -> np.ndarray:
@@ -227,16 +233,19 @@ class Anatomy:
         ratio = np.sqrt(s_endo0 / np.where(s > 0, s, 1.0))
         return s * self.shape.epi_factor(theta, self.zeta(z), ratio)
 
-    def lv_sections(self, z: np.ndarray, theta: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def lv_sections(self, z: np.ndarray, theta: np.ndarray | None = None,
+                    e: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(S_endo, S_epi) at (z, θ): :meth:`s_lv_endo` and :meth:`s_lv_epi` sharing one evaluation
-        of the shape modes, mm²."""
+        of the shape modes, mm². ``e`` = e^{iθ} when the caller has it (it needs cos θ and sin θ
+        too: :func:`unit_phasor`)."""
         if self.shape is None or self.shape.infarct is not None:
             return self.s_lv_endo(z, theta), self.s_lv_epi(z, theta)
         z = np.asarray(z, dtype=float)
         s1 = spheroid_section_s(z, self.r_short_endo, self.r_long_endo, self.z_center)
         s2 = spheroid_section_s(z, self.r_short_epi, self.r_long_epi, self.z_center)
         zeta = self.zeta(z)
-        e = np.exp(1j * np.asarray(theta, dtype=float))        # its real part is cos θ
+        if e is None:
+            e = unit_phasor(theta)                              # its real part is cos θ
         m = self.shape.endo_factor(theta, zeta, e) - 1.0
         ratio = np.sqrt(s1 / np.where(s2 > 0, s2, 1.0))
         return s1 * (1.0 + m), s2 * (1.0 + ratio * m + self.shape.septal_thickening * e.real)
@@ -283,7 +292,7 @@ class Anatomy:
         lo, hi = self.tricuspid_span()
         mid = 0.5 * (lo + hi)
         t = wrap_angle(theta - mid) + mid                           # θ wrapped about the span
-        u = np.clip((t - lo) / (hi - lo), 0.0, 1.0)
+        u = np.minimum(np.maximum((t - lo) / (hi - lo), 0.0), 1.0)     # clipped
         return self.z_base - self.tricuspid_dip * np.sin(np.pi * u) ** 2
 
     @property

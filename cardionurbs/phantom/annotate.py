@@ -29,7 +29,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from cardionurbs.geometry import polyline_crossings
-from cardionurbs.phantom.anatomy import Anatomy, spheroid_s_unclamped
+from cardionurbs.phantom.anatomy import Anatomy, spheroid_s_unclamped, unit_phasor, wrap_angle
 from cardionurbs.phantom.geometry import SliceSpec
 from cardionurbs.phantom.motion import Motion
 
@@ -225,7 +225,8 @@ def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: flo
     z = x[:, 2] / float(motion.lam(f))
     th = np.arctan2(x[:, 1], x[:, 0]) + motion.psi(z, f)
     sp = x[:, 0] ** 2 + x[:, 1] ** 2
-    s1, s2 = anatomy.lv_sections(z, th)
+    e = unit_phasor(th)
+    s1, s2 = anatomy.lv_sections(z, th, e)
     shells = _RvShells(anatomy, th, z, s2)
     regions = set(regions or ("lv_endo", "lv_epi", "rv_endo", "rv_epi"))
     if anatomy.outflow is not None:
@@ -259,7 +260,7 @@ def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: flo
     if "rv_epi" in regions:
         out["rv_epi"] = ((sp - b["b4"]) * scale, (b["b2"] - sp) * scale, rv_top)
     if anatomy.outflow is not None:
-        _outflow_terms(anatomy, motion, out, regions, sp, th, z, f, layers, scale, knots, shells)
+        _outflow_terms(anatomy, motion, out, regions, sp, th, z, f, layers, scale, knots, shells, e)
     return out
 
 
@@ -302,16 +303,17 @@ class _RvShells:
 
 
 def _outflow_terms(anatomy: Anatomy, motion: Motion, out: dict, regions, sp, th, z, f, layers,
-                   scale: float, knots=None, shells: "_RvShells | None" = None) -> None:
+                   scale: float, knots=None, shells: "_RvShells | None" = None, e=None) -> None:
     """Append the outflow tracts' terms to the region functions (see :func:`region_logic`):
     LV endocardium + (LVOT cylinder, aortic valve plane); RV endo/epicardium + (tract free wall,
     pulmonary valve plane, tract bottom 1 mm below the tricuspid plane, where the tract lies
     inside the body). The valve planes and the cylinder are material: the point's material radius
-    comes from the inverse radial map."""
+    comes from the inverse radial map. ``e``: e^{iθ} when the caller has it."""
     from cardionurbs.phantom import outflow as ofl
     r = np.sqrt(np.maximum(motion.inverse_radial_map(anatomy, sp, th, z, f, layers=layers,
                                                      knots=knots), 0.0))
-    x, y = r * np.cos(th), r * np.sin(th)
+    e = unit_phasor(th) if e is None else e
+    x, y = r * e.real, r * e.imag          # r cos θ, r sin θ
     if "lv_endo" in regions:
         # (2- and 4-chamber views never reach the cylinder: the terms only keep the tree's shape)
         out["lv_endo"] = out["lv_endo"] + (ofl.lvot_cylinder_term(anatomy, x, y),
@@ -593,6 +595,86 @@ def _la_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f:
                                        step)[spec.id]
 
 
+#: margins of the bound on the heart's outer squared radius (:func:`_outside_heart`): relative, mm²
+OUTER_MARGIN, OUTER_MARGIN_MM2 = 0.1, 25.0
+
+
+def _outer_s_table(anatomy: Anatomy, n: int = 720, n_z: int = 160) -> np.ndarray:
+    """S_out(θ) on n bins of θ ∈ [−π, π): an upper bound, over the heights (z_lo, z_hi) also
+    returned, of the squared radius of every boundary the region terms compare with (LV
+    epicardium, RV endo- and epicardium, RVOT shells), each bin's maximum over itself and two
+    bins either side (mm²; per anatomy). Sampled at two angles per bin and n_z heights (every
+    ~0.8 mm; with the heights where the surfaces have kinks or jumps: the LV equator, the base, the
+    tract's top): the smooth maxima between samples exceed the samples by far less than the
+    margins of :func:`_beyond_every_boundary`."""
+    tab = anatomy.__dict__.get("_outer_s_table")
+    if tab is None:
+        th = -np.pi + (np.arange(2 * n) + 0.5) * (2 * np.pi / (2 * n))
+        top = anatomy.z_base + 80.0
+        marks = [anatomy.z_center, anatomy.z_base, np.nextafter(anatomy.z_base, np.inf)]
+        if anatomy.outflow is not None:
+            from cardionurbs.phantom import outflow as ofl
+            top = max(top, float(ofl.pulmonary_ring(anatomy)[:, 2].max()) + 20.0)
+            marks.append(anatomy.z_base + ofl.rvot_frame(anatomy).height)
+        z = np.unique(np.r_[np.linspace(-10.0, top, n_z), marks])[:, None]
+        T = np.broadcast_to(th[None, :], (len(z), len(th)))
+        Z = np.broadcast_to(z, T.shape)
+        parts = [anatomy.s_lv_epi(Z, T), anatomy.s_rv(T, Z, False), anatomy.s_rv(T, Z, True)]
+        if anatomy.outflow is not None:
+            from cardionurbs.phantom import outflow as ofl
+            parts += list(ofl.s_rvot_pair(anatomy, T, Z))
+        per = np.max([p.max(axis=0) for p in parts], axis=0).reshape(n, 2).max(axis=1)
+        tab = (np.max([np.roll(per, k) for k in range(-2, 3)], axis=0), (-10.0, top))
+        object.__setattr__(anatomy, "_outer_s_table", tab)
+    return tab
+
+
+def _outside_heart(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: float,
+                   grid_shape: tuple[int, int]) -> np.ndarray:
+    """Points of a (w, v) sampling grid where every region term's value is surely positive
+    (:func:`_beyond_every_boundary`) with their eight neighbours, so that no marching-squares cell
+    they are a corner of is crossed by a contour."""
+    from scipy.ndimage import binary_erosion
+
+    far = _beyond_every_boundary(anatomy, motion, points, f).reshape(grid_shape)
+    return binary_erosion(far, np.ones((3, 3), dtype=bool), border_value=1).ravel()
+
+
+def _beyond_every_boundary(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: float) -> np.ndarray:
+    """Heart-frame points at phase f whose deformed squared radius s' exceeds the bound on every
+    region boundary's image, so that every wall term of :func:`material_fields` is positive there.
+    The boundaries' images are G(S) ≤ max(κ_L, κ_R, 1) S / λ ≤ (1 + ε) S / λ (motion eq. M3: the
+    map's slopes are κ_L ≤ 1 + ε, κ_R ≤ 1 and 1) with S ≤ S_out(θ) at the point's material
+    angle (:func:`_outer_s_table`), widened by OUTER_MARGIN and OUTER_MARGIN_MM2."""
+    tab, (z_lo, z_hi) = _outer_s_table(anatomy)
+    lam = float(motion.lam(f))
+    x = unbend(anatomy, points)
+    z = x[:, 2] / lam
+    th = wrap_angle(np.arctan2(x[:, 1], x[:, 0]) + motion.psi(z, f))
+    k = np.clip(((th + np.pi) / (2 * np.pi) * len(tab)).astype(int), 0, len(tab) - 1)
+    bound = (1.0 + OUTER_MARGIN) * (1.0 + motion.septal_flattening) * tab[k] / lam + OUTER_MARGIN_MM2
+    return (x[:, 0] ** 2 + x[:, 1] ** 2 > bound) & (z > z_lo) & (z < z_hi)
+
+
+def _grid_fields(anatomy: Anatomy, motion: Motion, pts: np.ndarray, f: float, names,
+                 grid_shape: tuple[int, int]) -> dict[str, tuple]:
+    """The region terms of ``names`` on a sampling grid (:func:`material_fields`), computed where a
+    contour can pass; where :func:`_outside_heart` shows every term positive, each term is set to
+    a positive stand-in (the marching squares and the edge refinement read the field only at the
+    corners of the cells a contour crosses: the same contours)."""
+    out = np.flatnonzero(~_outside_heart(anatomy, motion, pts, f, grid_shape))
+    fields = material_fields(anatomy, motion, pts[out], f, names)
+    full = {}
+    for name in names:
+        terms = []
+        for t in fields[name]:
+            a = np.full(len(pts), 1.0e3)
+            a[out] = t
+            terms.append(a)
+        full[name] = tuple(terms)
+    return full
+
+
 def la_contours_realistic_views(anatomy: Anatomy, motion: Motion, views, f: float, n_side: int = 30,
                                 step: float = PLANE_STEP_MM) -> dict[str, dict[str, np.ndarray]]:
     """:func:`la_contours` of a realistic anatomy for several LA views at one phase f: ``views`` is
@@ -603,7 +685,7 @@ def la_contours_realistic_views(anatomy: Anatomy, motion: Motion, views, f: floa
     for spec, with_rv, with_lv in views:
         w, v, pts = _plane_grid(anatomy, spec, step)
         names = (("lv_endo", "lv_epi") if with_lv else ()) + (("rv_endo", "rv_epi") if with_rv else ())
-        fields = material_fields(anatomy, motion, pts, f, names)
+        fields = _grid_fields(anatomy, motion, pts, f, names, (len(w), len(v)))
         out[spec.id] = {}
         for name in names:
             gen = _open_contour(name, fields, (len(w), len(v)), w, v, spec, 2 * n_side - 1)
@@ -660,9 +742,12 @@ def _la_tag_lines_realistic(anatomy: Anatomy, motion: Motion, grid: TagGrid, spe
     v_all = (lam * levels[:, None] - c[2] - w[None, :] * row[2]) / col[2]          # every level at once
     pts = (c[None, None, :] + w[None, :, None] * row[None, None, :]
            + v_all[:, :, None] * col[None, None, :]).reshape(-1, 3)
-    fl = material_fields(anatomy, motion, pts, f, ("lv_endo",))
-    inside_all = ((fl["s"] >= fl["s1"]) & (fl["s"] <= fl["s2"])
-                  & (fl["lv_endo"][1] <= 0)).reshape(len(levels), len(w))
+    # the wall only where it can be: beyond every boundary the point is not inside the LV epicardium
+    near = np.flatnonzero(~_beyond_every_boundary(anatomy, motion, pts, f))
+    fl = material_fields(anatomy, motion, pts[near], f, ("lv_endo",))
+    inside_all = np.zeros(len(pts), dtype=bool)
+    inside_all[near] = (fl["s"] >= fl["s1"]) & (fl["s"] <= fl["s2"]) & (fl["lv_endo"][1] <= 0)
+    inside_all = inside_all.reshape(len(levels), len(w))
     for j, zj in enumerate(levels):
         segs = _inside_runs(inside_all[j], w)
         if not segs:
@@ -896,8 +981,9 @@ def _sa_tag_lines_realistic(anatomy: Anatomy, motion: Motion, grid: TagGrid, spe
     if not (0.0 < z <= anatomy.z_top_min - BASE_MARGIN_MM):
         return []
     th_all = np.linspace(0.0, 2 * np.pi, 360, endpoint=False)
-    s2max = float(anatomy.s_lv_epi(z, th_all).max())
-    if anatomy.s_lv_epi(z, th_all).mean() < MIN_RADIUS_MM ** 2:
+    s1_all, s2_all = anatomy.lv_sections(np.full(len(th_all), z), th_all)
+    s2max = float(s2_all.max())
+    if s2_all.mean() < MIN_RADIUS_MM ** 2:
         return []
     reach = np.sqrt(s2max) + 1.0
     wf = np.arange(-reach, reach + step / 8.0, step / 8.0)
@@ -909,8 +995,13 @@ def _sa_tag_lines_realistic(anatomy: Anatomy, motion: Motion, grid: TagGrid, spe
     x = ce * nrm[:, :1] - wf[None, :] * nrm[:, 1:2]
     y = ce * nrm[:, 1:2] + wf[None, :] * nrm[:, :1]
     s, th = x * x + y * y, np.arctan2(y, x)
-    s_endo, s_epi = anatomy.lv_sections(np.full(th.shape, z), th)
-    inside = (s >= s_endo) & (s <= s_epi)
+    # the wall only where s can reach it: between the section's least endocardial and largest
+    # epicardial S sampled every degree, widened by 5 % (their variation between the samples is
+    # far below that), the exact test there
+    near = np.flatnonzero(((s >= 0.95 * float(s1_all.min())) & (s <= 1.05 * s2max)).ravel())
+    s_endo, s_epi = anatomy.lv_sections(np.full(len(near), z), th.ravel()[near])
+    inside = np.zeros(s.shape, dtype=bool)
+    inside.ravel()[near] = (s.ravel()[near] >= s_endo) & (s.ravel()[near] <= s_epi)
     keys, mats = [], []
     for k in np.flatnonzero(inside.sum(axis=1) >= 2):
         fam, i, c = lines[k]

@@ -65,7 +65,7 @@ from pydicom.uid import (ExplicitVRLittleEndian, JPEGLSLossless, MRImageStorage,
 from pydicom.valuerep import format_number_as_ds
 
 from cardionurbs.imaging.geometry import ImagePlane
-from cardionurbs.phantom.anatomy import wrap_angle
+from cardionurbs.phantom.anatomy import unit_phasor, wrap_angle
 
 BLOOD, MYO, BODY, LUNG = 1.0, 0.3, 0.14, 0.03
 ATRIUM_MM = 30.0
@@ -108,16 +108,17 @@ def material_sections(an, mo, points: np.ndarray, f: float):
     """φ_f⁻¹ of (n, 3) heart-frame positions at phase f with every section value there computed
     once: material (s, θ, z) and S1 = s_endo, S2 = s_epi, S3 = max(S2, S_rv_endo),
     S4 = max(S3, S_rv_epi) at (θ, z) (the values of :meth:`Motion.inverse_cylindrical` and of
-    :meth:`Anatomy.s_rv`, each factor shared between the surfaces that need it)."""
+    :meth:`Anatomy.s_rv`, each factor shared between the surfaces that need it), and e^{iθ}."""
     p = np.asarray(points, dtype=float).reshape(-1, 3)
     z = p[:, 2] / mo.lam(f)
     th = np.arctan2(p[:, 1], p[:, 0]) + mo.psi(z, f)
-    s1, s2 = an.lv_sections(z, th)
+    e = unit_phasor(th)
+    s1, s2 = an.lv_sections(z, th, e)
     rv_endo, rv_epi = an.s_rv_pair(th, z, s_epi=s2 if an.shape is not None else None)
     s3 = np.maximum(s2, rv_endo)
     knots = mo.knots(an, th, z, f, (s1, s2, s3))
     s = mo.inverse_radial_map(an, p[:, 0] ** 2 + p[:, 1] ** 2, th, z, f, knots=knots)
-    return s, th, z, s1, s2, s3, np.maximum(s3, rv_epi)
+    return s, th, z, s1, s2, s3, np.maximum(s3, rv_epi), e
 
 
 def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarray, s2: np.ndarray,
@@ -134,7 +135,8 @@ def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarra
     real = an.shape is not None
     lv_top = an.z_top(th) if real else an.z_base
     lv_heart = (z >= 0) & (z <= lv_top)
-    rv_heart = (z >= 0) & (z <= (an.z_top_rv(th) if real else an.z_base))
+    rv_top = an.z_top_rv(th) if real else an.z_base
+    rv_heart = (z >= 0) & (z <= rv_top)
     out = {"lv_cav": lv_heart & (s < s1), "lv_myo": lv_heart & (s >= s1) & (s <= s2),
            "rv_cav": rv_heart & (s > s2) & (s < s3),
            "rv_myo": rv_heart & (s >= s3) & (s <= s4) & (s4 > s2)}
@@ -156,7 +158,7 @@ def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarra
         out["ra"][above] = ((ur > 0) & ~out["la"][above] & (s_a > s2b)
                             & (s_a < an.s_rv(th_a, zb) * cap_r))
         if real:    # below a dipping tricuspid annulus: the RV body's lumen there is atrium
-            out["ra"][above] |= ((z[above] > an.z_top_rv(th_a)) & (z[above] <= an.z_base)
+            out["ra"][above] |= ((z[above] > rv_top[above]) & (z[above] <= an.z_base)
                                  & (s_a > s2[above]) & (s_a < s3[above]))
         if real and an.shape.outflow is not None:       # the atria end where the tracts begin
             tracts = out["lv_cav"] | out["rv_cav"] | out["rv_myo"]
@@ -225,9 +227,9 @@ def render_image(phantom, plane: ImagePlane, rng: np.random.Generator | None = N
     an, mo, grid = phantom.anatomy, phantom.motion, phantom.tag_grid
     f = float(phantom.phases[plane.frame])
     hp, roi = roi_points if roi_points is not None else pixel_heart_points(phantom, plane)
-    s, th, z, s1, s2, s3, s4 = material_sections(an, mo, hp, f)
+    s, th, z, s1, s2, s3, s4, e = material_sections(an, mo, hp, f)
     r = np.sqrt(np.maximum(s, 0.0))
-    x, y = r * np.cos(th), r * np.sin(th)
+    x, y = r * e.real, r * e.imag          # r cos θ, r sin θ
     tm = tissue_masks(an, s, th, z, s1, s2, s3, s4, (x, y))
     if an.shape is None:
         # the ideal phantom's images as before: one atrial cap (30 mm) over the LV only

@@ -116,7 +116,7 @@ class RvotFrame:
 
     def profile(self, z, epi: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """(β(z), w(z)) of eq. (O1): ease-out from the base values to the valve values over H."""
-        u = np.clip((np.asarray(z, dtype=float) - self.z_base) / self.height, 0.0, 1.0)
+        u = np.minimum(np.maximum((np.asarray(z, dtype=float) - self.z_base) / self.height, 0.0), 1.0)
         m = 1.0 - (1.0 - u) ** 2
         beta = self.beta0 + (self.beta1 - self.beta0) * m
         w = self.w0 + (self.w1 - self.w0) * m

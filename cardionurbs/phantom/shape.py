@@ -125,7 +125,7 @@ class ShapeModes:
         """1 + Σ a_k(ζ) cos k(θ − φ_k): the zero-mean modulation of eq. (R1) (powers of e^{iθ}
         instead of one cosine per mode; ``e`` = e^{iθ} when the caller has it)."""
         theta = np.asarray(theta, dtype=float)
-        zeta = np.clip(np.asarray(zeta, dtype=float), -1.0, 1.0)
+        zeta = np.minimum(np.maximum(np.asarray(zeta, dtype=float), -1.0), 1.0)     # clipped
         out = np.ones(np.broadcast(theta, zeta).shape)
         if not self.endo_modes:
             return out
@@ -159,11 +159,11 @@ class ShapeModes:
     # ------------------------------------------------------------ RV
     def rv_wrap(self, u) -> np.ndarray:
         """w at normalised RV height u ∈ [0, 1] (0 at the RV apex, 1 at the base)."""
-        u = np.clip(np.asarray(u, dtype=float), 0.0, 1.0)
+        u = np.minimum(np.maximum(np.asarray(u, dtype=float), 0.0), 1.0)     # clipped
         return self.rv_wrap_apex + (self.rv_wrap_base - self.rv_wrap_apex) * u
 
     def rv_reach_factor(self, u) -> np.ndarray:
-        u = np.clip(np.asarray(u, dtype=float), 0.0, 1.0)
+        u = np.minimum(np.maximum(np.asarray(u, dtype=float), 0.0), 1.0)     # clipped
         return (1.0 + self.rv_reach * (u - 0.5)) ** 2
 
     # ------------------------------------------------------------ base and apex
@@ -175,7 +175,7 @@ class ShapeModes:
     def apex_shift(self, z, z_base: float) -> np.ndarray:
         """d(z) = D (1 − z/z_b)² for z below the base (0 above it), (n, 2) mm."""
         z = np.atleast_1d(np.asarray(z, dtype=float))
-        w = np.clip(1.0 - z / z_base, 0.0, None) ** 2
+        w = np.maximum(1.0 - z / z_base, 0.0) ** 2
         return w[:, None] * np.asarray(self.apex_shift_mm, dtype=float)[None, :]
 
     @property

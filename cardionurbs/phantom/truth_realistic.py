@@ -112,17 +112,22 @@ def _sections(anatomy: Anatomy, motion: Motion, f: float, zp: np.ndarray, region
         tf = lo[:, None] + (hi - lo)[:, None] * v[None, :]
         ts = lo[:, None] + (hi - lo)[:, None] * np.linspace(1.0, 0.0, n // 2 + 2)[None, 1:-1]
         th = np.concatenate([tf, ts], axis=1)
-        # every section value once: the free wall's S_rv (endo for the knot S3; epi too for the
-        # epicardial cut), S1 and S2 everywhere (on the septum the cut is S2 itself, where G
+        # the levels with a crescent (elsewhere s = 0, a degenerate polygon, whatever the map);
+        # every section value once there: the free wall's S_rv (endo for the knot S3; epi too for
+        # the epicardial cut), S1 and S2 everywhere (on the septum the cut is S2 itself, where G
         # needs S1 and S2 only: S3 = S2 stands in)
-        zf = np.broadcast_to(zz, tf.shape)
-        rv_endo = anatomy.s_rv(tf, zf, False)
-        s1, s2 = anatomy.lv_sections(np.broadcast_to(zz, th.shape), th)
-        nf = tf.shape[1]
-        s = np.concatenate([anatomy.s_rv(tf, zf, True) if epi else rv_endo, s2[:, nf:]], axis=1)
-        s = np.where((hi > lo)[:, None], np.maximum(s, 0.0), 0.0)
-        s3 = np.concatenate([np.maximum(s2[:, :nf], rv_endo), s2[:, nf:]], axis=1)
-        sp = motion.radial_map(anatomy, s, th, np.broadcast_to(zz, th.shape), f, layers=(s1, s2, s3))
+        act = np.flatnonzero(hi > lo)
+        sp = np.zeros(th.shape)
+        if len(act):
+            tfa, tha, za = tf[act], th[act], zz[act]
+            zf = np.broadcast_to(za, tfa.shape)
+            rv_endo = anatomy.s_rv(tfa, zf, False)
+            s1, s2 = anatomy.lv_sections(np.broadcast_to(za, tha.shape), tha)
+            nf = tf.shape[1]
+            s = np.concatenate([anatomy.s_rv(tfa, zf, True) if epi else rv_endo, s2[:, nf:]], axis=1)
+            s3 = np.concatenate([np.maximum(s2[:, :nf], rv_endo), s2[:, nf:]], axis=1)
+            sp[act] = motion.radial_map(anatomy, np.maximum(s, 0.0), tha, np.broadcast_to(za, tha.shape),
+                                        f, layers=(s1, s2, s3))
     r = np.sqrt(np.maximum(sp, 0.0))
     return np.stack([r * np.cos(th - psi), r * np.sin(th - psi)], axis=-1) + shift[:, None, :]
 
