@@ -43,7 +43,8 @@ from cardionurbs.analysis.regional import regional_metrics  # noqa: E402
 from cardionurbs.analysis.tags import tag_metrics  # noqa: E402
 from cardionurbs.anatomy.model import reconstruct  # noqa: E402
 from cardionurbs.io import atomic  # noqa: E402
-from cardionurbs.phantom.generate import generate  # noqa: E402
+from cardionurbs.phantom.faults import add_noise  # noqa: E402
+from cardionurbs.phantom.generate import _rng, generate  # noqa: E402
 
 PRESETS = (("normal", 1), ("mr", 2), ("phtn", 3))
 SEG = range(1, 17)
@@ -65,13 +66,24 @@ def seg_err(m, t, fmt):
     return float(np.nanmax(e)), float(np.nanmean(e))
 
 
-def one(pathology, seed, noise):
-    ph = generate(pathology, seed=seed, frames=2, volume_check=False, noise_px=noise)
+def one(pathology, seed, noise, noise_on="both", anatomy="ideal", infarct=None):
+    """One phantom's row; ``noise_on="tags"``: the noise on the tag lines only, the contours
+    exact (the issue's condition), drawn from the phantom's own noise generator;
+    ``anatomy``, ``infarct``: as :func:`cardionurbs.phantom.generate.generate`'s
+    ``anatomy_model`` and ``infarct``."""
+    kw = dict(frames=2, volume_check=False, anatomy_model=anatomy, infarct=infarct)
+    if noise_on == "tags":
+        ph = generate(pathology, seed=seed, **kw)
+        add_noise(ph.study, noise, _rng(seed, pathology, "noise"), targets=("tags",))
+    else:
+        ph = generate(pathology, seed=seed, noise_px=noise, **kw)
     model = reconstruct(ph.study)
     tags = tag_metrics(model)
     r = regional_metrics(model, tags)
     t = ph.truth["metrics"]
-    row = {"subject": f"{pathology} {seed}", "noise": noise}
+    label = f"{pathology} {seed}" + (f" {anatomy}" if anatomy != "ideal" else "") + (
+        f" infarct {infarct}" if infarct else "")
+    row = {"subject": label, "noise": noise, "noise on": noise_on}
     for name, fmt in (("WT ED", "WT_AHA_{} (mm)"), ("WT ES", "WT_ES_AHA_{} (mm)"),
                       ("Thickening", "Thickening_AHA_{} (%)"), ("Ecc", "Ecc_AHA_{} (%)"),
                       ("Ell", "Ell_AHA_{} (%)"), ("Err", "Err_AHA_{} (%)")):
@@ -99,17 +111,19 @@ def one(pathology, seed, noise):
     row["prior sd"] = r.strain.get("volume_prior_sd")
     if noise:
         # the same tags fitted by the other estimators (ESTIMATORS) and with other prior spreads
-        row["estimators"] = {"volume prior (reported)": row["signed"]}
-        for name, kw in ESTIMATORS:
+        row["estimators"] = {"tags + contours, volume prior (reported)": row["signed"]}
+        for name, kw in ESTIMATORS if noise_on == "both" else ESTIMATORS[:2]:
             rv = regional_metrics(model, tags, **kw)
             row["estimators"][name] = {k: seg_signed(rv, t, k + "_AHA_{} (%)") for k in ("Ecc", "Ell", "Err")}
     return row
 
 
-#: the estimators the reported one (the volume prior, s = VOLUME_PRIOR_SD) is compared with on
-#: the noisy phantoms: the ridge penalties alone, the incompressibility weight chosen by the
-#: risk estimate (the estimator before the prior), and the prior with other spreads s
-ESTIMATORS = (("ridge only (risk)", {"incompressibility": False}),
+#: the estimators the reported one (tags and wall contours, the volume prior s = VOLUME_PRIOR_SD)
+#: is compared with on the noisy phantoms: the tags alone with the prior (the estimator before
+#: the contours joined), and with the contours: the ridge penalties alone, the incompressibility
+#: weight chosen by the risk estimate, and the prior with other spreads s
+ESTIMATORS = (("tags alone, volume prior (before)", {"boundaries": False}),
+              ("ridge only (risk)", {"incompressibility": False}),
               ("κ by risk (before)", {"incompressibility": "risk"}),
               ("volume prior s = 3 %", {"volume_prior_sd": 0.03}),
               ("volume prior s = 7 %", {"volume_prior_sd": 0.07}))
@@ -210,6 +224,21 @@ def ablation(rows):
                          f"{np.sqrt(np.nanmean(allv ** 2)):.2f} / {np.nanmean(allv):+.2f}")
         out.append(f"| {k} | {b:g} | " + " | ".join(cells) + " |")
     return out
+
+
+def offset_rows(rows):
+    """The signed Err error split into each phantom's mean over its segments (an offset shared
+    by the whole ventricle) and the segments' spread about it."""
+    e = [r["signed"]["Err"] for r in rows]
+    means = np.array([np.nanmean(x) for x in e])
+    spread = np.concatenate([x - m for x, m in zip(e, means)])
+    worst = [r["Err"][0] for r in rows]
+    fail = [f"{r['subject']} ({m:+.1f})" for r, m, w in zip(rows, means, worst) if w > 6.0]
+    return ["| quantity | value |", "|---|---|",
+            f"| SD over phantoms of the per-phantom mean Err error | {np.std(means, ddof=1):.2f} |",
+            f"| mean of the per-phantom mean Err error | {np.mean(means):+.2f} |",
+            f"| RMS of the segment errors about their phantom's mean | {np.sqrt(np.nanmean(spread ** 2)):.2f} |",
+            f"| phantoms over the Err bound (their mean Err error) | {', '.join(fail) or 'none'} |"]
 
 
 def truth_rows(rows):
@@ -337,17 +366,25 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=str(ROOT / "reports" / "validation-regional.md"))
     ap.add_argument("--bench-out", default=str(ROOT / "reports" / "benchmark-regional.md"),
                     help="the speed section for reports/benchmark.md ('' to skip)")
+    ap.add_argument("--anatomy", choices=("ideal", "realistic"), default="ideal",
+                    help="realistic: only the noise-free tag strain on realistic phantoms, "
+                         "into reports/validation-regional-realistic.md")
     a = ap.parse_args(argv)
+    if a.anatomy == "realistic":
+        return realistic_report(a)
     presets = [(p, s + k) for p, s in PRESETS for k in range(a.seeds)]
-    jobs = [(p, s, 0.0) for p, s in presets] + [
-        (p, s + k, 0.5) for p, s in PRESETS for k in range(max(a.seeds, a.noise_seeds))]
+    noisy_seeds = [(p, s + k) for p, s in PRESETS for k in range(max(a.seeds, a.noise_seeds))]
+    jobs = ([(p, s, 0.0, "both") for p, s in presets] + [(p, s, 0.5, "both") for p, s in noisy_seeds]
+            + [(p, s, 0.5, "tags") for p, s in noisy_seeds])
     if a.jobs > 1:
         from concurrent.futures import ProcessPoolExecutor
         with ProcessPoolExecutor(a.jobs) as pool:
             rows = list(pool.map(one, *zip(*jobs)))
     else:
         rows = [one(*j) for j in jobs]
-    clean, noisy = rows[:len(presets)], rows[len(presets):]
+    clean = rows[:len(presets)]
+    noisy = [r for r in rows[len(presets):] if r["noise on"] == "both"]
+    tag_noisy = [r for r in rows[len(presets):] if r["noise on"] == "tags"]
     rr = [x for n in (20, 30, 40) for x in rates(n)]
     kinds, comparison = estimator_comparison()
     sb = sunnybrook()
@@ -368,7 +405,8 @@ def main(argv=None) -> int:
     L += ["", "## 2. With 0.5 px contour and tag noise", "",
           f"{max(a.seeds, a.noise_seeds)} phantoms per preset (seeds s, s + 1, …; each phantom "
           "its own noise draw), all reported.", ""] + table(noisy)
-    L += ["", "Twice the noise-free bounds (the issue's target with 0.5 px noise), over these "
+    L += ["", "Twice the noise-free bounds (the issue's target with 0.5 px tag noise; here the contours "
+          "are noisy too), over these "
           "phantoms:", ""] + bound_summary(noisy)
     partial = [f"{r['subject']} ({r['segments']})" for r in noisy + clean if r["segments"] < 16]
     if partial:
@@ -379,17 +417,34 @@ def main(argv=None) -> int:
     L += calibration(noisy)
     L += ["", "Estimators of the noisy fit side by side, on the same tags (each cell: phantoms "
           "within the bound on all 16 segments / all, worst segment error, RMS and mean segment "
-          "error, strain points). Reported: the volume prior J̄_s ~ N(1, s²) with s = 5 % stated "
-          "a priori, ridge weights by the evidence. Compared: the ridge penalties alone and the "
-          "incompressibility weight κ chosen with them by the unbiased risk estimate (the "
-          "estimator before the prior), both as before; and the prior with s = 3 % and 7 %, to "
-          "show how much the result depends on the stated spread:", ""] + ablation(noisy)
-    L += ["", "What the tags can tell: the standard error of each segment strain of the "
-          "unregularised tag-line fit, σ √diag(B S⁻¹ Bᵀ) (σ the ED-plane noise, S the fit's "
+          "error, strain points). Reported: the tag lines and the frame's LV endo- and "
+          "epicardial contours fitted together (the contours as material boundaries, term (T3) "
+          "of `analysis.tag_motion`), the volume prior J̄_s ~ N(1, s²) with s = 5 % stated a "
+          "priori, ridge weights by the evidence. Compared: the same prior on the tags alone "
+          "(the estimator before the contours joined); with the contours, the ridge penalties "
+          "alone and the incompressibility weight κ chosen with them by the unbiased risk "
+          "estimate; and the prior with s = 3 % and 7 %, to show how much the result depends "
+          "on the stated spread:", ""] + ablation(noisy)
+    L += ["", "What the data can tell: the standard error of each segment strain of the "
+          "unregularised fit (tag lines and contours), σ √diag(B S⁻¹ Bᵀ) (σ the ED-plane noise, S the fit's "
           "reduced Gauss–Newton matrix, B the derivative of the segment means with respect to "
           "the coefficients) — the Cramér–Rao bound of any unbiased estimate within the motion "
           "model (S1) — and the chance that an unbiased estimator with those errors puts all 16 "
           "segments within the bound, Π (2Φ(b / SE) − 1):", ""] + noise_rows(noisy)
+    L += ["", "## 2b. With 0.5 px tag noise only (the issue's condition), contours exact", "",
+          "The issue asks for twice the noise-free bounds \"with 0.5 px tag noise\". Section 2 adds "
+          "the noise to the contours as well, which also moves the surfaces the strain directions, "
+          "the AHA segments and the wall samples come from. Here the same phantoms get 0.5 px "
+          "noise on the tag points only (`phantom.faults.add_noise(..., targets=(\"tags\",))`, "
+          "drawn from each phantom's own noise generator), the contours stay exact; same "
+          "estimator (tags and contours, the volume prior s = 5 %).", ""] + table(tag_noisy)
+    L += ["", "Twice the noise-free bounds over these phantoms:", ""] + bound_summary(tag_noisy)
+    L += ["", "Bias and calibration over these phantoms:", ""] + calibration(tag_noisy)
+    L += ["", "The same tags fitted without the contours (the estimator before they joined), and "
+          "the ridge alone with the contours:", ""] + ablation(tag_noisy)
+    L += ["", "Where the remaining Err error is: the mean over the 16 segments of each phantom's "
+          "signed Err error (a whole-ventricle offset, shared by every segment) against the spread "
+          "of the errors about that mean:", ""] + offset_rows(tag_noisy)
     L += ["", "## 3. Filling and ejection rates (noise-free, relative error %)", "",
           "| phantom | frames | PER | PEFR | PAFR | E/A | truth PER / PEFR / PAFR (mL/s) |",
           "|---|---|---|---|---|---|---|"]
@@ -439,6 +494,73 @@ def main(argv=None) -> int:
             f"({med * 1000:.0f} ms wall on the shared machine; 5 runs, single-threaded BLAS) to a "
             "2-frame tagged normal phantom study after its surfaces are built. Target: < 0.5 s.",
             ""]) + "\n")
+    print("\n".join(L))
+    return 0
+
+
+REALISTIC_INFARCTS = (("normal", 1, "lad"), ("mr", 2, "rca"), ("phtn", 3, "lcx"))
+
+
+def realistic_report(a) -> int:
+    """Noise-free regional rows on realistic anatomy (section 1's table, the same estimator),
+    written to reports/validation-regional-realistic.md unless ``--out`` says otherwise."""
+    out = (ROOT / "reports" / "validation-regional-realistic.md"
+           if a.out == str(ROOT / "reports" / "validation-regional.md") else Path(a.out))
+    jobs = ([(p, s + k, 0.0, "both", "realistic", None) for p, s in PRESETS for k in range(a.seeds)]
+            + [(p, s, 0.0, "both", "realistic", inf) for p, s, inf in REALISTIC_INFARCTS])
+    if a.jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+        with ProcessPoolExecutor(a.jobs) as pool:
+            rows = list(pool.map(one, *zip(*jobs)))
+    else:
+        rows = [one(*j) for j in jobs]
+    L = ["# Validation: regional function on realistic anatomy (noise-free)", "",
+         "Command: `.venv/bin/python benchmarks/validate_regional.py --anatomy realistic"
+         + (f" --seeds {a.seeds}" if a.seeds != 1 else "")
+         + (f" --jobs {a.jobs}" if a.jobs != 1 else "") + "`", "",
+         f"Generated {_dt.datetime.now(_dt.timezone.utc):%Y-%m-%d %H:%M} UTC on {platform.node()} "
+         f"({os.cpu_count()} cores, Python {platform.python_version()}). Realistic phantoms "
+         "(`--anatomy realistic`: shape modes, segmental wall thickness, apex off the axis, saddle "
+         "annuli, outflow tracts; docs/phantoms.md), 2 frames, no noise, against their `truth.json`; "
+         "the columns are those of section 1 of reports/validation-regional.md (bounds there: "
+         "thickness 0.5 mm, Ecc 1, Ell 1.5, Err 3 strain points, GCS/GLS 0.5).", ""]
+    L += table(rows)
+    L += ["", "Truth values of the global columns:", ""] + truth_rows(rows)
+    L += ["", "## Reading", "",
+          "- **Wall thickness, thickening and surface GLS/GCS** are measured from the NURBS "
+          "surfaces and hold on realistic anatomy without an infarct as on the ideal one. With "
+          "an infarct, the ED thickness holds too (the truth's endocardial grid now follows the "
+          "infarct's thinning; before, it ignored it and the truth kept the healthy wall); at ES "
+          "segments next to the territory read up to 1.2 mm thinner than the truth (up to "
+          "1.7 mm on other seeds), "
+          "probably because the thickness changes steeply there (a thin, hypokinetic territory "
+          "beside a wall thickening by half) and the measured and the analytic ES segment "
+          "boundaries (the ES long axis and RV insertion points) differ slightly: a segment "
+          "mean across a steep edge moves with its boundary. Not resolved; the ES thickness "
+          "and thickening of infarct phantoms are not validated.",
+          "- **The strain truth's directions.** On realistic anatomy they follow the measurement's "
+          "definition: the ED endocardial normal averaged over 10 mm (until now the truth took "
+          "the raw normal, and on an infarct phantom that of the healthy wall; the averaged normal "
+          "moves an infarct segment's Ecc truth by up to ~5 points, a non-infarct one's by less).",
+          "- **Tag strain is not within its bounds on realistic anatomy.** On the ideal phantoms "
+          "the smooth map (S1) of "
+          "`analysis.strain` (Legendre order 3 in height, 2 Fourier harmonics, a transmural "
+          "term linear in r²) reproduces the motion to ~0.002 mm; on these phantoms it leaves "
+          "0.4–0.7 mm on exact tags (column \"fit residual\"): their wall thickness and shape "
+          "vary by segment with more angular detail than 2 harmonics carry, so the least-squares "
+          "map bends its weakest-determined part, the transmural gradient, to absorb the misfit "
+          "— Ecc and Ell stay within a few points without an infarct (up to 14 and 22 points "
+          "with one), Err is off by up to ~60 points, and det F of the unregularised "
+          "fit departs from 1 by up to ~10 %. Raising the orders of the refined map (tried: "
+          "4 and 6 harmonics, height order 4) lowered the misfit and the mean Err error but made "
+          "single segments unstable (Ecc and Ell off by tens of points where few tags cross the "
+          "wall) and moved the ideal phantoms' strains out of their bounds; the map needs "
+          "regional detail with a prior that keeps it stable (a finite-element or B-spline map "
+          "in prolate coordinates, as in the model-based tag analyses), which is not built. "
+          "Until then the tag strain columns of a heart that is not close to a spheroid carry "
+          "this error; `regional.strain.fit_residual_mm` in metrics.json shows it (well above "
+          "the tags' noise `tag_noise_mm`)."]
+    atomic.write_text(out, "\n".join(L) + "\n")
     print("\n".join(L))
     return 0
 
@@ -543,19 +665,33 @@ NOTES = """## Notes
   remove most of the first half.
 - **Radial strain is noise-limited.** The table of standard errors above is the fit's own
   covariance: with one or two tag lines across a 1 cm wall the transmural gradient is what
-  the tags measure least well, and the standard error of a segment's Err is a median of
-  3–6 strain points at σ ≈ 0.6 mm and up to 25 in an apical segment (where few tag lines
-  cross the wall, obliquely), against at most 0.2–1.3 for Ecc. An unbiased estimator with those errors puts all 16 segments within
-  6 points with the probability shown (well below 1), so the Err target of 6 points is out
-  of reach at this noise level for any unbiased estimate within the motion model; the
-  regularised fit (which trades bias for variance through its priors) does better than
-  that on most phantoms: its own standard deviations (last column) are 1–3 points, and its
-  bias makes up the rest of the error. Also tried: the reconstructed endo- and epicardium at ED and ES as
-  material surfaces, added to the tag-line fit as point-to-surface residuals with weights
-  from their own residual variance (Young and Axel's combined tag-and-contour fit). Their
-  pointwise error with 0.5 px contour noise (RMS 0.7–1 mm) is larger than the tags', they
-  biased Err low, and they did not reduce the segment errors on the normal phantom, so they
-  are not used.
+  the tags measure least well. With the tags alone the standard error of a segment's Err was
+  a median of 3–6 strain points at σ ≈ 0.6 mm (up to 25 in an apical segment, where few tag
+  lines cross the wall, obliquely), against at most 0.2–1.3 for Ecc, and an unbiased
+  estimator put all 16 segments within 6 points with a probability of 0.001–0.22 per
+  phantom. With the contours in the fit it is 2–3 points (the table above), and the
+  regularised fit's own standard deviations (last column) about 1 point. That table
+  treats every contour point's noise as independent; the ED surface the points slide on
+  carries the ED contours' noise into all of them at once, so with contour noise it
+  over-states what the contours add (the Err errors of section 2 exceed those standard
+  errors on a few phantoms), while with exact contours (section 2b) the errors are within
+  them. With the tags alone, most of the Err error was one offset shared by the whole
+  ventricle (section 2b: the per-phantom mean Err error), which the contours measure (next
+  note).
+- **Contours as material boundaries** (reported estimator). The frame's LV endo- and
+  epicardial contour points join the tag-line fit as images of points of the same ED
+  surface (term (T3) of `analysis.tag_motion`: each slides on the tangent plane of its
+  nearest ED NURBS sample), weighted by σ / σ_c, σ_c their RMS distance from the ED
+  surfaces moved by the tag-only fit; only points between the lowest and highest tag point.
+  They measure how far each boundary moved along its normal — the wall's thickening — so
+  they fix the transmural offset the tags leave open. An earlier attempt in another form
+  (the reconstructed ED and ES surfaces both as point-to-surface residuals, weighted by
+  their own residual variance) biased Err low and did not help on the normal phantom; here
+  the contour points themselves are the data and only the ED surface is reconstructed.
+  Nothing was adjusted after the sweeps in this report (the sample grid, the two joint
+  Gauss–Newton steps and the weighting were set before). With contour noise the ED surface
+  carries the ED contours' noise into the term, which leaves Err biased low by about a
+  point on average (calibration table of section 2).
 - **Thickness with contour noise.** The rays follow the endocardial normal averaged over 6 mm
   (as the strain directions do): a ray tilted by α crosses a wall of thickness T over
   T / cos α, so the raw normals of a surface fitted to noisy contours over-stated the

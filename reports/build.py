@@ -221,6 +221,9 @@ def main(argv=None) -> int:
              "- [validation-regional.md](validation-regional.md): AHA segments, wall thickness, "
              "tag strain, surface GLS/GCS and filling rates against the phantoms' exact regional "
              "truth, noise-free and with 0.5 px noise (`benchmarks/validate_regional.py`).",
+             "- [validation-regional-realistic.md](validation-regional-realistic.md): the same on "
+             "realistic anatomy, noise-free (`benchmarks/validate_regional.py --anatomy realistic`): "
+             "thickness holds, tag strain does not yet.",
              "- [validation-quality.md](validation-quality.md): the quality flags on the paper's "
              "12 phantoms and on bivme-patient1.",
              ""]

@@ -170,6 +170,28 @@ def test_tag_jumps_and_noise_are_recorded():
         generate("normal", seed=0, frames=2, tag_jumps=10 ** 4)
 
 
+@pytest.mark.parametrize("targets", [("tags",), ("contours",)])
+def test_noise_on_chosen_annotations_only(targets):
+    """add_noise(targets=...) moves the chosen annotations by about sigma pixels and leaves
+    the others exactly where they were."""
+    from cardionurbs.phantom.faults import add_noise
+    clean = generate("normal", seed=3, frames=2, volume_check=False)
+    noisy = generate("normal", seed=3, frames=2, volume_check=False)
+    add_noise(noisy.study, 0.5, np.random.default_rng(0), targets=targets)
+    for kind in ("contours", "tags"):
+        px = []
+        for a, b in zip(getattr(clean.study, kind), getattr(noisy.study, kind)):
+            im = clean.study.image(a.image)
+            px.append(im.scanner_to_pixel(b.points) - im.scanner_to_pixel(a.points))
+        d = np.concatenate(px)
+        if kind in targets:
+            assert 0.45 < d.std() < 0.55
+        else:
+            assert np.array_equal(d, np.zeros_like(d))
+    with pytest.raises(ValueError, match="targets"):
+        add_noise(noisy.study, 0.5, np.random.default_rng(0), targets=("images",))
+
+
 def test_breath_hold_shift_moves_slices():
     a = generate("normal", seed=4, frames=2, volume_check=False)
     b = generate("normal", seed=4, frames=2, breath_hold_mm=2.0, volume_check=False)

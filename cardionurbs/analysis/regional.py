@@ -20,9 +20,10 @@ import numpy as np
 from cardionurbs.analysis.aha import AhaFrame, model_aha_frame
 from cardionurbs.analysis.strain import (DIRECTION_SMOOTHING_MM, STRAIN_COLUMNS, STRAIN_KINDS,
                                          myocardium_samples, smoothed_normals, tag_strain)
-from cardionurbs.analysis.tag_motion import ed_tag_planes, frame_tag_points
+from cardionurbs.analysis.tag_motion import BOUNDARY_SAMPLES, Boundary, ed_tag_planes, frame_tag_points
 from cardionurbs.analysis.surface_strain import SURFACE_STRAIN_COLUMNS, surface_strains
-from cardionurbs.analysis.thickness import THICKNESS_COLUMNS, thickness_by_segment, thickness_columns
+from cardionurbs.analysis.thickness import (THICKNESS_COLUMNS, surface_samples, thickness_by_segment,
+                                            thickness_columns)
 from cardionurbs.analysis.columns import ColumnMapping
 from cardionurbs.errors import CardioNurbsError
 
@@ -71,13 +72,33 @@ class RegionalMetrics(ColumnMapping):
                       "notes": list(self.notes)})
 
 
+def wall_boundaries(model, frame: int, cache: dict | None = None) -> list[Boundary]:
+    """The LV endo- and epicardial contours of ``frame`` (every view) with the same surface at
+    the model's ED frame, sampled on a (u, v) grid (:data:`~cardionurbs.analysis.tag_motion.BOUNDARY_SAMPLES`)
+    for the tag-line fit's boundary term; ``cache``: {structure: (samples, normals)} shared
+    between frames."""
+    cache = {} if cache is None else cache
+    ed = model.surfaces[model.ed_frame]
+    out = []
+    for structure in ("lv_endo", "lv_epi"):
+        pts = [c.points for c in model.study.contours_at(frame, structure)]
+        if not pts or structure not in ed:
+            continue
+        if structure not in cache:
+            cache[structure] = surface_samples(ed[structure], *BOUNDARY_SAMPLES)[:2]
+        out.append(Boundary(np.vstack(pts), *cache[structure]))
+    return out
+
+
 def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
-                     volume_prior_sd: float | None = None) -> RegionalMetrics:
+                     volume_prior_sd: float | None = None, boundaries: bool = True) -> RegionalMetrics:
     """Regional columns of a model; ``tags``: its :class:`~cardionurbs.analysis.tags.TagMetrics`
     (material points) when the study is tagged. ``incompressibility``: how the tag-strain fit
     of noisy tags uses near-incompressibility (:func:`cardionurbs.analysis.strain.tag_strain`:
     "prior", the default, with its spread ``volume_prior_sd`` (default: the stated one);
-    "risk" or False for comparison)."""
+    "risk" or False for comparison). ``boundaries``: the contours of the LV endo- and
+    epicardium join the tag-line fit as material boundaries (:func:`wall_boundaries`; False:
+    the tags alone, for comparison)."""
     cols = {c: NAN for c in THICKNESS_COLUMNS + STRAIN_COLUMNS + SURFACE_STRAIN_COLUMNS}
     out = RegionalMetrics(cols)
     ed, es = model.ed_frame, model.es_frame
@@ -115,6 +136,7 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
     study = model.study
     flagged = {(fl.family, fl.index, fl.slice, fl.frame) for fl in getattr(tags, "flags", [])}
     planes = ed_tag_planes(study, material.ed_frame, flagged)
+    ed_samples = {}
     for f in frames:
         ax = (out.aha[f].apex, out.aha[f].base) if f in out.aha else None
         lines = None
@@ -124,7 +146,8 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
                 lines = (got[0], planes.normals[got[1]], planes.offsets[got[1]])
         res = tag_strain(material, f, a.apex, a.base, P, N, a, axis=ax, myocardium=wall,
                          tag_lines=lines, noise_mm=planes.rms_mm if planes is not None else 0.0,
-                         incompressibility=incompressibility, volume_prior_sd=volume_prior_sd)
+                         incompressibility=incompressibility, volume_prior_sd=volume_prior_sd,
+                         boundary=wall_boundaries(model, f, ed_samples) if boundaries else ())
         if res is not None:
             if planes is not None:
                 res["tag_noise_mm"] = planes.rms_mm

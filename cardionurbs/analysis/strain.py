@@ -332,7 +332,7 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
                myocardium: tuple[np.ndarray, np.ndarray] | None = None,
                tag_lines: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                noise_mm: float = 0.0, incompressibility: bool | str = "prior",
-               volume_prior_sd: float | None = None) -> dict | None:
+               volume_prior_sd: float | None = None, boundary=()) -> dict | None:
     """Strain ED → ``frame`` from the tracked material points: {"columns", "det_F" (mean),
     "det_F_range", "n_points", "counts", "fit_residual_mm", "method"}; None with too few points.
     ``apex``, ``base``: the ED long axis; ``axis``: (apex, base) at ``frame`` (default ED's).
@@ -357,7 +357,11 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     the evidence; "risk" — a penalty whose weight the unbiased risk estimate chooses with the
     ridge weights (the estimator before the prior); False — the ridge penalties alone.
     ``volume_prior_sd``: the prior's s (default :data:`~cardionurbs.analysis.tag_motion.VOLUME_PRIOR_SD`;
-    other values only to show how much the result depends on it)."""
+    other values only to show how much the result depends on it).
+    ``boundary``: the frame's contour points on the LV endo- and epicardium with those
+    surfaces at ED (:class:`~cardionurbs.analysis.tag_motion.Boundary`): the wall's material
+    boundaries join the tag-line fit as data (term (T3) of
+    :mod:`cardionurbs.analysis.tag_motion`)."""
     from cardionurbs.analysis.tag_motion import MIN_TAG_POINTS, VOLUME_PRIOR_SD, fit_tag_motion
     ok = material.tracked(material.ed_frame, frame)
     if ok.sum() < MIN_POINTS:
@@ -395,9 +399,13 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
             prior_sd = VOLUME_PRIOR_SD if volume_prior_sd is None else float(volume_prior_sd)
         out = fit_tag_motion(fit, *tag_lines, noise_mm=noise_mm, quantities=segment_strains,
                              volume_samples=(Y[sub], w[sub], labels[sub]) if incompressibility else None,
-                             volume_prior_sd=prior_sd)
+                             volume_prior_sd=prior_sd, boundary=boundary)
         info.update(method="tag lines", n_tag_points=out["n_points"], penalty=out["lambda"],
                     tag_outliers=out["outliers"], fit_residual_mm=out["residual_mm"])
+        if out["boundary_points"]:
+            info.update(boundary_points=out["boundary_points"],
+                        boundary_residual_mm=out["boundary_residual_mm"],
+                        boundary_noise_mm=out["boundary_noise_mm"])
         if prior_sd is not None and out["lambda"]:
             info["volume_prior_sd"] = prior_sd
         if out["det_F_unregularised"] is not None:

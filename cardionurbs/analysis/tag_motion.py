@@ -62,6 +62,27 @@ Near-incompressibility, as a prior
     estimate with the ridge weights) stays available for comparison: ``volume_prior_sd=None``
     with ``volume_samples``.
 
+The wall's boundaries as data (T3)
+    The endo- and epicardium are material surfaces: the tissue on them at ED is on them
+    at every frame. So each contour point y_j of the frame on the endo- (epi-)cardium is
+    the image of a point Y_j of the ED endo- (epi-)cardial surface Σ:
+
+        y_j = φ(Y_j) + ε_j,   Y_j ∈ Σ                                           (T3)
+
+    — the form of (T1) with the ED tag plane replaced by Σ, which Y_j slides on (its
+    tangent plane at the nearest of dense samples of the ED NURBS surface, re-found after
+    every step). Only the distance of y_j from φ(Σ) is data: how far the wall's boundaries
+    moved along their normals, i.e. the wall's thickening, which the one or two tag lines
+    across the wall measure poorly. Both terms are summed, each point weighted by the
+    inverse variance of its noise: ε_j's standard deviation σ_c is estimated from the
+    boundary points' own misfit to the tag-only fit (a contour's in-plane noise and the
+    ED surface's error), relative to the tags' σ. This is how model-based tag analysis
+    has long used contours (Young, Kraitchman, Dougherty & Axel, *Tracking and finite
+    element analysis of stripe deformation in magnetic resonance tagging*, IEEE TMI
+    14:413–421, 1995: the model is fitted to the tag stripes and the contours together).
+    Only contour points between the lowest and highest tag point of the frame (along the
+    long axis) are used, where the motion model (S1) is fitted to tags as well.
+
 The ED planes are the total-least-squares planes of each tag's ED lines;
 their RMS residual (mm) is the tracking noise normal to the tag, reported as
 ``tag_noise_mm``. Only points inside the LV myocardium at their frame (SA
@@ -107,6 +128,23 @@ REGULARISED_ITERATIONS = 2
 VOLUME_PRIOR_SD = 0.05
 #: confidence level of the F-test that keeps a tag family's planes separate (:func:`tag_grid`)
 GRID_TEST_LEVEL = 0.999
+#: (u, v) samples of each ED wall surface whose tangent planes the boundary points slide on
+#: (:class:`Boundary`): ~1–2 mm apart, so a tangent plane departs from the surface by
+#: < 0.03 mm within a sample's reach on the LV's >= 20 mm radii of curvature
+BOUNDARY_SAMPLES = (160, 96)
+#: Gauss–Newton iterations of (T2) with the tag and boundary points together, before the
+#: regularisation
+JOINT_ITERATIONS = 2
+
+
+@dataclass(frozen=True)
+class Boundary:
+    """The contour points of one frame on one material surface of the LV wall (endo- or
+    epicardium), ``points`` (c, 3) mm, and that surface at ED as dense ``samples`` (m, 3)
+    with unit ``normals`` (m, 3) (term (T3) of the module docstring)."""
+    points: np.ndarray
+    samples: np.ndarray
+    normals: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -408,10 +446,61 @@ def segment_mean_matrix(labels: np.ndarray, volumes: np.ndarray) -> tuple[np.nda
     return M / v[:, None], v
 
 
+def boundary_start(fit, boundary, ed_tag_points: np.ndarray):
+    """The boundary points (T3) that start the joint fit: (y (c, 3) the contour points whose
+    ED preimage lies between the lowest and highest ED tag point along the long axis, Y
+    (c, 3) those preimages on the ED surfaces, their tangent-plane bases (c, 2, 3), and
+    ``slide``: points -> (the points put back on the tangent plane of their nearest ED
+    surface sample, the bases of those planes)).
+
+    Y starts at the fixed-point preimage of y under ``fit`` and is then moved along its
+    surface by Gauss–Newton with the motion held (three steps), so that φ(Y) − y is y's
+    distance from the moved surface."""
+    from scipy.spatial import cKDTree
+    trees = [cKDTree(b.samples) for b in boundary]
+    label = np.concatenate([np.full(len(b.points), i) for i, b in enumerate(boundary)])
+
+    def slide(P, label=label):
+        out, nrm = np.array(P, float), np.zeros((len(P), 3))
+        for i, b in enumerate(boundary):
+            m = label == i
+            j = trees[i].query(out[m])[1]
+            nn = b.normals[j]
+            out[m] -= np.einsum("ni,ni->n", out[m] - b.samples[j], nn)[:, None] * nn
+            nrm[m] = nn
+        return out, plane_bases(nrm)
+    y = np.vstack([np.asarray(b.points, float) for b in boundary])
+    Y = y.copy()
+    for _ in range(3):
+        Y = slide(Y + (y - fit.position(Y)))[0]
+    for _ in range(3):
+        Y, B = slide(Y)
+        J = fit.gradient(Y) @ B.transpose(0, 2, 1)                     # (c, 3, 2)
+        H = np.einsum("nik,nil->nkl", J, J)
+        H += 1e-9 * (np.trace(H, axis1=1, axis2=2) + 1e-12)[:, None, None] * np.eye(2)
+        g = np.einsum("nik,ni->nk", J, fit.position(Y) - y)
+        ok = np.isfinite(H).all(axis=(1, 2)) & np.isfinite(g).all(axis=1)
+        step = np.zeros_like(g)
+        step[ok] = np.linalg.solve(H[ok], g[ok][:, :, None])[:, :, 0]
+        Y = Y - np.einsum("nk,nkj->nj", step, B)
+    axis = fit.frame0[2]                               # heights along the ED long axis
+    zeta = (Y - fit.apex0) @ axis
+    z_tag = (ed_tag_points - fit.apex0) @ axis
+    inside = ((zeta >= z_tag.min()) & (zeta <= z_tag.max())
+              & np.isfinite(fit.position(Y)).all(axis=1))
+    y, Y, label = y[inside], Y[inside], label[inside]
+
+    def slide_inside(P):
+        return slide(P, label)
+    Y, B = slide_inside(Y)
+    return y, Y, B, slide_inside
+
+
 def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
                    noise_mm: float = 0.0, quantities=None, ridge: float = 1e-8,
                    volume_samples: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-                   volume_prior_sd: float | None = None) -> dict:
+                   volume_prior_sd: float | None = None,
+                   boundary: list[Boundary] | tuple[Boundary, ...] = ()) -> dict:
     """Refine a :class:`~cardionurbs.analysis.strain.CylindricalMotionFit` ``fit`` (ED → frame,
     started from the material points) on tag points (n, 3) whose ED planes are
     (``normals`` (n, 3), ``offsets`` (n,)) by (T2), in place.
@@ -435,11 +524,18 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
     standard deviations σ √diag(B A S A Bᵀ) of the regularised fit's quantities, A = (S +
     P)⁻¹: its noise, not its bias), "det_F_unregularised" (volume-weighted mean, min, max
     of det F over ``volume_samples`` for the unregularised fit: the incompressibility check
-    independent of the penalty)}.
+    independent of the penalty), "boundary_points" and "boundary_residual_mm" (the contour
+    points of ``boundary`` used and their RMS distance to the moved ED surfaces; 0 and None
+    without), "boundary_noise_mm" (σ_c)}.
+
+    ``boundary``: contour points on the wall's material surfaces with those surfaces at ED
+    (:class:`Boundary`, term (T3)); they join the fit after the tag-only iterations, weighted
+    σ / σ_c against the tags.
     """
     x = np.asarray(points, float)
     n = np.asarray(normals, float)
     d = np.asarray(offsets, float)
+    n_tag = len(x)
     basis = plane_bases(n)                                             # (n, 2, 3)
     # start: the fixed-point preimage of each point under the start map, on its plane
     X = x.copy()
@@ -447,14 +543,20 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
         X = X + (x - fit.position(X))
         X -= ((np.einsum("ni,ni->n", n, X) - d))[:, None] * n
     use = np.ones(len(x), bool)
+    weight = np.ones(len(x))
+    slide = None                     # the boundary points' surfaces (after the tag-only fit)
 
     def step(penalty=None, penalty_grad=None):
         pos, J_coef, F = fit.linearisation(X[use])
         J_pt = F @ basis[use].transpose(0, 2, 1)                         # (n, 3, 2)
         coef = fit.coef.T.reshape(-1)                                   # component-major
-        d_coef, d_pt, S = _schur_step(J_coef, J_pt, pos - x[use], ridge, penalty, penalty_grad)
+        w = weight[use][:, None]
+        d_coef, d_pt, S = _schur_step(J_coef * w[:, :, None], J_pt * w[:, :, None],
+                                      (pos - x[use]) * w, ridge, penalty, penalty_grad)
         fit.coef = (coef + d_coef).reshape(3, -1).T
         X[use] += np.einsum("nk,nkj->nj", d_pt, basis[use])
+        if slide is not None:            # back onto the ED surfaces; their new tangent planes
+            X[n_tag:], basis[n_tag:] = slide(X[n_tag:])
         return S
     for stage, iters in enumerate(ITERATIONS):
         for _ in range(iters):
@@ -462,6 +564,25 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
         err = np.linalg.norm(fit.position(X) - x, axis=1)
         if stage == 0:
             use = err <= max(OUTLIER_MM, 4.0 * float(np.median(err)))
+    b_rms, sigma_c, n_b = None, None, 0
+    if len(boundary):
+        y, Y, basis_b, slide = boundary_start(fit, boundary, X[use])
+        n_b = len(y)
+    if n_b:
+        # the boundary noise σ_c: the RMS distance of the points (gross outliers left out)
+        # from the ED surfaces moved by the tag-only fit
+        e_b = np.linalg.norm(fit.position(Y) - y, axis=1)
+        keep_b = e_b <= max(OUTLIER_MM, 4.0 * float(np.median(e_b)))
+        sigma_c = max(float(np.sqrt(np.mean(e_b[keep_b] ** 2))), NOISE_FLOOR_MM)
+        sigma_t = max(float(noise_mm), NOISE_FLOOR_MM)
+        x = np.r_[x, y]
+        X = np.r_[X, Y]
+        basis = np.r_[basis, basis_b]
+        use = np.r_[use, keep_b]
+        weight = np.r_[weight, np.full(len(y), sigma_t / sigma_c)]
+        for _ in range(JOINT_ITERATIONS):
+            S = step()
+        err = np.linalg.norm(fit.position(X) - x, axis=1)
     lams, se, sd, det0 = (), None, None, None
     if volume_samples is not None:
         V, vol, lab = (np.asarray(v) for v in volume_samples)
@@ -517,6 +638,12 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
                     P, grad = P + kappa * Q, grad + kappa * r
                 step(P, grad)
             err = np.linalg.norm(fit.position(X) - x, axis=1)
-    return {"residual_mm": float(np.sqrt(np.mean(err[use] ** 2))), "outliers": int((~use).sum()),
-            "n_points": int(use.sum()), "lambda": [float(v) for v in lams], "ed_points": X[use],
-            "quantity_se": se, "regularised_sd": sd, "det_F_unregularised": det0}
+    tags = use[:n_tag]
+    if n_b:
+        b_rms = float(np.sqrt(np.mean(err[n_tag:][use[n_tag:]] ** 2)))
+    return {"residual_mm": float(np.sqrt(np.mean(err[:n_tag][tags] ** 2))),
+            "outliers": int((~tags).sum()), "n_points": int(tags.sum()),
+            "lambda": [float(v) for v in lams], "ed_points": X[:n_tag][tags],
+            "quantity_se": se, "regularised_sd": sd, "det_F_unregularised": det0,
+            "boundary_points": int(use[n_tag:].sum()), "boundary_residual_mm": b_rms,
+            "boundary_noise_mm": sigma_c}

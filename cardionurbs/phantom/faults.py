@@ -22,8 +22,12 @@ from cardionurbs.errors import PhantomError
 from cardionurbs.study import Study
 
 
-def add_noise(study: Study, sigma_px: float, rng: np.random.Generator, tries: int = 50) -> list[dict]:
+def add_noise(study: Study, sigma_px: float, rng: np.random.Generator, tries: int = 50,
+              targets: tuple[str, ...] = ("contours", "tags")) -> list[dict]:
     """Add N(0, σ²) pixel noise to every contour and tag-line point, in place.
+
+    ``targets``: which annotations get the noise, "contours" and/or "tags" (e.g. only
+    ("tags",) to study tag tracking noise with exact contours).
 
     A closed contour is never drawn crossing itself (an analyst would not): a draw that makes one
     cross (thin apical RV crescents, whose tips are narrower than the noise) is drawn again from
@@ -33,10 +37,13 @@ def add_noise(study: Study, sigma_px: float, rng: np.random.Generator, tries: in
     noise. Returns the left-out contours (slice, frame, structure).
     """
     from cardionurbs.io.checks import in_plane_coordinates, self_intersections
+    if not set(targets) <= {"contours", "tags"}:
+        raise ValueError(f"targets: 'contours' and/or 'tags', not {targets!r}")
     if sigma_px <= 0:
         return []
     dropped, keep = [], []
-    for item in [*study.contours, *study.tags]:
+    for item in [*(study.contours if "contours" in targets else ()),
+                 *(study.tags if "tags" in targets else ())]:
         im = study.image(item.image)
 
         def noisy(d):
