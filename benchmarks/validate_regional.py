@@ -357,6 +357,24 @@ def timing():
     return statistics.median(wall), statistics.median(cpu)
 
 
+def run_all(jobs: list[tuple], n_jobs: int) -> list[dict]:
+    """:func:`one` for every job (its arguments), in ``n_jobs`` processes when > 1, in order."""
+    if n_jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+        with ProcessPoolExecutor(n_jobs) as pool:
+            return list(pool.map(one, *zip(*jobs)))
+    return [one(*j) for j in jobs]
+
+
+def header(title: str, options: str) -> list[str]:
+    """A report's title, its command (this script with ``options``) and where and when it ran;
+    the caller's text continues the last line."""
+    return [f"# {title}", "", "Command: `.venv/bin/python benchmarks/validate_regional.py"
+            + (" " + options.strip() if options.strip() else "") + "`", "",
+            f"Generated {_dt.datetime.now(_dt.timezone.utc):%Y-%m-%d %H:%M} UTC on {platform.node()} "
+            f"({os.cpu_count()} cores, Python {platform.python_version()})."]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=1)
@@ -376,12 +394,7 @@ def main(argv=None) -> int:
     noisy_seeds = [(p, s + k) for p, s in PRESETS for k in range(max(a.seeds, a.noise_seeds))]
     jobs = ([(p, s, 0.0, "both") for p, s in presets] + [(p, s, 0.5, "both") for p, s in noisy_seeds]
             + [(p, s, 0.5, "tags") for p, s in noisy_seeds])
-    if a.jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
-        with ProcessPoolExecutor(a.jobs) as pool:
-            rows = list(pool.map(one, *zip(*jobs)))
-    else:
-        rows = [one(*j) for j in jobs]
+    rows = run_all(jobs, a.jobs)
     clean = rows[:len(presets)]
     noisy = [r for r in rows[len(presets):] if r["noise on"] == "both"]
     tag_noisy = [r for r in rows[len(presets):] if r["noise on"] == "tags"]
@@ -389,14 +402,12 @@ def main(argv=None) -> int:
     kinds, comparison = estimator_comparison()
     sb = sunnybrook()
     med, cpu = timing()
-    L = ["# Validation: regional function (AHA segments, wall thickness, strain, rates)", "",
-         "Command: `.venv/bin/python benchmarks/validate_regional.py"
-         + (f" --seeds {a.seeds}" if a.seeds != 1 else "")
-         + (f" --noise-seeds {a.noise_seeds}" if a.noise_seeds != 4 else "")
-         + (f" --jobs {a.jobs}" if a.jobs != 1 else "") + "`", "",
-         f"Generated {_dt.datetime.now(_dt.timezone.utc):%Y-%m-%d %H:%M} UTC on {platform.node()} "
-         f"({os.cpu_count()} cores, Python {platform.python_version()}). Truth: `truth.json` of "
-         "each phantom, computed from the analytic model (`cardionurbs.phantom.regional`), "
+    L = header("Validation: regional function (AHA segments, wall thickness, strain, rates)",
+               (f" --seeds {a.seeds}" if a.seeds != 1 else "")
+               + (f" --noise-seeds {a.noise_seeds}" if a.noise_seeds != 4 else "")
+               + (f" --jobs {a.jobs}" if a.jobs != 1 else "")) + [
+         "Truth: `truth.json` of each phantom, computed from the analytic model "
+         "(`cardionurbs.phantom.regional`), "
          "never from the reconstruction. Errors are measured − truth; strains in strain points "
          "(%), segment errors over AHA segments 1–16.", "",
          "## 1. Noise-free phantoms (2 frames: ED, ES)", ""]
@@ -508,18 +519,11 @@ def realistic_report(a) -> int:
            if a.out == str(ROOT / "reports" / "validation-regional.md") else Path(a.out))
     jobs = ([(p, s + k, 0.0, "both", "realistic", None) for p, s in PRESETS for k in range(a.seeds)]
             + [(p, s, 0.0, "both", "realistic", inf) for p, s, inf in REALISTIC_INFARCTS])
-    if a.jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
-        with ProcessPoolExecutor(a.jobs) as pool:
-            rows = list(pool.map(one, *zip(*jobs)))
-    else:
-        rows = [one(*j) for j in jobs]
-    L = ["# Validation: regional function on realistic anatomy (noise-free)", "",
-         "Command: `.venv/bin/python benchmarks/validate_regional.py --anatomy realistic"
-         + (f" --seeds {a.seeds}" if a.seeds != 1 else "")
-         + (f" --jobs {a.jobs}" if a.jobs != 1 else "") + "`", "",
-         f"Generated {_dt.datetime.now(_dt.timezone.utc):%Y-%m-%d %H:%M} UTC on {platform.node()} "
-         f"({os.cpu_count()} cores, Python {platform.python_version()}). Realistic phantoms "
+    rows = run_all(jobs, a.jobs)
+    L = header("Validation: regional function on realistic anatomy (noise-free)",
+               "--anatomy realistic" + (f" --seeds {a.seeds}" if a.seeds != 1 else "")
+               + (f" --jobs {a.jobs}" if a.jobs != 1 else "")) + [
+         "Realistic phantoms "
          "(`--anatomy realistic`: shape modes, segmental wall thickness, apex off the axis, saddle "
          "annuli, outflow tracts; docs/phantoms.md), 2 frames, no noise, against their `truth.json`; "
          "the columns are those of section 1 of reports/validation-regional.md (bounds there: "
