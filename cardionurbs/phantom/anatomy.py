@@ -312,36 +312,36 @@ class Anatomy:
         u = (z - self.z_base) / c
         return np.where((u <= 0) & (u > -1), 1.0 - u * u, 0.0)
 
-    def rv_p(self, theta: np.ndarray, epi: bool = False, z: np.ndarray | None = None) -> np.ndarray:
-        """P(θ) of eq. (A3) for the RV endocardial (or epicardial) shell, mm²; realistic: the
-        ellipse stretched about the axis by the wrap factor w(z) and scaled by the reach factor."""
-        t = self.rv_wall if epi else 0.0
+    def _rv_rays(self, theta: np.ndarray, z: np.ndarray | None):
+        """(cos, sin) of the ray angle along which the RV ellipse of eq. (A3) is evaluated at
+        (θ, z), and the reach factor (None for ideal anatomy): realistic, θ stretched about the
+        axis by the wrap factor w(z)."""
         if self.shape is None:
-            return ellipse_far_radius_sq(theta, self.r_free_endo + t, self.r_wrap_endo + t,
-                                         self.rv_x_center)
-        if z is None:
-            raise ValueError("a realistic RV section depends on the height: pass z")
-        u = 1.0 + (np.asarray(z, dtype=float) - self.z_base) / self.r_long_rv_endo
-        th = np.minimum(np.abs(np.asarray(theta, dtype=float)) / self.shape.rv_wrap(u), np.pi)
-        return (ellipse_far_radius_sq(th, self.r_free_endo + t, self.r_wrap_endo + t, self.rv_x_center)
-                * self.shape.rv_reach_factor(u))
-
-    def rv_p_pair(self, theta: np.ndarray, z: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(P_endo, P_epi) of :meth:`rv_p` at the same (θ, z): both ellipses along the same rays
-        (one cosine and sine of the ray angle for both; the same values as two calls)."""
-        t = self.rv_wall
-        if self.shape is None:
-            th, reach = np.asarray(theta, dtype=float), 1.0
+            th, reach = np.asarray(theta, dtype=float), None
         else:
             if z is None:
                 raise ValueError("a realistic RV section depends on the height: pass z")
             u = 1.0 + (np.asarray(z, dtype=float) - self.z_base) / self.r_long_rv_endo
             th = np.minimum(np.abs(np.asarray(theta, dtype=float)) / self.shape.rv_wrap(u), np.pi)
             reach = self.shape.rv_reach_factor(u)
-        ct, st = np.cos(th), np.sin(th)
+        return np.cos(th), np.sin(th), reach
+
+    def rv_p(self, theta: np.ndarray, epi: bool = False, z: np.ndarray | None = None) -> np.ndarray:
+        """P(θ) of eq. (A3) for the RV endocardial (or epicardial) shell, mm²; realistic: the
+        ellipse stretched about the axis by the wrap factor w(z) and scaled by the reach factor."""
+        t = self.rv_wall if epi else 0.0
+        ct, st, reach = self._rv_rays(theta, z)
+        p = ellipse_far_radius_sq_cs(ct, st, self.r_free_endo + t, self.r_wrap_endo + t,
+                                     self.rv_x_center)
+        return p if reach is None else p * reach
+
+    def rv_p_pair(self, theta: np.ndarray, z: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(P_endo, P_epi) of :meth:`rv_p` at the same (θ, z): both ellipses along the same rays
+        (one cosine and sine of the ray angle for both; the same values as two calls)."""
+        ct, st, reach = self._rv_rays(theta, z)
         out = tuple(ellipse_far_radius_sq_cs(ct, st, self.r_free_endo + w, self.r_wrap_endo + w,
-                                             self.rv_x_center) for w in (0.0, t))
-        return (out[0], out[1]) if self.shape is None else (out[0] * reach, out[1] * reach)
+                                             self.rv_x_center) for w in (0.0, self.rv_wall))
+        return out if reach is None else (out[0] * reach, out[1] * reach)
 
     def s_rv_pair(self, theta: np.ndarray, z: np.ndarray, s_epi=None) -> tuple[np.ndarray, np.ndarray]:
         """(S_rv_endo, S_rv_epi) of :meth:`s_rv` at the same (θ, z), sharing every common factor
