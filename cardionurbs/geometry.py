@@ -1,4 +1,4 @@
-"""Shared plane and polygon geometry, and the LV long axis rule (numpy only, a leaf module).
+"""Shared plane and polygon geometry, and the LV long axis rule (a leaf module).
 
 One home for the small geometric helpers that anatomy, analysis, phantom,
 io and report all need (docs/architecture.md, "Where a concept lives"):
@@ -10,10 +10,12 @@ io and report all need (docs/architecture.md, "Where a concept lives"):
   ½ Σ pᵢ × pᵢ₊₁ (Stokes) — and :func:`chord_length` of a 2-D polygon;
 * stacks of parallel slices: :func:`stack_normal`, :func:`slice_spacing`;
 * the LV long axis: :func:`long_axis`, with the one fallback order of
-  docs/metrics.md (Geometry conventions).
+  docs/metrics.md (Geometry conventions);
+* surfaces as samples: :func:`averaged_normals` (normals averaged over a disc).
 
-Everything here works on plain arrays in scanner millimetres; nothing
-imports the rest of the package except :mod:`cardionurbs.errors`.
+Everything here works on plain arrays in scanner millimetres with numpy
+(and scipy's k-d tree and sparse matrices inside :func:`averaged_normals`);
+nothing imports the rest of the package except :mod:`cardionurbs.errors`.
 """
 
 from __future__ import annotations
@@ -247,3 +249,19 @@ def long_axis(apex_landmarks: np.ndarray | None = None, mitral_landmarks: np.nda
         raise ReconstructionError(f"{where + ': ' if where else ''}no LV {missing} to define the "
                                   "long axis (no landmarks, model apex or SA contours)")
     return apex, base
+
+
+def averaged_normals(points: np.ndarray, normals: np.ndarray, weights: np.ndarray,
+                     radius_mm: float) -> np.ndarray:
+    """Unit normals (n, 3) of surface samples ``points`` (n, 3) averaged, weighted by
+    ``weights`` (n,) (e.g. area), over the samples within ``radius_mm`` of each sample
+    (itself included)."""
+    from scipy.sparse import csr_matrix
+    from scipy.spatial import cKDTree
+    pairs = cKDTree(points).query_pairs(radius_mm, output_type="ndarray")
+    n = len(points)
+    rows = np.r_[pairs[:, 0], pairs[:, 1], np.arange(n)]
+    cols = np.r_[pairs[:, 1], pairs[:, 0], np.arange(n)]
+    W = csr_matrix((np.asarray(weights, float)[cols], (rows, cols)), shape=(n, n))
+    out = W @ np.asarray(normals, float)
+    return out / np.linalg.norm(out, axis=1)[:, None]

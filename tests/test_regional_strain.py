@@ -490,3 +490,11 @@ def test_wall_boundaries_fix_the_transmural_offset():
         assert np.abs(errors(both, kind)).max() < bound, kind
     rms = [float(np.sqrt(np.mean(errors(r, "Err") ** 2))) for r in (both, alone)]
     assert rms[0] < rms[1], rms
+
+
+def test_truth_and_measurement_average_directions_over_one_radius():
+    """The phantom's strain truth takes r as the measurement defines it: the endocardial normal
+    averaged over the same radius, by the same function."""
+    from cardionurbs.phantom import regional as R
+    assert R.DIRECTION_SMOOTHING_MM == S.DIRECTION_SMOOTHING_MM
+    assert R.averaged_normals is S.averaged_normals

@@ -65,6 +65,7 @@ from numpy.polynomial import legendre
 from scipy.spatial import cKDTree
 
 from cardionurbs.analysis.tag_surfaces import axis_frame
+from cardionurbs.geometry import averaged_normals
 
 NAN = float("nan")
 STRAIN_KINDS = ("Ecc", "Ell", "Err")
@@ -316,15 +317,9 @@ def smoothed_normals(points: np.ndarray, normals: np.ndarray, weights: np.ndarra
     over a disc of 6 mm (:data:`NORMAL_SMOOTHING_MM`, the thickness rays) — small against
     the ≥ 20 mm radii of curvature of the LV wall, so a smooth surface's normal changes by
     < 0.1° — removes most of it; 10 mm (:data:`DIRECTION_SMOOTHING_MM`, the strain
-    directions) most of the rest."""
-    from scipy.sparse import csr_matrix
-    pairs = cKDTree(points).query_pairs(radius_mm, output_type="ndarray")
-    n = len(points)
-    rows = np.r_[pairs[:, 0], pairs[:, 1], np.arange(n)]
-    cols = np.r_[pairs[:, 1], pairs[:, 0], np.arange(n)]
-    W = csr_matrix((np.asarray(weights, float)[cols], (rows, cols)), shape=(n, n))
-    out = W @ np.asarray(normals, float)
-    return out / np.linalg.norm(out, axis=1)[:, None]
+    directions) most of the rest. (:func:`cardionurbs.geometry.averaged_normals`, which the
+    phantom's strain truth uses with the same radius.)"""
+    return averaged_normals(points, normals, weights, radius_mm)
 
 
 def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_points: np.ndarray,

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cardionurbs.geometry import averaged_normals
 from cardionurbs.phantom.anatomy import Anatomy
 from cardionurbs.phantom.motion import Motion
 
@@ -365,14 +366,9 @@ def strain_truth(anatomy: Anatomy, motion: Motion, specs, levels: list[dict], f:
         # 10 mm scale, so the nearest grid point's average serves each X). A realistic wall
         # bends (and an infarct steps) on that scale; on the ideal spheroid the average tilts
         # r by ~1° (< 0.1 strain point) and is not taken.
-        from scipy.sparse import csr_matrix
         ep, en, area = endocardial_normal_field(anatomy, 60, 120, with_area=True)
+        en = averaged_normals(ep, en, area, DIRECTION_SMOOTHING_MM)
         tree = cKDTree(ep)
-        pairs = tree.query_pairs(DIRECTION_SMOOTHING_MM, output_type="ndarray")
-        k = np.arange(len(ep))
-        rows, cols = np.r_[pairs[:, 0], pairs[:, 1], k], np.r_[pairs[:, 1], pairs[:, 0], k]
-        en = csr_matrix((area[cols], (rows, cols)), shape=(len(ep), len(ep))) @ en
-        en /= np.linalg.norm(en, axis=1)[:, None]
     else:
         ep, en = endocardial_normal_field(anatomy)
         tree = cKDTree(ep)
