@@ -52,6 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cardionurbs.analysis.strain import cylindrical
 from cardionurbs.analysis.tag_surfaces import TagSection, family_direction
 from cardionurbs.anatomy.sections import study_long_axis
 from cardionurbs.study import TAG_FAMILIES, Study
@@ -243,31 +244,22 @@ def spoke_height_departure(points: np.ndarray, Ca: np.ndarray, Cb: np.ndarray,
     the wall at the left-out angle.
     """
     frame = _axis_cylinder(axis)
-    return _spoke_departure(_cylindrical(points, frame), _spoke_profile(Ca, frame),
+    return _spoke_departure(cylindrical(points, *frame), _spoke_profile(Ca, frame),
                             _spoke_profile(Cb, frame))
 
 
 def _axis_cylinder(axis: tuple[np.ndarray, np.ndarray]) -> tuple:
-    """(apex, e1, e2, e): the cylindrical frame about the long axis (apex, base)."""
+    """(apex, (e1, e2, e)): the cylindrical frame about the long axis (apex, base), as
+    :func:`cardionurbs.analysis.strain.cylindrical` takes it."""
     from cardionurbs.analysis.tag_surfaces import axis_frame
     apex, base = axis
-    e1, e2, e = axis_frame(apex, base)
-    return apex, e1, e2, e
-
-
-def _cylindrical(P: np.ndarray, frame: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(r, θ, z) of points in the frame of :func:`_axis_cylinder`."""
-    apex, e1, e2, e = frame
-    d = P - apex
-    z = d @ e
-    x, y = d @ e1, d @ e2
-    return np.hypot(x, y), np.arctan2(y, x), z
+    return apex, axis_frame(apex, base)
 
 
 def _spoke_profile(C: np.ndarray, frame: tuple) -> tuple[float, np.ndarray, np.ndarray]:
     """A neighbouring spoke's angle (circular mean of its outer half) and its heights
     z(r) sorted by radius: what :func:`spoke_height_departure` interpolates."""
-    r, t, z = _cylindrical(C, frame)
+    r, t, z = cylindrical(C, *frame)
     th = float(np.angle(np.exp(1j * t[r > 0.5 * r.max()]).mean()))
     o = np.argsort(r)
     return th, r[o], z[o]
@@ -317,7 +309,7 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
             for k in mine:
                 nb = _neighbours_cyclic(keys, secs[k].key)
                 if nb is not None:   # a spoke's first point is the cut on the axis, not data
-                    dist.append(_spoke_departure(_cylindrical(secs[k].points[1:], cyl),
+                    dist.append(_spoke_departure(cylindrical(secs[k].points[1:], *cyl),
                                                  profile(keep[nb[0]]), profile(keep[nb[1]])))
             if dist:
                 out[left] = float(np.median(np.concatenate(dist)) / spacing)
