@@ -38,7 +38,7 @@ def add_noise(study: Study, sigma_px: float, rng: np.random.Generator, tries: in
     """
     from cardionurbs.io.checks import in_plane_coordinates, self_intersections
     if not set(targets) <= {"contours", "tags"}:
-        raise ValueError(f"targets: 'contours' and/or 'tags', not {targets!r}")
+        raise PhantomError(f"targets: 'contours' and/or 'tags', not {targets!r}")
     if sigma_px <= 0:
         return []
     dropped, keep = [], []
