@@ -58,6 +58,7 @@ global: the mean of the segment values 1–16.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,9 +72,23 @@ NAN = float("nan")
 STRAIN_KINDS = ("Ecc", "Ell", "Err")
 STRAIN_COLUMNS = tuple(f"{k}_AHA_{s} (%)" if s != "Global" else f"{k}_Global (%)"
                        for k in STRAIN_KINDS for s in [*range(1, 17), "Global"])
-#: basis orders of eq. S1: Legendre in height, powers of radius, Fourier harmonics
+#: basis orders of eq. S1 for the fit of the material points: Legendre in height, powers of
+#: radius, Fourier harmonics
 ORDERS = (3, 1, 2)
-TRANSMURAL_ORDER = 1
+#: the transmural (q̃) terms: Legendre order and harmonic at most
+TRANSMURAL_ORDERS = (1, 2)
+#: the orders of the fit to the tag lines (:mod:`cardionurbs.analysis.tag_motion`): harmonics
+#: up to 4 in the terms constant across the wall. Six 60° segments per ring need harmonics
+#: up to 3 to be told apart, and an LV section's departure from its ellipse (papillary
+#: muscles, a flattened septum, a regional motion defect) lies mostly in harmonics 3–4.
+#: The SA tag grid samples the in-plane motion (r'², θ') at every (θ, ζ) of the wall, so
+#: these terms are well determined there, unlike the transmural ones (one or two tag lines
+#: across the wall), which keep their orders
+TAG_LINE_ORDERS = (3, 1, 4)
+#: the highest harmonic of the ζ' (longitudinal) component in the tag-line fit: only the
+#: tags of the long-axis views measure it, i.e. at the 2 × 3 half-planes of three views
+#: (2-, 3- and 4-chamber), which determine at most 5 functions of θ
+AXIAL_HARMONICS = 2
 #: a tracked point farther than this (mm, and 4 x the median) from the first fit is left out
 OUTLIER_MM = 1.5
 MIN_POINTS = 80
@@ -119,13 +134,9 @@ class CylindricalMotionFit:
     """The least-squares map (S1) of ED (q = r², θ, ζ) to the frame's (r'², θ' − θ, ζ')."""
 
     def __init__(self, X: np.ndarray, x: np.ndarray, ed_axis: tuple, axis: tuple | None = None,
-                 orders: tuple[int, int, int] = ORDERS, ridge: float = 1e-8) -> None:
-        self.orders = orders
-        pa, pb, pm = orders
-        a, b, m = np.meshgrid(np.arange(pa + 1), np.arange(pb + 1), np.arange(2 * pm + 1), indexing="ij")
-        # the transmural (q) terms vary along the axis up to TRANSMURAL_ORDER only
-        self.keep = ((b == 0) | (a <= TRANSMURAL_ORDER)).ravel()
-        self._index = (a.ravel()[self.keep], b.ravel()[self.keep], m.ravel()[self.keep])
+                 orders: tuple[int, int, int] = ORDERS, ridge: float = 1e-8,
+                 transmural: tuple[int, int] = TRANSMURAL_ORDERS) -> None:
+        self._set_basis(orders, transmural)
         self.apex0 = np.asarray(ed_axis[0], float)
         self.frame0 = axis_frame(*ed_axis)
         axis = ed_axis if axis is None else axis
@@ -147,6 +158,48 @@ class CylindricalMotionFit:
             use = err <= max(OUTLIER_MM, 4.0 * float(np.median(err)))
         self.outliers = int((~use).sum())
         self.residual_mm = float(np.sqrt(np.mean(err[use] ** 2)))
+
+    def _set_basis(self, orders: tuple[int, int, int], transmural: tuple[int, int],
+                   axial_harmonics: int | None = None) -> None:
+        """The terms of (S1): all P_a · {1, cos mθ, sin mθ} (a ≤ orders[0], m ≤ orders[2]) and the
+        transmural ones P_a · q̃ · {…} only for a ≤ transmural[0], m ≤ transmural[1]; the
+        ζ' component's terms only up to harmonic ``axial_harmonics`` (default all). ``free``:
+        the mask of the coefficients in use over ``coef.T.ravel()`` (component-major), the
+        others held at 0; :attr:`params` are the free ones."""
+        self.orders, self.transmural = tuple(orders), tuple(transmural)
+        pa, pb, pm = orders
+        a, b, m = np.meshgrid(np.arange(pa + 1), np.arange(pb + 1), np.arange(2 * pm + 1), indexing="ij")
+        keep = ((b == 0) | ((a <= transmural[0]) & (m <= 2 * transmural[1]))).ravel()
+        self._index = (a.ravel()[keep], b.ravel()[keep], m.ravel()[keep])
+        axial = self._index[2] <= 2 * (pm if axial_harmonics is None else axial_harmonics)
+        self.free = np.r_[np.ones(2 * len(axial), bool), axial]
+
+    @property
+    def params(self) -> np.ndarray:
+        """The free coefficients (component-major: ``coef.T.ravel()[free]``)."""
+        return self.coef.T.reshape(-1)[self.free]
+
+    @params.setter
+    def params(self, value: np.ndarray) -> None:
+        c = np.zeros(self.free.size)
+        c[self.free] = value
+        self.coef = c.reshape(3, -1).T
+
+    def expanded(self, orders: tuple[int, int, int], transmural: tuple[int, int],
+                 axial_harmonics: int | None = None) -> "CylindricalMotionFit":
+        """A copy on a basis containing this one (same charts and scalings; the arguments as
+        :meth:`_set_basis`'s) whose added terms start at zero: the same map, free to refine on
+        more data (the tag lines)."""
+        old = list(zip(*self._index))
+        out = copy.copy(self)
+        out._set_basis(orders, transmural, axial_harmonics)
+        where = {t: j for j, t in enumerate(zip(*out._index))}
+        if any(t not in where for t in old):
+            raise ValueError(f"orders {orders}, {transmural} do not contain {self.orders}, {self.transmural}")
+        out.coef = np.zeros((len(where), 3))
+        out.coef[[where[t] for t in old]] = self.coef
+        out.coef[~out.free.reshape(3, -1).T] = 0.0
+        return out
 
     def _position(self, m: np.ndarray, th: np.ndarray) -> np.ndarray:
         e1, e2, e = self.frame1
@@ -193,10 +246,11 @@ class CylindricalMotionFit:
         r, th, zeta = cylindrical(X, self.apex0, self.frame0)
         return self._position(self._design(r * r, th, zeta, derivatives=False)[0] @ self.coef, th)
 
-    def linearisation(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(x (n, 3), ∂x/∂coef (n, 3, 3 m), F (n, 3, 3)) at ED points X: the image, its
-        derivative with respect to the coefficients (flattened component by component,
-        ``coef.T.ravel()``) and the deformation gradient."""
+    def linearisation(self, X: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray], np.ndarray]:
+        """(x (n, 3), (T (n, 3, 3), D (n, b)), F (n, 3, 3)) at ED points X: the image, its
+        derivative with respect to the coefficients in factored form — ∂x/∂coef[j, c] =
+        T[:, :, c] · D[:, j], with T = ∂x/∂(q', θ', ζ') and D the basis values (of which
+        :attr:`free` selects the coefficients in use) — and the deformation gradient."""
         r, th, zeta = cylindrical(X, self.apex0, self.frame0)
         D = self._design(r * r, th, zeta)
         m = D[0] @ self.coef
@@ -206,8 +260,7 @@ class CylindricalMotionFit:
         c, s = np.cos(t)[:, None], np.sin(t)[:, None]
         dpos = np.stack([(c * e1 + s * e2) / (2.0 * rr[:, None]), rr[:, None] * (-s * e1 + c * e2),
                          np.broadcast_to(e, (len(t), 3))], axis=2)      # (n, 3, 3): ∂x/∂(q', θ', ζ')
-        J = (dpos[:, :, :, None] * D[0][:, None, None, :]).reshape(len(t), 3, -1)
-        return self._position(m, th), J, self._gradient(r, th, D, m)
+        return self._position(m, th), (dpos, D[0]), self._gradient(r, th, D, m)
 
     def gradient(self, X: np.ndarray) -> np.ndarray:
         """F = ∂x/∂X (n, 3, 3), Cartesian, by the chain rule through (S1)."""
@@ -392,6 +445,7 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
         prior_sd = None
         if incompressibility in (True, "prior"):
             prior_sd = VOLUME_PRIOR_SD if volume_prior_sd is None else float(volume_prior_sd)
+        fit = fit.expanded(TAG_LINE_ORDERS, TRANSMURAL_ORDERS, AXIAL_HARMONICS)
         out = fit_tag_motion(fit, *tag_lines, noise_mm=noise_mm, quantities=segment_strains,
                              volume_samples=(Y[sub], w[sub], labels[sub]) if incompressibility else None,
                              volume_prior_sd=prior_sd, boundary=boundary)

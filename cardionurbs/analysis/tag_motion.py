@@ -275,51 +275,70 @@ def plane_bases(normals: np.ndarray) -> np.ndarray:
     return np.stack([e1, np.cross(normals, e1)], axis=1)
 
 
-def _schur_step(J_coef: np.ndarray, J_pt: np.ndarray, res: np.ndarray, ridge: float,
-                penalty: np.ndarray | None = None, penalty_grad: np.ndarray | None = None):
-    """One Gauss–Newton step of (T2): (Δcoef, Δw) with the per-point 2-vectors w eliminated.
+def _schur_step(T: np.ndarray, D: np.ndarray, free: np.ndarray, J_pt: np.ndarray, res: np.ndarray,
+                ridge: float, penalty: np.ndarray | None = None,
+                penalty_grad: np.ndarray | None = None):
+    """One Gauss–Newton step of (T2): (Δparams, Δw, S) with the per-point 2-vectors w eliminated
+    (S the reduced Gauss–Newton matrix of the data over the free coefficients).
 
-    ``J_coef`` (n, 3, m), ``J_pt`` (n, 3, 2), ``res`` (n, 3); ``penalty`` (m, m) the Hessian
-    of a regulariser added to the objective and ``penalty_grad`` (m,) its gradient at the
-    current coefficients (for a quadratic coefᵀ R coef / 2: R and R · coef)."""
-    m = J_coef.shape[2]
+    The Jacobian of the points with respect to the coefficients comes factored, as
+    :meth:`~cardionurbs.analysis.strain.CylindricalMotionFit.linearisation` gives it:
+    ∂x_n/∂coef[j, c] = T[n, :, c] · D[n, j] (``T`` (n, 3, 3), ``D`` (n, b); ``free`` the mask of
+    the coefficients in use over ``coef.T.ravel()``). Every block of the Schur complement is
+    then Dᵀ diag(g) D for a per-point weight g (one per pair of components), which costs
+    6 n b² instead of the (3 n) p² of the explicit Jacobian. ``J_pt`` (n, 3, 2) the derivative
+    with respect to the point unknowns, ``res`` (n, 3); ``penalty`` (p, p) the Hessian of a
+    regulariser added to the objective and ``penalty_grad`` (p,) its gradient at the current
+    coefficients (for a quadratic cᵀ R c / 2: R and R · c)."""
+    b = D.shape[1]
     H_pp = np.einsum("nik,nil->nkl", J_pt, J_pt)
-    H_pc = np.matmul(J_pt.transpose(0, 2, 1), J_coef)                 # (n, 2, m)
-    g_p = np.einsum("nik,ni->nk", J_pt, res)
     inv = np.linalg.inv(H_pp)
-    M = inv @ H_pc                                                     # (n, 2, m)
-    Jc = J_coef.reshape(-1, m)
-    S_data = Jc.T @ Jc - H_pc.reshape(-1, m).T @ M.reshape(-1, m)
-    rhs = Jc.T @ res.reshape(-1) - np.einsum("nka,nk->a", M, g_p)
-    S = S_data
+    H_pt = np.einsum("nik,nic->nkc", J_pt, T)                           # (n, 2, 3): J_ptᵀ T
+    M = inv @ H_pt                                                     # (n, 2, 3)
+    g_p = np.einsum("nik,ni->nk", J_pt, res)
+    # per-point weights of the blocks: Tᵀ T − H_ptᵀ H_pp⁻¹ H_pt, and of the right-hand side
+    G = np.einsum("nic,nid->ncd", T, T) - np.einsum("nkc,nkd->ncd", H_pt, M)
+    r = np.einsum("nic,ni->nc", T, res) - np.einsum("nkc,nk->nc", M, g_p)
+    full = np.empty((3 * b, 3 * b))
+    for c1 in range(3):
+        for c2 in range(c1, 3):
+            block = (D * G[:, c1, c2][:, None]).T @ D
+            full[c1 * b:(c1 + 1) * b, c2 * b:(c2 + 1) * b] = block
+            full[c2 * b:(c2 + 1) * b, c1 * b:(c1 + 1) * b] = block.T
+    S_data = full[np.ix_(free, free)]
+    rhs = (D.T @ r).T.reshape(-1)[free]
+    S, m = S_data, len(S_data)
     if penalty is not None:
         S = S + penalty
         rhs = rhs + penalty_grad
     S = S + ridge * np.trace(S) / m * np.eye(m)
     d_coef = -np.linalg.solve(S, rhs)
-    d_pt = -np.einsum("nkl,nl->nk", inv, g_p + np.einsum("nka,a->nk", H_pc, d_coef))
+    d_full = np.zeros(3 * b)
+    d_full[free] = d_coef
+    moved = D @ d_full.reshape(3, b).T                                 # (n, 3): Δ(q', θ', ζ')
+    d_pt = -np.einsum("nkl,nl->nk", inv, g_p + np.einsum("nkc,nc->nk", H_pt, moved))
     return d_coef, d_pt, S_data
 
 
 def quantity_jacobian(fit, quantities, coef: np.ndarray, scale: np.ndarray) -> np.ndarray:
-    """∂q/∂coef (k, m) of ``quantities(fit)`` by central differences, step 1e-3 × ``scale``
+    """∂q/∂params (k, p) of ``quantities(fit)`` by central differences, step 1e-3 × ``scale``
     (the coefficients' standard errors), the fit's coefficients restored after."""
     h = 1e-3 * np.maximum(scale, 1e-12)
     cols = []
     for j in range(len(coef)):
         c = coef.copy()
         c[j] += h[j]
-        fit.coef = c.reshape(3, -1).T
+        fit.params = c
         up = quantities(fit)
         c[j] -= 2 * h[j]
-        fit.coef = c.reshape(3, -1).T
+        fit.params = c
         cols.append((up - quantities(fit)) / (2 * h[j]))
-    fit.coef = coef.reshape(3, -1).T
+    fit.params = coef
     return np.array(cols).T
 
 
 def penalty_groups(fit) -> list[np.ndarray]:
-    """Masks over the flattened coefficients (``coef.T.ravel()``) of the terms (S1) that the
+    """Masks over the free coefficients (``fit.params``) of the terms (S1) that the
     regulariser shrinks towards zero, one mask per group:
 
     1. the *transmural variation*: the r² terms other than the constant one (how the
@@ -329,7 +348,7 @@ def penalty_groups(fit) -> list[np.ndarray]:
     2. the highest Legendre order in height (the finest longitudinal detail)."""
     a, b, m = fit._index
     groups = [(b == 1) & ~((a == 0) & (m == 0)), (b == 0) & (a == a.max())]
-    return [np.tile(g, 3) for g in groups]
+    return [np.tile(g, 3)[fit.free] for g in groups]
 
 
 def choose_penalty(S: np.ndarray, coef: np.ndarray, groups: list[np.ndarray], sigma_mm: float,
@@ -547,13 +566,13 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
     slide = None                     # the boundary points' surfaces (after the tag-only fit)
 
     def step(penalty=None, penalty_grad=None):
-        pos, J_coef, F = fit.linearisation(X[use])
+        pos, (T, D), F = fit.linearisation(X[use])
         J_pt = F @ basis[use].transpose(0, 2, 1)                         # (n, 3, 2)
-        coef = fit.coef.T.reshape(-1)                                   # component-major
+        coef = fit.params                                               # component-major
         w = weight[use][:, None]
-        d_coef, d_pt, S = _schur_step(J_coef * w[:, :, None], J_pt * w[:, :, None],
+        d_coef, d_pt, S = _schur_step(T * w[:, :, None], D, fit.free, J_pt * w[:, :, None],
                                       (pos - x[use]) * w, ridge, penalty, penalty_grad)
-        fit.coef = (coef + d_coef).reshape(3, -1).T
+        fit.params = coef + d_coef
         X[use] += np.einsum("nk,nkj->nj", d_pt, basis[use])
         if slide is not None:            # back onto the ED surfaces; their new tangent planes
             X[n_tag:], basis[n_tag:] = slide(X[n_tag:])
@@ -596,7 +615,7 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
         dj = det_f(fit)
         det0 = (float(np.average(dj, weights=vol)), float(dj.min()), float(dj.max()))
     if noise_mm >= NOISE_FLOOR_MM and quantities is not None:
-        coef = fit.coef.T.reshape(-1)
+        coef = fit.params
         k = len(quantities(fit))
 
         def all_quantities(f):
@@ -630,7 +649,7 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
             for _ in range(REGULARISED_ITERATIONS):
                 # Gauss–Newton on data + penalty: the incompressibility term re-linearised
                 # at the current coefficients
-                c = fit.coef.T.reshape(-1)
+                c = fit.params
                 P, grad = ridge_P, ridge_P @ c
                 if kappa:
                     G = quantity_jacobian(fit, segment_volume_change, c, step_scale)
