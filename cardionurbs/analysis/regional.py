@@ -28,6 +28,11 @@ from cardionurbs.analysis.columns import ColumnMapping
 from cardionurbs.errors import CardioNurbsError
 
 NAN = float("nan")
+#: the thickness rays (one per ~3 mm of height) are split this many times along the long axis
+#: for the tag strain's wall samples (:func:`~cardionurbs.analysis.strain.myocardium_samples`):
+#: a sample per ~0.7 mm of height, so that a segment mean over the tagged height range is a
+#: mean over whole slices of the wall
+WALL_SUBDIVISION = 4
 
 
 @dataclass
@@ -129,7 +134,8 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
     P = smp["points"]
     N = smp["normals"]              # averaged over 6 mm by thickness_by_segment: the wall rays
     a = out.aha[ed]
-    wall = myocardium_samples(P, N, smp["thickness"], smp["weight"], a.apex, a.base)
+    wall = myocardium_samples(P, N, smp["thickness"], smp["weight"], a.apex, a.base,
+                              grid=smp["grid"], subdivide=WALL_SUBDIVISION)
     # the strain directions: the normals averaged over DIRECTION_SMOOTHING_MM
     N = smoothed_normals(P, smp["raw_normals"], smp["weight"], DIRECTION_SMOOTHING_MM)
     frames = [f for f in material.frames if f != material.ed_frame]

@@ -130,7 +130,7 @@ def thickness_by_segment(endo, epi, aha: AhaFrame, base_plane=None,
     endocardial normal averaged over ``smoothing_mm`` of surface
     (:func:`cardionurbs.analysis.strain.smoothed_normals`; 0: the raw NURBS normal), and the
     samples' ``normals`` are those averaged normals (``raw_normals``: the outward NURBS
-    normals before averaging).
+    normals before averaging); ``grid``: ((n_u, n_v), the flat (u, v) grid index of each sample).
     """
     P, N, W = surface_samples(endo, *samples)
     N = orient_outward(P, N, aha.apex, aha.base)
@@ -142,7 +142,8 @@ def thickness_by_segment(endo, epi, aha: AhaFrame, base_plane=None,
     t = ray_surface_distance(epi, P, N)
     lab = aha.segments(P)
     return segment_means(t, W, lab), {"points": P, "normals": N, "thickness": t, "segment": lab,
-                                      "weight": W, "raw_normals": raw}
+                                      "weight": W, "raw_normals": raw,
+                                      "grid": (tuple(samples), np.flatnonzero(keep))}
 
 
 def thickness_columns(ed: dict[int, float], es: dict[int, float]) -> dict[str, float]:

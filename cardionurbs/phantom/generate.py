@@ -324,7 +324,8 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     else:
         metrics.update(regional.filling_rate_truth(anatomy, motion, frames, es_frame, rr))
     metrics.update(regional.wall_thickness_truth(anatomy, motion, specs, f_es))
-    strain = regional.strain_truth(anatomy, motion, specs, tag_truth["levels"], f_es)
+    strain = regional.strain_truth(anatomy, motion, specs,
+                                   truth.strain_levels(anatomy, motion, grid, specs, f_es), f_es)
     metrics.update(strain["columns"])
     surface = regional.surface_strain_truth(anatomy, motion, specs, f_es)
     metrics.update(surface)

@@ -313,7 +313,11 @@ def strain_truth(anatomy: Anatomy, motion: Motion, specs, levels: list[dict], f:
     """Exact Ecc, Ell, Err (%) per AHA segment and global at phase f, and det F.
 
     The tissue sampled is the ED LV myocardium between the most apical and most basal tag
-    levels (the LA tag planes that carry material points at ED and ES, ``levels``): a
+    levels (the LA tag planes whose material points are tracked from ED to ES, ``levels``:
+    :func:`cardionurbs.phantom.truth.strain_levels`; on a
+    realistic anatomy, whose long axis is tilted against them, between the lowest point of
+    the wall on the lowest plane and the highest on the highest, along the ED axis, as the
+    measurement keeps the tissue between its extreme material points): a
     ``spacing_mm`` cubic grid, at least 0.05 mm inside the endo- and epicardium and at least
     ``axis_clearance_mm`` from the long axis both at ED and, moved by the exact motion, at
     phase f (the near-axis rule of docs/metrics.md, which the measurement applies with its
@@ -335,8 +339,10 @@ def strain_truth(anatomy: Anatomy, motion: Motion, specs, levels: list[dict], f:
     g = np.arange(-reach, reach, spacing_mm) + 0.5 * spacing_mm
     gx, gy = np.meshgrid(g, g, indexing="ij")
     zs = [lv["distance_from_apex_mm"] for lv in levels]
-    pts = []
-    for z in np.arange(min(zs), max(zs) + 1e-9, spacing_mm):
+
+    def wall_section(z):
+        """The grid points of the ED LV wall on the plane at height z (heart frame) and their
+        distance from the heart's z axis (the motion frame's, unbent)."""
         if anatomy.realistic:                     # ED bent frame: the section shifted by d(z)
             q = annotate.unbend(anatomy, np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)]))
             s = q[:, 0] ** 2 + q[:, 1] ** 2
@@ -354,8 +360,29 @@ def strain_truth(anatomy: Anatomy, motion: Motion, specs, levels: list[dict], f:
             s = gx ** 2 + gy ** 2
             s1, s2 = float(anatomy.s_lv_endo(z)), float(anatomy.s_lv_epi(z))
         r = np.sqrt(s)
-        inside = (r > np.sqrt(s1) + 0.05) & (r < np.sqrt(s2) - 0.05) & (r >= axis_clearance_mm)
-        pts.append(np.column_stack([gx[inside], gy[inside], np.full(inside.sum(), z)]))
+        inside = (r > np.sqrt(s1) + 0.05) & (r < np.sqrt(s2) - 0.05)
+        return np.column_stack([gx[inside], gy[inside], np.full(inside.sum(), z)]), r[inside]
+
+    heights = np.arange(min(zs), max(zs) + 1e-9, spacing_mm)
+    if anatomy.realistic:
+        # the measurement keeps the tissue between the lowest and highest tracked material point
+        # along its (ED) long axis, which is tilted against the tag planes: the tagged range is
+        # [lowest point of the wall on the lowest tag plane, highest on the highest] along the
+        # ED axis of :func:`axis_frame`, and the planes sampled reach as far as it does
+        origin, basis = axis_frame(anatomy, motion, 0.0)
+        h_lo = float(np.min((wall_section(min(zs))[0] - origin) @ basis[2]))
+        h_hi = float(np.max((wall_section(max(zs))[0] - origin) @ basis[2]))
+        tilt = float(np.hypot(basis[2][0], basis[2][1]) / basis[2][2])
+        margin = reach * tilt + spacing_mm
+        heights = np.arange(min(zs) - margin, max(zs) + margin + 1e-9, spacing_mm)
+    pts = []
+    for z in heights:
+        P, r = wall_section(z)
+        P = P[r >= axis_clearance_mm]
+        if anatomy.realistic:
+            h = (P - origin) @ basis[2]
+            P = P[(h >= h_lo) & (h <= h_hi)]
+        pts.append(P)
     X = np.concatenate(pts)
     X = X[axis_distance(anatomy, motion, motion_map(anatomy, motion, X, f), f) >= axis_clearance_mm]
     F = deformation_gradient(anatomy, motion, X, f)

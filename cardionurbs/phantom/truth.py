@@ -146,6 +146,27 @@ def tagged_sa_slices(anatomy: Anatomy, motion: Motion, specs: list[SliceSpec], f
             and sa_plane_cuts_wall(anatomy, motion, s, f_es)]
 
 
+def strain_levels(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, specs: list[SliceSpec],
+                  f_es: float) -> list[dict]:
+    """LA tag planes whose material points the measurement tracks from ED to ES: the plane z_j
+    lies between the most apical and most basal SA planes with tag lines at ED, and its image
+    λ_ES z_j between those with tag lines at ES (each frame's SA tag surfaces span that frame's
+    tagged slices; :meth:`cardionurbs.analysis.material.MaterialPoints.tracked`). Wider than
+    :func:`tag_levels`, which asks both of the slices tagged at both frames; the tag strain's
+    truth averages over the tissue between these planes, as the measurement averages between
+    its extreme tracked points. [{"index", "distance_from_apex_mm"}], apex to base."""
+    def span(f):
+        h = [s.height for s in specs if s.view == "SA" and sa_plane_cuts_wall(anatomy, motion, s, f)]
+        return (min(h), max(h)) if len(h) >= 2 else None
+    ed, es = span(0.0), span(f_es)
+    if ed is None or es is None:
+        return []
+    lam = float(motion.lam(f_es))
+    return [{"index": j, "distance_from_apex_mm": float(zj)}
+            for j, zj in enumerate(grid.la_positions(anatomy.z_top_min - annotate.BASE_MARGIN_MM))
+            if ed[0] < zj < ed[1] and es[0] < lam * zj < es[1]]
+
+
 def tag_levels(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, specs: list[SliceSpec],
                f_es: float) -> list[dict]:
     """LA tag planes with material points (docs/metrics.md): z_j strictly between the most apical
