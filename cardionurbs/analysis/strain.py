@@ -235,15 +235,13 @@ class CylindricalMotionFit:
             dT += [-m * s, m * c]
         T, dT = np.stack(T, axis=1), np.stack(dT, axis=1)
         ia, ib, ic = self._index
-
-        def outer(a, b, c):
-            return a[:, ia] * b[:, ib] * c[:, ic]
+        LT, Rb = L[:, ia] * T[:, ic], R[:, ib]
         if not derivatives:
-            return (outer(L, R, T),)
+            return (LT * Rb,)
         dL = np.stack([legendre.legval(zt, legendre.legder(eye[a])) for a in range(pa + 1)],
                       axis=1) / self.sz
         dR = np.stack([b * qt ** max(b - 1, 0) for b in range(pb + 1)], axis=1) / self.sq
-        return outer(L, R, T), outer(L, dR, T), outer(L, R, dT), outer(dL, R, T)
+        return LT * Rb, LT * dR[:, ib], L[:, ia] * dT[:, ic] * Rb, dL[:, ia] * T[:, ic] * Rb
 
     def image_radius(self, X: np.ndarray) -> np.ndarray:
         """r' (mm): the fitted distance of the images of ED points X (n, 3) from the frame's
@@ -272,6 +270,13 @@ class CylindricalMotionFit:
         dpos = np.stack([(c * e1 + s * e2) / (2.0 * rr[:, None]), rr[:, None] * (-s * e1 + c * e2),
                          np.broadcast_to(e, (len(t), 3))], axis=2)      # (n, 3, 3): ∂x/∂(q', θ', ζ')
         return self._position(m, th), (dpos, D[0]), self._gradient(r, th, D, m)
+
+    def radius_and_gradient(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(:meth:`image_radius`, :meth:`gradient`) of ED points X (n, 3), the basis evaluated once."""
+        r, th, zeta = cylindrical(X, self.apex0, self.frame0)
+        D = self._design(r * r, th, zeta)
+        m = D[0] @ self.coef
+        return np.sqrt(np.maximum(m[:, 0], 0.0)), self._gradient(r, th, D, m)
 
     def gradient(self, X: np.ndarray) -> np.ndarray:
         """F = ∂x/∂X (n, 3, 3), Cartesian, by the chain rule through (S1)."""
@@ -488,7 +493,8 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     if tag_lines is not None and len(tag_lines[0]) >= MIN_TAG_POINTS:
         # the quantities the regularisation is chosen for: the segment strains over a
         # subsample of the wall, the near-axis rule applied with the material-point fit
-        sub = np.flatnonzero(fit.image_radius(Y) >= AXIS_CLEARANCE_MM)
+        sub = np.arange(0, len(Y), max(1, len(Y) // (2 * RISK_SAMPLES)))
+        sub = sub[fit.image_radius(Y[sub]) >= AXIS_CLEARANCE_MM]
         sub = sub[::max(1, len(sub) // RISK_SAMPLES)]
 
         def segment_strains(f):
@@ -521,11 +527,12 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
                 info[name] = {kind: {str(k): float(v) for k, v in zip(present, se[:, j])}
                               for j, kind in enumerate(STRAIN_KINDS)}
     # the near-axis rule at the frame, with the final fit
-    clear = fit.image_radius(Y) >= AXIS_CLEARANCE_MM
+    radius, F = fit.radius_and_gradient(Y)
+    clear = radius >= AXIS_CLEARANCE_MM
     info["near_axis_excluded"] = int((~clear).sum())
     Y, dirs, labels = Y[clear], dirs[clear], labels[clear]
     vol = None if vol is None else vol[clear]
-    F = fit.gradient(Y)
+    F = F[clear]
     vals = directional_strains(green_lagrange(F), dirs)
     cols, counts = strain_columns(vals, labels, vol)
     det = np.linalg.det(F)
