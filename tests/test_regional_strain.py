@@ -554,21 +554,17 @@ def _exact_motion_strains(monkeypatch, pathology, seed, anatomy):
     """The segment strains the measurement reports when its fitted map is replaced by the
     phantom's exact motion (scanner frame): what is left of the error is how the strain is
     sampled and averaged (wall samples, tagged height range, directions, segments), not the
-    fit. Returns (measured − truth per segment and kind, the measurement's tracked heights)."""
+    fit. Returns measured − truth per segment, by kind."""
     from cardionurbs.analysis import tag_motion
     ph = generate(pathology, seed=seed, frames=2, volume_check=False, anatomy_model=anatomy)
-    f = float(ph.phases[ph.es_frame])
 
-    def phi(P):
-        return ph.pose.to_scanner(ph.motion.forward(ph.anatomy, ph.pose.to_heart(P), f))
-
-    def exact_gradient(P, h=1e-4):
-        return np.stack([(phi(P + h * e) - phi(P - h * e)) / (2 * h) for e in np.eye(3)], axis=2)
+    def exact_gradient(P):
+        return ph.deformation_gradient(P, ph.es_frame)
     fit_tag_motion = tag_motion.fit_tag_motion
 
     def fit_then_exact(fit, *args, **kw):
         out = fit_tag_motion(fit, *args, **kw)
-        fit.gradient = exact_gradient
+        fit.radius_and_gradient = lambda P: (fit.image_radius(P), exact_gradient(P))
         return out
     monkeypatch.setattr(tag_motion, "fit_tag_motion", fit_then_exact)
     model = reconstruct(ph.study)

@@ -243,17 +243,49 @@ class CylindricalMotionFit:
         dR = np.stack([b * qt ** max(b - 1, 0) for b in range(pb + 1)], axis=1) / self.sq
         return LT * Rb, LT * dR[:, ib], L[:, ia] * dT[:, ic] * Rb, dL[:, ia] * T[:, ic] * Rb
 
+    def _mapped(self, X: np.ndarray, derivatives: bool = True):
+        """(r, θ, ζ) of ED points X and the map's values (q', θ' − θ, ζ') there, each (n, 3), with
+        (``derivatives``) their derivatives d/dq, d/dθ, d/dζ: Σ coef · basis contracted factor
+        by factor (harmonics, then height and radius), never forming the (n, b) design."""
+        r, th, zeta = cylindrical(X, self.apex0, self.frame0)
+        pa, pb, pm = self.orders
+        zt = (zeta - self.z0) / self.sz
+        qt = (r * r - self.q0) / self.sq
+        eye = np.eye(pa + 1)
+        L = np.stack([legendre.legval(zt, eye[a]) for a in range(pa + 1)], axis=1)
+        R = np.stack([qt ** b for b in range(pb + 1)], axis=1)
+        k = np.arange(1, pm + 1)
+        c, sn = np.cos(np.outer(th, k)), np.sin(np.outer(th, k))
+        T = np.empty((len(th), 2 * pm + 1))
+        T[:, 0], T[:, 1::2], T[:, 2::2] = 1.0, c, sn
+        C = np.zeros((2 * pm + 1, pa + 1, pb + 1, 3))
+        ia, ib, ic = self._index
+        C[ic, ia, ib] = self.coef
+        C = C.reshape(2 * pm + 1, -1)
+        shape = (len(th), pa + 1, pb + 1, 3)
+        W = (T @ C).reshape(shape)                               # Σ_m T_m coef[a, b, m]
+        values = np.einsum("na,nb,nabc->nc", L, R, W)
+        if not derivatives:
+            return (r, th, zeta), values
+        dT = np.zeros_like(T)
+        dT[:, 1::2], dT[:, 2::2] = -k * sn, k * c
+        dL = np.stack([legendre.legval(zt, legendre.legder(eye[a])) for a in range(pa + 1)],
+                      axis=1) / self.sz
+        dR = np.stack([b * qt ** max(b - 1, 0) for b in range(pb + 1)], axis=1) / self.sq
+        d_theta = np.einsum("na,nb,nabc->nc", L, R, (dT @ C).reshape(shape))
+        return (r, th, zeta), values, (np.einsum("na,nb,nabc->nc", L, dR, W), d_theta,
+                                       np.einsum("na,nb,nabc->nc", dL, R, W))
+
     def image_radius(self, X: np.ndarray) -> np.ndarray:
         """r' (mm): the fitted distance of the images of ED points X (n, 3) from the frame's
         long axis (the square root of the fitted r'², 0 where that is negative)."""
-        r, th, zeta = cylindrical(X, self.apex0, self.frame0)
-        m = self._design(r * r, th, zeta, derivatives=False)[0] @ self.coef
+        m = self._mapped(X, derivatives=False)[1]
         return np.sqrt(np.maximum(m[:, 0], 0.0))
 
     def position(self, X: np.ndarray) -> np.ndarray:
         """The fitted image x (n, 3) of ED points X (n, 3)."""
-        r, th, zeta = cylindrical(X, self.apex0, self.frame0)
-        return self._position(self._design(r * r, th, zeta, derivatives=False)[0] @ self.coef, th)
+        (_, th, _), m = self._mapped(X, derivatives=False)
+        return self._position(m, th)
 
     def linearisation(self, X: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray], np.ndarray]:
         """(x (n, 3), (T (n, 3, 3), D (n, b)), F (n, 3, 3)) at ED points X: the image, its
@@ -269,24 +301,21 @@ class CylindricalMotionFit:
         c, s = np.cos(t)[:, None], np.sin(t)[:, None]
         dpos = np.stack([(c * e1 + s * e2) / (2.0 * rr[:, None]), rr[:, None] * (-s * e1 + c * e2),
                          np.broadcast_to(e, (len(t), 3))], axis=2)      # (n, 3, 3): ∂x/∂(q', θ', ζ')
-        return self._position(m, th), (dpos, D[0]), self._gradient(r, th, D, m)
+        return self._position(m, th), (dpos, D[0]), self._gradient(r, th, m, [A @ self.coef for A in D[1:]])
 
     def radius_and_gradient(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(:meth:`image_radius`, :meth:`gradient`) of ED points X (n, 3), the basis evaluated once."""
-        r, th, zeta = cylindrical(X, self.apex0, self.frame0)
-        D = self._design(r * r, th, zeta)
-        m = D[0] @ self.coef
-        return np.sqrt(np.maximum(m[:, 0], 0.0)), self._gradient(r, th, D, m)
+        """(:meth:`image_radius`, :meth:`gradient`) of ED points X (n, 3), the map evaluated once."""
+        (r, th, _), m, dm = self._mapped(X)
+        return np.sqrt(np.maximum(m[:, 0], 0.0)), self._gradient(r, th, m, dm)
 
     def gradient(self, X: np.ndarray) -> np.ndarray:
         """F = ∂x/∂X (n, 3, 3), Cartesian, by the chain rule through (S1)."""
-        r, th, zeta = cylindrical(X, self.apex0, self.frame0)
-        D = self._design(r * r, th, zeta)
-        return self._gradient(r, th, D, D[0] @ self.coef)
+        (r, th, _), m, dm = self._mapped(X)
+        return self._gradient(r, th, m, dm)
 
-    def _gradient(self, r, th, D, m) -> np.ndarray:
-        _, Aq, At, Az = D
-        J = np.stack([Aq @ self.coef, At @ self.coef, Az @ self.coef], axis=2)   # (n, 3 out, 3 in)
+    def _gradient(self, r, th, m, dm) -> np.ndarray:
+        """F from the map's values m and derivatives dm = (d/dq, d/dθ, d/dζ), each (n, 3)."""
+        J = np.stack(dm, axis=2)                                 # (n, 3 out, 3 in)
         J[:, 1, 1] += 1.0                                       # θ' = θ + g2
         rr = np.sqrt(np.maximum(m[:, 0], 1.0))                  # r' >= 1 mm (never near the axis)
         J[:, 0, :] /= (2.0 * rr)[:, None]                       # rows: r', θ', ζ'

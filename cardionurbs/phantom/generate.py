@@ -65,6 +65,16 @@ class Phantom:
     def frame_times_ms(self) -> np.ndarray:
         return np.array([self.study.frame_times_ms[k] for k in range(len(self.phases))])
 
+    def deformation_gradient(self, points: np.ndarray, frame: int) -> np.ndarray:
+        """F (n, 3, 3) of the exact motion from ED to ``frame`` at ED points (n, 3, scanner mm):
+        :func:`cardionurbs.phantom.regional.deformation_gradient` in the heart frame (the
+        realistic apex bend is part of its map), turned into the scanner frame, R F Rᵀ."""
+        from cardionurbs.phantom import regional
+        R = self.pose.rotation
+        X = (np.asarray(points, dtype=float).reshape(-1, 3) - self.pose.origin) @ R
+        return R @ regional.deformation_gradient(self.anatomy, self.motion, X,
+                                                 float(self.phases[frame])) @ R.T
+
 
 def _rng(seed: int, pathology: str, purpose: str) -> np.random.Generator:
     entropy = [int(seed), PATHOLOGIES.index(pathology) if pathology in PATHOLOGIES else 9,
