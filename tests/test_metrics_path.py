@@ -130,10 +130,15 @@ def test_numpy_residuals_give_the_table_s_quality_stats_and_summary(model_of):
         assert summary[s]["max_px"] == float(g["max_px"].max())
 
 
-def test_fresh_metrics_only_analysis_imports_neither_pandas_nor_pydicom(phantom, tmp_path):
+@pytest.mark.parametrize("kind", ["native", "gpfile"])
+def test_fresh_metrics_only_analysis_imports_neither_pandas_nor_pydicom(phantom, tmp_path, kind):
     d = tmp_path / "m"
-    write_phantom(phantom, d, dicom=False)
-    native.write_study(native.read_study(d), d, points="parquet")
+    if kind == "native":
+        write_phantom(phantom, d, dicom=False)
+        native.write_study(native.read_study(d), d, points="parquet")
+    else:
+        from cardionurbs.io import gpfile
+        gpfile.write_study(phantom.study, d)
     code = ("import sys, json; from cardionurbs.cli import main; "
             f"rc = main(['analyze', {str(d)!r}, '--outputs', 'metrics', '--out', "
             f"{str(tmp_path / 'out')!r}]); "
@@ -143,3 +148,56 @@ def test_fresh_metrics_only_analysis_imports_neither_pandas_nor_pydicom(phantom,
     assert run.returncode == 0, run.stderr
     assert json.loads(run.stdout.strip().splitlines()[-1]) == [0, []], run.stderr
     assert (tmp_path / "out" / "metrics.json").is_file()
+
+
+BIVME = ROOT / ".." / "shared" / "data" / "bivme-patient1"
+
+
+def _gp_dump(study) -> list:
+    out = [("c", c.structure, c.view, c.slice, c.frame, c.image, c.closed, c.index,
+            c.points.tobytes(), c.points.flags.f_contiguous,
+            None if c.weights is None else c.weights.tobytes()) for c in study.contours]
+    out += [("l", lm.name, lm.frame, lm.index, lm.slice, lm.view, lm.image, lm.point.tobytes())
+            for lm in study.landmarks]
+    return [out, study.meta, study.warnings, [im.to_dict() for im in study.images]]
+
+
+@pytest.mark.skipif(not BIVME.is_dir(), reason="needs ../shared/data/bivme-patient1")
+def test_plain_gpfiles_read_without_pandas_equal_the_pandas_reader(tmp_path, monkeypatch):
+    import shutil
+    from cardionurbs.io import gpfile
+    d = tmp_path / "b"
+    shutil.copytree(BIVME, d)
+    gp = sorted(d.glob("GPFile_*.txt"))
+    # frame 1 is not plain (a space-separated line): it alone goes through pandas
+    lines = gp[1].read_text().splitlines()
+    lines[5] = " ".join(lines[5].split("\t"))
+    gp[1].write_text("\n".join(lines) + "\n")
+    calls = []
+    plain = gpfile._plain_rows
+    monkeypatch.setattr(gpfile, "_plain_rows", lambda *a: calls.append(plain(*a)) or calls[-1])
+    fast = _gp_dump(gpfile.read_study(d))
+    assert sum(c is None for c in calls) == 1 and len(calls) == len(gp)
+    monkeypatch.setattr(gpfile, "_plain_rows", lambda *a: None)
+    assert fast == _gp_dump(gpfile.read_study(d))
+
+
+@pytest.mark.parametrize("token, message", [("1_5", "x is not a number"),
+                                            ("nan", "x is NaN or infinite"),
+                                            ("１.5", "x is not a number")])
+def test_odd_numbers_in_a_gpfile_are_told_as_before(tmp_path, token, message):
+    from cardionurbs.io import gpfile
+    if not BIVME.is_dir():
+        pytest.skip("needs ../shared/data/bivme-patient1")
+    import shutil
+    d = tmp_path / "b"
+    shutil.copytree(BIVME, d)
+    path = sorted(d.glob("GPFile_*.txt"))[0]
+    lines = path.read_text().splitlines()
+    f = lines[3].split("\t")
+    f[0] = token
+    lines[3] = "\t".join(f)
+    path.write_text("\n".join(lines) + "\n")
+    assert gpfile._plain_rows(path.read_text(), path.read_text().splitlines(), 1) is None
+    with pytest.raises(StudyError, match=f"line 4: {message}"):
+        gpfile.read_study(d)
