@@ -135,6 +135,10 @@ BOUNDARY_SAMPLES = (160, 96)
 #: Gauss–Newton iterations of (T2) with the tag and boundary points together, before the
 #: regularisation
 JOINT_ITERATIONS = 2
+#: a Gauss–Newton step that makes the fit worse is halved up to this many times (backtracking:
+#: from a poor start — the material points of a heart with a sharp regional defect — a full
+#: step overshot to a misfit of metres)
+MAX_HALVINGS = 8
 
 
 @dataclass(frozen=True)
@@ -572,10 +576,18 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
         w = weight[use][:, None]
         d_coef, d_pt, S = _schur_step(T * w[:, :, None], D, fit.free, J_pt * w[:, :, None],
                                       (pos - x[use]) * w, ridge, penalty, penalty_grad)
-        fit.params = coef + d_coef
-        X[use] += np.einsum("nk,nkj->nj", d_pt, basis[use])
-        if slide is not None:            # back onto the ED surfaces; their new tangent planes
-            X[n_tag:], basis[n_tag:] = slide(X[n_tag:])
+        before = float(np.sum(((pos - x[use]) * w) ** 2))
+        X0, basis0, move = X.copy(), basis.copy(), np.einsum("nk,nkj->nj", d_pt, basis[use])
+        for halving in range(MAX_HALVINGS + 1):
+            t = 0.5 ** halving
+            fit.params = coef + t * d_coef
+            X[:], basis[:] = X0, basis0
+            X[use] += t * move
+            if slide is not None:        # back onto the ED surfaces; their new tangent planes
+                X[n_tag:], basis[n_tag:] = slide(X[n_tag:])
+            # the data term must not grow (a regularised step is judged with its penalty)
+            if penalty is not None or float(np.sum(((fit.position(X[use]) - x[use]) * w) ** 2)) <= before:
+                break
         return S
     for stage, iters in enumerate(ITERATIONS):
         for _ in range(iters):
