@@ -47,6 +47,7 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
 from cardionurbs.safe import plain_text
 from cardionurbs import nurbs
+from cardionurbs.heap import acyclic
 from cardionurbs.io import atomic
 from cardionurbs.report.bullseye import QUANTITIES as BULLSEYE_QUANTITIES, quantity_figure
 
@@ -92,6 +93,8 @@ class FigureSet:
 
     figures: list[FigureResult] = field(default_factory=list)
     skipped: dict[str, str] = field(default_factory=dict)
+    #: the content of ``report_tags.json`` (None when the study has no tag surfaces)
+    report_tags: dict | None = None
 
     @property
     def paths(self) -> list[Path]:
@@ -854,13 +857,16 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
     atomic.write_text(out / "skipped.txt",
                       "".join(f"{k}: {v}\n" for k, v in fs.skipped.items()))
     if tag_frames:
-        atomic.write_text(out / "report_tags.json", json.dumps(_tags_json(tag_frames, tags_m)))
+        with acyclic():                                 # plain lists (cardionurbs.heap)
+            fs.report_tags = _tags_json(tag_frames, tags_m)
+            atomic.write_text(out / "report_tags.json", json.dumps(fs.report_tags))
     return fs
 
 
 def _tags_json(tag_frames: Mapping[int, list[dict]], tags: Any) -> dict:
     """Coarse tag surfaces per frame (vertices rounded to 0.1 mm) with QC flags."""
-    flags = [{"family": g.family, "index": g.index, "slice": g.slice, "frame": g.frame,
+    flags = [{"family": str(g.family), "index": int(g.index), "slice": str(g.slice),
+              "frame": int(g.frame),
               "departure_spacings": (round(float(g.departure), 3) if np.isfinite(g.departure)
                                      else None), "reason": getattr(g, "reason", "jump")}
              for g in (getattr(tags, "flags", None) or [])]
