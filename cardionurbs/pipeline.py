@@ -176,15 +176,9 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
             atomic.write_text(tmp / "residuals.csv", csv_safe_table(res).to_csv(index=False))
         if "metrics" in outputs:
             progress.stage("metrics")
-            if res is None:
-                res = model.residual_table()
-            from cardionurbs.analysis.quality import assess
+            from cardionurbs.analysis.quality import assess, residual_summary
             quality = assess(model, metrics)
-            summary = {}
-            for s, g in res.groupby("structure"):
-                summary[s] = {"mean_mm": float(g["mean_mm"].mean()),
-                              "max_mm": float(g["max_mm"].max()),
-                              "max_px": float(g["max_px"].max())}
+            summary = residual_summary(model)      # ED and ES, per surface (no pandas)
             write_json({"subject": model.study.subject,
                         "metrics": {k: (None if isinstance(v, float) and math.isnan(v) else v)
                                     for k, v in metrics.items()},

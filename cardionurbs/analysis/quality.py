@@ -31,7 +31,6 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from cardionurbs.analysis.function import COLUMNS, TAG_COLUMNS
 
@@ -123,20 +122,67 @@ class Quality:
     _pooled: dict[str, dict] = field(default_factory=dict)
 
 
+def _residual_arrays(model, frames) -> list[dict]:
+    """The model's point residuals at ``frames`` as numpy parts (structure, frame,
+    dist_mm, dist_px: :meth:`BiventricularModel.point_residual_arrays`); a model without
+    that method (or its table) gives them through :meth:`point_residuals`."""
+    if not model.study.contours:
+        return []
+    if hasattr(model, "point_residual_arrays"):
+        return model.point_residual_arrays(frames)
+    pts = model.point_residuals(frames)
+    return [{"structure": s, "frame": f, "dist_mm": g["dist_mm"].to_numpy(),
+             "dist_px": g["dist_px"].to_numpy()}
+            for (s, f), g in pts.groupby(["structure", "frame"], sort=False)]
+
+
+def residual_summary(model: "BiventricularModel", frames=None) -> dict[str, dict[str, float]]:
+    """Per surface, over the given frames (default ED and ES), the fit residuals as
+    metrics.json's ``residuals`` has them: ``mean_mm`` the mean over the contours (one
+    slice and view of one frame) of each contour's mean point distance, ``max_mm`` and
+    ``max_px`` the largest point distance (mm, pixels); surfaces in name order. The same
+    numbers as the per-contour table (:meth:`BiventricularModel.residual_table`), without
+    pandas."""
+    if frames is None:
+        frames = sorted({model.ed_frame, model.es_frame})
+    out: dict[str, dict[str, float]] = {}
+    parts = _residual_arrays(model, frames) if hasattr(model, "point_residual_arrays") else None
+    if parts is None:                      # a model without the numpy parts: the table
+        res = model.residual_table(frames)
+        return {s: {"mean_mm": float(g["mean_mm"].mean()), "max_mm": float(g["max_mm"].max()),
+                    "max_px": float(g["max_px"].max())} for s, g in res.groupby("structure")}
+    for s in sorted({p["structure"] for p in parts}):
+        means, max_mm, max_px = [], [], []
+        for p in (p for p in parts if p["structure"] == s):
+            groups: dict = {}
+            for i, k in enumerate(zip(p["slice"], p["view"])):
+                if k[0] is not None:          # the table's groups leave out a contour without slice
+                    groups.setdefault(k, []).append(i)
+            for idx in groups.values():       # one contour: a slice and view of one frame
+                means.append(float(np.mean(p["dist_mm"][idx])))
+                max_mm.append(float(np.max(p["dist_mm"][idx])))
+                max_px.append(float(np.max(p["dist_px"][idx])))
+        if means:
+            out[s] = {"mean_mm": float(np.mean(means)), "max_mm": max(max_mm), "max_px": max(max_px)}
+    return out
+
+
 def assess(model: "BiventricularModel", metrics: dict[str, float]) -> Quality:
     """The evidence and flags of every metric of ``model`` (module doc)."""
     ed, es = model.ed_frame, model.es_frame
     frames = sorted({ed, es})
     q = Quality()
-    pts = model.point_residuals(frames) if model.study.contours else pd.DataFrame()
+    parts = _residual_arrays(model, frames)
     for f in frames:
         q.surfaces[f] = {}
         q.left_out[f] = list(model.geometry[f].left_out) if model.study.contours else []
-    if not pts.empty:
-        for (s, f), g in pts.groupby(["structure", "frame"]):
-            q.surfaces[int(f)][s] = residual_stats(g["dist_mm"].to_numpy(), g["dist_px"].to_numpy())
-        for s, g in pts.groupby("structure"):
-            q._pooled[s] = residual_stats(g["dist_mm"].to_numpy(), g["dist_px"].to_numpy())
+    # per (surface, frame) and per surface over the frames, surfaces in name order
+    for s in sorted({p["structure"] for p in parts}):
+        mine = [p for p in parts if p["structure"] == s]           # in frame order
+        for p in sorted(mine, key=lambda p: p["frame"]):
+            q.surfaces[int(p["frame"])][s] = residual_stats(p["dist_mm"], p["dist_px"])
+        q._pooled[s] = residual_stats(np.concatenate([p["dist_mm"] for p in mine]),
+                                      np.concatenate([p["dist_px"] for p in mine]))
 
     def surface_flags(surfaces, which) -> list[str]:
         out = []

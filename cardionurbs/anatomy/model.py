@@ -18,7 +18,6 @@ from typing import TYPE_CHECKING
 
 import manifold3d
 import numpy as np
-import pandas as pd
 
 from cardionurbs import nurbs
 from cardionurbs.anatomy import mesh as meshing
@@ -31,7 +30,8 @@ from cardionurbs.errors import ReconstructionError
 from cardionurbs.geometry import long_axis, polygon_centroid
 from cardionurbs.study import Study
 
-if TYPE_CHECKING:    # trimesh (~0.3 s to import) only where meshes are made
+if TYPE_CHECKING:    # trimesh (~0.3 s to import) only where meshes are made, pandas (~0.3 s)
+    import pandas as pd    # only where a residual table is asked for
     import trimesh
 
 MESHES = ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium")
@@ -500,6 +500,7 @@ class BiventricularModel:
         max_px, for the given frames (default ED and ES); see :meth:`point_residuals`
         for which points and which distance. Empty for a model read back without its
         study's contours."""
+        import pandas as pd
         cols = ["structure", "frame", "slice", "view", "n_points", "mean_mm", "max_mm",
                 "mean_px", "max_px"]
         pts = self.point_residuals(frames)
@@ -521,18 +522,29 @@ class BiventricularModel:
         distance is to the boundary of the RV solids, which the RV surface and the LV
         epicardium make together (RV cavity = RV endo − LV epi): the nearer of the two
         surfaces, so that the septal run of an LA RV contour, which lies on the LV
-        epicardium, is measured where it lies."""
+        epicardium, is measured where it lies. The same numbers without pandas:
+        :meth:`point_residual_arrays`."""
+        import pandas as pd
         cols = ["structure", "frame", "slice", "view", "dist_mm", "dist_px"]
-        if not self.study.contours:
+        parts = self.point_residual_arrays(frames)
+        if not parts:
             return pd.DataFrame([], columns=cols)
+        return pd.concat([pd.DataFrame(p) for p in parts], ignore_index=True)[cols]
+
+    def point_residual_arrays(self, frames=None) -> list[dict]:
+        """:meth:`point_residuals` as numpy arrays (cached), one dict per (frame, structure)
+        in frame order: ``structure``, ``frame``, and per point ``slice`` (object array),
+        ``view``, ``dist_mm``, ``dist_px``; [] without the study's contours."""
+        if not self.study.contours:
+            return []
         if frames is None:
             frames = sorted({self.ed_frame, self.es_frame})
         key = ("point_residuals", tuple(frames))
         if key not in self._solid_cache:
-            self._solid_cache[key] = self._point_residuals(frames, cols)
-        return self._solid_cache[key].copy()
+            self._solid_cache[key] = self._point_residuals(frames)
+        return [dict(p) for p in self._solid_cache[key]]
 
-    def _point_residuals(self, frames, cols) -> pd.DataFrame:
+    def _point_residuals(self, frames) -> list[dict]:
         parts = []
         for f in frames:
             geo = self.geometry[f]
@@ -554,14 +566,12 @@ class BiventricularModel:
                     d = np.minimum(d, tract.distance(allp))
                 n = [len(it[2]) for it in items]
                 px = np.repeat([it[3] for it in items], n)
-                parts.append(pd.DataFrame({
+                parts.append({
                     "structure": s, "frame": f,
                     "slice": np.repeat(np.array([it[0] for it in items], dtype=object), n),
                     "view": np.repeat([it[1] for it in items], n), "dist_mm": d,
-                    "dist_px": d / px}))
-        if not parts:
-            return pd.DataFrame([], columns=cols)
-        return pd.concat(parts, ignore_index=True)[cols]
+                    "dist_px": d / px})
+        return parts
 
     # ------------------------------------------------------------- (de)serialise
     def to_dict(self) -> dict:

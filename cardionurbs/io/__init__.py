@@ -53,14 +53,25 @@ def _has_dicom(p: Path) -> bool:
 
 
 def _extra_detectors():
-    """Detectors of the other formats; each returns a format name or None."""
-    from cardionurbs.io.gpfile import detect as gp
-    from cardionurbs.io.nifti import detect as nii
-    from cardionurbs.io.sunnybrook import detect as sb
+    """Detectors of the other formats; each returns a format name or None. Each reader
+    module is imported only when its detector is asked (the Sunnybrook reader brings
+    pydicom, about 0.5 s of a start-up that reads a GPFile study)."""
+    def nii(p):
+        names = [p.name] if p.is_file() else [q.name for q in p.iterdir()] if p.is_dir() else []
+        if not any(n.lower().endswith((".nii", ".nii.gz")) for n in names):
+            return None                    # no label map here: the NIfTI reader is not needed
+        from cardionurbs.io.nifti import detect
+        return "nifti" if detect(p) else None
 
-    return [lambda p: "nifti" if nii(p) else None,
-            lambda p: "gpfile" if gp(p) else None,
-            lambda p: "sunnybrook" if sb(p) else None]
+    def gp(p):
+        from cardionurbs.io.gpfile import detect
+        return "gpfile" if detect(p) else None
+
+    def sb(p):
+        from cardionurbs.io.sunnybrook import detect
+        return "sunnybrook" if detect(p) else None
+
+    return [nii, gp, sb]
 
 
 def load_study(path: str | Path, format: str = "auto", *, allow_outside: bool = False,

@@ -80,10 +80,11 @@ from __future__ import annotations
 
 import io
 import re
+from collections import Counter
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from cardionurbs.confine import files_inside, study_file
 from cardionurbs.errors import StudyError
@@ -94,6 +95,9 @@ from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import atomic
 from cardionurbs.io.checks import in_plane_coordinates, self_intersections
 from cardionurbs.study import Contour, Landmark, Study
+
+if TYPE_CHECKING:    # pandas (~0.3 s to import): only for a file the plain reader declines
+    import pandas as pd
 
 SLICE_INFO = "SliceInfoFile.txt"
 GP_FILE = re.compile(r"^GPFile_(\d+)\.txt$")
@@ -274,10 +278,15 @@ def _frame_of_time(slices: list[dict], files: list[tuple[int, Path]], path: Path
 
 
 # ------------------------------------------------------------------------ GPFile
-def read_gp_table(path: str | Path) -> tuple[pd.DataFrame, str, int | None]:
-    """One GPFile as a table (x, y, z floats; type, slice id, weight and time tokens as text),
-    its header line and the fixed number of decimals of its x y z text (None if not fixed).
-    StudyError names the file and line of any bad value."""
+def read_gp_table(path: str | Path) -> tuple[dict[str, np.ndarray], str, int | None]:
+    """One GPFile as numpy columns (``x``, ``y``, ``z`` floats; ``type``, ``weight`` and
+    ``time`` as the text written; ``slice_id`` and ``line`` integers), its header line and
+    the fixed number of decimals of its x y z text (None if not fixed). StudyError names
+    the file and line of any bad value.
+
+    A plain file (ASCII, tab-separated, 7 fields on every line, every number an ordinary
+    decimal) is split and converted by numpy (:func:`_plain_rows`); any other is read by
+    pandas, whose reader and messages define what is accepted and how it is reported."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -292,10 +301,14 @@ def read_gp_table(path: str | Path) -> tuple[pd.DataFrame, str, int | None]:
         float(lines[0].split("\t")[0].strip())
     except ValueError:
         header, start = lines[0], 1
+    rows = _plain_rows(text, lines, start)
+    if rows is not None:
+        return rows, header, _fixed_decimals([rows.pop(f"{c}_text") for c in "xyz"])
+    import pandas as pd
     table = _fast_table(text, start) if all(ln.strip() for ln in lines[start:]) else None
     if table is None:
         table = _slow_table(lines, start, path)
-    decimals = _fixed_decimals(table[["x", "y", "z"]])
+    decimals = _fixed_decimals([table[c].to_numpy(str) for c in ("x", "y", "z")])
     for col in ("x", "y", "z", "slice", "weight"):
         num = pd.to_numeric(table[col], errors="coerce").to_numpy(float)
         bad = ~np.isfinite(num)
@@ -312,7 +325,56 @@ def read_gp_table(path: str | Path) -> tuple[pd.DataFrame, str, int | None]:
             table[col] = num
         elif col == "slice":
             table["slice_id"] = num.astype(int)
-    return table, header, decimals
+    return {"x": table["x"].to_numpy(float), "y": table["y"].to_numpy(float),
+            "z": table["z"].to_numpy(float), "type": table["type"].to_numpy(object),
+            "slice_id": table["slice_id"].to_numpy(int),
+            "weight": table["weight"].to_numpy(object), "time": table["time"].to_numpy(object),
+            "line": table["line"].to_numpy(int)}, header, decimals
+
+
+#: characters that make a file not plain (:func:`_plain_rows`): controls other than tab and
+#: line ends (Python's line splitting and stripping treat some of them as breaks or space)
+_NOT_PLAIN = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
+
+
+def _plain_rows(text: str, lines: list[str], start: int) -> dict[str, np.ndarray] | None:
+    """The rows of a plain GPFile as numpy columns (see :func:`read_gp_table`, plus the
+    ``x_text``, ``y_text``, ``z_text`` tokens), without pandas; None when the file is not
+    plain: a non-ASCII or control character, a blank line, a line without exactly 7 tab
+    fields, an empty time field, or a number field that is not a finite decimal (slice:
+    integral) without underscores. Such a file goes to the pandas reader, which reports
+    what is wrong with it. On a plain file both readers give the same columns (numbers
+    parsed by the correctly rounded conversion numpy shares with Python's ``float``)."""
+    body = lines[start:]
+    if not body or not text.isascii() or _NOT_PLAIN.search(text) \
+            or not all(ln.strip() for ln in body):
+        return None
+    fields = [ln.split("\t") for ln in body]
+    if any(len(f) != 7 for f in fields):
+        return None
+    x, y, z, types, slices, weight, time = (np.array(c, dtype=object) for c in zip(*fields))
+    if any(t == "" for t in time):
+        return None
+    num = {}
+    for name, col in (("x", x), ("y", y), ("z", z), ("slice", slices), ("weight", weight)):
+        if "_" in "".join(col):               # numpy's float() takes 1_0; pandas does not
+            return None
+        try:
+            v = col.astype(str).astype(float)
+        except ValueError:
+            return None
+        if not np.isfinite(v).all() or (name == "slice" and np.any(v != np.round(v))):
+            return None
+        num[name] = v
+    return {"x": num["x"], "y": num["y"], "z": num["z"],
+            "type": np.array([t.strip() for t in types], dtype=object),
+            "slice_id": num["slice"].astype(int), "weight": weight, "time": time,
+            "line": np.arange(len(body)) + start + 1,
+            "x_text": x.astype(str), "y_text": y.astype(str), "z_text": z.astype(str)}
+
+
+def _take(rows: dict[str, np.ndarray], keep: np.ndarray) -> dict[str, np.ndarray]:
+    return {k: v[keep] for k, v in rows.items()}
 
 
 _COLUMNS = ["x", "y", "z", "type", "slice", "weight", "time"]
@@ -320,6 +382,7 @@ _COLUMNS = ["x", "y", "z", "type", "slice", "weight", "time"]
 
 def _fast_table(text: str, start: int) -> pd.DataFrame | None:
     """Parse with pandas' C reader; None when some line has not exactly 7 fields."""
+    import pandas as pd
     try:
         t = pd.read_csv(io.StringIO(text), sep="\t", header=None, names=_COLUMNS, dtype=str,
                         keep_default_na=False, skiprows=start, engine="c", quoting=3)
@@ -335,6 +398,7 @@ def _fast_table(text: str, start: int) -> pd.DataFrame | None:
 
 def _slow_table(lines: list[str], start: int, path: Path) -> pd.DataFrame:
     """Line-by-line parse (blank lines, whitespace separators) with exact error lines."""
+    import pandas as pd
     rows = []
     for k in range(start, len(lines)):
         ln = lines[k]
@@ -385,22 +449,20 @@ def read_study(path: str | Path) -> Study:
         t, h, dec = read_gp_table(f)
         header = h if header is None else header
         decimals.add(dec)
-        drop = t["type"].isin(EXCLUDED_TYPES).to_numpy()
+        drop = np.array([ty in EXCLUDED_TYPES for ty in t["type"]], dtype=bool)
         excluded += int(drop.sum())
-        t = t[~drop].reset_index(drop=True)
-        t["frame"] = frame
-        t["file"] = f.name
-        unknown = ~t["slice_id"].isin(list(slice_by_id))
+        t = _take(t, ~drop)
+        unknown = ~np.isin(t["slice_id"], list(slice_by_id))
         if unknown.any():
-            i = int(np.flatnonzero(unknown.to_numpy())[0])
-            raise StudyError(f"line {t['line'].iloc[i]}: reference to slice (frameID) "
-                             f"{t['slice_id'].iloc[i]} that is not in {SLICE_INFO}", file=f,
+            i = int(np.flatnonzero(unknown)[0])
+            raise StudyError(f"line {t['line'][i]}: reference to slice (frameID) "
+                             f"{t['slice_id'][i]} that is not in {SLICE_INFO}", file=f,
                              field="frameID")
-        w = t["weight"].astype(float).to_numpy()
+        w = t["weight"].astype(str).astype(float)
         if (w < 0).any():
             i = int(np.flatnonzero(w < 0)[0])
-            raise StudyError(f"line {t['line'].iloc[i]}: weight must be >= 0, got "
-                             f"{t['weight'].iloc[i]!r}", file=f, field="weight")
+            raise StudyError(f"line {t['line'][i]}: weight must be >= 0, got "
+                             f"{t['weight'][i]!r}", file=f, field="weight")
         tables.append(t)
     planes, names, views, rule = _slice_planes(slices, tables, folder)
     frames = [fr for fr, _ in files]
@@ -418,11 +480,11 @@ def read_study(path: str | Path) -> Study:
         blocks, runs = _read_blocks(t, frame, f, names, views, contours, landmarks)
         frame_meta[str(frame)] = {"file": f.name, "blocks": blocks, "runs": runs}
     warnings = []
-    other = pd.Series([c.structure for c in contours if not c.ventricular], dtype=object)
-    if len(other):
-        counts = ", ".join(f"{k} x{v}" for k, v in other.value_counts().sort_index().items())
-        warnings.append(f"{folder}: {len(other)} atrial, venous or extent contour(s) kept but "
-                        f"not used for the ventricles ({counts})")
+    other = Counter(c.structure for c in contours if not c.ventricular)
+    if other:
+        counts = ", ".join(f"{k} x{v}" for k, v in sorted(other.items()))
+        warnings.append(f"{folder}: {sum(other.values())} atrial, venous or extent contour(s) "
+                        f"kept but not used for the ventricles ({counts})")
     if excluded:
         warnings.append(f"{folder}: {excluded} EXCLUDED guide point(s) dropped")
     style = slices[0]["style"]
@@ -440,7 +502,7 @@ def read_study(path: str | Path) -> Study:
                  source=str(folder), meta=meta, warnings=warnings)
 
 
-def _slice_planes(slices: list[dict], tables: list[pd.DataFrame], folder: Path):
+def _slice_planes(slices: list[dict], tables: list[dict[str, np.ndarray]], folder: Path):
     """ImagePlane per slice id, slice names, views and the base/apex rule."""
     planes = {}
     for s in slices:
@@ -456,9 +518,10 @@ def _slice_planes(slices: list[dict], tables: list[pd.DataFrame], folder: Path):
     normals = np.array([planes[i].normal for i in ids])
     centers = np.array([planes[i].position for i in ids])
     is_sa = stack.split_stack(normals)
-    all_rows = pd.concat(tables, ignore_index=True)
-    apex = all_rows.loc[all_rows["type"] == "APEX_POINT", ["x", "y", "z"]].to_numpy(float)
-    mitral = all_rows.loc[all_rows["type"] == "MITRAL_VALVE", ["x", "y", "z"]].to_numpy(float)
+    types = np.concatenate([t["type"] for t in tables])
+    xyz = np.column_stack([np.concatenate([t[c] for t in tables]) for c in ("x", "y", "z")])
+    apex = xyz[types == "APEX_POINT"]
+    mitral = xyz[types == "MITRAL_VALVE"]
     names, views, rule = {}, {}, None
     sa = [i for i, m in zip(ids, is_sa) if m]
     if sa:
@@ -476,7 +539,7 @@ def _slice_planes(slices: list[dict], tables: list[pd.DataFrame], folder: Path):
         if not m:
             hit = _LA_VIEW.search(Path(by_id[i]["file"]).name)
             la_names[i] = f"la_{hit.group(1)}ch" if hit else f"la_{i}"
-    counts = pd.Series(list(la_names.values()), dtype=object).value_counts()
+    counts = Counter(la_names.values())
     for i, name in la_names.items():
         names[i], views[i] = (name if counts[name] == 1 else f"la_{i}"), "LA"
     return planes, names, views, rule
@@ -513,18 +576,21 @@ def is_loop(points: np.ndarray, gap_steps: float = LOOP_GAP_STEPS) -> bool:
     return len(self_intersections(in_plane_coordinates(points), True)) == 0
 
 
-def _read_blocks(t: pd.DataFrame, frame: int, f: Path, names: dict, views: dict,
+def _read_blocks(t: dict[str, np.ndarray], frame: int, f: Path, names: dict, views: dict,
                  contours: list, landmarks: list):
-    """Contours and landmarks of one frame's table, in file order; the block order and the
-    (weight, time frame) runs for write-back."""
-    types = t["type"].to_numpy()
-    sids = t["slice_id"].to_numpy()
-    xyz = t[["x", "y", "z"]].to_numpy(float)
-    weights = t["weight"].astype(float).to_numpy()
-    lines = t["line"].to_numpy()
-    key = np.array([f"{a}\x1f{b}" for a, b in zip(types, sids)]) if len(t) else np.array([])
-    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(t) else np.array([], int)
-    ends = np.r_[starts[1:], len(t)].astype(int)
+    """Contours and landmarks of one frame's rows (:func:`read_gp_table`), in file order;
+    the block order and the (weight, time frame) runs for write-back."""
+    types = t["type"]
+    sids = t["slice_id"]
+    n = len(types)
+    # column-major (as a DataFrame block gives them): each contour's points are views of
+    # these, and their layout steers the rounding of later products
+    xyz = np.asfortranarray(np.column_stack([t["x"], t["y"], t["z"]]).astype(float))
+    weights = t["weight"].astype(str).astype(float)
+    lines = t["line"]
+    key = np.array([f"{a}\x1f{b}" for a, b in zip(types, sids)]) if n else np.array([])
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if n else np.array([], int)
+    ends = np.r_[starts[1:], n].astype(int)
     blocks = []
     piece: dict[tuple, int] = {}
     lm_count: dict[tuple[str, str], int] = {}
@@ -568,8 +634,8 @@ def _read_blocks(t: pd.DataFrame, frame: int, f: Path, names: dict, views: dict,
                                     closed=closed, index=k, weights=weights[s:e]))
         except StudyError as exc:
             raise StudyError(f"line {lines[s]}: {exc}", file=f) from None
-    wt = t["weight"].to_numpy()
-    tm = t["time"].to_numpy()
+    wt = t["weight"]
+    tm = t["time"]
     runs = []
     for w, tt in zip(wt, tm):
         if runs and runs[-1][1] == w and runs[-1][2] == tt:
@@ -591,9 +657,9 @@ def _fmt(values, decimals: int | None = None) -> list[str]:
     return [repr(float(v)) for v in values]
 
 
-def _fixed_decimals(columns: pd.DataFrame) -> int | None:
-    """The common number of decimals of fixed-point number text columns, or None."""
-    tok = np.concatenate([columns[c].to_numpy(str) for c in columns.columns])
+def _fixed_decimals(columns: list[np.ndarray]) -> int | None:
+    """The common number of decimals of fixed-point number text columns (str arrays), or None."""
+    tok = np.concatenate([np.asarray(c, dtype=str) for c in columns])
     if tok.size == 0:
         return None
     dot = np.char.find(tok, ".")

@@ -75,8 +75,9 @@ import json
 import zlib
 from pathlib import Path
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import pandas as pd
 
 from cardionurbs.confine import study_file
 from cardionurbs.errors import StudyError
@@ -85,6 +86,9 @@ from cardionurbs.io import atomic
 from cardionurbs.io.schema import check_manifest, load_manifest
 from cardionurbs.safe import excerpt
 from cardionurbs.study import Contour, Landmark, Study, TagLine
+
+if TYPE_CHECKING:    # pandas (~0.3 s to import) only where a table is written or a CSV read
+    import pandas as pd
 
 FORMAT = "cardionurbs-native"
 VERSION = 1
@@ -127,6 +131,7 @@ def study_to_frames(study: Study, pixel_coordinates: bool = True,
     ``decimals``: round x, y, z to that many decimals first (what :func:`write_study`
     writes), so that px, py are those of the coordinates a reader will see.
     """
+    import pandas as pd
     images = study._image_index()
     meta: list[tuple] = []      # (kind, name, index, view, slice, frame, image, closed)
     blocks: list[np.ndarray] = []
@@ -326,15 +331,31 @@ def _opt_float(v):
     return None if v is None else float(v)
 
 
-def _pixels_to_scanner(table: pd.DataFrame, need: np.ndarray, pix: np.ndarray, xyz: np.ndarray,
+class _Columns:
+    """The points table as numpy columns: ``numbers[col]`` float (NaN where empty) for
+    x, y, z, px, py, frame, index; ``text[col]`` = (integer codes, values) with
+    ``values[codes]`` the column's strings (empty where the file has none)."""
+
+    def __init__(self, n: int, numbers: dict, text: dict) -> None:
+        self.n, self.numbers, self.text = n, numbers, text
+
+    def strings(self, col: str, rows=slice(None)) -> np.ndarray:
+        codes, values = self.text[col]
+        return values[codes[rows]]
+
+
+def _pixels_to_scanner(table: _Columns, need: np.ndarray, pix: np.ndarray, xyz: np.ndarray,
                        images: dict, points_path: Path) -> None:
     """Fill ``xyz[need]`` from (px, py) through each row's image plane, all rows at once:
     P = S + px * dc * X + py * dr * Y (DICOM PS3.3 C.7.6.2.1.1, same operation order as
     ImagePlane.pixel_to_scanner, so results are bit-identical)."""
-    codes, uniques = pd.factorize(table["image"].to_numpy()[need])
     rows = np.flatnonzero(need)
-    for k, image_id in enumerate(uniques):
-        line = int(rows[np.argmax(codes == k)]) + 2
+    image_codes, image_values = table.text["image"]
+    used, first, codes = np.unique(image_codes[rows], return_index=True, return_inverse=True)
+    uniques = [str(image_values[u]) for u in used]
+    for k in np.argsort(first, kind="stable"):     # in file order: the first bad line is told
+        image_id = uniques[k]
+        line = int(rows[first[k]]) + 2
         if not image_id:
             raise StudyError(f"line {line}: no x, y, z and no image to map px, py",
                              file=points_path, field="image")
@@ -381,6 +402,7 @@ def _points_table(points_path: Path) -> pd.DataFrame:
     """The points file as a DataFrame (strings kept as written, empty coordinates NaN):
     Parquet when its name ends in ``.parquet``, else CSV (gzip-compressed when it ends in
     ``.gz``, as pandas infers)."""
+    import pandas as pd
     if points_path.suffix.lower() == ".parquet":
         return _parquet_table(points_path)
     try:
@@ -395,10 +417,34 @@ def _points_table(points_path: Path) -> pd.DataFrame:
 def _codes(column: pd.Series) -> tuple[np.ndarray, np.ndarray]:
     """(integer codes, values) of a text column: values[codes] is the column (a categorical
     column's own codes, else pandas.factorize)."""
+    import pandas as pd
     if isinstance(column.dtype, pd.CategoricalDtype):
         return column.cat.codes.to_numpy(), np.asarray(column.cat.categories, dtype=object)
     codes, uniques = pd.factorize(column, use_na_sentinel=False)
     return codes, np.asarray(uniques, dtype=object)
+
+
+def _columns_of(table: pd.DataFrame, points_path: Path) -> _Columns:
+    """A points DataFrame (a CSV, a sidecar) checked and turned into :class:`_Columns`:
+    StudyError names the first line whose number column holds something else (or, for
+    frame and index, no integer)."""
+    import pandas as pd
+    numbers = {}
+    for col in ("x", "y", "z", "px", "py", "frame", "index"):
+        num = pd.to_numeric(table[col], errors="coerce")
+        if pd.api.types.is_numeric_dtype(table[col]):  # parsed as numbers: only NaN can be bad
+            bad = pd.Series(np.zeros(len(table), dtype=bool), index=table.index)
+        else:
+            bad = num.isna() & (table[col].astype(str).str.strip() != "") & table[col].notna()
+        if col in ("frame", "index"):
+            bad |= num.isna() | (num != np.round(num))
+        if bad.any():
+            line = int(np.flatnonzero(bad.to_numpy())[0]) + 2
+            raise StudyError(f"line {line}: {col} is not a number "
+                             f"({excerpt(table[col].iloc[line - 2])})",
+                             file=points_path, field=col)
+        numbers[col] = num.to_numpy(float)
+    return _Columns(len(table), numbers, {col: _codes(table[col]) for col in _TEXT})
 
 
 def _parquet_table(points_path: Path) -> pd.DataFrame:
@@ -428,6 +474,86 @@ def _parquet_table(points_path: Path) -> pd.DataFrame:
     return table
 
 
+def _arrow_values(chunk, dtype) -> tuple[np.ndarray, np.ndarray | None]:
+    """(values, valid) of one pyarrow array of a fixed-width numeric type, read from its
+    buffers (Arrow columnar format: a little-endian validity bitmap, then the values);
+    ``valid`` None when nothing is null. (pyarrow's own ``to_numpy`` imports pandas.)"""
+    n, off = len(chunk), chunk.offset
+    bitmap, data = chunk.buffers()[:2]
+    values = np.frombuffer(data, dtype=dtype, count=off + n)[off:] if n else np.zeros(0, dtype)
+    if not chunk.null_count:
+        return values, None
+    bits = np.unpackbits(np.frombuffer(bitmap, np.uint8), bitorder="little")
+    return values, bits[off:off + n].astype(bool)
+
+
+def _parquet_columns(points_path: Path) -> _Columns | None:
+    """A Parquet points file as written by :func:`write_study` (text columns strings, the
+    others numbers) straight into numpy columns, without pandas (about 0.3 s of a
+    start-up); None when the file has another schema (a missing column, text in a
+    number column), which :func:`_parquet_table` and :func:`_columns_of` then read
+    and report as for any table. The same numbers as that path, one thread, the C
+    library's allocator (see :func:`_parquet_table`)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    numeric = {pa.float64(): np.float64, pa.float32(): np.float32, pa.int64(): np.int64,
+               pa.int32(): np.int32}
+    try:
+        schema = pq.read_schema(points_path)
+    except Exception as exc:  # noqa: BLE001 - pyarrow raises several types for a broken file
+        raise StudyError(f"cannot read Parquet ({_first_line(exc)})", file=points_path) from None
+    types = {name: schema.field(name).type for name in schema.names}
+    if any(c not in types for c in COLUMNS) \
+            or not all(types[c] in (pa.string(), pa.large_string()) for c in _TEXT) \
+            or not all(types[c] in numeric for c in ("x", "y", "z", "px", "py", "frame", "index")):
+        return None
+    pool, default = pa.system_memory_pool(), pa.default_memory_pool()
+    pa.set_memory_pool(pool)          # the reader allocates from the default pool
+    try:
+        # ParquetFile, not read_table: the latter's dataset layer imports pandas
+        arrow = pq.ParquetFile(points_path, read_dictionary=list(_TEXT),
+                               memory_map=False).read(columns=COLUMNS, use_threads=False)
+        arrow = arrow.unify_dictionaries(memory_pool=pool)
+        n = arrow.num_rows
+        numbers = {}
+        for c in ("x", "y", "z", "px", "py", "frame", "index"):
+            parts = []
+            for ch in arrow.column(c).chunks:
+                v, valid = _arrow_values(ch, numeric[ch.type])
+                v = v.astype(float)
+                if valid is not None:
+                    v[~valid] = np.nan
+                parts.append(v)
+            numbers[c] = np.concatenate(parts) if parts else np.zeros(0)
+        text = {}
+        for c in _TEXT:
+            chunks = arrow.column(c).chunks
+            values = (chunks[0].dictionary.to_pylist() if chunks else []) + [""]   # "": null
+            parts = []
+            for ch in chunks:
+                idx = ch.indices
+                if idx.type not in (pa.int8(), pa.int16(), pa.int32(), pa.int64()):
+                    return None
+                k, valid = _arrow_values(idx, np.dtype(f"int{idx.type.bit_width}"))
+                parts.append(k if valid is None else np.where(valid, k, len(values) - 1))
+            text[c] = (np.concatenate(parts) if parts else np.zeros(0, np.int64),
+                       np.array(values, dtype=object))
+        del arrow
+    except Exception as exc:  # noqa: BLE001 - pyarrow raises several types for a broken file
+        raise StudyError(f"cannot read Parquet ({_first_line(exc)})", file=points_path) from None
+    finally:
+        pa.set_memory_pool(default)
+    pool.release_unused()
+    for c in ("frame", "index"):          # integers: a null or a fraction is no index
+        v = numbers[c]
+        bad = ~np.isfinite(v) | (v != np.round(v))
+        if bad.any():
+            line = int(np.flatnonzero(bad)[0]) + 2
+            raise StudyError(f"line {line}: {c} is not a number ({excerpt(v[line - 2])})",
+                             file=points_path, field=c)
+    return _Columns(n, numbers, text)
+
+
 def _first_line(exc: BaseException) -> str:
     text = str(exc).strip()
     return excerpt(text.splitlines()[0] if text else type(exc).__name__)
@@ -437,55 +563,52 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False,
                  expected_rows: int | None = None, sidecar: Path | None = None) -> None:
     if not points_path.is_file():
         raise StudyError("points file is missing", file=points_path)
-    table = None
+    table = cols = None
     if sidecar is not None and sidecar.is_file() and sidecar != points_path:
         table = _sidecar_table(sidecar, points_path)
-    if table is None:
-        table = _points_table(points_path)
-    missing = [c for c in COLUMNS if c not in table.columns]
-    if missing:
-        raise StudyError(f"missing column(s) {', '.join(missing)}", file=points_path)
-    warning = _check_complete(points_path, len(table), expected_rows)
+    if table is None and points_path.suffix.lower() == ".parquet":
+        cols = _parquet_columns(points_path)
+    if cols is None:
+        if table is None:
+            table = _points_table(points_path)
+        missing = [c for c in COLUMNS if c not in table.columns]
+        if missing:
+            raise StudyError(f"missing column(s) {', '.join(missing)}", file=points_path)
+    n = cols.n if cols is not None else len(table)
+    warning = _check_complete(points_path, n, expected_rows)
     if warning:
         study.warnings.append(warning)
-    if table.empty:
+    if n == 0:
         return
-    for col in ("x", "y", "z", "px", "py", "frame", "index"):
-        num = pd.to_numeric(table[col], errors="coerce")
-        if pd.api.types.is_numeric_dtype(table[col]):  # parsed as numbers: only NaN can be bad
-            bad = pd.Series(np.zeros(len(table), dtype=bool), index=table.index)
-        else:
-            bad = num.isna() & (table[col].astype(str).str.strip() != "") & table[col].notna()
-        if col in ("frame", "index"):
-            bad |= num.isna() | (num != np.round(num))
-        if bad.any():
-            line = int(np.flatnonzero(bad.to_numpy())[0]) + 2
-            raise StudyError(f"line {line}: {col} is not a number "
-                             f"({excerpt(table[col].iloc[line - 2])})",
-                             file=points_path, field=col)
-        table[col] = num
-    xyz = table[["x", "y", "z"]].to_numpy(float)
-    pix = table[["px", "py"]].to_numpy(float)
+    if cols is None:
+        cols = _columns_of(table, points_path)
+        del table
+    num = cols.numbers
+    # column-major, as a DataFrame's block gives them: the points of each annotation are
+    # views of these, and their layout steers the rounding of later products
+    xyz = np.asfortranarray(np.column_stack([num["x"], num["y"], num["z"]]))
+    pix = np.asfortranarray(np.column_stack([num["px"], num["py"]]))
     has_xyz = np.isfinite(xyz).all(axis=1)
     images = study._image_index()
     # pixel-only rows (every row with pixels when prefer_pixels) -> scanner mm through their image
     need = ~has_xyz
     if prefer_pixels:
-        need |= np.isfinite(pix).all(axis=1) & table["image"].isin(list(images)).to_numpy()
+        image_codes, image_values = cols.text["image"]
+        known = np.array([v in images for v in image_values], dtype=bool)
+        need |= np.isfinite(pix).all(axis=1) & known[image_codes]
     if need.any():
-        _pixels_to_scanner(table, need, pix, xyz, images, points_path)
+        _pixels_to_scanner(cols, need, pix, xyz, images, points_path)
     # a new annotation starts where any key column differs from the row before (vectorised,
     # on integer codes of the text columns: no per-row Python strings)
-    coded = {col: _codes(table[col]) for col in ("kind", "name", "view", "slice", "image", "closed")}
-    change = np.zeros(max(len(table) - 1, 0), dtype=bool)
+    change = np.zeros(max(n - 1, 0), dtype=bool)
     for col in _KEY:
-        values = coded[col][0] if col in coded else table[col].to_numpy()
+        values = cols.text[col][0] if col in cols.text else num[col]
         change |= values[1:] != values[:-1]
     starts = np.flatnonzero(np.r_[True, change])
-    ends = np.r_[starts[1:], len(table)]
+    ends = np.r_[starts[1:], n]
     kinds, names, views, slices, imgs, closed = (
-        coded[col][1][coded[col][0][starts]] for col in ("kind", "name", "view", "slice", "image", "closed"))
-    frames, idxs = table["frame"].to_numpy(int)[starts], table["index"].to_numpy(int)[starts]
+        cols.strings(col, starts) for col in ("kind", "name", "view", "slice", "image", "closed"))
+    frames, idxs = num["frame"].astype(int)[starts], num["index"].astype(int)[starts]
     for k, (s, e) in enumerate(zip(starts, ends)):
         kind, image = kinds[k], imgs[k] or None
         if image is not None and image not in images:
