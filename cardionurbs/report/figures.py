@@ -93,7 +93,7 @@ class FigureSet:
 
     figures: list[FigureResult] = field(default_factory=list)
     skipped: dict[str, str] = field(default_factory=dict)
-    #: the content of ``report_tags.json`` (None when the study has no tag surfaces)
+    #: the content of ``report_tags.json``, arrays as numpy arrays (None without tag surfaces)
     report_tags: dict | None = None
 
     @property
@@ -859,12 +859,13 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
     if tag_frames:
         with acyclic():                                 # plain lists (cardionurbs.heap)
             fs.report_tags = _tags_json(tag_frames, tags_m)
-            atomic.write_text(out / "report_tags.json", json.dumps(fs.report_tags))
+            atomic.write_text(out / "report_tags.json", _dump_tags(fs.report_tags))
     return fs
 
 
 def _tags_json(tag_frames: Mapping[int, list[dict]], tags: Any) -> dict:
-    """Coarse tag surfaces per frame (vertices rounded to 0.1 mm) with QC flags."""
+    """Coarse tag surfaces per frame (vertices rounded to 0.1 mm) with QC flags: the content
+    of ``report_tags.json``, its arrays as numpy arrays (written by :func:`_dump_tags`)."""
     flags = [{"family": str(g.family), "index": int(g.index), "slice": str(g.slice),
               "frame": int(g.frame),
               "departure_spacings": (round(float(g.departure), 3) if np.isfinite(g.departure)
@@ -873,12 +874,18 @@ def _tags_json(tag_frames: Mapping[int, list[dict]], tags: Any) -> dict:
     return {"frames": {str(f): [{"family": d["family"], "index": int(d["index"]),
                                  "flagged": bool(d["flagged"]),
                                  "flagged_slices": list(d["flagged_slices"]),
-                                 "vertices": np.round(np.asarray(d["vertices"]), 1).tolist(),
-                                 "faces": np.asarray(d["faces"]).astype(int).tolist(),
-                                 "flagged_lines": [np.round(np.asarray(ln["points"]), 1).tolist()
+                                 "vertices": np.round(np.asarray(d["vertices"], float), 1),
+                                 "faces": np.asarray(d["faces"]).astype(int),
+                                 "flagged_lines": [np.round(np.asarray(ln["points"], float), 1)
                                                    for ln in d["lines"] if ln["flagged"]]}
                                 for d in data] for f, data in tag_frames.items()},
             "flags": flags}
+
+
+def _dump_tags(report_tags: Mapping) -> str:
+    """JSON text of :func:`_tags_json`: each array becomes nested lists only while it is
+    encoded (one surface's lists in memory at a time, not the whole study's)."""
+    return json.dumps(report_tags, default=lambda a: a.tolist())
 
 
 def write_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = None,

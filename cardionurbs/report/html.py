@@ -432,6 +432,13 @@ def _fmt(x: Any) -> str:
 
 def render_html(payload: Mapping) -> str:
     """The report page (a string) for a :func:`report_payload`."""
+    return "".join(page_parts(payload))
+
+
+def page_parts(payload: Mapping) -> list[str]:
+    """The report page for a :func:`report_payload` as consecutive pieces (their
+    concatenation is :func:`render_html`): written one after another, the page (plotly.js,
+    the data, the figures: several MB) is never held whole as text and again as bytes."""
     from plotly.offline import get_plotlyjs
 
     esc = html.escape
@@ -468,7 +475,7 @@ def render_html(payload: Mapping) -> str:
                       f"<figcaption>{esc(f['caption'])}</figcaption></figure>" for f in p["figures"])
     data = json_for_script({k: v for k, v in p.items() if k not in ("figures",)},
                            separators=(",", ":"))
-    return f"""<!DOCTYPE html>
+    return [f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
 <meta http-equiv="Content-Security-Policy" content="default-src 'none'; script-src 'unsafe-inline' 'unsafe-eval'; style-src 'unsafe-inline'; img-src data: blob:; font-src data:; connect-src 'none'; worker-src blob:">
 <title>cardionurbs report: {esc(p['subject'])}</title><style>{_CSS}</style></head>
@@ -491,11 +498,11 @@ ES frame {p['es_frame']}; {len(p['frames'])} reconstructed frame(s).
 {"<h2>Warnings</h2><ul class='note'>" + warns + "</ul>" if warns else ""}
 </section></main>
 {"<section class='gallery' style='padding:0 18px'><h2>Figures</h2>" + gallery + "</section>" if gallery else ""}
-<script type="application/json" id="cn-data">{data}</script>
-<script>{get_plotlyjs()}</script>
+<script type="application/json" id="cn-data">""", data, """</script>
+<script>""", get_plotlyjs(), f"""</script>
 <script>{_JS}</script>
 </body></html>
-"""
+"""]
 
 
 def write_report(output_dir: str | Path, out_path: str | Path, *,
@@ -507,8 +514,12 @@ def write_report(output_dir: str | Path, out_path: str | Path, *,
     analysis output.
     """
     with acyclic():                  # plain lists, dicts and strings (cardionurbs.heap)
-        page = render_html(report_payload(output_dir, model=model, tag_data=tag_data))
-    return atomic.write_text(out_path, page)
+        parts = page_parts(report_payload(output_dir, model=model, tag_data=tag_data))
+        with atomic.atomic_path(out_path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+            for i in range(len(parts)):          # each piece let go once written
+                fh.write(parts[i])
+                parts[i] = ""
+    return Path(out_path)
 
 
 def run_report(args: argparse.Namespace) -> int:
