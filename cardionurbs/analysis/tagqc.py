@@ -278,14 +278,16 @@ def _spoke_departure(cyl: tuple, prof_a: tuple, prof_b: tuple) -> np.ndarray:
 
 def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: float,
                    periodic: bool, exclude: set[str] = frozenset(),
-                   axis: tuple | None = None) -> dict[str, float]:
+                   axis: tuple | None = None, profiles: dict | None = None) -> dict[str, float]:
     """Leave-one-out departure (tag spacings) of each slice's line of one tag at one frame.
 
     Used for the LA spoke fan (``periodic``); the SA families go through
     :func:`sa_family_departures`, which also compares neighbouring tags.
     ``secs`` and ``samples`` (their fitted curves at uniform u) in loft
     order; ``exclude``: slices already flagged, left out of every loft;
-    ``axis`` (apex, base) for the LA spoke fan (``periodic``).
+    ``axis`` (apex, base) for the LA spoke fan (``periodic``); ``profiles``: a dict that
+    keeps each spoke's profile (:func:`_spoke_profile`, by its index in ``secs``) between
+    calls on the same ``secs``, ``samples`` and ``axis`` (the worst-first passes).
     Returns {slice: departure}; slices that cannot be judged are absent.
     """
     names = list(dict.fromkeys(s.slice for s in secs if s.slice not in exclude))
@@ -294,7 +296,7 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
         return out
     if periodic:       # each spoke's profile once, however many left-out spokes it predicts
         cyl = _axis_cylinder(axis)
-        profiles: dict[int, tuple] = {}
+        profiles = {} if profiles is None else profiles
 
         def profile(k: int) -> tuple:
             if k not in profiles:
@@ -566,10 +568,16 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
     lines are bracketed in space); otherwise — the first or last frame, an
     ED + ES study — the index trend is kept.
     """
-    samples = {i: [_samples(s) for s in secs] for i, secs in groups.items()}
+    samples: dict[int, list[np.ndarray]] = {}     # each tag's sampled sections, when needed
+
+    def sampled(i: int) -> list[np.ndarray]:
+        if i not in samples:
+            samples[i] = [_samples(s) for s in groups[i]]
+        return samples[i]
+
     excl: dict[int, set[str]] = {i: set() for i in groups}
     R = dict(residuals) if residuals is not None else \
-        {i: loo_residuals(groups[i], samples[i]) for i in groups}
+        {i: loo_residuals(groups[i], sampled(i)) for i in groups}
 
     def departures() -> dict[tuple[int, str], float]:
         lines, index_problems = [], []        # index trends of every line, one batch
@@ -601,7 +609,7 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
         worst = max(over, key=over.get)
         flagged[worst] = over[worst]
         excl[worst[0]].add(worst[1])
-        R[worst[0]] = loo_residuals(groups[worst[0]], samples[worst[0]], excl[worst[0]])
+        R[worst[0]] = loo_residuals(groups[worst[0]], sampled(worst[0]), excl[worst[0]])
     out = [(i, slc, d, False) for (i, slc), d in deps.items()]
     out += [(i, slc, d, True) for (i, slc), d in flagged.items()]
     return out
@@ -675,9 +683,10 @@ def tag_departures(study: Study, threshold: float = DEFAULT_THRESHOLD,
             samples = [_samples(s) for s in secs]
             flagged: dict[str, float] = {}
             last: dict[str, float] = {}
+            profiles: dict[int, tuple] = {}      # each spoke's profile, for every pass
             while True:
                 dep = loo_departures(secs, samples, sp, periodic, exclude=set(flagged),
-                                     axis=long_axis)
+                                     axis=long_axis, profiles=profiles)
                 if not dep:
                     break
                 last.update(dep)
