@@ -48,6 +48,7 @@ divided by their index difference).
 
 from __future__ import annotations
 
+from bisect import bisect_left
 from dataclasses import dataclass
 
 import numpy as np
@@ -191,7 +192,7 @@ def tag_spacing(study: Study, family: str, frame: int,
 
 
 # ----------------------------------------------------------------- LOO core
-def _neighbour_pairs(keys: np.ndarray, h: float) -> list[tuple[int, int]]:
+def _neighbour_pairs(keys, h: float) -> list[tuple[int, int]]:
     """Pairs of remaining sections that predict the section at stack position h.
 
     Inside the stack the pairs that bracket h — the nearest section on each
@@ -203,9 +204,10 @@ def _neighbour_pairs(keys: np.ndarray, h: float) -> list[tuple[int, int]]:
     explain each other — except next to a stack end, where one side has a
     single section: every bracketing pair contains it, so the two nearest
     on the other side, extended by one gap, are the witness without it.
+    ``keys``: the remaining sections' stack positions, ascending (a list or an array).
     """
     n = len(keys)
-    j = int(np.searchsorted(keys, h))
+    j = bisect_left(keys, h)            # np.searchsorted's index, without its call overhead
     L = [i for i in (j - 1, j - 2) if 0 <= i < n]
     R = [i for i in (j, j + 1) if 0 <= i < n]
     if L and R:
@@ -352,7 +354,7 @@ def loo_residuals_many(tags: list[tuple[list[TagSection], list[np.ndarray], set[
             if sec.slice in exclude:
                 continue
             keep = [k for k, s in enumerate(secs) if k != i and s.slice not in exclude]
-            keys = np.array([secs[k].key for k in keep])
+            keys = [secs[k].key for k in keep]
             for a, b in _neighbour_pairs(keys, sec.key):
                 lines.append((t, sec.slice, (secs[keep[a]].slice, secs[keep[b]].slice)))
                 points.append(sec.points)
