@@ -433,10 +433,16 @@ def _pair_residuals_many(points: list[np.ndarray], Ca: list[np.ndarray], Cb: lis
         tan = np.gradient(T, axis=1)
         tan -= (tan @ n[:, :, None]) * n[:, None, :]
         tan /= np.maximum(np.linalg.norm(tan, axis=2, keepdims=True), 1e-12)
-        sq = 0.0                                                     # (k, points, samples)
-        for c in range(3):
-            dc = P[:, :, None, c] - T[:, None, :, c]
-            sq = sq + dc * dc
+        # squared distances (k, points, samples), summed x, y, z in that order, in two
+        # reused buffers from contiguous coordinate planes (no temporaries per term)
+        Pc, Tc = P.transpose(2, 0, 1).copy(), T.transpose(2, 0, 1).copy()
+        sq = np.subtract(Pc[0][:, :, None], Tc[0][:, None, :])
+        np.multiply(sq, sq, out=sq)
+        buf = np.empty_like(sq)
+        for c in (1, 2):
+            np.subtract(Pc[c][:, :, None], Tc[c][:, None, :], out=buf)
+            np.multiply(buf, buf, out=buf)
+            np.add(sq, buf, out=sq)
         j = np.argmin(sq, axis=2)                                    # (k, points)
         R = np.arange(len(ks))[:, None]
         dd = P - T[R, j]                                             # (k, points, 3)
