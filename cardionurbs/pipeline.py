@@ -12,7 +12,7 @@ Output folder (written atomically: complete or absent)::
     DIR/model.3dm           the ED surfaces as Rhino NURBS (with the ``cad`` extra)
     DIR/residuals.csv       contour-point-to-surface distances per slice, at ED and ES
     DIR/meshes/frame_NN_<mesh>.ply   closed meshes per frame and structure (binary PLY,
-                                     float64 vertices: exactly the manifold3d result)
+                                     the manifold3d result with float32 vertices)
     DIR/figures/...         PNG figures + figures.json (cardionurbs.report.figures, via
                             :func:`figures_hook`; skipped with --no-figures)
     DIR/report.html         self-contained offline viewer (cardionurbs.report.html)
@@ -35,8 +35,9 @@ from pathlib import Path
 from cardionurbs.analysis.function import measure, volume_curve
 from cardionurbs.anatomy.model import BiventricularModel, reconstruct
 from cardionurbs.errors import UsageError
+from cardionurbs.heap import acyclic, long_lived
 from cardionurbs.io import atomic, load_study
-from cardionurbs.io.export import export_mesh, export_model_3dm, write_json
+from cardionurbs.io.export import export_mesh, export_model_3dm, write_json, write_ply
 from cardionurbs.progress import Progress
 from cardionurbs.safe import csv_safe_table
 from cardionurbs.study import Study
@@ -136,27 +137,35 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
     if not figures:
         outputs = tuple(o for o in outputs if o not in ("figures", "report"))
     progress = progress or Progress(False)
-    with atomic.atomic_dir(out) as tmp:
+    # the study, the model and the libraries are exempt from the garbage collector's passes
+    # while the outputs are made (cardionurbs.heap)
+    with long_lived(), atomic.atomic_dir(out) as tmp:
         if "meshes" in outputs:
             progress.stage("meshes")
             mesh_dir = tmp / "meshes"
             keep = {model.ed_frame, model.es_frame}
             for k, f in enumerate(model.frames):
                 model.volumes[f]                   # kept (the volume curve) ...
-                for name, m in model.meshes(f).items():
-                    export_mesh(m, mesh_dir / f"frame_{f:02d}_{name}.{mesh_ext}")
+                if mesh_ext == "ply":               # straight from the manifold3d arrays
+                    for name, (v, fc) in model.mesh_arrays(f).items():
+                        write_ply(v, fc, mesh_dir / f"frame_{f:02d}_{name}.ply")
+                else:                               # other formats: trimesh's exporters
+                    for name, m in model.meshes(f).items():
+                        export_mesh(m, mesh_dir / f"frame_{f:02d}_{name}.{mesh_ext}")
                 if f not in keep:                  # ... the meshes written and let go
                     model.release(f)
                 progress.step(k + 1, len(model.frames))
         res = None
         if "model" in outputs:
             progress.stage("model")
-            model_dict = model.to_dict()
-            if tags is not None:                   # tag surfaces are saved with the model
-                from cardionurbs.analysis.tags import tag_surfaces_dict
-                model_dict["tag_surfaces"] = tag_surfaces_dict(
-                    model.study, long_axis=model.long_axis(), surfaces=tags.surfaces)
-            write_json(model_dict, tmp / "model.json", indent=None)
+            with acyclic():                         # plain lists and dicts
+                model_dict = model.to_dict()
+                if tags is not None:               # tag surfaces are saved with the model
+                    from cardionurbs.analysis.tags import tag_surfaces_dict
+                    model_dict["tag_surfaces"] = tag_surfaces_dict(
+                        model.study, long_axis=model.long_axis(), surfaces=tags.surfaces)
+                write_json(model_dict, tmp / "model.json", indent=None)
+                del model_dict
             try:                                   # the cad extra: Rhino .3dm of the ED surfaces
                 import rhino3dm  # noqa: F401
             except ImportError:
@@ -184,30 +193,36 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                                      else model.regional.to_json()),
                         "notes": dict(model.study.meta.get("metric_notes") or {}),
                         "warnings": model.warnings}, tmp / "metrics.json")
+        fig_set = None
         if "figures" in outputs:
             progress.stage("figures")
-            _figures(model, metrics, tmp, tags=tags)
+            fig_set = _figures(model, metrics, tmp, tags=tags)
         if "report" in outputs:
             progress.stage("report")
-            _report(tmp)
+            # the model and tag surfaces just written, from memory (not read back)
+            _report(tmp, model=model if "model" in outputs else None,
+                    tag_data=getattr(fig_set, "report_tags", None))
         progress.done()
     return Path(out)
 
 
-def _figures(model: BiventricularModel, metrics: dict, out_dir: Path, tags=None) -> list[Path]:
+def _figures(model: BiventricularModel, metrics: dict, out_dir: Path, tags=None):
+    """The figures into ``out_dir/figures`` (a cardionurbs.report.figures.FigureSet), or None
+    without the report module."""
     try:
-        from cardionurbs.report.figures import write_figures
+        from cardionurbs.report.figures import render_figures
     except ImportError:
-        return []
-    return list(write_figures(model, Path(out_dir) / "figures", metrics=metrics, tags=tags) or [])
+        return None
+    return render_figures(model, Path(out_dir) / "figures", metrics=metrics, tags=tags)
 
 
-def _report(out_dir: Path) -> Path | None:
+def _report(out_dir: Path, model: BiventricularModel | None = None,
+            tag_data: dict | None = None) -> Path | None:
     try:
         from cardionurbs.report.html import write_report
     except ImportError:
         return None
-    return write_report(out_dir, Path(out_dir) / "report.html")
+    return write_report(out_dir, Path(out_dir) / "report.html", model=model, tag_data=tag_data)
 
 
 def _label_option(args: argparse.Namespace) -> dict:

@@ -201,3 +201,51 @@ def test_odd_numbers_in_a_gpfile_are_told_as_before(tmp_path, token, message):
     assert gpfile._plain_rows(path.read_text(), path.read_text().splitlines(), 1) is None
     with pytest.raises(StudyError, match=f"line 4: {message}"):
         gpfile.read_study(d)
+
+
+def test_spoke_profiles_kept_between_passes_give_each_pass_s_departures():
+    """The worst-first passes of the LA QC share one profile cache: every pass, whatever
+    it excludes, gives the departures a fresh call gives."""
+    from cardionurbs.analysis.tagqc import _samples, loo_departures, qc_sections
+    from cardionurbs.anatomy.sections import study_long_axis
+    study = generate("mr", seed=4, frames=2, tag_jumps=4, volume_check=False).study
+    axis = study_long_axis(study)
+    checked = 0
+    for f in study.tagged_frames:
+        for (fam, _), secs in qc_sections(study, f, axis).items():
+            if fam != "la":
+                continue
+            samples = [_samples(s) for s in secs]
+            shared: dict = {}
+            names = list(dict.fromkeys(s.slice for s in secs))
+            for exclude in (set(), set(names[:1]), set(names[:2]), set(names[1:2])):
+                got = loo_departures(secs, samples, 1.0, True, exclude=exclude, axis=axis,
+                                     profiles=shared)
+                assert got == loo_departures(secs, samples, 1.0, True, exclude=exclude, axis=axis)
+                checked += 1
+    assert checked > 0
+
+
+def test_compatible_fit_judges_each_count_and_section_once(monkeypatch):
+    """fit_compatible_curves asks the (costly) tolerance test once per (count, section): the
+    final all-sections check reuses the search's answers; the fit is unchanged."""
+    from cardionurbs import nurbs
+    from cardionurbs.nurbs import fitting
+    t = np.linspace(0, 2 * np.pi, 90, endpoint=False)
+    secs = [np.column_stack([(30 - 2 * s) * np.cos(t), (20 - s) * np.sin(t)
+                             + 0.8 * np.sin((5 + s) * t), np.full(t.size, 8.0 * s)])
+            for s in range(5)]
+    asked = []
+    judge = fitting._error_within
+
+    def counted(curve, points, params, tol):
+        asked.append((len(curve.control_points), round(float(points[0, 2]), 6)))
+        return judge(curve, points, params, tol)
+
+    monkeypatch.setattr(fitting, "_error_within", counted)
+    fit = nurbs.fit_compatible_curves(secs, closed=True, tol=0.3)
+    assert fit.met and len(asked) == len(set(asked)) > len(secs)
+    monkeypatch.setattr(fitting, "_error_within", judge)
+    again = nurbs.fit_compatible_curves(secs, closed=True, tol=0.3, counts=[fit.n_ctrl])
+    for a, b in zip(fit.curves, again.curves):
+        assert np.array_equal(a.control_points, b.control_points)

@@ -59,3 +59,12 @@ def test_study_without_tags_writes_null_tags(tmp_path):
     out = write_analysis(model, metrics, tmp_path / "o", figures=False, tags=tags)
     assert json.loads((out / "metrics.json").read_text())["tags"] is None
     assert "tag_surfaces" not in json.loads((out / "model.json").read_text())
+
+
+def test_report_from_memory_is_the_report_read_back(analysed, tmp_path):
+    """analyze builds report.html from the model and tag surfaces in memory; `cardionurbs
+    report` on the folder reads model.json and report_tags.json back: the same page."""
+    from cardionurbs.report.html import write_report
+    _, out, _ = analysed
+    again = write_report(out, tmp_path / "again.html")
+    assert again.read_bytes() == (out / "report.html").read_bytes()

@@ -48,6 +48,7 @@ divided by their index difference).
 
 from __future__ import annotations
 
+from bisect import bisect_left
 from dataclasses import dataclass
 
 import numpy as np
@@ -191,7 +192,7 @@ def tag_spacing(study: Study, family: str, frame: int,
 
 
 # ----------------------------------------------------------------- LOO core
-def _neighbour_pairs(keys: np.ndarray, h: float) -> list[tuple[int, int]]:
+def _neighbour_pairs(keys, h: float) -> list[tuple[int, int]]:
     """Pairs of remaining sections that predict the section at stack position h.
 
     Inside the stack the pairs that bracket h — the nearest section on each
@@ -203,9 +204,10 @@ def _neighbour_pairs(keys: np.ndarray, h: float) -> list[tuple[int, int]]:
     explain each other — except next to a stack end, where one side has a
     single section: every bracketing pair contains it, so the two nearest
     on the other side, extended by one gap, are the witness without it.
+    ``keys``: the remaining sections' stack positions, ascending (a list or an array).
     """
     n = len(keys)
-    j = int(np.searchsorted(keys, h))
+    j = bisect_left(keys, h)            # np.searchsorted's index, without its call overhead
     L = [i for i in (j - 1, j - 2) if 0 <= i < n]
     R = [i for i in (j, j + 1) if 0 <= i < n]
     if L and R:
@@ -278,14 +280,16 @@ def _spoke_departure(cyl: tuple, prof_a: tuple, prof_b: tuple) -> np.ndarray:
 
 def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: float,
                    periodic: bool, exclude: set[str] = frozenset(),
-                   axis: tuple | None = None) -> dict[str, float]:
+                   axis: tuple | None = None, profiles: dict | None = None) -> dict[str, float]:
     """Leave-one-out departure (tag spacings) of each slice's line of one tag at one frame.
 
     Used for the LA spoke fan (``periodic``); the SA families go through
     :func:`sa_family_departures`, which also compares neighbouring tags.
     ``secs`` and ``samples`` (their fitted curves at uniform u) in loft
     order; ``exclude``: slices already flagged, left out of every loft;
-    ``axis`` (apex, base) for the LA spoke fan (``periodic``).
+    ``axis`` (apex, base) for the LA spoke fan (``periodic``); ``profiles``: a dict that
+    keeps each spoke's profile (:func:`_spoke_profile`, by its index in ``secs``) between
+    calls on the same ``secs``, ``samples`` and ``axis`` (the worst-first passes).
     Returns {slice: departure}; slices that cannot be judged are absent.
     """
     names = list(dict.fromkeys(s.slice for s in secs if s.slice not in exclude))
@@ -294,7 +298,7 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
         return out
     if periodic:       # each spoke's profile once, however many left-out spokes it predicts
         cyl = _axis_cylinder(axis)
-        profiles: dict[int, tuple] = {}
+        profiles = {} if profiles is None else profiles
 
         def profile(k: int) -> tuple:
             if k not in profiles:
@@ -350,7 +354,7 @@ def loo_residuals_many(tags: list[tuple[list[TagSection], list[np.ndarray], set[
             if sec.slice in exclude:
                 continue
             keep = [k for k, s in enumerate(secs) if k != i and s.slice not in exclude]
-            keys = np.array([secs[k].key for k in keep])
+            keys = [secs[k].key for k in keep]
             for a, b in _neighbour_pairs(keys, sec.key):
                 lines.append((t, sec.slice, (secs[keep[a]].slice, secs[keep[b]].slice)))
                 points.append(sec.points)
@@ -429,10 +433,16 @@ def _pair_residuals_many(points: list[np.ndarray], Ca: list[np.ndarray], Cb: lis
         tan = np.gradient(T, axis=1)
         tan -= (tan @ n[:, :, None]) * n[:, None, :]
         tan /= np.maximum(np.linalg.norm(tan, axis=2, keepdims=True), 1e-12)
-        sq = 0.0                                                     # (k, points, samples)
-        for c in range(3):
-            dc = P[:, :, None, c] - T[:, None, :, c]
-            sq = sq + dc * dc
+        # squared distances (k, points, samples), summed x, y, z in that order, in two
+        # reused buffers from contiguous coordinate planes (no temporaries per term)
+        Pc, Tc = P.transpose(2, 0, 1).copy(), T.transpose(2, 0, 1).copy()
+        sq = np.subtract(Pc[0][:, :, None], Tc[0][:, None, :])
+        np.multiply(sq, sq, out=sq)
+        buf = np.empty_like(sq)
+        for c in (1, 2):
+            np.subtract(Pc[c][:, :, None], Tc[c][:, None, :], out=buf)
+            np.multiply(buf, buf, out=buf)
+            np.add(sq, buf, out=sq)
         j = np.argmin(sq, axis=2)                                    # (k, points)
         R = np.arange(len(ks))[:, None]
         dd = P - T[R, j]                                             # (k, points, 3)
@@ -566,10 +576,16 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
     lines are bracketed in space); otherwise — the first or last frame, an
     ED + ES study — the index trend is kept.
     """
-    samples = {i: [_samples(s) for s in secs] for i, secs in groups.items()}
+    samples: dict[int, list[np.ndarray]] = {}     # each tag's sampled sections, when needed
+
+    def sampled(i: int) -> list[np.ndarray]:
+        if i not in samples:
+            samples[i] = [_samples(s) for s in groups[i]]
+        return samples[i]
+
     excl: dict[int, set[str]] = {i: set() for i in groups}
     R = dict(residuals) if residuals is not None else \
-        {i: loo_residuals(groups[i], samples[i]) for i in groups}
+        {i: loo_residuals(groups[i], sampled(i)) for i in groups}
 
     def departures() -> dict[tuple[int, str], float]:
         lines, index_problems = [], []        # index trends of every line, one batch
@@ -601,7 +617,7 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
         worst = max(over, key=over.get)
         flagged[worst] = over[worst]
         excl[worst[0]].add(worst[1])
-        R[worst[0]] = loo_residuals(groups[worst[0]], samples[worst[0]], excl[worst[0]])
+        R[worst[0]] = loo_residuals(groups[worst[0]], sampled(worst[0]), excl[worst[0]])
     out = [(i, slc, d, False) for (i, slc), d in deps.items()]
     out += [(i, slc, d, True) for (i, slc), d in flagged.items()]
     return out
@@ -675,9 +691,10 @@ def tag_departures(study: Study, threshold: float = DEFAULT_THRESHOLD,
             samples = [_samples(s) for s in secs]
             flagged: dict[str, float] = {}
             last: dict[str, float] = {}
+            profiles: dict[int, tuple] = {}      # each spoke's profile, for every pass
             while True:
                 dep = loo_departures(secs, samples, sp, periodic, exclude=set(flagged),
-                                     axis=long_axis)
+                                     axis=long_axis, profiles=profiles)
                 if not dep:
                     break
                 last.update(dep)

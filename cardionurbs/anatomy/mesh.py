@@ -13,8 +13,8 @@ Cavities and walls are then booleans of these solids (docs/metrics.md):
 
 where H is the half-space on the apical side of a valve plane. Every mesh
 handed out is checked watertight and a volume by both trimesh and
-manifold3d; a failure raises :class:`ReconstructionError` naming the
-structure and frame.
+manifold3d (meshes written to files: by manifold3d and :func:`check_closed_arrays`);
+a failure raises :class:`ReconstructionError` naming the structure and frame.
 """
 
 from __future__ import annotations
@@ -253,6 +253,47 @@ def check_closed(tm: trimesh.Trimesh, *, what: str = "mesh", frame: int | None =
     if not tm.is_winding_consistent:
         raise ReconstructionError(f"{what}, frame {frame}: mesh winding is not consistent")
     if signed_volume(tm.vertices, tm.faces) <= 0:
+        raise ReconstructionError(f"{what}, frame {frame}: mesh normals point inward")
+
+
+def mesh_arrays(m: manifold3d.Manifold, *, what: str = "mesh",
+                frame: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (V, 3) float64 mm, faces (F, 3) int64) of a manifold3d solid, checked
+    closed by :func:`check_closed_arrays` -- what :func:`to_trimesh` hands out, without
+    making (or importing) trimesh, for writing meshes to files."""
+    if m.status() != manifold3d.Error.NoError or m.is_empty():
+        raise ReconstructionError(f"{what}, frame {frame}: boolean result is empty or not "
+                                  f"manifold ({m.status().name})")
+    mesh = m.to_mesh64()
+    v = np.ascontiguousarray(np.asarray(mesh.vert_properties)[:, :3], dtype=np.float64)
+    f = np.asarray(mesh.tri_verts, dtype=np.int64)
+    check_closed_arrays(v, f, what=what, frame=frame)
+    return v, f
+
+
+def check_closed_arrays(vertices: np.ndarray, faces: np.ndarray, *, what: str = "mesh",
+                        frame: int | None = None) -> None:
+    """The checks of :func:`check_closed` on plain arrays (numpy only).
+
+    A closed, consistently wound triangle mesh uses every directed edge (i, j) once, and
+    its reverse (j, i) once, in the neighbouring face: a directed edge used twice means
+    two faces wound the same way along it (or more than two faces at the edge); an edge
+    without its reverse is a boundary (a hole). Then the signed volume (divergence
+    theorem) is positive when the normals point outward. Raises ReconstructionError
+    naming ``what`` and ``frame``."""
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        raise ReconstructionError(f"{what}, frame {frame}: mesh is empty")
+    n = int(f.max()) + 1
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    key = np.sort(edges[:, 0] * n + edges[:, 1])
+    if np.any(key[1:] == key[:-1]):
+        raise ReconstructionError(f"{what}, frame {frame}: mesh winding is not consistent")
+    rev = edges[:, 1] * n + edges[:, 0]
+    at = np.minimum(np.searchsorted(key, rev), len(key) - 1)
+    if not np.array_equal(key[at], rev):
+        raise ReconstructionError(f"{what}, frame {frame}: mesh is not watertight")
+    if signed_volume(vertices, f) <= 0:
         raise ReconstructionError(f"{what}, frame {frame}: mesh normals point inward")
 
 

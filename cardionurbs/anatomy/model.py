@@ -469,6 +469,16 @@ class BiventricularModel:
                                    for k, m in self.solids(frame).items()}
         return self._meshes[frame]
 
+    def mesh_arrays(self, frame: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """The closed meshes of :meth:`meshes` as plain (vertices (V, 3) mm, faces (F, 3))
+        arrays, checked closed and outward (:func:`cardionurbs.anatomy.mesh.mesh_arrays`),
+        without trimesh: what is written to files (not cached)."""
+        if frame in self._meshes:
+            return {k: (np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64))
+                    for k, tm in self._meshes[frame].items()}
+        return {k: meshing.mesh_arrays(m, what=k, frame=frame)
+                for k, m in self.solids(frame).items()}
+
     def release(self, frame: int) -> None:
         """Forget the cached solids and meshes of one frame (its volumes and surfaces are
         kept): exporting every frame's meshes then holds one frame's at a time."""

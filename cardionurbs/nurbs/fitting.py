@@ -470,10 +470,15 @@ def fit_compatible_curves(point_sets: Sequence[Any], degree: int = 3, closed: bo
     judged = [(i, V.finite_array(pts, f"error_points[{i}]", ndim=2))
               for i, pts in enumerate(error_points) if pts is not None]
 
+    decided: dict[tuple[int, int], bool] = {}
+
     def holds(k: int, i: int, pts: np.ndarray) -> bool:
         # the same decision as max_distance <= tol, projecting only the points the
-        # cheap distance bounds leave undecided (most counts fail or pass outright)
-        return bool(_error_within(curve_at(k, i), pts, None, float(tols[i]))[0])
+        # cheap distance bounds leave undecided (most counts fail or pass outright);
+        # each (count, section) is judged once (the final check asks again)
+        if (k, i) not in decided:
+            decided[(k, i)] = bool(_error_within(curve_at(k, i), pts, None, float(tols[i]))[0])
+        return decided[(k, i)]
 
     need, met = 0, True
     while True:

@@ -56,11 +56,17 @@ def draw_bullseye(ax, values: Mapping[int, float], *, cmap: str = "viridis", nor
         lo, hi = (float(fin.min()), float(fin.max())) if len(fin) else (0.0, 1.0)
         norm = colors.Normalize(lo, hi if hi > lo else lo + 1.0)
     cmap_ = matplotlib.colormaps[cmap]
-    for k, (a0, w, r0, r1) in segment_wedges().items():
+    wedges = segment_wedges()
+    seg = np.array(list(wedges.values()))                 # (start, width, inner, outer) per segment
+    ok = [values.get(k) is not None and np.isfinite(values.get(k, np.nan)) for k in wedges]
+    # one bar call for the 17 segments (one container, not 17): the same patches
+    ax.bar(seg[:, 0] + seg[:, 1] / 2, seg[:, 3] - seg[:, 2], width=seg[:, 1], bottom=seg[:, 2],
+           color=[cmap_(norm(values[k])) if good else "#dddddd" for k, good in zip(wedges, ok)],
+           edgecolor="white", linewidth=1.5, hatch=[None if good else "//" for good in ok],
+           align="center")
+    for k, (a0, w, r0, r1) in wedges.items():
         v = values.get(k, np.nan)
         ok = v is not None and np.isfinite(v)
-        ax.bar(a0 + w / 2, r1 - r0, width=w, bottom=r0, color=cmap_(norm(v)) if ok else "#dddddd",
-               edgecolor="white", linewidth=1.5, hatch=None if ok else "//", align="center")
         ang, rad = (0.0, 0.0) if k == 17 else (a0 + w / 2, 0.5 * (r0 + r1))
         rgba = cmap_(norm(v)) if ok else (0.87, 0.87, 0.87, 1)
         dark = (0.299 * rgba[0] + 0.587 * rgba[1] + 0.114 * rgba[2]) < 0.5

@@ -47,6 +47,7 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
 from cardionurbs.safe import plain_text
 from cardionurbs import nurbs
+from cardionurbs.heap import acyclic
 from cardionurbs.io import atomic
 from cardionurbs.report.bullseye import QUANTITIES as BULLSEYE_QUANTITIES, quantity_figure
 
@@ -92,6 +93,8 @@ class FigureSet:
 
     figures: list[FigureResult] = field(default_factory=list)
     skipped: dict[str, str] = field(default_factory=dict)
+    #: the content of ``report_tags.json``, arrays as numpy arrays (None without tag surfaces)
+    report_tags: dict | None = None
 
     @property
     def paths(self) -> list[Path]:
@@ -854,25 +857,35 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
     atomic.write_text(out / "skipped.txt",
                       "".join(f"{k}: {v}\n" for k, v in fs.skipped.items()))
     if tag_frames:
-        atomic.write_text(out / "report_tags.json", json.dumps(_tags_json(tag_frames, tags_m)))
+        with acyclic():                                 # plain lists (cardionurbs.heap)
+            fs.report_tags = _tags_json(tag_frames, tags_m)
+            atomic.write_text(out / "report_tags.json", _dump_tags(fs.report_tags))
     return fs
 
 
 def _tags_json(tag_frames: Mapping[int, list[dict]], tags: Any) -> dict:
-    """Coarse tag surfaces per frame (vertices rounded to 0.1 mm) with QC flags."""
-    flags = [{"family": g.family, "index": g.index, "slice": g.slice, "frame": g.frame,
+    """Coarse tag surfaces per frame (vertices rounded to 0.1 mm) with QC flags: the content
+    of ``report_tags.json``, its arrays as numpy arrays (written by :func:`_dump_tags`)."""
+    flags = [{"family": str(g.family), "index": int(g.index), "slice": str(g.slice),
+              "frame": int(g.frame),
               "departure_spacings": (round(float(g.departure), 3) if np.isfinite(g.departure)
                                      else None), "reason": getattr(g, "reason", "jump")}
              for g in (getattr(tags, "flags", None) or [])]
     return {"frames": {str(f): [{"family": d["family"], "index": int(d["index"]),
                                  "flagged": bool(d["flagged"]),
                                  "flagged_slices": list(d["flagged_slices"]),
-                                 "vertices": np.round(np.asarray(d["vertices"]), 1).tolist(),
-                                 "faces": np.asarray(d["faces"]).astype(int).tolist(),
-                                 "flagged_lines": [np.round(np.asarray(ln["points"]), 1).tolist()
+                                 "vertices": np.round(np.asarray(d["vertices"], float), 1),
+                                 "faces": np.asarray(d["faces"]).astype(int),
+                                 "flagged_lines": [np.round(np.asarray(ln["points"], float), 1)
                                                    for ln in d["lines"] if ln["flagged"]]}
                                 for d in data] for f, data in tag_frames.items()},
             "flags": flags}
+
+
+def _dump_tags(report_tags: Mapping) -> str:
+    """JSON text of :func:`_tags_json`: each array becomes nested lists only while it is
+    encoded (one surface's lists in memory at a time, not the whole study's)."""
+    return json.dumps(report_tags, default=lambda a: a.tolist())
 
 
 def write_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = None,

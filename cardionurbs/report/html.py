@@ -37,6 +37,7 @@ import numpy as np
 from cardionurbs import nurbs
 from cardionurbs.anatomy.model import BiventricularModel
 from cardionurbs.errors import ReportInputError
+from cardionurbs.heap import acyclic
 from cardionurbs.io import atomic
 from cardionurbs.report.figures import view_frame
 from cardionurbs.safe import json_for_script
@@ -148,9 +149,11 @@ def _find_truth(out: Path, fig_index: Mapping | None) -> tuple[Mapping | None, s
     return None, None
 
 
-def _load_analysis(out: Path):
+def _load_analysis(out: Path, model: BiventricularModel | None = None):
     """(model, metrics.json, figures folder, figures.json or None) of an analyze folder;
-    ReportInputError naming the file when something is missing or unreadable."""
+    ReportInputError naming the file when something is missing or unreadable. ``model``:
+    the model ``model.json`` was written from (``analyze`` writing its own report), used
+    instead of reading that file back."""
     if not out.is_dir():
         raise ReportInputError(f"{out}: not a folder (expected the output of cardionurbs analyze)")
     for need in ("model.json", "metrics.json"):
@@ -158,7 +161,8 @@ def _load_analysis(out: Path):
             raise ReportInputError(f"{out / need}: missing (expected the output of cardionurbs "
                                    "analyze)")
     try:
-        model = BiventricularModel.from_dict(_read_json(out / "model.json"))
+        if model is None:
+            model = BiventricularModel.from_dict(_read_json(out / "model.json"))
     except (KeyError, TypeError, ValueError) as exc:
         raise ReportInputError(f"{out / 'model.json'}: not a cardionurbs model "
                                f"({type(exc).__name__}: {' '.join(str(exc).split())})") from None
@@ -197,16 +201,18 @@ def _flagged_lines(surfs: list[dict], origin: np.ndarray) -> str | None:
     return _b64(q.astype("<i2"))
 
 
-def _tag_groups(fig_dir: Path, fig_index: dict | None, origin: np.ndarray, pool: "_FacePool"):
+def _tag_groups(fig_dir: Path, fig_index: dict | None, origin: np.ndarray, pool: "_FacePool",
+                tag_data: Mapping | None = None):
     """(viewer groups of the tag surfaces per family and of the flagged lines, QC flags,
-    note saying why there are none or None) from ``figures/report_tags.json``."""
+    note saying why there are none or None) from ``figures/report_tags.json`` (``tag_data``:
+    its content, when the caller has just written it)."""
     tag_path = fig_dir / "report_tags.json"
-    if not tag_path.is_file():
+    if tag_data is None and not tag_path.is_file():
         skipped = (fig_index or {}).get("skipped", {})
         note = (skipped.get("fig09_all_tag_surfaces") or "no tag surfaces in this analysis"
                 if fig_index else "no figures/report_tags.json: tag surfaces not available")
         return [], [], note
-    td = _read_json(tag_path)
+    td = _read_json(tag_path) if tag_data is None else tag_data
     fams = ("sa1", "sa2", "la", "flagged")
     per_fam: dict[str, dict] = {k: {} for k in fams}
     lines: dict[str, str] = {}
@@ -267,16 +273,22 @@ def _camera(model, tess: dict) -> dict:
     return {"eye": (2.1 * eye).tolist(), "up": up.tolist()}
 
 
-def report_payload(output_dir: str | Path) -> dict:
+def report_payload(output_dir: str | Path, *, model: BiventricularModel | None = None,
+                   tag_data: Mapping | None = None) -> dict:
     """The data embedded in the report (JSON-safe), from an ``analyze`` output folder:
-    the surfaces and tag surfaces per frame, the metrics beside the truth, the figures."""
+    the surfaces and tag surfaces per frame, the metrics beside the truth, the figures.
+
+    ``model`` and ``tag_data``: the model that ``model.json`` was written from and the
+    content of ``figures/report_tags.json``, when the caller (``analyze``) has them in
+    memory: the same report without reading those files back (the model's surfaces
+    survive the JSON round trip exactly, so the page is the same)."""
     out = Path(output_dir)
-    model, metrics, fig_dir, fig_index = _load_analysis(out)
+    model, metrics, fig_dir, fig_index = _load_analysis(out, model)
     truth, truth_path = _find_truth(out, fig_index)
     frames = sorted(int(f) for f in model.frames)
     pool = _FacePool()
     groups, tess, origin = _surface_groups(model, frames, pool)
-    tag_groups, flags, tags_note = _tag_groups(fig_dir, fig_index, origin, pool)
+    tag_groups, flags, tags_note = _tag_groups(fig_dir, fig_index, origin, pool, tag_data)
     return {
         "subject": str(metrics.get("subject", model.study.subject)),
         "frames": frames, "ed_frame": int(model.ed_frame), "es_frame": int(model.es_frame),
@@ -288,7 +300,8 @@ def report_payload(output_dir: str | Path) -> dict:
         "has_truth": truth is not None,
         "flags": flags, "tags_note": tags_note,
         "volume_curve": metrics.get("volume_curve"),
-        "warnings": [_strip_local(w, model.study.source) for w in
+        "warnings": [_strip_local(w, model.study.source or (fig_index or {}).get("source"))
+                     for w in
                      list(metrics.get("warnings", []))[:50]],
         "skipped": (fig_index or {}).get("skipped", {}), "figures": _figure_images(fig_dir, fig_index),
     }
@@ -419,6 +432,13 @@ def _fmt(x: Any) -> str:
 
 def render_html(payload: Mapping) -> str:
     """The report page (a string) for a :func:`report_payload`."""
+    return "".join(page_parts(payload))
+
+
+def page_parts(payload: Mapping) -> list[str]:
+    """The report page for a :func:`report_payload` as consecutive pieces (their
+    concatenation is :func:`render_html`): written one after another, the page (plotly.js,
+    the data, the figures: several MB) is never held whole as text and again as bytes."""
     from plotly.offline import get_plotlyjs
 
     esc = html.escape
@@ -455,7 +475,7 @@ def render_html(payload: Mapping) -> str:
                       f"<figcaption>{esc(f['caption'])}</figcaption></figure>" for f in p["figures"])
     data = json_for_script({k: v for k, v in p.items() if k not in ("figures",)},
                            separators=(",", ":"))
-    return f"""<!DOCTYPE html>
+    return [f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
 <meta http-equiv="Content-Security-Policy" content="default-src 'none'; script-src 'unsafe-inline' 'unsafe-eval'; style-src 'unsafe-inline'; img-src data: blob:; font-src data:; connect-src 'none'; worker-src blob:">
 <title>cardionurbs report: {esc(p['subject'])}</title><style>{_CSS}</style></head>
@@ -478,21 +498,28 @@ ES frame {p['es_frame']}; {len(p['frames'])} reconstructed frame(s).
 {"<h2>Warnings</h2><ul class='note'>" + warns + "</ul>" if warns else ""}
 </section></main>
 {"<section class='gallery' style='padding:0 18px'><h2>Figures</h2>" + gallery + "</section>" if gallery else ""}
-<script type="application/json" id="cn-data">{data}</script>
-<script>{get_plotlyjs()}</script>
+<script type="application/json" id="cn-data">""", data, """</script>
+<script>""", get_plotlyjs(), f"""</script>
 <script>{_JS}</script>
 </body></html>
-"""
+"""]
 
 
-def write_report(output_dir: str | Path, out_path: str | Path) -> Path:
+def write_report(output_dir: str | Path, out_path: str | Path, *,
+                 model: BiventricularModel | None = None, tag_data: Mapping | None = None) -> Path:
     """Write the self-contained HTML report of an ``analyze`` output folder; return its path.
+    ``model``, ``tag_data``: see :func:`report_payload`.
 
     Raises :class:`ReportInputError` (one line, naming the file) when the folder is not an
     analysis output.
     """
-    page = render_html(report_payload(output_dir))
-    return atomic.write_text(out_path, page)
+    with acyclic():                  # plain lists, dicts and strings (cardionurbs.heap)
+        parts = page_parts(report_payload(output_dir, model=model, tag_data=tag_data))
+        with atomic.atomic_path(out_path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+            for i in range(len(parts)):          # each piece let go once written
+                fh.write(parts[i])
+                parts[i] = ""
+    return Path(out_path)
 
 
 def run_report(args: argparse.Namespace) -> int:

@@ -1,0 +1,69 @@
+"""Interleaved A/B cost of ``cardionurbs analyze`` as a fresh process, on two source trees.
+
+    python benchmarks/ab_analyze.py BEFORE_TREE AFTER_TREE STUDY [--outputs all] [--rounds 5]
+
+Each round runs ``python -m cardionurbs.cli analyze STUDY --outputs OUTPUTS --out TMP`` once
+per tree, in alternating order (so that both see the same load on a shared machine), and
+records the child's CPU time (user + system, start-up and imports included: what the
+command costs a core) and its peak resident memory (``wait4``'s ru_maxrss). Prints every
+run and the medians. BLAS threads are limited to one (``OPENBLAS_NUM_THREADS=1``), as in
+``bench_throughput.py``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+
+def run_once(tree: str, study: str, outputs: str, out: str) -> tuple[float, float, float]:
+    """(CPU s, wall s, peak MB) of one fresh ``analyze`` process run from ``tree``."""
+    shutil.rmtree(out, ignore_errors=True)
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", PYTHONPATH=tree)
+    t = time.perf_counter()
+    p = subprocess.Popen([sys.executable, "-m", "cardionurbs.cli", "analyze", study,
+                          "--outputs", outputs, "--out", out], cwd=tree, env=env,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, ru = os.wait4(p.pid, 0)
+    wall = time.perf_counter() - t
+    err = p.stderr.read().decode(errors="replace")
+    p.stderr.close()
+    p.returncode = os.waitstatus_to_exitcode(status)
+    if p.returncode != 0:
+        raise SystemExit(f"{tree}: analyze failed ({p.returncode}): {err.strip()}")
+    return ru.ru_utime + ru.ru_stime, wall, ru.ru_maxrss / 1024
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("before")
+    ap.add_argument("after")
+    ap.add_argument("study")
+    ap.add_argument("--outputs", default="all")
+    ap.add_argument("--rounds", type=int, default=5)
+    a = ap.parse_args(argv)
+    trees = {"before": os.path.abspath(a.before), "after": os.path.abspath(a.after)}
+    runs: dict[str, list[tuple[float, float, float]]] = {k: [] for k in trees}
+    with tempfile.TemporaryDirectory(prefix="cn-ab-analyze-") as tmp:
+        for i in range(a.rounds):
+            for k in (list(trees) if i % 2 == 0 else list(trees)[::-1]):
+                r = run_once(trees[k], os.path.abspath(a.study), a.outputs, os.path.join(tmp, k))
+                runs[k].append(r)
+                print(f"round {i + 1} {k:6s} CPU {r[0]:6.2f} s  wall {r[1]:6.2f} s  "
+                      f"peak {r[2]:5.0f} MB", flush=True)
+    print(f"\n{a.study}, --outputs {a.outputs}, {a.rounds} rounds (medians):")
+    for k, rs in runs.items():
+        print(f"  {k:6s} CPU {statistics.median(r[0] for r in rs):6.2f} s  "
+              f"wall {statistics.median(r[1] for r in rs):6.2f} s  "
+              f"peak {statistics.median(r[2] for r in rs):5.0f} MB  ({trees[k]})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
