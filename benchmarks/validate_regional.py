@@ -121,25 +121,11 @@ def one(pathology, seed, noise, noise_on="both", anatomy="ideal", infarct=None):
 
 
 def exact_motion_errors(ph, model, tags) -> dict:
-    """Max |measured − truth| per kind over the segments when the fitted map is replaced by the
-    phantom's exact motion (:meth:`~cardionurbs.phantom.generate.Phantom.deformation_gradient`): the error that
-    is left comes from how the strain is sampled and averaged (wall samples, tagged range,
-    directions, segments), not from the fit."""
-    from cardionurbs.analysis import tag_motion
-
-    def exact_gradient(P):
-        return ph.deformation_gradient(P, ph.es_frame)
-    fitted = tag_motion.fit_tag_motion
-
-    def fit_then_exact(fit, *args, **kw):
-        out = fitted(fit, *args, **kw)
-        fit.radius_and_gradient = lambda P: (fit.image_radius(P), exact_gradient(P))
-        return out
-    tag_motion.fit_tag_motion = fit_then_exact
-    try:
-        r = regional_metrics(model, tags)
-    finally:
-        tag_motion.fit_tag_motion = fitted
+    """Max |measured − truth| per kind over the segments when the fitted F is replaced by the
+    phantom's exact motion (:meth:`~cardionurbs.phantom.generate.Phantom.deformation_gradient`):
+    the error that is left comes from how the strain is sampled and averaged (wall samples,
+    tagged range, directions, segments), not from the fit."""
+    r = regional_metrics(model, tags, deformation=ph.deformation_gradient)
     t = ph.truth["metrics"]
     return {k: float(np.nanmax(np.abs(seg_signed(r, t, k + "_AHA_{} (%)")))) for k in ("Ecc", "Ell", "Err")}
 

@@ -26,3 +26,18 @@ def sunnybrook_dir():
 @pytest.fixture
 def bivme_dir():
     return shared_data("bivme-patient1")
+
+
+@pytest.fixture(scope="session")
+def la_spoke_fans():
+    """The LA tag QC's spoke fans of every tagged frame of an MR phantom with 4 jumped tag
+    lines: ([(sections, their samples)], the study's long axis)."""
+    from cardionurbs.analysis.tagqc import _samples, qc_sections
+    from cardionurbs.anatomy.sections import study_long_axis
+    from cardionurbs.phantom import generate
+    study = generate("mr", seed=4, frames=2, tag_jumps=4, volume_check=False).study
+    axis = study_long_axis(study)
+    fans = [(secs, [_samples(s) for s in secs]) for f in study.tagged_frames
+            for (fam, _), secs in qc_sections(study, f, axis).items() if fam == "la"]
+    assert fans
+    return fans, axis

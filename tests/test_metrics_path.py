@@ -203,27 +203,18 @@ def test_odd_numbers_in_a_gpfile_are_told_as_before(tmp_path, token, message):
         gpfile.read_study(d)
 
 
-def test_spoke_profiles_kept_between_passes_give_each_pass_s_departures():
+def test_spoke_profiles_kept_between_passes_give_each_pass_s_departures(la_spoke_fans):
     """The worst-first passes of the LA QC share one profile cache: every pass, whatever
     it excludes, gives the departures a fresh call gives."""
-    from cardionurbs.analysis.tagqc import _samples, loo_departures, qc_sections
-    from cardionurbs.anatomy.sections import study_long_axis
-    study = generate("mr", seed=4, frames=2, tag_jumps=4, volume_check=False).study
-    axis = study_long_axis(study)
-    checked = 0
-    for f in study.tagged_frames:
-        for (fam, _), secs in qc_sections(study, f, axis).items():
-            if fam != "la":
-                continue
-            samples = [_samples(s) for s in secs]
-            shared: dict = {}
-            names = list(dict.fromkeys(s.slice for s in secs))
-            for exclude in (set(), set(names[:1]), set(names[:2]), set(names[1:2])):
-                got = loo_departures(secs, samples, 1.0, True, exclude=exclude, axis=axis,
-                                     profiles=shared)
-                assert got == loo_departures(secs, samples, 1.0, True, exclude=exclude, axis=axis)
-                checked += 1
-    assert checked > 0
+    from cardionurbs.analysis.tagqc import loo_departures
+    fans, axis = la_spoke_fans
+    for secs, samples in fans:
+        shared: dict = {}
+        names = list(dict.fromkeys(s.slice for s in secs))
+        for exclude in (set(), set(names[:1]), set(names[:2]), set(names[1:2])):
+            got = loo_departures(secs, samples, 1.0, True, exclude=exclude, axis=axis,
+                                 profiles=shared)
+            assert got == loo_departures(secs, samples, 1.0, True, exclude=exclude, axis=axis)
 
 
 def test_compatible_fit_judges_each_count_and_section_once(monkeypatch):

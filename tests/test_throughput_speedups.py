@@ -248,32 +248,24 @@ def test_compatible_fit_fits_each_section_at_the_chosen_count(k, wobble, tol):
         assert np.array_equal(a.control_points, b.control_points)
 
 
-def test_la_departures_with_shared_spoke_profiles_equal_spoke_by_spoke():
+def test_la_departures_with_shared_spoke_profiles_equal_spoke_by_spoke(la_spoke_fans):
     """loo_departures of the LA spoke fan computes each neighbouring spoke's profile once;
     every departure equals the median of spoke_height_departure taken spoke by spoke
     (so no profile is attached to the wrong spoke), at every frame of a phantom with
     jumped tag lines."""
-    from cardionurbs.analysis.tagqc import (_neighbours_cyclic, _samples, loo_departures,
-                                            qc_sections, spoke_height_departure)
-    from cardionurbs.anatomy.sections import study_long_axis
-    from cardionurbs.phantom import generate
-    study = generate("mr", seed=4, frames=2, tag_jumps=4, volume_check=False).study
-    axis = study_long_axis(study)
+    from cardionurbs.analysis.tagqc import _neighbours_cyclic, loo_departures, spoke_height_departure
+    fans, axis = la_spoke_fans
     checked = 0
-    for f in study.tagged_frames:
-        for (fam, _), secs in qc_sections(study, f, axis).items():
-            if fam != "la":
-                continue
-            samples = [_samples(s) for s in secs]
-            got = loo_departures(secs, samples, 1.0, True, axis=axis)
-            for left, value in got.items():
-                keep = [k for k, s in enumerate(secs) if s.slice != left]
-                keys = np.array([secs[k].key for k in keep])
-                dist = []
-                for k in (k for k, s in enumerate(secs) if s.slice == left):
-                    a, b = _neighbours_cyclic(keys, secs[k].key)
-                    dist.append(spoke_height_departure(secs[k].points[1:], samples[keep[a]],
-                                                       samples[keep[b]], axis))
-                assert value == float(np.median(np.concatenate(dist)))
-                checked += 1
+    for secs, samples in fans:
+        got = loo_departures(secs, samples, 1.0, True, axis=axis)
+        for left, value in got.items():
+            keep = [k for k, s in enumerate(secs) if s.slice != left]
+            keys = np.array([secs[k].key for k in keep])
+            dist = []
+            for k in (k for k, s in enumerate(secs) if s.slice == left):
+                a, b = _neighbours_cyclic(keys, secs[k].key)
+                dist.append(spoke_height_departure(secs[k].points[1:], samples[keep[a]],
+                                                   samples[keep[b]], axis))
+            assert value == float(np.median(np.concatenate(dist)))
+            checked += 1
     assert checked > 0

@@ -96,14 +96,17 @@ def wall_boundaries(model, frame: int, cache: dict | None = None) -> list[Bounda
 
 
 def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
-                     volume_prior_sd: float | None = None, boundaries: bool = True) -> RegionalMetrics:
+                     volume_prior_sd: float | None = None, boundaries: bool = True,
+                     deformation=None) -> RegionalMetrics:
     """Regional columns of a model; ``tags``: its :class:`~cardionurbs.analysis.tags.TagMetrics`
     (material points) when the study is tagged. ``incompressibility``: how the tag-strain fit
     of noisy tags uses near-incompressibility (:func:`cardionurbs.analysis.strain.tag_strain`:
     "prior", the default, with its spread ``volume_prior_sd`` (default: the stated one);
     "risk" or False for comparison). ``boundaries``: the contours of the LV endo- and
     epicardium join the tag-line fit as material boundaries (:func:`wall_boundaries`; False:
-    the tags alone, for comparison)."""
+    the tags alone, for comparison). ``deformation``: (points, frame) -> F replacing the
+    fitted F in the strains (:func:`~cardionurbs.analysis.strain.tag_strain`; validation with
+    a known motion)."""
     cols = {c: NAN for c in THICKNESS_COLUMNS + STRAIN_COLUMNS + SURFACE_STRAIN_COLUMNS}
     out = RegionalMetrics(cols)
     ed, es = model.ed_frame, model.es_frame
@@ -153,7 +156,8 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
         res = tag_strain(material, f, a.apex, a.base, P, N, a, axis=ax, myocardium=wall,
                          tag_lines=lines, noise_mm=planes.rms_mm if planes is not None else 0.0,
                          incompressibility=incompressibility, volume_prior_sd=volume_prior_sd,
-                         boundary=wall_boundaries(model, f, ed_samples) if boundaries else ())
+                         boundary=wall_boundaries(model, f, ed_samples) if boundaries else (),
+                         deformation=deformation)
         if res is not None:
             if planes is not None:
                 res["tag_noise_mm"] = planes.rms_mm

@@ -468,7 +468,7 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
                myocardium: tuple[np.ndarray, np.ndarray] | None = None,
                tag_lines: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                noise_mm: float = 0.0, incompressibility: bool | str = "prior",
-               volume_prior_sd: float | None = None, boundary=()) -> dict | None:
+               volume_prior_sd: float | None = None, boundary=(), deformation=None) -> dict | None:
     """Strain ED → ``frame`` from the tracked material points: {"columns", "det_F" (mean),
     "det_F_range", "n_points", "counts", "fit_residual_mm", "method"}; None with too few points.
     ``apex``, ``base``: the ED long axis; ``axis``: (apex, base) at ``frame`` (default ED's).
@@ -497,7 +497,11 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     ``boundary``: the frame's contour points on the LV endo- and epicardium with those
     surfaces at ED (:class:`~cardionurbs.analysis.tag_motion.Boundary`): the wall's material
     boundaries join the tag-line fit as data (term (T3) of
-    :mod:`cardionurbs.analysis.tag_motion`)."""
+    :mod:`cardionurbs.analysis.tag_motion`).
+    ``deformation``: (points, frame) -> F (n, 3, 3), used in place of the fitted map's F for the
+    strains (validation: a phantom's exact motion,
+    :meth:`cardionurbs.phantom.generate.Phantom.deformation_gradient`; the fit, the near-axis
+    rule and the averaging unchanged)."""
     from cardionurbs.analysis.tag_motion import MIN_TAG_POINTS, VOLUME_PRIOR_SD, fit_tag_motion
     ok = material.tracked(material.ed_frame, frame)
     if ok.sum() < MIN_POINTS:
@@ -557,6 +561,8 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
                               for j, kind in enumerate(STRAIN_KINDS)}
     # the near-axis rule at the frame, with the final fit
     radius, F = fit.radius_and_gradient(Y)
+    if deformation is not None:
+        F = deformation(Y, frame)
     clear = radius >= AXIS_CLEARANCE_MM
     info["near_axis_excluded"] = int((~clear).sum())
     Y, dirs, labels = Y[clear], dirs[clear], labels[clear]

@@ -73,6 +73,7 @@ from __future__ import annotations
 
 import json
 import zlib
+from contextlib import contextmanager
 from pathlib import Path
 
 from typing import TYPE_CHECKING
@@ -447,27 +448,35 @@ def _columns_of(table: pd.DataFrame, points_path: Path) -> _Columns:
     return _Columns(len(table), numbers, {col: _codes(table[col]) for col in _TEXT})
 
 
-def _parquet_table(points_path: Path) -> pd.DataFrame:
-    """A Parquet points file as a DataFrame (the CSV's columns; null strings read as empty).
-
-    Read on one thread into the C library's allocator (``pyarrow.system_memory_pool``),
-    not pyarrow's default mimalloc pool, which keeps its arenas after the table is
-    converted: about 20 MB less resident memory for the rest of the process (a
-    20-frame phantom of 106,052 points), at the same speed."""
+@contextmanager
+def _arrow_reading(points_path: Path):
+    """The reading of a Parquet points file: pyarrow allocating, on one thread, from the C
+    library's allocator (``pyarrow.system_memory_pool``, yielded), not its default mimalloc
+    pool, which keeps its arenas after the table is converted (about 20 MB less resident
+    memory for the rest of the process on a 20-frame phantom of 106,052 points, at the same
+    speed); any error of pyarrow's as one StudyError naming the file; the default pool
+    restored and the system pool's unused memory released after."""
     import pyarrow as pa
-    import pyarrow.parquet as pq
     pool, default = pa.system_memory_pool(), pa.default_memory_pool()
     pa.set_memory_pool(pool)          # the reader allocates from the default pool
     try:
-        arrow = pq.read_table(points_path, use_threads=False, read_dictionary=[
-            c for c in _TEXT if c in pq.read_schema(points_path).names])
-        table = arrow.to_pandas(memory_pool=pool, use_threads=False)
-        del arrow
+        yield pool
     except Exception as exc:  # noqa: BLE001 - pyarrow raises several types for a broken file
         raise StudyError(f"cannot read Parquet ({_first_line(exc)})", file=points_path) from None
     finally:
         pa.set_memory_pool(default)
-    pool.release_unused()
+        pool.release_unused()
+
+
+def _parquet_table(points_path: Path) -> pd.DataFrame:
+    """A Parquet points file as a DataFrame (the CSV's columns; null strings read as empty;
+    read as :func:`_arrow_reading` says)."""
+    import pyarrow.parquet as pq
+    with _arrow_reading(points_path) as pool:
+        arrow = pq.read_table(points_path, use_threads=False, read_dictionary=[
+            c for c in _TEXT if c in pq.read_schema(points_path).names])
+        table = arrow.to_pandas(memory_pool=pool, use_threads=False)
+        del arrow
     for col in _TEXT:
         if col in table.columns and table[col].isna().any():
             table[col] = table[col].astype(object).fillna("").astype(str)
@@ -492,8 +501,8 @@ def _parquet_columns(points_path: Path) -> _Columns | None:
     others numbers) straight into numpy columns, without pandas (about 0.3 s of a
     start-up); None when the file has another schema (a missing column, text in a
     number column), which :func:`_parquet_table` and :func:`_columns_of` then read
-    and report as for any table. The same numbers as that path, one thread, the C
-    library's allocator (see :func:`_parquet_table`)."""
+    and report as for any table. The same numbers as that path, read as
+    :func:`_arrow_reading` says."""
     import pyarrow as pa
     import pyarrow.parquet as pq
     numeric = {pa.float64(): np.float64, pa.float32(): np.float32, pa.int64(): np.int64,
@@ -507,9 +516,7 @@ def _parquet_columns(points_path: Path) -> _Columns | None:
             or not all(types[c] in (pa.string(), pa.large_string()) for c in _TEXT) \
             or not all(types[c] in numeric for c in ("x", "y", "z", "px", "py", "frame", "index")):
         return None
-    pool, default = pa.system_memory_pool(), pa.default_memory_pool()
-    pa.set_memory_pool(pool)          # the reader allocates from the default pool
-    try:
+    with _arrow_reading(points_path) as pool:
         # ParquetFile, not read_table: the latter's dataset layer imports pandas
         arrow = pq.ParquetFile(points_path, read_dictionary=list(_TEXT),
                                memory_map=False).read(columns=COLUMNS, use_threads=False)
@@ -539,11 +546,6 @@ def _parquet_columns(points_path: Path) -> _Columns | None:
             text[c] = (np.concatenate(parts) if parts else np.zeros(0, np.int64),
                        np.array(values, dtype=object))
         del arrow
-    except Exception as exc:  # noqa: BLE001 - pyarrow raises several types for a broken file
-        raise StudyError(f"cannot read Parquet ({_first_line(exc)})", file=points_path) from None
-    finally:
-        pa.set_memory_pool(default)
-    pool.release_unused()
     for c in ("frame", "index"):          # integers: a null or a fraction is no index
         v = numbers[c]
         bad = ~np.isfinite(v) | (v != np.round(v))
