@@ -219,38 +219,13 @@ class CylindricalMotionFit:
         return (self.apex1 + rr[:, None] * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
                 + m[:, 2:3] * e)
 
-    def _design(self, q, th, zeta, derivatives: bool = True):
-        """Basis values and (with ``derivatives``) derivatives d/dq, d/dθ, d/dζ: (n, n_basis) arrays."""
+    def _factors(self, q, th, zeta, derivatives: bool = True):
+        """The factors of the basis (S1) at (q, θ, ζ): Legendre in height L (n, a), powers of
+        the radius R (n, b), harmonics T (n, 2m + 1: 1, cos θ, sin θ, cos 2θ, …) and (with
+        ``derivatives``) their derivatives dL/dζ, dR/dq, dT/dθ."""
         pa, pb, pm = self.orders
         zt = (zeta - self.z0) / self.sz
         qt = (q - self.q0) / self.sq
-        eye = np.eye(pa + 1)
-        L = np.stack([legendre.legval(zt, eye[a]) for a in range(pa + 1)], axis=1)
-        R = np.stack([qt ** b for b in range(pb + 1)], axis=1)
-        T = [np.ones_like(th)]
-        dT = [np.zeros_like(th)]
-        for m in range(1, pm + 1):
-            c, s = np.cos(m * th), np.sin(m * th)
-            T += [c, s]
-            dT += [-m * s, m * c]
-        T, dT = np.stack(T, axis=1), np.stack(dT, axis=1)
-        ia, ib, ic = self._index
-        LT, Rb = L[:, ia] * T[:, ic], R[:, ib]
-        if not derivatives:
-            return (LT * Rb,)
-        dL = np.stack([legendre.legval(zt, legendre.legder(eye[a])) for a in range(pa + 1)],
-                      axis=1) / self.sz
-        dR = np.stack([b * qt ** max(b - 1, 0) for b in range(pb + 1)], axis=1) / self.sq
-        return LT * Rb, LT * dR[:, ib], L[:, ia] * dT[:, ic] * Rb, dL[:, ia] * T[:, ic] * Rb
-
-    def _mapped(self, X: np.ndarray, derivatives: bool = True):
-        """(r, θ, ζ) of ED points X and the map's values (q', θ' − θ, ζ') there, each (n, 3), with
-        (``derivatives``) their derivatives d/dq, d/dθ, d/dζ: Σ coef · basis contracted factor
-        by factor (harmonics, then height and radius), never forming the (n, b) design."""
-        r, th, zeta = cylindrical(X, self.apex0, self.frame0)
-        pa, pb, pm = self.orders
-        zt = (zeta - self.z0) / self.sz
-        qt = (r * r - self.q0) / self.sq
         eye = np.eye(pa + 1)
         L = np.stack([legendre.legval(zt, eye[a]) for a in range(pa + 1)], axis=1)
         R = np.stack([qt ** b for b in range(pb + 1)], axis=1)
@@ -258,6 +233,33 @@ class CylindricalMotionFit:
         c, sn = np.cos(np.outer(th, k)), np.sin(np.outer(th, k))
         T = np.empty((len(th), 2 * pm + 1))
         T[:, 0], T[:, 1::2], T[:, 2::2] = 1.0, c, sn
+        if not derivatives:
+            return L, R, T
+        dL = np.stack([legendre.legval(zt, legendre.legder(eye[a])) for a in range(pa + 1)],
+                      axis=1) / self.sz
+        dR = np.stack([b * qt ** max(b - 1, 0) for b in range(pb + 1)], axis=1) / self.sq
+        dT = np.zeros_like(T)
+        dT[:, 1::2], dT[:, 2::2] = -k * sn, k * c
+        return L, R, T, dL, dR, dT
+
+    def _design(self, q, th, zeta, derivatives: bool = True):
+        """Basis values and (with ``derivatives``) derivatives d/dq, d/dθ, d/dζ: (n, n_basis) arrays."""
+        ia, ib, ic = self._index
+        if not derivatives:
+            L, R, T = self._factors(q, th, zeta, False)
+            return (L[:, ia] * T[:, ic] * R[:, ib],)
+        L, R, T, dL, dR, dT = self._factors(q, th, zeta)
+        LT, Rb = L[:, ia] * T[:, ic], R[:, ib]
+        return LT * Rb, LT * dR[:, ib], L[:, ia] * dT[:, ic] * Rb, dL[:, ia] * T[:, ic] * Rb
+
+    def _mapped(self, X: np.ndarray, derivatives: bool = True):
+        """(r, θ, ζ) of ED points X and the map's values (q', θ' − θ, ζ') there, each (n, 3), with
+        (``derivatives``) their derivatives d/dq, d/dθ, d/dζ: Σ coef · basis contracted factor
+        by factor (harmonics, then height and radius), never forming the (n, b) design."""
+        r, th, zeta = cylindrical(X, self.apex0, self.frame0)
+        factors = self._factors(r * r, th, zeta, derivatives)
+        L, R, T = factors[:3]
+        pa, pb, pm = self.orders
         C = np.zeros((2 * pm + 1, pa + 1, pb + 1, 3))
         ia, ib, ic = self._index
         C[ic, ia, ib] = self.coef
@@ -267,11 +269,7 @@ class CylindricalMotionFit:
         values = np.einsum("na,nb,nabc->nc", L, R, W)
         if not derivatives:
             return (r, th, zeta), values
-        dT = np.zeros_like(T)
-        dT[:, 1::2], dT[:, 2::2] = -k * sn, k * c
-        dL = np.stack([legendre.legval(zt, legendre.legder(eye[a])) for a in range(pa + 1)],
-                      axis=1) / self.sz
-        dR = np.stack([b * qt ** max(b - 1, 0) for b in range(pb + 1)], axis=1) / self.sq
+        dL, dR, dT = factors[3:]
         d_theta = np.einsum("na,nb,nabc->nc", L, R, (dT @ C).reshape(shape))
         return (r, th, zeta), values, (np.einsum("na,nb,nabc->nc", L, dR, W), d_theta,
                                        np.einsum("na,nb,nabc->nc", dL, R, W))
@@ -430,19 +428,17 @@ def _subdivide_rays(P: np.ndarray, ray: np.ndarray, A: np.ndarray, shape: tuple[
     iv = index % n_v
 
     def neighbour(step):
-        j = np.where((iv + step >= 0) & (iv + step < n_v), where[np.clip(index + step, 0, where.size - 1)], -1)
-        return j
+        return np.where((iv + step >= 0) & (iv + step < n_v), where[np.clip(index + step, 0, where.size - 1)], -1)
     lo, hi = neighbour(-1), neighbour(1)
     tau = (np.arange(k) + 0.5) / k - 0.5                       # offsets within the cell, in cells
-    Ps, Rs = [], []
+    V = np.hstack([P, ray])                                    # foot and ray vector, interpolated together
+    out = []
     for s in tau:
         side, other = (hi, lo) if s > 0 else (lo, hi)
         # the neighbour on the offset's side, or the mirror image of the one on the other side
-        dP = np.where((side >= 0)[:, None], P[side] - P, np.where((other >= 0)[:, None], P - P[other], 0.0))
-        dR = np.where((side >= 0)[:, None], ray[side] - ray, np.where((other >= 0)[:, None], ray - ray[other], 0.0))
-        Ps.append(P + abs(s) * dP)
-        Rs.append(ray + abs(s) * dR)
-    P2, R2 = np.concatenate(Ps), np.concatenate(Rs)
+        dV = np.where((side >= 0)[:, None], V[side] - V, np.where((other >= 0)[:, None], V - V[other], 0.0))
+        out.append(V + abs(s) * dV)
+    P2, R2 = np.split(np.concatenate(out), 2, axis=1)
     t2 = np.linalg.norm(R2, axis=1)
     return P2, R2 / np.where(t2 > 0, t2, 1.0)[:, None], t2, np.tile(A / k, k)
 

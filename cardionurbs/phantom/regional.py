@@ -395,11 +395,9 @@ def strain_truth(anatomy: Anatomy, motion: Motion, specs, levels: list[dict], f:
         # r by ~1° (< 0.1 strain point) and is not taken.
         ep, en, area = endocardial_normal_field(anatomy, 60, 120, with_area=True)
         en = averaged_normals(ep, en, area, DIRECTION_SMOOTHING_MM)
-        tree = cKDTree(ep)
     else:
         ep, en = endocardial_normal_field(anatomy)
-        tree = cKDTree(ep)
-    rdir = en[tree.query(X)[1]]
+    rdir = en[cKDTree(ep).query(X)[1]]
     if anatomy.realistic:                         # circumferential about the ED long axis
         origin, basis = axis_frame(anatomy, motion, 0.0)
         c = np.cross(basis[2][None, :], X - origin[None, :])
