@@ -30,6 +30,7 @@ from cardionurbs.geometry import (fit_plane, in_plane_basis, long_axis, points_i
                                   polygon_area, polygon_centroid, stack_normal)
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.study import Contour, Study
+from cardionurbs.median import median
 
 SURFACES = ("lv_endo", "lv_epi", "rv_endo", "rv_epi")
 
@@ -87,13 +88,13 @@ def _in_drawing_order(points: np.ndarray, closed: bool) -> bool:
         return True
     q = np.vstack([points, points[:1]]) if closed else points
     steps = np.linalg.norm(np.diff(q, axis=0), axis=1)
-    med = max(float(np.median(steps)), 1e-9)
+    med = max(median(steps), 1e-9)
     if np.any(steps > 4.0 * med):
         return False
     probe = points[np.linspace(0, len(points) - 1, min(24, len(points))).astype(int)]
     d = np.linalg.norm(probe[:, None] - points[None], axis=2)
     d[d == 0] = np.inf
-    return bool(med <= 3.0 * max(float(np.median(d.min(axis=1))), 1e-9))
+    return bool(med <= 3.0 * max(median(d.min(axis=1)), 1e-9))
 
 
 def _nearest_neighbour_chain(points: np.ndarray, start: int) -> np.ndarray:
@@ -180,7 +181,7 @@ def is_open_arc(points: np.ndarray, gap_steps: float = ARC_GAP_STEPS) -> bool:
     p = p_cut if _in_drawing_order(p_cut, closed=False) else order_open(p)
     if not _in_drawing_order(p, closed=False):
         return False
-    step = float(np.median(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+    step = median(np.linalg.norm(np.diff(p, axis=0), axis=1))
     gap = float(np.linalg.norm(p[-1] - p[0]))
     extent = float(np.linalg.norm(p - p[0], axis=1).max())
     return gap > gap_steps * max(step, 1e-9) and gap > 0.25 * extent
