@@ -93,3 +93,29 @@ def test_tag_lines_are_checked_again_when_the_list_changes():
     study.tags = list(study.tags) + [line]          # a new list of the same length + 1
     with pytest.raises(TagError, match="appears twice"):
         check_tags(study)
+
+
+def test_stacking_direction_is_cached_per_frame_and_follows_changes():
+    from cardionurbs.anatomy.sections import _stacking_direction, stacking_direction
+    from test_tags_analytic import AnalyticHeart
+    study = AnalyticHeart().study()
+    n, th = stacking_direction(study)
+    assert np.array_equal(n, _stacking_direction(study, None)[0]) and th == _stacking_direction(study, None)[1]
+    n[:] = 0                                        # the caller's copy, not the cache
+    assert np.array_equal(stacking_direction(study)[0], _stacking_direction(study, None)[0])
+    sa = [im for im in study.images if im.view == "SA"]     # a new, shorter image list
+    study.images = [im for im in study.images if im.view != "SA"] + sa[: len(sa) // 2]
+    want = _stacking_direction(study, None)
+    got = stacking_direction(study)
+    assert np.array_equal(got[0], want[0]) and got[1] == want[1]
+
+
+def test_manifest_numbers_fast_path_keeps_each_message(tmp_path):
+    from cardionurbs.errors import StudyError
+    from cardionurbs.io.schema import _Checker
+    c = _Checker(tmp_path / "study.json")
+    c.numbers([1.0, 2, -3.5], "position", 3, -10, 10)
+    for bad, msg in (([1.0, True, 2.0], "must be a number"), ([1.0, float("nan"), 2.0], "finite"),
+                     ([1.0, 11.0, 2.0], r"in \[-10, 10\]"), ([1.0, "2", 3.0], "must be a number")):
+        with pytest.raises(StudyError, match=msg):
+            c.numbers(bad, "position", 3, -10, 10)

@@ -532,10 +532,8 @@ def _index_trends(values: list[list[tuple[int, float]]], at: list[int],
     M = int(m.max())
     J, Rv = np.zeros((P, M)), np.zeros((P, M))
     valid = np.arange(M)[None, :] < m[:, None]
-    for p, v in enumerate(values):
-        if v:
-            J[p, :len(v)] = [x[0] for x in v]
-            Rv[p, :len(v)] = [x[1] for x in v]
+    flat = np.array([x for v in values for x in v], dtype=float).reshape(-1, 2)
+    J[valid], Rv[valid] = flat[:, 0], flat[:, 1]          # row by row, in order
     X = J - np.asarray(at, float)[:, None]
     keep = valid.copy()
     active = m > 0

@@ -361,8 +361,22 @@ def stacking_direction(study: Study, frame: int | None = None) -> tuple[np.ndarr
     none); their :func:`~cardionurbs.geometry.stack_normal`, oriented (docs/metrics.md,
     Geometry conventions) towards the apex landmark when given; else towards
     increasing ``sa_NN`` slice number (numbered from base to apex); else
-    towards the end with the smaller LV endocardial area.
+    towards the end with the smaller LV endocardial area. Cached on the study per frame
+    (again when its images, landmarks or contours lists are replaced or change length):
+    the tag analysis asks for it once per family and frame.
     """
+    lists = (study.images, study.landmarks, study.contours)
+    token = tuple((id(x), len(x)) for x in lists)
+    cache = study.__dict__.setdefault("_stacking_direction", {})
+    hit = cache.get(frame)
+    if hit is not None and hit[0] == token and all(a is b for a, b in zip(hit[1], lists)):
+        return hit[2].copy(), hit[3]
+    n, thickness = _stacking_direction(study, frame)
+    cache[frame] = (token, lists, n.copy(), thickness)
+    return n, thickness
+
+
+def _stacking_direction(study: Study, frame: int | None) -> tuple[np.ndarray, float]:
     ims = [im for im in study.images if im.view == "SA" and im.frame == frame]
     if not ims:
         ims = [im for im in study.images if im.view == "SA"]
