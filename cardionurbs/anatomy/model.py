@@ -28,6 +28,7 @@ from cardionurbs.anatomy.refine import refine_surface
 from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface, free_wall_points
 from cardionurbs.errors import ReconstructionError
 from cardionurbs.geometry import long_axis, polygon_centroid
+from cardionurbs.median import median
 from cardionurbs.study import Study
 
 if TYPE_CHECKING:    # trimesh (~0.3 s to import) only where meshes are made, pandas (~0.3 s)
@@ -668,7 +669,7 @@ def _every_index(points: np.ndarray, spacing_mm: float) -> slice:
     """The slice of ordered contour points that keeps them about ``spacing_mm`` apart."""
     if len(points) < 3:
         return slice(None)
-    step = float(np.median(np.linalg.norm(np.diff(points, axis=0), axis=1))) or spacing_mm
+    step = median(np.linalg.norm(np.diff(points, axis=0), axis=1)) or spacing_mm
     return slice(None, None, max(1, int(round(spacing_mm / step))))
 
 
