@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from cardionurbs import nurbs
@@ -29,6 +29,8 @@ def test_ungraded_offsets_are_every_step_inside_the_span(span, step):
 @settings(max_examples=80, deadline=None)
 @given(sa_gap=st.floats(2.0, 30.0), extra=st.floats(0.0, 40.0), step=st.floats(1.0, 5.0),
        reach_end=st.booleans())
+@example(sa_gap=2.1838046706524574, extra=4.183804670652457, step=3.1838046706524574,
+         reach_end=False)       # the span a rounding error above three steps
 def test_graded_offsets_bound_the_ratio_of_neighbouring_intervals(sa_gap, extra, step, reach_end):
     """With a span reaching past the SA gap, the graded intervals (those wider than
     ``step``) halve from the SA gap: neighbouring intervals of the stack, SA gap included,

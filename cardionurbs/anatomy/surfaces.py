@@ -173,7 +173,9 @@ def synthetic_offsets(span: float, step: float, sa_gap: float | None = None,
     rest = span - d
     if rest <= 0:
         return np.asarray(graded)
-    k = int(np.ceil(rest / step))
+    # (a rest a rounding error above a whole number of steps is that number of steps: no
+    # section a rounding error inside the span's end)
+    k = int(np.ceil(rest / step * (1.0 - 1e-12)))
     tail = d + (rest * np.arange(1, k) / k if reach_end else step * np.arange(1, k))
     return np.concatenate([graded, tail])
 
