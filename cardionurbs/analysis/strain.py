@@ -264,15 +264,17 @@ class CylindricalMotionFit:
         ia, ib, ic = self._index
         C[ic, ia, ib] = self.coef
         C = C.reshape(2 * pm + 1, -1)
-        shape = (len(th), pa + 1, pb + 1, 3)
+        shape = (len(th), (pa + 1) * (pb + 1), 3)
         W = (T @ C).reshape(shape)                               # Σ_m T_m coef[a, b, m]
-        values = np.einsum("na,nb,nabc->nc", L, R, W)
+
+        def contract(La, Rb, W):                                 # Σ_ab La_a Rb_b W_abc
+            return np.einsum("nk,nkc->nc", (La[:, :, None] * Rb[:, None, :]).reshape(len(th), -1), W)
+        values = contract(L, R, W)
         if not derivatives:
             return (r, th, zeta), values
         dL, dR, dT = factors[3:]
-        d_theta = np.einsum("na,nb,nabc->nc", L, R, (dT @ C).reshape(shape))
-        return (r, th, zeta), values, (np.einsum("na,nb,nabc->nc", L, dR, W), d_theta,
-                                       np.einsum("na,nb,nabc->nc", dL, R, W))
+        d_theta = contract(L, R, (dT @ C).reshape(shape))
+        return (r, th, zeta), values, (contract(L, dR, W), d_theta, contract(dL, R, W))
 
     def image_radius(self, X: np.ndarray) -> np.ndarray:
         """r' (mm): the fitted distance of the images of ED points X (n, 3) from the frame's
@@ -470,7 +472,11 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     ``apex``, ``base``: the ED long axis; ``axis``: (apex, base) at ``frame`` (default ED's).
     ``myocardium``: (points, volumes) filling the ED wall (:func:`myocardium_samples`): the
     fitted field is averaged over those between the most apical and most basal tracked
-    points (a volume mean over the tagged myocardium); default: the material points.
+    points (a volume mean over the tagged myocardium); default: the material points. It may
+    carry the samples' strain directions and AHA segments as third and fourth items
+    (:func:`cardiac_directions` with these ``endo_points``/``endo_normals``/axis, and
+    ``aha.segments``): both are per point and the same at every frame, so a time course
+    computes them once.
     ``tag_lines``: (points (n, 3), ED plane normals (n, 3), offsets (n,)) of the frame's tag
     points (:mod:`cardionurbs.analysis.tag_motion`): the fit of the material points is then
     refined on them by orthogonal-distance regression (method "tag lines"); else the
@@ -516,8 +522,11 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
         inside = ((hy >= h.min()) & (hy <= h.max())
                   & (np.linalg.norm(radial, axis=1) >= AXIS_CLEARANCE_MM))
         Y, vol = myocardium[0][inside], myocardium[1][inside]
-    dirs = cardiac_directions(Y, endo_points, endo_normals, apex, base)
-    labels = aha.segments(Y)
+    if myocardium is not None and len(myocardium) == 4:
+        dirs, labels = myocardium[2][inside], myocardium[3][inside]
+    else:
+        dirs = cardiac_directions(Y, endo_points, endo_normals, apex, base)
+        labels = aha.segments(Y)
     w = np.ones(len(Y)) if vol is None else vol
     if tag_lines is not None and len(tag_lines[0]) >= MIN_TAG_POINTS:
         # the quantities the regularisation is chosen for: the segment strains over a

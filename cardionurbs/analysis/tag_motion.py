@@ -145,10 +145,13 @@ MAX_HALVINGS = 8
 class Boundary:
     """The contour points of one frame on one material surface of the LV wall (endo- or
     epicardium), ``points`` (c, 3) mm, and that surface at ED as dense ``samples`` (m, 3)
-    with unit ``normals`` (m, 3) (term (T3) of the module docstring)."""
+    with unit ``normals`` (m, 3) (term (T3) of the module docstring); ``tree``: a
+    :class:`scipy.spatial.cKDTree` of the samples when one is at hand (shared by the frames of
+    a time course), else built when needed."""
     points: np.ndarray
     samples: np.ndarray
     normals: np.ndarray
+    tree: object = None
 
 
 @dataclass(frozen=True)
@@ -480,7 +483,7 @@ def boundary_start(fit, boundary, ed_tag_points: np.ndarray):
     surface by Gauss–Newton with the motion held (three steps), so that φ(Y) − y is y's
     distance from the moved surface."""
     from scipy.spatial import cKDTree
-    trees = [cKDTree(b.samples) for b in boundary]
+    trees = [cKDTree(b.samples) if b.tree is None else b.tree for b in boundary]
     label = np.concatenate([np.full(len(b.points), i) for i, b in enumerate(boundary)])
 
     def slide(P, label=label):
