@@ -99,7 +99,7 @@ def wall_boundaries(model, frame: int, cache: dict | None = None) -> list[Bounda
 
 def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
                      volume_prior_sd: float | None = None, boundaries: bool = True,
-                     deformation=None) -> RegionalMetrics:
+                     deformation=None, misfit_noise: bool = True) -> RegionalMetrics:
     """Regional columns of a model; ``tags``: its :class:`~cardionurbs.analysis.tags.TagMetrics`
     (material points) when the study is tagged. ``incompressibility``: how the tag-strain fit
     of noisy tags uses near-incompressibility (:func:`cardionurbs.analysis.strain.tag_strain`:
@@ -108,7 +108,8 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
     epicardium join the tag-line fit as material boundaries (:func:`wall_boundaries`; False:
     the tags alone, for comparison). ``deformation``: (points, frame) -> F replacing the
     fitted F in the strains (:func:`~cardionurbs.analysis.strain.tag_strain`; validation with
-    a known motion)."""
+    a known motion). ``misfit_noise``: the tag-line fit's σ is the larger of the tracking
+    noise and its own misfit (False: the tracking noise alone, for comparison)."""
     cols = {c: NAN for c in THICKNESS_COLUMNS + STRAIN_COLUMNS + SURFACE_STRAIN_COLUMNS}
     out = RegionalMetrics(cols)
     ed, es = model.ed_frame, model.es_frame
@@ -161,7 +162,7 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
                          tag_lines=lines, noise_mm=planes.rms_mm if planes is not None else 0.0,
                          incompressibility=incompressibility, volume_prior_sd=volume_prior_sd,
                          boundary=wall_boundaries(model, f, ed_samples) if boundaries else (),
-                         deformation=deformation)
+                         deformation=deformation, misfit_noise=misfit_noise)
         if res is not None:
             if planes is not None:
                 res["tag_noise_mm"] = planes.rms_mm

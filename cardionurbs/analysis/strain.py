@@ -466,7 +466,8 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
                myocardium: tuple[np.ndarray, np.ndarray] | None = None,
                tag_lines: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                noise_mm: float = 0.0, incompressibility: bool | str = "prior",
-               volume_prior_sd: float | None = None, boundary=(), deformation=None) -> dict | None:
+               volume_prior_sd: float | None = None, boundary=(), deformation=None,
+               misfit_noise: bool = True) -> dict | None:
     """Strain ED → ``frame`` from the tracked material points: {"columns", "det_F" (mean),
     "det_F_range", "n_points", "counts", "fit_residual_mm", "method"}; None with too few points.
     ``apex``, ``base``: the ED long axis; ``axis``: (apex, base) at ``frame`` (default ED's).
@@ -500,6 +501,9 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     surfaces at ED (:class:`~cardionurbs.analysis.tag_motion.Boundary`): the wall's material
     boundaries join the tag-line fit as data (term (T3) of
     :mod:`cardionurbs.analysis.tag_motion`).
+    ``misfit_noise``: the fit's σ is the larger of ``noise_mm`` and the tag points' misfit
+    (:func:`~cardionurbs.analysis.tag_motion.fit_tag_motion`; "sigma_mm" in the result);
+    False: ``noise_mm`` alone, for comparison.
     ``deformation``: (points, frame) -> F (n, 3, 3), used in place of the fitted map's F for the
     strains (validation: a phantom's exact motion,
     :meth:`cardionurbs.phantom.generate.Phantom.deformation_gradient`; the fit, the near-axis
@@ -546,9 +550,10 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
         fit = fit.expanded(TAG_LINE_ORDERS, TRANSMURAL_ORDERS, AXIAL_HARMONICS)
         out = fit_tag_motion(fit, *tag_lines, noise_mm=noise_mm, quantities=segment_strains,
                              volume_samples=(Y[sub], w[sub], labels[sub]) if incompressibility else None,
-                             volume_prior_sd=prior_sd, boundary=boundary)
+                             volume_prior_sd=prior_sd, boundary=boundary, misfit_noise=misfit_noise)
         info.update(method="tag lines", n_tag_points=out["n_points"], penalty=out["lambda"],
-                    tag_outliers=out["outliers"], fit_residual_mm=out["residual_mm"])
+                    tag_outliers=out["outliers"], fit_residual_mm=out["residual_mm"],
+                    sigma_mm=out["sigma_mm"])
         if out["boundary_points"]:
             info.update(boundary_points=out["boundary_points"],
                         boundary_residual_mm=out["boundary_residual_mm"],
