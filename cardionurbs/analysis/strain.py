@@ -303,6 +303,28 @@ class CylindricalMotionFit:
                          np.broadcast_to(e, (len(t), 3))], axis=2)      # (n, 3, 3): ∂x/∂(q', θ', ζ')
         return self._position(m, th), (dpos, D[0]), self._gradient(r, th, m, [A @ self.coef for A in D[1:]])
 
+    def perturbed_gradients(self, X: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """F (2p, n, 3, 3) at ED points X (n, 3) for the p free coefficients (:attr:`params`)
+        moved one at a time by +steps[j] (rows 0 … p − 1) and by −steps[j] (rows p … 2p − 1):
+        the evaluation points of central differences with respect to the coefficients. The
+        map (S1) is linear in its coefficients, so moving coefficient j by h moves the map's
+        values and derivatives at X by h times basis function j's; F follows from them by
+        (S2), all perturbations in one batch."""
+        r, th, zeta = cylindrical(X, self.apex0, self.frame0)
+        D = self._design(r * r, th, zeta)                        # values, d/dq, d/dθ, d/dζ: (n, b)
+        nb, n = D[0].shape[1], len(th)
+        comp, basis = np.divmod(np.flatnonzero(self.free), nb)   # params -> (component, basis)
+        p = len(comp)
+        h = np.r_[steps, -np.asarray(steps, float)]
+        rows, comp2 = np.arange(2 * p), np.r_[comp, comp]
+        moved = []
+        for A in D:
+            base = A @ self.coef                                # (n, 3) at the current coefficients
+            out = np.repeat(base[None], 2 * p, axis=0)          # (2p, n, 3)
+            out[rows, :, comp2] += h[:, None] * A[:, np.r_[basis, basis]].T
+            moved.append(out)
+        return self._gradient(r, th, moved[0], moved[1:])
+
     def radius_and_gradient(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(:meth:`image_radius`, :meth:`gradient`) of ED points X (n, 3), the map evaluated once."""
         (r, th, _), m, dm = self._mapped(X)
@@ -314,21 +336,23 @@ class CylindricalMotionFit:
         return self._gradient(r, th, m, dm)
 
     def _gradient(self, r, th, m, dm) -> np.ndarray:
-        """F from the map's values m and derivatives dm = (d/dq, d/dθ, d/dζ), each (n, 3)."""
-        J = np.stack(dm, axis=2)                                 # (n, 3 out, 3 in)
-        J[:, 1, 1] += 1.0                                       # θ' = θ + g2
-        rr = np.sqrt(np.maximum(m[:, 0], 1.0))                  # r' >= 1 mm (never near the axis)
-        J[:, 0, :] /= (2.0 * rr)[:, None]                       # rows: r', θ', ζ'
+        """F (…, n, 3, 3) from the map's values m and derivatives dm = (d/dq, d/dθ, d/dζ), each
+        (…, n, 3) (a leading batch axis: the same n points under several maps), at ED points
+        with cylindrical (r, θ) (n,)."""
+        J = np.stack(dm, axis=-1)                                # (…, n, 3 out, 3 in)
+        J[..., 1, 1] += 1.0                                     # θ' = θ + g2
+        rr = np.sqrt(np.maximum(m[..., 0], 1.0))                # r' >= 1 mm (never near the axis)
+        J[..., 0, :] /= (2.0 * rr)[..., None]                   # rows: r', θ', ζ'
         e1, e2, e = self.frame0
         c, s = np.cos(th)[:, None], np.sin(th)[:, None]
         dX = np.stack([2 * r[:, None] * (c * e1 + s * e2), (-s * e1 + c * e2) / r[:, None],
                        np.broadcast_to(e, (len(r), 3))], axis=1)              # rows: ∇q, ∇θ, ∇ζ
         f1, f2, fe = self.frame1
-        t1 = th + m[:, 1]
-        c1, s1 = np.cos(t1)[:, None], np.sin(t1)[:, None]
-        dx = np.stack([c1 * f1 + s1 * f2, rr[:, None] * (-s1 * f1 + c1 * f2),
-                       np.broadcast_to(fe, (len(r), 3))], axis=2)             # columns: ∂x/∂(r',θ',ζ')
-        return dx @ J @ dX
+        t1 = th + m[..., 1]
+        c1, s1 = np.cos(t1)[..., None], np.sin(t1)[..., None]
+        dx = np.stack([c1 * f1 + s1 * f2, rr[..., None] * (-s1 * f1 + c1 * f2),
+                       np.broadcast_to(fe, c1.shape[:-1] + (3,))], axis=-1)   # columns: ∂x/∂(r',θ',ζ')
+        return dx @ (J @ dX)
 
 
 def green_lagrange(F: np.ndarray) -> np.ndarray:
@@ -354,6 +378,24 @@ def cardiac_directions(X: np.ndarray, endo_points: np.ndarray, endo_normals: np.
 def directional_strains(E: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """(n, 3) strains in % along the rows of ``dirs``: 100 dᵀEd (Cartesian E and d)."""
     return 100.0 * np.einsum("nki,nij,nkj->nk", dirs, E, dirs)
+
+
+def segment_strain_quantities(points: np.ndarray, directions: np.ndarray, labels: np.ndarray,
+                              weights: np.ndarray):
+    """The segment strains at ED wall ``points`` as a function of F:
+    :class:`~cardionurbs.analysis.tag_motion.PointQuantities` giving, for F (k, n, 3, 3), the
+    weighted means (k, 3 s) over the segments 1–16 present (segment-major, then Ecc, Ell,
+    Err) of the strains along ``directions`` (:func:`segment_means`, batched)."""
+    from cardionurbs.analysis.tag_motion import PointQuantities, segment_mean_matrix
+    seg = (labels >= 1) & (labels <= 16)
+    M = np.zeros((len(np.unique(labels[seg])), len(labels)))
+    M[:, seg] = segment_mean_matrix(labels[seg], weights[seg])[0]
+
+    def reduce(F):
+        E = green_lagrange(F.reshape(-1, 3, 3)).reshape(F.shape)
+        v = 100.0 * np.einsum("nai,knij,naj->kna", directions, E, directions)
+        return np.einsum("sn,knc->ksc", M, v).reshape(len(F), -1)
+    return PointQuantities(((points, reduce),))
 
 
 def segment_means(values: np.ndarray, labels: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -538,10 +580,7 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
         sub = np.arange(0, len(Y), max(1, len(Y) // (2 * RISK_SAMPLES)))
         sub = sub[fit.image_radius(Y[sub]) >= AXIS_CLEARANCE_MM]
         sub = sub[::max(1, len(sub) // RISK_SAMPLES)]
-
-        def segment_strains(f):
-            v = directional_strains(green_lagrange(f.gradient(Y[sub])), dirs[sub])
-            return segment_means(v, labels[sub], w[sub]).ravel()
+        segment_strains = segment_strain_quantities(Y[sub], dirs[sub], labels[sub], w[sub])
         if incompressibility not in (True, False, None, "prior", "risk"):
             raise ValueError(f"incompressibility: 'prior', 'risk' or False, not {incompressibility!r}")
         prior_sd = None

@@ -342,10 +342,34 @@ def _schur_step(T: np.ndarray, D: np.ndarray, free: np.ndarray, J_pt: np.ndarray
     return d_coef, d_pt, S_data
 
 
+@dataclass(frozen=True)
+class PointQuantities:
+    """Quantities of a motion fit that are functions of its deformation gradient at fixed ED
+    points: ``parts`` ((points (n, 3), reduce), …), reduce mapping F (k, n, 3, 3) to (k, q);
+    the quantities are the parts' outputs concatenated. Called with a fit, they are its
+    values; :func:`quantity_jacobian` evaluates all central differences in one batch
+    (:meth:`~cardionurbs.analysis.strain.CylindricalMotionFit.perturbed_gradients`)."""
+    parts: tuple
+
+    def __call__(self, fit) -> np.ndarray:
+        return np.concatenate([reduce(fit.gradient(P)[None])[0] for P, reduce in self.parts])
+
+    def __add__(self, other: "PointQuantities") -> "PointQuantities":
+        return PointQuantities(self.parts + other.parts)
+
+
 def quantity_jacobian(fit, quantities, coef: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """∂q/∂params (k, p) of ``quantities(fit)`` by central differences, step 1e-3 × ``scale``
-    (the coefficients' standard errors), the fit's coefficients restored after."""
+    (the coefficients' standard errors), the fit's coefficients restored after.
+    :class:`PointQuantities` are differenced in one batch (the same differences)."""
     h = 1e-3 * np.maximum(scale, 1e-12)
+    if isinstance(quantities, PointQuantities):
+        fit.params = coef
+        p, cols = len(coef), []
+        for P, reduce in quantities.parts:
+            q = reduce(fit.perturbed_gradients(P, h))                     # (2p, k)
+            cols.append(((q[:p] - q[p:]) / (2 * h[:, None])).T)
+        return np.vstack(cols)
     cols = []
     for j in range(len(coef)):
         c = coef.copy()
@@ -643,12 +667,10 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
         V, vol, lab = (np.asarray(v) for v in volume_samples)
         M, seg_vol = segment_mean_matrix(lab, vol)
 
-        def det_f(f):
-            return np.linalg.det(f.gradient(V))
-
-        def segment_volume_change(f):                                  # J̄_s − 1
-            return M @ det_f(f) - 1.0
-        dj = det_f(fit)
+        def mean_det_minus_one(F):                                     # J̄_s − 1, F (k, n, 3, 3)
+            return np.linalg.det(F) @ M.T - 1.0
+        segment_volume_change = PointQuantities(((V, mean_det_minus_one),))
+        dj = np.linalg.det(fit.gradient(V))
         det0 = (float(np.average(dj, weights=vol)), float(dj.min()), float(dj.max()))
     # the σ of the regularisation: the tracking noise, or the tag points' misfit if larger
     # (what the map (S1) cannot follow is noise to it too; see "The misfit as noise" above)
@@ -659,9 +681,12 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
         coef = fit.params
         k = len(quantities(fit))
 
-        def all_quantities(f):
-            q = quantities(f)
-            return q if volume_samples is None else np.r_[q, segment_volume_change(f)]
+        if isinstance(quantities, PointQuantities) and volume_samples is not None:
+            all_quantities = quantities + segment_volume_change
+        else:
+            def all_quantities(f):
+                q = quantities(f)
+                return q if volume_samples is None else np.r_[q, segment_volume_change(f)]
         S_inv = np.linalg.pinv(S)
         step_scale = np.sqrt(np.diag(S_inv)) * noise_mm
         J = quantity_jacobian(fit, all_quantities, coef, step_scale)
