@@ -37,9 +37,8 @@ from cardionurbs.anatomy.model import BiventricularModel, reconstruct
 from cardionurbs.errors import UsageError
 from cardionurbs.heap import acyclic, long_lived
 from cardionurbs.io import atomic, load_study
-from cardionurbs.io.export import export_mesh, export_model_3dm, write_json, write_ply
+from cardionurbs.io.export import export_mesh, export_model_3dm, table_csv, write_json, write_ply
 from cardionurbs.progress import Progress
-from cardionurbs.safe import csv_safe_table
 from cardionurbs.study import Study
 
 #: what ``analyze`` can write (``--outputs``), in the order it is produced
@@ -155,7 +154,6 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                 if f not in keep:                  # ... the meshes written and let go
                     model.release(f)
                 progress.step(k + 1, len(model.frames))
-        res = None
         if "model" in outputs:
             progress.stage("model")
             with acyclic():                         # plain lists and dicts
@@ -172,8 +170,8 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                 pass
             else:
                 export_model_3dm(model, tmp / "model.3dm")
-            res = model.residual_table()            # ED and ES (every frame: model.residuals)
-            atomic.write_text(tmp / "residuals.csv", csv_safe_table(res).to_csv(index=False))
+            # ED and ES (every frame: model.residuals); the table's CSV without pandas
+            atomic.write_text(tmp / "residuals.csv", table_csv(model.residual_columns()))
         if "metrics" in outputs:
             progress.stage("metrics")
             from cardionurbs.analysis.quality import assess, residual_summary

@@ -45,6 +45,7 @@ from cardionurbs.errors import TagError
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.nurbs.loft import loft_compatible  # noqa: F401  (old import path, benchmarks)
 from cardionurbs.study import TAG_FAMILIES, Study, TagLine
+from cardionurbs.median import median
 
 #: the image view each tag family is seen in
 FAMILY_VIEW = {"sa1": "SA", "sa2": "SA", "la": "LA"}
@@ -62,8 +63,21 @@ def check_tags(study: Study, ed_frame: int | None = None) -> None:
     Checks: every family is ``sa1``/``sa2``/``la`` and seen in its view; every
     line has >= 2 points; no (family, index) appears twice in one slice at
     one frame; and, when tags exist and ``ed_frame`` is given, that the ED
-    frame is tagged.
+    frame is tagged. The lines are checked once per ``study.tags`` list (again when the
+    list is replaced or changes length, as for the study's tag index): the analysis asks
+    at every stage.
     """
+    checked = study.__dict__.get("_tags_checked")
+    if checked is None or checked[0] is not study.tags or checked[1] != len(study.tags):
+        _check_tag_lines(study)
+        study.__dict__["_tags_checked"] = (study.tags, len(study.tags))
+    if ed_frame is not None and study.tags and not any(t.frame == ed_frame for t in study.tags):
+        raise TagError(f"tag lines exist (frames {study.tagged_frames}) but none at the ED frame "
+                       f"{ed_frame}", field="ed_frame")
+
+
+def _check_tag_lines(study: Study) -> None:
+    """The per-line checks of :func:`check_tags` (TagError on the first bad line)."""
     seen: set[tuple] = set()
     for t in study.tags:
         where = dict(slice=t.slice, frame=t.frame)
@@ -82,9 +96,6 @@ def check_tags(study: Study, ed_frame: int | None = None) -> None:
             raise TagError(f"tag {t.family}#{t.index} appears twice in this slice",
                            field="index", **where)
         seen.add(key)
-    if ed_frame is not None and study.tags and not any(t.frame == ed_frame for t in study.tags):
-        raise TagError(f"tag lines exist (frames {study.tagged_frames}) but none at the ED frame "
-                       f"{ed_frame}", field="ed_frame")
 
 
 def resolve_frames(study: Study, ed_frame: int | None, es_frame: int | None) -> tuple[int, int]:
@@ -106,7 +117,7 @@ def gap_limit(points: np.ndarray) -> float:
     steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
     if len(steps) < 2:
         return np.inf
-    return max(GAP_FACTOR * float(np.median(steps)), GAP_MIN_MM)
+    return max(GAP_FACTOR * median(steps), GAP_MIN_MM)
 
 
 def split_at_gaps(points: np.ndarray, limit: float | None = None) -> list[np.ndarray]:
@@ -130,7 +141,7 @@ def uniform_knots(n_ctrl: int, degree: int = 3) -> np.ndarray:
 def control_count(lines: list[np.ndarray]) -> int:
     """Control points for a family's tag lines: one per ~12 mm of the median line, 4..8."""
     lengths = polyline_lengths(lines)
-    return int(np.clip(round(float(np.median(lengths)) / 12.0) + 3, 4, 8))
+    return int(np.clip(round(median(lengths) / 12.0) + 3, 4, 8))
 
 
 def polyline_lengths(lines: list[np.ndarray]) -> np.ndarray:
@@ -368,8 +379,8 @@ def la_sections(study: Study, frame: int, apex: np.ndarray,
         radial = rel - np.outer(rel @ e, e)
         r = np.linalg.norm(radial, axis=1)
         steps = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-        limit = gap_limit(pts)
-        gaps = np.flatnonzero(steps > limit)
+        limit = max(GAP_FACTOR * median(steps), GAP_MIN_MM) if len(steps) >= 2 else np.inf
+        gaps = np.flatnonzero(steps > limit)                # (gap_limit of the line)
         # the gap nearest the axis, if the axis lies across it
         cut_pt, lo, hi = None, None, None
         if len(gaps):
@@ -384,10 +395,15 @@ def la_sections(study: Study, frame: int, apex: np.ndarray,
         halves = []
         inner = pts[: lo + 1][::-1] if lo >= 0 else pts[:0]
         outer = pts[hi:]
-        for h, seg in enumerate((inner, outer)):
+        # each half's steps, from the line's (a step is as long either way): the first wall
+        # ends at the first gap (split_at_gaps(half, limit)[0])
+        inner_steps = steps[: max(lo, 0)][::-1]
+        outer_steps = steps[hi:]
+        for h, (seg, seg_steps) in enumerate(((inner, inner_steps), (outer, outer_steps))):
             if len(seg) == 0:
                 continue
-            first_wall = split_at_gaps(seg, limit)[0]
+            cut = np.flatnonzero(seg_steps > limit)
+            first_wall = seg[: cut[0] + 1] if len(cut) else seg
             spoke = np.vstack([cut_pt, first_wall])
             if len(spoke) < 2:
                 continue

@@ -56,6 +56,7 @@ import numpy as np
 from cardionurbs.analysis.strain import cylindrical
 from cardionurbs.analysis.tag_surfaces import TagSection, family_direction
 from cardionurbs.anatomy.sections import study_long_axis
+from cardionurbs.median import median
 from cardionurbs.study import TAG_FAMILIES, Study
 
 DEFAULT_THRESHOLD = 0.5
@@ -167,28 +168,31 @@ def tag_spacing(study: Study, family: str, frame: int,
     if given:
         return float(given)
     lines = study.tags_at(frame, family)
-    by_slice: dict[str, list] = {}
-    for t in lines:
-        by_slice.setdefault(t.slice, []).append(t)
     if not lines:
         return float("nan")
-    d_fam = family_direction([t.points for t in lines])
+    by_slice: dict[str, list[int]] = {}
+    for k, t in enumerate(lines):
+        by_slice.setdefault(t.slice, []).append(k)
+    pts = [t.points for t in lines]
+    d_fam = family_direction(pts)
+    centroids = [p.mean(axis=0) for p in pts]
+    index = np.array([t.index for t in lines])
     est = []
-    for slc, ts in by_slice.items():
-        if len(ts) < 2:
+    for slc, ks in by_slice.items():
+        if len(ks) < 2:
             continue
         plane = study.slice_plane(slc)
-        along = family_direction([t.points for t in ts]) if family == "la" else d_fam
-        across = np.cross(plane.normal, along)
+        along = family_direction([pts[k] for k in ks]) if family == "la" else d_fam
+        across = _cross_rows(plane.normal, along[None])[0]
         across /= np.linalg.norm(across)
-        idx = np.array([t.index for t in ts])
-        pos = np.array([t.points.mean(axis=0) @ across for t in ts])
+        idx = index[ks]
+        pos = np.array([centroids[k] @ across for k in ks])
         order = np.argsort(idx)
         di, dp = np.diff(idx[order]), np.diff(pos[order])
         ok = di > 0
         if ok.any():
-            est.append(np.median(np.abs(dp[ok]) / di[ok]))
-    return float(np.median(est)) if est else float("nan")
+            est.append(median(np.abs(dp[ok]) / di[ok]))
+    return median(est) if est else float("nan")
 
 
 # ----------------------------------------------------------------- LOO core
@@ -267,6 +271,29 @@ def _spoke_profile(C: np.ndarray, frame: tuple) -> tuple[float, np.ndarray, np.n
     return th, r[o], z[o]
 
 
+def _spoke_profiles(samples: list[np.ndarray], frame: tuple) -> list[tuple]:
+    """:func:`_spoke_profile` of every spoke at once (one cylindrical transform of all
+    their samples; the circular means as masked sums, equal to rounding)."""
+    C = np.stack(samples)                                        # (K, S, 3)
+    K, S = C.shape[:2]
+    r, t, z = (x.reshape(K, S) for x in cylindrical(C.reshape(-1, 3), *frame))
+    o = np.argsort(r, axis=1)
+    rows = np.arange(K)[:, None]
+    rs, zs = r[rows, o], z[rows, o]
+    outer = r > 0.5 * r.max(axis=1, keepdims=True)               # each spoke's outer half
+    th = np.angle(np.where(outer, np.exp(1j * t), 0).sum(axis=1) / outer.sum(axis=1))
+    return [(float(th[k]), rs[k], zs[k]) for k in range(K)]
+
+
+def _spoke_points_cylindrical(secs: list[TagSection], frame: tuple) -> list[tuple]:
+    """(r, θ, ζ) of every spoke's data points (its first point, the cut on the axis, left
+    out), for all spokes with one cylindrical transform."""
+    pts = [s.points[1:] for s in secs]
+    n = np.cumsum([len(p) for p in pts])[:-1]
+    r, t, z = cylindrical(np.concatenate(pts), *frame)
+    return list(zip(np.split(r, n), np.split(t, n), np.split(z, n)))
+
+
 def _spoke_departure(cyl: tuple, prof_a: tuple, prof_b: tuple) -> np.ndarray:
     rp, tp, zp = cyl
     tha, ra, za = prof_a
@@ -288,8 +315,9 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
     ``secs`` and ``samples`` (their fitted curves at uniform u) in loft
     order; ``exclude``: slices already flagged, left out of every loft;
     ``axis`` (apex, base) for the LA spoke fan (``periodic``); ``profiles``: a dict that
-    keeps each spoke's profile (:func:`_spoke_profile`, by its index in ``secs``) between
-    calls on the same ``secs``, ``samples`` and ``axis`` (the worst-first passes).
+    keeps each spoke's profile (:func:`_spoke_profile`, by its index in ``secs``) and its
+    points' cylindrical coordinates (key ``("points", index)``) between calls on the same
+    ``secs``, ``samples`` and ``axis`` (the worst-first passes).
     Returns {slice: departure}; slices that cannot be judged are absent.
     """
     names = list(dict.fromkeys(s.slice for s in secs if s.slice not in exclude))
@@ -299,10 +327,12 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
     if periodic:       # each spoke's profile once, however many left-out spokes it predicts
         cyl = _axis_cylinder(axis)
         profiles = {} if profiles is None else profiles
+        if not profiles:                 # every spoke's profile and points, in one batch
+            profiles.update(enumerate(_spoke_profiles(samples, cyl)))
+            profiles.update({("points", k): c
+                             for k, c in enumerate(_spoke_points_cylindrical(secs, cyl))})
 
         def profile(k: int) -> tuple:
-            if k not in profiles:
-                profiles[k] = _spoke_profile(samples[k], cyl)
             return profiles[k]
     for left in names:
         keep = [k for k, s in enumerate(secs) if s.slice != left and s.slice not in exclude]
@@ -313,10 +343,10 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
             for k in mine:
                 nb = _neighbours_cyclic(keys, secs[k].key)
                 if nb is not None:   # a spoke's first point is the cut on the axis, not data
-                    dist.append(_spoke_departure(cylindrical(secs[k].points[1:], *cyl),
+                    dist.append(_spoke_departure(profiles[("points", k)],
                                                  profile(keep[nb[0]]), profile(keep[nb[1]])))
             if dist:
-                out[left] = float(np.median(np.concatenate(dist)) / spacing)
+                out[left] = median(np.concatenate(dist)) / spacing
             continue
         sec = secs[mine[0]]
         plane = sec.plane
@@ -324,7 +354,7 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
         for a, b in _neighbour_pairs(keys, sec.key):
             trace, tan = blend_trace(samples[keep[a]], samples[keep[b]], plane.position,
                                      plane.normal)
-            best = min(best, float(np.median(distance_to_trace(sec.points, trace, tan))))
+            best = min(best, median(distance_to_trace(sec.points, trace, tan)))
         if np.isfinite(best):
             out[left] = best / spacing
     return out
@@ -381,7 +411,7 @@ def _pair_residuals(points: np.ndarray, Ca: list[np.ndarray], Cb: list[np.ndarra
 def _pair_residual_one(points, a, b, origin, normal) -> float | None:
     trace, tan = blend_trace(a, b, origin, normal)
     d = signed_distance_to_trace(points, trace, tan, normal)
-    return float(np.median(d)) if len(d) and np.isfinite(d).all() else None
+    return median(d) if len(d) and np.isfinite(d).all() else None
 
 
 #: the largest (problems x points x samples) block :func:`_pair_residuals_many` forms at once
@@ -502,10 +532,8 @@ def _index_trends(values: list[list[tuple[int, float]]], at: list[int],
     M = int(m.max())
     J, Rv = np.zeros((P, M)), np.zeros((P, M))
     valid = np.arange(M)[None, :] < m[:, None]
-    for p, v in enumerate(values):
-        if v:
-            J[p, :len(v)] = [x[0] for x in v]
-            Rv[p, :len(v)] = [x[1] for x in v]
+    flat = np.array([x for v in values for x in v], dtype=float).reshape(-1, 2)
+    J[valid], Rv[valid] = flat[:, 0], flat[:, 1]          # row by row, in order
     X = J - np.asarray(at, float)[:, None]
     keep = valid.copy()
     active = m > 0

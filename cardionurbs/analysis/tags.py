@@ -66,6 +66,7 @@ from cardionurbs.analysis.tagqc import TagFlag, tag_qc
 from cardionurbs.analysis.columns import ColumnMapping
 from cardionurbs.errors import CardioNurbsError
 from cardionurbs.geometry import polygon_centroid
+from cardionurbs.median import median
 from cardionurbs.study import Study
 
 __all__ = ["tag_surfaces", "material_points", "tag_metrics", "tag_qc", "tag_figure_data",
@@ -170,7 +171,7 @@ def curve_crossings(curves: list, raw: list[np.ndarray], pairs: np.ndarray,
     for li, P in enumerate(raw):
         pad[li, :len(P)] = P
         steps = np.linalg.norm(np.diff(P, axis=0), axis=1)
-        reach[li] = max(2.0 * float(np.median(steps)) if len(steps) else 0.0, 1.0)
+        reach[li] = max(2.0 * median(steps) if len(steps) else 0.0, 1.0)
     for col in (0, 1):
         li = pairs[:, col]
         with np.errstate(invalid="ignore"):

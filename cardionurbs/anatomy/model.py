@@ -28,6 +28,7 @@ from cardionurbs.anatomy.refine import refine_surface
 from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface, free_wall_points
 from cardionurbs.errors import ReconstructionError
 from cardionurbs.geometry import long_axis, polygon_centroid
+from cardionurbs.median import median
 from cardionurbs.study import Study
 
 if TYPE_CHECKING:    # trimesh (~0.3 s to import) only where meshes are made, pandas (~0.3 s)
@@ -35,6 +36,9 @@ if TYPE_CHECKING:    # trimesh (~0.3 s to import) only where meshes are made, pa
     import trimesh
 
 MESHES = ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium")
+#: columns of :meth:`BiventricularModel.residual_table` (and residuals.csv)
+RESIDUAL_COLUMNS = ("structure", "frame", "slice", "view", "n_points", "mean_mm", "max_mm",
+                    "mean_px", "max_px")
 #: default tessellation (around, along) of each surface before the booleans
 RESOLUTION = (56, 36)
 
@@ -499,18 +503,44 @@ class BiventricularModel:
         columns structure, frame, slice, view, n_points, mean_mm, max_mm, mean_px,
         max_px, for the given frames (default ED and ES); see :meth:`point_residuals`
         for which points and which distance. Empty for a model read back without its
-        study's contours."""
+        study's contours. The same numbers without pandas: :meth:`residual_columns`."""
         import pandas as pd
-        cols = ["structure", "frame", "slice", "view", "n_points", "mean_mm", "max_mm",
-                "mean_px", "max_px"]
-        pts = self.point_residuals(frames)
-        if pts.empty:
-            return pd.DataFrame([], columns=cols)
-        g = pts.groupby(["structure", "frame", "slice", "view"], sort=False)
-        out = g.agg(n_points=("dist_mm", "size"), mean_mm=("dist_mm", "mean"),
-                    max_mm=("dist_mm", "max"), mean_px=("dist_px", "mean"),
-                    max_px=("dist_px", "max")).reset_index()
-        return out[cols]
+        return pd.DataFrame(self.residual_columns(frames), columns=RESIDUAL_COLUMNS)
+
+    def residual_columns(self, frames=None) -> dict[str, np.ndarray]:
+        """The columns of :meth:`residual_table` as numpy arrays (no pandas): one row per
+        contour, i.e. per (structure, frame, slice, view) in the order the contours come,
+        points without a slice left out (as a pandas group-by leaves out a missing key).
+        ``mean_*``: the correctly rounded sum of the contour's distances over their count
+        (a pandas group-by mean, whose compensated sum can differ from it in the last
+        digit)."""
+        cols: dict[str, list] = {c: [] for c in RESIDUAL_COLUMNS}
+        for p in self.point_residual_arrays(frames):
+            keys: dict[tuple, int] = {}
+            group = np.empty(len(p["dist_mm"]), dtype=np.int64)
+            sl, vw = p["slice"], p["view"]
+            start = 0
+            for stop in [*np.flatnonzero((sl[1:] != sl[:-1]) | (vw[1:] != vw[:-1])) + 1, len(sl)]:
+                k = (sl[start], vw[start])         # one run of points of one contour
+                group[start:stop] = -1 if k[0] is None else keys.setdefault(k, len(keys))
+                start = stop
+            if not keys:
+                continue
+            n = np.bincount(group[group >= 0], minlength=len(keys))
+            for c, d in (("mm", p["dist_mm"]), ("px", p["dist_px"])):
+                cols[f"mean_{c}"].append(_grouped_fsum(d, group, len(keys)) / n)
+                mx = np.full(len(keys), -np.inf)
+                np.maximum.at(mx, group[group >= 0], d[group >= 0])
+                cols[f"max_{c}"].append(mx)
+            cols["structure"].append(np.full(len(keys), p["structure"], dtype=object))
+            cols["frame"].append(np.full(len(keys), p["frame"], dtype=np.int64))
+            cols["slice"].append(np.array([k[0] for k in keys], dtype=object))
+            cols["view"].append(np.array([k[1] for k in keys], dtype=object))
+            cols["n_points"].append(n.astype(np.int64))
+        empty = {"frame": np.int64, "n_points": np.int64, "structure": object, "slice": object,
+                 "view": object}
+        return {c: (np.concatenate(v) if v else np.array([], dtype=empty.get(c, float)))
+                for c, v in cols.items()}
 
     def point_residuals(self, frames=None) -> pd.DataFrame:
         """Every contour point's distance to the surface it was fitted by (mm and pixels of
@@ -639,8 +669,17 @@ def _every_index(points: np.ndarray, spacing_mm: float) -> slice:
     """The slice of ordered contour points that keeps them about ``spacing_mm`` apart."""
     if len(points) < 3:
         return slice(None)
-    step = float(np.median(np.linalg.norm(np.diff(points, axis=0), axis=1))) or spacing_mm
+    step = median(np.linalg.norm(np.diff(points, axis=0), axis=1)) or spacing_mm
     return slice(None, None, max(1, int(round(spacing_mm / step))))
+
+
+def _grouped_fsum(x: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
+    """Per group, the correctly rounded sum of ``x`` (:func:`math.fsum`; ``group`` -1:
+    left out)."""
+    keep = np.flatnonzero(group >= 0)
+    order = keep[np.argsort(group[keep], kind="stable")]
+    bounds = np.cumsum(np.bincount(group[keep], minlength=n_groups))[:-1]
+    return np.array([math.fsum(part) for part in np.split(np.asarray(x, float)[order], bounds)])
 
 
 def _pixel_mm(plane) -> float:

@@ -30,6 +30,7 @@ from cardionurbs.geometry import (fit_plane, in_plane_basis, long_axis, points_i
                                   polygon_area, polygon_centroid, stack_normal)
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.study import Contour, Study
+from cardionurbs.median import median
 
 SURFACES = ("lv_endo", "lv_epi", "rv_endo", "rv_epi")
 
@@ -86,14 +87,16 @@ def _in_drawing_order(points: np.ndarray, closed: bool) -> bool:
     if len(points) < 3:
         return True
     q = np.vstack([points, points[:1]]) if closed else points
-    steps = np.linalg.norm(np.diff(q, axis=0), axis=1)
-    med = max(float(np.median(steps)), 1e-9)
-    if np.any(steps > 4.0 * med):
+    diff = np.diff(q, axis=0)
+    steps = np.sqrt(np.add.reduce(diff * diff, axis=1))      # np.linalg.norm's numbers
+    med = max(median(steps), 1e-9)
+    if (steps > 4.0 * med).any():
         return False
     probe = points[np.linspace(0, len(points) - 1, min(24, len(points))).astype(int)]
-    d = np.linalg.norm(probe[:, None] - points[None], axis=2)
-    d[d == 0] = np.inf
-    return bool(med <= 3.0 * max(float(np.median(d.min(axis=1))), 1e-9))
+    g = probe[:, None] - points[None]
+    sq = np.add.reduce(g * g, axis=2)                         # squared distances: the
+    sq[sq == 0] = np.inf                                      # nearest by them, then its root
+    return bool(med <= 3.0 * max(median(np.sqrt(sq.min(axis=1))), 1e-9))
 
 
 def _nearest_neighbour_chain(points: np.ndarray, start: int) -> np.ndarray:
@@ -180,7 +183,7 @@ def is_open_arc(points: np.ndarray, gap_steps: float = ARC_GAP_STEPS) -> bool:
     p = p_cut if _in_drawing_order(p_cut, closed=False) else order_open(p)
     if not _in_drawing_order(p, closed=False):
         return False
-    step = float(np.median(np.linalg.norm(np.diff(p, axis=0), axis=1)))
+    step = median(np.linalg.norm(np.diff(p, axis=0), axis=1))
     gap = float(np.linalg.norm(p[-1] - p[0]))
     extent = float(np.linalg.norm(p - p[0], axis=1).max())
     return gap > gap_steps * max(step, 1e-9) and gap > 0.25 * extent
@@ -219,17 +222,25 @@ def ray_exit(points: np.ndarray, origin: np.ndarray, direction: np.ndarray,
     Vectorised over the loop's edges (line–segment intersection by Cramer's rule
     in the loop's plane, of normal ``normal`` — fitted when not given).
     """
-    d = direction / np.linalg.norm(direction)
+    return float(ray_exits(points, origin, np.asarray(direction, float)[None], normal)[0])
+
+
+def ray_exits(points: np.ndarray, origin: np.ndarray, directions: np.ndarray,
+              normal: np.ndarray | None = None) -> np.ndarray:
+    """:func:`ray_exit` of many rays (k, 3) from one origin: (k,) largest t, NaN where a
+    ray misses. The loop's in-plane coordinates and edges are computed once for all rays
+    (the same arithmetic per ray)."""
     b = in_plane_basis(fit_plane(points)[1] if normal is None else normal)
     xy = (points - origin) @ b.T
-    dd = b @ d
     a, e = xy, np.roll(xy, -1, axis=0) - xy
-    den = dd[0] * (-e[:, 1]) + dd[1] * e[:, 0]
+    dd = np.array([b @ (d / np.linalg.norm(d)) for d in directions]).reshape(-1, 2)
+    d0, d1 = dd[:, :1], dd[:, 1:]                                   # (k, 1)
+    den = d0 * (-e[:, 1]) + d1 * e[:, 0]                            # (k, edges)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (a[:, 0] * (-e[:, 1]) + a[:, 1] * e[:, 0]) / den
-        s = (dd[0] * a[:, 1] - dd[1] * a[:, 0]) / den
+        s = (d0 * a[:, 1] - d1 * a[:, 0]) / den
     ok = np.isfinite(t) & (s >= -1e-9) & (s <= 1 + 1e-9) & (t > 0)   # a vertex hit counts
-    return float(t[ok].max()) if ok.any() else float("nan")
+    return np.where(ok.any(axis=1), np.where(ok, t, -np.inf).max(axis=1), np.nan)
 
 
 # --------------------------------------------------------------- level planes
@@ -255,13 +266,10 @@ def scaled_section(template: Section, level: float, direction: np.ndarray,
         q = targets - centre
         q -= np.outer(q @ direction, direction)
         rq = np.linalg.norm(q, axis=1)
-        ratios = []
-        for qi, ri in zip(q, rq):
-            if ri < 1e-6:
-                continue
-            r_t = ray_exit(ct + rel, ct, qi, normal=direction)
-            if np.isfinite(r_t) and r_t > 1e-6:
-                ratios.append(ri / r_t)
+        use = rq >= 1e-6
+        r_t = ray_exits(ct + rel, ct, q[use], normal=direction) if use.any() else np.zeros(0)
+        hit = np.isfinite(r_t) & (r_t > 1e-6)
+        ratios = list(rq[use][hit] / r_t[hit])
         if not ratios:
             return None
         s = float(np.mean(ratios))
@@ -353,8 +361,22 @@ def stacking_direction(study: Study, frame: int | None = None) -> tuple[np.ndarr
     none); their :func:`~cardionurbs.geometry.stack_normal`, oriented (docs/metrics.md,
     Geometry conventions) towards the apex landmark when given; else towards
     increasing ``sa_NN`` slice number (numbered from base to apex); else
-    towards the end with the smaller LV endocardial area.
+    towards the end with the smaller LV endocardial area. Cached on the study per frame
+    (again when its images, landmarks or contours lists are replaced or change length):
+    the tag analysis asks for it once per family and frame.
     """
+    lists = (study.images, study.landmarks, study.contours)
+    token = tuple((id(x), len(x)) for x in lists)
+    cache = study.__dict__.setdefault("_stacking_direction", {})
+    hit = cache.get(frame)
+    if hit is not None and hit[0] == token and all(a is b for a, b in zip(hit[1], lists)):
+        return hit[2].copy(), hit[3]
+    n, thickness = _stacking_direction(study, frame)
+    cache[frame] = (token, lists, n.copy(), thickness)
+    return n, thickness
+
+
+def _stacking_direction(study: Study, frame: int | None) -> tuple[np.ndarray, float]:
     ims = [im for im in study.images if im.view == "SA" and im.frame == frame]
     if not ims:
         ims = [im for im in study.images if im.view == "SA"]

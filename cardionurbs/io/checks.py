@@ -135,6 +135,94 @@ def _segments_meet(A, B, C, D, eps: float) -> np.ndarray:
     return meet
 
 
+#: polylines of at most this many segments are judged all pairs at once by :func:`known_simple`
+_BRUTE_MAX_SEGMENTS = 128
+#: segment pairs per vectorised block of :func:`known_simple`
+_BRUTE_BLOCK = 1 << 18
+
+
+def _deduplicated(xy: np.ndarray, closed: bool) -> np.ndarray:
+    """The polyline without repeated consecutive points (nor a repeated end point, closed):
+    the vertices :func:`self_intersections` numbers its segments by."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    xy = xy[np.r_[True, np.any(np.diff(xy, axis=0) != 0, axis=1)]]
+    if closed and len(xy) > 1 and np.array_equal(xy[0], xy[-1]):
+        xy = xy[:-1]
+    return xy
+
+
+def _angularly_monotone_many(xy: np.ndarray, closed: bool) -> np.ndarray:
+    """:func:`_angularly_monotone` of K polylines of one length at once, xy (K, n, 2)."""
+    K, n = xy.shape[:2]
+    if n < 3:
+        return np.ones(K, dtype=bool)
+    d = xy - xy.mean(axis=1, keepdims=True)
+    ok = ~np.any(np.hypot(d[..., 0], d[..., 1]) == 0, axis=1)
+    ang = np.arctan2(d[..., 1], d[..., 0])
+    steps = np.diff(np.concatenate([ang, ang[:, :1]], axis=1) if closed else ang, axis=1)
+    steps = (steps + np.pi) % (2 * np.pi) - np.pi
+    ok &= (np.all(steps > 0, axis=1) | np.all(steps < 0, axis=1))
+    ok &= ~np.any(np.abs(steps) >= np.pi - 1e-9, axis=1)
+    total = np.abs(steps.sum(axis=1))
+    return ok & ((np.abs(total - 2 * np.pi) < 1e-6) if closed else (total < 2 * np.pi - 1e-9))
+
+
+def _segment_pairs(m: int, closed: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Every pair (i, j), i < j, of non-adjacent segments of a polyline of m segments."""
+    i, j = np.triu_indices(m, 2)
+    keep = ~(closed & (i == 0) & (j == m - 1))
+    return i[keep], j[keep]
+
+
+def known_simple(curves: list[np.ndarray], closed: list[bool]) -> np.ndarray:
+    """Which 2-D polylines are simple (no two non-adjacent segments meet), judged for all
+    of them at once: True where :func:`self_intersections` finds no pair, False where it
+    finds one *or* the polyline was not judged here (more than ``_BRUTE_MAX_SEGMENTS``
+    segments and not angularly monotone) -- ask :func:`self_intersections` there.
+
+    Polylines of one length and closure are stacked: first the angular fast path of
+    :func:`_angularly_monotone`, then for the rest every pair of non-adjacent segments
+    whose bounding boxes overlap through the predicate of :func:`_segments_meet` (with
+    each curve's own tolerance), in blocks -- what the per-curve sweep does, without a
+    numpy call per curve (a study holds hundreds of contours of a few dozen points)."""
+    out = np.zeros(len(curves), dtype=bool)
+    dedup = [_deduplicated(c, cl) for c, cl in zip(curves, closed)]
+    groups: dict[tuple[int, bool], list[int]] = defaultdict(list)
+    for k, (xy, cl) in enumerate(zip(dedup, closed)):
+        groups[(len(xy), bool(cl))].append(k)
+    for (n, cl), ks in groups.items():
+        m = n if cl else n - 1
+        if m < 3:                                   # too few segments to cross
+            out[ks] = True
+            continue
+        XY = np.stack([dedup[k] for k in ks])       # (K, n, 2)
+        mono = _angularly_monotone_many(XY, cl)
+        out[[k for k, s in zip(ks, mono) if s]] = True
+        rest = [r for r, s in enumerate(mono) if not s]
+        if not rest or m > _BRUTE_MAX_SEGMENTS:
+            continue
+        XY = XY[rest]
+        A = XY if cl else XY[:, :-1]
+        B = np.roll(XY, -1, axis=1) if cl else XY[:, 1:]
+        scale = np.maximum(np.ptp(XY, axis=1).max(axis=1), 1e-12)
+        eps = 1e-12 * scale * scale
+        pi, pj = _segment_pairs(m, cl)
+        lo, hi = np.minimum(A, B), np.maximum(A, B)
+        meets = np.zeros(len(rest), dtype=bool)
+        step = max(1, _BRUTE_BLOCK // max(len(pi), 1))
+        for s in range(0, len(rest), step):
+            r = np.arange(s, min(s + step, len(rest)))
+            R = np.repeat(r, len(pi))
+            I, J = np.tile(pi, len(r)), np.tile(pj, len(r))
+            box = ((lo[R, I, 0] <= hi[R, J, 0]) & (lo[R, J, 0] <= hi[R, I, 0])
+                   & (lo[R, I, 1] <= hi[R, J, 1]) & (lo[R, J, 1] <= hi[R, I, 1]))
+            R, I, J = R[box], I[box], J[box]
+            hit = _segments_meet(A[R, I], B[R, I], A[R, J], B[R, J], eps[R])
+            meets[np.unique(R[hit])] = True
+        out[[ks[r] for r, bad in zip(rest, meets) if not bad]] = True
+    return out
+
+
 #: candidate segment pairs tested per vectorised chunk (bounds memory: ~100 bytes a pair)
 _PAIR_CHUNK = 1 << 20
 _SWEEP_DIRECTIONS = np.array([[1.0, 0.0], [np.sqrt(0.5), np.sqrt(0.5)], [0.0, 1.0],
@@ -420,7 +508,22 @@ def _check_annotations(study: Study, warnings: list[str]) -> None:
     files = _annotation_files(study)
     normals = _Normals()
     no_plane = 0
-    for c, file in zip(study.contours, files):
+    # every ventricular contour's plane and in-plane points first, and which of them are
+    # simple, judged all at once (known_simple); the checks below then run contour by
+    # contour in order, the exact crossing search only where that batch was not sure
+    planes: dict[int, ImagePlane | None] = {}
+    xys: dict[int, np.ndarray] = {}
+    for k, (c, file) in enumerate(zip(study.contours, files)):
+        if c.ventricular and len(c.points) >= 3:
+            try:
+                planes[k] = _plane_of(study, c, file)
+            except StudyError:              # raised again, in its turn, by the loop below
+                continue
+            xys[k] = in_plane_coordinates(c.points, planes[k])
+    order = list(xys)
+    simple = dict(zip(order, known_simple([xys[k] for k in order],
+                                          [bool(study.contours[k].closed) for k in order])))
+    for k, (c, file) in enumerate(zip(study.contours, files)):
         what = f"{c.structure} contour" + (f" #{c.index}" if c.index else "")
         n = len(c.points)
         if not c.ventricular:  # atrial / venous / extent traces: only their plane is checked
@@ -433,12 +536,15 @@ def _check_annotations(study: Study, warnings: list[str]) -> None:
             if c.closed or c.structure in ("lv_endo", "lv_epi"):
                 raise StudyError(msg, file=_src(study, file), slice=c.slice, frame=c.frame)
             warnings.append(f"{_src(study, file)}: slice {c.slice}, frame {c.frame}: open {msg}")
-        plane = _plane_of(study, c, file)
+        plane = planes[k] if k in planes else _plane_of(study, c, file)
         if plane is None:
             no_plane += 1
         else:
             _off_plane(study, plane, c.points, what, file, c, warnings, normals)
-        cross = self_intersections(in_plane_coordinates(c.points, plane), c.closed, first=True)
+        if simple.get(k, False):
+            continue
+        xy = xys[k] if k in xys else in_plane_coordinates(c.points, plane)
+        cross = self_intersections(xy, c.closed, first=True)
         if len(cross):
             i, j = map(int, cross[0])
             msg = (f"{what} crosses itself (segment {i}-{i + 1} crosses segment "

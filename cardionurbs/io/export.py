@@ -64,6 +64,37 @@ def write_ply(vertices, faces, path: str | os.PathLike) -> Path:
     return atomic.write_bytes(path, header.encode("ascii") + v.tobytes() + rec.tobytes())
 
 
+def table_csv(columns: dict) -> str:
+    """CSV text of a table given as equal-length columns (name -> sequence), as
+    ``pandas.DataFrame(columns).to_csv(index=False)`` writes it, without pandas: a header
+    line, ``\\n`` line ends, minimal quoting (the csv module's rules, pandas' too); text
+    cells through :func:`cardionurbs.safe.csv_cell` (no spreadsheet formulas); floats in
+    numpy's shortest round-trip form (``str``), NaN and None as empty cells; integers as
+    they are."""
+    import csv
+    import io
+
+    import numpy as np
+
+    from cardionurbs.safe import csv_cell
+
+    def cells(values) -> list:
+        a = np.asarray(values)
+        if a.dtype.kind == "f":
+            text = a.astype(str).tolist()
+            return ["" if v != v else t for v, t in zip(a.tolist(), text)]
+        if a.dtype.kind in "iub":
+            return a.tolist()
+        return ["" if v is None or (isinstance(v, float) and v != v) else csv_cell(v)
+                for v in a.tolist()]
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow([str(c) for c in columns])
+    w.writerows(zip(*(cells(v) for v in columns.values())))
+    return buf.getvalue()
+
+
 def _json_safe(x):
     if isinstance(x, float) and not math.isfinite(x):
         return None

@@ -114,6 +114,8 @@ class _Checker:
     def numbers(self, v, field, n, lo=-math.inf, hi=math.inf, **where):
         if not isinstance(v, list) or len(v) != n:
             self.fail(field, f"must be a list of {n} numbers, got {_kind(v)}", **where)
+        if all(type(x) in (int, float) and math.isfinite(x) and lo <= x <= hi for x in v):
+            return                  # the usual case, in one pass (each number's message below)
         for x in v:
             self.number(x, field, lo, hi, **where)
 

@@ -47,60 +47,112 @@ def segment_wedges() -> dict[int, tuple[float, float, float, float]]:
     return out
 
 
-def draw_bullseye(ax, values: Mapping[int, float], *, cmap: str = "viridis", norm=None,
-                  fmt: str = "{:.1f}") -> colors.Normalize:
-    """Draw the segments of ``values`` (segment -> value, NaN/absent = no value) on a polar axes."""
+def _segment_style(values: Mapping[int, float], cmap: str, norm, fmt: str) -> tuple:
+    """(norm, face colours, hatches, label texts, label colours) of the 17 segments, in
+    :func:`segment_wedges` order: a segment without a value is light grey and hatched; a
+    label is white on a dark segment (luma < 0.5), else black."""
     vals = np.array([values.get(k, np.nan) for k in range(1, 18)], float)
     fin = vals[np.isfinite(vals)]
     if norm is None:
         lo, hi = (float(fin.min()), float(fin.max())) if len(fin) else (0.0, 1.0)
         norm = colors.Normalize(lo, hi if hi > lo else lo + 1.0)
     cmap_ = matplotlib.colormaps[cmap]
-    wedges = segment_wedges()
-    seg = np.array(list(wedges.values()))                 # (start, width, inner, outer) per segment
-    ok = [values.get(k) is not None and np.isfinite(values.get(k, np.nan)) for k in wedges]
-    # one bar call for the 17 segments (one container, not 17): the same patches
-    ax.bar(seg[:, 0] + seg[:, 1] / 2, seg[:, 3] - seg[:, 2], width=seg[:, 1], bottom=seg[:, 2],
-           color=[cmap_(norm(values[k])) if good else "#dddddd" for k, good in zip(wedges, ok)],
-           edgecolor="white", linewidth=1.5, hatch=[None if good else "//" for good in ok],
-           align="center")
-    for k, (a0, w, r0, r1) in wedges.items():
+    faces, hatches, texts, ink = [], [], [], []
+    for k in segment_wedges():
         v = values.get(k, np.nan)
         ok = v is not None and np.isfinite(v)
-        ang, rad = (0.0, 0.0) if k == 17 else (a0 + w / 2, 0.5 * (r0 + r1))
         rgba = cmap_(norm(v)) if ok else (0.87, 0.87, 0.87, 1)
+        faces.append(cmap_(norm(v)) if ok else "#dddddd")
+        hatches.append(None if ok else "//")
+        texts.append(f"{k}\n" + (fmt.format(v) if ok else "–"))
         dark = (0.299 * rgba[0] + 0.587 * rgba[1] + 0.114 * rgba[2]) < 0.5
-        ax.text(ang, rad, f"{k}\n" + (fmt.format(v) if ok else "–"), ha="center", va="center",
-                fontsize=7, color="white" if dark else "black")
+        ink.append("white" if dark else "black")
+    return norm, faces, hatches, texts, ink
+
+
+def _label_positions() -> list[tuple[float, float]]:
+    """(angle rad, radius) of each segment's label, :func:`segment_wedges` order."""
+    return [(0.0, 0.0) if k == 17 else (a0 + w / 2, 0.5 * (r0 + r1))
+            for k, (a0, w, r0, r1) in segment_wedges().items()]
+
+
+def draw_bullseye(ax, values: Mapping[int, float], *, cmap: str = "viridis", norm=None,
+                  fmt: str = "{:.1f}") -> colors.Normalize:
+    """Draw the segments of ``values`` (segment -> value, NaN/absent = no value) on a polar axes."""
+    norm, faces, hatches, texts, ink = _segment_style(values, cmap, norm, fmt)
+    seg = np.array(list(segment_wedges().values()))  # (start, width, inner, outer) per segment
+    # one bar call for the 17 segments (one container, not 17): the same patches
+    ax.bar(seg[:, 0] + seg[:, 1] / 2, seg[:, 3] - seg[:, 2], width=seg[:, 1], bottom=seg[:, 2],
+           color=faces, edgecolor="white", linewidth=1.5, hatch=hatches, align="center")
+    for (ang, rad), text, c in zip(_label_positions(), texts, ink):
+        ax.text(ang, rad, text, ha="center", va="center", fontsize=7, color=c)
     ax.set_ylim(0, 4)
     ax.set_axis_off()
     return norm
 
 
+def _norm_of(values: Mapping[int, float], diverging: bool):
+    """The colour normalisation of a figure: diverging quantities symmetric about 0 when
+    their values straddle it; None (the segments' range, :func:`_segment_style`) else."""
+    fin = np.array([v for v in values.values() if v is not None and np.isfinite(v)])
+    if not (diverging and len(fin)):
+        return None
+    m = float(np.abs(fin).max()) or 1.0
+    return colors.TwoSlopeNorm(0.0, -m, m) if fin.min() < 0 < fin.max() else colors.Normalize(
+        float(fin.min()), float(fin.max()) if np.ptp(fin) > 0 else float(fin.min()) + 1.0)
+
+
+class BullseyeCanvas:
+    """One bull's-eye figure drawn once and re-used for every quantity of a study.
+
+    Making a figure with a polar axes, its 17 wedges and labels costs more than drawing
+    it (about 0.06 s of the 0.18 s a bull's-eye PNG took): the wedges, labels, title and
+    caption are made once and only re-coloured and re-labelled per quantity; the colour
+    bar, whose ticks depend on the quantity, gets a fresh axes each time. The PNG is the
+    one :func:`bullseye_figure` draws on a new figure."""
+
+    def __init__(self) -> None:
+        self.fig = Figure(figsize=(4.6, 4.4), dpi=100)
+        self.ax = self.fig.add_axes([0.04, 0.14, 0.7, 0.74], projection="polar")
+        draw_bullseye(self.ax, {}, cmap="viridis")
+        self.bars = list(self.ax.containers[0])
+        self.labels = list(self.ax.texts)
+        self.title = self.fig.suptitle("", fontsize=9)
+        self.caption = self.fig.text(0.02, 0.02, "", fontsize=6.5, ha="left", va="bottom")
+        self.cax = None
+
+    def render(self, values: Mapping[int, float], title: str, unit: str, path: Path, *,
+               cmap: str = "viridis", diverging: bool = False, caption: str = "",
+               label: str | None = None) -> Path:
+        """Draw one quantity and write the PNG (atomically); see :func:`bullseye_figure`."""
+        norm, faces, hatches, texts, ink = _segment_style(values, cmap, _norm_of(values, diverging),
+                                                          "{:.1f}")
+        for bar, face, hatch in zip(self.bars, faces, hatches):
+            bar.set_facecolor(face)
+            bar.set_hatch(hatch)
+        for t, text, c in zip(self.labels, texts, ink):
+            t.set_text(text)
+            t.set_color(c)
+        if self.cax is not None:
+            self.cax.remove()
+        self.cax = self.fig.add_axes([0.8, 0.2, 0.04, 0.62])
+        sm = cm.ScalarMappable(norm=norm, cmap=matplotlib.colormaps[cmap])
+        self.fig.colorbar(sm, cax=self.cax, label=f"{label or title} ({unit})")
+        self.title.set_text(plain_text(title))
+        self.caption.set_text(plain_text(textwrap.fill(caption, 95)))
+        buf = io.BytesIO()
+        self.fig.savefig(buf, format="png", dpi=100)
+        atomic.write_bytes(path, buf.getvalue())
+        return path
+
+
 def bullseye_figure(values: Mapping[int, float], title: str, unit: str, path: Path, *,
                     cmap: str = "viridis", diverging: bool = False, caption: str = "",
-                    label: str | None = None) -> Path:
-    """One bull's-eye PNG with a colour bar labelled with the quantity and unit."""
-    fig = Figure(figsize=(4.6, 4.4), dpi=100)
-    ax = fig.add_axes([0.04, 0.14, 0.7, 0.74], projection="polar")
-    label = label or title
-    fin = np.array([v for v in values.values() if v is not None and np.isfinite(v)])
-    norm = None
-    if diverging and len(fin):
-        m = float(np.abs(fin).max()) or 1.0
-        norm = colors.TwoSlopeNorm(0.0, -m, m) if fin.min() < 0 < fin.max() else colors.Normalize(
-            float(fin.min()), float(fin.max()) if np.ptp(fin) > 0 else float(fin.min()) + 1.0)
-    norm = draw_bullseye(ax, values, cmap=cmap, norm=norm)
-    sm = cm.ScalarMappable(norm=norm, cmap=matplotlib.colormaps[cmap])
-    cax = fig.add_axes([0.8, 0.2, 0.04, 0.62])
-    fig.colorbar(sm, cax=cax, label=f"{label} ({unit})")
-    fig.suptitle(plain_text(title), fontsize=9)
-    fig.text(0.02, 0.02, plain_text(textwrap.fill(caption, 95)), fontsize=6.5, ha="left",
-             va="bottom")
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
-    atomic.write_bytes(path, buf.getvalue())
-    return path
+                    label: str | None = None, canvas: BullseyeCanvas | None = None) -> Path:
+    """One bull's-eye PNG with a colour bar labelled with the quantity and unit (drawn on
+    ``canvas`` when given: the figures of one study share one)."""
+    return (canvas or BullseyeCanvas()).render(values, title, unit, path, cmap=cmap,
+                                               diverging=diverging, caption=caption, label=label)
 
 
 def segment_values(metrics: Mapping[str, float] | None, stem: str) -> dict[int, float]:
@@ -113,7 +165,8 @@ def segment_values(metrics: Mapping[str, float] | None, stem: str) -> dict[int, 
 
 
 def quantity_figure(metrics: Mapping[str, float] | None, quantity: tuple, subject: str,
-                    out: Path, frames: str = "") -> tuple[Path, str] | str:
+                    out: Path, frames: str = "", canvas: BullseyeCanvas | None = None
+                    ) -> tuple[Path, str] | str:
     """The bull's-eye PNG of one entry of :data:`QUANTITIES`: (path, caption), or the reason
     it is not drawn (no value in any segment)."""
     name, stem, title, unit, cmap, diverging = quantity
@@ -124,5 +177,5 @@ def quantity_figure(metrics: Mapping[str, float] | None, quantity: tuple, subjec
                "anterior up, septum left, seen from the apex). Grey hatched: no value.")
     label = stem.split("_AHA")[0].replace("WT", "Wall thickness")
     path = bullseye_figure(vals, title, unit, Path(out) / f"{name}.png", cmap=cmap,
-                           diverging=diverging, caption=caption, label=label)
+                           diverging=diverging, caption=caption, label=label, canvas=canvas)
     return path, caption

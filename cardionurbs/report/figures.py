@@ -49,7 +49,7 @@ from cardionurbs.safe import plain_text
 from cardionurbs import nurbs
 from cardionurbs.heap import acyclic
 from cardionurbs.io import atomic
-from cardionurbs.report.bullseye import QUANTITIES as BULLSEYE_QUANTITIES, quantity_figure
+from cardionurbs.report.bullseye import QUANTITIES as BULLSEYE_QUANTITIES, BullseyeCanvas, quantity_figure
 
 __all__ = ["write_figures", "render_figures", "FigureSet", "FigureResult", "OKABE_ITO",
            "STRUCTURE_COLOURS", "FAMILY_COLOURS", "FLAG_COLOUR", "tag_data", "view_frame"]
@@ -366,6 +366,7 @@ class _Context:
     tags: Any                          # TagMetrics or None
     tag_frames: dict[int, list[dict]]  # frame -> tag_figure_data
     tag_note: str | None               # why tags are unavailable
+    bullseye: BullseyeCanvas | None = None   # the one bull's-eye figure of the study
 
     def surfaces(self, frame: int) -> dict:
         return dict(self.model.surfaces[frame])
@@ -789,8 +790,10 @@ def _regional_columns(ctx) -> Mapping:
 def _bullseye(quantity: tuple) -> FigureFn:
     """Figure function of one AHA bull's-eye (:mod:`cardionurbs.report.bullseye`)."""
     def fig(ctx, out):
+        if ctx.bullseye is None:
+            ctx.bullseye = BullseyeCanvas()
         res = quantity_figure(_regional_columns(ctx), quantity, ctx.subject, out,
-                              frames=f"ED frame {ctx.ed}, ES frame {ctx.es}")
+                              frames=f"ED frame {ctx.ed}, ES frame {ctx.es}", canvas=ctx.bullseye)
         return res if isinstance(res, str) else FigureResult(quantity[0], res[0], res[1], {}, [])
     return fig
 
