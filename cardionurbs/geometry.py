@@ -63,7 +63,11 @@ def in_plane_basis(normal: np.ndarray) -> np.ndarray:
 def _vector_area(points: np.ndarray) -> np.ndarray:
     """½ Σ pᵢ × pᵢ₊₁ of a closed 3-D loop (points centred first, for accuracy)."""
     p = points - points.mean(axis=0)
-    return 0.5 * np.cross(p, np.roll(p, -1, axis=0)).sum(axis=0)
+    q = np.concatenate((p[1:], p[:1]))                    # the next point (np.roll's rows)
+    cross = np.column_stack([p[:, 1] * q[:, 2] - p[:, 2] * q[:, 1],    # np.cross's products
+                             p[:, 2] * q[:, 0] - p[:, 0] * q[:, 2],
+                             p[:, 0] * q[:, 1] - p[:, 1] * q[:, 0]])
+    return 0.5 * cross.sum(axis=0)
 
 
 def polygon_area(points: np.ndarray, normal: np.ndarray | None = None, *,
@@ -105,7 +109,7 @@ def polygon_centroid(points: np.ndarray, normal: np.ndarray | None = None) -> np
     else:
         b, xy = None, p - c0
     x, y = xy[:, 0], xy[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    xn, yn = np.concatenate((x[1:], x[:1])), np.concatenate((y[1:], y[:1]))   # np.roll(., -1)
     cr = x * yn - xn * y
     a = cr.sum() / 2.0
     if abs(a) < 1e-9:

@@ -232,9 +232,21 @@ class Study:
         """Contours of one frame, optionally of some structures and one view."""
         if isinstance(structure, str):
             structure = (structure,)
-        return [c for c in self.contours if c.frame == frame
-                and (structure is None or c.structure in structure)
+        return [c for c in self._contour_index().get(frame, ())
+                if (structure is None or c.structure in structure)
                 and (view is None or c.view == view)]
+
+    def _contour_index(self) -> dict[int, list[Contour]]:
+        """{frame: contours}, in the order of ``contours``; rebuilt when ``contours`` is
+        replaced or changes length (as :meth:`_tag_index`)."""
+        cache = self.__dict__.get("_contour_cache")
+        if cache is None or cache[0] is not self.contours or cache[1] != len(self.contours):
+            idx: dict[int, list[Contour]] = {}
+            for c in self.contours:
+                idx.setdefault(c.frame, []).append(c)
+            cache = (self.contours, len(self.contours), idx)
+            self.__dict__["_contour_cache"] = cache
+        return cache[2]
 
     def tags_at(self, frame: int, family: str | None = None) -> list[TagLine]:
         """Tag lines of one frame (optionally of one family), in the order of ``tags``."""

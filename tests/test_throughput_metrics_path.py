@@ -119,3 +119,72 @@ def test_manifest_numbers_fast_path_keeps_each_message(tmp_path):
                      ([1.0, 11.0, 2.0], r"in \[-10, 10\]"), ([1.0, "2", 3.0], "must be a number")):
         with pytest.raises(StudyError, match=msg):
             c.numbers(bad, "position", 3, -10, 10)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.booleans(), st.booleans())
+def test_sample_points_equal_curve_evaluate(seed, closed, rational):
+    """The distance bounds' samples from cached basis values: curve.evaluate's numbers, bit
+    for bit, for every curve sharing the knots."""
+    from cardionurbs.nurbs import NurbsCurve
+    from cardionurbs.nurbs.projection import _sample_points, _span_samples
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(5, 14))
+    inner = np.sort(rng.uniform(0.05, 0.95, n - 4 if not closed else n - 1))
+    for k in range(3):                   # three curves on one knot vector (the cache hits)
+        P = rng.normal(0, 20, (n, 3))
+        w = rng.uniform(0.5, 2.0, n) if rational else None
+        if closed:
+            U = np.concatenate([inner[-3:] - 1, [0.0], inner, [1.0], inner[:3] + 1])
+            c = NurbsCurve(3, U, P, w, closed=True)
+        else:
+            c = NurbsCurve(3, np.concatenate([[0] * 4, inner, [1] * 4]), P, w)
+        lo, hi = c.domain
+        us = _span_samples(c.knots, c.degree, lo, hi, 16, c.closed, minimum=256)
+        assert np.array_equal(_sample_points(c, us), c.evaluate(us))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-50, 50), min_size=1, max_size=8, unique=True), st.data())
+def test_stack_ends_equal_is_extrapolated(keys, data):
+    from types import SimpleNamespace
+    from cardionurbs.analysis.tagqc import _is_extrapolated, _stack_ends
+    secs = [SimpleNamespace(slice=f"sa_{k:02d}", key=v) for k, v in enumerate(keys)]
+    names = [s.slice for s in secs]
+    exclude = set(data.draw(st.lists(st.sampled_from(names), max_size=len(names))))
+    slices = data.draw(st.lists(st.sampled_from(names), min_size=1, unique=True))
+    got = _stack_ends(secs, slices, exclude)
+    assert got == {s: _is_extrapolated(secs, s, exclude) for s in slices}
+
+
+def test_contours_at_index_equals_a_scan_and_follows_changes():
+    from test_tags_analytic import AnalyticHeart
+    study = AnalyticHeart().study()
+
+    def scan(frame, structure=None, view=None):
+        structure = (structure,) if isinstance(structure, str) else structure
+        return [c for c in study.contours if c.frame == frame
+                and (structure is None or c.structure in structure)
+                and (view is None or c.view == view)]
+
+    frames = sorted({c.frame for c in study.contours})
+    for f in frames + [999]:
+        for structure in (None, "lv_endo", ("lv_endo", "rv_endo")):
+            for view in (None, "SA", "LA"):
+                assert study.contours_at(f, structure, view) == scan(f, structure, view)
+    gone = study.contours.pop()                     # the list changes: the index follows
+    assert gone not in study.contours_at(gone.frame)
+    study.contours = study.contours + [gone]        # a new list
+    assert study.contours_at(gone.frame) == scan(gone.frame)
+
+
+def test_off_plane_distances_equal_one_line_at_a_time():
+    from cardionurbs.io.checks import _Normals, _off_plane_distances, _plane_of
+    from test_tags_analytic import AnalyticHeart
+    study = AnalyticHeart().study()
+    normals = _Normals()
+    planes = [_plane_of(study, t, None) for t in study.tags]
+    got = _off_plane_distances(study.tags, planes, normals)
+    want = [float(np.abs((t.points - p.position) @ normals.of(p)).max())
+            for t, p in zip(study.tags, planes)]
+    assert got == pytest.approx(want, rel=1e-12, abs=1e-12)

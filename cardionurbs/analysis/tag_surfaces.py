@@ -373,12 +373,21 @@ def la_sections(study: Study, frame: int, apex: np.ndarray,
     e = (base - apex) / np.linalg.norm(base - apex)
     e1, e2, _ = axis_frame(apex, base)
     out: dict[int, list[TagSection]] = defaultdict(list)
-    for t in study.tags_at(frame, "la"):
-        pts = np.asarray(t.points, dtype=float)
-        rel = pts - apex
-        radial = rel - np.outer(rel @ e, e)
-        r = np.linalg.norm(radial, axis=1)
-        steps = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    lines = study.tags_at(frame, "la")
+    if not lines:
+        return {}
+    # every line's radial offsets from the axis and steps at once (row by row, the same
+    # numbers as line by line), then each line's cut
+    P = np.concatenate([np.asarray(t.points, dtype=float) for t in lines])
+    ends = np.cumsum([len(t.points) for t in lines])
+    REL = P - apex
+    RADIAL = REL - np.outer(REL @ e, e)
+    R = np.linalg.norm(RADIAL, axis=1)
+    STEPS = np.linalg.norm(np.diff(P, axis=0), axis=1)
+    for t, stop in zip(lines, ends):
+        start = stop - len(t.points)
+        pts, radial, r = P[start:stop], RADIAL[start:stop], R[start:stop]
+        steps = STEPS[start:stop - 1]
         limit = max(GAP_FACTOR * median(steps), GAP_MIN_MM) if len(steps) >= 2 else np.inf
         gaps = np.flatnonzero(steps > limit)                # (gap_limit of the line)
         # the gap nearest the axis, if the axis lies across it

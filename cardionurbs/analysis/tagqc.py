@@ -50,6 +50,7 @@ from __future__ import annotations
 
 from bisect import bisect_left
 from dataclasses import dataclass
+from itertools import product
 
 import numpy as np
 
@@ -94,11 +95,16 @@ class LineDeparture:
 def _samples(section, ns: int = _NU) -> np.ndarray:
     """(ns, 3) points of a section's fitted curve at uniform u."""
     from cardionurbs.nurbs.basis import basis_matrix
-    key = (len(section.knots), ns)
+    U = section.knots
+    key = (len(U), ns)
     B = _BASIS.get(key)
-    if B is None or B[0].shape != section.knots.shape or not np.array_equal(B[0], section.knots):
-        B = (section.knots.copy(), basis_matrix(section.knots, 3, np.linspace(0.0, 1.0, ns)))
-        _BASIS[key] = B
+    # the sections of one fit share one knot array (fit_sections): the same object is the
+    # same knots; another array is compared value by value
+    if B is None or (B[2] is not U and (B[0].shape != U.shape or not np.array_equal(B[0], U))):
+        B = (U.copy(), basis_matrix(U, 3, np.linspace(0.0, 1.0, ns)), U)
+    elif B[2] is not U:
+        B = (B[0], B[1], U)
+    _BASIS[key] = B
     return B[1] @ section.ctrl
 
 
@@ -378,13 +384,14 @@ def loo_residuals_many(tags: list[tuple[list[TagSection], list[np.ndarray], set[
     lines = []            # (tag, slice, pair names) per problem
     points, Ca, Cb, origins, normals = [], [], [], [], []
     for t, (secs, samples, exclude) in enumerate(tags):
-        if len([s for s in secs if s.slice not in exclude]) < 3:
+        active = [k for k, s in enumerate(secs) if s.slice not in exclude]
+        if len(active) < 3:
             continue
-        for i, sec in enumerate(secs):
-            if sec.slice in exclude:
-                continue
-            keep = [k for k, s in enumerate(secs) if k != i and s.slice not in exclude]
-            keys = [secs[k].key for k in keep]
+        active_keys = [secs[k].key for k in active]
+        for pos, i in enumerate(active):
+            sec = secs[i]
+            keep = active[:pos] + active[pos + 1:]
+            keys = active_keys[:pos] + active_keys[pos + 1:]
             for a, b in _neighbour_pairs(keys, sec.key):
                 lines.append((t, sec.slice, (secs[keep[a]].slice, secs[keep[b]].slice)))
                 points.append(sec.points)
@@ -570,6 +577,20 @@ def _is_extrapolated(secs: list[TagSection], slc: str, exclude: set[str]) -> boo
     return bool(keys) and not (min(keys) <= mine <= max(keys))
 
 
+def _stack_ends(secs: list[TagSection], slices, exclude: set[str]) -> dict[str, bool]:
+    """:func:`_is_extrapolated` of each of ``slices`` (lines of one tag), from one pass over
+    the tag's sections."""
+    keys = [(s.slice, s.key) for s in secs if s.slice not in exclude]
+    own: dict[str, float] = {}
+    for s in secs:
+        own.setdefault(s.slice, s.key)
+    out = {}
+    for slc in slices:
+        others = [k for sl, k in keys if sl != slc]
+        out[slc] = bool(others) and not (min(others) <= own[slc] <= max(others))
+    return out
+
+
 def _time_witnesses(temporal: list[dict], i: int, slc: str, pair: tuple[str, str]) -> list[float]:
     """Residuals (mm) of the same line against the same pair at the neighbouring frames (each
     a separate witness, so that a jump at one neighbouring frame cannot make a good line look
@@ -617,14 +638,19 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
 
     def departures() -> dict[tuple[int, str], float]:
         lines, index_problems = [], []        # index trends of every line, one batch
+        by_pair: dict[tuple[str, tuple], list] = {}    # (slice, pair) -> [(tag, residual)]
+        for j in R:
+            for slc in R[j]:
+                for pair, r in R[j][slc].items():
+                    by_pair.setdefault((slc, pair), []).append((j, r))
         for i in R:
+            ends = _stack_ends(groups[i], R[i], excl[i]) if temporal else {}
             for slc in R[i]:
-                extrap = bool(temporal) and _is_extrapolated(groups[i], slc, excl[i])
+                extrap = ends.get(slc, False)
                 for pair, r in R[i][slc].items():
                     trends = _time_witnesses(temporal, i, slc, pair) if extrap else []
                     if len(trends) < 2:      # not bracketed in time: the index trend
-                        nb = [(j, R[j][slc][pair]) for j in R
-                              if j != i and slc in R[j] and pair in R[j][slc]]
+                        nb = [(j, r_j) for j, r_j in by_pair[(slc, pair)] if j != i]
                         index_problems.append((nb, i))
                         trends = None
                     lines.append(((i, slc), r, trends))
@@ -672,6 +698,10 @@ def qc_sections(study: Study, frame: int, long_axis: tuple | None) -> dict[tuple
     return out
 
 
+#: SA tags whose initial leave-one-out residuals :func:`tag_departures` measures in one batch
+_TAGS_PER_BATCH = 160
+
+
 def tag_departures(study: Study, threshold: float = DEFAULT_THRESHOLD,
                    frames: list[int] | None = None, long_axis: tuple | None = None,
                    surfaces: dict | None = None) -> list[LineDeparture]:
@@ -688,18 +718,23 @@ def tag_departures(study: Study, threshold: float = DEFAULT_THRESHOLD,
     frames = sorted(frames)
     groups_at: dict[int, dict] = {}
     spacing_at: dict[int, dict] = {}
-    R0: dict[tuple[int, str], dict] = {}      # initial SA residuals, per (frame, family)
+    R0: dict[tuple[int, str], dict] = {key: {} for key in product(frames, ("sa1", "sa2"))}
+    sa = []                   # every SA tag of every frame: (frame, family, index, sections)
     for f in frames:
         if surfaces is not None and f in surfaces:
             groups_at[f] = {k: ts.sections for k, ts in surfaces[f].items()}
         else:
             groups_at[f] = qc_sections(study, f, long_axis)
         spacing_at[f] = {fam: tag_spacing(study, fam, f) for fam in TAG_FAMILIES}
-        sa = [(fam, i, secs) for (fam, i), secs in groups_at[f].items() if fam in ("sa1", "sa2")]
+        sa += [(f, fam, i, secs) for (fam, i), secs in groups_at[f].items() if fam in ("sa1", "sa2")]
+    # the initial SA residuals (per frame and family) of many frames' tags per batch (a few
+    # megabytes of samples each)
+    for start in range(0, len(sa), _TAGS_PER_BATCH):
+        part = sa[start:start + _TAGS_PER_BATCH]
         res = loo_residuals_many([(secs, [_samples(s) for s in secs], frozenset())
-                                  for _, _, secs in sa])
-        for fam in ("sa1", "sa2"):
-            R0[(f, fam)] = {i: r for (g, i, _), r in zip(sa, res) if g == fam}
+                                  for _, _, _, secs in part])
+        for (f, fam, i, _), r in zip(part, res):
+            R0[(f, fam)][i] = r
     for n, f in enumerate(frames):
         groups, spacing = groups_at[f], spacing_at[f]
         near = [frames[m] for m in (n - 1, n + 1) if 0 <= m < len(frames)]

@@ -492,9 +492,13 @@ class _Normals(dict):
 
 
 def _off_plane(study: Study, plane: ImagePlane, pts: np.ndarray, what: str, file, ann,
-               warnings: list[str], normals: _Normals, fatal: bool = True) -> None:
-    d = float(np.abs((np.asarray(pts, float).reshape(-1, 3) - plane.position)
-                     @ normals.of(plane)).max())
+               warnings: list[str], normals: _Normals, fatal: bool = True,
+               d: float | None = None) -> None:
+    """Error (or warning) when points lie off their image plane; ``d``: their largest
+    distance from it when already known (:func:`_off_plane_distances`)."""
+    if d is None:
+        d = float(np.abs((np.asarray(pts, float).reshape(-1, 3) - plane.position)
+                         @ normals.of(plane)).max())
     limit = max(OFF_PLANE_ERROR_MM, 0.5 * plane.thickness)
     if d > limit and fatal:
         raise StudyError(f"{what} lies {d:.2f} mm off its image plane (limit {limit:.2f} mm)",
@@ -502,6 +506,16 @@ def _off_plane(study: Study, plane: ImagePlane, pts: np.ndarray, what: str, file
     if d > OFF_PLANE_WARN_MM:
         warnings.append(f"{_src(study, file)}: slice {ann.slice}, frame {ann.frame}: {what} lies "
                         f"up to {d:.2f} mm off its image plane")
+
+
+def _off_plane_distances(items: list, planes: list[ImagePlane], normals: _Normals) -> np.ndarray:
+    """Largest distance (mm) of each item's points from its plane, for all items at once."""
+    n = np.array([len(it.points) for it in items])
+    P = np.concatenate([np.asarray(it.points, float).reshape(-1, 3) for it in items])
+    origin = np.repeat(np.array([p.position for p in planes]), n, axis=0)
+    normal = np.repeat(np.array([normals.of(p) for p in planes]), n, axis=0)
+    d = np.abs(np.einsum("ij,ij->i", P - origin, normal))
+    return np.maximum.reduceat(d, np.r_[0, np.cumsum(n)[:-1]])
 
 
 def _check_annotations(study: Study, warnings: list[str]) -> None:
@@ -552,14 +566,27 @@ def _check_annotations(study: Study, warnings: list[str]) -> None:
             if c.closed:
                 raise StudyError(msg, file=_src(study, file), slice=c.slice, frame=c.frame)
             warnings.append(f"{_src(study, file)}: slice {c.slice}, frame {c.frame}: open {msg}")
-    for t in study.tags:
+    # every tag line's plane and distance from it first (one batch), then the checks in order
+    tag_planes: dict[int, ImagePlane | None] = {}
+    for k, t in enumerate(study.tags):
+        if len(t.points) >= 2:
+            try:
+                tag_planes[k] = _plane_of(study, t, None)
+            except StudyError:              # raised again, in its turn, below
+                continue
+    placed = [k for k, p in tag_planes.items() if p is not None]
+    tag_d = dict(zip(placed, _off_plane_distances([study.tags[k] for k in placed],
+                                                  [tag_planes[k] for k in placed], normals)
+                     if placed else []))
+    for k, t in enumerate(study.tags):
         what = f"tag {t.family}#{t.index}"
         if len(t.points) < 2:
             raise StudyError(f"{what} has {len(t.points)} point(s), needs >= 2",
                              file=_src(study), slice=t.slice, frame=t.frame)
-        plane = _plane_of(study, t, None)
+        plane = tag_planes[k] if k in tag_planes else _plane_of(study, t, None)
         if plane is not None:
-            _off_plane(study, plane, t.points, what, None, t, warnings, normals)
+            _off_plane(study, plane, t.points, what, None, t, warnings, normals,
+                       d=float(tag_d[k]) if k in tag_d else None)
     for lm in study.landmarks:
         plane = _plane_of(study, lm, None)
         if plane is not None:

@@ -17,6 +17,7 @@ from scipy.spatial import cKDTree
 
 from cardionurbs.errors import NurbsInputError
 from cardionurbs.nurbs import _validate as V
+from cardionurbs.nurbs.basis import basis_function_derivatives, find_spans
 from cardionurbs.nurbs.curve import NurbsCurve
 from cardionurbs.nurbs.knots import distinct_knots
 from cardionurbs.nurbs.surface import NurbsSurface
@@ -40,6 +41,31 @@ def _span_samples(knots: np.ndarray, degree: int, lo: float, hi: float, per_span
     return u if periodic else np.append(u, hi)
 
 
+#: (degree, closed, knots, parameters) -> the basis values and control-point rows of a sample
+_SAMPLE_BASES: dict = {}
+
+
+def _sample_points(curve: Any, u: np.ndarray) -> np.ndarray:
+    """``curve.evaluate(u)`` for a sample ``u`` that many curves on the same knots ask for
+    (the fits of one surface's sections share a knot vector, and so the samples of their
+    distance bounds): the basis values are computed once per knots and sample, and each
+    curve only contracts them with its control points (the same arithmetic)."""
+    key = (curve.degree, curve.closed, curve.knots.tobytes(), u.tobytes())
+    hit = _SAMPLE_BASES.get(key)
+    if hit is None:
+        uu = curve._params(u)
+        p = curve.degree
+        spans = find_spans(curve.knots, p, uu)
+        N = basis_function_derivatives(spans, uu, p, curve.knots, 0)[:, 0, :]
+        idx = spans[:, None] - p + np.arange(p + 1)[None, :]
+        if len(_SAMPLE_BASES) >= 256:
+            _SAMPLE_BASES.clear()
+        hit = _SAMPLE_BASES[key] = (N, idx)
+    N, idx = hit
+    Cw = np.einsum("kj,kjc->kc", N, curve.homogeneous_control_points[idx])
+    return Cw[:, :-1] / Cw[:, -1:]
+
+
 def _wrap_or_clip(u: np.ndarray, lo: float, hi: float, periodic: bool) -> np.ndarray:
     return lo + np.mod(u - lo, hi - lo) if periodic else np.clip(u, lo, hi)
 
@@ -54,7 +80,7 @@ def curve_closest_points(curve: Any, points: Any, iterations: int = 8,
     Q = V.point_rows(points, "points", curve.dimension)
     lo, hi = curve.domain
     us = _span_samples(curve.knots, curve.degree, lo, hi, samples_per_span, curve.closed)
-    _, idx = cKDTree(curve.evaluate(us)).query(Q)
+    _, idx = cKDTree(_sample_points(curve, us)).query(Q)
     u = us[idx]
     dist = np.linalg.norm(curve.evaluate(u) - Q, axis=1)   # the seed distance: Newton only lowers it
     active = np.arange(u.size)
@@ -93,7 +119,7 @@ def curve_seed_distances(curve: Any, points: Any, samples_per_span: int = 16) ->
     Q = V.point_rows(points, "points", curve.dimension)
     lo, hi = curve.domain
     us = _span_samples(curve.knots, curve.degree, lo, hi, samples_per_span, curve.closed)
-    return cKDTree(curve.evaluate(us)).query(Q)[0]
+    return cKDTree(_sample_points(curve, us)).query(Q)[0]
 
 
 def curve_distance_bounds(curve: Any, points: np.ndarray, samples_per_span: int = 16
@@ -108,7 +134,7 @@ def curve_distance_bounds(curve: Any, points: np.ndarray, samples_per_span: int 
     lo, hi = curve.domain
     us = _span_samples(curve.knots, curve.degree, lo, hi, samples_per_span, curve.closed,
                        minimum=256)
-    S = curve.evaluate(us)
+    S = _sample_points(curve, us)
     chords = np.linalg.norm(np.diff(np.concatenate([S, S[:1]]) if curve.closed else S, axis=0),
                             axis=1)
     upper, _ = cKDTree(S).query(points)
