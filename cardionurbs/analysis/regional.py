@@ -16,10 +16,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from cardionurbs.analysis.aha import AhaFrame, model_aha_frame
 from cardionurbs.analysis.strain import (DIRECTION_SMOOTHING_MM, STRAIN_COLUMNS, STRAIN_KINDS,
-                                         myocardium_samples, smoothed_normals, tag_strain)
+                                         cardiac_directions, myocardium_samples, smoothed_normals, tag_strain)
 from cardionurbs.analysis.tag_motion import BOUNDARY_SAMPLES, Boundary, ed_tag_planes, frame_tag_points
 from cardionurbs.analysis.surface_strain import SURFACE_STRAIN_COLUMNS, surface_strains
 from cardionurbs.analysis.thickness import (THICKNESS_COLUMNS, surface_samples, thickness_by_segment,
@@ -80,8 +81,8 @@ class RegionalMetrics(ColumnMapping):
 def wall_boundaries(model, frame: int, cache: dict | None = None) -> list[Boundary]:
     """The LV endo- and epicardial contours of ``frame`` (every view) with the same surface at
     the model's ED frame, sampled on a (u, v) grid (:data:`~cardionurbs.analysis.tag_motion.BOUNDARY_SAMPLES`)
-    for the tag-line fit's boundary term; ``cache``: {structure: (samples, normals)} shared
-    between frames."""
+    for the tag-line fit's boundary term; ``cache``: {structure: (samples, normals, their
+    k-d tree)} shared between frames."""
     cache = {} if cache is None else cache
     ed = model.surfaces[model.ed_frame]
     out = []
@@ -90,14 +91,15 @@ def wall_boundaries(model, frame: int, cache: dict | None = None) -> list[Bounda
         if not pts or structure not in ed:
             continue
         if structure not in cache:
-            cache[structure] = surface_samples(ed[structure], *BOUNDARY_SAMPLES)[:2]
+            samples, normals = surface_samples(ed[structure], *BOUNDARY_SAMPLES)[:2]
+            cache[structure] = (samples, normals, cKDTree(samples))
         out.append(Boundary(np.vstack(pts), *cache[structure]))
     return out
 
 
 def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
                      volume_prior_sd: float | None = None, boundaries: bool = True,
-                     deformation=None) -> RegionalMetrics:
+                     deformation=None, misfit_noise: bool = True) -> RegionalMetrics:
     """Regional columns of a model; ``tags``: its :class:`~cardionurbs.analysis.tags.TagMetrics`
     (material points) when the study is tagged. ``incompressibility``: how the tag-strain fit
     of noisy tags uses near-incompressibility (:func:`cardionurbs.analysis.strain.tag_strain`:
@@ -106,7 +108,8 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
     epicardium join the tag-line fit as material boundaries (:func:`wall_boundaries`; False:
     the tags alone, for comparison). ``deformation``: (points, frame) -> F replacing the
     fitted F in the strains (:func:`~cardionurbs.analysis.strain.tag_strain`; validation with
-    a known motion)."""
+    a known motion). ``misfit_noise``: the tag-line fit's σ is the larger of the tracking
+    noise and its own misfit (False: the tracking noise alone, for comparison)."""
     cols = {c: NAN for c in THICKNESS_COLUMNS + STRAIN_COLUMNS + SURFACE_STRAIN_COLUMNS}
     out = RegionalMetrics(cols)
     ed, es = model.ed_frame, model.es_frame
@@ -139,8 +142,10 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
     a = out.aha[ed]
     wall = myocardium_samples(P, N, smp["thickness"], smp["weight"], a.apex, a.base,
                               grid=smp["grid"], subdivide=WALL_SUBDIVISION)
-    # the strain directions: the normals averaged over DIRECTION_SMOOTHING_MM
+    # the strain directions: the normals averaged over DIRECTION_SMOOTHING_MM; the wall samples'
+    # directions and segments are the same at every frame
     N = smoothed_normals(P, smp["raw_normals"], smp["weight"], DIRECTION_SMOOTHING_MM)
+    wall = (*wall, cardiac_directions(wall[0], P, N, a.apex, a.base), a.segments(wall[0]))
     frames = [f for f in material.frames if f != material.ed_frame]
     study = model.study
     flagged = {(fl.family, fl.index, fl.slice, fl.frame) for fl in getattr(tags, "flags", [])}
@@ -157,7 +162,7 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
                          tag_lines=lines, noise_mm=planes.rms_mm if planes is not None else 0.0,
                          incompressibility=incompressibility, volume_prior_sd=volume_prior_sd,
                          boundary=wall_boundaries(model, f, ed_samples) if boundaries else (),
-                         deformation=deformation)
+                         deformation=deformation, misfit_noise=misfit_noise)
         if res is not None:
             if planes is not None:
                 res["tag_noise_mm"] = planes.rms_mm

@@ -264,15 +264,17 @@ class CylindricalMotionFit:
         ia, ib, ic = self._index
         C[ic, ia, ib] = self.coef
         C = C.reshape(2 * pm + 1, -1)
-        shape = (len(th), pa + 1, pb + 1, 3)
+        shape = (len(th), (pa + 1) * (pb + 1), 3)
         W = (T @ C).reshape(shape)                               # Σ_m T_m coef[a, b, m]
-        values = np.einsum("na,nb,nabc->nc", L, R, W)
+
+        def contract(La, Rb, W):                                 # Σ_ab La_a Rb_b W_abc
+            return np.einsum("nk,nkc->nc", (La[:, :, None] * Rb[:, None, :]).reshape(len(th), -1), W)
+        values = contract(L, R, W)
         if not derivatives:
             return (r, th, zeta), values
         dL, dR, dT = factors[3:]
-        d_theta = np.einsum("na,nb,nabc->nc", L, R, (dT @ C).reshape(shape))
-        return (r, th, zeta), values, (np.einsum("na,nb,nabc->nc", L, dR, W), d_theta,
-                                       np.einsum("na,nb,nabc->nc", dL, R, W))
+        d_theta = contract(L, R, (dT @ C).reshape(shape))
+        return (r, th, zeta), values, (contract(L, dR, W), d_theta, contract(dL, R, W))
 
     def image_radius(self, X: np.ndarray) -> np.ndarray:
         """r' (mm): the fitted distance of the images of ED points X (n, 3) from the frame's
@@ -301,6 +303,28 @@ class CylindricalMotionFit:
                          np.broadcast_to(e, (len(t), 3))], axis=2)      # (n, 3, 3): ∂x/∂(q', θ', ζ')
         return self._position(m, th), (dpos, D[0]), self._gradient(r, th, m, [A @ self.coef for A in D[1:]])
 
+    def perturbed_gradients(self, X: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """F (2p, n, 3, 3) at ED points X (n, 3) for the p free coefficients (:attr:`params`)
+        moved one at a time by +steps[j] (rows 0 … p − 1) and by −steps[j] (rows p … 2p − 1):
+        the evaluation points of central differences with respect to the coefficients. The
+        map (S1) is linear in its coefficients, so moving coefficient j by h moves the map's
+        values and derivatives at X by h times basis function j's; F follows from them by
+        (S2), all perturbations in one batch."""
+        r, th, zeta = cylindrical(X, self.apex0, self.frame0)
+        D = self._design(r * r, th, zeta)                        # values, d/dq, d/dθ, d/dζ: (n, b)
+        nb, n = D[0].shape[1], len(th)
+        comp, basis = np.divmod(np.flatnonzero(self.free), nb)   # params -> (component, basis)
+        p = len(comp)
+        h = np.r_[steps, -np.asarray(steps, float)]
+        rows, comp2 = np.arange(2 * p), np.r_[comp, comp]
+        moved = []
+        for A in D:
+            base = A @ self.coef                                # (n, 3) at the current coefficients
+            out = np.repeat(base[None], 2 * p, axis=0)          # (2p, n, 3)
+            out[rows, :, comp2] += h[:, None] * A[:, np.r_[basis, basis]].T
+            moved.append(out)
+        return self._gradient(r, th, moved[0], moved[1:])
+
     def radius_and_gradient(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(:meth:`image_radius`, :meth:`gradient`) of ED points X (n, 3), the map evaluated once."""
         (r, th, _), m, dm = self._mapped(X)
@@ -312,21 +336,23 @@ class CylindricalMotionFit:
         return self._gradient(r, th, m, dm)
 
     def _gradient(self, r, th, m, dm) -> np.ndarray:
-        """F from the map's values m and derivatives dm = (d/dq, d/dθ, d/dζ), each (n, 3)."""
-        J = np.stack(dm, axis=2)                                 # (n, 3 out, 3 in)
-        J[:, 1, 1] += 1.0                                       # θ' = θ + g2
-        rr = np.sqrt(np.maximum(m[:, 0], 1.0))                  # r' >= 1 mm (never near the axis)
-        J[:, 0, :] /= (2.0 * rr)[:, None]                       # rows: r', θ', ζ'
+        """F (…, n, 3, 3) from the map's values m and derivatives dm = (d/dq, d/dθ, d/dζ), each
+        (…, n, 3) (a leading batch axis: the same n points under several maps), at ED points
+        with cylindrical (r, θ) (n,)."""
+        J = np.stack(dm, axis=-1)                                # (…, n, 3 out, 3 in)
+        J[..., 1, 1] += 1.0                                     # θ' = θ + g2
+        rr = np.sqrt(np.maximum(m[..., 0], 1.0))                # r' >= 1 mm (never near the axis)
+        J[..., 0, :] /= (2.0 * rr)[..., None]                   # rows: r', θ', ζ'
         e1, e2, e = self.frame0
         c, s = np.cos(th)[:, None], np.sin(th)[:, None]
         dX = np.stack([2 * r[:, None] * (c * e1 + s * e2), (-s * e1 + c * e2) / r[:, None],
                        np.broadcast_to(e, (len(r), 3))], axis=1)              # rows: ∇q, ∇θ, ∇ζ
         f1, f2, fe = self.frame1
-        t1 = th + m[:, 1]
-        c1, s1 = np.cos(t1)[:, None], np.sin(t1)[:, None]
-        dx = np.stack([c1 * f1 + s1 * f2, rr[:, None] * (-s1 * f1 + c1 * f2),
-                       np.broadcast_to(fe, (len(r), 3))], axis=2)             # columns: ∂x/∂(r',θ',ζ')
-        return dx @ J @ dX
+        t1 = th + m[..., 1]
+        c1, s1 = np.cos(t1)[..., None], np.sin(t1)[..., None]
+        dx = np.stack([c1 * f1 + s1 * f2, rr[..., None] * (-s1 * f1 + c1 * f2),
+                       np.broadcast_to(fe, c1.shape[:-1] + (3,))], axis=-1)   # columns: ∂x/∂(r',θ',ζ')
+        return dx @ (J @ dX)
 
 
 def green_lagrange(F: np.ndarray) -> np.ndarray:
@@ -352,6 +378,24 @@ def cardiac_directions(X: np.ndarray, endo_points: np.ndarray, endo_normals: np.
 def directional_strains(E: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """(n, 3) strains in % along the rows of ``dirs``: 100 dᵀEd (Cartesian E and d)."""
     return 100.0 * np.einsum("nki,nij,nkj->nk", dirs, E, dirs)
+
+
+def segment_strain_quantities(points: np.ndarray, directions: np.ndarray, labels: np.ndarray,
+                              weights: np.ndarray):
+    """The segment strains at ED wall ``points`` as a function of F:
+    :class:`~cardionurbs.analysis.tag_motion.PointQuantities` giving, for F (k, n, 3, 3), the
+    weighted means (k, 3 s) over the segments 1–16 present (segment-major, then Ecc, Ell,
+    Err) of the strains along ``directions`` (:func:`segment_means`, batched)."""
+    from cardionurbs.analysis.tag_motion import PointQuantities, segment_mean_matrix
+    seg = (labels >= 1) & (labels <= 16)
+    M = np.zeros((len(np.unique(labels[seg])), len(labels)))
+    M[:, seg] = segment_mean_matrix(labels[seg], weights[seg])[0]
+
+    def reduce(F):
+        E = green_lagrange(F.reshape(-1, 3, 3)).reshape(F.shape)
+        v = 100.0 * np.einsum("nai,knij,naj->kna", directions, E, directions)
+        return np.einsum("sn,knc->ksc", M, v).reshape(len(F), -1)
+    return PointQuantities(((points, reduce),))
 
 
 def segment_means(values: np.ndarray, labels: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -464,13 +508,18 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
                myocardium: tuple[np.ndarray, np.ndarray] | None = None,
                tag_lines: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                noise_mm: float = 0.0, incompressibility: bool | str = "prior",
-               volume_prior_sd: float | None = None, boundary=(), deformation=None) -> dict | None:
+               volume_prior_sd: float | None = None, boundary=(), deformation=None,
+               misfit_noise: bool = True) -> dict | None:
     """Strain ED → ``frame`` from the tracked material points: {"columns", "det_F" (mean),
     "det_F_range", "n_points", "counts", "fit_residual_mm", "method"}; None with too few points.
     ``apex``, ``base``: the ED long axis; ``axis``: (apex, base) at ``frame`` (default ED's).
     ``myocardium``: (points, volumes) filling the ED wall (:func:`myocardium_samples`): the
     fitted field is averaged over those between the most apical and most basal tracked
-    points (a volume mean over the tagged myocardium); default: the material points.
+    points (a volume mean over the tagged myocardium); default: the material points. It may
+    carry the samples' strain directions and AHA segments as third and fourth items
+    (:func:`cardiac_directions` with these ``endo_points``/``endo_normals``/axis, and
+    ``aha.segments``): both are per point and the same at every frame, so a time course
+    computes them once.
     ``tag_lines``: (points (n, 3), ED plane normals (n, 3), offsets (n,)) of the frame's tag
     points (:mod:`cardionurbs.analysis.tag_motion`): the fit of the material points is then
     refined on them by orthogonal-distance regression (method "tag lines"); else the
@@ -494,6 +543,9 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     surfaces at ED (:class:`~cardionurbs.analysis.tag_motion.Boundary`): the wall's material
     boundaries join the tag-line fit as data (term (T3) of
     :mod:`cardionurbs.analysis.tag_motion`).
+    ``misfit_noise``: the fit's σ is the larger of ``noise_mm`` and the tag points' misfit
+    (:func:`~cardionurbs.analysis.tag_motion.fit_tag_motion`; "sigma_mm" in the result);
+    False: ``noise_mm`` alone, for comparison.
     ``deformation``: (points, frame) -> F (n, 3, 3), used in place of the fitted map's F for the
     strains (validation: a phantom's exact motion,
     :meth:`cardionurbs.phantom.generate.Phantom.deformation_gradient`; the fit, the near-axis
@@ -516,8 +568,11 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
         inside = ((hy >= h.min()) & (hy <= h.max())
                   & (np.linalg.norm(radial, axis=1) >= AXIS_CLEARANCE_MM))
         Y, vol = myocardium[0][inside], myocardium[1][inside]
-    dirs = cardiac_directions(Y, endo_points, endo_normals, apex, base)
-    labels = aha.segments(Y)
+    if myocardium is not None and len(myocardium) == 4:
+        dirs, labels = myocardium[2][inside], myocardium[3][inside]
+    else:
+        dirs = cardiac_directions(Y, endo_points, endo_normals, apex, base)
+        labels = aha.segments(Y)
     w = np.ones(len(Y)) if vol is None else vol
     if tag_lines is not None and len(tag_lines[0]) >= MIN_TAG_POINTS:
         # the quantities the regularisation is chosen for: the segment strains over a
@@ -525,10 +580,7 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
         sub = np.arange(0, len(Y), max(1, len(Y) // (2 * RISK_SAMPLES)))
         sub = sub[fit.image_radius(Y[sub]) >= AXIS_CLEARANCE_MM]
         sub = sub[::max(1, len(sub) // RISK_SAMPLES)]
-
-        def segment_strains(f):
-            v = directional_strains(green_lagrange(f.gradient(Y[sub])), dirs[sub])
-            return segment_means(v, labels[sub], w[sub]).ravel()
+        segment_strains = segment_strain_quantities(Y[sub], dirs[sub], labels[sub], w[sub])
         if incompressibility not in (True, False, None, "prior", "risk"):
             raise ValueError(f"incompressibility: 'prior', 'risk' or False, not {incompressibility!r}")
         prior_sd = None
@@ -537,9 +589,10 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
         fit = fit.expanded(TAG_LINE_ORDERS, TRANSMURAL_ORDERS, AXIAL_HARMONICS)
         out = fit_tag_motion(fit, *tag_lines, noise_mm=noise_mm, quantities=segment_strains,
                              volume_samples=(Y[sub], w[sub], labels[sub]) if incompressibility else None,
-                             volume_prior_sd=prior_sd, boundary=boundary)
+                             volume_prior_sd=prior_sd, boundary=boundary, misfit_noise=misfit_noise)
         info.update(method="tag lines", n_tag_points=out["n_points"], penalty=out["lambda"],
-                    tag_outliers=out["outliers"], fit_residual_mm=out["residual_mm"])
+                    tag_outliers=out["outliers"], fit_residual_mm=out["residual_mm"],
+                    sigma_mm=out["sigma_mm"])
         if out["boundary_points"]:
             info.update(boundary_points=out["boundary_points"],
                         boundary_residual_mm=out["boundary_residual_mm"],
