@@ -365,9 +365,11 @@ def quantity_jacobian(fit, quantities, coef: np.ndarray, scale: np.ndarray) -> n
     h = 1e-3 * np.maximum(scale, 1e-12)
     if isinstance(quantities, PointQuantities):
         fit.params = coef
-        p, cols = len(coef), []
+        p, cols, last = len(coef), [], (None, None)
         for P, reduce in quantities.parts:
-            q = reduce(fit.perturbed_gradients(P, h))                     # (2p, k)
+            if last[0] is None or not np.array_equal(last[0], P):      # parts at the same points
+                last = (P, fit.perturbed_gradients(P, h))              # share one batch of F
+            q = reduce(last[1])                                        # (2p, k)
             cols.append(((q[:p] - q[p:]) / (2 * h[:, None])).T)
         return np.vstack(cols)
     cols = []
