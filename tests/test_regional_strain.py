@@ -635,3 +635,30 @@ def test_polygon_signed_distance_is_the_nearest_edge_distance(m, seed):
     inside = Path(poly).contains_points(pts)
     clear = ref > 1e-6
     assert np.array_equal((got > 0)[clear], inside[clear])
+
+
+def test_batched_coefficient_differences_equal_the_one_at_a_time_ones():
+    """quantity_jacobian of PointQuantities (every perturbed F in one batch, by the map's
+    linearity in its coefficients) equals the same central differences taken one coefficient
+    at a time through the fit, for segment strains and volume ratios at shared points."""
+    from cardionurbs.analysis.tag_motion import PointQuantities, quantity_jacobian
+    rng = np.random.default_rng(3)
+    th, z = rng.uniform(-np.pi, np.pi, 400), rng.uniform(10, 60, 400)
+    r = rng.uniform(20, 30, 400)
+    X = np.column_stack([r * np.cos(th), r * np.sin(th), z])
+    x = X @ np.diag([0.9, 0.95, 0.97]).T + 0.02 * r[:, None] * np.sin(3 * th)[:, None]
+    fit = S.CylindricalMotionFit(X, x, (np.zeros(3), np.array([0.0, 0.0, 80.0])))
+    fit = fit.expanded(S.TAG_LINE_ORDERS, S.TRANSMURAL_ORDERS, S.AXIAL_HARMONICS)
+    fit.params = fit.params + 1e-3 * rng.standard_normal(len(fit.params))
+    labels = rng.integers(1, 17, 400)
+    dirs = S.cardiac_directions(X, X, np.column_stack([np.cos(th), np.sin(th), 0 * th]),
+                                np.zeros(3), np.array([0.0, 0.0, 80.0]))
+    batched = S.segment_strain_quantities(X, dirs, labels, np.ones(400)) + PointQuantities(
+        ((X.copy(), lambda F: np.linalg.det(F)[:, :5]),))
+    coef = fit.params.copy()
+    scale = np.full(len(coef), 0.01)
+    J = quantity_jacobian(fit, batched, coef, scale)
+    J1 = quantity_jacobian(fit, lambda f: batched(f), coef, scale)
+    assert J.shape == (16 * 3 + 5, len(coef))
+    assert np.allclose(J, J1, rtol=1e-6, atol=1e-8 * np.abs(J1).max())
+    assert np.array_equal(fit.params, coef)
