@@ -321,23 +321,24 @@ def _schur_step(T: np.ndarray, D: np.ndarray, free: np.ndarray, J_pt: np.ndarray
     # per-point weights of the blocks: Tᵀ T − H_ptᵀ H_pp⁻¹ H_pt, and of the right-hand side
     G = np.einsum("nic,nid->ncd", T, T) - np.einsum("nkc,nkd->ncd", H_pt, M)
     r = np.einsum("nic,ni->nc", T, res) - np.einsum("nkc,nk->nc", M, g_p)
-    full = np.empty((3 * b, 3 * b))
+    # each component's columns in use (the blocks are formed for those alone)
+    Dc = [D[:, free[c * b:(c + 1) * b]] for c in range(3)]
+    at = np.cumsum([0] + [d.shape[1] for d in Dc])
+    m = int(at[-1])
+    S_data = np.empty((m, m))
     for c1 in range(3):
         for c2 in range(c1, 3):
-            block = (D * G[:, c1, c2][:, None]).T @ D
-            full[c1 * b:(c1 + 1) * b, c2 * b:(c2 + 1) * b] = block
-            full[c2 * b:(c2 + 1) * b, c1 * b:(c1 + 1) * b] = block.T
-    S_data = full[np.ix_(free, free)]
-    rhs = (D.T @ r).T.reshape(-1)[free]
-    S, m = S_data, len(S_data)
+            block = (Dc[c1] * G[:, c1, c2][:, None]).T @ Dc[c2]
+            S_data[at[c1]:at[c1 + 1], at[c2]:at[c2 + 1]] = block
+            S_data[at[c2]:at[c2 + 1], at[c1]:at[c1 + 1]] = block.T
+    rhs = np.concatenate([Dc[c].T @ r[:, c] for c in range(3)])
+    S = S_data
     if penalty is not None:
         S = S + penalty
         rhs = rhs + penalty_grad
     S = S + ridge * np.trace(S) / m * np.eye(m)
     d_coef = -np.linalg.solve(S, rhs)
-    d_full = np.zeros(3 * b)
-    d_full[free] = d_coef
-    moved = D @ d_full.reshape(3, b).T                                 # (n, 3): Δ(q', θ', ζ')
+    moved = np.column_stack([Dc[c] @ d_coef[at[c]:at[c + 1]] for c in range(3)])  # Δ(q', θ', ζ')
     d_pt = -np.einsum("nkl,nl->nk", inv, g_p + np.einsum("nkc,nc->nk", H_pt, moved))
     return d_coef, d_pt, S_data
 
