@@ -460,7 +460,7 @@ def main(argv=None) -> int:
           "estimate; and the prior with s = 3 % and 7 %, to show how much the result depends "
           "on the stated spread:", ""] + ablation(noisy)
     L += ["", "What the data can tell: the standard error of each segment strain of the "
-          "unregularised fit (tag lines and contours), σ √diag(B S⁻¹ Bᵀ) (σ the ED-plane noise, S the fit's "
+          "unregularised fit (tag lines and contours), σ √diag(B S⁻¹ Bᵀ) (σ the fit's noise: the ED-plane noise, or the frame's misfit if larger; S the fit's "
           "reduced Gauss–Newton matrix, B the derivative of the segment means with respect to "
           "the coefficients) — the Cramér–Rao bound of any unbiased estimate within the motion "
           "model (S1) — and the chance that an unbiased estimator with those errors puts all 16 "
