@@ -574,9 +574,11 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
     started from the material points) on tag points (n, 3) whose ED planes are
     (``normals`` (n, 3), ``offsets`` (n,)) by (T2), in place.
 
-    Regularisation: with tracking noise ``noise_mm`` (e.g. :attr:`TagPlanes.rms_mm`) of at
+    Regularisation: with a noise σ (the tracking noise ``noise_mm``, e.g.
+    :attr:`TagPlanes.rms_mm`, or the misfit if larger: ``misfit_noise`` below) of at
     least :data:`NOISE_FLOOR_MM` and ``quantities`` (a callable: the fit -> the vector of
-    quantities the fit is for, e.g. the segment strains), the fit is refined once more
+    quantities the fit is for, e.g. the segment strains; :class:`PointQuantities` are
+    differenced faster), the fit is refined once more
     with the ridge penalties of :func:`choose_penalty` on the groups of :func:`penalty_groups`
     and, given ``volume_samples`` ((k, 3) ED wall points, (k,) their volumes, (k,) their AHA
     segments), a near-incompressibility term on the segments' mean det F
