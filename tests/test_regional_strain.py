@@ -662,3 +662,36 @@ def test_batched_coefficient_differences_equal_the_one_at_a_time_ones():
     assert J.shape == (16 * 3 + 5, len(coef))
     assert np.allclose(J, J1, rtol=1e-6, atol=1e-8 * np.abs(J1).max())
     assert np.array_equal(fit.params, coef)
+
+
+def test_strain_over_time_and_peaks_against_the_exact_strain():
+    """The strain curves (every tagged frame) and their peaks in metrics.json, against the
+    exact strain of the phantom's motion at each frame over the tissue tracked to that frame
+    (cardionurbs.phantom.regional.strain_truth with that frame's tracked LA levels): every
+    frame's segments within the noise-free bounds (Ecc 1, Ell 1.5, Err 3), the global values
+    within GCS/GLS's 0.5 (Err 1.5), det F within 1 %, and the peaks (the most negative Ecc,
+    Ell and the largest Err over the curve) within the same."""
+    from cardionurbs.phantom import regional as PR
+    from cardionurbs.phantom import truth as PT
+    ph = generate("mr", seed=1, frames=6, volume_check=False)
+    model = reconstruct(ph.study)
+    r = regional_metrics(model, tag_metrics(model, over_time=True))
+    assert sorted(r.over_time) == [1, 2, 3, 4, 5]
+    bounds = {"Ecc": (1.0, 0.5), "Ell": (1.5, 0.5), "Err": (3.0, 1.5)}
+    curves = {k: [] for k in bounds}
+    for f, got in sorted(r.over_time.items()):
+        phase = float(ph.phases[f])
+        levels = PT.strain_levels(ph.anatomy, ph.motion, ph.tag_grid, ph.slices, phase)
+        exact = PR.strain_truth(ph.anatomy, ph.motion, ph.slices, levels, phase)
+        assert abs(got["det_F"] - exact["det_F"]) < 0.01
+        for kind, (seg_bound, global_bound) in bounds.items():
+            seg = np.array([got["columns"][f"{kind}_AHA_{s} (%)"] - exact["columns"][f"{kind}_AHA_{s} (%)"]
+                            for s in range(1, 17)])
+            assert np.isfinite(seg).sum() >= 12 and np.nanmax(np.abs(seg)) < seg_bound, (f, kind, seg)
+            g, t = got["columns"][f"{kind}_Global (%)"], exact["columns"][f"{kind}_Global (%)"]
+            assert abs(g - t) < global_bound, (f, kind, g, t)
+            curves[kind].append(t)
+    peak = r.to_json()["strain_peak"]
+    for kind, (_, global_bound) in bounds.items():
+        want = max(curves[kind]) if kind == "Err" else min(curves[kind])
+        assert abs(peak[f"{kind}_Global (%)"] - want) < global_bound, (kind, peak, want)
