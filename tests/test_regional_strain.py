@@ -635,3 +635,63 @@ def test_polygon_signed_distance_is_the_nearest_edge_distance(m, seed):
     inside = Path(poly).contains_points(pts)
     clear = ref > 1e-6
     assert np.array_equal((got > 0)[clear], inside[clear])
+
+
+def test_batched_coefficient_differences_equal_the_one_at_a_time_ones():
+    """quantity_jacobian of PointQuantities (every perturbed F in one batch, by the map's
+    linearity in its coefficients) equals the same central differences taken one coefficient
+    at a time through the fit, for segment strains and volume ratios at shared points."""
+    from cardionurbs.analysis.tag_motion import PointQuantities, quantity_jacobian
+    rng = np.random.default_rng(3)
+    th, z = rng.uniform(-np.pi, np.pi, 400), rng.uniform(10, 60, 400)
+    r = rng.uniform(20, 30, 400)
+    X = np.column_stack([r * np.cos(th), r * np.sin(th), z])
+    x = X @ np.diag([0.9, 0.95, 0.97]).T + 0.02 * r[:, None] * np.sin(3 * th)[:, None]
+    fit = S.CylindricalMotionFit(X, x, (np.zeros(3), np.array([0.0, 0.0, 80.0])))
+    fit = fit.expanded(S.TAG_LINE_ORDERS, S.TRANSMURAL_ORDERS, S.AXIAL_HARMONICS)
+    fit.params = fit.params + 1e-3 * rng.standard_normal(len(fit.params))
+    labels = rng.integers(1, 17, 400)
+    dirs = S.cardiac_directions(X, X, np.column_stack([np.cos(th), np.sin(th), 0 * th]),
+                                np.zeros(3), np.array([0.0, 0.0, 80.0]))
+    batched = S.segment_strain_quantities(X, dirs, labels, np.ones(400)) + PointQuantities(
+        ((X.copy(), lambda F: np.linalg.det(F)[:, :5]),))
+    coef = fit.params.copy()
+    scale = np.full(len(coef), 0.01)
+    J = quantity_jacobian(fit, batched, coef, scale)
+    J1 = quantity_jacobian(fit, lambda f: batched(f), coef, scale)
+    assert J.shape == (16 * 3 + 5, len(coef))
+    assert np.allclose(J, J1, rtol=1e-6, atol=1e-8 * np.abs(J1).max())
+    assert np.array_equal(fit.params, coef)
+
+
+def test_strain_over_time_and_peaks_against_the_exact_strain():
+    """The strain curves (every tagged frame) and their peaks in metrics.json, against the
+    exact strain of the phantom's motion at each frame over the tissue tracked to that frame
+    (cardionurbs.phantom.regional.strain_truth with that frame's tracked LA levels): every
+    frame's segments within the noise-free bounds (Ecc 1, Ell 1.5, Err 3), the global values
+    within GCS/GLS's 0.5 (Err 1.5), det F within 1 %, and the peaks (the most negative Ecc,
+    Ell and the largest Err over the curve) within the same."""
+    from cardionurbs.phantom import regional as PR
+    from cardionurbs.phantom import truth as PT
+    ph = generate("mr", seed=1, frames=6, volume_check=False)
+    model = reconstruct(ph.study)
+    r = regional_metrics(model, tag_metrics(model, over_time=True))
+    assert sorted(r.over_time) == [1, 2, 3, 4, 5]
+    bounds = {"Ecc": (1.0, 0.5), "Ell": (1.5, 0.5), "Err": (3.0, 1.5)}
+    curves = {k: [] for k in bounds}
+    for f, got in sorted(r.over_time.items()):
+        phase = float(ph.phases[f])
+        levels = PT.strain_levels(ph.anatomy, ph.motion, ph.tag_grid, ph.slices, phase)
+        exact = PR.strain_truth(ph.anatomy, ph.motion, ph.slices, levels, phase)
+        assert abs(got["det_F"] - exact["det_F"]) < 0.01
+        for kind, (seg_bound, global_bound) in bounds.items():
+            seg = np.array([got["columns"][f"{kind}_AHA_{s} (%)"] - exact["columns"][f"{kind}_AHA_{s} (%)"]
+                            for s in range(1, 17)])
+            assert np.isfinite(seg).sum() >= 12 and np.nanmax(np.abs(seg)) < seg_bound, (f, kind, seg)
+            g, t = got["columns"][f"{kind}_Global (%)"], exact["columns"][f"{kind}_Global (%)"]
+            assert abs(g - t) < global_bound, (f, kind, g, t)
+            curves[kind].append(t)
+    peak = r.to_json()["strain_peak"]
+    for kind, (_, global_bound) in bounds.items():
+        want = max(curves[kind]) if kind == "Err" else min(curves[kind])
+        assert abs(peak[f"{kind}_Global (%)"] - want) < global_bound, (kind, peak, want)

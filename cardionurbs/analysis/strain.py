@@ -247,15 +247,22 @@ class CylindricalMotionFit:
         ia, ib, ic = self._index
         if not derivatives:
             L, R, T = self._factors(q, th, zeta, False)
-            return (L[:, ia] * T[:, ic] * R[:, ib],)
+            return (self._basis_values(L, R, T),)
         L, R, T, dL, dR, dT = self._factors(q, th, zeta)
         LT, Rb = L[:, ia] * T[:, ic], R[:, ib]
         return LT * Rb, LT * dR[:, ib], L[:, ia] * dT[:, ic] * Rb, dL[:, ia] * T[:, ic] * Rb
 
-    def _mapped(self, X: np.ndarray, derivatives: bool = True):
+    def _basis_values(self, L, R, T) -> np.ndarray:
+        """The (n, b) basis values of (S1) from its factors."""
+        ia, ib, ic = self._index
+        return L[:, ia] * T[:, ic] * R[:, ib]
+
+    def _mapped(self, X: np.ndarray, derivatives: bool = True, factors: bool = False):
         """(r, θ, ζ) of ED points X and the map's values (q', θ' − θ, ζ') there, each (n, 3), with
         (``derivatives``) their derivatives d/dq, d/dθ, d/dζ: Σ coef · basis contracted factor
-        by factor (harmonics, then height and radius), never forming the (n, b) design."""
+        by factor (harmonics, then height and radius), never forming the (n, b) design;
+        ``factors``: also the basis factors (:meth:`_factors`) as a last item."""
+        want_factors = factors
         r, th, zeta = cylindrical(X, self.apex0, self.frame0)
         factors = self._factors(r * r, th, zeta, derivatives)
         L, R, T = factors[:3]
@@ -271,10 +278,11 @@ class CylindricalMotionFit:
             return np.einsum("nk,nkc->nc", (La[:, :, None] * Rb[:, None, :]).reshape(len(th), -1), W)
         values = contract(L, R, W)
         if not derivatives:
-            return (r, th, zeta), values
+            return ((r, th, zeta), values) + ((factors,) if want_factors else ())
         dL, dR, dT = factors[3:]
         d_theta = contract(L, R, (dT @ C).reshape(shape))
-        return (r, th, zeta), values, (contract(L, dR, W), d_theta, contract(dL, R, W))
+        return ((r, th, zeta), values, (contract(L, dR, W), d_theta, contract(dL, R, W))) + (
+            (factors,) if want_factors else ())
 
     def image_radius(self, X: np.ndarray) -> np.ndarray:
         """r' (mm): the fitted distance of the images of ED points X (n, 3) from the frame's
@@ -292,16 +300,15 @@ class CylindricalMotionFit:
         derivative with respect to the coefficients in factored form — ∂x/∂coef[j, c] =
         T[:, :, c] · D[:, j], with T = ∂x/∂(q', θ', ζ') and D the basis values (of which
         :attr:`free` selects the coefficients in use) — and the deformation gradient."""
-        r, th, zeta = cylindrical(X, self.apex0, self.frame0)
-        D = self._design(r * r, th, zeta)
-        m = D[0] @ self.coef
+        (r, th, _), m, dm, factors = self._mapped(X, factors=True)
+        D = self._basis_values(*factors[:3])                    # the derivatives stay contracted
         e1, e2, e = self.frame1
         rr = np.sqrt(np.maximum(m[:, 0], 1.0))
         t = th + m[:, 1]
         c, s = np.cos(t)[:, None], np.sin(t)[:, None]
         dpos = np.stack([(c * e1 + s * e2) / (2.0 * rr[:, None]), rr[:, None] * (-s * e1 + c * e2),
                          np.broadcast_to(e, (len(t), 3))], axis=2)      # (n, 3, 3): ∂x/∂(q', θ', ζ')
-        return self._position(m, th), (dpos, D[0]), self._gradient(r, th, m, [A @ self.coef for A in D[1:]])
+        return self._position(m, th), (dpos, D), self._gradient(r, th, m, dm)
 
     def perturbed_gradients(self, X: np.ndarray, steps: np.ndarray) -> np.ndarray:
         """F (2p, n, 3, 3) at ED points X (n, 3) for the p free coefficients (:attr:`params`)

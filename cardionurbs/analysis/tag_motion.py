@@ -321,23 +321,24 @@ def _schur_step(T: np.ndarray, D: np.ndarray, free: np.ndarray, J_pt: np.ndarray
     # per-point weights of the blocks: Tᵀ T − H_ptᵀ H_pp⁻¹ H_pt, and of the right-hand side
     G = np.einsum("nic,nid->ncd", T, T) - np.einsum("nkc,nkd->ncd", H_pt, M)
     r = np.einsum("nic,ni->nc", T, res) - np.einsum("nkc,nk->nc", M, g_p)
-    full = np.empty((3 * b, 3 * b))
+    # each component's columns in use (the blocks are formed for those alone)
+    Dc = [D[:, free[c * b:(c + 1) * b]] for c in range(3)]
+    at = np.cumsum([0] + [d.shape[1] for d in Dc])
+    m = int(at[-1])
+    S_data = np.empty((m, m))
     for c1 in range(3):
         for c2 in range(c1, 3):
-            block = (D * G[:, c1, c2][:, None]).T @ D
-            full[c1 * b:(c1 + 1) * b, c2 * b:(c2 + 1) * b] = block
-            full[c2 * b:(c2 + 1) * b, c1 * b:(c1 + 1) * b] = block.T
-    S_data = full[np.ix_(free, free)]
-    rhs = (D.T @ r).T.reshape(-1)[free]
-    S, m = S_data, len(S_data)
+            block = (Dc[c1] * G[:, c1, c2][:, None]).T @ Dc[c2]
+            S_data[at[c1]:at[c1 + 1], at[c2]:at[c2 + 1]] = block
+            S_data[at[c2]:at[c2 + 1], at[c1]:at[c1 + 1]] = block.T
+    rhs = np.concatenate([Dc[c].T @ r[:, c] for c in range(3)])
+    S = S_data
     if penalty is not None:
         S = S + penalty
         rhs = rhs + penalty_grad
     S = S + ridge * np.trace(S) / m * np.eye(m)
     d_coef = -np.linalg.solve(S, rhs)
-    d_full = np.zeros(3 * b)
-    d_full[free] = d_coef
-    moved = D @ d_full.reshape(3, b).T                                 # (n, 3): Δ(q', θ', ζ')
+    moved = np.column_stack([Dc[c] @ d_coef[at[c]:at[c + 1]] for c in range(3)])  # Δ(q', θ', ζ')
     d_pt = -np.einsum("nkl,nl->nk", inv, g_p + np.einsum("nkc,nc->nk", H_pt, moved))
     return d_coef, d_pt, S_data
 
@@ -365,9 +366,11 @@ def quantity_jacobian(fit, quantities, coef: np.ndarray, scale: np.ndarray) -> n
     h = 1e-3 * np.maximum(scale, 1e-12)
     if isinstance(quantities, PointQuantities):
         fit.params = coef
-        p, cols = len(coef), []
+        p, cols, last = len(coef), [], (None, None)
         for P, reduce in quantities.parts:
-            q = reduce(fit.perturbed_gradients(P, h))                     # (2p, k)
+            if last[0] is None or not np.array_equal(last[0], P):      # parts at the same points
+                last = (P, fit.perturbed_gradients(P, h))              # share one batch of F
+            q = reduce(last[1])                                        # (2p, k)
             cols.append(((q[:p] - q[p:]) / (2 * h[:, None])).T)
         return np.vstack(cols)
     cols = []
@@ -571,9 +574,11 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
     started from the material points) on tag points (n, 3) whose ED planes are
     (``normals`` (n, 3), ``offsets`` (n,)) by (T2), in place.
 
-    Regularisation: with tracking noise ``noise_mm`` (e.g. :attr:`TagPlanes.rms_mm`) of at
+    Regularisation: with a noise σ (the tracking noise ``noise_mm``, e.g.
+    :attr:`TagPlanes.rms_mm`, or the misfit if larger: ``misfit_noise`` below) of at
     least :data:`NOISE_FLOOR_MM` and ``quantities`` (a callable: the fit -> the vector of
-    quantities the fit is for, e.g. the segment strains), the fit is refined once more
+    quantities the fit is for, e.g. the segment strains; :class:`PointQuantities` are
+    differenced faster), the fit is refined once more
     with the ridge penalties of :func:`choose_penalty` on the groups of :func:`penalty_groups`
     and, given ``volume_samples`` ((k, 3) ED wall points, (k,) their volumes, (k,) their AHA
     segments), a near-incompressibility term on the segments' mean det F
