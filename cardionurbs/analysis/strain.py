@@ -383,8 +383,9 @@ def cardiac_directions(X: np.ndarray, endo_points: np.ndarray, endo_normals: np.
 
 
 def directional_strains(E: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """(n, 3) strains in % along the rows of ``dirs``: 100 dᵀEd (Cartesian E and d)."""
-    return 100.0 * np.einsum("nki,nij,nkj->nk", dirs, E, dirs)
+    """(…, n, 3) strains in % along the rows of ``dirs`` (n, 3, 3): 100 dᵀEd (Cartesian E
+    (…, n, 3, 3) and d; a leading batch axis of E shares the directions)."""
+    return 100.0 * np.einsum("...nki,...nij,...nkj->...nk", dirs, E, dirs)
 
 
 def segment_strain_quantities(points: np.ndarray, directions: np.ndarray, labels: np.ndarray,
@@ -392,27 +393,17 @@ def segment_strain_quantities(points: np.ndarray, directions: np.ndarray, labels
     """The segment strains at ED wall ``points`` as a function of F:
     :class:`~cardionurbs.analysis.tag_motion.PointQuantities` giving, for F (k, n, 3, 3), the
     weighted means (k, 3 s) over the segments 1–16 present (segment-major, then Ecc, Ell,
-    Err) of the strains along ``directions`` (:func:`segment_means`, batched)."""
+    Err) of the strains along ``directions`` (:func:`directional_strains` of the Green–Lagrange
+    strain, every F of the batch at once)."""
     from cardionurbs.analysis.tag_motion import PointQuantities, segment_mean_matrix
     seg = (labels >= 1) & (labels <= 16)
     M = np.zeros((len(np.unique(labels[seg])), len(labels)))
     M[:, seg] = segment_mean_matrix(labels[seg], weights[seg])[0]
 
     def reduce(F):
-        E = green_lagrange(F.reshape(-1, 3, 3)).reshape(F.shape)
-        v = 100.0 * np.einsum("nai,knij,naj->kna", directions, E, directions)
+        v = directional_strains(green_lagrange(F.reshape(-1, 3, 3)).reshape(F.shape), directions)
         return np.einsum("sn,knc->ksc", M, v).reshape(len(F), -1)
     return PointQuantities(((points, reduce),))
-
-
-def segment_means(values: np.ndarray, labels: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """(k, 3) weighted means of per-point (n, 3) values over the segments 1–16 present."""
-    out = []
-    for k in range(1, 17):
-        m = labels == k
-        if m.any():
-            out.append(np.average(values[m], axis=0, weights=weights[m]))
-    return np.array(out)
 
 
 def strain_columns(values: np.ndarray, labels: np.ndarray, weights: np.ndarray | None = None
