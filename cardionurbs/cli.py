@@ -217,6 +217,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "(report also writes metrics and model)")
     an.add_argument("--progress", action="store_true",
                     help="stage progress on stderr (default: only when stderr is a terminal)")
+    an.add_argument("--jobs", type=_bounded(int, 1, 1024), default=None, metavar="N",
+                    help="processes for the per-frame work (meshes, tag strain over time; "
+                         "default: the CPUs this process may use; 1: one process)")
     an.add_argument("--out", required=True, metavar="DIR",
                     help="new (or empty) output folder, outside the study")
     _output_safety_options(an)

@@ -92,11 +92,14 @@ def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path, tags=N
 
 
 def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: bool = True,
-            progress: Progress | None = None):
+            progress: Progress | None = None, jobs: int | None = None):
     """Reconstruct and measure one loaded study: (model, docs/metrics.md dict, tag result or None).
 
     ``over_time``: also twist and LS at every tagged frame (for figures and metrics.json);
-    the docs/metrics.md columns are the same without it. ``progress``: stages on stderr."""
+    the docs/metrics.md columns are the same without it. ``progress``: stages on stderr.
+    ``jobs``: processes for the tag strain over time (one fit per tagged frame,
+    :func:`cardionurbs.analysis.regional.regional_metrics`; None: the usable CPUs, 1: this
+    process only)."""
     progress = progress or Progress(False)
     progress.stage("reconstruct")
     model = reconstruct(study, progress=progress.step)
@@ -108,7 +111,7 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
     if tags is not None:
         metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
     from cardionurbs.analysis.regional import regional_metrics
-    regional = regional_metrics(model, tags)
+    regional = regional_metrics(model, tags, jobs=jobs)
     metrics.update({k: float(v) for k, v in regional.items() if k in metrics})
     model.regional = regional                     # kept for metrics.json and the figures
     voxels = study.meta.get("voxel_volumes_ml") if isinstance(study.meta, dict) else None
@@ -121,17 +124,20 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
 def analyse_study(study: Study, *, heart_rate_bpm: float | None = None
                   ) -> tuple[BiventricularModel, dict[str, float]]:
     """Reconstruct and measure one loaded study: (model, docs/metrics.md dict) -- the metrics
-    only (what a cohort row needs: no tag time course)."""
-    model, metrics, _ = analyse(study, heart_rate_bpm=heart_rate_bpm, over_time=False)
+    only (what a cohort row needs: no tag time course), in this process (a cohort runs one
+    study per core)."""
+    model, metrics, _ = analyse(study, heart_rate_bpm=heart_rate_bpm, over_time=False, jobs=1)
     return model, metrics
 
 
 def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                    figures: bool = True, mesh_ext: str = "ply", tags=None,
                    outputs: tuple[str, ...] | None = None,
-                   progress: Progress | None = None) -> Path:
+                   progress: Progress | None = None, jobs: int | None = None) -> Path:
     """Write the chosen ``outputs`` (default all; ``figures=False`` drops figures and
-    report) to ``out``, atomically (the folder is complete or untouched)."""
+    report) to ``out``, atomically (the folder is complete or untouched). ``jobs``: worker
+    processes for the per-frame meshes (:func:`write_meshes`; None: the usable CPUs, 1:
+    none)."""
     outputs = OUTPUTS if outputs is None else tuple(outputs)
     if not figures:
         outputs = tuple(o for o in outputs if o not in ("figures", "report"))
@@ -141,19 +147,7 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
     with long_lived(), atomic.atomic_dir(out) as tmp:
         if "meshes" in outputs:
             progress.stage("meshes")
-            mesh_dir = tmp / "meshes"
-            keep = {model.ed_frame, model.es_frame}
-            for k, f in enumerate(model.frames):
-                model.volumes[f]                   # kept (the volume curve) ...
-                if mesh_ext == "ply":               # straight from the manifold3d arrays
-                    for name, (v, fc) in model.mesh_arrays(f).items():
-                        write_ply(v, fc, mesh_dir / f"frame_{f:02d}_{name}.ply")
-                else:                               # other formats: trimesh's exporters
-                    for name, m in model.meshes(f).items():
-                        export_mesh(m, mesh_dir / f"frame_{f:02d}_{name}.{mesh_ext}")
-                if f not in keep:                  # ... the meshes written and let go
-                    model.release(f)
-                progress.step(k + 1, len(model.frames))
+            write_meshes(model, tmp / "meshes", mesh_ext, jobs=jobs, progress=progress)
         if "model" in outputs:
             progress.stage("model")
             with acyclic():                         # plain lists and dicts
@@ -202,6 +196,52 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                     tag_data=getattr(fig_set, "report_tags", None))
         progress.done()
     return Path(out)
+
+
+def write_meshes(model: BiventricularModel, mesh_dir: Path, mesh_ext: str = "ply", *,
+                 jobs: int | None = None, progress: Progress | None = None) -> None:
+    """Every frame's closed meshes into ``mesh_dir`` (``frame_NN_<mesh>.<mesh_ext>``), with
+    every frame's volumes kept in ``model.volumes`` (the volume curve of metrics.json and
+    the figures).
+
+    ED and ES are meshed in this process (their solids stay cached); the other frames on
+    ``jobs`` worker processes (:func:`cardionurbs.parallel.fork_map`; None: the usable
+    CPUs, 1: all here), each writing its frame's files and handing back what the frame
+    added to the model (surfaces, volumes: :meth:`BiventricularModel.frame_results`) and
+    its warnings, which are added in frame order: the model ends as a serial loop leaves
+    it, less the other frames' solids (released after writing, as that loop does)."""
+    from cardionurbs.parallel import fork_map
+    progress = progress or Progress(False)
+    keep = {model.ed_frame, model.es_frame}
+    before = model.computed()
+    Path(mesh_dir).mkdir(parents=True, exist_ok=True)
+
+    def frame_meshes(f: int) -> tuple[dict, list[str]]:
+        n_warnings = len(model.warnings)
+        model.volumes[f]
+        if mesh_ext == "ply":                       # straight from the manifold3d arrays
+            for name, (v, fc) in model.mesh_arrays(f).items():
+                write_ply(v, fc, Path(mesh_dir) / f"frame_{f:02d}_{name}.ply")
+        else:                                       # other formats: trimesh's exporters
+            for name, m in model.meshes(f).items():
+                export_mesh(m, Path(mesh_dir) / f"frame_{f:02d}_{name}.{mesh_ext}")
+        warnings = model.warnings[n_warnings:]
+        del model.warnings[n_warnings:]             # added back below, in frame order
+        results = model.frame_results(f, before)
+        if f not in keep:                           # the meshes written and let go
+            model.release(f)
+        return results, warnings
+
+    done = [0]
+
+    def step(i, result) -> None:
+        done[0] += 1
+        progress.step(done[0], len(model.frames))
+
+    for f, (results, warnings) in zip(model.frames, fork_map(frame_meshes, model.frames, jobs=jobs,
+                                                             here=keep, on_result=step)):
+        model.adopt_frame_results(f, results)
+        model.warnings += warnings
 
 
 def _figures(model: BiventricularModel, metrics: dict, out_dir: Path, tags=None):
@@ -258,12 +298,14 @@ def run_analyze(args: argparse.Namespace) -> int:
         study = track_tags(study)
     model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None),
                                    over_time=bool({"figures", "report"} & set(outputs)),
-                                   progress=progress)
-    write_analysis(model, metrics, args.out, outputs=outputs, tags=tags, progress=progress)
+                                   progress=progress, jobs=getattr(args, "jobs", None))
+    write_analysis(model, metrics, args.out, outputs=outputs, tags=tags, progress=progress,
+                   jobs=getattr(args, "jobs", None))
     print(f"{study.subject}: ED frame {model.ed_frame}, ES frame {model.es_frame}; "
           f"LVEDV {metrics['LVEDV (mL)']:.1f} mL, LVEF {metrics['LVEF (%)']:.1f} %; "
           f"wrote {args.out}")
-    qc = json.loads((Path(args.out) / "metrics.json").read_text()).get("QC")
+    qc = json.loads((Path(args.out) / "metrics.json").read_text()).get("QC") \
+        if "metrics" in outputs else None
     if qc:
         print(f"QC: {qc}")
     return 0

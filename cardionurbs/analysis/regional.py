@@ -27,6 +27,7 @@ from cardionurbs.analysis.thickness import (THICKNESS_COLUMNS, surface_samples, 
                                             thickness_columns)
 from cardionurbs.analysis.columns import ColumnMapping
 from cardionurbs.errors import CardioNurbsError
+from cardionurbs.parallel import fork_map
 
 NAN = float("nan")
 #: the thickness rays (one per ~3 mm of height) are split this many times along the long axis
@@ -99,7 +100,8 @@ def wall_boundaries(model, frame: int, cache: dict | None = None) -> list[Bounda
 
 def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
                      volume_prior_sd: float | None = None, boundaries: bool = True,
-                     deformation=None, misfit_noise: bool = True) -> RegionalMetrics:
+                     deformation=None, misfit_noise: bool = True,
+                     jobs: int | None = 1) -> RegionalMetrics:
     """Regional columns of a model; ``tags``: its :class:`~cardionurbs.analysis.tags.TagMetrics`
     (material points) when the study is tagged. ``incompressibility``: how the tag-strain fit
     of noisy tags uses near-incompressibility (:func:`cardionurbs.analysis.strain.tag_strain`:
@@ -109,7 +111,10 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
     the tags alone, for comparison). ``deformation``: (points, frame) -> F replacing the
     fitted F in the strains (:func:`~cardionurbs.analysis.strain.tag_strain`; validation with
     a known motion). ``misfit_noise``: the tag-line fit's σ is the larger of the tracking
-    noise and its own misfit (False: the tracking noise alone, for comparison)."""
+    noise and its own misfit (False: the tracking noise alone, for comparison). ``jobs``:
+    processes for the strain over time, one independent fit per tagged frame
+    (:func:`cardionurbs.parallel.fork_map`: ES in this process, the other frames on ``jobs``
+    forked workers; None: the usable CPUs; 1, the default: all here)."""
     cols = {c: NAN for c in THICKNESS_COLUMNS + STRAIN_COLUMNS + SURFACE_STRAIN_COLUMNS}
     out = RegionalMetrics(cols)
     ed, es = model.ed_frame, model.es_frame
@@ -151,7 +156,10 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
     flagged = {(fl.family, fl.index, fl.slice, fl.frame) for fl in getattr(tags, "flags", [])}
     planes = ed_tag_planes(study, material.ed_frame, flagged)
     ed_samples = {}
-    for f in frames:
+    if boundaries:                  # the ED surface samples' k-d trees, built before any fork
+        wall_boundaries(model, es, ed_samples)
+
+    def frame_strain(f: int) -> dict | None:
         ax = (out.aha[f].apex, out.aha[f].base) if f in out.aha else None
         lines = None
         if planes is not None:
@@ -163,9 +171,13 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
                          incompressibility=incompressibility, volume_prior_sd=volume_prior_sd,
                          boundary=wall_boundaries(model, f, ed_samples) if boundaries else (),
                          deformation=deformation, misfit_noise=misfit_noise)
+        if res is not None and planes is not None:
+            res["tag_noise_mm"] = planes.rms_mm
+        return res
+
+    # one independent fit per tagged frame: ES here, the others on worker processes
+    for f, res in zip(frames, fork_map(frame_strain, frames, jobs=jobs, here={es})):
         if res is not None:
-            if planes is not None:
-                res["tag_noise_mm"] = planes.rms_mm
             out.over_time[f] = res
     if es in out.over_time:
         out.strain = out.over_time[es]

@@ -548,6 +548,30 @@ class BiventricularModel:
         for key in [k for k in self._solid_cache if k[0] == frame]:
             del self._solid_cache[key]
 
+    # ------------------------------------------------------------- worker processes
+    #: the per-frame mappings a worker process that built one frame's solids hands back
+    #: (:meth:`frame_results`); base planes, apex points and sections follow from geometry
+    HANDED_BACK = ("geometry", "outflow", "surfaces", "volumes")
+
+    def computed(self) -> dict[str, set]:
+        """Frames whose :data:`HANDED_BACK` values exist, per mapping (see :meth:`frame_results`)."""
+        return {k: set(getattr(self, k).computed) for k in self.HANDED_BACK
+                if isinstance(getattr(self, k), LazyFrames)}
+
+    def frame_results(self, frame: int, before: dict[str, set]) -> dict:
+        """The values of one frame computed since :meth:`computed` returned ``before``:
+        what a worker process (:func:`cardionurbs.parallel.fork_map`) that made the frame's
+        solids returns so that this model in the parent process, given them by
+        :meth:`adopt_frame_results`, is as if it had made them itself (solids and meshes
+        are not handed back: :meth:`release` drops them)."""
+        return {k: getattr(self, k)[frame] for k, done in before.items()
+                if frame not in done and frame in getattr(self, k).computed}
+
+    def adopt_frame_results(self, frame: int, results: dict) -> None:
+        """Store the values :meth:`frame_results` returned (those this model has are kept)."""
+        for k, value in results.items():
+            getattr(self, k).provide(frame, value)
+
     # ------------------------------------------------------------- residuals
     @cached_property
     def residuals(self) -> pd.DataFrame:

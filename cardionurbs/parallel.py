@@ -1,0 +1,250 @@
+"""Independent per-frame work of one analysis on forked worker processes.
+
+:func:`fork_map` computes ``fn(item)`` for a list of items (frames) and returns the
+results in the items' order, as ``[fn(x) for x in items]`` would. Items named in
+``here`` run in this process (what they leave in this process's objects, e.g. a
+model's caches, stays); the others run in ``jobs`` worker processes forked from this
+one, which therefore see every object of this process as it was at the fork (a
+reconstructed model is not pickled). Only their results come back (pickled through a
+pipe), so ``fn`` must return everything the caller needs from them, and the caller
+merges it.
+
+- Workers take the next item in order from a shared counter (items of unequal cost
+  balance themselves); this process runs its ``here`` items meanwhile, then collects.
+- An exception in a worker is raised here, with its type and message (and the worker's
+  traceback as its ``__cause__``); as in a serial loop, it is the exception of the first
+  failing item in the items' order (the counter stops; items handed out before the
+  failing one finish). A worker that dies without a result (a signal, the out-of-memory
+  killer) raises :class:`WorkerDied`. Every worker has ended when :func:`fork_map`
+  returns or raises.
+- It runs serially (``[fn(x) for x in items]`` in this process) when ``jobs`` is 1,
+  when at most one item would go to a worker, where ``fork`` is not available (Windows;
+  macOS, where forking a process that has used system frameworks is unsafe), and in a
+  daemonic process: a cohort's worker processes (:mod:`cardionurbs.executor`) and Dask's
+  are daemonic, cannot have children, and already keep every core busy.
+- Workers leave with ``os._exit`` (no ``atexit`` handlers, no flushing of buffers
+  copied from this process; :mod:`multiprocessing`'s fork start method), ignore SIGINT
+  (Ctrl-C interrupts this process, which then stops them) and take SIGTERM's default
+  action. Fork copies only the forking thread; numpy's OpenBLAS shuts its thread pool
+  down around ``fork`` (``pthread_atfork``) and a worker starts its own on first use,
+  so a worker cannot inherit a held BLAS lock. The CLI runs BLAS on one thread
+  (``cardionurbs.cli.one_blas_thread``), so ``jobs`` workers use ``jobs`` cores.
+"""
+
+from __future__ import annotations
+
+import gc
+import multiprocessing as mp
+import os
+import pickle
+import signal
+import sys
+import traceback
+from multiprocessing.connection import wait as wait_connections
+from typing import Any, Callable, Collection, Sequence, TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+class WorkerDied(ChildProcessError):
+    """A worker process of :func:`fork_map` ended without reporting its item."""
+
+
+class RemoteTraceback(Exception):
+    """The traceback of an exception raised in a worker process (the ``__cause__`` of the
+    exception :func:`fork_map` raises)."""
+
+    def __str__(self) -> str:
+        return self.args[0] if self.args else ""
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity mask; :func:`os.cpu_count` where the
+    platform has no affinity)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def can_fork() -> bool:
+    """True where :func:`fork_map` may start workers: ``fork`` exists (not Windows, not
+    macOS) and this process is not daemonic (a cohort or Dask worker)."""
+    return ("fork" in mp.get_all_start_methods() and sys.platform != "darwin"
+            and not mp.current_process().daemon)
+
+
+def worker_count(jobs: int | None, n_items: int) -> int:
+    """Worker processes :func:`fork_map` starts for ``n_items`` items given to workers:
+    ``jobs`` (None: :func:`usable_cpus`) capped by ``n_items``; 0 (serial) when that is
+    one or fewer or :func:`can_fork` is False. Raises ValueError for ``jobs`` < 1."""
+    if jobs is not None and (isinstance(jobs, bool) or int(jobs) != jobs or jobs < 1):
+        raise ValueError(f"jobs must be a whole number >= 1, got {jobs!r}")
+    n = min(usable_cpus() if jobs is None else int(jobs), n_items)
+    return n if n >= 2 and can_fork() else 0
+
+
+def fork_map(fn: Callable[[T], R], items: Sequence[T], *, jobs: int | None = None,
+             here: Collection = (), on_result: Callable[[int, R], None] | None = None) -> list[R]:
+    """``[fn(x) for x in items]``, the items not in ``here`` computed by forked workers
+    (module docstring). ``jobs``: worker processes (None: the usable CPUs; 1: serial).
+    ``on_result(i, result)`` is called in this process as each item's result is known (in
+    completion order; e.g. progress)."""
+    items = list(items)
+    mine = [i for i, x in enumerate(items) if x in here]
+    theirs = [i for i, x in enumerate(items) if x not in here]
+    workers = worker_count(jobs, len(theirs))
+    if jobs == 1 or workers == 0:
+        out = []
+        for i, x in enumerate(items):
+            out.append(fn(x))
+            if on_result is not None:
+                on_result(i, out[-1])
+        return out
+    return _Pool(fn, items, theirs, workers).run(mine, on_result)
+
+
+# ------------------------------------------------------------------ the workers
+_UNSET = object()
+
+
+class _Pool:
+    def __init__(self, fn, items, theirs, n_workers) -> None:
+        self.fn, self.items, self.theirs = fn, items, theirs
+        self.ctx = mp.get_context("fork")
+        self.next = self.ctx.Value("l", 0)          # index into theirs of the next item to hand out
+        self.results: list = [_UNSET] * len(items)
+        self.errors: dict[int, BaseException] = {}
+        self.stopped_at: int | None = None          # items handed out when the counter was stopped
+        self.procs: list = []
+        self.conns: list = []
+        for _ in range(n_workers):
+            sys.stdout.flush()
+            sys.stderr.flush()
+            parent_end, child_end = self.ctx.Pipe(duplex=False)
+            p = self.ctx.Process(target=_work, args=(fn, items, theirs, self.next, child_end),
+                                 daemon=True, name="cardionurbs-frames")
+            p.start()
+            child_end.close()
+            self.procs.append(p)
+            self.conns.append(parent_end)
+
+    def run(self, mine: list[int], on_result) -> list:
+        try:
+            for i in mine:                          # this process's items, meanwhile
+                self.results[i] = self.fn(self.items[i])
+                if on_result is not None:
+                    on_result(i, self.results[i])
+            self._collect(on_result)
+        except BaseException:
+            self._hand_out_no_more()
+            self._stop(kill=True)
+            raise
+        self._stop(kill=bool(self.errors))
+        if self.errors:
+            first = min(self.errors)
+            raise self.errors[first]
+        return self.results
+
+    def _collect(self, on_result) -> None:
+        live = dict(zip(self.conns, self.procs))
+        dead = []
+        while live:
+            for conn in wait_connections(list(live)):
+                try:
+                    msg = conn.recv()
+                except (EOFError, OSError):      # the worker has ended
+                    proc = live.pop(conn)
+                    proc.join()
+                    if proc.exitcode != 0:
+                        dead.append(proc.exitcode)
+                        self._hand_out_no_more()
+                    continue
+                i, ok, payload = msg
+                if ok:
+                    self.results[i] = payload
+                    if on_result is not None:
+                        on_result(i, payload)
+                else:
+                    self.errors[i] = _rebuilt(*payload)
+                    self._hand_out_no_more()
+        if dead:                                    # the items handed out and never reported
+            handed = self.theirs[:self.stopped_at]
+            lost = [i for i in handed if self.results[i] is _UNSET and i not in self.errors]
+            code = dead[0]
+            how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit code {code}"
+            what = f"item {self.items[lost[0]]!r}" if lost else "an item"
+            self.errors[lost[0] if lost else len(self.items)] = WorkerDied(
+                f"a worker process died ({how}) computing {what}")
+
+    def _hand_out_no_more(self) -> None:
+        """Set the shared counter past the last item (a worker that died holding the
+        counter's lock cannot block this process: the value is set after 5 s regardless)."""
+        lock = self.next.get_lock()
+        got = lock.acquire(timeout=5)
+        try:
+            if self.stopped_at is None:
+                self.stopped_at = self.next.value
+            self.next.value = max(self.next.value, len(self.theirs))
+        finally:
+            if got:
+                lock.release()
+
+    def _stop(self, kill: bool) -> None:
+        for p in self.procs:
+            if kill and p.is_alive():
+                p.kill()
+        for p in self.procs:
+            p.join()
+        for c in self.conns:
+            c.close()
+
+
+def _work(fn, items, theirs, counter, conn) -> None:
+    """A worker: take the next item index from ``counter``, send ``(i, True, fn(item))``
+    until none is left, or ``(i, False, exception)`` and stop."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    gc.freeze()                      # the inherited objects: not traversed (nor copied) by gc
+    while True:
+        with counter.get_lock():
+            k = counter.value
+            if k >= len(theirs):
+                break
+            counter.value = k + 1
+        i = theirs[k]
+        try:
+            result = fn(items[i])
+            payload = pickle.dumps((i, True, result), protocol=pickle.HIGHEST_PROTOCOL)
+        except BaseException as exc:  # noqa: BLE001 - re-raised in the parent
+            conn.send((i, False, _portable(exc)))
+            break
+        conn.send_bytes(payload)
+    conn.close()
+
+
+def _portable(exc: BaseException) -> tuple:
+    """What the parent needs to raise ``exc`` again: (pickled exception or None, type name,
+    message, formatted traceback)."""
+    tb = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+    try:
+        blob = pickle.dumps(exc, protocol=pickle.HIGHEST_PROTOCOL)
+        pickle.loads(blob)
+    except Exception:  # noqa: BLE001 - an exception that does not pickle: type and message
+        blob = None
+    return blob, f"{type(exc).__module__}.{type(exc).__qualname__}", str(exc), tb
+
+
+def _rebuilt(blob, type_name: str, message: str, tb: str) -> BaseException:
+    """The worker's exception (its traceback text as ``__cause__``)."""
+    exc = None
+    if blob is not None:
+        try:
+            exc = pickle.loads(blob)
+        except Exception:  # noqa: BLE001
+            exc = None
+    if exc is None:
+        exc = RuntimeError(f"{type_name}: {message}")
+    exc.__cause__ = RemoteTraceback(f"\n\"\"\"\n(in a worker process)\n{tb}\"\"\"")
+    return exc
