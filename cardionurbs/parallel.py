@@ -75,13 +75,18 @@ def can_fork() -> bool:
             and not mp.current_process().daemon)
 
 
-def worker_count(jobs: int | None, n_items: int) -> int:
+def worker_count(jobs: int | None, n_items: int, alongside: bool = False) -> int:
     """Worker processes :func:`fork_map` starts for ``n_items`` items given to workers:
     ``jobs`` (None: :func:`usable_cpus`) capped by ``n_items``; 0 (serial) when that is
-    one or fewer or :func:`can_fork` is False. Raises ValueError for ``jobs`` < 1."""
+    one or fewer or :func:`can_fork` is False -- except that one worker is started for one
+    item ``alongside`` this process's own items (``here``) when ``jobs`` allows two
+    processes: the two then run at once. Raises ValueError for ``jobs`` < 1."""
     if jobs is not None and (isinstance(jobs, bool) or int(jobs) != jobs or jobs < 1):
         raise ValueError(f"jobs must be a whole number >= 1, got {jobs!r}")
-    n = min(usable_cpus() if jobs is None else int(jobs), n_items)
+    limit = usable_cpus() if jobs is None else int(jobs)
+    n = min(limit, n_items)
+    if n == 1 and alongside and limit >= 2:
+        return 1 if can_fork() else 0
     return n if n >= 2 and can_fork() else 0
 
 
@@ -94,7 +99,7 @@ def fork_map(fn: Callable[[T], R], items: Sequence[T], *, jobs: int | None = Non
     items = list(items)
     mine = [i for i, x in enumerate(items) if x in here]
     theirs = [i for i, x in enumerate(items) if x not in here]
-    workers = worker_count(jobs, len(theirs))
+    workers = worker_count(jobs, len(theirs), alongside=bool(mine))
     if jobs == 1 or workers == 0:
         out = []
         for i, x in enumerate(items):

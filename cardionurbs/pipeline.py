@@ -97,17 +97,15 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
 
     ``over_time``: also twist and LS at every tagged frame (for figures and metrics.json);
     the docs/metrics.md columns are the same without it. ``progress``: stages on stderr.
-    ``jobs``: processes for the tag strain over time (one fit per tagged frame,
-    :func:`cardionurbs.analysis.regional.regional_metrics`; None: the usable CPUs, 1: this
-    process only)."""
+    ``jobs``: processes for the per-frame work -- the frames' LV cavities (``reconstruct``),
+    the tag metrics beside the volumes (:func:`measure_with_tags`) and the tag strain over
+    time (one fit per tagged frame, :func:`cardionurbs.analysis.regional.regional_metrics`);
+    None: the usable CPUs, 1: this process only. The results are the same either way."""
     progress = progress or Progress(False)
     progress.stage("reconstruct")
-    model = reconstruct(study, progress=progress.step)
-    progress.stage("measure")
-    metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
-    if study.tags:
-        progress.stage("tags")
-    tags = tag_metrics_hook(model, over_time=over_time)
+    model = reconstruct(study, progress=progress.step, jobs=jobs)
+    metrics, tags = measure_with_tags(model, heart_rate_bpm=heart_rate_bpm, over_time=over_time,
+                                      jobs=jobs, progress=progress)
     if tags is not None:
         metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
     from cardionurbs.analysis.regional import regional_metrics
@@ -119,6 +117,40 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
         from cardionurbs.analysis.voxels import voxel_metrics
         metrics.update(voxel_metrics(voxels, model.ed_frame, model.es_frame))
     return model, metrics, tags
+
+
+def measure_with_tags(model: BiventricularModel, *, heart_rate_bpm: float | None = None,
+                      over_time: bool = True, jobs: int | None = 1,
+                      progress: Progress | None = None):
+    """(docs/metrics.md dict of :func:`measure`, :func:`tag_metrics_hook` result or None).
+
+    With a worker process (``jobs`` not 1, a study with tag lines; see
+    :func:`cardionurbs.parallel.fork_map`) the tag metrics (which need the study and the
+    model's ED long axis alone) are measured on it while this process measures the
+    volumes, masses and rates: the same two results, the tag result pickled back. Tag
+    metrics change nothing in the model, except warnings, which the worker hands back
+    and which are added after the volumes' (the serial order)."""
+    from cardionurbs.parallel import fork_map
+    progress = progress or Progress(False)
+    if not model.study.tags or jobs == 1:
+        progress.stage("measure")
+        metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
+        if model.study.tags:
+            progress.stage("tags")
+        return metrics, tag_metrics_hook(model, over_time=over_time)
+
+    def part(name: str):
+        if name == "measure":
+            return measure(model, heart_rate_bpm=heart_rate_bpm)
+        n_warnings = len(model.warnings)
+        tags = tag_metrics_hook(model, over_time=over_time)
+        warnings = model.warnings[n_warnings:]
+        del model.warnings[n_warnings:]             # added back below, after the volumes'
+        return tags, warnings
+    progress.stage("measure, tags")
+    metrics, (tags, warnings) = fork_map(part, ["measure", "tags"], jobs=jobs, here={"measure"})
+    model.warnings += warnings
+    return metrics, tags
 
 
 def analyse_study(study: Study, *, heart_rate_bpm: float | None = None

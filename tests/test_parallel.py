@@ -41,8 +41,17 @@ def test_results_in_order_here_items_run_here():
 
 def test_serial_when_one_job_or_one_item():
     assert [p for _, p in fork_map(_pid_of, range(4), jobs=1)] == [os.getpid()] * 4
-    assert [p for _, p in fork_map(_pid_of, [0, 1], jobs=4, here={0})] == [os.getpid()] * 2
+    assert [p for _, p in fork_map(_pid_of, [0, 1], jobs=1, here={0})] == [os.getpid()] * 2
     assert worker_count(1, 10) == 0 and worker_count(8, 1) == 0
+    assert worker_count(1, 1, alongside=True) == 0
+
+
+@needs_fork
+def test_one_worker_beside_this_process():
+    """One item for a worker while this process works on its own (``here``): two at once."""
+    (a, pa), (b, pb) = fork_map(_pid_of, [0, 1], jobs=2, here={0})
+    assert (a, b) == (0, 1) and pa == os.getpid() and pb != os.getpid()
+    assert worker_count(2, 1, alongside=True) == 1 and worker_count(2, 1) == 0
     with pytest.raises(ValueError, match="jobs"):
         worker_count(0, 3)
 

@@ -78,3 +78,28 @@ def test_a_failing_frame_raises_in_the_parent(bivme_study, monkeypatch):
     for jobs in (1, 2):
         with pytest.raises(ReconstructionError, match=f"frame {bad}: made to fail"):
             reconstruct(bivme_study, frames=frames, jobs=jobs)
+
+
+@pytest.fixture(scope="module")
+def tagged_phantom():
+    from cardionurbs.phantom import generate
+    return generate("normal", seed=4, frames=3, noise_px=0.5).study
+
+
+def test_tag_metrics_beside_the_volumes_equal_the_serial_ones(tagged_phantom):
+    """``analyse(jobs=2)`` measures the tag metrics on a worker while this process measures
+    the volumes (pipeline.measure_with_tags), after the frames' LV cavities on workers:
+    every metric, the tag and regional results and the warnings equal one process's."""
+    import json
+
+    from cardionurbs.pipeline import analyse
+    study = tagged_phantom
+    assert study.tags
+    runs = {}
+    for jobs in (1, 2):
+        model, metrics, tags = analyse(study, over_time=False, jobs=jobs)
+        runs[jobs] = (metrics, list(model.warnings), json.dumps(tags.to_json(), sort_keys=True),
+                      json.dumps(model.regional.to_json(), sort_keys=True, default=str))
+    (m1, w1, t1, r1), (m2, w2, t2, r2) = runs[1], runs[2]
+    assert all(_same(m1[k], m2[k]) for k in m1), [k for k in m1 if not _same(m1[k], m2[k])]
+    assert (w1, t1, r1) == (w2, t2, r2)
