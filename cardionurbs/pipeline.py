@@ -124,31 +124,45 @@ def measure_with_tags(model: BiventricularModel, *, heart_rate_bpm: float | None
                       progress: Progress | None = None):
     """(docs/metrics.md dict of :func:`measure`, :func:`tag_metrics_hook` result or None).
 
-    With a worker process (``jobs`` not 1, a study with tag lines; see
-    :func:`cardionurbs.parallel.fork_map`) the tag metrics (which need the study and the
-    model's ED long axis alone) are measured on it while this process measures the
-    volumes, masses and rates: the same two results, the tag result pickled back. Tag
-    metrics change nothing in the model, except warnings, which the worker hands back
-    and which are added after the volumes' (the serial order)."""
+    With worker processes (``jobs`` not 1; :func:`cardionurbs.parallel.fork_map`) this
+    process measures the volumes, masses and rates while a worker measures the tag
+    metrics (which need the study and the model's ED long axis alone; this process then
+    makes the fit residuals at ED and ES, which the quality check of the metrics asks for
+    next) or, without tag lines, those fit residuals (from the ED and ES surfaces, which
+    the worker builds as this process does). Results are pickled back: the same as one
+    process's. Neither changes the model except for warnings: the tag metrics' are added
+    after the volumes' (the serial order); the residual worker's repeat this process's
+    (the same surfaces) and are dropped."""
     from cardionurbs.parallel import fork_map
     progress = progress or Progress(False)
-    if not model.study.tags or jobs == 1:
+    tagged = bool(model.study.tags)
+    if jobs == 1 or not (tagged or model.study.contours):
         progress.stage("measure")
         metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
-        if model.study.tags:
+        if tagged:
             progress.stage("tags")
         return metrics, tag_metrics_hook(model, over_time=over_time)
 
     def part(name: str):
-        if name == "measure":
-            return measure(model, heart_rate_bpm=heart_rate_bpm)
         n_warnings = len(model.warnings)
+        if name == "measure":
+            metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
+            if tagged:                  # the tags are the longer part: residuals here meanwhile
+                model.point_residual_arrays()
+            return metrics
+        if name == "residuals":
+            return model.point_residual_arrays()
         tags = tag_metrics_hook(model, over_time=over_time)
         warnings = model.warnings[n_warnings:]
         del model.warnings[n_warnings:]             # added back below, after the volumes'
         return tags, warnings
-    progress.stage("measure, tags")
-    metrics, (tags, warnings) = fork_map(part, ["measure", "tags"], jobs=jobs, here={"measure"})
+    progress.stage("measure, tags" if tagged else "measure")
+    metrics, other = fork_map(part, ["measure", "tags" if tagged else "residuals"], jobs=jobs,
+                              here={"measure"})
+    if not tagged:
+        model.provide_point_residuals(other)
+        return metrics, None
+    tags, warnings = other
     model.warnings += warnings
     return metrics, tags
 

@@ -656,6 +656,13 @@ class BiventricularModel:
             self._solid_cache[key] = self._point_residuals(frames)
         return [dict(p) for p in self._solid_cache[key]]
 
+    def provide_point_residuals(self, parts: list[dict], frames=None) -> None:
+        """Store :meth:`point_residual_arrays` computed elsewhere (a worker process of
+        :func:`cardionurbs.parallel.fork_map`), unless this model has them."""
+        if frames is None:
+            frames = sorted({self.ed_frame, self.es_frame})
+        self._solid_cache.setdefault(("point_residuals", tuple(frames)), [dict(p) for p in parts])
+
     def _point_residuals(self, frames) -> list[dict]:
         parts = []
         for f in frames:
