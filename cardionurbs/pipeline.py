@@ -149,6 +149,7 @@ def measure_with_tags(model: BiventricularModel, *, heart_rate_bpm: float | None
             metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
             if tagged:                  # the tags are the longer part: residuals here meanwhile
                 model.point_residual_arrays()
+                progress.stage("tags")                 # what is left: the worker's tags
             return metrics
         if name == "residuals":
             return model.point_residual_arrays()
@@ -156,7 +157,7 @@ def measure_with_tags(model: BiventricularModel, *, heart_rate_bpm: float | None
         warnings = model.warnings[n_warnings:]
         del model.warnings[n_warnings:]             # added back below, after the volumes'
         return tags, warnings
-    progress.stage("measure, tags" if tagged else "measure")
+    progress.stage("measure")
     metrics, other = fork_map(part, ["measure", "tags" if tagged else "residuals"], jobs=jobs,
                               here={"measure"})
     if not tagged:
