@@ -62,6 +62,15 @@ def run(cmd: list[str], root: Path = ROOT, user_env: bool = False, **kw) -> dict
             "load_1min": os.getloadavg()[0], "stderr": err}
 
 
+def _usable_cpus() -> int:
+    """CPUs this process may run on: what ``analyze`` forks its per-frame workers for by
+    default (cardionurbs.parallel.usable_cpus)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
 def cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "cardionurbs.cli", *args]
 
@@ -242,7 +251,8 @@ def main(argv=None) -> int:
             Path(a.scale).write_text(render_scale(res))
         return 0
     res: dict = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-                 "machine": f"{platform.machine()}, {os.cpu_count()} cores, Python "
+                 "machine": f"{platform.machine()}, {os.cpu_count()} cores ({_usable_cpus()} "
+                            "usable: `analyze`'s default `--jobs`), Python "
                             f"{platform.python_version()}",
                  "load_start": loadavg(), "n": a.n, "repeat": a.repeat}
     work = Path(tempfile.mkdtemp(prefix="cn-throughput-"))

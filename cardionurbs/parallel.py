@@ -18,7 +18,8 @@ merges it.
   killer) raises :class:`WorkerDied`. Every worker has ended when :func:`fork_map`
   returns or raises.
 - It runs serially (``[fn(x) for x in items]`` in this process) when ``jobs`` is 1,
-  when at most one item would go to a worker, where ``fork`` is not available (Windows;
+  when only one process would work (one item, or one item and none here), where ``fork``
+  is not available (Windows;
   macOS, where forking a process that has used system frameworks is unsafe), and in a
   daemonic process: a cohort's worker processes (:mod:`cardionurbs.executor`) and Dask's
   are daemonic, cannot have children, and already keep every core busy.
@@ -75,19 +76,17 @@ def can_fork() -> bool:
             and not mp.current_process().daemon)
 
 
-def worker_count(jobs: int | None, n_items: int, alongside: bool = False) -> int:
-    """Worker processes :func:`fork_map` starts for ``n_items`` items given to workers:
-    ``jobs`` (None: :func:`usable_cpus`) capped by ``n_items``; 0 (serial) when that is
-    one or fewer or :func:`can_fork` is False -- except that one worker is started for one
-    item ``alongside`` this process's own items (``here``) when ``jobs`` allows two
-    processes: the two then run at once. Raises ValueError for ``jobs`` < 1."""
+def worker_count(jobs: int | None, n_items: int, n_here: int = 0) -> int:
+    """Worker processes :func:`fork_map` starts for ``n_items`` items given to workers
+    beside ``n_here`` items of this process: ``jobs`` (None: :func:`usable_cpus`) capped by
+    ``n_items``; 0 (serial) when ``jobs`` is 1, when fewer than two processes would work
+    (one worker and nothing here) or when :func:`can_fork` is False. Raises ValueError for
+    ``jobs`` < 1."""
     if jobs is not None and (isinstance(jobs, bool) or int(jobs) != jobs or jobs < 1):
         raise ValueError(f"jobs must be a whole number >= 1, got {jobs!r}")
-    limit = usable_cpus() if jobs is None else int(jobs)
-    n = min(limit, n_items)
-    if n == 1 and alongside and limit >= 2:
-        return 1 if can_fork() else 0
-    return n if n >= 2 and can_fork() else 0
+    jobs = usable_cpus() if jobs is None else int(jobs)
+    n = min(jobs, n_items)
+    return n if jobs >= 2 and n + (n_here > 0) >= 2 and can_fork() else 0
 
 
 def fork_map(fn: Callable[[T], R], items: Sequence[T], *, jobs: int | None = None,
@@ -99,8 +98,8 @@ def fork_map(fn: Callable[[T], R], items: Sequence[T], *, jobs: int | None = Non
     items = list(items)
     mine = [i for i, x in enumerate(items) if x in here]
     theirs = [i for i, x in enumerate(items) if x not in here]
-    workers = worker_count(jobs, len(theirs), alongside=bool(mine))
-    if jobs == 1 or workers == 0:
+    workers = worker_count(jobs, len(theirs), len(mine))
+    if workers == 0:
         out = []
         for i, x in enumerate(items):
             out.append(fn(x))

@@ -195,47 +195,64 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
         if "meshes" in outputs:
             progress.stage("meshes")
             write_meshes(model, tmp / "meshes", mesh_ext, jobs=jobs, progress=progress)
-        if "model" in outputs:
-            progress.stage("model")
-            with acyclic():                         # plain lists and dicts
-                model_dict = model.to_dict()
-                if tags is not None:               # tag surfaces are saved with the model
-                    from cardionurbs.analysis.tags import tag_surfaces_dict
-                    model_dict["tag_surfaces"] = tag_surfaces_dict(
-                        model.study, long_axis=model.long_axis(), surfaces=tags.surfaces)
-                write_json(model_dict, tmp / "model.json", indent=None)
-                del model_dict
-            try:                                   # the cad extra: Rhino .3dm of the ED surfaces
-                import rhino3dm  # noqa: F401
-            except ImportError:
-                pass
-            else:
-                export_model_3dm(model, tmp / "model.3dm")
-            # ED and ES (every frame: model.residuals); the table's CSV without pandas
-            atomic.write_text(tmp / "residuals.csv", table_csv(model.residual_columns()))
-        if "metrics" in outputs:
-            progress.stage("metrics")
-            from cardionurbs.analysis.quality import assess, residual_summary
-            quality = assess(model, metrics)
-            summary = residual_summary(model)      # ED and ES, per surface (no pandas)
-            write_json({"subject": model.study.subject,
-                        "metrics": {k: (None if isinstance(v, float) and math.isnan(v) else v)
-                                    for k, v in metrics.items()},
-                        "ed_frame": model.ed_frame, "es_frame": model.es_frame,
-                        "volume_curve": volume_curve(model, every_structure=bool(
-                            {"meshes", "figures", "report"} & set(outputs))),
-                        "residuals": summary,
-                        "residual_frames": sorted({model.ed_frame, model.es_frame}),
-                        "tags": None if tags is None else tags.to_json(),
-                        "quality": quality.to_json(), "QC": "; ".join(quality.flags),
-                        "regional": (None if getattr(model, "regional", None) is None
-                                     else model.regional.to_json()),
-                        "notes": dict(model.study.meta.get("metric_notes") or {}),
-                        "warnings": model.warnings}, tmp / "metrics.json")
+
+        def model_and_metrics() -> None:
+            if "model" in outputs:
+                progress.stage("model")
+                with acyclic():                         # plain lists and dicts
+                    model_dict = model.to_dict()
+                    if tags is not None:               # tag surfaces are saved with the model
+                        from cardionurbs.analysis.tags import tag_surfaces_dict
+                        model_dict["tag_surfaces"] = tag_surfaces_dict(
+                            model.study, long_axis=model.long_axis(), surfaces=tags.surfaces)
+                    write_json(model_dict, tmp / "model.json", indent=None)
+                    del model_dict
+                try:                                   # the cad extra: Rhino .3dm of the ED surfaces
+                    import rhino3dm  # noqa: F401
+                except ImportError:
+                    pass
+                else:
+                    export_model_3dm(model, tmp / "model.3dm")
+                # ED and ES (every frame: model.residuals); the table's CSV without pandas
+                atomic.write_text(tmp / "residuals.csv", table_csv(model.residual_columns()))
+            if "metrics" in outputs:
+                progress.stage("metrics")
+                from cardionurbs.analysis.quality import assess, residual_summary
+                quality = assess(model, metrics)
+                summary = residual_summary(model)      # ED and ES, per surface (no pandas)
+                write_json({"subject": model.study.subject,
+                            "metrics": {k: (None if isinstance(v, float) and math.isnan(v) else v)
+                                        for k, v in metrics.items()},
+                            "ed_frame": model.ed_frame, "es_frame": model.es_frame,
+                            "volume_curve": volume_curve(model, every_structure=bool(
+                                {"meshes", "figures", "report"} & set(outputs))),
+                            "residuals": summary,
+                            "residual_frames": sorted({model.ed_frame, model.es_frame}),
+                            "tags": None if tags is None else tags.to_json(),
+                            "quality": quality.to_json(), "QC": "; ".join(quality.flags),
+                            "regional": (None if getattr(model, "regional", None) is None
+                                         else model.regional.to_json()),
+                            "notes": dict(model.study.meta.get("metric_notes") or {}),
+                            "warnings": model.warnings}, tmp / "metrics.json")
+
         fig_set = None
         if "figures" in outputs:
+            # the figures' workers draw while this process writes the model and the metrics
+            # (the figures read the model as it is now: every volume is known once the meshes
+            # are written; without them the metrics' volume curve computes them first)
+            overlap = "meshes" in outputs or len(model.volumes.computed) == len(model.frames)
+            if not overlap:
+                model_and_metrics()
             progress.stage("figures")
-            fig_set = _figures(model, metrics, tmp, tags=tags)
+
+            def then_figures() -> None:
+                model_and_metrics()
+                progress.stage("figures")
+
+            fig_set = _figures(model, metrics, tmp, tags=tags, jobs=jobs,
+                               meanwhile=then_figures if overlap else None)
+        else:
+            model_and_metrics()
         if "report" in outputs:
             progress.stage("report")
             # the model and tag surfaces just written, from memory (not read back)
@@ -291,14 +308,19 @@ def write_meshes(model: BiventricularModel, mesh_dir: Path, mesh_ext: str = "ply
         model.warnings += warnings
 
 
-def _figures(model: BiventricularModel, metrics: dict, out_dir: Path, tags=None):
-    """The figures into ``out_dir/figures`` (a cardionurbs.report.figures.FigureSet), or None
-    without the report module."""
+def _figures(model: BiventricularModel, metrics: dict, out_dir: Path, tags=None,
+             jobs: int | None = None, meanwhile=None):
+    """The figures into ``out_dir/figures`` (a cardionurbs.report.figures.FigureSet), drawn by
+    ``jobs`` processes while this one runs ``meanwhile``; None without the report module
+    (``meanwhile`` is then run alone)."""
     try:
         from cardionurbs.report.figures import render_figures
     except ImportError:
+        if meanwhile is not None:
+            meanwhile()
         return None
-    return render_figures(model, Path(out_dir) / "figures", metrics=metrics, tags=tags)
+    return render_figures(model, Path(out_dir) / "figures", metrics=metrics, tags=tags,
+                          jobs=jobs, meanwhile=meanwhile)
 
 
 def _report(out_dir: Path, model: BiventricularModel | None = None,

@@ -39,19 +39,13 @@ def test_results_in_order_here_items_run_here():
     assert sorted(seen) == [0, 3]
 
 
-def test_serial_when_one_job_or_one_item():
+def test_serial_when_one_job_or_one_process_would_work():
     assert [p for _, p in fork_map(_pid_of, range(4), jobs=1)] == [os.getpid()] * 4
-    assert [p for _, p in fork_map(_pid_of, [0, 1], jobs=1, here={0})] == [os.getpid()] * 2
-    assert worker_count(1, 10) == 0 and worker_count(8, 1) == 0
-    assert worker_count(1, 1, alongside=True) == 0
-
-
-@needs_fork
-def test_one_worker_beside_this_process():
-    """One item for a worker while this process works on its own (``here``): two at once."""
-    (a, pa), (b, pb) = fork_map(_pid_of, [0, 1], jobs=2, here={0})
-    assert (a, b) == (0, 1) and pa == os.getpid() and pb != os.getpid()
-    assert worker_count(2, 1, alongside=True) == 1 and worker_count(2, 1) == 0
+    assert [p for _, p in fork_map(_pid_of, [0], jobs=4)] == [os.getpid()]
+    assert [p for _, p in fork_map(_pid_of, [0, 1], jobs=4, here={0, 1})] == [os.getpid()] * 2
+    assert worker_count(1, 10) == 0 and worker_count(8, 1) == 0 and worker_count(8, 0, 3) == 0
+    if can_fork():                  # one worker beside this process's own items: two at work
+        assert worker_count(8, 1, 1) == 1 and worker_count(2, 5, 1) == 2
     with pytest.raises(ValueError, match="jobs"):
         worker_count(0, 3)
 
@@ -124,7 +118,7 @@ def runs(study_dir, tmp_path_factory):
     for jobs in ("1", "2"):
         d = tmp_path_factory.mktemp(f"jobs{jobs}") / "out"
         assert cli.main(["analyze", str(study_dir), "--out", str(d), "--jobs", jobs,
-                         "--outputs", "metrics,model,meshes,report"]) == 0
+                         "--outputs", "all"]) == 0
         out[jobs] = d
     return out
 
@@ -134,6 +128,11 @@ def test_parallel_outputs_equal_serial(runs):
     one, two = runs["1"], runs["2"]
     for name in ("metrics.json", "model.json", "residuals.csv", "report.html"):
         assert (one / name).read_bytes() == (two / name).read_bytes(), name
+    figures = sorted(p.name for p in (one / "figures").iterdir())
+    assert figures == sorted(p.name for p in (two / "figures").iterdir())
+    assert sum(name.endswith(".png") for name in figures) >= 10
+    for name in figures:                   # PNGs drawn by workers, figures.json, report_tags.json
+        assert (one / "figures" / name).read_bytes() == (two / "figures" / name).read_bytes(), name
     meshes = sorted(p.name for p in (one / "meshes").iterdir())
     assert meshes == sorted(p.name for p in (two / "meshes").iterdir()) and len(meshes) == 20
     for name in meshes:       # manifold3d's threaded booleans may order a mesh's vertices

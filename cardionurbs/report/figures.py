@@ -820,14 +820,22 @@ def _load_truth(model, truth) -> Mapping | None:
 
 def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = None,
                    truth: Mapping | str | Path | None = None, tags: Any = None,
-                   only: Sequence[str] | None = None, tag_grid: tuple[int, int] = TAG_GRID
+                   only: Sequence[str] | None = None, tag_grid: tuple[int, int] = TAG_GRID,
+                   *, jobs: int | None = 1, meanwhile: Callable[[], Any] | None = None
                    ) -> FigureSet:
     """Render the figures of one model into ``out_dir``; see :func:`write_figures`.
 
     Also writes ``figures.json`` (captions, skip reasons, study source), ``skipped.txt``
     and, when tags exist, ``report_tags.json`` for the HTML report (coarse tag surfaces
     per tagged frame with QC flags).
+
+    ``jobs``: processes drawing the figures (:func:`cardionurbs.parallel.fork_map`, each
+    figure -- the bull's-eyes together, on their one canvas -- drawn whole by one worker;
+    1, the default: all in this process, None: the usable CPUs); the files are those one
+    process draws. ``meanwhile``: work of the caller run in this process while the workers
+    draw (before the figures when they are drawn here).
     """
+    from cardionurbs.parallel import fork_map
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     fs = FigureSet()
@@ -842,11 +850,28 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
     tags_m, tag_frames, tag_note = tag_data(model, tags, grid=tag_grid)
     ctx = _Context(model, str(model.study.subject), ed, es, axis, view, oblique, metrics,
                    _load_truth(model, truth), tags_m, tag_frames, tag_note)
+
+    def draw(group: tuple[str, ...]) -> dict[str, FigureResult | str]:
+        drawn = {}
+        for name in group:
+            try:
+                drawn[name] = registry[name](ctx, out)
+            except (ValueError, KeyError, np.linalg.LinAlgError) as exc:   # never crash analyze
+                drawn[name] = f"not drawn: {type(exc).__name__}: {' '.join(str(exc).split())}"
+        return drawn
+
+    bullseyes = tuple(n for n in names if n in {q[0] for q in BULLSEYE_QUANTITIES})
+    groups = [(n,) for n in names if n not in bullseyes] + ([bullseyes] if bullseyes else [])
+    here = ()
+    if meanwhile is not None:
+        groups, here = [None, *groups], {None}
+    drawn = {}
+    for g, res in zip(groups, fork_map(lambda g: meanwhile() if g is None else draw(g), groups,
+                                       jobs=jobs, here=here)):
+        if g is not None:
+            drawn.update(res)
     for name in names:
-        try:
-            res = registry[name](ctx, out)
-        except (ValueError, KeyError, np.linalg.LinAlgError) as exc:   # never crash analyze
-            res = f"not drawn: {type(exc).__name__}: {' '.join(str(exc).split())}"
+        res = drawn[name]
         if isinstance(res, FigureResult):
             fs.figures.append(res)
         else:
