@@ -21,9 +21,8 @@ merges it.
   returns or raises.
 - It runs serially (``[fn(x) for x in items]`` in this process) when ``jobs`` is 1,
   when only one process would work (one item, or one item and none here), where ``fork``
-  is not available (Windows;
-  macOS, where forking a process that has used system frameworks is unsafe), and in a
-  daemonic process: a cohort's worker processes (:mod:`cardionurbs.executor`) and Dask's
+  is not available (Windows; macOS, where forking a process that has used system
+  frameworks is unsafe), and in a daemonic process: a cohort's worker processes (:mod:`cardionurbs.executor`) and Dask's
   are daemonic, cannot have children, and already keep every core busy.
 - Workers leave with ``os._exit`` (no ``atexit`` handlers, no flushing of buffers
   copied from this process; :mod:`multiprocessing`'s fork start method), ignore SIGINT
