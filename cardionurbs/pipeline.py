@@ -99,20 +99,17 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
 
     ``over_time``: also twist and LS at every tagged frame (for figures and metrics.json);
     the docs/metrics.md columns are the same without it. ``progress``: stages on stderr.
-    ``jobs``: processes for the tag strain over time (one fit per tagged frame,
-    :func:`cardionurbs.analysis.regional.regional_metrics`; None: the usable CPUs, 1: this
-    process only). ``on_measured(model)``: called once ED and ES are known and the volumes
-    measured, before the tags (``analyze`` starts the meshes' workers there)."""
+    ``jobs``: processes for the per-frame work -- the frames' LV cavities (``reconstruct``),
+    the tag metrics beside the volumes (:func:`measure_with_tags`) and the tag strain over
+    time (one fit per tagged frame, :func:`cardionurbs.analysis.regional.regional_metrics`);
+    None: the usable CPUs, 1: this process only. The results are the same either way.
+    ``on_measured(model)``: called once ED and ES are known and the volumes measured,
+    before the tag results are awaited (``analyze`` starts the meshes' workers there)."""
     progress = progress or Progress(False)
     progress.stage("reconstruct")
-    model = reconstruct(study, progress=progress.step)
-    progress.stage("measure")
-    metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
-    if on_measured is not None:
-        on_measured(model)
-    if study.tags:
-        progress.stage("tags")
-    tags = tag_metrics_hook(model, over_time=over_time)
+    model = reconstruct(study, progress=progress.step, jobs=jobs)
+    metrics, tags = measure_with_tags(model, heart_rate_bpm=heart_rate_bpm, over_time=over_time,
+                                      jobs=jobs, progress=progress, on_measured=on_measured)
     if tags is not None:
         metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
     from cardionurbs.analysis.regional import regional_metrics
@@ -124,6 +121,60 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
         from cardionurbs.analysis.voxels import voxel_metrics
         metrics.update(voxel_metrics(voxels, model.ed_frame, model.es_frame))
     return model, metrics, tags
+
+
+def measure_with_tags(model: BiventricularModel, *, heart_rate_bpm: float | None = None,
+                      over_time: bool = True, jobs: int | None = 1,
+                      progress: Progress | None = None, on_measured=None):
+    """(docs/metrics.md dict of :func:`measure`, :func:`tag_metrics_hook` result or None).
+
+    With worker processes (``jobs`` not 1; :func:`cardionurbs.parallel.fork_map`) this
+    process measures the volumes, masses and rates while a worker measures the tag
+    metrics (which need the study and the model's ED long axis alone; this process then
+    makes the fit residuals at ED and ES, which the quality check of the metrics asks for
+    next) or, without tag lines, those fit residuals (from the ED and ES surfaces, which
+    the worker builds as this process does). Results are pickled back: the same as one
+    process's. Neither changes the model except for warnings: the tag metrics' are added
+    after the volumes' (the serial order); the residual worker's repeat this process's
+    (the same surfaces) and are dropped. ``on_measured(model)`` is called in this process
+    right after the volumes are measured (:func:`analyse`)."""
+    from cardionurbs.parallel import fork_map
+    progress = progress or Progress(False)
+    tagged = bool(model.study.tags)
+    if jobs == 1 or not (tagged or model.study.contours):
+        progress.stage("measure")
+        metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
+        if on_measured is not None:
+            on_measured(model)
+        if tagged:
+            progress.stage("tags")
+        return metrics, tag_metrics_hook(model, over_time=over_time)
+
+    def part(name: str):
+        n_warnings = len(model.warnings)
+        if name == "measure":
+            metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
+            if on_measured is not None:
+                on_measured(model)
+            if tagged:                  # the tags are the longer part: residuals here meanwhile
+                model.point_residual_arrays()
+                progress.stage("tags")                 # what is left: the worker's tags
+            return metrics
+        if name == "residuals":
+            return model.point_residual_arrays()
+        tags = tag_metrics_hook(model, over_time=over_time)
+        warnings = model.warnings[n_warnings:]
+        del model.warnings[n_warnings:]             # added back below, after the volumes'
+        return tags, warnings
+    progress.stage("measure")
+    metrics, other = fork_map(part, ["measure", "tags" if tagged else "residuals"], jobs=jobs,
+                              here={"measure"})
+    if not tagged:
+        model.provide_point_residuals(other)
+        return metrics, None
+    tags, warnings = other
+    model.warnings += warnings
+    return metrics, tags
 
 
 def analyse_study(study: Study, *, heart_rate_bpm: float | None = None

@@ -16,13 +16,20 @@ from cardionurbs.pipeline import analyse, write_analysis
 @pytest.fixture(scope="module")
 def analysed(tmp_path_factory):
     ph = generate("normal", seed=4, frames=3, tag_jumps=1, volume_check=False)
-    calls = []
+    # each call's keywords to a file: the tag metrics may run on a worker process
+    log = tmp_path_factory.mktemp("calls") / "tag_metrics.jsonl"
     real = tags_module.tag_metrics
+
+    def logged(*a, **k):
+        with open(log, "a") as fh:
+            fh.write(json.dumps({key: v for key, v in k.items() if key == "over_time"}) + "\n")
+        return real(*a, **k)
     mp = pytest.MonkeyPatch()
-    mp.setattr(tags_module, "tag_metrics", lambda *a, **k: calls.append(k) or real(*a, **k))
+    mp.setattr(tags_module, "tag_metrics", logged)
     model, metrics, tags = analyse(ph.study)
     out = write_analysis(model, metrics, tmp_path_factory.mktemp("a") / "out", tags=tags)
     mp.undo()
+    calls = [json.loads(line) for line in log.read_text().splitlines()] if log.exists() else []
     return ph, out, calls
 
 

@@ -188,3 +188,26 @@ def test_off_plane_distances_equal_one_line_at_a_time():
     want = [float(np.abs((t.points - p.position) @ normals.of(p)).max())
             for t, p in zip(study.tags, planes)]
     assert got == pytest.approx(want, rel=1e-12, abs=1e-12)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.floats(0.05, 6.0))
+def test_merged_newton_seeds_find_the_same_closest_points(seed, noise_mm):
+    """Seeds of one point that have met after a few Newton steps are merged
+    (projection._MERGE_AFTER): the distances equal those of iterating every seed to the
+    end (to rounding), on an LV-like surface with an apex, from points near and far."""
+    from cardionurbs import nurbs
+    from cardionurbs.nurbs import projection
+    from tests.test_nurbs_api import lv_like_surface
+    rng = np.random.default_rng(seed)
+    s = lv_like_surface()
+    P = s.evaluate_points(rng.random(150), rng.random(150)) + rng.normal(0, noise_mm, (150, 3))
+    u, v, d = nurbs.closest_points(s, P)
+    saved = projection._MERGE_AFTER
+    try:
+        projection._MERGE_AFTER = 10 ** 6             # never merge
+        u0, v0, d0 = nurbs.closest_points(s, P)
+    finally:
+        projection._MERGE_AFTER = saved
+    np.testing.assert_allclose(d, d0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(s.evaluate_points(u, v) - P, axis=1), d, atol=1e-12)

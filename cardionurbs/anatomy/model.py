@@ -26,7 +26,7 @@ from cardionurbs.anatomy.outflow import OutflowTract, outflow_tracts, tract_soli
 from cardionurbs.anatomy.sections import SURFACES, FrameGeometry, Section, frame_geometry
 from cardionurbs.anatomy.refine import refine_surface
 from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface, free_wall_points
-from cardionurbs.errors import ReconstructionError
+from cardionurbs.errors import CardioNurbsError, ReconstructionError
 from cardionurbs.geometry import long_axis, polygon_centroid
 from cardionurbs.median import median
 from cardionurbs.study import Study
@@ -140,7 +140,8 @@ class BiventricularModel:
                  sections: Mapping | None = None, tol_px: float = 1.0,
                  refine: bool = True, anchor_weight: float = 10.0,
                  ed_es: tuple[int, int] | None = None, warnings: list[str] | None = None,
-                 resolution: tuple[int, int] = RESOLUTION, progress=None) -> None:
+                 resolution: tuple[int, int] = RESOLUTION, progress=None,
+                 jobs: int | None = 1) -> None:
         self.study = study
         self.frames = list(frames)
         self.tol_px = float(tol_px)
@@ -151,6 +152,7 @@ class BiventricularModel:
         self._solid_cache: dict[tuple[int, str], object] = {}
         self._fits: dict[tuple[int, str], SurfaceFit] = {}
         self._clipped_ml: dict[int, float] = {}     # lv_cavity_volume of frames without solids
+        self._warned: set[tuple] = set()    # (frame, what) whose warnings a worker process gave
         self.geometry = LazyFrames(self.frames, self._frame_geometry)
         if surfaces is None:          # reconstruct lazily from the study
             self.surfaces = LazyFrames(self.frames, self._all_surfaces)
@@ -177,11 +179,7 @@ class BiventricularModel:
             ed, es = int(ed_es[0]), int(ed_es[1])
         else:
             if isinstance(self.surfaces, LazyFrames):
-                lv = {}
-                for k, f in enumerate(self.frames):
-                    lv[f] = self.lv_cavity_volume_unrefined(f)
-                    if progress is not None:
-                        progress(k + 1, len(self.frames))
+                lv = self._unrefined_cavity_volumes(jobs, progress)
             else:
                 lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
             self.lv_volume_by_frame = lv      # the per-frame LV cavity volumes (mL) ED/ES came from
@@ -197,10 +195,62 @@ class BiventricularModel:
         if surfaces is None and ed != es:
             self._conserve_myocardium(ed, es)
 
+    # ------------------------------------------------------------- ED and ES
+    def _unrefined_cavity_volumes(self, jobs: int | None = 1, progress=None) -> dict[int, float]:
+        """Every frame's :meth:`lv_cavity_volume_unrefined` (mL), which ED and ES are found
+        with; ``progress(k, n)`` after each frame.
+
+        With worker processes (``jobs``, :func:`cardionurbs.parallel.fork_map`) each worker
+        also makes its frames' LA-corrected LV cavity volume (:meth:`lv_cavity_volume`
+        asks for it next: the volume curve and the filling rates) and hands back the two
+        volumes and the warnings the frame raised, which are added here in frame order.
+        Nothing else comes back: the surfaces this process needs later (ED and ES) are
+        built here again, from the study, so that they are the serial loop's to the last
+        bit (a section's points unpickled are contiguous copies of what were views, and
+        numpy sums those in another order), and their warnings, already recorded, are not
+        added twice. A frame whose corrected volume fails leaves it to be made (and fail)
+        where the serial order makes it."""
+        from cardionurbs.parallel import fork_map, worker_count
+        n = len(self.frames)
+        if worker_count(jobs, n) == 0:
+            lv = {}
+            for k, f in enumerate(self.frames):
+                lv[f] = self.lv_cavity_volume_unrefined(f)
+                if progress is not None:
+                    progress(k + 1, n)
+            return lv
+
+        def frame_volumes(f: int) -> dict:
+            n_warnings = len(self.warnings)
+            out = {"unrefined": self.lv_cavity_volume_unrefined(f)}
+            try:
+                out["refined"] = self._clipped_cavity_ml(f, self._surface(f, "lv_endo"))
+            except CardioNurbsError:
+                pass
+            out["warnings"] = self.warnings[n_warnings:]
+            return out
+
+        done = [0]
+
+        def told(i: int, result: dict) -> None:
+            done[0] += 1
+            if progress is not None:
+                progress(done[0], n)
+        results = fork_map(frame_volumes, self.frames, jobs=jobs, on_result=told)
+        lv = {}
+        for f, r in zip(self.frames, results):
+            lv[f] = r["unrefined"]
+            if "refined" in r:
+                self._clipped_ml[f] = r["refined"]
+            self.warnings += r["warnings"]
+            self._warned |= {(f, "geometry"), (f, "lv_endo", False)}
+        return lv
+
     # ------------------------------------------------------------- lazy construction
     def _frame_geometry(self, frame: int) -> FrameGeometry:
         geo = frame_geometry(self.study, frame)
-        self.warnings += geo.warnings
+        if (frame, "geometry") not in self._warned:
+            self.warnings += geo.warnings
         geo.reference = _reference_direction(self.study, geo)
         return geo
 
@@ -243,7 +293,8 @@ class BiventricularModel:
             else:
                 geo = self.geometry[frame]
                 f = build_surface(geo, structure, geo.reference, tol_px=self.tol_px)
-                self.warnings += f.warnings
+                if key not in self._warned:
+                    self.warnings += f.warnings
             self._fits[key] = f
         return self._fits[key]
 
@@ -605,6 +656,13 @@ class BiventricularModel:
             self._solid_cache[key] = self._point_residuals(frames)
         return [dict(p) for p in self._solid_cache[key]]
 
+    def provide_point_residuals(self, parts: list[dict], frames=None) -> None:
+        """Store :meth:`point_residual_arrays` computed elsewhere (a worker process of
+        :func:`cardionurbs.parallel.fork_map`), unless this model has them."""
+        if frames is None:
+            frames = sorted({self.ed_frame, self.es_frame})
+        self._solid_cache.setdefault(("point_residuals", tuple(frames)), [dict(p) for p in parts])
+
     def _point_residuals(self, frames) -> list[dict]:
         parts = []
         for f in frames:
@@ -730,7 +788,7 @@ def surface_distance(surface, points: np.ndarray) -> np.ndarray:
 
 def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float = 1.0,
                 refine: bool = True, resolution: tuple[int, int] = RESOLUTION,
-                progress=None) -> BiventricularModel:
+                progress=None, jobs: int | None = 1) -> BiventricularModel:
     """Biventricular NURBS model of a study (paper §4.2): one set of lofted
     surfaces per frame with LV endocardial contours (or the given ``frames``).
 
@@ -742,6 +800,8 @@ def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float 
     ``refine``: correct the LV surfaces towards the LA contour points
     (:mod:`cardionurbs.anatomy.refine`), where the study has LA contours.
     ``progress``: optional callable (k, n) told after each frame's LV cavity is built.
+    ``jobs``: processes for the frames' LV cavities (1: this one; None: the usable CPUs;
+    :func:`cardionurbs.parallel.fork_map`): the same model either way.
     Raises ReconstructionError naming the structure and frame when a surface
     cannot be built.
     """
@@ -754,4 +814,4 @@ def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float 
     if not frames:
         raise ReconstructionError(f"study {study.subject}: no LV endocardial contours")
     return BiventricularModel(study, frames, tol_px=tol_px, refine=refine, resolution=resolution,
-                              progress=progress)
+                              progress=progress, jobs=jobs)

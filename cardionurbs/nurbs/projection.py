@@ -141,6 +141,29 @@ def curve_distance_bounds(curve: Any, points: np.ndarray, samples_per_span: int 
     return upper - chords.max(), upper
 
 
+#: Newton iterations after which seeds of one point that have met are merged (the
+#: later seeds are dropped: from there on they would repeat the first one's steps)
+_MERGE_AFTER = 3
+#: seeds closer than this fraction of each parameter range count as met
+_MERGE_TOL = 1e-7
+
+
+def _distinct_seeds(active: np.ndarray, u: np.ndarray, v: np.ndarray, k: int,
+                    ranges: tuple[float, float], closed_u: bool) -> np.ndarray:
+    """``active`` (indices into the k-seeds-per-point arrays) less every seed whose
+    (u, v) lies within :data:`_MERGE_TOL` of an earlier seed of the same point (still
+    active or not): both are converging to the same closest point."""
+    U, Vv = u.reshape(-1, k), v.reshape(-1, k)
+    du = np.abs(U[:, :, None] - U[:, None, :])
+    if closed_u:
+        du = np.minimum(du, ranges[0] - du)
+    same = (du <= _MERGE_TOL * ranges[0]) & \
+        (np.abs(Vv[:, :, None] - Vv[:, None, :]) <= _MERGE_TOL * ranges[1])
+    dup = np.triu(np.ones((k, k), dtype=bool), 1)       # seed j > i, i earlier
+    drop = (same & dup[None]).any(axis=1).ravel()         # seed j met an earlier seed
+    return active[~drop[active]]
+
+
 def surface_closest_points(surface: Any, points: Any, iterations: int = 16,
                            samples_per_span: int = 6, seeds: int = 3
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -177,7 +200,9 @@ def surface_closest_points(surface: Any, points: Any, iterations: int = 16,
     # points still moving are iterated (the same result, a fraction of the work).
     active = np.arange(u.size)
     dot = lambda a, b: np.einsum("kd,kd->k", a, b)  # noqa: E731
-    for _ in range(iterations):
+    for it in range(iterations):
+        if it == _MERGE_AFTER and k > 1:
+            active = _distinct_seeds(active, u, v, k, (uhi - ulo, vhi - vlo), surface.closed_u)
         if active.size == 0:
             break
         ua, va, Pa, da = u[active], v[active], P[active], dist[active]
