@@ -11,6 +11,8 @@ merges it.
 
 - Workers take the next item in order from a shared counter (items of unequal cost
   balance themselves); this process runs its ``here`` items meanwhile, then collects.
+  :class:`ForkMap` starts the workers at once and collects later, so that this process
+  can do other work in between.
 - An exception in a worker is raised here, with its type and message (and the worker's
   traceback as its ``__cause__``); as in a serial loop, it is the exception of the first
   failing item in the items' order (the counter stops; items handed out before the
@@ -19,9 +21,8 @@ merges it.
   returns or raises.
 - It runs serially (``[fn(x) for x in items]`` in this process) when ``jobs`` is 1,
   when only one process would work (one item, or one item and none here), where ``fork``
-  is not available (Windows;
-  macOS, where forking a process that has used system frameworks is unsafe), and in a
-  daemonic process: a cohort's worker processes (:mod:`cardionurbs.executor`) and Dask's
+  is not available (Windows; macOS, where forking a process that has used system
+  frameworks is unsafe), and in a daemonic process: a cohort's worker processes (:mod:`cardionurbs.executor`) and Dask's
   are daemonic, cannot have children, and already keep every core busy.
 - Workers leave with ``os._exit`` (no ``atexit`` handlers, no flushing of buffers
   copied from this process; :mod:`multiprocessing`'s fork start method), ignore SIGINT
@@ -93,20 +94,58 @@ def fork_map(fn: Callable[[T], R], items: Sequence[T], *, jobs: int | None = Non
              here: Collection = (), on_result: Callable[[int, R], None] | None = None) -> list[R]:
     """``[fn(x) for x in items]``, the items not in ``here`` computed by forked workers
     (module docstring). ``jobs``: worker processes (None: the usable CPUs; 1: serial).
-    ``on_result(i, result)`` is called in this process as each item's result is known (in
-    completion order; e.g. progress)."""
-    items = list(items)
-    mine = [i for i, x in enumerate(items) if x in here]
-    theirs = [i for i, x in enumerate(items) if x not in here]
-    workers = worker_count(jobs, len(theirs), len(mine))
-    if workers == 0:
+    ``on_result(i, result)`` is called in this process as each item's result arrives (in
+    arrival order; e.g. progress)."""
+    return ForkMap(fn, items, jobs=jobs, here=here).results(on_result)
+
+
+class ForkMap:
+    """:func:`fork_map` started now and collected later: the workers are forked (and start
+    on their items) when this is made, while this process goes on with other work;
+    :meth:`results` then runs the ``here`` items and collects. Serially (see
+    :func:`fork_map`) every item runs in :meth:`results`. A ForkMap whose results are not
+    wanted must be cancelled (:meth:`cancel`, or leave its ``with`` block): its workers are
+    then killed.
+
+    A worker keeps its results until it has no item left and then sends them all (so that
+    it does not wait on a full pipe while this process is busy elsewhere)."""
+
+    def __init__(self, fn: Callable[[T], R], items: Sequence[T], *, jobs: int | None = None,
+                 here: Collection = ()) -> None:
+        self.fn, self.items = fn, list(items)
+        self.mine = [i for i, x in enumerate(self.items) if x in here]
+        theirs = [i for i, x in enumerate(self.items) if x not in here]
+        n = worker_count(jobs, len(theirs), len(self.mine))
+        self.workers = n
+        self._pool = _Pool(fn, self.items, theirs, n) if n else None
+        self._open = True
+
+    def results(self, on_result: Callable[[int, R], None] | None = None) -> list[R]:
+        """The results in the items' order (see :func:`fork_map`); once."""
+        if not self._open:
+            raise RuntimeError("ForkMap results already collected or cancelled")
+        self._open = False
+        if self._pool is not None:
+            return self._pool.run(self.mine, on_result)
         out = []
-        for i, x in enumerate(items):
-            out.append(fn(x))
+        for i, x in enumerate(self.items):
+            out.append(self.fn(x))
             if on_result is not None:
                 on_result(i, out[-1])
         return out
-    return _Pool(fn, items, theirs, workers).run(mine, on_result)
+
+    def cancel(self) -> None:
+        """Kill the workers and forget the results (nothing when already collected)."""
+        if self._open and self._pool is not None:
+            self._pool._hand_out_no_more()
+            self._pool._stop(kill=True)
+        self._open = False
+
+    def __enter__(self) -> "ForkMap":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.cancel()
 
 
 # ------------------------------------------------------------------ the workers
@@ -178,9 +217,9 @@ class _Pool:
             lost = [i for i in handed if self.results[i] is _UNSET and i not in self.errors]
             code = dead[0]
             how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit code {code}"
-            what = f"item {self.items[lost[0]]!r}" if lost else "an item"
+            what = f" before reporting item {self.items[lost[0]]!r}" if lost else ""
             self.errors[lost[0] if lost else len(self.items)] = WorkerDied(
-                f"a worker process died ({how}) computing {what}")
+                f"a worker process died ({how}){what}")
 
     def _hand_out_no_more(self) -> None:
         """Set the shared counter past the last item (a worker that died holding the
@@ -206,11 +245,14 @@ class _Pool:
 
 
 def _work(fn, items, theirs, counter, conn) -> None:
-    """A worker: take the next item index from ``counter``, send ``(i, True, fn(item))``
-    until none is left, or ``(i, False, exception)`` and stop."""
+    """A worker: take the next item index from ``counter`` until none is left, then send
+    ``(i, True, fn(item))`` of each; on an exception, stop handing out items (the counter
+    set past the end) and send the results so far and ``(i, False, exception)``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     gc.freeze()                      # the inherited objects: not traversed (nor copied) by gc
+    done = []
+    failed = None
     while True:
         with counter.get_lock():
             k = counter.value
@@ -219,12 +261,16 @@ def _work(fn, items, theirs, counter, conn) -> None:
             counter.value = k + 1
         i = theirs[k]
         try:
-            result = fn(items[i])
-            payload = pickle.dumps((i, True, result), protocol=pickle.HIGHEST_PROTOCOL)
+            done.append(pickle.dumps((i, True, fn(items[i])), protocol=pickle.HIGHEST_PROTOCOL))
         except BaseException as exc:  # noqa: BLE001 - re-raised in the parent
-            conn.send((i, False, _portable(exc)))
+            with counter.get_lock():
+                counter.value = max(counter.value, len(theirs))
+            failed = (i, False, _portable(exc))
             break
+    for payload in done:
         conn.send_bytes(payload)
+    if failed is not None:
+        conn.send(failed)
     conn.close()
 
 

@@ -30,6 +30,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import shutil
 from pathlib import Path
 
 from cardionurbs.analysis.function import measure, volume_curve
@@ -92,7 +94,7 @@ def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path, tags=N
 
 
 def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: bool = True,
-            progress: Progress | None = None, jobs: int | None = None):
+            progress: Progress | None = None, jobs: int | None = None, on_measured=None):
     """Reconstruct and measure one loaded study: (model, docs/metrics.md dict, tag result or None).
 
     ``over_time``: also twist and LS at every tagged frame (for figures and metrics.json);
@@ -100,12 +102,14 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
     ``jobs``: processes for the per-frame work -- the frames' LV cavities (``reconstruct``),
     the tag metrics beside the volumes (:func:`measure_with_tags`) and the tag strain over
     time (one fit per tagged frame, :func:`cardionurbs.analysis.regional.regional_metrics`);
-    None: the usable CPUs, 1: this process only. The results are the same either way."""
+    None: the usable CPUs, 1: this process only. The results are the same either way.
+    ``on_measured(model)``: called once ED and ES are known and the volumes measured,
+    before the tag results are awaited (``analyze`` starts the meshes' workers there)."""
     progress = progress or Progress(False)
     progress.stage("reconstruct")
     model = reconstruct(study, progress=progress.step, jobs=jobs)
     metrics, tags = measure_with_tags(model, heart_rate_bpm=heart_rate_bpm, over_time=over_time,
-                                      jobs=jobs, progress=progress)
+                                      jobs=jobs, progress=progress, on_measured=on_measured)
     if tags is not None:
         metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
     from cardionurbs.analysis.regional import regional_metrics
@@ -121,7 +125,7 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
 
 def measure_with_tags(model: BiventricularModel, *, heart_rate_bpm: float | None = None,
                       over_time: bool = True, jobs: int | None = 1,
-                      progress: Progress | None = None):
+                      progress: Progress | None = None, on_measured=None):
     """(docs/metrics.md dict of :func:`measure`, :func:`tag_metrics_hook` result or None).
 
     With worker processes (``jobs`` not 1; :func:`cardionurbs.parallel.fork_map`) this
@@ -132,13 +136,16 @@ def measure_with_tags(model: BiventricularModel, *, heart_rate_bpm: float | None
     the worker builds as this process does). Results are pickled back: the same as one
     process's. Neither changes the model except for warnings: the tag metrics' are added
     after the volumes' (the serial order); the residual worker's repeat this process's
-    (the same surfaces) and are dropped."""
+    (the same surfaces) and are dropped. ``on_measured(model)`` is called in this process
+    right after the volumes are measured (:func:`analyse`)."""
     from cardionurbs.parallel import fork_map
     progress = progress or Progress(False)
     tagged = bool(model.study.tags)
     if jobs == 1 or not (tagged or model.study.contours):
         progress.stage("measure")
         metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
+        if on_measured is not None:
+            on_measured(model)
         if tagged:
             progress.stage("tags")
         return metrics, tag_metrics_hook(model, over_time=over_time)
@@ -147,6 +154,8 @@ def measure_with_tags(model: BiventricularModel, *, heart_rate_bpm: float | None
         n_warnings = len(model.warnings)
         if name == "measure":
             metrics = measure(model, heart_rate_bpm=heart_rate_bpm)
+            if on_measured is not None:
+                on_measured(model)
             if tagged:                  # the tags are the longer part: residuals here meanwhile
                 model.point_residual_arrays()
                 progress.stage("tags")                 # what is left: the worker's tags
@@ -180,11 +189,13 @@ def analyse_study(study: Study, *, heart_rate_bpm: float | None = None
 def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                    figures: bool = True, mesh_ext: str = "ply", tags=None,
                    outputs: tuple[str, ...] | None = None,
-                   progress: Progress | None = None, jobs: int | None = None) -> Path:
+                   progress: Progress | None = None, jobs: int | None = None,
+                   early_meshes: "EarlyMeshes | None" = None) -> Path:
     """Write the chosen ``outputs`` (default all; ``figures=False`` drops figures and
     report) to ``out``, atomically (the folder is complete or untouched). ``jobs``: worker
     processes for the per-frame meshes (:func:`write_meshes`; None: the usable CPUs, 1:
-    none)."""
+    none) and the figures; ``early_meshes``: the meshes already started
+    (:class:`EarlyMeshes`)."""
     outputs = OUTPUTS if outputs is None else tuple(outputs)
     if not figures:
         outputs = tuple(o for o in outputs if o not in ("figures", "report"))
@@ -194,7 +205,10 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
     with long_lived(), atomic.atomic_dir(out) as tmp:
         if "meshes" in outputs:
             progress.stage("meshes")
-            write_meshes(model, tmp / "meshes", mesh_ext, jobs=jobs, progress=progress)
+            if early_meshes is not None and early_meshes.writer is not None:
+                early_meshes.finish_into(tmp / "meshes", progress)
+            else:
+                write_meshes(model, tmp / "meshes", mesh_ext, jobs=jobs, progress=progress)
 
         def model_and_metrics() -> None:
             if "model" in outputs:
@@ -266,46 +280,108 @@ def write_meshes(model: BiventricularModel, mesh_dir: Path, mesh_ext: str = "ply
                  jobs: int | None = None, progress: Progress | None = None) -> None:
     """Every frame's closed meshes into ``mesh_dir`` (``frame_NN_<mesh>.<mesh_ext>``), with
     every frame's volumes kept in ``model.volumes`` (the volume curve of metrics.json and
-    the figures).
+    the figures); ``jobs`` worker processes (:class:`MeshWriter`; None: the usable CPUs, 1:
+    all here)."""
+    MeshWriter(model, mesh_dir, mesh_ext, jobs=jobs).finish(progress)
 
-    ED and ES are meshed in this process (their solids stay cached); the other frames on
-    ``jobs`` worker processes (:func:`cardionurbs.parallel.fork_map`; None: the usable
-    CPUs, 1: all here), each writing its frame's files and handing back what the frame
-    added to the model (surfaces, volumes: :meth:`BiventricularModel.frame_results`) and
-    its warnings, which are added in frame order: the model ends as a serial loop leaves
-    it, less the other frames' solids (released after writing, as that loop does)."""
-    from cardionurbs.parallel import fork_map
-    progress = progress or Progress(False)
-    keep = {model.ed_frame, model.es_frame}
-    before = model.computed()
-    Path(mesh_dir).mkdir(parents=True, exist_ok=True)
 
-    def frame_meshes(f: int) -> tuple[dict, list[str]]:
-        n_warnings = len(model.warnings)
-        model.volumes[f]
-        if mesh_ext == "ply":                       # straight from the manifold3d arrays
-            for name, (v, fc) in model.mesh_arrays(f).items():
-                write_ply(v, fc, Path(mesh_dir) / f"frame_{f:02d}_{name}.ply")
-        else:                                       # other formats: trimesh's exporters
-            for name, m in model.meshes(f).items():
-                export_mesh(m, Path(mesh_dir) / f"frame_{f:02d}_{name}.{mesh_ext}")
-        warnings = model.warnings[n_warnings:]
-        del model.warnings[n_warnings:]             # added back below, in frame order
-        results = model.frame_results(f, before)
-        if f not in keep:                           # the meshes written and let go
-            model.release(f)
-        return results, warnings
+class MeshWriter:
+    """Every frame's meshes written into ``mesh_dir``, started when made and finished by
+    :meth:`finish` (or stopped by :meth:`cancel`).
 
-    done = [0]
+    ED and ES are meshed in this process (their solids stay cached) by :meth:`finish`; the
+    other frames by ``jobs`` worker processes forked when this is made
+    (:class:`cardionurbs.parallel.ForkMap`; None: the usable CPUs, 1: every frame here, in
+    :meth:`finish`), which work while this process goes on (``analyze`` starts them once
+    ED and ES are known, before the tags are measured). Each worker writes its frames'
+    files and hands back what a frame added to the model (surfaces, volumes:
+    :meth:`BiventricularModel.frame_results`) and its warnings, added in frame order: the
+    model ends as a serial loop leaves it, less the other frames' solids (released after
+    writing, as that loop does)."""
 
-    def step(i, result) -> None:
-        done[0] += 1
-        progress.step(done[0], len(model.frames))
+    def __init__(self, model: BiventricularModel, mesh_dir: Path, mesh_ext: str = "ply", *,
+                 jobs: int | None = None) -> None:
+        from cardionurbs.parallel import ForkMap
+        self.model = model
+        keep = {model.ed_frame, model.es_frame}
+        before = model.computed()
+        Path(mesh_dir).mkdir(parents=True, exist_ok=True)
 
-    for f, (results, warnings) in zip(model.frames, fork_map(frame_meshes, model.frames, jobs=jobs,
-                                                             here=keep, on_result=step)):
-        model.adopt_frame_results(f, results)
-        model.warnings += warnings
+        def frame_meshes(f: int) -> tuple[dict, list[str]]:
+            n_warnings = len(model.warnings)
+            model.volumes[f]
+            if mesh_ext == "ply":                   # straight from the manifold3d arrays
+                for name, (v, fc) in model.mesh_arrays(f).items():
+                    write_ply(v, fc, Path(mesh_dir) / f"frame_{f:02d}_{name}.ply")
+            else:                                   # other formats: trimesh's exporters
+                for name, m in model.meshes(f).items():
+                    export_mesh(m, Path(mesh_dir) / f"frame_{f:02d}_{name}.{mesh_ext}")
+            warnings = model.warnings[n_warnings:]
+            del model.warnings[n_warnings:]         # added back by finish, in frame order
+            results = model.frame_results(f, before)
+            if f not in keep:                       # the meshes written and let go
+                model.release(f)
+            return results, warnings
+
+        self.work = ForkMap(frame_meshes, model.frames, jobs=jobs, here=keep)
+
+    @property
+    def forked(self) -> bool:
+        """True when worker processes are meshing (else :meth:`finish` does every frame)."""
+        return self.work.workers > 0
+
+    def finish(self, progress: Progress | None = None) -> None:
+        """Mesh ED and ES here, collect the workers' frames, update the model."""
+        progress = progress or Progress(False)
+        model, done = self.model, [0]
+
+        def step(i, result) -> None:
+            done[0] += 1
+            progress.step(done[0], len(model.frames))
+
+        # (a worker's values and warnings are what its frame added after the fork; nothing
+        # this process does between the fork and here -- the tags -- builds surfaces or
+        # solids of frames other than ED and ES, so the warnings are not added twice)
+        for f, (results, warnings) in zip(model.frames, self.work.results(on_result=step)):
+            model.adopt_frame_results(f, results)
+            model.warnings += warnings
+
+    def cancel(self) -> None:
+        """Stop the workers (nothing once finished)."""
+        self.work.cancel()
+
+
+class EarlyMeshes:
+    """The meshes of ``analyze`` started as soon as ED and ES are known (:meth:`start`, the
+    ``on_measured`` hook of :func:`analyse`), in a marked temporary folder beside the
+    output (:func:`cardionurbs.io.atomic.sibling_temporary_dir`) that
+    :func:`write_analysis` moves into its own; :meth:`close` stops the workers and removes
+    that folder when the analysis did not get that far."""
+
+    def __init__(self, out: str | Path, mesh_ext: str = "ply", jobs: int | None = None) -> None:
+        self.out, self.mesh_ext, self.jobs = Path(out), mesh_ext, jobs
+        self.writer: MeshWriter | None = None
+        self.folder: Path | None = None
+
+    def start(self, model: BiventricularModel) -> None:
+        from cardionurbs.parallel import worker_count
+        n_other = len(set(model.frames) - {model.ed_frame, model.es_frame})
+        if worker_count(self.jobs, n_other, 1) == 0:
+            return                                 # one process: write_analysis meshes later
+        self.folder = atomic.sibling_temporary_dir(self.out)
+        self.writer = MeshWriter(model, self.folder / "meshes", self.mesh_ext, jobs=self.jobs)
+
+    def finish_into(self, mesh_dir: Path, progress: Progress | None = None) -> None:
+        """Finish the meshes and move them to ``mesh_dir``."""
+        self.writer.finish(progress)
+        os.replace(self.folder / "meshes", mesh_dir)
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.cancel()
+        if self.folder is not None:
+            shutil.rmtree(self.folder, ignore_errors=True)
+        self.writer = self.folder = None
 
 
 def _figures(model: BiventricularModel, metrics: dict, out_dir: Path, tags=None,
@@ -365,11 +441,20 @@ def run_analyze(args: argparse.Namespace) -> int:
     if getattr(args, "track_tags", False):
         from cardionurbs.tracking import track_tags
         study = track_tags(study)
-    model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None),
-                                   over_time=bool({"figures", "report"} & set(outputs)),
-                                   progress=progress, jobs=getattr(args, "jobs", None))
-    write_analysis(model, metrics, args.out, outputs=outputs, tags=tags, progress=progress,
-                   jobs=getattr(args, "jobs", None))
+    jobs = getattr(args, "jobs", None)
+    # the meshes need only the model: their workers start once ED and ES are known and work
+    # while this process measures the tags
+    early = EarlyMeshes(args.out, jobs=jobs) if "meshes" in outputs else None
+    try:
+        model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None),
+                                       over_time=bool({"figures", "report"} & set(outputs)),
+                                       progress=progress, jobs=jobs,
+                                       on_measured=None if early is None else early.start)
+        write_analysis(model, metrics, args.out, outputs=outputs, tags=tags, progress=progress,
+                       jobs=jobs, early_meshes=early)
+    finally:
+        if early is not None:
+            early.close()
     print(f"{study.subject}: ED frame {model.ed_frame}, ES frame {model.es_frame}; "
           f"LVEDV {metrics['LVEDV (mL)']:.1f} mL, LVEF {metrics['LVEF (%)']:.1f} %; "
           f"wrote {args.out}")

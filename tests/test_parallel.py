@@ -82,7 +82,7 @@ def test_a_worker_that_dies_is_reported():
             os._exit(7)
         return x
 
-    with pytest.raises(WorkerDied, match=r"exit code 7\) computing item 3"):
+    with pytest.raises(WorkerDied, match=r"died \(exit code 7\) before reporting item \d"):
         fork_map(fn, range(6), jobs=2)
 
 
@@ -226,3 +226,30 @@ def test_worker_failure_in_tag_strain(tagged_model, monkeypatch):
     with pytest.raises(TagError, match="slice sa_03, frame 4: tag line 2 has no points") as info:
         regional.regional_metrics(*tagged_model, jobs=2)
     assert "in a worker process" in str(info.value.__cause__)
+
+
+@needs_fork
+def test_failure_after_the_meshes_started_leaves_nothing(study_dir, tmp_path, monkeypatch,
+                                                         capsys):
+    """analyze starts the meshes' workers once ED and ES are known; a failure in the tag
+    analysis after that stops them and removes their temporary folder."""
+    from cardionurbs.analysis import regional
+
+    def failing(*a, **k):
+        raise TagError("no tag planes at ED", frame=0)
+
+    from cardionurbs.io import atomic
+    made = []
+
+    def spy(path):
+        made.append(real(path))
+        return made[-1]
+
+    real = atomic.sibling_temporary_dir
+    monkeypatch.setattr(atomic, "sibling_temporary_dir", spy)
+    monkeypatch.setattr(regional, "regional_metrics", failing)
+    out = tmp_path / "out"
+    assert cli.main(["analyze", str(study_dir), "--out", str(out), "--jobs", "2"]) == 2
+    assert "frame 0: no tag planes at ED" in capsys.readouterr().err
+    assert len(made) == 1 and made[0].parent == tmp_path        # the meshes had started
+    assert list(tmp_path.iterdir()) == [] and not mp.active_children()

@@ -100,6 +100,18 @@ def _chmod_umask(path: Path, base: int) -> None:
     os.chmod(path, base & ~current_umask())
 
 
+def sibling_temporary_dir(path: str | os.PathLike) -> Path:
+    """A new temporary folder beside ``path``, named and marked as :func:`atomic_dir`'s (so
+    that :func:`remove_stale_temporaries` removes it when its process was killed); the
+    caller removes it, or renames it into place after deleting :data:`MARKER` from it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=_prefix(path), suffix=".tmp", dir=path.parent))
+    _chmod_umask(tmp, 0o777)
+    (tmp / MARKER).write_text(MARKER_TEXT, encoding="utf-8")
+    return tmp
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success.
