@@ -94,7 +94,7 @@ def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path, tags=N
 
 
 def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: bool = True,
-            progress: Progress | None = None, jobs: int | None = None, on_measured=None):
+            progress: Progress | None = None, jobs: int | None = 1, on_measured=None):
     """Reconstruct and measure one loaded study: (model, docs/metrics.md dict, tag result or None).
 
     ``over_time``: also twist and LS at every tagged frame (for figures and metrics.json);
@@ -102,7 +102,8 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
     ``jobs``: processes for the per-frame work -- the frames' LV cavities (``reconstruct``),
     the tag metrics beside the volumes (:func:`measure_with_tags`) and the tag strain over
     time (one fit per tagged frame, :func:`cardionurbs.analysis.regional.regional_metrics`);
-    None: the usable CPUs, 1: this process only. The results are the same either way.
+    1 (the default: a library call forks nothing unless asked): this process only; None: the
+    usable CPUs (``cardionurbs analyze``'s default). The results are the same either way.
     ``on_measured(model)``: called once ED and ES are known and the volumes measured,
     before the tag results are awaited (``analyze`` starts the meshes' workers there)."""
     progress = progress or Progress(False)
@@ -189,12 +190,12 @@ def analyse_study(study: Study, *, heart_rate_bpm: float | None = None
 def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                    figures: bool = True, mesh_ext: str = "ply", tags=None,
                    outputs: tuple[str, ...] | None = None,
-                   progress: Progress | None = None, jobs: int | None = None,
+                   progress: Progress | None = None, jobs: int | None = 1,
                    early_meshes: "EarlyMeshes | None" = None) -> Path:
     """Write the chosen ``outputs`` (default all; ``figures=False`` drops figures and
     report) to ``out``, atomically (the folder is complete or untouched). ``jobs``: worker
-    processes for the per-frame meshes (:func:`write_meshes`; None: the usable CPUs, 1:
-    none) and the figures; ``early_meshes``: the meshes already started
+    processes for the per-frame meshes (:func:`write_meshes`; 1, the default: none; None:
+    the usable CPUs) and the figures; ``early_meshes``: the meshes already started
     (:class:`EarlyMeshes`)."""
     outputs = OUTPUTS if outputs is None else tuple(outputs)
     if not figures:
@@ -277,11 +278,11 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
 
 
 def write_meshes(model: BiventricularModel, mesh_dir: Path, mesh_ext: str = "ply", *,
-                 jobs: int | None = None, progress: Progress | None = None) -> None:
+                 jobs: int | None = 1, progress: Progress | None = None) -> None:
     """Every frame's closed meshes into ``mesh_dir`` (``frame_NN_<mesh>.<mesh_ext>``), with
     every frame's volumes kept in ``model.volumes`` (the volume curve of metrics.json and
-    the figures); ``jobs`` worker processes (:class:`MeshWriter`; None: the usable CPUs, 1:
-    all here)."""
+    the figures); ``jobs`` worker processes (:class:`MeshWriter`; 1, the default: all here;
+    None: the usable CPUs)."""
     MeshWriter(model, mesh_dir, mesh_ext, jobs=jobs).finish(progress)
 
 
