@@ -137,8 +137,7 @@ class ForkMap:
     def cancel(self) -> None:
         """Kill the workers and forget the results (nothing when already collected)."""
         if self._open and self._pool is not None:
-            self._pool._hand_out_no_more()
-            self._pool._stop(kill=True)
+            self._pool.abort()
         self._open = False
 
     def __enter__(self) -> "ForkMap":
@@ -181,8 +180,7 @@ class _Pool:
                     on_result(i, self.results[i])
             self._collect(on_result)
         except BaseException:
-            self._hand_out_no_more()
-            self._stop(kill=True)
+            self.abort()
             raise
         self._stop(kill=bool(self.errors))
         if self.errors:
@@ -220,6 +218,11 @@ class _Pool:
             what = f" before reporting item {self.items[lost[0]]!r}" if lost else ""
             self.errors[lost[0] if lost else len(self.items)] = WorkerDied(
                 f"a worker process died ({how}){what}")
+
+    def abort(self) -> None:
+        """Hand out no more items and kill the workers."""
+        self._hand_out_no_more()
+        self._stop(kill=True)
 
     def _hand_out_no_more(self) -> None:
         """Set the shared counter past the last item (a worker that died holding the

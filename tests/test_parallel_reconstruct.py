@@ -5,9 +5,9 @@ and a frame that fails raises in the parent as it does serially."""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import pytest
+from conftest import shared_data
 
 from cardionurbs.analysis.function import measure, volume_curve
 from cardionurbs.anatomy import model as model_module
@@ -15,8 +15,6 @@ from cardionurbs.anatomy.model import reconstruct
 from cardionurbs.errors import ReconstructionError
 from cardionurbs.io import load_study
 from cardionurbs.parallel import can_fork
-
-BIVME = Path(__file__).resolve().parents[2] / "shared" / "data" / "bivme-patient1"
 
 pytestmark = pytest.mark.skipif(not can_fork(), reason="needs fork (Linux, not a daemon)")
 
@@ -27,9 +25,7 @@ def _same(a: float, b: float) -> bool:
 
 @pytest.fixture(scope="module")
 def bivme_study():
-    if not BIVME.exists():
-        pytest.skip("bivme-patient1 not present")
-    return load_study(BIVME)
+    return load_study(shared_data("bivme-patient1"))
 
 
 def test_workers_give_the_serial_model(bivme_study, monkeypatch):

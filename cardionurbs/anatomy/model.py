@@ -649,19 +649,21 @@ class BiventricularModel:
         ``view``, ``dist_mm``, ``dist_px``; [] without the study's contours."""
         if not self.study.contours:
             return []
-        if frames is None:
-            frames = sorted({self.ed_frame, self.es_frame})
-        key = ("point_residuals", tuple(frames))
+        frames, key = self._point_residuals_key(frames)
         if key not in self._solid_cache:
             self._solid_cache[key] = self._point_residuals(frames)
         return [dict(p) for p in self._solid_cache[key]]
 
+    def _point_residuals_key(self, frames=None) -> tuple[list, tuple]:
+        """(frames, their cache key) of :meth:`point_residual_arrays` (default ED and ES)."""
+        if frames is None:
+            frames = sorted({self.ed_frame, self.es_frame})
+        return frames, ("point_residuals", tuple(frames))
+
     def provide_point_residuals(self, parts: list[dict], frames=None) -> None:
         """Store :meth:`point_residual_arrays` computed elsewhere (a worker process of
         :func:`cardionurbs.parallel.fork_map`), unless this model has them."""
-        if frames is None:
-            frames = sorted({self.ed_frame, self.es_frame})
-        self._solid_cache.setdefault(("point_residuals", tuple(frames)), [dict(p) for p in parts])
+        self._solid_cache.setdefault(self._point_residuals_key(frames)[1], [dict(p) for p in parts])
 
     def _point_residuals(self, frames) -> list[dict]:
         parts = []

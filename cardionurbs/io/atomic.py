@@ -107,8 +107,12 @@ def sibling_temporary_dir(path: str | os.PathLike) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=_prefix(path), suffix=".tmp", dir=path.parent))
-    _chmod_umask(tmp, 0o777)
-    (tmp / MARKER).write_text(MARKER_TEXT, encoding="utf-8")
+    try:
+        _chmod_umask(tmp, 0o777)
+        (tmp / MARKER).write_text(MARKER_TEXT, encoding="utf-8")
+    except BaseException:             # unmarked, it would not be recognised as debris later
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
     return tmp
 
 
@@ -177,11 +181,8 @@ def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     before; callers check ``path`` first (:func:`cardionurbs.io.outputs.check_output_dir`).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=_prefix(path), suffix=".tmp", dir=path.parent))
+    tmp = sibling_temporary_dir(path)
     try:
-        _chmod_umask(tmp, 0o777)
-        (tmp / MARKER).write_text(MARKER_TEXT, encoding="utf-8")
         yield tmp
         if path.exists():
             if _exchange(tmp, path):
