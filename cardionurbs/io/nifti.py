@@ -177,6 +177,7 @@ def read_label_volume(path: str | Path) -> LabelVolume:
     aff = np.asarray(aff, float)
     if not np.all(np.isfinite(aff)):
         raise StudyError("the affine holds NaN or infinity", file=where, field="affine")
+    aff = _spacing_from_pixdim(aff, hdr, scode, where, warnings)
     m = aff[:3, :3]
     lengths = np.linalg.norm(m, axis=0)
     if np.any(lengths < 1e-6) or abs(np.linalg.det(m)) < 1e-6 * np.prod(np.maximum(lengths, 1e-6)):
@@ -201,6 +202,50 @@ def read_label_volume(path: str | Path) -> LabelVolume:
                 scale = 1.0
             dt = float(zooms[3]) * scale
     return LabelVolume(path, data, RAS_TO_LPS @ aff, dt, warnings)
+
+
+def _spacing_from_pixdim(aff: np.ndarray, hdr, scode: int, where: str,
+                         warnings: list[str]) -> np.ndarray:
+    """The sform with its voxel sizes taken from ``pixdim`` where the two disagree.
+
+    ``pixdim[1:4]`` is the voxel size the header declares (the qform is built from
+    it); ACDC's files as distributed, for one, carry a unit-scale sform beside the
+    real spacing in ``pixdim``, and ACDC's own evaluation, like most tools, measures
+    with ``pixdim`` (nibabel's ``get_zooms``). The sform's directions and origin are
+    kept; only the column lengths become the ``pixdim`` spacing, with a warning that
+    names the file and both spacings.
+
+    Parameters
+    ----------
+    aff : (4, 4) float ndarray
+        The chosen voxel-to-RAS affine (sform or qform), mm.
+    hdr : nibabel NIfTI header
+    scode : int
+        ``sform_code``; only an sform (code > 0) can disagree with ``pixdim``.
+    where : str
+        The file, for the warning.
+    warnings : list of str
+        Appended to when the spacing is replaced.
+
+    Returns
+    -------
+    (4, 4) float ndarray
+        The affine to use, mm.
+    """
+    if scode <= 0:
+        return aff
+    zooms = np.asarray(hdr.get_zooms()[:3], float)
+    lengths = np.linalg.norm(aff[:3, :3], axis=0)
+    if not (np.all(np.isfinite(zooms)) and np.all(zooms > 0)) or np.any(lengths < 1e-9):
+        return aff
+    if np.allclose(lengths, zooms, rtol=1e-3, atol=1e-4):
+        return aff
+    out = aff.copy()
+    out[:3, :3] = aff[:3, :3] / lengths * zooms
+    warnings.append(f"{where}: the sform's voxel size ({' x '.join(f'{v:.4g}' for v in lengths)} mm) "
+                    f"disagrees with pixdim ({' x '.join(f'{v:.4g}' for v in zooms)} mm): measured "
+                    "with pixdim, as ACDC's evaluation and nibabel's get_zooms do")
+    return out
 
 
 def _raw_pixdim(path: Path, header_class) -> np.ndarray:
