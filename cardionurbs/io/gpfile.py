@@ -86,7 +86,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cardionurbs.confine import files_inside, study_file
+from cardionurbs.confine import checked, files_inside, study_file
 from cardionurbs.errors import StudyError
 from cardionurbs.geometry import stack_normal
 from cardionurbs.safe import excerpt
@@ -175,7 +175,7 @@ def read_slice_info(path: str | Path) -> list[dict]:
     path = Path(path)
     if not path.is_file():
         raise StudyError("SliceInfoFile.txt is missing", file=path)
-    text = path.read_text(encoding="utf-8", errors="replace")
+    text = checked(path, what="SliceInfoFile").read_text(encoding="utf-8", errors="replace")
     out: dict[int, dict] = {}
     order, labels, seps = [], [], []
     for k, line in enumerate(text.splitlines(), start=1):
@@ -287,7 +287,7 @@ def read_gp_table(path: str | Path) -> tuple[dict[str, np.ndarray], str, int | N
     A plain file (ASCII, tab-separated, 7 fields on every line, every number an ordinary
     decimal) is split and converted by numpy (:func:`_plain_rows`); any other is read by
     pandas, whose reader and messages define what is accepted and how it is reported."""
-    path = Path(path)
+    path = checked(path, what="GPFile")
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:

@@ -80,7 +80,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cardionurbs.confine import study_file
+from cardionurbs.confine import checked, study_file
 from cardionurbs.errors import StudyError
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import atomic
@@ -563,10 +563,10 @@ def _first_line(exc: BaseException) -> str:
 
 def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False,
                  expected_rows: int | None = None, sidecar: Path | None = None) -> None:
-    if not points_path.is_file():
+    if not checked(points_path, what="points file").is_file():
         raise StudyError("points file is missing", file=points_path)
     table = cols = None
-    if sidecar is not None and sidecar.is_file() and sidecar != points_path:
+    if sidecar is not None and checked(sidecar).is_file() and sidecar != points_path:
         table = _sidecar_table(sidecar, points_path)
     if table is None and points_path.suffix.lower() == ".parquet":
         cols = _parquet_columns(points_path)

@@ -52,6 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cardionurbs.confine import checked, is_inside, outside_allowed
 from cardionurbs.errors import StudyError
 from cardionurbs.imaging import stack
 from cardionurbs.imaging.geometry import ImagePlane
@@ -117,7 +118,7 @@ def read_label_volume(path: str | Path) -> LabelVolume:
     import nibabel as nib
     from nibabel.filebasedimages import ImageFileError
 
-    path = Path(path)
+    path = checked(path, what="label map")
     where = str(path)
     try:
         img = nib.load(str(path))
@@ -470,7 +471,7 @@ def read_file(path: Path, labels=None) -> Study:
 
 def _info_cfg(path: Path) -> dict[str, str]:
     out = {}
-    for line in path.read_text(errors="replace").splitlines():
+    for line in checked(path, what="Info.cfg").read_text(errors="replace").splitlines():
         if ":" in line:
             k, v = line.split(":", 1)
             out[k.strip()] = v.strip()
@@ -600,6 +601,8 @@ def read_ukbb(folder: Path, labels=None) -> Study:
 def _mnms_csv(folder: Path, code: str) -> tuple[int, int] | None:
     for d in (folder, folder.parent):
         for q in sorted(d.glob("*.csv")):
+            if not (outside_allowed() or is_inside(folder, q)):
+                continue                        # the dataset's table beside the study: opt-in
             try:
                 with q.open(newline="", errors="replace") as fh:
                     for row in csv.DictReader(fh):

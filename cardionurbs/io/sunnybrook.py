@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cardionurbs.confine import files_inside
+from cardionurbs.confine import checked, files_inside
 from cardionurbs.errors import StudyError
 from cardionurbs.imaging.dicom import read_dicom_folder
 from cardionurbs.safe import excerpt
@@ -71,7 +71,7 @@ def read_contour_file(path: str | Path) -> np.ndarray:
     Raises StudyError naming the file and line for an empty file, a line that
     is not two numbers, or a NaN / infinite value.
     """
-    path = Path(path)
+    path = checked(path, what="contour file")
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
