@@ -238,7 +238,10 @@ def build_parser() -> argparse.ArgumentParser:
     co = command("cohort", "measure many studies into one CSV")
     co.add_argument("studies", nargs="+", metavar="STUDY", help="study folders or label maps")
     co.add_argument("--csv", required=True, metavar="FILE",
-                    help="output CSV (replaced atomically when it exists)")
+                    help="output CSV (an earlier cohort table is replaced atomically; any "
+                         "other existing file only with --overwrite)")
+    co.add_argument("--overwrite", action="store_true",
+                    help="let --csv / --parquet replace an existing file cardionurbs did not write")
     co.add_argument("--jobs", type=_bounded(int, 1, 1024), default=1,
                     help="worker processes (or Dask workers with --dask local)")
     co.add_argument("--dask", metavar="local|tcp://HOST:PORT", default=None,
