@@ -364,6 +364,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     debug = "--debug" in argv[:argv.index("--")] if "--" in argv else "--debug" in argv
     debug = debug or bool(os.environ.get("CARDIONURBS_DEBUG"))
     argv = [a for a in argv if a != "--debug"] if debug else argv
+    from cardionurbs.safe import quiet_third_party
+    quiet_third_party(show=debug)
     try:
         _install_signal_handlers()
         args = build_parser().parse_args(argv)

@@ -280,8 +280,11 @@ def run_cohort(args: argparse.Namespace) -> int:
     """`cardionurbs cohort STUDY... --csv FILE [--jobs N] [--dask local|tcp://HOST:PORT]
     [--timeout S] [--resume] [--run-dir DIR] [--parquet] [--allow-failures]`; ``--csv`` is
     checked (cardionurbs.io.outputs) before any study is read."""
+    from cardionurbs.executor import check_dask_address
     from cardionurbs.io.outputs import check_output_file, check_output_place
     from cardionurbs.pipeline import study_folder
+    if getattr(args, "dask", None):
+        check_dask_address(args.dask)           # before any file is touched
     studies = [study_folder(s) for s in args.studies]
     overwrite = getattr(args, "overwrite", False)
     check_output_file(args.csv, inputs=studies, option="--csv", ours=is_cohort_table,

@@ -198,9 +198,55 @@ def _run_processes(fn, tasks, on_result, *, jobs: int, timeout: float | None) ->
 
 
 # ------------------------------------------------------------------ Dask
+#: Dask address schemes a scheduler may be given by
+DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+#: seconds to wait for a scheduler to accept a connection before giving up
+DASK_CONNECT_TIMEOUT_S = 5.0
+
+
+def _excerpt(text: str, n: int = 60) -> str:
+    t = "".join(c if c.isprintable() else "?" for c in str(text))
+    return repr(t[:n]) + (f"... ({len(t)} characters)" if len(t) > n else "")
+
+
+def check_dask_address(address: str) -> tuple[str, int] | None:
+    """``"local"`` (None) or ``scheme://host:port`` ((host, port)); UsageError otherwise,
+    naming an excerpt of the address."""
+    from urllib.parse import urlsplit
+
+    from cardionurbs.errors import UsageError
+    if address == "local":
+        return None
+    hint = "expected 'local' or a scheduler address such as tcp://HOST:8786"
+    try:
+        u = urlsplit(address)
+        port = u.port
+    except ValueError:
+        raise UsageError(f"--dask {_excerpt(address)}: not an address ({hint})") from None
+    if u.scheme not in DASK_SCHEMES or not u.hostname or port is None or not 0 < port < 65536:
+        raise UsageError(f"--dask {_excerpt(address)}: not an address ({hint})")
+    return u.hostname, port
+
+
+def _reach(address: str, host: str, port: int) -> None:
+    """Fail fast (UsageError, one line) when nothing listens at ``host:port``."""
+    import socket
+
+    from cardionurbs.errors import UsageError
+    try:
+        socket.create_connection((host, port), timeout=DASK_CONNECT_TIMEOUT_S).close()
+    except OSError as exc:
+        raise UsageError(f"--dask {_excerpt(address)}: no scheduler answers there "
+                         f"({exc.strerror or type(exc).__name__})") from None
+
+
 def dask_client(address: str, jobs: int):
     """(client, cluster or None): a LocalCluster of ``jobs`` single-threaded worker processes
-    on 127.0.0.1 for ``"local"``, else a client of the scheduler at ``address``."""
+    on 127.0.0.1 for ``"local"``, else a client of the scheduler at ``address`` (checked to
+    be an address, and to answer within :data:`DASK_CONNECT_TIMEOUT_S`)."""
+    target = check_dask_address(address)
+    if target is not None and target[0] and address.startswith(("tcp", "ws")):
+        _reach(address, *target)
     import dask
     from distributed import Client, LocalCluster
 
@@ -209,7 +255,7 @@ def dask_client(address: str, jobs: int):
             cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True,
                                    host="127.0.0.1", dashboard_address=None)
         return Client(cluster), cluster
-    return Client(address), None
+    return Client(address, timeout=f"{DASK_CONNECT_TIMEOUT_S * 2:g}s"), None
 
 
 def _import_module(name: str) -> None:

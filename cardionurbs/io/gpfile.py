@@ -463,6 +463,7 @@ def read_study(path: str | Path) -> Study:
             i = int(np.flatnonzero(w < 0)[0])
             raise StudyError(f"line {t['line'][i]}: weight must be >= 0, got "
                              f"{t['weight'][i]!r}", file=f, field="weight")
+        check_gp_values(t, f, max(fr for fr, _ in files))
         tables.append(t)
     planes, names, views, rule = _slice_planes(slices, tables, folder)
     frames = [fr for fr, _ in files]
@@ -643,6 +644,32 @@ def _read_blocks(t: dict[str, np.ndarray], frame: int, f: Path, names: dict, vie
         else:
             runs.append([1, str(w), str(tt)])
     return blocks, runs
+
+
+def check_gp_values(t: dict[str, np.ndarray], path: Path, last_frame: int) -> None:
+    """Values in range, before any arithmetic: |x|, |y|, |z| within
+    :data:`cardionurbs.limits.MAX_COORDINATE_MM`, and each ``time frame`` (when given) a
+    whole number from 0 to ``last_frame + 1`` (1-based exports). StudyError names the line
+    with a short excerpt of the value."""
+    from cardionurbs.limits import MAX_COORDINATE_MM
+    for col in ("x", "y", "z"):
+        far = np.abs(np.asarray(t[col], float)) > MAX_COORDINATE_MM
+        if far.any():
+            i = int(np.flatnonzero(far)[0])
+            raise StudyError(f"line {t['line'][i]}: {col} = {float(t[col][i]):.3g} mm lies past "
+                             f"{MAX_COORDINATE_MM:g} mm from the scanner origin", file=path,
+                             field=col)
+    import pandas as pd
+    text = np.char.strip(np.asarray(t["time"], dtype=str))
+    rows = np.flatnonzero(text != "")
+    v = pd.to_numeric(pd.Series(text[rows]), errors="coerce").to_numpy(float)
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.isfinite(v) & (v == np.round(v)) & (v >= 0) & (v <= last_frame + 1))
+    if bad.any():
+        i = int(rows[np.flatnonzero(bad)[0]])
+        raise StudyError(f"line {t['line'][i]}: time frame {excerpt(text[i])} is not a whole "
+                         f"number from 0 to {last_frame + 1} (the study's frames)",
+                         file=path, field="time frame")
 
 
 # ----------------------------------------------------------------------- writing

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Iterable
 
 from cardionurbs.errors import OutputError
+from cardionurbs.safe import excerpt
 from cardionurbs.io.atomic import (MARKER, STUDY_MARKER, _tree_files, read_marker,
                                    remove_stale_temporaries)
 
@@ -124,6 +125,26 @@ def _check_against_inputs(out: Path, shown: str, inputs: Iterable, option: str) 
                           option=option)
 
 
+#: room a temporary sibling's name needs beyond the output's own (``.<name>.<pid>-<8>.tmp``)
+_TEMP_NAME_ROOM = 32
+
+
+def _check_name_length(p: Path, shown: str, option: str) -> None:
+    """Refuse, before any work, a name the file system cannot hold with its temporary
+    sibling's decoration (NAME_MAX, usually 255 bytes)."""
+    try:
+        limit = os.pathconf(p.parent if str(p.parent) and p.parent.exists() else ".",
+                            "PC_NAME_MAX")
+    except (OSError, ValueError):
+        limit = 255
+    n = len(os.fsencode(p.name))
+    if n > limit - _TEMP_NAME_ROOM:
+        raise OutputError(f"{option}: the name {excerpt(p.name)} is {n} bytes long; at most "
+                          f"{limit - _TEMP_NAME_ROOM} fit this file system", option=option)
+    if len(os.fsencode(os.path.abspath(p))) > 4000:
+        raise OutputError(f"{option}: the path is too long ({excerpt(shown)})", option=option)
+
+
 def check_output_dir(out: str | os.PathLike, *, inputs: Iterable = (), overwrite: bool = False,
                      option: str = "--out", marker: str = MARKER) -> Path:
     """Check that ``out`` may become this command's output folder; return it as given.
@@ -137,6 +158,7 @@ def check_output_dir(out: str | os.PathLike, *, inputs: Iterable = (), overwrite
     """
     shown = os.fspath(out)
     p = Path(out)
+    _check_name_length(p, shown, option)
     if p.is_symlink():
         raise OutputError(f"{option} {shown} is a symbolic link: give the real folder",
                           option=option)
@@ -187,6 +209,7 @@ def check_output_file(out: str | os.PathLike, *, inputs: Iterable = (), option: 
     """
     shown = os.fspath(out)
     p = Path(out)
+    _check_name_length(p, shown, option)
     if p.is_symlink():
         raise OutputError(f"{option} {shown} is a symbolic link: give a real file name",
                           option=option)
