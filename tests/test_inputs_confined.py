@@ -165,11 +165,20 @@ def test_acdc_gt_file_linked_out_is_refused(tmp_path):
     _fails(root, "symbolic link", gt.name)
 
 
+_OPENED: list = []
+sys.addaudithook(lambda event, args: _OPENED.append(os.fsdecode(args[0]))
+                 if event == "open" and args and isinstance(args[0], (str, bytes, os.PathLike))
+                 else None)
+
+
 def test_study_json_that_is_a_link_out_is_refused(tmp_path):
     root = make_native(tmp_path / "S")
     shutil.move(root / "study.json", tmp_path / "manifest.json")
     os.symlink(tmp_path / "manifest.json", root / "study.json")
+    _OPENED.clear()
     _fails(root, "symbolic link", "study.json")
+    assert not [p for p in _OPENED if os.path.realpath(p) == os.path.realpath(tmp_path / "manifest.json")], \
+        "the manifest outside the study was opened (format detection included)"
     assert load_study(root, allow_outside=True).contours
 
 

@@ -115,6 +115,7 @@ def is_native(path: str | Path) -> bool:
     manifest = p / MANIFEST if p.is_dir() else p
     if manifest.name != MANIFEST or not manifest.is_file():
         return False
+    checked(manifest, what="manifest")          # a study.json linked out: refused, not read
     try:
         return json.loads(manifest.read_text()).get("format") == FORMAT
     except (OSError, ValueError, AttributeError, RecursionError):
