@@ -178,3 +178,20 @@ def test_an_image_file_naming_study_json_is_refused(tmp_path):
     (root / "study.json").write_text(json.dumps(m))
     with pytest.raises(StudyError, match="not a DICOM image"):
         load_study(root)
+
+
+def test_third_party_warnings_and_log_lines_stay_off_stderr():
+    """matplotlib's "Glyph missing" (a non-ASCII subject name), numpy RuntimeWarnings and
+    nibabel's log lines never reach stderr raw once the CLI has started (--debug shows them)."""
+    import subprocess
+    import sys
+    code = ("import logging, warnings, numpy as np\n"
+            "from cardionurbs.safe import CAUGHT_WARNINGS, quiet_third_party\n"
+            "quiet_third_party()\n"
+            "warnings.warn('Glyph 12354 missing from font(s) DejaVu Sans.', UserWarning)\n"
+            "np.float64(1e308) * 10\n"
+            "import nibabel\n"
+            "logging.getLogger('nibabel.global').error('data code 255 not supported')\n"
+            "assert any('Glyph' in w for w in CAUGHT_WARNINGS), CAUGHT_WARNINGS\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
