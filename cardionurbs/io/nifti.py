@@ -52,7 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cardionurbs.errors import StudyError
+from cardionurbs.errors import ReconstructionError, StudyError
 from cardionurbs.imaging import stack
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import masks
@@ -335,8 +335,10 @@ def _add_la(b: _Builder, view_id: str, vol: LabelVolume, frames: dict[int, int],
                                                       view="LA", image=plane.id))
 
 
-def _sa_order(vol: LabelVolume, study: Study) -> list[int]:
-    """Slice indices k of an SA volume from base to apex."""
+def _sa_order(vol: LabelVolume, study: Study, roles: LabelRoles, frames) -> list[int]:
+    """Slice indices k of an SA volume from base to apex: which end is the base from the
+    anatomy (:func:`cardionurbs.imaging.stack.sa_base_direction`), never from the slice
+    order or the header's axes alone (ACDC's headers have none)."""
     nk = vol.data.shape[2]
     if nk == 1:
         return [0]
@@ -345,14 +347,24 @@ def _sa_order(vol: LabelVolume, study: Study) -> list[int]:
     normal /= np.linalg.norm(normal)
     centres = np.array([a[:3, 3] + k * a[:3, 2] for k in range(nk)])
     mitral = np.array([lm.point for lm in study.landmarks if lm.name == "mitral"])
-    u, _ = stack.base_to_apex_direction(normal, centres, mitral=mitral if len(mitral) else None)
+    anat = masks.stack_anatomy(vol.data, roles, list(frames))
+    try:
+        u, rule = stack.sa_base_direction(normal, centres, anat,
+                                          mitral=mitral if len(mitral) else None)
+    except ReconstructionError as exc:
+        raise StudyError(str(exc), file=str(vol.path), field="slice order") from None
+    study.meta["sa_orientation"] = rule
+    if rule.startswith("LPS prior"):
+        study.meta.setdefault("orientation_warnings", []).append(
+            f"{vol.path}: base and apex of the short-axis stack from the header's patient axes "
+            "only (the labels show no taper, cap or outflow): check the slice order")
     depth = centres @ u
     return [int(k) for k in np.argsort(depth, kind="stable")]
 
 
 def _add_sa(b: _Builder, vol: LabelVolume, frames: dict[int, int], times: dict[int, float]) -> None:
     """SA planes and contours of every labelled slice at the given (volume frame -> frame)."""
-    order = _sa_order(vol, b.study)
+    order = _sa_order(vol, b.study, b.roles, frames)
     labelled = [k for k in order if any(vol.data[:, :, k, t].any() for t in frames)]
     for k in order:
         if k not in labelled:
@@ -442,6 +454,7 @@ def _build(subject: str, source: Path, sa: LabelVolume, frames: dict[int, int],
                                                    "measured"} if roles.rv_myo is None else {},
                        "contour_files": b.files, **(meta or {})})
     warn = list(sa.warnings) + [w for v, _ in (la or {}).values() for w in v.warnings]
+    warn += study.meta.pop("orientation_warnings", [])
     if note:
         warn.append(f"{source}: {note}")
     study.meta["reader_warnings"] = warn + b.flush_warnings()
