@@ -98,7 +98,7 @@ def base_to_apex_direction(normal: np.ndarray, centers: np.ndarray, *,
 
 # --------------------------------------------------------------- base and apex from anatomy
 #: a taper cue votes when its two halves differ by more than this share of their sum
-TAPER_MIN_SHARE = 0.1
+TAPER_MIN_SHARE = 0.05
 #: weights of the anatomical cues (:func:`base_end_from_anatomy`)
 CUE_WEIGHTS = {"cavity taper": 1, "RV towards the base": 1, "myocardial cap": 2,
                "LV outflow": 2}
