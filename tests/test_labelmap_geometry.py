@@ -85,20 +85,45 @@ def test_base_and_apex_come_from_the_anatomy_not_the_slice_order(tmp_path, flip)
     assert not any("partial tracing" in w for w in reconstruct(study).warnings)
 
 
+def _open_ring(r_lv: float, wall: float) -> np.ndarray:
+    """An LV cavity the myocardium rings over one half of its border only (an outflow)."""
+    out = _slice(r_lv, wall, rv=False)
+    x = (np.arange(N) - N / 2 + 0.5) * PX
+    X, _ = np.meshgrid(x, x, indexing="ij")
+    out[(out == 2) & (X > 0)] = 0
+    return out
+
+
 def test_conflicting_anatomy_is_refused_with_one_line(tmp_path, capsys):
-    """The wide end shows myocardium without cavity (a cap, the apex's sign) while the
-    cavity and the RV taper the other way: refused, exit 2, one stderr line naming the
-    file and the cues."""
+    """The narrow end shows an LV cavity open to one side (an outflow, the base's sign)
+    while the cavity and the RV taper towards it: refused, exit 2, one stderr line naming
+    the file and the cues."""
     data = _heart(cap=False)
-    data[:, :, 0] = _slice(30.0, 0.0, rv=False, cap=True)
+    data[:, :, -1] = _open_ring(8.0, 6.0)
     (tmp_path / "in").mkdir()
     path = _save(data, tmp_path / "in" / "seg.nii.gz")
     with pytest.raises(StudyError, match="base and apex cannot be told apart"):
         load_study(path)
     assert main(["analyze", str(path), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "seg.nii.gz" in err[0] and "myocardial cap" in err[0]
+    assert len(err) == 1 and "seg.nii.gz" in err[0] and "LV outflow: base at the last" in err[0]
     assert not (tmp_path / "out").exists()
+
+
+def test_a_wide_ring_of_myocardium_at_the_base_is_no_cap(tmp_path):
+    """A basal slice through the annulus showing myocardium alone, as a wide ring (ES maps
+    can): not taken for the wall closing over the apex, the stack still reads base first."""
+    data = _heart()
+    ring = _slice(24.0, 8.0, rv=False)
+    ring[ring == 3] = 0
+    data[:, :, 0] = ring
+    study = load_study(_save(data, tmp_path / "seg.nii.gz", flip_z=True))
+    assert study.meta["sa_orientation"].startswith("anatomy")
+    # the file runs apex first: the cap at its first slice says "base at the last", and the
+    # basal ring (its last slice) is no second cap that would cancel it
+    assert "myocardial cap: base at the last slice" in study.meta["sa_orientation"]
+    areas = _sa_areas(study)
+    assert areas[0] == max(areas)
 
 
 def test_a_stack_without_anatomical_cues_says_so_in_one_warning(tmp_path):

@@ -332,7 +332,8 @@ class StackAnatomy:
 
     ``lv``, ``myo``, ``rv``: (k,) label areas in pixels summed over the frames; ``cap`` and
     ``outflow``: whether the first / last labelled slice of some frame shows myocardium
-    without cavity, or a cavity not ringed by myocardium (ring < MIN_RING_FRACTION)."""
+    without cavity (and less of it than the other end slice's LV holds), or a cavity not
+    ringed by myocardium (ring < MIN_RING_FRACTION)."""
 
     lv: np.ndarray
     myo: np.ndarray
@@ -357,8 +358,13 @@ def stack_anatomy(data: np.ndarray, roles: LabelRoles, frames) -> StackAnatomy:
         held = np.flatnonzero((a_lv + a_myo) > 0)
         if len(held) < 2:
             continue
-        for end, k in enumerate((held[0], held[-1])):
-            cap[end] |= bool(a_myo[k] > 0 and a_lv[k] == 0)
+        ends = (held[0], held[-1])
+        for end, k in enumerate(ends):
+            # a wall closing over the apex is the narrower end (a basal slice through the
+            # annulus at ES can show myocardium alone, as a wide ring)
+            other = ends[1 - end]
+            cap[end] |= bool(a_myo[k] > 0 and a_lv[k] == 0
+                             and a_myo[k] < a_lv[other] + a_myo[other])
             if a_lv[k] > 0 and a_myo[k] > 0:
                 outflow[end] |= ring_fraction(fill_holes(lvm[:, :, k]), myom[:, :, k]) \
                     < MIN_RING_FRACTION
