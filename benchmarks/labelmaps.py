@@ -243,8 +243,24 @@ def validation(out: Path) -> None:
     lines += [NOTE_SA_ONLY, ""]
     lines += ["RV mass is not measured from label maps (no RV wall label); metrics.json says so "
               "under `notes`.", ""]
-    out.write_text("\n".join(lines) + "\n")
+    out.write_text("\n".join(lines + kept_sections(out)) + "\n")
     print(f"wrote {out}", file=sys.stderr)
+
+
+#: sections of the report written from other commands (realconv, acdc), which
+#: ``validation`` keeps when it rewrites the file
+KEEP_BEGIN, KEEP_END = "<!-- kept: begin -->", "<!-- kept: end -->"
+
+
+def kept_sections(path: Path) -> list[str]:
+    """The lines between KEEP_BEGIN and KEEP_END of an existing report (markers included)."""
+    if not path.exists():
+        return []
+    text = path.read_text()
+    if KEEP_BEGIN not in text or KEEP_END not in text:
+        return []
+    a, b = text.index(KEEP_BEGIN), text.index(KEEP_END) + len(KEEP_END)
+    return ["", *text[a:b].splitlines()]
 
 
 def benchmark(out: Path, reps: int = 3) -> None:

@@ -18,6 +18,12 @@ reads the same way from every format:
   along ``(+1, -1, -1) / sqrt(3)`` (L = +x, P = +y, S = +z in DICOM), which
   holds for every patient position (HFS, FFS, ...) because LPS is attached to
   the patient, not to the scanner.
+* **Base and apex of a labelled stack** (:func:`sa_base_direction`): label maps
+  show where each structure is absent, so the base is the end the anatomy says
+  (:func:`base_end_from_anatomy`: cavity taper, RV towards the base, the
+  myocardium closing over the apex, the LV outflow), never the slice order or
+  the header's axes alone (ACDC's carry none); the mitral annulus of long-axis
+  maps cross-checks it; conflicting evidence is refused.
 * **Stack normal and slice spacing** (:func:`cardionurbs.geometry.stack_normal`,
   :func:`cardionurbs.geometry.slice_spacing`): the mean sign-aligned normal; the
   median distance between consecutive slice positions along it, from

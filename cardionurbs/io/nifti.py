@@ -32,9 +32,11 @@ row cosine = unit first column of ``A_lps`` (the direction in which the first
 array index grows), column cosine = unit second column, PixelSpacing = (length
 of the second column, length of the first), slice thickness = length of the
 third column. Pixel coordinates (c, r) are the first two array indices. The
-SA slices are named ``sa_00`` at the base towards the apex: the stack normal
-is signed from base to apex by the mitral annulus seen in the long-axis maps,
-else by the patient-frame prior of :mod:`cardionurbs.imaging.stack`.
+SA slices are named ``sa_00`` at the base towards the apex: which end is the
+base comes from the anatomy the labels show (:func:`cardionurbs.io.masks.stack_anatomy`,
+:func:`cardionurbs.imaging.stack.sa_base_direction`), cross-checked with the mitral
+annulus of the long-axis maps; the patient-frame prior of the header's axes only
+when neither says (a warning).
 
 Contours come from :mod:`cardionurbs.io.masks`; what is left out is
 reported in ``study.warnings`` naming slice and frame. Voxel-count volumes
