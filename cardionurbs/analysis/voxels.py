@@ -42,10 +42,11 @@ def voxel_metrics(voxel_volumes_ml: dict, ed_frame: int, es_frame: int) -> dict[
 
 # ------------------------------------------------------------------ QC against the labels
 #: largest |model − voxel count| that partial volume explains, % of the voxel count (volumes,
-#: LVM) or EF points: voxel counting is itself off the truth by up to 3 % (EDV), 12 % (ESV)
-#: and 10 % (LVM) on phantoms at 10 mm slices (reports/validation-labelmaps.md)
+#: LVM) or EF points: voxel counting's own error on phantoms (up to 3 % EDV, 12 % ESV, 10 %
+#: LVM, 3 / 7 points LVEF / RVEF at 10 mm slices; reports/validation-labelmaps.md) plus the
+#: model's (3 % volumes, 5 % LVM, 2 points EF)
 VOXEL_BOUND = {"LVEDV (mL)": 6.0, "RVEDV (mL)": 6.0, "LVESV (mL)": 15.0, "RVESV (mL)": 15.0,
-               "LVM (g)": 12.0, "LVEF (%)": 5.0, "RVEF (%)": 8.0}
+               "LVM (g)": 15.0, "LVEF (%)": 5.0, "RVEF (%)": 10.0}
 #: largest difference between the model's and the labels' ED -> ES change of the LV
 #: myocardial volume (share of ED)
 MYO_CHANGE_BOUND = 0.10
