@@ -13,18 +13,28 @@ Layouts (:func:`detect`)
            + ``seg_sa_ES.nii.gz``; long-axis ``seg4_la_4ch.nii.gz`` (preferred)
            or ``seg_la_4ch``/``seg_la_2ch``/``seg_la_3ch.nii.gz`` when they hold
            ventricles; label preset ``ukbb``. ED is frame 0 (ukbb_cardiac's
-           convention), ES the frame of least LV volume.
+           convention), ES the frame of the smallest LV cavity by voxel count.
 ``mnms``   ``<code>_sa_gt.nii.gz`` (4-D, only ED and ES labelled); ED/ES frame
            indices from a CSV beside it or in the parent folder (columns
            ``External code``, ``ED``, ``ES``) or the ``ed_frame``/``es_frame``
            arguments, else the labelled frames; label preset ``mnms``.
+``mnms2``  ``NNN_SA_ED_gt`` + ``NNN_SA_ES_gt`` (3-D, frames 0 = ED and 1 = ES) and
+           ``NNN_LA_ED_gt`` + ``NNN_LA_ES_gt`` (the 4-chamber slice, used as the
+           ukbb long-axis maps are); label preset ``mnms`` (1 LV, 2 MYO, 3 RV).
+ED and ES defined by the layout are used as given by the model
+(``meta["ed_es_given"]``; ``meta["ed_es_source"]`` names the rule); ED = ES
+is allowed and leaves SV and EF null.
 An image NIfTI beside the labels (``patientNNN_4d``, ``sa``/``la_*``,
 ``<code>_sa``) is recorded in ``study.meta["image_files"]``.
 
 Geometry
 --------
-The voxel-to-world affine is the sform when its code is set, else the
-qform, else (with a warning) the voxel sizes alone. NIfTI world coordinates
+The voxel-to-world affine is the sform when its code is set (with the
+``pixdim`` spacing where the two disagree, as in ACDC's files), else the
+qform, else (with a warning) the voxel sizes alone; sform, qform and pixdim
+are compared on every file (:func:`_header_notes`, ``meta["headers"]``). The
+frame interval honours ``xyzt_units``, and an unknown unit is read as the one
+giving a plausible cardiac cycle (:func:`time_step_ms`, ``meta["time_axis"]``). NIfTI world coordinates
 are RAS+; the study's scanner frame is DICOM patient LPS, so x and y change
 sign: ``A_lps = diag(-1, -1, 1, 1) · A_ras``. For slice k the image plane
 (DICOM Image Plane module) is: ImagePositionPatient = ``A_lps (0, 0, k, 1)``,

@@ -25,9 +25,17 @@ Layouts written by :func:`write_labelmaps` (see :mod:`cardionurbs.io.nifti`):
 ``<subject>_frameMM_gt.nii.gz`` at ED and ES (slices apex → base, as a
 reader must not assume an order), ``Info.cfg`` and ``<subject>_4d.nii.gz``;
 ``mnms`` — ``<subject>_sa_gt.nii.gz`` (4-D, only ED and ES labelled),
-``<subject>_sa.nii.gz`` and ``mnms_info.csv`` (External code, ED, ES).
-Frame interval in ``pixdim[4]`` (ms), NIfTI world RAS+ (DICOM LPS with x and
-y negated), sform and qform codes 1.
+``<subject>_sa.nii.gz`` and ``mnms_info.csv`` (External code, ED, ES);
+``mnms2`` — ``<subject>_SA_ED_gt``, ``_SA_ES_gt``, ``_LA_ED_gt``, ``_LA_ES_gt``
+(3-D; the LA maps the 4-chamber slice) and the images without ``_gt``.
+By default: frame interval in ``pixdim[4]`` (ms), NIfTI world RAS+ (DICOM LPS
+with x and y negated), sform and qform codes 1. ``quirks`` (:data:`QUIRKS`,
+``phantom --label-quirks``) write the real datasets' headers instead:
+``real`` (ACDC: unit-scale sform code 2 with no real orientation, qform 0, the
+spacing only in pixdim, slices base first; UK Biobank: ``pixdim[4]`` in seconds
+with an unknown time unit), ``lps`` (in-plane array axes reversed, the same world
+image), ``apex-first`` / ``base-first`` (SA slice order), ``pv`` (partial-volume
+labels, 3 x 3 supersampling); see docs/formats.md.
 """
 
 from __future__ import annotations
