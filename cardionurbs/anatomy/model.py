@@ -190,9 +190,7 @@ class BiventricularModel:
                 es = int(study.es_frame)
         self.ed_frame, self.es_frame = ed, es
         if ed == es:
-            self.warnings.append(f"ED and ES are the same frame ({ed}"
-                                 + (", the only one with LV contours" if len(self.frames) == 1 else "")
-                                 + "): SV, EF and CO are not measurable (null)")
+            self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, SV = 0")
         self.base_shift_mm: dict[int, float] = {}
         if surfaces is None and ed != es:
             self._conserve_myocardium(ed, es)
