@@ -567,27 +567,31 @@ def _build(subject: str, source: Path, sa: LabelVolume, frames: dict[int, int],
                        "voxel_volumes_ml": voxel_volumes(sa, roles, frames),
                        "metric_notes": {"RVM (g)": "label maps have no RV wall: RV mass not "
                                                    "measured"} if roles.rv_myo is None else {},
-                       "contour_files": b.files,
-                       "headers": {v.path.name: v.header for v in [sa] + [v for v, _ in (la or {}).values()]
-                                   if v.header},
-                       "time_axis": sa.header.get("time"), **(meta or {})})
+                       "contour_files": b.files, **(meta or {})})
+    warn = list(sa.warnings) + [w for v, _ in (la or {}).values() for w in v.warnings]
+    if note:
+        warn.append(f"{source}: {note}")
+    study.meta["reader_warnings"] = warn + b.flush_warnings()
+    _header_meta(study, sa, [v for v, _ in (la or {}).values()])
+    return study
+
+
+def _header_meta(study: Study, sa: LabelVolume, la: list[LabelVolume]) -> None:
+    """``meta["headers"]`` (file -> what its header said), ``meta["time_axis"]`` (the SA
+    map's); an implausible time axis gives the filling-rate columns (analysis.rates) a reason."""
+    study.meta["headers"] = {v.path.name: v.header for v in [sa, *la] if v.header}
     axis = sa.header.get("time") or {}
-    if axis.get("plausible") is False:             # the filling-rate columns (analysis.rates)
+    study.meta["time_axis"] = axis or None
+    if axis.get("plausible") is False:
         why = (f"implausible time axis ({sa.path.name}: {axis.get('pixdim4'):g} per frame, unit "
                f"{axis.get('unit')}): filling rates not to be trusted")
         for col in ("PER (mL/s)", "PEFR (mL/s)", "PAFR (mL/s)", "E/A ratio"):
             study.meta["metric_notes"][col] = why
-    warn = list(sa.warnings) + _unrepeated([w for v, _ in (la or {}).values() for w in v.warnings],
-                                           sa.warnings, sa.path.name)
-    if note:
-        warn.append(f"{source}: {note}")
-    study.meta["reader_warnings"] = warn + b.flush_warnings()
-    return study
 
 
-def _unrepeated(warnings: list[str], shown: list[str], name: str) -> list[str]:
-    """Long-axis warnings less those the SA map's already say about its own file (the same
-    time step in every map of a layout is named once)."""
+def _unrepeated(warnings: list[str], shown: list[str]) -> list[str]:
+    """A long-axis map's warnings less those the SA map's already say about its own file
+    (the same time step in every map of a layout is named once)."""
     seen = {w.split(": ", 1)[-1] for w in shown}
     return [w for w in warnings if w.split(": ", 1)[-1] not in seen]
 
@@ -715,6 +719,7 @@ def read_ukbb(folder: Path, labels=None) -> Study:
         if p is None:
             continue
         v = read_label_volume(p)
+        v.warnings = _unrepeated(v.warnings, sa.warnings)
         if v.data.shape[3] != sa.data.shape[3]:
             skipped.append(f"{p}: {v.data.shape[3]} frame(s) where the SA map has "
                            f"{sa.data.shape[3]}: long-axis map left out")
