@@ -127,6 +127,7 @@ def test_unit_voxels_everywhere_are_named(tmp_path):
     (None, 17.3, 50, 17.3, "read as msec"),
     (("mm", "msec"), 0.0173, 50, 0.0173, "implausible time axis"),   # declared unit honoured
     (None, 1e-5, 50, None, "implausible time axis"),
+    (("mm", "msec"), 0.0, 10, None, "no frame interval"),
 ])
 def test_time_step_honours_the_unit_or_finds_a_cardiac_cycle(tmp_path, units, pixdim4, frames,
                                                                dt_ms, says):

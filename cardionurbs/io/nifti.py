@@ -341,7 +341,7 @@ def time_step_ms(hdr, n_frames: int, where: str, warnings: list[str]) -> tuple[f
     zooms = hdr.get_zooms()
     raw = float(zooms[3]) if len(zooms) > 3 else float("nan")
     unit = str(hdr.get_xyzt_units()[1])
-    notes: dict = {"pixdim4": raw, "unit": unit, "unit_used": None, "dt_ms": None,
+    notes: dict = {"pixdim4": raw if np.isfinite(raw) else None, "unit": unit, "unit_used": None, "dt_ms": None,
                    "cycle_ms": None, "plausible": None}
     if n_frames <= 1:
         return None, notes
@@ -583,7 +583,8 @@ def _header_meta(study: Study, sa: LabelVolume, la: list[LabelVolume]) -> None:
     axis = sa.header.get("time") or {}
     study.meta["time_axis"] = axis or None
     if axis.get("plausible") is False:
-        why = (f"implausible time axis ({sa.path.name}: {axis.get('pixdim4'):g} per frame, unit "
+        step = "no" if axis.get("pixdim4") is None else f"{axis['pixdim4']:g}"
+        why = (f"implausible time axis ({sa.path.name}: {step} per frame, unit "
                f"{axis.get('unit')}): filling rates not to be trusted")
         for col in ("PER (mL/s)", "PEFR (mL/s)", "PAFR (mL/s)", "E/A ratio"):
             study.meta["metric_notes"][col] = why
