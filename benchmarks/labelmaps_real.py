@@ -55,6 +55,17 @@ def _voxels(paths: list[Path], preset: str) -> dict:
     return out
 
 
+def _voxel_per(folder: Path, model) -> float:
+    """PER (mL/s) of the voxel-count LV curve of a ukbb folder (the same spline as the model's)."""
+    from cardionurbs.analysis.rates import filling_rates
+    st = load_study(folder)
+    fr = sorted(st.meta["voxel_volumes_ml"])
+    rates, _ = filling_rates([st.frame_times_ms[f] for f in fr],
+                             [st.meta["voxel_volumes_ml"][f]["lv_cavity"] for f in fr],
+                             fr.index(model.ed_frame), fr.index(model.es_frame))
+    return rates["PER (mL/s)"]
+
+
 def _row(name: str, wall, cpu) -> str:
     return f"| {name} | {np.median(cpu):.2f} ({min(cpu):.2f}) | {np.median(wall):.2f} ({min(wall):.2f}) |"
 
@@ -72,8 +83,14 @@ def cases(tmp: Path, reps: int) -> tuple[list[str], list[str]]:
         rows.append(_row(f"{label}: read + model + metrics (2 frames)", w, c))
         w, c, _ = _time(lambda: _voxels(gts, "acdc"), reps)
         rows.append(_row(f"{label}: voxel counting beside it", w, c))
+        vox = _voxels(gts, "acdc")
+        ed_v, es_v = (vox[gts[i].name][0]["lv_cavity"] for i in (0, -1))
+        ref = (f"truth LVEDV {ph.truth['metrics']['LVEDV (mL)']:.1f} mL, LVEF "
+               f"{ph.truth['metrics']['LVEF (%)']:.1f} %" if folder.name == "acdc_phantom" else
+               "no truth")
         notes.append(f"{label}: ED {model.ed_frame}, ES {model.es_frame}, LVEDV {m['LVEDV (mL)']:.1f} mL, "
-                     f"LVEF {m['LVEF (%)']:.1f} %.")
+                     f"LVEF {m['LVEF (%)']:.1f} % (voxel count {ed_v:.1f} mL, "
+                     f"{100 * (1 - es_v / ed_v):.1f} %; {ref}).")
     big = generate("normal", seed=0, frames=50, matrix=208, n_sa=10, sa_spacing_mm=8.0,
                    volume_check=False)
     truth = big.truth["metrics"]
@@ -90,7 +107,8 @@ def cases(tmp: Path, reps: int) -> tuple[list[str], list[str]]:
         notes.append(f"ukbb 50 frames, {label}: ED {model.ed_frame}, ES {model.es_frame} (truth ES "
                      f"{big.es_frame}); PER {per:.1f} mL/s vs truth {per_t:.1f} "
                      f"({100 * (per / per_t - 1):+.1f} %); LVESV {m['LVESV (mL)']:.1f} vs "
-                     f"{truth['LVESV (mL)']:.1f} mL.")
+                     f"{truth['LVESV (mL)']:.1f} mL; the voxel-count curve's PER "
+                     f"{_voxel_per(folder, model):.1f} mL/s.")
     return rows, notes
 
 
@@ -100,7 +118,7 @@ def main(reps: int = 3) -> None:
         rows, notes = cases(Path(tmp), reps)
     load = os.getloadavg()
     head = header("x", COMMAND)
-    lines = [TITLE, "", "```", COMMAND, "```", "", *head[6:8],
+    lines = [TITLE, "", "```", COMMAND, "```", "", *head[6:9],
              "Unset for the run: OPENBLAS_CORETYPE, OPENBLAS_L2_SIZE. Median (best) of "
              f"{reps} runs after a warm-up, one process; wall times are upper bounds on the "
              "shared 2 cores.", "",
