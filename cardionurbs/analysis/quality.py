@@ -35,7 +35,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cardionurbs.analysis.function import COLUMNS, TAG_COLUMNS
-from cardionurbs.analysis.rates import RATE_COLUMNS
 
 if TYPE_CHECKING:  # pragma: no cover
     from cardionurbs.anatomy.model import BiventricularModel
@@ -207,6 +206,7 @@ def assess(model: "BiventricularModel", metrics: dict[str, float]) -> Quality:
 
     hr = metrics.get("HR (bpm)", math.nan)
     hr_flag = [] if isinstance(hr, (int, float)) and math.isfinite(hr) else ["heart rate unknown"]
+    from cardionurbs.analysis.rates import RATE_COLUMNS
     axis = (model.study.meta or {}).get("time_axis") or {}
     time_flag = ["implausible time axis"] if axis.get("plausible") is False else []
     for col in COLUMNS:
