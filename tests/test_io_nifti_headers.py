@@ -148,7 +148,7 @@ def test_time_step_honours_the_unit_or_finds_a_cardiac_cycle(tmp_path, units, pi
 
 
 def test_implausible_time_axis_reaches_metrics_json_and_qc(tmp_path, monkeypatch):
-    data = _rings(n=40, slices=5, radii=[10, 9, 7.5, 7, 8.5, 9.5])
+    data = _rings(n=40, slices=5, radii=[10, 9.5, 8.5, 7.5, 7, 7.5, 8.5, 9, 9.5, 9.8])
     p = _write(data, tmp_path / "seg.nii.gz", sform=_scanner_affine(zooms=(1.5, 1.5, 8.0)),
                qform=_scanner_affine(zooms=(1.5, 1.5, 8.0)), units=("mm", "msec"), dt=0.02)
     monkeypatch.chdir(tmp_path)
