@@ -263,3 +263,17 @@ def test_single_3d_map_gives_null_ef_with_the_reason(tmp_path, monkeypatch):
             assert m["metrics"][col] is None, (out, col)
         assert m["metrics"]["LVEDV (mL)"] > 0
         assert any("ED = ES" in str(w) for w in m["warnings"])       # the model says why
+
+
+@pytest.mark.parametrize("out", ["seg.nii.gz", ".", ".."])
+def test_single_file_study_still_refuses_an_output_that_is_or_holds_it(tmp_path, monkeypatch,
+                                                                        capsys, out):
+    aff = _scanner_affine(zooms=(1.5, 1.5, 8.0))
+    (tmp_path / "d").mkdir()
+    seg = _write(_rings(slices=5)[..., 0], tmp_path / "d" / "seg.nii.gz", sform=aff, qform=aff)
+    before = seg.read_bytes()
+    monkeypatch.chdir(tmp_path / "d")
+    assert main(["analyze", "seg.nii.gz", "--out", out, "--outputs", "metrics"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--out" in err[0]
+    assert seg.read_bytes() == before and sorted(q.name for q in (tmp_path / "d").iterdir()) == ["seg.nii.gz"]
