@@ -53,6 +53,10 @@ def test_every_variant_reads_back_against_the_truth(phantom, layout, quirks, tmp
         want = np.array(sorted(map(tuple, np.round([_centre(im) for im in ref
                                                     if im.slice in {s.slice for s in sa}], 3))))
         assert np.allclose(got, want, atol=1e-2)
+    if layout == "mnms2":                              # the 4-chamber LA maps, as ukbb's are used
+        assert {(c.frame, c.structure) for c in study.contours if c.slice == "la_4ch"} >= {
+            (0, "lv_endo"), (ph.es_frame, "lv_endo"), (0, "lv_epi")}
+        assert len([lm for lm in study.landmarks if lm.name == "mitral" and lm.frame == 0]) == 2
     if layout == "ukbb":                               # seconds with an unknown unit -> ms
         dt = 60000.0 / ph.study.heart_rate_bpm / len(ph.phases)
         assert study.frame_times_ms[1] == pytest.approx(dt, rel=1e-5)
