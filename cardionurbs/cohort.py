@@ -39,12 +39,12 @@ from cardionurbs.io import atomic
 
 #: the ``<column> range`` cells (below / normal / above) of the metrics with a reference range
 RANGE_COLUMNS = tuple(f"{c} range" for c in dict.fromkeys(r["column"] for r in load_ranges()["rows"]))
-#: subject, status, the metrics, body size and the indexed metrics, then their evidence
-#: (fit residuals per surface, contours left out) and ``QC``, what failed
-#: (cardionurbs.analysis.quality), the reference-range flags, and the number of warnings
-#: with a readable ``notes`` cell (why columns are null, the first warnings)
+#: subject, status, the metrics, then their evidence (fit residuals per surface, contours
+#: left out) and ``QC``, what failed (cardionurbs.analysis.quality); body size and the
+#: indexed metrics, the reference-range flags, and the number of warnings with a readable
+#: ``notes`` cell (why columns are null, the first warnings)
 BODY_CSV_COLUMNS = BODY_COLUMNS + ("Sex",) + INDEXED_COLUMNS
-CSV_COLUMNS = (("subject", "status") + COLUMNS + BODY_CSV_COLUMNS + QC_COLUMNS + RANGE_COLUMNS
+CSV_COLUMNS = (("subject", "status") + COLUMNS + QC_COLUMNS + BODY_CSV_COLUMNS + RANGE_COLUMNS
                + ("warnings", "notes"))
 _NUMBERS = COLUMNS + BODY_CSV_COLUMNS + QC_COLUMNS + RANGE_COLUMNS
 
