@@ -205,3 +205,37 @@ def test_packaged_ranges_cite_one_source_and_name_their_tables():
     for r in data["rows"]:
         assert r["table"] and r["column"] and (r["lower"] is not None or r["upper"] is not None)
         assert r.get("sex") in (None, "M", "F")
+
+
+def test_packaged_rows_flag_hand_checked_values():
+    """Men aged 20-29, Kawel-Boehm 2020 Tables 3 (LV) and 11 (RV), as entered in the file."""
+    f = range_flags({"LVEF (%)": 45.9, "LVEDVi (mL/m²)": 112.5, "RVEF (%)": 36.0,
+                     "RVESVi (mL/m²)": 22.9}, "M", 25)
+    assert f["LVEF (%)"]["flag"] == "below" and f["LVEF (%)"]["lower"] == 46
+    assert f["LVEF (%)"]["table"] == "Table 3"
+    assert f["LVEDVi (mL/m²)"]["flag"] == "above" and f["LVEDVi (mL/m²)"]["upper"] == 112
+    assert f["RVEF (%)"]["flag"] == "normal" and f["RVEF (%)"]["table"] == "Table 11"
+    assert f["RVESVi (mL/m²)"]["flag"] == "below"
+    other = range_flags({"LVEF (%)": 60.0}, "F", 25)["LVEF (%)"]
+    assert other["flag"] is None and "no reference range" in other["reason"]
+    assert range_flags({"LVEF (%)": 60.0}, None, 25)["LVEF (%)"]["reason"] == "sex unknown"
+
+
+@pytest.mark.parametrize("pathology, expect", [
+    ("normal", {c: "normal" for c in ("LVEDVi (mL/m²)", "LVESVi (mL/m²)", "LVSVi (mL/m²)",
+                                      "LVEF (%)", "RVEDVi (mL/m²)", "RVESVi (mL/m²)",
+                                      "RVSVi (mL/m²)", "RVEF (%)")}),
+    ("mr", {"LVEDVi (mL/m²)": "above", "LVSVi (mL/m²)": "above"}),
+    ("phtn", {"RVEF (%)": "below", "RVESVi (mL/m²)": "above", "LVEF (%)": "normal"}),
+])
+def test_phantom_presets_against_the_reference_ranges(pathology, expect):
+    """The presets' analytic truth, for a man of 25 with BSA 1.9 m², read against the same
+    ranges: the normal heart is normal, each pathology is flagged where it is designed to be."""
+    from cardionurbs.analysis.body import add_body_columns
+    from cardionurbs.phantom.generate import generate
+    truth = dict(generate(pathology, seed=0, frames=2).truth["metrics"])
+    h = 180.0
+    add_body_columns(truth, {"height_cm": h, "weight_kg": 1.9 ** 2 * 3600 / h})
+    assert truth["BSA (m²)"] == pytest.approx(1.9)
+    f = range_flags(truth, "M", 25)
+    assert {c: f[c]["flag"] for c in expect} == expect
