@@ -65,10 +65,9 @@ def add_body_columns(metrics: dict, body: Mapping | None) -> dict:
             null(metrics, column, f"not in the study (give {option})")
     if math.isnan(h) or math.isnan(w):
         missing = " and ".join(n for n, v in (("height", h), ("weight", w)) if math.isnan(v))
-        reason = f"body size unknown ({missing}): give --height-cm and --weight-kg"
-        null(metrics, "BSA (m²)", reason)
+        null(metrics, "BSA (m²)", f"no {missing}: give --height-cm and --weight-kg")
         for column in INDEXED:
-            null(metrics, column, reason)
+            null(metrics, column, "body size unknown (no BSA)")
         return metrics
     bsa = bsa_mosteller(h, w)
     metrics["BSA (m²)"] = bsa

@@ -380,7 +380,7 @@ body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:0;col
 header{padding:10px 18px;background:#f4f4f4;border-bottom:1px solid #ddd}
 h1{font-size:20px;margin:0} h2{font-size:16px;margin:18px 0 6px}
 main{display:flex;flex-wrap:wrap;gap:14px;padding:10px 18px}
-#viewer{flex:1 1 640px;min-width:480px} #side{flex:0 1 460px}
+#viewer{flex:1 1 600px;min-width:480px} #side{flex:0 1 600px}
 #plot{width:100%;height:620px;border:1px solid #ddd}
 .controls{display:flex;flex-wrap:wrap;gap:8px 16px;margin:6px 0;font-size:13px;align-items:center}
 .sw{display:inline-block;width:12px;height:12px;margin-right:4px;border:1px solid #888;vertical-align:middle}
@@ -391,7 +391,7 @@ figcaption{font-size:12px;color:#444} #frameLabel{min-width:150px;display:inline
 .note{font-size:12.5px;color:#555} #volplot{width:100%;height:260px}
 .qc{font-size:11.5px;color:#a33} .qcflag{color:#c22}
 tr.group th{text-align:left;background:#eef2f6;font-size:13px;padding-top:6px}
-.why{font-size:11px;color:#777} details{margin:4px 0;font-size:12.5px} summary{cursor:pointer}
+.why{font-size:11px;color:#777} #metrics td:first-child,#regional td:first-child{white-space:nowrap} details{margin:4px 0;font-size:12.5px} summary{cursor:pointer}
 """
 
 _JS = r"""
@@ -595,7 +595,11 @@ def page_parts(payload: Mapping) -> list[str]:
     else:
         flags_html = "<p class='note'>Tag QC: no tag line flagged as mistracked.</p>"
     skipped = "".join(f"<li>{esc(k)}: {esc(v)}</li>" for k, v in p["skipped"].items())
-    warns = "".join(f"<li>{esc(w)}</li>" for w in p["warnings"])
+    first, rest = p["warnings"][:5], p["warnings"][5:]
+    warns = "".join(f"<li>{esc(w)}</li>" for w in first)
+    if rest:
+        warns += (f"<li><details><summary>{len(rest)} more</summary><ul>"
+                  + "".join(f"<li>{esc(w)}</li>" for w in rest) + "</ul></details></li>")
     if p.get("n_warnings", 0) > len(p["warnings"]):
         warns += f"<li>… {p['n_warnings'] - len(p['warnings'])} more in metrics.json</li>"
     quality = _quality_html(p["metrics"])
