@@ -612,6 +612,8 @@ def fig09_all_tag_surfaces(ctx, out):
 
 def fig10_biventricular(ctx, out):
     surf = ctx.surfaces(ctx.ed)
+    if "rv_endo" not in surf:               # LV alone is figs 3-4: nothing biventricular to show
+        return "no rv_endo surface in the model: the biventricular figure needs the RV"
     order = [s for s in ("lv_endo", "rv_endo", "lv_epi", "rv_epi") if s in surf]
     alpha = {"lv_endo": 1.0, "rv_endo": 1.0, "lv_epi": 0.3, "rv_epi": 0.3}
     meshes = [surface_mesh(surf[s], STRUCTURE_COLOURS[s], alpha[s], s) for s in order]
@@ -652,16 +654,19 @@ def fig11_volume_time(ctx, out):
     keys = [k for k in ("lv_cavity", "rv_cavity") if all(k in vols[f] for f in frames)]
     colours = {"lv_cavity": STRUCTURE_COLOURS["lv_endo"], "rv_cavity": STRUCTURE_COLOURS["rv_endo"]}
     truth_v = ((ctx.truth or {}).get("volumes") or {}).get("analytic_mL") or {}
+    has_truth = any(sum(str(f) in truth_v and isinstance(truth_v[str(f)].get(k), (int, float))
+                        and np.isfinite(truth_v[str(f)][k]) for f in frames) >= 2 for k in keys)
     caption = (f"Volume–time curves of subject {ctx.subject}: LV and RV cavity volumes from the "
                f"closed meshes at {len(frames)} frames (ED frame {ctx.ed}, ES frame {ctx.es})"
-               + ("; dashed: phantom truth." if truth_v else "."))
+               + ("; dashed: phantom truth." if has_truth else "."))
     fig, axes = _new_figure(1, caption, width=6.4, height=4.2, three_d=False)
     ax = axes[0]
     for k in keys:
         ax.plot(x, [vols[f][k] for f in frames], "-o", color=colours[k], ms=3, lw=1.8,
                 label=k.replace("_", " "))
-        tf = [f for f in frames if str(f) in truth_v and k in truth_v[str(f)]]
-        if tf:
+        tf = [f for f in frames if str(f) in truth_v and k in truth_v[str(f)]
+              and truth_v[str(f)][k] is not None and np.isfinite(truth_v[str(f)][k])]
+        if len(tf) >= 2:                # a truth curve (and its legend entry) only if drawn
             xt, _ = _times(ctx, tf)
             ax.plot(xt, [truth_v[str(f)][k] for f in tf], "--", color=colours[k], lw=1,
                     label=f"{k.replace('_', ' ')} (truth)")
@@ -713,7 +718,7 @@ def fig12_twist_time(ctx, out):
     return _result("fig12_twist_time", fig, out, caption, {"twist": c1, "LS": c2})
 
 
-def fig13_labelmap_overlay(ctx, out):
+def fig18_labelmap_overlay(ctx, out):
     """Label-map studies with an image NIfTI beside them: the mid-ventricular SA image at
     ED and ES with the contours the label map gave drawn over it
     (:func:`cardionurbs.report.overlay.sa_overlay`)."""
@@ -757,7 +762,7 @@ def fig13_labelmap_overlay(ctx, out):
         ax.set_ylabel("pixel row", fontsize=7)
         ax.tick_params(labelsize=6)
     _legend(fig, [(k.replace("_", " "), c) for k, c in colours.items()])
-    return _result("fig13_labelmap_overlay", fig, out, caption, colours)
+    return _result("fig18_labelmap_overlay", fig, out, caption, colours)
 
 
 FIGURES: dict[str, FigureFn] = {
@@ -769,7 +774,7 @@ FIGURES: dict[str, FigureFn] = {
     "fig12_twist_time": fig12_twist_time,
 }
 #: figures drawn only for label-map studies (format nifti)
-LABEL_MAP_FIGURES: dict[str, FigureFn] = {"fig13_labelmap_overlay": fig13_labelmap_overlay}
+LABEL_MAP_FIGURES: dict[str, FigureFn] = {"fig18_labelmap_overlay": fig18_labelmap_overlay}
 
 
 def _regional_columns(ctx) -> Mapping:
