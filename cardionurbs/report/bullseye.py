@@ -128,7 +128,7 @@ class BullseyeCanvas:
 
     def __init__(self) -> None:
         self.fig = Figure(figsize=(4.6, 4.4), dpi=100)
-        self.ax = self.fig.add_axes([0.04, 0.14, 0.7, 0.74], projection="polar")
+        self.ax = self.fig.add_axes([0.03, 0.14, 0.66, 0.74], projection="polar")
         draw_bullseye(self.ax, {}, cmap="viridis")
         self.bars = list(self.ax.containers[0])
         self.labels = list(self.ax.texts)
@@ -151,14 +151,14 @@ class BullseyeCanvas:
             t.set_color(c)
         if self.cax is not None:
             self.cax.remove()
-        self.cax = self.fig.add_axes([0.8, 0.2, 0.04, 0.62])
+        self.cax = self.fig.add_axes([0.74, 0.2, 0.04, 0.62])
         sm = cm.ScalarMappable(norm=norm, cmap=matplotlib.colormaps[cmap])
         text = f"{label or title} ({unit})"
         if fixed:
             text += f"\nfixed scale {norm.vmin:g} to {norm.vmax:g} {unit}"
         self.fig.colorbar(sm, cax=self.cax, label=text, extend="both" if fixed else "neither")
         self.title.set_text(plain_text(title))
-        self.caption.set_text(plain_text(textwrap.fill(caption, 95)))
+        self.caption.set_text(plain_text(textwrap.fill(caption, 84)))
         buf = io.BytesIO()
         self.fig.savefig(buf, format="png", dpi=100)
         atomic.write_bytes(path, buf.getvalue())

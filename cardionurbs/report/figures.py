@@ -262,9 +262,9 @@ def draw_panel(ax, meshes: Sequence[Mesh], view: View, *, lines: Sequence[tuple]
     ax.set_box_aspect((1, 1, 1), zoom=1.2)
     ax.computed_zorder = False
     ax.view_init(elev=view.elev, azim=view.azim, roll=view.roll)
-    ax.set_xlabel("x (mm)", fontsize=7, labelpad=-6)
-    ax.set_ylabel("y (mm)", fontsize=7, labelpad=-6)
-    ax.set_zlabel("z (mm)", fontsize=7, labelpad=-6)
+    ax.set_xlabel("x (mm)", fontsize=7, labelpad=2)
+    ax.set_ylabel("y (mm)", fontsize=7, labelpad=2)
+    ax.set_zlabel("z (mm)", fontsize=7, labelpad=2)
     ax.tick_params(labelsize=6, pad=-2)
     for a in (ax.xaxis, ax.yaxis, ax.zaxis):
         a.set_pane_color((1, 1, 1, 0))
@@ -313,12 +313,16 @@ def _new_figure(n_panels: int, caption: str, *, width: float = 4.6, height: floa
     fig = Figure(figsize=(width * n_panels, height), dpi=DPI)
     axes = [fig.add_subplot(1, n_panels, i + 1, projection="3d" if three_d else None)
             for i in range(n_panels)]
-    fig.subplots_adjust(left=0.02 if three_d else 0.1, right=0.93 if three_d else 0.88,
-                        top=0.90 if three_d else 0.93, bottom=0.13 if three_d else 0.22,
-                        wspace=0.15 if three_d else 0.3)
     chars = int(width * n_panels * 17)          # ~17 characters per inch at 7.5 pt
-    fig.text(0.01, 0.01, plain_text(textwrap.fill(caption, chars)), fontsize=7.5, ha="left",
-             va="bottom")
+    text = plain_text(textwrap.fill(caption, chars))
+    # the caption's height (7.5 pt lines, 1.3 line spacing) plus room for the lowest axis
+    # and tick labels above it: the axes start above the caption, never on it
+    caption_h = (text.count("\n") + 1) * 7.5 * 1.3 / 72.0 / height + 0.02
+    fig.subplots_adjust(left=0.02 if three_d else 0.1, right=0.93 if three_d else 0.88,
+                        top=0.90 if three_d else 0.93,
+                        bottom=caption_h + (0.12 if three_d else 0.13),
+                        wspace=0.15 if three_d else 0.3)
+    fig.text(0.01, 0.01, text, fontsize=7.5, ha="left", va="bottom")
     return fig, axes
 
 
