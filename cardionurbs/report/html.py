@@ -468,7 +468,7 @@ if(D.volume_curve && D.volume_curve.frame && D.volume_curve.frame.length>2){
     if(vc[s[0]] && vc[s[0]].some(function(v){return v!=null && !isNaN(v);}))
       tr.push({x:xs,y:vc[s[0]],name:s[1],mode:'lines+markers',line:{color:s[2]}}); });
   if(tr.length) Plotly.newPlot('volplot', tr, {margin:{l:50,r:10,t:10,b:40},
-    xaxis:{title:{text: haveT?'time (ms)':'frame'}}, yaxis:{title:{text:'volume (mL)'}}, legend:{x:0.7,y:1}},
+    xaxis:{title:{text: haveT?'time (ms)':'frame'}}, yaxis:{title:{text:'volume (mL)'}}, legend:{orientation:'h',x:0,y:1.12}},
     {displaylogo:false, responsive:true, staticPlot:false});
   else document.getElementById('volplot').style.display='none';
 } else { const v=document.getElementById('volplot'); v.style.height='auto'; v.className='note';
