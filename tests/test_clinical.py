@@ -239,3 +239,14 @@ def test_phantom_presets_against_the_reference_ranges(pathology, expect):
     assert truth["BSA (m²)"] == pytest.approx(1.9)
     f = range_flags(truth, "M", 25)
     assert {c: f[c]["flag"] for c in expect} == expect
+
+
+def test_mnms_csv_row_gives_demographics(tmp_path):
+    from cardionurbs.io.body import mnms_values
+    folder = tmp_path / "A0S9V9"
+    folder.mkdir()
+    (tmp_path / "mnms.csv").write_text("External code,VendorName,ED,ES,Age,Sex,Height,Weight\n"
+                                       "B1,Siemens,0,9,30,F,160,55\nA0S9V9,GE,0,10,67,M,175.5,80\n")
+    v = mnms_values(folder, "A0S9V9")
+    assert v == {"age_y": "67", "sex": "M", "height_cm": "175.5", "weight_kg": "80"}
+    assert mnms_values(folder, "nobody") == {}

@@ -150,7 +150,7 @@ def attach_body(study, given: Mapping | None = None) -> dict:
     meta = study.meta if isinstance(study.meta, dict) else {}
     _merge(body, _manifest_values(meta), "study manifest" if meta.get("layout") != "acdc"
            else "Info.cfg", warnings)
-    if meta.get("layout") == "mnms" and study.source:
+    if str(meta.get("layout") or "").startswith("mnms") and study.source:
         _merge(body, mnms_values(Path(study.source), study.subject), "M&Ms CSV", warnings)
     if any(body[f] is None for f in FIELDS):
         dcm = _first_dicom(study)
