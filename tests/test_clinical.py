@@ -9,7 +9,6 @@ import json
 import math
 import re
 
-import numpy as np
 import pandas as pd
 import pydicom
 import pytest
