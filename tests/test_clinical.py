@@ -249,3 +249,21 @@ def test_mnms_csv_row_gives_demographics(tmp_path):
     v = mnms_values(folder, "A0S9V9")
     assert v == {"age_y": "67", "sex": "M", "height_cm": "175.5", "weight_kg": "80"}
     assert mnms_values(folder, "nobody") == {}
+
+
+def test_stderr_summary_counts_and_verbose_shows_all():
+    import io
+    from cardionurbs.pipeline import report_warnings
+    ws = [{"source": "load", "message": f"l{i}"} for i in range(4)] + \
+         [{"source": "reconstruct", "message": "r0"}]
+    out = io.StringIO()
+    report_warnings(ws, file=out)
+    lines = out.getvalue().splitlines()
+    assert lines[0] == "5 warnings (load 4, reconstruct 1; all in metrics.json; --verbose shows all)"
+    assert lines[1:] == ["  load: l0", "  load: l1", "  load: l2"]
+    out = io.StringIO()
+    report_warnings(ws, verbose=True, file=out)
+    assert len(out.getvalue().splitlines()) == 6 and "r0" in out.getvalue()
+    out = io.StringIO()
+    report_warnings([], file=out)
+    assert out.getvalue() == ""
