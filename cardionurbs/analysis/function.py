@@ -129,7 +129,8 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None)
         hr = heart_rate_bpm
     hr = float(hr) if hr is not None else NAN
     ed, es = model.ed_frame, model.es_frame
-    vol = model.volumes
+    vol = {f: (model.consistent_volumes(f) if hasattr(model, "consistent_volumes")
+               else model.volumes.get(f, {})) for f in {ed, es}}
 
     def v(frame: int, key: str) -> float:
         return float(vol.get(frame, {}).get(key, NAN))
@@ -157,7 +158,10 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None)
 
 def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> dict[str, list]:
     """The volume–time curve: per reconstructed frame, trigger time (ms, None where
-    unknown) and the four volumes (mL; NaN where a structure is missing).
+    unknown) and the four volumes (mL; NaN where a structure is missing): ``<mesh> (mL)``
+    the consistent ones (a supported frame's from its neighbours,
+    :mod:`cardionurbs.anatomy.cycle`), ``<mesh> raw (mL)`` each frame's own, and
+    ``supported`` the frames that needed their neighbours' support.
 
     ``every_structure=False`` (a metrics-only analysis) reports what the metrics already
     measured and builds nothing more: the LV cavity at every frame (the cavities ED, ES
@@ -167,14 +171,26 @@ def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> d
     frames = list(model.frames)
     times = [model.study.frame_times_ms.get(f) for f in frames]
     out: dict[str, list] = {"frame": frames, "time_ms": times}
-    if every_structure or not hasattr(model, "lv_cavity_volume"):
-        for key in ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium"):
-            out[f"{key} (mL)"] = [float(model.volumes.get(f, {}).get(key, NAN)) for f in frames]
-        return out
+    keys = ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium")
+    supported = getattr(model, "supported", {})
+    every_structure = every_structure or not hasattr(model, "lv_cavity_volume")
     reported = {model.ed_frame, model.es_frame}
-    out["lv_cavity (mL)"] = [float(model.volumes[f].get("lv_cavity", NAN)) if f in reported
-                             else model.lv_cavity_volume(f) for f in frames]
-    for key in ("rv_cavity", "lv_myocardium", "rv_myocardium"):
-        out[f"{key} (mL)"] = [float(model.volumes[f].get(key, NAN)) if f in reported else NAN
-                              for f in frames]
+    if every_structure:
+        raw = {f: model.volumes.get(f, {}) for f in frames}
+    else:
+        raw = {f: (dict(model.volumes[f]) if f in reported
+                   else {"lv_cavity": model.lv_cavity_volume(f)}) for f in frames}
+    consistent = {}
+    for f in frames:
+        if f not in supported:
+            consistent[f] = raw[f]
+        elif every_structure or f in reported:
+            consistent[f] = model.consistent_volumes(f)
+        else:               # metrics only: the neighbours' other solids are not built for this
+            consistent[f] = {"lv_cavity": model.consistent_lv_cavity_volume(f)}
+    for key in keys:
+        out[f"{key} (mL)"] = [float(consistent[f].get(key, NAN)) for f in frames]
+    for key in keys:
+        out[f"{key} raw (mL)"] = [float(raw[f].get(key, NAN)) for f in frames]
+    out["supported"] = sorted(supported)
     return out

@@ -124,7 +124,8 @@ def model_filling_rates(model: "BiventricularModel") -> tuple[dict[str, float], 
     times = [model.study.frame_times_ms.get(f) for f in frames]
     if any(x is None for x in times):
         return _nan_rates("frames without trigger times: filling rates not measured")
-    vols = [model.lv_cavity_volume(f) for f in frames]
+    vols = [model.consistent_lv_cavity_volume(f) if hasattr(model, "consistent_lv_cavity_volume")
+            else model.lv_cavity_volume(f) for f in frames]
     hr = model.study.heart_rate_bpm
     rr = 60000.0 / hr if hr else None
     return filling_rates(times, vols, frames.index(model.ed_frame), frames.index(model.es_frame), rr)

@@ -21,6 +21,7 @@ import numpy as np
 
 from cardionurbs import nurbs
 from cardionurbs.anatomy import mesh as meshing
+from cardionurbs.anatomy.cycle import CycleCheck, check_curve, interpolate
 from cardionurbs.anatomy.mesh import Plane
 from cardionurbs.anatomy.outflow import OutflowTract, outflow_tracts, tract_solid
 from cardionurbs.anatomy.sections import SURFACES, FrameGeometry, Section, frame_geometry
@@ -179,16 +180,19 @@ class BiventricularModel:
             ed, es = int(ed_es[0]), int(ed_es[1])
         else:
             if isinstance(self.surfaces, LazyFrames):
-                lv = self._unrefined_cavity_volumes(jobs, progress)
+                lv = self._corrected_cavity_volumes(self._unrefined_cavity_volumes(jobs, progress))
             else:
                 lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
-            self.lv_volume_by_frame = lv      # the per-frame LV cavity volumes (mL) ED/ES came from
-            ed, es = ed_es_frames(lv, study.ed_frame, study.es_frame)
+            self.lv_volume_by_frame = lv      # the per-frame LV cavity volumes (mL), raw
+            self.cycle = check_curve(lv)      # frames their neighbours contradict (anatomy.cycle)
+            ed, es = ed_es_frames(self.cycle.consistent, study.ed_frame, study.es_frame)
             if "ED" in given and study.ed_frame in lv:      # one frame named by the user
                 ed = int(study.ed_frame)
             if "ES" in given and study.es_frame in lv:
                 es = int(study.es_frame)
         self.ed_frame, self.es_frame = ed, es
+        for f in getattr(self, "cycle", CycleCheck({}, {})).supported:
+            self.warnings.append(self.cycle.describe(f))
         if ed == es:
             self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, SV = 0")
         self.base_shift_mm: dict[int, float] = {}
@@ -245,6 +249,47 @@ class BiventricularModel:
             self.warnings += r["warnings"]
             self._warned |= {(f, "geometry"), (f, "lv_endo", False)}
         return lv
+
+    def _corrected_cavity_volumes(self, unrefined: dict[int, float]) -> dict[int, float]:
+        """Every frame's LA-corrected LV cavity volume (mL; what the volume curve reports,
+        :meth:`lv_cavity_volume`), the unrefined one where the correction fails."""
+        lv = {}
+        for f in self.frames:
+            if f not in self._clipped_ml:
+                try:
+                    self._clipped_ml[f] = self._clipped_cavity_ml(f, self._surface(f, "lv_endo"))
+                except CardioNurbsError:
+                    lv[f] = unrefined[f]
+                    continue
+            lv[f] = self._clipped_ml[f]
+        return lv
+
+    @property
+    def supported(self) -> dict[int, list[int]]:
+        """Frames whose volumes come from their neighbours (:mod:`cardionurbs.anatomy.cycle`):
+        frame -> the frames they are interpolated from; {} for a model read back."""
+        cycle = getattr(self, "cycle", None)
+        return dict(cycle.supported) if cycle is not None else {}
+
+    def consistent_volumes(self, frame: int) -> dict[str, float]:
+        """The volumes (mL, keyed like :attr:`volumes`) the metrics use at one frame: its own,
+        or for a supported frame those of its neighbours interpolated to it
+        (:func:`cardionurbs.anatomy.cycle.interpolate`; the LV cavity from the checked
+        curve)."""
+        src = self.supported.get(frame)
+        if src is None:
+            return dict(self.volumes[frame])
+        keys = set().union(*(self.volumes[g] for g in src))
+        out = {k: interpolate({g: self.volumes[g].get(k, math.nan) for g in src}, self.frames,
+                              src, frame, self.cycle.cyclic) for k in sorted(keys)}
+        out["lv_cavity"] = self.cycle.consistent[frame]
+        return {k: v for k, v in out.items() if math.isfinite(v)}
+
+    def consistent_lv_cavity_volume(self, frame: int) -> float:
+        """:meth:`lv_cavity_volume`, or the checked curve's value at a supported frame (mL)."""
+        if frame in self.supported:
+            return self.cycle.consistent[frame]
+        return self.lv_cavity_volume(frame)
 
     # ------------------------------------------------------------- lazy construction
     def _frame_geometry(self, frame: int) -> FrameGeometry:

@@ -476,10 +476,11 @@ def read_study(path: str | Path) -> Study:
     contours: list[Contour] = []
     landmarks: list[Landmark] = []
     frame_meta = {}
+    warnings: list[str] = []
     for (frame, f), t in zip(files, tables):
-        blocks, runs = _read_blocks(t, frame, f, names, views, contours, landmarks)
+        blocks, runs = _read_blocks(t, frame, f, names, views, contours, landmarks, planes,
+                                    warnings)
         frame_meta[str(frame)] = {"file": f.name, "blocks": blocks, "runs": runs}
-    warnings = []
     other = Counter(c.structure for c in contours if not c.ventricular)
     if other:
         counts = ", ".join(f"{k} x{v}" for k, v in sorted(other.items()))
@@ -576,10 +577,46 @@ def is_loop(points: np.ndarray, gap_steps: float = LOOP_GAP_STEPS) -> bool:
     return len(self_intersections(in_plane_coordinates(points), True)) == 0
 
 
+#: contour points farther than this (median) from a slice plane do not lie on it, mm
+ON_PLANE_MM = 1.0
+
+
+def _placed(pts: np.ndarray, sid: int, gp_type: str, planes: dict, names: dict, views: dict,
+            f: Path, lines: np.ndarray, warnings: list[str]) -> int:
+    """The slice whose plane a contour's points lie on (median distance <= ON_PLANE_MM):
+    its frameID's, else the nearest other; a warning when that slice or its view is not
+    what the file says (the SAX_/LAX_ prefix), a StudyError when no plane holds them."""
+    where = f"lines {lines[0]}-{lines[-1]}" if len(lines) > 1 else f"line {lines[0]}"
+
+    def off(i: int) -> float:
+        return float(np.median(np.abs(planes[i].distance_to_plane(pts))))
+    placed = sid
+    if off(sid) > ON_PLANE_MM:
+        dist = {i: off(i) for i in planes}
+        placed = min(dist, key=dist.get)
+        if dist[placed] > ON_PLANE_MM:
+            raise StudyError(f"{where}: {gp_type} points lie on no slice plane of {SLICE_INFO} "
+                             f"({off(sid):.1f} mm from slice {sid}, their frameID; nearest plane "
+                             f"{dist[placed]:.1f} mm away, slice {placed})", file=f,
+                             field="frameID")
+    label = VIEW_PREFIX.get(gp_type.partition("_")[0])
+    if placed != sid or (label is not None and label != views[placed]):
+        axis = {"SA": "short", "LA": "long"}[views[placed]]
+        moved = f" (frameID {sid}: {off(sid):.1f} mm off that plane)" if placed != sid else ""
+        warnings.append(f"{f}: {where}: {gp_type} lies on slice {placed} ({names[placed]}), a "
+                        f"{axis}-axis slice by its geometry{moved}: used as {views[placed]} "
+                        "(the slice geometry wins over the label)")
+    return placed
+
+
 def _read_blocks(t: dict[str, np.ndarray], frame: int, f: Path, names: dict, views: dict,
-                 contours: list, landmarks: list):
+                 contours: list, landmarks: list, planes: dict | None = None,
+                 warnings: list[str] | None = None):
     """Contours and landmarks of one frame's rows (:func:`read_gp_table`), in file order;
-    the block order and the (weight, time frame) runs for write-back."""
+    the block order and the (weight, time frame) runs for write-back. A contour's slice
+    and view are those of the plane its points lie on (:func:`_placed`; ``planes``: slice
+    id -> ImagePlane), its disagreements with the file told in ``warnings``."""
+    warnings = [] if warnings is None else warnings
     types = t["type"]
     sids = t["slice_id"]
     n = len(types)
@@ -608,6 +645,11 @@ def _read_blocks(t: dict[str, np.ndarray], frame: int, f: Path, names: dict, vie
                 lm_count[(name, slice_id)] = n + 1
             continue
         kind = _contour_kind(gp_type)
+        if kind is not None and gp_type not in SINGLE_VIEW_TYPES:    # geometry over labels
+            sid = _placed(xyz[s:e], sid, gp_type, planes, names, views, f, lines[s:e], warnings)
+            slice_id, view = names[sid], views[sid]
+            image = f"{slice_id}_f{frame:03d}"
+            kind = (kind[0], view)
         if kind is None:
             raise StudyError(f"line {lines[s]}: unknown contour type {excerpt(gp_type)}; expected "
                              f"SAX_/LAX_ + {', '.join(CONTOUR_TYPES)}, "
