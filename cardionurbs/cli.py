@@ -211,6 +211,10 @@ def build_parser() -> argparse.ArgumentParser:
         an.add_argument(f"--{which.lower()}-frame", type=_bounded(int, 0, 9999), default=None,
                         metavar="N", help=f"{which} frame index (0-based) of a NIfTI label-map "
                                           "study, used as given (for layouts that do not say)")
+    an.add_argument("--pathology", default=None, metavar="TEXT",
+                    help="the study's stated pathology (e.g. mr): makes MR RegVol / RegFrac "
+                         "answer a stated question; without it (or the study's own metadata) "
+                         "LVSV-RVSV is reported instead (docs/metrics.md)")
     an.add_argument("--no-figures", action="store_true", help="skip PNG figures and HTML report")
     an.add_argument("--outputs", default="all", metavar="LIST",
                     help="comma-separated subset of metrics,model,meshes,figures,report "

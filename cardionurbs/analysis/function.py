@@ -9,7 +9,10 @@ Formulas (volumes from closed manifold meshes, mL; mass density 1.05 g/mL)::
 
     SV  = EDV − ESV                       EF = 100 · SV / EDV
     CO  = SV · HR / 1000  (L/min)         M  = 1.05 · V_myo(ED)
+    LVSV-RVSV = LVSV − RVSV               (always, where both SVs are measured)
     MR RegVol = max(0, LVSV − RVSV)       MR RegFrac = 100 · RegVol / LVSV
+                                          (only where regurgitation is the stated question:
+                                           :func:`regurgitation_stated`)
     EI  = D_parallel / D_perpendicular    (LV cavity chords through its centroid
                                            on the mid-ventricular SA slice at ES)
 """
@@ -38,7 +41,7 @@ COLUMNS = (
     "HR (bpm)",
     "LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVCO (L/min)", "LVM (g)",
     "RVEDV (mL)", "RVESV (mL)", "RVSV (mL)", "RVEF (%)", "RVM (g)",
-    "MR RegVol (mL)", "MR RegFrac (%)",
+    "MR RegVol (mL)", "MR RegFrac (%)", "LVSV-RVSV (mL)",
     "RV/LV EDV ratio", "RV/LV mass ratio",
     "EI ES",
     "Twist (deg)", "Twist 2D (deg)", "Torsion (deg/cm)", "CL shear (deg)", "LS (%)",
@@ -70,6 +73,22 @@ def regurgitation(lvsv: float, rvsv: float) -> tuple[float, float]:
         return NAN, NAN
     reg = max(0.0, lvsv - rvsv)
     return reg, 100.0 * _ratio(reg, lvsv)
+
+
+#: a study's stated pathology (``Study.meta["pathology"]``: a phantom's preset, a study's own
+#: metadata or ``analyze --pathology``) makes regurgitation a stated question
+NOT_STATED_NOTE = ("regurgitation is not the stated question (no pathology in the study's "
+                   "metadata, nor analyze --pathology): LVSV - RVSV is reported as "
+                   "'LVSV-RVSV (mL)'")
+
+
+def regurgitation_stated(meta: dict) -> bool:
+    """True when the study states its pathology (``meta["pathology"]``, any non-empty text:
+    a phantom's preset, the study's metadata or ``analyze --pathology``), so that MR RegVol
+    and RegFrac answer a question someone asked; otherwise LVSV − RVSV is only a difference
+    of two measurements (docs/metrics.md)."""
+    p = (meta or {}).get("pathology")
+    return isinstance(p, str) and p.strip() != ""
 
 
 def mass_g(myocardial_volume_ml: float) -> float:
@@ -145,7 +164,14 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None)
         if side == "LV":
             out["LVCO (L/min)"] = f["CO"]
         out[f"{side}M (g)"] = mass_g(v(ed, myo))
-    out["MR RegVol (mL)"], out["MR RegFrac (%)"] = regurgitation(out["LVSV (mL)"], out["RVSV (mL)"])
+    lvsv, rvsv = out["LVSV (mL)"], out["RVSV (mL)"]
+    out["LVSV-RVSV (mL)"] = lvsv - rvsv
+    if regurgitation_stated(model.study.meta):
+        out["MR RegVol (mL)"], out["MR RegFrac (%)"] = regurgitation(lvsv, rvsv)
+    elif np.isfinite(lvsv - rvsv):    # null with its reason (metrics.json notes)
+        notes = model.study.meta.setdefault("metric_notes", {})
+        for col in ("MR RegVol (mL)", "MR RegFrac (%)"):
+            notes.setdefault(col, NOT_STATED_NOTE)
     out["RV/LV EDV ratio"] = _ratio(out["RVEDV (mL)"], out["LVEDV (mL)"])
     out["RV/LV mass ratio"] = _ratio(out["RVM (g)"], out["LVM (g)"])
     out["EI ES"] = eccentricity_index_es(model)
@@ -168,7 +194,8 @@ def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> d
     and the filling rates come from) and the other three volumes at ED and ES only (NaN
     at the other frames). Building every frame's other surfaces and booleans just for
     this curve would cost several times the whole metrics analysis."""
-    frames = list(model.frames)
+    frames = list(getattr(model, "curve_frames", model.frames))
+    built = set(model.frames)
     times = [model.study.frame_times_ms.get(f) for f in frames]
     out: dict[str, list] = {"frame": frames, "time_ms": times}
     keys = ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium")
@@ -176,10 +203,11 @@ def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> d
     every_structure = every_structure or not hasattr(model, "lv_cavity_volume")
     reported = {model.ed_frame, model.es_frame}
     if every_structure:
-        raw = {f: model.volumes.get(f, {}) for f in frames}
+        raw = {f: (model.volumes.get(f, {}) if f in built else {}) for f in frames}
     else:
-        raw = {f: (dict(model.volumes[f]) if f in reported
-                   else {"lv_cavity": model.lv_cavity_volume(f)}) for f in frames}
+        raw = {f: (dict(model.volumes[f]) if f in reported else
+                   {"lv_cavity": model.lv_cavity_volume(f)} if f in built else {})
+               for f in frames}
     consistent = {}
     for f in frames:
         if f not in supported:

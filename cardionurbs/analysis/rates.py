@@ -118,7 +118,7 @@ def filling_rates(times_ms, volumes_ml, ed_index: int, es_index: int,
 def model_filling_rates(model: "BiventricularModel") -> tuple[dict[str, float], str]:
     """Rates of a model's LV cavity volume curve (every reconstructed frame; the cavity of
     each frame from :meth:`BiventricularModel.lv_cavity_volume`)."""
-    frames = list(model.frames)
+    frames = list(getattr(model, "curve_frames", model.frames))
     if len(frames) < MIN_FRAMES:
         return _nan_rates(f"{len(frames)} reconstructed frames: filling rates need >= {MIN_FRAMES}")
     times = [model.study.frame_times_ms.get(f) for f in frames]

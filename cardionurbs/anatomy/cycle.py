@@ -1,15 +1,21 @@
 """Frames that agree with their neighbours: a temporal check of the volume curve.
 
-A heart moves smoothly, so each frame's LV cavity volume is predicted from the frames
-around it: the cubic through the two nearest *trusted* frames on either side
-(Lagrange interpolation in frame number; on a cine that closes on itself the frames
-wrap around). A frame whose volume departs from that prediction by more than
-:data:`SUPPORT_BOUND` (relative) and by more than :data:`SUPPORT_SIGMAS` robust
-standard deviations of every frame's departure is a frame whose sections are
-incomplete or noisy: it is *supported*, i.e. its volumes are taken from its trusted
-neighbours by the same interpolation, and it no longer supports others. Frames are
-supported one at a time, the worst first, until none is left beyond the bounds (at
-most a quarter of the frames). docs/metrics.md, Frames.
+A heart moves smoothly, so a frame whose volume lies beyond *both* of its neighbours
+(the nearest trusted frames on either side; on a cine that closes on itself the frames
+wrap around) by more than :data:`SUPPORT_BOUND` of the nearer one, and by more than the
+two neighbours differ from each other, is contradicted by them: a spike that no motion
+makes (a physiological peak or trough has steep sides, so its neighbours lie far apart;
+ED and ES of a cine of :data:`MIN_FRAMES` frames or more lie within a few per cent of
+theirs), and that departs by more than that bound as well from the cubic through the two
+nearest frames on each side (which follows a smooth peak or trough). Such a frame, and a
+frame that is *incomplete* (built from fewer LV endocardial contours than both its
+neighbours) and departs from that cubic by more than the bound, and a frame whose LV
+cavity cannot be built at all, is *supported*:
+its volumes are taken from the cubic through the two nearest trusted frames on each side
+(Lagrange interpolation in frame number), and it supports no other (at most a quarter of
+the frames, the worst, are supported). A cine of
+fewer than :data:`MIN_FRAMES` frames is not checked: its neighbours are too far apart in
+time to tell noise from motion. docs/metrics.md, Frames.
 
 The raw volumes stay beside the consistent ones (metrics.json ``volume_curve``), ED
 and ES are found on the consistent curve, and every supported frame is a QC flag.
@@ -22,13 +28,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-#: a frame is supported when its volume departs from its neighbours' prediction by more
-#: than this fraction of the prediction ...
+#: a frame is supported when its volume lies beyond both neighbours by more than this
+#: fraction of the nearer one (and by more than they differ from each other)
 SUPPORT_BOUND = 0.04
-#: ... and by more than this many robust standard deviations (1.4826 MAD) of all departures
-SUPPORT_SIGMAS = 3.0
-#: fewest frames a curve needs to be checked (two trusted neighbours on each side)
-MIN_FRAMES = 6
+#: fewest frames a curve needs to be checked: in a coarser cine the neighbours are too far
+#: apart in time to tell noise from motion
+MIN_FRAMES = 16
 
 
 @dataclass
@@ -36,7 +41,7 @@ class CycleCheck:
     """The outcome of :func:`check_curve`.
 
     ``raw`` and ``consistent``: frame -> mL; ``supported``: frame -> the frames it was
-    interpolated from; ``departure``: frame -> raw / prediction − 1 when it was supported;
+    interpolated from; ``departure``: frame -> raw / consistent − 1 (NaN: not built);
     ``cyclic``: whether the frames were taken to wrap around."""
 
     raw: dict[int, float]
@@ -48,6 +53,9 @@ class CycleCheck:
     def describe(self, frame: int) -> str:
         """One line naming a supported frame, its raw and its consistent volume."""
         src = ", ".join(str(g) for g in self.supported[frame])
+        if not math.isfinite(self.raw[frame]):
+            return (f"frame {frame} supported by its neighbours: its LV cavity cannot be built; "
+                    f"{self.consistent[frame]:.1f} mL from frames {src} used")
         return (f"frame {frame} supported by its neighbours: LV cavity {self.raw[frame]:.1f} mL "
                 f"departs {100 * self.departure[frame]:+.1f} % from frames {src} "
                 f"({self.consistent[frame]:.1f} mL used)")
@@ -93,60 +101,87 @@ def lagrange_weights(x: np.ndarray, at: float) -> np.ndarray:
 
 
 def check_curve(volumes: dict[int, float], *, bound: float = SUPPORT_BOUND,
-                sigmas: float = SUPPORT_SIGMAS) -> CycleCheck:
+                contours: dict[int, int] | None = None) -> CycleCheck:
     """Find the frames of a volume curve (frame -> mL) that their neighbours contradict.
 
     Parameters
     ----------
     volumes : dict int -> float
-        Per frame, the raw volume (mL); NaN frames are neither checked nor used.
-    bound, sigmas : float
-        A frame is supported when ``|raw / prediction − 1| > bound`` and
-        ``|raw − prediction| > sigmas`` robust standard deviations of all departures.
+        Per frame, the raw volume (mL); a NaN frame (its cavity could not be built) is not
+        used and gets its value from its neighbours.
+    bound : float
+        A frame is supported when it lies beyond both neighbours by more than this
+        fraction of the nearer one and by more than they differ (:func:`_spike`), or
+        when it is *incomplete* and departs by more than this from the cubic.
+    contours : dict int -> int, optional
+        Per frame, how many contours its LV endocardium was built from: a frame with
+        fewer than both its neighbours is incomplete.
 
     Returns
     -------
     CycleCheck
     """
-    frames = sorted(f for f, v in volumes.items() if v is not None and math.isfinite(v))
-    raw = {f: float(volumes[f]) for f in frames}
+    frames = sorted(volumes)
+    y = np.array([volumes[f] if volumes[f] is not None else math.nan for f in frames], float)
+    raw = {f: float(v) for f, v in zip(frames, y)}
     out = CycleCheck(raw=dict(raw), consistent=dict(raw))
-    y = np.array([raw[f] for f in frames])
-    if len(frames) < MIN_FRAMES:
+    trusted = np.isfinite(y)
+    if len(y) < MIN_FRAMES or trusted.sum() < 5:
         return out
-    out.cyclic = cyclic = is_cyclic(y)
-    trusted = np.ones(len(y), bool)
-    for _ in range(len(y) // 4):
-        pred = np.full(len(y), np.nan)
-        src: dict[int, np.ndarray] = {}
-        for i in np.flatnonzero(trusted):
-            nb = _neighbours(i, trusted, cyclic)
-            if nb is not None:
-                pred[i] = lagrange_weights(nb, i) @ y[nb % len(y)]
-                src[i] = nb
-        resid = y - pred
-        ok = np.isfinite(resid)
-        if not ok.any():
-            break
-        scale = 1.4826 * float(np.median(np.abs(resid[ok] - np.median(resid[ok]))))
-        rel = np.where(ok, np.abs(resid) / np.abs(pred), 0.0)
-        bad = ok & (rel > bound) & (np.abs(np.where(ok, resid, 0.0)) > sigmas * scale)
-        if not bad.any():
-            break
-        i = int(np.argmax(np.where(bad, rel, -1.0)))
-        trusted[i] = False
-        out.departure[frames[i]] = float(y[i] / pred[i] - 1.0)
+    out.cyclic = cyclic = is_cyclic(y[trusted])
+    out.departure = {f: math.nan for f, t in zip(frames, trusted) if not t}
+    finite = trusted.copy()
+    excess = np.zeros(len(y))
+    for i in np.flatnonzero(finite):          # against the nearest built frame on each side
+        nb = _neighbours(int(i), finite, cyclic)
+        if nb is not None:
+            pred = lagrange_weights(nb, i) @ y[nb % len(y)]
+            if abs(y[i] / pred - 1.0) > bound:        # a smooth trough the cubic follows
+                excess[i] = _spike(y[i], y[nb[1] % len(y)], y[nb[2] % len(y)], bound)
+                if excess[i] == 0 and contours and _incomplete(contours, frames, nb, int(i)):
+                    excess[i] = abs(y[i] / pred - 1.0)
+    # the worst first, at most a quarter; a frame beside one already supported was judged
+    # against it and is not
+    beside: set[int] = set()
+    for i in np.argsort(-excess, kind="stable")[:len(y) // 4]:
+        if excess[i] > 0 and int(i) not in beside:
+            trusted[i] = False
+            nb = _neighbours(int(i), finite, cyclic)
+            beside |= {int(nb[1]) % len(y), int(nb[2]) % len(y)}
     for i in np.flatnonzero(~trusted):     # each from the trusted frames around it
         nb = _neighbours(int(i), trusted, cyclic)
-        if nb is None:
-            trusted[i] = True
-            out.departure.pop(frames[i], None)
-            continue
         f = frames[int(i)]
+        if nb is None:
+            if np.isfinite(y[i]):
+                trusted[i] = True
+            out.departure.pop(f, None)
+            continue
         out.supported[f] = [frames[k % len(y)] for k in nb]
         out.consistent[f] = float(lagrange_weights(nb, i) @ y[nb % len(y)])
-    out.departure = {f: d for f, d in out.departure.items() if f in out.supported}
+        out.departure[f] = float(y[i] / out.consistent[f] - 1.0)
     return out
+
+
+def _incomplete(contours: dict[int, int], frames: list[int], nb: np.ndarray, i: int) -> bool:
+    """True when frame position ``i`` has fewer contours than both nearest neighbours."""
+    n = contours.get(frames[i])
+    side = [contours.get(frames[int(k) % len(frames)]) for k in (nb[1], nb[2])]
+    return n is not None and None not in side and all(n < m for m in side)
+
+
+def _spike(v: float, before: float, after: float, bound: float) -> float:
+    """How far (relative) a volume lies beyond both its neighbours, 0 unless it is a spike:
+    above (or below) both by more than ``bound`` of the nearer one and by more than the
+    neighbours differ from each other (a physiological peak or trough, whose sides are
+    steep, has neighbours far apart)."""
+    a, b = v - before, v - after
+    if a * b <= 0:
+        return 0.0
+    nearer = before if abs(a) < abs(b) else after
+    excess = min(abs(a), abs(b))
+    if excess <= bound * abs(nearer) or excess <= abs(after - before):
+        return 0.0
+    return excess / abs(nearer)
 
 
 def interpolate(values: dict[int, float], frames: list[int], sources: list[int],

@@ -729,7 +729,11 @@ def write_study(study: Study, folder: str | Path, *, style: str | None = None,
     the study was read in (a study read from GPFiles), else ``sliceID``.
     ``vocabulary``: ``parts`` writes an ``rv_endo`` contour as RV_SEPTUM (points within
     0.5 mm of the LV epicardium of the same image) and RV_FREEWALL (the rest);
-    ``undivided`` writes it as one RV_ENDOCARDIAL trace. Slice geometry must be static
+    ``undivided`` writes it as one RV_ENDOCARDIAL trace. With ``parts`` the SA epicardial
+    contours leave out their septal run, as CAP and biv-me exports do (LV_EPICARDIAL over
+    the LV free wall, RV_EPICARDIAL over the RV free wall: :func:`_free_wall_epi`), so that
+    a study written here and fitted by biv-me is compared on equal terms; ``undivided``
+    writes them whole. Slice geometry must be static
     (one plane per slice). Tag lines have no GPFile type and are not written. Files are
     written atomically.
     """
@@ -871,6 +875,8 @@ def _frame_rows(study: Study, frame: int, fm: dict | None, slice_ids: dict, plan
     for c in study.contours_at(frame):
         if c.structure == "rv_endo" and vocabulary == "parts":
             out.extend(_split_rv_endo(study, c, slice_ids))
+        elif c.structure in ("lv_epi", "rv_epi") and c.view == "SA" and vocabulary == "parts":
+            out.extend(_free_wall_epi(study, c, slice_ids))
         else:
             out.append((c.points, _gp_type(c.structure, c.view), slice_ids[c.slice],
                         _weights(c, len(c.points))))
@@ -908,6 +914,32 @@ def _split_rv_endo(study: Study, c: Contour, slice_ids: dict):
         out.append((part_pts, _gp_type("rv_septum" if part_on[0] else "rv_freewall", c.view), sid,
                     part_w))
     return out
+
+
+def _free_wall_epi(study: Study, c: Contour, slice_ids: dict):
+    """An SA epicardial contour as CAP and biv-me trace it: over the free wall only. The
+    septal run is left out — of the LV epicardium the points on the RV endocardium of the
+    same image (within SEPTUM_TOL_MM), of the RV epicardium those on the LV epicardium —
+    and the rest written as one open run starting after the gap (the reader closes it
+    through the RV_SEPTUM trace, :func:`cardionurbs.anatomy.sections._sa_loops`)."""
+    kind = _gp_type(c.structure, c.view)
+    sid, w = slice_ids[c.slice], _weights(c, len(c.points))
+    other = "rv_endo" if c.structure == "lv_epi" else "lv_epi"
+    near = [o for o in study.contours_at(c.frame, other) if o.slice == c.slice]
+    if not near or len(c.points) < 5:
+        return [(c.points, kind, sid, w)]
+    d = np.min([_distance_to_polyline(c.points, o.points, o.closed) for o in near], axis=0)
+    on = d < max(SEPTUM_TOL_MM, 1e-3)
+    if not on.any() or on.all():
+        return [(c.points, kind, sid, w)]
+    keep = ~on
+    if c.closed:           # start at the first free-wall point after the septal run
+        start = int(np.flatnonzero(keep & np.roll(on, 1))[0])
+        order = np.roll(np.arange(len(keep)), -start)
+        order = order[keep[order]]
+    else:
+        order = np.flatnonzero(keep)
+    return [(c.points[order], kind, sid, w[order])]
 
 
 def _distance_to_polyline(points: np.ndarray, poly: np.ndarray, closed: bool) -> np.ndarray:
