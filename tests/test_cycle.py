@@ -123,22 +123,31 @@ def test_bivme_corrupted_frame_keeps_the_curve(bivme, frame, how):
 
 @pytest.fixture(scope="module")
 def noisy_phantom():
-    return generate.generate("normal", seed=4, frames=16, noise_px=1.0, volume_check=False)
+    return generate.generate("normal", seed=4, frames=20, noise_px=1.0, volume_check=False)
 
 
 def test_phantom_corrupted_frames_keep_es_and_ef(noisy_phantom):
+    """3 mm noise on the frame before ES (it cannot be built) and half the contours of a
+    filling frame: the same ES and EF as the untouched phantom (0.2 point), ES within one
+    frame and EF within 1.5 points of the truth (the untouched reconstruction at 1 px
+    noise is itself up to about 1.1 points off), the curve within 5 % of the untouched
+    one, every supported frame flagged."""
     ph = noisy_phantom
     truth = ph.truth
     es = truth["es_frame"]
+    base = reconstruct(ph.study)
+    ref = measure(base)
     study = _corrupt(_corrupt(ph.study, es - 1, "noise"), es + 3, "half")
     model = reconstruct(study)
     m = measure(model)
-    assert abs(model.es_frame - es) <= 1
-    assert abs(m["LVEF (%)"] - truth["metrics"]["LVEF (%)"]) < 1.0
-    assert es - 1 in model.supported              # 3 mm noise: that frame cannot be built
+    assert model.es_frame == base.es_frame and abs(model.es_frame - es) <= 1
+    assert abs(m["LVEF (%)"] - ref["LVEF (%)"]) < 0.2
+    assert abs(m["LVEF (%)"] - truth["metrics"]["LVEF (%)"]) < 1.5
+    assert es - 1 in model.supported and not base.supported    # the half frame: if needed
     curve = volume_curve(model, every_structure=False)
     assert curve["frame"] == ph.study.contoured_frames
     assert math.isnan(curve["lv_cavity raw (mL)"][es - 1])
-    assert np.isfinite(curve["lv_cavity (mL)"]).all()
+    untouched = np.array(volume_curve(base, every_structure=False)["lv_cavity (mL)"])
+    assert np.all(np.abs(np.array(curve["lv_cavity (mL)"]) / untouched - 1) < 0.05)
     q = assess(model, m)
-    assert any(f"frame {es - 1} supported" in f for f in q.flags)
+    assert all(any(f"frame {f} supported" in x for x in q.flags) for f in model.supported)

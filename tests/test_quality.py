@@ -52,8 +52,16 @@ def test_bivme_no_metric_unflagged_beyond_3_px(bivme):
     # the example of the issue: the RV epicardium misses its LA points by > 3 px at ED
     assert any(f.startswith("RV epi fit max") for f in q.metrics["RVM (g)"]["flags"])
     for col, inputs in DERIVED.items():     # derived metrics inherit their inputs' flags
-        assert set(q.metrics[col]["flags"]) == {f for i in inputs for f in q.metrics[i]["flags"]}
-    assert q.flagged("MR RegFrac (%)")
+        if math.isfinite(metrics[col]):
+            assert set(q.metrics[col]["flags"]) == {f for i in inputs
+                                                    for f in q.metrics[i]["flags"]}
+    assert math.isnan(metrics["MR RegFrac (%)"])          # no stated pathology
+    assert q.flagged("LVSV-RVSV (mL)")
+    # the two stroke volumes differ by more than 10 % of their mean (issue #30)
+    lv, rv = metrics["LVSV (mL)"], metrics["RVSV (mL)"]
+    disagree = [f for f in q.metrics["LVSV (mL)"]["flags"] if f.startswith("stroke volumes")]
+    assert bool(disagree) == (abs(lv - rv) > 0.1 * (lv + rv) / 2)
+    assert disagree == [f for f in q.metrics["RVSV (mL)"]["flags"] if f.startswith("stroke")]
     assert "heart rate unknown" in q.metrics["HR (bpm)"]["flags"]
     assert "heart rate unknown" in q.metrics["LVCO (L/min)"]["flags"]
     row = q.row()

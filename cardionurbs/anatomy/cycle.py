@@ -186,8 +186,9 @@ def _spike(v: float, before: float, after: float, bound: float) -> float:
 
 def interpolate(values: dict[int, float], frames: list[int], sources: list[int],
                 frame: int, cyclic: bool) -> float:
-    """A supported frame's value of another volume, by the same interpolation from the
-    frames ``sources`` (``values``: frame -> mL; NaN when a source lacks it)."""
+    """A supported frame's value of another volume: the polynomial through the frames
+    ``sources`` (their positions in ``frames``, wrapped when ``cyclic``) at ``frame``
+    (``values``: frame -> mL; NaN when a source lacks it)."""
     pos = {f: k for k, f in enumerate(frames)}
     i = pos[frame]
     x = []

@@ -321,15 +321,17 @@ class BiventricularModel:
 
     def consistent_volumes(self, frame: int) -> dict[str, float]:
         """The volumes (mL, keyed like :attr:`volumes`) the metrics use at one frame: its own,
-        or for a supported frame those of its neighbours interpolated to it
-        (:func:`cardionurbs.anatomy.cycle.interpolate`; the LV cavity from the checked
-        curve)."""
+        or for a supported frame those of its nearest trusted neighbour on each side
+        interpolated linearly to it (:func:`cardionurbs.anatomy.cycle.interpolate`: two
+        frames' solids, not four), the LV cavity from the checked curve (the cubic)."""
         src = self.supported.get(frame)
         if src is None:
             return dict(self.volumes[frame]) if frame in self.frames else {}
-        keys = set().union(*(self.volumes[g] for g in src))
-        out = {k: interpolate({g: self.volumes[g].get(k, math.nan) for g in src}, self.frames,
-                              src, frame, self.cycle.cyclic) for k in sorted(keys)}
+        near = src[1:3]             # the nearest trusted frame on each side: linear in time
+        keys = set().union(*(self.volumes[g] for g in near))
+        curve = self.curve_frames
+        out = {k: interpolate({g: self.volumes[g].get(k, math.nan) for g in near}, curve,
+                              near, frame, self.cycle.cyclic) for k in sorted(keys)}
         out["lv_cavity"] = self.cycle.consistent[frame]
         return {k: v for k, v in out.items() if math.isfinite(v)}
 

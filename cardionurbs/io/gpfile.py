@@ -26,7 +26,10 @@ not. With ``timeFrame`` numbers, every GPFile frame must be listed (0- or
 1-based). :func:`write_study` writes a study back in the style it was read in
 (byte-identical for an unchanged study), or in the style asked for.
 
-Mapping to the Study vocabulary (view from the ``SAX_``/``LAX_`` prefix):
+Mapping to the Study vocabulary. A contour's slice and view are those of the slice plane
+its points lie on (median distance <= ``ON_PLANE_MM``), whatever its ``SAX_``/``LAX_``
+prefix or frameID say: each disagreement is one warning naming file, lines, label and
+slice, and points on no slice plane are refused (:func:`_placed`):
 
 ==============================  ===================  ==============================
 GPFile type                      Study                closed
