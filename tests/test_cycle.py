@@ -151,3 +151,18 @@ def test_phantom_corrupted_frames_keep_es_and_ef(noisy_phantom):
     assert np.all(np.abs(np.array(curve["lv_cavity (mL)"]) / untouched - 1) < 0.05)
     q = assess(model, m)
     assert all(any(f"frame {f} supported" in x for x in q.flags) for f in model.supported)
+
+
+def test_an_incomplete_frame_off_the_cubic_is_supported():
+    """Within its neighbours' range but off the smooth curve: supported only when its
+    contours say it is incomplete (fewer than both neighbours', or one left out)."""
+    truth = _curve(24, 0.4)
+    v = dict(truth)
+    v[4] = truth[4] * 1.06                        # on the steep systolic slope
+    assert check_curve(v).supported == {}
+    full = {f: 8 for f in v}
+    assert check_curve(v, contours=full).supported == {}
+    assert list(check_curve(v, contours={**full, 4: 5}).supported) == [4]
+    assert list(check_curve(v, contours={**full, 4: -8}).supported) == [4]
+    c = check_curve(v, contours={**full, 4: 5})
+    assert c.consistent[4] == pytest.approx(truth[4], rel=0.01)

@@ -9,7 +9,8 @@ ED and ES of a cine of :data:`MIN_FRAMES` frames or more lie within a few per ce
 theirs), and that departs by more than that bound as well from the cubic through the two
 nearest frames on each side (which follows a smooth peak or trough). Such a frame, and a
 frame that is *incomplete* (built from fewer LV endocardial contours than both its
-neighbours) and departs from that cubic by more than the bound, and a frame whose LV
+neighbours, or with one of them left out as a partial tracing) and departs from that
+cubic by more than the bound, and a frame whose LV
 cavity cannot be built at all, is *supported*:
 its volumes are taken from the cubic through the two nearest trusted frames on each side
 (Lagrange interpolation in frame number), and it supports no other (at most a quarter of
@@ -114,8 +115,9 @@ def check_curve(volumes: dict[int, float], *, bound: float = SUPPORT_BOUND,
         fraction of the nearer one and by more than they differ (:func:`_spike`), or
         when it is *incomplete* and departs by more than this from the cubic.
     contours : dict int -> int, optional
-        Per frame, how many contours its LV endocardium was built from: a frame with
-        fewer than both its neighbours is incomplete.
+        Per frame, how many contours its LV endocardium was built from, negative when one
+        of its contours was left out (a partial tracing): a frame with fewer than both
+        its neighbours, or with one left out, is incomplete.
 
     Returns
     -------
@@ -163,10 +165,13 @@ def check_curve(volumes: dict[int, float], *, bound: float = SUPPORT_BOUND,
 
 
 def _incomplete(contours: dict[int, int], frames: list[int], nb: np.ndarray, i: int) -> bool:
-    """True when frame position ``i`` has fewer contours than both nearest neighbours."""
+    """True when frame position ``i`` has fewer contours than both nearest neighbours, or
+    had one left out (a negative count, see :func:`check_curve`)."""
     n = contours.get(frames[i])
+    if n is not None and n < 0:
+        return True
     side = [contours.get(frames[int(k) % len(frames)]) for k in (nb[1], nb[2])]
-    return n is not None and None not in side and all(n < m for m in side)
+    return n is not None and None not in side and all(n < abs(m) for m in side)
 
 
 def _spike(v: float, before: float, after: float, bound: float) -> float:

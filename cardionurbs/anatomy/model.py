@@ -279,8 +279,11 @@ class BiventricularModel:
                     else self._lv_contour_count(f)) for f, v in lv.items() if math.isfinite(v)}
 
     def _lv_contour_count(self, frame: int) -> int:
+        """SA sections + LA contours of one frame's LV endocardium, negative when a contour
+        of it was left out (a partial tracing): such a frame counts as incomplete."""
         geo = self.geometry[frame]
-        return len(geo.sections.get("lv_endo") or []) + len(geo.la_points.get("lv_endo") or [])
+        n = len(geo.sections.get("lv_endo") or []) + len(geo.la_points.get("lv_endo") or [])
+        return -n if any(s == "lv_endo" for s, _, _ in geo.left_out) else n
 
     def _drop_frames(self, frames: list[int]) -> None:
         """Leave out of the model the frames whose LV cavity cannot be built (they stay on
