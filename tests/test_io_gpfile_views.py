@@ -129,3 +129,24 @@ def test_phantom_mislabelled_slices_load_as_their_geometry_says(phantom_gp, tmp_
     study = load_study(folder)
     assert len(_view_warnings(study)) == 2
     _same_contours(study, untouched)
+
+
+def test_regurgitation_only_where_it_is_the_stated_question(phantom_gp, tmp_path):
+    """A GPFile study states no pathology: LVSV-RVSV is reported, MR RegVol / RegFrac are
+    null with their reason; ``analyze --pathology mr`` states it (issue #30, item 3)."""
+    import json
+    from cardionurbs.cli import main
+    got = {}
+    for name, extra in (("plain", []), ("mr", ["--pathology", "mr"])):
+        out = tmp_path / name
+        assert main(["analyze", str(phantom_gp), "--outputs", "metrics", "--jobs", "1",
+                     "--out", str(out), *extra]) == 0
+        got[name] = json.loads((out / "metrics.json").read_text())
+    plain, mr = got["plain"]["metrics"], got["mr"]["metrics"]
+    diff = plain["LVSV (mL)"] - plain["RVSV (mL)"]
+    assert plain["LVSV-RVSV (mL)"] == pytest.approx(diff)
+    assert plain["MR RegVol (mL)"] is None and plain["MR RegFrac (%)"] is None
+    assert "not the stated question" in got["plain"]["notes"]["MR RegVol (mL)"]
+    assert mr["MR RegVol (mL)"] == pytest.approx(max(0.0, diff))
+    assert mr["LVSV-RVSV (mL)"] == pytest.approx(diff)
+    assert "MR RegVol (mL)" not in got["mr"]["notes"]
