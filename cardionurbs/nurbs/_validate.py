@@ -39,7 +39,7 @@ def point_rows(value: object, name: str, dim: int) -> np.ndarray:
 def degree_value(value: object, name: str = "degree", minimum: int = 1) -> int:
     """A positive integer degree."""
     try:
-        p = int(value)  # type: ignore[arg-type]
+        p = int(value)  # type: ignore[call-overload]
     except (TypeError, ValueError):
         raise NurbsInputError(f"{name}: must be an integer, got {value!r}") from None
     if p != value or p < minimum:

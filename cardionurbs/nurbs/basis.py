@@ -91,9 +91,9 @@ def basis_function_derivatives(spans: np.ndarray, u: np.ndarray, degree: int,
     nd = int(n_derivatives)
     ndu = np.zeros((k, p + 1, p + 1))
     ndu[:, 0, 0] = 1.0
-    j = np.arange(p + 1)
-    left = u[:, None] - knot(spans[:, None] + 1 - j)      # left[:, j] = u - U[span + 1 - j]
-    right = knot(spans[:, None] + j) - u[:, None]         # right[:, j] = U[span + j] - u
+    jj = np.arange(p + 1)
+    left = u[:, None] - knot(spans[:, None] + 1 - jj)     # left[:, j] = u - U[span + 1 - j]
+    right = knot(spans[:, None] + jj) - u[:, None]        # right[:, j] = U[span + j] - u
     for j in range(1, p + 1):
         saved = np.zeros(k)
         for r in range(j):
@@ -120,9 +120,9 @@ def basis_function_derivatives(spans: np.ndarray, u: np.ndarray, degree: int,
         a2[:, kk:, 0] = a1[:, kk:, 0] / ndu[:, pk + 1, :pk + 1]           # r = kk .. p
         d[:, kk:] = a2[:, kk:, 0] * ndu[:, :pk + 1, pk]
         for j in range(1, kk):                                            # r = kk-j .. p-j
-            r = slice(kk - j, p - j + 1)
-            a2[:, r, j] = (a1[:, r, j] - a1[:, r, j - 1]) / ndu[:, pk + 1, :pk + 1]
-            d[:, r] += a2[:, r, j] * ndu[:, :pk + 1, pk]
+            rs = slice(kk - j, p - j + 1)
+            a2[:, rs, j] = (a1[:, rs, j] - a1[:, rs, j - 1]) / ndu[:, pk + 1, :pk + 1]
+            d[:, rs] += a2[:, rs, j] * ndu[:, :pk + 1, pk]
         a2[:, :pk + 1, kk] = -a1[:, :pk + 1, kk - 1] / ndu[:, pk + 1, :pk + 1]  # r = 0 .. pk
         d[:, :pk + 1] += a2[:, :pk + 1, kk] * ndu[:, :pk + 1, pk]
         ders[:, kk, :] = d

@@ -421,6 +421,30 @@ def fit_compatible_curves(point_sets: Sequence[Any], degree: int = 3, closed: bo
     NaN: each section is then known to lie within its tolerance, which is all a caller
     that only needs the curves asks.
     """
+    p, Q, error_points, tols, steps = _compatible_inputs(point_sets, degree, tol, error_points,
+                                                         counts, knot_rule)
+    search = _CompatibleSearch(Q, p, closed, knot_rule, steps, tols)
+    judged = [(i, V.finite_array(pts, f"error_points[{i}]", ndim=2))
+              for i, pts in enumerate(error_points) if pts is not None]
+    need, met = search.common_count(judged)
+    curves = search.curves_at(need)
+    if met and not measure_error:
+        return CompatibleFit(curves, steps[need], float("nan"), met)
+    worst = 0.0
+    for i, ep in enumerate(error_points):
+        if ep is not None:
+            worst = max(worst, max_distance(curves[i], np.asarray(ep, float)))
+    return CompatibleFit(curves, steps[need], worst, met)
+
+
+def _compatible_inputs(point_sets: Sequence[Any], degree: int,
+                       tol: float | Sequence[float] | None,
+                       error_points: Sequence[Any | None] | None,
+                       counts: Sequence[int] | None, knot_rule: str
+                       ) -> tuple[int, list[np.ndarray], Sequence[Any | None], np.ndarray, list[int]]:
+    """The checked arguments of :func:`fit_compatible_curves`: degree, sections (each
+    (m + 1, d) float), error point sets, per-section tolerances (len(Q),) and the sorted
+    control-point counts to try."""
     p = V.degree_value(degree)
     if knot_rule not in KNOT_RULES:
         raise NurbsInputError(f"knot_rule: must be one of {KNOT_RULES}, got {knot_rule!r}")
@@ -446,60 +470,67 @@ def fit_compatible_curves(point_sets: Sequence[Any], degree: int = 3, closed: bo
     steps = sorted({int(n) for n in (range(p + 1, m1 + 1) if counts is None else counts)})
     if not steps or steps[0] < p + 1 or steps[-1] > m1:
         raise NurbsInputError(f"counts: must lie in [{p + 1}, {m1}], got {list(counts or [])}")
-    own = [chord_length_parameters(q, closed) for q in Q]
-    params = np.mean(own, axis=0)
-    knots_at: dict[int, np.ndarray] = {}
-    fitted: dict[tuple[int, int], NurbsCurve] = {}
+    return p, Q, error_points, tols, steps
 
-    def curve_at(k: int, i: int) -> NurbsCurve:
+
+class _CompatibleSearch:
+    """The count search of :func:`fit_compatible_curves`: fits and tolerance decisions per
+    (count index, section), each made once and only when asked."""
+
+    def __init__(self, Q: list[np.ndarray], p: int, closed: bool, knot_rule: str,
+                 steps: list[int], tols: np.ndarray) -> None:
+        self.Q, self.p, self.closed, self.knot_rule = Q, p, closed, knot_rule
+        self.steps, self.tols = steps, tols
+        self.own = [chord_length_parameters(q, closed) for q in Q]
+        self.params = np.mean(self.own, axis=0)
+        self.knots_at: dict[int, np.ndarray] = {}
+        self.fitted: dict[tuple[int, int], NurbsCurve] = {}
+        self.decided: dict[tuple[int, int], bool] = {}
+
+    def curve_at(self, k: int, i: int) -> NurbsCurve:
+        """Section ``i`` fitted with ``steps[k]`` control points (eq. 10)."""
         # each section is fitted only when asked: the search raises the count for one
         # section at a time, and the other sections' fits at a rejected count are never used
-        if (k, i) not in fitted:
-            n = steps[k]
-            if k not in knots_at:
-                knots_at[k] = _knots(params, p, n, closed, knot_rule)
-            U = knots_at[k]
-            N = basis_matrix(U, p, own[i], n_periodic=n) if closed else basis_matrix(U, p, own[i])
-            P, _ = _control_points(N, np.ones(n), Q[i], closed)
-            fitted[(k, i)] = NurbsCurve(p, U, P, closed=closed)
-        return fitted[(k, i)]
+        if (k, i) not in self.fitted:
+            n, p = self.steps[k], self.p
+            if k not in self.knots_at:
+                self.knots_at[k] = _knots(self.params, p, n, self.closed, self.knot_rule)
+            U = self.knots_at[k]
+            N = (basis_matrix(U, p, self.own[i], n_periodic=n) if self.closed
+                 else basis_matrix(U, p, self.own[i]))
+            P, _ = _control_points(N, np.ones(n), self.Q[i], self.closed)
+            self.fitted[(k, i)] = NurbsCurve(p, U, P, closed=self.closed)
+        return self.fitted[(k, i)]
 
-    def curves_at(k: int) -> list[NurbsCurve]:
-        return [curve_at(k, i) for i in range(len(Q))]
+    def curves_at(self, k: int) -> list[NurbsCurve]:
+        """Every section at count index ``k``."""
+        return [self.curve_at(k, i) for i in range(len(self.Q))]
 
-    judged = [(i, V.finite_array(pts, f"error_points[{i}]", ndim=2))
-              for i, pts in enumerate(error_points) if pts is not None]
-
-    decided: dict[tuple[int, int], bool] = {}
-
-    def holds(k: int, i: int, pts: np.ndarray) -> bool:
+    def holds(self, k: int, i: int, pts: np.ndarray) -> bool:
+        """Whether section ``i`` at count index ``k`` lies within its tolerance of ``pts``."""
         # the same decision as max_distance <= tol, projecting only the points the
         # cheap distance bounds leave undecided (most counts fail or pass outright);
         # each (count, section) is judged once (the final check asks again)
-        if (k, i) not in decided:
-            decided[(k, i)] = bool(_error_within(curve_at(k, i), pts, None, float(tols[i]))[0])
-        return decided[(k, i)]
+        if (k, i) not in self.decided:
+            self.decided[(k, i)] = bool(
+                _error_within(self.curve_at(k, i), pts, None, float(self.tols[i]))[0])
+        return self.decided[(k, i)]
 
-    need, met = 0, True
-    while True:
-        for i, pts in judged:
-            k = next((k for k in range(need, len(steps)) if holds(k, i, pts)), None)
-            if k is None:
-                need, met = len(steps) - 1, False
-                break
-            need = k
-        # a least-squares fit is not monotone in its count: raising the count for a later
-        # section can lose an earlier one, so the count must hold for every section at once
-        if not met or all(holds(need, i, pts) for i, pts in judged):
-            break
-        if need == len(steps) - 1:
-            met = False
-            break
-        need += 1
-    if met and not measure_error:
-        return CompatibleFit(curves_at(need), steps[need], float("nan"), met)
-    worst = 0.0
-    for i, pts in enumerate(error_points):
-        if pts is not None:
-            worst = max(worst, max_distance(curves_at(need)[i], np.asarray(pts, float)))
-    return CompatibleFit(curves_at(need), steps[need], worst, met)
+    def common_count(self, judged: list[tuple[int, np.ndarray]]) -> tuple[int, bool]:
+        """The first count index at which every judged section holds, and whether one does
+        (else the largest index and False)."""
+        last = len(self.steps) - 1
+        need = 0
+        while True:
+            for i, pts in judged:
+                k = next((k for k in range(need, last + 1) if self.holds(k, i, pts)), None)
+                if k is None:
+                    return last, False
+                need = k
+            # a least-squares fit is not monotone in its count: raising the count for a later
+            # section can lose an earlier one, so the count must hold for every section at once
+            if all(self.holds(need, i, pts) for i, pts in judged):
+                return need, True
+            if need == last:
+                return need, False
+            need += 1

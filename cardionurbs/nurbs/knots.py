@@ -216,8 +216,8 @@ def refine_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, X: np.ndarra
     nn = B.size - 1
     j = np.arange(nn)
     # locate tau_j by its stored value in one period (exact, no "- 1" rounding)
-    q, r = np.divmod(j - p, nn)
-    mu = np.searchsorted(old, Un[p + r], side="right") - 1 + p + q * n
+    q, rem = np.divmod(j - p, nn)
+    mu = np.searchsorted(old, Un[p + rem], side="right") - 1 + p + q * n
     shape = (nn,) + (1,) * (Pw.ndim - 1)
     d = [Pw[(mu - p + i) % n] for i in range(p + 1)]   # local de Boor points
     for r in range(1, p + 1):

@@ -239,14 +239,14 @@ def loft_compatible(control_points: Any, knots_u: Any, degree_u: int = 3, degree
     p = V.degree_value(degree_u, "degree_u")
     q_req = V.degree_value(degree_v, "degree_v")
     L, n, d = C.shape
-    ends = []
-    for name, pt in (("start_point", start_point), ("end_point", end_point)):
-        ends.append(None if pt is None else V.finite_array(pt, name, ndim=1, last_dim=d))
-    K = L - 1 + sum(e is not None for e in ends)
+    given: list[np.ndarray | None] = [
+        None if pt is None else V.finite_array(pt, name, ndim=1, last_dim=d)
+        for name, pt in (("start_point", start_point), ("end_point", end_point))]
+    K = L - 1 + sum(e is not None for e in given)
     if K < 1:
         raise NurbsInputError(f"control_points: need at least 2 sections, got {K + 1}")
-    k0 = 1 if ends[0] is not None else 0
-    ends = [(k, pt) for k, pt in ((0, ends[0]), (K, ends[1])) if pt is not None]
+    k0 = 1 if given[0] is not None else 0
+    ends = [(k, pt) for k, pt in ((0, given[0]), (K, given[1])) if pt is not None]
     P = np.empty((K + 1, n, d))
     P[k0:k0 + L] = C
     for k, pt in ends:
