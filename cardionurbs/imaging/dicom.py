@@ -165,16 +165,6 @@ def _first_line(exc: BaseException) -> str:
     return text[0] if text else type(exc).__name__
 
 
-def header_from_dataset(ds, path: Path) -> DicomHeader:
-    """Validated :class:`DicomHeader` of a single-frame pydicom dataset (StudyError names
-    file and tag)."""
-    with _quiet_pydicom():
-        if _is_multiframe(ds, path):
-            raise UnsupportedInputError("multi-frame object: read it with read_file_headers",
-                                        file=path, field="NumberOfFrames")
-        return _header_from_dataset(ds, path)
-
-
 def headers_from_dataset(ds, path: Path) -> list[DicomHeader]:
     """One :class:`DicomHeader` per image: one for a classic image, one per frame of an
     enhanced (multi-frame) MR object."""

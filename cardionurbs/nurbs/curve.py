@@ -75,13 +75,7 @@ class NurbsCurve:
                                   f"points, got {n}")
         w = V.weight_vector(weights, "weights", (n,))
         if closed:
-            U = V.knot_vector(knots, "knots", p, n + p, clamped=False)
-            if abs(U[p]) > 1e-12 or abs(U[n + p] - 1.0) > 1e-12:
-                raise NurbsInputError(f"knots: a closed curve needs the domain [U[p], U[n+p]] = "
-                                      f"[0, 1], got [{U[p]}, {U[n + p]}]")
-            if np.max(np.abs(U[n:] - U[:2 * p + 1] - 1.0)) > 1e-9:
-                raise NurbsInputError("knots: a closed curve needs a periodic knot vector "
-                                      "(U[i + n] = U[i] + 1)")
+            U = V.periodic_knot_vector(knots, "knots", p, n, "a closed curve")
             U, Pw = canonical_periodic(U, np.column_stack([P, w]), p)  # re-indexing only
             P, w = Pw[:, :-1].copy(), Pw[:, -1].copy()
         else:

@@ -10,6 +10,7 @@ clamped to the domain, or wrapped around a periodic direction.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -27,6 +28,28 @@ __all__ = ["closest_points", "curve_closest_points", "surface_closest_points",
 
 # step fractions tried in turn (backtracking); a point keeps the first that helps
 _BACKTRACK = (1.0, 0.25, 1.0 / 16, 1.0 / 64)
+
+
+def _backtrack(params: tuple[np.ndarray, ...], dist: np.ndarray,
+               trial: Callable[[np.ndarray, float], tuple[tuple[np.ndarray, ...], np.ndarray]]
+               ) -> np.ndarray:
+    """The backtracking of a Newton step, for every point at once: each point keeps the first
+    step fraction of :data:`_BACKTRACK` whose trial lowers its distance. ``trial(idx, scale)``
+    gives the trial parameters (one array per parameter direction) and their distances for
+    the points ``idx``; ``params`` (arrays (k,)) and ``dist`` (k,) are updated in place.
+    Returns the (k,) bool mask of the points no fraction helped."""
+    todo = np.ones(dist.size, dtype=bool)
+    for scale in _BACKTRACK:
+        idx = np.flatnonzero(todo)
+        if idx.size == 0:
+            break
+        cand, cd = trial(idx, scale)
+        ok = cd < dist[idx]
+        for arr, c in zip(params, cand):
+            arr[idx[ok]] = c[ok]
+        dist[idx[ok]] = cd[ok]
+        todo[idx[ok]] = False
+    return todo
 
 
 def _span_samples(knots: np.ndarray, degree: int, lo: float, hi: float, per_span: int,
@@ -95,16 +118,12 @@ def curve_closest_points(curve: Any, points: Any, iterations: int = 8,
         fp = g2 + np.einsum("kd,kd->k", D[:, 2], r)
         fp = np.where(fp > 1e-12 * np.maximum(g2, 1e-300), fp, np.maximum(g2, 1e-300))
         step = -f / fp
-        todo = np.ones(active.size, dtype=bool)
-        for scale in _BACKTRACK:
-            idx = np.flatnonzero(todo)
-            if idx.size == 0:
-                break
+
+        def trial(idx: np.ndarray, scale: float) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
             cand = _wrap_or_clip(ua[idx] + scale * step[idx], lo, hi, curve.closed)
-            cd = np.linalg.norm(curve.evaluate(cand) - Qa[idx], axis=1)
-            ok = cd < da[idx]
-            ua[idx[ok]], da[idx[ok]] = cand[ok], cd[ok]
-            todo[idx[ok]] = False
+            return (cand,), np.linalg.norm(curve.evaluate(cand) - Qa[idx], axis=1)
+
+        todo = _backtrack((ua,), da, trial)
         u[active], dist[active] = ua, da
         # keep iterating where the step helped and was not negligible
         active = active[~todo & (np.abs(step) > 1e-14 * (hi - lo))]
@@ -223,17 +242,13 @@ def surface_closest_points(surface: Any, points: Any, iterations: int = 16,
         det = huu * hvv - huv * huv
         du = -(hvv * gu - huv * gv) / det
         dv = -(huu * gv - huv * gu) / det
-        todo = np.ones(active.size, dtype=bool)
-        for scale in _BACKTRACK:
-            idx = np.flatnonzero(todo)
-            if idx.size == 0:
-                break
+
+        def trial(idx: np.ndarray, scale: float) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
             cu = _wrap_or_clip(ua[idx] + scale * du[idx], ulo, uhi, surface.closed_u)
             cv = np.clip(va[idx] + scale * dv[idx], vlo, vhi)
-            cd = np.linalg.norm(surface.evaluate_points(cu, cv) - Pa[idx], axis=1)
-            ok = cd < da[idx]
-            ua[idx[ok]], va[idx[ok]], da[idx[ok]] = cu[ok], cv[ok], cd[ok]
-            todo[idx[ok]] = False
+            return (cu, cv), np.linalg.norm(surface.evaluate_points(cu, cv) - Pa[idx], axis=1)
+
+        todo = _backtrack((ua, va), da, trial)
         u[active], v[active], dist[active] = ua, va, da
         active = active[~todo]
     best = dist.reshape(m, k).argmin(axis=1) + np.arange(m) * k

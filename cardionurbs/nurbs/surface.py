@@ -85,13 +85,7 @@ class NurbsSurface:
         w = V.weight_vector(weights, "weights", (nu, nv))
         Kv = V.knot_vector(knots_v, "knots_v", q, nv, clamped=True)
         if closed_u:
-            Ku = V.knot_vector(knots_u, "knots_u", p, nu + p, clamped=False)
-            if abs(Ku[p]) > 1e-12 or abs(Ku[nu + p] - 1.0) > 1e-12:
-                raise NurbsInputError(f"knots_u: closed_u needs the u domain [0, 1], got "
-                                      f"[{Ku[p]}, {Ku[nu + p]}]")
-            if np.max(np.abs(Ku[nu:] - Ku[:2 * p + 1] - 1.0)) > 1e-9:
-                raise NurbsInputError("knots_u: closed_u needs a periodic knot vector "
-                                      "(U[i + nu] = U[i] + 1)")
+            Ku = V.periodic_knot_vector(knots_u, "knots_u", p, nu, "a surface closed in u")
             Ku, Pw = canonical_periodic(Ku, np.concatenate([P, w[..., None]], axis=-1), p)
             P, w = Pw[..., :-1].copy(), Pw[..., -1].copy()
         else:

@@ -112,15 +112,10 @@ def wrap_angle(theta) -> np.ndarray:
     return theta - (2.0 * np.pi) * np.round(theta / (2.0 * np.pi))
 
 
-def ellipse_far_radius_sq(theta: np.ndarray, a_free: float, b_wrap: float, x_center: float) -> np.ndarray:
-    """P(θ) = ρ(θ)²: squared distance from the origin to the ellipse boundary along θ (eq. A3)."""
-    return ellipse_far_radius_sq_cs(np.cos(theta), np.sin(theta), a_free, b_wrap, x_center)
-
-
 def ellipse_far_radius_sq_cs(ct: np.ndarray, st: np.ndarray, a_free: float, b_wrap: float,
                              x_center: float) -> np.ndarray:
-    """:func:`ellipse_far_radius_sq` from cos θ and sin θ (several ellipses along the same rays
-    share them)."""
+    """P(θ) = ρ(θ)²: squared distance from the origin to the ellipse boundary along θ (eq. A3),
+    from cos θ and sin θ (several ellipses along the same rays share them)."""
     a = ct * ct / a_free ** 2 + st * st / b_wrap ** 2
     b = x_center * ct / a_free ** 2
     c = x_center ** 2 / a_free ** 2 - 1.0
