@@ -224,6 +224,9 @@ class Study:
             self.__dict__["_image_cache"] = cache
         return cache
 
+    def images_at(self, frame: int, view: str | None = None) -> list[ImagePlane]:
+        return [im for im in self.images if im.frame == frame and (view is None or im.view == view)]
+
     def contours_at(self, frame: int, structure: str | Iterable[str] | None = None,
                     view: str | None = None) -> list[Contour]:
         """Contours of one frame, optionally of some structures and one view."""

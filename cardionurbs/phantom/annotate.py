@@ -646,7 +646,7 @@ def _outer_s_table(anatomy: Anatomy, n: int = 720, n_z: int = 160) -> np.ndarray
     ~0.8 mm; with the heights where the surfaces have kinks or jumps: the LV equator, the base, the
     tract's top): the smooth maxima between samples exceed the samples by far less than the
     margins of :func:`_beyond_every_boundary`."""
-    tab = anatomy.__dict__.get("_outer_s_table")
+    tab = anatomy.memo.get("outer_s_table")
     if tab is None:
         th = -np.pi + (np.arange(2 * n) + 0.5) * (2 * np.pi / (2 * n))
         top = anatomy.z_base + 80.0
@@ -664,7 +664,7 @@ def _outer_s_table(anatomy: Anatomy, n: int = 720, n_z: int = 160) -> np.ndarray
             parts += list(ofl.s_rvot_pair(anatomy, T, Z))
         per = np.max([p.max(axis=0) for p in parts], axis=0).reshape(n, 2).max(axis=1)
         tab = (np.max([np.roll(per, k) for k in range(-2, 3)], axis=0), (-10.0, top))
-        object.__setattr__(anatomy, "_outer_s_table", tab)
+        anatomy.memo["outer_s_table"] = tab
     return tab
 
 

@@ -66,8 +66,10 @@ from __future__ import annotations
 
 import dataclasses
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy import fft as sfft
@@ -120,11 +122,19 @@ def _slice_images(study: Study) -> dict[str, list[ImagePlane]]:
     return dict(out)
 
 
+def _study_folder(study: Study) -> Path:
+    """The study's folder (:class:`TagTrackingError` when it has none)."""
+    if not study.source:
+        raise TagTrackingError("the study has no folder, so its DICOM images cannot be found",
+                               field="images")
+    return Path(study.source)
+
+
 def _read_frames(study: Study, images: list[ImagePlane]) -> np.ndarray:
-    folder = Path(study.source)
+    folder = _study_folder(study)
     arrs = []
     for im in images:
-        path = folder / im.file
+        path = folder / str(im.file)
         if not path.is_file():
             raise StudyError(f"image {im.id!r} refers to file {im.file!r}, which does not exist",
                              file=folder / "study.json", slice=im.slice, frame=im.frame, field="file")
@@ -147,8 +157,8 @@ class Myocardium:
     """LV myocardium of one image: polygons in pixel coordinates (outer minus inner), or the
     myocardium pixels of a label map (``labels``)."""
 
-    outer: object
-    inner: object | None
+    outer: Any              #: matplotlib.path.Path of the epicardium, or None with labels
+    inner: Any | None       #: that of the endocardium
     drawn: bool = True      # False: borrowed from the slice's nearest contoured frame
     labels: LabelMyocardium | None = None
 
@@ -218,6 +228,7 @@ def _masks(study: Study, images: list[ImagePlane],
             out.append(own[i])
         else:
             near = own[min(have, key=lambda j: abs(images[j].frame - im.frame))]
+            assert near is not None                 # one of ``have``
             out.append(dataclasses.replace(near, drawn=False))
     return out
 
@@ -540,7 +551,7 @@ def slice_contours_px(study: Study, images: list[ImagePlane],
     """Per frame of a slice: its lv_endo and lv_epi contours resampled by arc length (px), or
     None when not both are drawn (the contours of ``study``'s slice ``slice_id``, default the
     images' own)."""
-    out = []
+    out: list[list[tuple[np.ndarray, bool]] | None] = []
     for im in images:
         cs = {c.structure: c for c in study.contours_at(im.frame, ("lv_endo", "lv_epi"))
               if c.slice == (slice_id or im.slice)}
@@ -567,13 +578,13 @@ def _contour_prior(contours, offset: np.ndarray):
     def prior(t: int, prev: np.ndarray):
         if t >= len(contours) or contours[t] is None or contours[t - 1] is None:
             return None
-        P0, D = [], []
+        starts, moves = [], []
         for (a, closed), (b, _) in zip(contours[t - 1], contours[t]):
             if closed:
                 b = np.roll(b, best_cyclic_shift(a, b), axis=0)
-            P0.append(a)
-            D.append(b - a)
-        P0, D = np.vstack(P0) - offset, np.vstack(D)
+            starts.append(a)
+            moves.append(b - a)
+        P0, D = np.vstack(starts) - offset, np.vstack(moves)
         d, j = cKDTree(P0).query(prev, k=4)
         w = 1.0 / np.maximum(d, 0.5)
         return (D[j] * w[..., None]).sum(1) / w.sum(1)[:, None]
@@ -687,7 +698,8 @@ def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myoc
     return SliceTracking(lines, notes, T)
 
 
-def _harmonic_series(frames_px: np.ndarray, myos: list[Myocardium | None], geom: SliceGeometry, box):
+def _harmonic_series(frames_px: np.ndarray, myos: Sequence[Myocardium | None], geom: SliceGeometry,
+                     box):
     """The slice's frames cropped to ``box`` and myocardially windowed (T, h, w), the
     myocardium masks per frame (crop px; the second list dilated by 3 px; None where the frame
     has none) and each family's harmonic series of the windowed crops."""
@@ -872,7 +884,7 @@ def track_tags(study: Study, slices: list[str] | None = None,
     for slc, images, myos, geom, box, pix in work:
         lslice = lm.contours_slice(slc) if lm is not None else None
         res = track_slice(pix, images, myos, geom, planes_by_fam, box,
-                          slice_contours_px(lm.study, images, lslice) if lslice
+                          slice_contours_px(lm.study, images, lslice) if lm is not None and lslice
                           else slice_contours_px(study, images))
         notes += res.notes
         frame_image = {im.frame: im for im in images}
@@ -924,7 +936,7 @@ def _prepare_slices(study: Study, by_slice: dict[str, list[ImagePlane]],
     """Per trackable slice (SA first): [slice, images, myocardium per frame, geometry, crop
     box, pixels (T, rows, columns)], the geometry resolved per group of parallel slices
     (:func:`resolve_geometry`); and notes on the slices left out or clipped by contours."""
-    folder = Path(study.source)
+    folder = _study_folder(study)
     work: list[list] = []
     notes: list[str] = []
     order = sorted(by_slice, key=lambda s: (by_slice[s][0].view != "SA", s))
@@ -943,7 +955,7 @@ def _prepare_slices(study: Study, by_slice: dict[str, list[ImagePlane]],
         pix = _read_frames(study, images)
         box = _crop_box(lm.study, images, lslice) if lm is not None and lslice else _crop_box(study, images)
         first = pix[0, box[0]:box[1], box[2]:box[3]]
-        path = folder / images[0].file
+        path = folder / str(images[0].file)
         peaks = first_frame_peaks(first, images[0], path, expected)
         groups["SA" if images[0].view == "SA" else slc].append((images[0], path, peaks))
         work.append([slc, images, myos, None, box, pix])
@@ -1001,7 +1013,7 @@ def write_tracked_study(study: Study, out: str | Path) -> Path:
     The DICOM files it references are hard-linked (copied across file systems) beside it under
     the same relative paths, and ``truth.json`` (phantoms) with them, so the folder stands alone.
     """
-    src = Path(study.source)
+    src = _study_folder(study)
     out = Path(out)
     if out.resolve() == src.resolve():
         raise StudyError("the output folder is the study itself; give another --out", file=out,
