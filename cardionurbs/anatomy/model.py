@@ -192,7 +192,8 @@ class BiventricularModel:
                 es = int(study.es_frame)
         self.ed_frame, self.es_frame = ed, es
         if ed == es:
-            self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, SV = 0")
+            self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, so SV, EF and the "
+                                 "other ED-to-ES metrics are null")
         self.base_shift_mm: dict[int, float] = {}
         if surfaces is None and ed != es:
             self._conserve_myocardium(ed, es)
