@@ -85,7 +85,8 @@ def test_measure_from_volumes():
     vols = {0: {"lv_cavity": 150.0, "rv_cavity": 160.0, "lv_myocardium": 100.0, "rv_myocardium": 30.0},
             1: {"lv_cavity": 60.0, "rv_cavity": 90.0, "lv_myocardium": 101.0, "rv_myocardium": 31.0}}
     m = F.measure(_fake_model(vols, 0, 1))
-    assert list(m) == list(F.COLUMNS)
+    from cardionurbs.analysis.body import BODY_COLUMNS, INDEXED_COLUMNS
+    assert list(m) == list(F.COLUMNS) + list(BODY_COLUMNS + INDEXED_COLUMNS)
     assert m["LVSV (mL)"] == 90.0 and m["LVEF (%)"] == pytest.approx(60.0)
     assert m["LVCO (L/min)"] == pytest.approx(90.0 * 75 / 1000)
     assert m["LVM (g)"] == pytest.approx(105.0) and m["RVM (g)"] == pytest.approx(31.5)
@@ -94,8 +95,7 @@ def test_measure_from_volumes():
     # no stated pathology: the difference is not called a regurgitant volume (null + note)
     assert math.isnan(m["MR RegVol (mL)"]) and math.isnan(m["MR RegFrac (%)"])
     model = _fake_model(vols, 0, 1)
-    assert "not the stated question" in (F.measure(model) and model.study.meta["metric_notes"]
-                                         ["MR RegVol (mL)"])
+    assert "not the stated question" in F.measure(model).notes["MR RegVol (mL)"]
     model.study.meta["pathology"] = "mr"                  # stated: a phantom, metadata, --pathology
     m = F.measure(model)
     assert m["MR RegVol (mL)"] == 20.0 and m["MR RegFrac (%)"] == pytest.approx(100 * 20 / 90)
