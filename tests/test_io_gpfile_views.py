@@ -14,8 +14,9 @@ import pytest
 from cardionurbs import load_study, measure, reconstruct
 from cardionurbs.errors import StudyError
 from cardionurbs.io import gpfile
-generate = importlib.import_module("cardionurbs.phantom.generate")
 from conftest import shared_data
+
+generate = importlib.import_module("cardionurbs.phantom.generate")
 
 
 def _copy(src, dst):
