@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 from typing import Sequence
 
@@ -38,26 +39,6 @@ def _excerpt(text: object, n: int = 40) -> str:
     return excerpt(text, n)
 
 
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
-    return v
-
-
-def _nonneg_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (v >= 0 and v < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
-    return v
-
-
 def _positive_float(text: str) -> float:
     try:
         v = float(text)
@@ -76,6 +57,14 @@ def _nonneg_int(text: str) -> int:
     if v < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
     return v
+
+
+def _pathology(text: str) -> str:
+    """A stated pathology: 1-64 letters, digits, spaces, '-' or '_' (e.g. ``mr``)."""
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9 _-]{0,63}", text):
+        raise argparse.ArgumentTypeError(f"expected a pathology name (letters, digits, spaces, "
+                                         f"'-', '_'; at most 64), got {_excerpt(text)}")
+    return text
 
 
 def _heart_rate(text: str) -> float:
@@ -224,6 +213,10 @@ def build_parser() -> argparse.ArgumentParser:
         an.add_argument(f"--{which.lower()}-frame", type=_bounded(int, 0, 9999), default=None,
                         metavar="N", help=f"{which} frame index (0-based) of a NIfTI label-map "
                                           "study, used as given (for layouts that do not say)")
+    an.add_argument("--pathology", type=_pathology, default=None, metavar="TEXT",
+                    help="the study's stated pathology (e.g. mr): makes MR RegVol / RegFrac "
+                         "answer a stated question; without it (or the study's own metadata) "
+                         "LVSV-RVSV is reported instead (docs/metrics.md)")
     an.add_argument("--no-figures", action="store_true", help="skip PNG figures and HTML report")
     an.add_argument("--outputs", default="all", metavar="LIST",
                     help="comma-separated subset of metrics,model,meshes,figures,report "

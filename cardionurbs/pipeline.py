@@ -13,8 +13,8 @@ Output folder (written atomically: complete or absent)::
     DIR/residuals.csv       contour-point-to-surface distances per slice, at ED and ES
     DIR/meshes/frame_NN_<mesh>.ply   closed meshes per frame and structure (binary PLY,
                                      the manifold3d result with float32 vertices)
-    DIR/figures/...         PNG figures + figures.json (cardionurbs.report.figures, via
-                            :func:`figures_hook`; skipped with --no-figures)
+    DIR/figures/...         PNG figures + figures.json (cardionurbs.report.figures.write_figures;
+                            skipped with --no-figures)
     DIR/report.html         self-contained offline viewer (cardionurbs.report.html)
 
 ``--outputs`` chooses what is computed and written (default: all): ``metrics``
@@ -77,21 +77,6 @@ def tag_metrics_hook(model: BiventricularModel, over_time: bool = True):
         return None
     from cardionurbs.analysis.tags import tag_metrics
     return tag_metrics(model, over_time=over_time and len(model.study.tagged_frames) >= 3)
-
-
-def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path, tags=None) -> list[Path]:
-    """Figures of an analysis into ``out_dir/figures``:
-    ``cardionurbs.report.figures.write_figures(model, out_dir, metrics=, tags=)``, then the
-    self-contained HTML viewer ``out_dir/report.html``
-    (``cardionurbs.report.html.write_report``), when the report module provides them;
-    [] otherwise."""
-    try:
-        from cardionurbs.report.figures import write_figures
-        from cardionurbs.report.html import write_report
-    except ImportError:
-        return []
-    paths = list(write_figures(model, Path(out_dir) / "figures", metrics=metrics, tags=tags) or [])
-    return paths + [write_report(out_dir, Path(out_dir) / "report.html")]
 
 
 def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: bool = True,
@@ -474,6 +459,8 @@ def run_analyze(args: argparse.Namespace) -> int:
     progress.stage("load")
     study = load_study(args.study, format=args.format,
                        allow_outside=getattr(args, "allow_outside", False), **_label_option(args))
+    if getattr(args, "pathology", None):      # the stated question (MR RegVol, docs/metrics.md)
+        study.meta = dict(study.meta, pathology=str(args.pathology))
     if getattr(args, "track_tags", False):
         from cardionurbs.tracking import track_tags
         study = track_tags(study)

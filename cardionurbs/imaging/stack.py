@@ -40,12 +40,6 @@ from cardionurbs.errors import ReconstructionError
 APEX_DIRECTION_LPS = np.array([1.0, -1.0, -1.0]) / np.sqrt(3.0)
 
 
-def unit_normals(row_cosines: np.ndarray, column_cosines: np.ndarray) -> np.ndarray:
-    """(n, 3) unit plane normals ``row x column`` of (n, 3) direction cosines."""
-    n = np.cross(np.asarray(row_cosines, float), np.asarray(column_cosines, float))
-    return n / np.linalg.norm(n, axis=1, keepdims=True)
-
-
 def group_parallel(normals: np.ndarray, max_angle_deg: float) -> np.ndarray:
     """Label (n,) groups of mutually parallel normals (sign ignored).
 

@@ -568,14 +568,9 @@ def _body_note(p: Mapping) -> str:
                                    "values; give --height-cm and --weight-kg)") + ".")
 
 
-def render_html(payload: Mapping) -> str:
-    """The report page (a string) for a :func:`report_payload`."""
-    return "".join(page_parts(payload))
-
-
 def page_parts(payload: Mapping) -> list[str]:
     """The report page for a :func:`report_payload` as consecutive pieces (their
-    concatenation is :func:`render_html`): written one after another, the page (plotly.js,
+    concatenation is the page): written one after another, the page (plotly.js,
     the data, the figures: several MB) is never held whole as text and again as bytes."""
     from plotly.offline import get_plotlyjs
 
