@@ -215,6 +215,9 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--outputs", default="all", metavar="LIST",
                     help="comma-separated subset of metrics,model,meshes,figures,report "
                          "(report also writes metrics and model)")
+    an.add_argument("--mesh-format", choices=["ply", "stl", "obj", "glb", "vtp"], default="ply",
+                    help="mesh files: vtp is VTK PolyData with wall thickness, AHA segments "
+                         "and strain on the surfaces, and a ParaView .pvd time series per mesh")
     an.add_argument("--progress", action="store_true",
                     help="stage progress on stderr (default: only when stderr is a terminal)")
     an.add_argument("--jobs", type=_bounded(int, 1, 1024), default=None, metavar="N",

@@ -12,7 +12,11 @@ Output folder (written atomically: complete or absent)::
     DIR/model.3dm           the ED surfaces as Rhino NURBS (with the ``cad`` extra)
     DIR/residuals.csv       contour-point-to-surface distances per slice, at ED and ES
     DIR/meshes/frame_NN_<mesh>.ply   closed meshes per frame and structure (binary PLY,
-                                     the manifold3d result with float32 vertices)
+                                     the manifold3d result with float32 vertices; or
+                                     --mesh-format stl|obj|glb|vtp)
+    DIR/meshes/<mesh>.pvd            with --mesh-format vtp: VTK PolyData per frame with
+                                     point data, and a ParaView time series per mesh
+                                     (cardionurbs.analysis.mesh_fields)
     DIR/figures/...         PNG figures + figures.json (cardionurbs.report.figures, via
                             :func:`figures_hook`; skipped with --no-figures)
     DIR/report.html         self-contained offline viewer (cardionurbs.report.html)
@@ -314,6 +318,9 @@ class MeshWriter:
             if mesh_ext == "ply":                   # straight from the manifold3d arrays
                 for name, (v, fc) in model.mesh_arrays(f).items():
                     write_ply(v, fc, Path(mesh_dir) / f"frame_{f:02d}_{name}.ply")
+            elif mesh_ext == "vtp":                 # VTK PolyData with point data
+                from cardionurbs.analysis.mesh_fields import write_frame_vtp
+                write_frame_vtp(model, f, mesh_dir)
             else:                                   # other formats: trimesh's exporters
                 for name, m in model.meshes(f).items():
                     export_mesh(m, Path(mesh_dir) / f"frame_{f:02d}_{name}.{mesh_ext}")
@@ -324,6 +331,7 @@ class MeshWriter:
                 model.release(f)
             return results, warnings
 
+        self.mesh_dir, self.mesh_ext = Path(mesh_dir), mesh_ext
         self.work = ForkMap(frame_meshes, model.frames, jobs=jobs, here=keep)
 
     @property
@@ -346,6 +354,9 @@ class MeshWriter:
         for f, (results, warnings) in zip(model.frames, self.work.results(on_result=step)):
             model.adopt_frame_results(f, results)
             model.warnings += warnings
+        if self.mesh_ext == "vtp":                  # the time series ParaView plays
+            from cardionurbs.analysis.mesh_fields import write_pvd_series
+            write_pvd_series(model, self.mesh_dir)
 
     def cancel(self) -> None:
         """Stop the workers (nothing once finished)."""
@@ -435,6 +446,9 @@ def run_analyze(args: argparse.Namespace) -> int:
         outputs = tuple(o for o in outputs if o not in ("figures", "report"))
     check_output_dir(args.out, inputs=[study_folder(args.study)],
                      overwrite=getattr(args, "overwrite", False))
+    if getattr(args, "mesh_format", None) == "vtp" and "meshes" in outputs:
+        from cardionurbs.io.vtkfiles import require_vtk
+        require_vtk()                            # before any work: the vtk extra is there
     progress = Progress(True if getattr(args, "progress", False) else None, prefix="analyze")
     progress.stage("load")
     study = load_study(args.study, format=args.format,
@@ -445,14 +459,18 @@ def run_analyze(args: argparse.Namespace) -> int:
     jobs = getattr(args, "jobs", None)
     # the meshes need only the model: their workers start once ED and ES are known and work
     # while this process measures the tags
-    early = EarlyMeshes(args.out, jobs=jobs) if "meshes" in outputs else None
+    mesh_ext = getattr(args, "mesh_format", None) or "ply"
+    # (.vtp carries the regional results on the meshes: written once they are measured)
+    early = EarlyMeshes(args.out, mesh_ext, jobs=jobs) \
+        if "meshes" in outputs and mesh_ext != "vtp" else None
     try:
         model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None),
-                                       over_time=bool({"figures", "report"} & set(outputs)),
+                                       over_time=bool({"figures", "report"} & set(outputs))
+                                       or ("meshes" in outputs and mesh_ext == "vtp"),
                                        progress=progress, jobs=jobs,
                                        on_measured=None if early is None else early.start)
         write_analysis(model, metrics, args.out, outputs=outputs, tags=tags, progress=progress,
-                       jobs=jobs, early_meshes=early)
+                       jobs=jobs, early_meshes=early, mesh_ext=mesh_ext)
     finally:
         if early is not None:
             early.close()
