@@ -8,7 +8,8 @@ Output folder (written atomically: complete or absent)::
                              surface and frame: fit residual median/p95/max in mm
                              and px; contours left out}, "QC", "notes", "warnings"}
                              (notes: metric -> why it is null)
-    DIR/model.json          the NURBS model (BiventricularModel.to_dict)
+    DIR/model.json          the NURBS model, compact (cardionurbs.io.modelfile: knots, control
+                            points and weights at a stated precision)
     DIR/model.3dm           the ED surfaces as Rhino NURBS (with the ``cad`` extra)
     DIR/residuals.csv       contour-point-to-surface distances per slice, at ED and ES
     DIR/meshes/frame_NN_<mesh>.ply   closed meshes per frame and structure (binary PLY,
@@ -44,6 +45,7 @@ from cardionurbs.errors import UsageError
 from cardionurbs.heap import acyclic, long_lived
 from cardionurbs.io import atomic, load_study
 from cardionurbs.io.export import export_mesh, export_model_3dm, table_csv, write_json, write_ply
+from cardionurbs.io.modelfile import read_model_file, write_model_file
 from cardionurbs.progress import Progress
 from cardionurbs.study import Study
 
@@ -219,13 +221,7 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
             if "model" in outputs:
                 progress.stage("model")
                 with acyclic():                         # plain lists and dicts
-                    model_dict = model.to_dict()
-                    if tags is not None:               # tag surfaces are saved with the model
-                        from cardionurbs.analysis.tags import tag_surfaces_dict
-                        model_dict["tag_surfaces"] = tag_surfaces_dict(
-                            model.study, long_axis=model.long_axis(), surfaces=tags.surfaces)
-                    write_json(model_dict, tmp / "model.json", indent=None)
-                    del model_dict
+                    save_model(model, tmp / "model.json", tags=tags)
                 try:                                   # the cad extra: Rhino .3dm of the ED surfaces
                     import rhino3dm  # noqa: F401
                 except ImportError:
@@ -274,11 +270,54 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
             model_and_metrics()
         if "report" in outputs:
             progress.stage("report")
-            # the model and tag surfaces just written, from memory (not read back)
-            _report(tmp, model=model if "model" in outputs else None,
+            # the tag surfaces just written, from memory; the model as model.json saved it
+            # (its stated precision: `cardionurbs report` on the folder makes the same page)
+            _report(tmp, model=load_model(tmp / "model.json") if "model" in outputs else None,
                     tag_data=getattr(fig_set, "report_tags", None))
         progress.done()
     return Path(out)
+
+
+def save_model(model: BiventricularModel, path: str | Path, tags=None) -> Path:
+    """Write the model file (``model.json``, or ``model.npz`` by the suffix), compact
+    (:mod:`cardionurbs.io.modelfile`), atomically.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+    path : str or Path
+        ``.json`` or ``.npz``.
+    tags : TagMetrics, optional
+        The tag result of :func:`analyse`: its tag surfaces are saved with the model.
+
+    Returns
+    -------
+    Path
+    """
+    model_dict = model.to_dict()
+    if tags is not None:                       # tag surfaces are saved with the model
+        from cardionurbs.analysis.tags import tag_surfaces_dict
+        model_dict["tag_surfaces"] = tag_surfaces_dict(
+            model.study, long_axis=model.long_axis(), surfaces=tags.surfaces)
+    return write_model_file(model_dict, path)
+
+
+def load_model(path: str | Path, study: Study | None = None) -> BiventricularModel:
+    """Read a model file (``model.json`` of any version, or ``model.npz``).
+
+    Parameters
+    ----------
+    path : str or Path
+    study : Study, optional
+        The study the model was reconstructed from (default: one reduced to subject,
+        heart rate, ED/ES and the long-axis landmarks, which every volume, mass and
+        wall-thickness metric needs).
+
+    Returns
+    -------
+    BiventricularModel
+    """
+    return BiventricularModel.from_dict(read_model_file(path), study=study)
 
 
 def write_meshes(model: BiventricularModel, mesh_dir: Path, mesh_ext: str = "ply", *,
