@@ -159,8 +159,11 @@ def loft(sections: Sequence[Any], degree_v: int = 3, align: bool = True) -> Nurb
     align : orient the sections and align their seams (step 0); pass False
         when the caller has done so.
 
-    Returns a :class:`NurbsSurface` with u along the sections (``closed_u``
-    when the sections are closed) and v from the first to the last section.
+    Returns
+    -------
+    NurbsSurface
+        u along the sections (``closed_u`` when the sections are closed) and v from
+        the first to the last section.
     """
     items = list(sections)
     q_req = V.degree_value(degree_v, "degree_v")
@@ -231,9 +234,11 @@ def loft_compatible(control_points: Any, knots_u: Any, degree_u: int = 3, degree
         the net equal to the point, weighted like its neighbouring section;
         the collapsed row of the result is exactly the point.
 
-    Returns a :class:`NurbsSurface`, u along the sections, v from the first
-    (or ``start_point``) to the last (or ``end_point``); ``K + 1 = L`` plus the
-    number of end points, ``K >= 1``.
+    Returns
+    -------
+    NurbsSurface
+        u along the sections, v from the first (or ``start_point``) to the last (or
+        ``end_point``); ``K + 1 = L`` plus the number of end points, ``K >= 1``.
     """
     C = V.finite_array(control_points, "control_points", ndim=3)
     p = V.degree_value(degree_u, "degree_u")
