@@ -184,3 +184,13 @@ def test_vtp_without_vtk_exits_2_before_any_work(tmp_path, monkeypatch, capsys):
                  "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "cardionurbs[vtk]" in err and not out.exists()
+
+
+def test_mesh_format_option_writes_the_other_formats(tmp_path):
+    study = tmp_path / "study"
+    assert main(["phantom", "--pathology", "normal", "--frames", "2", "--no-dicom",
+                 "--out", str(study)]) == 0
+    assert main(["analyze", str(study), "--outputs", "meshes", "--mesh-format", "stl",
+                 "--jobs", "1", "--out", str(tmp_path / "out")]) == 0
+    files = sorted((tmp_path / "out" / "meshes").iterdir())
+    assert len(files) == 2 * len(MESHES) and all(f.suffix == ".stl" for f in files)
