@@ -193,9 +193,19 @@ def build_parser() -> argparse.ArgumentParser:
                     help="with --n: generate on Dask (a LocalCluster, or an existing scheduler)")
     ph.add_argument("--resume", action="store_true",
                     help="with --n: keep the subjects an earlier run of the same --out finished")
-    ph.add_argument("--labels", choices=["acdc", "ukbb", "mnms"], default=None,
+    ph.add_argument("--labels", choices=["acdc", "ukbb", "mnms", "mnms2"], default=None,
                     help="also write NIfTI label maps (and a cine-like image) in this "
                          "convention and layout, in DIR/labelmaps")
+    ph.add_argument("--label-quirks", default=None, metavar="LIST",
+                    help="with --labels: header quirks, comma-separated: real (the dataset's "
+                         "own header: ACDC unit-scale sform + pixdim spacing, base first; UK "
+                         "Biobank frame interval in s with unknown unit), lps (in-plane axes "
+                         "stored reversed), apex-first, base-first, pv (partial-volume labels); "
+                         "docs/formats.md")
+    ph.add_argument("--sa-spacing", type=_bounded(float, 1.0, 30.0), default=None, metavar="MM",
+                    help="distance between SA slices (default 10 mm)")
+    ph.add_argument("--sa-thickness", type=_bounded(float, 1.0, 30.0), default=None, metavar="MM",
+                    help="SA slice thickness (default 8 mm; less than --sa-spacing leaves gaps)")
     ph.add_argument("--out", required=True, metavar="DIR",
                     help="new (or empty) output folder")
     ph.add_argument("--overwrite", action="store_true",

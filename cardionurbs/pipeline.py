@@ -467,8 +467,12 @@ def _label_option(args: argparse.Namespace) -> dict:
 
 
 def study_folder(path: str | Path) -> Path:
-    """The folder of a study given as a folder or as a file in it (its study.json)."""
+    """The folder of a study given as a folder or as a file in it (its study.json); a
+    single-file study (a NIfTI label map) is the file itself, whose reader reads nothing
+    else, so an output folder beside it is allowed."""
     p = Path(path)
+    if p.is_file() and p.name.lower().endswith((".nii", ".nii.gz")):
+        return p
     return p if p.is_dir() or not p.exists() else p.parent
 
 

@@ -139,6 +139,8 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None)
     for side, cav, myo in (("LV", "lv_cavity", "lv_myocardium"), ("RV", "rv_cavity", "rv_myocardium")):
         edv, esv = v(ed, cav), v(es, cav)
         f = ventricular_function(edv, esv, hr)
+        if ed == es:           # one frame: no stroke volume to measure (null, the model warns)
+            f = {"SV": NAN, "EF": NAN, "CO": NAN}
         out[f"{side}EDV (mL)"], out[f"{side}ESV (mL)"] = edv, esv
         out[f"{side}SV (mL)"], out[f"{side}EF (%)"] = f["SV"], f["EF"]
         if side == "LV":

@@ -408,11 +408,12 @@ def _json_safe(obj):
 
 
 def write_phantom(phantom: Phantom, out_dir: str | Path, dicom: bool = True,
-                  labels: str | None = None) -> Path:
+                  labels: str | None = None, label_quirks: str | None = None) -> Path:
     """Write the native study (study.json + points.csv, or points.parquet for a large study),
     dicom/ and truth.json into ``out_dir``;
-    with ``labels`` (``acdc``, ``ukbb``, ``mnms``) also NIfTI label maps in that layout in
-    ``out_dir/labelmaps`` (:mod:`cardionurbs.phantom.labelmaps`).
+    with ``labels`` (``acdc``, ``ukbb``, ``mnms``, ``mnms2``) also NIfTI label maps in that
+    layout in ``out_dir/labelmaps``, with the header ``label_quirks`` (e.g. ``"real"``,
+    :mod:`cardionurbs.phantom.labelmaps`).
 
     The folder is replaced atomically; the same phantom gives byte-identical files.
     """
@@ -429,7 +430,7 @@ def write_phantom(phantom: Phantom, out_dir: str | Path, dicom: bool = True,
             write_dicom(phantom, tmp)
         if labels is not None:
             from cardionurbs.phantom.labelmaps import write_labelmaps
-            write_labelmaps(phantom, tmp / "labelmaps", labels)
+            write_labelmaps(phantom, tmp / "labelmaps", labels, quirks=label_quirks)
     return out_dir
 
 
