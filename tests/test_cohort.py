@@ -41,7 +41,9 @@ def table(studies):
 def test_rows_in_input_order_with_metrics_columns(table):
     assert list(table.columns) == list(CSV_COLUMNS)
     assert list(table.columns[2:2 + len(COLUMNS)]) == list(COLUMNS)
-    assert list(table.columns[2 + len(COLUMNS):]) == list(QC_COLUMNS)
+    qc_end = 2 + len(COLUMNS) + len(QC_COLUMNS)
+    assert list(table.columns[2 + len(COLUMNS):qc_end]) == list(QC_COLUMNS)
+    assert list(table.columns[-2:]) == ["warnings", "notes"]
     assert list(table["subject"]) == ["ell0", "does-not-exist", "broken", "ell1"]
     assert list(table["status"] == "ok") == [True, False, False, True]
 

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cardionurbs.analysis.function import COLUMNS, TAG_COLUMNS
+from cardionurbs.analysis.voxels import is_finite_number, label_map_flags
 
 if TYPE_CHECKING:  # pragma: no cover
     from cardionurbs.anatomy.model import BiventricularModel
@@ -227,6 +228,9 @@ def assess(model: "BiventricularModel", metrics: dict[str, float]) -> Quality:
             if isinstance(n, (int, float)) and math.isfinite(n) and n > 0:
                 entry["flags"] = [f"{int(n)} tag line(s) flagged as mistracked"]
         q.metrics[col] = entry
+    for col, flags in label_map_flags(model, metrics).items():   # label maps (analysis.voxels)
+        if col in q.metrics and is_finite_number(metrics.get(col, math.nan)):
+            q.metrics[col]["flags"] += flags
     for col, inputs in DERIVED.items():
         e = q.metrics[col]
         e["inputs"] = list(inputs)

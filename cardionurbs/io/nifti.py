@@ -42,9 +42,11 @@ row cosine = unit first column of ``A_lps`` (the direction in which the first
 array index grows), column cosine = unit second column, PixelSpacing = (length
 of the second column, length of the first), slice thickness = length of the
 third column. Pixel coordinates (c, r) are the first two array indices. The
-SA slices are named ``sa_00`` at the base towards the apex: the stack normal
-is signed from base to apex by the mitral annulus seen in the long-axis maps,
-else by the patient-frame prior of :mod:`cardionurbs.imaging.stack`.
+SA slices are named ``sa_00`` at the base towards the apex: which end is the
+base comes from the anatomy the labels show (:func:`cardionurbs.io.masks.stack_anatomy`,
+:func:`cardionurbs.imaging.stack.sa_base_direction`), cross-checked with the mitral
+annulus of the long-axis maps; the patient-frame prior of the header's axes only
+when neither says (a warning).
 
 Contours come from :mod:`cardionurbs.io.masks`; what is left out is
 reported in ``study.warnings`` naming slice and frame. Voxel-count volumes
@@ -62,7 +64,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cardionurbs.errors import StudyError
+from cardionurbs.errors import ReconstructionError, StudyError
 from cardionurbs.imaging import stack
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import masks
@@ -462,8 +464,10 @@ def _add_la(b: _Builder, view_id: str, vol: LabelVolume, frames: dict[int, int],
                                                       view="LA", image=plane.id))
 
 
-def _sa_order(vol: LabelVolume, study: Study) -> list[int]:
-    """Slice indices k of an SA volume from base to apex."""
+def _sa_order(vol: LabelVolume, study: Study, roles: LabelRoles, frames) -> list[int]:
+    """Slice indices k of an SA volume from base to apex: which end is the base from the
+    anatomy (:func:`cardionurbs.imaging.stack.sa_base_direction`), never from the slice
+    order or the header's axes alone (ACDC's headers have none)."""
     nk = vol.data.shape[2]
     if nk == 1:
         return [0]
@@ -472,14 +476,24 @@ def _sa_order(vol: LabelVolume, study: Study) -> list[int]:
     normal /= np.linalg.norm(normal)
     centres = np.array([a[:3, 3] + k * a[:3, 2] for k in range(nk)])
     mitral = np.array([lm.point for lm in study.landmarks if lm.name == "mitral"])
-    u, _ = stack.base_to_apex_direction(normal, centres, mitral=mitral if len(mitral) else None)
+    anat = masks.stack_anatomy(vol.data, roles, list(frames))
+    try:
+        u, rule = stack.sa_base_direction(normal, centres, anat,
+                                          mitral=mitral if len(mitral) else None)
+    except ReconstructionError as exc:
+        raise StudyError(str(exc), file=str(vol.path), field="slice order") from None
+    study.meta["sa_orientation"] = rule
+    if rule.startswith("LPS prior"):
+        study.meta.setdefault("orientation_warnings", []).append(
+            f"{vol.path}: base and apex of the short-axis stack from the header's patient axes "
+            "only (the labels show no taper, cap or outflow): check the slice order")
     depth = centres @ u
     return [int(k) for k in np.argsort(depth, kind="stable")]
 
 
 def _add_sa(b: _Builder, vol: LabelVolume, frames: dict[int, int], times: dict[int, float]) -> None:
     """SA planes and contours of every labelled slice at the given (volume frame -> frame)."""
-    order = _sa_order(vol, b.study)
+    order = _sa_order(vol, b.study, b.roles, frames)
     labelled = [k for k in order if any(vol.data[:, :, k, t].any() for t in frames)]
     for k in order:
         if k not in labelled:
@@ -569,6 +583,7 @@ def _build(subject: str, source: Path, sa: LabelVolume, frames: dict[int, int],
                                                    "measured"} if roles.rv_myo is None else {},
                        "contour_files": b.files, **(meta or {})})
     warn = list(sa.warnings) + [w for v, _ in (la or {}).values() for w in v.warnings]
+    warn += study.meta.pop("orientation_warnings", [])
     if note:
         warn.append(f"{source}: {note}")
     study.meta["reader_warnings"] = warn + b.flush_warnings()
