@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 from typing import Sequence
 
@@ -56,6 +57,14 @@ def _nonneg_int(text: str) -> int:
     if v < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
     return v
+
+
+def _pathology(text: str) -> str:
+    """A stated pathology: 1-64 letters, digits, spaces, '-' or '_' (e.g. ``mr``)."""
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9 _-]{0,63}", text):
+        raise argparse.ArgumentTypeError(f"expected a pathology name (letters, digits, spaces, "
+                                         f"'-', '_'; at most 64), got {_excerpt(text)}")
+    return text
 
 
 def _heart_rate(text: str) -> float:
@@ -213,6 +222,10 @@ def build_parser() -> argparse.ArgumentParser:
         an.add_argument(f"--{which.lower()}-frame", type=_bounded(int, 0, 9999), default=None,
                         metavar="N", help=f"{which} frame index (0-based) of a NIfTI label-map "
                                           "study, used as given (for layouts that do not say)")
+    an.add_argument("--pathology", type=_pathology, default=None, metavar="TEXT",
+                    help="the study's stated pathology (e.g. mr): makes MR RegVol / RegFrac "
+                         "answer a stated question; without it (or the study's own metadata) "
+                         "LVSV-RVSV is reported instead (docs/metrics.md)")
     an.add_argument("--no-figures", action="store_true", help="skip PNG figures and HTML report")
     an.add_argument("--outputs", default="all", metavar="LIST",
                     help="comma-separated subset of metrics,model,meshes,figures,report "

@@ -512,6 +512,8 @@ def run_analyze(args: argparse.Namespace) -> int:
     progress.stage("load")
     study = load_study(args.study, format=args.format,
                        allow_outside=getattr(args, "allow_outside", False), **_label_option(args))
+    if getattr(args, "pathology", None):      # the stated question (MR RegVol, docs/metrics.md)
+        study.meta = dict(study.meta, pathology=str(args.pathology))
     if getattr(args, "track_tags", False):
         from cardionurbs.tracking import track_tags
         study = track_tags(study)

@@ -463,6 +463,13 @@ def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.n
                     parts = [c.points] + sept
                     out[s].append((sl, join_open_parts(parts), np.concatenate(parts)))
                     continue
+                endo = [e.points for e in d.get("lv_endo", []) if len(e.points) >= 5]
+                if s == "lv_epi" and not sept and endo and is_open_arc(c.points):
+                    # ... and without a septal trace: the septum as thick as the free wall
+                    across = septum_from_endocardium(c.points, endo[0])
+                    if across is not None:
+                        out[s].append((sl, join_open_parts([c.points, across]), c.points))
+                        continue
                 out[s].append((sl, order_closed(c.points) if c.closed else order_open(c.points),
                                c.points))
         fw = [c.points for c in d.get("rv_freewall", [])]
@@ -490,7 +497,44 @@ def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.n
             elif sept:
                 out["rv_epi"].append((sl, join_open_parts([c.points] + sept),
                                       np.concatenate([c.points] + sept)))
+            elif d.get("lv_epi") and len(c.points) >= 5:
+                # no septal trace: closed by its chord between the RV insertions, which
+                # lies inside the (convex) LV epicardium the RV myocardium boolean removes
+                out["rv_epi"].append((sl, order_open(c.points), c.points))
     return out
+
+
+def septum_from_endocardium(arc: np.ndarray, lv_endo: np.ndarray) -> np.ndarray | None:
+    """The septal run of an LV epicardium traced over the free wall only (``arc``), for a
+    slice without an RV septal trace: the LV endocardium's septal part moved outwards by
+    the free wall's median thickness, in polar coordinates about the endocardium's
+    centroid, sampled at the arc's point spacing across its angular gap (mm, (k, 3));
+    None when the arc covers no clear gap."""
+    c, n = fit_plane(lv_endo)
+    b = in_plane_basis(n)
+    c = polygon_centroid(lv_endo, n)
+    ea = (lv_endo - c) @ b.T
+    aa = (arc - c) @ b.T
+    th_e, r_e = np.arctan2(ea[:, 1], ea[:, 0]), np.hypot(ea[:, 0], ea[:, 1])
+    th_a, r_a = np.arctan2(aa[:, 1], aa[:, 0]), np.hypot(aa[:, 0], aa[:, 1])
+    order = np.argsort(th_e)
+    te, re = th_e[order], r_e[order]
+    te, re = np.r_[te - 2 * np.pi, te, te + 2 * np.pi], np.r_[re, re, re]
+
+    def endo_r(t):
+        return np.interp(np.mod(t + np.pi, 2 * np.pi) - np.pi, te, re)
+    thick = float(np.median(r_a - endo_r(th_a)))
+    sa = np.sort(th_a)
+    gaps = np.diff(np.r_[sa, sa[0] + 2 * np.pi])
+    k = int(np.argmax(gaps))
+    if thick <= 0 or gaps[k] < np.pi / 6:
+        return None
+    step = float(np.median(np.linalg.norm(np.diff(arc, axis=0), axis=1)))
+    mean_r = float(np.median(r_a))
+    m = max(int(gaps[k] * mean_r / max(step, 1e-6)) - 1, 2)
+    t = sa[k] + gaps[k] * np.arange(1, m + 1) / (m + 1)
+    r = endo_r(t) + thick
+    return c + np.column_stack([r * np.cos(t), r * np.sin(t)]) @ b
 
 
 def septal_parts(rv_points: np.ndarray, lv_epi: np.ndarray, near_mm: float = 1.0
