@@ -135,6 +135,15 @@ and build reports. Exit codes: 0 done; 2 bad input or usage (one line on stderr)
 some study failed; 130 interrupted (Ctrl-C), 143 terminated (SIGTERM)."""
 
 
+def _analyze_output_options(parser: argparse.ArgumentParser) -> None:
+    """``analyze --mesh-format`` (docs/outputs.md) and ``--progress``."""
+    parser.add_argument("--mesh-format", choices=["ply", "stl", "obj", "glb", "vtp"], default="ply",
+                        help="mesh files: vtp is VTK PolyData with wall thickness, AHA segments "
+                             "and strain on the surfaces, and a ParaView .pvd time series per mesh")
+    parser.add_argument("--progress", action="store_true",
+                        help="stage progress on stderr (default: only when stderr is a terminal)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="cardionurbs", description=DESCRIPTION, formatter_class=_HelpFormatter)
     p.add_argument("--version", action="version", version="cardionurbs 0.1.0")
@@ -221,8 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--outputs", default="all", metavar="LIST",
                     help="comma-separated subset of metrics,model,meshes,figures,report "
                          "(report also writes metrics and model)")
-    an.add_argument("--progress", action="store_true",
-                    help="stage progress on stderr (default: only when stderr is a terminal)")
+    _analyze_output_options(an)
     an.add_argument("--jobs", type=_bounded(int, 1, 1024), default=None, metavar="N",
                     help="processes for the per-frame work (meshes, tag strain over time; "
                          "default: the CPUs this process may use; 1: one process)")

@@ -31,6 +31,7 @@ from cardionurbs.anatomy.refine import refine_surface
 from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface, free_wall_points
 from cardionurbs.errors import CardioNurbsError, ReconstructionError
 from cardionurbs.geometry import long_axis, polygon_centroid
+from cardionurbs.io.modelfile import unpack
 from cardionurbs.median import median
 from cardionurbs.study import Study
 
@@ -831,8 +832,10 @@ class BiventricularModel:
     @classmethod
     def from_dict(cls, d: dict, study: Study | None = None) -> "BiventricularModel":
         """Inverse of :meth:`to_dict` (the Study is reduced to subject, heart rate,
-        ED/ES labels and the apex/mitral landmarks unless ``study`` is given)."""
+        ED/ES labels and the apex/mitral landmarks unless ``study`` is given); also reads
+        the compact version-2 dict of a model.json (:mod:`cardionurbs.io.modelfile`)."""
         from cardionurbs.study import Landmark
+        d = unpack(d)
         if study is None:
             study = Study(subject=d["subject"], heart_rate_bpm=d.get("heart_rate_bpm"),
                           ed_frame=d.get("ed_frame"), es_frame=d.get("es_frame"),
