@@ -165,7 +165,7 @@ def _load_analysis(out: Path, model: BiventricularModel | None = None):
     try:
         if model is None:
             model = BiventricularModel.from_dict(_read_json(out / "model.json"))
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
         raise ReportInputError(f"{out / 'model.json'}: not a cardionurbs model "
                                f"({type(exc).__name__}: {' '.join(str(exc).split())})") from None
     fig_dir = out / "figures"
