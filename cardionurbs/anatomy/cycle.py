@@ -137,13 +137,13 @@ def check_curve(volumes: dict[int, float], *, bound: float = SUPPORT_BOUND,
     for i in np.flatnonzero(finite):          # against the nearest built frame on each side
         nb = _neighbours(int(i), finite, cyclic)
         if nb is not None:
-            pred = lagrange_weights(nb, i) @ y[nb % len(y)]
-            if abs(y[i] / pred - 1.0) > bound:        # a smooth trough the cubic follows
-                excess[i] = _spike(y[i], y[nb[1] % len(y)], y[nb[2] % len(y)], bound)
-                if excess[i] == 0 and contours and _incomplete(contours, frames, nb, int(i)):
-                    excess[i] = abs(y[i] / pred - 1.0)
+            dep = abs(y[i] / (lagrange_weights(nb, i) @ y[nb % len(y)]) - 1.0)
+            if dep > bound and (_spike(y[i], y[nb[1] % len(y)], y[nb[2] % len(y)], bound) > 0
+                                or contours and _incomplete(contours, frames, nb, int(i))):
+                excess[i] = dep        # ranked by the departure from the cubic without it
     # the worst first, at most a quarter; a frame beside one already supported was judged
-    # against it and is not
+    # against it and is not (a spike's neighbours depart from their cubics too, by about
+    # two thirds of its own departure: the cubic's weight on an adjacent frame)
     beside: set[int] = set()
     for i in np.argsort(-excess, kind="stable")[:len(y) // 4]:
         if excess[i] > 0 and int(i) not in beside:

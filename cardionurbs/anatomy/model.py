@@ -177,6 +177,36 @@ class BiventricularModel:
             LazyFrames(self.frames, lambda f: dict((outflow or {}).get(f, {})))
         self.volumes = LazyFrames(self.frames, lambda f: {
             k: meshing.volume_ml(m) for k, m in self.solids(f).items()})
+        ed, es = self._choose_ed_es(study, ed_es, jobs, progress)
+        self.ed_frame, self.es_frame = ed, es
+        for f in getattr(self, "cycle", CycleCheck({}, {})).supported:
+            self.warnings.append(self.cycle.describe(f))
+        if ed == es:
+            self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, so SV, EF and the "
+                                 "other ED-to-ES metrics are null")
+        self.base_shift_mm: dict[int, float] = {}
+        if surfaces is None and ed != es:
+            self._conserve_myocardium(ed, es)
+
+    # ------------------------------------------------------------- ED and ES
+    def _choose_ed_es(self, study: Study, ed_es: tuple[int, int] | None, jobs: int | None,
+                      progress) -> tuple[int, int]:
+        """ED and ES frames (docs/metrics.md, Frames): given, labelled, or from the volume curve.
+
+        Parameters
+        ----------
+        study : Study
+        ed_es : (int, int) or None
+            Frames known beforehand (a deserialised model), used as they are.
+        jobs, progress
+            As for the constructor: the per-frame LV cavities of the ED/ES search.
+
+        Returns
+        -------
+        (int, int)
+            The ED and ES frame indices. Sets :attr:`lv_volume_by_frame` and :attr:`cycle`
+            (:mod:`cardionurbs.anatomy.cycle`) when the volume curve was searched.
+        """
         labels = (study.ed_frame, study.es_frame)
         if ed_es is None and len(self.frames) == 2 and set(labels) == set(self.frames):
             ed_es = labels                # docs/metrics.md: two contoured frames, the labels win
@@ -201,17 +231,8 @@ class BiventricularModel:
                 ed = int(study.ed_frame)
             if "ES" in given and study.es_frame in lv:
                 es = int(study.es_frame)
-        self.ed_frame, self.es_frame = ed, es
-        for f in getattr(self, "cycle", CycleCheck({}, {})).supported:
-            self.warnings.append(self.cycle.describe(f))
-        if ed == es:
-            self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, so SV, EF and the "
-                                 "other ED-to-ES metrics are null")
-        self.base_shift_mm: dict[int, float] = {}
-        if surfaces is None and ed != es:
-            self._conserve_myocardium(ed, es)
+        return ed, es
 
-    # ------------------------------------------------------------- ED and ES
     def _unrefined_cavity_volumes(self, jobs: int | None = 1, progress=None) -> dict[int, float]:
         """Every frame's :meth:`lv_cavity_volume_unrefined` (mL), which ED and ES are found
         with; ``progress(k, n)`` after each frame.

@@ -453,55 +453,78 @@ def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.n
         by_slice.setdefault(c.slice, {}).setdefault(c.structure, []).append(weighted_part(c))
     for sl, d in by_slice.items():
         sept = [c.points for c in d.get("rv_septum", [])]
-        for s in ("lv_endo", "lv_epi"):
-            for c in d.get(s, []):
-                if len(c.points) < 5:
-                    continue
-                if s == "lv_epi" and sept and is_open_arc(c.points):
-                    # CAP convention: the LV epicardium is traced over the free wall only;
-                    # across the septum it is the RV septal endocardium
-                    parts = [c.points] + sept
-                    out[s].append((sl, join_open_parts(parts), np.concatenate(parts)))
-                    continue
-                endo = [e.points for e in d.get("lv_endo", []) if len(e.points) >= 5]
-                if s == "lv_epi" and not sept and endo and is_open_arc(c.points):
-                    # ... and without a septal trace: the septum as thick as the free wall
-                    across = septum_from_endocardium(c.points, endo[0])
-                    if across is not None:
-                        out[s].append((sl, join_open_parts([c.points, across]), c.points))
-                        continue
-                out[s].append((sl, order_closed(c.points) if c.closed else order_open(c.points),
-                               c.points))
-        fw = [c.points for c in d.get("rv_freewall", [])]
-        rv_whole = [c for c in d.get("rv_endo", []) if len(c.points) >= 5]
-        if rv_whole:
-            # an undivided RV endocardial trace (closed, or open but round the whole cavity)
-            for c in rv_whole:
-                out["rv_endo"].append((sl, order_closed(c.points), c.points))
-        elif fw:
-            parts = fw + sept
-            pts = np.concatenate(parts)
-            if len(pts) >= 5:
-                out["rv_endo"].append((sl, join_open_parts(parts), pts))
-        open_epi = [c for c in d.get("rv_epi", []) if not c.closed]
-        if open_epi and not sept and rv_whole and d.get("lv_epi"):
-            # the septal part of an undivided RV endocardium, by its contact with the LV
-            # epicardium, closes an open RV epicardial trace
-            sept = septal_parts(np.concatenate([c.points for c in rv_whole]),
-                                d["lv_epi"][0].points)
-        if "rv_outlet" in d and not (rv_whole or fw or sept):
-            continue      # an outlet-only slice: its RV epicardium is the RVOT's (anatomy.outflow)
-        for c in d.get("rv_epi", []):
-            if c.closed:
-                out["rv_epi"].append((sl, order_closed(c.points), c.points))
-            elif sept:
-                out["rv_epi"].append((sl, join_open_parts([c.points] + sept),
-                                      np.concatenate([c.points] + sept)))
-            elif d.get("lv_epi") and len(c.points) >= 5:
-                # no septal trace: closed by its chord between the RV insertions, which
-                # lies inside the (convex) LV epicardium the RV myocardium boolean removes
-                out["rv_epi"].append((sl, order_open(c.points), c.points))
+        _lv_slice_loops(sl, d, sept, out)
+        rv_whole, fw = _rv_endo_slice_loops(sl, d, sept, out)
+        _rv_epi_slice_loops(sl, d, sept, rv_whole, fw, out)
     return out
+
+
+_Loops = dict[str, list[tuple[str | None, np.ndarray, np.ndarray]]]
+
+
+def _lv_slice_loops(sl: str, d: dict[str, list[Contour]], sept: list[np.ndarray],
+                    out: _Loops) -> None:
+    """One SA slice's LV endo- and epicardial loops into ``out`` (:func:`_sa_loops`)."""
+    for s in ("lv_endo", "lv_epi"):
+        for c in d.get(s, []):
+            if len(c.points) < 5:
+                continue
+            if s == "lv_epi" and sept and is_open_arc(c.points):
+                # CAP convention: the LV epicardium is traced over the free wall only;
+                # across the septum it is the RV septal endocardium
+                parts = [c.points] + sept
+                out[s].append((sl, join_open_parts(parts), np.concatenate(parts)))
+                continue
+            endo = [e.points for e in d.get("lv_endo", []) if len(e.points) >= 5]
+            if s == "lv_epi" and not sept and endo and is_open_arc(c.points):
+                # ... and without a septal trace: the septum as thick as the free wall
+                across = septum_from_endocardium(c.points, endo[0])
+                if across is not None:
+                    out[s].append((sl, join_open_parts([c.points, across]), c.points))
+                    continue
+            out[s].append((sl, order_closed(c.points) if c.closed else order_open(c.points),
+                           c.points))
+
+
+def _rv_endo_slice_loops(sl: str, d: dict[str, list[Contour]], sept: list[np.ndarray],
+                         out: _Loops) -> tuple[list[Contour], list[np.ndarray]]:
+    """One SA slice's RV endocardial loop into ``out``; returns its undivided RV endocardial
+    traces and its free-wall parts (:func:`_sa_loops`)."""
+    fw = [c.points for c in d.get("rv_freewall", [])]
+    rv_whole = [c for c in d.get("rv_endo", []) if len(c.points) >= 5]
+    if rv_whole:
+        # an undivided RV endocardial trace (closed, or open but round the whole cavity)
+        for c in rv_whole:
+            out["rv_endo"].append((sl, order_closed(c.points), c.points))
+    elif fw:
+        parts = fw + sept
+        pts = np.concatenate(parts)
+        if len(pts) >= 5:
+            out["rv_endo"].append((sl, join_open_parts(parts), pts))
+    return rv_whole, fw
+
+
+def _rv_epi_slice_loops(sl: str, d: dict[str, list[Contour]], sept: list[np.ndarray],
+                        rv_whole: list[Contour], fw: list[np.ndarray], out: _Loops) -> None:
+    """One SA slice's RV epicardial loops into ``out`` (:func:`_sa_loops`)."""
+    open_epi = [c for c in d.get("rv_epi", []) if not c.closed]
+    if open_epi and not sept and rv_whole and d.get("lv_epi"):
+        # the septal part of an undivided RV endocardium, by its contact with the LV
+        # epicardium, closes an open RV epicardial trace
+        sept = septal_parts(np.concatenate([c.points for c in rv_whole]),
+                            d["lv_epi"][0].points)
+    if "rv_outlet" in d and not (rv_whole or fw or sept):
+        return      # an outlet-only slice: its RV epicardium is the RVOT's (anatomy.outflow)
+    for c in d.get("rv_epi", []):
+        if c.closed:
+            out["rv_epi"].append((sl, order_closed(c.points), c.points))
+        elif sept:
+            out["rv_epi"].append((sl, join_open_parts([c.points] + sept),
+                                  np.concatenate([c.points] + sept)))
+        elif d.get("lv_epi") and len(c.points) >= 5:
+            # no septal trace: closed by its chord between the RV insertions, which
+            # lies inside the (convex) LV epicardium the RV myocardium boolean removes
+            out["rv_epi"].append((sl, order_open(c.points), c.points))
 
 
 def septum_from_endocardium(arc: np.ndarray, lv_endo: np.ndarray) -> np.ndarray | None:
