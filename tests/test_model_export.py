@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from cardionurbs.analysis.body import BODY_COLUMNS, INDEXED_COLUMNS
 from cardionurbs.analysis.function import COLUMNS
 from cardionurbs.anatomy.model import BiventricularModel, reconstruct
 from cardionurbs.cli import main
@@ -33,7 +34,7 @@ def analysis(study_dir, tmp_path_factory):
 def test_metrics_json(analysis):
     d = json.loads((analysis / "metrics.json").read_text())
     assert d["subject"] == "ell" and (d["ed_frame"], d["es_frame"]) == (0, 1)
-    assert list(d["metrics"]) == list(COLUMNS)
+    assert list(d["metrics"]) == list(COLUMNS) + list(BODY_COLUMNS) + list(INDEXED_COLUMNS)
     assert 80 < d["metrics"]["LVEDV (mL)"] < 90
     assert d["volume_curve"]["frame"] == [0, 1]
     assert d["residuals"]["lv_endo"]["max_px"] < 1.0

@@ -71,6 +71,8 @@ from and is used only when the CSV still has it (a CSV edited by hand wins).
 
 from __future__ import annotations
 
+import gzip
+import io
 import json
 import zlib
 from contextlib import contextmanager
@@ -183,7 +185,7 @@ def study_to_frames(study: Study, pixel_coordinates: bool = True,
         "frame_times_ms": {str(k): float(v) for k, v in sorted(study.frame_times_ms.items())},
         "ed_frame": study.ed_frame, "es_frame": study.es_frame,
         "images": [im.to_dict() for im in study.images],
-        "points": POINTS, "points_rows": len(table), "meta": study.meta,
+        "points": POINTS, "points_rows": len(table), "meta": _written_meta(study.meta),
     }
     return manifest, table[COLUMNS]
 
@@ -400,12 +402,22 @@ def _check_complete(points_path: Path, n_rows: int, expected_rows) -> str | None
     return None
 
 
-def _bounded_gunzip(path: Path) -> "io.BytesIO":
+def _written_meta(meta: dict) -> dict:
+    """``study.meta`` as study.json keeps it: the body size that loading attached
+    (:func:`cardionurbs.io.body.attach_body`) only with its known values and without their
+    sources, so that a study read and written again is the same file."""
+    body = meta.get("body") if isinstance(meta, dict) else None
+    if not isinstance(body, dict):
+        return meta
+    known = {k: v for k, v in body.items() if k != "source" and v is not None}
+    out = {k: v for k, v in meta.items() if k != "body"}
+    return {**out, "body": known} if known else out
+
+
+def _bounded_gunzip(path: Path) -> io.BytesIO:
     """The decompressed bytes of a gzip points file, read in chunks and refused past
     :data:`cardionurbs.limits.MAX_DECOMPRESSED_BYTES` (a decompression bomb) before more is
     allocated; a cut stream raises EOFError."""
-    import gzip
-    import io
     from cardionurbs.limits import MAX_DECOMPRESSED_BYTES
     out = io.BytesIO()
     with gzip.open(path, "rb") as f:

@@ -488,14 +488,11 @@ CORPUS: list[Broken] = [
     Broken("gpfile_nan", lambda r: _gp(r, lambda r: _gp_line(r, 3, _set(2, "nan"))), "NaN"),
     Broken("gpfile_unknown_slice", lambda r: _gp(r, lambda r: _gp_line(r, 1, _set(4, "42"))),
            "not in SliceInfoFile.txt"),
-    Broken("gpfile_wrong_view", lambda r: _gp(r, lambda r: _edit(
-        _gp_file(r), lambda t: t.replace("LAX_LV_ENDOCARDIAL", "SAX_LV_ENDOCARDIAL"))),
-        "long-axis slice"),
     Broken("gpfile_empty", lambda r: _gp(r, lambda r: _gp_file(r, 1).write_text("")), "empty GPFile"),
     Broken("gpfile_short_line", lambda r: _gp(r, lambda r: _gp_line(r, 4, lambda t: t[:5])),
            "expected 7"),
     Broken("gpfile_off_plane", lambda r: _gp(r, _gp_off_plane),
-           "GPFile_000.txt: slice sa_00, frame 0: lv_endo contour lies"),
+           "GPFile_000.txt: field frameID: lines 2-25: SAX_LV_ENDOCARDIAL points lie on no slice plane"),
     Broken("sliceinfo_no_orientation", lambda r: _gp(r, lambda r: _edit(
         r / "SliceInfoFile.txt", lambda t: t.replace("ImageOrientationPatient", "Orientation", 1))),
         "missing ImageOrientationPatient"),
