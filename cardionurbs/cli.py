@@ -91,6 +91,19 @@ def _heart_rate(text: str) -> float:
     return v
 
 
+def _uncertainty_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--uncertainty", choices=("on", "off"), default="on",
+                        help="95 %% intervals of the global metrics (docs/metrics.md, Uncertainty)")
+
+
+def _max_halfwidth(text: str) -> dict:
+    from cardionurbs.analysis.uncertainty import parse_max_halfwidth
+    try:
+        return parse_max_halfwidth(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _study_input_options(parser: argparse.ArgumentParser, format_help: str) -> None:
     """--format and --labels, as analyze and cohort take them."""
     parser.add_argument("--format", default="auto",
@@ -225,6 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
     _output_safety_options(an)
     an.add_argument("--track-tags", action="store_true",
                     help="track the tag lines from the study's tagged DICOM (HARP) first")
+    _uncertainty_option(an)
 
     tr = command("track", "track tag lines from a study's tagged DICOM images (HARP)")
     tr.add_argument("study", metavar="STUDY", help="native study folder whose images name DICOM files")
@@ -257,6 +271,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="let study.json name files outside the study folder")
     co.add_argument("--strict", action="store_true",
                     help="a study whose metrics carry a quality flag (QC) is a failure")
+    _uncertainty_option(co)
+    co.add_argument("--max-halfwidth", type=_max_halfwidth, default=None,
+                    metavar="METRIC=LIMIT[,...]",
+                    help="flag (QC) a study whose 95 %% interval of METRIC is wider than "
+                         "± LIMIT (its unit), e.g. LVEF=5,LVEDV=10")
 
     de = command("demo", "the paper's 12-subject phantom cohort, end to end")
     de.add_argument("--out", metavar="DIR", default=None,

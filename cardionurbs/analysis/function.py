@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cardionurbs.analysis.regional_columns import REGIONAL_COLUMNS
+from cardionurbs.analysis.uncertainty import interval_columns, intervals
 from cardionurbs.errors import CardioNurbsError
 from cardionurbs.limits import HEART_RATE_RANGE_BPM
 from cardionurbs.geometry import chord_length, fit_plane, in_plane_basis, polygon_centroid
@@ -113,8 +114,13 @@ def eccentricity_index_es(model: "BiventricularModel") -> float:
     return eccentricity_index((lv[best].points - c) @ b, (rv[best].points - c) @ b)
 
 
-def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None) -> dict[str, float]:
+def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None,
+            uncertainty: bool = False) -> dict[str, float]:
     """Every docs/metrics.md column for one model, as floats (NaN where not measurable).
+
+    ``uncertainty``: also the 95 % interval of each global metric as ``<column> lo95`` and
+    ``<column> hi95`` (NaN where there is none; docs/metrics.md, Uncertainty;
+    :func:`cardionurbs.analysis.uncertainty.intervals` gives the reasons and sources).
 
     ``heart_rate_bpm`` is used when the study carries no heart rate (the
     user-given value of docs/metrics.md, Frames); outside 20-300 bpm it is refused
@@ -151,8 +157,11 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None)
     from cardionurbs.analysis.rates import model_filling_rates
     rates, _ = model_filling_rates(model)
     out.update(rates)
-    return {k: (float(x) if x is not None and math.isfinite(float(x)) else NAN)
-            for k, x in out.items()}
+    out = {k: (float(x) if x is not None and math.isfinite(float(x)) else NAN)
+           for k, x in out.items()}
+    if uncertainty:
+        out.update(interval_columns(intervals(model, out)))
+    return out
 
 
 def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> dict[str, list]:

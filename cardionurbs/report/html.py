@@ -242,11 +242,14 @@ def _metric_rows(metrics: dict, truth: dict | None) -> list[dict]:
     """One row per measured metric with the phantom truth and the difference beside it."""
     tmet = (truth or {}).get("metrics", {})
     quality = (metrics.get("quality") or {}).get("metrics", {})
+    unc = metrics.get("uncertainty") or {}
     rows = []
     for k, v in metrics.get("metrics", {}).items():
         t = tmet.get(k) if truth else None
         diff = (v - t) if isinstance(v, (int, float)) and isinstance(t, (int, float)) else None
+        iv = unc.get(k)            # the 95 % interval (docs/metrics.md, Uncertainty)
         rows.append({"metric": k, "measured": _num(v), "truth": _num(t), "difference": _num(diff),
+                     "halfwidth": _num(0.5 * (iv[1] - iv[0])) if isinstance(iv, list) else None,
                      "qc": "; ".join((quality.get(k) or {}).get("flags", []))})
     return rows
 
@@ -448,6 +451,8 @@ def page_parts(payload: Mapping) -> list[str]:
         "<th>truth</th><th>measured − truth</th>" if has_truth else "") + "<th>QC</th></tr>"
     body = "".join(
         f"<tr><td>{esc(r['metric'])}</td><td>{_fmt(r['measured'])}"
+        + (f" <span class='pm' title='95 % interval'>± {_fmt(r['halfwidth'])}</span>"
+           if r.get("halfwidth") is not None else "")
         + (" <span class='qcflag' title='quality flag'>&#9873;</span>" if r.get("qc") else "")
         + "</td>"
         + (f"<td>{_fmt(r['truth'])}</td><td>{_fmt(r['difference'])}</td>" if has_truth else "")
