@@ -160,6 +160,23 @@ def coverage_table(rows: list[dict]) -> list[str]:
     return out
 
 
+def variant_table(rows: list[dict]) -> list[str]:
+    """Coverage (%) of every :data:`VARIANTS` setting on these subjects: how the constants
+    were chosen (in the open)."""
+    out = ["| constants | " + " | ".join(DONE_WHEN) + " | all six in 90-98 % |",
+           "|---" * (len(DONE_WHEN) + 2) + "|"]
+    for name in VARIANTS:
+        cells, ok = [], True
+        for col in DONE_WHEN:
+            got = [(r["variants"][name][col], r["truth"][col]) for r in rows
+                   if r["variants"][name].get(col) is not None and r["truth"].get(col) is not None]
+            cov = 100.0 * sum(iv[0] <= t <= iv[1] for iv, t in got) / max(len(got), 1)
+            ok &= 90 <= cov <= 98
+            cells.append(f"{cov:.0f}")
+        out.append(f"| {name} | " + " | ".join(cells) + f" | {'yes' if ok else 'no'} |")
+    return out
+
+
 def shrink_table(rows: list[dict], key: str, label: str) -> list[str]:
     vals = sorted({r[key] for r in rows}, key=str)
     out = [f"| {label} | subjects | " + " | ".join(f"{c} half-width" for c in DONE_WHEN) + " |",
@@ -194,11 +211,15 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--raw", type=Path, default=None,
                     help="also write every subject's numbers (JSON lines) here")
+    ap.add_argument("--from-raw", type=Path, default=None,
+                    help="make the report from a --raw file instead of measuring")
     a = ap.parse_args(argv)
     rows = []
     start = time.time()
     raw = a.raw.open("w") if a.raw is not None else None
-    for c in conditions(a.subjects, a.seed0):
+    if a.from_raw is not None:
+        rows = [json.loads(line) for line in a.from_raw.read_text().splitlines() if line.strip()]
+    for c in ([] if a.from_raw is not None else conditions(a.subjects, a.seed0)):
         try:
             rows.append(run_subject(c))
         except Exception as e:          # a failing subject is reported, not hidden
@@ -228,6 +249,9 @@ def main(argv=None) -> int:
             *shrink_table([r for r in rows if not r["input"].startswith("labels")], "noise_px",
                           "noise (px)"), "",
             "by input:", "", *shrink_table(rows, "input", "input"), "",
+            "## The constants", "", "Coverage (%) with each setting of the module's constants "
+            "(every setting computed on every subject from the same reconstruction):", "",
+            *variant_table(rows), "",
             "## Every subject (error = model − truth / half-width; ✗ truth outside)", "",
             *subject_table(rows), ""]
     if a.out is not None:

@@ -11,10 +11,12 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cardionurbs import measure, reconstruct
-from cardionurbs.analysis.uncertainty import (COVERED, INTERVAL_COLUMNS, halfwidth_flags, intervals,
-                                              parse_max_halfwidth)
+from cardionurbs.analysis.uncertainty import (COVERED, INTERVAL_COLUMNS, _normal_scatter,
+                                              halfwidth_flags, intervals, parse_max_halfwidth)
 from cardionurbs.cli import main
 from cardionurbs.cohort import cohort
 from cardionurbs.pipeline import write_analysis
@@ -160,3 +162,26 @@ def test_cohort_columns_and_imprecise_subject_flagged(tmp_path):
     assert np.isnan(strict.iloc[0]["LVEDV (mL) lo95"])
     off = cohort([tmp_path / "s"], uncertainty=False)
     assert not set(INTERVAL_COLUMNS) & set(off.columns)
+
+
+@settings(max_examples=30, deadline=None)
+@given(r=st.floats(15, 40), n=st.integers(30, 120), frac=st.floats(0.05, 0.4),
+       seed=st.integers(0, 2 ** 16))
+def test_contour_scatter_of_a_noisy_circle(r, n, frac, seed):
+    """The second-difference scatter of a circle's points recovers i.i.d. radial noise σ (to
+    sampling error) while σ is below half the point spacing (a hand contour's or a phantom's:
+    60 points round a 25 mm LV, σ <= 1 px), above the curvature floor a clean contour has."""
+    sigma = frac * 2 * np.pi * r / n
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    rad = r + rng.normal(0, sigma, n)
+    pts = np.c_[rad * np.cos(t), rad * np.sin(t), np.zeros(n)]
+    est, ds = _normal_scatter(pts, np.array([0.0, 0.0, 1.0]))
+    step = 2 * np.pi * r / n                 # noise lengthens the steps: ds is then conservative
+    assert 0.9 * step < ds < 1.25 * np.sqrt(step ** 2 + 2 * sigma ** 2)
+    # a clean circle's second differences are its curvature, ds²/r: a conservative floor
+    floor = (2 * np.pi * r / n) ** 2 / r / np.sqrt(0.4549 * 6)
+    assert 0.6 * sigma < est < 1.5 * np.hypot(sigma, floor)
+    clean, _ = _normal_scatter(np.c_[r * np.cos(t), r * np.sin(t), np.zeros(n)],
+                               np.array([0.0, 0.0, 1.0]))
+    assert clean == pytest.approx(floor, rel=0.05)
