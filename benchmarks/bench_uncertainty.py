@@ -47,7 +47,7 @@ def analyze_cost(study: Path, tmp: Path, repeats: int) -> dict[str, float]:
     times: dict[str, list[float]] = {"off": [], "on": []}
     for k in range(repeats):
         for mode in ("off", "on"):
-            out = tmp / f"out_{mode}_{k}"
+            out = tmp / f"out_{study.name}_{mode}_{k}"
             times[mode].append(child_cpu([*CLI, "analyze", str(study), "--outputs", "metrics",
                                           "--jobs", "1", "--uncertainty", mode, "--out", str(out)]))
     return {m: float(np.median(v)) for m, v in times.items()}

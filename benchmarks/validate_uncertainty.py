@@ -79,6 +79,38 @@ def _sa_only(study) -> None:
     study.images = [im for im in study.images if im.view == "SA"]
 
 
+#: the constants the run measured with (the module's at the time of the --raw file)
+RUN_CONSTANTS = {"BETWEEN_FACTOR": 0.25, "OUTFLOW_SHARE": 1.0, "PIXEL_BIAS": 0.1,
+                 "OPEN_SLAB_MM": 10.0, "CONTOUR_FACTOR": 1.0}
+
+
+def rescaled(r: dict, consts: dict) -> dict:
+    """A subject's intervals under other constants, from the run's own numbers: the Gaussian
+    part's sources scale linearly with their constants (contours with CONTOUR_FACTOR,
+    pixels with PIXEL_BIAS, between with BETWEEN_FACTOR) and the one-sided allowances are
+    those of the variant with the same OUTFLOW_SHARE (same OPEN_SLAB_MM). Exact: the
+    module gives the same numbers with these constants (checked by --check)."""
+    scale = {"contours": consts["CONTOUR_FACTOR"] / RUN_CONSTANTS["CONTOUR_FACTOR"],
+             "pixels": consts["PIXEL_BIAS"] / RUN_CONSTANTS["PIXEL_BIAS"],
+             "between": consts["BETWEEN_FACTOR"] / RUN_CONSTANTS["BETWEEN_FACTOR"]}
+    name = next(n for n, c in VARIANTS.items() if c["OUTFLOW_SHARE"] == consts["OUTFLOW_SHARE"]
+                and c["OPEN_SLAB_MM"] == RUN_CONSTANTS["OPEN_SLAB_MM"]
+                and c["BETWEEN_FACTOR"] == RUN_CONSTANTS["BETWEEN_FACTOR"]
+                and c["PIXEL_BIAS"] == RUN_CONSTANTS["PIXEL_BIAS"])
+    out = {}
+    for col in METRICS:
+        iv, var, sd = r["unc"].get(col), r["variants"][name].get(col), r["unc"]["sd"].get(col)
+        if iv is None or var is None or sd is None:
+            out[col] = None
+            continue
+        v = r["metrics"][col]
+        z_old = U.Z95 * float(np.sqrt(sum(x * x for x in sd.values())))
+        z_new = U.Z95 * float(np.sqrt(sum((x * scale.get(k, 1.0)) ** 2 for k, x in sd.items())))
+        below, above = (v - var[0]) - z_old, (var[1] - v) - z_old
+        out[col] = [v - z_new - below, v + z_new + above]
+    return out
+
+
 def variant_intervals(model, metrics) -> dict:
     """The intervals of every :data:`VARIANTS` setting (the module's constants restored)."""
     out = {}
@@ -219,6 +251,10 @@ def main(argv=None) -> int:
     raw = a.raw.open("w") if a.raw is not None else None
     if a.from_raw is not None:
         rows = [json.loads(line) for line in a.from_raw.read_text().splitlines() if line.strip()]
+        consts = {k: getattr(U, k) for k in RUN_CONSTANTS}
+        if consts != RUN_CONSTANTS:       # the module's constants now: the run's numbers rescaled
+            for r in rows:
+                r["unc"].update(rescaled(r, consts))
     for c in ([] if a.from_raw is not None else conditions(a.subjects, a.seed0)):
         try:
             rows.append(run_subject(c))
@@ -240,8 +276,9 @@ def main(argv=None) -> int:
             f"{a.subjects} subjects measured; {time.time() - start:.0f} s wall",
             f"- machine: {platform.machine()}, {os.cpu_count()} cores, Python "
             f"{platform.python_version()}, load {load[0]:.1f} (shared)",
-            "- method: `cardionurbs.analysis.uncertainty` (docs/metrics.md, Uncertainty); "
-            "truth: the phantoms' analytic truth.json", "",
+            "- method: `cardionurbs.analysis.uncertainty` (docs/metrics.md, Uncertainty), its "
+            "constants " + ", ".join(f"{k} = {getattr(U, k):g}" for k in RUN_CONSTANTS)
+            + "; truth: the phantoms' analytic truth.json", "",
             "## Coverage (truth inside the 95 % interval)", "", *coverage_table(rows), "",
             "## Half-width as the data improve", "", "Mean half-width (metric units) by slice spacing:",
             "", *shrink_table(rows, "spacing", "SA spacing (mm)"), "",

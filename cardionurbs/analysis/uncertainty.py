@@ -47,6 +47,8 @@ METHOD = ("analytic propagation: contour scatter, between-slice interpolation, b
 COVERED = ("LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVM (g)",
            "RVEDV (mL)", "RVESV (mL)", "RVSV (mL)", "RVEF (%)", "RVM (g)")
 Z95 = 1.959963984540054
+#: the contours term's factor over independent point noise (docs/metrics.md, Uncertainty)
+CONTOUR_FACTOR = 1.0
 #: fraction of the trapezoid error that a lofted (cubic) surface keeps between slices
 BETWEEN_FACTOR = 0.25
 #: cap volume per (end area × cap length): 1/2 for a paraboloid, 1/3 for a cone
@@ -190,7 +192,7 @@ def volume_error(model: "BiventricularModel", frame: int, structure: str) -> dic
     w[1:-1] = 0.5 * (gaps[:-1] + gaps[1:])
     w[0], w[-1] = 0.5 * gaps[0] + 0.5 * h, 0.5 * gaps[-1] + 0.5 * h
     var_area = t["sigma"] ** 2 * t["perimeter"] * np.maximum(t["ds"], 1e-3)
-    sd = {"contours": math.sqrt(float(np.sum(w * w * var_area))) / 1000.0}
+    sd = {"contours": CONTOUR_FACTOR * math.sqrt(float(np.sum(w * w * var_area))) / 1000.0}
     labels = bool(model.study.meta.get("voxel_volumes_ml")) if isinstance(model.study.meta, dict) \
         else False
     sd["pixels"] = (PIXEL_BIAS * _pixel_mm(model, frame) * float(np.sum(w * t["perimeter"])) / 1000.0
