@@ -8,7 +8,6 @@ import pytest
 
 from cardionurbs.analysis.function import COLUMNS
 from cardionurbs.cli import main
-from cardionurbs.analysis.uncertainty import INTERVAL_COLUMNS
 from cardionurbs.cohort import CSV_COLUMNS
 
 from cardionurbs.phantom import presets
@@ -35,7 +34,7 @@ def test_demo_exits_zero_and_writes_csvs(demo_run):
     assert code == 0
     measured = pd.read_csv(out / "cohort.csv")
     truth = pd.read_csv(out / "truth.csv")
-    assert list(measured.columns) == list(CSV_COLUMNS) + list(INTERVAL_COLUMNS)
+    assert list(measured.columns) == list(CSV_COLUMNS)
     assert list(measured["subject"]) == ["nrm01", "phtn01"] and (measured["status"] == "ok").all()
     assert list(truth.columns[2:]) == list(COLUMNS)
     assert (out / "nrm01" / "study.json").exists() and (out / "nrm01" / "truth.json").exists()
