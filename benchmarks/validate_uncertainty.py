@@ -72,6 +72,19 @@ def conditions(n: int, seed0: int = 100) -> list[dict]:
     return out
 
 
+def ladder(seed0: int = 300) -> list[dict]:
+    """The same two subjects (normal ideal, PHTN realistic) at contour noise 0, 0.5 and 1 px
+    (10 mm slices) and at 0.5 px with 5 mm slices, with long-axis views: does the interval
+    shrink as the data improve, everything else equal?"""
+    out = []
+    for k, (path, anat) in enumerate((("normal", "ideal"), ("phtn", "realistic"))):
+        for inp, noise in (("contours+LA", 0.0), ("contours+LA", 0.5), ("contours+LA", 1.0),
+                           ("contours+LA 5mm", 0.5)):
+            out.append({"seed": seed0 + k, "input": inp, "pathology": path, "anatomy": anat,
+                        "noise_px": noise, "breath_hold_mm": 0.0})
+    return out
+
+
 def _sa_only(study) -> None:
     """Drop the long-axis views: their contours, images and landmarks."""
     study.contours = [c for c in study.contours if c.view == "SA"]
@@ -243,6 +256,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--raw", type=Path, default=None,
                     help="also write every subject's numbers (JSON lines) here")
+    ap.add_argument("--ladder", action="store_true",
+                    help="the noise and spacing ladder of two subjects instead (see ladder())")
     ap.add_argument("--from-raw", type=Path, default=None,
                     help="make the report from a --raw file instead of measuring")
     a = ap.parse_args(argv)
@@ -255,7 +270,8 @@ def main(argv=None) -> int:
         if consts != RUN_CONSTANTS:       # the module's constants now: the run's numbers rescaled
             for r in rows:
                 r["unc"].update(rescaled(r, consts))
-    for c in ([] if a.from_raw is not None else conditions(a.subjects, a.seed0)):
+    todo = ladder() if a.ladder else conditions(a.subjects, a.seed0)
+    for c in ([] if a.from_raw is not None else todo):
         try:
             rows.append(run_subject(c))
         except Exception as e:          # a failing subject is reported, not hidden
@@ -272,20 +288,32 @@ def main(argv=None) -> int:
     cmd = "nice -n 10 python benchmarks/validate_uncertainty.py " + " ".join(argv or sys.argv[1:])
     load = os.getloadavg()
     text = ["# Validation: per-subject 95 % intervals on phantoms", "", "```", cmd, "```", "",
-            f"- date: {dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M UTC}; {len(rows)} of "
-            f"{a.subjects} subjects measured; {time.time() - start:.0f} s wall",
+            (f"- date: {dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M UTC}; {len(rows)} of "
+             f"{a.subjects} subjects measured; {time.time() - start:.0f} s wall"
+             if a.from_raw is None else
+             f"- {len(rows)} subjects, from {a.from_raw.name}, which `validate_uncertainty.py "
+             "--subjects 60 --seed0 200 --raw FILE` measured (the constants the module has now "
+             "applied to the run's numbers, see The constants)"),
             f"- machine: {platform.machine()}, {os.cpu_count()} cores, Python "
             f"{platform.python_version()}, load {load[0]:.1f} (shared)",
             "- method: `cardionurbs.analysis.uncertainty` (docs/metrics.md, Uncertainty), its "
             "constants " + ", ".join(f"{k} = {getattr(U, k):g}" for k in RUN_CONSTANTS)
             + "; truth: the phantoms' analytic truth.json", "",
             "## Coverage (truth inside the 95 % interval)", "", *coverage_table(rows), "",
-            "## Half-width as the data improve", "", "Mean half-width (metric units) by slice spacing:",
-            "", *shrink_table(rows, "spacing", "SA spacing (mm)"), "",
-            "by contour noise (hand-contour inputs only):", "",
-            *shrink_table([r for r in rows if not r["input"].startswith("labels")], "noise_px",
+            "## Half-width as the data improve", "",
+            "Mean half-width (metric units) by input (denser slices: `contours+LA` 10 -> 5 mm, "
+            "`labels acdc` 10 -> 5 mm; long-axis views: `contours SA-only` -> `contours+LA`, "
+            "`labels acdc 10mm` -> `labels ukbb 10mm`):", "",
+            *shrink_table(rows, "input", "input"), "",
+            "by contour noise, hand contours with long-axis views (10 and 5 mm):", "",
+            *shrink_table([r for r in rows if r["input"].startswith("contours+LA")], "noise_px",
                           "noise (px)"), "",
-            "by input:", "", *shrink_table(rows, "input", "input"), "",
+            "by contour noise, hand contours without long-axis views:", "",
+            *shrink_table([r for r in rows if r["input"] == "contours SA-only"], "noise_px",
+                          "noise (px)"), "",
+            "by SA slice spacing, label maps (acdc layout):", "",
+            *shrink_table([r for r in rows if r["input"].startswith("labels acdc")], "spacing",
+                          "SA spacing (mm)"), "",
             "## The constants", "", "Coverage (%) with each setting of the module's constants "
             "(every setting computed on every subject from the same reconstruction):", "",
             *variant_table(rows), "",
