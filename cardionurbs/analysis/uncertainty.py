@@ -10,7 +10,7 @@ sections, contour points and frames:
   of their second differences along the contour, which a tolerance fit does not absorb)
   gives an area variance σ² · P · ds (P the perimeter, ds the point spacing: the area is
   the integral of the normal error, whose independent parts are ds apart), times the
-  slab thickness squared;
+  slab thickness squared, times :data:`CONTOUR_FACTOR`;
 * **between** -- the unobserved space between slices: the trapezoid error of each gap,
   h · |Δ²A| / 12 (A the section areas, h the spacing), scaled by :data:`BETWEEN_FACTOR`
   (the lofted surface follows the area curve's curvature, not a straight line);
@@ -19,6 +19,10 @@ sections, contour points and frames:
   map) lies anywhere within about one slice spacing, uniformly: σ = A_end · h / √12
   (apex: times :data:`CAP_SHAPE`, a tapering cap); with landmarks or long-axis
   contours the end is observed, σ from their scatter about the surface;
+* **rv shape** -- an RV cavity no landmark or long-axis contour closes (label maps, SA-only
+  contours): :data:`RV_SHAPE_REL` of its volume (a model-error term set on the phantoms);
+* **one-sided allowances** -- an end the stack leaves open beyond one slice gap, an outflow
+  tract the model did not build, an epicardial cap beyond a rule-placed apex;
 * **ES sampling** -- on a sampled cycle whose ES (ED) frame is the volume minimum
   (maximum), the true extreme lies within half a frame interval: one-sided, up to
   |Δ²V| / 8 (the parabola through the three frames), added to the lower end of ESV.
@@ -47,6 +51,9 @@ METHOD = ("analytic propagation: contour scatter, between-slice interpolation, b
 COVERED = ("LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVM (g)",
            "RVEDV (mL)", "RVESV (mL)", "RVSV (mL)", "RVEF (%)", "RVM (g)")
 Z95 = 1.959963984540054
+#: relative SD of an RV cavity that no landmark or long-axis contour closes (label maps,
+#: SA-only contours)
+RV_SHAPE_REL = 0.0
 #: the contours term's factor over independent point noise (docs/metrics.md, Uncertainty)
 CONTOUR_FACTOR = 1.0
 #: fraction of the trapezoid error that a lofted (cubic) surface keeps between slices
@@ -250,6 +257,8 @@ def solid_error(model: "BiventricularModel", frame: int, solid: str) -> VolumeEr
     shared = {"pixels"} | ({"base"} if frame in getattr(model, "base_shift_mm", {}) else set())
     if inner is None:
         sd, above = _split(a)
+        if solid == "rv_cavity":
+            sd["rv shape"] = _rv_shape(model, frame)
         return VolumeError(sd, frozenset(shared), above + _outflow_allowance(model, frame, solid),
                            0.0)
     b = volume_error(model, frame, inner)
@@ -264,6 +273,17 @@ def solid_error(model: "BiventricularModel", frame: int, solid: str) -> VolumeEr
                        a["open base"] * frac + a["open apex"] + _epicardial_cap(model, frame, outer,
                                                                                 inner),
                        b["open apex"])
+
+
+def _rv_shape(model: "BiventricularModel", frame: int) -> float:
+    """SD (mL) of the RV cavity's shape where no valve landmark or long-axis contour closes
+    it (a label map, or the half-slice rule): :data:`RV_SHAPE_REL` of its volume. The SA
+    stack cuts the RV's basal third and outflow region obliquely, and what lies between
+    those sections is the loft's guess (docs/metrics.md, Uncertainty: set on the phantoms)."""
+    labels = isinstance(model.study.meta, dict) and bool(model.study.meta.get("voxel_volumes_ml"))
+    if not (labels or "rv" in model.geometry[frame].base_from_slices):
+        return 0.0
+    return RV_SHAPE_REL * float(model.volumes[frame].get("rv_cavity", 0.0))
 
 
 def _outflow_allowance(model: "BiventricularModel", frame: int, solid: str) -> float:
