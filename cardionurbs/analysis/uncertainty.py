@@ -53,19 +53,19 @@ COVERED = ("LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVM (g)",
 Z95 = 1.959963984540054
 #: relative SD of an RV cavity that no landmark or long-axis contour closes (label maps,
 #: SA-only contours)
-RV_SHAPE_REL = 0.0
+RV_SHAPE_REL = 0.03
 #: the contours term's factor over independent point noise (docs/metrics.md, Uncertainty)
-CONTOUR_FACTOR = 1.0
+CONTOUR_FACTOR = 1.5
 #: fraction of the trapezoid error that a lofted (cubic) surface keeps between slices
-BETWEEN_FACTOR = 0.25
+BETWEEN_FACTOR = 1.0
 #: cap volume per (end area × cap length): 1/2 for a paraboloid, 1/3 for a cone
 CAP_SHAPE = 0.5
 #: how far (mm) at least an end the stack leaves open may reach beyond its end section
 OPEN_SLAB_MM = 10.0
 #: systematic boundary placement of a label map's contours, in pixels (1 SD)
-PIXEL_BIAS = 0.1
+PIXEL_BIAS = 0.2
 #: share of the basal LV section that continues into an unseen outflow tract
-OUTFLOW_SHARE = 1.0
+OUTFLOW_SHARE = 0.0
 SQRT12 = math.sqrt(12.0)
 NAN = float("nan")
 
