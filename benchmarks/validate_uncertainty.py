@@ -271,23 +271,6 @@ def coverage_table(rows: list[dict]) -> list[str]:
     return out
 
 
-def variant_table(rows: list[dict]) -> list[str]:
-    """Coverage (%) of every :data:`VARIANTS` setting on these subjects: how the constants
-    were chosen (in the open)."""
-    out = ["| constants | " + " | ".join(DONE_WHEN) + " | all six in 90-98 % |",
-           "|---" * (len(DONE_WHEN) + 2) + "|"]
-    for name in VARIANTS:
-        cells, ok = [], True
-        for col in DONE_WHEN:
-            got = [(r["variants"][name][col], r["truth"][col]) for r in rows
-                   if r["variants"][name].get(col) is not None and r["truth"].get(col) is not None]
-            cov = 100.0 * sum(iv[0] <= t <= iv[1] for iv, t in got) / max(len(got), 1)
-            ok &= 90 <= cov <= 98
-            cells.append(f"{cov:.0f}")
-        out.append(f"| {name} | " + " | ".join(cells) + f" | {'yes' if ok else 'no'} |")
-    return out
-
-
 def shrink_table(rows: list[dict], key: str, label: str) -> list[str]:
     vals = sorted({r[key] for r in rows}, key=str)
     out = [f"| {label} | subjects | " + " | ".join(f"{c} half-width" for c in DONE_WHEN) + " |",
