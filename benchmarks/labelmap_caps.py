@@ -1,6 +1,14 @@
 """Where an SA-only label-map volume error comes from: basal cap, sectioned middle, apical cap.
 
     python benchmarks/labelmap_caps.py normal:0:208 phtn:0:208 [mr:1:168:ukbb ...]
+    python benchmarks/labelmap_caps.py --slabs ../shared/data/acdc/patient075 [...]
+
+``--slabs STUDY``: a label-map study (an ACDC patient as distributed, a phantom's labelmaps
+folder) read and reconstructed; at ED and ES, per labelled slice (base first), the label
+area times the slice spacing (the slab voxel counting gives the slice) beside the model's
+volume between the planes half-way to the neighbouring slices (the end slabs reach half a
+spacing beyond the end slices), for the LV cavity, LV myocardium and RV cavity, and what
+the model holds beyond the end slabs. Shows where a model/voxel-count difference sits.
 
 Each argument is pathology:seed:matrix[:layout] (layout acdc by default). The phantom is
 written as label maps, read back and reconstructed; at ED and ES each cavity (and the LV
@@ -84,7 +92,78 @@ def run(path, seed, matrix, layout="acdc"):
     for r in res:
         print(f"{r[0]} {r[1]:14s} {r[2]:7.1f} {r[3]:+6.2f} | {r[4]:5.1f} {r[5]:5.1f} | {r[6]:7.1f} {r[7]:7.1f} | {r[8]:5.2f} {r[9]:5.2f} | {r[10]:5.1f} {r[11]:5.1f} | {r[12]:5.1f} {r[13]:5.1f} | {r[14]}")
 
+def slab_rows(model, frame, vox_areas, spacing):
+    """Per slice (base first): (slice, {key: (label mL, model mL)}), and the model's mL
+    beyond the end slabs ({key: (basal, apical)})."""
+    geo = model.geometry[frame]
+    n = geo.direction
+    sol = model.solids(frame)
+    ims = sorted({im.slice: im for im in model.study.images if im.view == "SA"}.values(),
+                 key=lambda im: float(im.position @ n))
+    lev = np.array([float(im.position @ n) for im in ims])
+    edges = np.r_[lev[0] - spacing / 2, (lev[1:] + lev[:-1]) / 2, lev[-1] + spacing / 2]
+    rows, ends = [], {}
+    for key, m in sol.items():
+        if key not in ("lv_cavity", "lv_myocardium", "rv_cavity"):
+            continue
+        above = [m.trim_by_plane(list(n), float(e)).volume() / 1000 for e in edges]  # apical of e
+        tot = m.volume() / 1000
+        ends[key] = (tot - above[0], above[-1])
+        for i, im in enumerate(ims):
+            if len(rows) <= i:
+                rows.append((im.slice, {}))
+            rows[i][1][key] = (vox_areas.get(im.slice, {}).get(key, 0.0) * spacing / 1000,
+                               above[i] - above[i + 1])
+    return rows, ends
+
+
+def slabs(folder):
+    """Print the per-slice table of ``--slabs`` (see the module docstring)."""
+    st = load_study(folder)
+    model = reconstruct(st)
+    print(f"== {folder}  orientation: {st.meta.get('sa_orientation')}")
+    for lab, fr in (("ED", model.ed_frame), ("ES", model.es_frame)):
+        areas = label_areas(st, fr)
+        sp = model.geometry[fr].thickness
+        rows, ends = slab_rows(model, fr, areas, sp)
+        print(f"{lab} frame {fr}, spacing {sp:.1f} mm, ES base shift "
+              f"{model.base_shift_mm.get(fr, 0.0):+.2f} mm    label mL / model mL")
+        print(f"{'slice':8s}" + "".join(f"{k:>20s}" for k in ("lv_cavity", "lv_myocardium", "rv_cavity")))
+        for sl, d in rows:
+            print(f"{sl:8s}" + "".join(f"{d[k][0]:9.1f} /{d[k][1]:7.1f}  " if k in d else f"{'':20s}"
+                                       for k in ("lv_cavity", "lv_myocardium", "rv_cavity")))
+        tot = {k: (sum(d[k][0] for _, d in rows if k in d), sum(d[k][1] for _, d in rows if k in d))
+               for k in ends}
+        print(f"{'beyond':8s}" + "".join(f"{ends[k][0]:8.1f}b {ends[k][1]:6.1f}a   " for k in ends))
+        print(f"{'total':8s}" + "".join(f"{tot[k][0]:9.1f} /{tot[k][1] + sum(ends[k]):7.1f}  " for k in ends))
+
+
+def label_areas(study, frame):
+    """mm² per SA slice and structure of the ACDC-layout label map of ``frame`` (the file
+    ``*_frameMM_gt``, MM = frame + 1), matched to the study's slices by position."""
+    from cardionurbs.io.nifti import read_label_volume
+    from cardionurbs.io.labels import PRESETS
+    f = next(Path(study.source).glob(f"*_frame{frame + 1:02d}_gt.nii*"))
+    vol = read_label_volume(f)
+    a, r = vol.affine, PRESETS["acdc"]
+    px = float(np.linalg.norm(a[:3, 0]) * np.linalg.norm(a[:3, 1]))
+    centres = np.array([a[:3, 3] + k * a[:3, 2] for k in range(vol.data.shape[2])])
+    out = {}
+    for im in study.images:
+        if im.view == "SA" and im.frame == frame:
+            k = int(np.argmin(np.linalg.norm(centres - im.position, axis=1)))
+            d = vol.data[:, :, k, 0]
+            out[im.slice] = {"lv_cavity": (d == r.lv).sum() * px,
+                             "lv_myocardium": (d == r.myo).sum() * px,
+                             "rv_cavity": (d == r.rv).sum() * px}
+    return out
+
+
 if __name__ == "__main__":
+    if sys.argv[1:2] == ["--slabs"]:
+        for a in sys.argv[2:]:
+            slabs(a)
+        sys.exit(0)
     for a in sys.argv[1:]:
         p, s, mtx, *lay = a.split(":")
         run(p, int(s), int(mtx), *(lay or ["acdc"]))

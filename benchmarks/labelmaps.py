@@ -2,6 +2,16 @@
 
     python benchmarks/labelmaps.py validation   # -> reports/validation-labelmaps.md
     python benchmarks/labelmaps.py benchmark    # -> reports/benchmark-nifti.md
+    python benchmarks/labelmaps.py realconv     # ACDC-as-distributed phantoms, printed
+    python benchmarks/labelmaps.py acdc         # ../shared/data/acdc per patient, printed
+
+realconv: phantoms (normal, MR, PHTN; seeds 0-1; 10 and 5 mm SA slices, the first 0.6 spacing
+below the ED base) written in the ACDC
+layout and then rewritten as ACDC distributes its files (base first, a unit-scale RAS sform
+of code 2 with the spacing in pixdim only, no qform, no units), read back and measured against
+the analytic truth, voxel counting beside. acdc: every patient of ../shared/data/acdc against
+voxel counting (pixdim spacing), as tools/realcheck.py does, with the orientation rule and
+the ES valve-plane decision of each.
 
 validation: phantoms (normal, MR, PHTN; 10 mm SA slices; pixels 1.44 and 1.79 mm) written
 as label maps (ukbb layout: SA + 2/3/4-chamber LA maps; acdc layout: SA only), read back,
@@ -233,8 +243,24 @@ def validation(out: Path) -> None:
     lines += [NOTE_SA_ONLY, ""]
     lines += ["RV mass is not measured from label maps (no RV wall label); metrics.json says so "
               "under `notes`.", ""]
-    out.write_text("\n".join(lines) + "\n")
+    out.write_text("\n".join(lines + kept_sections(out)) + "\n")
     print(f"wrote {out}", file=sys.stderr)
+
+
+#: sections of the report written from other commands (realconv, acdc), which
+#: ``validation`` keeps when it rewrites the file
+KEEP_BEGIN, KEEP_END = "<!-- kept: begin -->", "<!-- kept: end -->"
+
+
+def kept_sections(path: Path) -> list[str]:
+    """The lines between KEEP_BEGIN and KEEP_END of an existing report (markers included)."""
+    if not path.exists():
+        return []
+    text = path.read_text()
+    if KEEP_BEGIN not in text or KEEP_END not in text:
+        return []
+    a, b = text.index(KEEP_BEGIN), text.index(KEEP_END) + len(KEEP_END)
+    return ["", *text[a:b].splitlines()]
 
 
 def benchmark(out: Path, reps: int = 3) -> None:
@@ -310,6 +336,113 @@ def benchmark(out: Path, reps: int = 3) -> None:
     print(f"wrote {out}", file=sys.stderr)
 
 
+def as_distributed_acdc(folder: Path) -> None:
+    """Rewrite the ``*_gt`` maps of an ACDC-layout folder as ACDC distributes them: slices
+    base first, sform diag(-1, -1, 1) of code 2 (unit scale, no orientation), qform code 0,
+    the spacing in pixdim only, xyzt_units 0. The phantom writer puts the apex first."""
+    import nibabel as nib
+    for f in sorted(folder.glob("*_gt.nii.gz")):
+        img = nib.load(str(f))
+        zooms = img.header.get_zooms()[:3]
+        data = np.asanyarray(img.dataobj)[:, :, ::-1]
+        unit = np.diag([-1.0, -1.0, 1.0, 1.0])
+        out = nib.Nifti1Image(data, unit)
+        out.set_sform(unit, code=2)
+        out.set_qform(None, code=0)
+        out.header["pixdim"][1:4] = zooms
+        out.header["xyzt_units"] = 0
+        nib.save(out, str(f))
+
+
+REAL_SUBJECTS = [(p, s) for p in ("normal", "mr", "phtn") for s in (0, 1)]
+REAL_KEYS = (*VOLS, "LVM (g)", "LVEF (%)", "RVEF (%)")
+SPACINGS = tuple(float(x) for x in os.environ.get("REALCONV_SPACINGS", "10,5").split(","))
+
+
+def _generate_first_offset(offset_mm: float, **kw):
+    """generate() with the first SA slice ``offset_mm`` below the ED base (the phantom's
+    Acquisition default is 6 mm: wider than a 5 mm stack's spacing, a slice a real
+    acquisition would have is then missing)."""
+    import functools
+    gen_mod = sys.modules[generate.__module__]
+    acq = gen_mod.Acquisition
+    gen_mod.Acquisition = functools.partial(acq, sa_first_offset_mm=offset_mm)
+    try:
+        return generate(**kw)
+    finally:
+        gen_mod.Acquisition = acq
+
+
+def realconv_subject(pathology: str, seed: int, spacing: float, work: Path) -> dict:
+    ph = _generate_first_offset(min(6.0, 0.6 * spacing), pathology=pathology, seed=seed,
+                                frames=20, matrix=208, fov_mm=FOV_MM, volume_check=False,
+                                sa_spacing_mm=spacing, sa_thickness_mm=min(8.0, spacing))
+    folder = work / f"{pathology}{seed}_{spacing:g}"
+    write_labelmaps(ph, folder, "acdc", frames=[0, ph.es_frame], images=False)
+    as_distributed_acdc(folder)
+    study = load_study(folder)
+    model, m = analyse_study(study)
+    t = ph.truth["metrics"]
+    row = {"subject": f"{pathology} seed {seed}", "spacing": spacing,
+           "orientation": study.meta.get("sa_orientation", "").split(" (")[0],
+           "shift": model.base_shift_mm.get(model.es_frame, float("nan"))}
+    for k in REAL_KEYS:
+        vk = k.replace(" (", " voxel (")
+        row[k], row[vk] = metric_error(k, m[k], t[k]), metric_error(k, m[vk], t[k])
+    return row
+
+
+def realconv() -> None:
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for sp in SPACINGS:
+            for p, s in REAL_SUBJECTS:
+                rows.append(realconv_subject(p, s, sp, Path(tmp)))
+                print(rows[-1]["subject"], sp, file=sys.stderr)
+    print("| subject | slices (mm) | orientation | ES shift (mm) | "
+          + " | ".join(f"{k} model / voxel" for k in REAL_KEYS) + " |")
+    print("|---|---|---|---|" + "---|" * len(REAL_KEYS))
+    for r in rows:
+        print(f"| {r['subject']} | {r['spacing']:g} | {r['orientation']} | {r['shift']:+.2f} | "
+              + " | ".join(f"{r[k]:+.2f} / {r[k.replace(' (', ' voxel (')]:+.2f}" for k in REAL_KEYS)
+              + " |")
+    print("\n| slices (mm) | metric | model mean abs (max abs) | voxel mean abs (max abs) | "
+          "model closer on |")
+    print("|---|---|---|---|---|")
+    for sp in SPACINGS:
+        sub = [r for r in rows if r["spacing"] == sp]
+        for k in REAL_KEYS:
+            a = np.abs([r[k] for r in sub])
+            v = np.abs([r[k.replace(" (", " voxel (")] for r in sub])
+            print(f"| {sp:g} | {k} | {a.mean():.2f} ({a.max():.2f}) | {v.mean():.2f} ({v.max():.2f}) "
+                  f"| {int((a <= v).sum())} of {len(sub)} |")
+
+
+def acdc(root: Path = ROOT.parent / "shared" / "data" / "acdc") -> None:
+    keys = ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "RVESV (mL)", "LVM (g)", "LVEF (%)", "RVEF (%)")
+    print("| patient | group | orientation | ES valve plane | " + " | ".join(
+        f"{k.split(' ')[0]} model / voxel (diff)" for k in keys) + " |")
+    print("|---|---|---|---|" + "---|" * len(keys))
+    diffs = {k: [] for k in keys}
+    for d in sorted(root.glob("patient*")):
+        cfg = dict(line.strip().split(": ") for line in open(d / "Info.cfg") if ": " in line)
+        study = load_study(d)
+        model, m = analyse_study(study)
+        es = model.es_frame
+        kept = any("not moved to conserve" in w for w in model.warnings)
+        plane = "labels' slab" if kept else f"conserving, {model.base_shift_mm.get(es, 0.0):+.1f} mm"
+        cells = []
+        for k in keys:
+            v = m[k.replace(" (", " voxel (")]
+            e = metric_error(k, m[k], v)
+            diffs[k].append(abs(e))
+            cells.append(f"{m[k]:.1f} / {v:.1f} ({e:+.1f})")
+        print(f"| {d.name[-3:]} | {cfg.get('Group', '')} | "
+              f"{study.meta.get('sa_orientation', '').split(' (')[0]} | {plane} | " + " | ".join(cells) + " |")
+    print("| **median abs** | | | | " + " | ".join(f"{np.median(diffs[k]):.1f}" for k in keys) + " |")
+    print("| **max abs** | | | | " + " | ".join(f"{np.max(diffs[k]):.1f}" for k in keys) + " |")
+
+
 def study_roles():
     from cardionurbs.io.labels import PRESETS
     return PRESETS["ukbb"]
@@ -317,10 +450,12 @@ def study_roles():
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("what", choices=["validation", "benchmark"])
+    ap.add_argument("what", choices=["validation", "benchmark", "realconv", "acdc"])
     args = ap.parse_args()
     reports = ROOT / "reports"
-    if args.what == "validation":
+    if args.what in ("realconv", "acdc"):
+        (realconv if args.what == "realconv" else acdc)()
+    elif args.what == "validation":
         validation(reports / "validation-labelmaps.md")
     else:
         benchmark(reports / "benchmark-nifti.md")

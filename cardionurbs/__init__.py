@@ -9,6 +9,33 @@ Public API (README.md, "Python API")::
     m = cn.measure(model)                # docs/metrics.md column -> float
     table = cn.cohort(paths)             # pandas.DataFrame
     tracked = cn.track_tags(study)       # tag lines tracked from the tagged DICOM (HARP)
+
+``load_study(path)`` (:func:`cardionurbs.io.load_study`) reads a study folder or file
+into a :class:`Study` in scanner mm; ``reconstruct(study)``
+(:func:`cardionurbs.anatomy.model.reconstruct`) gives the ``BiventricularModel``;
+``measure(model)`` (:func:`cardionurbs.analysis.function.measure`) the metrics of
+docs/metrics.md, a dict column -> float (mL, g, %, ms; NaN where the study cannot give one).
+
+Examples
+--------
+A phantom heart whose volumes are known in closed form, written as a study folder, read,
+reconstructed and measured (the LV end-diastolic volume within 1 % of the truth):
+
+>>> import pathlib, tempfile
+>>> import cardionurbs as cn
+>>> from cardionurbs.phantom import generate, write_phantom
+>>> phantom = generate("normal", seed=1, frames=2, volume_check=False)
+>>> tmp = tempfile.TemporaryDirectory()
+>>> folder = write_phantom(phantom, pathlib.Path(tmp.name) / "normal_001", dicom=False)
+>>> study = cn.load_study(folder)
+>>> study.subject, sorted(study.frames)
+('normal_001', [0, 1])
+>>> model = cn.reconstruct(study)
+>>> m = cn.measure(model)
+>>> truth = phantom.truth["metrics"]["LVEDV (mL)"]
+>>> bool(abs(m["LVEDV (mL)"] - truth) < 0.01 * truth)
+True
+>>> tmp.cleanup()
 """
 
 from __future__ import annotations

@@ -38,26 +38,6 @@ def _excerpt(text: object, n: int = 40) -> str:
     return excerpt(text, n)
 
 
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
-    return v
-
-
-def _nonneg_float(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (v >= 0 and v < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
-    return v
-
-
 def _positive_float(text: str) -> float:
     try:
         v = float(text)
@@ -139,11 +119,14 @@ def _bounded(kind, lo, hi, unit=""):
 
 
 class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
-    """Help with every option's default (argparse's ArgumentDefaultsHelpFormatter), except
-    for required options and options without a default (None), where it says nothing."""
+    """Help with every option's default (argparse's ArgumentDefaultsHelpFormatter), said
+    once: nothing is added for required options, options without a default (None), on/off
+    flags (``store_true``: off unless given) and help that states its default itself."""
 
     def _get_help_string(self, action):
-        if action.required or action.default is None or action.help is None:
+        flag = isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction))
+        if action.required or action.default is None or action.help is None or flag \
+                or "default" in action.help:
             return action.help
         return super()._get_help_string(action)
 
@@ -206,9 +189,19 @@ def build_parser() -> argparse.ArgumentParser:
                     help="with --n: generate on Dask (a LocalCluster, or an existing scheduler)")
     ph.add_argument("--resume", action="store_true",
                     help="with --n: keep the subjects an earlier run of the same --out finished")
-    ph.add_argument("--labels", choices=["acdc", "ukbb", "mnms"], default=None,
+    ph.add_argument("--labels", choices=["acdc", "ukbb", "mnms", "mnms2"], default=None,
                     help="also write NIfTI label maps (and a cine-like image) in this "
                          "convention and layout, in DIR/labelmaps")
+    ph.add_argument("--label-quirks", default=None, metavar="LIST",
+                    help="with --labels: header quirks, comma-separated: real (the dataset's "
+                         "own header: ACDC unit-scale sform + pixdim spacing, base first; UK "
+                         "Biobank frame interval in s with unknown unit), lps (in-plane axes "
+                         "stored reversed), apex-first, base-first, pv (partial-volume labels); "
+                         "docs/formats.md")
+    ph.add_argument("--sa-spacing", type=_bounded(float, 1.0, 30.0), default=None, metavar="MM",
+                    help="distance between SA slices (default 10 mm)")
+    ph.add_argument("--sa-thickness", type=_bounded(float, 1.0, 30.0), default=None, metavar="MM",
+                    help="SA slice thickness (default 8 mm; less than --sa-spacing leaves gaps)")
     ph.add_argument("--out", required=True, metavar="DIR",
                     help="new (or empty) output folder")
     ph.add_argument("--overwrite", action="store_true",
@@ -238,6 +231,17 @@ def build_parser() -> argparse.ArgumentParser:
     _output_safety_options(an)
     an.add_argument("--track-tags", action="store_true",
                     help="track the tag lines from the study's tagged DICOM (HARP) first")
+    an.add_argument("--height-cm", type=_bounded(float, 30.0, 250.0, " cm"), default=None,
+                    metavar="H", help="body height (cm) for BSA and the indexed columns "
+                                      "(replaces the study's)")
+    an.add_argument("--weight-kg", type=_bounded(float, 1.0, 400.0, " kg"), default=None,
+                    metavar="W", help="body weight (kg; replaces the study's)")
+    an.add_argument("--age", type=_bounded(float, 0.0, 120.0, " years"), default=None,
+                    metavar="YEARS", help="age for the reference ranges (replaces the study's)")
+    an.add_argument("--sex", choices=["F", "M"], default=None,
+                    help="sex for the reference ranges (replaces the study's)")
+    an.add_argument("--verbose", action="store_true",
+                    help="print every warning on stderr, not only the count and the first few")
     _uncertainty_option(an)
 
     tr = command("track", "track tag lines from a study's tagged DICOM images (HARP)")

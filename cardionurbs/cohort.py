@@ -31,15 +31,24 @@ from typing import Iterable
 
 import pandas as pd
 
+from cardionurbs.analysis.body import BODY_COLUMNS, INDEXED_COLUMNS
 from cardionurbs.analysis.function import COLUMNS, NAN
 from cardionurbs.analysis.quality import QC_COLUMNS
 from cardionurbs.analysis.uncertainty import (INTERVAL_COLUMNS, halfwidth_flags, interval_columns,
                                               intervals)
+from cardionurbs.analysis.ranges import load_ranges
 from cardionurbs.io import atomic
 
+#: the ``<column> range`` cells (below / normal / above) of the metrics with a reference range
+RANGE_COLUMNS = tuple(f"{c} range" for c in dict.fromkeys(r["column"] for r in load_ranges()["rows"]))
 #: subject, status, the metrics, then their evidence (fit residuals per surface, contours
-#: left out) and ``QC``, what failed (cardionurbs.analysis.quality)
-CSV_COLUMNS = ("subject", "status") + COLUMNS + QC_COLUMNS
+#: left out) and ``QC``, what failed (cardionurbs.analysis.quality); body size and the
+#: indexed metrics, the reference-range flags, and the number of warnings with a readable
+#: ``notes`` cell (why columns are null, the first warnings)
+BODY_CSV_COLUMNS = BODY_COLUMNS + ("Sex",) + INDEXED_COLUMNS
+CSV_COLUMNS = (("subject", "status") + COLUMNS + QC_COLUMNS + BODY_CSV_COLUMNS + RANGE_COLUMNS
+               + ("warnings", "notes"))
+_NUMBERS = COLUMNS + BODY_CSV_COLUMNS + QC_COLUMNS + RANGE_COLUMNS
 
 
 def _one_line(exc: BaseException) -> str:
@@ -90,8 +99,8 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
     ``strict``: a row whose metrics carry a quality flag (``QC`` not empty) is a
     failure: ``status = "error: QC: <flags>"`` and its numbers are emptied."""
     _test_fault(path)
-    row = {c: NAN for c in COLUMNS + QC_COLUMNS}
-    row["subject"] = Path(path).name
+    row = {c: NAN for c in _NUMBERS}
+    row["subject"], row["warnings"], row["notes"] = Path(path).name, NAN, ""
     try:
         from cardionurbs.io import load_study
         from cardionurbs.pipeline import analyse_study
@@ -104,13 +113,15 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
         row.update(assess(model, metrics).row())
         if uncertainty or max_halfwidth:
             row.update(measure_intervals(model, metrics, row, uncertainty, max_halfwidth))
+        row.update(_clinical_cells(model, metrics))
         row["status"] = "ok"
         if strict and row["QC"]:
             row.update({c: NAN for c in COLUMNS + INTERVAL_COLUMNS if c in row})
             row["status"] = f"error: QC: {row['QC']}"
     except Exception as exc:  # noqa: BLE001 - recorded in the row, the run goes on
         kind = "" if isinstance(exc, ValueError) else f"{type(exc).__name__}: "
-        row.update({c: NAN for c in COLUMNS + QC_COLUMNS})
+        row.update({c: NAN for c in _NUMBERS + INTERVAL_COLUMNS if c in _NUMBERS or c in row})
+        row["warnings"], row["notes"] = NAN, ""
         row["status"] = f"error: {kind}{_one_line(exc)}"
     return row
 
@@ -123,11 +134,22 @@ def measure_intervals(model, metrics: dict, row: dict, columns: bool,
     flags = halfwidth_flags(iv, max_halfwidth or {})
     qc = "; ".join([q for q in [row.get("QC") or ""] if q] + flags)
     return {**(interval_columns(iv) if columns else {}), "QC": qc}
+def _clinical_cells(model, metrics: dict) -> dict:
+    """Sex, the ``<column> range`` flags, the warning count and the ``notes`` cell of a row."""
+    from cardionurbs.analysis.notes import notes_of, notes_text
+    from cardionurbs.analysis.ranges import range_columns, range_flags
+    from cardionurbs.pipeline import analysis_warnings, body_json
+    body = body_json(model.study)
+    warnings = analysis_warnings(model, metrics)
+    return {"Sex": body.get("sex") or NAN,
+            **range_columns(range_flags(metrics, body.get("sex"), body.get("age_y"))),
+            "warnings": len(warnings), "notes": notes_text(notes_of(metrics), warnings)}
 
 
 def failure_row(path: str, reason: str) -> dict:
     """The row of a study that gave no result (a hang, a dead worker): reason, empty numbers."""
-    row = {c: NAN for c in COLUMNS + QC_COLUMNS}
+    row = {c: NAN for c in _NUMBERS}
+    row["warnings"], row["notes"] = NAN, ""
     row["subject"] = Path(path).name
     row["status"] = f"error: {' '.join(str(reason).split())}"
     return row
@@ -260,8 +282,10 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
         if bar is not None:
             bar.close()
     from cardionurbs.analysis.voxels import VOXEL_COLUMNS
-    extra = [c for c in VOXEL_COLUMNS + INTERVAL_COLUMNS if any(c in r for r in rows if r)]
-    return pd.DataFrame(rows, columns=list(CSV_COLUMNS) + extra)
+    extra = [c for c in VOXEL_COLUMNS if any(c in r for r in rows if r)]
+    # the 95 % intervals (when measured) just before warnings and notes
+    iv = [c for c in INTERVAL_COLUMNS if any(c in r for r in rows if r)]
+    return pd.DataFrame(rows, columns=list(CSV_COLUMNS[:-2]) + iv + list(CSV_COLUMNS[-2:]) + extra)
 
 
 def write_csv(table: pd.DataFrame, path: str | os.PathLike) -> Path:

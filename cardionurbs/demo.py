@@ -4,7 +4,9 @@ Generates the subjects of ``paper12.toml`` (5 normal, 3 mitral
 regurgitation, 4 pulmonary hypertension; 20 phases each) into ``--out`` (or
 a temporary folder), reconstructs and measures every subject, writes the
 cohort CSV (``cohort.csv``, docs/metrics.md columns) beside ``truth.csv`` (the
-phantoms' analytic ground truth), and prints every metric beside its truth.
+phantoms' analytic ground truth) and ``comparison.csv`` (every metric beside its truth),
+and prints one summary table (subject, pathology, measured vs truth for LVEDV, LVEF,
+RVEF, LVM and twist; at most 40 lines in all) and where the files are.
 
 The studies are written in the native format without synthetic DICOM images
 (``cardionurbs phantom --cohort`` writes those too), to keep the demo fast.
@@ -49,6 +51,8 @@ def demo_subject(spec, out_dir: str) -> tuple[dict, dict]:
         row.update(metrics)
         from cardionurbs.analysis.quality import assess
         row.update(assess(model, metrics).row())
+        from cardionurbs.cohort import _clinical_cells
+        row.update(_clinical_cells(model, metrics))
         row["status"] = "ok"
     except Exception as exc:  # noqa: BLE001 - recorded in the row, the demo goes on
         row.update({c: NAN for c in COLUMNS})
@@ -76,28 +80,43 @@ def comparison_table(measured: pd.DataFrame, truth: pd.DataFrame) -> pd.DataFram
                                        "error_unit"])
 
 
-def format_comparison(comp: pd.DataFrame, measured: pd.DataFrame) -> str:
-    """The printed table: one block per subject, then the mean |error| per metric."""
-    lines = []
-    for subject, g in comp.groupby("subject", sort=False):
-        status = measured.loc[measured["subject"] == subject, "status"].iloc[0]
-        lines.append(f"{subject}  [{status}]")
-        lines.append(f"  {'metric':20s} {'model':>10s} {'truth':>10s} {'error':>10s}")
-        for _, r in g.iterrows():
-            err = "" if math.isnan(r["error"]) else (
-                f"{r['error']:+.2f} %" if r["error_unit"] == "%" else f"{r['error']:+.3f}")
-            meas = "" if math.isnan(r["measured"]) else f"{r['measured']:.3f}"
-            lines.append(f"  {r['metric']:20s} {meas:>10s} {r['truth']:>10.3f} {err:>10s}")
-    for _, r in measured[measured["status"] != "ok"].iterrows():
-        lines.append(f"{r['subject']}  [{r['status']}]")
-    lines.append("")
-    lines.append("mean |error| over subjects (relative % for volumes and masses, absolute otherwise)")
-    summary = comp.dropna(subset=["error"]).groupby("metric", sort=False).agg(
-        n=("error", "size"), mean_abs=("error", lambda e: float(e.abs().mean())),
-        max_abs=("error", lambda e: float(e.abs().max())), unit=("error_unit", "first"))
-    for metric, r in summary.iterrows():
-        u = " %" if r["unit"] == "%" else ""
-        lines.append(f"  {metric:20s} n={r['n']:2d}  mean {r['mean_abs']:.3f}{u}  max {r['max_abs']:.3f}{u}")
+#: the metrics of the printed summary table: (column, short name, format)
+SUMMARY = (("LVEDV (mL)", "LVEDV mL", "{:.0f}"), ("LVEF (%)", "LVEF %", "{:.1f}"),
+           ("RVEF (%)", "RVEF %", "{:.1f}"), ("LVM (g)", "LVM g", "{:.0f}"),
+           ("Twist (deg)", "twist °", "{:.1f}"))
+
+
+def _cell(fmt: str, value) -> str:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return "—"
+    return "—" if math.isnan(v) else fmt.format(v)
+
+
+def format_comparison(comp: pd.DataFrame, measured: pd.DataFrame,
+                      truth: pd.DataFrame | None = None) -> str:
+    """The printed summary: one line per subject (pathology, then measured / truth for
+    :data:`SUMMARY`), a failed subject with its status, and the mean |error| per metric.
+    Every metric is in comparison.csv."""
+    t = truth.set_index("subject") if truth is not None else None
+    head = f"{'subject':10s} {'pathology':9s} " + " ".join(f"{n:>13s}" for _, n, _ in SUMMARY)
+    lines = ["measured / truth", head]
+    for _, r in measured.iterrows():
+        s = r["subject"]
+        path = "" if t is None or s not in t.index else str(t.loc[s, "pathology"])
+        if r["status"] != "ok":
+            lines.append(f"{s:10s} {path:9s} {r['status'][:70]}")
+            continue
+        cells = [f"{_cell(f, r[c])}/{_cell(f, t.loc[s, c] if t is not None else None)}"
+                 for c, _, f in SUMMARY]
+        lines.append(f"{s:10s} {path:9s} " + " ".join(f"{x:>13s}" for x in cells))
+    err = comp.dropna(subset=["error"]).groupby("metric", sort=False)["error"]
+    mean_abs = err.apply(lambda e: float(e.abs().mean()))
+    units = comp.groupby("metric", sort=False)["error_unit"].first()
+    parts = [f"{n} {mean_abs[c]:.2f}{' %' if units[c] == '%' else ''}"
+             for c, n, _ in SUMMARY if c in mean_abs.index]
+    lines.append("mean |error|: " + ", ".join(parts) + " (relative % for volumes and mass)")
     return "\n".join(lines)
 
 
@@ -114,30 +133,36 @@ def run_demo(args: argparse.Namespace) -> int:
     if getattr(args, "out", None):
         out = check_output_dir(args.out, overwrite=getattr(args, "overwrite", False))
         with atomic_dir(out) as tmp:
-            _demo(args, tmp, shown=out, load=(data_path, load_cohort_spec))
+            written = _demo(args, tmp, shown=out, load=(data_path, load_cohort_spec))
+        print(f"wrote {out}: {written}")
         return 0
     tmp = Path(tempfile.mkdtemp(prefix="cardionurbs-demo-"))
     keep = bool(getattr(args, "keep", False))
     try:
-        _demo(args, tmp, shown=tmp, load=(data_path, load_cohort_spec))
+        written = _demo(args, tmp, shown=tmp, load=(data_path, load_cohort_spec))
     finally:
         if not keep:
             shutil.rmtree(tmp, ignore_errors=True)
-    print(f"kept {tmp}" if keep else f"removed the temporary folder {tmp} (--keep or --out "
-          "DIR keeps the output)", file=sys.stderr)
+    if keep:
+        print(f"kept {tmp}: {written}")
+    else:
+        print("the outputs were written to a temporary folder, now removed; "
+              "--out DIR (or --keep) keeps them")
     return 0
 
 
-def _demo(args: argparse.Namespace, out: Path, shown: Path, load) -> None:
-    """Generate, measure and compare the paper12 cohort into ``out`` (printed as ``shown``)."""
+def _demo(args: argparse.Namespace, out: Path, shown: Path, load) -> str:
+    """Generate, measure and compare the paper12 cohort into ``out``; returns what was
+    written (for the closing line, once the folder is in place)."""
     data_path, load_cohort_spec = load
     subjects = load_cohort_spec(data_path("paper12.toml"))
     jobs = max(1, int(getattr(args, "jobs", None) or os.cpu_count() or 1))
-    print(f"generating and analysing {len(subjects)} phantom subjects in {shown} "
+    print(f"generating and analysing {len(subjects)} phantom subjects "
           f"({jobs} job{'s' if jobs > 1 else ''})", file=sys.stderr)
     from tqdm import tqdm
     results: list = [None] * len(subjects)
-    with tqdm(total=len(subjects), desc="subjects", unit="subject", file=sys.stderr) as bar:
+    with tqdm(total=len(subjects), desc="subjects", unit="subject", file=sys.stderr,
+              disable=not sys.stderr.isatty()) as bar:
         if jobs == 1:
             for i, s in enumerate(subjects):
                 results[i] = demo_subject(s, str(out))
@@ -156,13 +181,13 @@ def _demo(args: argparse.Namespace, out: Path, shown: Path, load) -> None:
     write_csv(truth, out / "truth.csv")
     comp = comparison_table(measured, truth)
     write_csv(comp, out / "comparison.csv")
-    print(format_comparison(comp, measured))
+    print(format_comparison(comp, measured, truth))
     from cardionurbs.report.cohort_figures import write_cohort_figures
     figs = write_cohort_figures(measured, out / "figures", truth=truth)
     for name, why in figs.skipped.items():
         print(f"figure {name} left out: {why}", file=sys.stderr)
     ok = int((measured["status"] == "ok").sum())
-    print(f"\n{ok} of {len(measured)} subjects measured; wrote {shown / 'cohort.csv'}, "
-          f"{shown / 'truth.csv'}, {shown / 'comparison.csv'} and {len(figs.figures)} cohort "
-          f"figures in {shown / 'figures'} (distributions by group, measured vs truth, "
-          "Bland-Altman)")
+    print(f"{ok} of {len(measured)} subjects measured")
+    return (f"cohort.csv, truth.csv, comparison.csv (every metric beside its truth), the "
+            f"{len(subjects)} studies and {len(figs.figures)} cohort figures in figures/ "
+            "(distributions by group, measured vs truth, Bland-Altman)")

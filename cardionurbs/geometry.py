@@ -245,7 +245,7 @@ def long_axis(apex_landmarks: np.ndarray | None = None, mitral_landmarks: np.nda
         base = np.asarray(valve_origin, float).reshape(3)
     if (apex is None or base is None) and given(sa_centroids) and stack_direction is not None \
             and len(np.asarray(sa_centroids).reshape(-1, 3)) >= 2:
-        line_apex, line_base = centroid_line_axis(sa_centroids, stack_direction)
+        line_apex, line_base = centroid_line_axis(np.asarray(sa_centroids, float), stack_direction)
         apex = line_apex if apex is None else apex
         base = line_base if base is None else base
     if apex is None or base is None:

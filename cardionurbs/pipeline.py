@@ -13,8 +13,8 @@ Output folder (written atomically: complete or absent)::
     DIR/residuals.csv       contour-point-to-surface distances per slice, at ED and ES
     DIR/meshes/frame_NN_<mesh>.ply   closed meshes per frame and structure (binary PLY,
                                      the manifold3d result with float32 vertices)
-    DIR/figures/...         PNG figures + figures.json (cardionurbs.report.figures, via
-                            :func:`figures_hook`; skipped with --no-figures)
+    DIR/figures/...         PNG figures + figures.json (cardionurbs.report.figures.write_figures;
+                            skipped with --no-figures)
     DIR/report.html         self-contained offline viewer (cardionurbs.report.html)
 
 ``--outputs`` chooses what is computed and written (default: all): ``metrics``
@@ -34,7 +34,8 @@ import os
 import shutil
 from pathlib import Path
 
-from cardionurbs.analysis.function import measure, volume_curve
+from cardionurbs.analysis.function import explain_nulls, measure, volume_curve
+from cardionurbs.analysis.notes import collect_warnings, notes_of
 from cardionurbs.analysis.uncertainty import intervals
 from cardionurbs.anatomy.model import BiventricularModel, reconstruct
 from cardionurbs.errors import UsageError
@@ -79,21 +80,6 @@ def tag_metrics_hook(model: BiventricularModel, over_time: bool = True):
     return tag_metrics(model, over_time=over_time and len(model.study.tagged_frames) >= 3)
 
 
-def figures_hook(model: BiventricularModel, metrics: dict, out_dir: Path, tags=None) -> list[Path]:
-    """Figures of an analysis into ``out_dir/figures``:
-    ``cardionurbs.report.figures.write_figures(model, out_dir, metrics=, tags=)``, then the
-    self-contained HTML viewer ``out_dir/report.html``
-    (``cardionurbs.report.html.write_report``), when the report module provides them;
-    [] otherwise."""
-    try:
-        from cardionurbs.report.figures import write_figures
-        from cardionurbs.report.html import write_report
-    except ImportError:
-        return []
-    paths = list(write_figures(model, Path(out_dir) / "figures", metrics=metrics, tags=tags) or [])
-    return paths + [write_report(out_dir, Path(out_dir) / "report.html")]
-
-
 def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: bool = True,
             progress: Progress | None = None, jobs: int | None = 1, on_measured=None):
     """Reconstruct and measure one loaded study: (model, docs/metrics.md dict, tag result or None).
@@ -122,7 +108,33 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
     if voxels:                              # label maps: voxel counting beside the model
         from cardionurbs.analysis.voxels import voxel_metrics
         metrics.update(voxel_metrics(voxels, model.ed_frame, model.es_frame))
+    explain_nulls(model, metrics)           # the tag and regional columns are in now
     return model, metrics, tags
+
+
+def analysis_warnings(model: BiventricularModel, metrics: dict, tags=None) -> list[dict]:
+    """Every warning of one analysis, ``[{"source": load|reconstruct|measure, "message"}]``
+    (:func:`cardionurbs.analysis.notes.collect_warnings`): the study's, the model's, the
+    metrics', the tag and regional notes."""
+    regional = getattr(model, "regional", None)
+    extra = list(getattr(tags, "notes", None) or []) + list(getattr(regional, "notes", None) or [])
+    return collect_warnings(model.study, model, metrics, measure_notes=extra)
+
+
+def body_json(study: Study) -> dict:
+    """Height (cm), weight (kg), age (y), sex and where each came from (metrics.json ``body``)."""
+    body = dict(study.meta.get("body") or {}) if isinstance(study.meta, dict) else {}
+    return {k: body.get(k) for k in ("height_cm", "weight_kg", "age_y", "sex", "source")}
+
+
+def range_flags_json(metrics: dict, study: Study) -> dict:
+    """metrics.json ``ranges``: the citation and, per metric with a reference range, its
+    flag (below / normal / above or None), limits and table
+    (:func:`cardionurbs.analysis.ranges.range_flags`)."""
+    from cardionurbs.analysis.ranges import load_ranges, range_flags
+    body = body_json(study)
+    return {"citation": load_ranges()["citation"],
+            "flags": range_flags(metrics, body.get("sex"), body.get("age_y"))}
 
 
 def measure_with_tags(model: BiventricularModel, *, heart_rate_bpm: float | None = None,
@@ -249,9 +261,13 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                             "quality": quality.to_json(), "QC": "; ".join(quality.flags),
                             "regional": (None if getattr(model, "regional", None) is None
                                          else model.regional.to_json()),
-                            "notes": dict(model.study.meta.get("metric_notes") or {}),
+                            "notes": {**dict(model.study.meta.get("metric_notes") or {}),
+                                      **notes_of(metrics)},
+                            "body": body_json(model.study),
+                            "ranges": range_flags_json(metrics, model.study),
                             "uncertainty": intervals(model, metrics) if uncertainty else None,
-                            "warnings": model.warnings}, tmp / "metrics.json")
+                            "warnings": analysis_warnings(model, metrics, tags)},
+                           tmp / "metrics.json")
 
         fig_set = None
         if "figures" in outputs:
@@ -420,8 +436,12 @@ def _label_option(args: argparse.Namespace) -> dict:
 
 
 def study_folder(path: str | Path) -> Path:
-    """The folder of a study given as a folder or as a file in it (its study.json)."""
+    """The folder of a study given as a folder or as a file in it (its study.json); a
+    single-file study (a NIfTI label map) is the file itself, whose reader reads nothing
+    else, so an output folder beside it is allowed."""
     p = Path(path)
+    if p.is_file() and p.name.lower().endswith((".nii", ".nii.gz")):
+        return p
     return p if p.is_dir() or not p.exists() else p.parent
 
 
@@ -445,6 +465,12 @@ def run_analyze(args: argparse.Namespace) -> int:
     if getattr(args, "track_tags", False):
         from cardionurbs.tracking import track_tags
         study = track_tags(study)
+    given = {k: getattr(args, a, None) for k, a in (("height_cm", "height_cm"),
+                                                     ("weight_kg", "weight_kg"),
+                                                     ("age_y", "age"), ("sex", "sex"))}
+    if any(v is not None for v in given.values()):
+        from cardionurbs.io.body import attach_body
+        attach_body(study, given)
     jobs = getattr(args, "jobs", None)
     # the meshes need only the model: their workers start once ED and ES are known and work
     # while this process measures the tags
@@ -460,11 +486,46 @@ def run_analyze(args: argparse.Namespace) -> int:
     finally:
         if early is not None:
             early.close()
-    print(f"{study.subject}: ED frame {model.ed_frame}, ES frame {model.es_frame}; "
-          f"LVEDV {metrics['LVEDV (mL)']:.1f} mL, LVEF {metrics['LVEF (%)']:.1f} %; "
-          f"wrote {args.out}")
+    print(summary_line(study.subject, model, metrics, args.out))
     qc = json.loads((Path(args.out) / "metrics.json").read_text()).get("QC") \
         if "metrics" in outputs else None
     if qc:
         print(f"QC: {qc}")
+    report_warnings(analysis_warnings(model, metrics, tags), verbose=getattr(args, "verbose", False))
     return 0
+
+
+def _value(metrics: dict, column: str, unit: str) -> str:
+    v = metrics.get(column)
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        why = notes_of(metrics).get(column)
+        return f"— ({why})" if why else "—"
+    return f"{v:.1f} {unit}"
+
+
+def summary_line(subject: str, model: BiventricularModel, metrics: dict, out) -> str:
+    """``analyze``'s line on stdout: ED/ES, LVEDV and LVEF (a null one with its reason)."""
+    return (f"{subject}: ED frame {model.ed_frame}, ES frame {model.es_frame}; "
+            f"LVEDV {_value(metrics, 'LVEDV (mL)', 'mL')}, LVEF {_value(metrics, 'LVEF (%)', '%')}; "
+            f"wrote {out}")
+
+
+#: how many warnings ``analyze`` prints without --verbose
+SHOWN_WARNINGS = 3
+
+
+def report_warnings(warnings: list[dict], *, verbose: bool = False, file=None) -> None:
+    """On stderr: ``N warnings (load 2, reconstruct 1; all in metrics.json)`` and the first
+    :data:`SHOWN_WARNINGS` of them, load warnings first (every one with ``verbose``)."""
+    import sys
+    file = file or sys.stderr
+    if not warnings:
+        return
+    counts = {s: sum(w["source"] == s for w in warnings) for s in ("load", "reconstruct", "measure")}
+    parts = ", ".join(f"{s} {n}" for s, n in counts.items() if n)
+    shown = warnings if verbose else warnings[:SHOWN_WARNINGS]
+    more = "" if verbose or len(warnings) <= SHOWN_WARNINGS else "; --verbose shows all"
+    print(f"{len(warnings)} warning{'s' if len(warnings) != 1 else ''} ({parts}; "
+          f"all in metrics.json{more})", file=file)
+    for w in shown:
+        print(f"  {w['source']}: {w['message']}", file=file)

@@ -174,8 +174,8 @@ class Study:
     meta : dict
         Free-form provenance (format, series descriptions, pathology...).
     warnings : list of str
-        One-line warnings of the input checks (``load_study`` fills it; not
-        written to files).
+        One-line warnings of the readers and input checks (``load_study`` fills
+        it; ``analyze`` writes them to metrics.json as ``load`` warnings).
     """
 
     subject: str

@@ -48,13 +48,23 @@ def test_demo_metrics_match_truth(demo_run):
         assert ((m[c] / t[c] - 1).abs() < 0.01).all(), c
 
 
-def test_demo_prints_every_metric_beside_truth(demo_run):
+def test_demo_prints_one_summary_table_and_existing_paths(demo_run):
     _, out, text = demo_run
-    comp = pd.read_csv(out / "comparison.csv")
+    comp = pd.read_csv(out / "comparison.csv")              # every metric is in the CSV
     assert set(comp["metric"]) >= {"LVEDV (mL)", "LVEF (%)", "RVM (g)", "MR RegFrac (%)", "EI ES"}
-    for c in ("LVEDV (mL)", "RVEF (%)", "LVM (g)"):
-        assert text.count(c) >= 3          # two subject blocks + the summary
-    assert "nrm01" in text and "phtn01" in text and "mean |error|" in text
+    lines = text.strip().splitlines()
+    assert len(lines) <= 40
+    head = next(i for i, l in enumerate(lines) if l.startswith("subject"))
+    for name in ("pathology", "LVEDV", "LVEF", "RVEF", "LVM", "twist"):
+        assert name in lines[head], name
+    rows = {l.split()[0]: l.split() for l in lines[head + 1:head + 3]}
+    assert set(rows) == {"nrm01", "phtn01"} and rows["nrm01"][1] == "normal"
+    t = pd.read_csv(out / "truth.csv").set_index("subject")
+    m = pd.read_csv(out / "cohort.csv").set_index("subject")
+    measured, truth = rows["nrm01"][2].split("/")          # LVEDV measured/truth, rounded
+    assert float(measured) == round(m.loc["nrm01", "LVEDV (mL)"])
+    assert float(truth) == round(t.loc["nrm01", "LVEDV (mL)"])
+    assert "mean |error|" in text and f"wrote {out}" in lines[-1]
 
 
 def test_demo_draws_the_cohort_figures(demo_run):
@@ -63,3 +73,11 @@ def test_demo_draws_the_cohort_figures(demo_run):
         png = out / "figures" / f"{name}.png"
         assert png.is_file() and png.stat().st_size > 10_000, name
     assert "cohort figures" in text
+
+
+def test_demo_without_out_names_no_removed_path(tmp_path):
+    from cardionurbs import demo
+    text = demo.format_comparison(pd.DataFrame(columns=["metric", "error", "error_unit"]),
+                                  pd.DataFrame([{"subject": "x", "status": "error: boom"}]),
+                                  pd.DataFrame([{"subject": "x", "pathology": "normal"}]))
+    assert "x" in text and "error: boom" in text

@@ -85,7 +85,8 @@ def test_measure_from_volumes():
     vols = {0: {"lv_cavity": 150.0, "rv_cavity": 160.0, "lv_myocardium": 100.0, "rv_myocardium": 30.0},
             1: {"lv_cavity": 60.0, "rv_cavity": 90.0, "lv_myocardium": 101.0, "rv_myocardium": 31.0}}
     m = F.measure(_fake_model(vols, 0, 1))
-    assert list(m) == list(F.COLUMNS)
+    from cardionurbs.analysis.body import BODY_COLUMNS, INDEXED_COLUMNS
+    assert list(m) == list(F.COLUMNS) + list(BODY_COLUMNS + INDEXED_COLUMNS)
     assert m["LVSV (mL)"] == 90.0 and m["LVEF (%)"] == pytest.approx(60.0)
     assert m["LVCO (L/min)"] == pytest.approx(90.0 * 75 / 1000)
     assert m["LVM (g)"] == pytest.approx(105.0) and m["RVM (g)"] == pytest.approx(31.5)

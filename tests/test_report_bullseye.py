@@ -40,3 +40,31 @@ def test_quantity_figure_writes_png_or_says_why(tmp_path):
     path, caption = quantity_figure(metrics, q, "s1", tmp_path, frames="ED frame 0, ES frame 7")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and "s1, ED frame 0" in caption
     assert "no Ecc values" in quantity_figure({}, q, "s1", tmp_path)
+
+
+def test_colour_scales_are_fixed_per_quantity_and_stated(tmp_path, monkeypatch):
+    """The same thickness gets the same colour whatever the other segments hold (a fixed
+    scale, not the data's range), and the colour bar says the scale."""
+    import numpy as np
+    from cardionurbs.report import bullseye as B
+    norm = B.fixed_norm("WT_AHA_{k} (mm)", False)
+    assert (norm.vmin, norm.vmax) == B.SCALES["WT"] == (0.0, 20.0)
+    ecc = B.fixed_norm("Ecc_AHA_{k} (%)", True)
+    assert ecc(0.0) == pytest.approx(0.5) and ecc(-30.0) == pytest.approx(0.0)
+    labels = []
+    orig = Figure.colorbar
+
+    def spy(self, mappable, *a, **k):
+        labels.append(k.get("label"))
+        return orig(self, mappable, *a, **k)
+    monkeypatch.setattr(Figure, "colorbar", spy)
+    faces = []
+    for spread in (1.0, 6.0):       # the others 6-8 mm, then 6-18 mm: a data-range scale
+        vals = {k: 6.0 + spread * (k % 3) for k in range(1, 17)}      # would recolour 8 mm
+        vals[1] = 8.0
+        metrics = {f"WT_AHA_{k} (mm)": v for k, v in vals.items()}
+        _, face, *_ = B._segment_style(vals, "viridis", norm, "{:.1f}")
+        faces.append(matplotlib.colors.to_rgba(face[list(segment_wedges()).index(1)]))
+        assert not isinstance(quantity_figure(metrics, QUANTITIES[0], "s", tmp_path), str)
+    assert np.allclose(faces[0], faces[1])        # segment 1 holds 8.0 mm both times
+    assert all("fixed scale 0 to 20 mm" in lab for lab in labels)

@@ -201,3 +201,34 @@ def test_chromium_check_catches_network_and_errors(tmp_path):
     run = open_page(page, chromium=exe, timeout=60, settle=0.5)
     assert any("example.invalid" in u for u in run.requests)
     assert any("boom" in e for e in run.errors) and any("undefinedFunction" in e for e in run.errors)
+
+
+def test_report_groups_metrics_shows_ranges_and_collapses_qc_evidence():
+    """Grouped tables (LV, RV, indexed with ranges, tags; regional collapsed), the null
+    reason beside a null value, one expandable quality line per surface."""
+    rows = [{"metric": m, "measured": v, "truth": None, "difference": None, "qc": qc,
+             "qc_surfaces": sorted({H._flag_surface(f) for f in qc.split("; ") if f}),
+             "note": note, "range": rng, "range_flag": flag, "range_table": "Table 3" if rng else None,
+             "range_reason": None}
+            for m, v, qc, note, rng, flag in (
+                ("LVEDV (mL)", 150.0, "LV endo fit max 6.1 mm (4.3 px) > 3 px at frame 24", None, None, None),
+                ("LVEF (%)", 40.0, "LV endo fit max 6.1 mm (4.3 px) > 3 px at frame 24; "
+                                   "LV endo fit max 8.3 mm (5.9 px) > 3 px at frame 10", None, [46, 74], "below"),
+                ("RVM (g)", None, "", "no RV contours", None, None),
+                ("LVEDVi (mL/m²)", 80.0, "", None, [61, 112], "normal"),
+                ("Twist (deg)", 12.0, "", None, None, None),
+                ("WT_AHA_1 (mm)", 8.0, "", None, None, None))]
+    groups = dict(H.group_rows(rows))
+    assert list(groups) == ["LV function", "RV function", "Body size and indexed values", "Tags",
+                            "Regional"]
+    q = H.quality_lines(rows)
+    assert len(q) == 1 and q[0]["surface"] == "LV endo" and len(q[0]["evidence"]) == 2
+    assert q[0]["metrics"] == ["LVEDV (mL)", "LVEF (%)"]
+    payload = {"has_truth": False, "metrics": rows}
+    head, tables = H._metric_tables(payload)
+    assert "normal range" in head and "<th colspan='5'>LV function</th>" in tables["main"]
+    assert "46–74" in tables["main"] and ">below<" in tables["main"]
+    assert "no RV contours" in tables["main"] and "WT_AHA_1" not in tables["main"]
+    assert tables["regional"].startswith("<details id='regional'>")
+    html_q = H._quality_html(rows)
+    assert html_q.count("<details class='qcline'>") == 1 and "frame 10" in html_q

@@ -205,7 +205,7 @@ def test_es_sa_surface_passes_through_tracked_tissue(heart):
     i = 1
     n = 200
     Z = rng.uniform(35, 88, n)
-    th = rng.uniform(0, 2 * np.pi, n)
+    rng.uniform(0, 2 * np.pi, n)                  # (keeps the draws that follow)
     y = rng.uniform(-30, 30, n)
     X = np.column_stack([np.full(n, i * SP), y, Z])
     R = np.hypot(X[:, 0], X[:, 1])

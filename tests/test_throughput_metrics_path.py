@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import shared_data
 from hypothesis import given, settings, strategies as st
 
 from cardionurbs.errors import TagError
@@ -63,11 +64,12 @@ def test_known_simple_agrees_with_the_crossing_search(seed, count):
             assert g == simple
 
 
+@pytest.mark.realdata
 def test_known_simple_on_a_real_study_matches_contour_by_contour():
     """bivme-patient1 (CAP): a thousand contours, some open ones crossing themselves."""
     from cardionurbs.io import load_study
     from cardionurbs.io.checks import _annotation_files, _plane_of, in_plane_coordinates
-    s = load_study("../shared/data/bivme-patient1")
+    s = load_study(shared_data("bivme-patient1"))
     cs = [(c, f) for c, f in zip(s.contours, _annotation_files(s))
           if c.ventricular and len(c.points) >= 3]
     xys = [in_plane_coordinates(c.points, _plane_of(s, c, f)) for c, f in cs]

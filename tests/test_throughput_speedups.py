@@ -125,7 +125,6 @@ def test_metrics_only_analyze_imports_no_mesh_or_figure_library(tmp_path):
 
 
 def _fresh_python(code: str, env: dict) -> str:
-    import os
     import subprocess
     import sys
     from pathlib import Path

@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cardionurbs.analysis.body import INDEXED, INDEXED_COLUMNS, add_body_columns
+from cardionurbs.analysis.notes import Metrics, adopt_study_notes, explain_missing, is_null, null
 from cardionurbs.analysis.regional_columns import REGIONAL_COLUMNS
 from cardionurbs.analysis.uncertainty import interval_columns, intervals
 from cardionurbs.errors import CardioNurbsError
@@ -115,8 +117,9 @@ def eccentricity_index_es(model: "BiventricularModel") -> float:
 
 
 def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None,
-            uncertainty: bool = False) -> dict[str, float]:
-    """Every docs/metrics.md column for one model, as floats (NaN where not measurable).
+            uncertainty: bool = False) -> Metrics:
+    """Every docs/metrics.md column for one model, as floats (NaN where not measurable),
+    with the reason of every NaN in ``.notes`` (:mod:`cardionurbs.analysis.notes`).
 
     ``uncertainty``: also the 95 % interval of each global metric as ``<column> lo95`` and
     ``<column> hi95`` (NaN where there is none; docs/metrics.md, Uncertainty;
@@ -124,7 +127,8 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None,
 
     ``heart_rate_bpm`` is used when the study carries no heart rate (the
     user-given value of docs/metrics.md, Frames); outside 20-300 bpm it is refused
-    (CardioNurbsError). Tag columns are NaN here.
+    (CardioNurbsError). Tag columns are NaN here. The body-size columns
+    (:mod:`cardionurbs.analysis.body`) follow from ``model.study.meta["body"]``.
     """
     if heart_rate_bpm is not None and not (
             HEART_RATE_RANGE_BPM[0] <= heart_rate_bpm <= HEART_RATE_RANGE_BPM[1]):
@@ -145,6 +149,8 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None,
     for side, cav, myo in (("LV", "lv_cavity", "lv_myocardium"), ("RV", "rv_cavity", "rv_myocardium")):
         edv, esv = v(ed, cav), v(es, cav)
         f = ventricular_function(edv, esv, hr)
+        if ed == es:           # one frame: no stroke volume to measure (null, the model warns)
+            f = {"SV": NAN, "EF": NAN, "CO": NAN}
         out[f"{side}EDV (mL)"], out[f"{side}ESV (mL)"] = edv, esv
         out[f"{side}SV (mL)"], out[f"{side}EF (%)"] = f["SV"], f["EF"]
         if side == "LV":
@@ -155,13 +161,57 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None,
     out["RV/LV mass ratio"] = _ratio(out["RVM (g)"], out["LVM (g)"])
     out["EI ES"] = eccentricity_index_es(model)
     from cardionurbs.analysis.rates import model_filling_rates
-    rates, _ = model_filling_rates(model)
+    rates, why_no_rates = model_filling_rates(model)
     out.update(rates)
-    out = {k: (float(x) if x is not None and math.isfinite(float(x)) else NAN)
-           for k, x in out.items()}
+    metrics = Metrics({k: (float(x) if x is not None and math.isfinite(float(x)) else NAN)
+                       for k, x in out.items()})
+    if why_no_rates:
+        for column in rates:
+            null(metrics, column, why_no_rates)
+    add_body_columns(metrics, model.study.meta.get("body"))
+    explain_nulls(model, metrics)
     if uncertainty:
-        out.update(interval_columns(intervals(model, out)))
-    return out
+        metrics.update(interval_columns(intervals(model, metrics)))
+    return metrics
+
+
+#: columns that compare ED with ES (or need the cycle): null with one contoured frame
+_ONE_FRAME_KEEP = ("HR (bpm)", "LVEDV (mL)", "LVM (g)", "RVEDV (mL)", "RVM (g)", "RV/LV EDV ratio",
+                   "RV/LV mass ratio", "Tag QC flags")
+
+
+def explain_nulls(model: "BiventricularModel", metrics: dict) -> dict:
+    """Null with a reason what ``model``'s study cannot give (docs/metrics.md, Notes):
+    with one contoured frame (ED = ES) every column that compares ED with ES is null
+    ("one frame only"), not 0; the readers' reasons (``study.meta["metric_notes"]``) are
+    adopted; every other NaN gets the first reason that applies (no RV contours, no heart
+    rate, no tag lines, ...). Called by :func:`measure` and again once the tag and
+    regional columns are in (:func:`cardionurbs.pipeline.analyse`). Returns ``metrics``."""
+    study = model.study
+    notes = getattr(metrics, "notes", {})
+    for column in [c for c in notes if c in metrics and not is_null(metrics[c])]:
+        del notes[column]                       # measured after all (tags, regional)
+    adopt_study_notes(metrics, study.meta)
+    if model.ed_frame == model.es_frame:
+        keep = _ONE_FRAME_KEEP + ("LVEDVi (mL/m²)", "LVMi (g/m²)", "RVEDVi (mL/m²)",
+                                  "WT_Global (mm)")
+        for column in [c for c in COLUMNS + INDEXED_COLUMNS if c in metrics]:
+            if column not in keep and not column.startswith("WT_AHA_"):
+                null(metrics, column, "one frame only (ED = ES)")
+    for column, source in INDEXED.items():
+        if column in metrics and is_null(metrics[column]) and source in notes:
+            null(metrics, column, notes[source])
+    rv = {c.structure for c in study.contours} & {"rv_endo", "rv_epi", "rv_septum", "rv_freewall"}
+    rv_cols = [c for c in metrics if c.startswith("RV") or c.startswith("MR ")]
+    tag_cols = list(TAG_COLUMNS) + [c for c in metrics if c.startswith(("Ecc_", "Ell_", "Err_"))]
+    explain_missing(metrics, [
+        (["HR (bpm)", "LVCO (L/min)", "CI (L/min/m²)"],
+         "no heart rate (not in the study; give --heart-rate)"),
+        (rv_cols + ["EI ES"], "no RV contours" if not rv else "RV not measured"),
+        (tag_cols, "no tag lines" if not study.tags else "tags not measured"),
+    ])
+    explain_missing(metrics, [(list(metrics), "not measurable from this study")])
+    return metrics
 
 
 def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> dict[str, list]:

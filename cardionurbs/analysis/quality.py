@@ -17,7 +17,9 @@ A metric is *flagged* when any of its evidence fails:
 * a surface it uses has a contour point farther than ``QC_LIMIT_PX`` (3) pixels
   from it, at a frame it uses — ``RV epi fit max 13.3 mm (9.4 px) > 3 px at frame 24``;
 * a contour of one of its surfaces was left out at one of its frames;
-* ``heart rate unknown`` (HR, CO); ``N tag line(s) flagged as mistracked`` (tag metrics).
+* ``heart rate unknown`` (HR, CO); ``N tag line(s) flagged as mistracked`` (tag metrics);
+* ``implausible time axis`` (the filling rates) when the reader found the frames ×
+  interval outside a cardiac cycle (:func:`cardionurbs.io.nifti.time_step_ms`).
 
 Derived metrics (SV, EF, CO, MR RegVol and RegFrac, the RV/LV ratios) inherit
 their inputs' flags: ``MR RegFrac`` is flagged when either ventricle's SV is.
@@ -33,6 +35,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cardionurbs.analysis.function import COLUMNS, TAG_COLUMNS
+from cardionurbs.analysis.voxels import is_finite_number, label_map_flags
 
 if TYPE_CHECKING:  # pragma: no cover
     from cardionurbs.anatomy.model import BiventricularModel
@@ -204,6 +207,9 @@ def assess(model: "BiventricularModel", metrics: dict[str, float]) -> Quality:
 
     hr = metrics.get("HR (bpm)", math.nan)
     hr_flag = [] if isinstance(hr, (int, float)) and math.isfinite(hr) else ["heart rate unknown"]
+    from cardionurbs.analysis.rates import RATE_COLUMNS
+    axis = (model.study.meta or {}).get("time_axis") or {}
+    time_flag = ["implausible time axis"] if axis.get("plausible") is False else []
     for col in COLUMNS:
         entry = {"flags": [], "surfaces": [], "frames": []}
         if col in SOURCES:
@@ -215,11 +221,16 @@ def assess(model: "BiventricularModel", metrics: dict[str, float]) -> Quality:
                 entry["flags"] = surface_flags(surfaces, which)
         if col in ("HR (bpm)", "LVCO (L/min)"):
             entry["flags"] = entry["flags"] + hr_flag
+        if col in RATE_COLUMNS:
+            entry["flags"] = entry["flags"] + time_flag
         if col in TAG_COLUMNS:
             n = metrics.get("Tag QC flags", math.nan)
             if isinstance(n, (int, float)) and math.isfinite(n) and n > 0:
                 entry["flags"] = [f"{int(n)} tag line(s) flagged as mistracked"]
         q.metrics[col] = entry
+    for col, flags in label_map_flags(model, metrics).items():   # label maps (analysis.voxels)
+        if col in q.metrics and is_finite_number(metrics.get(col, math.nan)):
+            q.metrics[col]["flags"] += flags
     for col, inputs in DERIVED.items():
         e = q.metrics[col]
         e["inputs"] = list(inputs)

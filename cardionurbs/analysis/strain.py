@@ -68,7 +68,6 @@ global: the mean of the segment values 1–16.
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
 
 import numpy as np
 from numpy.polynomial import legendre
@@ -319,7 +318,7 @@ class CylindricalMotionFit:
         (S2), all perturbations in one batch."""
         r, th, zeta = cylindrical(X, self.apex0, self.frame0)
         D = self._design(r * r, th, zeta)                        # values, d/dq, d/dθ, d/dζ: (n, b)
-        nb, n = D[0].shape[1], len(th)
+        nb = D[0].shape[1]
         comp, basis = np.divmod(np.flatnonzero(self.free), nb)   # params -> (component, basis)
         p = len(comp)
         h = np.r_[steps, -np.asarray(steps, float)]

@@ -120,18 +120,6 @@ def gap_limit(points: np.ndarray) -> float:
     return max(GAP_FACTOR * median(steps), GAP_MIN_MM)
 
 
-def split_at_gaps(points: np.ndarray, limit: float | None = None) -> list[np.ndarray]:
-    """Split an ordered (n, 3) tag line where it jumps a gap (a cavity crossing).
-
-    A gap is a step longer than ``limit`` (default :func:`gap_limit` of the
-    line). Returns the pieces in order.
-    """
-    limit = gap_limit(points) if limit is None else limit
-    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    cuts = np.flatnonzero(steps > limit) + 1
-    return np.split(points, cuts)
-
-
 def uniform_knots(n_ctrl: int, degree: int = 3) -> np.ndarray:
     """Clamped knot vector on [0, 1] with uniformly spaced interior knots."""
     inner = np.arange(1, n_ctrl - degree) / (n_ctrl - degree)
@@ -405,7 +393,7 @@ def la_sections(study: Study, frame: int, apex: np.ndarray,
         inner = pts[: lo + 1][::-1] if lo >= 0 else pts[:0]
         outer = pts[hi:]
         # each half's steps, from the line's (a step is as long either way): the first wall
-        # ends at the first gap (split_at_gaps(half, limit)[0])
+        # ends at the first gap
         inner_steps = steps[: max(lo, 0)][::-1]
         outer_steps = steps[hi:]
         for h, (seg, seg_steps) in enumerate(((inner, inner_steps), (outer, outer_steps))):

@@ -212,7 +212,7 @@ def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base:
                 lines[(t.family, t.index, t.slice, f)] = t.points
     n_stack = stacking_direction(study)[0]
     ax = (apex - base) / np.linalg.norm(apex - base)
-    keys, curves, raw = [], [], []
+    curves, raw = [], []
     pairs, meta = [], []
     slices = sorted({k[2] for k in lines}, key=lambda s: float(study.slice_plane(s).position @ n_stack))
     pos: dict[tuple, int] = {}

@@ -23,7 +23,9 @@ from cardionurbs import nurbs
 from cardionurbs.anatomy import mesh as meshing
 from cardionurbs.anatomy.mesh import Plane
 from cardionurbs.anatomy.outflow import OutflowTract, outflow_tracts, tract_solid
-from cardionurbs.anatomy.sections import SURFACES, FrameGeometry, Section, frame_geometry
+from cardionurbs.anatomy.sections import (MYO_CONSERVED_BOUND, SURFACES, FrameGeometry, Section,
+                                          frame_geometry, labelled_myocardium_ratio,
+                                          labels_do_not_conserve, moves_with_lv)
 from cardionurbs.anatomy.refine import refine_surface
 from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface, free_wall_points
 from cardionurbs.errors import CardioNurbsError, ReconstructionError
@@ -190,7 +192,8 @@ class BiventricularModel:
                 es = int(study.es_frame)
         self.ed_frame, self.es_frame = ed, es
         if ed == es:
-            self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, SV = 0")
+            self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, so SV, EF and the "
+                                 "other ED-to-ES metrics are null")
         self.base_shift_mm: dict[int, float] = {}
         if surfaces is None and ed != es:
             self._conserve_myocardium(ed, es)
@@ -379,6 +382,11 @@ class BiventricularModel:
         if not all(s in self._structures(f) for f in (ed, es) for s in need):
             return
         self._stationary_epicardial_apex(g_ed, g_es)
+        ratio = labelled_myocardium_ratio(self.study, ed, es)
+        if ratio is not None and abs(ratio - 1) > MYO_CONSERVED_BOUND:
+            self.warnings.append(labels_do_not_conserve(ratio, es))
+            self.base_shift_mm[es] = 0.0
+            return                        # the labels' own slab at ES (docs/metrics.md)
         target = meshing.volume_ml(self.solids(ed)["lv_myocardium"])
         myo = self._solid(es, "lv_epi") - self._solid(es, "lv_endo")
         plane = g_es.base_planes["lv"]
@@ -388,7 +396,7 @@ class BiventricularModel:
                          for d in shifts])
         vols = np.maximum.accumulate(vols)            # more basal plane, never less wall
         shift = float(np.interp(target, vols, shifts))
-        for side in g_es.base_from_slices:
+        for side in moves_with_lv(g_es):
             p = g_es.base_planes[side]
             g_es.base_planes[side] = Plane(p.origin - shift * p.normal, p.normal)
         self.base_shift_mm[es] = shift

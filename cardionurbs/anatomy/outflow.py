@@ -245,16 +245,6 @@ def outlet_loops(study: Study, frame: int) -> dict[str, list[np.ndarray]]:
     return out
 
 
-def outlet_only_slices(study: Study, frame: int) -> set:
-    """SA slices of one frame that cut the RV outlet and no RV body: their RV epicardial
-    contours belong to the RVOT, not to the RV body's surface."""
-    by_slice: dict = {}
-    for c in study.contours_at(frame, view="SA"):
-        by_slice.setdefault(c.slice, set()).add(c.structure)
-    return {sl for sl, s in by_slice.items()
-            if "rv_outlet" in s and not s & {"rv_endo", "rv_freewall", "rv_septum"}}
-
-
 def _tract_runs(geo: FrameGeometry, structure: str, body: Plane,
                 valve_centre: np.ndarray) -> list[np.ndarray]:
     """The LA contour runs that describe a tract: LA polylines of ``structure`` cut to

@@ -31,7 +31,7 @@ import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Any, Iterable, Iterator
 
 import numpy as np
 import pydicom
@@ -163,16 +163,6 @@ def _dcmread_header(path: Path):
 def _first_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
     return text[0] if text else type(exc).__name__
-
-
-def header_from_dataset(ds, path: Path) -> DicomHeader:
-    """Validated :class:`DicomHeader` of a single-frame pydicom dataset (StudyError names
-    file and tag)."""
-    with _quiet_pydicom():
-        if _is_multiframe(ds, path):
-            raise UnsupportedInputError("multi-frame object: read it with read_file_headers",
-                                        file=path, field="NumberOfFrames")
-        return _header_from_dataset(ds, path)
 
 
 def headers_from_dataset(ds, path: Path) -> list[DicomHeader]:
@@ -311,7 +301,7 @@ def _header_from_dataset(ds, path: Path) -> DicomHeader:
                          file=path) from None
 
 
-def _identity(ds) -> dict[str, str]:
+def _identity(ds) -> dict[str, Any]:
     """PatientID, StudyInstanceUID and FrameOfReferenceUID of a dataset ('' when absent)."""
     return {"patient_id": str(ds.get("PatientID", "") or "").strip(),
             "study_instance_uid": str(ds.get("StudyInstanceUID", "") or "").strip(),
@@ -406,6 +396,8 @@ _REQUIRED = ("ImagePositionPatient", "ImageOrientationPatient", "PixelSpacing", 
 
 def _missing(keyword: str) -> str:
     tag = pydicom.datadict.tag_for_keyword(keyword)
+    if tag is None:
+        return f"missing {keyword}"
     return f"missing {keyword} ({tag >> 16:04X},{tag & 0xFFFF:04X})"
 
 
@@ -676,7 +668,7 @@ def _frames_of_slice(members: list[DicomHeader], name: str) -> np.ndarray:
         heart_rate_bpm=_mean([h.heart_rate for h in members]),
         nominal_interval_ms=_mean([h.nominal_interval for h in members]))
     try:
-        return phases.phase_indices(tt, n_phases, rr, slice=name)
+        return phases.phase_indices([t for t in tt if t is not None], n_phases, rr, slice=name)
     except StudyError as exc:
         t = np.asarray(tt, float)
         dup = [h.file.name for h in members if np.sum(t == h.trigger_time) > 1]

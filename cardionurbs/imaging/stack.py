@@ -18,6 +18,12 @@ reads the same way from every format:
   along ``(+1, -1, -1) / sqrt(3)`` (L = +x, P = +y, S = +z in DICOM), which
   holds for every patient position (HFS, FFS, ...) because LPS is attached to
   the patient, not to the scanner.
+* **Base and apex of a labelled stack** (:func:`sa_base_direction`): label maps
+  show where each structure is absent, so the base is the end the anatomy says
+  (:func:`base_end_from_anatomy`: cavity taper, RV towards the base, the
+  myocardium closing over the apex, the LV outflow), never the slice order or
+  the header's axes alone (ACDC's carry none); the mitral annulus of long-axis
+  maps cross-checks it; conflicting evidence is refused.
 * **Stack normal and slice spacing** (:func:`cardionurbs.geometry.stack_normal`,
   :func:`cardionurbs.geometry.slice_spacing`): the mean sign-aligned normal; the
   median distance between consecutive slice positions along it, from
@@ -28,14 +34,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from cardionurbs.errors import ReconstructionError
+
 #: LV base -> apex direction prior in patient LPS coordinates (left, anterior, inferior).
 APEX_DIRECTION_LPS = np.array([1.0, -1.0, -1.0]) / np.sqrt(3.0)
-
-
-def unit_normals(row_cosines: np.ndarray, column_cosines: np.ndarray) -> np.ndarray:
-    """(n, 3) unit plane normals ``row x column`` of (n, 3) direction cosines."""
-    n = np.cross(np.asarray(row_cosines, float), np.asarray(column_cosines, float))
-    return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
 def group_parallel(normals: np.ndarray, max_angle_deg: float) -> np.ndarray:
@@ -92,3 +94,141 @@ def base_to_apex_direction(normal: np.ndarray, centers: np.ndarray, *,
         d, rule = float(APEX_DIRECTION_LPS @ u), "LPS prior"
     return (u if d >= 0 else -u), rule
 
+
+
+# --------------------------------------------------------------- base and apex from anatomy
+#: a taper cue votes when its two halves differ by more than this share of their sum
+TAPER_MIN_SHARE = 0.05
+#: weights of the anatomical cues (:func:`base_end_from_anatomy`)
+CUE_WEIGHTS = {"cavity taper": 1, "RV towards the base": 1, "myocardial cap": 2,
+               "LV outflow": 2}
+#: strong evidence on both sides (this much weight each way) is a conflict
+CONFLICT_WEIGHT = 2
+
+
+def _half_taper(area: np.ndarray) -> int:
+    """+1 when the first half of a per-slice area profile holds clearly more area than the
+    last half (the first end is the wider, basal one), -1 for the reverse, 0 when the two
+    differ by less than ``TAPER_MIN_SHARE`` of their sum (the middle slice of an odd count
+    is left out)."""
+    a = np.asarray(area, float)
+    h = len(a) // 2
+    first, last = float(a[:h].sum()), float(a[len(a) - h:].sum())
+    if h == 0 or first + last <= 0 or abs(first - last) <= TAPER_MIN_SHARE * (first + last):
+        return 0
+    return 1 if first > last else -1
+
+
+def _end_vote(first: bool, last: bool, first_is: int) -> int:
+    """The vote of a cue seen at the first and/or last end: ``first_is`` (+1: seen at the
+    base, -1: seen at the apex) signed by which end shows it; 0 when both or neither."""
+    if first == last:
+        return 0
+    return first_is if first else -first_is
+
+
+def base_end_from_anatomy(lv: np.ndarray, myo: np.ndarray, rv: np.ndarray | None = None, *,
+                          cap: tuple[bool, bool] = (False, False),
+                          outflow: tuple[bool, bool] = (False, False)
+                          ) -> tuple[int, dict[str, int]]:
+    """Which end of a short-axis stack is the base, from what the labels show.
+
+    Parameters
+    ----------
+    lv, myo : (k,) array
+        LV cavity and LV myocardium area (any unit, summed over the labelled frames) of the
+        k slices holding the LV, in stack order.
+    rv : (k,) array or None
+        RV cavity area of the same slices (None: no RV labelled).
+    cap : (bool, bool)
+        Whether the (first, last) labelled slice of some frame shows myocardium without
+        cavity — the wall closing over the apex (a myocardial cap).
+    outflow : (bool, bool)
+        Whether the (first, last) labelled slice of some frame shows an LV cavity that the
+        myocardium does not ring — the LV outflow tract or the cavity open to the atrium,
+        which only the base shows.
+
+    Returns
+    -------
+    end : int
+        +1 when the first slice is the base, -1 when the last one is, 0 when the cues give
+        no majority.
+    votes : dict
+        Each cue's vote (+1, -1, 0): "cavity taper" (the LV, cavity and wall, narrows
+        towards the apex), "RV towards the base" (the RV cavity ends before the LV apex),
+        "myocardial cap", "LV outflow"; weighted by ``CUE_WEIGHTS``.
+
+    Raises
+    ------
+    ReconstructionError
+        When ``CONFLICT_WEIGHT`` or more of the weighted evidence points each way.
+    """
+    votes = {"cavity taper": _half_taper(np.asarray(lv, float) + np.asarray(myo, float)),
+             "RV towards the base": _half_taper(rv) if rv is not None else 0,
+             "myocardial cap": _end_vote(*cap, first_is=-1),
+             "LV outflow": _end_vote(*outflow, first_is=1)}
+    pos = sum(CUE_WEIGHTS[k] for k, v in votes.items() if v > 0)
+    neg = sum(CUE_WEIGHTS[k] for k, v in votes.items() if v < 0)
+    if pos >= CONFLICT_WEIGHT and neg >= CONFLICT_WEIGHT:
+        raise ReconstructionError("the short-axis stack's base and apex cannot be told apart: "
+                                  + describe_votes(votes))
+    return (1 if pos > neg else -1 if neg > pos else 0), votes
+
+
+def describe_votes(votes: dict[str, int]) -> str:
+    """One line naming which end each anatomical cue puts the base at."""
+    where = {1: "base at the first slice", -1: "base at the last slice", 0: "no say"}
+    return "; ".join(f"{k}: {where[v]}" for k, v in votes.items())
+
+
+def sa_base_direction(normal: np.ndarray, centers: np.ndarray, anatomy, *,
+                      mitral: np.ndarray | None = None) -> tuple[np.ndarray, str]:
+    """The stack normal of a labelled SA stack signed from base to apex, and why.
+
+    Parameters
+    ----------
+    normal : (3,) array
+        The slices' plane normal (either sign).
+    centers : (k, 3) array
+        Slice centres (mm), in stack order.
+    anatomy : StackAnatomy
+        Per-slice label areas and end cues (:func:`cardionurbs.io.masks.stack_anatomy`).
+    mitral : (m, 3) array or None
+        Mitral annulus points from long-axis maps.
+
+    Returns
+    -------
+    u : (3,) array
+        Unit normal pointing from the base towards the apex.
+    rule : str
+        ``"anatomy (...)"``, ``"mitral landmarks"`` or ``"LPS prior"`` with the cues.
+
+    Raises
+    ------
+    ReconstructionError
+        When the cues conflict (:func:`base_end_from_anatomy`), or when they are decided
+        and the mitral annulus of the long-axis maps lies at the other end.
+    """
+    u = np.asarray(normal, float) / np.linalg.norm(normal)
+    centers = np.asarray(centers, float).reshape(-1, 3)
+    held = np.flatnonzero((anatomy.lv + anatomy.myo) > 0)
+    votes: dict[str, int] = {}
+    end = 0
+    if len(held) >= 2:
+        rv = anatomy.rv[held] if anatomy.rv is not None else None
+        end, votes = base_end_from_anatomy(anatomy.lv[held], anatomy.myo[held], rv,
+                                           cap=anatomy.cap, outflow=anatomy.outflow)
+        first, last = centers[held[0]], centers[held[-1]]
+        if (last - first) @ u < 0:
+            u = -u                                  # u now runs from the first labelled slice
+    cues = describe_votes(votes) if votes else "fewer than two labelled slices"
+    if mitral is not None and len(np.asarray(mitral).reshape(-1, 3)):
+        um, _ = base_to_apex_direction(u, centers, mitral=mitral)
+        if end and float(um @ u) * end < 0:
+            raise ReconstructionError("the long-axis maps' mitral annulus lies at the end of "
+                                      "the short-axis stack that its anatomy calls the apex ("
+                                      + cues + ")")
+        return um, f"mitral landmarks ({cues})"
+    if end:
+        return (u if end > 0 else -u), f"anatomy ({cues})"
+    return base_to_apex_direction(u, centers)[0], f"LPS prior ({cues})"

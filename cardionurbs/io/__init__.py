@@ -130,4 +130,6 @@ def _load_study(path: str | Path, format: str, *, labels=None, ed_frame: int | N
         raise StudyError(f"format {fmt!r} is not readable", file=path)
     study.warnings = (list(study.meta.pop("reader_warnings", [])) + list(study.warnings or [])
                       + check_study(study))
+    from cardionurbs.io.body import attach_body
+    attach_body(study)                      # height, weight, age, sex: study.meta["body"]
     return study

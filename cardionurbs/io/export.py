@@ -130,11 +130,6 @@ def write_json(obj, path: str | os.PathLike, indent: int | None = 1) -> Path:
     return atomic.write_text(path, text + "\n")
 
 
-def export_model(model, path: str | os.PathLike) -> Path:
-    """Write the NURBS model as JSON (``model.json``)."""
-    return write_json(model.to_dict(), path)
-
-
 def export_model_3dm(model, path: str | os.PathLike, frame: int | None = None) -> Path:
     """Write one frame's NURBS surfaces (frame defaults to ED) as a Rhino .3dm file,
     atomically, through :func:`cardionurbs.nurbs.write_3dm` (needs the ``cad`` extra,

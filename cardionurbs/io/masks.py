@@ -313,3 +313,59 @@ def la_slice_contours(labels: np.ndarray, roles: LabelRoles, sigma: float = SIGM
                 out.open["rv_endo"] = [endo]
                 out.landmarks["tricuspid"] = endo[[0, -1]]
     return out
+
+
+def ring_fraction(lv: np.ndarray, myo: np.ndarray) -> float:
+    """Share of the pixels bordering an LV cavity mask (4-neighbours outside it) that are
+    myocardium: 1 for a cavity ringed all round, low for one open to the outflow tract or
+    the atrium. NaN without a cavity."""
+    if not lv.any():
+        return float("nan")
+    border = ndimage.binary_dilation(lv) & ~lv
+    return float(np.count_nonzero(border & myo)) / max(int(np.count_nonzero(border)), 1)
+
+
+@dataclass
+class StackAnatomy:
+    """What the labels of an SA stack show about its base and apex, per slice k (the
+    inputs of :func:`cardionurbs.imaging.stack.base_end_from_anatomy`).
+
+    ``lv``, ``myo``, ``rv``: (k,) label areas in pixels summed over the frames; ``cap`` and
+    ``outflow``: whether the first / last labelled slice of some frame shows myocardium
+    without cavity (and less of it than the other end slice's LV holds), or a cavity not
+    ringed by myocardium (ring < MIN_RING_FRACTION)."""
+
+    lv: np.ndarray
+    myo: np.ndarray
+    rv: np.ndarray | None
+    cap: tuple[bool, bool]
+    outflow: tuple[bool, bool]
+
+
+def stack_anatomy(data: np.ndarray, roles: LabelRoles, frames) -> StackAnatomy:
+    """:class:`StackAnatomy` of a (x, y, k, t) label array at the volume frames ``frames``."""
+    nk = data.shape[2]
+    lv, myo, rv = np.zeros(nk), np.zeros(nk), np.zeros(nk)
+    cap, outflow = [False, False], [False, False]
+    for t in frames:
+        d = data[..., t]
+        lvm, myom = d == roles.lv, d == roles.myo
+        a_lv, a_myo = lvm.sum(axis=(0, 1)), myom.sum(axis=(0, 1))
+        lv += a_lv
+        myo += a_myo
+        if roles.rv is not None:
+            rv += (d == roles.rv).sum(axis=(0, 1))
+        held = np.flatnonzero((a_lv + a_myo) > 0)
+        if len(held) < 2:
+            continue
+        ends = (held[0], held[-1])
+        for end, k in enumerate(ends):
+            # a wall closing over the apex is the narrower end (a basal slice through the
+            # annulus at ES can show myocardium alone, as a wide ring)
+            other = ends[1 - end]
+            cap[end] |= bool(a_myo[k] > 0 and a_lv[k] == 0
+                             and a_myo[k] < a_lv[other] + a_myo[other])
+            if a_lv[k] > 0 and a_myo[k] > 0:
+                outflow[end] |= ring_fraction(fill_holes(lvm[:, :, k]), myom[:, :, k]) \
+                    < MIN_RING_FRACTION
+    return StackAnatomy(lv, myo, rv if roles.rv is not None else None, tuple(cap), tuple(outflow))

@@ -13,18 +13,28 @@ Layouts (:func:`detect`)
            + ``seg_sa_ES.nii.gz``; long-axis ``seg4_la_4ch.nii.gz`` (preferred)
            or ``seg_la_4ch``/``seg_la_2ch``/``seg_la_3ch.nii.gz`` when they hold
            ventricles; label preset ``ukbb``. ED is frame 0 (ukbb_cardiac's
-           convention), ES the frame of least LV volume.
+           convention), ES the frame of the smallest LV cavity by voxel count.
 ``mnms``   ``<code>_sa_gt.nii.gz`` (4-D, only ED and ES labelled); ED/ES frame
            indices from a CSV beside it or in the parent folder (columns
            ``External code``, ``ED``, ``ES``) or the ``ed_frame``/``es_frame``
            arguments, else the labelled frames; label preset ``mnms``.
+``mnms2``  ``NNN_SA_ED_gt`` + ``NNN_SA_ES_gt`` (3-D, frames 0 = ED and 1 = ES) and
+           ``NNN_LA_ED_gt`` + ``NNN_LA_ES_gt`` (the 4-chamber slice, used as the
+           ukbb long-axis maps are); label preset ``mnms`` (1 LV, 2 MYO, 3 RV).
+ED and ES defined by the layout are used as given by the model
+(``meta["ed_es_given"]``; ``meta["ed_es_source"]`` names the rule); ED = ES
+is allowed and leaves SV and EF null.
 An image NIfTI beside the labels (``patientNNN_4d``, ``sa``/``la_*``,
 ``<code>_sa``) is recorded in ``study.meta["image_files"]``.
 
 Geometry
 --------
-The voxel-to-world affine is the sform when its code is set, else the
-qform, else (with a warning) the voxel sizes alone. NIfTI world coordinates
+The voxel-to-world affine is the sform when its code is set (with the
+``pixdim`` spacing where the two disagree, as in ACDC's files), else the
+qform, else (with a warning) the voxel sizes alone; sform, qform and pixdim
+are compared on every file (:func:`_header_notes`, ``meta["headers"]``). The
+frame interval honours ``xyzt_units``, and an unknown unit is read as the one
+giving a plausible cardiac cycle (:func:`time_step_ms`, ``meta["time_axis"]``). NIfTI world coordinates
 are RAS+; the study's scanner frame is DICOM patient LPS, so x and y change
 sign: ``A_lps = diag(-1, -1, 1, 1) · A_ras``. For slice k the image plane
 (DICOM Image Plane module) is: ImagePositionPatient = ``A_lps (0, 0, k, 1)``,
@@ -32,9 +42,11 @@ row cosine = unit first column of ``A_lps`` (the direction in which the first
 array index grows), column cosine = unit second column, PixelSpacing = (length
 of the second column, length of the first), slice thickness = length of the
 third column. Pixel coordinates (c, r) are the first two array indices. The
-SA slices are named ``sa_00`` at the base towards the apex: the stack normal
-is signed from base to apex by the mitral annulus seen in the long-axis maps,
-else by the patient-frame prior of :mod:`cardionurbs.imaging.stack`.
+SA slices are named ``sa_00`` at the base towards the apex: which end is the
+base comes from the anatomy the labels show (:func:`cardionurbs.io.masks.stack_anatomy`,
+:func:`cardionurbs.imaging.stack.sa_base_direction`), cross-checked with the mitral
+annulus of the long-axis maps; the patient-frame prior of the header's axes only
+when neither says (a warning).
 
 Contours come from :mod:`cardionurbs.io.masks`; what is left out is
 reported in ``study.warnings`` naming slice and frame. Voxel-count volumes
@@ -52,19 +64,23 @@ from pathlib import Path
 
 import numpy as np
 
-from cardionurbs.errors import StudyError
+from cardionurbs.errors import ReconstructionError, StudyError
 from cardionurbs.imaging import stack
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import masks
 from cardionurbs.io.labels import PRESETS, LabelRoles, check_values, infer_roles, parse_labels
+from cardionurbs.limits import HEART_RATE_RANGE_BPM
 from cardionurbs.study import Contour, Landmark, Study
 
 RAS_TO_LPS = np.diag([-1.0, -1.0, 1.0, 1.0])
-LAYOUTS = ("file", "acdc", "ukbb", "mnms")
+LAYOUTS = ("file", "acdc", "ukbb", "mnms", "mnms2")
+_MNMS2 = re.compile(r"(?P<code>.+)_(?P<view>SA|LA)_(?P<phase>ED|ES)_gt\.nii(\.gz)?")
 LA_FILES = {"la_4ch": ("seg4_la_4ch", "seg_la_4ch"), "la_2ch": ("seg_la_2ch",),
             "la_3ch": ("seg_la_3ch",)}
 MAX_LABEL = 255
 _TIME_UNIT_MS = {"sec": 1000.0, "msec": 1.0, "usec": 1e-3}
+#: a plausible cardiac cycle (frames x interval), ms: the R-R interval at the heart-rate limits
+RR_RANGE_MS = (60000.0 / HEART_RATE_RANGE_BPM[1], 60000.0 / HEART_RATE_RANGE_BPM[0])
 
 
 def is_nifti(path: str | Path) -> bool:
@@ -78,7 +94,7 @@ def _stem(path: Path) -> str:
 
 
 def detect(path: str | Path) -> str | None:
-    """The layout of ``path`` (``file``, ``acdc``, ``ukbb``, ``mnms``) or None."""
+    """The layout of ``path`` (``file``, ``acdc``, ``ukbb``, ``mnms``, ``mnms2``) or None."""
     p = Path(path)
     if p.is_file():
         return "file" if is_nifti(p) else None
@@ -91,6 +107,8 @@ def detect(path: str | Path) -> str | None:
         return "ukbb"
     if any(re.fullmatch(r".+_sa_gt\.nii(\.gz)?", n) for n in names):
         return "mnms"
+    if any(_MNMS2.fullmatch(n) and "_SA_" in n for n in names):
+        return "mnms2"
     return None
 
 
@@ -99,9 +117,11 @@ class LabelVolume:
     """One label map: integer data (x, y, slices, frames), LPS affine, frame interval."""
 
     def __init__(self, path: Path, data: np.ndarray, affine_lps: np.ndarray,
-                 dt_ms: float | None, warnings: list[str]) -> None:
+                 dt_ms: float | None, warnings: list[str], header: dict | None = None) -> None:
         self.path, self.data, self.affine, self.dt_ms = path, data, affine_lps, dt_ms
         self.warnings = warnings
+        #: what the header said and what was used (:func:`_header_notes`, :func:`time_step_ms`)
+        self.header = header or {}
 
     @property
     def voxel_ml(self) -> float:
@@ -190,18 +210,9 @@ def read_label_volume(path: str | Path) -> LabelVolume:
     if scode > 0 and np.allclose(aff, np.eye(4)) or (scode == 0 and qcode > 0 and np.allclose(aff, np.eye(4))):
         warnings.append(f"{where}: identity affine: 1 mm voxels at the origin, no real scanner "
                         "position or orientation")
-    dt = None
-    if data.shape[3] > 1:
-        zooms = hdr.get_zooms()
-        t_unit = hdr.get_xyzt_units()[1]
-        if len(zooms) > 3 and np.isfinite(zooms[3]) and zooms[3] > 0:
-            scale = _TIME_UNIT_MS.get(t_unit)
-            if scale is None:
-                warnings.append(f"{where}: frame interval {zooms[3]:g} with unknown time unit "
-                                f"({t_unit}): taken as ms")
-                scale = 1.0
-            dt = float(zooms[3]) * scale
-    return LabelVolume(path, data, RAS_TO_LPS @ aff, dt, warnings)
+    header = _header_notes(img, aff, where, warnings)
+    dt, header["time"] = time_step_ms(hdr, data.shape[3], where, warnings)
+    return LabelVolume(path, data, RAS_TO_LPS @ aff, dt, warnings, header)
 
 
 def _spacing_from_pixdim(aff: np.ndarray, hdr, scode: int, where: str,
@@ -246,6 +257,124 @@ def _spacing_from_pixdim(aff: np.ndarray, hdr, scode: int, where: str,
                     f"disagrees with pixdim ({' x '.join(f'{v:.4g}' for v in zooms)} mm): measured "
                     "with pixdim, as ACDC's evaluation and nibabel's get_zooms do")
     return out
+
+
+def _header_notes(img, aff: np.ndarray, where: str, warnings: list[str]) -> dict:
+    """Compare sform, qform and ``pixdim`` of one file; warn where they disagree.
+
+    The affine used is the sform where its code is set (nibabel's rule), with the
+    ``pixdim`` spacing (:func:`_spacing_from_pixdim`). A qform that is also set but
+    points the voxel axes elsewhere, or puts the first voxel more than 1 mm away,
+    is named in one warning (both readings given; the sform is used). A spacing of
+    exactly 1 mm along every axis is named too: cine SA stacks have 5-10 mm between
+    slices, so such a header most likely carries no real spacing.
+
+    Parameters
+    ----------
+    img : nibabel NIfTI image
+    aff : (4, 4) float ndarray
+        The voxel-to-RAS affine chosen, mm.
+    where : str
+        The file, for the warnings.
+    warnings : list of str
+        Appended to.
+
+    Returns
+    -------
+    dict
+        ``sform_code``, ``qform_code``, ``pixdim`` (3 floats, mm), ``spacing_mm``
+        (the spacing used), ``orientation`` (``"placeholder"`` when the axes are the
+        scanner axes and the origin is 0, as in ACDC's files, else ``"scanner"``).
+    """
+    hdr = img.header
+    scode, qcode = int(hdr["sform_code"]), int(hdr["qform_code"])
+    spacing = np.linalg.norm(aff[:3, :3], axis=0)
+    if scode > 0 and qcode > 0:
+        q = np.asarray(img.get_qform(), float)
+        qd = q[:3, :3] / np.maximum(np.linalg.norm(q[:3, :3], axis=0), 1e-12)
+        sd = aff[:3, :3] / spacing
+        angle = float(np.degrees(np.arccos(np.clip(np.min(np.sum(qd * sd, axis=0)), -1, 1))))
+        shift = float(np.linalg.norm(q[:3, 3] - aff[:3, 3]))
+        if angle > 1.0 or shift > 1.0:
+            warnings.append(f"{where}: the sform and the qform disagree (voxel axes {angle:.3g} deg "
+                            f"apart, origins {shift:.3g} mm apart): the sform (code {scode}) is "
+                            "used, as nibabel does")
+    if np.allclose(spacing, 1.0, atol=1e-6) and not np.allclose(aff, np.eye(4)):
+        warnings.append(f"{where}: voxel size 1 x 1 x 1 mm in sform, qform and pixdim alike: most "
+                        "likely no real spacing (volumes in mm^3 of unit voxels)")
+    rot = aff[:3, :3] / spacing
+    placeholder = bool(np.allclose(np.abs(rot), np.round(np.abs(rot)), atol=1e-6)
+                       and np.allclose(aff[:3, 3], 0.0))
+    return {"sform_code": scode, "qform_code": qcode,
+            "pixdim": [float(v) for v in hdr.get_zooms()[:3]],
+            "spacing_mm": [round(float(v), 6) for v in spacing],
+            "orientation": "placeholder" if placeholder else "scanner"}
+
+
+def time_step_ms(hdr, n_frames: int, where: str, warnings: list[str]) -> tuple[float | None, dict]:
+    """The frame interval (ms) of a 4-D map from ``pixdim[4]`` and ``xyzt_units``.
+
+    A declared unit (``sec``, ``msec``, ``usec``) is honoured. An unknown unit (code
+    0, as in UK Biobank's maps, whose ``pixdim[4]`` holds seconds) is read as the one
+    of ms and s that makes the cycle, ``n_frames × dt``, a plausible R-R interval
+    (:data:`RR_RANGE_MS`, from the heart-rate limits), with a warning. A cycle
+    outside that range under the unit used is an *implausible time axis*: a warning,
+    and ``plausible`` False in the returned notes (the pipeline's QC names it).
+    Where no unit gives a plausible cycle, the frame times are left unknown (None).
+
+    Parameters
+    ----------
+    hdr : nibabel NIfTI header
+    n_frames : int
+        Length of the time axis.
+    where : str
+        The file, for the warnings.
+    warnings : list of str
+        Appended to.
+
+    Returns
+    -------
+    dt_ms : float or None
+        Frame interval, ms; None for one frame or no usable interval.
+    notes : dict
+        ``pixdim4``, ``unit`` (declared), ``unit_used``, ``dt_ms``, ``cycle_ms``,
+        ``plausible`` (None for a single frame).
+    """
+    zooms = hdr.get_zooms()
+    raw = float(zooms[3]) if len(zooms) > 3 else float("nan")
+    unit = str(hdr.get_xyzt_units()[1])
+    notes: dict = {"pixdim4": raw if np.isfinite(raw) else None, "unit": unit, "unit_used": None, "dt_ms": None,
+                   "cycle_ms": None, "plausible": None}
+    if n_frames <= 1:
+        return None, notes
+    lo, hi = RR_RANGE_MS
+    if not (np.isfinite(raw) and raw > 0):
+        notes["plausible"] = False
+        warnings.append(f"{where}: {n_frames} frames but no frame interval (pixdim[4] = {raw:g}): "
+                        "frame times unknown")
+        return None, notes
+    if unit in _TIME_UNIT_MS:
+        used, dt = unit, raw * _TIME_UNIT_MS[unit]
+    else:
+        fits = [u for u in ("msec", "sec") if lo <= n_frames * raw * _TIME_UNIT_MS[u] <= hi]
+        if not fits:
+            notes["plausible"] = False
+            warnings.append(f"{where}: implausible time axis: frame interval {raw:g} in an unknown "
+                            f"time unit ({unit}) gives a cycle of {n_frames} x {raw:g} = "
+                            f"{n_frames * raw:g} ms or s, neither within {lo:g}-{hi:g} ms: frame "
+                            "times unknown")
+            return None, notes
+        used, dt = fits[0], raw * _TIME_UNIT_MS[fits[0]]
+        warnings.append(f"{where}: frame interval {raw:g} with unknown time unit ({unit}): read as "
+                        f"{used} ({dt:.4g} ms per frame, a {n_frames * dt:.0f} ms cycle over "
+                        f"{n_frames} frames; the other unit gives no plausible R-R interval)")
+    cycle = n_frames * dt
+    notes.update(unit_used=used, dt_ms=dt, cycle_ms=cycle, plausible=bool(lo <= cycle <= hi))
+    if not notes["plausible"]:
+        warnings.append(f"{where}: implausible time axis: {n_frames} frames x {dt:.4g} ms "
+                        f"({raw:g} {used}) = {cycle:.4g} ms, outside a cardiac cycle of "
+                        f"{lo:g}-{hi:g} ms: filling rates and times are not to be trusted")
+    return dt, notes
 
 
 def _raw_pixdim(path: Path, header_class) -> np.ndarray:
@@ -335,8 +464,10 @@ def _add_la(b: _Builder, view_id: str, vol: LabelVolume, frames: dict[int, int],
                                                       view="LA", image=plane.id))
 
 
-def _sa_order(vol: LabelVolume, study: Study) -> list[int]:
-    """Slice indices k of an SA volume from base to apex."""
+def _sa_order(vol: LabelVolume, study: Study, roles: LabelRoles, frames) -> list[int]:
+    """Slice indices k of an SA volume from base to apex: which end is the base from the
+    anatomy (:func:`cardionurbs.imaging.stack.sa_base_direction`), never from the slice
+    order or the header's axes alone (ACDC's headers have none)."""
     nk = vol.data.shape[2]
     if nk == 1:
         return [0]
@@ -345,14 +476,24 @@ def _sa_order(vol: LabelVolume, study: Study) -> list[int]:
     normal /= np.linalg.norm(normal)
     centres = np.array([a[:3, 3] + k * a[:3, 2] for k in range(nk)])
     mitral = np.array([lm.point for lm in study.landmarks if lm.name == "mitral"])
-    u, _ = stack.base_to_apex_direction(normal, centres, mitral=mitral if len(mitral) else None)
+    anat = masks.stack_anatomy(vol.data, roles, list(frames))
+    try:
+        u, rule = stack.sa_base_direction(normal, centres, anat,
+                                          mitral=mitral if len(mitral) else None)
+    except ReconstructionError as exc:
+        raise StudyError(str(exc), file=str(vol.path), field="slice order") from None
+    study.meta["sa_orientation"] = rule
+    if rule.startswith("LPS prior"):
+        study.meta.setdefault("orientation_warnings", []).append(
+            f"{vol.path}: base and apex of the short-axis stack from the header's patient axes "
+            "only (the labels show no taper, cap or outflow): check the slice order")
     depth = centres @ u
     return [int(k) for k in np.argsort(depth, kind="stable")]
 
 
 def _add_sa(b: _Builder, vol: LabelVolume, frames: dict[int, int], times: dict[int, float]) -> None:
     """SA planes and contours of every labelled slice at the given (volume frame -> frame)."""
-    order = _sa_order(vol, b.study)
+    order = _sa_order(vol, b.study, b.roles, frames)
     labelled = [k for k in order if any(vol.data[:, :, k, t].any() for t in frames)]
     for k in order:
         if k not in labelled:
@@ -442,10 +583,33 @@ def _build(subject: str, source: Path, sa: LabelVolume, frames: dict[int, int],
                                                    "measured"} if roles.rv_myo is None else {},
                        "contour_files": b.files, **(meta or {})})
     warn = list(sa.warnings) + [w for v, _ in (la or {}).values() for w in v.warnings]
+    warn += study.meta.pop("orientation_warnings", [])
     if note:
         warn.append(f"{source}: {note}")
     study.meta["reader_warnings"] = warn + b.flush_warnings()
+    _header_meta(study, sa, [v for v, _ in (la or {}).values()])
     return study
+
+
+def _header_meta(study: Study, sa: LabelVolume, la: list[LabelVolume]) -> None:
+    """``meta["headers"]`` (file -> what its header said), ``meta["time_axis"]`` (the SA
+    map's); an implausible time axis gives the filling-rate columns (analysis.rates) a reason."""
+    study.meta["headers"] = {v.path.name: v.header for v in [sa, *la] if v.header}
+    axis = sa.header.get("time") or {}
+    study.meta["time_axis"] = axis or None
+    if axis.get("plausible") is False:
+        step = "no" if axis.get("pixdim4") is None else f"{axis['pixdim4']:g}"
+        why = (f"implausible time axis ({sa.path.name}: {step} per frame, unit "
+               f"{axis.get('unit')}): filling rates not to be trusted")
+        for col in ("PER (mL/s)", "PEFR (mL/s)", "PAFR (mL/s)", "E/A ratio"):
+            study.meta["metric_notes"][col] = why
+
+
+def _unrepeated(warnings: list[str], shown: list[str]) -> list[str]:
+    """A long-axis map's warnings less those the SA map's already say about its own file
+    (the same time step in every map of a layout is named once)."""
+    seen = {w.split(": ", 1)[-1] for w in shown}
+    return [w for w in warnings if w.split(": ", 1)[-1] not in seen]
 
 
 def _times(vol: LabelVolume, frames) -> dict[int, float]:
@@ -508,7 +672,7 @@ def read_acdc(folder: Path, labels=None) -> Study:
                              f"{first.path.name}: mismatched label maps", file=str(v.path))
     data = np.concatenate([v.data for v in vols.values()], axis=3)
     sa = LabelVolume(first.path.with_name(re.sub(r"_frame\d+_gt", "_gt", first.path.name)), data,
-                     first.affine, None, [w for v in vols.values() for w in v.warnings])
+                     first.affine, None, [w for v in vols.values() for w in v.warnings], first.header)
     if not data.any():
         raise StudyError("the label maps are empty (every voxel is 0)", file=str(first.path))
     frames = {i: f for i, f in enumerate(vols)}
@@ -524,7 +688,7 @@ def read_acdc(folder: Path, labels=None) -> Study:
     if images:
         meta["image_files"] = images
     study = _build(subject, folder, sa, frames, {}, roles, note, meta=meta)
-    study.ed_frame, study.es_frame = ed, es
+    _layout_ed_es(study, ed, es, "ACDC Info.cfg (ED, ES)")
     return study
 
 
@@ -555,7 +719,7 @@ def read_ukbb(folder: Path, labels=None) -> Study:
             raise StudyError(f"seg_sa_ES does not share the grid (shape and affine) of {ed_p.name}: "
                              "mismatched ED/ES label maps", file=str(es_p))
         sa = LabelVolume(folder / "seg_sa_ED+ES", np.concatenate([v_ed.data, v_es.data], axis=3),
-                         v_ed.affine, None, v_ed.warnings + v_es.warnings)
+                         v_ed.affine, None, v_ed.warnings + v_es.warnings, v_ed.header)
         files = [ed_p.name, es_p.name]
     if not sa.data.any():
         raise StudyError("the label map is empty (every voxel is 0)", file=str(sa.path))
@@ -571,6 +735,7 @@ def read_ukbb(folder: Path, labels=None) -> Study:
         if p is None:
             continue
         v = read_label_volume(p)
+        v.warnings = _unrepeated(v.warnings, sa.warnings)
         if v.data.shape[3] != sa.data.shape[3]:
             skipped.append(f"{p}: {v.data.shape[3]} frame(s) where the SA map has "
                            f"{sa.data.shape[3]}: long-axis map left out")
@@ -590,11 +755,31 @@ def read_ukbb(folder: Path, labels=None) -> Study:
         meta["image_files"] = sorted(images)
     study = _build(folder.name, folder, sa, frames, times, roles, note, la=la, meta=meta)
     study.meta["reader_warnings"] += skipped
-    if sa_path is not None:
-        study.ed_frame = 0 if 0 in frames else None     # ukbb_cardiac: ED is the first frame
-    else:
-        study.ed_frame, study.es_frame = 0, 1
+    if sa_path is None:
+        _layout_ed_es(study, 0, 1, "ukbb_cardiac: seg_sa_ED and seg_sa_ES")
+    elif 0 in frames:
+        es = _smallest_lv_cavity(sa, roles, frames)
+        if es == 0:
+            study.ed_frame = 0
+        else:
+            _layout_ed_es(study, 0, es, f"ukbb_cardiac: ED the first frame, ES the frame of the "
+                                        f"smallest LV cavity by voxel count ({es})")
     return study
+
+
+def _smallest_lv_cavity(vol: LabelVolume, roles: LabelRoles, frames: dict[int, int]) -> int:
+    """The study frame whose LV cavity has the fewest voxels (the first of equals)."""
+    counts = {frame: int(np.count_nonzero(vol.data[..., t] == roles.lv)) for t, frame in frames.items()}
+    return min(sorted(counts), key=lambda f: counts[f])
+
+
+def _layout_ed_es(study: Study, ed: int | None, es: int | None, source: str) -> None:
+    """Set ED and ES as the layout defines them; the model uses them as given
+    (``meta["ed_es_given"]``) and ``meta["ed_es_source"]`` says where they come from."""
+    study.ed_frame, study.es_frame = ed, es
+    if ed is not None and es is not None and ed != es:
+        study.meta["ed_es_given"] = ["ED", "ES"]
+        study.meta["ed_es_source"] = source
 
 
 def _mnms_csv(folder: Path, code: str) -> tuple[int, int] | None:
@@ -621,10 +806,12 @@ def read_mnms(folder: Path, labels=None, ed_frame: int | None = None,
     code = re.sub(r"_sa_gt.*$", "", gts[0].name)
     if not sa.data.any():
         raise StudyError("the label map is empty (every voxel is 0)", file=str(sa.path))
+    source = "given (--ed-frame/--es-frame)"
     if ed_frame is None and es_frame is None:
         got = _mnms_csv(folder, code)
         if got is not None:
             ed_frame, es_frame = got
+            source = "M&Ms CSV (External code, ED, ES)"
     n_t = sa.data.shape[3]
     for name, v in (("ED", ed_frame), ("ES", es_frame)):
         if v is not None and not (0 <= v < n_t):
@@ -643,8 +830,72 @@ def read_mnms(folder: Path, labels=None, ed_frame: int | None = None,
     if img is not None:
         meta["image_files"] = [img.name]
     study = _build(code, folder, sa, frames, _times(sa, frames), roles, note, meta=meta)
-    study.ed_frame, study.es_frame = ed_frame, es_frame
+    _layout_ed_es(study, ed_frame, es_frame, source)
     return study
+
+
+def read_mnms2(folder: Path, labels=None) -> Study:
+    """M&Ms-2: ``NNN_SA_ED_gt`` + ``NNN_SA_ES_gt`` (3-D SA maps, frames 0 = ED and 1 = ES) and
+    ``NNN_LA_ED_gt`` + ``NNN_LA_ES_gt`` (one 4-chamber slice each) where present; images
+    ``NNN_{SA,LA}_{ED,ES}`` beside them; label preset ``mnms`` (1 LV, 2 MYO, 3 RV)."""
+    found: dict[tuple[str, str], Path] = {}
+    codes = set()
+    for q in sorted(folder.iterdir()):
+        m = _MNMS2.fullmatch(q.name)
+        if m:
+            codes.add(m["code"])
+            found[(m["view"], m["phase"])] = q
+    if len(codes) != 1:
+        raise StudyError(f"M&Ms-2 layout needs the maps of one subject, found {len(codes)} "
+                         f"({', '.join(sorted(codes))})", file=str(folder))
+    code = codes.pop()
+    missing = [f"{code}_SA_{ph}_gt.nii.gz" for ph in ("ED", "ES") if ("SA", ph) not in found]
+    if missing:
+        raise StudyError(f"M&Ms-2 layout needs {missing[0]}", file=str(folder))
+    sa = _ed_es_pair(found[("SA", "ED")], found[("SA", "ES")], folder / f"{code}_SA_ED+ES")
+    if not sa.data.any():
+        raise StudyError("the label maps are empty (every voxel is 0)", file=str(sa.path))
+    frames = {0: 0, 1: 1}
+    roles, note = _resolve_roles(labels, "mnms", sa, [0, 1])
+    _check_roles(sa, roles)
+    meta: dict = {"layout": "mnms2", "label_files": [found[("SA", p)].name for p in ("ED", "ES")]}
+    la, skipped = {}, []
+    if ("LA", "ED") in found and ("LA", "ES") in found:
+        try:
+            lvol = _ed_es_pair(found[("LA", "ED")], found[("LA", "ES")], folder / f"{code}_LA_ED+ES")
+            present = {int(x) for x in np.unique(lvol.data)} - {0}
+            check_values(present, roles, str(lvol.path))
+            if not {roles.lv, roles.myo} <= present:
+                raise StudyError(f"no LV cavity and myocardium labels ({roles.describe()})",
+                                 file=str(lvol.path))
+            la["la_4ch"] = (lvol, frames)
+            meta["label_files"] += [found[("LA", p)].name for p in ("ED", "ES")]
+        except StudyError as exc:
+            skipped.append(f"{exc}: long-axis maps left out")
+    elif ("LA", "ED") in found or ("LA", "ES") in found:
+        skipped.append(f"{folder}: only one of {code}_LA_ED_gt / {code}_LA_ES_gt: long-axis maps "
+                       "left out")
+    images = [q.name for q in folder.iterdir()
+              if re.fullmatch(rf"{re.escape(code)}_(SA|LA)_(ED|ES)\.nii(\.gz)?", q.name)]
+    if images:
+        meta["image_files"] = sorted(images)
+    study = _build(code, folder, sa, frames, {}, roles, note, la=la, meta=meta)
+    study.meta["reader_warnings"] += skipped
+    _layout_ed_es(study, 0, 1, "M&Ms-2 file names (SA_ED, SA_ES)")
+    return study
+
+
+def _ed_es_pair(ed_p: Path, es_p: Path, name: Path) -> LabelVolume:
+    """Two 3-D maps on one grid (ED, ES) as one 2-frame volume (StudyError naming the file)."""
+    v_ed, v_es = read_label_volume(ed_p), read_label_volume(es_p)
+    for v in (v_ed, v_es):
+        if v.data.shape[3] != 1:
+            raise StudyError("an ED or ES label map must be 3-D", file=str(v.path))
+    if not v_ed.same_grid(v_es):
+        raise StudyError(f"does not share the grid (shape and affine) of {ed_p.name}: mismatched "
+                         "ED/ES label maps", file=str(es_p))
+    return LabelVolume(name, np.concatenate([v_ed.data, v_es.data], axis=3), v_ed.affine, None,
+                       v_ed.warnings + v_es.warnings, v_ed.header)
 
 
 def read_study(path: str | Path, *, labels: "str | LabelRoles | None" = None,
@@ -660,13 +911,15 @@ def read_study(path: str | Path, *, labels: "str | LabelRoles | None" = None,
         if p.is_file():
             raise StudyError("not a NIfTI file (expected a .nii or .nii.gz name)", file=str(p))
         raise StudyError("no NIfTI label maps in a known layout (a single .nii/.nii.gz file, ACDC "
-                         "*_frameMM_gt, UK Biobank seg_sa, M&Ms *_sa_gt)", file=str(p))
+                         "*_frameMM_gt, UK Biobank seg_sa, M&Ms *_sa_gt, M&Ms-2 NNN_SA_ED_gt)", file=str(p))
     if layout == "file":
         study = read_file(p, labels)
     elif layout == "acdc":
         study = read_acdc(p, labels)
     elif layout == "ukbb":
         study = read_ukbb(p, labels)
+    elif layout == "mnms2":
+        study = read_mnms2(p, labels)
     else:
         study = read_mnms(p, labels, ed_frame, es_frame)
     given = {k: v for k, v in (("ED", ed_frame), ("ES", es_frame)) if v is not None}
@@ -676,7 +929,11 @@ def read_study(path: str | Path, *, labels: "str | LabelRoles | None" = None,
             study.ed_frame = int(ed_frame)
         if es_frame is not None:
             study.es_frame = int(es_frame)
-        study.meta["ed_es_given"] = sorted(given)
+        layout_given = set(study.meta.get("ed_es_given") or ())
+        study.meta["ed_es_given"] = sorted(set(given) | layout_given)
+        study.meta["ed_es_source"] = ("given (--ed-frame/--es-frame)" if not layout_given - set(given)
+                                      else f"{'/'.join(sorted(given))} given, the rest from the "
+                                           f"layout ({study.meta.get('ed_es_source')})")
     return study
 
 
@@ -691,6 +948,4 @@ def _check_given_frames(study: Study, given: dict[str, int]) -> None:
         if v not in labelled:
             raise StudyError(f"{name} frame {v} is not a labelled frame of the map (frames with an "
                              f"LV cavity: {shown})", file=study.source, field=f"{name.lower()}_frame")
-    if len(given) == 2 and given["ED"] == given["ES"]:
-        raise StudyError(f"ED and ES are the same frame ({given['ED']})", file=study.source,
-                         field="es_frame")
+

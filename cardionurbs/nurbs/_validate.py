@@ -39,7 +39,7 @@ def point_rows(value: object, name: str, dim: int) -> np.ndarray:
 def degree_value(value: object, name: str = "degree", minimum: int = 1) -> int:
     """A positive integer degree."""
     try:
-        p = int(value)  # type: ignore[arg-type]
+        p = int(value)  # type: ignore[call-overload]
     except (TypeError, ValueError):
         raise NurbsInputError(f"{name}: must be an integer, got {value!r}") from None
     if p != value or p < minimum:
@@ -69,6 +69,21 @@ def knot_vector(value: object, name: str, degree: int, n_ctrl: int, clamped: boo
         _, counts = np.unique(inner, return_counts=True)
         if counts.max() > p:
             raise NurbsInputError(f"{name}: an interior knot has multiplicity {counts.max()} > degree {p}")
+    return U
+
+
+def periodic_knot_vector(value: object, name: str, degree: int, n_ctrl: int, what: str) -> np.ndarray:
+    """Checks the periodic knot vector (n_ctrl + 2p + 1,) of ``n_ctrl`` distinct control points
+    of ``degree`` wrapped around: domain [U[p], U[n_ctrl + p]] = [0, 1] and U[i + n_ctrl] =
+    U[i] + 1 (``what`` names the closed object in the message, e.g. "a closed curve")."""
+    p, n = degree, n_ctrl
+    U = knot_vector(value, name, p, n + p, clamped=False)
+    if abs(U[p]) > 1e-12 or abs(U[n + p] - 1.0) > 1e-12:
+        raise NurbsInputError(f"{name}: {what} needs the domain [U[p], U[n+p]] = [0, 1], got "
+                              f"[{U[p]}, {U[n + p]}]")
+    if np.max(np.abs(U[n:] - U[:2 * p + 1] - 1.0)) > 1e-9:
+        raise NurbsInputError(f"{name}: {what} needs a periodic knot vector (U[i + n] = U[i] + 1, "
+                              f"n = {n})")
     return U
 
 

@@ -31,10 +31,22 @@ def find_spans(knots: np.ndarray, degree: int, u: np.ndarray) -> np.ndarray:
     domain still evaluates the end polynomial piece).  The returned spans are
     always non-degenerate (``U[k] < U[k+1]``).
 
-    ``knots`` may also be (k, m): one knot vector per parameter ``u[r]``
-    (k,), all of length m -- pad a shorter vector by repeating its last knot
-    (a higher end multiplicity only adds empty spans; the spans returned stay
-    those of the unpadded vector).
+    Parameters
+    ----------
+    knots : (m,) float ndarray, or (k, m)
+        The knot vector, non-decreasing; or one knot vector per parameter
+        ``u[r]``, all of length m -- pad a shorter vector by repeating its last
+        knot (a higher end multiplicity only adds empty spans; the spans
+        returned stay those of the unpadded vector).
+    degree : int
+        The degree p >= 1.
+    u : (k,) float ndarray
+        Parameters (dimensionless, in the knots' units).
+
+    Returns
+    -------
+    (k,) int ndarray
+        The span index of each parameter, in ``[p, m - p - 2]``.
     """
     U = np.asarray(knots, dtype=float)
     p = int(degree)
@@ -54,7 +66,21 @@ def find_spans(knots: np.ndarray, degree: int, u: np.ndarray) -> np.ndarray:
 def basis_functions(spans: np.ndarray, u: np.ndarray, degree: int, knots: np.ndarray) -> np.ndarray:
     """Non-zero basis functions ``N[k, j] = N_{span_k - p + j, p}(u_k)`` (A2.2).
 
-    Returns an array of shape ``(len(u), p + 1)``.
+    Parameters
+    ----------
+    spans : (k,) int ndarray
+        Knot spans of the parameters (:func:`find_spans`).
+    u : (k,) float ndarray
+        Parameters.
+    degree : int
+        The degree p.
+    knots : (m,) float ndarray
+        The knot vector.
+
+    Returns
+    -------
+    (k, p + 1) float ndarray
+        The p + 1 basis functions that are non-zero at each parameter (they sum to 1).
     """
     return basis_function_derivatives(spans, u, degree, knots, 0)[:, 0, :]
 
@@ -63,14 +89,29 @@ def basis_function_derivatives(spans: np.ndarray, u: np.ndarray, degree: int,
                                knots: np.ndarray, n_derivatives: int) -> np.ndarray:
     """Basis functions and their derivatives up to ``n_derivatives`` (A2.3).
 
-    Returns ``D`` of shape ``(k, n_derivatives + 1, p + 1)`` with
-    ``D[:, r, j] = d^r N_{span - p + j, p} / du^r``; derivatives above the
-    degree are zero.  Vectorised over the ``k`` parameters.
+    Derivatives above the degree are zero.  Vectorised over the ``k`` parameters.
 
-    ``knots`` is one knot vector (m,) shared by all parameters, or (k, m):
-    row ``r`` is the knot vector of ``u[r]`` and ``spans[r]`` indexes it
-    (many splines evaluated at once, e.g. :class:`~cardionurbs.nurbs.batch.SurfaceBatch`;
-    shorter vectors padded as for :func:`find_spans`).
+    Parameters
+    ----------
+    spans : (k,) int ndarray
+        Knot spans of the parameters (:func:`find_spans`); ``spans[r]`` indexes
+        row ``r`` of ``knots`` when it is (k, m).
+    u : (k,) float ndarray
+        Parameters.
+    degree : int
+        The degree p.
+    knots : (m,) or (k, m) float ndarray
+        One knot vector shared by all parameters, or row ``r`` the knot vector
+        of ``u[r]`` (many splines evaluated at once, e.g.
+        :class:`~cardionurbs.nurbs.batch.SurfaceBatch`; shorter vectors padded as
+        for :func:`find_spans`).
+    n_derivatives : int
+        Highest derivative order, >= 0.
+
+    Returns
+    -------
+    (k, n_derivatives + 1, p + 1) float ndarray
+        ``D[:, r, j] = d^r N_{span - p + j, p} / du^r`` (per unit parameter^r).
     """
     U = np.asarray(knots, dtype=float)
     p = int(degree)
@@ -91,9 +132,9 @@ def basis_function_derivatives(spans: np.ndarray, u: np.ndarray, degree: int,
     nd = int(n_derivatives)
     ndu = np.zeros((k, p + 1, p + 1))
     ndu[:, 0, 0] = 1.0
-    j = np.arange(p + 1)
-    left = u[:, None] - knot(spans[:, None] + 1 - j)      # left[:, j] = u - U[span + 1 - j]
-    right = knot(spans[:, None] + j) - u[:, None]         # right[:, j] = U[span + j] - u
+    jj = np.arange(p + 1)
+    left = u[:, None] - knot(spans[:, None] + 1 - jj)     # left[:, j] = u - U[span + 1 - j]
+    right = knot(spans[:, None] + jj) - u[:, None]        # right[:, j] = U[span + j] - u
     for j in range(1, p + 1):
         saved = np.zeros(k)
         for r in range(j):
@@ -120,9 +161,9 @@ def basis_function_derivatives(spans: np.ndarray, u: np.ndarray, degree: int,
         a2[:, kk:, 0] = a1[:, kk:, 0] / ndu[:, pk + 1, :pk + 1]           # r = kk .. p
         d[:, kk:] = a2[:, kk:, 0] * ndu[:, :pk + 1, pk]
         for j in range(1, kk):                                            # r = kk-j .. p-j
-            r = slice(kk - j, p - j + 1)
-            a2[:, r, j] = (a1[:, r, j] - a1[:, r, j - 1]) / ndu[:, pk + 1, :pk + 1]
-            d[:, r] += a2[:, r, j] * ndu[:, :pk + 1, pk]
+            rs = slice(kk - j, p - j + 1)
+            a2[:, rs, j] = (a1[:, rs, j] - a1[:, rs, j - 1]) / ndu[:, pk + 1, :pk + 1]
+            d[:, rs] += a2[:, rs, j] * ndu[:, :pk + 1, pk]
         a2[:, :pk + 1, kk] = -a1[:, :pk + 1, kk - 1] / ndu[:, pk + 1, :pk + 1]  # r = 0 .. pk
         d[:, :pk + 1] += a2[:, :pk + 1, kk] * ndu[:, :pk + 1, pk]
         ders[:, kk, :] = d
@@ -138,10 +179,25 @@ def basis_matrix(knots: np.ndarray, degree: int, u: np.ndarray, derivative: int 
                  n_periodic: int | None = None) -> np.ndarray:
     """Dense collocation matrix ``B[k, i] = d^r N_{i,p}(u_k) / du^r``.
 
-    For a periodic spline pass ``n_periodic`` = number of distinct control
-    points ``n``: the ``n + p`` wrapped basis functions are folded so that
-    column ``i`` multiplies the control point ``P_i`` (``P_{n+i} = P_i``).
-    Shape ``(len(u), n_ctrl)``.
+    Parameters
+    ----------
+    knots : (m,) float ndarray
+        The knot vector (m = n + p + 1; periodic: n + 2p + 1).
+    degree : int
+        The degree p.
+    u : (k,) float ndarray
+        Parameters.
+    derivative : int, default 0
+        The derivative order r.
+    n_periodic : int, optional
+        For a periodic spline, the number n of distinct control points: the
+        ``n + p`` wrapped basis functions are folded so that column ``i``
+        multiplies the control point ``P_i`` (``P_{n+i} = P_i``).
+
+    Returns
+    -------
+    (k, n_ctrl) float ndarray
+        One row per parameter, one column per (distinct) control point.
     """
     U = np.asarray(knots, dtype=float)
     p = int(degree)

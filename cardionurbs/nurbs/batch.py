@@ -42,7 +42,19 @@ __all__ = ["SplineData", "CurveBatch", "SurfaceBatch"]
 @dataclass(frozen=True)
 class SplineData:
     """The arrays of an open NURBS curve (what :class:`CurveBatch` reads),
-    without the validation of :class:`~cardionurbs.nurbs.NurbsCurve`."""
+    without the validation of :class:`~cardionurbs.nurbs.NurbsCurve`.
+
+    Parameters
+    ----------
+    degree : int
+        The degree p >= 1.
+    knots : (n + p + 1,) float ndarray
+        Clamped knot vector.
+    control_points : (n, d) float ndarray
+        Euclidean control points (units of the caller, e.g. mm).
+    weights : (n,) float ndarray
+        Positive weights.
+    """
 
     degree: int
     knots: np.ndarray
@@ -52,7 +64,18 @@ class SplineData:
 
 class CurveBatch:
     """Many open NURBS curves (:class:`~cardionurbs.nurbs.NurbsCurve` or
-    :class:`SplineData`) evaluated together, one (curve, u) per row (A4.2, k = 1)."""
+    :class:`SplineData`) evaluated together, one (curve, u) per row (A4.2, k = 1).
+
+    Parameters
+    ----------
+    curves : sequence of NurbsCurve or SplineData
+        Open (clamped) curves, all of one dimension d.
+
+    Raises
+    ------
+    NurbsInputError
+        A closed curve.
+    """
 
     def __init__(self, curves: Sequence[Any]) -> None:
         self.curves = list(curves)
@@ -77,9 +100,21 @@ class CurveBatch:
             self.by_degree[p] = {"K": K, "Pw": Pw}
 
     def derivatives(self, cid: Any, u: Any) -> tuple[np.ndarray, np.ndarray]:
-        """C and C' (each (k, d)) of curve ``cid[r]`` at ``u[r]``.
+        """C and C' of curve ``cid[r]`` at ``u[r]``, for every row r.
 
         Parameters outside a curve's domain evaluate its end polynomial piece.
+
+        Parameters
+        ----------
+        cid : (k,) int array_like
+            Index into ``curves`` per row.
+        u : (k,) float array_like
+            Parameter per row.
+
+        Returns
+        -------
+        C, dC : (k, d) float ndarray
+            Points (control points' units) and first derivatives (units per unit parameter).
         """
         cid = np.asarray(cid, int)
         u = np.asarray(u, float)
@@ -107,6 +142,16 @@ class SurfaceBatch:
     Knot vectors and homogeneous control nets are padded per (degree_u,
     degree_v) group, so one call costs a few array operations whatever the
     number of surfaces (A3.6/A4.4 with first derivatives, vectorised).
+
+    Parameters
+    ----------
+    surfaces : sequence of NurbsSurface
+        Surfaces open in u (``closed_u`` False), all of one dimension d.
+
+    Raises
+    ------
+    NurbsInputError
+        A surface closed in u.
     """
 
     def __init__(self, surfaces: Sequence[Any]) -> None:
@@ -141,11 +186,24 @@ class SurfaceBatch:
             self.pos_in_group[ids] = np.arange(len(ids))
 
     def derivatives(self, sid: Any, u: Any, v: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """S, ∂S/∂u, ∂S/∂v (each (k, d)) of surface ``sid[r]`` at (u[r], v[r]).
+        """S, ∂S/∂u and ∂S/∂v of surface ``sid[r]`` at (u[r], v[r]), for every row r.
 
         Parameters outside a surface's domain evaluate the C¹ linear extension
         ``S(u_c, v_c) + (u − u_c) S_u + (v − v_c) S_v``, (u_c, v_c) the
         parameters clamped to the domain (derivatives those at the clamped pair).
+
+        Parameters
+        ----------
+        sid : (k,) int array_like
+            Index into ``surfaces`` per row.
+        u, v : (k,) float array_like
+            Parameters per row.
+
+        Returns
+        -------
+        S, Su, Sv : (k, d) float ndarray
+            Points (control points' units) and first partial derivatives (units per
+            unit parameter).
         """
         sid = np.asarray(sid, int)
         u_in, v_in = np.asarray(u, float), np.asarray(v, float)

@@ -22,6 +22,8 @@ from __future__ import annotations
 from math import comb
 from typing import Any
 
+from functools import cached_property
+
 import numpy as np
 
 from cardionurbs.errors import NurbsInputError
@@ -36,8 +38,16 @@ __all__ = ["NurbsCurve", "rational_derivatives"]
 def rational_derivatives(Aw: np.ndarray) -> np.ndarray:
     """Derivatives of a rational curve from those of its homogeneous form (A4.2).
 
-    ``Aw`` has shape ``(k, order + 1, d + 1)`` (last column the weight
-    function); returns ``(k, order + 1, d)`` Euclidean derivatives.
+    Parameters
+    ----------
+    Aw : (k, order + 1, d + 1) float ndarray
+        Derivatives 0 .. order of the homogeneous curve ``(w C, w)`` at k
+        parameters (last column: the weight function).
+
+    Returns
+    -------
+    (k, order + 1, d) float ndarray
+        The Euclidean derivatives ``d^r C / du^r`` (control points' units per unit parameter^r).
     """
     A = Aw[..., :-1]
     w = Aw[..., -1]
@@ -52,18 +62,46 @@ def rational_derivatives(Aw: np.ndarray) -> np.ndarray:
 
 
 class NurbsCurve:
-    """A NURBS curve; ``closed=True`` for the periodic form (see module doc).
+    """A NURBS curve (paper eq. 5); ``closed=True`` for the periodic form (see module doc).
+
+    The arrays are validated and stored read-only; every evaluation is vectorised
+    over parameters.
 
     Parameters
     ----------
-    degree : int >= 1
-    knots : (n + p + 1,) clamped, or (n + 2p + 1,) periodic when ``closed``
-    control_points : (n, d) Euclidean control points (distinct ones if closed)
-    weights : (n,) positive weights, default ones
-    closed : periodic curve
-    """
+    degree : int
+        The degree p >= 1.
+    knots : (n + p + 1,) float array_like
+        Clamped knot vector (end knots repeated p + 1 times); when ``closed``,
+        the (n + 2p + 1,) periodic vector with domain [U[p], U[n + p]] = [0, 1]
+        and U[i + n] = U[i] + 1.
+    control_points : (n, d) float array_like
+        Euclidean control points, n >= p + 1 (the n distinct ones if closed);
+        units of the caller (e.g. mm).
+    weights : (n,) float array_like, optional
+        Positive weights; default ones (a polynomial B-spline).
+    closed : bool, default False
+        The periodic (closed, C^(p-1) across the seam) form.
 
-    __slots__ = ("degree", "knots", "control_points", "weights", "closed", "_hom")
+    Raises
+    ------
+    NurbsInputError
+        A non-integer degree, too few control points, a bad knot vector, non-finite
+        values or non-positive weights (the message names the argument).
+
+    Examples
+    --------
+    A quarter of the unit circle, exactly (rational quadratic):
+
+    >>> import numpy as np
+    >>> from cardionurbs.nurbs import NurbsCurve
+    >>> c = NurbsCurve(2, [0, 0, 0, 1, 1, 1], [[1, 0], [1, 1], [0, 1]],
+    ...                weights=[1, np.sqrt(0.5), 1])
+    >>> bool(np.allclose(np.linalg.norm(c.evaluate(np.linspace(0, 1, 9)), axis=1), 1.0))
+    True
+    >>> c.domain, c.n_control, c.is_rational
+    ((0.0, 1.0), 3, True)
+    """
 
     def __init__(self, degree: int, knots: Any, control_points: Any, weights: Any = None,
                  closed: bool = False) -> None:
@@ -75,13 +113,7 @@ class NurbsCurve:
                                   f"points, got {n}")
         w = V.weight_vector(weights, "weights", (n,))
         if closed:
-            U = V.knot_vector(knots, "knots", p, n + p, clamped=False)
-            if abs(U[p]) > 1e-12 or abs(U[n + p] - 1.0) > 1e-12:
-                raise NurbsInputError(f"knots: a closed curve needs the domain [U[p], U[n+p]] = "
-                                      f"[0, 1], got [{U[p]}, {U[n + p]}]")
-            if np.max(np.abs(U[n:] - U[:2 * p + 1] - 1.0)) > 1e-9:
-                raise NurbsInputError("knots: a closed curve needs a periodic knot vector "
-                                      "(U[i + n] = U[i] + 1)")
+            U = V.periodic_knot_vector(knots, "knots", p, n, "a closed curve")
             U, Pw = canonical_periodic(U, np.column_stack([P, w]), p)  # re-indexing only
             P, w = Pw[:, :-1].copy(), Pw[:, -1].copy()
         else:
@@ -93,7 +125,6 @@ class NurbsCurve:
         self.control_points = P
         self.weights = w
         self.closed = bool(closed)
-        self._hom: np.ndarray | None = None
 
     # ------------------------------------------------------------------ basics
     @property
@@ -117,17 +148,15 @@ class NurbsCurve:
         n_full = self.knots.size - self.degree - 1
         return float(self.knots[self.degree]), float(self.knots[n_full])
 
-    @property
+    @cached_property
     def homogeneous_control_points(self) -> np.ndarray:
-        """``(n_full, d + 1)`` homogeneous points ``(w P, w)``, wrapped when closed."""
-        if self._hom is None:
-            Pw = np.column_stack([self.control_points * self.weights[:, None], self.weights])
-            if self.closed:
-                n = Pw.shape[0]
-                Pw = Pw[np.arange(n + self.degree) % n]
-            Pw.flags.writeable = False
-            self._hom = Pw
-        return self._hom
+        """``(n_full, d + 1)`` homogeneous points ``(w P, w)``, wrapped when closed (read-only)."""
+        Pw = np.column_stack([self.control_points * self.weights[:, None], self.weights])
+        if self.closed:
+            n = Pw.shape[0]
+            Pw = Pw[np.arange(n + self.degree) % n]
+        Pw.flags.writeable = False
+        return Pw
 
     def __repr__(self) -> str:
         kind = "closed" if self.closed else "open"
@@ -140,8 +169,20 @@ class NurbsCurve:
         return V.parameters(u, name, lo, hi, self.closed)
 
     def derivatives(self, u: Any, order: int = 1) -> np.ndarray:
-        """``C`` and its derivatives up to ``order``: shape ``(k, order + 1, d)``
-        (A3.2 on the homogeneous curve, then A4.2)."""
+        """``C`` and its derivatives up to ``order`` (A3.2 on the homogeneous curve, then A4.2).
+
+        Parameters
+        ----------
+        u : float or (k,) float array_like
+            Parameters in the domain (wrapped into it when closed).
+        order : int, default 1
+            Highest derivative order, >= 0.
+
+        Returns
+        -------
+        (k, order + 1, d) float ndarray
+            ``D[:, r] = d^r C / du^r`` (control points' units per unit parameter^r).
+        """
         order = V.degree_value(order, "order", minimum=0)
         u = self._params(u)
         p = self.degree
@@ -153,7 +194,18 @@ class NurbsCurve:
         return rational_derivatives(Aw)
 
     def evaluate(self, u: Any) -> np.ndarray:
-        """Points ``C(u)`` for parameters ``u`` (k,) -> (k, d)."""
+        """Points ``C(u)``.
+
+        Parameters
+        ----------
+        u : float or (k,) float array_like
+            Parameters in the domain (wrapped into it when closed).
+
+        Returns
+        -------
+        (k, d) float ndarray
+            The curve points (control points' units).
+        """
         u = self._params(u)
         p = self.degree
         spans = find_spans(self.knots, p, u)
@@ -163,12 +215,31 @@ class NurbsCurve:
         return Cw[:, :-1] / Cw[:, -1:]
 
     def derivative(self, u: Any, order: int = 1) -> np.ndarray:
-        """``d^order C / du^order`` at ``u`` (k,) -> (k, d)."""
+        """The ``order``-th derivative ``d^order C / du^order``.
+
+        Parameters
+        ----------
+        u : float or (k,) float array_like
+            Parameters in the domain.
+        order : int, default 1
+            The derivative order, >= 0.
+
+        Returns
+        -------
+        (k, d) float ndarray
+            Control points' units per unit parameter^order.
+        """
         return self.derivatives(u, order)[:, order]
 
     # ------------------------------------------------------------ conversions
     def reversed(self) -> "NurbsCurve":
-        """The same point set traversed backwards: ``C'(u) = C(a + b - u)``."""
+        """The same point set traversed backwards: ``C'(u) = C(a + b - u)`` on the domain [a, b].
+
+        Returns
+        -------
+        NurbsCurve
+            Same degree, form and point set.
+        """
         U = self.knots
         if self.closed:
             p, n = self.degree, self.n_control
@@ -184,6 +255,11 @@ class NurbsCurve:
 
         For a closed curve the seam knot is inserted to multiplicity p at both
         ends (A5.1); the first and last control points coincide.
+
+        Returns
+        -------
+        NurbsCurve
+            Open; the same points at the same parameters.
         """
         if not self.closed:
             return self
@@ -192,11 +268,27 @@ class NurbsCurve:
         return NurbsCurve(self.degree, Uc, Qw[:, :-1] / Qw[:, -1:], Qw[:, -1])
 
     def to_dict(self) -> dict[str, Any]:
-        """Lossless JSON-safe dict (floats round-trip exactly through json)."""
+        """Lossless JSON-safe dict (floats round-trip exactly through json).
+
+        Returns
+        -------
+        dict
+            ``degree``, ``knots``, ``control_points``, ``weights``, ``closed`` (lists of floats).
+        """
         return curve_to_dict(self)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "NurbsCurve":
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        data : dict
+            As :meth:`to_dict` writes it.
+
+        Returns
+        -------
+        NurbsCurve
+        """
         args, kwargs = curve_fields(data)
         return cls(*args, **kwargs)

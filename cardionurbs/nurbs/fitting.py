@@ -59,6 +59,18 @@ def chord_length_parameters(points: np.ndarray, closed: bool = False) -> np.ndar
 
     Open: ``ū_0 = 0``, ``ū_m = 1``.  Closed: the closing chord counts, so
     ``ū_0 = 0`` and ``ū_m = 1 - |Q_0 - Q_m| / d`` < 1.
+
+    Parameters
+    ----------
+    points : (m + 1, d) float ndarray
+        Ordered points (any units).
+    closed : bool, default False
+        The points form a loop (no repeated end point).
+
+    Returns
+    -------
+    (m + 1,) float ndarray
+        Non-decreasing parameters in [0, 1] (dimensionless).
     """
     Q = np.asarray(points, dtype=float)
     chords = np.linalg.norm(np.diff(Q, axis=0), axis=1)
@@ -88,6 +100,21 @@ def approximation_knots(params: np.ndarray, n_ctrl: int, degree: int,
     index ``j d - 1/2`` (rule "eq9"), ``j d - 1`` (rule "book": ``i = int(jd)``,
     ``α = jd - i``, ``u_{p+j} = (1-α) ū_{i-1} + α ū_i``), or ``j / (n-p+1)``
     (rule "uniform").
+
+    Parameters
+    ----------
+    params : (m + 1,) float ndarray
+        Data parameters in [0, 1] (:func:`chord_length_parameters`).
+    n_ctrl : int
+        Number of control points n + 1, p + 1 <= n_ctrl <= m + 1.
+    degree : int
+        The degree p.
+    rule : {"eq9", "book", "uniform"}, default "eq9"
+
+    Returns
+    -------
+    (n_ctrl + p + 1,) float ndarray
+        Clamped knots on [0, 1].
     """
     p = degree
     n = n_ctrl - 1
@@ -105,7 +132,21 @@ def periodic_approximation_breaks(params: np.ndarray, n_ctrl: int, rule: str = "
     """Breaks ``0 = B_0 < ... < B_n = 1`` of a periodic fit with ``n_ctrl`` spans:
     ``B_j`` = parameter at fractional data index ``j (m+1)/n`` (the periodic
     analogue of eq. 9: each span holds ``(m+1)/n >= 1`` parameters), or ``j/n``
-    ("uniform")."""
+    ("uniform").
+
+    Parameters
+    ----------
+    params : (m + 1,) float ndarray
+        Data parameters in [0, 1).
+    n_ctrl : int
+        Number of distinct control points n (= spans per period).
+    rule : {"eq9", "book", "uniform"}, default "eq9"
+
+    Returns
+    -------
+    (n_ctrl + 1,) float ndarray
+        The breaks, from 0 to 1.
+    """
     n = n_ctrl
     j = np.arange(n + 1)
     if rule == "uniform":
@@ -129,6 +170,18 @@ def solve_normal_equations(N: np.ndarray, R: np.ndarray) -> np.ndarray:
     non-zeros per row of N, are formed and factorised sparse (SuperLU).
     Either falls back to an SVD least-squares solve when N^T N is singular
     (a knot span without data).
+
+    Parameters
+    ----------
+    N : (m, n) float ndarray
+        Design matrix (basis functions at the data parameters).
+    R : (m, d) float ndarray
+        Right-hand sides (data points, minus fixed end-point terms).
+
+    Returns
+    -------
+    (n, d) float ndarray
+        The control points (units of R).
     """
     if N.shape[1] <= DENSE_SOLVE_MAX:
         # small systems (contours: tens of control points): a dense Cholesky of the
@@ -203,6 +256,27 @@ def least_squares_curve(points: np.ndarray, params: np.ndarray, degree: int, n_c
     equations (paper eq. 10).  Closed: periodic, all ``n_ctrl`` points free.
     With ``weights`` the rational basis ``R_i = N_i w_i / sum_j N_j w_j``
     replaces N (the problem stays linear in the control points).
+
+    Parameters
+    ----------
+    points : (m + 1, d) float ndarray
+        Ordered data points (any units).
+    params : (m + 1,) float ndarray
+        Their parameters in [0, 1].
+    degree : int
+        The degree p.
+    n_ctrl : int
+        Number of (distinct) control points.
+    closed : bool
+        Fit a periodic curve.
+    rule : {"eq9", "book", "uniform"}, default "eq9"
+        Knot placement (:func:`approximation_knots`).
+    weights : (n_ctrl,) float ndarray, optional
+        Fixed positive weights; default ones.
+
+    Returns
+    -------
+    NurbsCurve
     """
     Q = np.asarray(points, dtype=float)
     w = np.ones(n_ctrl) if weights is None else np.asarray(weights, dtype=float)
@@ -254,13 +328,25 @@ def _optimise_weights(points: np.ndarray, params: np.ndarray, degree: int, n_ctr
 
 
 def max_distance(curve: NurbsCurve, points: np.ndarray) -> float:
-    """Maximum true distance from ``points`` to ``curve`` (points' units), as the closest
-    points of :func:`curve_closest_points` give it.
+    """Maximum true distance from ``points`` to ``curve``, as the closest points of
+    :func:`curve_closest_points` give it.
 
     Each point's seed distance (:func:`curve_seed_distances`) bounds its projected
     distance from above, so only the points whose seed distance exceeds the largest
     projected distance found so far can hold the maximum: the 16 farthest by seed are
-    projected first, then only those of the rest that can still beat them."""
+    projected first, then only those of the rest that can still beat them.
+
+    Parameters
+    ----------
+    curve : NurbsCurve
+    points : (m, d) float ndarray
+        Points in the curve's units.
+
+    Returns
+    -------
+    float
+        The largest point-to-curve distance (points' units; 0 for no points).
+    """
     points = V.point_rows(points, "points", curve.dimension)
     seed = curve_seed_distances(curve, points)
     order = np.argsort(-seed)
@@ -309,18 +395,51 @@ def fit_curve(points: Any, degree: int = 3, closed: bool = False, tol: float | N
 
     Parameters
     ----------
-    points : (m, d) points in drawing order (closed: no repeated end point;
-        a repeated one is dropped)
-    degree : curve degree p (paper: order 3 ... degree 3 here by default)
-    closed : fit a periodic curve, C^(p-1) across the seam
-    tol : maximum allowed point-to-curve distance, in the points' units;
-        control points are added until it holds.  Default (with ``n_ctrl``
-        None): 1e-3 of the diagonal of the points' bounding box.
-    n_ctrl : fixed number of (distinct) control points instead of ``tol``
-    rational : also optimise the weights: with ``tol``, once the polynomial
-        fit meets it, the fewest control points whose weighted fit still meets
-        it are searched by bisection below the polynomial count
-    knot_rule : "eq9" (default), "book" or "uniform", see module doc
+    points : (m, d) float array_like
+        Points in drawing order, any units (e.g. mm); closed: no repeated end point
+        (a repeated one is dropped).
+    degree : int, default 3
+        Curve degree p (the paper's order 3 is degree 3 here by default).
+    closed : bool, default False
+        Fit a periodic curve, C^(p-1) across the seam.
+    tol : float, optional
+        Maximum allowed point-to-curve distance, in the points' units; control
+        points are added until it holds.  Default (with ``n_ctrl`` None): 1e-3
+        of the diagonal of the points' bounding box.
+    n_ctrl : int, optional
+        A fixed number of (distinct) control points instead of ``tol``.
+    rational : bool, default False
+        Also optimise the weights: with ``tol``, once the polynomial fit meets it,
+        the fewest control points whose weighted fit still meets it are searched
+        by bisection below the polynomial count.
+    knot_rule : {"eq9", "book", "uniform"}, default "eq9"
+        Knot placement, see module doc.
+
+    Returns
+    -------
+    NurbsCurve
+        Open (clamped, interpolating the end points) or closed, with the fewest
+        control points that meet ``tol`` (or ``n_ctrl`` of them).
+
+    Raises
+    ------
+    NurbsInputError
+        Too few points for the degree, non-finite points, a bad option, or
+        ``tol`` not met even with as many control points as points.
+
+    Examples
+    --------
+    A circle of radius 30 mm sampled at 60 points, fitted within 0.05 mm:
+
+    >>> import numpy as np
+    >>> from cardionurbs import nurbs
+    >>> t = np.linspace(0, 2 * np.pi, 60, endpoint=False)
+    >>> pts = np.column_stack([30 * np.cos(t), 30 * np.sin(t)])
+    >>> c = nurbs.fit_curve(pts, degree=3, closed=True, tol=0.05)
+    >>> c.closed, c.degree, c.dimension
+    (True, 3, 2)
+    >>> bool(nurbs.fitting.max_distance(c, pts) <= 0.05)
+    True
     """
     p = V.degree_value(degree)
     Q = V.finite_array(points, "points", ndim=2)
@@ -342,29 +461,8 @@ def fit_curve(points: Any, degree: int = 3, closed: bool = False, tol: float | N
         if rational:
             return _optimise_weights(Q, params, p, n, closed, knot_rule)
         return least_squares_curve(Q, params, p, n, closed, knot_rule)
-    if tol is None:
-        tol = 1e-3 * float(np.linalg.norm(np.ptp(Q, axis=0)))
-    else:
-        try:
-            tol = float(tol)
-        except (TypeError, ValueError):
-            raise NurbsInputError(f"tol: must be a number, got {tol!r}") from None
-        if not np.isfinite(tol) or tol <= 0:
-            raise NurbsInputError(f"tol: must be a finite number > 0, got {tol}")
-    best: tuple[float, NurbsCurve] | None = None
-    found: NurbsCurve | None = None
-    for n in range(n_min, n_max + 1):
-        c = least_squares_curve(Q, params, p, n, closed, knot_rule)
-        ok, err = _error_within(c, Q, params, tol)
-        if ok:
-            found = c
-            break
-        if best is None or err < best[0]:
-            best = (err, c)
-    if found is None:
-        assert best is not None
-        raise NurbsInputError(f"tol: {tol} not reached with up to {n_max} control points "
-                              f"(best maximum distance {best[0]:.3g})")
+    tol = _tolerance(tol, Q)
+    found = _fewest_within(Q, params, p, closed, knot_rule, tol, n_min, n_max)
     if rational:
         # fewest control points whose weighted fit meets tol: bisection between
         # the minimum and the polynomial count (assumes more points never hurt)
@@ -380,9 +478,53 @@ def fit_curve(points: Any, degree: int = 3, closed: bool = False, tol: float | N
     return found
 
 
+def _tolerance(tol: float | None, Q: np.ndarray) -> float:
+    """:func:`fit_curve`'s ``tol`` checked (a finite number > 0), or its default: 1e-3 of the
+    diagonal of the points' bounding box."""
+    if tol is None:
+        return 1e-3 * float(np.linalg.norm(np.ptp(Q, axis=0)))
+    try:
+        tol = float(tol)
+    except (TypeError, ValueError):
+        raise NurbsInputError(f"tol: must be a number, got {tol!r}") from None
+    if not np.isfinite(tol) or tol <= 0:
+        raise NurbsInputError(f"tol: must be a finite number > 0, got {tol}")
+    return tol
+
+
+def _fewest_within(Q: np.ndarray, params: np.ndarray, p: int, closed: bool, knot_rule: str,
+                   tol: float, n_min: int, n_max: int) -> NurbsCurve:
+    """The polynomial least-squares fit with the fewest control points (from ``n_min``) that
+    lies within ``tol`` of every point (paper §3.2.3, first strategy); NurbsInputError
+    naming the best distance reached when none up to ``n_max`` does."""
+    best: tuple[float, NurbsCurve] | None = None
+    for n in range(n_min, n_max + 1):
+        c = least_squares_curve(Q, params, p, n, closed, knot_rule)
+        ok, err = _error_within(c, Q, params, tol)
+        if ok:
+            return c
+        if best is None or err < best[0]:
+            best = (err, c)
+    assert best is not None
+    raise NurbsInputError(f"tol: {tol} not reached with up to {n_max} control points "
+                          f"(best maximum distance {best[0]:.3g})")
+
+
 # ------------------------------------------------------- sections sharing knots
 class CompatibleFit(NamedTuple):
-    """Result of :func:`fit_compatible_curves`."""
+    """Result of :func:`fit_compatible_curves`.
+
+    Attributes
+    ----------
+    curves : list of NurbsCurve
+        One curve per section, all on the same knot vector.
+    n_ctrl : int
+        The common number of (distinct) control points.
+    max_error : float
+        Largest point-to-curve distance (points' units; NaN: not measured).
+    met : bool
+        Every section within its tolerance.
+    """
 
     curves: list[NurbsCurve]    #: one curve per section, all on the same knot vector
     n_ctrl: int                 #: the common number of (distinct) control points
@@ -406,21 +548,64 @@ def fit_compatible_curves(point_sets: Sequence[Any], degree: int = 3, closed: bo
     own chord-length parameters on that knot vector.
 
     The control-point count grows as in :func:`fit_curve` (paper §3.2.3, first
-    strategy) through ``counts`` (default: every count from p + 1 to m + 1):
-    sections are visited in order and the count is raised until each meets
-    its tolerance; the first count at which every section with a tolerance
-    holds is used for all. ``tol`` (one value or one per section, points'
-    units) bounds the true distance (closest point, :func:`max_distance`)
-    from ``error_points[i]`` (default: the section's own points; ``None`` for
-    a section means it is not judged) to the section's curve. When no count
-    meets every tolerance the largest is used and ``met`` is False.
+    strategy) through ``counts``: sections are visited in order and the count is
+    raised until each meets its tolerance; the first count at which every section
+    with a tolerance holds is used for all. When no count meets every tolerance
+    the largest is used and ``met`` is False.
 
-    ``max_error`` is the largest such distance, measured by projecting the points
-    (:func:`max_distance`); with ``measure_error=False`` a fit that met every tolerance
-    skips that measurement (the projections cost as much as the fit itself) and reports
-    NaN: each section is then known to lie within its tolerance, which is all a caller
-    that only needs the curves asks.
+    Parameters
+    ----------
+    point_sets : sequence of (m + 1, d) float array_like
+        The sections' ordered points (any units, e.g. mm), all of one shape.
+    degree : int, default 3
+        The degree p.
+    closed : bool, default False
+        Periodic sections.
+    tol : float or sequence of float, optional
+        Bound on the true distance (closest point, :func:`max_distance`) from
+        ``error_points[i]`` to the section's curve, one value or one per section
+        (points' units); default 1e-3 of the largest section's bounding-box diagonal.
+    error_points : sequence of (k, d) array_like or None, optional
+        The points each section is judged against (default: its own points;
+        ``None`` for a section: not judged).
+    counts : sequence of int, optional
+        The control-point counts to try (default: every count from p + 1 to m + 1).
+    knot_rule : {"eq9", "book", "uniform"}, default "eq9"
+    measure_error : bool, default True
+        Measure ``max_error`` by projecting the points; False skips that for a fit
+        that met every tolerance (the projections cost as much as the fit itself)
+        and reports NaN: each section is then known to lie within its tolerance.
+
+    Returns
+    -------
+    CompatibleFit
+        The curves, the common count, the largest distance and whether every
+        tolerance was met.
     """
+    p, Q, error_points, tols, steps = _compatible_inputs(point_sets, degree, tol, error_points,
+                                                         counts, knot_rule)
+    search = _CompatibleSearch(Q, p, closed, knot_rule, steps, tols)
+    judged = [(i, V.finite_array(pts, f"error_points[{i}]", ndim=2))
+              for i, pts in enumerate(error_points) if pts is not None]
+    need, met = search.common_count(judged)
+    curves = search.curves_at(need)
+    if met and not measure_error:
+        return CompatibleFit(curves, steps[need], float("nan"), met)
+    worst = 0.0
+    for i, ep in enumerate(error_points):
+        if ep is not None:
+            worst = max(worst, max_distance(curves[i], np.asarray(ep, float)))
+    return CompatibleFit(curves, steps[need], worst, met)
+
+
+def _compatible_inputs(point_sets: Sequence[Any], degree: int,
+                       tol: float | Sequence[float] | None,
+                       error_points: Sequence[Any | None] | None,
+                       counts: Sequence[int] | None, knot_rule: str
+                       ) -> tuple[int, list[np.ndarray], Sequence[Any | None], np.ndarray, list[int]]:
+    """The checked arguments of :func:`fit_compatible_curves`: degree, sections (each
+    (m + 1, d) float), error point sets, per-section tolerances (len(Q),) and the sorted
+    control-point counts to try."""
     p = V.degree_value(degree)
     if knot_rule not in KNOT_RULES:
         raise NurbsInputError(f"knot_rule: must be one of {KNOT_RULES}, got {knot_rule!r}")
@@ -446,60 +631,67 @@ def fit_compatible_curves(point_sets: Sequence[Any], degree: int = 3, closed: bo
     steps = sorted({int(n) for n in (range(p + 1, m1 + 1) if counts is None else counts)})
     if not steps or steps[0] < p + 1 or steps[-1] > m1:
         raise NurbsInputError(f"counts: must lie in [{p + 1}, {m1}], got {list(counts or [])}")
-    own = [chord_length_parameters(q, closed) for q in Q]
-    params = np.mean(own, axis=0)
-    knots_at: dict[int, np.ndarray] = {}
-    fitted: dict[tuple[int, int], NurbsCurve] = {}
+    return p, Q, error_points, tols, steps
 
-    def curve_at(k: int, i: int) -> NurbsCurve:
+
+class _CompatibleSearch:
+    """The count search of :func:`fit_compatible_curves`: fits and tolerance decisions per
+    (count index, section), each made once and only when asked."""
+
+    def __init__(self, Q: list[np.ndarray], p: int, closed: bool, knot_rule: str,
+                 steps: list[int], tols: np.ndarray) -> None:
+        self.Q, self.p, self.closed, self.knot_rule = Q, p, closed, knot_rule
+        self.steps, self.tols = steps, tols
+        self.own = [chord_length_parameters(q, closed) for q in Q]
+        self.params = np.mean(self.own, axis=0)
+        self.knots_at: dict[int, np.ndarray] = {}
+        self.fitted: dict[tuple[int, int], NurbsCurve] = {}
+        self.decided: dict[tuple[int, int], bool] = {}
+
+    def curve_at(self, k: int, i: int) -> NurbsCurve:
+        """Section ``i`` fitted with ``steps[k]`` control points (eq. 10)."""
         # each section is fitted only when asked: the search raises the count for one
         # section at a time, and the other sections' fits at a rejected count are never used
-        if (k, i) not in fitted:
-            n = steps[k]
-            if k not in knots_at:
-                knots_at[k] = _knots(params, p, n, closed, knot_rule)
-            U = knots_at[k]
-            N = basis_matrix(U, p, own[i], n_periodic=n) if closed else basis_matrix(U, p, own[i])
-            P, _ = _control_points(N, np.ones(n), Q[i], closed)
-            fitted[(k, i)] = NurbsCurve(p, U, P, closed=closed)
-        return fitted[(k, i)]
+        if (k, i) not in self.fitted:
+            n, p = self.steps[k], self.p
+            if k not in self.knots_at:
+                self.knots_at[k] = _knots(self.params, p, n, self.closed, self.knot_rule)
+            U = self.knots_at[k]
+            N = (basis_matrix(U, p, self.own[i], n_periodic=n) if self.closed
+                 else basis_matrix(U, p, self.own[i]))
+            P, _ = _control_points(N, np.ones(n), self.Q[i], self.closed)
+            self.fitted[(k, i)] = NurbsCurve(p, U, P, closed=self.closed)
+        return self.fitted[(k, i)]
 
-    def curves_at(k: int) -> list[NurbsCurve]:
-        return [curve_at(k, i) for i in range(len(Q))]
+    def curves_at(self, k: int) -> list[NurbsCurve]:
+        """Every section at count index ``k``."""
+        return [self.curve_at(k, i) for i in range(len(self.Q))]
 
-    judged = [(i, V.finite_array(pts, f"error_points[{i}]", ndim=2))
-              for i, pts in enumerate(error_points) if pts is not None]
-
-    decided: dict[tuple[int, int], bool] = {}
-
-    def holds(k: int, i: int, pts: np.ndarray) -> bool:
+    def holds(self, k: int, i: int, pts: np.ndarray) -> bool:
+        """Whether section ``i`` at count index ``k`` lies within its tolerance of ``pts``."""
         # the same decision as max_distance <= tol, projecting only the points the
         # cheap distance bounds leave undecided (most counts fail or pass outright);
         # each (count, section) is judged once (the final check asks again)
-        if (k, i) not in decided:
-            decided[(k, i)] = bool(_error_within(curve_at(k, i), pts, None, float(tols[i]))[0])
-        return decided[(k, i)]
+        if (k, i) not in self.decided:
+            self.decided[(k, i)] = bool(
+                _error_within(self.curve_at(k, i), pts, None, float(self.tols[i]))[0])
+        return self.decided[(k, i)]
 
-    need, met = 0, True
-    while True:
-        for i, pts in judged:
-            k = next((k for k in range(need, len(steps)) if holds(k, i, pts)), None)
-            if k is None:
-                need, met = len(steps) - 1, False
-                break
-            need = k
-        # a least-squares fit is not monotone in its count: raising the count for a later
-        # section can lose an earlier one, so the count must hold for every section at once
-        if not met or all(holds(need, i, pts) for i, pts in judged):
-            break
-        if need == len(steps) - 1:
-            met = False
-            break
-        need += 1
-    if met and not measure_error:
-        return CompatibleFit(curves_at(need), steps[need], float("nan"), met)
-    worst = 0.0
-    for i, pts in enumerate(error_points):
-        if pts is not None:
-            worst = max(worst, max_distance(curves_at(need)[i], np.asarray(pts, float)))
-    return CompatibleFit(curves_at(need), steps[need], worst, met)
+    def common_count(self, judged: list[tuple[int, np.ndarray]]) -> tuple[int, bool]:
+        """The first count index at which every judged section holds, and whether one does
+        (else the largest index and False)."""
+        last = len(self.steps) - 1
+        need = 0
+        while True:
+            for i, pts in judged:
+                k = next((k for k in range(need, last + 1) if self.holds(k, i, pts)), None)
+                if k is None:
+                    return last, False
+                need = k
+            # a least-squares fit is not monotone in its count: raising the count for a later
+            # section can lose an earlier one, so the count must hold for every section at once
+            if all(self.holds(need, i, pts) for i, pts in judged):
+                return need, True
+            if need == last:
+                return need, False
+            need += 1

@@ -55,7 +55,22 @@ def _float_arrays(knots: np.ndarray, Pw: np.ndarray) -> tuple[np.ndarray, np.nda
 
 
 def distinct_knots(values: np.ndarray, tol: float = _KNOT_EPS) -> tuple[np.ndarray, np.ndarray]:
-    """Distinct values of a sorted knot sequence and their multiplicities."""
+    """Distinct values of a sorted knot sequence and their multiplicities.
+
+    Parameters
+    ----------
+    values : (m,) float ndarray
+        Sorted knots.
+    tol : float
+        Knots closer than this are one value.
+
+    Returns
+    -------
+    values : (k,) float ndarray
+        The distinct knots.
+    counts : (k,) int ndarray
+        Their multiplicities.
+    """
     v = np.asarray(values, dtype=float)
     if v.size == 0:
         return v, np.zeros(0, dtype=int)
@@ -66,15 +81,36 @@ def distinct_knots(values: np.ndarray, tol: float = _KNOT_EPS) -> tuple[np.ndarr
 
 
 def knot_multiplicity(knots: np.ndarray, x: float, tol: float = _KNOT_EPS) -> int:
-    """Number of knots equal to ``x`` (within ``tol``)."""
+    """Number of knots equal to ``x`` (within ``tol``).
+
+    Parameters
+    ----------
+    knots : (m,) float ndarray
+    x : float
+    tol : float
+
+    Returns
+    -------
+    int
+    """
     return int(np.count_nonzero(np.abs(np.asarray(knots, dtype=float) - x) <= tol))
 
 
 def periodic_knot_vector(breaks: np.ndarray, degree: int) -> np.ndarray:
     """Full periodic knot vector ``U`` (n + 2p + 1 knots) from the breaks.
 
-    ``breaks`` are the ``n + 1`` knots ``0 = B[0] <= ... <= B[n] = 1`` of one
-    period; ``U = (B[n-p:n] - 1, B, B[1:p+1] + 1)``.  Needs ``n >= p``.
+    ``U = (B[n-p:n] - 1, B, B[1:p+1] + 1)``.
+
+    Parameters
+    ----------
+    breaks : (n + 1,) float ndarray
+        The knots ``0 = B[0] <= ... <= B[n] = 1`` of one period, n >= p.
+    degree : int
+        The degree p.
+
+    Returns
+    -------
+    (n + 2p + 1,) float ndarray
     """
     B = np.asarray(breaks, dtype=float)
     p = int(degree)
@@ -83,7 +119,24 @@ def periodic_knot_vector(breaks: np.ndarray, degree: int) -> np.ndarray:
 
 
 def periodic_knot(knots: np.ndarray, degree: int, n: int, j: np.ndarray) -> np.ndarray:
-    """Knot ``T_j`` of the bi-infinite periodic sequence (``T_j = U[j]`` in range)."""
+    """Knot ``T_j`` of the bi-infinite periodic sequence (``T_j = U[j]`` in range).
+
+    Parameters
+    ----------
+    knots : (n + 2p + 1,) float ndarray
+        Periodic knot vector.
+    degree : int
+        The degree p.
+    n : int
+        Number of distinct control points (the period in indices).
+    j : int ndarray
+        Indices, any integers.
+
+    Returns
+    -------
+    float ndarray
+        ``T_j``, shape of ``j``.
+    """
     U = np.asarray(knots, dtype=float)
     j = np.asarray(j) - degree
     q, r = np.divmod(j, n)
@@ -92,8 +145,30 @@ def periodic_knot(knots: np.ndarray, degree: int, n: int, j: np.ndarray) -> np.n
 
 def insert_knot(knots: np.ndarray, Pw: np.ndarray, degree: int, u: float, times: int = 1
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Insert ``u`` ``times`` times (A5.1, Boehm).  Works on any knot vector
-    (clamped or not) as long as ``U[p] <= u <= U[n]``.  Returns ``(U', Pw')``."""
+    """Insert ``u`` ``times`` times (A5.1, Boehm).
+
+    Works on any knot vector (clamped or not) as long as ``U[p] <= u <= U[n]``.
+
+    Parameters
+    ----------
+    knots : (n + p + 1,) float ndarray
+        The knot vector.
+    Pw : (n, ...) float ndarray
+        Homogeneous control points ``(w P, w)`` along axis 0 (any trailing shape,
+        e.g. (n, d + 1) for a curve, (n, nv, d + 1) for a surface's u rows).
+    degree : int
+        The degree p.
+    u : float
+        The knot to insert.
+    times : int, default 1
+
+    Returns
+    -------
+    U : float ndarray
+        The new knot vector.
+    Qw : float ndarray
+        The new homogeneous control points (trailing shape of ``Pw``).
+    """
     U, Pw = _float_arrays(knots, Pw)
     p = int(degree)
     r = int(times)
@@ -124,9 +199,26 @@ def insert_knot(knots: np.ndarray, Pw: np.ndarray, degree: int, u: float, times:
 
 def refine_knot_vector(knots: np.ndarray, Pw: np.ndarray, degree: int, X: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray]:
-    """Insert all knots ``X`` (sorted, inside the domain) at once (A5.4).
+    """Insert all knots ``X`` at once (A5.4), for clamped knot vectors.
 
-    For clamped knot vectors.  Returns ``(Ubar, Qw)``.
+    Parameters
+    ----------
+    knots : (n + p + 1,) float ndarray
+        The knot vector (clamped).
+    Pw : (n, ...) float ndarray
+        Homogeneous control points ``(w P, w)`` along axis 0 (any trailing shape,
+        e.g. (n, d + 1) for a curve, (n, nv, d + 1) for a surface's u rows).
+    degree : int
+        The degree p.
+    X : (r,) float ndarray
+        Sorted knots inside the domain.
+
+    Returns
+    -------
+    U : float ndarray
+        The new knot vector.
+    Qw : float ndarray
+        The new homogeneous control points (trailing shape of ``Pw``).
     """
     U, Pw = _float_arrays(knots, Pw)
     X = np.sort(np.asarray(X, dtype=float))
@@ -171,9 +263,26 @@ def insert_knot_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, u: floa
     """Insert ``u`` in [0, 1) once into a periodic spline (Boehm with cyclic
     indices; the periodic counterpart of A5.1).
 
-    ``Pw`` holds the ``n`` distinct homogeneous control points.  The copies
-    ``u + k`` in the other periods are inserted implicitly, so the result is
-    again periodic with ``n + 1`` control points.
+    The copies ``u + k`` in the other periods are inserted implicitly, so the
+    result is again periodic with ``n + 1`` control points.
+
+    Parameters
+    ----------
+    knots : (n + p + 1,) float ndarray
+        The knot vector (periodic, n + 2p + 1 knots; Pw: the n distinct points).
+    Pw : (n, ...) float ndarray
+        Homogeneous control points ``(w P, w)`` along axis 0 (any trailing shape,
+        e.g. (n, d + 1) for a curve, (n, nv, d + 1) for a surface's u rows).
+    degree : int
+        The degree p.
+    u : float
+
+    Returns
+    -------
+    U : float ndarray
+        The new knot vector.
+    Qw : float ndarray
+        The new homogeneous control points (trailing shape of ``Pw``).
     """
     U, Pw = _float_arrays(knots, Pw)
     p = int(degree)
@@ -196,13 +305,32 @@ def insert_knot_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, u: floa
 
 def refine_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, X: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Insert all knots ``X`` (values in [0, 1), repeats allowed) into a periodic
-    spline at once: the Oslo algorithm (Cohen, Lyche & Riesenfeld 1980), the
-    general form of A5.4, vectorised over the new control points.
+    """Insert all knots ``X`` into a periodic spline at once: the Oslo algorithm
+    (Cohen, Lyche & Riesenfeld 1980), the general form of A5.4, vectorised over
+    the new control points.
 
     New control point j is the blossom of the curve at the new knots
     ``tau_{j+1} .. tau_{j+p}``, evaluated by a de Boor triangle on the old
     span mu with ``T_mu <= tau_j < T_{mu+1}`` (indices cyclic).
+
+    Parameters
+    ----------
+    knots : (n + p + 1,) float ndarray
+        The knot vector (periodic; Pw: the n distinct points).
+    Pw : (n, ...) float ndarray
+        Homogeneous control points ``(w P, w)`` along axis 0 (any trailing shape,
+        e.g. (n, d + 1) for a curve, (n, nv, d + 1) for a surface's u rows).
+    degree : int
+        The degree p.
+    X : (r,) float array_like
+        Values in [0, 1), repeats allowed.
+
+    Returns
+    -------
+    U : float ndarray
+        The new knot vector.
+    Qw : float ndarray
+        The new homogeneous control points (trailing shape of ``Pw``).
     """
     U, Pw = _float_arrays(knots, Pw)
     p = int(degree)
@@ -216,8 +344,8 @@ def refine_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, X: np.ndarra
     nn = B.size - 1
     j = np.arange(nn)
     # locate tau_j by its stored value in one period (exact, no "- 1" rounding)
-    q, r = np.divmod(j - p, nn)
-    mu = np.searchsorted(old, Un[p + r], side="right") - 1 + p + q * n
+    q, rem = np.divmod(j - p, nn)
+    mu = np.searchsorted(old, Un[p + rem], side="right") - 1 + p + q * n
     shape = (nn,) + (1,) * (Pw.ndim - 1)
     d = [Pw[(mu - p + i) % n] for i in range(p + 1)]   # local de Boor points
     for r in range(1, p + 1):
@@ -235,6 +363,25 @@ def rotate_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, shift: float
     """Move the seam: the returned spline ``C'`` satisfies ``C'(u) = C(u + shift)``.
 
     Inserts a knot at ``shift`` first when there is none (exact).
+
+    Parameters
+    ----------
+    knots : (n + p + 1,) float ndarray
+        The knot vector (periodic; Pw: the n distinct points).
+    Pw : (n, ...) float ndarray
+        Homogeneous control points ``(w P, w)`` along axis 0 (any trailing shape,
+        e.g. (n, d + 1) for a curve, (n, nv, d + 1) for a surface's u rows).
+    degree : int
+        The degree p.
+    shift : float
+        Parameter shift.
+
+    Returns
+    -------
+    U : float ndarray
+        The new knot vector.
+    Qw : float ndarray
+        The new homogeneous control points (trailing shape of ``Pw``).
     """
     p = int(degree)
     s = float(shift) % 1.0
@@ -254,7 +401,25 @@ def rotate_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, shift: float
 
 def canonical_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int
                        ) -> tuple[np.ndarray, np.ndarray]:
-    """Re-index a periodic spline so that the seam knot run starts at index p."""
+    """Re-index a periodic spline so that the seam knot run starts at index p.
+
+    Parameters
+    ----------
+    knots : (n + p + 1,) float ndarray
+        The knot vector (periodic; Pw: the n distinct points).
+    Pw : (n, ...) float ndarray
+        Homogeneous control points ``(w P, w)`` along axis 0 (any trailing shape,
+        e.g. (n, d + 1) for a curve, (n, nv, d + 1) for a surface's u rows).
+    degree : int
+        The degree p.
+
+    Returns
+    -------
+    U : float ndarray
+        The new knot vector.
+    Qw : float ndarray
+        The new homogeneous control points (trailing shape of ``Pw``).
+    """
     U = np.asarray(knots, dtype=float)
     p = int(degree)
     n = Pw.shape[0]
@@ -274,8 +439,22 @@ def clamp_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Equivalent clamped spline on [0, 1] of a periodic one (A5.1 at 0 and 1).
 
-    Returns ``(U_clamped, Pw_clamped)``: the first and last control points are
-    the curve point at the seam.
+    Parameters
+    ----------
+    knots : (n + p + 1,) float ndarray
+        The knot vector (periodic; Pw: the n distinct points).
+    Pw : (n, ...) float ndarray
+        Homogeneous control points ``(w P, w)`` along axis 0 (any trailing shape,
+        e.g. (n, d + 1) for a curve, (n, nv, d + 1) for a surface's u rows).
+    degree : int
+        The degree p.
+
+    Returns
+    -------
+    U : float ndarray
+        Clamped knots.
+    Qw : float ndarray
+        Homogeneous control points; the first and last are the curve point at the seam.
     """
     p = int(degree)
     U, Pw = _float_arrays(knots, Pw)
@@ -303,12 +482,75 @@ def _bezier_elevation_coefficients(p: int, t: int) -> np.ndarray:
     return a
 
 
+def _a59_insert(bpts: np.ndarray, nextbpts: np.ndarray, alfs: np.ndarray, U: np.ndarray, a: int,
+                ua: float, ub: float, p: int, mul: int, r: int) -> None:
+    """A5.9's "insert knot u = U[b] r times" into the Bezier segment ``bpts`` (in place; the
+    leftmost control points of the next segment go to ``nextbpts``)."""
+    numer = ub - ua
+    for k in range(p, mul, -1):
+        alfs[k - mul - 1] = numer / (U[a + k] - ua)
+    for j in range(1, r + 1):
+        save = r - j
+        s = mul + j
+        for k in range(p, s - 1, -1):
+            bpts[k] = alfs[k - s] * bpts[k] + (1.0 - alfs[k - s]) * bpts[k - 1]
+        nextbpts[save] = bpts[p]
+
+
+def _a59_remove(Qw: np.ndarray, ebpts: np.ndarray, Uh: np.ndarray, ua: float, ub: float, kind: int,
+                cind: int, lbz: int, ph: int, oldr: int) -> None:
+    """A5.9's "remove knot u = U[a] oldr times" between the elevated control points ``Qw``
+    written so far and the elevated segment ``ebpts`` (both in place)."""
+    first = kind - 2
+    last = kind
+    den = ub - ua
+    bet = (ub - Uh[kind - 1]) / den
+    for tr in range(1, oldr):
+        i = first
+        j = last
+        kj = j - kind + 1
+        while j - i > tr:
+            if i < cind:
+                alf = (ub - Uh[i]) / (ua - Uh[i])
+                Qw[i] = alf * Qw[i] + (1.0 - alf) * Qw[i - 1]
+            if j >= lbz:
+                if j - tr <= kind - ph + oldr:
+                    gam = (ub - Uh[j - tr]) / den
+                    ebpts[kj] = gam * ebpts[kj] + (1.0 - gam) * ebpts[kj + 1]
+                else:
+                    ebpts[kj] = bet * ebpts[kj] + (1.0 - bet) * ebpts[kj + 1]
+            i += 1
+            j -= 1
+            kj -= 1
+        first -= 1
+        last += 1
+
+
 def elevate_degree_clamped(knots: np.ndarray, Pw: np.ndarray, degree: int, times: int
                            ) -> tuple[np.ndarray, np.ndarray]:
     """Raise the degree of a clamped spline by ``times`` (A5.9, DegreeElevateCurve).
 
     Every distinct interior knot gains multiplicity ``times`` (continuity is
-    kept); exact for curves with interior knots.  Returns ``(Uh, Qw)``.
+    kept); exact.
+
+    Parameters
+    ----------
+    knots : (n + p + 1,) float ndarray
+        The knot vector (clamped).
+    Pw : (n, ...) float ndarray
+        Homogeneous control points ``(w P, w)`` along axis 0 (any trailing shape,
+        e.g. (n, d + 1) for a curve, (n, nv, d + 1) for a surface's u rows).
+    degree : int
+        The degree p.
+    times : int
+        Degree increase, >= 0.
+
+    Returns
+    -------
+    U : float ndarray
+        The new knot vector.
+    Qw : float ndarray
+        The new homogeneous control points (trailing shape of ``Pw``).
     """
     U, Pw = _float_arrays(knots, Pw)
     p = int(degree)
@@ -350,41 +592,11 @@ def elevate_degree_clamped(knots: np.ndarray, Pw: np.ndarray, degree: int, times
         lbz = (oldr + 2) // 2 if oldr > 0 else 1
         rbz = ph - (r + 1) // 2 if r > 0 else ph
         if r > 0:
-            numer = ub - ua
-            for k in range(p, mul, -1):
-                alfs[k - mul - 1] = numer / (U[a + k] - ua)
-            for j in range(1, r + 1):
-                save = r - j
-                s = mul + j
-                for k in range(p, s - 1, -1):
-                    bpts[k] = alfs[k - s] * bpts[k] + (1.0 - alfs[k - s]) * bpts[k - 1]
-                nextbpts[save] = bpts[p]
+            _a59_insert(bpts, nextbpts, alfs, U, a, ua, ub, p, mul, r)
         for i in range(lbz, ph + 1):
             ebpts[i] = np.tensordot(bezalfs[i], bpts, axes=(0, 0))
         if oldr > 1:
-            first = kind - 2
-            last = kind
-            den = ub - ua
-            bet = (ub - Uh[kind - 1]) / den
-            for tr in range(1, oldr):
-                i = first
-                j = last
-                kj = j - kind + 1
-                while j - i > tr:
-                    if i < cind:
-                        alf = (ub - Uh[i]) / (ua - Uh[i])
-                        Qw[i] = alf * Qw[i] + (1.0 - alf) * Qw[i - 1]
-                    if j >= lbz:
-                        if j - tr <= kind - ph + oldr:
-                            gam = (ub - Uh[j - tr]) / den
-                            ebpts[kj] = gam * ebpts[kj] + (1.0 - gam) * ebpts[kj + 1]
-                        else:
-                            ebpts[kj] = bet * ebpts[kj] + (1.0 - bet) * ebpts[kj + 1]
-                    i += 1
-                    j -= 1
-                    kj -= 1
-                first -= 1
-                last += 1
+            _a59_remove(Qw, ebpts, Uh, ua, ub, kind, cind, lbz, ph, oldr)
         if a != p:
             for _ in range(ph - oldr):
                 Uh[kind] = ua
@@ -413,6 +625,25 @@ def elevate_degree_periodic(knots: np.ndarray, Pw: np.ndarray, degree: int, time
     contains the curve (in homogeneous coordinates each piece is a polynomial
     of degree p <= p + times), so its control points are the unique solution
     of a collocation at ``p + times + 1`` parameters per non-empty span.
+
+    Parameters
+    ----------
+    knots : (n + p + 1,) float ndarray
+        The knot vector (periodic; Pw: the n distinct points).
+    Pw : (n, ...) float ndarray
+        Homogeneous control points ``(w P, w)`` along axis 0 (any trailing shape,
+        e.g. (n, d + 1) for a curve, (n, nv, d + 1) for a surface's u rows).
+    degree : int
+        The degree p.
+    times : int
+        Degree increase, >= 0.
+
+    Returns
+    -------
+    U : float ndarray
+        The new knot vector.
+    Qw : float ndarray
+        The new homogeneous control points (trailing shape of ``Pw``).
     """
     U, Pw = _float_arrays(knots, Pw)
     p = int(degree)

@@ -49,7 +49,19 @@ _ALIGN_SAMPLES = 256
 
 
 def averaging_knots(params: np.ndarray, degree: int) -> np.ndarray:
-    """Clamped knots by averaging (NURBS Book eq. 9.8) for interpolation."""
+    """Clamped knots by averaging (NURBS Book eq. 9.8), for interpolation.
+
+    Parameters
+    ----------
+    params : (K + 1,) float ndarray
+        Non-decreasing parameters in [0, 1].
+    degree : int
+        The degree q <= K.
+
+    Returns
+    -------
+    (K + q + 2,) float ndarray
+    """
     q = degree
     K = params.size - 1
     inner = np.array([params[j:j + q].mean() for j in range(1, K - q + 1)])
@@ -57,10 +69,20 @@ def averaging_knots(params: np.ndarray, degree: int) -> np.ndarray:
 
 
 def section_parameters(P: np.ndarray) -> np.ndarray:
-    """Paper §3.2.4: ``v_k`` from the sections' control points ``P[k, i]`` (K+1, n, d).
+    """Paper §3.2.4: the section parameters ``v_k`` from the sections' control points.
 
     Columns i with ``d_i = 0`` (a point shared by every section) are left out
     of the average.
+
+    Parameters
+    ----------
+    P : (K + 1, n, d) float ndarray
+        ``P[k, i]``: control point i of section k (any units).
+
+    Returns
+    -------
+    (K + 1,) float ndarray
+        From 0 to 1 (dimensionless).
     """
     steps = np.linalg.norm(np.diff(P, axis=0), axis=-1)          # (K, n)
     d = steps.sum(axis=0)                                         # d_i
@@ -121,7 +143,21 @@ def _uniform_shared_step(curves: Sequence[NurbsCurve]) -> float | None:
 
 
 def align_sections(curves: Sequence[NurbsCurve], axis: np.ndarray | None) -> list[NurbsCurve]:
-    """Orientation and seam alignment of the section curves (step 0 above)."""
+    """Orientation and seam alignment of the section curves (step 0 of :func:`loft`).
+
+    Parameters
+    ----------
+    curves : sequence of NurbsCurve
+        The sections in loft order.
+    axis : (d,) float ndarray or None
+        The direction closed 3-D sections are oriented along (None: the first
+        section's own normal); open sections are oriented end to end.
+
+    Returns
+    -------
+    list of NurbsCurve
+        The same curves, reversed and seam-rotated where needed.
+    """
     curves = list(curves)
     if curves[0].closed:
         if curves[0].dimension == 3:
@@ -152,15 +188,42 @@ def loft(sections: Sequence[Any], degree_v: int = 3, align: bool = True) -> Nurb
 
     Parameters
     ----------
-    sections : sequence of K + 1 >= 2 items, each a :class:`NurbsCurve` (all
-        open or all closed, same dimension) or, as the first and/or last item
-        only, a point (d,) where the surface collapses (an apex).
-    degree_v : degree across the sections; ``q = min(degree_v, K)``.
-    align : orient the sections and align their seams (step 0); pass False
-        when the caller has done so.
+    sections : sequence
+        K + 1 >= 2 items, each a :class:`NurbsCurve` (all open or all closed,
+        same dimension) or, as the first and/or last item only, a point (d,)
+        where the surface collapses (an apex).  Any length unit (e.g. mm).
+    degree_v : int, default 3
+        Degree across the sections; ``q = min(degree_v, K)``.
+    align : bool, default True
+        Orient the sections and align their seams (step 0); pass False when
+        the caller has done so.
 
-    Returns a :class:`NurbsSurface` with u along the sections (``closed_u``
-    when the sections are closed) and v from the first to the last section.
+    Returns
+    -------
+    NurbsSurface
+        u along the sections (``closed_u`` when the sections are closed), v from
+        the first to the last section; it interpolates every section.
+
+    Raises
+    ------
+    NurbsInputError
+        Fewer than two sections, mixed open and closed sections, a point inside
+        the sequence, mismatched dimensions.
+
+    Examples
+    --------
+    Two circles (radius 20 mm at z = 0, 25 mm at z = 30) and an apex at z = 50:
+
+    >>> import numpy as np
+    >>> from cardionurbs import nurbs
+    >>> t = np.linspace(0, 2 * np.pi, 36, endpoint=False)
+    >>> c0, c1 = (nurbs.fit_curve(np.column_stack([r * np.cos(t), r * np.sin(t), np.full(36, z)]),
+    ...                           closed=True, n_ctrl=8) for r, z in ((20, 0), (25, 30)))
+    >>> s = nurbs.loft([c0, c1, np.array([0.0, 0.0, 50.0])], degree_v=2)
+    >>> s.closed_u, s.degree_v, s.collapsed_v()
+    (True, 2, (False, True))
+    >>> np.round(s.evaluate_points([0.3], [1.0])[0], 9) + 0.0     # the apex
+    array([ 0.,  0., 50.])
     """
     items = list(sections)
     q_req = V.degree_value(degree_v, "degree_v")
@@ -215,38 +278,46 @@ def loft_compatible(control_points: Any, knots_u: Any, degree_u: int = 3, degree
 
     Parameters
     ----------
-    control_points : (L, n, d) -- row ``k`` is section ``k``'s control polygon
-        (all rows on ``knots_u``, already oriented and seam-aligned).
-    knots_u : the sections' common knot vector (clamped, or periodic when
+    control_points : (L, n, d) float array_like
+        Row ``k`` is section ``k``'s control polygon (all rows on ``knots_u``,
+        already oriented and seam-aligned; any length unit).
+    knots_u : float array_like
+        The sections' common knot vector (clamped, or periodic when
         ``closed_u``); becomes the surface's ``knots_u``.
-    degree_u : the sections' common degree.
-    degree_v : requested degree across the sections.
-    weights : (L, n) section weights, or None for non-rational sections (the
-        interpolation then runs on the Euclidean points and the surface has
-        unit weights); given weights are interpolated in homogeneous
-        coordinates ``(w P, w)``.
-    closed_u : the sections are closed (periodic ``knots_u``).
-    start_point, end_point : optional points (d,) where the surface collapses
-        before the first / after the last section (an apex): an extra row of
-        the net equal to the point, weighted like its neighbouring section;
-        the collapsed row of the result is exactly the point.
+    degree_u : int, default 3
+        The sections' common degree.
+    degree_v : int, default 3
+        Requested degree across the sections.
+    weights : (L, n) float array_like, optional
+        Section weights, or None for non-rational sections (the interpolation
+        then runs on the Euclidean points and the surface has unit weights);
+        given weights are interpolated in homogeneous coordinates ``(w P, w)``.
+    closed_u : bool, default False
+        The sections are closed (periodic ``knots_u``).
+    start_point, end_point : (d,) float array_like, optional
+        Points where the surface collapses before the first / after the last
+        section (an apex): an extra row of the net equal to the point, weighted
+        like its neighbouring section; the collapsed row of the result is exactly
+        the point.
 
-    Returns a :class:`NurbsSurface`, u along the sections, v from the first
-    (or ``start_point``) to the last (or ``end_point``); ``K + 1 = L`` plus the
-    number of end points, ``K >= 1``.
+    Returns
+    -------
+    NurbsSurface
+        u along the sections, v from the first (or ``start_point``) to the last
+        (or ``end_point``); ``K + 1 = L`` plus the number of end points, ``K >= 1``.
     """
     C = V.finite_array(control_points, "control_points", ndim=3)
     p = V.degree_value(degree_u, "degree_u")
     q_req = V.degree_value(degree_v, "degree_v")
     L, n, d = C.shape
-    ends = []
-    for name, pt in (("start_point", start_point), ("end_point", end_point)):
-        ends.append(None if pt is None else V.finite_array(pt, name, ndim=1, last_dim=d))
-    K = L - 1 + sum(e is not None for e in ends)
+    given: list[np.ndarray | None] = [
+        None if pt is None else V.finite_array(pt, name, ndim=1, last_dim=d)
+        for name, pt in (("start_point", start_point), ("end_point", end_point))]
+    K = L - 1 + sum(e is not None for e in given)
     if K < 1:
         raise NurbsInputError(f"control_points: need at least 2 sections, got {K + 1}")
-    k0 = 1 if ends[0] is not None else 0
-    ends = [(k, pt) for k, pt in ((0, ends[0]), (K, ends[1])) if pt is not None]
+    k0 = 1 if given[0] is not None else 0
+    ends = [(k, pt) for k, pt in ((0, given[0]), (K, given[1])) if pt is not None]
     P = np.empty((K + 1, n, d))
     P[k0:k0 + L] = C
     for k, pt in ends:

@@ -41,9 +41,22 @@ def _check_curve(curve: Any, name: str = "curve") -> NurbsCurve:
 
 
 def insert_knots(curve: NurbsCurve, knots: Any) -> NurbsCurve:
-    """Insert the knots ``knots`` (each value once per occurrence) -- A5.4 for
-    open curves, the Oslo algorithm with cyclic indices for closed ones.  The curve keeps its
-    shape and parameterisation.  Interior multiplicity may reach the degree.
+    """Insert the knots ``knots`` (each value once per occurrence) -- A5.4 for open
+    curves, the Oslo algorithm with cyclic indices for closed ones.
+
+    The curve keeps its shape and parameterisation.  Interior multiplicity may
+    reach the degree.
+
+    Parameters
+    ----------
+    curve : NurbsCurve
+    knots : float array_like
+        Knot values inside the domain (closed: taken modulo 1).
+
+    Returns
+    -------
+    NurbsCurve
+        The same curve with more control points.
     """
     curve = _check_curve(curve)
     X = np.sort(np.atleast_1d(V.finite_array(knots, "knots")).ravel())
@@ -71,9 +84,20 @@ def insert_knots(curve: NurbsCurve, knots: Any) -> NurbsCurve:
 
 
 def elevate_degree(curve: NurbsCurve, times: int = 1) -> NurbsCurve:
-    """The same curve with degree raised by ``times`` (A5.9 for open curves;
+    """The same curve with its degree raised by ``times`` (A5.9 for open curves;
     exact re-representation in the elevated periodic spline space for closed
-    ones).  Every distinct knot gains multiplicity ``times``."""
+    ones).  Every distinct knot gains multiplicity ``times``.
+
+    Parameters
+    ----------
+    curve : NurbsCurve
+    times : int, default 1
+        Degree increase, >= 0.
+
+    Returns
+    -------
+    NurbsCurve
+    """
     curve = _check_curve(curve)
     t = V.degree_value(times, "times", minimum=0)
     if t == 0:
@@ -87,7 +111,19 @@ def elevate_degree(curve: NurbsCurve, times: int = 1) -> NurbsCurve:
 
 
 def reparameterise(curve: NurbsCurve, lo: float = 0.0, hi: float = 1.0) -> NurbsCurve:
-    """Open curve with its domain mapped linearly onto [lo, hi] (same shape)."""
+    """Open curve with its domain mapped linearly onto [lo, hi] (same shape).
+
+    Parameters
+    ----------
+    curve : NurbsCurve
+        An open curve.
+    lo, hi : float
+        The new domain, lo < hi.
+
+    Returns
+    -------
+    NurbsCurve
+    """
     a, b = curve.domain
     if curve.closed or (a == lo and b == hi):
         return curve
@@ -98,7 +134,19 @@ def reparameterise(curve: NurbsCurve, lo: float = 0.0, hi: float = 1.0) -> Nurbs
 
 def rotate_seam(curve: NurbsCurve, shift: float) -> NurbsCurve:
     """Closed curve ``C'`` with ``C'(u) = C(u + shift)`` (the seam moves to
-    ``C(shift)``); exact, inserts a knot at ``shift`` when needed."""
+    ``C(shift)``); exact, inserts a knot at ``shift`` when needed.
+
+    Parameters
+    ----------
+    curve : NurbsCurve
+        A closed curve.
+    shift : float
+        Parameter shift (modulo 1).
+
+    Returns
+    -------
+    NurbsCurve
+    """
     curve = _check_curve(curve)
     if not curve.closed:
         raise NurbsInputError("curve: rotate_seam needs a closed curve")
@@ -118,7 +166,17 @@ def make_compatible(curves: Sequence[NurbsCurve]) -> list[NurbsCurve]:
     """Bring curves (all open or all closed) to one degree and one knot vector
     (paper §3.2.4 steps 1–3): elevate to the highest degree, map open domains
     to [0, 1], then insert in each curve the knots the others have (the union
-    of the knot multisets).  Shapes are unchanged."""
+    of the knot multisets).  Shapes are unchanged.
+
+    Parameters
+    ----------
+    curves : sequence of NurbsCurve
+
+    Returns
+    -------
+    list of NurbsCurve
+        Same order, one degree and one knot vector.
+    """
     curves = [_check_curve(c, f"curves[{i}]") for i, c in enumerate(curves)]
     if not curves:
         raise NurbsInputError("curves: need at least one curve")

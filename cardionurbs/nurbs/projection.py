@@ -10,6 +10,8 @@ clamped to the domain, or wrapped around a periodic direction.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -29,6 +31,28 @@ __all__ = ["closest_points", "curve_closest_points", "surface_closest_points",
 _BACKTRACK = (1.0, 0.25, 1.0 / 16, 1.0 / 64)
 
 
+def _backtrack(params: tuple[np.ndarray, ...], dist: np.ndarray,
+               trial: Callable[[np.ndarray, float], tuple[tuple[np.ndarray, ...], np.ndarray]]
+               ) -> np.ndarray:
+    """The backtracking of a Newton step, for every point at once: each point keeps the first
+    step fraction of :data:`_BACKTRACK` whose trial lowers its distance. ``trial(idx, scale)``
+    gives the trial parameters (one array per parameter direction) and their distances for
+    the points ``idx``; ``params`` (arrays (k,)) and ``dist`` (k,) are updated in place.
+    Returns the (k,) bool mask of the points no fraction helped."""
+    todo = np.ones(dist.size, dtype=bool)
+    for scale in _BACKTRACK:
+        idx = np.flatnonzero(todo)
+        if idx.size == 0:
+            break
+        cand, cd = trial(idx, scale)
+        ok = cd < dist[idx]
+        for arr, c in zip(params, cand):
+            arr[idx[ok]] = c[ok]
+        dist[idx[ok]] = cd[ok]
+        todo[idx[ok]] = False
+    return todo
+
+
 def _span_samples(knots: np.ndarray, degree: int, lo: float, hi: float, per_span: int,
                   periodic: bool, minimum: int = 64) -> np.ndarray:
     """Parameters sampling every non-empty knot span ``per_span`` times (at
@@ -41,27 +65,25 @@ def _span_samples(knots: np.ndarray, degree: int, lo: float, hi: float, per_span
     return u if periodic else np.append(u, hi)
 
 
-#: (degree, closed, knots, parameters) -> the basis values and control-point rows of a sample
-_SAMPLE_BASES: dict = {}
+@functools.lru_cache(maxsize=256)
+def _sample_basis(degree: int, closed: bool, knots: bytes, u: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """The basis values (k, p + 1) and control-point rows (k, p + 1) of the parameters ``u`` on
+    the knot vector ``knots`` (both float64 buffers, as ``ndarray.tobytes`` gives them)."""
+    U, p = np.frombuffer(knots), degree
+    uu = V.parameters(np.frombuffer(u), "u", float(U[p]), float(U[U.size - p - 1]), closed)
+    spans = find_spans(U, p, uu)
+    N = basis_function_derivatives(spans, uu, p, U, 0)[:, 0, :]
+    return N, spans[:, None] - p + np.arange(p + 1)[None, :]
 
 
 def _sample_points(curve: Any, u: np.ndarray) -> np.ndarray:
     """``curve.evaluate(u)`` for a sample ``u`` that many curves on the same knots ask for
     (the fits of one surface's sections share a knot vector, and so the samples of their
-    distance bounds): the basis values are computed once per knots and sample, and each
-    curve only contracts them with its control points (the same arithmetic)."""
-    key = (curve.degree, curve.closed, curve.knots.tobytes(), u.tobytes())
-    hit = _SAMPLE_BASES.get(key)
-    if hit is None:
-        uu = curve._params(u)
-        p = curve.degree
-        spans = find_spans(curve.knots, p, uu)
-        N = basis_function_derivatives(spans, uu, p, curve.knots, 0)[:, 0, :]
-        idx = spans[:, None] - p + np.arange(p + 1)[None, :]
-        if len(_SAMPLE_BASES) >= 256:
-            _SAMPLE_BASES.clear()
-        hit = _SAMPLE_BASES[key] = (N, idx)
-    N, idx = hit
+    distance bounds): the basis values are computed once per knots and sample
+    (:func:`_sample_basis`), and each curve only contracts them with its control points
+    (the same arithmetic)."""
+    N, idx = _sample_basis(curve.degree, curve.closed, np.ascontiguousarray(curve.knots, float).tobytes(),
+                           np.ascontiguousarray(u, float).tobytes())
     Cw = np.einsum("kj,kjc->kc", N, curve.homogeneous_control_points[idx])
     return Cw[:, :-1] / Cw[:, -1:]
 
@@ -72,10 +94,25 @@ def _wrap_or_clip(u: np.ndarray, lo: float, hi: float, periodic: bool) -> np.nda
 
 def curve_closest_points(curve: Any, points: Any, iterations: int = 8,
                          samples_per_span: int = 16) -> tuple[np.ndarray, np.ndarray]:
-    """Parameters and distances of the curve points closest to ``points``.
+    """Parameters and distances of the curve points closest to ``points``
+    (point inversion, NURBS Book eq. 6.3, Newton from the nearest of a dense sample).
 
-    ``points`` (m, d), or one point (d,) as m = 1 -> ``(u (m,), distance (m,))``,
-    distances in the points' units.
+    Parameters
+    ----------
+    curve : NurbsCurve
+    points : (m, d) or (d,) float array_like
+        Query points in the curve's units; one point counts as m = 1.
+    iterations : int, default 8
+        Newton iterations at most.
+    samples_per_span : int, default 16
+        Seed samples per knot span.
+
+    Returns
+    -------
+    u : (m,) float ndarray
+        Parameters of the closest points.
+    distance : (m,) float ndarray
+        Distances, points' units.
     """
     Q = V.point_rows(points, "points", curve.dimension)
     lo, hi = curve.domain
@@ -95,16 +132,12 @@ def curve_closest_points(curve: Any, points: Any, iterations: int = 8,
         fp = g2 + np.einsum("kd,kd->k", D[:, 2], r)
         fp = np.where(fp > 1e-12 * np.maximum(g2, 1e-300), fp, np.maximum(g2, 1e-300))
         step = -f / fp
-        todo = np.ones(active.size, dtype=bool)
-        for scale in _BACKTRACK:
-            idx = np.flatnonzero(todo)
-            if idx.size == 0:
-                break
+
+        def trial(idx: np.ndarray, scale: float) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
             cand = _wrap_or_clip(ua[idx] + scale * step[idx], lo, hi, curve.closed)
-            cd = np.linalg.norm(curve.evaluate(cand) - Qa[idx], axis=1)
-            ok = cd < da[idx]
-            ua[idx[ok]], da[idx[ok]] = cand[ok], cd[ok]
-            todo[idx[ok]] = False
+            return (cand,), np.linalg.norm(curve.evaluate(cand) - Qa[idx], axis=1)
+
+        todo = _backtrack((ua,), da, trial)
         u[active], dist[active] = ua, da
         # keep iterating where the step helped and was not negligible
         active = active[~todo & (np.abs(step) > 1e-14 * (hi - lo))]
@@ -115,7 +148,19 @@ def curve_seed_distances(curve: Any, points: Any, samples_per_span: int = 16) ->
     """Distance of each point to the nearest of the samples :func:`curve_closest_points`
     seeds its Newton iterations from (same ``samples_per_span``): an upper bound of the
     distance that function returns for the point, since Newton only accepts steps that
-    bring the point closer."""
+    bring the point closer.
+
+    Parameters
+    ----------
+    curve : NurbsCurve
+    points : (m, d) or (d,) float array_like
+    samples_per_span : int, default 16
+
+    Returns
+    -------
+    (m,) float ndarray
+        Points' units.
+    """
     Q = V.point_rows(points, "points", curve.dimension)
     lo, hi = curve.domain
     us = _span_samples(curve.knots, curve.degree, lo, hi, samples_per_span, curve.closed)
@@ -130,6 +175,17 @@ def curve_distance_bounds(curve: Any, points: np.ndarray, samples_per_span: int 
     longest chord between consecutive samples (every curve point lies within
     half an arc of a sample; arcs are chord-long to first order, so a whole
     chord is a safe margin).
+
+    Parameters
+    ----------
+    curve : NurbsCurve
+    points : (m, d) float ndarray
+    samples_per_span : int, default 16
+
+    Returns
+    -------
+    lower, upper : (m,) float ndarray
+        Points' units.
     """
     lo, hi = curve.domain
     us = _span_samples(curve.knots, curve.degree, lo, hi, samples_per_span, curve.closed,
@@ -167,12 +223,30 @@ def _distinct_seeds(active: np.ndarray, u: np.ndarray, v: np.ndarray, k: int,
 def surface_closest_points(surface: Any, points: Any, iterations: int = 16,
                            samples_per_span: int = 6, seeds: int = 3
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Parameters and distances of the surface points closest to ``points``.
+    """Parameters and distances of the surface points closest to ``points``
+    (NURBS Book eq. 6.6).
 
     Newton runs from the ``seeds`` nearest samples of each point and the
     best result is kept (guards against local minima, e.g. near an apex).
 
-    ``points`` (m, 3), or one point (3,) as m = 1 -> ``(u (m,), v (m,), distance (m,))``.
+    Parameters
+    ----------
+    surface : NurbsSurface
+    points : (m, 3) or (3,) float array_like
+        Query points in the surface's units; one point counts as m = 1.
+    iterations : int, default 16
+        Newton iterations at most.
+    samples_per_span : int, default 6
+        Seed samples per knot span in each direction.
+    seeds : int, default 3
+        Newton starts per point.
+
+    Returns
+    -------
+    u, v : (m,) float ndarray
+        Parameters of the closest points.
+    distance : (m,) float ndarray
+        Distances, points' units.
     """
     P = V.point_rows(points, "points", surface.dimension)
     (ulo, uhi), (vlo, vhi) = surface.domain_u, surface.domain_v
@@ -223,17 +297,13 @@ def surface_closest_points(surface: Any, points: Any, iterations: int = 16,
         det = huu * hvv - huv * huv
         du = -(hvv * gu - huv * gv) / det
         dv = -(huu * gv - huv * gu) / det
-        todo = np.ones(active.size, dtype=bool)
-        for scale in _BACKTRACK:
-            idx = np.flatnonzero(todo)
-            if idx.size == 0:
-                break
+
+        def trial(idx: np.ndarray, scale: float) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
             cu = _wrap_or_clip(ua[idx] + scale * du[idx], ulo, uhi, surface.closed_u)
             cv = np.clip(va[idx] + scale * dv[idx], vlo, vhi)
-            cd = np.linalg.norm(surface.evaluate_points(cu, cv) - Pa[idx], axis=1)
-            ok = cd < da[idx]
-            ua[idx[ok]], va[idx[ok]], da[idx[ok]] = cu[ok], cv[ok], cd[ok]
-            todo[idx[ok]] = False
+            return (cu, cv), np.linalg.norm(surface.evaluate_points(cu, cv) - Pa[idx], axis=1)
+
+        todo = _backtrack((ua, va), da, trial)
         u[active], v[active], dist[active] = ua, va, da
         active = active[~todo]
     best = dist.reshape(m, k).argmin(axis=1) + np.arange(m) * k
@@ -244,8 +314,23 @@ def surface_closest_points(surface: Any, points: Any, iterations: int = 16,
 def closest_points(geometry: Any, points: Any, iterations: int = 16) -> tuple[np.ndarray, ...]:
     """Closest points on a curve or a surface.
 
-    ``points`` (m, d), or a single point (d,) (then m = 1).
-    Surface: ``(u, v, distance)``; curve: ``(u, distance)``; each (m,).
+    Parameters
+    ----------
+    geometry : NurbsCurve or NurbsSurface
+    points : (m, d) or (d,) float array_like
+        Query points (one point: m = 1), geometry's units.
+    iterations : int, default 16
+        Newton iterations at most.
+
+    Returns
+    -------
+    tuple of (m,) float ndarray
+        Surface: ``(u, v, distance)``; curve: ``(u, distance)``.
+
+    Raises
+    ------
+    NurbsInputError
+        ``geometry`` is neither.
     """
     if isinstance(geometry, NurbsSurface):
         return surface_closest_points(geometry, points, iterations)

@@ -41,7 +41,19 @@ def _xyz(points: np.ndarray) -> np.ndarray:
 
 
 def to_rhino(geometry: NurbsCurve | NurbsSurface) -> Any:
-    """A ``rhino3dm.NurbsCurve`` or ``rhino3dm.NurbsSurface`` of the same shape."""
+    """A ``rhino3dm.NurbsCurve`` or ``rhino3dm.NurbsSurface`` of the same shape.
+
+    Needs the ``cad`` extra (rhino3dm, imported here).
+
+    Parameters
+    ----------
+    geometry : NurbsCurve or NurbsSurface
+        2-D or 3-D control points (2-D ones get z = 0).
+
+    Returns
+    -------
+    rhino3dm.NurbsCurve or rhino3dm.NurbsSurface
+    """
     r = _rhino3dm()
     if isinstance(geometry, NurbsCurve):
         c = geometry.to_clamped()
@@ -72,11 +84,26 @@ def to_rhino(geometry: NurbsCurve | NurbsSurface) -> Any:
 
 def write_3dm(path: str | os.PathLike, geometries: Iterable[NurbsCurve | NurbsSurface],
               names: Iterable[str] | None = None, version: int = 7) -> Path:
-    """Write curves and surfaces to a ``.3dm`` file; returns the path.
+    """Write curves and surfaces to a ``.3dm`` file.
 
     A plain write (this package knows no file policy): callers that must never
     leave a half-written file write to a temporary path and rename it
     (:func:`cardionurbs.io.export.export_model_3dm` does).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write.
+    geometries : iterable of NurbsCurve or NurbsSurface
+    names : iterable of str, optional
+        One object name per geometry.
+    version : int, default 7
+        The 3dm file version.
+
+    Returns
+    -------
+    Path
+        ``path``.
     """
     r = _rhino3dm()
     model = r.File3dm()

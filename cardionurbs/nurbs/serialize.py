@@ -17,7 +17,17 @@ _FORMAT = 1
 
 
 def curve_to_dict(curve: Any) -> dict[str, Any]:
-    """Dict of a :class:`~cardionurbs.nurbs.curve.NurbsCurve`."""
+    """Dict of a :class:`~cardionurbs.nurbs.curve.NurbsCurve` (lossless, JSON-safe).
+
+    Parameters
+    ----------
+    curve : NurbsCurve
+
+    Returns
+    -------
+    dict
+        ``type``, ``format``, ``degree``, ``closed``, ``knots``, ``control_points``, ``weights``.
+    """
     return {
         "type": "NurbsCurve", "format": _FORMAT,
         "degree": int(curve.degree), "closed": bool(curve.closed),
@@ -44,14 +54,38 @@ def _typed_fields(data: dict[str, Any], kind: str, keys: tuple[str, ...]) -> lis
 
 
 def curve_fields(data: dict[str, Any]) -> tuple[list[Any], dict[str, Any]]:
-    """Constructor arguments ``(args, kwargs)`` of the curve a :func:`curve_to_dict`
-    dict describes (``NurbsCurve.from_dict`` builds it; this module knows no class)."""
+    """Constructor arguments of the curve a :func:`curve_to_dict` dict describes
+    (``NurbsCurve.from_dict`` builds it; this module knows no class).
+
+    Parameters
+    ----------
+    data : dict
+
+    Returns
+    -------
+    args : list
+    kwargs : dict
+
+    Raises
+    ------
+    NurbsInputError
+        A missing or mistyped field (named).
+    """
     fields = _typed_fields(data, "NurbsCurve", ("degree", "knots", "control_points", "weights"))
     return fields, {"closed": bool(data.get("closed", False))}
 
 
 def surface_to_dict(surface: Any) -> dict[str, Any]:
-    """Dict of a :class:`~cardionurbs.nurbs.surface.NurbsSurface`."""
+    """Dict of a :class:`~cardionurbs.nurbs.surface.NurbsSurface` (lossless, JSON-safe).
+
+    Parameters
+    ----------
+    surface : NurbsSurface
+
+    Returns
+    -------
+    dict
+    """
     return {
         "type": "NurbsSurface", "format": _FORMAT,
         "degree_u": int(surface.degree_u), "degree_v": int(surface.degree_v),
@@ -63,8 +97,23 @@ def surface_to_dict(surface: Any) -> dict[str, Any]:
 
 
 def surface_fields(data: dict[str, Any]) -> tuple[list[Any], dict[str, Any]]:
-    """Constructor arguments ``(args, kwargs)`` of the surface a :func:`surface_to_dict`
-    dict describes (``NurbsSurface.from_dict`` builds it)."""
+    """Constructor arguments of the surface a :func:`surface_to_dict` dict describes
+    (``NurbsSurface.from_dict`` builds it).
+
+    Parameters
+    ----------
+    data : dict
+
+    Returns
+    -------
+    args : list
+    kwargs : dict
+
+    Raises
+    ------
+    NurbsInputError
+        A missing or mistyped field (named).
+    """
     fields = _typed_fields(data, "NurbsSurface", ("degree_u", "degree_v", "knots_u", "knots_v",
                                                    "control_points", "weights"))
     return fields, {"closed_u": bool(data.get("closed_u", False))}

@@ -17,6 +17,7 @@ whose control row is a single repeated point is a *collapsed end* (an apex);
 
 from __future__ import annotations
 
+from functools import cached_property
 from math import comb
 from typing import Any
 
@@ -34,8 +35,16 @@ __all__ = ["NurbsSurface", "rational_surface_derivatives"]
 def rational_surface_derivatives(Aw: np.ndarray) -> np.ndarray:
     """Euclidean partial derivatives from homogeneous ones (A4.4).
 
-    ``Aw`` has shape ``(..., K + 1, L + 1, d + 1)``, ``Aw[..., k, l]`` being
-    d^(k+l) Sw / du^k dv^l; returns ``(..., K + 1, L + 1, d)``.
+    Parameters
+    ----------
+    Aw : (..., K + 1, L + 1, d + 1) float ndarray
+        ``Aw[..., k, l]`` = d^(k+l) Sw / du^k dv^l of the homogeneous surface
+        ``(w S, w)`` (last column: the weight function).
+
+    Returns
+    -------
+    (..., K + 1, L + 1, d) float ndarray
+        The Euclidean partial derivatives (control points' units per unit parameter^(k+l)).
     """
     A = Aw[..., :-1]
     w = Aw[..., -1]
@@ -58,20 +67,31 @@ def rational_surface_derivatives(Aw: np.ndarray) -> np.ndarray:
 
 
 class NurbsSurface:
-    """A NURBS surface (see module doc).
+    """A NURBS tensor-product surface (see module doc), optionally periodic in u.
 
     Parameters
     ----------
-    degree_u, degree_v : int >= 1
-    knots_u : clamped (nu + p + 1,) or periodic (nu + 2p + 1,) when ``closed_u``
-    knots_v : clamped (nv + q + 1,)
-    control_points : (nu, nv, d) Euclidean control net
-    weights : (nu, nv) positive, default ones
-    closed_u : periodic in u
-    """
+    degree_u, degree_v : int
+        Degrees p, q >= 1.
+    knots_u : (nu + p + 1,) float array_like
+        Clamped knot vector in u; when ``closed_u`` the (nu + 2p + 1,) periodic one
+        (u domain [0, 1], U[i + nu] = U[i] + 1).
+    knots_v : (nv + q + 1,) float array_like
+        Clamped knot vector in v.
+    control_points : (nu, nv, d) float array_like
+        Euclidean control net (units of the caller, e.g. mm); the nu distinct rows
+        when ``closed_u``.
+    weights : (nu, nv) float array_like, optional
+        Positive weights; default ones.
+    closed_u : bool, default False
+        Periodic in u (the rows wrap around).
 
-    __slots__ = ("degree_u", "degree_v", "knots_u", "knots_v", "control_points", "weights",
-                 "closed_u", "_hom")
+    Raises
+    ------
+    NurbsInputError
+        Bad degrees, too small a net, bad knot vectors, non-finite values or
+        non-positive weights (the message names the argument).
+    """
 
     def __init__(self, degree_u: int, degree_v: int, knots_u: Any, knots_v: Any,
                  control_points: Any, weights: Any = None, closed_u: bool = False) -> None:
@@ -85,13 +105,7 @@ class NurbsSurface:
         w = V.weight_vector(weights, "weights", (nu, nv))
         Kv = V.knot_vector(knots_v, "knots_v", q, nv, clamped=True)
         if closed_u:
-            Ku = V.knot_vector(knots_u, "knots_u", p, nu + p, clamped=False)
-            if abs(Ku[p]) > 1e-12 or abs(Ku[nu + p] - 1.0) > 1e-12:
-                raise NurbsInputError(f"knots_u: closed_u needs the u domain [0, 1], got "
-                                      f"[{Ku[p]}, {Ku[nu + p]}]")
-            if np.max(np.abs(Ku[nu:] - Ku[:2 * p + 1] - 1.0)) > 1e-9:
-                raise NurbsInputError("knots_u: closed_u needs a periodic knot vector "
-                                      "(U[i + nu] = U[i] + 1)")
+            Ku = V.periodic_knot_vector(knots_u, "knots_u", p, nu, "a surface closed in u")
             Ku, Pw = canonical_periodic(Ku, np.concatenate([P, w[..., None]], axis=-1), p)
             P, w = Pw[..., :-1].copy(), Pw[..., -1].copy()
         else:
@@ -102,38 +116,49 @@ class NurbsSurface:
         self.knots_u, self.knots_v = Ku, Kv
         self.control_points, self.weights = P, w
         self.closed_u = bool(closed_u)
-        self._hom: np.ndarray | None = None
 
     # ------------------------------------------------------------------ basics
     @property
     def dimension(self) -> int:
+        """Number of coordinates d of the control points."""
         return int(self.control_points.shape[2])
 
     @property
     def domain_u(self) -> tuple[float, float]:
+        """Parameter domain in u, ``(U[p], U[n_full])``; (0, 1) when closed_u."""
         n_full = self.knots_u.size - self.degree_u - 1
         return float(self.knots_u[self.degree_u]), float(self.knots_u[n_full])
 
     @property
     def domain_v(self) -> tuple[float, float]:
+        """Parameter domain in v, ``(V[q], V[nv])``."""
         n = self.knots_v.size - self.degree_v - 1
         return float(self.knots_v[self.degree_v]), float(self.knots_v[n])
 
-    @property
+    @cached_property
     def homogeneous_control_points(self) -> np.ndarray:
-        """``(nu_full, nv, d + 1)`` homogeneous net, rows wrapped when closed_u."""
-        if self._hom is None:
-            Pw = np.concatenate([self.control_points * self.weights[..., None],
-                                 self.weights[..., None]], axis=-1)
-            if self.closed_u:
-                nu = Pw.shape[0]
-                Pw = Pw[np.arange(nu + self.degree_u) % nu]
-            Pw.flags.writeable = False
-            self._hom = Pw
-        return self._hom
+        """``(nu_full, nv, d + 1)`` homogeneous net, rows wrapped when closed_u (read-only)."""
+        Pw = np.concatenate([self.control_points * self.weights[..., None],
+                             self.weights[..., None]], axis=-1)
+        if self.closed_u:
+            nu = Pw.shape[0]
+            Pw = Pw[np.arange(nu + self.degree_u) % nu]
+        Pw.flags.writeable = False
+        return Pw
 
     def collapsed_v(self, rtol: float = 1e-12) -> tuple[bool, bool]:
-        """Whether the boundary curves at v = start / v = end are single points."""
+        """Whether the boundary curves at v = start / v = end are single points (an apex).
+
+        Parameters
+        ----------
+        rtol : float, default 1e-12
+            Tolerance relative to the net's size.
+
+        Returns
+        -------
+        (bool, bool)
+            (start collapsed, end collapsed).
+        """
         P = self.control_points
         scale = max(float(np.ptp(P.reshape(-1, P.shape[-1]), axis=0).max()), 1e-300)
         first = float(np.ptp(P[:, 0], axis=0).max()) <= rtol * scale
@@ -168,7 +193,20 @@ class NurbsSurface:
         return out
 
     def evaluate(self, u: Any, v: Any) -> np.ndarray:
-        """Points on the grid ``u (a,) x v (b,)`` -> ``(a, b, d)``."""
+        """Points on the parameter grid ``u x v``.
+
+        Parameters
+        ----------
+        u : (a,) float array_like
+            Parameters in u.
+        v : (b,) float array_like
+            Parameters in v.
+
+        Returns
+        -------
+        (a, b, d) float ndarray
+            Surface points (control points' units).
+        """
         u, v = self._uv(u, v)
         wP, w = self._split_net
         nfu, nv, d = wP.shape
@@ -204,7 +242,18 @@ class NurbsSurface:
         return np.matmul(Dv[:, None], T)                                   # (k,a,b,c)
 
     def evaluate_points(self, u: Any, v: Any) -> np.ndarray:
-        """Points at paired parameters ``(u_k, v_k)``: (k,), (k,) -> (k, d)."""
+        """Points at paired parameters ``(u_k, v_k)``.
+
+        Parameters
+        ----------
+        u, v : (k,) float array_like
+            Paired parameters.
+
+        Returns
+        -------
+        (k, d) float ndarray
+            Surface points (control points' units).
+        """
         u, v = self._uv(u, v)
         if u.shape != v.shape:
             raise NurbsInputError(f"u, v: paired parameters need equal shapes, got {u.shape} and {v.shape}")
@@ -212,9 +261,21 @@ class NurbsSurface:
         return Sw[:, :-1] / Sw[:, -1:]
 
     def derivatives(self, u: Any, v: Any, order: int = 1) -> np.ndarray:
-        """Partial derivatives at paired points: ``D[k, a, b] = d^(a+b) S / du^a dv^b``
-        for ``a, b <= order``; shape ``(k, order + 1, order + 1, d)``.
-        ``D[:, 1, 0]`` is Su, ``D[:, 0, 1]`` Sv, ``D[:, 1, 1]`` Suv, ``D[:, 2, 0]`` Suu."""
+        """Partial derivatives at paired parameters up to ``order`` in each direction.
+
+        Parameters
+        ----------
+        u, v : (k,) float array_like
+            Paired parameters.
+        order : int, default 1
+            Highest order per direction.
+
+        Returns
+        -------
+        (k, order + 1, order + 1, d) float ndarray
+            ``D[k, a, b] = d^(a+b) S / du^a dv^b``: ``D[:, 1, 0]`` is Su, ``D[:, 0, 1]``
+            Sv, ``D[:, 1, 1]`` Suv, ``D[:, 2, 0]`` Suu (units per unit parameter^(a+b)).
+        """
         order = V.degree_value(order, "order", minimum=0)
         u, v = self._uv(u, v)
         if u.shape != v.shape:
@@ -222,25 +283,55 @@ class NurbsSurface:
         return rational_surface_derivatives(self._paired_homogeneous(u, v, order))
 
     def derivatives_grid(self, u: Any, v: Any, order: int = 1) -> np.ndarray:
-        """As :meth:`derivatives` on the grid u x v: ``(a, b, order+1, order+1, d)``."""
+        """As :meth:`derivatives` on the grid u x v.
+
+        Parameters
+        ----------
+        u : (a,) float array_like
+        v : (b,) float array_like
+        order : int, default 1
+
+        Returns
+        -------
+        (a, b, order + 1, order + 1, d) float ndarray
+        """
         order = V.degree_value(order, "order", minimum=0)
         u, v = self._uv(u, v)
         return rational_surface_derivatives(self._grid_homogeneous(u, v, order))
 
     def normal(self, u: Any, v: Any) -> np.ndarray:
-        """Unit normals ``Su x Sv / |Su x Sv|`` on the grid u x v -> (a, b, 3).
+        """Unit normals ``Su x Sv / |Su x Sv|`` on the grid u x v.
 
         Where ``Su x Sv`` vanishes (a collapsed end, where Su = 0) the limit
         direction is used: near v = v0 with S(u, v0) constant, Su ~ (v - v0) Suv,
         so the normal is ``sign * Suv x Sv`` (sign + at the start of the v
         domain, - at the end).
+
+        Parameters
+        ----------
+        u : (a,) float array_like
+        v : (b,) float array_like
+
+        Returns
+        -------
+        (a, b, 3) float ndarray
+            Unit vectors (3-D surfaces only).
         """
         u, v = self._uv(u, v)
         D = rational_surface_derivatives(self._grid_homogeneous(u, v, 1))
         return _unit_normals(D, v, self.domain_v, self._size())
 
     def normal_points(self, u: Any, v: Any) -> np.ndarray:
-        """Unit normals at paired parameters (k,), (k,) -> (k, 3)."""
+        """Unit normals at paired parameters (as :meth:`normal`).
+
+        Parameters
+        ----------
+        u, v : (k,) float array_like
+
+        Returns
+        -------
+        (k, 3) float ndarray
+        """
         D = self.derivatives(u, v, 1)
         u, v = self._uv(u, v)
         return _unit_normals(D, v, self.domain_v, self._size())
@@ -252,8 +343,14 @@ class NurbsSurface:
 
     # ------------------------------------------------------------ conversions
     def to_clamped(self) -> "NurbsSurface":
-        """An equivalent surface clamped in u as well (itself if not closed_u):
-        the seam knot is inserted to multiplicity p at u = 0 and u = 1 (A5.1)."""
+        """An equivalent surface clamped in u as well (itself if not closed_u): the
+        seam knot is inserted to multiplicity p at u = 0 and u = 1 (A5.1).
+
+        Returns
+        -------
+        NurbsSurface
+            Open in u; the same points at the same parameters.
+        """
         if not self.closed_u:
             return self
         Pw = np.concatenate([self.control_points * self.weights[..., None],
@@ -264,12 +361,27 @@ class NurbsSurface:
                             Qw[..., :-1] / w[..., None], w)
 
     def to_dict(self) -> dict[str, Any]:
-        """Lossless JSON-safe dict."""
+        """Lossless JSON-safe dict (floats round-trip exactly through json).
+
+        Returns
+        -------
+        dict
+        """
         return surface_to_dict(self)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "NurbsSurface":
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        data : dict
+            As :meth:`to_dict` writes it.
+
+        Returns
+        -------
+        NurbsSurface
+        """
         args, kwargs = surface_fields(data)
         return cls(*args, **kwargs)
 

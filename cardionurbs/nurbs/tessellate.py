@@ -37,7 +37,25 @@ __all__ = ["tessellate", "grid_faces", "volume_correction"]
 
 def grid_faces(nu: int, nv: int, closed_u: bool, collapsed_start: bool,
                collapsed_end: bool) -> tuple[np.ndarray, np.ndarray]:
-    """See :func:`_grid_faces`; returns fresh (writable) copies of cached arrays."""
+    """Faces of an ``nu x nv`` grid and the map grid index -> vertex index
+    (fresh, writable copies of cached arrays).
+
+    Parameters
+    ----------
+    nu, nv : int
+        Grid size in u and v.
+    closed_u : bool
+        The u columns wrap around (the seam column is shared).
+    collapsed_start, collapsed_end : bool
+        The first / last v row is one vertex (an apex).
+
+    Returns
+    -------
+    faces : (F, 3) int ndarray
+        Triangles, oriented along ``Su x Sv``.
+    vertex_of : (nu, nv) int ndarray
+        Grid point (i, j) is vertex ``vertex_of[i, j]``.
+    """
     faces, vertex_of = _grid_faces(int(nu), int(nv), bool(closed_u), bool(collapsed_start),
                                    bool(collapsed_end))
     return faces.copy(), vertex_of.copy()
@@ -87,10 +105,25 @@ def _grid_faces(nu: int, nv: int, closed_u: bool, collapsed_start: bool,
 
 def volume_correction(grid: np.ndarray, closed_u: bool, collapsed_start: bool,
                       collapsed_end: bool) -> np.ndarray:
-    """Displacements (nu, nv, 3) that make a grid's mesh hold its surface's volume to
-    O(h⁴): −N (N·(Δ²_u S + Δ²_v S)) / 12 at every vertex (module doc), N the unit normal
+    """Displacements that make a grid's mesh hold its surface's volume to O(h⁴).
+
+    −N (N·(Δ²_u S + Δ²_v S)) / 12 at every vertex (module doc), N the unit normal
     from the grid's central differences; zero on collapsed rows and at the ends of an open
-    u; the first and last v rows (open ends) take the u term only."""
+    u; the first and last v rows (open ends) take the u term only.
+
+    Parameters
+    ----------
+    grid : (nu, nv, 3) float ndarray
+        Surface points on the parameter grid (any length unit, e.g. mm).
+    closed_u : bool
+    collapsed_start, collapsed_end : bool
+        As for :func:`grid_faces`.
+
+    Returns
+    -------
+    (nu, nv, 3) float ndarray
+        Displacements in the grid's units.
+    """
     S = np.asarray(grid, float)
     if closed_u:
         d2u = np.roll(S, -1, axis=0) - 2 * S + np.roll(S, 1, axis=0)
@@ -118,14 +151,48 @@ def volume_correction(grid: np.ndarray, closed_u: bool, collapsed_start: bool,
 
 def tessellate(surface: NurbsSurface, nu: int, nv: int,
                volume_corrected: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (V, 3) and triangle faces (F, 3) of ``surface`` on an
-    ``nu x nv`` parameter grid (see module doc for seam, apex and orientation);
-    ``volume_corrected``: the vertices moved off the surface so that the mesh's volume
-    is the surface's to O(h⁴) (:func:`volume_correction`).
+    """Triangle mesh of ``surface`` on an ``nu x nv`` parameter grid (see module doc
+    for seam, apex and orientation).
 
     The faces depend only on the grid and the surface's topology (closed u,
     collapsed ends), so they come from a cache and are returned read-only:
     copy them (``faces.copy()``) before modifying in place.
+
+    Parameters
+    ----------
+    surface : NurbsSurface
+        A 3-D surface.
+    nu, nv : int
+        Grid size in u and v, >= 2 (nu >= 3 when ``closed_u``).
+    volume_corrected : bool, default False
+        Move the vertices off the surface so that the mesh's volume is the
+        surface's to O(h⁴) (:func:`volume_correction`).
+
+    Returns
+    -------
+    vertices : (V, 3) float ndarray
+        In the surface's units (e.g. mm); a collapsed row is one vertex.
+    faces : (F, 3) int ndarray
+        Read-only triangle indices into ``vertices``.
+
+    Raises
+    ------
+    NurbsInputError
+        Not a NurbsSurface, or a grid size too small.
+
+    Examples
+    --------
+    Three rings lofted to an apex, then meshed:
+
+    >>> import numpy as np
+    >>> from cardionurbs import nurbs
+    >>> t = np.linspace(0, 2 * np.pi, 40, endpoint=False)
+    >>> rings = [nurbs.fit_curve(np.column_stack([r * np.cos(t), r * np.sin(t), np.full(40, z)]),
+    ...                          closed=True, n_ctrl=8) for r, z in ((20, 0), (25, 20), (20, 40))]
+    >>> s = nurbs.loft(rings + [np.array([0.0, 0.0, 60.0])], degree_v=3)
+    >>> vertices, faces = nurbs.tessellate(s, 32, 16)
+    >>> vertices.shape, faces.shape          # 32 x 15 grid vertices + the apex
+    ((481, 3), (928, 3))
     """
     if not isinstance(surface, NurbsSurface):
         raise NurbsInputError(f"surface: expected a NurbsSurface, got {type(surface).__name__}")

@@ -58,8 +58,8 @@ Gauss–Legendre rules on smooth intervals.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -112,15 +112,10 @@ def wrap_angle(theta) -> np.ndarray:
     return theta - (2.0 * np.pi) * np.round(theta / (2.0 * np.pi))
 
 
-def ellipse_far_radius_sq(theta: np.ndarray, a_free: float, b_wrap: float, x_center: float) -> np.ndarray:
-    """P(θ) = ρ(θ)²: squared distance from the origin to the ellipse boundary along θ (eq. A3)."""
-    return ellipse_far_radius_sq_cs(np.cos(theta), np.sin(theta), a_free, b_wrap, x_center)
-
-
 def ellipse_far_radius_sq_cs(ct: np.ndarray, st: np.ndarray, a_free: float, b_wrap: float,
                              x_center: float) -> np.ndarray:
-    """:func:`ellipse_far_radius_sq` from cos θ and sin θ (several ellipses along the same rays
-    share them)."""
+    """P(θ) = ρ(θ)²: squared distance from the origin to the ellipse boundary along θ (eq. A3),
+    from cos θ and sin θ (several ellipses along the same rays share them)."""
     a = ct * ct / a_free ** 2 + st * st / b_wrap ** 2
     b = x_center * ct / a_free ** 2
     c = x_center ** 2 / a_free ** 2 - 1.0
@@ -192,6 +187,14 @@ class Anatomy:
     @property
     def realistic(self) -> bool:
         return self.shape is not None
+
+    @cached_property
+    def memo(self) -> dict:
+        """Values derived from this (frozen) anatomy, computed once each, by key: the RV sectors
+        per (height, surface), the P tables, and what other phantom modules derive from it
+        (annotate's outer radius table). Not a field: equality, hashing and
+        ``dataclasses.replace`` ignore it (a replaced anatomy starts with an empty one)."""
+        return {}
 
     def _need_theta(self, theta) -> None:
         if theta is None and self.shape is not None:
@@ -270,15 +273,15 @@ class Anatomy:
         """(θ_0, θ_1): the angles of the tricuspid annulus' dip — the endocardial RV crescent at the
         base, with an outflow tract only up to the tract's epicardial window (the tract and its
         side wall rise from the plane z = z_b)."""
-        span = self.__dict__.get("_tricuspid_span")
-        if span is None:
-            lo, hi = (float(v[0]) for v in self.rv_sector(np.array([self.z_base])))
-            if self.outflow is not None:
-                from cardionurbs.phantom.outflow import rvot_frame
-                hi = min(hi, float(rvot_frame(self).window(self.z_base, epi=True)[0]))
-            span = (lo, hi)
-            object.__setattr__(self, "_tricuspid_span", span)
-        return span
+        return self._tricuspid_span
+
+    @cached_property
+    def _tricuspid_span(self) -> tuple[float, float]:
+        lo, hi = (float(v[0]) for v in self.rv_sector(np.array([self.z_base])))
+        if self.outflow is not None:
+            from cardionurbs.phantom.outflow import rvot_frame
+            hi = min(hi, float(rvot_frame(self).window(self.z_base, epi=True)[0]))
+        return lo, hi
 
     def z_top_rv(self, theta) -> np.ndarray:
         """Height of the tricuspid annulus (top of the RV walls and cavity) at angle θ, mm: z_b, or
@@ -408,9 +411,12 @@ class Anatomy:
         widest (max of S_rv − S_epi on a 2 (n_table − 1) grid), the first sign change, refined by
         eight regula falsi steps; both edges equal that angle where there is no crescent."""
         if self.shape is not None and np.ndim(z) == 0 and n_table == 181:
-            hit = self.__dict__.get("_sector_cache", {}).get((float(z), bool(epi)))
-            lo, hi = hit if hit is not None else self._rv_sector_scalar(float(z), bool(epi))
-            return np.array([lo]), np.array([hi])
+            key = (float(z), bool(epi))
+            hit = self.memo.get(("rv_sector", key))
+            if hit is None:
+                lo_, hi_ = self.rv_sector(np.array([key[0]]), key[1])
+                hit = self.memo[("rv_sector", key)] = (float(lo_[0]), float(hi_[0]))
+            return np.array([hit[0]]), np.array([hit[1]])
         z = np.atleast_1d(np.asarray(z, dtype=float))
         if self.shape is None:
             e = self.rv_sector_edge(z, epi)
@@ -450,12 +456,11 @@ class Anatomy:
         return out[0], out[1]
 
     def _p_table(self, epi: bool) -> tuple[np.ndarray, np.ndarray]:
-        key = "_ptab_epi" if epi else "_ptab_endo"
-        tab = self.__dict__.get(key)
+        """(θ, P(θ)) on 4097 angles of [0, π] (per surface, computed once)."""
+        tab = self.memo.get(("p_table", epi))
         if tab is None:
             th = np.linspace(0.0, np.pi, 4097)
-            tab = (th, self.rv_p(th, epi))
-            object.__setattr__(self, key, tab)
+            tab = self.memo[("p_table", epi)] = (th, self.rv_p(th, epi))
         return tab
 
     def rv_sector_edge(self, z: np.ndarray, epi: bool = False) -> np.ndarray:
@@ -488,15 +493,10 @@ class Anatomy:
         if self.shape is None:
             return
         z = np.unique(np.asarray(z, dtype=float))
-        cache = self.__dict__.setdefault("_sector_cache", {})
         for epi in (False, True):
             lo, hi = self.rv_sector(z, epi)
-            cache.update({(float(a), epi): (float(b), float(c)) for a, b, c in zip(z, lo, hi)})
-
-    @functools.lru_cache(maxsize=4096)
-    def _rv_sector_scalar(self, z: float, epi: bool) -> tuple[float, float]:
-        lo, hi = self.rv_sector(np.array([z]), epi)
-        return float(lo[0]), float(hi[0])
+            self.memo.update({("rv_sector", (float(a), epi)): (float(b), float(c))
+                              for a, b, c in zip(z, lo, hi)})
 
     def rv_onset(self, epi: bool = False, iters: int = 80) -> float:
         """Lowest height z0 where the RV shell leaves the LV epicardium (crescent onset), mm."""

@@ -460,6 +460,46 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec,
     wall meets septum, by Newton's method on the two terms); a cubic spline in arc length through
     each smooth piece; resampled to n points by arc length, starting at the annulus end with the
     larger w when ``start_positive``."""
+    wall = _region_loop(name, fields, shape)
+    if wall is None:
+        return None
+    loop, field, tree, closures, parts = wall
+
+    def plane_uv(idx):
+        return np.interp(idx[:, 0], np.arange(len(w)), w), np.interp(idx[:, 1], np.arange(len(v)), v)
+
+    loop = yield from _relay(_refine_on_edges(loop, field), plane_uv, lambda t: tree_value(tree, t))
+    ww, vv = plane_uv(loop)
+    active = tree_eval(tree, (yield ww, vv))[1]
+    run = _wall_run(active, closures)
+    if run is None:
+        return None
+    keep, ends = run
+    ww, vv, act = ww[keep], vv[keep], active[keep]
+    corners = yield from _solve_corners(ww, vv, act, tree, closures, parts, ends)
+    pieces = _wall_pieces(ww, vv, act, parts, corners, bool(ends))
+    if start_positive and pieces[0][0, 0] < pieces[-1][-1, 0]:
+        pieces = [p[::-1] for p in pieces[::-1]]
+    uv = _resample_pieces(pieces, n)
+    return spec.center[None, :] + uv[:, :1] * spec.row[None, :] + uv[:, 1:] * spec.column[None, :]
+
+
+def _relay(inner, ask, answer):
+    """Drive the generator ``inner`` from within a generator (``yield from _relay(...)``): each
+    request of ``inner`` is passed on as ``ask(request)``, the reply sent back to ``inner`` as
+    ``answer(reply)``; returns ``inner``'s result."""
+    try:
+        request = next(inner)
+        while True:
+            request = inner.send(answer((yield ask(request))))
+    except StopIteration as done:
+        return done.value
+
+
+def _region_loop(name: str, fields: dict, shape):
+    """Marching squares on the max/min tree of one region's sampled terms: the longest loop
+    ((k, 2) fractional grid indices, not repeating its first vertex), the sampled field, the
+    region's (tree, closures, parts); None without a loop of 8 vertices."""
     from skimage.measure import find_contours
 
     terms = [a.reshape(shape) for a in fields[name]]
@@ -473,93 +513,92 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec,
         return None
     if np.allclose(loop[0], loop[-1]):
         loop = loop[:-1]
+    return loop, field, tree, closures, parts
 
-    def plane_uv(idx):
-        return np.interp(idx[:, 0], np.arange(len(w)), w), np.interp(idx[:, 1], np.arange(len(v)), v)
 
-    refine = _refine_on_edges(loop, field)
-    try:
-        idx = next(refine)
-        while True:
-            idx = refine.send(tree_value(tree, (yield plane_uv(idx))))
-    except StopIteration as done:
-        loop = done.value
-    ww, vv = plane_uv(loop)
-    active = tree_eval(tree, (yield ww, vv))[1]
+def _wall_run(active: np.ndarray, closures: set):
+    """The loop vertices of the wall (``active``: the active term per vertex): their indices
+    in order and the closure terms next to the run's two ends (``[]`` when the whole loop is
+    wall); None when the longest wall run has fewer than 4 vertices."""
     on_wall = ~np.isin(active, list(closures))
-    top_first = top_last = None
     if on_wall.all():
-        keep = np.arange(len(loop))
-    else:
-        order = np.roll(np.arange(len(loop)), -int(np.flatnonzero(~on_wall)[0]))
-        # the wall's runs between closures: the ventricle's wall is the longest; a shorter one
-        # (the LVOT's septal wall between the cylinder and the aortic plane) is cut off from it
-        # by closure terms and is not joined to it across them
-        edges = np.flatnonzero(np.diff(np.r_[0, on_wall[order].astype(int), 0]))
-        starts, ends = edges[::2], edges[1::2]
-        j = int(np.argmax(ends - starts))
-        if ends[j] - starts[j] < 4:
-            return None
-        # the closure terms next to the wall's two ends (the valve planes the annulus corners are on)
-        top_first = int(active[order[starts[j] - 1]])
-        top_last = int(active[order[ends[j] % len(order)]])
-        keep = order[starts[j]:ends[j]]
-    ww, vv, act = ww[keep], vv[keep], active[keep]
+        return np.arange(len(active)), []
+    order = np.roll(np.arange(len(active)), -int(np.flatnonzero(~on_wall)[0]))
+    # the wall's runs between closures: the ventricle's wall is the longest; a shorter one
+    # (the LVOT's septal wall between the cylinder and the aortic plane) is cut off from it
+    # by closure terms and is not joined to it across them
+    edges = np.flatnonzero(np.diff(np.r_[0, on_wall[order].astype(int), 0]))
+    starts, ends = edges[::2], edges[1::2]
+    j = int(np.argmax(ends - starts))
+    if ends[j] - starts[j] < 4:
+        return None
+    # the closure terms next to the wall's two ends (the valve planes the annulus corners are on)
+    top_first = int(active[order[starts[j] - 1]])
+    top_last = int(active[order[ends[j] % len(order)]])
+    return order[starts[j]:ends[j]], [top_first, top_last]
 
-    # the corners: the annulus ends (wall meets closure) and the changes of wall part (the RV apex),
-    # all solved in one vectorised Newton iteration
+
+def _solve_corners(ww, vv, act, tree, closures: set, parts, ends: list):
+    """The corners of a wall run (plane coordinates ``ww``, ``vv`` with active terms ``act``):
+    the annulus ends against the closure terms ``ends`` (none when empty) and the changes of
+    wall part (the RV apex), all solved in one vectorised Newton iteration (:func:`_corners`).
+    A generator like :func:`_open_contour`; returns corner number -> (w, v), in run order."""
     turns = [k for k in range(1, len(ww)) if parts[int(act[k])] != parts[int(act[k - 1])]]
     req = [(0.5 * (ww[k] + ww[k - 1]), 0.5 * (vv[k] + vv[k - 1]), act[k - 1], act[k]) for k in turns]
     # an annulus end is solved against every closure term: the grid vertex after the wall run can
     # show a closure that only binds a grid step further on (the LVOT cylinder 0.3 mm inside the
     # septal wall past the mitral corner, whose own corner with the wall is 8 mm up the tract);
     # the end is the nearest solution that lies on the region's boundary (_annulus_corner)
-    ends = [top_first, top_last] if not on_wall.all() else []
     cands = [[t] + sorted(closures - {t}) for t in ends]
     if ends:
         req = ([(ww[0], vv[0], act[0], t) for t in cands[0]] + req
                + [(ww[-1], vv[-1], act[-1], t) for t in cands[1]])
-    corners = {}
-    if req:
-        ci = np.array([r[2] for r in req], dtype=int)
-        cj = np.array([r[3] for r in req], dtype=int)
+    if not req:
+        return {}
+    ci = np.array([r[2] for r in req], dtype=int)
+    cj = np.array([r[3] for r in req], dtype=int)
 
-        newton = _corners(np.array([r[0] for r in req]), np.array([r[1] for r in req]))
-        try:
-            q = next(newton)
-            while True:
-                e = np.stack((yield q))
-                cols = np.arange(e.shape[1])
-                q = newton.send((e[np.tile(ci, 5), cols], e[np.tile(cj, 5), cols]))
-        except StopIteration as done:
-            solved = done.value
-        if ends:
-            e = np.stack((yield solved[:, 0], solved[:, 1]))
-            cols = np.arange(len(req))
-            n0, n1 = len(cands[0]), len(cands[1])
-            start = np.array([r[:2] for r in req], dtype=float)
-            pick = [_annulus_corner(solved[sl], start[sl], tree_value(tree, list(e[:, sl])),
-                                    e[ci[sl], cols[sl]], e[cj[sl], cols[sl]])
-                    for sl in (slice(0, n0), slice(len(req) - n1, len(req)))]
-            solved = np.r_[pick[0][None], solved[n0:len(req) - n1], pick[1][None]]
-        corners = {i: tuple(c) for i, c in enumerate(solved)}
-    first = 0 if not on_wall.all() else None
+    def term_pair(terms):
+        e = np.stack(terms)
+        cols = np.arange(e.shape[1])
+        return e[np.tile(ci, 5), cols], e[np.tile(cj, 5), cols]
+
+    newton = _corners(np.array([r[0] for r in req]), np.array([r[1] for r in req]))
+    solved = yield from _relay(newton, lambda q: q, term_pair)
+    if ends:
+        e = np.stack((yield solved[:, 0], solved[:, 1]))
+        cols = np.arange(len(req))
+        n0, n1 = len(cands[0]), len(cands[1])
+        start = np.array([r[:2] for r in req], dtype=float)
+        pick = [_annulus_corner(solved[sl], start[sl], tree_value(tree, list(e[:, sl])),
+                                e[ci[sl], cols[sl]], e[cj[sl], cols[sl]])
+                for sl in (slice(0, n0), slice(len(req) - n1, len(req)))]
+        solved = np.r_[pick[0][None], solved[n0:len(req) - n1], pick[1][None]]
+    return {i: tuple(c) for i, c in enumerate(solved)}
+
+
+def _wall_pieces(ww, vv, act, parts, corners: dict, has_ends: bool) -> list[np.ndarray]:
+    """The wall run cut at its part changes into smooth pieces ((k, 2) plane mm each), the
+    corners inserted at the cuts and, with ``has_ends``, the annulus corners at both ends."""
     pieces, cur = [], [(ww[0], vv[0])]
-    if first is not None:
+    if has_ends:
         cur = [corners[0], (ww[0], vv[0])]
     n_turn = 0
     for k in range(1, len(ww)):
         if parts[int(act[k])] != parts[int(act[k - 1])]:
-            c = corners[n_turn + (1 if first is not None else 0)]
+            c = corners[n_turn + (1 if has_ends else 0)]
             n_turn += 1
             pieces.append(np.array(cur + [c]))
             cur = [c]
         cur.append((ww[k], vv[k]))
-    if first is not None:
+    if has_ends:
         cur.append(corners[len(corners) - 1])
     pieces.append(np.array(cur))
-    if start_positive and pieces[0][0, 0] < pieces[-1][-1, 0]:
-        pieces = [p[::-1] for p in pieces[::-1]]
+    return pieces
+
+
+def _resample_pieces(pieces: list[np.ndarray], n: int) -> np.ndarray:
+    """``n`` points evenly spaced in arc length along the pieces in order: (n, 2) plane mm."""
     # arc length per piece; a cubic spline through each smooth piece (chords of the ~1 mm vertex
     # spacing would cut the apex by up to 0.05 mm), linear where a piece has < 4 points
     curves, starts, total = [], [], 0.0
@@ -582,7 +621,7 @@ def _open_contour(name: str, fields: dict, shape, w, v, spec: SliceSpec,
         m = which == k
         if m.any():
             uv[m] = cfun(s_all[m] - starts[k])
-    return spec.center[None, :] + uv[:, :1] * spec.row[None, :] + uv[:, 1:] * spec.column[None, :]
+    return uv
 
 
 def _la_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float, n_side: int,
@@ -607,7 +646,7 @@ def _outer_s_table(anatomy: Anatomy, n: int = 720, n_z: int = 160) -> np.ndarray
     ~0.8 mm; with the heights where the surfaces have kinks or jumps: the LV equator, the base, the
     tract's top): the smooth maxima between samples exceed the samples by far less than the
     margins of :func:`_beyond_every_boundary`."""
-    tab = anatomy.__dict__.get("_outer_s_table")
+    tab = anatomy.memo.get("outer_s_table")
     if tab is None:
         th = -np.pi + (np.arange(2 * n) + 0.5) * (2 * np.pi / (2 * n))
         top = anatomy.z_base + 80.0
@@ -625,7 +664,7 @@ def _outer_s_table(anatomy: Anatomy, n: int = 720, n_z: int = 160) -> np.ndarray
             parts += list(ofl.s_rvot_pair(anatomy, T, Z))
         per = np.max([p.max(axis=0) for p in parts], axis=0).reshape(n, 2).max(axis=1)
         tab = (np.max([np.roll(per, k) for k in range(-2, 3)], axis=0), (-10.0, top))
-        object.__setattr__(anatomy, "_outer_s_table", tab)
+        anatomy.memo["outer_s_table"] = tab
     return tab
 
 
@@ -681,7 +720,7 @@ def la_contours_realistic_views(anatomy: Anatomy, motion: Motion, views, f: floa
     a list of (spec, with_rv, with_lv); returns spec id -> contours. The exact region terms every
     view's contours ask for are evaluated together, in one :func:`material_fields` call per step
     (the same values as one view at a time: every term is computed point by point)."""
-    jobs, out = [], {}
+    runs, out = [], {}
     for spec, with_rv, with_lv in views:
         w, v, pts = _plane_grid(anatomy, spec, step)
         names = (("lv_endo", "lv_epi") if with_lv else ()) + (("rv_endo", "rv_epi") if with_rv else ())
@@ -689,37 +728,37 @@ def la_contours_realistic_views(anatomy: Anatomy, motion: Motion, views, f: floa
         out[spec.id] = {}
         for name in names:
             gen = _open_contour(name, fields, (len(w), len(v)), w, v, spec, 2 * n_side - 1)
-            jobs.append((spec, name, gen))
-    for (spec, name, _), c in zip(jobs, _run_contours(anatomy, motion, f, jobs)):
+            runs.append((spec, name, gen))
+    for (spec, name, _), c in zip(runs, _run_contours(anatomy, motion, f, runs)):
         if c is not None:
             out[spec.id][name] = unbend(anatomy, c)
     return {spec.id: out[spec.id] for spec, _, _ in views}
 
 
-def _run_contours(anatomy: Anatomy, motion: Motion, f: float, jobs) -> list:
-    """Run :func:`_open_contour` generators ``jobs`` ((spec, region, generator), ...) side by side:
+def _run_contours(anatomy: Anatomy, motion: Motion, f: float, runs) -> list:
+    """Run :func:`_open_contour` generators ``runs`` ((spec, region, generator), ...) side by side:
     each round, the plane coordinates every running generator asks for are mapped to heart-frame
     points of its view, the region terms of all of them are computed in one
     :func:`material_fields` call and each generator is sent its own. Returns the contours."""
-    result = [None] * len(jobs)
+    result = [None] * len(runs)
     asks = {}
-    for i, (_, _, gen) in enumerate(jobs):
+    for i, (_, _, gen) in enumerate(runs):
         try:
             asks[i] = next(gen)
         except StopIteration as done:
             result[i] = done.value
     while asks:
         order = list(asks)
-        pts = [jobs[i][0].center[None, :] + asks[i][0][:, None] * jobs[i][0].row[None, :]
-               + asks[i][1][:, None] * jobs[i][0].column[None, :] for i in order]
-        fields = material_fields(anatomy, motion, np.concatenate(pts), f, {jobs[i][1] for i in order})
+        pts = [runs[i][0].center[None, :] + asks[i][0][:, None] * runs[i][0].row[None, :]
+               + asks[i][1][:, None] * runs[i][0].column[None, :] for i in order]
+        fields = material_fields(anatomy, motion, np.concatenate(pts), f, {runs[i][1] for i in order})
         ends = np.cumsum([len(p) for p in pts])
         nxt = {}
         starts = ends - np.array([len(p) for p in pts])
         for i, lo, hi in zip(order, starts, ends):
-            terms = tuple(t[lo:hi] for t in fields[jobs[i][1]])
+            terms = tuple(t[lo:hi] for t in fields[runs[i][1]])
             try:
-                nxt[i] = jobs[i][2].send(terms)
+                nxt[i] = runs[i][2].send(terms)
             except StopIteration as done:
                 result[i] = done.value
         asks = nxt

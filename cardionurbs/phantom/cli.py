@@ -17,6 +17,11 @@ def run_phantom(args: argparse.Namespace) -> int:
     breath_hold_mm, snr, no_dicom, out). Exactly one of --pathology and --cohort is required."""
     if bool(args.pathology) == bool(args.cohort):
         raise PhantomError("phantom: give exactly one of --pathology and --cohort")
+    if getattr(args, "label_quirks", None):
+        from cardionurbs.phantom.labelmaps import parse_quirks
+        parse_quirks(args.label_quirks)               # refused before anything is written
+        if not getattr(args, "labels", None):
+            raise PhantomError("phantom: --label-quirks needs --labels LAYOUT")
     n = getattr(args, "n", None)
     if n is not None and not args.cohort:
         raise PhantomError("phantom: --n needs --cohort SPEC (the mix to draw from)")
@@ -33,10 +38,11 @@ def run_phantom(args: argparse.Namespace) -> int:
                       tag_jumps=args.tag_jumps,
                       breath_hold_mm=getattr(args, "breath_hold_mm", 0.0),
                       snr=getattr(args, "snr", None), **shape)
-        write_phantom(ph, out, dicom=dicom, labels=getattr(args, "labels", None))
+        write_phantom(ph, out, dicom=dicom, labels=getattr(args, "labels", None),
+                      label_quirks=getattr(args, "label_quirks", None))
         print(f"{out}: {ph.study.summary()}", file=sys.stdout)
         return 0
-    if getattr(args, "labels", None):
+    if getattr(args, "labels", None) or getattr(args, "label_quirks", None):
         raise PhantomError("phantom: --labels applies to one --pathology subject, not a --cohort")
     from cardionurbs.io.atomic import atomic_dir
     spec = load_cohort_spec(args.cohort)
@@ -65,6 +71,9 @@ def anatomy_options(args: argparse.Namespace) -> dict:
         out["realism"] = args.realism
     if getattr(args, "outflow", None) is not None:
         out["outflow"] = bool(args.outflow)
+    for opt, kw in (("sa_spacing", "sa_spacing_mm"), ("sa_thickness", "sa_thickness_mm")):
+        if getattr(args, opt, None) is not None:
+            out[kw] = float(getattr(args, opt))
     return out
 
 

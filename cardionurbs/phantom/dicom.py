@@ -350,7 +350,6 @@ def write_dicom(phantom, folder: str | Path, compression: str | None = "jpegls")
     base = f"{cfg['pathology']}|{cfg['seed']}|{cfg['subject']}|{cfg['frames']}"
     series_uid: dict[str, str] = {}
     series_num = {"sa": 1, "la_2ch": 2, "la_3ch": 3, "la_4ch": 4}
-    rr = 60000.0 / study.heart_rate_bpm
     out = []
     cache: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     headers: dict[str, Dataset] = {}

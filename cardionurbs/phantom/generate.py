@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -174,6 +175,74 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
         ``True`` with the ideal anatomy is an error (the spheroids have no tracts).
     """
     _check_args(pathology, seed, frames, noise_px, tag_jumps, breath_hold_mm)
+    outflow = _check_options(snr, tag_depth, anatomy_model, infarct, outflow, realism)
+    if realism == "clinical":
+        noise_px = noise_px or CLINICAL["noise_px"]
+        breath_hold_mm = breath_hold_mm or CLINICAL["breath_hold_mm"]
+        snr = snr if snr is not None else CLINICAL["snr"]
+    frames, seed, tag_jumps = int(frames), int(seed), int(tag_jumps)
+    draw = sample_subject(load_preset(pathology), _rng(seed, pathology, "subject"))
+    overrides = anatomy                                 # the argument: Anatomy field -> mm
+    solved = _subject_anatomy(draw, seed, pathology, anatomy_model, infarct, outflow, overrides)
+    acq = Acquisition(rows=matrix, columns=matrix, fov_mm=fov_mm, sa_spacing_mm=sa_spacing_mm,
+                      sa_thickness_mm=sa_thickness_mm, n_sa=n_sa)
+    if not (np.isfinite(tag_spacing_px) and tag_spacing_px > 0):
+        raise PhantomError(f"tag_spacing_px must be positive, got {tag_spacing_px!r}")
+    specs = slice_specs(solved, acq)
+    es_frame = int(min(max(round(draw.values["es_fraction"] * frames), 1), frames - 1))
+    curve = VolumeCurve(es_fraction=es_frame / frames)
+    phases = curve(np.arange(frames) / frames)
+    f_es = float(phases[es_frame])
+    grid = annotate.make_tag_grid(solved, tag_spacing_px * acq.pixel_mm)
+    motion = _twist_motion(solved, draw, curve, specs, grid, f_es)
+    pose = HeartPose.default(solved.z_base, bend=solved.shape if solved.shape is not None and solved.shape.bends
+                             else None)
+    hr = float(round(draw.values["heart_rate_bpm"]))   # integer bpm, as DICOM HeartRate (IS)
+    rr = 60000.0 / hr
+    times = {k: round(k * rr / frames, 3) for k in range(frames)}
+    subject = subject or f"{pathology}_{seed:03d}"
+    config = dict(pathology=pathology, seed=seed, frames=frames, noise_px=float(noise_px),
+                  anatomy_overrides=dict(sorted((overrides or {}).items())),
+                  tag_jumps=tag_jumps, sa_spacing_mm=float(sa_spacing_mm),
+                  sa_thickness_mm=float(sa_thickness_mm), n_sa=n_sa, breath_hold_mm=float(breath_hold_mm),
+                  tag_spacing_px=float(tag_spacing_px), fov_mm=float(fov_mm), matrix=int(matrix),
+                  subject=subject)
+    config.update(_image_options(snr, anatomy_model, infarct, realism, outflow, tag_depth))
+    uid = _uid_maker(json.dumps(config, sort_keys=True))
+    shifts = faults.breath_hold_offsets([s.id for s in specs if s.view == "SA"], breath_hold_mm,
+                                        _rng(seed, pathology, "breath-hold"))
+    study = Study(subject=subject, frame_times_ms={k: float(t) for k, t in times.items()},
+                  heart_rate_bpm=float(hr), ed_frame=0, es_frame=es_frame, source=None,
+                  meta={"generator": "cardionurbs.phantom", "pathology": pathology, "seed": seed,
+                        "study_uid": uid("study"), "frame_of_reference_uid": uid("for")})
+    scene = _Scene(solved, motion, grid, pose, acq, phases, times, shifts, uid)
+    _annotate(study, scene, specs)
+    jumps = faults.inject_tag_jumps(study, tag_jumps, _rng(seed, pathology, "tag-jumps"))
+    dropped = faults.add_noise(study, float(noise_px), _rng(seed, pathology, "noise"))
+    metrics, tag_truth = _truth_metrics(solved, motion, grid, specs, phases, es_frame, hr, len(jumps))
+    faults_done = {"noise_px": float(noise_px), "tag_jumps": jumps,
+                   **({"contours_left_out": dropped} if dropped else {}),
+                   "breath_hold_mm": float(breath_hold_mm),
+                   "breath_hold_shifts_mm": ({k: [float(x) for x in v] for k, v in shifts.items()}
+                                             if breath_hold_mm > 0 else {})}
+    tr = _truth_record({"format": "cardionurbs-phantom-truth", "version": 1, "subject": subject,
+                        "pathology": pathology, "seed": seed, "ed_frame": 0, "es_frame": es_frame,
+                        "metrics": metrics, "tags": tag_truth}, scene, specs, anatomy_model,
+                       draw, faults_done)
+    if volume_check:
+        tr["volumes"] = truth.volume_table(solved, motion, phases, [0, es_frame])
+    study.meta["truth"] = "truth.json"
+    study.meta["tag_planes"] = tag_planes_scanner(grid, pose, solved)
+    tr["imaging"] = _imaging_record(config)
+    return Phantom(study=study, truth=_json_safe(tr), anatomy=solved, motion=motion, pose=pose,
+                   acquisition=acq, slices=specs, tag_grid=grid, phases=phases, es_frame=es_frame,
+                   draw=draw, config=config, shifts=shifts)
+
+
+def _check_options(snr: float | None, tag_depth: float | None, anatomy_model: str,
+                   infarct: str | None, outflow: bool | None, realism: str | None) -> bool:
+    """Check :func:`generate`'s image and anatomy options (:class:`PhantomError` naming the
+    option); returns ``outflow`` resolved (None: on for the realistic anatomy only)."""
     if snr is not None and not (isinstance(snr, (int, float, np.floating)) and np.isfinite(snr)
                                 and snr > 0):
         raise PhantomError(f"snr must be a finite number > 0, got {snr!r}")
@@ -190,14 +259,14 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
         raise PhantomError("outflow tracts need the realistic anatomy (anatomy_model='realistic')")
     if realism not in (None, "clinical"):
         raise PhantomError(f"unknown realism {realism!r}; expected 'clinical'")
-    if realism == "clinical":
-        noise_px = noise_px or CLINICAL["noise_px"]
-        breath_hold_mm = breath_hold_mm or CLINICAL["breath_hold_mm"]
-        snr = snr if snr is not None else CLINICAL["snr"]
-    frames, seed, tag_jumps = int(frames), int(seed), int(tag_jumps)
-    preset = load_preset(pathology)
-    draw = sample_subject(preset, _rng(seed, pathology, "subject"))
-    overrides = anatomy
+    return bool(outflow)
+
+
+def _subject_anatomy(draw: SubjectDraw, seed: int, pathology: str, anatomy_model: str,
+                     infarct: str | None, outflow: bool, overrides: dict | None) -> Anatomy:
+    """The subject's ED anatomy: solved to the draw (ideal), or with its shape modes, tracts
+    and tricuspid saddle drawn from their own generators (realistic); then ``overrides``
+    (Anatomy field -> mm) applied."""
     shape = None
     if anatomy_model == "realistic":
         tracts = draw_outflow(_rng(seed, pathology, "outflow")) if outflow else None
@@ -219,54 +288,55 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
         except (TypeError, ValueError):
             raise PhantomError("anatomy parameters must be numbers (mm)") from None
         anatomy = Anatomy(**fields, shape=shape).validate()
-    acq = Acquisition(rows=matrix, columns=matrix, fov_mm=fov_mm, sa_spacing_mm=sa_spacing_mm,
-                      sa_thickness_mm=sa_thickness_mm, n_sa=n_sa)
-    if not (np.isfinite(tag_spacing_px) and tag_spacing_px > 0):
-        raise PhantomError(f"tag_spacing_px must be positive, got {tag_spacing_px!r}")
-    specs = slice_specs(anatomy, acq)
-    es_frame = int(min(max(round(draw.values["es_fraction"] * frames), 1), frames - 1))
-    curve = VolumeCurve(es_fraction=es_frame / frames)
-    phases = curve(np.arange(frames) / frames)
-    f_es = float(phases[es_frame])
-    grid = annotate.make_tag_grid(anatomy, tag_spacing_px * acq.pixel_mm)
-    motion = _twist_motion(anatomy, draw, curve, specs, grid, f_es)
-    pose = HeartPose.default(anatomy.z_base, bend=shape if shape is not None and shape.bends else None)
-    hr = float(round(draw.values["heart_rate_bpm"]))   # integer bpm, as DICOM HeartRate (IS)
-    rr = 60000.0 / hr
-    times = {k: round(k * rr / frames, 3) for k in range(frames)}
-    subject = subject or f"{pathology}_{seed:03d}"
-    config = dict(pathology=pathology, seed=seed, frames=frames, noise_px=float(noise_px),
-                  anatomy_overrides=dict(sorted((overrides or {}).items())),
-                  tag_jumps=tag_jumps, sa_spacing_mm=float(sa_spacing_mm),
-                  sa_thickness_mm=float(sa_thickness_mm), n_sa=n_sa, breath_hold_mm=float(breath_hold_mm),
-                  tag_spacing_px=float(tag_spacing_px), fov_mm=float(fov_mm), matrix=int(matrix),
-                  subject=subject)
-    # image options enter the config (and so the UIDs) only when set, so that phantoms
-    # written before they existed keep their UIDs
-    if snr is not None:
-        config["snr"] = float(snr)
-    if anatomy_model != "ideal":
-        config["anatomy_model"] = anatomy_model
-    if infarct is not None:
-        config["infarct"] = infarct
-    if realism is not None:
-        config["realism"] = realism
-    if outflow:
-        config["outflow"] = True
-    if tag_depth is not None:
-        config["tag_depth"] = float(tag_depth)
-    uid_base = json.dumps(config, sort_keys=True)
+    return anatomy
 
+
+def _image_options(snr: float | None, anatomy_model: str, infarct: str | None,
+                   realism: str | None, outflow: bool, tag_depth: float | None) -> dict:
+    """The options that enter the config (and so the UIDs) only when set, so that phantoms
+    written before they existed keep their UIDs."""
+    out: dict = {}
+    if snr is not None:
+        out["snr"] = float(snr)
+    if anatomy_model != "ideal":
+        out["anatomy_model"] = anatomy_model
+    if infarct is not None:
+        out["infarct"] = infarct
+    if realism is not None:
+        out["realism"] = realism
+    if outflow:
+        out["outflow"] = True
+    if tag_depth is not None:
+        out["tag_depth"] = float(tag_depth)
+    return out
+
+
+def _uid_maker(uid_base: str) -> Callable[..., str]:
+    """The DICOM UID of (config, *parts): the same inputs give the same UID."""
     def uid(*parts) -> str:
         return generate_uid(prefix=UID_PREFIX, entropy_srcs=[uid_base, *map(str, parts)])
+    return uid
 
-    shifts = faults.breath_hold_offsets([s.id for s in specs if s.view == "SA"], breath_hold_mm,
-                                        _rng(seed, pathology, "breath-hold"))
-    study = Study(subject=subject, frame_times_ms={k: float(t) for k, t in times.items()},
-                  heart_rate_bpm=float(hr), ed_frame=0, es_frame=es_frame, source=None,
-                  meta={"generator": "cardionurbs.phantom", "pathology": pathology, "seed": seed,
-                        "study_uid": uid("study"), "frame_of_reference_uid": uid("for")})
-    step = acq.pixel_mm
+
+@dataclass
+class _Scene:
+    """What annotating every plane and frame needs: the analytic heart, its pose and imaging."""
+
+    anatomy: Anatomy
+    motion: Motion
+    grid: annotate.TagGrid
+    pose: HeartPose
+    acq: Acquisition
+    phases: np.ndarray          #: (frames,) cardiac phase per frame
+    times: dict                 #: frame -> trigger time, ms
+    shifts: dict                #: SA slice id -> breath-hold in-plane shift, mm
+    uid: Callable[..., str]     #: (*parts) -> DICOM UID
+
+
+def _annotate(study: Study, scene: _Scene, specs: list[SliceSpec]) -> None:
+    """Image planes, contours, tag lines and landmarks of every plane and frame, into ``study``."""
+    anatomy, motion, phases = scene.anatomy, scene.motion, scene.phases
+    frames = len(phases)
     # every SA plane's material height at every frame: the RV sectors there in one call
     anatomy.prime_rv_sectors([annotate.sa_material_height(motion, s, float(f))
                               for s in specs if s.view == "SA" for f in phases])
@@ -280,54 +350,67 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
                                                                   float(phases[k])).items():
                 la_done[sid, k] = cont
     for spec in specs:
-        series = SERIES["SA"] if spec.view == "SA" else SERIES[spec.id]
         for k in range(frames):
-            f = float(phases[k])
-            plane = image_plane(spec, pose, acq, k, uid("image", spec.id, k), times[k],
-                                file=f"dicom/{series}/{spec.id}_{k:02d}.dcm")
-            study.images.append(plane)
-            shift = np.zeros(3)
-            if spec.id in shifts:
-                shift = shifts[spec.id][0] * plane.row_cosine + shifts[spec.id][1] * plane.column_cosine
-
-            def scan(p):
-                return pose.to_scanner(p) + shift
-
-            if spec.view == "SA":
-                cont = annotate.sa_contours(anatomy, motion, spec, f)
-                for name in ("lv_endo", "lv_epi", "rv_endo", "rv_epi", "rv_outlet"):
-                    if name in cont:
-                        study.contours.append(Contour(name, "SA", spec.id, k, scan(cont[name]),
-                                                      image=plane.id, closed=True))
-                tags = annotate.sa_tag_lines(anatomy, motion, grid, spec, f, step)
-                ins = annotate.rv_insertion_points(anatomy, motion, spec, f)
-                if ins is not None:
-                    for i, p in enumerate(scan(ins)):
-                        study.landmarks.append(Landmark("rv_insert", k, p, index=i, slice=spec.id,
-                                                        view="SA", image=plane.id))
-            else:
-                cont = la_done[spec.id, k] if (spec.id, k) in la_done else annotate.la_contours(
-                    anatomy, motion, spec, f, with_rv=spec.id in ("la_4ch", "la_rvot"),
-                    with_lv=spec.id != "la_rvot")
-                for name in ("lv_endo", "lv_epi", "rv_endo", "rv_epi"):
-                    if name in cont:
-                        study.contours.append(Contour(name, "LA", spec.id, k, scan(cont[name]),
-                                                      image=plane.id, closed=False))
-                # the RVOT view carries RV contours only (no LV tag lines)
-                tags = ([] if spec.id == "la_rvot"
-                        else annotate.la_tag_lines(anatomy, motion, grid, spec, f, step))
-            for fam, idx, pts in tags:
-                study.tags.append(TagLine(fam, idx, spec.view, spec.id, k, scan(pts), image=plane.id))
+            _annotate_plane(study, scene, spec, k, la_done.get((spec.id, k)))
     for k in range(frames):
         for name, pts in annotate.landmarks(anatomy, motion, float(phases[k])).items():
-            for i, p in enumerate(pose.to_scanner(pts)):
+            for i, p in enumerate(scene.pose.to_scanner(pts)):
                 study.landmarks.append(Landmark(name, k, p, index=i))
 
-    jumps = faults.inject_tag_jumps(study, tag_jumps, _rng(seed, pathology, "tag-jumps"))
-    dropped = faults.add_noise(study, float(noise_px), _rng(seed, pathology, "noise"))
 
+def _annotate_plane(study: Study, scene: _Scene, spec: SliceSpec, k: int, la_cont: dict | None) -> None:
+    """The image plane of ``spec`` at frame ``k`` with its contours, tag lines and (SA) RV
+    insertion points, into ``study``; ``la_cont``: the LA contours when already made."""
+    anatomy, motion, grid, pose = scene.anatomy, scene.motion, scene.grid, scene.pose
+    series = SERIES["SA"] if spec.view == "SA" else SERIES[spec.id]
+    f = float(scene.phases[k])
+    plane = image_plane(spec, pose, scene.acq, k, scene.uid("image", spec.id, k), scene.times[k],
+                        file=f"dicom/{series}/{spec.id}_{k:02d}.dcm")
+    study.images.append(plane)
+    shift = np.zeros(3)
+    if spec.id in scene.shifts:
+        shift = scene.shifts[spec.id][0] * plane.row_cosine + scene.shifts[spec.id][1] * plane.column_cosine
+
+    def scan(p):
+        return pose.to_scanner(p) + shift
+
+    step = scene.acq.pixel_mm
+    if spec.view == "SA":
+        cont = annotate.sa_contours(anatomy, motion, spec, f)
+        for name in ("lv_endo", "lv_epi", "rv_endo", "rv_epi", "rv_outlet"):
+            if name in cont:
+                study.contours.append(Contour(name, "SA", spec.id, k, scan(cont[name]),
+                                              image=plane.id, closed=True))
+        tags = annotate.sa_tag_lines(anatomy, motion, grid, spec, f, step)
+        ins = annotate.rv_insertion_points(anatomy, motion, spec, f)
+        if ins is not None:
+            for i, p in enumerate(scan(ins)):
+                study.landmarks.append(Landmark("rv_insert", k, p, index=i, slice=spec.id,
+                                                view="SA", image=plane.id))
+    else:
+        cont = la_cont if la_cont is not None else annotate.la_contours(
+            anatomy, motion, spec, f, with_rv=spec.id in ("la_4ch", "la_rvot"),
+            with_lv=spec.id != "la_rvot")
+        for name in ("lv_endo", "lv_epi", "rv_endo", "rv_epi"):
+            if name in cont:
+                study.contours.append(Contour(name, "LA", spec.id, k, scan(cont[name]),
+                                              image=plane.id, closed=False))
+        # the RVOT view carries RV contours only (no LV tag lines)
+        tags = ([] if spec.id == "la_rvot"
+                else annotate.la_tag_lines(anatomy, motion, grid, spec, f, step))
+    for fam, idx, pts in tags:
+        study.tags.append(TagLine(fam, idx, spec.view, spec.id, k, scan(pts), image=plane.id))
+
+
+def _truth_metrics(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, specs: list[SliceSpec],
+                   phases: np.ndarray, es_frame: int, hr: float, n_jumps: int) -> tuple[dict, dict]:
+    """The truth's metrics (global, filling rates, wall thickness, strain, surface strain) and
+    its tag record, all from the analytic model."""
+    frames = len(phases)
+    f_es = float(phases[es_frame])
+    rr = 60000.0 / hr
     metrics, tag_truth = truth.compute_metrics(anatomy, motion, grid, specs, phases, es_frame, float(hr),
-                                               len(jumps))
+                                               n_jumps)
     if anatomy.realistic:
         # filling rates from the numerical volume curve (and surface strain, both anatomies' way)
         metrics.update(regional.realistic_regional_truth(anatomy, motion, specs, frames, es_frame, rr))
@@ -340,30 +423,24 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     surface = regional.surface_strain_truth(anatomy, motion, specs, f_es)
     metrics.update(surface)
     tag_truth["det_F_es"] = strain["det_F"]
-    fault_record = {"noise_px": float(noise_px), "tag_jumps": jumps,
-                    **({"contours_left_out": dropped} if dropped else {}),
-                    "breath_hold_mm": float(breath_hold_mm),
-                    "breath_hold_shifts_mm": ({k: [float(x) for x in v] for k, v in shifts.items()}
-                                              if breath_hold_mm > 0 else {})}
-    tr = {"format": "cardionurbs-phantom-truth", "version": 1, "subject": subject,
-          "pathology": pathology, "seed": seed, "ed_frame": 0, "es_frame": es_frame,
-          "metrics": metrics, "tags": tag_truth,
-          "motion": {**motion.to_dict(), "phase_per_frame": [float(x) for x in phases],
-                     "lambda_per_frame": [float(x) for x in motion.lam(phases)]},
-          "anatomy": ({**anatomy.to_dict(), "model": anatomy_model, "shape": anatomy.shape_dict()}
-                      if anatomy.shape is not None else anatomy.to_dict()),
-          "pose": pose.to_dict(), "draw": draw.values,
-          "acquisition": dataclasses.asdict(acq), "faults": fault_record,
-          "slices": {s.id: ({"height_mm": s.height} if s.view == "SA"
-                            else {"azimuth_deg": float(np.degrees(s.azimuth))}) for s in specs}}
-    if volume_check:
-        tr["volumes"] = truth.volume_table(anatomy, motion, phases, [0, es_frame])
-    study.meta["truth"] = "truth.json"
-    study.meta["tag_planes"] = tag_planes_scanner(grid, pose, anatomy)
-    tr["imaging"] = _imaging_record(config)
-    return Phantom(study=study, truth=_json_safe(tr), anatomy=anatomy, motion=motion, pose=pose,
-                   acquisition=acq, slices=specs, tag_grid=grid, phases=phases, es_frame=es_frame,
-                   draw=draw, config=config, shifts=shifts)
+    return metrics, tag_truth
+
+
+def _truth_record(head: dict, scene: _Scene, specs: list[SliceSpec], anatomy_model: str,
+                  draw: SubjectDraw, faults_done: dict) -> dict:
+    """The truth record: ``head`` (format, subject, ED/ES, metrics, tags), then the analytic
+    model — motion (with phase and λ per frame), anatomy, pose —, the draw, acquisition,
+    faults and the slices (SA height, LA azimuth), in the order truth.json keeps."""
+    anatomy, motion, phases = scene.anatomy, scene.motion, scene.phases
+    return {**head,
+            "motion": {**motion.to_dict(), "phase_per_frame": [float(x) for x in phases],
+                       "lambda_per_frame": [float(x) for x in motion.lam(phases)]},
+            "anatomy": ({**anatomy.to_dict(), "model": anatomy_model, "shape": anatomy.shape_dict()}
+                        if anatomy.shape is not None else anatomy.to_dict()),
+            "pose": scene.pose.to_dict(), "draw": draw.values,
+            "acquisition": dataclasses.asdict(scene.acq), "faults": faults_done,
+            "slices": {s.id: ({"height_mm": s.height} if s.view == "SA"
+                              else {"azimuth_deg": float(np.degrees(s.azimuth))}) for s in specs}}
 
 
 def tag_planes_scanner(grid: annotate.TagGrid, pose: HeartPose, anatomy: Anatomy) -> dict:
@@ -408,11 +485,12 @@ def _json_safe(obj):
 
 
 def write_phantom(phantom: Phantom, out_dir: str | Path, dicom: bool = True,
-                  labels: str | None = None) -> Path:
+                  labels: str | None = None, label_quirks: str | None = None) -> Path:
     """Write the native study (study.json + points.csv, or points.parquet for a large study),
     dicom/ and truth.json into ``out_dir``;
-    with ``labels`` (``acdc``, ``ukbb``, ``mnms``) also NIfTI label maps in that layout in
-    ``out_dir/labelmaps`` (:mod:`cardionurbs.phantom.labelmaps`).
+    with ``labels`` (``acdc``, ``ukbb``, ``mnms``, ``mnms2``) also NIfTI label maps in that
+    layout in ``out_dir/labelmaps``, with the header ``label_quirks`` (e.g. ``"real"``,
+    :mod:`cardionurbs.phantom.labelmaps`).
 
     The folder is replaced atomically; the same phantom gives byte-identical files.
     """
@@ -429,7 +507,7 @@ def write_phantom(phantom: Phantom, out_dir: str | Path, dicom: bool = True,
             write_dicom(phantom, tmp)
         if labels is not None:
             from cardionurbs.phantom.labelmaps import write_labelmaps
-            write_labelmaps(phantom, tmp / "labelmaps", labels)
+            write_labelmaps(phantom, tmp / "labelmaps", labels, quirks=label_quirks)
     return out_dir
 
 

@@ -25,9 +25,17 @@ Layouts written by :func:`write_labelmaps` (see :mod:`cardionurbs.io.nifti`):
 ``<subject>_frameMM_gt.nii.gz`` at ED and ES (slices apex → base, as a
 reader must not assume an order), ``Info.cfg`` and ``<subject>_4d.nii.gz``;
 ``mnms`` — ``<subject>_sa_gt.nii.gz`` (4-D, only ED and ES labelled),
-``<subject>_sa.nii.gz`` and ``mnms_info.csv`` (External code, ED, ES).
-Frame interval in ``pixdim[4]`` (ms), NIfTI world RAS+ (DICOM LPS with x and
-y negated), sform and qform codes 1.
+``<subject>_sa.nii.gz`` and ``mnms_info.csv`` (External code, ED, ES);
+``mnms2`` — ``<subject>_SA_ED_gt``, ``_SA_ES_gt``, ``_LA_ED_gt``, ``_LA_ES_gt``
+(3-D; the LA maps the 4-chamber slice) and the images without ``_gt``.
+By default: frame interval in ``pixdim[4]`` (ms), NIfTI world RAS+ (DICOM LPS
+with x and y negated), sform and qform codes 1. ``quirks`` (:data:`QUIRKS`,
+``phantom --label-quirks``) write the real datasets' headers instead:
+``real`` (ACDC: unit-scale sform code 2 with no real orientation, qform 0, the
+spacing only in pixdim, slices base first; UK Biobank: ``pixdim[4]`` in seconds
+with an unknown time unit), ``lps`` (in-plane array axes reversed, the same world
+image), ``apex-first`` / ``base-first`` (SA slice order), ``pv`` (partial-volume
+labels, 3 x 3 supersampling); see docs/formats.md.
 """
 
 from __future__ import annotations
@@ -45,7 +53,7 @@ from cardionurbs.phantom.dicom import ATRIUM_MM, BLOOD, BODY, LUNG, MYO, pixel_h
 
 #: tissue codes of :func:`tissue_codes`
 BG, LV, MYO_LV, RV, MYO_RV, LA, RA = range(7)
-LAYOUT_PRESETS = ("acdc", "ukbb", "mnms")
+LAYOUT_PRESETS = ("acdc", "ukbb", "mnms", "mnms2")
 LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
@@ -136,21 +144,66 @@ def plane_affine_ras(planes: list[ImagePlane]) -> np.ndarray:
     return LPS_TO_RAS @ a
 
 
-def _save(data: np.ndarray, affine_ras: np.ndarray, dt_ms: float | None, path: Path) -> Path:
+#: what ``quirks`` of :func:`write_labelmaps` may hold (module docstring, docs/formats.md)
+QUIRKS = ("real", "lps", "apex-first", "base-first", "pv")
+#: ACDC's sform as distributed: unit scale, the scanner axes (x, y negated), origin 0
+ACDC_SFORM = np.diag([-1.0, -1.0, 1.0, 1.0])
+
+
+def parse_quirks(spec: "str | list[str] | tuple[str, ...] | None") -> tuple[str, ...]:
+    """``"real,lps"`` (or a list) -> ("real", "lps"); PhantomError for an unknown quirk or for
+    ``apex-first`` with ``base-first``."""
+    if spec is None:
+        return ()
+    items = spec.split(",") if isinstance(spec, str) else list(spec)
+    out = tuple(dict.fromkeys(q.strip().lower() for q in items if q.strip()))
+    bad = [q for q in out if q not in QUIRKS]
+    if bad:
+        raise PhantomError(f"unknown label-map quirk {bad[0]!r}; expected some of {', '.join(QUIRKS)}")
+    if "apex-first" in out and "base-first" in out:
+        raise PhantomError("label-map quirks apex-first and base-first exclude each other")
+    return out
+
+
+def _save(data: np.ndarray, affine_ras: np.ndarray, dt_ms: float | None, path: Path,
+          header: str = "ours") -> Path:
+    """Write one map. ``header``: ``ours`` (sform and qform code 1, pixdim[4] in ms, units
+    mm/msec); ``acdc`` (ACDC as distributed: the unit-scale :data:`ACDC_SFORM` with code 2,
+    qform code 0, the spacing only in pixdim, units unknown); ``ukbb`` (UK Biobank: the real
+    affine, pixdim[4] in seconds, time unit unknown)."""
     import nibabel as nib
 
-    img = nib.Nifti1Image(data, affine_ras)
-    img.set_sform(affine_ras, code=1)
-    img.set_qform(affine_ras, code=1)
+    spacing = np.linalg.norm(affine_ras[:3, :3], axis=0)
+    if header == "acdc":
+        img = nib.Nifti1Image(data, ACDC_SFORM)
+        img.set_sform(ACDC_SFORM, code=2)
+        img.set_qform(None, code=0)
+        img.header.set_zooms(tuple(spacing) + tuple(img.header.get_zooms()[3:]))
+        img.header["xyzt_units"] = 0
+    else:
+        img = nib.Nifti1Image(data, affine_ras)
+        img.set_sform(affine_ras, code=1)
+        img.set_qform(affine_ras, code=1)
+        img.header.set_xyzt_units("mm", "msec" if header == "ours" else "unknown")
     zooms = list(img.header.get_zooms())
     if data.ndim == 4 and dt_ms is not None:
-        zooms[3] = dt_ms
+        zooms[3] = dt_ms / 1000.0 if header == "ukbb" else dt_ms
         img.header.set_zooms(zooms)
-    img.header.set_xyzt_units("mm", "msec")
     with atomic.atomic_path(path) as tmp:
         nib.save(img, str(tmp.with_suffix(".nii.gz")))
         tmp.with_suffix(".nii.gz").replace(tmp)
     return path
+
+
+def _flip_in_plane(codes: np.ndarray, affine_ras: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The same world image stored with both in-plane array axes reversed (a RAS <-> LPS
+    storage flip): index i' = n - 1 - i, so the column is negated and the origin moves to
+    the far end. Returns (codes, affine)."""
+    a = affine_ras.copy()
+    for ax in (0, 1):
+        a[:3, 3] += (codes.shape[ax] - 1) * a[:3, ax]
+        a[:3, ax] = -a[:3, ax]
+    return np.ascontiguousarray(codes[::-1, ::-1]), a
 
 
 def _stack(phantom, slice_ids: list[str], frames: list[int], supersample: int, cache: dict):
@@ -165,11 +218,50 @@ def _stack(phantom, slice_ids: list[str], frames: list[int], supersample: int, c
     return codes, planes
 
 
+class _Writer:
+    """Writes the stacks of one phantom in one layout with its quirks (:func:`write_labelmaps`)."""
+
+    def __init__(self, phantom, folder: Path, convention: str, quirks: tuple[str, ...],
+                 supersample: int, blur_px: float, images: bool) -> None:
+        self.phantom, self.folder, self.convention, self.quirks = phantom, folder, convention, quirks
+        self.supersample = 3 if "pv" in quirks and supersample == 1 else int(supersample)
+        self.blur_px, self.images = blur_px, images
+        self.cache: dict = {}
+        self.out: list[Path] = []
+        self.header = {"acdc": "acdc", "ukbb": "ukbb"}.get(convention, "ours") \
+            if "real" in quirks else "ours"
+        self.lut = convention_lut("mnms" if convention == "mnms2" else convention)
+
+    def sa_ids(self, default_apex_first: bool) -> list[str]:
+        ids = sorted({im.slice for im in self.phantom.study.images if im.view == "SA"})  # base first
+        apex_first = ("apex-first" in self.quirks or default_apex_first) and "base-first" not in self.quirks
+        return ids[::-1] if apex_first else ids
+
+    def stack(self, ids: list[str], frames: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """Tissue codes (c, r, k, t) and the RAS affine they are stored with (quirk ``lps``)."""
+        codes, planes = _stack(self.phantom, ids, frames, self.supersample, self.cache)
+        aff = plane_affine_ras(planes)
+        if "lps" in self.quirks:
+            codes, aff = _flip_in_plane(codes, aff)
+        return codes, aff
+
+    def save(self, data, aff, dt, name: str, header: str | None = None) -> None:
+        self.out.append(_save(data, aff, dt, self.folder / name, header or self.header))
+
+    def image(self, codes, aff, dt, name: str) -> None:
+        if self.images:
+            self.save(_cine(codes, self.blur_px), aff, dt, name)
+
+    def text(self, name: str, text: str) -> None:
+        self.out.append(atomic.write_text(self.folder / name, text))
+
+
 def write_labelmaps(phantom, folder: str | Path, convention: str = "ukbb", *,
                     supersample: int = 1, blur_px: float = 0.0, frames: list[int] | None = None,
-                    images: bool = True) -> list[Path]:
-    """Write the phantom's label maps in the layout of ``convention`` into ``folder``
-    (see the module docstring); returns the files written."""
+                    images: bool = True, quirks: "str | list[str] | None" = None) -> list[Path]:
+    """Write the phantom's label maps in the layout of ``convention`` (``acdc``, ``ukbb``,
+    ``mnms``, ``mnms2``) into ``folder`` with the header ``quirks`` of :data:`QUIRKS`
+    (module docstring); returns the files written."""
     if convention not in LAYOUT_PRESETS:
         raise PhantomError(f"unknown label convention {convention!r}; expected one of "
                            f"{', '.join(LAYOUT_PRESETS)}")
@@ -177,62 +269,71 @@ def write_labelmaps(phantom, folder: str | Path, convention: str = "ukbb", *,
         raise PhantomError(f"supersample must be >= 1, got {supersample!r}")
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    study = phantom.study
+    w = _Writer(phantom, folder, convention, parse_quirks(quirks), supersample, blur_px, images)
     n = len(phantom.phases)
-    es = int(phantom.es_frame)
-    dt = 60000.0 / study.heart_rate_bpm / n
-    sa_ids = sorted({im.slice for im in study.images if im.view == "SA"})
-    la_ids = sorted({im.slice for im in study.images if im.view == "LA"})
-    subject = study.subject
-    out: list[Path] = []
-    cache: dict = {}
-    lut = convention_lut(convention)
-    if convention == "ukbb":
-        fr = list(range(n)) if frames is None else list(frames)
-        if fr != list(range(fr[0], fr[0] + len(fr))):
-            dt = None                          # a subset of frames has no constant interval
-        codes, planes = _stack(phantom, sa_ids, fr, supersample, cache)
-        aff = plane_affine_ras(planes)
-        out.append(_save(lut[codes], aff, dt, folder / "seg_sa.nii.gz"))
-        if images:
-            out.append(_save(_cine(codes, blur_px), aff, dt, folder / "sa.nii.gz"))
-        for la in la_ids:
-            c, pl = _stack(phantom, [la], fr, supersample, cache)
-            atria = la == "la_4ch"
-            name = "seg4_la_4ch" if atria else f"seg_{la}"
-            out.append(_save(convention_lut(convention, atria)[c], plane_affine_ras(pl), dt,
-                             folder / f"{name}.nii.gz"))
-            if images:
-                out.append(_save(_cine(c, blur_px), plane_affine_ras(pl), dt, folder / f"{la}.nii.gz"))
-        return out
     fr = list(range(n)) if frames is None else list(frames)
-    if convention == "acdc":
-        ids = sa_ids[::-1]                                  # apex -> base
-        for f in (0, es):
-            codes, planes = _stack(phantom, ids, [f], supersample, cache)
-            out.append(_save(lut[codes[..., 0]], plane_affine_ras(planes), None,
-                             folder / f"{subject}_frame{f + 1:02d}_gt.nii.gz"))
-        info = (f"ED: 1\nES: {es + 1}\nGroup: {phantom.config['pathology'].upper()}\n"
-                f"Height: 175.0\nNbFrame: {n}\nWeight: 75.0\n")
-        out.append(atomic.write_text(folder / "Info.cfg", info))
-        if images:
-            codes, planes = _stack(phantom, ids, fr, supersample, cache)
-            out.append(_save(_cine(codes, blur_px), plane_affine_ras(planes), dt,
-                             folder / f"{subject}_4d.nii.gz"))
-        return out
-    # mnms: 4-D with only ED and ES labelled
-    codes, planes = _stack(phantom, sa_ids, fr, supersample, cache)
-    lab = lut[codes]
+    {"ukbb": _write_ukbb, "acdc": _write_acdc, "mnms": _write_mnms,
+     "mnms2": _write_mnms2}[convention](w, fr, n)
+    return w.out
+
+
+def _dt_ms(phantom) -> float:
+    return 60000.0 / phantom.study.heart_rate_bpm / len(phantom.phases)
+
+
+def _write_ukbb(w: _Writer, fr: list[int], n: int) -> None:
+    dt = _dt_ms(w.phantom) if fr == list(range(fr[0], fr[0] + len(fr))) else None
+    codes, aff = w.stack(w.sa_ids(False), fr)
+    w.save(w.lut[codes], aff, dt, "seg_sa.nii.gz")
+    w.image(codes, aff, dt, "sa.nii.gz")
+    for la in sorted({im.slice for im in w.phantom.study.images if im.view == "LA"}):
+        c, a = w.stack([la], fr)
+        atria = la == "la_4ch"
+        w.save(convention_lut("ukbb", atria)[c], a, dt, f"{'seg4_la_4ch' if atria else 'seg_' + la}.nii.gz")
+        w.image(c, a, dt, f"{la}.nii.gz")
+
+
+def _write_acdc(w: _Writer, fr: list[int], n: int) -> None:
+    ph, es = w.phantom, int(w.phantom.es_frame)
+    subject = ph.study.subject
+    ids = w.sa_ids("real" not in w.quirks)          # ours: apex -> base; as distributed: base first
+    for f in (0, es):
+        codes, aff = w.stack(ids, [f])
+        w.save(w.lut[codes[..., 0]], aff, None, f"{subject}_frame{f + 1:02d}_gt.nii.gz")
+    w.text("Info.cfg", f"ED: 1\nES: {es + 1}\nGroup: {ph.config['pathology'].upper()}\n"
+                       f"Height: 175.0\nNbFrame: {n}\nWeight: 75.0\n")
+    if w.images:
+        codes, aff = w.stack(ids, fr)
+        w.image(codes, aff, _dt_ms(ph), f"{subject}_4d.nii.gz")
+
+
+def _write_mnms(w: _Writer, fr: list[int], n: int) -> None:
+    """4-D with only ED and ES labelled, and the CSV of ED/ES frames."""
+    ph, es = w.phantom, int(w.phantom.es_frame)
+    codes, aff = w.stack(w.sa_ids(False), fr)
+    lab = w.lut[codes]
     keep = np.zeros(len(fr), bool)
     keep[[i for i, f in enumerate(fr) if f in (0, es)]] = True
     lab[..., ~keep] = 0
-    aff = plane_affine_ras(planes)
-    out.append(_save(lab, aff, dt, folder / f"{subject}_sa_gt.nii.gz"))
-    if images:
-        out.append(_save(_cine(codes, blur_px), aff, dt, folder / f"{subject}_sa.nii.gz"))
-    out.append(atomic.write_text(folder / "mnms_info.csv",
-                                 f"External code,ED,ES\n{subject},0,{es}\n"))
-    return out
+    dt = _dt_ms(ph)
+    w.save(lab, aff, dt, f"{ph.study.subject}_sa_gt.nii.gz")
+    w.image(codes, aff, dt, f"{ph.study.subject}_sa.nii.gz")
+    w.text("mnms_info.csv", f"External code,ED,ES\n{ph.study.subject},0,{es}\n")
+
+
+def _write_mnms2(w: _Writer, fr: list[int], n: int) -> None:
+    """M&Ms-2: NNN_SA_ED_gt, NNN_SA_ES_gt (3-D), NNN_LA_ED_gt, NNN_LA_ES_gt (the 4-chamber
+    slice), and the images without ``_gt``."""
+    ph, es = w.phantom, int(w.phantom.es_frame)
+    code = ph.study.subject
+    has_4ch = any(im.slice == "la_4ch" for im in ph.study.images)
+    for phase, f in (("ED", 0), ("ES", es)):
+        for view, ids in (("SA", w.sa_ids(False)), ("LA", ["la_4ch"] if has_4ch else [])):
+            if not ids:
+                continue
+            codes, aff = w.stack(ids, [f])
+            w.save(w.lut[codes[..., 0]], aff, None, f"{code}_{view}_{phase}_gt.nii.gz")
+            w.image(codes[..., 0], aff, None, f"{code}_{view}_{phase}.nii.gz")
 
 
 def _cine(codes: np.ndarray, blur_px: float) -> np.ndarray:

@@ -326,43 +326,62 @@ def strain_truth(anatomy: Anatomy, motion: Motion, specs, levels: list[dict], f:
     at each point follow the measurement's definition with the analytic endocardium
     (:func:`endocardial_normal_field`); segments are those of :func:`truth_segments` at ED.
     """
-    from scipy.spatial import cKDTree
-
     kinds = ("Ecc", "Ell", "Err")
     if not levels:
         return {"columns": {f"{k}_{s} (%)": NAN for k in kinds
                             for s in [*(f"AHA_{j}" for j in SEGMENTS), "Global"]}, "det_F": NAN}
+    X = _strain_sample(anatomy, motion, levels, f, spacing_mm, axis_clearance_mm)
+    F = deformation_gradient(anatomy, motion, X, f)
+    E = 0.5 * (np.einsum("nki,nkj->nij", F, F) - np.eye(3))
+    dirs = _strain_directions(anatomy, motion, X)
+    vals = 100.0 * np.einsum("nki,nij,nkj->nk", dirs, E, dirs)
+    labels = truth_segments(anatomy, motion, specs, 0.0).segments(X)
+    cols = {}
+    for j, kind in enumerate(kinds):
+        seg = segment_means(vals[:, j], np.ones(len(X)), labels)
+        cols.update({f"{kind}_AHA_{k} (%)": seg[k] for k in SEGMENTS})
+        fin = [v for v in seg.values() if np.isfinite(v)]
+        cols[f"{kind}_Global (%)"] = float(np.mean(fin)) if fin else NAN
+    return {"columns": cols, "det_F": float(np.linalg.det(F).mean()),
+            "counts": {k: int((labels == k).sum()) for k in SEGMENTS}}
+
+
+def _wall_section(anatomy: Anatomy, gx: np.ndarray, gy: np.ndarray, z: float):
+    """The grid points (gx, gy) of the ED LV wall on the plane at height z (heart frame, mm,
+    (k, 3)) and their distance from the heart's z axis (the motion frame's, unbent; (k,) mm),
+    at least 0.05 mm inside the endo- and epicardium."""
     from cardionurbs.phantom import annotate
+    if anatomy.realistic:                     # ED bent frame: the section shifted by d(z)
+        q = annotate.unbend(anatomy, np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)]))
+        s = q[:, 0] ** 2 + q[:, 1] ** 2
+        # the sections only where s can reach the wall: between the least endocardial and the
+        # largest epicardial S sampled every degree, widened by 5 % (far more than they vary
+        # between the samples); elsewhere S1 = S2 = s fails the test below as the exact ones do
+        e1, e2 = anatomy.lv_sections(np.full(360, z), np.linspace(0.0, 2 * np.pi, 360, endpoint=False))
+        near = np.flatnonzero((s >= 0.95 * float(e1.min())) & (s <= 1.05 * float(e2.max())))
+        s1, s2 = s.copy(), s.copy()
+        s1[near], s2[near] = anatomy.lv_sections(np.full(len(near), z),
+                                                 np.arctan2(q[near, 1], q[near, 0]))
+        s = s.reshape(gx.shape)
+        s1, s2 = s1.reshape(gx.shape), s2.reshape(gx.shape)
+    else:
+        s = gx ** 2 + gy ** 2
+        s1, s2 = float(anatomy.s_lv_endo(z)), float(anatomy.s_lv_epi(z))
+    r = np.sqrt(s)
+    inside = (r > np.sqrt(s1) + 0.05) & (r < np.sqrt(s2) - 0.05)
+    return np.column_stack([gx[inside], gy[inside], np.full(inside.sum(), z)]), r[inside]
+
+
+def _strain_sample(anatomy: Anatomy, motion: Motion, levels: list[dict], f: float,
+                   spacing_mm: float, axis_clearance_mm: float) -> np.ndarray:
+    """The ED tissue points (n, 3) heart mm of :func:`strain_truth`: a ``spacing_mm`` grid of
+    the LV wall between the tag levels, ``axis_clearance_mm`` off the axis at ED and phase f."""
     reach = anatomy.r_short_epi * 1.2 * (1.3 if anatomy.realistic else 1.0)
     if anatomy.shape is not None:
         reach += float(np.hypot(*anatomy.shape.apex_shift_mm))
     g = np.arange(-reach, reach, spacing_mm) + 0.5 * spacing_mm
     gx, gy = np.meshgrid(g, g, indexing="ij")
     zs = [lv["distance_from_apex_mm"] for lv in levels]
-
-    def wall_section(z):
-        """The grid points of the ED LV wall on the plane at height z (heart frame) and their
-        distance from the heart's z axis (the motion frame's, unbent)."""
-        if anatomy.realistic:                     # ED bent frame: the section shifted by d(z)
-            q = annotate.unbend(anatomy, np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)]))
-            s = q[:, 0] ** 2 + q[:, 1] ** 2
-            # the sections only where s can reach the wall: between the least endocardial and the
-            # largest epicardial S sampled every degree, widened by 5 % (far more than they vary
-            # between the samples); elsewhere S1 = S2 = s fails the test below as the exact ones do
-            e1, e2 = anatomy.lv_sections(np.full(360, z), np.linspace(0.0, 2 * np.pi, 360, endpoint=False))
-            near = np.flatnonzero((s >= 0.95 * float(e1.min())) & (s <= 1.05 * float(e2.max())))
-            s1, s2 = s.copy(), s.copy()
-            s1[near], s2[near] = anatomy.lv_sections(np.full(len(near), z),
-                                                     np.arctan2(q[near, 1], q[near, 0]))
-            s = s.reshape(gx.shape)
-            s1, s2 = s1.reshape(gx.shape), s2.reshape(gx.shape)
-        else:
-            s = gx ** 2 + gy ** 2
-            s1, s2 = float(anatomy.s_lv_endo(z)), float(anatomy.s_lv_epi(z))
-        r = np.sqrt(s)
-        inside = (r > np.sqrt(s1) + 0.05) & (r < np.sqrt(s2) - 0.05)
-        return np.column_stack([gx[inside], gy[inside], np.full(inside.sum(), z)]), r[inside]
-
     heights = np.arange(min(zs), max(zs) + 1e-9, spacing_mm)
     if anatomy.realistic:
         # the measurement keeps the tissue between the lowest and highest tracked material point
@@ -370,23 +389,28 @@ def strain_truth(anatomy: Anatomy, motion: Motion, specs, levels: list[dict], f:
         # [lowest point of the wall on the lowest tag plane, highest on the highest] along the
         # ED axis of :func:`axis_frame`, and the planes sampled reach as far as it does
         origin, basis = axis_frame(anatomy, motion, 0.0)
-        h_lo = float(np.min((wall_section(min(zs))[0] - origin) @ basis[2]))
-        h_hi = float(np.max((wall_section(max(zs))[0] - origin) @ basis[2]))
+        h_lo = float(np.min((_wall_section(anatomy, gx, gy, min(zs))[0] - origin) @ basis[2]))
+        h_hi = float(np.max((_wall_section(anatomy, gx, gy, max(zs))[0] - origin) @ basis[2]))
         tilt = float(np.hypot(basis[2][0], basis[2][1]) / basis[2][2])
         margin = reach * tilt + spacing_mm
         heights = np.arange(min(zs) - margin, max(zs) + margin + 1e-9, spacing_mm)
     pts = []
     for z in heights:
-        P, r = wall_section(z)
+        P, r = _wall_section(anatomy, gx, gy, z)
         P = P[r >= axis_clearance_mm]
         if anatomy.realistic:
             h = (P - origin) @ basis[2]
             P = P[(h >= h_lo) & (h <= h_hi)]
         pts.append(P)
     X = np.concatenate(pts)
-    X = X[axis_distance(anatomy, motion, motion_map(anatomy, motion, X, f), f) >= axis_clearance_mm]
-    F = deformation_gradient(anatomy, motion, X, f)
-    E = 0.5 * (np.einsum("nki,nkj->nij", F, F) - np.eye(3))
+    return X[axis_distance(anatomy, motion, motion_map(anatomy, motion, X, f), f) >= axis_clearance_mm]
+
+
+def _strain_directions(anatomy: Anatomy, motion: Motion, X: np.ndarray) -> np.ndarray:
+    """The measurement's (c, l, r) directions at the ED points X: (n, 3, 3), rows unit vectors
+    (r: the analytic endocardium's normal; c: circumferential about the long axis, made
+    orthogonal to r; l = r x c)."""
+    from scipy.spatial import cKDTree
     if anatomy.realistic:
         # the measurement's r: the normal averaged (by area) over DIRECTION_SMOOTHING_MM of
         # endocardium, here on a 60 x 120 grid (~250 samples a disc; the average varies on the
@@ -407,17 +431,7 @@ def strain_truth(anatomy: Anatomy, motion: Motion, specs, levels: list[dict], f:
         c = np.column_stack([-np.sin(th), np.cos(th), np.zeros(len(th))])
     c -= np.einsum("ni,ni->n", c, rdir)[:, None] * rdir
     c /= np.linalg.norm(c, axis=1)[:, None]
-    dirs = np.stack([c, np.cross(rdir, c), rdir], axis=1)
-    vals = 100.0 * np.einsum("nki,nij,nkj->nk", dirs, E, dirs)
-    labels = truth_segments(anatomy, motion, specs, 0.0).segments(X)
-    cols = {}
-    for j, kind in enumerate(kinds):
-        seg = segment_means(vals[:, j], np.ones(len(X)), labels)
-        cols.update({f"{kind}_AHA_{k} (%)": seg[k] for k in SEGMENTS})
-        fin = [v for v in seg.values() if np.isfinite(v)]
-        cols[f"{kind}_Global (%)"] = float(np.mean(fin)) if fin else NAN
-    return {"columns": cols, "det_F": float(np.linalg.det(F).mean()),
-            "counts": {k: int((labels == k).sum()) for k in SEGMENTS}}
+    return np.stack([c, np.cross(rdir, c), rdir], axis=1)
 
 
 # ----------------------------------------------------------------- surface strain

@@ -585,7 +585,6 @@ def _outflow_mesh_volumes(anatomy: Anatomy, motion: Motion, f: float, planes: di
     """Method B for the outflow tracts: closed material meshes of the RVOT (from the tricuspid
     plane up past the pulmonary valve) and of the LVOT cylinder-in-endocardium D, every vertex
     moved, trimmed by the valve planes (mL)."""
-    lam = float(motion.lam(f))
     zb = anatomy.z_base
     out = {}
     z_top = float(ofl.pulmonary_ring(anatomy)[:, 2].max()) + 6.0

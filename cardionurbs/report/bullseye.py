@@ -25,6 +25,14 @@ from matplotlib.figure import Figure
 from cardionurbs.io import atomic
 from cardionurbs.safe import plain_text
 
+#: the fixed colour scale of each quantity (unit of the quantity), the same for every study,
+#: so that a segment's colour reads the same in every report and noise does not look like
+#: disease. The spans are a display choice wide enough for healthy and impaired adult LVs
+#: (wall thickness 0-20 mm; thickening -20-100 %; Ecc, Ell +-30 %; Err +-60 %), stated in
+#: the colour bar; values beyond them take the end colours (the bar's arrows)
+SCALES = {"WT": (0.0, 20.0), "Thickening": (-20.0, 100.0), "Ecc": (-30.0, 30.0),
+          "Ell": (-30.0, 30.0), "Err": (-60.0, 60.0)}
+
 #: (figure name, column stem, title, unit, colour map, diverging)
 QUANTITIES = (
     ("fig13_bullseye_thickness", "WT_AHA_{k} (mm)", "Wall thickness at ED", "mm", "viridis", False),
@@ -91,9 +99,16 @@ def draw_bullseye(ax, values: Mapping[int, float], *, cmap: str = "viridis", nor
     return norm
 
 
+def fixed_norm(stem: str, diverging: bool):
+    """The colour normalisation of a quantity (:data:`SCALES`; diverging ones centred on 0)."""
+    lo, hi = SCALES[stem.split("_AHA")[0]]
+    return colors.TwoSlopeNorm(0.0, lo, hi) if diverging and lo < 0 < hi else colors.Normalize(lo, hi)
+
+
 def _norm_of(values: Mapping[int, float], diverging: bool):
-    """The colour normalisation of a figure: diverging quantities symmetric about 0 when
-    their values straddle it; None (the segments' range, :func:`_segment_style`) else."""
+    """The data-range colour normalisation (only when a quantity has no fixed scale):
+    diverging quantities symmetric about 0 when their values straddle it; None (the
+    segments' range, :func:`_segment_style`) else."""
     fin = np.array([v for v in values.values() if v is not None and np.isfinite(v)])
     if not (diverging and len(fin)):
         return None
@@ -113,7 +128,7 @@ class BullseyeCanvas:
 
     def __init__(self) -> None:
         self.fig = Figure(figsize=(4.6, 4.4), dpi=100)
-        self.ax = self.fig.add_axes([0.04, 0.14, 0.7, 0.74], projection="polar")
+        self.ax = self.fig.add_axes([0.03, 0.14, 0.66, 0.74], projection="polar")
         draw_bullseye(self.ax, {}, cmap="viridis")
         self.bars = list(self.ax.containers[0])
         self.labels = list(self.ax.texts)
@@ -123,10 +138,11 @@ class BullseyeCanvas:
 
     def render(self, values: Mapping[int, float], title: str, unit: str, path: Path, *,
                cmap: str = "viridis", diverging: bool = False, caption: str = "",
-               label: str | None = None) -> Path:
+               label: str | None = None, norm=None) -> Path:
         """Draw one quantity and write the PNG (atomically); see :func:`bullseye_figure`."""
-        norm, faces, hatches, texts, ink = _segment_style(values, cmap, _norm_of(values, diverging),
-                                                          "{:.1f}")
+        fixed = norm is not None
+        norm, faces, hatches, texts, ink = _segment_style(
+            values, cmap, norm if fixed else _norm_of(values, diverging), "{:.1f}")
         for bar, face, hatch in zip(self.bars, faces, hatches):
             bar.set_facecolor(face)
             bar.set_hatch(hatch)
@@ -135,11 +151,14 @@ class BullseyeCanvas:
             t.set_color(c)
         if self.cax is not None:
             self.cax.remove()
-        self.cax = self.fig.add_axes([0.8, 0.2, 0.04, 0.62])
+        self.cax = self.fig.add_axes([0.74, 0.2, 0.04, 0.62])
         sm = cm.ScalarMappable(norm=norm, cmap=matplotlib.colormaps[cmap])
-        self.fig.colorbar(sm, cax=self.cax, label=f"{label or title} ({unit})")
+        text = f"{label or title} ({unit})"
+        if fixed:
+            text += f"\nfixed scale {norm.vmin:g} to {norm.vmax:g} {unit}"
+        self.fig.colorbar(sm, cax=self.cax, label=text, extend="both" if fixed else "neither")
         self.title.set_text(plain_text(title))
-        self.caption.set_text(plain_text(textwrap.fill(caption, 95)))
+        self.caption.set_text(plain_text(textwrap.fill(caption, 84)))
         buf = io.BytesIO()
         self.fig.savefig(buf, format="png", dpi=100)
         atomic.write_bytes(path, buf.getvalue())
@@ -148,11 +167,14 @@ class BullseyeCanvas:
 
 def bullseye_figure(values: Mapping[int, float], title: str, unit: str, path: Path, *,
                     cmap: str = "viridis", diverging: bool = False, caption: str = "",
-                    label: str | None = None, canvas: BullseyeCanvas | None = None) -> Path:
+                    label: str | None = None, canvas: BullseyeCanvas | None = None,
+                    norm=None) -> Path:
     """One bull's-eye PNG with a colour bar labelled with the quantity and unit (drawn on
-    ``canvas`` when given: the figures of one study share one)."""
+    ``canvas`` when given: the figures of one study share one); ``norm``: a fixed colour
+    scale (:func:`fixed_norm`, stated in the bar), else the values' range."""
     return (canvas or BullseyeCanvas()).render(values, title, unit, path, cmap=cmap,
-                                               diverging=diverging, caption=caption, label=label)
+                                               diverging=diverging, caption=caption, label=label,
+                                               norm=norm)
 
 
 def segment_values(metrics: Mapping[str, float] | None, stem: str) -> dict[int, float]:
@@ -177,5 +199,6 @@ def quantity_figure(metrics: Mapping[str, float] | None, quantity: tuple, subjec
                "anterior up, septum left, seen from the apex). Grey hatched: no value.")
     label = stem.split("_AHA")[0].replace("WT", "Wall thickness")
     path = bullseye_figure(vals, title, unit, Path(out) / f"{name}.png", cmap=cmap,
-                           diverging=diverging, caption=caption, label=label, canvas=canvas)
+                           diverging=diverging, caption=caption, label=label, canvas=canvas,
+                           norm=fixed_norm(stem, diverging))
     return path, caption

@@ -259,18 +259,20 @@ def draw_panel(ax, meshes: Sequence[Mesh], view: View, *, lines: Sequence[tuple]
     ax.set_xlim(c[0] - h, c[0] + h)
     ax.set_ylim(c[1] - h, c[1] + h)
     ax.set_zlim(c[2] - h, c[2] + h)
-    ax.set_box_aspect((1, 1, 1), zoom=1.2)
+    ax.set_box_aspect((1, 1, 1), zoom=0.95)     # the axis box and its labels stay in the panel at any view
     ax.computed_zorder = False
     ax.view_init(elev=view.elev, azim=view.azim, roll=view.roll)
-    ax.set_xlabel("x (mm)", fontsize=7, labelpad=-6)
-    ax.set_ylabel("y (mm)", fontsize=7, labelpad=-6)
-    ax.set_zlabel("z (mm)", fontsize=7, labelpad=-6)
+    ax.set_xlabel("x (mm)", fontsize=7, labelpad=5)
+    ax.set_ylabel("y (mm)", fontsize=7, labelpad=5)
+    ax.set_zlabel("z (mm)", fontsize=7, labelpad=5)
     ax.tick_params(labelsize=6, pad=-2)
     for a in (ax.xaxis, ax.yaxis, ax.zaxis):
         a.set_pane_color((1, 1, 1, 0))
         a.set_major_locator(matplotlib.ticker.MaxNLocator(3))
     if title:
-        ax.set_title(plain_text(title), fontsize=9, pad=0)
+        b = ax.get_position()            # placed above the axes' labels when saved (_save)
+        ax._cn_title = ax.figure.text(b.x0 + b.width / 2, b.y1 + 0.01, plain_text(title),
+                                      fontsize=9, ha="center", va="bottom")
     ax.grid(False)
     if marker:
         orientation_marker(ax)
@@ -290,9 +292,10 @@ def orientation_marker(ax) -> None:
     vec /= max(float(np.linalg.norm(vec, axis=1).max()), 1e-12)
     fig = ax.figure
     pos = ax.get_position()
-    size = 0.2 * min(pos.width, pos.height * fig.get_figheight() / fig.get_figwidth())
+    strip = MARKER_STRIP / (1 - MARKER_STRIP) * pos.width      # the free strip left of the axes
+    size = 0.9 * min(strip, 0.2 * pos.height * fig.get_figheight() / fig.get_figwidth())
     h_fig = size * fig.get_figwidth() / fig.get_figheight()
-    x0, y0 = pos.x0 + 0.02 * pos.width, pos.y0 + 0.90 * pos.height - h_fig
+    x0, y0 = pos.x0 - strip + 0.05 * strip, pos.y0 + 0.95 * pos.height - h_fig
 
     def at(p) -> tuple[float, float]:
         """A point of the marker's square (-1.45 .. 1.45 each way) in figure coordinates:
@@ -300,12 +303,37 @@ def orientation_marker(ax) -> None:
         (an axes with its ticks costs more to make than the arrows to draw)."""
         return (x0 + (p[0] + 1.45) / 2.9 * size, y0 + (p[1] + 1.45) / 2.9 * h_fig)
 
-    for v, (_, txt) in zip(vec, dirs):
+    units = vec / np.maximum(np.linalg.norm(vec, axis=1, keepdims=True), 1e-9)
+    spots = _spread(vec + 0.3 * units, 0.6)
+    for v, spot, (_, txt) in zip(vec, spots, dirs):
         fig.add_artist(FancyArrowPatch(at((0.0, 0.0)), at(v), transform=fig.transFigure,
                                        arrowstyle="-|>", mutation_scale=10, lw=1.1,
                                        color="black", shrinkA=0, shrinkB=0))
-        u = v / max(float(np.linalg.norm(v)), 1e-9)
-        fig.text(*at(v + 0.3 * u), txt, fontsize=7, fontweight="bold", ha="center", va="center")
+        fig.text(*at(spot), txt, fontsize=7, fontweight="bold", ha="center", va="center")
+
+
+def _spread(points: np.ndarray, gap: float) -> np.ndarray:
+    """Label positions (k, 2) pushed apart pairwise until no two are closer than ``gap``
+    (the marker's letters of two nearly parallel arrows would print on each other)."""
+    p = np.array(points, float)
+    for _ in range(10):
+        moved = False
+        for i in range(len(p)):
+            for j in range(i + 1, len(p)):
+                d = p[j] - p[i]
+                n = float(np.linalg.norm(d))
+                if n < gap:
+                    u = d / n if n > 1e-9 else np.array([1.0, 0.0])
+                    p[i] -= 0.5 * (gap - n) * u
+                    p[j] += 0.5 * (gap - n) * u
+                    moved = True
+        if not moved:
+            break
+    return p
+
+
+#: share of a 3-D panel's width kept free, left of its axes, for the orientation marker
+MARKER_STRIP = 0.16
 
 
 def _new_figure(n_panels: int, caption: str, *, width: float = 4.6, height: float = 4.8,
@@ -313,12 +341,21 @@ def _new_figure(n_panels: int, caption: str, *, width: float = 4.6, height: floa
     fig = Figure(figsize=(width * n_panels, height), dpi=DPI)
     axes = [fig.add_subplot(1, n_panels, i + 1, projection="3d" if three_d else None)
             for i in range(n_panels)]
-    fig.subplots_adjust(left=0.02 if three_d else 0.1, right=0.93 if three_d else 0.88,
-                        top=0.90 if three_d else 0.93, bottom=0.13 if three_d else 0.22,
-                        wspace=0.15 if three_d else 0.3)
     chars = int(width * n_panels * 17)          # ~17 characters per inch at 7.5 pt
-    fig.text(0.01, 0.01, plain_text(textwrap.fill(caption, chars)), fontsize=7.5, ha="left",
-             va="bottom")
+    text = plain_text(textwrap.fill(caption, chars))
+    # the caption's height (7.5 pt lines, 1.3 line spacing) plus room for the lowest axis
+    # and tick labels above it: the axes start above the caption, never on it
+    caption_h = (text.count("\n") + 1) * 7.5 * 1.3 / 72.0 / height + 0.02
+    fig.subplots_adjust(left=0.02 if three_d else 0.1, right=0.93 if three_d else 0.88,
+                        top=0.85 if three_d else 0.93,
+                        bottom=caption_h + (0.12 if three_d else 0.13),
+                        wspace=0.15 if three_d else 0.3)
+    fig.text(0.01, 0.01, text, fontsize=7.5, ha="left", va="bottom")
+    if three_d:                 # a strip left of each 3-D axes for the orientation marker
+        for ax in axes:
+            b = ax.get_position()
+            ax.set_position([b.x0 + MARKER_STRIP * b.width, b.y0, (1 - MARKER_STRIP) * b.width,
+                             b.height])
     return fig, axes
 
 
@@ -328,9 +365,25 @@ def _legend(fig: Figure, items: Sequence[tuple[str, str]]) -> None:
                fontsize=7, frameon=False, ncol=min(len(items), 6))
 
 
+def _place_titles(fig: Figure) -> None:
+    """Move each 3-D panel's title just above everything its axes draw (a 3-D axis label
+    can stand above the axes box, depending on the view)."""
+    titled = [ax for ax in fig.axes if getattr(ax, "_cn_title", None) is not None]
+    if not titled:
+        return
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    canvas = fig.canvas if hasattr(fig.canvas, "get_renderer") else FigureCanvasAgg(fig)
+    renderer = canvas.get_renderer()
+    H = fig.get_figheight() * fig.dpi
+    for ax in titled:
+        top = ax.get_tightbbox(renderer).y1 / H
+        ax._cn_title.set_y(max(top, ax.get_position().y1) + 4.0 / H)
+
+
 def _save(fig: Figure, path: Path) -> tuple[Path, list]:
     """Render to PNG (atomic write); return the path and the legends' pixel boxes."""
     import io
+    _place_titles(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)
     atomic.write_bytes(path, buf.getvalue())
@@ -612,6 +665,8 @@ def fig09_all_tag_surfaces(ctx, out):
 
 def fig10_biventricular(ctx, out):
     surf = ctx.surfaces(ctx.ed)
+    if "rv_endo" not in surf:               # LV alone is figs 3-4: nothing biventricular to show
+        return "no rv_endo surface in the model: the biventricular figure needs the RV"
     order = [s for s in ("lv_endo", "rv_endo", "lv_epi", "rv_epi") if s in surf]
     alpha = {"lv_endo": 1.0, "rv_endo": 1.0, "lv_epi": 0.3, "rv_epi": 0.3}
     meshes = [surface_mesh(surf[s], STRUCTURE_COLOURS[s], alpha[s], s) for s in order]
@@ -652,16 +707,19 @@ def fig11_volume_time(ctx, out):
     keys = [k for k in ("lv_cavity", "rv_cavity") if all(k in vols[f] for f in frames)]
     colours = {"lv_cavity": STRUCTURE_COLOURS["lv_endo"], "rv_cavity": STRUCTURE_COLOURS["rv_endo"]}
     truth_v = ((ctx.truth or {}).get("volumes") or {}).get("analytic_mL") or {}
+    has_truth = any(sum(str(f) in truth_v and isinstance(truth_v[str(f)].get(k), (int, float))
+                        and np.isfinite(truth_v[str(f)][k]) for f in frames) >= 2 for k in keys)
     caption = (f"Volume–time curves of subject {ctx.subject}: LV and RV cavity volumes from the "
                f"closed meshes at {len(frames)} frames (ED frame {ctx.ed}, ES frame {ctx.es})"
-               + ("; dashed: phantom truth." if truth_v else "."))
+               + ("; dashed: phantom truth." if has_truth else "."))
     fig, axes = _new_figure(1, caption, width=6.4, height=4.2, three_d=False)
     ax = axes[0]
     for k in keys:
         ax.plot(x, [vols[f][k] for f in frames], "-o", color=colours[k], ms=3, lw=1.8,
                 label=k.replace("_", " "))
-        tf = [f for f in frames if str(f) in truth_v and k in truth_v[str(f)]]
-        if tf:
+        tf = [f for f in frames if str(f) in truth_v and k in truth_v[str(f)]
+              and truth_v[str(f)][k] is not None and np.isfinite(truth_v[str(f)][k])]
+        if len(tf) >= 2:                # a truth curve (and its legend entry) only if drawn
             xt, _ = _times(ctx, tf)
             ax.plot(xt, [truth_v[str(f)][k] for f in tf], "--", color=colours[k], lw=1,
                     label=f"{k.replace('_', ' ')} (truth)")
@@ -713,7 +771,7 @@ def fig12_twist_time(ctx, out):
     return _result("fig12_twist_time", fig, out, caption, {"twist": c1, "LS": c2})
 
 
-def fig13_labelmap_overlay(ctx, out):
+def fig18_labelmap_overlay(ctx, out):
     """Label-map studies with an image NIfTI beside them: the mid-ventricular SA image at
     ED and ES with the contours the label map gave drawn over it
     (:func:`cardionurbs.report.overlay.sa_overlay`)."""
@@ -757,7 +815,7 @@ def fig13_labelmap_overlay(ctx, out):
         ax.set_ylabel("pixel row", fontsize=7)
         ax.tick_params(labelsize=6)
     _legend(fig, [(k.replace("_", " "), c) for k, c in colours.items()])
-    return _result("fig13_labelmap_overlay", fig, out, caption, colours)
+    return _result("fig18_labelmap_overlay", fig, out, caption, colours)
 
 
 FIGURES: dict[str, FigureFn] = {
@@ -769,7 +827,7 @@ FIGURES: dict[str, FigureFn] = {
     "fig12_twist_time": fig12_twist_time,
 }
 #: figures drawn only for label-map studies (format nifti)
-LABEL_MAP_FIGURES: dict[str, FigureFn] = {"fig13_labelmap_overlay": fig13_labelmap_overlay}
+LABEL_MAP_FIGURES: dict[str, FigureFn] = {"fig18_labelmap_overlay": fig18_labelmap_overlay}
 
 
 def _regional_columns(ctx) -> Mapping:

@@ -239,19 +239,75 @@ def _tag_groups(fig_dir: Path, fig_index: dict | None, origin: np.ndarray, pool:
 
 
 def _metric_rows(metrics: dict, truth: dict | None) -> list[dict]:
-    """One row per measured metric with the phantom truth and the difference beside it."""
+    """One row per measured metric with the phantom truth and the difference beside it, its
+    reference range and flag (metrics.json ``ranges``), why it is null (``notes``), its
+    quality flags and the surfaces they concern."""
     tmet = (truth or {}).get("metrics", {})
     quality = (metrics.get("quality") or {}).get("metrics", {})
-    unc = metrics.get("uncertainty") or {}
+    notes = metrics.get("notes") or {}
+    ranges = (metrics.get("ranges") or {}).get("flags", {})
+    unc = metrics.get("uncertainty") or {}       # the 95 % intervals (docs/metrics.md, Uncertainty)
     rows = []
     for k, v in metrics.get("metrics", {}).items():
         t = tmet.get(k) if truth else None
         diff = (v - t) if isinstance(v, (int, float)) and isinstance(t, (int, float)) else None
-        iv = unc.get(k)            # the 95 % interval (docs/metrics.md, Uncertainty)
+        flags = list((quality.get(k) or {}).get("flags", []))
+        rng = ranges.get(k) or {}
         rows.append({"metric": k, "measured": _num(v), "truth": _num(t), "difference": _num(diff),
-                     "halfwidth": _num(0.5 * (iv[1] - iv[0])) if isinstance(iv, list) else None,
-                     "qc": "; ".join((quality.get(k) or {}).get("flags", []))})
+                     "qc": "; ".join(flags), "qc_surfaces": sorted({_flag_surface(f) for f in flags}),
+                     "note": notes.get(k) if _num(v) is None else None,
+                     "range": [rng.get("lower"), rng.get("upper")] if rng.get("table") else None,
+                     "range_flag": rng.get("flag"), "range_table": rng.get("table"),
+                     "range_reason": rng.get("reason") or None,
+                     "halfwidth": (_num(0.5 * (unc[k][1] - unc[k][0]))
+                                   if isinstance(unc.get(k), list) else None)})
     return rows
+
+
+#: the report's metric groups: (title, test of a column name), in page order; a column
+#: goes to the first group whose test it passes
+GROUPS = (
+    ("LV function", lambda c: c in ("HR (bpm)", "LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)",
+                                    "LVCO (L/min)", "LVM (g)", "EI ES")),
+    ("RV function", lambda c: c.startswith(("RVEDV (", "RVESV (", "RVSV (", "RVEF (", "RVM (",
+                                            "MR ", "RV/LV"))),
+    ("Body size and indexed values", lambda c: c.endswith("/m²)") or c in (
+        "Height (cm)", "Weight (kg)", "Age (y)", "BSA (m²)")),
+    ("Tags", lambda c: c in ("Twist (deg)", "Twist 2D (deg)", "Torsion (deg/cm)",
+                             "CL shear (deg)", "LS (%)", "Tag QC flags")),
+    ("Voxel counting", lambda c: " voxel " in c),
+    ("Regional", lambda c: True),
+)
+
+
+def group_rows(rows: list[dict]) -> list[tuple[str, list[dict]]]:
+    """The metric rows by :data:`GROUPS` (empty groups left out), in page order."""
+    out: dict[str, list[dict]] = {t: [] for t, _ in GROUPS}
+    for r in rows:
+        out[next(t for t, test in GROUPS if test(r["metric"]))].append(r)
+    return [(t, rs) for t, rs in out.items() if rs]
+
+
+def _flag_surface(flag: str) -> str:
+    """The surface or input a quality flag is about (``RV epi fit max ...`` -> ``RV epi``)."""
+    for label in ("LV endo", "LV epi", "RV endo", "RV epi"):
+        if flag.startswith(label):
+            return label
+    return flag.split(":")[0].split(" fit")[0][:40]
+
+
+def quality_lines(rows: list[dict]) -> list[dict]:
+    """One line per surface (or input) with a quality flag: its distinct evidence and the
+    metrics it flags (the report shows each as one expandable line)."""
+    by: dict[str, dict] = {}
+    for r in rows:
+        for f in filter(None, (r.get("qc") or "").split("; ")):
+            e = by.setdefault(_flag_surface(f), {"evidence": [], "metrics": []})
+            if f not in e["evidence"]:
+                e["evidence"].append(f)
+            if r["metric"] not in e["metrics"]:
+                e["metrics"].append(r["metric"])
+    return [{"surface": k, **v} for k, v in by.items()]
 
 
 def _figure_images(fig_dir: Path, fig_index: dict | None) -> list[dict]:
@@ -303,9 +359,12 @@ def report_payload(output_dir: str | Path, *, model: BiventricularModel | None =
         "has_truth": truth is not None,
         "flags": flags, "tags_note": tags_note,
         "volume_curve": metrics.get("volume_curve"),
-        "warnings": [_strip_local(w, model.study.source or (fig_index or {}).get("source"))
-                     for w in
-                     list(metrics.get("warnings", []))[:50]],
+        "warnings": [_strip_local(f"{w['source']}: {w['message']}" if isinstance(w, dict) else w,
+                                  model.study.source or (fig_index or {}).get("source"))
+                     for w in list(metrics.get("warnings", []))[:50]],
+        "n_warnings": len(metrics.get("warnings", [])),
+        "citation": (metrics.get("ranges") or {}).get("citation"),
+        "body": metrics.get("body") or {},
         "skipped": (fig_index or {}).get("skipped", {}), "figures": _figure_images(fig_dir, fig_index),
     }
 
@@ -324,7 +383,7 @@ body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:0;col
 header{padding:10px 18px;background:#f4f4f4;border-bottom:1px solid #ddd}
 h1{font-size:20px;margin:0} h2{font-size:16px;margin:18px 0 6px}
 main{display:flex;flex-wrap:wrap;gap:14px;padding:10px 18px}
-#viewer{flex:1 1 640px;min-width:480px} #side{flex:0 1 460px}
+#viewer{flex:1 1 600px;min-width:480px} #side{flex:0 1 600px}
 #plot{width:100%;height:620px;border:1px solid #ddd}
 .controls{display:flex;flex-wrap:wrap;gap:8px 16px;margin:6px 0;font-size:13px;align-items:center}
 .sw{display:inline-block;width:12px;height:12px;margin-right:4px;border:1px solid #888;vertical-align:middle}
@@ -334,6 +393,8 @@ td:first-child,th:first-child{text-align:left} .bad{color:#D55E00;font-weight:60
 figcaption{font-size:12px;color:#444} #frameLabel{min-width:150px;display:inline-block}
 .note{font-size:12.5px;color:#555} #volplot{width:100%;height:260px}
 .qc{font-size:11.5px;color:#a33} .qcflag{color:#c22}
+tr.group th{text-align:left;background:#eef2f6;font-size:13px;padding-top:6px}
+.why{font-size:11px;color:#777} #metrics td:first-child,#regional td:first-child{white-space:nowrap} details{margin:4px 0;font-size:12.5px} summary{cursor:pointer}
 """
 
 _JS = r"""
@@ -410,7 +471,7 @@ if(D.volume_curve && D.volume_curve.frame && D.volume_curve.frame.length>2){
     if(vc[s[0]] && vc[s[0]].some(function(v){return v!=null && !isNaN(v);}))
       tr.push({x:xs,y:vc[s[0]],name:s[1],mode:'lines+markers',line:{color:s[2]}}); });
   if(tr.length) Plotly.newPlot('volplot', tr, {margin:{l:50,r:10,t:10,b:40},
-    xaxis:{title:{text: haveT?'time (ms)':'frame'}}, yaxis:{title:{text:'volume (mL)'}}, legend:{x:0.7,y:1}},
+    xaxis:{title:{text: haveT?'time (ms)':'frame'}}, yaxis:{title:{text:'volume (mL)'}}, legend:{orientation:'h',x:0,y:1.12}},
     {displaylogo:false, responsive:true, staticPlot:false});
   else document.getElementById('volplot').style.display='none';
 } else { const v=document.getElementById('volplot'); v.style.height='auto'; v.className='note';
@@ -433,30 +494,89 @@ def _fmt(x: Any) -> str:
     return html.escape(str(x))
 
 
-def render_html(payload: Mapping) -> str:
-    """The report page (a string) for a :func:`report_payload`."""
-    return "".join(page_parts(payload))
+def _range_cell(r: Mapping) -> str:
+    if not r.get("range"):
+        why = r.get("range_reason")
+        return "<td></td><td>" + (f"<span class='why'>{html.escape(why)}</span>" if why else "") + "</td>"
+    lo, hi = r["range"]
+    text = f"{_fmt(lo) if lo is not None else ''}–{_fmt(hi) if hi is not None else ''}"
+    f = r.get("range_flag")
+    cls = "" if f in (None, "normal") else " class='bad'"
+    return (f"<td title='{html.escape(str(r.get('range_table') or ''))}'>{text}</td>"
+            f"<td{cls}>{html.escape(f or '')}</td>")
+
+
+def _row_html(r: Mapping, has_truth: bool) -> str:
+    esc = html.escape
+    measured = _fmt(r["measured"])
+    if r.get("halfwidth") is not None:
+        measured += f" <span class='pm' title='95 % interval'>± {_fmt(r['halfwidth'])}</span>"
+    if r.get("note"):
+        measured += f" <span class='why'>{esc(r['note'])}</span>"
+    if r.get("qc"):
+        measured += (f" <span class='qcflag' title='{esc(r['qc'])}'>&#9873;</span>")
+    return (f"<tr><td>{esc(r['metric'])}</td><td>{measured}</td>" + _range_cell(r)
+            + (f"<td>{_fmt(r['truth'])}</td><td>{_fmt(r['difference'])}</td>" if has_truth else "")
+            + f"<td class='qc'>{esc(', '.join(r.get('qc_surfaces') or []))}</td></tr>")
+
+
+def _metric_tables(p: Mapping) -> tuple[str, dict[str, str]]:
+    """(header row, {"main": the grouped rows of the metrics table, "regional": the
+    regional table, collapsed})."""
+    has_truth = p["has_truth"]
+    cols = ["metric", "measured", "normal range", "flag"] + (
+        ["truth", "measured − truth"] if has_truth else []) + ["QC"]
+    head = "<tr>" + "".join(f"<th>{c}</th>" for c in cols) + "</tr>"
+    main, regional = [], ""
+    for title, rows in group_rows(p["metrics"]):
+        body = "".join(_row_html(r, has_truth) for r in rows)
+        if title == "Regional":
+            n = sum(r["measured"] is not None for r in rows)
+            regional = (f"<details id='regional'><summary>Regional ({n} of {len(rows)} columns "
+                        f"measured)</summary><table>{head}{body}</table></details>")
+        else:
+            main.append(f"<tr class='group'><th colspan='{len(cols)}'>{title}</th></tr>{body}")
+    return head, {"main": "".join(main), "regional": regional}
+
+
+def _quality_html(rows: list[dict]) -> str:
+    """One expandable line per surface with a quality flag: the evidence and the metrics."""
+    esc = html.escape
+    lines = quality_lines(rows)
+    if not lines:
+        return "<p class='note'>No quality flag: every fit residual within the limit.</p>"
+    out = []
+    for q in lines:
+        shown = ", ".join(q["metrics"][:4]) + (f" and {len(q['metrics']) - 4} more"
+                                               if len(q["metrics"]) > 4 else "")
+        out.append(f"<details class='qcline'><summary><b>{esc(q['surface'])}</b>: "
+                   f"{len(q['evidence'])} finding(s), flags {esc(shown)}</summary><ul class='note'>"
+                   + "".join(f"<li>{esc(e)}</li>" for e in q["evidence"]) + "</ul></details>")
+    return "".join(out)
+
+
+def _body_note(p: Mapping) -> str:
+    b = p.get("body") or {}
+    parts = [f"{k} {b[f]:g}{u}" for k, f, u in (("height", "height_cm", " cm"),
+                                                 ("weight", "weight_kg", " kg"),
+                                                 ("age", "age_y", " y"))
+             if isinstance(b.get(f), (int, float))]
+    if b.get("sex"):
+        parts.append(f"sex {b['sex']}")
+    return html.escape("Body: " + (", ".join(parts) if parts else "unknown (no BSA, no indexed "
+                                   "values; give --height-cm and --weight-kg)") + ".")
 
 
 def page_parts(payload: Mapping) -> list[str]:
     """The report page for a :func:`report_payload` as consecutive pieces (their
-    concatenation is :func:`render_html`): written one after another, the page (plotly.js,
+    concatenation is the page): written one after another, the page (plotly.js,
     the data, the figures: several MB) is never held whole as text and again as bytes."""
     from plotly.offline import get_plotlyjs
 
     esc = html.escape
     p = payload
     has_truth = p["has_truth"]
-    head = "<tr><th>metric</th><th>measured</th>" + (
-        "<th>truth</th><th>measured − truth</th>" if has_truth else "") + "<th>QC</th></tr>"
-    body = "".join(
-        f"<tr><td>{esc(r['metric'])}</td><td>{_fmt(r['measured'])}"
-        + (f" <span class='pm' title='95 % interval'>± {_fmt(r['halfwidth'])}</span>"
-           if r.get("halfwidth") is not None else "")
-        + (" <span class='qcflag' title='quality flag'>&#9873;</span>" if r.get("qc") else "")
-        + "</td>"
-        + (f"<td>{_fmt(r['truth'])}</td><td>{_fmt(r['difference'])}</td>" if has_truth else "")
-        + f"<td class='qc'>{esc(r.get('qc') or '')}</td></tr>" for r in p["metrics"])
+    head, groups = _metric_tables(p)
     truth_note = (f"Truth: {esc(p['truth_file'])}" if has_truth
                   else "No truth.json found: measured values only.")
     if p["flags"]:
@@ -475,7 +595,14 @@ def page_parts(payload: Mapping) -> list[str]:
     else:
         flags_html = "<p class='note'>Tag QC: no tag line flagged as mistracked.</p>"
     skipped = "".join(f"<li>{esc(k)}: {esc(v)}</li>" for k, v in p["skipped"].items())
-    warns = "".join(f"<li>{esc(w)}</li>" for w in p["warnings"])
+    first, rest = p["warnings"][:5], p["warnings"][5:]
+    warns = "".join(f"<li>{esc(w)}</li>" for w in first)
+    if rest:
+        warns += (f"<li><details><summary>{len(rest)} more</summary><ul>"
+                  + "".join(f"<li>{esc(w)}</li>" for w in rest) + "</ul></details></li>")
+    if p.get("n_warnings", 0) > len(p["warnings"]):
+        warns += f"<li>… {p['n_warnings'] - len(p['warnings'])} more in metrics.json</li>"
+    quality = _quality_html(p["metrics"])
     gallery = "".join(f"<figure><img alt='{esc(f['name'])}' src='{f['src']}'>"
                       f"<figcaption>{esc(f['caption'])}</figcaption></figure>" for f in p["figures"])
     data = json_for_script({k: v for k, v in p.items() if k not in ("figures",)},
@@ -496,11 +623,14 @@ ES frame {p['es_frame']}; {len(p['frames'])} reconstructed frame(s).
 <div id="plot"></div>
 <h2>Volume–time curve</h2><div id="volplot"></div>
 </section>
-<section id="side"><h2>Metrics</h2><p class="note">{truth_note}</p>
-<table id="metrics">{head}{body}</table>
+<section id="side"><h2>Metrics</h2><p class="note">{truth_note} {_body_note(p)}</p>
+<table id="metrics">{head}{groups["main"]}</table>
+{groups["regional"]}
+<h2>Quality</h2>{quality}
 <h2>Tag QC flags</h2>{flags_html}
 {"<h2>Figures left out</h2><ul class='note'>" + skipped + "</ul>" if skipped else ""}
-{"<h2>Warnings</h2><ul class='note'>" + warns + "</ul>" if warns else ""}
+{"<h2>Warnings (" + str(p.get("n_warnings", 0)) + ")</h2><ul class='note'>" + warns + "</ul>" if warns else ""}
+{"<p class='note'>Normal ranges: " + esc(p["citation"]) + "</p>" if p.get("citation") else ""}
 </section></main>
 {"<section class='gallery' style='padding:0 18px'><h2>Figures</h2>" + gallery + "</section>" if gallery else ""}
 <script type="application/json" id="cn-data">""", data, """</script>

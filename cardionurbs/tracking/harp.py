@@ -43,6 +43,7 @@ Tracking
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy import fft as sfft
@@ -75,7 +76,6 @@ class HarmonicSeries:
 
     k: np.ndarray
     baseband: np.ndarray
-    _fields: dict | None = None
 
     @classmethod
     def from_images(cls, images: np.ndarray, k: np.ndarray, sigma: float = FILTER_SIGMA,
@@ -92,6 +92,11 @@ class HarmonicSeries:
                                         + k[1] * np.arange(rows)[:, None]))
         return cls(np.asarray(k, float), H * carrier)
 
+    @cached_property
+    def _field_memo(self) -> dict[int, np.ndarray]:
+        """Frame -> :meth:`_grid_fields` of that frame, filled as they are asked for."""
+        return {}
+
     @property
     def frames(self) -> int:
         return self.baseband.shape[0]
@@ -105,9 +110,7 @@ class HarmonicSeries:
 
     def _grid_fields(self, t: int) -> np.ndarray:
         """(4, rows, cols): Re D, Im D, ∂ arg D/∂c, ∂ arg D/∂r at frame t (cached)."""
-        if self._fields is None:
-            self._fields = {}
-        f = self._fields.get(t)
+        f = self._field_memo.get(t)
         if f is None:
             D = self.baseband[t]
             gc = np.zeros(D.shape)
@@ -117,7 +120,7 @@ class HarmonicSeries:
             gr[1:-1] = np.angle(D[2:] * np.conj(D[:-2])) / 2
             gr[0], gr[-1] = gr[1], gr[-2]
             f = np.stack([D.real, D.imag, gc, gr])
-            self._fields[t] = f
+            self._field_memo[t] = f
         return f
 
     def sample(self, t: int, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -16,7 +16,8 @@ notes it). Frames are matched by their index.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -59,13 +60,11 @@ class LabelMyocardium:
     distance to their border for the clipping margin."""
 
     pixels: np.ndarray
-    _sd: np.ndarray | None = field(default=None, repr=False)
 
-    @property
+    @cached_property
     def signed_distance(self) -> np.ndarray:
-        if self._sd is None:
-            self._sd = signed_border_distance(self.pixels)
-        return self._sd
+        """Signed distance (px) of every pixel centre to the myocardium's border: > 0 inside."""
+        return signed_border_distance(self.pixels)
 
     def distance(self, pts: np.ndarray) -> np.ndarray:
         """Signed distance (px, bilinear between pixel centres) of points (n, 2) (c, r) to the
@@ -96,10 +95,12 @@ class LabelMaps:
                                    "maps", file=label_study.source, field="labels")
         self.study = label_study
         self.myo = _myo_value(label_study)
+        if not label_study.source:
+            raise TagTrackingError("the label maps' study has no folder", field="labels")
         src = Path(label_study.source)
         self.folder = src if src.is_dir() else src.parent
         self._volumes: dict[str, object] = {}
-        first = {}
+        first: dict[str, ImagePlane] = {}
         for im in sorted(label_study.images, key=lambda i: i.frame):
             first.setdefault(im.slice, im)
         self.slice_of: dict[str, str] = {}

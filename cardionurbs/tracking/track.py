@@ -66,8 +66,10 @@ from __future__ import annotations
 
 import dataclasses
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy import fft as sfft
@@ -120,11 +122,19 @@ def _slice_images(study: Study) -> dict[str, list[ImagePlane]]:
     return dict(out)
 
 
+def _study_folder(study: Study) -> Path:
+    """The study's folder (:class:`TagTrackingError` when it has none)."""
+    if not study.source:
+        raise TagTrackingError("the study has no folder, so its DICOM images cannot be found",
+                               field="images")
+    return Path(study.source)
+
+
 def _read_frames(study: Study, images: list[ImagePlane]) -> np.ndarray:
-    folder = Path(study.source)
+    folder = _study_folder(study)
     arrs = []
     for im in images:
-        path = folder / im.file
+        path = folder / str(im.file)
         if not path.is_file():
             raise StudyError(f"image {im.id!r} refers to file {im.file!r}, which does not exist",
                              file=folder / "study.json", slice=im.slice, frame=im.frame, field="file")
@@ -147,8 +157,8 @@ class Myocardium:
     """LV myocardium of one image: polygons in pixel coordinates (outer minus inner), or the
     myocardium pixels of a label map (``labels``)."""
 
-    outer: object
-    inner: object | None
+    outer: Any              #: matplotlib.path.Path of the epicardium, or None with labels
+    inner: Any | None       #: that of the endocardium
     drawn: bool = True      # False: borrowed from the slice's nearest contoured frame
     labels: LabelMyocardium | None = None
 
@@ -218,6 +228,7 @@ def _masks(study: Study, images: list[ImagePlane],
             out.append(own[i])
         else:
             near = own[min(have, key=lambda j: abs(images[j].frame - im.frame))]
+            assert near is not None                 # one of ``have``
             out.append(dataclasses.replace(near, drawn=False))
     return out
 
@@ -362,7 +373,18 @@ def resolve_geometry(group: list[tuple[ImagePlane, object, list[spectral.TagPeak
         raise TagTrackingError(f"no SPAMM tag pattern in the first frame (untagged series, or the "
                                f"tags have faded): spectral peak {c:.1f} x its surroundings, needs "
                                f">= {spectral.MIN_CONTRAST:g}", field="PixelData", **where)
-    # label and orient each strong slice's peaks, then average per family
+    consensus = _consensus_k(group, strong, fams, expected)
+    _check_consensus(consensus, expected, plane0, where)
+    return {plane.slice: _slice_geometry(plane, [_k_scanner(p.k, plane) for p in pk] if i in strong
+                                         else [], consensus, contrast[i])
+            for i, (plane, _, pk) in enumerate(group)}
+
+
+def _consensus_k(group: list[tuple[ImagePlane, object, list[spectral.TagPeak]]], strong: list[int],
+                 fams: tuple[str, ...], expected: dict[str, TagPlanes]) -> dict[str, np.ndarray]:
+    """Each family's consensus wave vector (scanner cycles/mm, (3,)): the strong slices' peaks
+    labelled and oriented by the expected tag normals (else the first strong slice's), and
+    their median taken (one slice locked on a harmonic does not move it)."""
     refs = {f: expected[f].normal for f in fams if f in expected}
     sums: dict[str, list] = {f: [] for f in fams}
     for i in strong:
@@ -380,43 +402,53 @@ def resolve_geometry(group: list[tuple[ImagePlane, object, list[spectral.TagPeak
         for f, j in zip(fams, order):
             k = kmm[j] if kmm[j] @ refs[f] >= 0 else -kmm[j]
             sums[f].append(k)
-    # the median wave vector: one slice locked on a harmonic does not move it
-    consensus = {f: np.median(np.array(sums[f]), axis=0) for f in fams}
-    for f in fams:
+    return {f: np.median(np.array(sums[f]), axis=0) for f in fams}
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """The angle between the lines along ``a`` and ``b`` (sign ignored), degrees."""
+    return float(np.degrees(np.arccos(np.clip(abs(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b)),
+                                              0, 1))))
+
+
+def _check_consensus(consensus: dict[str, np.ndarray], expected: dict[str, TagPlanes],
+                     plane0: ImagePlane, where: dict) -> None:
+    """:class:`TagTrackingError` when a family's consensus spacing is more than ``SPACING_TOL``
+    off the expected one (in the image plane), or its direction more than ``ANGLE_TOL_DEG``."""
+    for f, c in consensus.items():
         if f not in expected:
             continue
         e = expected[f]
-        got_d = 1.0 / np.linalg.norm(consensus[f])
+        got_d = 1.0 / np.linalg.norm(c)
         e_in = _in_plane(e.normal, plane0)
         d_exp = e.spacing / np.linalg.norm(e_in)
         if abs(got_d / d_exp - 1.0) > SPACING_TOL:
             raise TagTrackingError(f"{f} tag spacing in the images is {got_d:.2f} mm, the study "
                                    f"expects {d_exp:.2f} mm (tolerance {SPACING_TOL:.0%})",
                                    field="tag spacing", **where)
-        ang = float(np.degrees(np.arccos(np.clip(
-            abs(consensus[f] @ e_in) / (np.linalg.norm(consensus[f]) * np.linalg.norm(e_in)), 0, 1))))
+        ang = _angle_deg(c, e_in)
         if ang > ANGLE_TOL_DEG:
             raise TagTrackingError(f"{f} tag normal in the images is {ang:.1f} deg from the "
                                    f"expected direction (tolerance {ANGLE_TOL_DEG:g} deg)",
                                    field="tag orientation", **where)
-    out = {}
-    for i, (plane, path, pk) in enumerate(group):
-        ks, ns, ds, cs = {}, {}, {}, {}
-        kmm_own = [_k_scanner(p.k, plane) for p in pk] if i in strong else []
-        for f in fams:
-            c = consensus[f]
-            own = [k for k in kmm_own
-                   if np.degrees(np.arccos(np.clip(abs(k @ c) / (np.linalg.norm(k) * np.linalg.norm(c)),
-                                                   0, 1))) <= ANGLE_TOL_DEG
-                   and abs(np.linalg.norm(c) / np.linalg.norm(k) - 1.0) <= SPACING_TOL]
-            k = own[0] if own else _in_plane(c, plane)
-            k = k if k @ c >= 0 else -k
-            ks[f] = _k_pixels(k, plane)
-            ns[f] = k / np.linalg.norm(k)
-            ds[f] = float(1.0 / np.linalg.norm(k))
-            cs[f] = contrast[i]
-        out[plane.slice] = SliceGeometry(plane.slice, plane.view, ks, ns, ds, cs)
-    return out
+
+
+def _slice_geometry(plane: ImagePlane, kmm_own: list[np.ndarray], consensus: dict[str, np.ndarray],
+                    contrast: float) -> SliceGeometry:
+    """One slice's tag geometry: per family its own peak (scanner cycles/mm, ``kmm_own``) when
+    within the tolerances of the consensus, else the consensus in its plane; oriented along
+    the consensus."""
+    ks, ns, ds, cs = {}, {}, {}, {}
+    for f, c in consensus.items():
+        own = [k for k in kmm_own if _angle_deg(k, c) <= ANGLE_TOL_DEG
+               and abs(np.linalg.norm(c) / np.linalg.norm(k) - 1.0) <= SPACING_TOL]
+        k = own[0] if own else _in_plane(c, plane)
+        k = k if k @ c >= 0 else -k
+        ks[f] = _k_pixels(k, plane)
+        ns[f] = k / np.linalg.norm(k)
+        ds[f] = float(1.0 / np.linalg.norm(k))
+        cs[f] = contrast
+    return SliceGeometry(plane.slice, plane.view, ks, ns, ds, cs)
 
 
 def _order_along_index(points: np.ndarray, k: np.ndarray) -> np.ndarray:
@@ -519,7 +551,7 @@ def slice_contours_px(study: Study, images: list[ImagePlane],
     """Per frame of a slice: its lv_endo and lv_epi contours resampled by arc length (px), or
     None when not both are drawn (the contours of ``study``'s slice ``slice_id``, default the
     images' own)."""
-    out = []
+    out: list[list[tuple[np.ndarray, bool]] | None] = []
     for im in images:
         cs = {c.structure: c for c in study.contours_at(im.frame, ("lv_endo", "lv_epi"))
               if c.slice == (slice_id or im.slice)}
@@ -546,13 +578,13 @@ def _contour_prior(contours, offset: np.ndarray):
     def prior(t: int, prev: np.ndarray):
         if t >= len(contours) or contours[t] is None or contours[t - 1] is None:
             return None
-        P0, D = [], []
+        starts, moves = [], []
         for (a, closed), (b, _) in zip(contours[t - 1], contours[t]):
             if closed:
                 b = np.roll(b, best_cyclic_shift(a, b), axis=0)
-            P0.append(a)
-            D.append(b - a)
-        P0, D = np.vstack(P0) - offset, np.vstack(D)
+            starts.append(a)
+            moves.append(b - a)
+        P0, D = np.vstack(starts) - offset, np.vstack(moves)
         d, j = cKDTree(P0).query(prev, k=4)
         w = 1.0 / np.maximum(d, 0.5)
         return (D[j] * w[..., None]).sum(1) / w.sum(1)[:, None]
@@ -632,8 +664,46 @@ def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myoc
                 study_contours=None) -> SliceTracking:
     """HARP tracking of one slice's tag lines through its frames (module docstring, 2–6)."""
     plane = images[0]
+    offset = np.array([box[2], box[0]], float)
+    crop, inner, masks, hs_by_fam = _harmonic_series(frames_px, myos, geom, box)
+    # fading: median myocardial harmonic magnitude per frame over the first frame's
+    ref = {fam: float(np.median(np.abs(hs.baseband[0])[inner[0]])) for fam, hs in hs_by_fam.items()}
+    T, notes = _frames_tracked(images, inner, hs_by_fam, ref)
+    first = _first_frame_lines(hs_by_fam, geom, myos[0], box, masks[0], plane, tag_planes, crop[0],
+                               max_line_offset=ON_PLANE_LINE)
+    if not first:
+        return SliceTracking([], notes + [f"slice {plane.slice}: no tag line in the myocardium"], T)
+    fam_list = list(hs_by_fam)
+    seeds = np.vstack([piece for _, _, piece, _ in first])
+    fam_of = np.concatenate([np.full(len(piece), fam_list.index(fam)) for fam, _, piece, _ in first])
+    index_of = np.concatenate([np.full(len(piece), idx) for _, idx, piece, _ in first])
+    X, R = harp.track([hs_by_fam[f] for f in fam_list], seeds, frames=T,
+                      prior=_contour_prior(study_contours, offset) if study_contours else None)
+    run = _SliceRun(images, myos, masks, crop, offset, hs_by_fam, fam_list, first, X, R, fam_of,
+                    index_of)
+    # each line's last seen points and frame: the prediction at the next frame moves them by the
+    # median HARP displacement of the line's tracked points since then (robust to a few slips)
+    last: dict[tuple[int, int], tuple[int, np.ndarray]] = {}
+    for fam, idx, piece, _ in first:
+        fi = fam_list.index(fam)
+        prev = last.get((fi, idx))
+        last[(fi, idx)] = (0, piece if prev is None else np.vstack([prev[1], piece]))
+    lines: list[tuple] = []
+    for t in range(T):
+        if myos[t] is None:
+            continue
+        for fi, fam in enumerate(fam_list):
+            if (fam_of == fi).any():
+                lines += run.frame_lines(t, fi, last, ref[fam])
+    return SliceTracking(lines, notes, T)
+
+
+def _harmonic_series(frames_px: np.ndarray, myos: Sequence[Myocardium | None], geom: SliceGeometry,
+                     box):
+    """The slice's frames cropped to ``box`` and myocardially windowed (T, h, w), the
+    myocardium masks per frame (crop px; the second list dilated by 3 px; None where the frame
+    has none) and each family's harmonic series of the windowed crops."""
     r0, r1, c0, c1 = box
-    offset = np.array([c0, r0], float)
     crop = frames_px[:, r0:r1, c0:c1]
     inner = [_grid_mask(m, box, 0) if m is not None else None for m in myos]
     # the harmonic phase and the tag trough are both taken on the windowed frames (outside
@@ -643,125 +713,133 @@ def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myoc
     hs_by_fam = {fam: harp.HarmonicSeries.from_images(crop, geom.k[fam], spectra=spectra)
                  for fam in geom.k}
     masks = [binary_dilation(m, iterations=3) if m is not None else None for m in inner]
-    notes = []
-    # fading: median myocardial harmonic magnitude per frame over the first frame's
-    ref = {fam: float(np.median(np.abs(hs.baseband[0])[inner[0]])) for fam, hs in hs_by_fam.items()}
-    T = len(images)
+    return crop, inner, masks, hs_by_fam
+
+
+def _frames_tracked(images: list[ImagePlane], inner: list, hs_by_fam: dict,
+                    ref: dict[str, float]) -> tuple[int, list[str]]:
+    """How many frames the slice is tracked through, and why it stops earlier: the first frame
+    without an LV contour (the slice has left the ventricle) or whose median myocardial
+    harmonic magnitude has fallen below ``FADED`` of the first frame's (``ref``)."""
+    slc = images[0].slice
     for t in range(1, len(images)):
         if inner[t] is None:
             # the slice has left the ventricle (basal slices in systole): its material points
             # cannot be followed through tissue that is not there, so tracking stops
-            T = t
-            notes.append(f"slice {plane.slice}: no LV contour at frame {images[t].frame}; tracked "
-                         f"up to frame {images[t - 1].frame}")
-            break
+            return t, [f"slice {slc}: no LV contour at frame {images[t].frame}; tracked "
+                       f"up to frame {images[t - 1].frame}"]
         ratio = min(float(np.median(np.abs(hs.baseband[t])[inner[t]])) / ref[fam]
                     for fam, hs in hs_by_fam.items())
         if ratio < FADED:
-            T = t
-            notes.append(f"slice {plane.slice}: tags faded below {FADED:.0%} of the first frame's "
-                         f"harmonic magnitude at frame {images[t].frame}; tracked up to frame "
-                         f"{images[t - 1].frame}")
-            break
-    first = _first_frame_lines(hs_by_fam, geom, myos[0], box, masks[0], plane, tag_planes, crop[0],
-                               max_line_offset=ON_PLANE_LINE)
-    lines = []
-    fam_list = list(hs_by_fam)
-    seeds, seed_fam, seed_idx = [], [], []
-    for fam, idx, piece, _ in first:
-        seeds.append(piece)
-        seed_fam.append(np.full(len(piece), fam_list.index(fam)))
-        seed_idx.append(np.full(len(piece), idx))
-    if not seeds:
-        return SliceTracking([], notes + [f"slice {plane.slice}: no tag line in the myocardium"], T)
-    S = np.vstack(seeds)
-    F = np.concatenate(seed_fam)
-    I = np.concatenate(seed_idx)
-    X, R = harp.track([hs_by_fam[f] for f in fam_list], S, frames=T,
-                      prior=_contour_prior(study_contours, offset) if study_contours else None)
-    # each line's last seen points and frame: the prediction at the next frame moves them by the
-    # median HARP displacement of the line's tracked points since then (robust to a few slips)
-    last: dict[tuple[int, int], tuple[int, np.ndarray]] = {}
-    for fam, idx, piece, _ in first:
-        fi = fam_list.index(fam)
-        prev = last.get((fi, idx))
-        last[(fi, idx)] = (0, piece if prev is None else np.vstack([prev[1], piece]))
-    for t in range(T):
-        if myos[t] is None:
-            continue
-        for fi, fam in enumerate(fam_list):
-            hs = hs_by_fam[fam]
-            sel = F == fi
-            if not sel.any():
+            return t, [f"slice {slc}: tags faded below {FADED:.0%} of the first frame's "
+                       f"harmonic magnitude at frame {images[t].frame}; tracked up to frame "
+                       f"{images[t - 1].frame}"]
+    return len(images), []
+
+
+@dataclass
+class _SliceRun:
+    """One slice's HARP run in :func:`track_slice`: crops, masks and harmonic series per frame,
+    the first frame's lines and their points tracked through the frames."""
+
+    images: list[ImagePlane]
+    myos: list
+    masks: list
+    crop: np.ndarray            #: (T, h, w) windowed frames
+    offset: np.ndarray          #: (2,) crop origin in image px (column, row)
+    hs_by_fam: dict
+    fam_list: list[str]
+    first: list                 #: [(family, index, points crop px, offset)] at the first frame
+    X: np.ndarray               #: (T, n, 2) tracked seed points, crop px
+    R: np.ndarray               #: (T, n) wrapped phase residual of each, rad
+    fam_of: np.ndarray          #: (n,) family number of each seed
+    index_of: np.ndarray        #: (n,) tag index of each seed
+
+    def frame_lines(self, t: int, fi: int, last: dict, mag_ref: float) -> list[tuple]:
+        """Family ``fi``'s lines at frame ``t``: [(family, index, frame, points image px,
+        magnitude, phase_residual)]; ``last`` (line -> (frame, points)) updated."""
+        fam = self.fam_list[fi]
+        hs = self.hs_by_fam[fam]
+        sel = self.fam_of == fi
+        by_index: dict[int, list[np.ndarray]] = defaultdict(list)
+        emitted: dict[int, list[np.ndarray]] = defaultdict(list)
+        if t == 0:
+            for f_, idx, p, _ in self.first:
+                if f_ == fam:
+                    by_index[idx].append(p)
+        elif len(self.fam_list) == 2:
+            self._grid_lines(t, hs, sel, by_index, emitted)
+        else:
+            self._isophase_lines(t, fi, hs, sel, last, by_index)
+        out = []
+        for idx, ps in by_index.items():
+            P = _order_along(np.vstack(ps), hs.k)
+            if len(P) < MIN_LINE_POINTS:
                 continue
-            period = 1.0 / np.linalg.norm(hs.k)
-            by_index: dict[int, list[np.ndarray]] = defaultdict(list)
-            emitted: dict[int, list[np.ndarray]] = defaultdict(list)
-            if t == 0:
-                for f_, idx, p, _ in first:
-                    if f_ == fam:
-                        by_index[idx].append(p)
-            elif len(fam_list) == 2:
-                # grids: the line is its tracked material points (both phases pin them), kept
-                # inside the frame's myocardium and moved onto the tag trough
-                reach = TROUGH_REACH * period
-                for idx in np.unique(I[sel]):
-                    mine = np.flatnonzero(sel & (I == idx) & (R[t] <= CONVERGED_RAD))
-                    if not len(mine):
-                        continue
-                    mine = mine[_order_along_index(X[t, mine], hs.k)]
-                    P = X[t, mine]
-                    if REFINE:
-                        P = harp.trough_refine(crop[t], P, hs.sample(t, P)[1], reach)
-                    ok = myos[t].contains(P + offset, BORDER_MARGIN_PX)
-                    P, mine = P[ok], mine[ok]
-                    ok = _on_one_tag(P, hs.k)
-                    P, mine = P[ok], mine[ok]
-                    if TAG_CURVE_DEGREE is not None and len(P) >= TAG_CURVE_DEGREE + 3:
-                        P = tag_curve(P, hs.k, TAG_CURVE_DEGREE)
-                    if len(P):
-                        by_index[int(idx)].append(P)
-                        emitted[int(idx)].append(mine)
-            else:
-                pred, pred_idx = [], []
-                for key in [key for key in last if key[0] == fi]:
-                    t0, P0 = last[key]
-                    mine = sel & (I == key[1])
-                    shift = np.median(X[t, mine] - X[t0, mine], axis=0) if mine.any() else 0.0
-                    pred.append(P0 + shift)
-                    pred_idx.append(np.full(len(P0), key[1]))
-                tree = cKDTree(np.vstack(pred))
-                pidx = np.concatenate(pred_idx)
-                khat = hs.k / np.linalg.norm(hs.k)
-                for piece in _isolines_in_myocardium(hs, t, myos[t], offset, masks[t], crop[t]):
-                    # each point's index: its nearest predicted line point's index plus the
-                    # whole spacings between them along k (a line that enters the slice later,
-                    # by through-plane motion, gets its own index, not its neighbour's)
-                    _, j = tree.query(piece)
-                    o = ((piece - tree.data[j]) @ khat) / period
-                    n = np.round(o)
-                    idx_pt = pidx[j] + n.astype(int)
-                    ok = np.abs(o - n) <= ON_LINE
-                    if ok.sum() < 2:
-                        continue
-                    vals, counts = np.unique(idx_pt[ok], return_counts=True)
-                    idx = int(vals[np.argmax(counts)])
-                    keep = ok & (idx_pt == idx)
-                    if keep.sum() >= 2:
-                        by_index[idx].append(piece[keep])
-            mag_ref = ref[fam]
-            for idx, ps in by_index.items():
-                P = _order_along(np.vstack(ps), hs.k)
-                if len(P) < MIN_LINE_POINTS:
-                    continue
-                last[(fi, idx)] = (t, P)
-                mag = float(np.median(hs.sample(t, P)[2])) / mag_ref
-                # SA: the points the line is made of; LA (iso-phase lines): the index's seeds
-                mine = np.concatenate(emitted[idx]) if emitted.get(idx) else \
-                    np.flatnonzero(sel & (I == idx))
-                res = float(np.sqrt(np.mean(R[t, mine] ** 2))) if len(mine) else float("nan")
-                lines.append((fam, idx, images[t].frame, P + offset, mag, res))
-    return SliceTracking(lines, notes, T)
+            last[(fi, idx)] = (t, P)
+            mag = float(np.median(hs.sample(t, P)[2])) / mag_ref
+            # SA: the points the line is made of; LA (iso-phase lines): the index's seeds
+            mine = np.concatenate(emitted[idx]) if emitted.get(idx) else \
+                np.flatnonzero(sel & (self.index_of == idx))
+            res = float(np.sqrt(np.mean(self.R[t, mine] ** 2))) if len(mine) else float("nan")
+            out.append((fam, idx, self.images[t].frame, P + self.offset, mag, res))
+        return out
+
+    def _grid_lines(self, t: int, hs, sel: np.ndarray, by_index: dict, emitted: dict) -> None:
+        """Grids (SA): each line is its tracked material points (both phases pin them), kept
+        inside the frame's myocardium and moved onto the tag trough."""
+        reach = TROUGH_REACH * (1.0 / np.linalg.norm(hs.k))     # spacings -> px
+        X, myo = self.X, self.myos[t]
+        for idx in np.unique(self.index_of[sel]):
+            mine = np.flatnonzero(sel & (self.index_of == idx) & (self.R[t] <= CONVERGED_RAD))
+            if not len(mine):
+                continue
+            mine = mine[_order_along_index(X[t, mine], hs.k)]
+            P = X[t, mine]
+            if REFINE:
+                P = harp.trough_refine(self.crop[t], P, hs.sample(t, P)[1], reach)
+            ok = myo.contains(P + self.offset, BORDER_MARGIN_PX)
+            P, mine = P[ok], mine[ok]
+            ok = _on_one_tag(P, hs.k)
+            P, mine = P[ok], mine[ok]
+            if TAG_CURVE_DEGREE is not None and len(P) >= TAG_CURVE_DEGREE + 3:
+                P = tag_curve(P, hs.k, TAG_CURVE_DEGREE)
+            if len(P):
+                by_index[int(idx)].append(P)
+                emitted[int(idx)].append(mine)
+
+    def _isophase_lines(self, t: int, fi: int, hs, sel: np.ndarray, last: dict,
+                        by_index: dict) -> None:
+        """LA views: the iso-phase lines of frame ``t``, each point labelled by the nearest line
+        predicted from its last frame plus the whole spacings between them."""
+        period = 1.0 / np.linalg.norm(hs.k)
+        pred, pred_idx = [], []
+        for key in [key for key in last if key[0] == fi]:
+            t0, P0 = last[key]
+            mine = sel & (self.index_of == key[1])
+            shift = np.median(self.X[t, mine] - self.X[t0, mine], axis=0) if mine.any() else 0.0
+            pred.append(P0 + shift)
+            pred_idx.append(np.full(len(P0), key[1]))
+        tree = cKDTree(np.vstack(pred))
+        pidx = np.concatenate(pred_idx)
+        khat = hs.k / np.linalg.norm(hs.k)
+        for piece in _isolines_in_myocardium(hs, t, self.myos[t], self.offset, self.masks[t],
+                                             self.crop[t]):
+            # each point's index: its nearest predicted line point's index plus the
+            # whole spacings between them along k (a line that enters the slice later,
+            # by through-plane motion, gets its own index, not its neighbour's)
+            _, j = tree.query(piece)
+            o = ((piece - tree.data[j]) @ khat) / period
+            n = np.round(o)
+            idx_pt = pidx[j] + n.astype(int)
+            ok = np.abs(o - n) <= ON_LINE
+            if ok.sum() < 2:
+                continue
+            vals, counts = np.unique(idx_pt[ok], return_counts=True)
+            idx = int(vals[np.argmax(counts)])
+            keep = ok & (idx_pt == idx)
+            if keep.sum() >= 2:
+                by_index[idx].append(piece[keep])
 
 
 # ------------------------------------------------------------------ study
@@ -795,80 +873,18 @@ def track_tags(study: Study, slices: list[str] | None = None,
     lines then use the label maps' myocardium pixels, and the crop and the temporal prior
     their contours, in every slice they cover; the other slices keep the study's contours.
     """
-    if isinstance(study.meta, dict) and study.meta.get("format") == "nifti":
-        raise TagTrackingError("this study was read from label maps, which hold no tagged "
-                               "images: track the tagged DICOM study and give the label maps "
-                               "as its labels (cardionurbs track STUDY --label-maps PATH)",
-                               file=study.source, field="images")
-    if not study.source:
-        raise TagTrackingError("the study has no folder, so its DICOM images cannot be found",
-                               field="images")
-    by_slice = _slice_images(study)
-    if slices is not None:
-        by_slice = {s: v for s, v in by_slice.items() if s in set(slices)}
-    if not by_slice:
-        raise TagTrackingError("no image of this study names a DICOM file", file=study.source,
-                               field="images")
+    by_slice = _tracked_slices(study, slices)
     expected = expected_tag_planes(study)
     lm = load_label_maps(study, labels) if labels is not None else None
-    folder = Path(study.source)
-    work: list[list] = []
-    notes: list[str] = []
-    positions: dict[str, list] = defaultdict(list)
-    order = sorted(by_slice, key=lambda s: (by_slice[s][0].view != "SA", s))
-    groups: dict[str, list] = defaultdict(list)
-    for slc in order:
-        images = by_slice[slc]
-        lslice = lm.contours_slice(slc) if lm is not None else None
-        if lm is not None and lslice is None:
-            notes.append(f"slice {slc}: on no label map's pixel grid; clipped by the study's "
-                         "contours")
-        myos = _masks(study, images, lm)
-        if myos[0] is None:
-            notes.append(f"slice {slc}: no lv_epi {'label' if lslice else 'contour'} at its "
-                         "first frame; not tracked")
-            continue
-        pix = _read_frames(study, images)
-        box = _crop_box(lm.study, images, lslice) if lslice else _crop_box(study, images)
-        first = pix[0, box[0]:box[1], box[2]:box[3]]
-        path = folder / images[0].file
-        peaks = first_frame_peaks(first, images[0], path, expected)
-        groups["SA" if images[0].view == "SA" else slc].append((images[0], path, peaks))
-        work.append([slc, images, myos, None, box, pix])
-    geoms: dict[str, SliceGeometry] = {}
-    for g in groups.values():
-        geoms.update(resolve_geometry(g, expected))
-    for w in work:
-        w[3] = geoms[w[0]]
-    # 3-D tag planes per family: expected, else from the measured directions
-    planes_by_fam: dict[str, TagPlanes] = {}
-    for fam in ("sa1", "sa2", "la"):
-        geoms = [g for _, _, _, g, _, _ in work if fam in g.normal]
-        if not geoms:
-            continue
-        if fam in expected:
-            planes_by_fam[fam] = dataclasses.replace(expected[fam])
-        else:
-            n = np.sum([g.normal[fam] for g in geoms], axis=0)
-            planes_by_fam[fam] = TagPlanes(n / np.linalg.norm(n),
-                                           float(np.median([g.spacing_mm[fam] for g in geoms])), None)
-    if any(tp.index0 is None for tp in planes_by_fam.values()):
-        for slc, images, myos, geom, box, pix in work:
-            crop = pix[:1, box[0]:box[1], box[2]:box[3]]
-            hs = {f: harp.HarmonicSeries.from_images(crop, geom.k[f]) for f in geom.k}
-            probe = {f: TagPlanes(planes_by_fam[f].normal, planes_by_fam[f].spacing, 0.0)
-                     for f in geom.k}
-            for fam, idx, piece, frac in _first_frame_lines(hs, geom, myos[0], box,
-                                                            _grid_mask(myos[0], box), images[0], probe):
-                positions[fam].append((idx + frac) * planes_by_fam[fam].spacing)
-        _index_origins(positions, planes_by_fam)
+    work, notes = _prepare_slices(study, by_slice, expected, lm)
+    planes_by_fam = _study_tag_planes(work, expected)
     tags: list[TagLine] = []
     rec = defaultdict(list)
     series = {}
     for slc, images, myos, geom, box, pix in work:
         lslice = lm.contours_slice(slc) if lm is not None else None
         res = track_slice(pix, images, myos, geom, planes_by_fam, box,
-                          slice_contours_px(lm.study, images, lslice) if lslice
+                          slice_contours_px(lm.study, images, lslice) if lm is not None and lslice
                           else slice_contours_px(study, images))
         notes += res.notes
         frame_image = {im.frame: im for im in images}
@@ -892,8 +908,91 @@ def track_tags(study: Study, slices: list[str] | None = None,
         "tag_planes": {f: {"normal": [float(x) for x in tp.normal], "spacing_mm": tp.spacing,
                            "index0_mm": tp.index0} for f, tp in planes_by_fam.items()},
         "series": series, "lines": dict(rec), "notes": notes}
-    out = dataclasses.replace(study, tags=tags, meta=meta, warnings=list(study.warnings) + notes)
-    return out
+    return dataclasses.replace(study, tags=tags, meta=meta, warnings=list(study.warnings) + notes)
+
+
+def _tracked_slices(study: Study, slices: list[str] | None) -> dict[str, list[ImagePlane]]:
+    """The images of every slice to track (those with DICOM files; of ``slices`` when given);
+    :class:`TagTrackingError` for a label-map study, a study without a folder or DICOM files."""
+    if isinstance(study.meta, dict) and study.meta.get("format") == "nifti":
+        raise TagTrackingError("this study was read from label maps, which hold no tagged "
+                               "images: track the tagged DICOM study and give the label maps "
+                               "as its labels (cardionurbs track STUDY --label-maps PATH)",
+                               file=study.source, field="images")
+    if not study.source:
+        raise TagTrackingError("the study has no folder, so its DICOM images cannot be found",
+                               field="images")
+    by_slice = _slice_images(study)
+    if slices is not None:
+        by_slice = {s: v for s, v in by_slice.items() if s in set(slices)}
+    if not by_slice:
+        raise TagTrackingError("no image of this study names a DICOM file", file=study.source,
+                               field="images")
+    return by_slice
+
+
+def _prepare_slices(study: Study, by_slice: dict[str, list[ImagePlane]],
+                    expected: dict[str, TagPlanes], lm: LabelMaps | None) -> tuple[list[list], list[str]]:
+    """Per trackable slice (SA first): [slice, images, myocardium per frame, geometry, crop
+    box, pixels (T, rows, columns)], the geometry resolved per group of parallel slices
+    (:func:`resolve_geometry`); and notes on the slices left out or clipped by contours."""
+    folder = _study_folder(study)
+    work: list[list] = []
+    notes: list[str] = []
+    order = sorted(by_slice, key=lambda s: (by_slice[s][0].view != "SA", s))
+    groups: dict[str, list] = defaultdict(list)
+    for slc in order:
+        images = by_slice[slc]
+        lslice = lm.contours_slice(slc) if lm is not None else None
+        if lm is not None and lslice is None:
+            notes.append(f"slice {slc}: on no label map's pixel grid; clipped by the study's "
+                         "contours")
+        myos = _masks(study, images, lm)
+        if myos[0] is None:
+            notes.append(f"slice {slc}: no lv_epi {'label' if lslice else 'contour'} at its "
+                         "first frame; not tracked")
+            continue
+        pix = _read_frames(study, images)
+        box = _crop_box(lm.study, images, lslice) if lm is not None and lslice else _crop_box(study, images)
+        first = pix[0, box[0]:box[1], box[2]:box[3]]
+        path = folder / str(images[0].file)
+        peaks = first_frame_peaks(first, images[0], path, expected)
+        groups["SA" if images[0].view == "SA" else slc].append((images[0], path, peaks))
+        work.append([slc, images, myos, None, box, pix])
+    geoms: dict[str, SliceGeometry] = {}
+    for g in groups.values():
+        geoms.update(resolve_geometry(g, expected))
+    for w in work:
+        w[3] = geoms[w[0]]
+    return work, notes
+
+
+def _study_tag_planes(work: list[list], expected: dict[str, TagPlanes]) -> dict[str, TagPlanes]:
+    """The 3-D tag planes per family: the expected ones, else from the measured directions and
+    spacings, with index0 from the first-frame lines (:func:`_index_origins`) where unknown."""
+    planes_by_fam: dict[str, TagPlanes] = {}
+    for fam in ("sa1", "sa2", "la"):
+        geoms = [g for _, _, _, g, _, _ in work if fam in g.normal]
+        if not geoms:
+            continue
+        if fam in expected:
+            planes_by_fam[fam] = dataclasses.replace(expected[fam])
+        else:
+            n = np.sum([g.normal[fam] for g in geoms], axis=0)
+            planes_by_fam[fam] = TagPlanes(n / np.linalg.norm(n),
+                                           float(np.median([g.spacing_mm[fam] for g in geoms])), None)
+    if any(tp.index0 is None for tp in planes_by_fam.values()):
+        positions: dict[str, list] = defaultdict(list)
+        for slc, images, myos, geom, box, pix in work:
+            crop = pix[:1, box[0]:box[1], box[2]:box[3]]
+            hs = {f: harp.HarmonicSeries.from_images(crop, geom.k[f]) for f in geom.k}
+            probe = {f: TagPlanes(planes_by_fam[f].normal, planes_by_fam[f].spacing, 0.0)
+                     for f in geom.k}
+            for fam, idx, piece, frac in _first_frame_lines(hs, geom, myos[0], box,
+                                                            _grid_mask(myos[0], box), images[0], probe):
+                positions[fam].append((idx + frac) * planes_by_fam[fam].spacing)
+        _index_origins(positions, planes_by_fam)
+    return planes_by_fam
 
 
 # ------------------------------------------------------------------ output
@@ -914,7 +1013,7 @@ def write_tracked_study(study: Study, out: str | Path) -> Path:
     The DICOM files it references are hard-linked (copied across file systems) beside it under
     the same relative paths, and ``truth.json`` (phantoms) with them, so the folder stands alone.
     """
-    src = Path(study.source)
+    src = _study_folder(study)
     out = Path(out)
     if out.resolve() == src.resolve():
         raise StudyError("the output folder is the study itself; give another --out", file=out,

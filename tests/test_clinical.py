@@ -1,0 +1,269 @@
+"""What a clinician reads (issue 32): every warning reaches metrics.json, the CSV and stderr;
+a metric the study cannot give is null with its reason, never 0; body size (BSA, indexed
+columns) from Info.cfg, DICOM headers, the manifest or the command line; reference-range
+flags."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+
+import pandas as pd
+import pydicom
+import pytest
+
+import cardionurbs as cn
+from cardionurbs.analysis.body import INDEXED, bsa_mosteller
+from cardionurbs.analysis.notes import Metrics, collect_warnings, notes_text, null
+from cardionurbs.analysis.ranges import find_range, flag, load_ranges, range_flags
+from cardionurbs.cli import main
+from cardionurbs.cohort import CSV_COLUMNS, measure_study
+from cardionurbs.io.body import attach_body, clean_value
+from cardionurbs.io.native import write_study
+
+from conftest import shared_data
+from test_model_fixtures import heart, study_from_hearts
+
+
+@pytest.fixture(scope="module")
+def one_frame(tmp_path_factory):
+    """A native study with contours at one frame only."""
+    st = study_from_hearts([heart(1.0)], subject="oneframe", la=False)
+    return write_study(st, tmp_path_factory.mktemp("one") / "oneframe")
+
+
+@pytest.fixture(scope="module")
+def no_heart_rate(tmp_path_factory):
+    """A two-frame native study without a heart rate: a known load warning."""
+    st = study_from_hearts([heart(1.0), heart(0.8)], subject="nohr", la=False)
+    st.heart_rate_bpm = None
+    return write_study(st, tmp_path_factory.mktemp("nohr") / "nohr")
+
+
+# ------------------------------------------------------------------ null with a reason
+def test_null_records_the_first_reason():
+    m = Metrics({"LVEF (%)": 55.0})
+    null(m, "LVEF (%)", "one frame only")
+    null(m, "LVEF (%)", "a later reason")
+    assert math.isnan(m["LVEF (%)"]) and m.notes == {"LVEF (%)": "one frame only"}
+    text = notes_text(m.notes, [{"source": "load", "message": "no heart rate"}])
+    assert text == "LVEF (%): one frame only; load: no heart rate"
+
+
+def test_notes_cell_groups_reasons_and_says_what_is_left_out():
+    notes = {f"C{i}": "same" for i in range(5)} | {"LVEF (%)": "same", "X": "other"}
+    text = notes_text(notes, [{"source": "measure", "message": f"w{i}"} for i in range(4)])
+    assert text.startswith("LVEF (%): same (also C0 and 4 more); X: other; measure: w0; measure: w1")
+    assert text.endswith("(+2 more)")
+
+
+def test_one_frame_gives_null_ef_with_its_reason_in_api_json_and_csv(one_frame, tmp_path):
+    model = cn.reconstruct(cn.load_study(one_frame))
+    m = cn.measure(model)
+    assert model.ed_frame == model.es_frame
+    assert m["LVEDV (mL)"] > 50                                 # the one frame is measured
+    for col in ("LVEF (%)", "RVEF (%)", "LVSV (mL)", "LVESV (mL)", "LVCO (L/min)",
+                "MR RegVol (mL)", "GCS surface (%)"):
+        assert math.isnan(m[col]), col                          # not 0
+        assert "one frame only" in m.notes[col], col
+    out = tmp_path / "out"
+    assert main(["analyze", str(one_frame), "--out", str(out), "--outputs", "metrics"]) == 0
+    d = json.loads((out / "metrics.json").read_text())
+    assert d["metrics"]["LVEF (%)"] is None and "one frame only" in d["notes"]["LVEF (%)"]
+    assert d["metrics"]["GCS surface (%)"] is None
+    assert any(w["source"] == "reconstruct" and "only one frame" in w["message"]
+               for w in d["warnings"])
+    row = measure_study(str(one_frame))
+    assert row["status"] == "ok" and math.isnan(row["LVEF (%)"])
+    assert "LVEF (%): one frame only" in row["notes"] and row["warnings"] >= 1
+
+
+def test_load_warning_in_metrics_json_csv_and_stderr(no_heart_rate, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["analyze", str(no_heart_rate), "--out", str(out), "--outputs", "metrics"]) == 0
+    err = capsys.readouterr().err
+    d = json.loads((out / "metrics.json").read_text())
+    load = [w for w in d["warnings"] if w["source"] == "load"]
+    assert any("no heart rate" in w["message"] for w in load)
+    assert re.search(r"^\d+ warnings? \(load \d+", err, re.M) and "no heart rate" in err
+    assert d["metrics"]["LVCO (L/min)"] is None and "heart rate" in d["notes"]["LVCO (L/min)"]
+    csv = tmp_path / "c.csv"
+    assert main(["cohort", str(no_heart_rate), "--csv", str(csv)]) == 0
+    df = pd.read_csv(csv)
+    assert list(df.columns) == list(CSV_COLUMNS)
+    assert df.loc[0, "warnings"] == len(d["warnings"])
+    assert "no heart rate" in df.loc[0, "notes"]
+
+
+def test_collect_warnings_names_sources_and_drops_repeats():
+    class S:
+        warnings = ["a", "a", "b"]
+    class M:
+        warnings = ["c"]
+    w = collect_warnings(S(), M(), Metrics(), measure_notes=["d"])
+    assert w == [{"source": "load", "message": "a"}, {"source": "load", "message": "b"},
+                 {"source": "reconstruct", "message": "c"}, {"source": "measure", "message": "d"}]
+
+
+# ------------------------------------------------------------------------- body size
+def test_mosteller_bsa_by_hand():
+    assert bsa_mosteller(180.0, 80.0) == pytest.approx(2.0)            # sqrt(14400/3600)
+    assert bsa_mosteller(165.0, 77.0) == pytest.approx(math.sqrt(165 * 77 / 3600))
+
+
+def test_body_values_are_checked():
+    assert clean_value("age_y", "045Y") == 45 and clean_value("age_y", "006M") == 0.5
+    assert clean_value("sex", "female") == "F" and clean_value("sex", "O") is None
+    with pytest.raises(ValueError):
+        clean_value("height_cm", 1.7)                   # metres given as centimetres
+    with pytest.raises(ValueError):
+        clean_value("weight_kg", "heavy")
+
+
+def _info_cfg(path):
+    return {k.strip(): v.strip() for k, v in
+            (line.split(":", 1) for line in path.read_text().splitlines() if ":" in line)}
+
+
+def test_acdc_patient_gets_bsa_and_indexed_values_from_info_cfg():
+    folder = shared_data("acdc", "patient005")
+    info = _info_cfg(folder / "Info.cfg")
+    h, w = float(info["Height"]), float(info["Weight"])
+    study = cn.load_study(folder)
+    assert study.meta["body"]["height_cm"] == h and study.meta["body"]["source"]["height_cm"] == "Info.cfg"
+    m = cn.measure(cn.reconstruct(study))
+    bsa = math.sqrt(h * w / 3600.0)
+    assert m["BSA (m²)"] == pytest.approx(bsa)
+    for col, src in INDEXED.items():
+        if math.isfinite(m[src]):
+            assert m[col] == pytest.approx(m[src] / bsa), col
+        else:
+            assert math.isnan(m[col]) and col in m.notes, col
+
+
+def test_dicom_header_gives_the_same_body_size(tmp_path):
+    root = tmp_path / "ph"
+    assert main(["phantom", "--pathology", "normal", "--frames", "2", "--out", str(root)]) == 0
+    for f in sorted((root / "dicom").rglob("*.dcm")):
+        ds = pydicom.dcmread(f)
+        ds.PatientSize, ds.PatientWeight, ds.PatientAge, ds.PatientSex = 1.65, 77, "045Y", "F"
+        ds.save_as(f)
+    study = cn.load_study(root)
+    body = study.meta["body"]
+    assert body["height_cm"] == pytest.approx(165.0) and body["weight_kg"] == 77.0
+    assert body["age_y"] == 45.0 and body["sex"] == "F"
+    assert body["source"]["height_cm"].startswith("DICOM header")
+    attach_body(study, {"height_cm": 180.0, "weight_kg": None})   # the command line wins
+    assert study.meta["body"]["height_cm"] == 180.0 and study.meta["body"]["weight_kg"] == 77.0
+
+
+def test_unknown_body_size_gives_null_indexed_columns_with_reason(one_frame):
+    m = cn.measure(cn.reconstruct(cn.load_study(one_frame)))
+    for col in ("BSA (m²)",) + tuple(INDEXED):
+        assert math.isnan(m[col]) and m.notes[col], col
+    assert "--height-cm" in m.notes["BSA (m²)"]
+
+
+def test_cli_refuses_implausible_body_size(one_frame, tmp_path, capsys):
+    code = main(["analyze", str(one_frame), "--out", str(tmp_path / "o"), "--height-cm", "1.8"])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "--height-cm" in err
+    assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------- reference ranges
+TABLE = {"citation": "test", "rows": [
+    {"column": "LVEF (%)", "sex": "M", "age_min": 20, "age_max": 39, "lower": 55, "upper": 73,
+     "table": "T1"},
+    {"column": "LVEF (%)", "sex": "M", "age_min": 40, "age_max": None, "lower": 53, "upper": 75,
+     "table": "T1"},
+    {"column": "LVEDVi (mL/m²)", "sex": None, "age_min": None, "age_max": None, "lower": 60,
+     "upper": 100, "table": "T2"}]}
+
+
+def test_range_flags_by_hand():
+    assert flag(54.9, 55, 73) == "below" and flag(55, 55, 73) == "normal"
+    assert flag(73.1, 55, 73) == "above"
+    row, _ = find_range("LVEF (%)", "M", 39.5, TABLE)        # 39.5 y is still the 20-39 band
+    assert row["lower"] == 55
+    row, _ = find_range("LVEF (%)", "M", 40.0, TABLE)
+    assert row["lower"] == 53
+    assert find_range("LVEF (%)", None, 30, TABLE) == (None, "sex unknown")
+    assert find_range("LVEF (%)", "F", 30, TABLE)[0] is None
+    f = range_flags({"LVEF (%)": 54.0, "LVEDVi (mL/m²)": float("nan")}, "M", 45, TABLE)
+    assert f["LVEF (%)"]["flag"] == "normal" and f["LVEF (%)"]["table"] == "T1"
+    assert f["LVEDVi (mL/m²)"]["flag"] is None and f["LVEDVi (mL/m²)"]["reason"] == "metric is null"
+    assert range_flags({"LVEF (%)": 54.0}, "M", 30, TABLE)["LVEF (%)"]["flag"] == "below"
+
+
+def test_packaged_ranges_cite_one_source_and_name_their_tables():
+    data = load_ranges()
+    assert "Kawel-Boehm" in data["citation"] and "2020" in data["citation"]
+    assert "10.1186/s12968-020-00683-3" in data["citation"]
+    for r in data["rows"]:
+        assert r["table"] and r["column"] and (r["lower"] is not None or r["upper"] is not None)
+        assert r.get("sex") in (None, "M", "F")
+
+
+def test_packaged_rows_flag_hand_checked_values():
+    """Men aged 20-29, Kawel-Boehm 2020 Tables 3 (LV) and 11 (RV), as entered in the file."""
+    f = range_flags({"LVEF (%)": 45.9, "LVEDVi (mL/m²)": 112.5, "RVEF (%)": 36.0,
+                     "RVESVi (mL/m²)": 22.9}, "M", 25)
+    assert f["LVEF (%)"]["flag"] == "below" and f["LVEF (%)"]["lower"] == 46
+    assert f["LVEF (%)"]["table"] == "Table 3"
+    assert f["LVEDVi (mL/m²)"]["flag"] == "above" and f["LVEDVi (mL/m²)"]["upper"] == 112
+    assert f["RVEF (%)"]["flag"] == "normal" and f["RVEF (%)"]["table"] == "Table 11"
+    assert f["RVESVi (mL/m²)"]["flag"] == "below"
+    other = range_flags({"LVEF (%)": 60.0}, "F", 25)["LVEF (%)"]
+    assert other["flag"] is None and "no reference range" in other["reason"]
+    assert range_flags({"LVEF (%)": 60.0}, None, 25)["LVEF (%)"]["reason"] == "sex unknown"
+
+
+@pytest.mark.parametrize("pathology, expect", [
+    ("normal", {c: "normal" for c in ("LVEDVi (mL/m²)", "LVESVi (mL/m²)", "LVSVi (mL/m²)",
+                                      "LVEF (%)", "RVEDVi (mL/m²)", "RVESVi (mL/m²)",
+                                      "RVSVi (mL/m²)", "RVEF (%)")}),
+    ("mr", {"LVEDVi (mL/m²)": "above", "LVSVi (mL/m²)": "above"}),
+    ("phtn", {"RVEF (%)": "below", "RVESVi (mL/m²)": "above", "LVEF (%)": "normal"}),
+])
+def test_phantom_presets_against_the_reference_ranges(pathology, expect):
+    """The presets' analytic truth, for a man of 25 with BSA 1.9 m², read against the same
+    ranges: the normal heart is normal, each pathology is flagged where it is designed to be."""
+    from cardionurbs.analysis.body import add_body_columns
+    from cardionurbs.phantom.generate import generate
+    truth = dict(generate(pathology, seed=0, frames=2).truth["metrics"])
+    h = 180.0
+    add_body_columns(truth, {"height_cm": h, "weight_kg": 1.9 ** 2 * 3600 / h})
+    assert truth["BSA (m²)"] == pytest.approx(1.9)
+    f = range_flags(truth, "M", 25)
+    assert {c: f[c]["flag"] for c in expect} == expect
+
+
+def test_mnms_csv_row_gives_demographics(tmp_path):
+    from cardionurbs.io.body import mnms_values
+    folder = tmp_path / "A0S9V9"
+    folder.mkdir()
+    (tmp_path / "mnms.csv").write_text("External code,VendorName,ED,ES,Age,Sex,Height,Weight\n"
+                                       "B1,Siemens,0,9,30,F,160,55\nA0S9V9,GE,0,10,67,M,175.5,80\n")
+    v = mnms_values(folder, "A0S9V9")
+    assert v == {"age_y": "67", "sex": "M", "height_cm": "175.5", "weight_kg": "80"}
+    assert mnms_values(folder, "nobody") == {}
+
+
+def test_stderr_summary_counts_and_verbose_shows_all():
+    import io
+    from cardionurbs.pipeline import report_warnings
+    ws = [{"source": "load", "message": f"l{i}"} for i in range(4)] + \
+         [{"source": "reconstruct", "message": "r0"}]
+    out = io.StringIO()
+    report_warnings(ws, file=out)
+    lines = out.getvalue().splitlines()
+    assert lines[0] == "5 warnings (load 4, reconstruct 1; all in metrics.json; --verbose shows all)"
+    assert lines[1:] == ["  load: l0", "  load: l1", "  load: l2"]
+    out = io.StringIO()
+    report_warnings(ws, verbose=True, file=out)
+    assert len(out.getvalue().splitlines()) == 6 and "r0" in out.getvalue()
+    out = io.StringIO()
+    report_warnings([], file=out)
+    assert out.getvalue() == ""

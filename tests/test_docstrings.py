@@ -1,0 +1,109 @@
+"""The API reference's source: numpydoc sections on every public function and class of
+cardionurbs.nurbs (each argument named under Parameters, a Returns section where a value
+comes back), and the Examples of the main entry points run as doctests."""
+
+from __future__ import annotations
+
+import doctest
+import importlib
+import inspect
+import pkgutil
+
+import pytest
+
+import cardionurbs.nurbs
+
+NURBS_MODULES = sorted(m.name for m in pkgutil.iter_modules(cardionurbs.nurbs.__path__,
+                                                             "cardionurbs.nurbs.")
+                       if not m.name.rsplit(".", 1)[1].startswith("_"))
+#: modules whose Examples are doctested (the package facade: load_study, reconstruct, measure)
+DOCTESTED = ["cardionurbs", *NURBS_MODULES]
+#: the entry points that must show an Examples section
+EXAMPLES = ["NurbsCurve", "fit_curve", "loft", "tessellate"]
+
+
+def _public(module):
+    """(qualified name, object) of the module's own public functions, classes and methods."""
+    for name, obj in vars(module).items():
+        if name.startswith("_") or getattr(obj, "__module__", None) != module.__name__:
+            continue
+        if inspect.isfunction(obj):
+            yield name, obj
+        elif inspect.isclass(obj):
+            yield name, obj
+            for mname, m in vars(obj).items():
+                if not mname.startswith("_") and inspect.isfunction(getattr(m, "__func__", m)):
+                    yield f"{name}.{mname}", getattr(m, "__func__", m)
+
+
+def _sections(doc: str) -> dict[str, str]:
+    """numpydoc section title -> its text."""
+    out, title, lines = {}, None, inspect.cleandoc(doc).splitlines()
+    for i, line in enumerate(lines):
+        if i + 1 < len(lines) and lines[i + 1].strip() and set(lines[i + 1].strip()) == {"-"} \
+                and len(lines[i + 1].strip()) >= len(line.strip()) > 0:
+            title = line.strip()
+            out[title] = ""
+        elif title is not None and not set(line.strip()) == {"-"}:
+            out[title] += line + "\n"
+    return out
+
+
+def _documented_names(section: str) -> set[str]:
+    names = set()
+    for line in section.splitlines():
+        if line and not line[0].isspace():              # "name : type" or "a, b : type"
+            head = line.split(":")[0]
+            names.update(n.strip().lstrip("*") for n in head.split(","))
+    return names
+
+
+@pytest.mark.parametrize("modname", NURBS_MODULES)
+def test_every_public_nurbs_callable_has_numpydoc_sections(modname):
+    module = importlib.import_module(modname)
+    bad = []
+    for qual, obj in _public(module):
+        doc = inspect.getdoc(obj) or ""
+        if not doc:
+            bad.append(f"{qual}: no docstring")
+            continue
+        secs = _sections(doc)
+        target = obj.__init__ if inspect.isclass(obj) else obj
+        try:
+            sig = inspect.signature(target)
+        except (TypeError, ValueError):
+            continue
+        params = [p for p in sig.parameters if p not in ("self", "cls")]
+        if inspect.isclass(obj) and issubclass(obj, tuple):          # NamedTuple: its fields
+            missing = set(obj._fields) - _documented_names(secs.get("Attributes", ""))
+            if missing:
+                bad.append(f"{qual}: Attributes misses {sorted(missing)}")
+            continue
+        if params:
+            missing = set(params) - _documented_names(secs.get("Parameters", ""))
+            if missing:
+                bad.append(f"{qual}: Parameters misses {sorted(missing)}")
+        returns = sig.return_annotation
+        if not inspect.isclass(obj) and returns not in (None, "None", inspect.Signature.empty) \
+                and "Returns" not in secs and "Yields" not in secs:
+            bad.append(f"{qual}: no Returns section")
+    assert bad == []
+
+
+@pytest.mark.parametrize("name", EXAMPLES)
+def test_entry_points_have_examples(name):
+    assert "Examples" in _sections(inspect.getdoc(getattr(cardionurbs.nurbs, name)))
+
+
+def test_package_facade_has_examples():
+    import cardionurbs
+    assert "Examples" in _sections(cardionurbs.__doc__)
+    assert all(f"cn.{n}(" in cardionurbs.__doc__ for n in ("load_study", "reconstruct", "measure"))
+
+
+@pytest.mark.parametrize("modname", DOCTESTED)
+def test_doctests(modname):
+    module = importlib.import_module(modname)
+    result = doctest.testmod(module, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE,
+                             verbose=False)
+    assert result.failed == 0
