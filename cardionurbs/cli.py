@@ -71,9 +71,19 @@ def _heart_rate(text: str) -> float:
     return v
 
 
-def _uncertainty_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--uncertainty", choices=("on", "off"), default="on",
-                        help="95 %% intervals of the global metrics (docs/metrics.md, Uncertainty)")
+def _uncertainty_options(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """``--uncertainty on|off`` of analyze and cohort, ``--max-halfwidth`` of cohort (added to
+    the parser :func:`build_parser` made; returns it)."""
+    sub = next(a for a in p._actions if isinstance(a, argparse._SubParsersAction))
+    for name in ("analyze", "cohort"):
+        sub.choices[name].add_argument(
+            "--uncertainty", choices=("on", "off"), default="on",
+            help="95 %% intervals of the global metrics (docs/metrics.md, Uncertainty)")
+    sub.choices["cohort"].add_argument(
+        "--max-halfwidth", type=_max_halfwidth, default=None, metavar="METRIC=LIMIT[,...]",
+        help="flag (QC) a study whose 95 %% interval of METRIC is wider than ± LIMIT "
+             "(its unit), e.g. LVEF=5,LVEDV=10")
+    return p
 
 
 def _max_halfwidth(text: str) -> dict:
@@ -242,7 +252,6 @@ def build_parser() -> argparse.ArgumentParser:
                     help="sex for the reference ranges (replaces the study's)")
     an.add_argument("--verbose", action="store_true",
                     help="print every warning on stderr, not only the count and the first few")
-    _uncertainty_option(an)
 
     tr = command("track", "track tag lines from a study's tagged DICOM images (HARP)")
     tr.add_argument("study", metavar="STUDY", help="native study folder whose images name DICOM files")
@@ -275,11 +284,6 @@ def build_parser() -> argparse.ArgumentParser:
                     help="let study.json name files outside the study folder")
     co.add_argument("--strict", action="store_true",
                     help="a study whose metrics carry a quality flag (QC) is a failure")
-    _uncertainty_option(co)
-    co.add_argument("--max-halfwidth", type=_max_halfwidth, default=None,
-                    metavar="METRIC=LIMIT[,...]",
-                    help="flag (QC) a study whose 95 %% interval of METRIC is wider than "
-                         "± LIMIT (its unit), e.g. LVEF=5,LVEDV=10")
 
     de = command("demo", "the paper's 12-subject phantom cohort, end to end")
     de.add_argument("--out", metavar="DIR", default=None,
@@ -296,7 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("output_dir", metavar="OUTPUT_DIR", help="a folder written by analyze")
     rp.add_argument("--out", required=True, metavar="report.html",
                     help="the HTML file to write (replaced atomically when it exists)")
-    return p
+    return _uncertainty_options(p)
 
 
 def _run(args: argparse.Namespace) -> int:
