@@ -305,6 +305,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--raw", type=Path, default=None,
                     help="also write every subject's numbers (JSON lines) here")
+    ap.add_argument("--no-grid", action="store_true",
+                    help="with --from-raw: report the run as measured (its own constants)")
     ap.add_argument("--ladder", action="store_true",
                     help="the noise and spacing ladder of two subjects instead (see ladder())")
     ap.add_argument("--from-raw", type=Path, default=None,
@@ -316,7 +318,7 @@ def main(argv=None) -> int:
     if a.from_raw is not None:
         rows = [json.loads(line) for line in a.from_raw.read_text().splitlines() if line.strip()]
         consts = {k: getattr(U, k) for k in RUN_CONSTANTS}
-        if consts != RUN_CONSTANTS:       # the module's constants now: the run's numbers rescaled
+        if consts != RUN_CONSTANTS and not a.no_grid:   # the run's numbers, rescaled
             for r in rows:
                 r["unc"].update(rescaled(r, consts))
     todo = ladder() if a.ladder else conditions(a.subjects, a.seed0)
@@ -370,7 +372,8 @@ def main(argv=None) -> int:
             "one with the most of the six in range, then the highest lowest coverage, then the "
             "narrowest. Every setting is computed on every subject "
             "from the same reconstruction (`rescaled()`: exact, no refit).", "",
-            *(choose(rows)[1] if rows and "variants" in rows[0] else []), "",
+            *(choose(rows)[1] if rows and "variants" in rows[0] and not a.no_grid else
+              ["(not recomputed for this run: --no-grid)"]), "",
             "## Every subject (error = model − truth / half-width; ✗ truth outside)", "",
             *subject_table(rows), ""]
     if a.out is not None:
