@@ -9,6 +9,8 @@ Public API (README.md, "Python API")::
     m = cn.measure(model)                # docs/metrics.md column -> float
     table = cn.cohort(paths)             # pandas.DataFrame
     tracked = cn.track_tags(study)       # tag lines tracked from the tagged DICOM (HARP)
+    cn.save_model(model, "model.json")   # compact model file (.json or .npz)
+    model = cn.load_model("model.json")
 
 ``load_study(path)`` (:func:`cardionurbs.io.load_study`) reads a study folder or file
 into a :class:`Study` in scanner mm; ``reconstruct(study)``
@@ -53,6 +55,7 @@ __all__ = [
     "StudyError", "TagError", "UnsupportedInputError",
     "Study", "Contour", "TagLine", "Landmark",
     "load_study", "reconstruct", "measure", "cohort", "nurbs", "track_tags",
+    "save_model", "load_model",
 ]
 
 #: public name -> (module, attribute): resolved on first use, so that importing one layer
@@ -66,6 +69,8 @@ _LAZY = {
     "measure": ("cardionurbs.analysis.function", "measure"),
     "cohort": ("cardionurbs.cohort", "cohort"),
     "track_tags": ("cardionurbs.tracking", "track_tags"),
+    "save_model": ("cardionurbs.pipeline", "save_model"),
+    "load_model": ("cardionurbs.pipeline", "load_model"),
 }
 
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import sys
 from typing import Sequence
 
@@ -56,6 +57,14 @@ def _nonneg_int(text: str) -> int:
     if v < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
     return v
+
+
+def _pathology(text: str) -> str:
+    """A stated pathology: 1-64 letters, digits, spaces, '-' or '_' (e.g. ``mr``)."""
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9 _-]{0,63}", text):
+        raise argparse.ArgumentTypeError(f"expected a pathology name (letters, digits, spaces, "
+                                         f"'-', '_'; at most 64), got {_excerpt(text)}")
+    return text
 
 
 def _heart_rate(text: str) -> float:
@@ -149,6 +158,15 @@ and build reports. Exit codes: 0 done; 2 bad input or usage (one line on stderr)
 some study failed; 130 interrupted (Ctrl-C), 143 terminated (SIGTERM)."""
 
 
+def _analyze_output_options(parser: argparse.ArgumentParser) -> None:
+    """``analyze --mesh-format`` (docs/outputs.md) and ``--progress``."""
+    parser.add_argument("--mesh-format", choices=["ply", "stl", "obj", "glb", "vtp"], default="ply",
+                        help="mesh files: vtp is VTK PolyData with wall thickness, AHA segments "
+                             "and strain on the surfaces, and a ParaView .pvd time series per mesh")
+    parser.add_argument("--progress", action="store_true",
+                        help="stage progress on stderr (default: only when stderr is a terminal)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="cardionurbs", description=DESCRIPTION, formatter_class=_HelpFormatter)
     p.add_argument("--version", action="version", version="cardionurbs 0.1.0")
@@ -227,12 +245,15 @@ def build_parser() -> argparse.ArgumentParser:
         an.add_argument(f"--{which.lower()}-frame", type=_bounded(int, 0, 9999), default=None,
                         metavar="N", help=f"{which} frame index (0-based) of a NIfTI label-map "
                                           "study, used as given (for layouts that do not say)")
+    an.add_argument("--pathology", type=_pathology, default=None, metavar="TEXT",
+                    help="the study's stated pathology (e.g. mr): makes MR RegVol / RegFrac "
+                         "answer a stated question; without it (or the study's own metadata) "
+                         "LVSV-RVSV is reported instead (docs/metrics.md)")
     an.add_argument("--no-figures", action="store_true", help="skip PNG figures and HTML report")
     an.add_argument("--outputs", default="all", metavar="LIST",
                     help="comma-separated subset of metrics,model,meshes,figures,report "
                          "(report also writes metrics and model)")
-    an.add_argument("--progress", action="store_true",
-                    help="stage progress on stderr (default: only when stderr is a terminal)")
+    _analyze_output_options(an)
     an.add_argument("--jobs", type=_bounded(int, 1, 1024), default=None, metavar="N",
                     help="processes for the per-frame work (meshes, tag strain over time; "
                          "default: the CPUs this process may use; 1: one process)")
@@ -265,7 +286,10 @@ def build_parser() -> argparse.ArgumentParser:
     co = command("cohort", "measure many studies into one CSV")
     co.add_argument("studies", nargs="+", metavar="STUDY", help="study folders or label maps")
     co.add_argument("--csv", required=True, metavar="FILE",
-                    help="output CSV (replaced atomically when it exists)")
+                    help="output CSV (an earlier cohort table is replaced atomically; any "
+                         "other existing file only with --overwrite)")
+    co.add_argument("--overwrite", action="store_true",
+                    help="let --csv / --parquet replace an existing file cardionurbs did not write")
     co.add_argument("--jobs", type=_bounded(int, 1, 1024), default=1,
                     help="worker processes (or Dask workers with --dask local)")
     co.add_argument("--dask", metavar="local|tcp://HOST:PORT", default=None,
@@ -388,6 +412,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     debug = "--debug" in argv[:argv.index("--")] if "--" in argv else "--debug" in argv
     debug = debug or bool(os.environ.get("CARDIONURBS_DEBUG"))
     argv = [a for a in argv if a != "--debug"] if debug else argv
+    from cardionurbs.safe import quiet_third_party
+    quiet_third_party(show=debug)
     try:
         _install_signal_handlers()
         args = build_parser().parse_args(argv)

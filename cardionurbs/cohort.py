@@ -288,6 +288,22 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
     return pd.DataFrame(rows, columns=list(CSV_COLUMNS[:-2]) + iv + list(CSV_COLUMNS[-2:]) + extra)
 
 
+def is_cohort_table(path: str | os.PathLike) -> bool:
+    """True when ``path`` is a cohort table this package wrote: a CSV whose header line
+    starts with ``subject,status,`` and the metric columns, or a Parquet file whose columns
+    do (what ``--csv`` / ``--parquet`` may replace without ``--overwrite``)."""
+    head = ",".join(CSV_COLUMNS[:4])
+    p = Path(path)
+    try:
+        if p.suffix.lower() == ".parquet":
+            import pyarrow.parquet as pq
+            return ",".join(pq.read_schema(p).names[:4]) == head
+        with open(p, "rb") as fh:
+            return fh.readline(4096).decode("utf-8", "replace").startswith(head)
+    except (OSError, ValueError, ImportError):
+        return False
+
+
 def write_csv(table: pd.DataFrame, path: str | os.PathLike) -> Path:
     """Write the cohort table as CSV, atomically (empty cells for NaN)."""
     from cardionurbs.safe import csv_safe_table
@@ -310,11 +326,22 @@ def run_cohort(args: argparse.Namespace) -> int:
     """`cardionurbs cohort STUDY... --csv FILE [--jobs N] [--dask local|tcp://HOST:PORT]
     [--timeout S] [--resume] [--run-dir DIR] [--parquet] [--allow-failures]`; ``--csv`` is
     checked (cardionurbs.io.outputs) before any study is read."""
-    from cardionurbs.io.outputs import check_output_file
+    from cardionurbs.executor import check_dask_address
+    from cardionurbs.io.outputs import check_output_file, check_output_place
     from cardionurbs.pipeline import study_folder
-    check_output_file(args.csv, inputs=[study_folder(s) for s in args.studies], option="--csv")
+    if getattr(args, "dask", None):
+        check_dask_address(args.dask)           # before any file is touched
+    studies = [study_folder(s) for s in args.studies]
+    overwrite = getattr(args, "overwrite", False)
+    check_output_file(args.csv, inputs=studies, option="--csv", ours=is_cohort_table,
+                      overwrite=overwrite)
     csv = Path(args.csv)
+    if getattr(args, "parquet", False):
+        check_output_file(csv.with_suffix(".parquet"), inputs=studies, option="--parquet",
+                          ours=is_cohort_table, overwrite=overwrite)
     run_dir = getattr(args, "run_dir", None) or csv.with_name(csv.name + ".rows")
+    check_output_place(run_dir, inputs=studies,
+                       option="--run-dir" if getattr(args, "run_dir", None) else "--csv")
     table = cohort(args.studies, jobs=args.jobs, format=getattr(args, "format", "auto"),
                    progress=sys.stderr.isatty(), dask=getattr(args, "dask", None),
                    timeout=getattr(args, "timeout", None), run_dir=run_dir,

@@ -8,6 +8,15 @@ leading out. A study that needs files elsewhere is read with
 ``load_study(..., allow_outside=True)`` (CLI ``--allow-outside``), which sets
 :func:`allow_outside` for the duration of the read.
 
+The check is by *resolved* path, against the *resolved study root*:
+:func:`cardionurbs.io.load_study` sets the root (:func:`study_root`) for the
+whole read, and every reader passes each file through :func:`checked` right
+before opening it (study.json, points files, DICOM files, contour files,
+GPFiles, NIfTI maps and their sidecars). A subfolder of the study that is a
+link elsewhere (a Sunnybrook ``dicom/``), a single file linked out (an ACDC
+``_gt`` map) or a ``study.json`` that is itself a link are refused alike,
+whatever folder the reader walked.
+
 Messages name the offending entry through a short printable excerpt
 (:func:`cardionurbs.safe.excerpt`), never the content of the file it points to.
 """
@@ -24,6 +33,7 @@ from cardionurbs.errors import StudyError
 from cardionurbs.safe import excerpt
 
 _ALLOW_OUTSIDE: ContextVar[bool] = ContextVar("cardionurbs_allow_outside", default=False)
+_ROOT: ContextVar[Path | None] = ContextVar("cardionurbs_study_root", default=None)
 
 HINT = "(files must lie inside the study folder; --allow-outside lifts this)"
 
@@ -43,10 +53,66 @@ def outside_allowed() -> bool:
     return _ALLOW_OUTSIDE.get()
 
 
+@contextmanager
+def study_root(path: str | os.PathLike) -> Iterator[Path]:
+    """Within this block, every file read must resolve inside ``path`` (a study folder, or
+    the folder of a single-file study), links followed once here. An enclosing root wins
+    (a reader called from another reader keeps the outer study's root).
+
+    Yields the resolved root."""
+    outer = _ROOT.get()
+    if outer is not None:
+        yield outer
+        return
+    p = Path(path)
+    root = Path(os.path.realpath(p if p.is_dir() or not p.exists() else p.parent))
+    token = _ROOT.set(root)
+    try:
+        yield root
+    finally:
+        _ROOT.reset(token)
+
+
+def current_root() -> Path | None:
+    """The resolved root set by :func:`study_root`, or None outside a study read."""
+    return _ROOT.get()
+
+
+def _root_for(folder: str | os.PathLike) -> Path:
+    root = _ROOT.get()
+    return root if root is not None else Path(os.path.realpath(folder))
+
+
 def is_inside(folder: str | os.PathLike, path: str | os.PathLike) -> bool:
-    """True when ``path``, every symbolic link followed, lies inside ``folder`` (also followed)."""
-    root = Path(os.path.realpath(folder))
-    return Path(os.path.realpath(path)).is_relative_to(root)
+    """True when ``path``, every symbolic link followed, lies inside the current study root
+    (:func:`study_root`) or, outside a study read, inside ``folder`` (also followed)."""
+    return Path(os.path.realpath(path)).is_relative_to(_root_for(folder))
+
+
+def checked(path: str | os.PathLike, *, what: str = "file") -> Path:
+    """``path``, checked at open time to resolve (every link, of folders and of the file
+    itself, followed now) inside the current study root; call it right before opening.
+
+    Parameters
+    ----------
+    path : path-like
+        The file (or folder) about to be read.
+    what : str
+        How the message names it (``"DICOM file"``, ``"study.json"``).
+
+    Returns
+    -------
+    Path
+        ``path`` unchanged. Outside a study read, or under :func:`allow_outside`, no check.
+
+    Raises StudyError naming ``path`` (never its target) when it leads out."""
+    root = _ROOT.get()
+    if root is None or outside_allowed():
+        return Path(path)
+    if not Path(os.path.realpath(path)).is_relative_to(root):
+        raise StudyError(f"{what} is (or lies under) a symbolic link leading out of the study "
+                         f"folder {HINT}", file=path)
+    return Path(path)
 
 
 def study_file(folder: str | os.PathLike, name: object, *, file: object, field: str,
@@ -77,13 +143,15 @@ def study_file(folder: str | os.PathLike, name: object, *, file: object, field: 
 def files_inside(folder: str | os.PathLike, paths: Iterable[Path], *, what: str = "file"
                  ) -> list[Path]:
     """``paths`` (found by walking ``folder``), each checked to resolve inside ``folder``;
-    a symbolic link leading out raises StudyError naming the link (not its target)."""
+    a symbolic link leading out raises StudyError naming the link (not its target).
+    Inside a study read the bound is the study root (:func:`study_root`), not ``folder``:
+    a walked subfolder that is itself a link elsewhere does not widen it."""
     paths = list(paths)
     if outside_allowed():
         return paths
-    root = Path(os.path.realpath(folder))
+    root = _root_for(folder)
     for p in paths:
         if not Path(os.path.realpath(p)).is_relative_to(root):
-            raise StudyError(f"{what} is a symbolic link leading out of the study folder {HINT}",
-                             file=p)
+            raise StudyError(f"{what} is (or lies under) a symbolic link leading out of the "
+                             f"study folder {HINT}", file=p)
     return paths

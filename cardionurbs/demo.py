@@ -30,7 +30,7 @@ from cardionurbs.cohort import CSV_COLUMNS, _one_line, ignore_interrupts, write_
 #: metrics whose error is shown in percentage points (already percentages) or absolute units
 _ABSOLUTE = ("LVEF (%)", "RVEF (%)", "MR RegFrac (%)", "LS (%)", "EI ES", "Twist (deg)",
              "Twist 2D (deg)", "Torsion (deg/cm)", "CL shear (deg)", "Tag QC flags",
-             "MR RegVol (mL)", "HR (bpm)")
+             "MR RegVol (mL)", "LVSV-RVSV (mL)", "HR (bpm)")
 
 
 def demo_subject(spec, out_dir: str) -> tuple[dict, dict]:

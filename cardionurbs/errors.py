@@ -98,3 +98,17 @@ class LimitError(StudyError):
 
 class SegmentError(StudyError):
     """The AHA segments cannot be placed (e.g. no RV insertion points nor RV contours)."""
+
+
+# ------------------------------------------- worker processes (not input errors: exit 1)
+class WorkerDied(ChildProcessError):
+    """A worker process (:mod:`cardionurbs.parallel`, :mod:`cardionurbs.workers`) ended
+    without reporting its item: a signal, the out-of-memory killer, ``os._exit``."""
+
+
+class RemoteTraceback(Exception):
+    """The traceback of an exception raised in a worker process (the ``__cause__`` of the
+    exception :func:`cardionurbs.parallel.fork_map` raises in the parent)."""
+
+    def __str__(self) -> str:
+        return self.args[0] if self.args else ""

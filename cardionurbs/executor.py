@@ -38,14 +38,14 @@ reports/benchmark-throughput.md.
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import os
-import sys
 import time
 from collections import deque
 from dataclasses import dataclass
 from multiprocessing.connection import wait as wait_connections
 from typing import Any, Callable, Sequence
+
+from cardionurbs.workers import context, exit_text, resolve_jobs, start, stop
 
 #: executor names accepted besides a Dask scheduler address
 LOCAL = "processes"
@@ -81,15 +81,16 @@ def _one_line(exc: BaseException) -> str:
 
 
 def run_tasks(fn: Callable[..., Any], tasks: Sequence[tuple], on_result: Callable[[int, Any], None],
-              *, jobs: int = 1, dask: str | None = None, timeout: float | None = None) -> None:
+              *, jobs: int | None = 1, dask: str | None = None, timeout: float | None = None) -> None:
     """Run ``fn(*tasks[i])`` for every i; ``on_result(i, result or TaskFailure)`` once per task,
-    in completion order, in this process. ``fn`` must be importable by the workers."""
+    in completion order, in this process. ``fn`` must be importable by the workers.
+    ``jobs``: worker processes (None: every usable CPU; :func:`cardionurbs.workers.resolve_jobs`)."""
     if not tasks:
         return
     if timeout is not None and not timeout > 0:
         raise ValueError(f"timeout must be > 0 seconds, got {timeout!r}")
     if dask:
-        _run_dask(fn, tasks, on_result, jobs=jobs, address=dask, timeout=timeout)
+        _run_dask(fn, tasks, on_result, jobs=resolve_jobs(jobs), address=dask, timeout=timeout)
     else:
         _run_processes(fn, tasks, on_result, jobs=jobs, timeout=timeout)
 
@@ -116,11 +117,11 @@ def _worker_loop(conn, fn) -> None:
 
 
 class _Worker:
+    """One task runner on the worker core (:func:`cardionurbs.workers.start`: daemonic,
+    dies with this process)."""
+
     def __init__(self, ctx, fn) -> None:
-        self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_worker_loop, args=(child, fn), daemon=True)
-        self.proc.start()
-        child.close()
+        self.proc, self.conn = start(_worker_loop, (fn,), ctx=ctx, name="cardionurbs-task")
         self.task: int | None = None
         self.deadline = float("inf")
 
@@ -130,29 +131,13 @@ class _Worker:
         self.conn.send((i, args))
 
     def stop(self, kill: bool = False) -> None:
-        if kill:
-            self.proc.kill()
-        else:
-            try:
-                self.conn.send(None)
-            except (OSError, ValueError):
-                self.proc.kill()
-        self.proc.join(timeout=5)
-        if self.proc.is_alive():
-            self.proc.kill()
-            self.proc.join()
-        self.conn.close()
+        stop(self.proc, self.conn, kill=kill, polite=None)
 
 
-def _context():
-    methods = mp.get_all_start_methods()
-    return mp.get_context("fork" if "fork" in methods and sys.platform != "darwin" else "spawn")
-
-
-def _run_processes(fn, tasks, on_result, *, jobs: int, timeout: float | None) -> None:
-    ctx = _context()
+def _run_processes(fn, tasks, on_result, *, jobs: int | None, timeout: float | None) -> None:
+    ctx = context()
     todo = deque(range(len(tasks)))
-    workers = [_Worker(ctx, fn) for _ in range(max(1, min(jobs, len(tasks))))]
+    workers = [_Worker(ctx, fn) for _ in range(max(1, min(resolve_jobs(jobs), len(tasks))))]
     try:
         for w in workers:
             if todo:
@@ -176,9 +161,9 @@ def _run_processes(fn, tasks, on_result, *, jobs: int, timeout: float | None) ->
                 if result is None and (w.proc.sentinel in ready or not w.proc.is_alive()):
                     w.proc.join(timeout=1)
                     code = w.proc.exitcode
-                    result = TaskFailure("worker died", f"worker process ended with exit code {code}"
-                                         if code is None or code >= 0 else
-                                         f"worker process killed by signal {-code}")
+                    how = exit_text(code)
+                    result = TaskFailure("worker died", f"worker process {how}" if code and code < 0
+                                         else f"worker process ended with {how}")
                     w.stop(kill=True)
                     workers[k] = w = _Worker(ctx, fn)
                 elif result is None and now >= w.deadline:
@@ -198,9 +183,55 @@ def _run_processes(fn, tasks, on_result, *, jobs: int, timeout: float | None) ->
 
 
 # ------------------------------------------------------------------ Dask
+#: Dask address schemes a scheduler may be given by
+DASK_SCHEMES = ("tcp", "tls", "ws", "wss", "ucx")
+#: seconds to wait for a scheduler to accept a connection before giving up
+DASK_CONNECT_TIMEOUT_S = 5.0
+
+
+def _excerpt(text: str, n: int = 60) -> str:
+    t = "".join(c if c.isprintable() else "?" for c in str(text))
+    return repr(t[:n]) + (f"... ({len(t)} characters)" if len(t) > n else "")
+
+
+def check_dask_address(address: str) -> tuple[str, int] | None:
+    """``"local"`` (None) or ``scheme://host:port`` ((host, port)); UsageError otherwise,
+    naming an excerpt of the address."""
+    from urllib.parse import urlsplit
+
+    from cardionurbs.errors import UsageError
+    if address == "local":
+        return None
+    hint = "expected 'local' or a scheduler address such as tcp://HOST:8786"
+    try:
+        u = urlsplit(address)
+        port = u.port
+    except ValueError:
+        raise UsageError(f"--dask {_excerpt(address)}: not an address ({hint})") from None
+    if u.scheme not in DASK_SCHEMES or not u.hostname or port is None or not 0 < port < 65536:
+        raise UsageError(f"--dask {_excerpt(address)}: not an address ({hint})")
+    return u.hostname, port
+
+
+def _reach(address: str, host: str, port: int) -> None:
+    """Fail fast (UsageError, one line) when nothing listens at ``host:port``."""
+    import socket
+
+    from cardionurbs.errors import UsageError
+    try:
+        socket.create_connection((host, port), timeout=DASK_CONNECT_TIMEOUT_S).close()
+    except OSError as exc:
+        raise UsageError(f"--dask {_excerpt(address)}: no scheduler answers there "
+                         f"({exc.strerror or type(exc).__name__})") from None
+
+
 def dask_client(address: str, jobs: int):
     """(client, cluster or None): a LocalCluster of ``jobs`` single-threaded worker processes
-    on 127.0.0.1 for ``"local"``, else a client of the scheduler at ``address``."""
+    on 127.0.0.1 for ``"local"``, else a client of the scheduler at ``address`` (checked to
+    be an address, and to answer within :data:`DASK_CONNECT_TIMEOUT_S`)."""
+    target = check_dask_address(address)
+    if target is not None and target[0] and address.startswith(("tcp", "ws")):
+        _reach(address, *target)
     import dask
     from distributed import Client, LocalCluster
 
@@ -209,7 +240,7 @@ def dask_client(address: str, jobs: int):
             cluster = LocalCluster(n_workers=max(1, jobs), threads_per_worker=1, processes=True,
                                    host="127.0.0.1", dashboard_address=None)
         return Client(cluster), cluster
-    return Client(address), None
+    return Client(address, timeout=f"{DASK_CONNECT_TIMEOUT_S * 2:g}s"), None
 
 
 def _import_module(name: str) -> None:

@@ -45,29 +45,15 @@ import traceback
 from multiprocessing.connection import wait as wait_connections
 from typing import Any, Callable, Collection, Sequence, TypeVar
 
+from cardionurbs.errors import RemoteTraceback, WorkerDied
+from cardionurbs.workers import exit_text, resolve_jobs, start, usable_cpus
+
 T = TypeVar("T")
 R = TypeVar("R")
 
 
-class WorkerDied(ChildProcessError):
-    """A worker process of :func:`fork_map` ended without reporting its item."""
-
-
-class RemoteTraceback(Exception):
-    """The traceback of an exception raised in a worker process (the ``__cause__`` of the
-    exception :func:`fork_map` raises)."""
-
-    def __str__(self) -> str:
-        return self.args[0] if self.args else ""
-
-
-def usable_cpus() -> int:
-    """CPUs this process may run on (its affinity mask; :func:`os.cpu_count` where the
-    platform has no affinity)."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except (AttributeError, OSError):
-        return max(1, os.cpu_count() or 1)
+__all__ = ["ForkMap", "RemoteTraceback", "WorkerDied", "can_fork", "fork_map", "usable_cpus",
+           "worker_count"]
 
 
 def can_fork() -> bool:
@@ -83,9 +69,7 @@ def worker_count(jobs: int | None, n_items: int, n_here: int = 0) -> int:
     ``n_items``; 0 (serial) when ``jobs`` is 1, when fewer than two processes would work
     (one worker and nothing here) or when :func:`can_fork` is False. Raises ValueError for
     ``jobs`` < 1."""
-    if jobs is not None and (isinstance(jobs, bool) or int(jobs) != jobs or jobs < 1):
-        raise ValueError(f"jobs must be a whole number >= 1, got {jobs!r}")
-    jobs = usable_cpus() if jobs is None else int(jobs)
+    jobs = resolve_jobs(jobs)
     n = min(jobs, n_items)
     return n if jobs >= 2 and n + (n_here > 0) >= 2 and can_fork() else 0
 
@@ -161,14 +145,9 @@ class _Pool:
         self.stopped_at: int | None = None          # items handed out when the counter was stopped
         self.procs: list = []
         self.conns: list = []
-        for _ in range(n_workers):
-            sys.stdout.flush()
-            sys.stderr.flush()
-            parent_end, child_end = self.ctx.Pipe(duplex=False)
-            p = self.ctx.Process(target=_work, args=(fn, items, theirs, self.next, child_end),
-                                 daemon=True, name="cardionurbs-frames")
-            p.start()
-            child_end.close()
+        for _ in range(n_workers):              # the worker core: watched, daemonic
+            p, parent_end = start(_work, (fn, items, theirs, self.next), ctx=self.ctx,
+                                  duplex=False, name="cardionurbs-frames")
             self.procs.append(p)
             self.conns.append(parent_end)
 
@@ -214,7 +193,7 @@ class _Pool:
             handed = self.theirs[:self.stopped_at]
             lost = [i for i in handed if self.results[i] is _UNSET and i not in self.errors]
             code = dead[0]
-            how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit code {code}"
+            how = exit_text(code)
             what = f" before reporting item {self.items[lost[0]]!r}" if lost else ""
             self.errors[lost[0] if lost else len(self.items)] = WorkerDied(
                 f"a worker process died ({how}){what}")
@@ -247,7 +226,7 @@ class _Pool:
             c.close()
 
 
-def _work(fn, items, theirs, counter, conn) -> None:
+def _work(conn, fn, items, theirs, counter) -> None:
     """A worker: take the next item index from ``counter`` until none is left, then send
     ``(i, True, fn(item))`` of each; on an exception, stop handing out items (the counter
     set past the end) and send the results so far and ``(i, False, exception)``."""

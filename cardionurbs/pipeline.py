@@ -8,11 +8,16 @@ Output folder (written atomically: complete or absent)::
                              surface and frame: fit residual median/p95/max in mm
                              and px; contours left out}, "QC", "notes", "warnings"}
                              (notes: metric -> why it is null)
-    DIR/model.json          the NURBS model (BiventricularModel.to_dict)
+    DIR/model.json          the NURBS model, compact (cardionurbs.io.modelfile: knots, control
+                            points and weights at a stated precision)
     DIR/model.3dm           the ED surfaces as Rhino NURBS (with the ``cad`` extra)
     DIR/residuals.csv       contour-point-to-surface distances per slice, at ED and ES
     DIR/meshes/frame_NN_<mesh>.ply   closed meshes per frame and structure (binary PLY,
-                                     the manifold3d result with float32 vertices)
+                                     the manifold3d result with float32 vertices; or
+                                     --mesh-format stl|obj|glb|vtp)
+    DIR/meshes/<mesh>.pvd            with --mesh-format vtp: VTK PolyData per frame with
+                                     point data, and a ParaView time series per mesh
+                                     (cardionurbs.analysis.mesh_fields)
     DIR/figures/...         PNG figures + figures.json (cardionurbs.report.figures.write_figures;
                             skipped with --no-figures)
     DIR/report.html         self-contained offline viewer (cardionurbs.report.html)
@@ -42,6 +47,7 @@ from cardionurbs.errors import UsageError
 from cardionurbs.heap import acyclic, long_lived
 from cardionurbs.io import atomic, load_study
 from cardionurbs.io.export import export_mesh, export_model_3dm, table_csv, write_json, write_ply
+from cardionurbs.io.modelfile import read_model_file, write_model_file
 from cardionurbs.progress import Progress
 from cardionurbs.study import Study
 
@@ -229,13 +235,7 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
             if "model" in outputs:
                 progress.stage("model")
                 with acyclic():                         # plain lists and dicts
-                    model_dict = model.to_dict()
-                    if tags is not None:               # tag surfaces are saved with the model
-                        from cardionurbs.analysis.tags import tag_surfaces_dict
-                        model_dict["tag_surfaces"] = tag_surfaces_dict(
-                            model.study, long_axis=model.long_axis(), surfaces=tags.surfaces)
-                    write_json(model_dict, tmp / "model.json", indent=None)
-                    del model_dict
+                    save_model(model, tmp / "model.json", tags=tags)
                 try:                                   # the cad extra: Rhino .3dm of the ED surfaces
                     import rhino3dm  # noqa: F401
                 except ImportError:
@@ -289,11 +289,54 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
             model_and_metrics()
         if "report" in outputs:
             progress.stage("report")
-            # the model and tag surfaces just written, from memory (not read back)
-            _report(tmp, model=model if "model" in outputs else None,
+            # the tag surfaces just written, from memory; the model as model.json saved it
+            # (its stated precision: `cardionurbs report` on the folder makes the same page)
+            _report(tmp, model=load_model(tmp / "model.json") if "model" in outputs else None,
                     tag_data=getattr(fig_set, "report_tags", None))
         progress.done()
     return Path(out)
+
+
+def save_model(model: BiventricularModel, path: str | Path, tags=None) -> Path:
+    """Write the model file (``model.json``, or ``model.npz`` by the suffix), compact
+    (:mod:`cardionurbs.io.modelfile`), atomically.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+    path : str or Path
+        ``.json`` or ``.npz``.
+    tags : TagMetrics, optional
+        The tag result of :func:`analyse`: its tag surfaces are saved with the model.
+
+    Returns
+    -------
+    Path
+    """
+    model_dict = model.to_dict()
+    if tags is not None:                       # tag surfaces are saved with the model
+        from cardionurbs.analysis.tags import tag_surfaces_dict
+        model_dict["tag_surfaces"] = tag_surfaces_dict(
+            model.study, long_axis=model.long_axis(), surfaces=tags.surfaces)
+    return write_model_file(model_dict, path)
+
+
+def load_model(path: str | Path, study: Study | None = None) -> BiventricularModel:
+    """Read a model file (``model.json`` of any version, or ``model.npz``).
+
+    Parameters
+    ----------
+    path : str or Path
+    study : Study, optional
+        The study the model was reconstructed from (default: one reduced to subject,
+        heart rate, ED/ES and the long-axis landmarks, which every volume, mass and
+        wall-thickness metric needs).
+
+    Returns
+    -------
+    BiventricularModel
+    """
+    return BiventricularModel.from_dict(read_model_file(path), study=study)
 
 
 def write_meshes(model: BiventricularModel, mesh_dir: Path, mesh_ext: str = "ply", *,
@@ -333,6 +376,9 @@ class MeshWriter:
             if mesh_ext == "ply":                   # straight from the manifold3d arrays
                 for name, (v, fc) in model.mesh_arrays(f).items():
                     write_ply(v, fc, Path(mesh_dir) / f"frame_{f:02d}_{name}.ply")
+            elif mesh_ext == "vtp":                 # VTK PolyData with point data
+                from cardionurbs.analysis.mesh_fields import write_frame_vtp
+                write_frame_vtp(model, f, mesh_dir)
             else:                                   # other formats: trimesh's exporters
                 for name, m in model.meshes(f).items():
                     export_mesh(m, Path(mesh_dir) / f"frame_{f:02d}_{name}.{mesh_ext}")
@@ -343,6 +389,7 @@ class MeshWriter:
                 model.release(f)
             return results, warnings
 
+        self.mesh_dir, self.mesh_ext = Path(mesh_dir), mesh_ext
         self.work = ForkMap(frame_meshes, model.frames, jobs=jobs, here=keep)
 
     @property
@@ -365,6 +412,9 @@ class MeshWriter:
         for f, (results, warnings) in zip(model.frames, self.work.results(on_result=step)):
             model.adopt_frame_results(f, results)
             model.warnings += warnings
+        if self.mesh_ext == "vtp":                  # the time series ParaView plays
+            from cardionurbs.analysis.mesh_fields import write_pvd_series
+            write_pvd_series(model, self.mesh_dir)
 
     def cancel(self) -> None:
         """Stop the workers (nothing once finished)."""
@@ -458,10 +508,15 @@ def run_analyze(args: argparse.Namespace) -> int:
         outputs = tuple(o for o in outputs if o not in ("figures", "report"))
     check_output_dir(args.out, inputs=[study_folder(args.study)],
                      overwrite=getattr(args, "overwrite", False))
+    if getattr(args, "mesh_format", None) == "vtp" and "meshes" in outputs:
+        from cardionurbs.io.vtkfiles import require_vtk
+        require_vtk()                            # before any work: the vtk extra is there
     progress = Progress(True if getattr(args, "progress", False) else None, prefix="analyze")
     progress.stage("load")
     study = load_study(args.study, format=args.format,
                        allow_outside=getattr(args, "allow_outside", False), **_label_option(args))
+    if getattr(args, "pathology", None):      # the stated question (MR RegVol, docs/metrics.md)
+        study.meta = dict(study.meta, pathology=str(args.pathology))
     if getattr(args, "track_tags", False):
         from cardionurbs.tracking import track_tags
         study = track_tags(study)
@@ -474,14 +529,18 @@ def run_analyze(args: argparse.Namespace) -> int:
     jobs = getattr(args, "jobs", None)
     # the meshes need only the model: their workers start once ED and ES are known and work
     # while this process measures the tags
-    early = EarlyMeshes(args.out, jobs=jobs) if "meshes" in outputs else None
+    mesh_ext = getattr(args, "mesh_format", None) or "ply"
+    # (.vtp carries the regional results on the meshes: written once they are measured)
+    early = EarlyMeshes(args.out, mesh_ext, jobs=jobs) \
+        if "meshes" in outputs and mesh_ext != "vtp" else None
     try:
         model, metrics, tags = analyse(study, heart_rate_bpm=getattr(args, "heart_rate", None),
-                                       over_time=bool({"figures", "report"} & set(outputs)),
+                                       over_time=bool({"figures", "report"} & set(outputs))
+                                       or ("meshes" in outputs and mesh_ext == "vtp"),
                                        progress=progress, jobs=jobs,
                                        on_measured=None if early is None else early.start)
         write_analysis(model, metrics, args.out, outputs=outputs, tags=tags, progress=progress,
-                       jobs=jobs, early_meshes=early,
+                       jobs=jobs, early_meshes=early, mesh_ext=mesh_ext,
                        uncertainty=getattr(args, "uncertainty", "on") == "on")
     finally:
         if early is not None:

@@ -109,3 +109,30 @@ def csv_safe_table(table):
         if out[col].dtype == object or pd.api.types.is_string_dtype(out[col].dtype):
             out[col] = out[col].map(csv_cell)
     return out
+
+
+#: third-party warnings the CLI caught instead of printing (message text, excerpted)
+CAUGHT_WARNINGS: list[str] = []
+#: loggers of libraries that print straight to stderr (nibabel's "not attempting fix")
+_CHATTY_LOGGERS = ("nibabel", "nibabel.global", "matplotlib", "matplotlib.font_manager",
+                   "pydicom", "distributed", "fontTools")
+
+
+def quiet_third_party(show: bool = False) -> None:
+    """Keep library warnings and log lines off stderr, so that a run prints at most its own
+    one-line result or error: Python warnings (numpy RuntimeWarnings, matplotlib's "Glyph
+    missing", nibabel's) are collected in :data:`CAUGHT_WARNINGS` and the chatty loggers
+    raised to CRITICAL. ``show`` (``--debug``) keeps the usual printing."""
+    import logging
+    import warnings
+
+    if show:
+        return
+
+    def collect(message, category, filename, lineno, file=None, line=None) -> None:
+        if len(CAUGHT_WARNINGS) < 1000:
+            CAUGHT_WARNINGS.append(f"{category.__name__}: {excerpt(str(message), 120)}")
+
+    warnings.showwarning = collect
+    for name in _CHATTY_LOGGERS:
+        logging.getLogger(name).setLevel(logging.CRITICAL)

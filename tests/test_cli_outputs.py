@@ -5,6 +5,7 @@ run, files follow the umask. User files are compared byte for byte afterwards.""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import stat
 import subprocess
@@ -15,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from cardionurbs.cli import main
-from cardionurbs.io.atomic import MARKER
+from cardionurbs.io.atomic import MARKER, STUDY_MARKER
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -125,14 +126,14 @@ def test_earlier_output_needs_overwrite_and_is_then_replaced(study, tmp_path):
     out = tmp_path / "o"
     assert main(["phantom", "--pathology", "normal", "--frames", "2", "--no-dicom", "--seed", "1",
                  "--out", str(out)]) == 0
-    assert (out / MARKER).is_file()
+    assert (out / STUDY_MARKER).is_file() and not (out / MARKER).exists()   # a study
     before = snapshot(out)
     assert main(["phantom", "--pathology", "normal", "--frames", "2", "--no-dicom", "--seed", "2",
                  "--out", str(out)]) == 2
     assert snapshot(out) == before
     assert main(["phantom", "--pathology", "normal", "--frames", "2", "--no-dicom", "--seed", "2",
                  "--out", str(out), "--overwrite"]) == 0
-    assert snapshot(out) != before and (out / MARKER).is_file()
+    assert snapshot(out) != before and (out / STUDY_MARKER).is_file()
     assert [p.name for p in tmp_path.iterdir()] == ["o"]        # no debris
 
 
@@ -206,5 +207,50 @@ def test_files_follow_the_umask(tmp_path, mask):
                        preexec_fn=lambda: os.umask(mask))
     assert r.returncode == 0, r.stderr
     assert stat.S_IMODE(out.stat().st_mode) == 0o777 & ~mask
-    for f in ("study.json", "points.csv", "truth.json", MARKER):
+    for f in ("study.json", "points.csv", "truth.json", STUDY_MARKER):
         assert stat.S_IMODE((out / f).stat().st_mode) == 0o666 & ~mask, f
+
+
+# ------------------------------------------- inputs and outputs told apart (issue 31, 2 and 3)
+def test_no_output_command_replaces_a_generated_study(study, tmp_path):
+    other = tmp_path / "B"
+    assert main(["phantom", "--pathology", "normal", "--frames", "2", "--no-dicom", "--seed", "3",
+                 "--out", str(other)]) == 0
+    before = snapshot(other)
+    r = cli("analyze", study, "--out", other, "--overwrite", "--no-figures")
+    one_error_line(r, "--out", "study cardionurbs generated")
+    assert snapshot(other) == before
+
+
+def test_overwrite_refuses_naming_files_it_did_not_write(study, tmp_path):
+    out = tmp_path / "o"
+    assert main(["analyze", str(study), "--out", str(out), "--outputs", "metrics"]) == 0
+    (out / "my_notes.txt").write_text("mine")
+    (out / "sub").mkdir()
+    (out / "sub" / "data.bin").write_bytes(b"\0")
+    r = cli("analyze", study, "--out", out, "--overwrite", "--outputs", "metrics")
+    one_error_line(r, "--out", "my_notes.txt", "sub/data.bin")
+    assert (out / "my_notes.txt").read_text() == "mine" and (out / "sub" / "data.bin").exists()
+    (out / "my_notes.txt").unlink()
+    shutil.rmtree(out / "sub")
+    assert main(["analyze", str(study), "--out", str(out), "--overwrite", "--outputs",
+                 "metrics"]) == 0
+
+
+def test_cohort_writes_nothing_into_a_study(study, tmp_path):
+    before = snapshot(study)
+    r = cli("cohort", study, "--csv", tmp_path / "c.csv", "--run-dir", study / "rows")
+    one_error_line(r, "--run-dir", "input")
+    r = cli("cohort", study, "--csv", study / "c.csv")
+    one_error_line(r, "--csv", "input")
+    assert snapshot(study) == before and not (tmp_path / "c.csv").exists()
+
+
+def test_cohort_csv_onto_a_users_file_needs_overwrite(study, tmp_path):
+    mine = tmp_path / "results.csv"
+    mine.write_text("patient,ef\nA,55\n")
+    r = cli("cohort", study, "--csv", mine)
+    one_error_line(r, "--csv", "did not write", "--overwrite")
+    assert mine.read_text() == "patient,ef\nA,55\n"
+    assert main(["cohort", str(study), "--csv", str(mine), "--overwrite"]) == 0
+    assert main(["cohort", str(study), "--csv", str(mine)]) == 0      # now a cohort table

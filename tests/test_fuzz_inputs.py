@@ -204,3 +204,39 @@ def test_mutated_inputs_exit_0_or_2_and_open_nothing_outside(bases, tmp_path_fac
     if code == 2:
         assert err.count("\n") == 1 and err.startswith("cardionurbs: error: ")
         assert not out.exists() and [p.name for p in work.iterdir()] == ["study"]
+
+
+# ------------------------------------------- the corpus of benchmarks/fuzz_inputs.py, sampled
+def _corpus():
+    import importlib.util
+    if "fuzz_inputs" in sys.modules:
+        return sys.modules["fuzz_inputs"]
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "fuzz_inputs.py"
+    spec = importlib.util.spec_from_file_location("fuzz_inputs", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["fuzz_inputs"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory):
+    mod = _corpus()
+    return mod, mod.make_bases(tmp_path_factory.mktemp("corpus_bases"))
+
+
+def test_the_corpus_has_500_cases_across_the_five_kinds():
+    mod = _corpus()
+    all_cases = mod.cases(500, seed=31)
+    assert len(all_cases) == 500 and {c.kind for c in all_cases} == set(mod.KINDS)
+
+
+@pytest.mark.parametrize("index", range(0, 500, 33))
+def test_a_sample_of_the_corpus_keeps_the_exit_contract(corpus, tmp_path, index):
+    """15 of the 500 cases (every kind): a study or one CardioNurbsError line, analyze exit
+    0 or 2 with one line, nothing opened outside the study, nothing written outside --out,
+    no process left (the whole corpus: benchmarks/fuzz_inputs.py, reports/limits.md)."""
+    mod, bases = corpus
+    case = mod.cases(500, seed=31)[index]
+    record = mod.run_case(case, bases, tmp_path)
+    assert record["problems"] == [], record

@@ -128,3 +128,61 @@ def test_long_garbage_is_quoted_as_a_short_excerpt(tmp_path):
     sb_contour(root).write_text("1 2\n" + "A" * 100_000 + " 3\n")
     msg = _fails(root)
     assert len(msg) < 600 and "100002 characters" in msg
+
+
+# ---------------------------------------- links resolved at open time, against the study root
+DATA = ROOT.parent / "shared" / "data"
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data is not available")
+
+
+
+
+def test_sunnybrook_dicom_folder_linked_elsewhere_is_refused(tmp_path):
+    root = make_sunnybrook(tmp_path / "SB")
+    shutil.move(root / "dicom", tmp_path / "elsewhere")
+    os.symlink(tmp_path / "elsewhere", root / "dicom")
+    msg = _fails(root, "symbolic link", "DICOM", "--allow-outside")
+    assert "elsewhere" not in msg.split(":")[0] or "dicom" in msg   # names the link, not its target
+    assert load_study(root, allow_outside=True).contours
+
+
+@needs_data
+def test_real_sunnybrook_dicom_linked_out_is_refused(tmp_path):
+    src = DATA / "sunnybrook" / "SC-HF-I-2"
+    root = tmp_path / "SB"
+    shutil.copytree(src, root, ignore=shutil.ignore_patterns("dicom"))
+    os.symlink(src / "dicom", root / "dicom")
+    _fails(root, "symbolic link", "DICOM")
+
+
+@needs_data
+def test_acdc_gt_file_linked_out_is_refused(tmp_path):
+    src = DATA / "acdc" / "patient005"
+    root = Path(shutil.copytree(src, tmp_path / "patient005"))
+    gt = sorted(root.glob("*_gt.nii*"))[0]
+    gt.unlink()
+    os.symlink(src / gt.name, gt)
+    _fails(root, "symbolic link", gt.name)
+
+
+_OPENED: list = []
+sys.addaudithook(lambda event, args: _OPENED.append(os.fsdecode(args[0]))
+                 if event == "open" and args and isinstance(args[0], (str, bytes, os.PathLike))
+                 else None)
+
+
+def test_study_json_that_is_a_link_out_is_refused(tmp_path):
+    root = make_native(tmp_path / "S")
+    shutil.move(root / "study.json", tmp_path / "manifest.json")
+    os.symlink(tmp_path / "manifest.json", root / "study.json")
+    _OPENED.clear()
+    _fails(root, "symbolic link", "study.json")
+    assert not [p for p in _OPENED if os.path.realpath(p) == os.path.realpath(tmp_path / "manifest.json")], \
+        "the manifest outside the study was opened (format detection included)"
+    assert load_study(root, allow_outside=True).contours
+
+
+def test_a_study_reached_through_a_link_is_read(tmp_path):
+    root = make_native(tmp_path / "S")
+    os.symlink(root, tmp_path / "alias")
+    assert load_study(tmp_path / "alias").contours     # the root itself is resolved once

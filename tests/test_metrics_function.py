@@ -24,7 +24,7 @@ def test_columns_follow_metrics_md():
     n = len(F.COLUMNS) - len(REGIONAL_COLUMNS)
     assert F.COLUMNS[0] == "HR (bpm)" and F.COLUMNS[n - 1] == "Tag QC flags"
     assert F.COLUMNS[n:] == REGIONAL_COLUMNS
-    assert len(F.COLUMNS) == len(set(F.COLUMNS)) == 23 + len(REGIONAL_COLUMNS)
+    assert len(F.COLUMNS) == len(set(F.COLUMNS)) == 24 + len(REGIONAL_COLUMNS)
     assert set(F.TAG_COLUMNS) <= set(F.COLUMNS)
 
 
@@ -91,6 +91,13 @@ def test_measure_from_volumes():
     assert m["LVCO (L/min)"] == pytest.approx(90.0 * 75 / 1000)
     assert m["LVM (g)"] == pytest.approx(105.0) and m["RVM (g)"] == pytest.approx(31.5)
     assert m["RVSV (mL)"] == 70.0 and m["RVEF (%)"] == pytest.approx(43.75)
+    assert m["LVSV-RVSV (mL)"] == 20.0
+    # no stated pathology: the difference is not called a regurgitant volume (null + note)
+    assert math.isnan(m["MR RegVol (mL)"]) and math.isnan(m["MR RegFrac (%)"])
+    model = _fake_model(vols, 0, 1)
+    assert "not the stated question" in F.measure(model).notes["MR RegVol (mL)"]
+    model.study.meta["pathology"] = "mr"                  # stated: a phantom, metadata, --pathology
+    m = F.measure(model)
     assert m["MR RegVol (mL)"] == 20.0 and m["MR RegFrac (%)"] == pytest.approx(100 * 20 / 90)
     assert m["RV/LV EDV ratio"] == pytest.approx(160 / 150)
     assert m["RV/LV mass ratio"] == pytest.approx(30 / 100)

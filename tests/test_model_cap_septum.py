@@ -118,3 +118,22 @@ def test_loops_are_not_arcs_and_arcs_with_a_gap_are(a, b, noise, n, start, gap, 
     arc[:, :2] += rng.normal(0, noise, (n, 2))
     assert is_open_arc(arc)
     assert is_open_arc(np.roll(arc, -(start % n), axis=0))    # written from mid-arc
+
+
+def test_bivme_without_septal_traces_keeps_rv_mass():
+    """A CAP export without SA RV_SEPTUM traces (the RV endocardium as free wall only): the
+    LV epicardial arcs are closed by a septum as thick as the free wall and the open RV
+    epicardia by their chords, so RV mass is measured (it was missing) and LV mass and
+    the RV volume stay with the study traced with its septum."""
+    from conftest import shared_data
+    from cardionurbs import load_study
+    from cardionurbs.analysis.function import measure
+    study = load_study(shared_data("bivme-patient1"))
+    cut = dataclasses.replace(study, contours=[c for c in study.contours
+                                               if not (c.structure == "rv_septum" and c.view == "SA")])
+    whole = measure(reconstruct(study, frames=[10, 24]))
+    got = measure(reconstruct(cut, frames=[10, 24]))
+    assert np.isfinite(got["RVM (g)"])
+    assert got["RVM (g)"] == pytest.approx(whole["RVM (g)"], rel=0.05)
+    assert got["LVM (g)"] == pytest.approx(whole["LVM (g)"], rel=0.03)
+    assert got["RVEDV (mL)"] == pytest.approx(whole["RVEDV (mL)"], rel=0.03)

@@ -63,11 +63,17 @@ def test_existing_output_is_replaced_atomically(study_dir, analysis, tmp_path):
     # a folder cardionurbs did not write is never replaced (issue 10) ...
     assert main(["analyze", str(study_dir), "--out", str(out), "--no-figures", "--overwrite"]) == 2
     assert (out / "stale.txt").read_text() == "old"
-    # ... an earlier output is, with --overwrite, as a whole
+    # ... nor one whose marker lists no files (what it wrote is unknown) ...
     (out / MARKER).write_text("")
+    assert main(["analyze", str(study_dir), "--out", str(out), "--no-figures", "--overwrite"]) == 2
+    assert (out / "stale.txt").read_text() == "old"
+    # ... an earlier output is, with --overwrite, as a whole
+    (out / "stale.txt").unlink()
+    (out / MARKER).unlink()
+    assert main(["analyze", str(study_dir), "--out", str(out), "--no-figures"]) == 0
     assert main(["analyze", str(study_dir), "--out", str(out), "--no-figures"]) == 2
     assert main(["analyze", str(study_dir), "--out", str(out), "--no-figures", "--overwrite"]) == 0
-    assert not (out / "stale.txt").exists() and (out / "metrics.json").exists()
+    assert (out / "metrics.json").exists()
 
 
 def test_bad_study_exits_2_and_writes_nothing(tmp_path, capsys):

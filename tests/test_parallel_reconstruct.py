@@ -61,7 +61,7 @@ def test_workers_give_the_serial_model(bivme_study, monkeypatch):
     assert sum("geometry warning" in w for w in serial.warnings) == len(frames)
 
 
-def test_a_failing_frame_raises_in_the_parent(bivme_study, monkeypatch):
+def test_a_failing_frame_is_left_out_serial_or_forked(bivme_study, monkeypatch):
     frames = bivme_study.contoured_frames[:4]
     bad = frames[2]
     real = model_module.BiventricularModel.lv_cavity_volume_unrefined
@@ -71,8 +71,17 @@ def test_a_failing_frame_raises_in_the_parent(bivme_study, monkeypatch):
             raise ReconstructionError(f"lv_cavity, frame {frame}: made to fail")
         return real(self, frame)
     monkeypatch.setattr(model_module.BiventricularModel, "lv_cavity_volume_unrefined", fails_on_one)
-    for jobs in (1, 2):
-        with pytest.raises(ReconstructionError, match=f"frame {bad}: made to fail"):
+    for jobs in (1, 2):     # the frame is left out of the model with a warning (issue #30)
+        model = reconstruct(bivme_study, frames=frames, jobs=jobs)
+        assert model.frames == [f for f in frames if f != bad] and model.curve_frames == frames
+        assert any(f"frame {bad}: LV cavity cannot be built" in w and "made to fail" in w
+                   for w in model.warnings)
+
+    def fails_always(self, frame):
+        raise ReconstructionError(f"lv_cavity, frame {frame}: made to fail")
+    monkeypatch.setattr(model_module.BiventricularModel, "lv_cavity_volume_unrefined", fails_always)
+    for jobs in (1, 2):     # no frame at all: refused, naming the reason
+        with pytest.raises(ReconstructionError, match="made to fail"):
             reconstruct(bivme_study, frames=frames, jobs=jobs)
 
 

@@ -228,7 +228,7 @@ def test_cli_single_and_cohort(tmp_path, capsys):
     spec.write_text("[cohort]\nframes = 2\n[[subject]]\nid = 'n1'\npathology = 'normal'\nseed = 1\n"
                     "[[subject]]\nid = 'p1'\npathology = 'phtn'\nseed = 1\n")
     assert main(["phantom", "--cohort", str(spec), "--no-dicom", "--out", str(tmp_path / "co")]) == 0
-    assert sorted(p.name for p in (tmp_path / "co").iterdir()) == [".cardionurbs-output", "n1",
+    assert sorted(p.name for p in (tmp_path / "co").iterdir()) == [".cardionurbs-study", "n1",
                                                                    "p1"]
     assert read_study(tmp_path / "co" / "n1").subject == "n1"
     capsys.readouterr()

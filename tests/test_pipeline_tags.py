@@ -51,7 +51,8 @@ def test_metrics_json_carries_levels_flags_and_time_course(analysed):
 
 def test_model_json_saves_the_tag_surfaces(analysed):
     ph, out, _ = analysed
-    ts = json.loads((out / "model.json").read_text())["tag_surfaces"]
+    from cardionurbs.io.modelfile import read_model_file
+    ts = read_model_file(out / "model.json")["tag_surfaces"]
     assert sorted(int(f) for f in ts["frames"]) == ph.study.tagged_frames
     fams = {k.split(":")[0] for k in ts["frames"]["0"]}
     assert fams == {"sa1", "sa2", "la"}

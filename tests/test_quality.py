@@ -52,8 +52,16 @@ def test_bivme_no_metric_unflagged_beyond_3_px(bivme):
     # the example of the issue: the RV epicardium misses its LA points by > 3 px at ED
     assert any(f.startswith("RV epi fit max") for f in q.metrics["RVM (g)"]["flags"])
     for col, inputs in DERIVED.items():     # derived metrics inherit their inputs' flags
-        assert set(q.metrics[col]["flags"]) == {f for i in inputs for f in q.metrics[i]["flags"]}
-    assert q.flagged("MR RegFrac (%)")
+        if math.isfinite(metrics[col]):
+            assert set(q.metrics[col]["flags"]) == {f for i in inputs
+                                                    for f in q.metrics[i]["flags"]}
+    assert math.isnan(metrics["MR RegFrac (%)"])          # no stated pathology
+    assert q.flagged("LVSV-RVSV (mL)")
+    # the two stroke volumes differ by more than 10 % of their mean (issue #30)
+    lv, rv = metrics["LVSV (mL)"], metrics["RVSV (mL)"]
+    disagree = [f for f in q.metrics["LVSV (mL)"]["flags"] if f.startswith("stroke volumes")]
+    assert bool(disagree) == (abs(lv - rv) > 0.1 * (lv + rv) / 2)
+    assert disagree == [f for f in q.metrics["RVSV (mL)"]["flags"] if f.startswith("stroke")]
     assert "heart rate unknown" in q.metrics["HR (bpm)"]["flags"]
     assert "heart rate unknown" in q.metrics["LVCO (L/min)"]["flags"]
     row = q.row()
@@ -135,3 +143,23 @@ def test_metrics_json_and_report_show_the_flags(flawed, tmp_path):
     assert set(doc["quality"]["pooled"]) == {"lv_endo", "lv_epi", "rv_endo", "rv_epi"}
     page = write_report(out, tmp_path / "r.html").read_text()
     assert "LV endo fit max" in page and "class='qcflag'" in page
+
+
+def test_myocardial_volume_over_time_flags_name_the_surfaces():
+    """LV wall at ES within 5 % of ED, the RV's within 40 % (issue #30, item 4): beyond, a
+    flag on the mass naming the surfaces; within, none."""
+    from types import SimpleNamespace
+    from cardionurbs.analysis.quality import WALL_BOUND, Quality, _wall_flags
+    vols = {0: {"lv_myocardium": 100.0, "rv_myocardium": 40.0},
+            1: {"lv_myocardium": 100.0 * (1 + WALL_BOUND["lv_myocardium"]) + 1.0,
+                "rv_myocardium": 40.0 * (1 - WALL_BOUND["rv_myocardium"]) + 1.0}}
+    model = SimpleNamespace(ed_frame=0, es_frame=1, consistent_volumes=lambda f: vols[f])
+    q = Quality(metrics={"LVM (g)": {"flags": []}, "RVM (g)": {"flags": []}})
+    _wall_flags(model, q, {"LVM (g)": 105.0, "RVM (g)": 42.0})
+    (lv,) = q.metrics["LVM (g)"]["flags"]
+    assert lv.startswith("LV myocardium (LV endo, LV epi): volume at ES 106.0 mL is +6.0 %")
+    assert q.metrics["RVM (g)"]["flags"] == []             # -37.5 %: within the RV's bound
+    vols[1]["rv_myocardium"] = 40.0 * (1 - WALL_BOUND["rv_myocardium"]) - 1.0
+    q = Quality(metrics={"LVM (g)": {"flags": []}, "RVM (g)": {"flags": []}})
+    _wall_flags(model, q, {"LVM (g)": 105.0, "RVM (g)": 42.0})
+    assert q.metrics["RVM (g)"]["flags"][0].startswith("RV myocardium (RV endo, RV epi, LV epi)")

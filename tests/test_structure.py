@@ -26,7 +26,6 @@ LONG = {
 }
 #: "module path::qualified name" -> complexity today (functions over MAX_COMPLEXITY)
 BRANCHY = {
-    "anatomy/sections.py::_sa_loops": 33,
     "io/gpfile.py::write_study": 42,
     "io/native.py::_read_points": 34,
     "io/nifti.py::read_label_volume": 41,

@@ -9,7 +9,10 @@ Formulas (volumes from closed manifold meshes, mL; mass density 1.05 g/mL)::
 
     SV  = EDV − ESV                       EF = 100 · SV / EDV
     CO  = SV · HR / 1000  (L/min)         M  = 1.05 · V_myo(ED)
+    LVSV-RVSV = LVSV − RVSV               (always, where both SVs are measured)
     MR RegVol = max(0, LVSV − RVSV)       MR RegFrac = 100 · RegVol / LVSV
+                                          (only where regurgitation is the stated question:
+                                           :func:`regurgitation_stated`)
     EI  = D_parallel / D_perpendicular    (LV cavity chords through its centroid
                                            on the mid-ventricular SA slice at ES)
 """
@@ -41,7 +44,7 @@ COLUMNS = (
     "HR (bpm)",
     "LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVCO (L/min)", "LVM (g)",
     "RVEDV (mL)", "RVESV (mL)", "RVSV (mL)", "RVEF (%)", "RVM (g)",
-    "MR RegVol (mL)", "MR RegFrac (%)",
+    "MR RegVol (mL)", "MR RegFrac (%)", "LVSV-RVSV (mL)",
     "RV/LV EDV ratio", "RV/LV mass ratio",
     "EI ES",
     "Twist (deg)", "Twist 2D (deg)", "Torsion (deg/cm)", "CL shear (deg)", "LS (%)",
@@ -73,6 +76,22 @@ def regurgitation(lvsv: float, rvsv: float) -> tuple[float, float]:
         return NAN, NAN
     reg = max(0.0, lvsv - rvsv)
     return reg, 100.0 * _ratio(reg, lvsv)
+
+
+#: a study's stated pathology (``Study.meta["pathology"]``: a phantom's preset, a study's own
+#: metadata or ``analyze --pathology``) makes regurgitation a stated question
+NOT_STATED_NOTE = ("regurgitation is not the stated question (no pathology in the study's "
+                   "metadata, nor analyze --pathology): LVSV - RVSV is reported as "
+                   "'LVSV-RVSV (mL)'")
+
+
+def regurgitation_stated(meta: dict) -> bool:
+    """True when the study states its pathology (``meta["pathology"]``, any non-empty text:
+    a phantom's preset, the study's metadata or ``analyze --pathology``), so that MR RegVol
+    and RegFrac answer a question someone asked; otherwise LVSV − RVSV is only a difference
+    of two measurements (docs/metrics.md)."""
+    p = (meta or {}).get("pathology")
+    return isinstance(p, str) and p.strip() != ""
 
 
 def mass_g(myocardial_volume_ml: float) -> float:
@@ -139,7 +158,8 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None,
         hr = heart_rate_bpm
     hr = float(hr) if hr is not None else NAN
     ed, es = model.ed_frame, model.es_frame
-    vol = model.volumes
+    vol = {f: (model.consistent_volumes(f) if hasattr(model, "consistent_volumes")
+               else model.volumes.get(f, {})) for f in {ed, es}}
 
     def v(frame: int, key: str) -> float:
         return float(vol.get(frame, {}).get(key, NAN))
@@ -156,7 +176,11 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None,
         if side == "LV":
             out["LVCO (L/min)"] = f["CO"]
         out[f"{side}M (g)"] = mass_g(v(ed, myo))
-    out["MR RegVol (mL)"], out["MR RegFrac (%)"] = regurgitation(out["LVSV (mL)"], out["RVSV (mL)"])
+    lvsv, rvsv = out["LVSV (mL)"], out["RVSV (mL)"]
+    out["LVSV-RVSV (mL)"] = lvsv - rvsv
+    stated = regurgitation_stated(model.study.meta)
+    if stated:
+        out["MR RegVol (mL)"], out["MR RegFrac (%)"] = regurgitation(lvsv, rvsv)
     out["RV/LV EDV ratio"] = _ratio(out["RVEDV (mL)"], out["LVEDV (mL)"])
     out["RV/LV mass ratio"] = _ratio(out["RVM (g)"], out["LVM (g)"])
     out["EI ES"] = eccentricity_index_es(model)
@@ -168,6 +192,9 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None,
     if why_no_rates:
         for column in rates:
             null(metrics, column, why_no_rates)
+    if not stated and np.isfinite(lvsv - rvsv):     # null with its reason (metrics.json notes)
+        for column in ("MR RegVol (mL)", "MR RegFrac (%)"):
+            null(metrics, column, NOT_STATED_NOTE)
     add_body_columns(metrics, model.study.meta.get("body"))
     explain_nulls(model, metrics)
     if uncertainty:
@@ -216,24 +243,41 @@ def explain_nulls(model: "BiventricularModel", metrics: dict) -> dict:
 
 def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> dict[str, list]:
     """The volume–time curve: per reconstructed frame, trigger time (ms, None where
-    unknown) and the four volumes (mL; NaN where a structure is missing).
+    unknown) and the four volumes (mL; NaN where a structure is missing): ``<mesh> (mL)``
+    the consistent ones (a supported frame's from its neighbours,
+    :mod:`cardionurbs.anatomy.cycle`), ``<mesh> raw (mL)`` each frame's own, and
+    ``supported`` the frames that needed their neighbours' support.
 
     ``every_structure=False`` (a metrics-only analysis) reports what the metrics already
     measured and builds nothing more: the LV cavity at every frame (the cavities ED, ES
     and the filling rates come from) and the other three volumes at ED and ES only (NaN
     at the other frames). Building every frame's other surfaces and booleans just for
     this curve would cost several times the whole metrics analysis."""
-    frames = list(model.frames)
+    frames = list(getattr(model, "curve_frames", model.frames))
+    built = set(model.frames)
     times = [model.study.frame_times_ms.get(f) for f in frames]
     out: dict[str, list] = {"frame": frames, "time_ms": times}
-    if every_structure or not hasattr(model, "lv_cavity_volume"):
-        for key in ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium"):
-            out[f"{key} (mL)"] = [float(model.volumes.get(f, {}).get(key, NAN)) for f in frames]
-        return out
+    keys = ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium")
+    supported = getattr(model, "supported", {})
+    every_structure = every_structure or not hasattr(model, "lv_cavity_volume")
     reported = {model.ed_frame, model.es_frame}
-    out["lv_cavity (mL)"] = [float(model.volumes[f].get("lv_cavity", NAN)) if f in reported
-                             else model.lv_cavity_volume(f) for f in frames]
-    for key in ("rv_cavity", "lv_myocardium", "rv_myocardium"):
-        out[f"{key} (mL)"] = [float(model.volumes[f].get(key, NAN)) if f in reported else NAN
-                              for f in frames]
+    if every_structure:
+        raw = {f: (model.volumes.get(f, {}) if f in built else {}) for f in frames}
+    else:
+        raw = {f: (dict(model.volumes[f]) if f in reported else
+                   {"lv_cavity": model.lv_cavity_volume(f)} if f in built else {})
+               for f in frames}
+    consistent = {}
+    for f in frames:
+        if f not in supported:
+            consistent[f] = raw[f]
+        elif every_structure or f in reported:
+            consistent[f] = model.consistent_volumes(f)
+        else:               # metrics only: the neighbours' other solids are not built for this
+            consistent[f] = {"lv_cavity": model.consistent_lv_cavity_volume(f)}
+    for key in keys:
+        out[f"{key} (mL)"] = [float(consistent[f].get(key, NAN)) for f in frames]
+    for key in keys:
+        out[f"{key} raw (mL)"] = [float(raw[f].get(key, NAN)) for f in frames]
+    out["supported"] = sorted(supported)
     return out

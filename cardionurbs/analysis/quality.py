@@ -58,8 +58,17 @@ SOURCES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 #: derived metric -> the metrics it is computed from (it inherits their flags)
 DERIVED: dict[str, tuple[str, ...]] = {
     "MR RegVol (mL)": ("LVSV (mL)", "RVSV (mL)"), "MR RegFrac (%)": ("LVSV (mL)", "RVSV (mL)"),
+    "LVSV-RVSV (mL)": ("LVSV (mL)", "RVSV (mL)"),
     "RV/LV EDV ratio": ("RVEDV (mL)", "LVEDV (mL)"), "RV/LV mass ratio": ("RVM (g)", "LVM (g)"),
 }
+#: without valve disease or a shunt both ventricles eject the same volume: flagged beyond
+#: this fraction of the mean of the two stroke volumes (and beyond SV_MIN_ML)
+SV_BOUND, SV_MIN_ML = 0.10, 5.0
+#: the myocardium is nearly incompressible: its volume at ES within this fraction of ED's,
+#: LV and (thin, sparsely traced wall) RV
+WALL_BOUND = {"lv_myocardium": 0.05, "rv_myocardium": 0.40}
+_WALL = {"lv_myocardium": ("LVM (g)", "LV myocardium", "LV endo, LV epi"),
+         "rv_myocardium": ("RVM (g)", "RV myocardium", "RV endo, RV epi, LV epi")}
 _STATS = ("median", "p95", "max")
 #: the cohort CSV's quality columns (after the metric columns)
 QC_COLUMNS = tuple(f"{s} fit {q} ({u})" for s in SURFACE_LABELS.values() for u in ("mm", "px")
@@ -88,13 +97,16 @@ class Quality:
     metrics: dict[str, dict] = field(default_factory=dict)
     limit_px: float = QC_LIMIT_PX
 
+    #: flags of the cycle (frames supported by their neighbours) that no metric carries
+    cycle: list[str] = field(default_factory=list)
+
     @property
     def flags(self) -> list[str]:
-        """Every distinct flag of the metrics, in column order."""
+        """Every distinct flag of the metrics, in column order, then the cycle's."""
         out: list[str] = []
         for m in self.metrics.values():
             out += [f for f in m["flags"] if f not in out]
-        return out
+        return out + [f for f in self.cycle if f not in out]
 
     def flagged(self, column: str) -> bool:
         return bool(self.metrics.get(column, {}).get("flags"))
@@ -120,7 +132,7 @@ class Quality:
                 "surfaces": {str(f): d for f, d in self.surfaces.items()},
                 "pooled": self._pooled,
                 "left_out": {str(f): [list(x) for x in lst] for f, lst in self.left_out.items()},
-                "metrics": self.metrics, "QC": "; ".join(self.flags)}
+                "metrics": self.metrics, "cycle": self.cycle, "QC": "; ".join(self.flags)}
 
     _pooled: dict[str, dict] = field(default_factory=dict)
 
@@ -228,6 +240,9 @@ def assess(model: "BiventricularModel", metrics: dict[str, float]) -> Quality:
             if isinstance(n, (int, float)) and math.isfinite(n) and n > 0:
                 entry["flags"] = [f"{int(n)} tag line(s) flagged as mistracked"]
         q.metrics[col] = entry
+    _cycle_flags(model, q)
+    _wall_flags(model, q, metrics)
+    _stroke_volume_flags(model, q, metrics)
     for col, flags in label_map_flags(model, metrics).items():   # label maps (analysis.voxels)
         if col in q.metrics and is_finite_number(metrics.get(col, math.nan)):
             q.metrics[col]["flags"] += flags
@@ -241,3 +256,57 @@ def assess(model: "BiventricularModel", metrics: dict[str, float]) -> Quality:
             for i in inputs:
                 e["flags"] += [f for f in q.metrics[i]["flags"] if f not in e["flags"]]
     return q
+
+
+def _finite(x) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x)
+
+
+def _cycle_flags(model, q: Quality) -> None:
+    """Every frame supported by its neighbours (:mod:`cardionurbs.anatomy.cycle`) is a flag:
+    on the metrics of ED or ES when it is one of them, else on the cycle."""
+    cycle = getattr(model, "cycle", None)
+    for f in sorted(getattr(model, "supported", {}) or {}):
+        flag = cycle.describe(f)
+        users = [m for m in q.metrics.values() if f in m["frames"]]
+        for m in users:
+            m["flags"].append(flag)
+        if not users:
+            q.cycle.append(flag)
+
+
+def _wall_flags(model, q: Quality, metrics: dict) -> None:
+    """The myocardial volume at ES against ED's (:data:`WALL_BOUND`): a flag naming the
+    surfaces on the mass beyond the bound."""
+    ed, es = model.ed_frame, model.es_frame
+    if ed == es or not hasattr(model, "consistent_volumes"):
+        return
+    v_ed, v_es = model.consistent_volumes(ed), model.consistent_volumes(es)
+    for key, bound in WALL_BOUND.items():
+        col, name, surfaces = _WALL[key]
+        a, b = v_ed.get(key), v_es.get(key)
+        if not (_finite(a) and _finite(b) and a > 0 and _finite(metrics.get(col))):
+            continue
+        change = b / a - 1.0
+        if abs(change) > bound:
+            q.metrics[col]["flags"].append(
+                f"{name} ({surfaces}): volume at ES {b:.1f} mL is {100 * change:+.1f} % of ED's "
+                f"{a:.1f} mL (bound {100 * bound:g} %)")
+
+
+def _stroke_volume_flags(model, q: Quality, metrics: dict) -> None:
+    """``stroke volumes disagree`` on LVSV, RVSV and their difference when
+    |LVSV − RVSV| exceeds :data:`SV_BOUND` of their mean and SV_MIN_ML, unless mitral
+    regurgitation is the stated pathology (then the difference is the finding)."""
+    lv, rv = metrics.get("LVSV (mL)"), metrics.get("RVSV (mL)")
+    if not (_finite(lv) and _finite(rv)):
+        return
+    if str(model.study.meta.get("pathology") or "").strip().lower() in ("mr", "mitral regurgitation"):
+        return
+    d, mean = lv - rv, 0.5 * (lv + rv)
+    limit = max(SV_BOUND * abs(mean), SV_MIN_ML)
+    if abs(d) > limit:
+        flag = (f"stroke volumes disagree: LVSV {lv:.1f} mL, RVSV {rv:.1f} mL, difference "
+                f"{d:+.1f} mL > {limit:.1f} mL ({100 * SV_BOUND:g} % of their mean)")
+        for col in ("LVSV (mL)", "RVSV (mL)", "LVSV-RVSV (mL)"):
+            q.metrics[col]["flags"].append(flag)

@@ -118,13 +118,14 @@ def filling_rates(times_ms, volumes_ml, ed_index: int, es_index: int,
 def model_filling_rates(model: "BiventricularModel") -> tuple[dict[str, float], str]:
     """Rates of a model's LV cavity volume curve (every reconstructed frame; the cavity of
     each frame from :meth:`BiventricularModel.lv_cavity_volume`)."""
-    frames = list(model.frames)
+    frames = list(getattr(model, "curve_frames", model.frames))
     if len(frames) < MIN_FRAMES:
         return _nan_rates(f"{len(frames)} reconstructed frames: filling rates need >= {MIN_FRAMES}")
     times = [model.study.frame_times_ms.get(f) for f in frames]
     if any(x is None for x in times):
         return _nan_rates("frames without trigger times: filling rates not measured")
-    vols = [model.lv_cavity_volume(f) for f in frames]
+    vols = [model.consistent_lv_cavity_volume(f) if hasattr(model, "consistent_lv_cavity_volume")
+            else model.lv_cavity_volume(f) for f in frames]
     hr = model.study.heart_rate_bpm
     rr = 60000.0 / hr if hr else None
     return filling_rates(times, vols, frames.index(model.ed_frame), frames.index(model.es_frame), rr)

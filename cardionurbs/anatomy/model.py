@@ -21,6 +21,7 @@ import numpy as np
 
 from cardionurbs import nurbs
 from cardionurbs.anatomy import mesh as meshing
+from cardionurbs.anatomy.cycle import CycleCheck, check_curve, interpolate
 from cardionurbs.anatomy.mesh import Plane
 from cardionurbs.anatomy.outflow import OutflowTract, outflow_tracts, tract_solid
 from cardionurbs.anatomy.sections import (MYO_CONSERVED_BOUND, SURFACES, FrameGeometry, Section,
@@ -30,6 +31,7 @@ from cardionurbs.anatomy.refine import refine_surface
 from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface, free_wall_points
 from cardionurbs.errors import CardioNurbsError, ReconstructionError
 from cardionurbs.geometry import long_axis, polygon_centroid
+from cardionurbs.io.modelfile import unpack
 from cardionurbs.median import median
 from cardionurbs.study import Study
 
@@ -146,6 +148,9 @@ class BiventricularModel:
                  jobs: int | None = 1) -> None:
         self.study = study
         self.frames = list(frames)
+        #: the frames of the volume curve: :attr:`frames` and those whose LV cavity could not
+        #: be built (their volumes come from their neighbours, :mod:`cardionurbs.anatomy.cycle`)
+        self.curve_frames = list(frames)
         self.tol_px = float(tol_px)
         self.refine, self.anchor_weight = bool(refine), float(anchor_weight)
         self.warnings = list(warnings or [])
@@ -154,6 +159,7 @@ class BiventricularModel:
         self._solid_cache: dict[tuple[int, str], object] = {}
         self._fits: dict[tuple[int, str], SurfaceFit] = {}
         self._clipped_ml: dict[int, float] = {}     # lv_cavity_volume of frames without solids
+        self._contour_counts: dict[int, int] = {}   # LV endocardial contours of a worker's frames
         self._warned: set[tuple] = set()    # (frame, what) whose warnings a worker process gave
         self.geometry = LazyFrames(self.frames, self._frame_geometry)
         if surfaces is None:          # reconstruct lazily from the study
@@ -171,6 +177,36 @@ class BiventricularModel:
             LazyFrames(self.frames, lambda f: dict((outflow or {}).get(f, {})))
         self.volumes = LazyFrames(self.frames, lambda f: {
             k: meshing.volume_ml(m) for k, m in self.solids(f).items()})
+        ed, es = self._choose_ed_es(study, ed_es, jobs, progress)
+        self.ed_frame, self.es_frame = ed, es
+        for f in getattr(self, "cycle", CycleCheck({}, {})).supported:
+            self.warnings.append(self.cycle.describe(f))
+        if ed == es:
+            self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, so SV, EF and the "
+                                 "other ED-to-ES metrics are null")
+        self.base_shift_mm: dict[int, float] = {}
+        if surfaces is None and ed != es:
+            self._conserve_myocardium(ed, es)
+
+    # ------------------------------------------------------------- ED and ES
+    def _choose_ed_es(self, study: Study, ed_es: tuple[int, int] | None, jobs: int | None,
+                      progress) -> tuple[int, int]:
+        """ED and ES frames (docs/metrics.md, Frames): given, labelled, or from the volume curve.
+
+        Parameters
+        ----------
+        study : Study
+        ed_es : (int, int) or None
+            Frames known beforehand (a deserialised model), used as they are.
+        jobs, progress
+            As for the constructor: the per-frame LV cavities of the ED/ES search.
+
+        Returns
+        -------
+        (int, int)
+            The ED and ES frame indices. Sets :attr:`lv_volume_by_frame` and :attr:`cycle`
+            (:mod:`cardionurbs.anatomy.cycle`) when the volume curve was searched.
+        """
         labels = (study.ed_frame, study.es_frame)
         if ed_es is None and len(self.frames) == 2 and set(labels) == set(self.frames):
             ed_es = labels                # docs/metrics.md: two contoured frames, the labels win
@@ -181,24 +217,22 @@ class BiventricularModel:
             ed, es = int(ed_es[0]), int(ed_es[1])
         else:
             if isinstance(self.surfaces, LazyFrames):
-                lv = self._unrefined_cavity_volumes(jobs, progress)
+                lv = self._corrected_cavity_volumes(self._unrefined_cavity_volumes(jobs, progress))
             else:
                 lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
-            self.lv_volume_by_frame = lv      # the per-frame LV cavity volumes (mL) ED/ES came from
-            ed, es = ed_es_frames(lv, study.ed_frame, study.es_frame)
+            self.lv_volume_by_frame = lv      # the per-frame LV cavity volumes (mL), raw
+            self.cycle = check_curve(lv, contours=self._lv_contour_counts(lv))
+            failed = [f for f, v in lv.items() if not math.isfinite(v)]
+            if failed:
+                self._drop_frames(failed)
+            ed, es = ed_es_frames({f: self.cycle.consistent[f] for f in self.frames},
+                                  study.ed_frame, study.es_frame)
             if "ED" in given and study.ed_frame in lv:      # one frame named by the user
                 ed = int(study.ed_frame)
             if "ES" in given and study.es_frame in lv:
                 es = int(study.es_frame)
-        self.ed_frame, self.es_frame = ed, es
-        if ed == es:
-            self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, so SV, EF and the "
-                                 "other ED-to-ES metrics are null")
-        self.base_shift_mm: dict[int, float] = {}
-        if surfaces is None and ed != es:
-            self._conserve_myocardium(ed, es)
+        return ed, es
 
-    # ------------------------------------------------------------- ED and ES
     def _unrefined_cavity_volumes(self, jobs: int | None = 1, progress=None) -> dict[int, float]:
         """Every frame's :meth:`lv_cavity_volume_unrefined` (mL), which ED and ES are found
         with; ``progress(k, n)`` after each frame.
@@ -218,14 +252,16 @@ class BiventricularModel:
         if worker_count(jobs, n) == 0:
             lv = {}
             for k, f in enumerate(self.frames):
-                lv[f] = self.lv_cavity_volume_unrefined(f)
+                lv[f] = self._unrefined_or_nan(f)
                 if progress is not None:
                     progress(k + 1, n)
             return lv
 
         def frame_volumes(f: int) -> dict:
             n_warnings = len(self.warnings)
-            out = {"unrefined": self.lv_cavity_volume_unrefined(f)}
+            out = {"unrefined": self._unrefined_or_nan(f)}
+            if f in self.geometry.computed:
+                out["contours"] = self._lv_contour_count(f)
             try:
                 out["refined"] = self._clipped_cavity_ml(f, self._surface(f, "lv_endo"))
             except CardioNurbsError:
@@ -245,9 +281,93 @@ class BiventricularModel:
             lv[f] = r["unrefined"]
             if "refined" in r:
                 self._clipped_ml[f] = r["refined"]
+            if "contours" in r:
+                self._contour_counts[f] = r["contours"]
             self.warnings += r["warnings"]
             self._warned |= {(f, "geometry"), (f, "lv_endo", False)}
         return lv
+
+    def _unrefined_or_nan(self, frame: int) -> float:
+        """:meth:`lv_cavity_volume_unrefined`, NaN with a warning when the frame's LV
+        endocardium cannot be built (its neighbours then support it, :mod:`.cycle`)."""
+        try:
+            return self.lv_cavity_volume_unrefined(frame)
+        except ReconstructionError as exc:
+            self.warnings.append(f"frame {frame}: LV cavity cannot be built ({exc}); the frame "
+                                 "is left out of the model")
+            return math.nan
+
+    def _lv_contour_counts(self, lv: dict[int, float]) -> dict[int, int]:
+        """Per built frame, the SA sections and LA contours its LV endocardium comes from
+        (the evidence of an incomplete frame, :func:`cardionurbs.anatomy.cycle.check_curve`)."""
+        return {f: (self._contour_counts[f] if f in self._contour_counts
+                    else self._lv_contour_count(f)) for f, v in lv.items() if math.isfinite(v)}
+
+    def _lv_contour_count(self, frame: int) -> int:
+        """SA sections + LA contours of one frame's LV endocardium, negative when a contour
+        of it was left out (a partial tracing): such a frame counts as incomplete."""
+        geo = self.geometry[frame]
+        n = len(geo.sections.get("lv_endo") or []) + len(geo.la_points.get("lv_endo") or [])
+        return -n if any(s == "lv_endo" for s, _, _ in geo.left_out) else n
+
+    def _drop_frames(self, frames: list[int]) -> None:
+        """Leave out of the model the frames whose LV cavity cannot be built (they stay on
+        the volume curve, :attr:`curve_frames`, supported by their neighbours)."""
+        if len(frames) == len(self.frames):
+            raise ReconstructionError(f"study {self.study.subject}: no frame's LV cavity can be "
+                                      f"built ({self.warnings[-1] if self.warnings else ''})")
+        self.frames = [f for f in self.frames if f not in frames]
+        for lazy in vars(self).values():
+            if isinstance(lazy, LazyFrames):
+                lazy._frames = [f for f in lazy._frames if f not in frames]
+                for f in frames:
+                    lazy._cache.pop(f, None)
+
+    def _corrected_cavity_volumes(self, unrefined: dict[int, float]) -> dict[int, float]:
+        """Every frame's LA-corrected LV cavity volume (mL; what the volume curve reports,
+        :meth:`lv_cavity_volume`), the unrefined one where the correction fails."""
+        lv = {}
+        for f in self.frames:
+            if not math.isfinite(unrefined[f]):
+                lv[f] = unrefined[f]
+                continue
+            if f not in self._clipped_ml:
+                try:
+                    self._clipped_ml[f] = self._clipped_cavity_ml(f, self._surface(f, "lv_endo"))
+                except CardioNurbsError:
+                    lv[f] = unrefined[f]
+                    continue
+            lv[f] = self._clipped_ml[f]
+        return lv
+
+    @property
+    def supported(self) -> dict[int, list[int]]:
+        """Frames whose volumes come from their neighbours (:mod:`cardionurbs.anatomy.cycle`):
+        frame -> the frames they are interpolated from; {} for a model read back."""
+        cycle = getattr(self, "cycle", None)
+        return dict(cycle.supported) if cycle is not None else {}
+
+    def consistent_volumes(self, frame: int) -> dict[str, float]:
+        """The volumes (mL, keyed like :attr:`volumes`) the metrics use at one frame: its own,
+        or for a supported frame those of its nearest trusted neighbour on each side
+        interpolated linearly to it (:func:`cardionurbs.anatomy.cycle.interpolate`: two
+        frames' solids, not four), the LV cavity from the checked curve (the cubic)."""
+        src = self.supported.get(frame)
+        if src is None:
+            return dict(self.volumes[frame]) if frame in self.frames else {}
+        near = src[1:3]             # the nearest trusted frame on each side: linear in time
+        keys = set().union(*(self.volumes[g] for g in near))
+        curve = self.curve_frames
+        out = {k: interpolate({g: self.volumes[g].get(k, math.nan) for g in near}, curve,
+                              near, frame, self.cycle.cyclic) for k in sorted(keys)}
+        out["lv_cavity"] = self.cycle.consistent[frame]
+        return {k: v for k, v in out.items() if math.isfinite(v)}
+
+    def consistent_lv_cavity_volume(self, frame: int) -> float:
+        """:meth:`lv_cavity_volume`, or the checked curve's value at a supported frame (mL)."""
+        if frame in self.supported:
+            return self.cycle.consistent[frame]
+        return self.lv_cavity_volume(frame) if frame in self.frames else math.nan
 
     # ------------------------------------------------------------- lazy construction
     def _frame_geometry(self, frame: int) -> FrameGeometry:
@@ -733,8 +853,10 @@ class BiventricularModel:
     @classmethod
     def from_dict(cls, d: dict, study: Study | None = None) -> "BiventricularModel":
         """Inverse of :meth:`to_dict` (the Study is reduced to subject, heart rate,
-        ED/ES labels and the apex/mitral landmarks unless ``study`` is given)."""
+        ED/ES labels and the apex/mitral landmarks unless ``study`` is given); also reads
+        the compact version-2 dict of a model.json (:mod:`cardionurbs.io.modelfile`)."""
         from cardionurbs.study import Landmark
+        d = unpack(d)
         if study is None:
             study = Study(subject=d["subject"], heart_rate_bpm=d.get("heart_rate_bpm"),
                           ed_frame=d.get("ed_frame"), es_frame=d.get("es_frame"),

@@ -453,44 +453,111 @@ def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.n
         by_slice.setdefault(c.slice, {}).setdefault(c.structure, []).append(weighted_part(c))
     for sl, d in by_slice.items():
         sept = [c.points for c in d.get("rv_septum", [])]
-        for s in ("lv_endo", "lv_epi"):
-            for c in d.get(s, []):
-                if len(c.points) < 5:
-                    continue
-                if s == "lv_epi" and sept and is_open_arc(c.points):
-                    # CAP convention: the LV epicardium is traced over the free wall only;
-                    # across the septum it is the RV septal endocardium
-                    parts = [c.points] + sept
-                    out[s].append((sl, join_open_parts(parts), np.concatenate(parts)))
-                    continue
-                out[s].append((sl, order_closed(c.points) if c.closed else order_open(c.points),
-                               c.points))
-        fw = [c.points for c in d.get("rv_freewall", [])]
-        rv_whole = [c for c in d.get("rv_endo", []) if len(c.points) >= 5]
-        if rv_whole:
-            # an undivided RV endocardial trace (closed, or open but round the whole cavity)
-            for c in rv_whole:
-                out["rv_endo"].append((sl, order_closed(c.points), c.points))
-        elif fw:
-            parts = fw + sept
-            pts = np.concatenate(parts)
-            if len(pts) >= 5:
-                out["rv_endo"].append((sl, join_open_parts(parts), pts))
-        open_epi = [c for c in d.get("rv_epi", []) if not c.closed]
-        if open_epi and not sept and rv_whole and d.get("lv_epi"):
-            # the septal part of an undivided RV endocardium, by its contact with the LV
-            # epicardium, closes an open RV epicardial trace
-            sept = septal_parts(np.concatenate([c.points for c in rv_whole]),
-                                d["lv_epi"][0].points)
-        if "rv_outlet" in d and not (rv_whole or fw or sept):
-            continue      # an outlet-only slice: its RV epicardium is the RVOT's (anatomy.outflow)
-        for c in d.get("rv_epi", []):
-            if c.closed:
-                out["rv_epi"].append((sl, order_closed(c.points), c.points))
-            elif sept:
-                out["rv_epi"].append((sl, join_open_parts([c.points] + sept),
-                                      np.concatenate([c.points] + sept)))
+        _lv_slice_loops(sl, d, sept, out)
+        rv_whole, fw = _rv_endo_slice_loops(sl, d, sept, out)
+        _rv_epi_slice_loops(sl, d, sept, rv_whole, fw, out)
     return out
+
+
+_Loops = dict[str, list[tuple[str | None, np.ndarray, np.ndarray]]]
+
+
+def _lv_slice_loops(sl: str, d: dict[str, list[Contour]], sept: list[np.ndarray],
+                    out: _Loops) -> None:
+    """One SA slice's LV endo- and epicardial loops into ``out`` (:func:`_sa_loops`)."""
+    for s in ("lv_endo", "lv_epi"):
+        for c in d.get(s, []):
+            if len(c.points) < 5:
+                continue
+            if s == "lv_epi" and sept and is_open_arc(c.points):
+                # CAP convention: the LV epicardium is traced over the free wall only;
+                # across the septum it is the RV septal endocardium
+                parts = [c.points] + sept
+                out[s].append((sl, join_open_parts(parts), np.concatenate(parts)))
+                continue
+            endo = [e.points for e in d.get("lv_endo", []) if len(e.points) >= 5]
+            if s == "lv_epi" and not sept and endo and is_open_arc(c.points):
+                # ... and without a septal trace: the septum as thick as the free wall
+                across = septum_from_endocardium(c.points, endo[0])
+                if across is not None:
+                    out[s].append((sl, join_open_parts([c.points, across]), c.points))
+                    continue
+            out[s].append((sl, order_closed(c.points) if c.closed else order_open(c.points),
+                           c.points))
+
+
+def _rv_endo_slice_loops(sl: str, d: dict[str, list[Contour]], sept: list[np.ndarray],
+                         out: _Loops) -> tuple[list[Contour], list[np.ndarray]]:
+    """One SA slice's RV endocardial loop into ``out``; returns its undivided RV endocardial
+    traces and its free-wall parts (:func:`_sa_loops`)."""
+    fw = [c.points for c in d.get("rv_freewall", [])]
+    rv_whole = [c for c in d.get("rv_endo", []) if len(c.points) >= 5]
+    if rv_whole:
+        # an undivided RV endocardial trace (closed, or open but round the whole cavity)
+        for c in rv_whole:
+            out["rv_endo"].append((sl, order_closed(c.points), c.points))
+    elif fw:
+        parts = fw + sept
+        pts = np.concatenate(parts)
+        if len(pts) >= 5:
+            out["rv_endo"].append((sl, join_open_parts(parts), pts))
+    return rv_whole, fw
+
+
+def _rv_epi_slice_loops(sl: str, d: dict[str, list[Contour]], sept: list[np.ndarray],
+                        rv_whole: list[Contour], fw: list[np.ndarray], out: _Loops) -> None:
+    """One SA slice's RV epicardial loops into ``out`` (:func:`_sa_loops`)."""
+    open_epi = [c for c in d.get("rv_epi", []) if not c.closed]
+    if open_epi and not sept and rv_whole and d.get("lv_epi"):
+        # the septal part of an undivided RV endocardium, by its contact with the LV
+        # epicardium, closes an open RV epicardial trace
+        sept = septal_parts(np.concatenate([c.points for c in rv_whole]),
+                            d["lv_epi"][0].points)
+    if "rv_outlet" in d and not (rv_whole or fw or sept):
+        return      # an outlet-only slice: its RV epicardium is the RVOT's (anatomy.outflow)
+    for c in d.get("rv_epi", []):
+        if c.closed:
+            out["rv_epi"].append((sl, order_closed(c.points), c.points))
+        elif sept:
+            out["rv_epi"].append((sl, join_open_parts([c.points] + sept),
+                                  np.concatenate([c.points] + sept)))
+        elif d.get("lv_epi") and len(c.points) >= 5:
+            # no septal trace: closed by its chord between the RV insertions, which
+            # lies inside the (convex) LV epicardium the RV myocardium boolean removes
+            out["rv_epi"].append((sl, order_open(c.points), c.points))
+
+
+def septum_from_endocardium(arc: np.ndarray, lv_endo: np.ndarray) -> np.ndarray | None:
+    """The septal run of an LV epicardium traced over the free wall only (``arc``), for a
+    slice without an RV septal trace: the LV endocardium's septal part moved outwards by
+    the free wall's median thickness, in polar coordinates about the endocardium's
+    centroid, sampled at the arc's point spacing across its angular gap (mm, (k, 3));
+    None when the arc covers no clear gap."""
+    c, n = fit_plane(lv_endo)
+    b = in_plane_basis(n)
+    c = polygon_centroid(lv_endo, n)
+    ea = (lv_endo - c) @ b.T
+    aa = (arc - c) @ b.T
+    th_e, r_e = np.arctan2(ea[:, 1], ea[:, 0]), np.hypot(ea[:, 0], ea[:, 1])
+    th_a, r_a = np.arctan2(aa[:, 1], aa[:, 0]), np.hypot(aa[:, 0], aa[:, 1])
+    order = np.argsort(th_e)
+    te, re = th_e[order], r_e[order]
+    te, re = np.r_[te - 2 * np.pi, te, te + 2 * np.pi], np.r_[re, re, re]
+
+    def endo_r(t):
+        return np.interp(np.mod(t + np.pi, 2 * np.pi) - np.pi, te, re)
+    thick = float(np.median(r_a - endo_r(th_a)))
+    sa = np.sort(th_a)
+    gaps = np.diff(np.r_[sa, sa[0] + 2 * np.pi])
+    k = int(np.argmax(gaps))
+    if thick <= 0 or gaps[k] < np.pi / 6:
+        return None
+    step = float(np.median(np.linalg.norm(np.diff(arc, axis=0), axis=1)))
+    mean_r = float(np.median(r_a))
+    m = max(int(gaps[k] * mean_r / max(step, 1e-6)) - 1, 2)
+    t = sa[k] + gaps[k] * np.arange(1, m + 1) / (m + 1)
+    r = endo_r(t) + thick
+    return c + np.column_stack([r * np.cos(t), r * np.sin(t)]) @ b
 
 
 def septal_parts(rv_points: np.ndarray, lv_epi: np.ndarray, near_mm: float = 1.0

@@ -39,7 +39,7 @@ from pydicom.errors import InvalidDicomError
 
 from cardionurbs.errors import StudyError, UnsupportedInputError
 from cardionurbs.geometry import slice_spacing, stack_normal
-from cardionurbs.confine import files_inside
+from cardionurbs.confine import checked, files_inside
 from cardionurbs.safe import excerpt
 from cardionurbs.imaging import phases, stack
 from cardionurbs.imaging.geometry import ImagePlane
@@ -129,6 +129,7 @@ def _opt_number(ds, keyword: str, path: Path) -> float | None:
 
 
 def _dcmread(path: Path, pixels: bool):
+    checked(path, what="DICOM file")
     try:
         with _quiet_pydicom():
             return pydicom.dcmread(path, stop_before_pixels=not pixels)
@@ -145,6 +146,7 @@ def _dcmread(path: Path, pixels: bool):
 
 def _dcmread_header(path: Path):
     """(dataset without pixel data, file offset of the PixelData element or None)."""
+    checked(path, what="DICOM file")
     try:
         with open(path, "rb") as f:
             with _quiet_pydicom():

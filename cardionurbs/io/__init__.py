@@ -97,8 +97,9 @@ def load_study(path: str | Path, format: str = "auto", *, allow_outside: bool = 
     ``ed_frame``/``es_frame`` (NIfTI only) give ED and ES frame indices (0-based).
     """
     from cardionurbs.confine import allow_outside as _allow
+    from cardionurbs.confine import study_root
 
-    with _allow(allow_outside):
+    with _allow(allow_outside), study_root(path):
         return _load_study(path, format, labels=labels, ed_frame=ed_frame, es_frame=es_frame)
 
 

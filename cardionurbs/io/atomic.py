@@ -20,9 +20,69 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-#: file that marks a folder as an output cardionurbs wrote (see cardionurbs.io.outputs)
+#: file that marks a folder as an output cardionurbs wrote (analyze, track, demo, ...):
+#: JSON listing the files it wrote (see cardionurbs.io.outputs)
 MARKER = ".cardionurbs-output"
+#: the marker of a *study* cardionurbs generated (phantom): no output command replaces it
+STUDY_MARKER = ".cardionurbs-study"
+MARKERS = (MARKER, STUDY_MARKER)
 MARKER_TEXT = "This folder was written by cardionurbs; --overwrite may replace it whole.\n"
+
+
+def write_marker(folder: str | os.PathLike, marker: str = MARKER, *,
+                 trees: tuple[str, ...] | list[str] = ()) -> Path:
+    """Write ``marker`` into ``folder``: JSON naming the files cardionurbs wrote there
+    (every regular file now under ``folder``, sorted, POSIX relative paths) and the
+    ``trees`` (subfolders) it owns whole; the same content gives the same bytes.
+
+    Parameters
+    ----------
+    folder : path-like
+        The output (or temporary) folder, complete.
+    marker : str
+        :data:`MARKER` for outputs, :data:`STUDY_MARKER` for generated studies.
+    trees : sequence of str
+        Subfolder names written whole (e.g. the subjects of a phantom cohort).
+
+    Returns
+    -------
+    Path
+        The marker file."""
+    import json
+    folder = Path(folder)
+    files = sorted(rel for rel in _tree_files(folder) if rel not in MARKERS)
+    doc = {"written_by": "cardionurbs", "kind": "study" if marker == STUDY_MARKER else "output",
+           "files": files, "trees": sorted(trees)}
+    path = folder / marker
+    path.write_text(json.dumps(doc, indent=0) + "\n", encoding="utf-8")
+    return path
+
+
+def _tree_files(folder: Path) -> list[str]:
+    """Every non-folder entry under ``folder`` (links not followed), as POSIX relative paths."""
+    out = []
+    for dirpath, dirnames, filenames in os.walk(folder):
+        base = Path(dirpath).relative_to(folder)
+        out += [(base / n).as_posix() for n in filenames]
+        out += [(base / n).as_posix() for n in dirnames if os.path.islink(os.path.join(dirpath, n))]
+    return out
+
+
+def read_marker(folder: str | os.PathLike) -> tuple[str | None, dict | None]:
+    """(the marker's name, its manifest) of ``folder``: (None, None) without a marker, the
+    name and None for a marker without a readable manifest (an older cardionurbs)."""
+    import json
+    for name in MARKERS:
+        path = Path(folder) / name
+        if path.is_file() and not path.is_symlink():
+            try:
+                doc = json.loads(path.read_text(encoding="utf-8"))
+            except (OSError, UnicodeDecodeError, ValueError):
+                return name, None
+            ok = (isinstance(doc, dict) and isinstance(doc.get("files"), list)
+                  and isinstance(doc.get("trees", []), list))
+            return name, doc if ok else None
+    return None, None
 
 _umask_lock = threading.Lock()
 
@@ -84,7 +144,7 @@ def remove_stale_temporaries(path: str | os.PathLike) -> list[Path]:
         if q.is_symlink():
             continue
         if q.is_dir():
-            if not (q / MARKER).is_file():
+            if not any((q / m).is_file() for m in MARKERS):
                 continue
             if e.name.endswith(".old") and not path.exists():
                 os.replace(q, path)             # the previous output, put back
@@ -100,16 +160,16 @@ def _chmod_umask(path: Path, base: int) -> None:
     os.chmod(path, base & ~current_umask())
 
 
-def sibling_temporary_dir(path: str | os.PathLike) -> Path:
+def sibling_temporary_dir(path: str | os.PathLike, marker: str = MARKER) -> Path:
     """A new temporary folder beside ``path``, named and marked as :func:`atomic_dir`'s (so
     that :func:`remove_stale_temporaries` removes it when its process was killed); the
-    caller removes it, or renames it into place after deleting :data:`MARKER` from it."""
+    caller removes it, or renames it into place after deleting ``marker`` from it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=_prefix(path), suffix=".tmp", dir=path.parent))
     try:
         _chmod_umask(tmp, 0o777)
-        (tmp / MARKER).write_text(MARKER_TEXT, encoding="utf-8")
+        (tmp / marker).write_text(MARKER_TEXT, encoding="utf-8")
     except BaseException:             # unmarked, it would not be recognised as debris later
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -169,21 +229,23 @@ def _exchange(a: Path, b: Path) -> bool:
 
 
 @contextmanager
-def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
+def atomic_dir(path: str | os.PathLike, marker: str = MARKER) -> Iterator[Path]:
     """Yield a temporary folder beside ``path``; on success it replaces ``path``.
 
     Used for whole outputs (a phantom study, an analysis folder) so that a
     failure or an interrupt leaves no half-written folder behind and the
-    previous content intact. The marker :data:`MARKER` is written first, so the
-    result (and any debris of a killed run) is recognisable as cardionurbs
-    output. An existing ``path`` is swapped with the new content in one atomic
+    previous content intact. The marker (:data:`MARKER`, or :data:`STUDY_MARKER` for a
+    generated study) is written first, so the result (and any debris of a killed run)
+    is recognisable as cardionurbs output, and rewritten at the end with the list of
+    files written (:func:`write_marker`), which is all ``--overwrite`` may replace. An existing ``path`` is swapped with the new content in one atomic
     step where the system allows (Linux ``renameat2``), else renamed aside just
     before; callers check ``path`` first (:func:`cardionurbs.io.outputs.check_output_dir`).
     """
     path = Path(path)
-    tmp = sibling_temporary_dir(path)
+    tmp = sibling_temporary_dir(path, marker)
     try:
         yield tmp
+        write_marker(tmp, marker)
         if path.exists():
             if _exchange(tmp, path):
                 shutil.rmtree(tmp, ignore_errors=True)   # now holds the previous output

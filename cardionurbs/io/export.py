@@ -36,10 +36,43 @@ def mesh_format(path: str | os.PathLike) -> str:
 def export_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike) -> Path:
     """Write one mesh (scanner mm) to ``path`` in the format its extension names."""
     fmt = mesh_format(path)
+    import numpy as np
+    import trimesh as _tm
+    v, f = canonical_order(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    mesh = _tm.Trimesh(v, f, process=False)          # the same bytes whatever the build order
     data = mesh.export(file_type=fmt)
     if isinstance(data, str):
         data = data.encode("utf-8")
     return atomic.write_bytes(path, data)
+
+
+def canonical_order(v, f):
+    """The same mesh in one order whatever order it was built in (so the same surfaces give
+    the same bytes, whatever ``--jobs`` or the boolean engine's threads did): vertices
+    sorted by (x, y, z), each face rotated to start at its smallest vertex index (its
+    orientation kept), faces sorted.
+
+    Parameters
+    ----------
+    v : (n, 3) float array
+        Vertices, mm.
+    f : (m, 3) int array
+        Triangles as vertex indices.
+
+    Returns
+    -------
+    (v, f)
+        Reordered copies."""
+    import numpy as np
+    order = np.lexsort((v[:, 2], v[:, 1], v[:, 0]))
+    rank = np.empty(len(v), dtype=np.int64)
+    rank[order] = np.arange(len(v))
+    f = rank[f] if len(f) else f.astype(np.int64)
+    if len(f):
+        k = f.argmin(axis=1)[:, None]
+        f = np.take_along_axis(f, (k + np.arange(3)) % 3, axis=1)
+        f = f[np.lexsort((f[:, 2], f[:, 1], f[:, 0]))]
+    return v[order], f
 
 
 def write_ply(vertices, faces, path: str | os.PathLike) -> Path:
@@ -55,6 +88,7 @@ def write_ply(vertices, faces, path: str | os.PathLike) -> Path:
     f = np.asarray(faces).reshape(-1, 3)
     if len(f) and (f.min() < 0 or f.max() >= len(v)):
         raise ExportError(f"{path}: face indices outside the {len(v)} vertices")
+    v, f = canonical_order(v, f)
     rec = np.empty(len(f), dtype=[("n", "u1"), ("i", "<i4", (3,))])
     rec["n"] = 3
     rec["i"] = f

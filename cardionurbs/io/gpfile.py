@@ -26,7 +26,10 @@ not. With ``timeFrame`` numbers, every GPFile frame must be listed (0- or
 1-based). :func:`write_study` writes a study back in the style it was read in
 (byte-identical for an unchanged study), or in the style asked for.
 
-Mapping to the Study vocabulary (view from the ``SAX_``/``LAX_`` prefix):
+Mapping to the Study vocabulary. A contour's slice and view are those of the slice plane
+its points lie on (median distance <= ``ON_PLANE_MM``), whatever its ``SAX_``/``LAX_``
+prefix or frameID say: each disagreement is one warning naming file, lines, label and
+slice, and points on no slice plane are refused (:func:`_placed`):
 
 ==============================  ===================  ==============================
 GPFile type                      Study                closed
@@ -86,7 +89,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cardionurbs.confine import files_inside, study_file
+from cardionurbs.confine import checked, files_inside, study_file
 from cardionurbs.errors import StudyError
 from cardionurbs.geometry import stack_normal
 from cardionurbs.safe import excerpt
@@ -175,7 +178,7 @@ def read_slice_info(path: str | Path) -> list[dict]:
     path = Path(path)
     if not path.is_file():
         raise StudyError("SliceInfoFile.txt is missing", file=path)
-    text = path.read_text(encoding="utf-8", errors="replace")
+    text = checked(path, what="SliceInfoFile").read_text(encoding="utf-8", errors="replace")
     out: dict[int, dict] = {}
     order, labels, seps = [], [], []
     for k, line in enumerate(text.splitlines(), start=1):
@@ -287,7 +290,7 @@ def read_gp_table(path: str | Path) -> tuple[dict[str, np.ndarray], str, int | N
     A plain file (ASCII, tab-separated, 7 fields on every line, every number an ordinary
     decimal) is split and converted by numpy (:func:`_plain_rows`); any other is read by
     pandas, whose reader and messages define what is accepted and how it is reported."""
-    path = Path(path)
+    path = checked(path, what="GPFile")
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
@@ -463,6 +466,7 @@ def read_study(path: str | Path) -> Study:
             i = int(np.flatnonzero(w < 0)[0])
             raise StudyError(f"line {t['line'][i]}: weight must be >= 0, got "
                              f"{t['weight'][i]!r}", file=f, field="weight")
+        check_gp_values(t, f, max(fr for fr, _ in files))
         tables.append(t)
     planes, names, views, rule = _slice_planes(slices, tables, folder)
     frames = [fr for fr, _ in files]
@@ -476,10 +480,11 @@ def read_study(path: str | Path) -> Study:
     contours: list[Contour] = []
     landmarks: list[Landmark] = []
     frame_meta = {}
+    warnings: list[str] = []
     for (frame, f), t in zip(files, tables):
-        blocks, runs = _read_blocks(t, frame, f, names, views, contours, landmarks)
+        blocks, runs = _read_blocks(t, frame, f, names, views, contours, landmarks, planes,
+                                    warnings)
         frame_meta[str(frame)] = {"file": f.name, "blocks": blocks, "runs": runs}
-    warnings = []
     other = Counter(c.structure for c in contours if not c.ventricular)
     if other:
         counts = ", ".join(f"{k} x{v}" for k, v in sorted(other.items()))
@@ -576,10 +581,46 @@ def is_loop(points: np.ndarray, gap_steps: float = LOOP_GAP_STEPS) -> bool:
     return len(self_intersections(in_plane_coordinates(points), True)) == 0
 
 
+#: contour points farther than this (median) from a slice plane do not lie on it, mm
+ON_PLANE_MM = 1.0
+
+
+def _placed(pts: np.ndarray, sid: int, gp_type: str, planes: dict, names: dict, views: dict,
+            f: Path, lines: np.ndarray, warnings: list[str]) -> int:
+    """The slice whose plane a contour's points lie on (median distance <= ON_PLANE_MM):
+    its frameID's, else the nearest other; a warning when that slice or its view is not
+    what the file says (the SAX_/LAX_ prefix), a StudyError when no plane holds them."""
+    where = f"lines {lines[0]}-{lines[-1]}" if len(lines) > 1 else f"line {lines[0]}"
+
+    def off(i: int) -> float:
+        return float(np.median(np.abs(planes[i].distance_to_plane(pts))))
+    placed = sid
+    if off(sid) > ON_PLANE_MM:
+        dist = {i: off(i) for i in planes}
+        placed = min(dist, key=dist.get)
+        if dist[placed] > ON_PLANE_MM:
+            raise StudyError(f"{where}: {gp_type} points lie on no slice plane of {SLICE_INFO} "
+                             f"({off(sid):.1f} mm from slice {sid}, their frameID; nearest plane "
+                             f"{dist[placed]:.1f} mm away, slice {placed})", file=f,
+                             field="frameID")
+    label = VIEW_PREFIX.get(gp_type.partition("_")[0])
+    if placed != sid or (label is not None and label != views[placed]):
+        axis = {"SA": "short", "LA": "long"}[views[placed]]
+        moved = f" (frameID {sid}: {off(sid):.1f} mm off that plane)" if placed != sid else ""
+        warnings.append(f"{f}: {where}: {gp_type} lies on slice {placed} ({names[placed]}), a "
+                        f"{axis}-axis slice by its geometry{moved}: used as {views[placed]} "
+                        "(the slice geometry wins over the label)")
+    return placed
+
+
 def _read_blocks(t: dict[str, np.ndarray], frame: int, f: Path, names: dict, views: dict,
-                 contours: list, landmarks: list):
+                 contours: list, landmarks: list, planes: dict | None = None,
+                 warnings: list[str] | None = None):
     """Contours and landmarks of one frame's rows (:func:`read_gp_table`), in file order;
-    the block order and the (weight, time frame) runs for write-back."""
+    the block order and the (weight, time frame) runs for write-back. A contour's slice
+    and view are those of the plane its points lie on (:func:`_placed`; ``planes``: slice
+    id -> ImagePlane), its disagreements with the file told in ``warnings``."""
+    warnings = [] if warnings is None else warnings
     types = t["type"]
     sids = t["slice_id"]
     n = len(types)
@@ -608,6 +649,11 @@ def _read_blocks(t: dict[str, np.ndarray], frame: int, f: Path, names: dict, vie
                 lm_count[(name, slice_id)] = n + 1
             continue
         kind = _contour_kind(gp_type)
+        if kind is not None and gp_type not in SINGLE_VIEW_TYPES:    # geometry over labels
+            sid = _placed(xyz[s:e], sid, gp_type, planes, names, views, f, lines[s:e], warnings)
+            slice_id, view = names[sid], views[sid]
+            image = f"{slice_id}_f{frame:03d}"
+            kind = (kind[0], view)
         if kind is None:
             raise StudyError(f"line {lines[s]}: unknown contour type {excerpt(gp_type)}; expected "
                              f"SAX_/LAX_ + {', '.join(CONTOUR_TYPES)}, "
@@ -643,6 +689,32 @@ def _read_blocks(t: dict[str, np.ndarray], frame: int, f: Path, names: dict, vie
         else:
             runs.append([1, str(w), str(tt)])
     return blocks, runs
+
+
+def check_gp_values(t: dict[str, np.ndarray], path: Path, last_frame: int) -> None:
+    """Values in range, before any arithmetic: |x|, |y|, |z| within
+    :data:`cardionurbs.limits.MAX_COORDINATE_MM`, and each ``time frame`` (when given) a
+    whole number from 0 to ``last_frame + 1`` (1-based exports). StudyError names the line
+    with a short excerpt of the value."""
+    from cardionurbs.limits import MAX_COORDINATE_MM
+    for col in ("x", "y", "z"):
+        far = np.abs(np.asarray(t[col], float)) > MAX_COORDINATE_MM
+        if far.any():
+            i = int(np.flatnonzero(far)[0])
+            raise StudyError(f"line {t['line'][i]}: {col} = {float(t[col][i]):.3g} mm lies past "
+                             f"{MAX_COORDINATE_MM:g} mm from the scanner origin", file=path,
+                             field=col)
+    import pandas as pd
+    text = np.char.strip(np.asarray(t["time"], dtype=str))
+    rows = np.flatnonzero(text != "")
+    v = pd.to_numeric(pd.Series(text[rows]), errors="coerce").to_numpy(float)
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.isfinite(v) & (v == np.round(v)) & (v >= 0) & (v <= last_frame + 1))
+    if bad.any():
+        i = int(rows[np.flatnonzero(bad)[0]])
+        raise StudyError(f"line {t['line'][i]}: time frame {excerpt(text[i])} is not a whole "
+                         f"number from 0 to {last_frame + 1} (the study's frames)",
+                         file=path, field="time frame")
 
 
 # ----------------------------------------------------------------------- writing
@@ -687,7 +759,11 @@ def write_study(study: Study, folder: str | Path, *, style: str | None = None,
     the study was read in (a study read from GPFiles), else ``sliceID``.
     ``vocabulary``: ``parts`` writes an ``rv_endo`` contour as RV_SEPTUM (points within
     0.5 mm of the LV epicardium of the same image) and RV_FREEWALL (the rest);
-    ``undivided`` writes it as one RV_ENDOCARDIAL trace. Slice geometry must be static
+    ``undivided`` writes it as one RV_ENDOCARDIAL trace. With ``parts`` the SA epicardial
+    contours leave out their septal run, as CAP and biv-me exports do (LV_EPICARDIAL over
+    the LV free wall, RV_EPICARDIAL over the RV free wall: :func:`_free_wall_epi`), so that
+    a study written here and fitted by biv-me is compared on equal terms; ``undivided``
+    writes them whole. Slice geometry must be static
     (one plane per slice). Tag lines have no GPFile type and are not written. Files are
     written atomically.
     """
@@ -829,6 +905,8 @@ def _frame_rows(study: Study, frame: int, fm: dict | None, slice_ids: dict, plan
     for c in study.contours_at(frame):
         if c.structure == "rv_endo" and vocabulary == "parts":
             out.extend(_split_rv_endo(study, c, slice_ids))
+        elif c.structure in ("lv_epi", "rv_epi") and c.view == "SA" and vocabulary == "parts":
+            out.extend(_free_wall_epi(study, c, slice_ids))
         else:
             out.append((c.points, _gp_type(c.structure, c.view), slice_ids[c.slice],
                         _weights(c, len(c.points))))
@@ -866,6 +944,32 @@ def _split_rv_endo(study: Study, c: Contour, slice_ids: dict):
         out.append((part_pts, _gp_type("rv_septum" if part_on[0] else "rv_freewall", c.view), sid,
                     part_w))
     return out
+
+
+def _free_wall_epi(study: Study, c: Contour, slice_ids: dict):
+    """An SA epicardial contour as CAP and biv-me trace it: over the free wall only. The
+    septal run is left out — of the LV epicardium the points on the RV endocardium of the
+    same image (within SEPTUM_TOL_MM), of the RV epicardium those on the LV epicardium —
+    and the rest written as one open run starting after the gap (the reader closes it
+    through the RV_SEPTUM trace, :func:`cardionurbs.anatomy.sections._sa_loops`)."""
+    kind = _gp_type(c.structure, c.view)
+    sid, w = slice_ids[c.slice], _weights(c, len(c.points))
+    other = "rv_endo" if c.structure == "lv_epi" else "lv_epi"
+    near = [o for o in study.contours_at(c.frame, other) if o.slice == c.slice]
+    if not near or len(c.points) < 5:
+        return [(c.points, kind, sid, w)]
+    d = np.min([_distance_to_polyline(c.points, o.points, o.closed) for o in near], axis=0)
+    on = d < max(SEPTUM_TOL_MM, 1e-3)
+    if not on.any() or on.all():
+        return [(c.points, kind, sid, w)]
+    keep = ~on
+    if c.closed:           # start at the first free-wall point after the septal run
+        start = int(np.flatnonzero(keep & np.roll(on, 1))[0])
+        order = np.roll(np.arange(len(keep)), -start)
+        order = order[keep[order]]
+    else:
+        order = np.flatnonzero(keep)
+    return [(c.points[order], kind, sid, w[order])]
 
 
 def _distance_to_polyline(points: np.ndarray, poly: np.ndarray, closed: bool) -> np.ndarray:

@@ -80,7 +80,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cardionurbs.confine import study_file
+from cardionurbs.confine import checked, study_file
 from cardionurbs.errors import StudyError
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.io import atomic
@@ -115,6 +115,7 @@ def is_native(path: str | Path) -> bool:
     manifest = p / MANIFEST if p.is_dir() else p
     if manifest.name != MANIFEST or not manifest.is_file():
         return False
+    checked(manifest, what="manifest")          # a study.json linked out: refused, not read
     try:
         return json.loads(manifest.read_text()).get("format") == FORMAT
     except (OSError, ValueError, AttributeError, RecursionError):
@@ -399,6 +400,24 @@ def _check_complete(points_path: Path, n_rows: int, expected_rows) -> str | None
     return None
 
 
+def _bounded_gunzip(path: Path) -> "io.BytesIO":
+    """The decompressed bytes of a gzip points file, read in chunks and refused past
+    :data:`cardionurbs.limits.MAX_DECOMPRESSED_BYTES` (a decompression bomb) before more is
+    allocated; a cut stream raises EOFError."""
+    import gzip
+    import io
+    from cardionurbs.limits import MAX_DECOMPRESSED_BYTES
+    out = io.BytesIO()
+    with gzip.open(path, "rb") as f:
+        while chunk := f.read(1 << 20):
+            out.write(chunk)
+            if out.tell() > MAX_DECOMPRESSED_BYTES:
+                raise StudyError(f"expands past {MAX_DECOMPRESSED_BYTES} bytes (the limit): a "
+                                 "gzip bomb?", file=path)
+    out.seek(0)
+    return out
+
+
 def _points_table(points_path: Path) -> pd.DataFrame:
     """The points file as a DataFrame (strings kept as written, empty coordinates NaN):
     Parquet when its name ends in ``.parquet``, else CSV (gzip-compressed when it ends in
@@ -407,12 +426,18 @@ def _points_table(points_path: Path) -> pd.DataFrame:
     if points_path.suffix.lower() == ".parquet":
         return _parquet_table(points_path)
     try:
-        return pd.read_csv(points_path, dtype={"kind": str, "name": str, "view": str, "slice": str,
+        source = _bounded_gunzip(points_path) if points_path.suffix.lower() == ".gz" \
+            else points_path
+        return pd.read_csv(source, dtype={"kind": str, "name": str, "view": str, "slice": str,
                                                "image": str, "closed": str},
                            keep_default_na=False, na_values={"x": [""], "y": [""], "z": [""],
                                                             "px": [""], "py": [""]})
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, ValueError) as exc:
-        raise StudyError(f"cannot parse CSV ({str(exc).splitlines()[0]})", file=points_path) from None
+        raise StudyError(f"cannot parse CSV ({excerpt(_first_line(exc), 120)})",
+                         file=points_path) from None
+    except (EOFError, OSError, zlib.error) as exc:     # a cut or corrupt gzip stream
+        raise StudyError(f"truncated or corrupt compressed file ({_first_line(exc)[:100]})",
+                         file=points_path) from None
 
 
 def _codes(column: pd.Series) -> tuple[np.ndarray, np.ndarray]:
@@ -561,12 +586,35 @@ def _first_line(exc: BaseException) -> str:
     return excerpt(text.splitlines()[0] if text else type(exc).__name__)
 
 
+def _check_closed(kinds, closed, starts, points_path: Path) -> None:
+    """A contour's ``closed`` is 1 or 0 (true/false accepted); anything else (``nan``, ``2``)
+    is refused naming the line, rather than read as closed."""
+    for k, (kind, c) in enumerate(zip(kinds, closed)):
+        v = str(c).strip().lower()
+        if kind == "contour" and v not in ("0", "1", "true", "false", "0.0", "1.0"):
+            raise StudyError(f"line {int(starts[k]) + 2}: closed must be 1 or 0, got "
+                             f"{excerpt(c)}", file=points_path, field="closed")
+
+
+def _check_coordinate_range(xyz: np.ndarray, points_path: Path) -> None:
+    """Refuse a coordinate past :data:`cardionurbs.limits.MAX_COORDINATE_MM` (before any
+    arithmetic on it: 1e308 squared overflows), naming its line with a short number."""
+    from cardionurbs.limits import MAX_COORDINATE_MM
+    with np.errstate(invalid="ignore"):
+        far = np.abs(xyz) > MAX_COORDINATE_MM
+    if far.any():
+        row, col = np.argwhere(far)[0]
+        raise StudyError(f"line {int(row) + 2}: {'xyz'[col]} = {xyz[row, col]:.3g} mm lies past "
+                         f"{MAX_COORDINATE_MM:g} mm from the scanner origin", file=points_path,
+                         field="xyz"[col])
+
+
 def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False,
                  expected_rows: int | None = None, sidecar: Path | None = None) -> None:
-    if not points_path.is_file():
+    if not checked(points_path, what="points file").is_file():
         raise StudyError("points file is missing", file=points_path)
     table = cols = None
-    if sidecar is not None and sidecar.is_file() and sidecar != points_path:
+    if sidecar is not None and checked(sidecar).is_file() and sidecar != points_path:
         table = _sidecar_table(sidecar, points_path)
     if table is None and points_path.suffix.lower() == ".parquet":
         cols = _parquet_columns(points_path)
@@ -600,6 +648,7 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False,
         need |= np.isfinite(pix).all(axis=1) & known[image_codes]
     if need.any():
         _pixels_to_scanner(cols, need, pix, xyz, images, points_path)
+    _check_coordinate_range(xyz, points_path)
     # a new annotation starts where any key column differs from the row before (vectorised,
     # on integer codes of the text columns: no per-row Python strings)
     change = np.zeros(max(n - 1, 0), dtype=bool)
@@ -611,6 +660,7 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False,
     kinds, names, views, slices, imgs, closed = (
         cols.strings(col, starts) for col in ("kind", "name", "view", "slice", "image", "closed"))
     frames, idxs = num["frame"].astype(int)[starts], num["index"].astype(int)[starts]
+    _check_closed(kinds, closed, starts, points_path)
     for k, (s, e) in enumerate(zip(starts, ends)):
         kind, image = kinds[k], imgs[k] or None
         if image is not None and image not in images:
@@ -619,7 +669,8 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False,
         try:
             if kind == "contour":
                 study.contours.append(Contour(names[k], views[k], slices[k], frames[k], xyz[s:e],
-                                              image=image, closed=str(closed[k]).strip() != "0",
+                                              image=image, closed=str(closed[k]).strip().lower() not in
+                                              ("0", "false", "0.0"),
                                               index=idxs[k]))
             elif kind == "tag":
                 study.tags.append(TagLine(names[k], idxs[k], views[k], slices[k], frames[k],
@@ -652,10 +703,14 @@ def _dicom_files(study: Study) -> list[tuple[ImagePlane, Path]]:
     folder = Path(study.source)
     out = []
     for im in study.images:
-        if not im.file or Path(im.file).suffix.lower() not in ("", ".dcm", ".ima", ".dicom"):
+        if not im.file:
             continue
         path = study_file(folder, im.file, file=folder / MANIFEST, field="images.file",
                           slice=im.slice, frame=im.frame)
+        if Path(im.file).suffix.lower() not in ("", ".dcm", ".ima", ".dicom"):
+            raise StudyError(f"image {excerpt(im.id)} names {excerpt(im.file)}, which is not a "
+                             "DICOM image (.dcm, .ima, .dicom or no suffix)",
+                             file=folder / MANIFEST, slice=im.slice, frame=im.frame, field="file")
         if not path.is_file():
             raise StudyError(f"image {excerpt(im.id)} refers to file {excerpt(im.file)}, which does not exist",
                              file=folder / MANIFEST, slice=im.slice, frame=im.frame, field="file")

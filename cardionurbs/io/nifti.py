@@ -64,6 +64,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cardionurbs.confine import checked, is_inside, outside_allowed
 from cardionurbs.errors import ReconstructionError, StudyError
 from cardionurbs.imaging import stack
 from cardionurbs.imaging.geometry import ImagePlane
@@ -132,18 +133,40 @@ class LabelVolume:
                 and np.allclose(self.affine, other.affine, atol=1e-4))
 
 
+def check_volume_size(path: Path, shape: tuple[int, ...], itemsize: int) -> None:
+    """Refuse, from the header alone and before any allocation, a map past the limits of
+    :mod:`cardionurbs.limits`: frames, voxels per axis and in all, and the bytes its gzip
+    stream expands to: nibabel decompresses only the header's voxel bytes, so bounding those
+    bounds a decompression bomb. Raises LimitError naming the file."""
+    from cardionurbs.errors import LimitError
+    from cardionurbs.limits import (MAX_DECOMPRESSED_BYTES, MAX_FRAMES, MAX_LABEL_AXIS,
+                                    MAX_LABEL_VOXELS)
+    if len(shape) == 4 and shape[3] > MAX_FRAMES:
+        raise LimitError(f"{shape[3]} frames (limit {MAX_FRAMES})", file=str(path))
+    if max(shape[:3]) > MAX_LABEL_AXIS:
+        raise LimitError(f"an axis of {max(shape[:3])} voxels (limit {MAX_LABEL_AXIS})",
+                         file=str(path))
+    n = int(np.prod(np.asarray(shape, dtype=object)))
+    if n > MAX_LABEL_VOXELS:
+        raise LimitError(f"{n:.3g} voxels (limit {MAX_LABEL_VOXELS:.3g})", file=str(path))
+    if n * itemsize > MAX_DECOMPRESSED_BYTES:
+        raise LimitError(f"{n * itemsize} bytes of voxel data (limit "
+                         f"{MAX_DECOMPRESSED_BYTES})", file=str(path))
+
+
 def read_label_volume(path: str | Path) -> LabelVolume:
     """Read one NIfTI label map (StudyError naming the file for anything unusable)."""
     import nibabel as nib
     from nibabel.filebasedimages import ImageFileError
+    from nibabel.spatialimages import HeaderDataError
 
-    path = Path(path)
+    path = checked(path, what="label map")
     where = str(path)
     try:
         img = nib.load(str(path))
     except FileNotFoundError:
         raise StudyError("no such file", file=where) from None
-    except (ImageFileError, EOFError, OSError, zlib.error, ValueError) as exc:
+    except (ImageFileError, HeaderDataError, EOFError, OSError, zlib.error, ValueError) as exc:
         raise StudyError(f"not a readable NIfTI file ({' '.join(str(exc).split())[:120]})",
                          file=where) from None
     if not isinstance(img, (nib.Nifti1Image, nib.Nifti2Image)):
@@ -163,6 +186,7 @@ def read_label_volume(path: str | Path) -> LabelVolume:
         raise StudyError("the time axis has length 0 (no frames)", file=where)
     if min(shape) == 0:
         raise StudyError(f"an empty image (shape {shape})", file=where)
+    check_volume_size(path, shape, img.header.get_data_dtype().itemsize)
     try:
         raw = np.asanyarray(img.dataobj)
     except (EOFError, OSError, zlib.error, ValueError) as exc:
@@ -634,7 +658,7 @@ def read_file(path: Path, labels=None) -> Study:
 
 def _info_cfg(path: Path) -> dict[str, str]:
     out = {}
-    for line in path.read_text(errors="replace").splitlines():
+    for line in checked(path, what="Info.cfg").read_text(errors="replace").splitlines():
         if ":" in line:
             k, v = line.split(":", 1)
             out[k.strip()] = v.strip()
@@ -785,6 +809,8 @@ def _layout_ed_es(study: Study, ed: int | None, es: int | None, source: str) -> 
 def _mnms_csv(folder: Path, code: str) -> tuple[int, int] | None:
     for d in (folder, folder.parent):
         for q in sorted(d.glob("*.csv")):
+            if not (outside_allowed() or is_inside(folder, q)):
+                continue                        # the dataset's table beside the study: opt-in
             try:
                 with q.open(newline="", errors="replace") as fh:
                     for row in csv.DictReader(fh):

@@ -38,6 +38,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from cardionurbs.confine import checked
 from cardionurbs.errors import StudyError
 from cardionurbs.limits import (HEART_RATE_RANGE_BPM, MAX_FRAMES, MAX_IMAGES, MAX_JSON_DEPTH,
                                 MAX_MANIFEST_BYTES, MAX_POINTS_PER_STUDY, PIXEL_SPACING_RANGE_MM,
@@ -49,6 +50,7 @@ VIEWS = ("SA", "LA")
 
 def load_manifest(path: Path) -> Any:
     """Parse ``path`` as JSON within the size and depth limits (StudyError otherwise)."""
+    checked(path, what="manifest")
     try:
         size = path.stat().st_size
     except OSError as exc:

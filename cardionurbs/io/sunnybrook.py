@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cardionurbs.confine import files_inside
+from cardionurbs.confine import checked, files_inside
 from cardionurbs.errors import StudyError
 from cardionurbs.imaging.dicom import read_dicom_folder
 from cardionurbs.safe import excerpt
@@ -71,7 +71,7 @@ def read_contour_file(path: str | Path) -> np.ndarray:
     Raises StudyError naming the file and line for an empty file, a line that
     is not two numbers, or a NaN / infinite value.
     """
-    path = Path(path)
+    path = checked(path, what="contour file")
     try:
         text = path.read_text(encoding="utf-8")
     except UnicodeDecodeError:
@@ -99,6 +99,22 @@ def read_contour_file(path: str | Path) -> np.ndarray:
         k = lines[int(np.flatnonzero(~finite)[0])][0]
         raise StudyError(f"line {k}: NaN or infinite coordinate", file=path)
     return pts
+
+
+def check_pixels_in_image(pix: np.ndarray, image, path: Path) -> None:
+    """Every (x, y) pixel of a contour lies within its image, give or take
+    :data:`cardionurbs.limits.CONTOUR_PIXEL_MARGIN` pixels; StudyError names the file, the
+    line and the image size otherwise (a short number, never a 300-digit echo)."""
+    from cardionurbs.limits import CONTOUR_PIXEL_MARGIN as m
+    cols, rows = getattr(image, "columns", None), getattr(image, "rows", None)
+    if not cols or not rows:
+        return
+    out = ((pix[:, 0] < -m) | (pix[:, 0] > cols - 1 + m)
+           | (pix[:, 1] < -m) | (pix[:, 1] > rows - 1 + m))
+    if out.any():
+        k = int(np.flatnonzero(out)[0])
+        raise StudyError(f"point {k + 1} ({pix[k, 0]:.4g}, {pix[k, 1]:.4g}) lies outside the "
+                         f"{cols} x {rows} image (margin {m} pixels)", file=path)
 
 
 def read_study(path: str | Path) -> Study:
@@ -139,6 +155,7 @@ def read_study(path: str | Path) -> Study:
             raise StudyError(f"reference to image InstanceNumber {inst}, which is not in "
                              f"{dicom_root}", file=f, field="InstanceNumber")
         pix = read_contour_file(f)
+        check_pixels_in_image(pix, image, f)
         try:
             contours.append(Contour(STRUCTURE_OF_KIND[kind], image.view, image.slice, image.frame,
                                     image.pixel_to_scanner(pix), image=image.id, closed=True))

@@ -27,8 +27,9 @@ def run_phantom(args: argparse.Namespace) -> int:
         raise PhantomError("phantom: --n needs --cohort SPEC (the mix to draw from)")
     if getattr(args, "resume", False) and n is None:
         raise PhantomError("phantom: --resume goes with --cohort SPEC --n N")
-    from cardionurbs.io.outputs import check_output_dir
+    from cardionurbs.io.outputs import STUDY_MARKER, check_output_dir
     out = check_output_dir(args.out, inputs=[args.cohort] if args.cohort else [],
+                           marker=STUDY_MARKER,
                            overwrite=getattr(args, "overwrite", False)
                            or (n is not None and getattr(args, "resume", False)))
     dicom = not args.no_dicom
@@ -50,7 +51,7 @@ def run_phantom(args: argparse.Namespace) -> int:
     extra.update(shape)
     if getattr(args, "n", None) is not None:
         return _run_mix(args, spec, out, dicom, extra)
-    with atomic_dir(out) as tmp:                # the whole cohort, or the previous output
+    with atomic_dir(out, STUDY_MARKER) as tmp:  # the whole cohort, or the previous output
         generate_cohort(spec, tmp, dicom=dicom, noise_px=args.noise_px, tag_jumps=args.tag_jumps,
                         **extra,
                         report=lambda path, ph: print(f"{out / path.name}: {ph.study.summary()}",
@@ -117,14 +118,14 @@ def _run_mix(args: argparse.Namespace, spec: list[SubjectSpec], out: Path, dicom
     import shutil
 
     from cardionurbs.executor import TaskFailure, run_tasks
-    from cardionurbs.io.atomic import MARKER, MARKER_TEXT
+    from cardionurbs.io.atomic import STUDY_MARKER, write_marker
 
     subjects = mix_subjects(spec, int(args.n))
     resume = getattr(args, "resume", False)
     if out.is_dir() and any(out.iterdir()) and not resume:
         shutil.rmtree(out)                  # an earlier output, allowed by --overwrite
     out.mkdir(parents=True, exist_ok=True)
-    (out / MARKER).write_text(MARKER_TEXT, encoding="utf-8")
+    write_marker(out, STUDY_MARKER, trees=[s.id for s in subjects])   # the subjects it owns
     todo = [s for s in subjects if not (resume and (out / s.id / "study.json").is_file())]
     failed: list[str] = []
 

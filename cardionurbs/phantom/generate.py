@@ -499,7 +499,7 @@ def write_phantom(phantom: Phantom, out_dir: str | Path, dicom: bool = True,
     if not dicom:
         study = dataclasses.replace(study, images=[dataclasses.replace(im, file=None)
                                                    for im in study.images])
-    with atomic.atomic_dir(out_dir) as tmp:
+    with atomic.atomic_dir(out_dir, marker=atomic.STUDY_MARKER) as tmp:   # a study, not an output
         write_study(study, tmp)
         atomic.write_text(tmp / "truth.json", json.dumps(phantom.truth, indent=1, allow_nan=False) + "\n")
         if dicom:

@@ -42,7 +42,8 @@ DENSITY_G_PER_ML = 1.05
 
 METRIC_COLUMNS = ("HR (bpm)", "LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVCO (L/min)",
                   "LVM (g)", "RVEDV (mL)", "RVESV (mL)", "RVSV (mL)", "RVEF (%)", "RVM (g)",
-                  "MR RegVol (mL)", "MR RegFrac (%)", "RV/LV EDV ratio", "RV/LV mass ratio", "EI ES",
+                  "MR RegVol (mL)", "MR RegFrac (%)", "LVSV-RVSV (mL)", "RV/LV EDV ratio",
+                  "RV/LV mass ratio", "EI ES",
                   "Twist (deg)", "Twist 2D (deg)", "Torsion (deg/cm)", "CL shear (deg)", "LS (%)",
                   "Tag QC flags")
 
@@ -300,6 +301,7 @@ def compute_metrics(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, sp
     m["RVM (g)"] = DENSITY_G_PER_ML * ed["rv_myocardium"]
     m["MR RegVol (mL)"] = max(0.0, m["LVSV (mL)"] - m["RVSV (mL)"])
     m["MR RegFrac (%)"] = 100.0 * m["MR RegVol (mL)"] / m["LVSV (mL)"]
+    m["LVSV-RVSV (mL)"] = m["LVSV (mL)"] - m["RVSV (mL)"]
     m["RV/LV EDV ratio"] = m["RVEDV (mL)"] / m["LVEDV (mL)"]
     m["RV/LV mass ratio"] = m["RVM (g)"] / m["LVM (g)"]
     ei, ei_slice = eccentricity_index(anatomy, motion, specs, f_es)

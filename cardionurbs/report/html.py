@@ -130,6 +130,8 @@ def _strip_local(text: str, source) -> str:
 def _read_json(path: Path) -> Any:
     try:
         return json.loads(path.read_text())
+    except RecursionError:
+        raise ReportInputError(f"{path}: JSON nested too deeply to be an analysis file") from None
     except (OSError, ValueError) as exc:
         raise ReportInputError(f"{path}: not readable JSON ({' '.join(str(exc).split())})") from None
 
@@ -163,12 +165,16 @@ def _load_analysis(out: Path, model: BiventricularModel | None = None):
     try:
         if model is None:
             model = BiventricularModel.from_dict(_read_json(out / "model.json"))
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
         raise ReportInputError(f"{out / 'model.json'}: not a cardionurbs model "
                                f"({type(exc).__name__}: {' '.join(str(exc).split())})") from None
     fig_dir = out / "figures"
     fig_index = _read_json(fig_dir / "figures.json") if (fig_dir / "figures.json").is_file() else None
-    return model, _read_json(out / "metrics.json"), fig_dir, fig_index
+    metrics = _read_json(out / "metrics.json")
+    if not isinstance(metrics, dict):
+        raise ReportInputError(f"{out / 'metrics.json'}: not an analysis's metrics (a JSON "
+                               f"object is expected, got {type(metrics).__name__})")
+    return model, metrics, fig_dir, fig_index
 
 
 def _surface_groups(model, frames: list[int], pool: "_FacePool"):

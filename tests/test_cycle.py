@@ -1,0 +1,168 @@
+"""Frames that agree with their neighbours (issue #30, item 2; cardionurbs.anatomy.cycle):
+a frame with half its contours removed or 3 mm noise does not make a volume its neighbours
+contradict; ES and EF stay with the truth; every supported frame is flagged."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cardionurbs import load_study, reconstruct
+from cardionurbs.analysis.function import measure, volume_curve
+from cardionurbs.analysis.quality import assess
+from cardionurbs.anatomy.cycle import MIN_FRAMES, check_curve, lagrange_weights
+from conftest import shared_data
+
+generate = importlib.import_module("cardionurbs.phantom.generate")
+
+
+def _curve(n: int, es: float, edv: float = 150.0, ef: float = 0.6) -> dict[int, float]:
+    """A smooth volume curve (ED at 0, ES at phase ``es``), mL per frame."""
+    t = np.arange(n) / n
+    phase = np.where(t < es, 0.5 * (1 - np.cos(np.pi * t / es)),
+                     0.5 * (1 + np.cos(np.pi * (t - es) / (1 - es))))
+    return {k: float(edv * (1 - ef * p)) for k, p in enumerate(phase)}
+
+
+def test_lagrange_weights_reproduce_cubics():
+    x = np.array([-2.0, -1.0, 1.0, 2.0])
+    w = lagrange_weights(x, 0.0)
+    assert w == pytest.approx([-1 / 6, 4 / 6, 4 / 6, -1 / 6])
+    y = 3 * x ** 3 - x ** 2 + 2 * x + 5
+    assert w @ y == pytest.approx(5.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(MIN_FRAMES, 40), es=st.floats(0.3, 0.45), ef=st.floats(0.2, 0.75),
+       noise=st.floats(0.0, 0.005), seed=st.integers(0, 1000))
+def test_smooth_curves_need_no_support(n, es, ef, noise, seed):
+    v = _curve(n, es, ef=ef)
+    rng = np.random.default_rng(seed)
+    v = {f: x * (1 + noise * rng.standard_normal()) for f, x in v.items()}
+    c = check_curve(v)
+    assert c.supported == {} and c.consistent == v
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(20, 40), es=st.floats(0.3, 0.45), ef=st.floats(0.3, 0.7),
+       where=st.floats(0.05, 0.95), up=st.booleans(), extra=st.floats(0.06, 0.2))
+def test_a_spike_is_supported_and_its_volume_restored(n, es, ef, where, up, extra):
+    """A frame beyond both neighbours (by more than they differ and than 4 %)."""
+    truth = _curve(n, es, ef=ef)
+    bad = int(where * n)
+    v = dict(truth)
+    a, b = truth[(bad - 1) % n], truth[(bad + 1) % n]
+    step = max(abs(a - b), extra * min(a, b)) * 1.2
+    v[bad] = max(a, b) + step if up else min(a, b) - step
+    c = check_curve(v)
+    assert list(c.supported) == [bad]
+    assert c.consistent[bad] == pytest.approx(truth[bad], rel=0.03)
+    assert c.departure[bad] == pytest.approx(v[bad] / c.consistent[bad] - 1)
+    assert f"frame {bad} supported" in c.describe(bad)
+
+
+def test_a_frame_that_cannot_be_built_is_interpolated():
+    truth = _curve(20, 0.4)
+    v = {**truth, 7: math.nan}
+    c = check_curve(v)
+    assert list(c.supported) == [7] and c.consistent[7] == pytest.approx(truth[7], rel=0.01)
+    assert "cannot be built" in c.describe(7)
+
+
+def test_coarse_cines_are_not_checked():
+    v = _curve(MIN_FRAMES - 1, 0.4)
+    v[3] *= 0.8
+    assert check_curve(v).supported == {}
+
+
+# ------------------------------------------------------------------ corrupted studies
+def _corrupt(study, frame: int, how: str, seed: int = 0):
+    """The study with one frame's contours halved (every other contour of each structure
+    and view left out) or with 3 mm in-plane noise on every point."""
+    rng = np.random.default_rng(seed)
+    out, count = [], {}
+    for c in study.contours:
+        if c.frame != frame:
+            out.append(c)
+        elif how == "half":
+            k = count[c.structure, c.view] = count.get((c.structure, c.view), 0) + 1
+            if k % 2:
+                out.append(c)
+        else:
+            n = study.image(c.image).normal
+            e = rng.normal(0.0, 3.0, c.points.shape)
+            out.append(dataclasses.replace(c, points=c.points + e - np.outer(e @ n, n)))
+    return dataclasses.replace(study, contours=out, warnings=list(study.warnings))
+
+
+def _lv_curve(study):
+    model = reconstruct(study)
+    return model, np.array(volume_curve(model, every_structure=False)["lv_cavity (mL)"])
+
+
+@pytest.fixture(scope="module")
+def bivme():
+    study = load_study(shared_data("bivme-patient1"))
+    return study, _lv_curve(study)[1]
+
+
+@pytest.mark.parametrize("frame,how", [(4, "half"), (17, "noise")])
+def test_bivme_corrupted_frame_keeps_the_curve(bivme, frame, how):
+    study, untouched = bivme
+    model, curve = _lv_curve(_corrupt(study, frame, how))
+    assert np.all(np.abs(curve / untouched - 1) < 0.05), np.round(curve / untouched - 1, 3)
+    q = assess(model, measure(model))
+    assert all(any(f"frame {f} supported" in x for x in q.flags) for f in model.supported)
+
+
+@pytest.fixture(scope="module")
+def noisy_phantom():
+    return generate.generate("normal", seed=4, frames=20, noise_px=1.0, volume_check=False)
+
+
+def test_phantom_corrupted_frames_keep_es_and_ef(noisy_phantom):
+    """3 mm noise on the frame before ES (it cannot be built) and half the contours of a
+    filling frame: the same ES and EF as the untouched phantom (0.2 point), ES within one
+    frame and EF within 1.5 points of the truth (the untouched reconstruction at 1 px
+    noise is itself up to about 1.1 points off), the curve within 5 % of the untouched
+    one, every supported frame flagged."""
+    ph = noisy_phantom
+    truth = ph.truth
+    es = truth["es_frame"]
+    base = reconstruct(ph.study)
+    ref = measure(base)
+    study = _corrupt(_corrupt(ph.study, es - 1, "noise"), es + 3, "half")
+    model = reconstruct(study)
+    m = measure(model)
+    assert model.es_frame == base.es_frame and abs(model.es_frame - es) <= 1
+    assert abs(m["LVEF (%)"] - ref["LVEF (%)"]) < 0.2
+    assert abs(m["LVEF (%)"] - truth["metrics"]["LVEF (%)"]) < 1.5
+    assert es - 1 in model.supported and not base.supported    # the half frame: if needed
+    curve = volume_curve(model, every_structure=False)
+    assert curve["frame"] == ph.study.contoured_frames
+    assert math.isnan(curve["lv_cavity raw (mL)"][es - 1])
+    untouched = np.array(volume_curve(base, every_structure=False)["lv_cavity (mL)"])
+    assert np.all(np.abs(np.array(curve["lv_cavity (mL)"]) / untouched - 1) < 0.05)
+    q = assess(model, m)
+    assert all(any(f"frame {f} supported" in x for x in q.flags) for f in model.supported)
+
+
+def test_an_incomplete_frame_off_the_cubic_is_supported():
+    """Within its neighbours' range but off the smooth curve: supported only when its
+    contours say it is incomplete (fewer than both neighbours', or one left out)."""
+    truth = _curve(24, 0.4)
+    v = dict(truth)
+    v[4] = truth[4] * 1.06                        # on the steep systolic slope
+    assert check_curve(v).supported == {}
+    full = {f: 8 for f in v}
+    assert check_curve(v, contours=full).supported == {}
+    assert list(check_curve(v, contours={**full, 4: 5}).supported) == [4]
+    assert list(check_curve(v, contours={**full, 4: -8}).supported) == [4]
+    c = check_curve(v, contours={**full, 4: 5})
+    assert c.consistent[4] == pytest.approx(truth[4], rel=0.01)
