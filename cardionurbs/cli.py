@@ -80,6 +80,29 @@ def _heart_rate(text: str) -> float:
     return v
 
 
+def _uncertainty_options(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """``--uncertainty on|off`` of analyze and cohort, ``--max-halfwidth`` of cohort (added to
+    the parser :func:`build_parser` made; returns it)."""
+    sub = next(a for a in p._actions if isinstance(a, argparse._SubParsersAction))
+    for name in ("analyze", "cohort"):
+        sub.choices[name].add_argument(
+            "--uncertainty", choices=("on", "off"), default="on",
+            help="95 %% intervals of the global metrics (docs/metrics.md, Uncertainty)")
+    sub.choices["cohort"].add_argument(
+        "--max-halfwidth", type=_max_halfwidth, default=None, metavar="METRIC=LIMIT[,...]",
+        help="flag (QC) a study whose 95 %% interval of METRIC is wider than ± LIMIT "
+             "(its unit), e.g. LVEF=5,LVEDV=10")
+    return p
+
+
+def _max_halfwidth(text: str) -> dict:
+    from cardionurbs.analysis.uncertainty import parse_max_halfwidth
+    try:
+        return parse_max_halfwidth(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _study_input_options(parser: argparse.ArgumentParser, format_help: str) -> None:
     """--format and --labels, as analyze and cohort take them."""
     parser.add_argument("--format", default="auto",
@@ -301,7 +324,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("output_dir", metavar="OUTPUT_DIR", help="a folder written by analyze")
     rp.add_argument("--out", required=True, metavar="report.html",
                     help="the HTML file to write (replaced atomically when it exists)")
-    return p
+    return _uncertainty_options(p)
 
 
 def _run(args: argparse.Namespace) -> int:

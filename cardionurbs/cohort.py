@@ -34,6 +34,8 @@ import pandas as pd
 from cardionurbs.analysis.body import BODY_COLUMNS, INDEXED_COLUMNS
 from cardionurbs.analysis.function import COLUMNS, NAN
 from cardionurbs.analysis.quality import QC_COLUMNS
+from cardionurbs.analysis.uncertainty import (INTERVAL_COLUMNS, halfwidth_flags, interval_columns,
+                                              intervals)
 from cardionurbs.analysis.ranges import load_ranges
 from cardionurbs.io import atomic
 
@@ -85,9 +87,14 @@ def ignore_interrupts() -> None:
 
 def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None = None,
                   allow_outside: bool = False, labels: str | None = None,
-                  strict: bool = False) -> dict:
+                  strict: bool = False, uncertainty: bool = True,
+                  max_halfwidth: dict[str, float] | None = None) -> dict:
     """One cohort row for the study at ``path`` (never raises for a bad study); label-map
     studies add the voxel-count columns (cardionurbs.analysis.voxels.VOXEL_COLUMNS).
+
+    ``uncertainty``: the ``<column> lo95`` / ``hi95`` interval columns
+    (cardionurbs.analysis.uncertainty); ``max_halfwidth`` (column -> largest half-width
+    allowed, in the column's unit): a wider (or missing) interval is a quality flag in ``QC``.
 
     ``strict``: a row whose metrics carry a quality flag (``QC`` not empty) is a
     failure: ``status = "error: QC: <flags>"`` and its numbers are emptied."""
@@ -104,19 +111,29 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
         model, metrics = analyse_study(study, heart_rate_bpm=heart_rate_bpm)
         row.update(metrics)
         row.update(assess(model, metrics).row())
+        if uncertainty or max_halfwidth:
+            row.update(measure_intervals(model, metrics, row, uncertainty, max_halfwidth))
         row.update(_clinical_cells(model, metrics))
         row["status"] = "ok"
         if strict and row["QC"]:
-            row.update({c: NAN for c in COLUMNS})
+            row.update({c: NAN for c in COLUMNS + INTERVAL_COLUMNS if c in row})
             row["status"] = f"error: QC: {row['QC']}"
     except Exception as exc:  # noqa: BLE001 - recorded in the row, the run goes on
         kind = "" if isinstance(exc, ValueError) else f"{type(exc).__name__}: "
-        row.update({c: NAN for c in _NUMBERS})
+        row.update({c: NAN for c in _NUMBERS + INTERVAL_COLUMNS if c in _NUMBERS or c in row})
         row["warnings"], row["notes"] = NAN, ""
         row["status"] = f"error: {kind}{_one_line(exc)}"
     return row
 
 
+def measure_intervals(model, metrics: dict, row: dict, columns: bool,
+                      max_halfwidth: dict[str, float] | None) -> dict:
+    """The interval columns of one row (``columns``) and its ``QC`` with the half-width
+    flags of ``max_halfwidth`` added."""
+    iv = intervals(model, metrics)
+    flags = halfwidth_flags(iv, max_halfwidth or {})
+    qc = "; ".join([q for q in [row.get("QC") or ""] if q] + flags)
+    return {**(interval_columns(iv) if columns else {}), "QC": qc}
 def _clinical_cells(model, metrics: dict) -> dict:
     """Sex, the ``<column> range`` flags, the warning count and the ``notes`` cell of a row."""
     from cardionurbs.analysis.notes import notes_of, notes_text
@@ -203,7 +220,8 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
            dask: str | None = None, timeout: float | None = None,
            run_dir: str | os.PathLike | None = None, resume: bool = False,
            allow_outside: bool = False, labels: str | None = None,
-           strict: bool = False) -> pd.DataFrame:
+           strict: bool = False, uncertainty: bool = True,
+           max_halfwidth: dict[str, float] | None = None) -> pd.DataFrame:
     """Measure every study: a DataFrame with ``subject``, ``status`` and the docs/metrics.md
     columns in order, one row per path (input order); when any study is a label map
     the voxel-count columns follow (``labels``: its convention, see load_study).
@@ -212,7 +230,9 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
     Dask cluster (``"local"`` or a scheduler address); ``timeout``: seconds per study
     before it becomes an error row; ``run_dir``: store each finished row durably there
     (:class:`RowStore`); ``resume``: keep the rows already in ``run_dir`` and measure only
-    the others; ``strict``: flagged rows are failures (:func:`measure_study`).
+    the others; ``strict``: flagged rows are failures (:func:`measure_study`);
+    ``uncertainty``, ``max_halfwidth``: the 95 % interval columns and the half-width flags
+    (:func:`measure_study`).
     """
     from cardionurbs.executor import TaskFailure, run_tasks
 
@@ -249,13 +269,13 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
             for k, i in enumerate(todo):             # in this process: no worker to start
                 try:
                     result = measure_study(paths[i], format, heart_rate_bpm, allow_outside,
-                                           labels, strict)
+                                           labels, strict, uncertainty, max_halfwidth)
                 except Exception as exc:  # noqa: BLE001 - as a worker would report it
                     result = TaskFailure("error", f"{type(exc).__name__}: {_one_line(exc)}")
                 finished(k, result)
         else:
             run_tasks(measure_study, [(paths[i], format, heart_rate_bpm, allow_outside, labels,
-                                       strict)
+                                       strict, uncertainty, max_halfwidth)
                                       for i in todo],
                       finished, jobs=jobs, dask=dask, timeout=timeout)
     finally:
@@ -263,7 +283,9 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
             bar.close()
     from cardionurbs.analysis.voxels import VOXEL_COLUMNS
     extra = [c for c in VOXEL_COLUMNS if any(c in r for r in rows if r)]
-    return pd.DataFrame(rows, columns=list(CSV_COLUMNS) + extra)
+    # the 95 % intervals (when measured) just before warnings and notes
+    iv = [c for c in INTERVAL_COLUMNS if any(c in r for r in rows if r)]
+    return pd.DataFrame(rows, columns=list(CSV_COLUMNS[:-2]) + iv + list(CSV_COLUMNS[-2:]) + extra)
 
 
 def is_cohort_table(path: str | os.PathLike) -> bool:
@@ -326,7 +348,9 @@ def run_cohort(args: argparse.Namespace) -> int:
                    resume=getattr(args, "resume", False),
                    allow_outside=getattr(args, "allow_outside", False),
                    labels=getattr(args, "labels", None),
-                   strict=getattr(args, "strict", False))
+                   strict=getattr(args, "strict", False),
+                   uncertainty=getattr(args, "uncertainty", "on") == "on",
+                   max_halfwidth=getattr(args, "max_halfwidth", None))
     write_csv(table, csv)
     wrote = [str(csv)]
     if getattr(args, "parquet", False):

@@ -41,6 +41,7 @@ from pathlib import Path
 
 from cardionurbs.analysis.function import explain_nulls, measure, volume_curve
 from cardionurbs.analysis.notes import collect_warnings, notes_of
+from cardionurbs.analysis.uncertainty import intervals
 from cardionurbs.anatomy.model import BiventricularModel, reconstruct
 from cardionurbs.errors import UsageError
 from cardionurbs.heap import acyclic, long_lived
@@ -209,12 +210,13 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                    figures: bool = True, mesh_ext: str = "ply", tags=None,
                    outputs: tuple[str, ...] | None = None,
                    progress: Progress | None = None, jobs: int | None = 1,
-                   early_meshes: "EarlyMeshes | None" = None) -> Path:
+                   early_meshes: "EarlyMeshes | None" = None, uncertainty: bool = True) -> Path:
     """Write the chosen ``outputs`` (default all; ``figures=False`` drops figures and
     report) to ``out``, atomically (the folder is complete or untouched). ``jobs``: worker
     processes for the per-frame meshes (:func:`write_meshes`; 1, the default: none; None:
     the usable CPUs) and the figures; ``early_meshes``: the meshes already started
-    (:class:`EarlyMeshes`)."""
+    (:class:`EarlyMeshes`); ``uncertainty``: the metrics' 95 % intervals in metrics.json
+    (``uncertainty``, :func:`cardionurbs.analysis.uncertainty.intervals`; null when off)."""
     outputs = OUTPUTS if outputs is None else tuple(outputs)
     if not figures:
         outputs = tuple(o for o in outputs if o not in ("figures", "report"))
@@ -263,6 +265,7 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                                       **notes_of(metrics)},
                             "body": body_json(model.study),
                             "ranges": range_flags_json(metrics, model.study),
+                            "uncertainty": intervals(model, metrics) if uncertainty else None,
                             "warnings": analysis_warnings(model, metrics, tags)},
                            tmp / "metrics.json")
 
@@ -537,7 +540,8 @@ def run_analyze(args: argparse.Namespace) -> int:
                                        progress=progress, jobs=jobs,
                                        on_measured=None if early is None else early.start)
         write_analysis(model, metrics, args.out, outputs=outputs, tags=tags, progress=progress,
-                       jobs=jobs, early_meshes=early, mesh_ext=mesh_ext)
+                       jobs=jobs, early_meshes=early, mesh_ext=mesh_ext,
+                       uncertainty=getattr(args, "uncertainty", "on") == "on")
     finally:
         if early is not None:
             early.close()

@@ -18,6 +18,7 @@ from cardionurbs.analysis.body import INDEXED, bsa_mosteller
 from cardionurbs.analysis.notes import Metrics, collect_warnings, notes_text, null
 from cardionurbs.analysis.ranges import find_range, flag, load_ranges, range_flags
 from cardionurbs.cli import main
+from cardionurbs.analysis.uncertainty import INTERVAL_COLUMNS
 from cardionurbs.cohort import CSV_COLUMNS, measure_study
 from cardionurbs.io.body import attach_body, clean_value
 from cardionurbs.io.native import write_study
@@ -91,7 +92,8 @@ def test_load_warning_in_metrics_json_csv_and_stderr(no_heart_rate, tmp_path, ca
     csv = tmp_path / "c.csv"
     assert main(["cohort", str(no_heart_rate), "--csv", str(csv)]) == 0
     df = pd.read_csv(csv)
-    assert list(df.columns) == list(CSV_COLUMNS)
+    assert list(df.columns) == (list(CSV_COLUMNS[:-2]) + list(INTERVAL_COLUMNS)   # the 95 %
+                                + list(CSV_COLUMNS[-2:]))                     # intervals
     assert df.loc[0, "warnings"] == len(d["warnings"])
     assert "no heart rate" in df.loc[0, "notes"]
 

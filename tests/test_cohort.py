@@ -11,6 +11,7 @@ import pytest
 from cardionurbs.analysis.function import COLUMNS
 from cardionurbs.cli import main
 from cardionurbs.analysis.quality import QC_COLUMNS
+from cardionurbs.analysis.uncertainty import INTERVAL_COLUMNS
 from cardionurbs.cohort import CSV_COLUMNS, cohort
 from cardionurbs.io.native import write_study
 
@@ -39,7 +40,8 @@ def table(studies):
 
 
 def test_rows_in_input_order_with_metrics_columns(table):
-    assert list(table.columns) == list(CSV_COLUMNS)
+    assert list(table.columns) == (list(CSV_COLUMNS[:-2]) + list(INTERVAL_COLUMNS)
+                                   + list(CSV_COLUMNS[-2:]))
     assert list(table.columns[2:2 + len(COLUMNS)]) == list(COLUMNS)
     qc_end = 2 + len(COLUMNS) + len(QC_COLUMNS)
     assert list(table.columns[2 + len(COLUMNS):qc_end]) == list(QC_COLUMNS)
@@ -77,6 +79,7 @@ def test_cli_writes_csv_and_reports_failures(studies, tmp_path, capsys):
     assert "2 of 4 studies measured, 2 failed" in err and "does-not-exist" in err
     assert main(["cohort", *studies, "--csv", str(out), "--allow-failures"]) == 0
     df = pd.read_csv(out)
-    assert list(df.columns) == list(CSV_COLUMNS)
+    assert list(df.columns) == (list(CSV_COLUMNS[:-2]) + list(INTERVAL_COLUMNS)
+                                + list(CSV_COLUMNS[-2:]))
     assert df["status"].tolist()[0] == "ok" and df["status"].tolist()[1].startswith("error: ")
     assert not list(out.parent.glob(".*tmp"))        # atomic write left no temporary file

@@ -27,6 +27,7 @@ import numpy as np
 from cardionurbs.analysis.body import INDEXED, INDEXED_COLUMNS, add_body_columns
 from cardionurbs.analysis.notes import Metrics, adopt_study_notes, explain_missing, is_null, null
 from cardionurbs.analysis.regional_columns import REGIONAL_COLUMNS
+from cardionurbs.analysis.uncertainty import interval_columns, intervals
 from cardionurbs.errors import CardioNurbsError
 from cardionurbs.limits import HEART_RATE_RANGE_BPM
 from cardionurbs.geometry import chord_length, fit_plane, in_plane_basis, polygon_centroid
@@ -134,9 +135,14 @@ def eccentricity_index_es(model: "BiventricularModel") -> float:
     return eccentricity_index((lv[best].points - c) @ b, (rv[best].points - c) @ b)
 
 
-def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None) -> Metrics:
+def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None,
+            uncertainty: bool = False) -> Metrics:
     """Every docs/metrics.md column for one model, as floats (NaN where not measurable),
     with the reason of every NaN in ``.notes`` (:mod:`cardionurbs.analysis.notes`).
+
+    ``uncertainty``: also the 95 % interval of each global metric as ``<column> lo95`` and
+    ``<column> hi95`` (NaN where there is none; docs/metrics.md, Uncertainty;
+    :func:`cardionurbs.analysis.uncertainty.intervals` gives the reasons and sources).
 
     ``heart_rate_bpm`` is used when the study carries no heart rate (the
     user-given value of docs/metrics.md, Frames); outside 20-300 bpm it is refused
@@ -191,6 +197,8 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None)
             null(metrics, column, NOT_STATED_NOTE)
     add_body_columns(metrics, model.study.meta.get("body"))
     explain_nulls(model, metrics)
+    if uncertainty:
+        metrics.update(interval_columns(intervals(model, metrics)))
     return metrics
 
 

@@ -252,6 +252,7 @@ def _metric_rows(metrics: dict, truth: dict | None) -> list[dict]:
     quality = (metrics.get("quality") or {}).get("metrics", {})
     notes = metrics.get("notes") or {}
     ranges = (metrics.get("ranges") or {}).get("flags", {})
+    unc = metrics.get("uncertainty") or {}       # the 95 % intervals (docs/metrics.md, Uncertainty)
     rows = []
     for k, v in metrics.get("metrics", {}).items():
         t = tmet.get(k) if truth else None
@@ -263,7 +264,9 @@ def _metric_rows(metrics: dict, truth: dict | None) -> list[dict]:
                      "note": notes.get(k) if _num(v) is None else None,
                      "range": [rng.get("lower"), rng.get("upper")] if rng.get("table") else None,
                      "range_flag": rng.get("flag"), "range_table": rng.get("table"),
-                     "range_reason": rng.get("reason") or None})
+                     "range_reason": rng.get("reason") or None,
+                     "halfwidth": (_num(0.5 * (unc[k][1] - unc[k][0]))
+                                   if isinstance(unc.get(k), list) else None)})
     return rows
 
 
@@ -512,6 +515,8 @@ def _range_cell(r: Mapping) -> str:
 def _row_html(r: Mapping, has_truth: bool) -> str:
     esc = html.escape
     measured = _fmt(r["measured"])
+    if r.get("halfwidth") is not None:
+        measured += f" <span class='pm' title='95 % interval'>± {_fmt(r['halfwidth'])}</span>"
     if r.get("note"):
         measured += f" <span class='why'>{esc(r['note'])}</span>"
     if r.get("qc"):

@@ -1,0 +1,185 @@
+"""Per-subject 95 % intervals (cardionurbs.analysis.uncertainty, docs/metrics.md Uncertainty):
+the truth of a noise-free phantom lies inside them, injected contour noise widens them, a
+one-frame study has no EF interval (null, with the reason), and the API, metrics.json,
+cohort CSV and ``--max-halfwidth`` carry them."""
+
+from __future__ import annotations
+
+import importlib
+import json
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cardionurbs import measure, reconstruct
+from cardionurbs.analysis.uncertainty import (COVERED, INTERVAL_COLUMNS, _normal_scatter,
+                                              halfwidth_flags, intervals, parse_max_halfwidth)
+from cardionurbs.cli import main
+from cardionurbs.cohort import cohort
+from cardionurbs.pipeline import write_analysis
+
+generate = importlib.import_module("cardionurbs.phantom.generate")
+
+MAIN = ("LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVM (g)", "RVEDV (mL)", "RVESV (mL)",
+        "RVEF (%)", "RVM (g)")
+
+
+def _phantom(noise_px: float):
+    ph = generate.generate("normal", seed=3, frames=2, noise_px=noise_px)
+    ph.study.tags = []                      # not needed here (and they cost time)
+    model = reconstruct(ph.study)
+    return ph, model, measure(model, uncertainty=True)
+
+
+@pytest.fixture(scope="module")
+def clean():
+    return _phantom(0.0)
+
+
+@pytest.fixture(scope="module")
+def noisy():
+    return _phantom(1.0)
+
+
+def _halfwidth(m: dict, col: str) -> float:
+    return 0.5 * (m[f"{col} hi95"] - m[f"{col} lo95"])
+
+
+def test_noise_free_phantom_truth_inside_every_interval(clean):
+    ph, model, m = clean
+    truth = ph.truth["metrics"]
+    for col in COVERED:
+        lo, hi = m[f"{col} lo95"], m[f"{col} hi95"]
+        assert lo <= m[col] <= hi, col
+        assert lo <= truth[col] <= hi, (col, lo, truth[col], hi)
+        assert hi - lo > 0, col
+
+
+def test_contour_noise_widens_the_intervals(clean, noisy):
+    _, _, a = clean
+    _, _, b = noisy
+    for col in MAIN:
+        assert _halfwidth(b, col) > 1.5 * _halfwidth(a, col), col
+    ph, model, m = noisy                     # and the noisy truth is still inside (loosely:
+    inside = sum(m[f"{c} lo95"] <= ph.truth["metrics"][c] <= m[f"{c} hi95"] for c in MAIN)
+    assert inside >= len(MAIN) - 1           # a 95 % interval may miss one of nine)
+
+
+def test_sources_and_method_in_the_result(clean):
+    _, model, m = clean
+    iv = intervals(model, m)
+    assert "analytic" in iv["method"]
+    sd = iv["sd"]["LVEDV (mL)"]
+    assert {"contours", "between", "base", "apex"} <= set(sd)
+    assert all(v >= 0 and math.isfinite(v) for v in sd.values())
+    # SA-only ends are placed by a rule: the base and apex allowances grow without LA views
+    assert iv["notes"] == {}
+
+
+def test_without_long_axis_views_the_ends_dominate():
+    ph = generate.generate("normal", seed=3, frames=2)
+    st = ph.study
+    st.tags = []
+    st.contours = [c for c in st.contours if c.view == "SA"]
+    st.landmarks = [lm for lm in st.landmarks if lm.view == "SA"]
+    st.images = [im for im in st.images if im.view == "SA"]
+    model = reconstruct(st)
+    m = measure(model)
+    iv = intervals(model, m)
+    sd = iv["sd"]["LVEDV (mL)"]
+    assert sd["base"] > 5 * sd["contours"]
+    lo, hi = iv["LVEDV (mL)"]
+    assert lo <= ph.truth["metrics"]["LVEDV (mL)"] <= hi
+
+
+def test_one_frame_study_has_no_ef_interval(clean):
+    ph, _, _ = clean
+    st = ph.study
+    one = type(st)(subject="one", images=[im for im in st.images if im.frame == 0],
+                   contours=[c for c in st.contours if c.frame == 0],
+                   landmarks=[lm for lm in st.landmarks if lm.frame == 0],
+                   frame_times_ms={0: 0.0}, heart_rate_bpm=st.heart_rate_bpm, ed_frame=0,
+                   es_frame=0)
+    model = reconstruct(one)
+    m = measure(model, uncertainty=True)
+    iv = intervals(model, m)
+    for col in ("LVEF (%)", "LVESV (mL)", "RVEF (%)"):
+        assert iv[col] is None
+        assert "one frame" in iv["notes"][col]
+        assert math.isnan(m[f"{col} lo95"]) and math.isnan(m[f"{col} hi95"])
+    assert iv["LVEDV (mL)"] is not None          # ED alone still has its volume
+    assert json.loads(json.dumps(iv))["LVEF (%)"] is None
+
+
+def test_metrics_json_carries_the_intervals(clean, tmp_path):
+    _, model, m = clean
+    plain = {k: v for k, v in m.items() if k not in INTERVAL_COLUMNS}
+    write_analysis(model, plain, tmp_path / "on", outputs=("metrics",))
+    write_analysis(model, plain, tmp_path / "off", outputs=("metrics",), uncertainty=False)
+    on = json.loads((tmp_path / "on" / "metrics.json").read_text())
+    assert on["uncertainty"]["LVEF (%)"] == pytest.approx([m["LVEF (%) lo95"], m["LVEF (%) hi95"]])
+    assert on["uncertainty"]["method"]
+    assert json.loads((tmp_path / "off" / "metrics.json").read_text())["uncertainty"] is None
+
+
+def test_max_halfwidth_parsing_and_flags():
+    assert parse_max_halfwidth("LVEF=5,lvedv (ml)=10") == {"LVEF (%)": 5.0, "LVEDV (mL)": 10.0}
+    for bad in ("LVXX=5", "LVEF", "LVEF=-1", "LVEF=abc", ""):
+        with pytest.raises(ValueError, match="--max-halfwidth"):
+            parse_max_halfwidth(bad)
+    iv = {"LVEF (%)": [50.0, 62.0], "LVEDV (mL)": [100.0, 104.0], "RVEF (%)": None,
+          "notes": {"RVEF (%)": "the metric is empty"}}
+    flags = halfwidth_flags(iv, {"LVEF (%)": 5.0, "LVEDV (mL)": 10.0, "RVEF (%)": 5.0})
+    assert len(flags) == 2
+    assert flags[0].startswith("LVEF (%) 95 % interval ± 6")
+    assert "the metric is empty" in flags[1]
+
+
+def test_cli_refuses_a_bad_max_halfwidth(tmp_path, capsys):
+    assert main(["cohort", str(tmp_path), "--csv", str(tmp_path / "c.csv"),
+                 "--max-halfwidth", "LVEF=x"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--max-halfwidth" in err[0]
+
+
+def test_cohort_columns_and_imprecise_subject_flagged(tmp_path):
+    ph = generate.generate("normal", seed=4, frames=2, noise_px=0.5)
+    ph.study.tags = []
+    ph.study.contours = [c for c in ph.study.contours if c.view == "SA"]    # ends left open
+    ph.study.landmarks = [lm for lm in ph.study.landmarks if lm.view == "SA"]
+    generate.write_phantom(ph, tmp_path / "s", dicom=False)
+    t = cohort([tmp_path / "s"], max_halfwidth={"LVEDV (mL)": 1.0, "LVEF (%)": 50.0})
+    r = t.iloc[0]
+    assert r["status"] == "ok"
+    assert list(t.columns[-len(INTERVAL_COLUMNS) - 2:-2]) == list(INTERVAL_COLUMNS)
+    assert r["LVEDV (mL) lo95"] < r["LVEDV (mL)"] < r["LVEDV (mL) hi95"]
+    assert "LVEDV (mL) 95 % interval" in r["QC"] and "LVEF (%) 95 % interval" not in r["QC"]
+    strict = cohort([tmp_path / "s"], max_halfwidth={"LVEDV (mL)": 1.0}, strict=True)
+    assert strict.iloc[0]["status"].startswith("error: QC:")
+    assert np.isnan(strict.iloc[0]["LVEDV (mL) lo95"])
+
+
+@settings(max_examples=30, deadline=None)
+@given(r=st.floats(15, 40), n=st.integers(60, 200), frac=st.floats(0.05, 0.4),
+       seed=st.integers(0, 2 ** 16))
+def test_contour_scatter_of_a_noisy_circle(r, n, frac, seed):
+    """The second-difference scatter of a circle's points recovers i.i.d. radial noise σ (to
+    sampling error) while σ is below half the point spacing (a hand contour's or a phantom's:
+    60 points round a 25 mm LV, σ <= 1 px), above the curvature floor a clean contour has."""
+    sigma = frac * 2 * np.pi * r / n
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    rad = r + rng.normal(0, sigma, n)
+    pts = np.c_[rad * np.cos(t), rad * np.sin(t), np.zeros(n)]
+    est, ds = _normal_scatter(pts, np.array([0.0, 0.0, 1.0]))
+    step = 2 * np.pi * r / n                 # noise lengthens the steps: ds is then conservative
+    assert 0.9 * step < ds < 1.25 * np.sqrt(step ** 2 + 2 * sigma ** 2)
+    # a clean circle's second differences are its curvature, ds²/r: a conservative floor
+    floor = (2 * np.pi * r / n) ** 2 / r / np.sqrt(0.4549 * 6)
+    assert 0.5 * sigma < est < 1.5 * np.hypot(sigma, floor)     # a median of >= 60 samples
+    clean, _ = _normal_scatter(np.c_[r * np.cos(t), r * np.sin(t), np.zeros(n)],
+                               np.array([0.0, 0.0, 1.0]))
+    assert clean == pytest.approx(floor, rel=0.05)
