@@ -177,6 +177,14 @@ def build_parser() -> argparse.ArgumentParser:
     def command(name, help):
         return sub.add_parser(name, help=help, description=help, formatter_class=_HelpFormatter)
 
+    for add in (_phantom_command, _analyze_command, _track_command, _cohort_command,
+                _demo_report_commands):
+        add(command)
+    return _uncertainty_options(p)
+
+
+def _phantom_command(command) -> None:
+    """Add the ``phantom`` command's options (``command(name, help)`` makes a subparser)."""
     ph = command("phantom", "generate a phantom study (or a cohort of them)")
     ph.add_argument("--pathology", choices=["normal", "mr", "phtn"],
                     help="the preset to generate (or use --cohort)")
@@ -235,6 +243,9 @@ def build_parser() -> argparse.ArgumentParser:
     ph.add_argument("--overwrite", action="store_true",
                     help="replace --out when it holds an earlier cardionurbs output")
 
+
+def _analyze_command(command) -> None:
+    """Add the ``analyze`` command's options (``command(name, help)`` makes a subparser)."""
     an = command("analyze", "reconstruct and measure one study")
     an.add_argument("study", metavar="STUDY",
                     help="study folder (or its study.json), or a NIfTI label map")
@@ -274,6 +285,9 @@ def build_parser() -> argparse.ArgumentParser:
     an.add_argument("--verbose", action="store_true",
                     help="print every warning on stderr, not only the count and the first few")
 
+
+def _track_command(command) -> None:
+    """Add the ``track`` command's options (``command(name, help)`` makes a subparser)."""
     tr = command("track", "track tag lines from a study's tagged DICOM images (HARP)")
     tr.add_argument("study", metavar="STUDY", help="native study folder whose images name DICOM files")
     tr.add_argument("--out", required=True, metavar="DIR",
@@ -283,6 +297,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "/ M&Ms folder): clip the lines to their myocardium pixels")
     _output_safety_options(tr)
 
+
+def _cohort_command(command) -> None:
+    """Add the ``cohort`` command's options (``command(name, help)`` makes a subparser)."""
     co = command("cohort", "measure many studies into one CSV")
     co.add_argument("studies", nargs="+", metavar="STUDY", help="study folders or label maps")
     co.add_argument("--csv", required=True, metavar="FILE",
@@ -309,6 +326,9 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--strict", action="store_true",
                     help="a study whose metrics carry a quality flag (QC) is a failure")
 
+
+def _demo_report_commands(command) -> None:
+    """Add the ``demo`` and ``report`` commands' options (``command(name, help)`` makes a subparser)."""
     de = command("demo", "the paper's 12-subject phantom cohort, end to end")
     de.add_argument("--out", metavar="DIR", default=None,
                     help="new (or empty) output folder; default: a temporary folder, "
@@ -324,7 +344,6 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("output_dir", metavar="OUTPUT_DIR", help="a folder written by analyze")
     rp.add_argument("--out", required=True, metavar="report.html",
                     help="the HTML file to write (replaced atomically when it exists)")
-    return _uncertainty_options(p)
 
 
 def _run(args: argparse.Namespace) -> int:
