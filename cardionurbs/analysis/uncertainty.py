@@ -266,7 +266,7 @@ def solid_error(model: "BiventricularModel", frame: int, solid: str) -> VolumeEr
         return None
     sd = {k: math.hypot(a[k], b[k]) for k in ("contours", "between", "apex")}
     sd["pixels"] = abs(a["pixels"] - b["pixels"])
-    (ob, oa), (ib, ia) = _end_areas(model, frame, outer), _end_areas(model, frame, inner)
+    (ob, _), (ib, _) = _end_areas(model, frame, outer), _end_areas(model, frame, inner)
     frac = max(ob - ib, 0.0) / ob if ob > 0 else 0.0
     sd["base"] = a["base"] * frac
     return VolumeError(sd, frozenset(shared),
