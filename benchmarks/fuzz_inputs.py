@@ -323,6 +323,18 @@ def _children() -> list[int]:
     return out
 
 
+def _new_children(already: set[int], grace_s: float = 1.0) -> list[int]:
+    """This process's children that were not among ``already``, once those that are
+    exiting have had ``grace_s`` seconds to go."""
+    import time
+    deadline = time.monotonic() + grace_s
+    while True:
+        new = [p for p in _children() if p not in already]
+        if not new or time.monotonic() > deadline:
+            return new
+        time.sleep(0.05)
+
+
 def run_case(case: Case, bases: dict[str, Path], work: Path, analyze_ok: bool = False) -> dict:
     """Build and check one case; returns its record (``problems`` empty when the contract
     holds). ``analyze_ok``: also run ``analyze`` when the study loads."""
@@ -333,6 +345,7 @@ def run_case(case: Case, bases: dict[str, Path], work: Path, analyze_ok: bool = 
     study = build(case, bases, work)
     target = study / "map.nii.gz" if case.kind == "nifti" else study
     problems: list[str] = []
+    already = set(_children())      # a test runner's own children are not this case's
     _WATCH["opened"], _WATCH["on"] = [], True
     try:
         load_study(target)
@@ -371,7 +384,7 @@ def run_case(case: Case, bases: dict[str, Path], work: Path, analyze_ok: bool = 
             problems.append(f"wrote outside --out: {wrote[0]}")
         if code == 2 and out.exists():
             problems.append("half-written output")
-    if _children():
+    if _new_children(already):
         problems.append("a process left alive")
     return {"index": case.index, "kind": case.kind, "what": case.what, "loaded": loaded,
             "exit": code, "message": message[:160], "problems": problems}

@@ -95,7 +95,8 @@ def test_manifest_geometry_cross_checked_against_dicom(phantom, tmp_path):
 
 def test_phantom_to_gpfile_and_back(phantom, tmp_path):
     """A phantom study goes to biv-me GPFiles: closed rv_endo becomes RV_SEPTUM + RV_FREEWALL
-    (same points), LA views keep their names, every other contour and landmark is equal."""
+    (same points), the SA epicardia lose their septal run, LA views keep their names, every
+    other contour and landmark is equal."""
     from cardionurbs.io import gpfile
 
     ph, out = phantom
@@ -110,6 +111,12 @@ def test_phantom_to_gpfile_and_back(phantom, tmp_path):
             parts = [p.points for p in back.contours if p.structure in ("rv_septum", "rv_freewall")
                      and (p.slice, p.frame) == (c.slice, c.frame)]
             assert np.array_equal(np.sort(np.concatenate(parts), axis=0), np.sort(c.points, axis=0))
+        elif c.view == "SA" and c.structure in ("lv_epi", "rv_epi"):
+            # CAP and biv-me leave the septal run of the SA epicardia out (issue #30): the
+            # written points are the original's without that run
+            got = same[key(c)].points
+            assert 0.3 * len(c.points) < len(got) <= len(c.points)
+            assert all((np.abs(c.points - p).max(axis=1) == 0).any() for p in got)
         else:
             assert np.array_equal(same[key(c)].points, c.points)
     assert len(back.landmarks) == len(study.landmarks)

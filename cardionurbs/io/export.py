@@ -14,6 +14,8 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from cardionurbs.errors import ExportError
 from cardionurbs.io import atomic
 from cardionurbs.nurbs import write_3dm
@@ -63,16 +65,38 @@ def canonical_order(v, f):
     -------
     (v, f)
         Reordered copies."""
-    import numpy as np
+    v = np.asarray(v)
+    order, f = canonical_permutation(v, f)
+    return v[order], f
+
+
+def canonical_permutation(v, f):
+    """The vertex order and the renumbered, sorted faces of :func:`canonical_order`.
+
+    Parameters
+    ----------
+    v : (n, 3) float array
+        Vertices, mm.
+    f : (m, 3) int array
+        Triangles as vertex indices.
+
+    Returns
+    -------
+    order : (n,) int64 array
+        ``v[order]`` are the vertices in canonical order (point data permute the same way).
+    f : (m, 3) int64 array
+        The faces in canonical order, indexing ``v[order]``."""
+    v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(f, dtype=np.int64).reshape(-1, 3)
     order = np.lexsort((v[:, 2], v[:, 1], v[:, 0]))
     rank = np.empty(len(v), dtype=np.int64)
     rank[order] = np.arange(len(v))
-    f = rank[f] if len(f) else f.astype(np.int64)
+    f = rank[f] if len(f) else f
     if len(f):
         k = f.argmin(axis=1)[:, None]
         f = np.take_along_axis(f, (k + np.arange(3)) % 3, axis=1)
         f = f[np.lexsort((f[:, 2], f[:, 1], f[:, 0]))]
-    return v[order], f
+    return order, f
 
 
 def write_ply(vertices, faces, path: str | os.PathLike) -> Path:

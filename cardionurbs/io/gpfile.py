@@ -704,10 +704,10 @@ def check_gp_values(t: dict[str, np.ndarray], path: Path, last_frame: int) -> No
             raise StudyError(f"line {t['line'][i]}: {col} = {float(t[col][i]):.3g} mm lies past "
                              f"{MAX_COORDINATE_MM:g} mm from the scanner origin", file=path,
                              field=col)
-    import pandas as pd
     text = np.char.strip(np.asarray(t["time"], dtype=str))
     rows = np.flatnonzero(text != "")
-    v = pd.to_numeric(pd.Series(text[rows]), errors="coerce").to_numpy(float)
+    uniq, inverse = np.unique(text[rows], return_inverse=True)
+    v = np.array([_number_or_nan(u) for u in uniq], float)[inverse]   # few distinct frames
     with np.errstate(invalid="ignore"):
         bad = ~(np.isfinite(v) & (v == np.round(v)) & (v >= 0) & (v <= last_frame + 1))
     if bad.any():
@@ -715,6 +715,14 @@ def check_gp_values(t: dict[str, np.ndarray], path: Path, last_frame: int) -> No
         raise StudyError(f"line {t['line'][i]}: time frame {excerpt(text[i])} is not a whole "
                          f"number from 0 to {last_frame + 1} (the study's frames)",
                          file=path, field="time frame")
+
+
+def _number_or_nan(text: str) -> float:
+    """``float(text)``, NaN where it is not a number (no pandas on the metrics path)."""
+    try:
+        return float(text) if "_" not in text else float("nan")
+    except ValueError:
+        return float("nan")
 
 
 # ----------------------------------------------------------------------- writing

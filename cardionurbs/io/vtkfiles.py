@@ -25,6 +25,7 @@ import numpy as np
 
 from cardionurbs.errors import ExportError
 from cardionurbs.io import atomic
+from cardionurbs.io.export import canonical_permutation
 
 __all__ = ["write_vtp", "write_pvd", "require_vtk", "VTK_MISSING"]
 
@@ -68,15 +69,7 @@ def canonical_order(vertices: np.ndarray, faces: np.ndarray,
         (vertices (V, 3), faces (F, 3), point data dict).
     """
     v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    order = np.lexsort((v[:, 2], v[:, 1], v[:, 0]))
-    rank = np.empty(len(v), np.int64)
-    rank[order] = np.arange(len(v))
-    f = rank[f] if len(f) else f
-    if len(f):
-        shift = np.argmin(f, axis=1)
-        f = f[np.arange(len(f))[:, None], (shift[:, None] + np.arange(3)) % 3]
-        f = f[np.lexsort((f[:, 2], f[:, 1], f[:, 0]))]
+    order, f = canonical_permutation(v, faces)
     data = {k: np.asarray(a)[order] for k, a in (point_data or {}).items()}
     return v[order], f, data
 
