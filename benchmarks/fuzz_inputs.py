@@ -45,6 +45,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+from procs import children  # noqa: E402 (tests/ is on the path now)
 
 KINDS = ("native", "gpfile", "sunnybrook", "dicom", "nifti")
 SECRET = "FUZZ-SECRET outside the study"
@@ -310,26 +311,13 @@ def _tree(folder: Path) -> dict[str, tuple]:
     return out
 
 
-def _children() -> list[int]:
-    me = os.getpid()
-    out = []
-    for d in Path("/proc").iterdir() if Path("/proc").is_dir() else []:
-        if d.name.isdigit():
-            try:
-                if int((d / "stat").read_text().rsplit(")", 1)[1].split()[1]) == me:
-                    out.append(int(d.name))
-            except (OSError, ValueError, IndexError):
-                continue
-    return out
-
-
 def _new_children(already: set[int], grace_s: float = 1.0) -> list[int]:
     """This process's children that were not among ``already``, once those that are
     exiting have had ``grace_s`` seconds to go."""
     import time
     deadline = time.monotonic() + grace_s
     while True:
-        new = [p for p in _children() if p not in already]
+        new = [p for p in children(os.getpid()) if p not in already]
         if not new or time.monotonic() > deadline:
             return new
         time.sleep(0.05)
@@ -345,7 +333,7 @@ def run_case(case: Case, bases: dict[str, Path], work: Path, analyze_ok: bool = 
     study = build(case, bases, work)
     target = study / "map.nii.gz" if case.kind == "nifti" else study
     problems: list[str] = []
-    already = set(_children())      # a test runner's own children are not this case's
+    already = set(children(os.getpid()))      # a test runner's own children are not this case's
     _WATCH["opened"], _WATCH["on"] = [], True
     try:
         load_study(target)

@@ -22,25 +22,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
-
-
-def _children(pid: int) -> list[int]:
-    out = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                if int((d / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
-                    out.append(int(d.name))
-            except (OSError, ValueError, IndexError):
-                continue
-    return out
-
-
-def _alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
+from procs import alive, children  # noqa: E402 (tests/ is on the path now)
 
 
 def _cohort(args, **kw):
@@ -74,11 +56,11 @@ def main(argv=None) -> int:
         csv = tmp / f"k{k}.csv"
         run = _cohort([*paths, "--csv", csv, "--jobs", 2])
         time.sleep(at)
-        kids = _children(run.pid)
+        kids = children(run.pid)
         os.kill(run.pid, signal.SIGKILL)
         run.wait()
         time.sleep(2.0)
-        left = [c for c in kids if _alive(c)]
+        left = [c for c in kids if alive(c)]
         for c in left:
             os.kill(c, signal.SIGKILL)
         orphans += bool(left)

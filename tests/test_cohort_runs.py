@@ -19,6 +19,7 @@ import pytest
 from cardionurbs.cohort import TEST_FAULTS_ENV, RowStore, cohort
 from cardionurbs.io.native import write_study
 
+from procs import alive, children
 from test_model_fixtures import heart, study_from_hearts
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -155,28 +156,6 @@ def test_dask_local_workers_run_without_the_profiler_and_with_slow_ticks():
     assert seen == {(False, WORKER_CONFIG["distributed.admin.tick.interval"])}
 
 
-def _children(pid: int) -> list[int]:
-    """Pids whose parent is ``pid`` (from /proc)."""
-    out = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                stat = (d / "stat").read_text()
-            except OSError:
-                continue
-            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
-                out.append(int(d.name))
-    return out
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
-
-
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
 def test_kill_9_of_the_parent_alone_leaves_no_worker_and_resume_matches(studies, tmp_path):
     """Issue 31, finding 6: SIGKILL of ``cohort --jobs 2`` itself (not its process group):
@@ -193,13 +172,13 @@ def test_kill_9_of_the_parent_alone_leaves_no_worker_and_resume_matches(studies,
     workers: list[int] = []
     while len(workers) < 2:
         assert run.poll() is None and time.monotonic() - t0 < 120, "no workers started"
-        workers = _children(run.pid)
+        workers = children(run.pid)
         time.sleep(0.02)
     time.sleep(0.3)                                    # the workers are busy with studies
     os.kill(run.pid, signal.SIGKILL)
     run.wait()                   # not communicate(): an orphan would hold the pipes open
     time.sleep(2.0)
-    orphans = [w for w in workers if _alive(w)]
+    orphans = [w for w in workers if alive(w)]
     for w in orphans:            # leave nothing behind, whatever the outcome
         os.kill(w, signal.SIGKILL)
     run.communicate()

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from procs import alive, children
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
@@ -24,25 +25,6 @@ PARENTS = {
 }
 
 
-def _children(pid: int) -> list[int]:
-    out = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit():
-            try:
-                if int((d / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
-                    out.append(int(d.name))
-            except (OSError, ValueError, IndexError):
-                continue
-    return out
-
-
-def _alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
 @pytest.mark.parametrize("runner", sorted(PARENTS))
 def test_workers_end_within_two_seconds_of_their_parents_death(runner):
     p = subprocess.Popen([sys.executable, "-c", PARENTS[runner]], cwd=ROOT,
@@ -51,13 +33,13 @@ def test_workers_end_within_two_seconds_of_their_parents_death(runner):
     kids: list[int] = []
     while len(kids) < 2:
         assert p.poll() is None and time.monotonic() - t0 < 60, "the workers did not start"
-        kids = _children(p.pid)
+        kids = children(p.pid)
         time.sleep(0.05)
     time.sleep(0.3)
     os.kill(p.pid, signal.SIGKILL)
     p.wait()
     time.sleep(2.0)
-    left = [k for k in kids if _alive(k)]
+    left = [k for k in kids if alive(k)]
     for k in left:
         os.kill(k, signal.SIGKILL)
     assert left == [], f"{runner}: workers alive 2 s after the parent's death"
