@@ -11,7 +11,6 @@ for the Sunnybrook examples (the quickest to reconstruct).
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import sys
 from pathlib import Path
@@ -27,34 +26,20 @@ from cardionurbs.cli import main
 from cardionurbs.errors import CardioNurbsError
 
 # ------------------------------------------------------------------ open() audit
-_WATCH: dict = {"on": False, "opened": []}
+def _corpus():
+    import importlib.util
+    if "fuzz_inputs" in sys.modules:
+        return sys.modules["fuzz_inputs"]
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "fuzz_inputs.py"
+    spec = importlib.util.spec_from_file_location("fuzz_inputs", path)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["fuzz_inputs"] = mod
+    spec.loader.exec_module(mod)
+    return mod
 
 
-def _audit(event, args):
-    if _WATCH["on"] and event == "open" and args and isinstance(args[0], (str, bytes, os.PathLike)):
-        _WATCH["opened"].append(os.fsdecode(args[0]))
-
-
-sys.addaudithook(_audit)
-
-_ALLOWED_ROOTS = [Path(p).resolve() for p in {sys.prefix, sys.base_prefix, sys.exec_prefix,
-                                                 *sys.path[1:]} if p and Path(p).is_dir()
-                  and Path(p).resolve() != Path("/")]
-_ALLOWED_ROOTS.append(Path(__file__).resolve().parents[1] / "cardionurbs")
-
-
-def _outside_opens(study: Path, extra: Path | None = None) -> list[str]:
-    """Files opened that are neither in the study, the output, Python's own trees nor
-    the package (code and package data)."""
-    roots = [study.resolve()] + ([extra.resolve()] if extra else []) + _ALLOWED_ROOTS
-    bad = []
-    for p in _WATCH["opened"]:
-        if p.startswith(("/proc/", "/dev/", "/sys/")):
-            continue
-        r = Path(os.path.realpath(p))
-        if not any(r.is_relative_to(root) for root in roots):
-            bad.append(p)
-    return bad
+# the corpus module's open() audit (an audit hook) serves the hypothesis cases too
+_WATCH = _corpus()._WATCH
 
 
 # ----------------------------------------------------------------------- bases
@@ -192,7 +177,7 @@ def test_mutated_inputs_exit_0_or_2_and_open_nothing_outside(bases, tmp_path_fac
         assert "\n" not in str(exc)
     finally:
         _WATCH["on"] = False
-    assert _outside_opens(study) == []
+    assert _corpus().outside_opens(study, _WATCH["opened"]) == []
     if loaded and BASE_OF[kind] != "sunnybrook":
         return
     out = work / "out"
@@ -207,18 +192,6 @@ def test_mutated_inputs_exit_0_or_2_and_open_nothing_outside(bases, tmp_path_fac
 
 
 # ------------------------------------------- the corpus of benchmarks/fuzz_inputs.py, sampled
-def _corpus():
-    import importlib.util
-    if "fuzz_inputs" in sys.modules:
-        return sys.modules["fuzz_inputs"]
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "fuzz_inputs.py"
-    spec = importlib.util.spec_from_file_location("fuzz_inputs", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["fuzz_inputs"] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
 @pytest.fixture(scope="module")
 def corpus(tmp_path_factory):
     mod = _corpus()
