@@ -38,7 +38,6 @@ def mesh_format(path: str | os.PathLike) -> str:
 def export_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike) -> Path:
     """Write one mesh (scanner mm) to ``path`` in the format its extension names."""
     fmt = mesh_format(path)
-    import numpy as np
     import trimesh as _tm
     v, f = canonical_order(np.asarray(mesh.vertices), np.asarray(mesh.faces))
     mesh = _tm.Trimesh(v, f, process=False)          # the same bytes whatever the build order
@@ -107,7 +106,6 @@ def write_ply(vertices, faces, path: str | os.PathLike) -> Path:
     ``analyze`` writes every frame's meshes this way straight from the manifold3d arrays
     (:func:`cardionurbs.anatomy.mesh.mesh_arrays`): importing trimesh only to serialise
     them costs about 0.4 s and 20 MB per study, more than writing all of them."""
-    import numpy as np
     v = np.asarray(vertices, dtype="<f4").reshape(-1, 3)
     f = np.asarray(faces).reshape(-1, 3)
     if len(f) and (f.min() < 0 or f.max() >= len(v)):
@@ -132,7 +130,6 @@ def table_csv(columns: dict) -> str:
     import csv
     import io
 
-    import numpy as np
 
     from cardionurbs.safe import csv_cell
 
