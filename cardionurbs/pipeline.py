@@ -106,6 +106,7 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
                                       jobs=jobs, progress=progress, on_measured=on_measured)
     if tags is not None:
         metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
+    model.tag_result = tags                       # the tag intervals read it (analysis/tag_uncertainty)
     from cardionurbs.analysis.regional import regional_metrics
     regional = regional_metrics(model, tags, jobs=jobs)
     metrics.update({k: float(v) for k, v in regional.items() if k in metrics})
