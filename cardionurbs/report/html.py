@@ -262,8 +262,10 @@ def _metric_rows(metrics: dict, truth: dict | None) -> list[dict]:
         rows.append({"metric": k, "measured": _num(v), "truth": _num(t), "difference": _num(diff),
                      "qc": "; ".join(flags), "qc_surfaces": sorted({_flag_surface(f) for f in flags}),
                      "note": notes.get(k) if _num(v) is None else None,
-                     "range": [rng.get("lower"), rng.get("upper")] if rng.get("table") else None,
-                     "range_flag": rng.get("flag"), "range_table": rng.get("table"),
+                     "range": ([rng.get("lower"), rng.get("upper")]
+                               if rng.get("lower") is not None or rng.get("upper") is not None
+                               else None),
+                     "range_flag": rng.get("flag"), "range_table": rng.get("where"),
                      "range_reason": rng.get("reason") or None,
                      "halfwidth": (_num(0.5 * (unc[k][1] - unc[k][0]))
                                    if isinstance(unc.get(k), list) else None)})
