@@ -504,10 +504,11 @@ def _fmt(x: Any) -> str:
 
 def _range_cell(r: Mapping) -> str:
     if not r.get("range"):
-        why = r.get("range_reason")
-        return "<td></td><td>" + (f"<span class='why'>{html.escape(why)}</span>" if why else "") + "</td>"
+        why = html.escape(r.get("range_reason") or "")
+        short = "–" if why == "not in the reference source" else why   # the common case, short
+        return "<td></td><td>" + (f"<span class='why' title='{why}'>{short}</span>" if why else "") + "</td>"
     lo, hi = r["range"]
-    text = f"{_fmt(lo) if lo is not None else ''}–{_fmt(hi) if hi is not None else ''}"
+    text = f"{'' if lo is None else f'{lo:.4g}'}–{'' if hi is None else f'{hi:.4g}'}"
     f = r.get("range_flag")
     cls = "" if f in (None, "normal") else " class='bad'"
     return (f"<td title='{html.escape(str(r.get('range_table') or ''))}'>{text}</td>"
