@@ -219,6 +219,8 @@ def test_range_flags_by_hand():
     assert f["LVEF (%)"]["flag"] == "normal" and f["LVEF (%)"]["where"] == "T1"
     assert f["LVEF (%)"]["bound"].startswith("within 53.0–75.0 (mean 64")
     assert f["LVEDVi (mL/m²)"]["flag"] is None and f["LVEDVi (mL/m²)"]["reason"] == "metric is null"
+    assert range_flags({"LVEF (%)": None}, None, None, TABLE)["LVEF (%)"]["reason"] == \
+        "metric is null"                        # the metric's own reason before the demographics'
     assert f["RVEF (%)"] == {"flag": None, "lower": None, "upper": None, "where": None,
                              "bound": None, "reason": "not in the reference source"}
     low = range_flags({"LVEF (%)": 54.0}, "M", 30, TABLE)["LVEF (%)"]

@@ -149,14 +149,15 @@ def _entry(column: str, value: Any, sex: str | None, age: float | None, table: M
     entry: dict[str, Any] = {"flag": None, "lower": None, "upper": None, "where": None,
                              "bound": None, "reason": ""}
     row, why = find_range(column, sex, age, table)
-    if row is None:
-        entry["reason"] = why
-        return entry
-    lower, upper, how = limits(row, table)
-    entry.update(lower=lower, upper=upper, where=row.get("where"))
     number = None if value is None or isinstance(value, bool) else float(value)
-    if number is None or not math.isfinite(number):
+    if row is not None:
+        lower, upper, how = limits(row, table)
+        entry.update(lower=lower, upper=upper, where=row.get("where"))
+    if why != NOT_COVERED and (number is None or not math.isfinite(number)):
         entry["reason"] = "metric is null" + (f": {notes[column]}" if notes.get(column) else "")
+        return entry                # (the metric's own reason before the demographics')
+    if row is None or number is None:
+        entry["reason"] = why
         return entry
     entry["flag"] = flag(number, lower, upper)
     entry["bound"] = _bound_text(entry["flag"], lower, upper, how)

@@ -266,7 +266,7 @@ def _metric_rows(metrics: dict, truth: dict | None) -> list[dict]:
                                if rng.get("lower") is not None or rng.get("upper") is not None
                                else None),
                      "range_flag": rng.get("flag"), "range_table": rng.get("where"),
-                     "range_reason": rng.get("reason") or None,
+                     "range_reason": (rng.get("reason") or None) if _num(v) is not None else None,
                      "halfwidth": (_num(0.5 * (unc[k][1] - unc[k][0]))
                                    if isinstance(unc.get(k), list) else None)})
     return rows
