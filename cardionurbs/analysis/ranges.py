@@ -143,13 +143,23 @@ def _bound_text(f: str, lower: float | None, upper: float | None, how: str) -> s
     return f"within {fmt(lower)}–{fmt(upper)} ({how})"
 
 
+def _number(value: Any) -> float | None:
+    """``value`` as a float, None when it is not a number (None, a bool, a string)."""
+    if value is None or isinstance(value, (bool, str)):
+        return None
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return None
+
+
 def _entry(column: str, value: Any, sex: str | None, age: float | None, table: Mapping,
            notes: Mapping[str, str]) -> dict:
     """One metric's flag entry (see :func:`range_flags`)."""
     entry: dict[str, Any] = {"flag": None, "lower": None, "upper": None, "where": None,
                              "bound": None, "reason": ""}
     row, why = find_range(column, sex, age, table)
-    number = None if value is None or isinstance(value, bool) else float(value)
+    number = _number(value)
     if row is not None:
         lower, upper, how = limits(row, table)
         entry.update(lower=lower, upper=upper, where=row.get("where"))
