@@ -12,6 +12,8 @@ import re
 import pandas as pd
 import pydicom
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 import cardionurbs as cn
 from cardionurbs.analysis.body import INDEXED, bsa_mosteller
@@ -228,6 +230,19 @@ def test_range_flags_by_hand():
     m = Metrics({"LVEF (%)": 60.0})
     null(m, "LVEF (%)", "one frame only")
     assert range_flags(m, "M", 30, TABLE)["LVEF (%)"]["reason"] == "metric is null: one frame only"
+
+
+@settings(max_examples=60, deadline=None)
+@given(mean=st.floats(1.0, 200.0), sd=st.floats(0.1, 50.0), value=st.floats(-100.0, 400.0))
+def test_flag_is_the_z_score_against_the_multiplier(mean, sd, value):
+    """A row of mean and SD: below iff z < -k, above iff z > k (k = sd_multiplier)."""
+    z = (value - mean) / sd
+    assume(abs(abs(z) - 1.96) > 1e-6)
+    table = check_table({"sd_multiplier": 1.96, "columns": ["X"],
+                         "rows": [{"column": "X", "sex": None, "mean": mean, "sd": sd}]})
+    e = range_flags({"X": value}, None, None, table)["X"]
+    assert e["flag"] == ("below" if z < -1.96 else "above" if z > 1.96 else "normal")
+    assert e["lower"] == pytest.approx(mean - 1.96 * sd) and e["reason"] == ""
 
 
 def test_malformed_range_rows_are_refused():
