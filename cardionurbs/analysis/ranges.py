@@ -45,8 +45,19 @@ def load_ranges() -> dict:
 def check_table(table: dict) -> dict:
     """``table`` unchanged when its rows are well formed, else ValueError naming the row.
 
-    Each row names a column of ``columns``, a sex of M / F / null, and either both
-    published limits or a mean and a positive SD (with ``sd_multiplier`` set)."""
+    Each row names a column of ``columns``, a sex of M / F / null, and either a published
+    limit or a mean and a positive SD (with ``sd_multiplier`` set).
+
+    Parameters
+    ----------
+    table : dict
+        Shaped as the packaged file (see the module).
+
+    Returns
+    -------
+    dict
+        ``table`` itself.
+    """
     columns = set(table.get("columns") or [])
     for i, r in enumerate(table["rows"]):
         has_limits = r.get("lower") is not None or r.get("upper") is not None
@@ -112,10 +123,21 @@ def find_range(column: str, sex: str | None, age: float | None,
 
 
 def limits(row: Mapping, table: Mapping | None = None) -> tuple[float | None, float | None, str]:
-    """(lower, upper, how) of a row: its published limits, else mean ∓ k · SD.
+    """The limits of a row: its published ones, else mean ∓ k · SD.
 
-    ``k`` is the table's ``sd_multiplier``; ``how`` says which, e.g.
-    ``"mean 58 ∓ 1.96 × SD 5"`` or ``"as published"``."""
+    Parameters
+    ----------
+    row : mapping
+        A row of the table (``lower``/``upper``, or ``mean`` and ``sd``).
+    table : mapping, optional
+        Gives ``k``, its ``sd_multiplier`` (default :func:`load_ranges`).
+
+    Returns
+    -------
+    (float or None, float or None, str)
+        Lower and upper limit (the column's unit) and how they were found, e.g.
+        ``"mean 58 ∓ 1.96 × SD 5"`` or ``"as published"``.
+    """
     if row.get("lower") is not None or row.get("upper") is not None:
         return row.get("lower"), row.get("upper"), "as published"
     k = float((table or load_ranges())["sd_multiplier"])
@@ -124,7 +146,19 @@ def limits(row: Mapping, table: Mapping | None = None) -> tuple[float | None, fl
 
 
 def flag(value: float, lower: float | None, upper: float | None) -> str:
-    """``below`` / ``normal`` / ``above`` of ``value`` against [lower, upper] (inclusive)."""
+    """``below`` / ``normal`` / ``above`` of ``value`` against [lower, upper] (inclusive).
+
+    Parameters
+    ----------
+    value : float
+    lower, upper : float or None
+        The limits, in the unit of ``value``; None for no limit.
+
+    Returns
+    -------
+    str
+        One of :data:`FLAGS`.
+    """
     if lower is not None and value < lower:
         return "below"
     if upper is not None and value > upper:
@@ -203,12 +237,33 @@ def range_flags(metrics: Mapping, sex: str | None = None, age: float | None = No
 
 
 def range_columns(flags: Mapping[str, dict]) -> dict[str, str | None]:
-    """The cohort CSV's ``<column> range`` cells (``below``/``normal``/``above``, None)."""
+    """The cohort CSV's ``<column> range`` cells.
+
+    Parameters
+    ----------
+    flags : mapping
+        :func:`range_flags` result.
+
+    Returns
+    -------
+    dict
+        ``"<column> range"`` -> ``below`` / ``normal`` / ``above`` or None.
+    """
     return {f"{c} range": e["flag"] for c, e in flags.items()}
 
 
 def range_column_names(table: Mapping | None = None) -> tuple[str, ...]:
-    """The ``<column> range`` CSV column names, in the table's ``columns`` order."""
+    """The ``<column> range`` CSV column names, in the table's ``columns`` order.
+
+    Parameters
+    ----------
+    table : mapping, optional
+        Default :func:`load_ranges`.
+
+    Returns
+    -------
+    tuple of str
+    """
     table = table or load_ranges()
     columns = table.get("columns") or list(dict.fromkeys(r["column"] for r in table["rows"]))
     return tuple(f"{c} range" for c in columns)
