@@ -189,14 +189,15 @@ def tag_intervals(model: Any, metrics: dict, z: float) -> tuple[dict, dict, dict
             sds[c] = _strain_sd(getattr(model, "regional", None), c, v)
     for c in TAG_COVERED:
         v = metrics.get(c, NAN)
+        src = sds[c]
         if not (isinstance(v, float) and math.isfinite(v)):
             notes[c] = "the metric is empty"
-        elif sds[c] is None:
+        elif src is None:
             notes[c] = ("no tag result on the model (measured without the tag analysis)"
                         if tags is None and c in TAG_COVERED[:2] else
                         "fewer than two points on an end level" if c in TAG_COVERED[:2] else
                         "no tag-line strain fit on the model")
         else:
-            sd = math.sqrt(sum(x * x for x in sds[c].values()))
-            out[c], parts[c] = [float(v - z * sd), float(v + z * sd)], sds[c]
+            sd = math.sqrt(sum(x * x for x in src.values()))
+            out[c], parts[c] = [float(v - z * sd), float(v + z * sd)], src
     return out, notes, parts
