@@ -266,14 +266,27 @@ def model_filling_rates(model: "BiventricularModel") -> tuple[dict[str, float], 
     hr = model.study.heart_rate_bpm
     rr = 60000.0 / hr if hr else None
     return filling_rates(times, vols, frames.index(model.ed_frame), frames.index(model.es_frame), rr,
-                         steps=extent_steps(model.study, frames, times))
+                         steps=extent_steps(model.study, frames, [float(x or 0.0) for x in times]))
 
 
 def extent_steps(study, frames: list[int], times: list[float]) -> list[tuple[int, int]]:
-    """Pairs (i, j) of indices into ``frames``, consecutive in time over the beat (the last
-    frame followed by the first), between which the set of SA slices holding an LV
-    endocardial contour changes while no long-axis LV contour places the base (the volume
-    curve steps there by a slab)."""
+    """Where a volume curve built from the SA slices steps.
+
+    Parameters
+    ----------
+    study : Study
+        Its contours (SA and LA ``lv_endo``) are read.
+    frames, times : lists of equal length
+        The curve's frames and their times (ms).
+
+    Returns
+    -------
+    list of (int, int)
+        Pairs (i, j) of indices into ``frames``, consecutive in time over the beat (the
+        last frame followed by the first), between which the set of SA slices holding an LV
+        endocardial contour changes while no long-axis LV contour places the base (the
+        volume curve steps there by a slab).
+    """
     held: dict[int, set[str]] = {f: set() for f in frames}
     la: set[int] = set()
     for c in study.contours:
