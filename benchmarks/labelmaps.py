@@ -5,6 +5,7 @@
     python benchmarks/labelmaps.py realconv     # ACDC-as-distributed phantoms, printed
     python benchmarks/labelmaps.py acdc         # ../shared/data/acdc per patient, printed
     python benchmarks/labelmaps.py quirks       # phantoms in every --label-quirks set, printed
+    python benchmarks/labelmaps.py per50        # PER of 50-frame SA-only ukbb maps, printed
 
 realconv: phantoms (normal, MR, PHTN; seeds 0-1; 10 and 5 mm SA slices, the first 0.6 spacing
 below the ED base) written in the ACDC
@@ -455,6 +456,58 @@ def quirks_table() -> None:
                   f"| {int((a <= v).sum())} of {len(sub)} |")
 
 
+#: (matrix, field of view mm) of the 50-frame PER table: 1.44, 1.8 and 2.34 mm pixels
+PER_GRIDS = ((208, 300.0), (160, 288.0), (128, 300.0))
+
+
+def per50_row(pathology: str, matrix: int, fov: float, work: Path) -> str:
+    """One row of the 50-frame ukbb-layout PER table (SA only, 8 mm slices, header as UK
+    Biobank writes it): steps, kappa, PER and PEFR errors (%), PER with kappa from the stroke
+    volume and with the plain spline."""
+    from scipy.interpolate import CubicSpline
+
+    from cardionurbs.analysis import rates
+    ph = generate(pathology, seed=0, frames=50, matrix=matrix, fov_mm=fov, n_sa=10,
+                  sa_spacing_mm=8.0, volume_check=False)
+    folder = work / f"{pathology}_{matrix}"
+    write_labelmaps(ph, folder, "ukbb", quirks="real", images=False)
+    for q in folder.glob("seg*la*"):
+        q.unlink()
+    model, m = analyse_study(load_study(folder))
+    frames = list(model.curve_frames)
+    times = [model.study.frame_times_ms[f] for f in frames]
+    vols = np.array([model.consistent_lv_cavity_volume(f) for f in frames])
+    pairs = rates.extent_steps(model.study, frames, times)
+    rr = times[-1] - times[0] + float(np.median(np.diff(times)))
+    tc, vc = np.r_[times, times[0] + rr], np.r_[vols, vols[0]]
+    ks = sorted(rates._beat_intervals(np.arange(len(frames)), pairs))
+    jumps = rates.step_sizes(tc, vc, ks)
+    sm = vc.copy()
+    for k, j in zip(ks, jumps):
+        sm[k + 1:] -= j
+    sm -= jumps.sum() * (tc - tc[0]) / (tc[-1] - tc[0])
+    es, t = model.es_frame, ph.truth["metrics"]
+    kappa = rates.base_share(tc, sm, ks, jumps)
+    k_sv = (vc[0] - vc[es]) / (sm[0] - sm[es]) - 1
+    spline = CubicSpline(tc, sm, bc_type="natural")
+    sv_per = rates.peak_rates(lambda x: (1 + k_sv) * spline(x, 1), tc[0], tc[es], rr)["PER (mL/s)"]
+    plain, _ = rates.filling_rates(times, vols, 0, frames.index(es), None)
+    e = {c: metric_error(c, v, t["PER (mL/s)"]) for c, v in (("PER", m["PER (mL/s)"]), ("sv", sv_per),
+                                                              ("plain", plain["PER (mL/s)"]))}
+    return (f"| {pathology} | {fov / matrix:.2f} | {ks} | "
+            f"{kappa if np.isfinite(kappa) else k_sv:.2f}{'' if np.isfinite(kappa) else ' (SV)'} | "
+            f"{e['PER']:+.1f} | {metric_error('PEFR (mL/s)', m['PEFR (mL/s)'], t['PEFR (mL/s)']):+.1f} | "
+            f"{e['sv']:+.1f} | {e['plain']:+.1f} |")
+
+
+def per50() -> None:
+    """The 50-frame PER table of reports/validation-labelmaps.md, printed."""
+    with tempfile.TemporaryDirectory() as tmp:
+        for matrix, fov in PER_GRIDS:
+            for p in ("normal", "mr", "phtn"):
+                print(per50_row(p, matrix, fov, Path(tmp)), flush=True)
+
+
 def acdc(root: Path = ROOT.parent / "shared" / "data" / "acdc") -> None:
     keys = ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "RVESV (mL)", "LVM (g)", "LVEF (%)", "RVEF (%)")
     print("| patient | group | orientation | ES valve plane | " + " | ".join(
@@ -487,11 +540,11 @@ def study_roles():
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("what", choices=["validation", "benchmark", "realconv", "acdc", "quirks"])
+    ap.add_argument("what", choices=["validation", "benchmark", "realconv", "acdc", "quirks", "per50"])
     args = ap.parse_args()
     reports = ROOT / "reports"
-    if args.what in ("realconv", "acdc", "quirks"):
-        {"realconv": realconv, "acdc": acdc, "quirks": quirks_table}[args.what]()
+    if args.what in ("realconv", "acdc", "quirks", "per50"):
+        {"realconv": realconv, "acdc": acdc, "quirks": quirks_table, "per50": per50}[args.what]()
     elif args.what == "validation":
         validation(reports / "validation-labelmaps.md")
     else:
