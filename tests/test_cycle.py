@@ -142,6 +142,9 @@ def test_bivme_slice_missing_in_some_frames_is_supported_in_time(bivme):
     assert set(model.sections_in_time) - set(own) == {15, 16, 17}
     assert {sl for s, sl in model.sections_in_time[16]} == {"sa_03"}
     assert model.sections_in_time[16][("lv_endo", "sa_03")] == (14, 18)
+    vc = volume_curve(model, every_structure=False)    # raw: the frames' own contours
+    raw, used = (np.array(vc[k])[15:18] for k in ("lv_cavity raw (mL)", "lv_cavity (mL)"))
+    assert np.all(np.isfinite(raw)) and np.all(np.abs(raw - used) > 0.1), (raw, used)
     q = assess(model, measure(model))
     for f in (15, 16, 17):
         assert sum(x.startswith(f"frame {f} supported by its neighbours' sections") and
@@ -174,9 +177,9 @@ def noisy_phantom():
 def test_phantom_corrupted_frames_keep_es_and_ef(noisy_phantom):
     """3 mm noise on the frame before ES (it cannot be built) and half the contours of a
     filling frame: the same ES and EF as the untouched phantom (0.2 point), ES within one
-    frame and EF within 1.5 points of the truth (the untouched reconstruction at 1 px
-    noise is itself up to about 1.1 points off), the curve within 5 % of the untouched
-    one, every supported frame flagged."""
+    frame and EF within 1 point of the truth (issue #30; this seed 0.85 point, seeds 0-2
+    in reports/validation-quality.md), the curve within 5 % of the untouched one, the half
+    frame's missing sections interpolated in time, every supported frame flagged."""
     ph = noisy_phantom
     truth = ph.truth
     es = truth["es_frame"]
@@ -187,7 +190,7 @@ def test_phantom_corrupted_frames_keep_es_and_ef(noisy_phantom):
     m = measure(model)
     assert model.es_frame == base.es_frame and abs(model.es_frame - es) <= 1
     assert abs(m["LVEF (%)"] - ref["LVEF (%)"]) < 0.2
-    assert abs(m["LVEF (%)"] - truth["metrics"]["LVEF (%)"]) < 1.5
+    assert abs(m["LVEF (%)"] - truth["metrics"]["LVEF (%)"]) < 1.0
     assert es - 1 in model.supported and not base.supported    # the half frame: if needed
     curve = volume_curve(model, every_structure=False)
     assert curve["frame"] == ph.study.contoured_frames

@@ -382,6 +382,19 @@ class BiventricularModel:
         out["lv_cavity"] = self.cycle.consistent[frame]
         return {k: v for k, v in out.items() if math.isfinite(v)}
 
+    def own_lv_cavity_volume(self, frame: int) -> float:
+        """:meth:`lv_cavity_volume` from the frame's own contours, without the sections
+        interpolated in time (:attr:`sections_in_time`); NaN when those cannot be built."""
+        if frame not in self.sections_in_time:
+            return self.lv_cavity_volume(frame)
+        geo = self.own_geometry[frame]
+        try:
+            surface = build_surface(geo, "lv_endo", geo.reference, tol_px=self.tol_px).surface
+            return self._clipped_cavity_ml(frame, self._refined(geo, "lv_endo", surface)
+                                           if self.refine else surface)
+        except CardioNurbsError:
+            return math.nan
+
     def consistent_lv_cavity_volume(self, frame: int) -> float:
         """:meth:`lv_cavity_volume`, or the checked curve's value at a supported frame (mL)."""
         if frame in self.supported:
