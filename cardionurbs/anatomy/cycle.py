@@ -20,6 +20,10 @@ time to tell noise from motion. docs/metrics.md, Frames.
 
 The raw volumes stay beside the consistent ones (metrics.json ``volume_curve``), ED
 and ES are found on the consistent curve, and every supported frame is a QC flag.
+
+Before that check, at the level of sections, :func:`support_sections` fills a gap in a
+frame's own stack (a slice traced in most frames but not in this one) with the section
+interpolated in time from the nearest frames that trace it.
 """
 
 from __future__ import annotations
