@@ -264,8 +264,19 @@ def _finite(x) -> bool:
 
 def section_support_flag(frame: int, sections: dict) -> str:
     """The QC flag of a frame whose sections were interpolated in time
-    (:func:`cardionurbs.anatomy.cycle.support_sections`): ``sections`` (surface, slice) ->
-    (frame before, frame after)."""
+    (:func:`cardionurbs.anatomy.cycle.support_sections`).
+
+    Parameters
+    ----------
+    frame : int
+    sections : dict (str, str) -> (int, int)
+        (surface, slice) -> (frame before, frame after) each was interpolated from.
+
+    Returns
+    -------
+    str
+        One line naming the frame, every section and its two source frames.
+    """
     names = ", ".join(f"{s} {sl} (from frames {a} and {b})" for (s, sl), (a, b)
                       in sorted(sections.items()))
     return f"frame {frame} supported by its neighbours' sections: not traced, interpolated in time: {names}"

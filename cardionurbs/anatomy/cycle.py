@@ -227,7 +227,17 @@ _SUPPORT_ORDER = ("lv_endo", "lv_epi", "rv_endo", "rv_epi")
 
 
 def traced_slices(geo: FrameGeometry) -> dict[str, set]:
-    """Per surface, the SA slices one frame's own (not interpolated) sections lie on."""
+    """Per surface, the SA slices one frame's own (not interpolated) sections lie on.
+
+    Parameters
+    ----------
+    geo : FrameGeometry
+
+    Returns
+    -------
+    dict str -> set of str
+        surface -> slice identifiers.
+    """
     return {s: {sec.slice for sec in secs if sec.slice is not None
                 and (s, sec.slice) not in geo.in_time}
             for s, secs in geo.sections.items()}
@@ -243,9 +253,25 @@ def _traced_or_none(raw: Mapping[int, FrameGeometry], frame: int) -> dict[str, s
 
 def bracketing_frames(frame: int, frames: list[int], traced: set[int],
                       cyclic: bool) -> tuple[int, int, float] | None:
-    """The nearest frames of ``traced`` before and after ``frame`` in ``frames`` (wrapping
-    around when ``cyclic``) and the weight of the later one, linear in frame position;
-    None when one side has none."""
+    """The nearest frames of ``traced`` before and after ``frame`` in ``frames``.
+
+    Parameters
+    ----------
+    frame : int
+        A frame of ``frames``.
+    frames : list of int
+        The frames of the cine, in order.
+    traced : set of int
+        The frames that have the section.
+    cyclic : bool
+        Whether the frames wrap around (the last is followed by the first).
+
+    Returns
+    -------
+    (int, int, float) or None
+        The frame before, the frame after and the weight of the later one (linear in
+        frame position, in [0, 1]); None when one side has none.
+    """
     n, i = len(frames), frames.index(frame)
     found = []
     for step in (-1, 1):
