@@ -5,9 +5,10 @@ Read off what the tag analysis already measured (:func:`cardionurbs.analysis.tag
 :func:`cardionurbs.analysis.strain.tag_strain`); nothing is refitted:
 
 * **Twist** = φ_apex − φ_base, each φ the mean of the per-point rotations of one level's
-  material points (docs/metrics.md, Tags): its standard error is the scatter of those
-  rotations over √n (n the level's points), the two levels independent (different tag
-  lines), SD = √(se_apex² + se_base²). On a phantom every point of a level rotates by the
+  material points (docs/metrics.md, Tags): its standard error is that of the mean of those
+  rotations, two-way cluster-robust by the ``sa1`` and ``sa2`` tag line each point lies on
+  (:func:`mean_se`), the two levels taken as independent (a line shared by both moves them
+  alike and cancels in the difference: this errs wide), SD = √(se_apex² + se_base²). On a phantom every point of a level rotates by the
   same angle, so the scatter is the tag tracking noise; on a heart it is also the level's
   real variation round the wall, whose mean is the metric.
 * **LS** = 100 (1 − L_ES / L_ED), L the distance along the ED long axis between the mean
