@@ -113,7 +113,8 @@ def test_doctests(modname):
 #: modules outside nurbs/, io/ and analysis/ whose every public function, class and method is
 #: checked; a module joins once all its public names are documented
 REST_MODULES = [
-    "cardionurbs.confine", "cardionurbs.demo", "cardionurbs.executor", "cardionurbs.heap",
+    "cardionurbs.confine", "cardionurbs.demo", "cardionurbs.executor", "cardionurbs.geometry",
+    "cardionurbs.heap",
     "cardionurbs.limits", "cardionurbs.median", "cardionurbs.parallel", "cardionurbs.progress",
     "cardionurbs.safe", "cardionurbs.workers",
 ]
