@@ -117,6 +117,8 @@ REST_MODULES = [
     "cardionurbs.heap",
     "cardionurbs.limits", "cardionurbs.median", "cardionurbs.parallel", "cardionurbs.progress",
     "cardionurbs.safe", "cardionurbs.workers",
+    "cardionurbs.imaging.dicom", "cardionurbs.imaging.geometry", "cardionurbs.imaging.phases",
+    "cardionurbs.imaging.stack",
 ]
 
 
