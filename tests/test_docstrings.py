@@ -119,6 +119,8 @@ REST_MODULES = [
     "cardionurbs.safe", "cardionurbs.workers",
     "cardionurbs.imaging.dicom", "cardionurbs.imaging.geometry", "cardionurbs.imaging.phases",
     "cardionurbs.imaging.stack",
+    "cardionurbs.report.bullseye", "cardionurbs.report.chromium", "cardionurbs.report.cohort_figures",
+    "cardionurbs.report.overlay",
 ]
 
 
