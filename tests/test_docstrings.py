@@ -120,7 +120,7 @@ REST_MODULES = [
     "cardionurbs.imaging.dicom", "cardionurbs.imaging.geometry", "cardionurbs.imaging.phases",
     "cardionurbs.imaging.stack",
     "cardionurbs.report.bullseye", "cardionurbs.report.chromium", "cardionurbs.report.cohort_figures",
-    "cardionurbs.report.overlay",
+    "cardionurbs.report.figures", "cardionurbs.report.html", "cardionurbs.report.overlay",
 ]
 
 
