@@ -121,6 +121,7 @@ REST_MODULES = [
     "cardionurbs.imaging.stack",
     "cardionurbs.report.bullseye", "cardionurbs.report.chromium", "cardionurbs.report.cohort_figures",
     "cardionurbs.report.figures", "cardionurbs.report.html", "cardionurbs.report.overlay",
+    "cardionurbs.tracking.harp", "cardionurbs.tracking.labelmaps", "cardionurbs.tracking.spectral",
 ]
 
 
