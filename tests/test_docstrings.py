@@ -122,7 +122,8 @@ REST_MODULES = [
     "cardionurbs.report.bullseye", "cardionurbs.report.chromium", "cardionurbs.report.cohort_figures",
     "cardionurbs.report.figures", "cardionurbs.report.html", "cardionurbs.report.overlay",
     "cardionurbs.tracking.harp", "cardionurbs.tracking.labelmaps", "cardionurbs.tracking.spectral",
-    "cardionurbs.anatomy.outflow", "cardionurbs.anatomy.refine",
+    "cardionurbs.anatomy.cycle", "cardionurbs.anatomy.mesh", "cardionurbs.anatomy.outflow",
+    "cardionurbs.anatomy.refine",
 ]
 
 
