@@ -123,7 +123,7 @@ REST_MODULES = [
     "cardionurbs.report.figures", "cardionurbs.report.html", "cardionurbs.report.overlay",
     "cardionurbs.tracking.harp", "cardionurbs.tracking.labelmaps", "cardionurbs.tracking.spectral",
     "cardionurbs.anatomy.cycle", "cardionurbs.anatomy.mesh", "cardionurbs.anatomy.outflow",
-    "cardionurbs.anatomy.refine",
+    "cardionurbs.anatomy.refine", "cardionurbs.anatomy.sections", "cardionurbs.anatomy.surfaces",
 ]
 
 
