@@ -124,6 +124,8 @@ REST_MODULES = [
     "cardionurbs.tracking.harp", "cardionurbs.tracking.labelmaps", "cardionurbs.tracking.spectral",
     "cardionurbs.anatomy.cycle", "cardionurbs.anatomy.mesh", "cardionurbs.anatomy.outflow",
     "cardionurbs.anatomy.refine", "cardionurbs.anatomy.sections", "cardionurbs.anatomy.surfaces",
+    "cardionurbs.phantom.cli", "cardionurbs.phantom.faults", "cardionurbs.phantom.figures",
+    "cardionurbs.phantom.generate",
 ]
 
 
