@@ -127,6 +127,7 @@ REST_MODULES = [
     "cardionurbs.phantom.cli", "cardionurbs.phantom.faults", "cardionurbs.phantom.figures",
     "cardionurbs.phantom.dicom", "cardionurbs.phantom.generate", "cardionurbs.phantom.motion",
     "cardionurbs.phantom.regional", "cardionurbs.phantom.shape", "cardionurbs.phantom.truth",
+    "cardionurbs.phantom.truth_realistic",
 ]
 
 
