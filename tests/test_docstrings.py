@@ -126,7 +126,7 @@ REST_MODULES = [
     "cardionurbs.anatomy.refine", "cardionurbs.anatomy.sections", "cardionurbs.anatomy.surfaces",
     "cardionurbs.phantom.cli", "cardionurbs.phantom.faults", "cardionurbs.phantom.figures",
     "cardionurbs.phantom.dicom", "cardionurbs.phantom.generate", "cardionurbs.phantom.labelmaps",
-    "cardionurbs.phantom.motion", "cardionurbs.phantom.presets",
+    "cardionurbs.phantom.motion", "cardionurbs.phantom.outflow", "cardionurbs.phantom.presets",
     "cardionurbs.phantom.regional", "cardionurbs.phantom.shape", "cardionurbs.phantom.truth",
     "cardionurbs.phantom.truth_realistic",
 ]
