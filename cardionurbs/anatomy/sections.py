@@ -118,6 +118,9 @@ class FrameGeometry:
         How far a half-slice valve plane may later move basally, in mm.
     warnings : list of str
         The frame's warnings, one line each.
+    in_time : dict
+        (surface, slice) -> (frame, frame): sections interpolated in time from those two
+        frames (:func:`cardionurbs.anatomy.cycle.support_sections`).
     """
 
     frame: int
