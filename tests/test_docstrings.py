@@ -124,7 +124,7 @@ REST_MODULES = [
     "cardionurbs.tracking.harp", "cardionurbs.tracking.labelmaps", "cardionurbs.tracking.spectral",
     "cardionurbs.anatomy.cycle", "cardionurbs.anatomy.mesh", "cardionurbs.anatomy.outflow",
     "cardionurbs.anatomy.refine", "cardionurbs.anatomy.sections", "cardionurbs.anatomy.surfaces",
-    "cardionurbs.phantom.cli", "cardionurbs.phantom.faults", "cardionurbs.phantom.figures",
+    "cardionurbs.phantom.annotate", "cardionurbs.phantom.cli", "cardionurbs.phantom.faults", "cardionurbs.phantom.figures",
     "cardionurbs.phantom.dicom", "cardionurbs.phantom.generate", "cardionurbs.phantom.labelmaps",
     "cardionurbs.phantom.motion", "cardionurbs.phantom.outflow", "cardionurbs.phantom.presets",
     "cardionurbs.phantom.regional", "cardionurbs.phantom.shape", "cardionurbs.phantom.truth",
