@@ -678,7 +678,22 @@ class Anatomy:
         """(θ_lo, θ_hi): the RV crescent at height z spans θ_lo ≤ θ ≤ θ_hi (both 0 where there is
         none). Ideal: ±θ_e(z). Realistic: going out both ways from the angle where the crescent is
         widest (max of S_rv − S_epi on a 2 (n_table − 1) grid), the first sign change, refined by
-        eight regula falsi steps; both edges equal that angle where there is no crescent."""
+        eight regula falsi steps; both edges equal that angle where there is no crescent.
+
+        Parameters
+        ----------
+        z : float or ndarray
+            Height above the epicardial apex, mm.
+        epi : bool, optional
+            The epicardial shell (else the endocardial).
+        n_table : int, optional
+            Grid size of the realistic search.
+
+        Returns
+        -------
+        theta_lo, theta_hi : ndarray
+            The crescent's angular limits, rad, shape of ``atleast_1d(z)``.
+        """
         if self.shape is not None and np.ndim(z) == 0 and n_table == 181:
             key = (float(z), bool(epi))
             hit = self.memo.get(("rv_sector", key))
@@ -769,7 +784,13 @@ class Anatomy:
     def prime_rv_sectors(self, z: np.ndarray) -> None:
         """Solve the realistic RV sectors (endo and epi) at many heights in one vectorised call, for
         the scalar look-ups of the SA contours and insertion points (the same arithmetic
-        element by element, so the same values)."""
+        element by element, so the same values).
+
+        Parameters
+        ----------
+        z : ndarray
+            Heights, mm.
+        """
         if self.shape is None:
             return
         z = np.unique(np.asarray(z, dtype=float))
