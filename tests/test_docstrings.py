@@ -110,26 +110,38 @@ def test_doctests(modname):
 
 
 # ----------------------------------------------------- the rest of the package (#35 item 4)
-#: modules outside nurbs/, io/ and analysis/ whose every public function, class and method is
-#: checked; a module joins once all its public names are documented
+#: modules outside nurbs/, io/ and analysis/ (and anatomy/model.py) whose every public
+#: function, class and method is checked
 REST_MODULES = [
-    "cardionurbs.confine", "cardionurbs.demo", "cardionurbs.executor", "cardionurbs.geometry",
-    "cardionurbs.heap",
-    "cardionurbs.limits", "cardionurbs.median", "cardionurbs.parallel", "cardionurbs.progress",
-    "cardionurbs.safe", "cardionurbs.workers",
+    "cardionurbs.cohort", "cardionurbs.confine", "cardionurbs.demo", "cardionurbs.executor",
+    "cardionurbs.geometry", "cardionurbs.heap", "cardionurbs.limits", "cardionurbs.median",
+    "cardionurbs.parallel", "cardionurbs.pipeline", "cardionurbs.progress", "cardionurbs.safe",
+    "cardionurbs.workers",
     "cardionurbs.imaging.dicom", "cardionurbs.imaging.geometry", "cardionurbs.imaging.phases",
     "cardionurbs.imaging.stack",
     "cardionurbs.report.bullseye", "cardionurbs.report.chromium", "cardionurbs.report.cohort_figures",
     "cardionurbs.report.figures", "cardionurbs.report.html", "cardionurbs.report.overlay",
     "cardionurbs.tracking.harp", "cardionurbs.tracking.labelmaps", "cardionurbs.tracking.spectral",
+    "cardionurbs.tracking.track",
     "cardionurbs.anatomy.cycle", "cardionurbs.anatomy.mesh", "cardionurbs.anatomy.outflow",
     "cardionurbs.anatomy.refine", "cardionurbs.anatomy.sections", "cardionurbs.anatomy.surfaces",
-    "cardionurbs.phantom.annotate", "cardionurbs.phantom.cli", "cardionurbs.phantom.faults", "cardionurbs.phantom.figures",
-    "cardionurbs.phantom.dicom", "cardionurbs.phantom.generate", "cardionurbs.phantom.labelmaps",
+    "cardionurbs.phantom.anatomy", "cardionurbs.phantom.annotate", "cardionurbs.phantom.cli",
+    "cardionurbs.phantom.dicom", "cardionurbs.phantom.faults", "cardionurbs.phantom.figures",
+    "cardionurbs.phantom.generate", "cardionurbs.phantom.geometry", "cardionurbs.phantom.labelmaps",
     "cardionurbs.phantom.motion", "cardionurbs.phantom.outflow", "cardionurbs.phantom.presets",
     "cardionurbs.phantom.regional", "cardionurbs.phantom.shape", "cardionurbs.phantom.truth",
     "cardionurbs.phantom.truth_realistic",
 ]
+#: names of those modules whose docstrings other branches of this session write (the facade
+#: and docs/api.md objects: `types`; lines the `caches` and `labels` branches rewrite); a name
+#: here is skipped while undocumented and fails once documented, so the set may only shrink:
+#: empty it as those branches land
+REST_ELSEWHERE = {
+    "cardionurbs.cohort.cohort", "cardionurbs.pipeline.analyse",
+    "cardionurbs.pipeline.write_analysis", "cardionurbs.tracking.track.track_tags",
+    "cardionurbs.phantom.anatomy.gauss_legendre", "cardionurbs.phantom.geometry.Acquisition",
+    "cardionurbs.phantom.geometry.sa_heights",
+}
 
 
 def _rest_problems(qual: str, obj) -> list[str]:
@@ -166,7 +178,15 @@ def _rest_problems(qual: str, obj) -> list[str]:
 @pytest.mark.parametrize("modname", REST_MODULES)
 def test_rest_of_the_package_has_numpydoc_sections(modname):
     module = importlib.import_module(modname)
-    assert [p for qual, obj in _public(module) for p in _rest_problems(f"{modname}.{qual}", obj)] == []
+    bad = []
+    for qual, obj in _public(module):
+        name = f"{modname}.{qual}"
+        problems = _rest_problems(name, obj)
+        if name in REST_ELSEWHERE:
+            bad += [] if problems else [f"{name}: documented now: take it off REST_ELSEWHERE"]
+        else:
+            bad += problems
+    assert bad == []
 
 
 def test_rest_check_finds_what_is_missing():
@@ -193,3 +213,22 @@ def test_rest_check_finds_what_is_missing():
             self.x, self.y = x, y
     assert _rest_problems("f", f) == ["f: Parameters misses ['b']", "f: no Returns section"]
     assert _rest_problems("C", C) == ["C: Parameters/Attributes miss ['y']"]
+
+
+def test_rest_lists_every_module_and_only_real_names():
+    """Every public module of imaging/, tracking/, report/, anatomy/ and phantom/ is in
+    REST_MODULES (but anatomy/model.py and the modules the `caches` branch splits out of it,
+    documented there), and every REST_ELSEWHERE name exists there."""
+    import cardionurbs.anatomy
+    import cardionurbs.imaging
+    import cardionurbs.phantom
+    import cardionurbs.report
+    import cardionurbs.tracking
+    packages = (cardionurbs.imaging, cardionurbs.tracking, cardionurbs.report,
+                cardionurbs.anatomy, cardionurbs.phantom)
+    wanted = {m.name for p in packages for m in pkgutil.iter_modules(p.__path__, p.__name__ + ".")
+              if not m.name.rsplit(".", 1)[1].startswith("_")}
+    wanted -= {f"cardionurbs.anatomy.{m}" for m in ("model", "handback", "residuals", "serialise")}
+    assert wanted - set(REST_MODULES) == set()
+    names = {f"{m}.{q}" for m in REST_MODULES for q, _ in _public(importlib.import_module(m))}
+    assert REST_ELSEWHERE - names == set()
