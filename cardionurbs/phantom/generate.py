@@ -190,7 +190,7 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
              volume_check: bool = True, anatomy: dict | None = None, snr: float | None = None,
              tag_depth: float | None = None, anatomy_model: str = "ideal", infarct: str | None = None,
              realism: str | None = None, outflow: bool | None = None) -> Phantom:
-    """Generate one phantom subject.
+    """Generate one phantom subject (a bad argument: :class:`~cardionurbs.errors.PhantomError`).
 
     Parameters
     ----------
@@ -199,39 +199,26 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     frames : cardiac phases N >= 2 over one RR interval; frame 0 = ED.
     noise_px, tag_jumps, breath_hold_mm : faults (see :mod:`cardionurbs.phantom.faults`).
     sa_spacing_mm, sa_thickness_mm, n_sa : SA stack (n_sa None = cover base to apex).
-    tag_spacing_px : SPAMM tag spacing in pixels (7 in the paper).
-    fov_mm, matrix : square field of view (mm) and image matrix (pixels per side) of every image.
+    tag_spacing_px, fov_mm, matrix : SPAMM tag spacing (px; 7 in the paper), field of view (mm), px a side.
     subject : the study's subject id (default ``<pathology>_<seed, 3 digits>``).
     volume_check : also compute the method-B mesh volumes at ED and ES into the truth.
-    snr : image SNR of the tagged DICOM (untagged myocardium over the Rician channel noise σ;
-        default σ = 0.025, i.e. 12); see :mod:`cardionurbs.phantom.dicom`.
+    snr : image SNR of the tagged DICOM (myocardium over the Rician channel noise σ; default 12).
     tag_depth : SPAMM tag depth at t = 0 in (0, 1] (default 0.9; 0 writes untagged images).
-    anatomy : optional overrides of the solved ED geometry (Anatomy field -> mm), e.g.
-        ``{"r_short_endo": 30.0}``; the truth is computed from the overridden shape (the
-        preset's target ranges then no longer apply).
-    anatomy_model : ``"ideal"`` (spheroids, the default) or ``"realistic"`` (shape modes, segmental
-        wall thickness, varying RV crescent, saddle mitral and tricuspid annuli, apex off the axis,
-        outflow tracts; drawn from the seed, see :mod:`cardionurbs.phantom.shape`).
+    anatomy : overrides of the solved ED geometry (Anatomy field -> mm, e.g. ``{"r_short_endo": 30.0}``);
+        the truth follows them (the preset's target ranges then no longer apply).
+    anatomy_model : ``"ideal"`` (spheroids) or ``"realistic"`` (shape modes, segmental walls, varying RV,
+        saddle annuli, bent apex, outflow tracts; drawn from the seed, :mod:`cardionurbs.phantom.shape`).
     infarct : ``"lad"``, ``"rca"`` or ``"lcx"``: that coronary territory thinner and hypokinetic.
-    realism : ``"clinical"``: the acquisition faults of clinical data at once — 0.5 px contour
-        noise, 1.5 mm breath-hold slice shifts, image SNR 15 (each unless given explicitly);
-        the truth is unchanged.
-    outflow : the RV outflow tract to a pulmonary valve and the LV outflow tract to an aortic
-        valve (:mod:`cardionurbs.phantom.outflow`), with their ``la_rvot`` view, ``rv_outlet`` SA
-        contours, ``pulmonary``/``aortic`` landmarks and truth. ``None`` (default): on for the
-        realistic anatomy, off for the ideal one; ``False`` leaves them out of a realistic heart;
-        ``True`` with the ideal anatomy is an error (the spheroids have no tracts).
+    realism : ``"clinical"``: 0.5 px contour noise, 1.5 mm breath-hold shifts, image SNR 15 at once
+        (each unless given explicitly); the truth is unchanged.
+    outflow : RV and LV outflow tracts to pulmonary and aortic valves (:mod:`cardionurbs.phantom.outflow`),
+        their ``la_rvot`` view, ``rv_outlet`` contours, landmarks and truth; ``None``: on for the
+        realistic anatomy only; ``True`` with the ideal anatomy is an error.
 
     Returns
     -------
     Phantom
         The study, its truth and the analytic model.
-
-    Raises
-    ------
-    cardionurbs.errors.PhantomError
-        A bad argument (unknown pathology, seed or frames not whole numbers, negative faults,
-        conflicting anatomy options), or no valid anatomy for the draw.
     """
     _check_args(pathology, seed, frames, noise_px, tag_jumps, breath_hold_mm)
     outflow = _check_options(snr, tag_depth, anatomy_model, infarct, outflow, realism)

@@ -212,37 +212,20 @@ def open_page(path: str | Path, *, chromium: str | None = None, width: int = 140
               height: int = 1000, ready_js: str = "document.readyState === 'complete'",
               value_js: str | None = None, timeout: float = 60.0, settle: float = 0.8
               ) -> PageRun:
-    """Open ``path`` in headless Chromium; wait until ``ready_js`` is truthy (or timeout),
-    screenshot, then evaluate ``value_js`` (may return a promise), and report errors and
-    network requests seen meanwhile.
+    """Open ``path`` in headless Chromium; wait until ``ready_js`` is truthy (or timeout), screenshot,
+    then evaluate ``value_js`` (may return a promise); report errors and requests seen meanwhile.
 
     Parameters
     ----------
-    path : path-like
-        The HTML file to open.
-    chromium : str or None, optional
-        The browser executable (default :func:`find_chromium`).
-    width, height : int, optional
-        The window size, in CSS pixels.
-    ready_js : str, optional
-        A JavaScript expression that is truthy once the page is ready.
-    value_js : str or None, optional
-        A JavaScript expression evaluated after the screenshot (a promise is awaited).
-    timeout : float, optional
-        Longest wait for the browser and the page, in s.
-    settle : float, optional
-        Time given to the page after it is ready, before the screenshot, in s.
+    path : path-like (the HTML file)
+    chromium, ready_js, value_js : str (executable, default :func:`find_chromium`; JavaScript)
+    width, height : int (window size, CSS pixels)
+    timeout, settle : float (longest wait; time from ready to the screenshot; in s)
 
     Returns
     -------
     PageRun
-        Readiness, value, errors, console lines, outside requests, screenshot and timing.
-
-    Raises
-    ------
-    cardionurbs.errors.ChromiumError
-        No browser found, or it did not start or answer in time.
-    """
+        What happened (no browser, or none answering: :class:`~cardionurbs.errors.ChromiumError`)."""
     exe = chromium or find_chromium()
     if not exe:
         raise ChromiumError("no chromium executable found (apt-get install chromium)")
