@@ -245,7 +245,34 @@ class SliceSpec:
 class Acquisition:
     """Imaging protocol: matrix, field of view, SA spacing/thickness. ``sa_first_offset_mm``
     (None: ``FIRST_OFFSET_SHARE`` × ``sa_spacing_mm``) is how far the first SA slice lies below
-    the ED base."""
+    the ED base.
+
+    Attributes
+    ----------
+    rows, columns : int
+        Image matrix, at least 32 each.
+    fov_mm : float
+        Field of view along the longer matrix side, mm.
+    sa_spacing_mm, sa_thickness_mm : float
+        SA slice spacing and thickness, mm.
+    la_thickness_mm : float
+        LA slice thickness, mm.
+    sa_first_offset_mm : float or None
+        First SA slice below the ED base, mm (None: :data:`FIRST_OFFSET_SHARE` × spacing).
+    sa_rotation_deg : float
+        The SA row direction's rotation about e_z, degrees.
+    n_sa : int or None
+        SA slices (None: base to apex), at least 2.
+    first_offset_mm : float
+        The first SA slice's distance below the ED base, mm.
+    pixel_mm : float
+        Pixel size, mm (square pixels).
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        A length not positive, a matrix under 32, ``n_sa`` < 2 or a negative first offset.
+    """
 
     rows: int = 256
     columns: int = 256
@@ -284,7 +311,25 @@ class Acquisition:
 
 def sa_heights(anatomy: Anatomy, acq: Acquisition) -> np.ndarray:
     """Heights h_k (mm above the apex) of the SA slices, base to apex (the first one
-    ``acq.first_offset_mm`` below the base plane, or below the lowest point of a saddle annulus)."""
+    ``acq.first_offset_mm`` below the base plane, or below the lowest point of a saddle annulus).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved anatomy.
+    acq : Acquisition
+        The protocol.
+
+    Returns
+    -------
+    ndarray, shape (k,)
+        The heights h_k, mm, base to apex.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        The stack would reach beyond the apex.
+    """
     top = min(anatomy.z_base - acq.first_offset_mm, anatomy.z_top_min - 2.0)
     if acq.n_sa is not None:
         h = top - acq.sa_spacing_mm * np.arange(acq.n_sa)
