@@ -110,7 +110,8 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
     allow_outside : bool, optional
         Let the study name files outside its folder (:func:`cardionurbs.confine.allow_outside`).
     labels : str or None, optional
-        The label-map convention (None: inferred; see :func:`cardionurbs.io.load_study`).
+        NIfTI label maps only: a preset (``acdc``, ``ukbb``, ``mnms``, ``bivme``) or a
+        ``lv=…,myo=…,rv=…`` mapping; None: the layout's preset or inferred roles.
     strict : bool, optional
         A quality flag makes the row a failure.
     uncertainty : bool, optional

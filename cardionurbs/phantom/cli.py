@@ -24,7 +24,7 @@ def run_phantom(args: argparse.Namespace) -> int:
     Returns
     -------
     int
-        The exit code, 0 (or the cohort runner's when some subject failed).
+        The exit code: 0, or 3 when a subject of a ``--cohort --n`` mix failed.
 
     Raises
     ------
