@@ -233,8 +233,6 @@ def headers_from_dataset(ds, path: Path) -> list[DicomHeader]:
     ------
     cardionurbs.errors.StudyError
         A geometry tag is missing or not a number (the message names the file and the tag).
-    cardionurbs.errors.UnsupportedInputError
-        A multi-frame object this reader does not support.
     """
     with _quiet_pydicom():
         if _is_multiframe(ds, path):
@@ -486,8 +484,6 @@ def read_file_headers(path: str | Path) -> list[DicomHeader]:
     cardionurbs.errors.StudyError
         Not DICOM, truncated (pixel data shorter than Rows x Columns x bits), or a
         geometry tag missing; the message names the file and the tag.
-    cardionurbs.errors.UnsupportedInputError
-        A multi-frame object this reader does not support.
     """
     path = Path(path)
     try:
