@@ -1204,23 +1204,14 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
     Parameters
     ----------
     model : cardionurbs.anatomy.model.BiventricularModel
-        The reconstructed model.
-    out_dir : path-like
-        The folder the PNGs and their index files go to (made).
-    metrics : mapping, optional
-        The docs/metrics.md dict (captions, bull's-eyes, curves).
-    truth : mapping, str or path-like, optional
-        Phantom truth, or the path of its ``truth.json`` (default: beside the study).
-    tags : cardionurbs.analysis.tags.TagMetrics, optional
-        The tag metrics (computed here when needed and missing).
-    only : sequence of str, optional
-        Names of the figures to draw (default: all).
-    tag_grid : tuple of (int, int), optional
-        Samples (nu, nv) of each tag surface's tessellation.
-    jobs : int or None, optional
-        Processes drawing the figures (1: this one; None: the usable CPUs).
-    meanwhile : callable, optional
-        ``meanwhile()``, run in this process while the workers draw.
+    out_dir : path-like (the folder of the PNGs and their index files; made)
+    metrics : mapping, optional (the docs/metrics.md dict: captions, bull's-eyes, curves)
+    truth : mapping, str or path-like, optional (phantom truth or its ``truth.json``)
+    tags : cardionurbs.analysis.tags.TagMetrics, optional (computed here when needed)
+    only : sequence of str, optional (names of the figures to draw; default all)
+    tag_grid : tuple of (int, int), optional (samples (nu, nv) of each tag surface)
+    jobs : int or None, optional (processes drawing; 1: this one, None: the usable CPUs)
+    meanwhile : callable, optional (run in this process while the workers draw)
 
     Returns
     -------
