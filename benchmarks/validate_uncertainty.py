@@ -128,6 +128,9 @@ def rescaled(r: dict, consts: dict) -> dict:
     scale = {"contours": consts["CONTOUR_FACTOR"] / RUN_CONSTANTS["CONTOUR_FACTOR"],
              "pixels": consts["PIXEL_BIAS"] / RUN_CONSTANTS["PIXEL_BIAS"],
              "between": consts["BETWEEN_FACTOR"] / RUN_CONSTANTS["BETWEEN_FACTOR"]}
+    rv_old, rv_new = RUN_CONSTANTS["RV_SHAPE_REL"], consts["RV_SHAPE_REL"]
+    if rv_old > 0:      # the run has an ``rv shape`` source already: scale it
+        scale["rv shape"], rv_new = rv_new / rv_old, 0.0
     name = next(n for n, c in VARIANTS.items() if c["OUTFLOW_SHARE"] == consts["OUTFLOW_SHARE"]
                 and c["OPEN_SLAB_MM"] == RUN_CONSTANTS["OPEN_SLAB_MM"]
                 and c["BETWEEN_FACTOR"] == RUN_CONSTANTS["BETWEEN_FACTOR"]
@@ -141,7 +144,7 @@ def rescaled(r: dict, consts: dict) -> dict:
         v = r["metrics"][col]
         z_old = U.Z95 * float(np.sqrt(sum(x * x for x in sd.values())))
         z_new = U.Z95 * float(np.sqrt(sum((x * scale.get(k, 1.0)) ** 2 for k, x in sd.items())
-                                      + _rv_shape_sd(r, col, consts["RV_SHAPE_REL"]) ** 2))
+                                      + _rv_shape_sd(r, col, rv_new) ** 2))
         below, above = (v - var[0]) - z_old, (var[1] - v) - z_old
         out[col] = [v - z_new - below, v + z_new + above]
     return out
@@ -300,6 +303,17 @@ def subject_table(rows: list[dict]) -> list[str]:
     return out
 
 
+def _kv(text: str) -> dict[str, float]:
+    """``K=V,K=V`` -> {K: float(V)}; K one of :data:`RUN_CONSTANTS`."""
+    out = {}
+    for item in text.split(","):
+        k, v = item.split("=")
+        if k.strip() not in RUN_CONSTANTS:
+            raise SystemExit(f"unknown constant {k!r} (one of {', '.join(RUN_CONSTANTS)})")
+        out[k.strip()] = float(v)
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--subjects", type=int, default=12)
@@ -315,13 +329,23 @@ def main(argv=None) -> int:
                     help="the noise and spacing ladder of two subjects instead (see ladder())")
     ap.add_argument("--from-raw", type=Path, default=None,
                     help="make the report from a --raw file instead of measuring")
+    ap.add_argument("--run-constants", default=None,
+                    help="with --from-raw: the constants the --raw file was measured with, "
+                         "K=V,... (default: the first guesses of the seeds 200-259 run)")
+    ap.add_argument("--apply", default=None,
+                    help="with --from-raw: report the run under these constants, K=V,... "
+                         "(the rest the run's; default: the module's)")
     a = ap.parse_args(argv)
+    if a.run_constants:
+        RUN_CONSTANTS.update(_kv(a.run_constants))
     rows = []
     start = time.time()
     raw = a.raw.open("w") if a.raw is not None else None
     if a.from_raw is not None:
         rows = [json.loads(line) for line in a.from_raw.read_text().splitlines() if line.strip()]
         consts = {k: getattr(U, k) for k in RUN_CONSTANTS}
+        if a.apply:
+            consts = {**RUN_CONSTANTS, **_kv(a.apply)}
         if consts != RUN_CONSTANTS and not a.no_grid:   # the run's numbers, rescaled
             for r in rows:
                 r["unc"].update(rescaled(r, consts))
