@@ -41,3 +41,25 @@ def la_spoke_fans():
             for (fam, _), secs in qc_sections(study, f, axis).items() if fam == "la"]
     assert fans
     return fans, axis
+
+
+#: the xdist group of the modules that share :func:`phantom20_analysed` (``--dist
+#: loadgroup``, pyproject.toml: one worker runs them all, so it is analysed once)
+PHANTOM20 = "phantom20"
+
+
+@pytest.fixture(scope="session")
+def phantom20_analysed(tmp_path_factory):
+    """A 20-frame tagged 'normal' phantom (no DICOM) analysed once per test process with
+    two processes: (study folder, output folder). The output holds metrics.json,
+    model.json, model.3dm, residuals.csv and the VTK meshes (a .vtp per frame and mesh, a
+    .pvd per mesh). Used by test_model_file.py and test_vtk_outputs.py, whose modules are
+    marked ``pytest.mark.xdist_group(PHANTOM20)``."""
+    from cardionurbs.cli import main
+    root = tmp_path_factory.mktemp("phantom20")
+    study, out = root / "study", root / "out"
+    assert main(["phantom", "--pathology", "normal", "--frames", "20", "--no-dicom",
+                 "--out", str(study)]) == 0
+    assert main(["analyze", str(study), "--outputs", "metrics,model,meshes", "--mesh-format",
+                 "vtp", "--jobs", "2", "--out", str(out)]) == 0
+    return study, out
