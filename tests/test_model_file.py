@@ -19,10 +19,8 @@ from cardionurbs.errors import ExportError
 from cardionurbs.io import load_study
 from cardionurbs.io.modelfile import (TAG_UNIT_MM, UNIT_MM, ZIP_TIME, pack, read_model_file,
                                       unpack, write_model_file)
-from conftest import PHANTOM20
 
 FRAMES = 20
-pytestmark = pytest.mark.xdist_group(PHANTOM20)
 
 
 @pytest.fixture(scope="module")

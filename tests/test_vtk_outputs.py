@@ -20,11 +20,9 @@ from vtkmodules.vtkIOXMLParser import vtkXMLDataParser  # noqa: E402
 
 from cardionurbs.cli import main  # noqa: E402
 from cardionurbs.io.vtkfiles import canonical_order, write_pvd, write_vtp  # noqa: E402
-from conftest import PHANTOM20  # noqa: E402
 
 MESHES = ("lv_cavity", "lv_myocardium", "rv_cavity", "rv_myocardium")
 FRAMES = 20
-pytestmark = pytest.mark.xdist_group(PHANTOM20)
 
 
 @pytest.fixture(scope="module")
