@@ -233,7 +233,7 @@ def _overlapping_extents(a: np.ndarray, b: np.ndarray):
     """Yield chunks (i, j), i < j, of segment pairs a->b whose extents overlap along the
     sweep direction with the fewest such pairs and whose bounding boxes overlap."""
     m = len(a)
-    best = None
+    best: tuple[int, np.ndarray, np.ndarray] | None = None
     for u in _SWEEP_DIRECTIONS:
         pa, pb = a @ u, b @ u
         lo, hi = np.minimum(pa, pb), np.maximum(pa, pb)
@@ -247,6 +247,7 @@ def _overlapping_extents(a: np.ndarray, b: np.ndarray):
         total = int(counts.sum())
         if best is None or total < best[0]:
             best = (total, order, counts)
+    assert best is not None                     # _SWEEP_DIRECTIONS is not empty
     _, order, counts = best
     blo, bhi = np.minimum(a, b), np.maximum(a, b)
     csum = np.cumsum(counts)
@@ -633,10 +634,10 @@ def _check_frames(study: Study, warnings: list[str]) -> None:
         if frame not in present[("lv_endo", "SA")] | present[("lv_endo", "LA")]:
             raise StudyError(f"no lv_endo contour at the {label} frame the input labels",
                              file=study.source, frame=frame)
-        for (structure, view), frames in sorted(present.items()):
-            if frame not in frames and structure != "lv_endo":
+        for (structure, view), seen in sorted(present.items()):
+            if frame not in seen and structure != "lv_endo":
                 warnings.append(f"{study.source}: frame {frame}: {structure} ({view}) is missing "
-                                f"at {label} ({how}) but present at frame(s) {_short_list(sorted(frames))}")
+                                f"at {label} ({how}) but present at frame(s) {_short_list(sorted(seen))}")
     frames = sorted({im.frame for im in study.images} | {c.frame for c in study.contours})
     timed = [f for f in frames if f in study.frame_times_ms]
     if timed and len(timed) < len(frames):

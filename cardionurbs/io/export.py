@@ -44,6 +44,7 @@ def export_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike) -> Path:
     data = mesh.export(file_type=fmt)
     if isinstance(data, str):
         data = data.encode("utf-8")
+    assert isinstance(data, bytes)                  # every MESH_FORMATS format is one file
     return atomic.write_bytes(path, data)
 
 

@@ -85,7 +85,7 @@ import io
 import re
 from collections import Counter
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -192,7 +192,7 @@ def read_slice_info(path: str | Path) -> list[dict]:
         raw = next(t for t in line.split(sep) if t.strip() == label) if sep == "\t" else label
         labels.append(raw)
         seps.append(sep)
-        rec = {"file": tok[0], "line": k}
+        rec: dict[str, Any] = {"file": tok[0], "line": k}
         for key, n in ((label, 1), ("ImagePositionPatient", 3),
                        ("ImageOrientationPatient", 6), ("PixelSpacing", 2)):
             name = "sliceID" if key in SLICE_LABELS else key
@@ -597,7 +597,7 @@ def _placed(pts: np.ndarray, sid: int, gp_type: str, planes: dict, names: dict, 
     placed = sid
     if off(sid) > ON_PLANE_MM:
         dist = {i: off(i) for i in planes}
-        placed = min(dist, key=dist.get)
+        placed = min(dist, key=dist.__getitem__)
         if dist[placed] > ON_PLANE_MM:
             raise StudyError(f"{where}: {gp_type} points lie on no slice plane of {SLICE_INFO} "
                              f"({off(sid):.1f} mm from slice {sid}, their frameID; nearest plane "
@@ -614,7 +614,7 @@ def _placed(pts: np.ndarray, sid: int, gp_type: str, planes: dict, names: dict, 
 
 
 def _read_blocks(t: dict[str, np.ndarray], frame: int, f: Path, names: dict, views: dict,
-                 contours: list, landmarks: list, planes: dict | None = None,
+                 contours: list, landmarks: list, planes: dict[int, ImagePlane],
                  warnings: list[str] | None = None):
     """Contours and landmarks of one frame's rows (:func:`read_gp_table`), in file order;
     the block order and the (weight, time frame) runs for write-back. A contour's slice
@@ -682,7 +682,7 @@ def _read_blocks(t: dict[str, np.ndarray], frame: int, f: Path, names: dict, vie
             raise StudyError(f"line {lines[s]}: {exc}", file=f) from None
     wt = t["weight"]
     tm = t["time"]
-    runs = []
+    runs: list[list[Any]] = []                      # [count, weight, time frame]
     for w, tt in zip(wt, tm):
         if runs and runs[-1][1] == w and runs[-1][2] == tt:
             runs[-1][0] += 1
@@ -870,9 +870,10 @@ def _slice_numbering(study: Study, gp: dict):
 
 def _tokens_plane(tok: dict, like: ImagePlane) -> ImagePlane:
     ori = np.array([float(v) for v in tok["orientation"]])
+    row, column = (float(v) for v in tok["pixel_spacing"])
     return ImagePlane(id="t", slice=like.slice, view=like.view, frame=0,
-                      position=[float(v) for v in tok["position"]], row_cosine=ori[:3],
-                      column_cosine=ori[3:], pixel_spacing=[float(v) for v in tok["pixel_spacing"]])
+                      position=np.array([float(v) for v in tok["position"]]), row_cosine=ori[:3],
+                      column_cosine=ori[3:], pixel_spacing=(row, column))
 
 
 def _static_planes(study: Study) -> dict[str, ImagePlane]:
@@ -926,7 +927,7 @@ def _frame_rows(study: Study, frame: int, fm: dict | None, slice_ids: dict, plan
 
 def _nearest_slice(study: Study, lm: Landmark, planes: dict) -> str:
     d = {s: abs(float(p.distance_to_plane(lm.point)[0])) for s, p in planes.items()}
-    return min(d, key=d.get)
+    return min(d, key=d.__getitem__)
 
 
 def _split_rv_endo(study: Study, c: Contour, slice_ids: dict):

@@ -368,4 +368,5 @@ def stack_anatomy(data: np.ndarray, roles: LabelRoles, frames) -> StackAnatomy:
             if a_lv[k] > 0 and a_myo[k] > 0:
                 outflow[end] |= ring_fraction(fill_holes(lvm[:, :, k]), myom[:, :, k]) \
                     < MIN_RING_FRACTION
-    return StackAnatomy(lv, myo, rv if roles.rv is not None else None, tuple(cap), tuple(outflow))
+    return StackAnatomy(lv, myo, rv if roles.rv is not None else None,
+                        (cap[0], cap[1]), (outflow[0], outflow[1]))

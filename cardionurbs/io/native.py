@@ -794,6 +794,7 @@ def read_study_from_dicom(path: str | Path) -> Study:
     study.images = images
     study.__dict__.pop("_image_cache", None)
     study.contours, study.tags, study.landmarks = [], [], []
+    assert study.source is not None                 # read_study names the study folder
     folder = Path(study.source)
     manifest = load_manifest(folder / MANIFEST)
     _read_points(study, _points_path(folder, manifest, folder / MANIFEST), prefer_pixels=True,

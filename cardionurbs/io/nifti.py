@@ -440,7 +440,7 @@ class _Builder:
     def __init__(self, subject: str, source: Path, roles: LabelRoles) -> None:
         self.study = Study(subject=subject, source=str(source))
         self.roles = roles
-        self.files: list[str] = []
+        self.files: list[str | None] = []
         self.issues: dict[tuple[str, str], list[int]] = defaultdict(list)
 
     def note(self, slice_id: str, message: str, frame: int) -> None:
@@ -672,20 +672,21 @@ def read_acdc(folder: Path, labels=None) -> Study:
     info = _info_cfg(info_path) if info_path.is_file() else {}
     by_frame: dict[int, Path] = {}
     for q in gts:
-        f = int(re.search(r"_frame(\d+)_gt", q.name).group(1)) - 1
-        by_frame[f] = q
+        number = re.search(r"_frame(\d+)_gt", q.name)
+        assert number is not None                   # the fullmatch above holds it
+        by_frame[int(number.group(1)) - 1] = q
     ed = es = None
     for key in ("ED", "ES"):
         if key in info:
             try:
-                v = int(float(info[key])) - 1
+                n = int(float(info[key])) - 1
             except ValueError:
                 raise StudyError(f"{key} is not a frame number: {info[key]!r}", file=str(info_path),
                                  field=key) from None
-            if v not in by_frame:
-                raise StudyError(f"{key} is frame {v + 1} but there is no "
-                                 f"*_frame{v + 1:02d}_gt label map", file=str(info_path), field=key)
-            ed, es = (v, es) if key == "ED" else (ed, v)
+            if n not in by_frame:
+                raise StudyError(f"{key} is frame {n + 1} but there is no "
+                                 f"*_frame{n + 1:02d}_gt label map", file=str(info_path), field=key)
+            ed, es = (n, es) if key == "ED" else (ed, n)
     vols = {f: read_label_volume(q) for f, q in sorted(by_frame.items())}
     first = next(iter(vols.values()))
     for f, v in vols.items():
