@@ -174,9 +174,9 @@ def septal_angle_from_contours(study: Study, frame: int, apex, base) -> float | 
             continue
         d = pts[near] - apex
         ang = np.arctan2(d @ e2, d @ e1)
-        c = circular_mean(ang)
-        rel = wrap(ang - c)
-        mids.append(c + 0.5 * (rel.min() + rel.max()))
+        centre = circular_mean(ang)
+        rel = wrap(ang - centre)
+        mids.append(centre + 0.5 * (rel.min() + rel.max()))
         weights.append(1.0)
     if not mids:
         return None

@@ -88,7 +88,7 @@ def myocardium_margin(study: Study, frame: int, points: np.ndarray) -> np.ndarra
     along the stack normal; beyond the first or last contoured slice it is
     negative. None when the frame has no such contour pair.
     """
-    rings = {}
+    rings: dict[str, dict[str, np.ndarray]] = {}
     for c in study.contours_at(frame, ("lv_endo", "lv_epi"), view="SA"):
         if c.closed:
             rings.setdefault(c.slice, {})[c.structure] = c.points
@@ -172,8 +172,9 @@ def intersect_three_surfaces(surfs: _Surfaces, triples: np.ndarray, params: np.n
     0.2 in any parameter; non-periodic parameters are clipped to [0, 1], the
     angular parameter of the closed LA fan wraps.
     """
-    periodic = tuple(bool(next(iter(surfs.by_family[f].values())).periodic_v)
-                     if surfs.by_family[f] else False for f in FAMILIES)
+    sa1, sa2, la = (bool(next(iter(surfs.by_family[f].values())).periodic_v)
+                    if surfs.by_family[f] else False for f in FAMILIES)
+    periodic = (sa1, sa2, la)
     p = _wrap_or_clip(np.asarray(params, float), periodic)
     n = len(triples)
     active = np.ones(n, bool)
@@ -214,7 +215,8 @@ def intersect_three_surfaces(surfs: _Surfaces, triples: np.ndarray, params: np.n
     return X, p, res
 
 
-def start_from_planes(surfs: _Surfaces, triples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def start_from_planes(surfs: _Surfaces,
+                      triples: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Starting points and parameters (n, 3), (n, 6) from the three least-squares planes.
 
     The planes' intersection point is projected on each surface by the

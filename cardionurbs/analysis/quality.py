@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeGuard
 
 import numpy as np
 
@@ -77,7 +77,7 @@ QC_COLUMNS = tuple(f"{s} fit {q} ({u})" for s in SURFACE_LABELS.values() for u i
 
 def residual_stats(d_mm: np.ndarray, d_px: np.ndarray) -> dict[str, float]:
     """Median, 95th percentile and maximum of point distances, in mm and pixels."""
-    out = {"n_points": int(len(d_mm))}
+    out: dict[str, float] = {"n_points": int(len(d_mm))}
     for unit, d in (("mm", np.asarray(d_mm, float)), ("px", np.asarray(d_px, float))):
         q = np.percentile(d, [50, 95, 100]) if len(d) else [math.nan] * 3
         out.update({f"{k}_{unit}": float(v) for k, v in zip(_STATS, q)})
@@ -258,7 +258,7 @@ def assess(model: "BiventricularModel", metrics: dict[str, float]) -> Quality:
     return q
 
 
-def _finite(x) -> bool:
+def _finite(x: object) -> TypeGuard[int | float]:
     return isinstance(x, (int, float)) and math.isfinite(x)
 
 
@@ -266,6 +266,8 @@ def _cycle_flags(model, q: Quality) -> None:
     """Every frame supported by its neighbours (:mod:`cardionurbs.anatomy.cycle`) is a flag:
     on the metrics of ED or ES when it is one of them, else on the cycle."""
     cycle = getattr(model, "cycle", None)
+    if cycle is None:                    # no cycle check made, no frame supported by it
+        return
     for f in sorted(getattr(model, "supported", {}) or {}):
         flag = cycle.describe(f)
         users = [m for m in q.metrics.values() if f in m["frames"]]

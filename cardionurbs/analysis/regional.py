@@ -155,7 +155,7 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
     study = model.study
     flagged = {(fl.family, fl.index, fl.slice, fl.frame) for fl in getattr(tags, "flags", [])}
     planes = ed_tag_planes(study, material.ed_frame, flagged)
-    ed_samples = {}
+    ed_samples: dict[str, tuple] = {}
     if boundaries:                  # the ED surface samples' k-d trees, built before any fork
         wall_boundaries(model, es, ed_samples)
 

@@ -263,10 +263,10 @@ class CylindricalMotionFit:
         ``factors``: also the basis factors (:meth:`_factors`) as a last item."""
         want_factors = factors
         r, th, zeta = cylindrical(X, self.apex0, self.frame0)
-        factors = self._factors(r * r, th, zeta, derivatives)
-        L, R, T = factors[:3]
+        basis = self._factors(r * r, th, zeta, derivatives)
+        L, R, T = basis[:3]
         pa, pb, pm = self.orders
-        C = np.zeros((2 * pm + 1, pa + 1, pb + 1, 3))
+        C: np.ndarray = np.zeros((2 * pm + 1, pa + 1, pb + 1, 3))
         ia, ib, ic = self._index
         C[ic, ia, ib] = self.coef
         C = C.reshape(2 * pm + 1, -1)
@@ -277,11 +277,11 @@ class CylindricalMotionFit:
             return np.einsum("nk,nkc->nc", (La[:, :, None] * Rb[:, None, :]).reshape(len(th), -1), W)
         values = contract(L, R, W)
         if not derivatives:
-            return ((r, th, zeta), values) + ((factors,) if want_factors else ())
-        dL, dR, dT = factors[3:]
+            return ((r, th, zeta), values) + ((basis,) if want_factors else ())
+        dL, dR, dT = basis[3:]
         d_theta = contract(L, R, (dT @ C).reshape(shape))
         return ((r, th, zeta), values, (contract(L, dR, W), d_theta, contract(dL, R, W))) + (
-            (factors,) if want_factors else ())
+            (basis,) if want_factors else ())
 
     def image_radius(self, X: np.ndarray) -> np.ndarray:
         """r' (mm): the fitted distance of the images of ED points X (n, 3) from the frame's

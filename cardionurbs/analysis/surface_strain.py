@@ -39,7 +39,7 @@ CUTOFF_MM = 15.0
 NAN = float("nan")
 
 
-def whittaker_smooth(points: np.ndarray, closed: bool, cutoff_mm: float = None) -> np.ndarray:
+def whittaker_smooth(points: np.ndarray, closed: bool, cutoff_mm: float | None = None) -> np.ndarray:
     """Points (n, d) smoothed by the Whittaker smoother of the module docstring."""
     p = np.asarray(points, float)
     n = len(p)

@@ -258,7 +258,7 @@ class TagSurface:
 
 def _principal_direction(points: np.ndarray) -> np.ndarray:
     d = points[-1] - points[0]
-    n = np.linalg.norm(d)
+    n = float(np.linalg.norm(d))
     if n < 1e-9:
         c = points - points.mean(axis=0)
         d = np.linalg.svd(c, full_matrices=False)[2][0]
@@ -379,7 +379,8 @@ def la_sections(study: Study, frame: int, apex: np.ndarray,
         limit = max(GAP_FACTOR * median(steps), GAP_MIN_MM) if len(steps) >= 2 else np.inf
         gaps = np.flatnonzero(steps > limit)                # (gap_limit of the line)
         # the gap nearest the axis, if the axis lies across it
-        cut_pt, lo, hi = None, None, None
+        cut_pt: np.ndarray | None = None
+        lo = hi = 0
         if len(gaps):
             mid_r = np.linalg.norm(((radial[gaps] + radial[gaps + 1]) / 2), axis=1)
             g = gaps[np.argmin(mid_r)]
@@ -441,7 +442,7 @@ def loft_sections(sections: list[TagSection], periodic: bool = False,
     if len(secs) < 2:
         return None
     U = secs[0].knots
-    if all(s.knots is not None and s.knots.shape == U.shape and np.array_equal(s.knots, U)
+    if U is not None and all(s.knots is not None and s.knots.shape == U.shape and np.array_equal(s.knots, U)
            for s in secs):
         return nurbs.loft_compatible(np.array([s.ctrl for s in secs]), U, 3, degree_v)
     return nurbs.loft([s.curve for s in secs], degree_v=min(degree_v, len(secs) - 1))

@@ -49,6 +49,8 @@ divided by their index difference).
 from __future__ import annotations
 
 from bisect import bisect_left
+from collections.abc import Sequence
+from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
 from itertools import product
 
@@ -312,7 +314,7 @@ def _spoke_departure(cyl: tuple, prof_a: tuple, prof_b: tuple) -> np.ndarray:
 
 
 def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: float,
-                   periodic: bool, exclude: set[str] = frozenset(),
+                   periodic: bool, exclude: AbstractSet[str] = frozenset(),
                    axis: tuple | None = None, profiles: dict | None = None) -> dict[str, float]:
     """Leave-one-out departure (tag spacings) of each slice's line of one tag at one frame.
 
@@ -331,6 +333,7 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
     if len(names) < 3:
         return out
     if periodic:       # each spoke's profile once, however many left-out spokes it predicts
+        assert axis is not None, "the LA spoke fan's departures need its axis"
         cyl = _axis_cylinder(axis)
         profiles = {} if profiles is None else profiles
         if not profiles:                 # every spoke's profile and points, in one batch
@@ -338,8 +341,10 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
             profiles.update({("points", k): c
                              for k, c in enumerate(_spoke_points_cylindrical(secs, cyl))})
 
+        known = profiles
+
         def profile(k: int) -> tuple:
-            return profiles[k]
+            return known[k]
     for left in names:
         keep = [k for k, s in enumerate(secs) if s.slice != left and s.slice not in exclude]
         mine = [k for k, s in enumerate(secs) if s.slice == left]
@@ -349,7 +354,7 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
             for k in mine:
                 nb = _neighbours_cyclic(keys, secs[k].key)
                 if nb is not None:   # a spoke's first point is the cut on the axis, not data
-                    dist.append(_spoke_departure(profiles[("points", k)],
+                    dist.append(_spoke_departure(known[("points", k)],
                                                  profile(keep[nb[0]]), profile(keep[nb[1]])))
             if dist:
                 out[left] = median(np.concatenate(dist)) / spacing
@@ -367,7 +372,7 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
 
 
 def loo_residuals(secs: list[TagSection], samples: list[np.ndarray],
-                  exclude: set[str] = frozenset()) -> dict[str, dict[tuple[str, str], float]]:
+                  exclude: AbstractSet[str] = frozenset()) -> dict[str, dict[tuple[str, str], float]]:
     """Signed leave-one-out residual (mm) of each SA slice's line of one tag, per predictor.
 
     {slice: {(slice_a, slice_b): median signed in-plane distance of the line's
@@ -376,7 +381,7 @@ def loo_residuals(secs: list[TagSection], samples: list[np.ndarray],
     return loo_residuals_many([(secs, samples, exclude)])[0]
 
 
-def loo_residuals_many(tags: list[tuple[list[TagSection], list[np.ndarray], set[str]]]
+def loo_residuals_many(tags: Sequence[tuple[Sequence[TagSection], list[np.ndarray], AbstractSet[str]]]
                        ) -> list[dict[str, dict[tuple[str, str], float]]]:
     """:func:`loo_residuals` of several tags, ``tags`` = [(secs, samples, exclude)], with
     every (left-out line, predictor pair) of all of them measured in one batch
@@ -591,7 +596,7 @@ def _stack_ends(secs: list[TagSection], slices, exclude: set[str]) -> dict[str, 
     return out
 
 
-def _time_witnesses(temporal: list[dict], i: int, slc: str, pair: tuple[str, str]) -> list[float]:
+def _time_witnesses(temporal: Sequence[dict], i: int, slc: str, pair: tuple[str, str]) -> list[float]:
     """Residuals (mm) of the same line against the same pair at the neighbouring frames (each
     a separate witness, so that a jump at one neighbouring frame cannot make a good line look
     bad); empty when no neighbouring frame has it."""
@@ -600,7 +605,7 @@ def _time_witnesses(temporal: list[dict], i: int, slc: str, pair: tuple[str, str
 
 def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
                          threshold: float, residuals: dict | None = None,
-                         temporal: list[dict] = ()) -> list[tuple[int, str, float, bool]]:
+                         temporal: Sequence[dict] = ()) -> list[tuple[int, str, float, bool]]:
     """Departures (tag spacings) of every line of one SA family at one frame, with flags.
 
     A line's residual r against a predictor pair is also compared with the
@@ -649,16 +654,16 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
                 extrap = ends.get(slc, False)
                 for pair, r in R[i][slc].items():
                     trends = _time_witnesses(temporal, i, slc, pair) if extrap else []
-                    if len(trends) < 2:      # not bracketed in time: the index trend
+                    bracketed = len(trends) >= 2
+                    if not bracketed:        # not bracketed in time: the index trend
                         nb = [(j, r_j) for j, r_j in by_pair[(slc, pair)] if j != i]
                         index_problems.append((nb, i))
-                        trends = None
-                    lines.append(((i, slc), r, trends))
+                    lines.append(((i, slc), r, trends if bracketed else None))
         fitted = iter(_index_trends([v for v, _ in index_problems], [i for _, i in index_problems],
                                     0.5 * spacing))
         best: dict[tuple[int, str], float] = {}
-        for key, r, trends in lines:
-            trends = [float(next(fitted))] if trends is None else trends
+        for key, r, witnesses in lines:
+            trends = [float(next(fitted))] if witnesses is None else witnesses
             best[key] = min(best.get(key, np.inf), abs(r), *(abs(r - t) for t in trends))
         return {k: v / spacing for k, v in best.items()}
 
@@ -668,7 +673,7 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
         over = {k: v for k, v in deps.items() if v > threshold}
         if not over:
             break
-        worst = max(over, key=over.get)
+        worst = max(over, key=over.__getitem__)
         flagged[worst] = over[worst]
         excl[worst[0]].add(worst[1])
         R[worst[0]] = loo_residuals(groups[worst[0]], sampled(worst[0]), excl[worst[0]])

@@ -173,10 +173,10 @@ def curve_crossings(curves: list, raw: list[np.ndarray], pairs: np.ndarray,
         steps = np.linalg.norm(np.diff(P, axis=0), axis=1)
         reach[li] = max(2.0 * median(steps) if len(steps) else 0.0, 1.0)
     for col in (0, 1):
-        li = pairs[:, col]
+        ends = pairs[:, col]
         with np.errstate(invalid="ignore"):
-            d2 = ((pad[li] - X[:, None, :]) ** 2).sum(-1)
-        ok &= np.sqrt(np.nanmin(d2, axis=1)) <= reach[li]
+            d2 = ((pad[ends] - X[:, None, :]) ** 2).sum(-1)
+        ok &= np.sqrt(np.nanmin(d2, axis=1)) <= reach[ends]
     X[~ok] = np.nan
     return X
 

@@ -43,7 +43,10 @@ import numpy as np
 from cardionurbs.geometry import polygon_area
 
 if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Sequence
+
     from cardionurbs.anatomy.model import BiventricularModel
+    from cardionurbs.study import Contour, Landmark
 
 METHOD = ("analytic propagation: contour scatter, between-slice interpolation, base and apex "
           "placement, ES sampling (docs/metrics.md, Uncertainty)")
@@ -296,7 +299,8 @@ def _outflow_allowance(model: "BiventricularModel", frame: int, solid: str) -> f
     side = solid[:2]
     if solid not in ("lv_cavity", "rv_cavity"):
         return 0.0
-    evidence = model.study.landmarks_at(frame, "aortic" if side == "lv" else "pulmonary")
+    evidence: Sequence[Landmark | Contour] = model.study.landmarks_at(
+        frame, "aortic" if side == "lv" else "pulmonary")
     if side == "rv":
         evidence = evidence or model.study.contours_at(frame, "rv_outlet")
     labels = isinstance(model.study.meta, dict) and bool(model.study.meta.get("voxel_volumes_ml"))

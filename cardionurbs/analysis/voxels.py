@@ -18,6 +18,7 @@ map lacks the frame or the structure.
 from __future__ import annotations
 
 import math
+from typing import TypeGuard
 
 from cardionurbs.analysis.function import NAN, mass_g, ventricular_function
 
@@ -56,7 +57,8 @@ ES_NEIGHBOUR_BOUND = 0.15
 ES_METRICS = ("LVESV (mL)", "LVEF (%)", "LVSV (mL)")
 
 
-def is_finite_number(x) -> bool:
+def is_finite_number(x: object) -> TypeGuard[int | float]:
+    """Whether ``x`` is an int or float and finite (not NaN, not ±inf)."""
     return isinstance(x, (int, float)) and math.isfinite(x)
 
 
