@@ -90,15 +90,37 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
             progress: Progress | None = None, jobs: int | None = 1, on_measured=None):
     """Reconstruct and measure one loaded study: (model, docs/metrics.md dict, tag result or None).
 
-    ``over_time``: also twist and LS at every tagged frame (for figures and metrics.json);
-    the docs/metrics.md columns are the same without it. ``progress``: stages on stderr.
-    ``jobs``: processes for the per-frame work -- the frames' LV cavities (``reconstruct``),
-    the tag metrics beside the volumes (:func:`measure_with_tags`) and the tag strain over
-    time (one fit per tagged frame, :func:`cardionurbs.analysis.regional.regional_metrics`);
-    1 (the default: a library call forks nothing unless asked): this process only; None: the
-    usable CPUs (``cardionurbs analyze``'s default). The results are the same either way.
-    ``on_measured(model)``: called once ED and ES are known and the volumes measured,
-    before the tag results are awaited (``analyze`` starts the meshes' workers there)."""
+    Parameters
+    ----------
+    study : Study
+        A study read by :func:`cardionurbs.io.load_study`.
+    heart_rate_bpm : float or None
+        Heart rate (bpm) when the study carries none.
+    over_time : bool
+        Also twist and LS at every tagged frame (for figures and metrics.json); the
+        docs/metrics.md columns are the same without it.
+    progress : Progress or None
+        Stages on stderr.
+    jobs : int or None
+        Processes for the per-frame work -- the frames' LV cavities (``reconstruct``), the
+        tag metrics beside the volumes (:func:`measure_with_tags`) and the tag strain over
+        time (one fit per tagged frame, :func:`cardionurbs.analysis.regional.regional_metrics`);
+        1 (the default: a library call forks nothing unless asked): this process only; None:
+        the usable CPUs (``cardionurbs analyze``'s default). The results are the same either way.
+    on_measured : callable or None
+        ``on_measured(model)`` is called once ED and ES are known and the volumes measured,
+        before the tag results are awaited (``analyze`` starts the meshes' workers there).
+
+    Returns
+    -------
+    model : BiventricularModel
+        The reconstruction.
+    metrics : dict
+        docs/metrics.md column -> float in its unit (NaN, with its reason, where the study
+        cannot give one), the tag, regional and voxel-count columns included.
+    tags : TagMetrics or None
+        The tag result (None without tag lines).
+    """
     progress = progress or Progress(False)
     progress.stage("reconstruct")
     model = reconstruct(study, progress=progress.step, jobs=jobs)
@@ -211,12 +233,41 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                    outputs: tuple[str, ...] | None = None,
                    progress: Progress | None = None, jobs: int | None = 1,
                    early_meshes: "EarlyMeshes | None" = None, uncertainty: bool = True) -> Path:
-    """Write the chosen ``outputs`` (default all; ``figures=False`` drops figures and
-    report) to ``out``, atomically (the folder is complete or untouched). ``jobs``: worker
-    processes for the per-frame meshes (:func:`write_meshes`; 1, the default: none; None:
-    the usable CPUs) and the figures; ``early_meshes``: the meshes already started
-    (:class:`EarlyMeshes`); ``uncertainty``: the metrics' 95 % intervals in metrics.json
-    (``uncertainty``, :func:`cardionurbs.analysis.uncertainty.intervals`; null when off)."""
+    """Write the chosen ``outputs`` to ``out``, atomically (the folder is complete or
+    untouched).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model of :func:`analyse`.
+    metrics : dict
+        Its docs/metrics.md dict (:func:`analyse`).
+    out : str or pathlib.Path
+        The output folder (docs/outputs.md).
+    figures : bool
+        False drops the figures and the report from ``outputs``.
+    mesh_ext : str
+        The mesh file format, ``ply``, ``stl``, ``obj`` or ``glb``.
+    tags : TagMetrics or None
+        The tag result of :func:`analyse` (tag surfaces in the model file, tag figures).
+    outputs : tuple of str or None
+        The outputs to write (:data:`OUTPUTS`); None: all.
+    progress : Progress or None
+        Stages on stderr.
+    jobs : int or None
+        Worker processes for the per-frame meshes (:func:`write_meshes`; 1, the default:
+        none; None: the usable CPUs) and the figures.
+    early_meshes : EarlyMeshes or None
+        The meshes already started (:class:`EarlyMeshes`).
+    uncertainty : bool
+        The metrics' 95 % intervals in metrics.json (``uncertainty``,
+        :func:`cardionurbs.analysis.uncertainty.intervals`; null when off).
+
+    Returns
+    -------
+    pathlib.Path
+        The output folder.
+    """
     outputs = OUTPUTS if outputs is None else tuple(outputs)
     if not figures:
         outputs = tuple(o for o in outputs if o not in ("figures", "report"))

@@ -1,25 +1,71 @@
 """The API reference's source: numpydoc sections on every public function and class of
-cardionurbs.nurbs (each argument named under Parameters, a Returns section where a value
-comes back), and the Examples of the main entry points run as doctests."""
+cardionurbs.nurbs, cardionurbs.io and cardionurbs.analysis, of the package facade
+(``cardionurbs.__all__``) and of every object docs/api.md renders (each argument named under
+Parameters, a Returns section where a value comes back), and the Examples of the main entry
+points run as doctests."""
 
 from __future__ import annotations
 
+import dataclasses
 import doctest
 import importlib
 import inspect
 import pkgutil
+import re
+from pathlib import Path
 
 import pytest
 
+import cardionurbs
+import cardionurbs.analysis
+import cardionurbs.io
 import cardionurbs.nurbs
 
-NURBS_MODULES = sorted(m.name for m in pkgutil.iter_modules(cardionurbs.nurbs.__path__,
-                                                             "cardionurbs.nurbs.")
-                       if not m.name.rsplit(".", 1)[1].startswith("_"))
-#: modules whose Examples are doctested (the package facade: load_study, reconstruct, measure)
-DOCTESTED = ["cardionurbs", *NURBS_MODULES]
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _modules(package) -> list[str]:
+    return sorted(m.name for m in pkgutil.iter_modules(package.__path__, package.__name__ + ".")
+                  if not m.name.rsplit(".", 1)[1].startswith("_"))
+
+
+NURBS_MODULES = _modules(cardionurbs.nurbs)
+#: the package modules whose every public function and class is checked
+CHECKED_MODULES = [*NURBS_MODULES, "cardionurbs.io", *_modules(cardionurbs.io),
+                   "cardionurbs.analysis", *_modules(cardionurbs.analysis)]
+#: modules whose Examples are doctested (the package facade and its entry points)
+DOCTESTED = ["cardionurbs", "cardionurbs.io", "cardionurbs.anatomy.model",
+             "cardionurbs.analysis.function", "cardionurbs.cohort", *NURBS_MODULES]
 #: the entry points that must show an Examples section
-EXAMPLES = ["NurbsCurve", "fit_curve", "loft", "tessellate"]
+EXAMPLES = ["cardionurbs.nurbs.NurbsCurve", "cardionurbs.nurbs.fit_curve", "cardionurbs.nurbs.loft",
+            "cardionurbs.nurbs.tessellate", "cardionurbs.load_study", "cardionurbs.reconstruct",
+            "cardionurbs.measure", "cardionurbs.cohort"]
+#: the 11 functions another branch is splitting into named steps (#35 item 2, the LONG and
+#: BRANCHY lists of tests/test_structure.py): their docstrings are left to it. Remove this
+#: list once the split has landed (their steps are then checked like every other function).
+BEING_SPLIT = {
+    "cardionurbs.io.gpfile.write_study", "cardionurbs.io.native._read_points",
+    "cardionurbs.io.nifti.read_label_volume", "cardionurbs.io.labels.infer_roles",
+    "cardionurbs.io.checks._check_annotations", "cardionurbs.analysis.tagqc.tag_departures",
+    "cardionurbs.analysis.tags.twist_2d", "cardionurbs.analysis.tags.tag_metrics",
+    "cardionurbs.analysis.quality.assess", "cardionurbs.analysis.strain.tag_strain",
+    "cardionurbs.analysis.tag_motion.fit_tag_motion",
+}
+
+
+def _checked(named) -> list[str]:
+    """The problems of (dotted name, object) pairs, less the names left to the split; a
+    name of :data:`NOT_YET` is a problem when it has none (the list may only shrink)."""
+    bad = []
+    for name, obj in named:
+        if name in BEING_SPLIT:
+            continue
+        problems = _problems(name, obj)
+        if name in NOT_YET:
+            bad += [] if problems else [f"{name}: documented now: take it off NOT_YET"]
+        else:
+            bad += problems
+    return bad
 
 
 def _public(module):
@@ -31,9 +77,13 @@ def _public(module):
             yield name, obj
         elif inspect.isclass(obj):
             yield name, obj
-            for mname, m in vars(obj).items():
-                if not mname.startswith("_") and inspect.isfunction(getattr(m, "__func__", m)):
-                    yield f"{name}.{mname}", getattr(m, "__func__", m)
+            yield from ((f"{name}.{m}", f) for m, f in _methods(obj))
+
+
+def _methods(cls):
+    for mname, m in vars(cls).items():
+        if not mname.startswith("_") and inspect.isfunction(getattr(m, "__func__", m)):
+            yield mname, getattr(m, "__func__", m)
 
 
 def _sections(doc: str) -> dict[str, str]:
@@ -58,47 +108,139 @@ def _documented_names(section: str) -> set[str]:
     return names
 
 
-@pytest.mark.parametrize("modname", NURBS_MODULES)
-def test_every_public_nurbs_callable_has_numpydoc_sections(modname):
-    module = importlib.import_module(modname)
+def _problems(qual: str, obj) -> list[str]:
+    """What the numpydoc sections of ``obj`` miss: a Parameters entry for each argument (a
+    class: of its own ``__init__``; a dataclass or NamedTuple: each field, under Parameters
+    or Attributes), a Returns (or Yields) section where a function returns a value."""
+    doc = inspect.getdoc(obj) or ""
+    if not doc:
+        return [f"{qual}: no docstring"]
+    secs = _sections(doc)
+    if inspect.isclass(obj):
+        if issubclass(obj, tuple) and hasattr(obj, "_fields"):
+            fields = set(obj._fields)
+        elif dataclasses.is_dataclass(obj):
+            fields = {f.name for f in dataclasses.fields(obj) if f.init}
+        elif "__init__" in vars(obj):
+            fields = set(_arguments(obj.__init__))
+        else:
+            return []
+        missing = fields - _documented_names(secs.get("Parameters", "") + secs.get("Attributes", ""))
+        return [f"{qual}: Parameters/Attributes miss {sorted(missing)}"] if missing else []
     bad = []
-    for qual, obj in _public(module):
-        doc = inspect.getdoc(obj) or ""
-        if not doc:
-            bad.append(f"{qual}: no docstring")
-            continue
-        secs = _sections(doc)
-        target = obj.__init__ if inspect.isclass(obj) else obj
+    missing = set(_arguments(obj)) - _documented_names(secs.get("Parameters", ""))
+    if missing:
+        bad.append(f"{qual}: Parameters misses {sorted(missing)}")
+    returns = _signature(obj).return_annotation if _signature(obj) else None
+    if returns not in (None, "None", inspect.Signature.empty) and "Returns" not in secs \
+            and "Yields" not in secs:
+        bad.append(f"{qual}: no Returns section")
+    return bad
+
+
+def _signature(obj):
+    try:
+        return inspect.signature(obj)
+    except (TypeError, ValueError):
+        return None
+
+
+def _arguments(func) -> list[str]:
+    sig = _signature(func)
+    return [] if sig is None else [p for p in sig.parameters if p not in ("self", "cls")]
+
+
+def _resolve(dotted: str):
+    """The object a dotted name names: its parent is the longest importable module prefix
+    (then attributes); the last part an attribute of the parent where it has one (so that
+    ``cardionurbs.nurbs.loft`` is the function, not the submodule of that name)."""
+    *head, last = dotted.split(".")
+    for k in range(len(head), 0, -1):
         try:
-            sig = inspect.signature(target)
-        except (TypeError, ValueError):
+            parent = importlib.import_module(".".join(head[:k]))
+        except ModuleNotFoundError:
             continue
-        params = [p for p in sig.parameters if p not in ("self", "cls")]
-        if inspect.isclass(obj) and issubclass(obj, tuple):          # NamedTuple: its fields
-            missing = set(obj._fields) - _documented_names(secs.get("Attributes", ""))
-            if missing:
-                bad.append(f"{qual}: Attributes misses {sorted(missing)}")
+        for part in head[k:]:
+            parent = getattr(parent, part)
+        break
+    else:
+        return importlib.import_module(dotted)
+    return getattr(parent, last) if hasattr(parent, last) else importlib.import_module(dotted)
+
+
+def _api_md_objects() -> list[tuple[str, object]]:
+    """Every object docs/api.md renders (``::: name``, with its ``members: [...]``)."""
+    text = (ROOT / "docs" / "api.md").read_text(encoding="utf-8")
+    out = []
+    for m in re.finditer(r"^::: (\S+)((?:\n    .*)*)", text, flags=re.M):
+        name, options = m.group(1), m.group(2)
+        obj = _resolve(name)
+        if not inspect.ismodule(obj):
+            out.append((name, obj))
+        members = re.search(r"members:\s*\[([^\]]*)\]", options)
+        for member in (members.group(1).replace("\n", " ").split(",") if members else []):
+            out.append((f"{name}.{member.strip()}", getattr(obj, member.strip())))
+    return out
+
+
+def _facade_objects() -> list[tuple[str, object]]:
+    """Every public name of ``import cardionurbs as cn`` and the public methods of its classes."""
+    out = []
+    for name in cardionurbs.__all__:
+        obj = getattr(cardionurbs, name)
+        if inspect.ismodule(obj):
             continue
-        if params:
-            missing = set(params) - _documented_names(secs.get("Parameters", ""))
-            if missing:
-                bad.append(f"{qual}: Parameters misses {sorted(missing)}")
-        returns = sig.return_annotation
-        if not inspect.isclass(obj) and returns not in (None, "None", inspect.Signature.empty) \
-                and "Returns" not in secs and "Yields" not in secs:
-            bad.append(f"{qual}: no Returns section")
-    assert bad == []
+        out.append((f"cardionurbs.{name}", obj))
+        if inspect.isclass(obj) and not issubclass(obj, BaseException):
+            out += [(f"cardionurbs.{name}.{m}", f) for m, f in _methods(obj)]
+    return out
+
+
+@pytest.mark.parametrize("modname", CHECKED_MODULES)
+def test_every_public_callable_has_numpydoc_sections(modname):
+    module = importlib.import_module(modname)
+    assert _checked((f"{modname}.{qual}", obj) for qual, obj in _public(module)) == []
+
+
+def test_the_facade_has_numpydoc_sections():
+    assert _checked(_facade_objects()) == []
+
+
+def test_every_api_md_object_has_numpydoc_sections():
+    objects = _api_md_objects()
+    assert len(objects) > 20                          # the parse found the page's objects
+    assert _checked(objects) == []
+
+
+def test_the_check_finds_what_is_missing():
+    def undocumented(a: int, b: float = 1.0) -> float:
+        """Sum.
+
+        Parameters
+        ----------
+        a : int
+            One.
+        """
+        return a + b
+    assert _problems("f", undocumented) == ["f: Parameters misses ['b']", "f: no Returns section"]
 
 
 @pytest.mark.parametrize("name", EXAMPLES)
 def test_entry_points_have_examples(name):
-    assert "Examples" in _sections(inspect.getdoc(getattr(cardionurbs.nurbs, name)))
+    assert "Examples" in _sections(inspect.getdoc(_resolve(name)))
 
 
 def test_package_facade_has_examples():
-    import cardionurbs
     assert "Examples" in _sections(cardionurbs.__doc__)
     assert all(f"cn.{n}(" in cardionurbs.__doc__ for n in ("load_study", "reconstruct", "measure"))
+
+
+def test_facade_cohort_stays_the_function():
+    """Importing the submodule cardionurbs.cohort names it on the package: ``cn.cohort``
+    must still be the function, the second time too."""
+    importlib.import_module("cardionurbs.cohort")
+    from cardionurbs.cohort import cohort
+    assert cardionurbs.cohort is cohort and cardionurbs.cohort is cohort
 
 
 @pytest.mark.parametrize("modname", DOCTESTED)
@@ -107,3 +249,131 @@ def test_doctests(modname):
     result = doctest.testmod(module, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE,
                              verbose=False)
     assert result.failed == 0
+
+
+#: public names whose numpydoc sections are still to be written (#35 item 4, this session's
+#: remainder): the list may only shrink -- a name here that passes fails the test
+#: (:func:`_checked`), so take it off when its docstring is done.
+NOT_YET = {
+    "cardionurbs.analysis.aha.AhaFrame", "cardionurbs.analysis.aha.AhaFrame.cylindrical",
+    "cardionurbs.analysis.aha.AhaFrame.segments", "cardionurbs.analysis.aha.AhaFrame.to_dict",
+    "cardionurbs.analysis.aha.aha_frame", "cardionurbs.analysis.aha.circular_mean",
+    "cardionurbs.analysis.aha.insertion_bisector", "cardionurbs.analysis.aha.model_aha_frame",
+    "cardionurbs.analysis.aha.segment_labels", "cardionurbs.analysis.aha.septal_angle_from_contours",
+    "cardionurbs.analysis.aha.septal_angle_from_landmarks", "cardionurbs.analysis.aha.wrap",
+    "cardionurbs.analysis.body.bsa_mosteller", "cardionurbs.analysis.function.eccentricity_index",
+    "cardionurbs.analysis.function.eccentricity_index_es",
+    "cardionurbs.analysis.function.explain_nulls", "cardionurbs.analysis.function.mass_g",
+    "cardionurbs.analysis.function.regurgitation",
+    "cardionurbs.analysis.function.regurgitation_stated",
+    "cardionurbs.analysis.function.ventricular_function", "cardionurbs.analysis.function.volume_curve",
+    "cardionurbs.analysis.material.MaterialPoints",
+    "cardionurbs.analysis.material.MaterialPoints.displacement",
+    "cardionurbs.analysis.material.MaterialPoints.found",
+    "cardionurbs.analysis.material.MaterialPoints.tracked", "cardionurbs.analysis.material.in_domain",
+    "cardionurbs.analysis.material.intersect_three_surfaces",
+    "cardionurbs.analysis.material.material_points", "cardionurbs.analysis.material.myocardium_margin",
+    "cardionurbs.analysis.material.start_from_planes", "cardionurbs.analysis.material.surface_grid",
+    "cardionurbs.analysis.quality.Quality", "cardionurbs.analysis.quality.Quality.flagged",
+    "cardionurbs.analysis.quality.Quality.row", "cardionurbs.analysis.quality.Quality.to_json",
+    "cardionurbs.analysis.quality.residual_stats", "cardionurbs.analysis.quality.residual_summary",
+    "cardionurbs.analysis.ranges.find_range", "cardionurbs.analysis.ranges.flag",
+    "cardionurbs.analysis.ranges.range_columns", "cardionurbs.analysis.ranges.range_flags",
+    "cardionurbs.analysis.rates.filling_rates", "cardionurbs.analysis.rates.model_filling_rates",
+    "cardionurbs.analysis.rates.peak_rates", "cardionurbs.analysis.rates.rate_windows",
+    "cardionurbs.analysis.regional.RegionalMetrics",
+    "cardionurbs.analysis.regional.RegionalMetrics.to_json",
+    "cardionurbs.analysis.regional.regional_metrics", "cardionurbs.analysis.regional.wall_boundaries",
+    "cardionurbs.analysis.simpson.disk_areas", "cardionurbs.analysis.simpson.disk_volumes",
+    "cardionurbs.analysis.simpson.simpson_metrics", "cardionurbs.analysis.strain.CylindricalMotionFit",
+    "cardionurbs.analysis.strain.CylindricalMotionFit.expanded",
+    "cardionurbs.analysis.strain.CylindricalMotionFit.gradient",
+    "cardionurbs.analysis.strain.CylindricalMotionFit.image_radius",
+    "cardionurbs.analysis.strain.CylindricalMotionFit.linearisation",
+    "cardionurbs.analysis.strain.CylindricalMotionFit.perturbed_gradients",
+    "cardionurbs.analysis.strain.CylindricalMotionFit.position",
+    "cardionurbs.analysis.strain.CylindricalMotionFit.radius_and_gradient",
+    "cardionurbs.analysis.strain.aligned_frame", "cardionurbs.analysis.strain.cardiac_directions",
+    "cardionurbs.analysis.strain.cylindrical", "cardionurbs.analysis.strain.directional_strains",
+    "cardionurbs.analysis.strain.green_lagrange", "cardionurbs.analysis.strain.myocardium_samples",
+    "cardionurbs.analysis.strain.segment_strain_quantities",
+    "cardionurbs.analysis.strain.smoothed_normals", "cardionurbs.analysis.strain.strain_columns",
+    "cardionurbs.analysis.surface_strain.curve_length",
+    "cardionurbs.analysis.surface_strain.gcs_surface",
+    "cardionurbs.analysis.surface_strain.gls_surface",
+    "cardionurbs.analysis.surface_strain.mid_sa_slice",
+    "cardionurbs.analysis.surface_strain.surface_strains",
+    "cardionurbs.analysis.surface_strain.whittaker_smooth", "cardionurbs.analysis.tag_motion.Boundary",
+    "cardionurbs.analysis.tag_motion.PointQuantities", "cardionurbs.analysis.tag_motion.TagPlanes",
+    "cardionurbs.analysis.tag_motion.TagPlanes.index",
+    "cardionurbs.analysis.tag_motion.boundary_start", "cardionurbs.analysis.tag_motion.choose_penalty",
+    "cardionurbs.analysis.tag_motion.ed_tag_planes",
+    "cardionurbs.analysis.tag_motion.frame_tag_points",
+    "cardionurbs.analysis.tag_motion.incompressibility_scale",
+    "cardionurbs.analysis.tag_motion.incompressibility_term",
+    "cardionurbs.analysis.tag_motion.penalty_groups", "cardionurbs.analysis.tag_motion.plane_bases",
+    "cardionurbs.analysis.tag_motion.quantity_jacobian",
+    "cardionurbs.analysis.tag_motion.segment_mean_matrix", "cardionurbs.analysis.tag_motion.tag_grid",
+    "cardionurbs.analysis.tag_motion.volume_prior_weight",
+    "cardionurbs.analysis.tag_surfaces.TagSection", "cardionurbs.analysis.tag_surfaces.TagSurface",
+    "cardionurbs.analysis.tag_surfaces.axis_frame",
+    "cardionurbs.analysis.tag_surfaces.build_tag_surfaces",
+    "cardionurbs.analysis.tag_surfaces.check_tags", "cardionurbs.analysis.tag_surfaces.control_count",
+    "cardionurbs.analysis.tag_surfaces.family_direction",
+    "cardionurbs.analysis.tag_surfaces.fit_sections",
+    "cardionurbs.analysis.tag_surfaces.fit_tag_curve",
+    "cardionurbs.analysis.tag_surfaces.fit_tag_curves", "cardionurbs.analysis.tag_surfaces.gap_limit",
+    "cardionurbs.analysis.tag_surfaces.la_sections", "cardionurbs.analysis.tag_surfaces.loft_sections",
+    "cardionurbs.analysis.tag_surfaces.polyline_lengths",
+    "cardionurbs.analysis.tag_surfaces.principal_directions",
+    "cardionurbs.analysis.tag_surfaces.resolve_frames",
+    "cardionurbs.analysis.tag_surfaces.sa_sections", "cardionurbs.analysis.tag_surfaces.tag_surfaces",
+    "cardionurbs.analysis.tag_surfaces.uniform_knots", "cardionurbs.analysis.tagqc.LineDeparture",
+    "cardionurbs.analysis.tagqc.TagFlag", "cardionurbs.analysis.tagqc.TagFlag.as_tuple",
+    "cardionurbs.analysis.tagqc.blend_trace", "cardionurbs.analysis.tagqc.confidence_flags",
+    "cardionurbs.analysis.tagqc.distance_to_trace", "cardionurbs.analysis.tagqc.loo_departures",
+    "cardionurbs.analysis.tagqc.loo_residuals", "cardionurbs.analysis.tagqc.loo_residuals_many",
+    "cardionurbs.analysis.tagqc.qc_sections", "cardionurbs.analysis.tagqc.sa_family_departures",
+    "cardionurbs.analysis.tagqc.signed_distance_to_trace",
+    "cardionurbs.analysis.tagqc.spoke_height_departure", "cardionurbs.analysis.tagqc.tag_qc",
+    "cardionurbs.analysis.tagqc.tag_spacing", "cardionurbs.analysis.tags.TagMetrics",
+    "cardionurbs.analysis.tags.TagMetrics.to_json", "cardionurbs.analysis.tags.curve_crossings",
+    "cardionurbs.analysis.tags.epicardial_radius_profile", "cardionurbs.analysis.tags.level_table",
+    "cardionurbs.analysis.tags.longitudinal_height_map", "cardionurbs.analysis.tags.rotation_deg",
+    "cardionurbs.analysis.tags.tag_figure_data", "cardionurbs.analysis.tags.tag_surfaces_dict",
+    "cardionurbs.analysis.tags.tagged_stack_range", "cardionurbs.analysis.tags.twist_from_levels",
+    "cardionurbs.analysis.uncertainty.VolumeError",
+    "cardionurbs.analysis.uncertainty.VolumeError.total",
+    "cardionurbs.analysis.uncertainty.halfwidth_flags",
+    "cardionurbs.analysis.uncertainty.interval_columns",
+    "cardionurbs.analysis.uncertainty.parse_max_halfwidth",
+    "cardionurbs.analysis.uncertainty.section_table", "cardionurbs.analysis.uncertainty.solid_error",
+    "cardionurbs.analysis.uncertainty.volume_error", "cardionurbs.analysis.voxels.is_finite_number",
+    "cardionurbs.analysis.voxels.label_map_flags", "cardionurbs.analysis.voxels.voxel_disagreement",
+    "cardionurbs.analysis.voxels.voxel_metrics",
+    "cardionurbs.anatomy.model.BiventricularModel.from_dict",
+    "cardionurbs.anatomy.model.BiventricularModel.long_axis",
+    "cardionurbs.anatomy.model.BiventricularModel.mesh_arrays",
+    "cardionurbs.anatomy.model.BiventricularModel.meshes",
+    "cardionurbs.anatomy.model.BiventricularModel.residual_table",
+    "cardionurbs.anatomy.model.BiventricularModel.to_dict", "cardionurbs.io.checks.check_bounds",
+    "cardionurbs.io.checks.check_study", "cardionurbs.io.checks.in_plane_coordinates",
+    "cardionurbs.io.checks.input_ed_es_frames", "cardionurbs.io.checks.known_simple",
+    "cardionurbs.io.checks.self_intersections", "cardionurbs.io.gpfile.check_gp_values",
+    "cardionurbs.io.gpfile.detect", "cardionurbs.io.gpfile.is_loop",
+    "cardionurbs.io.gpfile.read_gp_table", "cardionurbs.io.gpfile.read_slice_info",
+    "cardionurbs.io.gpfile.read_study", "cardionurbs.io.labels.LabelRoles",
+    "cardionurbs.io.labels.LabelRoles.describe", "cardionurbs.io.labels.LabelRoles.values",
+    "cardionurbs.io.labels.check_values", "cardionurbs.io.labels.parse_labels",
+    "cardionurbs.io.native.check_dicom_geometry", "cardionurbs.io.native.is_native",
+    "cardionurbs.io.native.read_study", "cardionurbs.io.native.read_study_from_dicom",
+    "cardionurbs.io.native.study_to_frames", "cardionurbs.io.native.write_study",
+    "cardionurbs.io.nifti.LabelVolume", "cardionurbs.io.nifti.LabelVolume.same_grid",
+    "cardionurbs.io.nifti.check_volume_size", "cardionurbs.io.nifti.detect",
+    "cardionurbs.io.nifti.is_nifti", "cardionurbs.io.nifti.label_counts",
+    "cardionurbs.io.nifti.read_acdc", "cardionurbs.io.nifti.read_file",
+    "cardionurbs.io.nifti.read_mnms", "cardionurbs.io.nifti.read_mnms2",
+    "cardionurbs.io.nifti.read_study", "cardionurbs.io.nifti.read_ukbb",
+    "cardionurbs.io.nifti.slice_plane", "cardionurbs.io.nifti.to_scanner",
+    "cardionurbs.io.nifti.voxel_volumes",
+}

@@ -140,14 +140,47 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None,
     """Every docs/metrics.md column for one model, as floats (NaN where not measurable),
     with the reason of every NaN in ``.notes`` (:mod:`cardionurbs.analysis.notes`).
 
-    ``uncertainty``: also the 95 % interval of each global metric as ``<column> lo95`` and
-    ``<column> hi95`` (NaN where there is none; docs/metrics.md, Uncertainty;
-    :func:`cardionurbs.analysis.uncertainty.intervals` gives the reasons and sources).
+    Tag columns are NaN here (:func:`cardionurbs.pipeline.analyse` adds them). The body-size
+    columns (:mod:`cardionurbs.analysis.body`) follow from ``model.study.meta["body"]``.
 
-    ``heart_rate_bpm`` is used when the study carries no heart rate (the
-    user-given value of docs/metrics.md, Frames); outside 20-300 bpm it is refused
-    (CardioNurbsError). Tag columns are NaN here. The body-size columns
-    (:mod:`cardionurbs.analysis.body`) follow from ``model.study.meta["body"]``.
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model of :func:`cardionurbs.anatomy.model.reconstruct`.
+    heart_rate_bpm : float or None
+        Heart rate (bpm), used when the study carries none (the user-given value of
+        docs/metrics.md, Frames).
+    uncertainty : bool
+        Also the 95 % interval of each global metric as ``<column> lo95`` and
+        ``<column> hi95`` (NaN where there is none; docs/metrics.md, Uncertainty;
+        :func:`cardionurbs.analysis.uncertainty.intervals` gives the reasons and sources).
+
+    Returns
+    -------
+    Metrics
+        A dict column -> float in the column's unit (mL, g, %, ms, mm, deg; NaN where the
+        study cannot give one), with ``.notes`` column -> reason of each NaN.
+
+    Raises
+    ------
+    CardioNurbsError
+        ``heart_rate_bpm`` outside 20-300 bpm.
+
+    Examples
+    --------
+    A phantom's LV end-diastolic volume against its closed-form truth:
+
+    >>> import pathlib, tempfile
+    >>> import cardionurbs as cn
+    >>> from cardionurbs.phantom import generate, write_phantom
+    >>> phantom = generate("normal", seed=1, frames=2, n_sa=6, matrix=128, volume_check=False)
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> folder = write_phantom(phantom, pathlib.Path(tmp.name) / "p1", dicom=False)
+    >>> m = cn.measure(cn.reconstruct(cn.load_study(folder)))
+    >>> truth = phantom.truth["metrics"]["LVEDV (mL)"]
+    >>> bool(abs(m["LVEDV (mL)"] - truth) < 0.01 * truth)
+    True
+    >>> tmp.cleanup()
     """
     if heart_rate_bpm is not None and not (
             HEART_RATE_RANGE_BPM[0] <= heart_rate_bpm <= HEART_RATE_RANGE_BPM[1]):

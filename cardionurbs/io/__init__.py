@@ -26,6 +26,21 @@ def detect_format(path: str | Path) -> str:
     ``gpfile`` (GPFile_NNN.txt + SliceInfoFile.txt), ``sunnybrook``
     (``*contour-manual.txt`` files beside DICOM images), ``nifti`` (a ``.nii``/``.nii.gz``
     label map, or a folder in the ACDC, UK Biobank or M&Ms layout).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A study folder or a file in it.
+
+    Returns
+    -------
+    str
+        ``native``, ``gpfile``, ``sunnybrook`` or ``nifti``.
+
+    Raises
+    ------
+    StudyError
+        ``path`` does not exist, or no format's files are there (with a hint at what is).
     """
     from cardionurbs.io import native
 
