@@ -40,7 +40,25 @@ WALL_SUBDIVISION = 4
 @dataclass
 class RegionalMetrics(ColumnMapping):
     """Regional columns -> float (a read-only mapping), with the segment geometry per frame
-    (``aha``: frame -> AhaFrame), the thickness samples per frame (``samples``) and ``notes``."""
+    (``aha``: frame -> AhaFrame), the thickness samples per frame (``samples``) and ``notes``.
+
+    Attributes
+    ----------
+    columns : dict of str to float
+        Regional docs/metrics.md column -> value (mm, %, NaN where not measured).
+    aha : dict of int to AhaFrame
+        Frame -> its segment geometry.
+    samples : dict of int to dict
+        Frame -> the thickness samples (:func:`~cardionurbs.analysis.thickness.thickness_by_segment`).
+    notes : list of str
+        Why columns are null.
+    strain : dict
+        The ES tag strain fit's summary (segment strains, quality), empty without tags.
+    over_time : dict of int to dict
+        Tagged frame -> its strain summary.
+    surface : dict
+        The contour-based surface strains' details.
+    """
 
     columns: dict[str, float]
     aha: dict[int, AhaFrame] = field(default_factory=dict)
@@ -51,7 +69,12 @@ class RegionalMetrics(ColumnMapping):
     surface: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
-        """JSON-safe summary for metrics.json (NaN -> None)."""
+        """JSON-safe summary for metrics.json (NaN -> None).
+
+        Returns
+        -------
+        dict
+        """
         def num(x):
             return None if x is None or not np.isfinite(x) else float(x)
         def clean(d):
@@ -83,7 +106,22 @@ def wall_boundaries(model, frame: int, cache: dict | None = None) -> list[Bounda
     """The LV endo- and epicardial contours of ``frame`` (every view) with the same surface at
     the model's ED frame, sampled on a (u, v) grid (:data:`~cardionurbs.analysis.tag_motion.BOUNDARY_SAMPLES`)
     for the tag-line fit's boundary term; ``cache``: {structure: (samples, normals, their
-    k-d tree)} shared between frames."""
+    k-d tree)} shared between frames.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    frame : int
+        The frame whose contours are taken.
+    cache : dict or None
+        Shared samples, filled in place.
+
+    Returns
+    -------
+    list of Boundary
+        One per structure that has contours at ``frame``.
+    """
     cache = {} if cache is None else cache
     ed = model.surfaces[model.ed_frame]
     out = []
@@ -114,7 +152,31 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
     noise and its own misfit (False: the tracking noise alone, for comparison). ``jobs``:
     processes for the strain over time, one independent fit per tagged frame
     (:func:`cardionurbs.parallel.fork_map`: ES in this process, the other frames on ``jobs``
-    forked workers; None: the usable CPUs; 1, the default: all here)."""
+    forked workers; None: the usable CPUs; 1, the default: all here).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    tags : TagMetrics or None
+        As above.
+    incompressibility : {"prior", "risk"} or bool
+        As above.
+    volume_prior_sd : float or None
+        As above.
+    boundaries : bool
+        As above.
+    deformation : callable or None
+        As above.
+    misfit_noise : bool
+        As above.
+    jobs : int or None
+        As above.
+
+    Returns
+    -------
+    RegionalMetrics
+    """
     cols = {c: NAN for c in THICKNESS_COLUMNS + STRAIN_COLUMNS + SURFACE_STRAIN_COLUMNS}
     out = RegionalMetrics(cols)
     ed, es = model.ed_frame, model.es_frame
