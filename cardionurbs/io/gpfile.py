@@ -140,7 +140,17 @@ SEPTUM_TOL_MM = 0.5
 
 
 def detect(path: str | Path) -> bool:
-    """True when ``path`` is a folder (or a file in one) with GPFile_*.txt and SliceInfoFile.txt."""
+    """True when ``path`` is a folder (or a file in one) with GPFile_*.txt and SliceInfoFile.txt.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A file or folder.
+
+    Returns
+    -------
+    bool
+    """
     p = Path(path)
     folder = p if p.is_dir() else p.parent
     return (folder / SLICE_INFO).is_file() and any(GP_FILE.match(q.name) for q in folder.iterdir())
@@ -174,6 +184,21 @@ def read_slice_info(path: str | Path) -> list[dict]:
     (first-listed order): file, id, line, position, orientation, pixel_spacing, the numbers
     as written (``tokens``) and ``entries`` [(line, time frame or None, image token)].
     The style (label, separator, line order) is on the first dict's ``style``.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The SliceInfoFile.txt.
+
+    Returns
+    -------
+    list of dict
+        As above (positions mm).
+
+    Raises
+    ------
+    StudyError
+        A missing file, field or number, or one slice listed with two geometries.
     """
     path = Path(path)
     if not path.is_file():
@@ -289,7 +314,27 @@ def read_gp_table(path: str | Path) -> tuple[dict[str, np.ndarray], str, int | N
 
     A plain file (ASCII, tab-separated, 7 fields on every line, every number an ordinary
     decimal) is split and converted by numpy (:func:`_plain_rows`); any other is read by
-    pandas, whose reader and messages define what is accepted and how it is reported."""
+    pandas, whose reader and messages define what is accepted and how it is reported.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A GPFile_NNN.txt.
+
+    Returns
+    -------
+    columns : dict of str to ndarray
+        The columns above.
+    header : str
+        The header line.
+    decimals : int or None
+        The fixed decimals of x y z.
+
+    Raises
+    ------
+    StudyError
+        A bad value (naming file and line).
+    """
     path = checked(path, what="GPFile")
     try:
         text = path.read_text(encoding="utf-8")
@@ -431,7 +476,23 @@ def read_study(path: str | Path) -> Study:
 
     EXCLUDED guide points are dropped; atrial, venous and extent traces are kept as
     non-ventricular contours (one warning counts them); the weight column becomes each
-    contour's point weights (``Contour.weights``)."""
+    contour's point weights (``Contour.weights``).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The GPFile folder, or a file in it.
+
+    Returns
+    -------
+    Study
+        Scanner mm.
+
+    Raises
+    ------
+    StudyError
+        A missing or bad file, or points on no slice plane (naming file, line and field).
+    """
     p = Path(path)
     folder = p if p.is_dir() else p.parent
     files = _gp_files(folder)
@@ -569,7 +630,19 @@ def is_loop(points: np.ndarray, gap_steps: float = LOOP_GAP_STEPS) -> bool:
     """True when an ordered trace closes on itself: it has >= 5 points, its ends are no
     farther apart than ``gap_steps`` times its median point spacing and than a quarter
     of its extent, no step along it is longer than that either (an open arc written from
-    its middle jumps between its ends), and closing it does not make it cross itself."""
+    its middle jumps between its ends), and closing it does not make it cross itself.
+
+    Parameters
+    ----------
+    points : (n, 3) ndarray
+        An ordered trace, mm.
+    gap_steps : float
+        The closing gap allowed, in median point spacings.
+
+    Returns
+    -------
+    bool
+    """
     if len(points) < 5:
         return False
     step = np.linalg.norm(np.diff(points, axis=0), axis=1)
@@ -695,7 +768,22 @@ def check_gp_values(t: dict[str, np.ndarray], path: Path, last_frame: int) -> No
     """Values in range, before any arithmetic: |x|, |y|, |z| within
     :data:`cardionurbs.limits.MAX_COORDINATE_MM`, and each ``time frame`` (when given) a
     whole number from 0 to ``last_frame + 1`` (1-based exports). StudyError names the line
-    with a short excerpt of the value."""
+    with a short excerpt of the value.
+
+    Parameters
+    ----------
+    t : dict of str to ndarray
+        The file's columns (:func:`read_gp_table`).
+    path : pathlib.Path
+        The file, for the messages.
+    last_frame : int
+        The study's last frame index.
+
+    Raises
+    ------
+    StudyError
+        A value out of range.
+    """
     from cardionurbs.limits import MAX_COORDINATE_MM
     for col in ("x", "y", "z"):
         far = np.abs(np.asarray(t[col], float)) > MAX_COORDINATE_MM
