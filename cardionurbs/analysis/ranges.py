@@ -48,7 +48,26 @@ def _matches(row: Mapping, sex: str | None, age: float | None) -> tuple[bool, st
 
 def find_range(column: str, sex: str | None, age: float | None,
                table: Mapping | None = None) -> tuple[dict | None, str]:
-    """(the row for ``column`` at this sex and age, or None; why none when None)."""
+    """(the row for ``column`` at this sex and age, or None; why none when None).
+
+    Parameters
+    ----------
+    column : str
+        A docs/metrics.md column.
+    sex : {"M", "F"} or None
+        The subject's sex.
+    age : float or None
+        Years.
+    table : mapping or None
+        A range table; None: the packaged one (:func:`load_ranges`).
+
+    Returns
+    -------
+    row : dict or None
+        The reference row (``lower``, ``upper`` in the column's unit).
+    reason : str
+        Why there is none ("" with a row).
+    """
     rows = [r for r in (table or load_ranges())["rows"] if r["column"] == column]
     if not rows:
         return None, "no reference range"
@@ -63,7 +82,19 @@ def find_range(column: str, sex: str | None, age: float | None,
 
 
 def flag(value: float, lower: float | None, upper: float | None) -> str:
-    """``below`` / ``normal`` / ``above`` of ``value`` against [lower, upper] (inclusive)."""
+    """``below`` / ``normal`` / ``above`` of ``value`` against [lower, upper] (inclusive).
+
+    Parameters
+    ----------
+    value : float
+        The metric, in its unit.
+    lower, upper : float or None
+        The range's bounds (None: unbounded).
+
+    Returns
+    -------
+    str
+    """
     if lower is not None and value < lower:
         return "below"
     if upper is not None and value > upper:
@@ -81,10 +112,16 @@ def range_flags(metrics: Mapping, sex: str | None = None, age: float | None = No
     metrics : mapping
         docs/metrics.md column -> float (NaN / None where null).
     sex : {"M", "F"} or None
+        The subject's sex.
     age : float or None
         Years.
     table : mapping, optional
         A range table shaped as the packaged file (default: :func:`load_ranges`).
+
+    Returns
+    -------
+    dict of str to dict
+        Column -> its entry.
     """
     table = table or load_ranges()
     out: dict[str, dict] = {}
@@ -106,5 +143,15 @@ def range_flags(metrics: Mapping, sex: str | None = None, age: float | None = No
 
 
 def range_columns(flags: Mapping[str, dict]) -> dict[str, str | None]:
-    """The cohort CSV's ``<column> range`` cells (``below``/``normal``/``above``, None)."""
+    """The cohort CSV's ``<column> range`` cells (``below``/``normal``/``above``, None).
+
+    Parameters
+    ----------
+    flags : mapping of str to dict
+        :func:`range_flags`' output.
+
+    Returns
+    -------
+    dict of str to str or None
+    """
     return {f"{c} range": e["flag"] for c, e in flags.items()}
