@@ -223,62 +223,44 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
            strict: bool = False, uncertainty: bool = True,
            max_halfwidth: dict[str, float] | None = None) -> pd.DataFrame:
     """Measure every study: a DataFrame with ``subject``, ``status`` and the docs/metrics.md
-    columns in order, one row per path (input order); when any study is a label map
-    the voxel-count columns follow.
-
-    A study that fails is a row with its error (``status`` ``error``), not an exception.
+    columns in order, one row per path (input order; a study that fails is a row with its
+    error, not an exception); the voxel-count columns follow when a study is a label map.
 
     Parameters
     ----------
     paths : iterable of str or os.PathLike
         The study folders or files (as :func:`cardionurbs.io.load_study` takes them).
     jobs : int
-        Worker processes (or Dask workers for ``dask="local"``); 1: this process.
-    format : str
-        The studies' format (:data:`cardionurbs.io.FORMATS`; ``auto`` per study).
-    progress : bool
-        A progress bar on stderr.
-    heart_rate_bpm : float or None
-        Heart rate (bpm) for the studies that carry none.
-    dask : str or None
-        Run on a Dask cluster: ``"local"`` or a scheduler address.
-    timeout : float or None
-        Seconds per study before it becomes an error row.
-    run_dir : str, os.PathLike or None
-        Store each finished row durably there (:class:`RowStore`).
-    resume : bool
-        Keep the rows already in ``run_dir`` and measure only the others.
-    allow_outside : bool
-        Let a study name files outside its folder (:func:`cardionurbs.io.load_study`).
-    labels : str or None
-        The label-map convention of NIfTI studies (:func:`cardionurbs.io.load_study`).
-    strict : bool
-        Flagged rows are failures (:func:`measure_study`).
-    uncertainty : bool
-        The 95 % interval columns (:func:`measure_study`).
-    max_halfwidth : dict of str to float, or None
-        Column -> largest 95 % half-width (the column's unit) before the row is flagged
-        (:func:`measure_study`).
+        Worker processes (Dask workers for ``dask="local"``); 1: this process.
+    format, allow_outside, labels
+        Passed to :func:`cardionurbs.io.load_study` for every study.
+    progress, heart_rate_bpm : bool; float or None
+        A progress bar on stderr; the heart rate (bpm) of the studies that carry none.
+    dask, timeout : str or None; float or None
+        Run on a Dask cluster (``"local"`` or a scheduler address); seconds per study
+        before it becomes an error row.
+    run_dir, resume : str, os.PathLike or None; bool
+        Store each finished row durably in ``run_dir`` (:class:`RowStore`); ``resume``:
+        keep the rows already there and measure only the others.
+    strict, uncertainty, max_halfwidth
+        Flagged rows are failures; the 95 % interval columns; column -> largest 95 %
+        half-width (the column's unit) before a row is flagged (:func:`measure_study`).
 
     Returns
     -------
     pandas.DataFrame
-        One row per path, in input order; metric columns in their docs/metrics.md units,
-        NaN where a study cannot give one.
+        Metric columns in their docs/metrics.md units, NaN where a study cannot give one.
 
     Examples
     --------
-    >>> import pathlib, tempfile
-    >>> import cardionurbs as cn
+    >>> import pathlib, tempfile, cardionurbs as cn
     >>> from cardionurbs.phantom import generate, write_phantom
     >>> phantom = generate("normal", seed=1, frames=2, n_sa=6, matrix=128, volume_check=False)
     >>> tmp = tempfile.TemporaryDirectory()
     >>> folder = write_phantom(phantom, pathlib.Path(tmp.name) / "p1", dicom=False)
     >>> table = cn.cohort([folder])
-    >>> table.loc[0, "subject"], table.loc[0, "status"]
-    ('normal_001', 'ok')
-    >>> bool(table.loc[0, "LVEDV (mL)"] > 0)
-    True
+    >>> table.loc[0, "subject"], table.loc[0, "status"], bool(table.loc[0, "LVEDV (mL)"] > 0)
+    ('normal_001', 'ok', True)
     >>> tmp.cleanup()
     """
     from cardionurbs.executor import TaskFailure, run_tasks

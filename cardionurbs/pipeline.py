@@ -233,40 +233,22 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                    outputs: tuple[str, ...] | None = None,
                    progress: Progress | None = None, jobs: int | None = 1,
                    early_meshes: "EarlyMeshes | None" = None, uncertainty: bool = True) -> Path:
-    """Write the chosen ``outputs`` to ``out``, atomically (the folder is complete or
-    untouched).
+    """Write the chosen ``outputs`` to ``out``, atomically (complete or untouched).
 
     Parameters
     ----------
-    model : BiventricularModel
-        The model of :func:`analyse`.
-    metrics : dict
-        Its docs/metrics.md dict (:func:`analyse`).
-    out : str or pathlib.Path
-        The output folder (docs/outputs.md).
-    figures : bool
-        False drops the figures and the report from ``outputs``.
-    mesh_ext : str
-        The mesh file format, ``ply``, ``stl``, ``obj`` or ``glb``.
-    tags : TagMetrics or None
-        The tag result of :func:`analyse` (tag surfaces in the model file, tag figures).
-    outputs : tuple of str or None
-        The outputs to write (:data:`OUTPUTS`); None: all.
-    progress : Progress or None
-        Stages on stderr.
-    jobs : int or None
-        Worker processes for the per-frame meshes (:func:`write_meshes`; 1, the default:
-        none; None: the usable CPUs) and the figures.
-    early_meshes : EarlyMeshes or None
-        The meshes already started (:class:`EarlyMeshes`).
-    uncertainty : bool
-        The metrics' 95 % intervals in metrics.json (``uncertainty``,
-        :func:`cardionurbs.analysis.uncertainty.intervals`; null when off).
+    model, metrics, tags, out : BiventricularModel; dict; TagMetrics or None; path-like
+        The results of :func:`analyse`; the output folder (docs/outputs.md).
+    figures, mesh_ext, outputs, uncertainty : bool; str; tuple of str or None; bool
+        False drops figures and report; the mesh format (``ply``, ``stl``, ``obj``, ``glb``);
+        the outputs (:data:`OUTPUTS`; None: all); the 95 % intervals in metrics.json.
+    progress, jobs, early_meshes : Progress or None; int or None; EarlyMeshes or None
+        Stages on stderr; worker processes for the meshes and figures (1: none; None: the
+        usable CPUs); the meshes already started (:class:`EarlyMeshes`).
 
     Returns
     -------
     pathlib.Path
-        The output folder.
     """
     outputs = OUTPUTS if outputs is None else tuple(outputs)
     if not figures:

@@ -140,38 +140,23 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
                      volume_prior_sd: float | None = None, boundaries: bool = True,
                      deformation=None, misfit_noise: bool = True,
                      jobs: int | None = 1) -> RegionalMetrics:
-    """Regional columns of a model; ``tags``: its :class:`~cardionurbs.analysis.tags.TagMetrics`
-    (material points) when the study is tagged. ``incompressibility``: how the tag-strain fit
-    of noisy tags uses near-incompressibility (:func:`cardionurbs.analysis.strain.tag_strain`:
-    "prior", the default, with its spread ``volume_prior_sd`` (default: the stated one);
-    "risk" or False for comparison). ``boundaries``: the contours of the LV endo- and
-    epicardium join the tag-line fit as material boundaries (:func:`wall_boundaries`; False:
-    the tags alone, for comparison). ``deformation``: (points, frame) -> F replacing the
-    fitted F in the strains (:func:`~cardionurbs.analysis.strain.tag_strain`; validation with
-    a known motion). ``misfit_noise``: the tag-line fit's σ is the larger of the tracking
-    noise and its own misfit (False: the tracking noise alone, for comparison). ``jobs``:
-    processes for the strain over time, one independent fit per tagged frame
-    (:func:`cardionurbs.parallel.fork_map`: ES in this process, the other frames on ``jobs``
-    forked workers; None: the usable CPUs; 1, the default: all here).
+    """Regional columns of a model (wall thickness, tag and surface strain per AHA segment).
 
     Parameters
     ----------
-    model : BiventricularModel
-        The model.
-    tags : TagMetrics or None
-        As above.
-    incompressibility : {"prior", "risk"} or bool
-        As above.
-    volume_prior_sd : float or None
-        As above.
-    boundaries : bool
-        As above.
+    model, tags : BiventricularModel; TagMetrics or None
+        The model, and its tag result (material points) when the study is tagged.
+    incompressibility, volume_prior_sd : {"prior", "risk"} or bool; float or None
+        How the tag-strain fit of noisy tags uses near-incompressibility
+        (:func:`~cardionurbs.analysis.strain.tag_strain`): "prior" with the spread
+        ``volume_prior_sd`` (None: the stated one); "risk" or False for comparison.
+    boundaries, misfit_noise : bool
+        The LV contours join the tag-line fit as material boundaries (:func:`wall_boundaries`);
+        the fit's σ is the larger of the tracking noise and its misfit (False: comparisons).
     deformation : callable or None
-        As above.
-    misfit_noise : bool
-        As above.
+        (points, frame) -> F replacing the fitted F in the strains (validation).
     jobs : int or None
-        As above.
+        Processes for the strain over time, one fit per tagged frame (None: the usable CPUs).
 
     Returns
     -------

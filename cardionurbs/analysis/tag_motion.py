@@ -561,37 +561,28 @@ def choose_penalty(S: np.ndarray, coef: np.ndarray, groups: list[np.ndarray], si
 
     over the positive grid values (λ = 0 is a flat prior, whose evidence vanishes); it
     needs no ``B`` and takes no ``terms``. With σ = 0, λ = 0 (and no fixed term).
-    Returns (P_λ (m, m) including the fixed terms, λ per group then per term).
 
     Parameters
     ----------
-    S : (m, m) ndarray
-        The reduced Gauss–Newton matrix.
-    coef : (m,) ndarray
-        The unregularised optimum c.
+    S, coef : (m, m) ndarray; (m,) ndarray
+        The reduced Gauss–Newton matrix; the unregularised optimum c.
     groups : list of (m,) ndarray of bool
         The ridge groups (:func:`penalty_groups`).
     sigma_mm : float
         The tag tracking noise σ, mm.
     B : (k, m) ndarray
         The quantities' derivative with respect to the coefficients.
-    grid : (g,) ndarray
-        The candidate weights λ.
-    ridge : float
-        A relative ridge keeping S + P regular.
-    terms : tuple of (Q, r)
-        Further quadratics whose weights are chosen.
-    fixed : tuple of (Q, r)
-        Quadratics of weight 1.
+    grid, ridge : (g,) ndarray; float
+        The candidate weights λ; a relative ridge keeping S + P regular.
+    terms, fixed : tuple of (Q, r)
+        Quadratics whose weights are chosen; quadratics of weight 1.
     criterion : {"risk", "evidence"}
-        As above.
+        The unbiased risk estimate, or the marginal likelihood (above).
 
     Returns
     -------
-    P : (m, m) ndarray
-        P_λ.
-    weights : tuple of float
-        λ per group, then per term.
+    P, weights : (m, m) ndarray; tuple of float
+        P_λ including the fixed terms; λ per group, then per term.
     """
     if criterion not in ("risk", "evidence") or (criterion == "evidence" and terms):
         raise ValueError(f"criterion {criterion!r}: 'risk', or 'evidence' without terms")
