@@ -27,7 +27,7 @@ import re
 import sys
 import time
 from pathlib import Path
-from typing import Iterable
+from typing import Any, Iterable
 
 import pandas as pd
 
@@ -99,13 +99,12 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
     ``strict``: a row whose metrics carry a quality flag (``QC`` not empty) is a
     failure: ``status = "error: QC: <flags>"`` and its numbers are emptied."""
     _test_fault(path)
-    row = {c: NAN for c in _NUMBERS}
+    row: dict[str, Any] = {c: NAN for c in _NUMBERS}
     row["subject"], row["warnings"], row["notes"] = Path(path).name, NAN, ""
     try:
         from cardionurbs.io import load_study
         from cardionurbs.pipeline import analyse_study
-        study = load_study(path, format=format, allow_outside=allow_outside,
-                           **({} if labels is None else {"labels": labels}))
+        study = load_study(path, format=format, allow_outside=allow_outside, labels=labels)
         row["subject"] = study.subject
         from cardionurbs.analysis.quality import assess
         model, metrics = analyse_study(study, heart_rate_bpm=heart_rate_bpm)
@@ -148,7 +147,7 @@ def _clinical_cells(model, metrics: dict) -> dict:
 
 def failure_row(path: str, reason: str) -> dict:
     """The row of a study that gave no result (a hang, a dead worker): reason, empty numbers."""
-    row = {c: NAN for c in _NUMBERS}
+    row: dict[str, Any] = {c: NAN for c in _NUMBERS}
     row["warnings"], row["notes"] = NAN, ""
     row["subject"] = Path(path).name
     row["status"] = f"error: {' '.join(str(reason).split())}"
@@ -265,30 +264,31 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
     """
     from cardionurbs.executor import TaskFailure, run_tasks
 
-    paths = [str(p) for p in paths]
+    studies = [str(p) for p in paths]
     store = RowStore(run_dir) if run_dir is not None else None
-    rows: list[dict | None] = [None] * len(paths)
+    rows: list[dict | None] = [None] * len(studies)
     if store is not None:
         if resume:
-            rows = [store.get(p, format) for p in paths]
+            rows = [store.get(p, format) for p in studies]
         else:
             store.clear()
     todo = [i for i, r in enumerate(rows) if r is None]
     bar = None
     if progress:
         from tqdm import tqdm
-        bar = tqdm(total=len(paths), initial=len(paths) - len(todo), desc="studies",
+        bar = tqdm(total=len(studies), initial=len(studies) - len(todo), desc="studies",
                    unit="study", file=sys.stderr)
 
     def finished(k: int, result) -> None:
         i = todo[k]
+        row: dict | None
         if isinstance(result, TaskFailure):
-            row = failure_row(paths[i], result.message if result.kind == "error" else str(result))
+            row = failure_row(studies[i], result.message if result.kind == "error" else str(result))
         else:
             row = result
         if store is not None:
-            store.put(paths[i], format, row)
-            row = store.get(paths[i], format)      # exactly what a resumed run would read
+            store.put(studies[i], format, row)
+            row = store.get(studies[i], format)      # exactly what a resumed run would read
         rows[i] = row
         if bar is not None:
             bar.update(1)
@@ -296,14 +296,15 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
     try:
         if dask is None and jobs <= 1 and timeout is None:
             for k, i in enumerate(todo):             # in this process: no worker to start
+                result: dict | TaskFailure
                 try:
-                    result = measure_study(paths[i], format, heart_rate_bpm, allow_outside,
+                    result = measure_study(studies[i], format, heart_rate_bpm, allow_outside,
                                            labels, strict, uncertainty, max_halfwidth)
                 except Exception as exc:  # noqa: BLE001 - as a worker would report it
                     result = TaskFailure("error", f"{type(exc).__name__}: {_one_line(exc)}")
                 finished(k, result)
         else:
-            run_tasks(measure_study, [(paths[i], format, heart_rate_bpm, allow_outside, labels,
+            run_tasks(measure_study, [(studies[i], format, heart_rate_bpm, allow_outside, labels,
                                        strict, uncertainty, max_halfwidth)
                                       for i in todo],
                       finished, jobs=jobs, dask=dask, timeout=timeout)

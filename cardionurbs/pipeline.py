@@ -476,6 +476,7 @@ class EarlyMeshes:
 
     def finish_into(self, mesh_dir: Path, progress: Progress | None = None) -> None:
         """Finish the meshes and move them to ``mesh_dir``."""
+        assert self.writer is not None and self.folder is not None, "start() wrote no meshes"
         self.writer.finish(progress)
         os.replace(self.folder / "meshes", mesh_dir)
 
