@@ -337,6 +337,7 @@ def save_model(model: BiventricularModel, path: str | Path, tags=None) -> Path:
     Parameters
     ----------
     model : BiventricularModel
+        The model (its surfaces in scanner mm, ED/ES, valve planes, sections).
     path : str or Path
         ``.json`` or ``.npz``.
     tags : TagMetrics, optional
@@ -345,6 +346,12 @@ def save_model(model: BiventricularModel, path: str | Path, tags=None) -> Path:
     Returns
     -------
     Path
+        ``path``.
+
+    Raises
+    ------
+    ExportError
+        A suffix other than ``.json`` or ``.npz``.
     """
     model_dict = model.to_dict()
     if tags is not None:                       # tag surfaces are saved with the model
@@ -360,6 +367,7 @@ def load_model(path: str | Path, study: Study | None = None) -> BiventricularMod
     Parameters
     ----------
     path : str or Path
+        A model file written by :func:`save_model`.
     study : Study, optional
         The study the model was reconstructed from (default: one reduced to subject,
         heart rate, ED/ES and the long-axis landmarks, which every volume, mass and
@@ -368,6 +376,11 @@ def load_model(path: str | Path, study: Study | None = None) -> BiventricularMod
     Returns
     -------
     BiventricularModel
+
+    Raises
+    ------
+    ExportError
+        The file cannot be read or is not a cardionurbs model file.
     """
     return BiventricularModel.from_dict(read_model_file(path), study=study)
 
