@@ -256,7 +256,6 @@ def test_doctests(modname):
 #: (:func:`_checked`), so take it off when its docstring is done.
 NOT_YET = {
     "cardionurbs.anatomy.model.BiventricularModel.from_dict",
-    "cardionurbs.anatomy.model.BiventricularModel.long_axis",
     "cardionurbs.anatomy.model.BiventricularModel.mesh_arrays",
     "cardionurbs.anatomy.model.BiventricularModel.meshes",
     "cardionurbs.anatomy.model.BiventricularModel.residual_table",

@@ -581,7 +581,13 @@ class BiventricularModel:
         """The LV long axis at ED, (apex (3,), base centre (3,)) in mm, by the one rule of
         :func:`cardionurbs.geometry.long_axis` (docs/metrics.md): the apex landmark, else
         the model's LV epicardial (else endocardial) apex; the mean of the mitral
-        landmarks, else the LV valve plane's origin."""
+        landmarks, else the LV valve plane's origin.
+
+        Returns
+        -------
+        apex, base : (3,) ndarray
+            Scanner mm.
+        """
         fr = self.ed_frame
         ap = self.apex_points.get(fr, {})
         valve = self.base_planes.get(fr, {}).get("lv")
