@@ -108,9 +108,7 @@ are used.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -901,7 +899,6 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
     if noise_mm >= NOISE_FLOOR_MM and quantities is not None:
         coef = fit.params
         k = len(quantities(fit))
-        all_quantities: Callable[[Any], np.ndarray]            # a fit -> its quantities
         if isinstance(quantities, PointQuantities) and volume_samples is not None:
             all_quantities = quantities + segment_volume_change
         else:
