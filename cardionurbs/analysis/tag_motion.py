@@ -899,6 +899,7 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
     if noise_mm >= NOISE_FLOOR_MM and quantities is not None:
         coef = fit.params
         k = len(quantities(fit))
+
         if isinstance(quantities, PointQuantities) and volume_samples is not None:
             all_quantities = quantities + segment_volume_change
         else:
