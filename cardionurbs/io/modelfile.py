@@ -298,8 +298,7 @@ def write_model_file(model_dict: dict, path: str | os.PathLike) -> Path:
         members = {k: np.frombuffer(v, np.uint8) for k, v in streams.items()}
         members["model.json"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
         buf = io.BytesIO()
-        # numpy's stub types **kwds as its allow_pickle: bool keyword, not as the arrays
-        np.savez_compressed(buf, **members)  # type: ignore[arg-type]
+        np.savez_compressed(buf, **members)
         return atomic.write_bytes(path, buf.getvalue())
     if path.suffix.lower() != ".json":
         raise ExportError(f"{path}: a model file is .json or .npz")
