@@ -120,8 +120,7 @@ class BiventricularModel:
     """NURBS surfaces of the ventricles per frame, with meshes, volumes and residuals.
 
     Per-frame attributes are mappings frame -> value, computed on first access
-    (:class:`LazyFrames`) when the model is reconstructed from a study
-    (:func:`reconstruct` builds one).
+    (:class:`LazyFrames`) when the model is reconstructed from a study.
 
     Attributes
     ----------
