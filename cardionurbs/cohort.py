@@ -221,9 +221,8 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
            allow_outside: bool = False, labels: str | None = None,
            strict: bool = False, uncertainty: bool = True,
            max_halfwidth: dict[str, float] | None = None) -> pd.DataFrame:
-    """Measure every study: a DataFrame with ``subject``, ``status`` and the docs/metrics.md
-    columns in order, one row per path (input order; a study that fails is a row with its
-    error, not an exception); the voxel-count columns follow when a study is a label map.
+    """Measure every study: a DataFrame, one row per path in input order, with ``subject``,
+    ``status`` (a failure's error) and the docs/metrics.md columns (label maps: voxel counts).
 
     Parameters
     ----------
@@ -236,11 +235,9 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
     progress, heart_rate_bpm : bool; float or None
         A progress bar on stderr; the heart rate (bpm) of the studies that carry none.
     dask, timeout : str or None; float or None
-        Run on a Dask cluster (``"local"`` or a scheduler address); seconds per study
-        before it becomes an error row.
+        A Dask cluster (``"local"`` or a scheduler address); seconds per study before an error row.
     run_dir, resume : str, os.PathLike or None; bool
-        Store each finished row durably in ``run_dir`` (:class:`RowStore`); ``resume``:
-        keep the rows already there and measure only the others.
+        Store each finished row durably in ``run_dir`` (:class:`RowStore`); resume from them.
     strict, uncertainty, max_halfwidth
         Flagged rows are failures; the 95 % interval columns; column -> largest 95 %
         half-width (the column's unit) before a row is flagged (:func:`measure_study`).
@@ -248,7 +245,7 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
     Returns
     -------
     pandas.DataFrame
-        Metric columns in their docs/metrics.md units, NaN where a study cannot give one.
+        Metrics in their docs/metrics.md units, NaN where a study cannot give one.
 
     Examples
     --------
@@ -281,25 +278,25 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
 
     def finished(k: int, result) -> None:
         i = todo[k]
-        row: dict | None
         if isinstance(result, TaskFailure):
             row = failure_row(studies[i], result.message if result.kind == "error" else str(result))
         else:
             row = result
         if store is not None:
             store.put(studies[i], format, row)
-            row = store.get(studies[i], format)      # exactly what a resumed run would read
-        rows[i] = row
+            rows[i] = store.get(studies[i], format)  # exactly what a resumed run would read
+        else:
+            rows[i] = row
         if bar is not None:
             bar.update(1)
 
     try:
         if dask is None and jobs <= 1 and timeout is None:
             for k, i in enumerate(todo):             # in this process: no worker to start
-                result: dict | TaskFailure
                 try:
-                    result = measure_study(studies[i], format, heart_rate_bpm, allow_outside,
-                                           labels, strict, uncertainty, max_halfwidth)
+                    result: dict | TaskFailure = measure_study(
+                        studies[i], format, heart_rate_bpm, allow_outside, labels, strict,
+                        uncertainty, max_halfwidth)
                 except Exception as exc:  # noqa: BLE001 - as a worker would report it
                     result = TaskFailure("error", f"{type(exc).__name__}: {_one_line(exc)}")
                 finished(k, result)
