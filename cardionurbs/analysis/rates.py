@@ -242,6 +242,26 @@ def filling_rates(times_ms, volumes_ml, ed_index: int, es_index: int,
     ``ed_index``, ``es_index`` index them; ``rr_ms`` the beat length (ms); ``steps``: pairs
     ``(i, j)`` of indices of consecutive frames between which the set of slices holding the
     LV changes (the volume steps there; module docstring).
+
+    Parameters
+    ----------
+    times_ms : (n,) array_like
+        Frame times, ms.
+    volumes_ml : (n,) array_like
+        LV volumes, mL.
+    ed_index, es_index : int
+        The ED and ES frames' indices.
+    rr_ms : float or None
+        The beat length, ms; None: from the frame times.
+    steps : iterable of (int, int)
+        As above.
+
+    Returns
+    -------
+    columns : dict of str to float
+        docs/metrics.md rate column -> mL/s (E/A dimensionless).
+    reason : str
+        Why they are NaN ("" when measured).
     """
     t = np.asarray(times_ms, float)
     v = np.asarray(volumes_ml, float)
