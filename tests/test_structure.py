@@ -27,7 +27,6 @@ LONG = {
 BRANCHY = {
     "io/gpfile.py::write_study": 42,
     "io/native.py::_read_points": 34,
-    "io/nifti.py::read_label_volume": 41,
     "io/checks.py::_check_annotations": 36,
     "analysis/tagqc.py::tag_departures": 34,
     "analysis/tags.py::twist_2d": 34,
