@@ -28,7 +28,6 @@ BRANCHY = {
     "analysis/tagqc.py::tag_departures": 34,
     "analysis/tags.py::twist_2d": 34,
     "analysis/tags.py::tag_metrics": 31,
-    "analysis/quality.py::assess": 40,
 }
 
 _DECISIONS = (ast.If, ast.IfExp, ast.For, ast.AsyncFor, ast.While, ast.ExceptHandler, ast.With,
