@@ -53,6 +53,7 @@ Twist 2D
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -197,24 +198,82 @@ def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base:
     curves; lines not found there are fitted here. ``exclude``: {(family,
     index, slice, frame)} lines left out (flagged by the QC).
     """
-    fitted: dict[tuple, object] = {}
+    frames = (ed_frame, es_frame)
+    lines = _sa_tag_lines(study, frames, exclude)
+    n_stack = stacking_direction(study)[0]
+    ax = (apex - base) / np.linalg.norm(apex - base)
+    slices = sorted({k[2] for k in lines}, key=lambda s: float(study.slice_plane(s).position @ n_stack))
+    curves, raw, pairs, meta = _crossing_pairs(lines, _fitted_sections(surfaces), slices, frames)
+    if not pairs:
+        return NAN, []
+    X = curve_crossings(curves, raw, np.asarray(pairs, int))
+    meta_arr = np.array([(m[0], m[3]) for m in meta], dtype=object)
+    rows = []
+    for s in slices:
+        row = _slice_rotation(study, s, X, meta_arr, frames, ax)
+        if row is not None:
+            rows.append(row)
+    if len(rows) < 2:
+        return NAN, rows
+    return rows[-1]["rotation_deg"] - rows[0]["rotation_deg"], rows
+
+
+def _fitted_sections(surfaces: dict | None) -> dict[tuple, tuple]:
+    """(family, index, slice, frame) -> (SplineData, points) of every fitted SA section of
+    ``surfaces`` ({frame: {(family, index): TagSurface}})."""
+    fitted: dict[tuple, tuple] = {}
     for f, surfs in (surfaces or {}).items():
         for (fam, idx), ts in surfs.items():
-            if fam in ("sa1", "sa2"):
-                for sec in ts.sections:
-                    if sec.ctrl is not None:
-                        fitted[(fam, idx, sec.slice, f)] = (
-                            SplineData(3, sec.knots, sec.ctrl, np.ones(len(sec.ctrl))), sec.points)
+            if fam not in ("sa1", "sa2"):
+                continue
+            for sec in ts.sections:
+                if sec.ctrl is not None:
+                    fitted[(fam, idx, sec.slice, f)] = (
+                        SplineData(3, sec.knots, sec.ctrl, np.ones(len(sec.ctrl))), sec.points)
+    return fitted
+
+
+def _sa_tag_lines(study: Study, frames: tuple[int, int],
+                  exclude: set | frozenset) -> dict[tuple, np.ndarray]:
+    """(family, index, slice, frame) -> (n, 3) points of every SA tag line at ``frames``
+    that is not excluded."""
     lines = {}
-    for f in (ed_frame, es_frame):
+    for f in frames:
         for t in study.tags_at(f):
             if t.family in ("sa1", "sa2") and (t.family, t.index, t.slice, f) not in exclude:
                 lines[(t.family, t.index, t.slice, f)] = t.points
-    n_stack = stacking_direction(study)[0]
-    ax = (apex - base) / np.linalg.norm(apex - base)
-    curves, raw = [], []
+    return lines
+
+
+def _crossing_pairs(lines: dict, fitted: dict, slices: list[str],
+                    frames: tuple[int, int]) -> tuple[list, list, list, list]:
+    """The (sa1, sa2) line pairs whose crossings give a slice's rotation: every pair of a
+    slice present at both ``frames``, each line's curve fitted once.
+
+    Parameters
+    ----------
+    lines : dict
+        (family, index, slice, frame) -> (n, 3) points (:func:`_sa_tag_lines`).
+    fitted : dict
+        (family, index, slice, frame) -> (curve, points) already fitted
+        (:func:`_fitted_sections`); the other lines are fitted here.
+    slices : list of str
+        The slices, in stack order.
+    frames : (int, int)
+        ED and ES.
+
+    Returns
+    -------
+    curves, raw : list
+        Each line's curve and its points (float (n, 3)).
+    pairs : list of (int, int)
+        Indices into ``curves`` of the two lines that cross.
+    meta : list of (slice, sa1 index, sa2 index, frame)
+        One per pair.
+    """
+    curves: list = []
+    raw: list[np.ndarray] = []
     pairs, meta = [], []
-    slices = sorted({k[2] for k in lines}, key=lambda s: float(study.slice_plane(s).position @ n_stack))
     pos: dict[tuple, int] = {}
 
     def line_id(key):
@@ -230,41 +289,57 @@ def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base:
     for s in slices:
         i_s = sorted({k[1] for k in lines if k[0] == "sa1" and k[2] == s})
         j_s = sorted({k[1] for k in lines if k[0] == "sa2" and k[2] == s})
-        for i in i_s:
-            for j in j_s:
-                if all((fam, x, s, f) in lines for fam, x in (("sa1", i), ("sa2", j))
-                       for f in (ed_frame, es_frame)):
-                    for f in (ed_frame, es_frame):
-                        pairs.append((line_id(("sa1", i, s, f)), line_id(("sa2", j, s, f))))
-                        meta.append((s, i, j, f))
-    if not pairs:
-        return NAN, []
-    X = curve_crossings(curves, raw, np.asarray(pairs, int))
-    meta_arr = np.array([(m[0], m[3]) for m in meta], dtype=object)
-    rows = []
-    for s in slices:
-        sel = {f: np.flatnonzero((meta_arr[:, 0] == s) & (meta_arr[:, 1] == f))
-               for f in (ed_frame, es_frame)}
-        if len(sel[ed_frame]) == 0:
-            continue
-        X0, X1 = X[sel[ed_frame]], X[sel[es_frame]]
-        ok = np.all(np.isfinite(X0), 1) & np.all(np.isfinite(X1), 1)
-        if ok.sum() < MIN_LEVEL_POINTS:
-            continue
-        plane = study.slice_plane(s)
-        n = plane.normal if plane.normal @ ax > 0 else -plane.normal
-        e1 = plane.row_cosine
-        e2 = np.cross(n, e1)
-        ang = {}
-        for f, Xf in ((ed_frame, X0), (es_frame, X1)):
-            c = _slice_centroid(study, s, f, Xf[ok].mean(axis=0))
-            d = Xf[ok] - c
-            ang[f] = np.arctan2(d @ e2, d @ e1)
-        rot = _wrap_deg(np.degrees(ang[es_frame] - ang[ed_frame]))
-        rows.append({"slice": s, "rotation_deg": float(rot.mean()), "n_crossings": int(ok.sum())})
-    if len(rows) < 2:
-        return NAN, rows
-    return rows[-1]["rotation_deg"] - rows[0]["rotation_deg"], rows
+        for i, j in itertools.product(i_s, j_s):
+            if all((fam, x, s, f) in lines for fam, x in (("sa1", i), ("sa2", j)) for f in frames):
+                for f in frames:
+                    pairs.append((line_id(("sa1", i, s, f)), line_id(("sa2", j, s, f))))
+                    meta.append((s, i, j, f))
+    return curves, raw, pairs, meta
+
+
+def _slice_rotation(study: Study, s: str, X: np.ndarray, meta_arr: np.ndarray,
+                    frames: tuple[int, int], ax: np.ndarray) -> dict | None:
+    """One slice's mean rotation ED -> ES of its tag crossings about its centroid.
+
+    Parameters
+    ----------
+    study : Study
+    s : str
+        The slice.
+    X : (m, 3) float ndarray
+        The crossings of every pair, mm (NaN where two lines do not cross).
+    meta_arr : (m, 2) object ndarray
+        Each pair's (slice, frame).
+    frames : (int, int)
+        ED and ES.
+    ax : (3,) float ndarray
+        The unit long axis, base to apex.
+
+    Returns
+    -------
+    dict or None
+        {"slice", "rotation_deg", "n_crossings"}; None with fewer than
+        MIN_LEVEL_POINTS crossings found at both frames.
+    """
+    ed_frame, es_frame = frames
+    sel = {f: np.flatnonzero((meta_arr[:, 0] == s) & (meta_arr[:, 1] == f)) for f in frames}
+    if len(sel[ed_frame]) == 0:
+        return None
+    X0, X1 = X[sel[ed_frame]], X[sel[es_frame]]
+    ok = np.all(np.isfinite(X0), 1) & np.all(np.isfinite(X1), 1)
+    if ok.sum() < MIN_LEVEL_POINTS:
+        return None
+    plane = study.slice_plane(s)
+    n = plane.normal if plane.normal @ ax > 0 else -plane.normal
+    e1 = plane.row_cosine
+    e2 = np.cross(n, e1)
+    ang = {}
+    for f, Xf in ((ed_frame, X0), (es_frame, X1)):
+        c = _slice_centroid(study, s, f, Xf[ok].mean(axis=0))
+        d = Xf[ok] - c
+        ang[f] = np.arctan2(d @ e2, d @ e1)
+    rot = _wrap_deg(np.degrees(ang[es_frame] - ang[ed_frame]))
+    return {"slice": s, "rotation_deg": float(rot.mean()), "n_crossings": int(ok.sum())}
 
 
 # ---------------------------------------------------------------- results
