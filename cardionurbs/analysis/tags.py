@@ -505,16 +505,7 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
     table, flags and notes as attributes). A study without tag lines gives
     NaN columns and one note.
     """
-    if not isinstance(study, Study) and hasattr(study, "study"):
-        model = study
-        study = model.study
-        ed_frame = model.ed_frame if ed_frame is None else ed_frame
-        es_frame = model.es_frame if es_frame is None else es_frame
-        if long_axis is None and study.tags:
-            try:
-                long_axis = model.long_axis()
-            except (KeyError, AttributeError, TypeError, CardioNurbsError):
-                long_axis = None
+    study, ed_frame, es_frame, long_axis = _model_defaults(study, ed_frame, es_frame, long_axis)
     if not study.tags:
         return _empty("no tag lines: tag metrics not measured")
     ed_frame, es_frame = resolve_frames(study, ed_frame, es_frame)
@@ -527,16 +518,8 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
     notes: list[str] = []
     bad: set = set()
     if qc:
-        flags = tag_qc(study, threshold, frames=study.tagged_frames, long_axis=(apex, base),
-                       surfaces=surfaces)
-        bad = {(fl.family, fl.index, fl.slice, fl.frame) for fl in flags}
-        if exclude_flagged and any(b[3] in surfaces for b in bad):
-            for f in frames:
-                ex = {(b[0], b[1], b[2]) for b in bad if b[3] == f}
-                if ex:
-                    surfaces[f] = build_tag_surfaces(study, f, (apex, base), exclude=ex)
-            notes.append(f"{sum(b[3] in surfaces for b in bad)} flagged tag line(s) left out of "
-                         "the tag surfaces")
+        flags, bad, notes = _flag_and_leave_out(study, threshold, (apex, base), surfaces,
+                                                frames, exclude_flagged)
     mp = material_points(study, ed_frame, es_frame, frames=frames, long_axis=(apex, base),
                          surfaces=surfaces)
     notes += list(mp.notes)
@@ -555,13 +538,107 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
     cols["Twist 2D (deg)"] = t2d
     if qc:
         cols["Tag QC flags"] = float(len(flags))
-    times = {}
-    if over_time:
-        for f in frames:
-            lv = level_table(mp, f, apex, base, radius, tagged_stack_range(study, ed_frame, f))
-            t = twist_from_levels(lv)
-            times[f] = {"Twist (deg)": t["Twist (deg)"], "LS (%)": t["LS (%)"]}
+    times = _twist_over_time(study, mp, frames, ed_frame, (apex, base), radius) if over_time else {}
     return TagMetrics(cols, levels, flags, rows2d, notes, times, mp, surfaces)
+
+
+def _model_defaults(study: Any, ed_frame: int | None, es_frame: int | None,
+                    long_axis: tuple | None) -> tuple[Study, int | None, int | None, tuple | None]:
+    """The study, ED and ES frames and long axis of :func:`tag_metrics`: a model
+    (anything with a ``study``) lends its study, frames and long axis where not given.
+
+    Parameters
+    ----------
+    study : Study or BiventricularModel
+    ed_frame, es_frame : int, optional
+    long_axis : (apex, base centre), mm, optional
+
+    Returns
+    -------
+    (Study, int or None, int or None, tuple or None)
+        The long axis stays None when the model cannot give one.
+    """
+    if isinstance(study, Study) or not hasattr(study, "study"):
+        return study, ed_frame, es_frame, long_axis
+    model = study
+    study = model.study
+    ed_frame = model.ed_frame if ed_frame is None else ed_frame
+    es_frame = model.es_frame if es_frame is None else es_frame
+    if long_axis is None and study.tags:
+        try:
+            long_axis = model.long_axis()
+        except (KeyError, AttributeError, TypeError, CardioNurbsError):
+            long_axis = None
+    return study, ed_frame, es_frame, long_axis
+
+
+def _flag_and_leave_out(study: Study, threshold: float, long_axis: tuple, surfaces: dict,
+                        frames: list[int], exclude_flagged: bool
+                        ) -> tuple[list[TagFlag], set, list[str]]:
+    """The tag QC (:func:`tag_qc`) on every tagged frame; with ``exclude_flagged`` the
+    flagged lines are left out of the tag surfaces of ``frames`` (``surfaces`` rebuilt in
+    place).
+
+    Parameters
+    ----------
+    study : Study
+    threshold : float
+        Departure (tag spacings) beyond which a line is flagged.
+    long_axis : (apex, base), mm
+    surfaces : dict
+        Frame -> {(family, index): TagSurface}, updated in place.
+    frames : list of int
+        The frames measured.
+    exclude_flagged : bool
+
+    Returns
+    -------
+    flags : list of TagFlag
+    bad : set
+        (family, index, slice, frame) of the flagged lines.
+    notes : list of str
+        How many lines were left out (empty when none).
+    """
+    flags = tag_qc(study, threshold, frames=study.tagged_frames, long_axis=long_axis,
+                   surfaces=surfaces)
+    bad = {(fl.family, fl.index, fl.slice, fl.frame) for fl in flags}
+    notes: list[str] = []
+    if exclude_flagged and any(b[3] in surfaces for b in bad):
+        for f in frames:
+            ex = {(b[0], b[1], b[2]) for b in bad if b[3] == f}
+            if ex:
+                surfaces[f] = build_tag_surfaces(study, f, long_axis, exclude=ex)
+        notes.append(f"{sum(b[3] in surfaces for b in bad)} flagged tag line(s) left out of "
+                     "the tag surfaces")
+    return flags, bad, notes
+
+
+def _twist_over_time(study: Study, mp: MaterialPoints, frames: list[int], ed_frame: int,
+                     long_axis: tuple, radius) -> dict[int, dict[str, float]]:
+    """Frame -> {"Twist (deg)", "LS (%)"} relative to ED at every one of ``frames``.
+
+    Parameters
+    ----------
+    study : Study
+    mp : MaterialPoints
+        The material points of the frames.
+    frames : list of int
+    ed_frame : int
+    long_axis : (apex, base), mm
+    radius : callable or None
+        The ED epicardial radius profile (:func:`epicardial_radius_profile`).
+
+    Returns
+    -------
+    dict
+    """
+    apex, base = long_axis
+    times = {}
+    for f in frames:
+        lv = level_table(mp, f, apex, base, radius, tagged_stack_range(study, ed_frame, f))
+        t = twist_from_levels(lv)
+        times[f] = {"Twist (deg)": t["Twist (deg)"], "LS (%)": t["LS (%)"]}
+    return times
 
 
 # ---------------------------------------------------------------- export
