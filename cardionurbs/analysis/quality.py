@@ -183,7 +183,21 @@ def residual_summary(model: "BiventricularModel", frames=None) -> dict[str, dict
 
 
 def assess(model: "BiventricularModel", metrics: dict[str, float]) -> Quality:
-    """The evidence and flags of every metric of ``model`` (module doc)."""
+    """The evidence and flags of every metric of ``model`` (module doc).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The reconstructed model.
+    metrics : dict
+        Its docs/metrics.md column -> value (a column without a finite value carries no
+        surface flag).
+
+    Returns
+    -------
+    Quality
+        The surfaces' residuals, the contours left out and each column's evidence.
+    """
     ed, es = model.ed_frame, model.es_frame
     q = _surface_evidence(model, sorted({ed, es}))
     extra = _input_flags(model, metrics)

@@ -507,46 +507,76 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
                noise_mm: float = 0.0, incompressibility: bool | str = "prior",
                volume_prior_sd: float | None = None, boundary=(), deformation=None,
                misfit_noise: bool = True) -> dict | None:
-    """Strain ED → ``frame`` from the tracked material points: {"columns", "det_F" (mean),
-    "det_F_range", "n_points", "counts", "fit_residual_mm", "method"}; None with too few points.
-    ``apex``, ``base``: the ED long axis; ``axis``: (apex, base) at ``frame`` (default ED's).
-    ``myocardium``: (points, volumes) filling the ED wall (:func:`myocardium_samples`): the
-    fitted field is averaged over those between the most apical and most basal tracked
-    points (a volume mean over the tagged myocardium); default: the material points. It may
-    carry the samples' strain directions and AHA segments as third and fourth items
-    (:func:`cardiac_directions` with these ``endo_points``/``endo_normals``/axis, and
-    ``aha.segments``): both are per point and the same at every frame, so a time course
-    computes them once.
-    ``tag_lines``: (points (n, 3), ED plane normals (n, 3), offsets (n,)) of the frame's tag
-    points (:mod:`cardionurbs.analysis.tag_motion`): the fit of the material points is then
-    refined on them by orthogonal-distance regression (method "tag lines"); else the
-    material points alone are fitted (method "material points"). ``noise_mm``: the tag
-    tracking noise (the ED tag-plane residual), which sets the regularisation of that fit;
-    with it the result also has "segment_se": {kind: {segment: standard error (strain
-    points)}} of the unregularised fit (a Cramér–Rao bound for unbiased estimates in (S1)),
-    "segment_sd" (the same for the regularised fit: its noise, without its bias), and
-    "det_F_unregularised" (volume mean over the wall samples the penalty is evaluated on) with
-    "det_F_unregularised_range": det F of the fit before the penalties, the incompressibility
-    check that the near-incompressibility penalty does not pull towards 1.
-    ``incompressibility``: how the noisy-tag fit uses the near-incompressibility of myocardium
-    (:mod:`cardionurbs.analysis.tag_motion`): "prior" (or True; the default) — the Bayesian
-    prior J̄_s ~ N(1, s²) on each segment's mean det F with the stated s
-    (:data:`~cardionurbs.analysis.tag_motion.VOLUME_PRIOR_SD`), the ridge weights chosen by
-    the evidence; "risk" — a penalty whose weight the unbiased risk estimate chooses with the
-    ridge weights (the estimator before the prior); False — the ridge penalties alone.
-    ``volume_prior_sd``: the prior's s (default :data:`~cardionurbs.analysis.tag_motion.VOLUME_PRIOR_SD`;
-    other values only to show how much the result depends on it).
-    ``boundary``: the frame's contour points on the LV endo- and epicardium with those
-    surfaces at ED (:class:`~cardionurbs.analysis.tag_motion.Boundary`): the wall's material
-    boundaries join the tag-line fit as data (term (T3) of
-    :mod:`cardionurbs.analysis.tag_motion`).
-    ``misfit_noise``: the fit's σ is the larger of ``noise_mm`` and the tag points' misfit
-    (:func:`~cardionurbs.analysis.tag_motion.fit_tag_motion`; "sigma_mm" in the result);
-    False: ``noise_mm`` alone, for comparison.
-    ``deformation``: (points, frame) -> F (n, 3, 3), used in place of the fitted map's F for the
-    strains (validation: a phantom's exact motion,
-    :meth:`cardionurbs.phantom.generate.Phantom.deformation_gradient`; the fit, the near-axis
-    rule and the averaging unchanged)."""
+    """Strain ED → ``frame`` from the tracked material points.
+
+    Parameters
+    ----------
+    material : MaterialPoints
+        The tracked material points.
+    frame : int
+        The frame the strain is measured at (relative to ED).
+    apex, base : (3,) float ndarray
+        The ED long axis, mm.
+    endo_points, endo_normals : (m, 3) float ndarray
+        The ED endocardium's points and normals, for the strain directions
+        (:func:`cardiac_directions`).
+    aha
+        The AHA segments at ED (``aha.segments(points)``).
+    axis : (apex, base) at ``frame``, optional
+        Default ED's.
+    myocardium : tuple, optional
+        (points, volumes) filling the ED wall (:func:`myocardium_samples`): the fitted
+        field is averaged over those between the most apical and most basal tracked points
+        (a volume mean over the tagged myocardium); default: the material points. It may
+        carry the samples' strain directions and AHA segments as third and fourth items
+        (:func:`cardiac_directions` with these ``endo_points``/``endo_normals``/axis, and
+        ``aha.segments``): both are per point and the same at every frame, so a time course
+        computes them once.
+    tag_lines : (points (n, 3), ED plane normals (n, 3), offsets (n,)), optional
+        The frame's tag points (:mod:`cardionurbs.analysis.tag_motion`): the fit of the
+        material points is then refined on them by orthogonal-distance regression (method
+        "tag lines"); else the material points alone are fitted (method "material points").
+    noise_mm : float
+        The tag tracking noise (the ED tag-plane residual), which sets the regularisation
+        of that fit; with it the result also has "segment_se": {kind: {segment: standard
+        error (strain points)}} of the unregularised fit (a Cramér–Rao bound for unbiased
+        estimates in (S1)), "segment_sd" (the same for the regularised fit: its noise,
+        without its bias), and "det_F_unregularised" (volume mean over the wall samples the
+        penalty is evaluated on) with "det_F_unregularised_range": det F of the fit before
+        the penalties, the incompressibility check that the near-incompressibility penalty
+        does not pull towards 1.
+    incompressibility : bool or str
+        How the noisy-tag fit uses the near-incompressibility of myocardium
+        (:mod:`cardionurbs.analysis.tag_motion`): "prior" (or True; the default) — the
+        Bayesian prior J̄_s ~ N(1, s²) on each segment's mean det F with the stated s
+        (:data:`~cardionurbs.analysis.tag_motion.VOLUME_PRIOR_SD`), the ridge weights chosen
+        by the evidence; "risk" — a penalty whose weight the unbiased risk estimate chooses
+        with the ridge weights (the estimator before the prior); False — the ridge
+        penalties alone.
+    volume_prior_sd : float, optional
+        The prior's s (default :data:`~cardionurbs.analysis.tag_motion.VOLUME_PRIOR_SD`;
+        other values only to show how much the result depends on it).
+    boundary : sequence of Boundary
+        The frame's contour points on the LV endo- and epicardium with those surfaces at ED
+        (:class:`~cardionurbs.analysis.tag_motion.Boundary`): the wall's material
+        boundaries join the tag-line fit as data (term (T3) of
+        :mod:`cardionurbs.analysis.tag_motion`).
+    deformation : callable, optional
+        (points, frame) -> F (n, 3, 3), used in place of the fitted map's F for the strains
+        (validation: a phantom's exact motion,
+        :meth:`cardionurbs.phantom.generate.Phantom.deformation_gradient`; the fit, the
+        near-axis rule and the averaging unchanged).
+    misfit_noise : bool
+        The fit's σ is the larger of ``noise_mm`` and the tag points' misfit
+        (:func:`~cardionurbs.analysis.tag_motion.fit_tag_motion`; "sigma_mm" in the
+        result); False: ``noise_mm`` alone, for comparison.
+
+    Returns
+    -------
+    dict or None
+        {"columns", "det_F" (mean), "det_F_range", "n_points", "counts",
+        "fit_residual_mm", "method", ...}; None with too few points.
+    """
     from cardionurbs.analysis.tag_motion import MIN_TAG_POINTS
     ok = material.tracked(material.ed_frame, frame)
     if ok.sum() < MIN_POINTS:

@@ -573,42 +573,64 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
                    boundary: list[Boundary] | tuple[Boundary, ...] = (),
                    misfit_noise: bool = True) -> dict:
     """Refine a :class:`~cardionurbs.analysis.strain.CylindricalMotionFit` ``fit`` (ED → frame,
-    started from the material points) on tag points (n, 3) whose ED planes are
-    (``normals`` (n, 3), ``offsets`` (n,)) by (T2), in place.
+    started from the material points) on tag points by (T2), in place.
 
-    Regularisation: with a noise σ (the tracking noise ``noise_mm``, e.g.
-    :attr:`TagPlanes.rms_mm`, or the misfit if larger: ``misfit_noise`` below) of at
-    least :data:`NOISE_FLOOR_MM` and ``quantities`` (a callable: the fit -> the vector of
-    quantities the fit is for, e.g. the segment strains; :class:`PointQuantities` are
-    differenced faster), the fit is refined once more
-    with the ridge penalties of :func:`choose_penalty` on the groups of :func:`penalty_groups`
-    and, given ``volume_samples`` ((k, 3) ED wall points, (k,) their volumes, (k,) their AHA
-    segments), a near-incompressibility term on the segments' mean det F
-    (:func:`incompressibility_term`): with ``volume_prior_sd`` s the prior J̄_s ~ N(1, s²)
-    (weight σ² / s², :func:`volume_prior_weight`) and the ridge weights that maximise the
-    evidence; with ``volume_prior_sd=None`` a weight κ chosen with the ridge weights to
-    minimise the estimated mean squared error of the quantities (see
-    "Near-incompressibility, as a prior" above).
-    Returns {"residual_mm" (RMS distance to the fitted surfaces), "outliers", "n_points",
-    "lambda" (penalty weight per group, then the incompressibility weight κ with
-    ``volume_samples`` and no ``volume_prior_sd``), "ed_points" (the fitted X_i), "quantity_se" (the standard errors
-    σ √diag(B S⁻¹ Bᵀ) of the quantities for the unregularised fit, B their derivative with
-    respect to the coefficients; None without regularisation), "regularised_sd" (the
-    standard deviations σ √diag(B A S A Bᵀ) of the regularised fit's quantities, A = (S +
-    P)⁻¹: its noise, not its bias), "det_F_unregularised" (volume-weighted mean, min, max
-    of det F over ``volume_samples`` for the unregularised fit: the incompressibility check
-    independent of the penalty), "boundary_points" and "boundary_residual_mm" (the contour
-    points of ``boundary`` used and their RMS distance to the moved ED surfaces; 0 and None
-    without), "boundary_noise_mm" (σ_c)}.
+    Regularisation: with a noise σ (the tracking noise ``noise_mm``, or the misfit if
+    larger: ``misfit_noise``) of at least :data:`NOISE_FLOOR_MM` and ``quantities``, the
+    fit is refined once more with the ridge penalties of :func:`choose_penalty` on the
+    groups of :func:`penalty_groups` and, given ``volume_samples``, a near-incompressibility
+    term on the segments' mean det F (:func:`incompressibility_term`): with
+    ``volume_prior_sd`` s the prior J̄_s ~ N(1, s²) (weight σ² / s²,
+    :func:`volume_prior_weight`) and the ridge weights that maximise the evidence; with
+    ``volume_prior_sd=None`` a weight κ chosen with the ridge weights to minimise the
+    estimated mean squared error of the quantities (see "Near-incompressibility, as a
+    prior" above).
 
-    ``boundary``: contour points on the wall's material surfaces with those surfaces at ED
-    (:class:`Boundary`, term (T3)); they join the fit after the tag-only iterations, weighted
-    σ / σ_c against the tags.
+    Parameters
+    ----------
+    fit : CylindricalMotionFit
+        The map ED → frame, refined in place.
+    points : (n, 3) float ndarray
+        The frame's tag points, mm.
+    normals, offsets : (n, 3) and (n,) float ndarray
+        Their ED tag planes (n · X = d), mm.
+    noise_mm : float
+        The tracking noise, e.g. :attr:`TagPlanes.rms_mm`.
+    quantities : callable or PointQuantities, optional
+        The fit -> the vector of quantities the fit is for, e.g. the segment strains
+        (:class:`PointQuantities` are differenced faster); None: no regularisation.
+    ridge : float
+        The relative ridge that keeps the normal matrix invertible.
+    volume_samples : ((k, 3), (k,), (k,)) ndarrays, optional
+        ED wall points, their volumes and their AHA segments, for the
+        near-incompressibility term.
+    volume_prior_sd : float, optional
+        The prior's s (None: κ chosen by the risk estimate).
+    boundary : sequence of Boundary
+        Contour points on the wall's material surfaces with those surfaces at ED
+        (:class:`Boundary`, term (T3)); they join the fit after the tag-only iterations,
+        weighted σ / σ_c against the tags.
+    misfit_noise : bool
+        The σ of the regularisation is the larger of ``noise_mm`` and the tag points'
+        misfit to the unregularised fit, √(Σ e_i² / (n − p)) (p the free coefficients);
+        False: ``noise_mm`` alone (the estimator before, for comparison).
 
-    ``misfit_noise``: the σ of the regularisation is the larger of ``noise_mm`` and the tag
-    points' misfit to the unregularised fit, √(Σ e_i² / (n − p)) (p the free coefficients;
-    returned as "misfit_mm", the σ used as "sigma_mm"); False: ``noise_mm`` alone (the
-    estimator before, for comparison).
+    Returns
+    -------
+    dict
+        "residual_mm" (RMS distance to the fitted surfaces), "outliers", "n_points",
+        "lambda" (penalty weight per group, then the incompressibility weight κ with
+        ``volume_samples`` and no ``volume_prior_sd``), "ed_points" (the fitted X_i),
+        "quantity_se" (the standard errors σ √diag(B S⁻¹ Bᵀ) of the quantities for the
+        unregularised fit, B their derivative with respect to the coefficients; None
+        without regularisation), "regularised_sd" (the standard deviations
+        σ √diag(B A S A Bᵀ) of the regularised fit's quantities, A = (S + P)⁻¹: its noise,
+        not its bias), "det_F_unregularised" (volume-weighted mean, min, max of det F over
+        ``volume_samples`` for the unregularised fit: the incompressibility check
+        independent of the penalty), "boundary_points" and "boundary_residual_mm" (the
+        contour points of ``boundary`` used and their RMS distance to the moved ED
+        surfaces; 0 and None without), "boundary_noise_mm" (σ_c), "misfit_mm" and
+        "sigma_mm" (the σ used).
     """
     state = _TagLineFit(fit, points, normals, offsets, ridge)
     S = state.tag_only()

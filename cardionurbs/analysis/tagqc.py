@@ -707,8 +707,25 @@ def tag_departures(study: Study, threshold: float = DEFAULT_THRESHOLD,
                    surfaces: dict | None = None) -> list[LineDeparture]:
     """Departure of every judgeable tag line, with the iterative worst-first flagging.
 
-    See the module docstring. ``surfaces``: optional {frame: build_tag_surfaces(...)}
-    whose fitted sections are reused.
+    See the module docstring.
+
+    Parameters
+    ----------
+    study : Study
+        A tagged study.
+    threshold : float
+        Departure (tag spacings) beyond which a line is flagged.
+    frames : list of int, optional
+        The frames judged (default: every tagged frame).
+    long_axis : (apex, base), mm, optional
+        Default: from the study's landmarks where it has apex and mitral ones.
+    surfaces : dict, optional
+        {frame: build_tag_surfaces(...)} whose fitted sections are reused.
+
+    Returns
+    -------
+    list of LineDeparture
+        Per frame (ascending): the SA lines family by family, then the LA lines.
     """
     from cardionurbs.analysis.tag_surfaces import check_tags
     check_tags(study)

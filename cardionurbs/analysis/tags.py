@@ -194,9 +194,27 @@ def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base:
              ) -> tuple[float, list[dict]]:
     """Slice-based twist (deg) and per-slice rotations (see module docstring).
 
-    ``surfaces`` ({frame: build_tag_surfaces(...)}) lends its fitted section
-    curves; lines not found there are fitted here. ``exclude``: {(family,
-    index, slice, frame)} lines left out (flagged by the QC).
+    Parameters
+    ----------
+    study : Study
+        A tagged study.
+    ed_frame, es_frame : int
+        The frames the rotation is measured between.
+    apex, base : (3,) float ndarray
+        The ED long axis, mm.
+    surfaces : dict, optional
+        {frame: build_tag_surfaces(...)}: lends its fitted section curves; lines not
+        found there are fitted here.
+    exclude : set
+        {(family, index, slice, frame)} lines left out (flagged by the QC).
+
+    Returns
+    -------
+    twist : float
+        The most basal slice's rotation minus the most apical's, deg (NaN with fewer than
+        two slices measured).
+    rows : list of dict
+        Per slice measured, in stack order: {"slice", "rotation_deg", "n_crossings"}.
     """
     frames = (ed_frame, es_frame)
     lines = _sa_tag_lines(study, frames, exclude)
@@ -495,15 +513,19 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
     qc : bool
         Run the tag-jump QC (:func:`tag_qc`) on every tagged frame and fill
         ``Tag QC flags`` (the number of flagged lines).
+    over_time : bool
+        Also twist and LS at every tagged frame (relative to ED).
+    threshold : float
+        The QC's departure (tag spacings) beyond which a line is flagged.
     exclude_flagged : bool
         Leave the flagged lines out of the tag surfaces the material points
         are computed from (with ``qc``).
-    over_time : bool
-        Also twist and LS at every tagged frame (relative to ED).
 
-    Returns a :class:`TagMetrics` (a mapping of the columns, with the level
-    table, flags and notes as attributes). A study without tag lines gives
-    NaN columns and one note.
+    Returns
+    -------
+    TagMetrics
+        A mapping of the columns, with the level table, flags and notes as
+        attributes. A study without tag lines gives NaN columns and one note.
     """
     study, ed_frame, es_frame, long_axis = _model_defaults(study, ed_frame, es_frame, long_axis)
     if not study.tags:

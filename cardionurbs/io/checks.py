@@ -519,8 +519,15 @@ def _off_plane_distances(items: list, planes: list[ImagePlane], normals: _Normal
 
 
 def _check_annotations(study: Study, warnings: list[str]) -> None:
-    """Check every contour, tag line and landmark against its image plane, in that order:
-    raise StudyError on the first fatal problem, append the warnings to ``warnings``."""
+    """Check every contour, tag line and landmark against its image plane, in that order.
+
+    Parameters
+    ----------
+    study : Study
+        The study; StudyError (naming file, slice and frame) on its first fatal problem.
+    warnings : list of str
+        Appended to, one line per warning.
+    """
     files = _annotation_files(study)
     normals = _Normals()
     no_plane = _check_contours(study, files, warnings, normals)

@@ -763,17 +763,30 @@ def write_study(study: Study, folder: str | Path, *, style: str | None = None,
                 vocabulary: str = "parts") -> Path:
     """Write ``study`` as GPFile_NNN.txt (one per frame) + SliceInfoFile.txt into ``folder``.
 
-    ``style``: the SliceInfoFile style (:data:`SLICE_INFO_STYLES`); default the style
-    the study was read in (a study read from GPFiles), else ``sliceID``.
-    ``vocabulary``: ``parts`` writes an ``rv_endo`` contour as RV_SEPTUM (points within
-    0.5 mm of the LV epicardium of the same image) and RV_FREEWALL (the rest);
-    ``undivided`` writes it as one RV_ENDOCARDIAL trace. With ``parts`` the SA epicardial
-    contours leave out their septal run, as CAP and biv-me exports do (LV_EPICARDIAL over
-    the LV free wall, RV_EPICARDIAL over the RV free wall: :func:`_free_wall_epi`), so that
-    a study written here and fitted by biv-me is compared on equal terms; ``undivided``
-    writes them whole. Slice geometry must be static
-    (one plane per slice). Tag lines have no GPFile type and are not written. Files are
-    written atomically.
+    Slice geometry must be static (one plane per slice). Tag lines have no GPFile type and
+    are not written. Files are written atomically.
+
+    Parameters
+    ----------
+    study : Study
+        The study (scanner mm).
+    folder : str or Path
+        The folder to write into (made if missing).
+    style : str, optional
+        The SliceInfoFile style (:data:`SLICE_INFO_STYLES`); default the style the study
+        was read in (a study read from GPFiles), else ``sliceID``.
+    vocabulary : str
+        ``parts`` writes an ``rv_endo`` contour as RV_SEPTUM (points within 0.5 mm of the
+        LV epicardium of the same image) and RV_FREEWALL (the rest), and the SA epicardial
+        contours without their septal run, as CAP and biv-me exports do (LV_EPICARDIAL over
+        the LV free wall, RV_EPICARDIAL over the RV free wall: :func:`_free_wall_epi`), so
+        that a study written here and fitted by biv-me is compared on equal terms;
+        ``undivided`` writes ``rv_endo`` as one RV_ENDOCARDIAL trace and the epicardia whole.
+
+    Returns
+    -------
+    Path
+        ``folder``.
     """
     _check_write_options(style, vocabulary)
     folder = Path(folder)

@@ -138,13 +138,27 @@ def _contact(vol: np.ndarray, a: int, b: int) -> int:
 
 
 def infer_roles(vol: np.ndarray, where: str = "") -> tuple[LabelRoles, str]:
-    """Roles of the labels of a short-axis label volume (x, y, slices[, frames]) from topology.
+    """Roles of the labels of a short-axis label volume from topology.
 
     LV cavity = the label ``a`` that some label ``b`` (the myocardium) rings in the most
     slices; RV cavity = the remaining label with the longest boundary with the myocardium;
     a further label sharing the longest boundary with the RV cavity outside the ring is the
-    RV myocardium. Returns (roles, one-line description of what was inferred); StudyError
-    when no ring is found, or when two readings of the map are equally good.
+    RV myocardium. StudyError when no ring is found, or when two readings of the map are
+    equally good.
+
+    Parameters
+    ----------
+    vol : (x, y, slices[, frames]) int ndarray
+        The label volume (0 is background).
+    where : str
+        The file, for the errors.
+
+    Returns
+    -------
+    roles : LabelRoles
+        Named ``inferred``.
+    note : str
+        One line describing what was inferred (and which presets it agrees with).
     """
     present = sorted(int(v) for v in np.unique(vol) if v != 0)
     if len(present) < 2:

@@ -155,7 +155,20 @@ def check_volume_size(path: Path, shape: tuple[int, ...], itemsize: int) -> None
 
 
 def read_label_volume(path: str | Path) -> LabelVolume:
-    """Read one NIfTI label map (StudyError naming the file for anything unusable)."""
+    """Read one NIfTI label map (StudyError naming the file for anything unusable).
+
+    Parameters
+    ----------
+    path : str or Path
+        A NIfTI-1 or NIfTI-2 file (.nii or .nii.gz), 3-D (x, y, slices) or 4-D
+        (x, y, slices, frames).
+
+    Returns
+    -------
+    LabelVolume
+        uint8 labels (x, y, slices, frames), the voxel-to-LPS affine (mm), the frame
+        interval (ms, None when unknown), the warnings and the header notes.
+    """
     path = checked(path, what="label map")
     where = str(path)
     img = _load_nifti(path, where)
