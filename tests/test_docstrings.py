@@ -40,26 +40,11 @@ DOCTESTED = ["cardionurbs", "cardionurbs.io", "cardionurbs.anatomy.model",
 EXAMPLES = ["cardionurbs.nurbs.NurbsCurve", "cardionurbs.nurbs.fit_curve", "cardionurbs.nurbs.loft",
             "cardionurbs.nurbs.tessellate", "cardionurbs.load_study", "cardionurbs.reconstruct",
             "cardionurbs.measure", "cardionurbs.cohort"]
-#: the 11 functions another branch is splitting into named steps (#35 item 2, the LONG and
-#: BRANCHY lists of tests/test_structure.py): their docstrings are left to it. Remove this
-#: list once the split has landed (their steps are then checked like every other function).
-BEING_SPLIT = {
-    "cardionurbs.io.gpfile.write_study", "cardionurbs.io.native._read_points",
-    "cardionurbs.io.nifti.read_label_volume", "cardionurbs.io.labels.infer_roles",
-    "cardionurbs.io.checks._check_annotations", "cardionurbs.analysis.tagqc.tag_departures",
-    "cardionurbs.analysis.tags.twist_2d", "cardionurbs.analysis.tags.tag_metrics",
-    "cardionurbs.analysis.quality.assess", "cardionurbs.analysis.strain.tag_strain",
-    "cardionurbs.analysis.tag_motion.fit_tag_motion",
-}
-
-
 def _checked(named) -> list[str]:
-    """The problems of (dotted name, object) pairs, less the names left to the split; a
-    name of :data:`NOT_YET` is a problem when it has none (the list may only shrink)."""
+    """The problems of (dotted name, object) pairs; a name of :data:`NOT_YET` is a problem
+    when it has none (the list may only shrink)."""
     bad = []
     for name, obj in named:
-        if name in BEING_SPLIT:
-            continue
         problems = _problems(name, obj)
         if name in NOT_YET:
             bad += [] if problems else [f"{name}: documented now: take it off NOT_YET"]
