@@ -29,6 +29,7 @@ from cardionurbs.anatomy.sections import (MYO_CONSERVED_BOUND, SURFACES, FrameGe
                                           labels_do_not_conserve, moves_with_lv)
 from cardionurbs.anatomy.refine import refine_surface
 from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface, free_wall_points
+from cardionurbs.cache import LazyFrames, memoized
 from cardionurbs.errors import CardioNurbsError, ReconstructionError
 from cardionurbs.geometry import long_axis, polygon_centroid
 from cardionurbs.io.modelfile import unpack
@@ -77,45 +78,6 @@ def _reference_direction(study: Study, geo: FrameGeometry) -> np.ndarray:
     return d / np.linalg.norm(d)
 
 
-class LazyFrames(Mapping):
-    """A read-only mapping frame -> value that computes each value on first access.
-
-    Lets a model of many frames build only what is asked for: measuring needs
-    every frame's LV cavity (to find ED and ES) but the other surfaces only at
-    ED and ES; exporting asks for everything.
-    """
-
-    def __init__(self, frames, compute) -> None:
-        self._frames = list(frames)
-        self._compute = compute
-        self._cache: dict = {}
-
-    def __getitem__(self, frame):
-        if frame not in self._frames:
-            raise KeyError(frame)
-        if frame not in self._cache:
-            self._cache[frame] = self._compute(frame)
-        return self._cache[frame]
-
-    def __iter__(self):
-        return iter(self._frames)
-
-    def __len__(self) -> int:
-        return len(self._frames)
-
-    @property
-    def computed(self) -> list:
-        """Frames computed so far."""
-        return [f for f in self._frames if f in self._cache]
-
-    def provide(self, frame, value) -> None:
-        """Store the value of one frame computed elsewhere (a worker process of
-        :func:`cardionurbs.parallel.fork_map`), unless this mapping has one."""
-        if frame not in self._frames:
-            raise KeyError(frame)
-        self._cache.setdefault(frame, value)
-
-
 class BiventricularModel:
     """NURBS surfaces of the ventricles per frame, with meshes, volumes and residuals.
 
@@ -155,11 +117,6 @@ class BiventricularModel:
         self.refine, self.anchor_weight = bool(refine), float(anchor_weight)
         self.warnings = list(warnings or [])
         self.resolution = tuple(resolution)
-        self._meshes: dict[int, dict[str, trimesh.Trimesh]] = {}
-        self._solid_cache: dict[tuple[int, str], object] = {}
-        self._fits: dict[tuple[int, str], SurfaceFit] = {}
-        self._clipped_ml: dict[int, float] = {}     # lv_cavity_volume of frames without solids
-        self._contour_counts: dict[int, int] = {}   # LV endocardial contours of a worker's frames
         self._warned: set[tuple] = set()    # (frame, what) whose warnings a worker process gave
         self.geometry = LazyFrames(self.frames, self._frame_geometry)
         if surfaces is None:          # reconstruct lazily from the study
@@ -263,7 +220,7 @@ class BiventricularModel:
             if f in self.geometry.computed:
                 out["contours"] = self._lv_contour_count(f)
             try:
-                out["refined"] = self._clipped_cavity_ml(f, self._surface(f, "lv_endo"))
+                out["refined"] = self._clipped_lv_ml(f)
             except CardioNurbsError:
                 pass
             out["warnings"] = self.warnings[n_warnings:]
@@ -280,9 +237,9 @@ class BiventricularModel:
         for f, r in zip(self.frames, results):
             lv[f] = r["unrefined"]
             if "refined" in r:
-                self._clipped_ml[f] = r["refined"]
+                self._clipped_lv_ml.provide(r["refined"], f)
             if "contours" in r:
-                self._contour_counts[f] = r["contours"]
+                self._lv_contour_count.provide(r["contours"], f)
             self.warnings += r["warnings"]
             self._warned |= {(f, "geometry"), (f, "lv_endo", False)}
         return lv
@@ -300,9 +257,9 @@ class BiventricularModel:
     def _lv_contour_counts(self, lv: dict[int, float]) -> dict[int, int]:
         """Per built frame, the SA sections and LA contours its LV endocardium comes from
         (the evidence of an incomplete frame, :func:`cardionurbs.anatomy.cycle.check_curve`)."""
-        return {f: (self._contour_counts[f] if f in self._contour_counts
-                    else self._lv_contour_count(f)) for f, v in lv.items() if math.isfinite(v)}
+        return {f: self._lv_contour_count(f) for f, v in lv.items() if math.isfinite(v)}
 
+    @memoized
     def _lv_contour_count(self, frame: int) -> int:
         """SA sections + LA contours of one frame's LV endocardium, negative when a contour
         of it was left out (a partial tracing): such a frame counts as incomplete."""
@@ -319,9 +276,7 @@ class BiventricularModel:
         self.frames = [f for f in self.frames if f not in frames]
         for lazy in vars(self).values():
             if isinstance(lazy, LazyFrames):
-                lazy._frames = [f for f in lazy._frames if f not in frames]
-                for f in frames:
-                    lazy._cache.pop(f, None)
+                lazy.drop(frames)
 
     def _corrected_cavity_volumes(self, unrefined: dict[int, float]) -> dict[int, float]:
         """Every frame's LA-corrected LV cavity volume (mL; what the volume curve reports,
@@ -331,13 +286,10 @@ class BiventricularModel:
             if not math.isfinite(unrefined[f]):
                 lv[f] = unrefined[f]
                 continue
-            if f not in self._clipped_ml:
-                try:
-                    self._clipped_ml[f] = self._clipped_cavity_ml(f, self._surface(f, "lv_endo"))
-                except CardioNurbsError:
-                    lv[f] = unrefined[f]
-                    continue
-            lv[f] = self._clipped_ml[f]
+            try:
+                lv[f] = self._clipped_lv_ml(f)
+            except CardioNurbsError:
+                lv[f] = unrefined[f]
         return lv
 
     @property
@@ -380,22 +332,19 @@ class BiventricularModel:
     def _outflow(self, frame: int) -> dict[str, OutflowTract]:
         return outflow_tracts(self.study, self.geometry[frame])
 
+    @memoized
     def _tract_part(self, frame: int, structure: str):
         """The outflow tube of one surface trimmed to its tract (cached; None without one):
         the apical side of the outflow valve plane (the RV epicardial tube: of the
         pulmonary plane of the endocardial one) and the basal side of the body's valve
         plane, overlapping the body by 0.01 mm so that the union has no coplanar faces
         (docs/metrics.md, Cavities and walls)."""
-        key = (frame, "tract", structure)
-        if key not in self._solid_cache:
-            tracts = self.outflow[frame]
-            t = tracts.get(structure)
-            m = None
-            if t is not None:
-                valve = tracts.get("rv_endo", t).valve if structure == "rv_epi" else t.valve
-                m = tract_solid(t, valve, frame=frame)
-            self._solid_cache[key] = m
-        return self._solid_cache[key]
+        tracts = self.outflow[frame]
+        t = tracts.get(structure)
+        if t is None:
+            return None
+        valve = tracts.get("rv_endo", t).valve if structure == "rv_epi" else t.valve
+        return tract_solid(t, valve, frame=frame)
 
     def _structures(self, frame: int) -> list[str]:
         """Surfaces that frame's contours allow (SA contours on >= 2 slices)."""
@@ -407,19 +356,20 @@ class BiventricularModel:
         ``refined``: corrected towards the LA contours (LV surfaces, when enabled)."""
         refined = refined and self.refine and structure in ("lv_endo", "lv_epi") \
             and bool(self.geometry[frame].la_points.get(structure))
-        key = (frame, structure, refined)
-        if key not in self._fits:
-            if refined:
-                base = self.fit(frame, structure, refined=False)
-                f = dataclasses.replace(base, surface=self._refined(self.geometry[frame], structure,
-                                                                    base.surface), warnings=[])
-            else:
-                geo = self.geometry[frame]
-                f = build_surface(geo, structure, geo.reference, tol_px=self.tol_px)
-                if key not in self._warned:
-                    self.warnings += f.warnings
-            self._fits[key] = f
-        return self._fits[key]
+        return self._fit(frame, structure, refined)
+
+    @memoized
+    def _fit(self, frame: int, structure: str, refined: bool) -> SurfaceFit:
+        """:meth:`fit` once ``refined`` says whether the refinement applies."""
+        if refined:
+            base = self._fit(frame, structure, False)
+            return dataclasses.replace(base, surface=self._refined(self.geometry[frame], structure,
+                                                                   base.surface), warnings=[])
+        geo = self.geometry[frame]
+        f = build_surface(geo, structure, geo.reference, tol_px=self.tol_px)
+        if (frame, structure, refined) not in self._warned:
+            self.warnings += f.warnings
+        return f
 
     def lv_cavity_volume_unrefined(self, frame: int) -> float:
         """LV cavity volume (mL) of the loft through the SA contours alone: what ED and
@@ -448,11 +398,15 @@ class BiventricularModel:
         (and any frame whose solids exist) from the checked manifold solid; at the other
         frames (the volume curve, filling rates) from the clipped tessellation of the same
         surface, which gives the same volume to rounding without building the solid."""
-        if frame in (self.ed_frame, self.es_frame) or (frame, "lv_cavity") in self._solid_cache:
+        if frame in (self.ed_frame, self.es_frame) or frame in self.lv_cavity_solid:
             return meshing.volume_ml(self.lv_cavity_solid(frame))
-        if frame not in self._clipped_ml:           # the filling rates and the volume curve ask
-            self._clipped_ml[frame] = self._clipped_cavity_ml(frame, self._surface(frame, "lv_endo"))
-        return self._clipped_ml[frame]
+        return self._clipped_lv_ml(frame)           # the filling rates and the volume curve ask
+
+    @memoized
+    def _clipped_lv_ml(self, frame: int) -> float:
+        """The LV cavity volume (mL) of a frame without solids (:meth:`_clipped_cavity_ml` of
+        its LV endocardium; cached, or given by a worker process)."""
+        return self._clipped_cavity_ml(frame, self._surface(frame, "lv_endo"))
 
     def _refined(self, geo: FrameGeometry, structure: str, surface):
         """The surface corrected towards the LA contour points on the apical side of the
@@ -520,9 +474,9 @@ class BiventricularModel:
             p = g_es.base_planes[side]
             g_es.base_planes[side] = Plane(p.origin - shift * p.normal, p.normal)
         self.base_shift_mm[es] = shift
-        for key in [k for k in self._solid_cache if k[0] == es and k[1] not in SURFACES]:
-            del self._solid_cache[key]
-        self._meshes.pop(es, None)
+        for memo in (self.lv_cavity_solid, self.solids, self._tract_part):
+            memo.forget_where(lambda k: k[0] == es)
+        self.meshes.forget(es)
 
     def _stationary_epicardial_apex(self, g_ed: FrameGeometry, g_es: FrameGeometry) -> None:
         """The LV epicardial apex of a taper-closed surface at ES is put at the level found
@@ -543,10 +497,9 @@ class BiventricularModel:
         c = polygon_centroid(g_es.sections["lv_epi"][-1].points, n)
         g_es.apex["lv_epi"] = c + (level - float(c @ n)) * n
         es = g_es.frame
-        for key in [k for k in self._fits if k[0] == es and k[1] == "lv_epi"]:
-            del self._fits[key]
-        for key in ((es, "lv_epi"), (es, None)):
-            self._solid_cache.pop(key, None)
+        self._fit.forget_where(lambda k: k[:2] == (es, "lv_epi"))
+        self._solid.forget(es, "lv_epi")
+        self.solids.forget(es)
 
     # ------------------------------------------------------------- geometry
     def long_axis(self) -> tuple[np.ndarray, np.ndarray]:
@@ -563,15 +516,13 @@ class BiventricularModel:
                          valve_origin=None if valve is None else valve.origin,
                          where=f"frame {fr}")
 
+    @memoized
     def _solid(self, frame: int, structure: str):
         """manifold3d solid bounded by one surface, capped beyond its valve plane but not
         yet trimmed by it (cached)."""
-        key = (frame, structure)
-        if key not in self._solid_cache:
-            surf = self._surface(frame, structure)
-            v, f = nurbs.tessellate(surf, *self.resolution, volume_corrected=True)
-            self._solid_cache[key] = meshing.solid(v, f, what=structure, frame=frame)
-        return self._solid_cache[key]
+        v, f = nurbs.tessellate(self._surface(frame, structure), *self.resolution,
+                                volume_corrected=True)
+        return meshing.solid(v, f, what=structure, frame=frame)
 
     def _trim(self, m, frame: int, side: str, shift_mm: float = 0.0, what: str = ""):
         """Keep the apical side of a valve plane (moved ``shift_mm`` towards the base)."""
@@ -584,16 +535,15 @@ class BiventricularModel:
                                       "of the valve plane")
         return out
 
+    @memoized
     def lv_cavity_solid(self, frame: int):
         """The LV cavity of one frame: LV endocardial solid trimmed by the mitral plane,
-        united with the LVOT lumen where the frame has one (:meth:`_tract_part`)."""
-        key = (frame, "lv_cavity")
-        if key not in self._solid_cache:
-            m = self._trim(self._solid(frame, "lv_endo"), frame, "lv", what="lv_cavity")
-            lvot = self._tract_part(frame, "lv_endo")
-            self._solid_cache[key] = m if lvot is None else m + lvot
-        return self._solid_cache[key]
+        united with the LVOT lumen where the frame has one (:meth:`_tract_part`; cached)."""
+        m = self._trim(self._solid(frame, "lv_endo"), frame, "lv", what="lv_cavity")
+        lvot = self._tract_part(frame, "lv_endo")
+        return m if lvot is None else m + lvot
 
+    @memoized
     def solids(self, frame: int) -> dict:
         """manifold3d solids of one frame keyed like :meth:`meshes` (cached)::
 
@@ -608,8 +558,6 @@ class BiventricularModel:
         beyond the mitral plane for the same reason when the two valve planes
         coincide (SA-only input).
         """
-        if (frame, None) in self._solid_cache:
-            return self._solid_cache[(frame, None)]
         if frame not in self.surfaces:
             raise ReconstructionError(f"frame {frame} is not reconstructed "
                                       f"(reconstructed: {self.frames})")
@@ -643,9 +591,9 @@ class BiventricularModel:
             if m.status() != manifold3d.Error.NoError or m.is_empty():
                 raise ReconstructionError(f"{k}, frame {frame}: boolean result is empty or not "
                                           f"manifold ({m.status().name})")
-        self._solid_cache[(frame, None)] = out
         return out
 
+    @memoized
     def meshes(self, frame: int) -> dict[str, trimesh.Trimesh]:
         """Closed manifold meshes (scanner mm) of one frame, keyed lv_cavity,
         rv_cavity, lv_myocardium, rv_myocardium (those the surfaces allow); cached.
@@ -654,27 +602,25 @@ class BiventricularModel:
         consistent outward winding; ReconstructionError names the mesh and frame
         on failure.
         """
-        if frame not in self._meshes:
-            self._meshes[frame] = {k: meshing.to_trimesh(m, what=k, frame=frame)
-                                   for k, m in self.solids(frame).items()}
-        return self._meshes[frame]
+        return {k: meshing.to_trimesh(m, what=k, frame=frame)
+                for k, m in self.solids(frame).items()}
 
     def mesh_arrays(self, frame: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """The closed meshes of :meth:`meshes` as plain (vertices (V, 3) mm, faces (F, 3))
         arrays, checked closed and outward (:func:`cardionurbs.anatomy.mesh.mesh_arrays`),
         without trimesh: what is written to files (not cached)."""
-        if frame in self._meshes:
+        if frame in self.meshes:
             return {k: (np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64))
-                    for k, tm in self._meshes[frame].items()}
+                    for k, tm in self.meshes(frame).items()}
         return {k: meshing.mesh_arrays(m, what=k, frame=frame)
                 for k, m in self.solids(frame).items()}
 
     def release(self, frame: int) -> None:
         """Forget the cached solids and meshes of one frame (its volumes and surfaces are
         kept): exporting every frame's meshes then holds one frame's at a time."""
-        self._meshes.pop(frame, None)
-        for key in [k for k in self._solid_cache if k[0] == frame]:
-            del self._solid_cache[key]
+        self.meshes.forget(frame)
+        for memo in (self._solid, self.lv_cavity_solid, self.solids, self._tract_part):
+            memo.forget_where(lambda k: k[0] == frame)
 
     # ------------------------------------------------------------- worker processes
     #: the per-frame mappings a worker process that built one frame's solids hands back
@@ -777,23 +723,19 @@ class BiventricularModel:
         ``view``, ``dist_mm``, ``dist_px``; [] without the study's contours."""
         if not self.study.contours:
             return []
-        frames, key = self._point_residuals_key(frames)
-        if key not in self._solid_cache:
-            self._solid_cache[key] = self._point_residuals(frames)
-        return [dict(p) for p in self._solid_cache[key]]
+        return [dict(p) for p in self._point_residuals(self._residual_frames(frames))]
 
-    def _point_residuals_key(self, frames=None) -> tuple[list, tuple]:
-        """(frames, their cache key) of :meth:`point_residual_arrays` (default ED and ES)."""
-        if frames is None:
-            frames = sorted({self.ed_frame, self.es_frame})
-        return frames, ("point_residuals", tuple(frames))
+    def _residual_frames(self, frames=None) -> tuple[int, ...]:
+        """The frames of :meth:`point_residual_arrays` (default ED and ES), as its key."""
+        return tuple(sorted({self.ed_frame, self.es_frame}) if frames is None else frames)
 
     def provide_point_residuals(self, parts: list[dict], frames=None) -> None:
         """Store :meth:`point_residual_arrays` computed elsewhere (a worker process of
         :func:`cardionurbs.parallel.fork_map`), unless this model has them."""
-        self._solid_cache.setdefault(self._point_residuals_key(frames)[1], [dict(p) for p in parts])
+        self._point_residuals.provide([dict(p) for p in parts], self._residual_frames(frames))
 
-    def _point_residuals(self, frames) -> list[dict]:
+    @memoized
+    def _point_residuals(self, frames: tuple[int, ...]) -> list[dict]:
         parts = []
         for f in frames:
             geo = self.geometry[f]
