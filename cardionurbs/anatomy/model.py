@@ -20,19 +20,21 @@ import manifold3d
 import numpy as np
 
 from cardionurbs import nurbs
+from cardionurbs.anatomy import handback, serialise
 from cardionurbs.anatomy import mesh as meshing
+from cardionurbs.anatomy import residuals as fit_residuals
 from cardionurbs.anatomy.cycle import CycleCheck, check_curve, interpolate
 from cardionurbs.anatomy.mesh import Plane
 from cardionurbs.anatomy.outflow import OutflowTract, outflow_tracts, tract_solid
-from cardionurbs.anatomy.sections import (MYO_CONSERVED_BOUND, SURFACES, FrameGeometry, Section,
+from cardionurbs.anatomy.residuals import RESIDUAL_COLUMNS, surface_distance  # noqa: F401 (re-exported)
+from cardionurbs.anatomy.sections import (MYO_CONSERVED_BOUND, SURFACES, FrameGeometry,
                                           frame_geometry, labelled_myocardium_ratio,
                                           labels_do_not_conserve, moves_with_lv)
 from cardionurbs.anatomy.refine import refine_surface
-from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface, free_wall_points
+from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface
 from cardionurbs.cache import LazyFrames, memoized
 from cardionurbs.errors import CardioNurbsError, ReconstructionError
 from cardionurbs.geometry import long_axis, polygon_centroid
-from cardionurbs.io.modelfile import unpack
 from cardionurbs.median import median
 from cardionurbs.study import Study
 
@@ -41,9 +43,6 @@ if TYPE_CHECKING:    # trimesh (~0.3 s to import) only where meshes are made, pa
     import trimesh
 
 MESHES = ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium")
-#: columns of :meth:`BiventricularModel.residual_table` (and residuals.csv)
-RESIDUAL_COLUMNS = ("structure", "frame", "slice", "view", "n_points", "mean_mm", "max_mm",
-                    "mean_px", "max_px")
 #: default tessellation (around, along) of each surface before the booleans
 RESOLUTION = (56, 36)
 
@@ -174,7 +173,8 @@ class BiventricularModel:
             ed, es = int(ed_es[0]), int(ed_es[1])
         else:
             if isinstance(self.surfaces, LazyFrames):
-                lv = self._corrected_cavity_volumes(self._unrefined_cavity_volumes(jobs, progress))
+                lv = self._corrected_cavity_volumes(
+                    handback.unrefined_cavity_volumes(self, jobs, progress))
             else:
                 lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
             self.lv_volume_by_frame = lv      # the per-frame LV cavity volumes (mL), raw
@@ -189,60 +189,6 @@ class BiventricularModel:
             if "ES" in given and study.es_frame in lv:
                 es = int(study.es_frame)
         return ed, es
-
-    def _unrefined_cavity_volumes(self, jobs: int | None = 1, progress=None) -> dict[int, float]:
-        """Every frame's :meth:`lv_cavity_volume_unrefined` (mL), which ED and ES are found
-        with; ``progress(k, n)`` after each frame.
-
-        With worker processes (``jobs``, :func:`cardionurbs.parallel.fork_map`) each worker
-        also makes its frames' LA-corrected LV cavity volume (:meth:`lv_cavity_volume`
-        asks for it next: the volume curve and the filling rates) and hands back the two
-        volumes and the warnings the frame raised, which are added here in frame order.
-        Nothing else comes back: the surfaces this process needs later (ED and ES) are
-        built here again, from the study, so that they are the serial loop's to the last
-        bit (a section's points unpickled are contiguous copies of what were views, and
-        numpy sums those in another order), and their warnings, already recorded, are not
-        added twice. A frame whose corrected volume fails leaves it to be made (and fail)
-        where the serial order makes it."""
-        from cardionurbs.parallel import fork_map, worker_count
-        n = len(self.frames)
-        if worker_count(jobs, n) == 0:
-            lv = {}
-            for k, f in enumerate(self.frames):
-                lv[f] = self._unrefined_or_nan(f)
-                if progress is not None:
-                    progress(k + 1, n)
-            return lv
-
-        def frame_volumes(f: int) -> dict:
-            n_warnings = len(self.warnings)
-            out = {"unrefined": self._unrefined_or_nan(f)}
-            if f in self.geometry.computed:
-                out["contours"] = self._lv_contour_count(f)
-            try:
-                out["refined"] = self._clipped_lv_ml(f)
-            except CardioNurbsError:
-                pass
-            out["warnings"] = self.warnings[n_warnings:]
-            return out
-
-        done = [0]
-
-        def told(i: int, result: dict) -> None:
-            done[0] += 1
-            if progress is not None:
-                progress(done[0], n)
-        results = fork_map(frame_volumes, self.frames, jobs=jobs, on_result=told)
-        lv = {}
-        for f, r in zip(self.frames, results):
-            lv[f] = r["unrefined"]
-            if "refined" in r:
-                self._clipped_lv_ml.provide(r["refined"], f)
-            if "contours" in r:
-                self._lv_contour_count.provide(r["contours"], f)
-            self.warnings += r["warnings"]
-            self._warned |= {(f, "geometry"), (f, "lv_endo", False)}
-        return lv
 
     def _unrefined_or_nan(self, frame: int) -> float:
         """:meth:`lv_cavity_volume_unrefined`, NaN with a warning when the frame's LV
@@ -622,31 +568,7 @@ class BiventricularModel:
         for memo in (self._solid, self.lv_cavity_solid, self.solids, self._tract_part):
             memo.forget_where(lambda k: k[0] == frame)
 
-    # ------------------------------------------------------------- worker processes
-    #: the per-frame mappings a worker process that built one frame's solids hands back
-    #: (:meth:`frame_results`); base planes, apex points and sections follow from geometry
-    HANDED_BACK = ("geometry", "outflow", "surfaces", "volumes")
-
-    def computed(self) -> dict[str, set]:
-        """Frames whose :data:`HANDED_BACK` values exist, per mapping (see :meth:`frame_results`)."""
-        return {k: set(getattr(self, k).computed) for k in self.HANDED_BACK
-                if isinstance(getattr(self, k), LazyFrames)}
-
-    def frame_results(self, frame: int, before: dict[str, set]) -> dict:
-        """The values of one frame computed since :meth:`computed` returned ``before``:
-        what a worker process (:func:`cardionurbs.parallel.fork_map`) that made the frame's
-        solids returns so that this model in the parent process, given them by
-        :meth:`adopt_frame_results`, is as if it had made them itself (solids and meshes
-        are not handed back: :meth:`release` drops them)."""
-        return {k: getattr(self, k)[frame] for k, done in before.items()
-                if frame not in done and frame in getattr(self, k).computed}
-
-    def adopt_frame_results(self, frame: int, results: dict) -> None:
-        """Store the values :meth:`frame_results` returned (those this model has are kept)."""
-        for k, value in results.items():
-            getattr(self, k).provide(frame, value)
-
-    # ------------------------------------------------------------- residuals
+    # ------------------------------------------------------------- residuals (anatomy.residuals)
     @cached_property
     def residuals(self) -> pd.DataFrame:
         """Distance of every contour point to its surface, every frame (see
@@ -659,63 +581,22 @@ class BiventricularModel:
         columns structure, frame, slice, view, n_points, mean_mm, max_mm, mean_px,
         max_px, for the given frames (default ED and ES); see :meth:`point_residuals`
         for which points and which distance. Empty for a model read back without its
-        study's contours. The same numbers without pandas: :meth:`residual_columns`."""
-        import pandas as pd
-        return pd.DataFrame(self.residual_columns(frames), columns=RESIDUAL_COLUMNS)
+        study's contours. The same numbers without pandas: :meth:`residual_columns`
+        (:func:`cardionurbs.anatomy.residuals.residual_table`)."""
+        return fit_residuals.residual_table(self.point_residual_arrays(frames))
 
     def residual_columns(self, frames=None) -> dict[str, np.ndarray]:
-        """The columns of :meth:`residual_table` as numpy arrays (no pandas): one row per
-        contour, i.e. per (structure, frame, slice, view) in the order the contours come,
-        points without a slice left out (as a pandas group-by leaves out a missing key).
-        ``mean_*``: the correctly rounded sum of the contour's distances over their count
-        (a pandas group-by mean, whose compensated sum can differ from it in the last
-        digit)."""
-        cols: dict[str, list] = {c: [] for c in RESIDUAL_COLUMNS}
-        for p in self.point_residual_arrays(frames):
-            keys: dict[tuple, int] = {}
-            group = np.empty(len(p["dist_mm"]), dtype=np.int64)
-            sl, vw = p["slice"], p["view"]
-            start = 0
-            for stop in [*np.flatnonzero((sl[1:] != sl[:-1]) | (vw[1:] != vw[:-1])) + 1, len(sl)]:
-                k = (sl[start], vw[start])         # one run of points of one contour
-                group[start:stop] = -1 if k[0] is None else keys.setdefault(k, len(keys))
-                start = stop
-            if not keys:
-                continue
-            n = np.bincount(group[group >= 0], minlength=len(keys))
-            for c, d in (("mm", p["dist_mm"]), ("px", p["dist_px"])):
-                cols[f"mean_{c}"].append(_grouped_fsum(d, group, len(keys)) / n)
-                mx = np.full(len(keys), -np.inf)
-                np.maximum.at(mx, group[group >= 0], d[group >= 0])
-                cols[f"max_{c}"].append(mx)
-            cols["structure"].append(np.full(len(keys), p["structure"], dtype=object))
-            cols["frame"].append(np.full(len(keys), p["frame"], dtype=np.int64))
-            cols["slice"].append(np.array([k[0] for k in keys], dtype=object))
-            cols["view"].append(np.array([k[1] for k in keys], dtype=object))
-            cols["n_points"].append(n.astype(np.int64))
-        empty = {"frame": np.int64, "n_points": np.int64, "structure": object, "slice": object,
-                 "view": object}
-        return {c: (np.concatenate(v) if v else np.array([], dtype=empty.get(c, float)))
-                for c, v in cols.items()}
+        """The columns of :meth:`residual_table` as numpy arrays, no pandas
+        (:func:`cardionurbs.anatomy.residuals.residual_columns`)."""
+        return fit_residuals.residual_columns(self.point_residual_arrays(frames))
 
     def point_residuals(self, frames=None) -> pd.DataFrame:
         """Every contour point's distance to the surface it was fitted by (mm and pixels of
         its image), at the given frames (default ED and ES): columns structure, frame,
-        slice, view, dist_mm, dist_px.
-
-        SA points are the contour points of each slice (for the RV, the free wall: the
-        septal part is the LV epicardium's); LA points are the LA contours. An RV point's
-        distance is to the boundary of the RV solids, which the RV surface and the LV
-        epicardium make together (RV cavity = RV endo − LV epi): the nearer of the two
-        surfaces, so that the septal run of an LA RV contour, which lies on the LV
-        epicardium, is measured where it lies. The same numbers without pandas:
+        slice, view, dist_mm, dist_px (:func:`cardionurbs.anatomy.residuals.point_residual_parts`
+        says which points and which distance). The same numbers without pandas:
         :meth:`point_residual_arrays`."""
-        import pandas as pd
-        cols = ["structure", "frame", "slice", "view", "dist_mm", "dist_px"]
-        parts = self.point_residual_arrays(frames)
-        if not parts:
-            return pd.DataFrame([], columns=cols)
-        return pd.concat([pd.DataFrame(p) for p in parts], ignore_index=True)[cols]
+        return fit_residuals.point_residuals(self.point_residual_arrays(frames))
 
     def point_residual_arrays(self, frames=None) -> list[dict]:
         """:meth:`point_residuals` as numpy arrays (cached), one dict per (frame, structure)
@@ -736,91 +617,21 @@ class BiventricularModel:
 
     @memoized
     def _point_residuals(self, frames: tuple[int, ...]) -> list[dict]:
-        parts = []
-        for f in frames:
-            geo = self.geometry[f]
-            surfs = self.surfaces[f]
-            for s, surf in surfs.items():
-                items = [(sec.slice, "SA", free_wall_points(sec, geo.direction), _pixel_mm(sec.plane))
-                         for sec in self.sections[f].get(s, []) if sec.source_points is not None]
-                items += [(sl, "LA", pts, px) for sl, pts, px in
-                          zip(geo.la_slices.get(s, []), geo.la_points.get(s, []),
-                              geo.la_pixel_mm.get(s, []))]
-                if not items:
-                    continue
-                allp = np.concatenate([it[2] for it in items])
-                d = surface_distance(surf, allp)
-                if s.startswith("rv") and "lv_epi" in surfs:
-                    d = np.minimum(d, surface_distance(surfs["lv_epi"], allp))
-                tract = self.outflow[f].get(s)
-                if tract is not None:     # the outflow tract's wall is the surface there
-                    d = np.minimum(d, tract.distance(allp))
-                n = [len(it[2]) for it in items]
-                px = np.repeat([it[3] for it in items], n)
-                parts.append({
-                    "structure": s, "frame": f,
-                    "slice": np.repeat(np.array([it[0] for it in items], dtype=object), n),
-                    "view": np.repeat([it[1] for it in items], n), "dist_mm": d,
-                    "dist_px": d / px})
-        return parts
+        return fit_residuals.point_residual_parts(self, frames)
 
-    # ------------------------------------------------------------- (de)serialise
+    # ------------------------------------------------------------- (de)serialise (anatomy.serialise)
     def to_dict(self) -> dict:
         """JSON-safe model: surfaces (NURBS), valve planes, apex points, SA sections, outflow
-        tracts (frames that have them), ED/ES."""
-        def arr(a):
-            return np.asarray(a, float).tolist()
-        return {
-            "format": "cardionurbs-model", "version": 1,
-            "subject": self.study.subject, "frames": self.frames,
-            "ed_frame": self.ed_frame, "es_frame": self.es_frame,
-            "heart_rate_bpm": self.study.heart_rate_bpm,
-            "resolution": list(self.resolution),
-            "surfaces": {str(f): {s: surf.to_dict() for s, surf in d.items()}
-                         for f, d in self.surfaces.items()},
-            "base_planes": {str(f): {k: p.to_dict() for k, p in d.items()}
-                            for f, d in self.base_planes.items()},
-            "apex_points": {str(f): {k: arr(p) for k, p in d.items()}
-                            for f, d in self.apex_points.items()},
-            "sections": {str(f): {s: [{"slice": sec.slice, "points": arr(sec.points)} for sec in secs]
-                                  for s, secs in d.items()} for f, d in self.sections.items()},
-            "outflow": {str(f): {s: t.to_dict() for s, t in self.outflow[f].items()}
-                        for f in self.frames if self.outflow[f]},
-            "landmarks": [{"name": lm.name, "frame": lm.frame, "index": lm.index,
-                           "point": arr(lm.point)} for lm in self.study.landmarks
-                          if lm.name in ("apex", "mitral")],
-            "warnings": self.warnings,
-        }
+        tracts (frames that have them), ED/ES (:func:`cardionurbs.anatomy.serialise.encode`)."""
+        return serialise.encode(self)
 
     @classmethod
     def from_dict(cls, d: dict, study: Study | None = None) -> "BiventricularModel":
         """Inverse of :meth:`to_dict` (the Study is reduced to subject, heart rate,
         ED/ES labels and the apex/mitral landmarks unless ``study`` is given); also reads
-        the compact version-2 dict of a model.json (:mod:`cardionurbs.io.modelfile`)."""
-        from cardionurbs.study import Landmark
-        d = unpack(d)
-        if study is None:
-            study = Study(subject=d["subject"], heart_rate_bpm=d.get("heart_rate_bpm"),
-                          ed_frame=d.get("ed_frame"), es_frame=d.get("es_frame"),
-                          landmarks=[Landmark(lm["name"], lm["frame"], lm["point"], lm["index"])
-                                     for lm in d.get("landmarks", [])])
-        surfaces = {int(f): {s: nurbs.NurbsSurface.from_dict(sd) for s, sd in dd.items()}
-                    for f, dd in d["surfaces"].items()}
-        planes = {int(f): {k: Plane.from_dict(p) for k, p in dd.items()}
-                  for f, dd in d["base_planes"].items()}
-        apex = {int(f): {k: np.asarray(p, float) for k, p in dd.items()}
-                for f, dd in d["apex_points"].items()}
-        sections = {int(f): {s: [Section(s, int(f), np.asarray(x["points"], float), slice=x["slice"])
-                                 for x in secs] for s, secs in dd.items()}
-                    for f, dd in d.get("sections", {}).items()}
-        ed_es = (d["ed_frame"], d["es_frame"]) if "ed_frame" in d and "es_frame" in d else None
-        outflow = {int(f): {s: OutflowTract.from_dict(td) for s, td in dd.items()}
-                   for f, dd in d.get("outflow", {}).items()}
-        m = cls(study, d["frames"], surfaces=surfaces, base_planes=planes, apex_points=apex,
-                outflow=outflow,
-                sections=sections, warnings=d.get("warnings"), ed_es=ed_es,
-                resolution=tuple(d.get("resolution", RESOLUTION)))
-        return m
+        the compact version-2 dict of a model.json (:mod:`cardionurbs.io.modelfile`;
+        :func:`cardionurbs.anatomy.serialise.decode`)."""
+        return cls(**serialise.decode(d, study))
 
 
 def _every(points: np.ndarray, spacing_mm: float) -> np.ndarray:
@@ -834,30 +645,6 @@ def _every_index(points: np.ndarray, spacing_mm: float) -> slice:
         return slice(None)
     step = median(np.linalg.norm(np.diff(points, axis=0), axis=1)) or spacing_mm
     return slice(None, None, max(1, int(round(spacing_mm / step))))
-
-
-def _grouped_fsum(x: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
-    """Per group, the correctly rounded sum of ``x`` (:func:`math.fsum`; ``group`` -1:
-    left out)."""
-    keep = np.flatnonzero(group >= 0)
-    order = keep[np.argsort(group[keep], kind="stable")]
-    bounds = np.cumsum(np.bincount(group[keep], minlength=n_groups))[:-1]
-    return np.array([math.fsum(part) for part in np.split(np.asarray(x, float)[order], bounds)])
-
-
-def _pixel_mm(plane) -> float:
-    return float(np.mean(plane.pixel_spacing)) if plane is not None else 1.0
-
-
-def surface_distance(surface, points: np.ndarray) -> np.ndarray:
-    """Distance (mm) of each point to a NURBS surface (closest-point projection)."""
-    res = nurbs.closest_points(surface, np.asarray(points, float))
-    if isinstance(res, tuple):
-        res = res[-1]
-    res = np.asarray(res, float)
-    if res.ndim == 2:  # closest points returned
-        return np.linalg.norm(res - points, axis=1)
-    return res
 
 
 def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float = 1.0,
