@@ -80,6 +80,10 @@ class Memo:
         """Store a value computed elsewhere (a worker process), unless one exists."""
         self._table.setdefault(args, value)
 
+    def store(self, value: Any, *args: Hashable) -> None:
+        """Store a value computed elsewhere, replacing the one that exists."""
+        self._table[args] = value
+
     def forget(self, *args: Hashable) -> None:
         """Drop the value of these arguments (nothing when it does not exist)."""
         self._table.pop(args, None)
@@ -113,7 +117,7 @@ class memoized:
     def _wrap(self, fn: Callable) -> "memoized":
         self.fn = fn
         self.name = fn.__name__
-        functools.update_wrapper(self, fn)  # type: ignore[arg-type]
+        functools.update_wrapper(self, fn)
         return self
 
     def __call__(self, fn: Callable) -> "memoized":     # @memoized(depends=...)
@@ -123,7 +127,7 @@ class memoized:
         self.name = name
 
     def __get__(self, obj: Any, owner: type | None = None) -> Any:
-        if obj is None:
+        if obj is None or self.fn is None:
             return self
         return Memo(self.fn, obj, _table(obj, self.name, self.depends))
 
