@@ -58,11 +58,11 @@ class Memo:
         self._fn, self._obj, self._table = fn, obj, table
 
     def __call__(self, *args: Hashable) -> Any:
-        try:
-            return self._table[args]
-        except KeyError:
-            value = self._table[args] = self._fn(self._obj, *args)
-            return value
+        table = self._table
+        if args in table:
+            return table[args]
+        value = table[args] = self._fn(self._obj, *args)   # an exception keeps nothing
+        return value
 
     def __contains__(self, args: Hashable) -> bool:
         """Whether the value of these arguments exists (a tuple; one argument alone too)."""

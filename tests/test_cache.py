@@ -151,3 +151,13 @@ def test_no_hand_made_caches_outside_the_cache_module():
     found = [hit for p in sorted(PACKAGE.rglob("*.py")) if p.name != "cache.py"
              for hit in _hand_made_caches(p)]
     assert found == []
+
+
+def test_an_error_raised_while_computing_has_no_cache_miss_in_its_context():
+    class Bad:
+        @memoized
+        def value(self, k: int) -> int:
+            raise RuntimeError(f"cannot make {k}")
+    with pytest.raises(RuntimeError) as info:
+        Bad().value(1)
+    assert info.value.__context__ is None

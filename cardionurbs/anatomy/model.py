@@ -81,7 +81,11 @@ class BiventricularModel:
     """NURBS surfaces of the ventricles per frame, with meshes, volumes and residuals.
 
     Per-frame attributes are mappings frame -> value, computed on first access
-    (:class:`LazyFrames`) when the model is reconstructed from a study.
+    (:class:`cardionurbs.cache.LazyFrames`) when the model is reconstructed from a study;
+    solids, meshes and the fit residuals are memoized methods (:mod:`cardionurbs.cache`).
+    The residual tables are made by :mod:`cardionurbs.anatomy.residuals`, the dict form by
+    :mod:`cardionurbs.anatomy.serialise`, and what worker processes build for the model
+    comes back through :mod:`cardionurbs.anatomy.handback`.
 
     Attributes
     ----------
