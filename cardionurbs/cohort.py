@@ -36,11 +36,11 @@ from cardionurbs.analysis.function import COLUMNS, NAN
 from cardionurbs.analysis.quality import QC_COLUMNS
 from cardionurbs.analysis.uncertainty import (INTERVAL_COLUMNS, halfwidth_flags, interval_columns,
                                               intervals)
-from cardionurbs.analysis.ranges import load_ranges
+from cardionurbs.analysis.ranges import range_column_names
 from cardionurbs.io import atomic
 
 #: the ``<column> range`` cells (below / normal / above) of the metrics with a reference range
-RANGE_COLUMNS = tuple(f"{c} range" for c in dict.fromkeys(r["column"] for r in load_ranges()["rows"]))
+RANGE_COLUMNS = range_column_names()
 #: subject, status, the metrics, then their evidence (fit residuals per surface, contours
 #: left out) and ``QC``, what failed (cardionurbs.analysis.quality); body size and the
 #: indexed metrics, the reference-range flags, and the number of warnings with a readable

@@ -139,8 +139,8 @@ def range_flags_json(metrics: dict, study: Study) -> dict:
     flag (below / normal / above or None), limits and table
     (:func:`cardionurbs.analysis.ranges.range_flags`)."""
     from cardionurbs.analysis.ranges import load_ranges, range_flags
-    body = body_json(study)
-    return {"citation": load_ranges()["citation"],
+    body, table = body_json(study), load_ranges()
+    return {"citation": table["citation"], "url": table.get("url"), "limits": table.get("limits"),
             "flags": range_flags(metrics, body.get("sex"), body.get("age_y"))}
 
 

@@ -12,14 +12,17 @@ import re
 import pandas as pd
 import pydicom
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 import cardionurbs as cn
 from cardionurbs.analysis.body import INDEXED, bsa_mosteller
 from cardionurbs.analysis.notes import Metrics, collect_warnings, notes_text, null
-from cardionurbs.analysis.ranges import find_range, flag, load_ranges, range_flags
+from cardionurbs.analysis.ranges import (check_table, find_range, flag, limits, load_ranges,
+                                         range_flags)
 from cardionurbs.cli import main
 from cardionurbs.analysis.uncertainty import INTERVAL_COLUMNS
-from cardionurbs.cohort import CSV_COLUMNS, measure_study
+from cardionurbs.cohort import CSV_COLUMNS, RANGE_COLUMNS, measure_study
 from cardionurbs.io.body import attach_body, clean_value
 from cardionurbs.io.native import write_study
 
@@ -69,9 +72,16 @@ def test_one_frame_gives_null_ef_with_its_reason_in_api_json_and_csv(one_frame, 
         assert math.isnan(m[col]), col                          # not 0
         assert "one frame only" in m.notes[col], col
     out = tmp_path / "out"
-    assert main(["analyze", str(one_frame), "--out", str(out), "--outputs", "metrics"]) == 0
+    assert main(["analyze", str(one_frame), "--out", str(out), "--outputs", "metrics",
+                 "--age", "55", "--sex", "M"]) == 0
     d = json.loads((out / "metrics.json").read_text())
     assert d["metrics"]["LVEF (%)"] is None and "one frame only" in d["notes"]["LVEF (%)"]
+    ranges = d["ranges"]                        # null metric: no flag, the metric's reason
+    assert ranges["citation"].startswith("Petersen SE") and ranges["url"].startswith("https://")
+    assert ranges["flags"]["LVEF (%)"]["flag"] is None
+    assert ranges["flags"]["LVEF (%)"]["reason"].startswith("metric is null: one frame only")
+    assert "body size unknown" in ranges["flags"]["LVMi (g/m²)"]["reason"]
+    assert ranges["flags"]["RVEDVi (mL/m²)"]["reason"] == "not in the reference source"
     assert d["metrics"]["GCS surface (%)"] is None
     assert any(w["source"] == "reconstruct" and "only one frame" in w["message"]
                for w in d["warnings"])
@@ -142,6 +152,16 @@ def test_acdc_patient_gets_bsa_and_indexed_values_from_info_cfg():
             assert m[col] == pytest.approx(m[src] / bsa), col
         else:
             assert math.isnan(m[col]) and col in m.notes, col
+    body = study.meta["body"]                   # Info.cfg gives no age or sex: no flag, why
+    assert body["age_y"] is None and body["sex"] is None
+    f = range_flags(m, body["sex"], body["age_y"])
+    assert f["LVEF (%)"] == {"flag": None, "lower": None, "upper": None, "where": None,
+                             "bound": None, "reason": "age and sex unknown"}
+    body = attach_body(study, {"age_y": 55, "sex": "M"})      # analyze --age 55 --sex M
+    f = range_flags(m, body["sex"], body["age_y"])
+    assert info["Group"] == "DCM" and m["LVEF (%)"] < 48.2
+    assert f["LVEF (%)"]["flag"] == "below" and f["LVEF (%)"]["lower"] == pytest.approx(48.2)
+    assert f["LVMi (g/m²)"]["flag"] in ("normal", "above") and m["LVMi (g/m²)"] > 35.36
 
 
 def test_dicom_header_gives_the_same_body_size(tmp_path):
@@ -175,13 +195,14 @@ def test_cli_refuses_implausible_body_size(one_frame, tmp_path, capsys):
 
 
 # ------------------------------------------------------------------- reference ranges
-TABLE = {"citation": "test", "rows": [
+TABLE = {"citation": "test", "sd_multiplier": 2.0,
+         "columns": ["LVEF (%)", "LVEDVi (mL/m²)", "RVEF (%)"], "rows": [
     {"column": "LVEF (%)", "sex": "M", "age_min": 20, "age_max": 39, "lower": 55, "upper": 73,
-     "table": "T1"},
-    {"column": "LVEF (%)", "sex": "M", "age_min": 40, "age_max": None, "lower": 53, "upper": 75,
-     "table": "T1"},
+     "where": "T1"},
+    {"column": "LVEF (%)", "sex": "M", "age_min": 40, "age_max": None, "mean": 64, "sd": 5.5,
+     "where": "T1"},
     {"column": "LVEDVi (mL/m²)", "sex": None, "age_min": None, "age_max": None, "lower": 60,
-     "upper": 100, "table": "T2"}]}
+     "upper": 100, "where": "T2"}]}
 
 
 def test_range_flags_by_hand():
@@ -190,56 +211,111 @@ def test_range_flags_by_hand():
     row, _ = find_range("LVEF (%)", "M", 39.5, TABLE)        # 39.5 y is still the 20-39 band
     assert row["lower"] == 55
     row, _ = find_range("LVEF (%)", "M", 40.0, TABLE)
-    assert row["lower"] == 53
+    assert limits(row, TABLE)[:2] == (53.0, 75.0)             # 64 -+ 2 x 5.5
     assert find_range("LVEF (%)", None, 30, TABLE) == (None, "sex unknown")
-    assert find_range("LVEF (%)", "F", 30, TABLE)[0] is None
+    assert find_range("LVEF (%)", "F", 30, TABLE) == (None, "no row for sex F")
+    assert find_range("LVEF (%)", "M", 19, TABLE) == (None, (     # the reasons of both rows
+        "age 19 y is outside the source's ages (20–39 y) and "
+        "age 19 y is outside the source's ages (40– y)"))
     f = range_flags({"LVEF (%)": 54.0, "LVEDVi (mL/m²)": float("nan")}, "M", 45, TABLE)
-    assert f["LVEF (%)"]["flag"] == "normal" and f["LVEF (%)"]["table"] == "T1"
+    assert f["LVEF (%)"]["flag"] == "normal" and f["LVEF (%)"]["where"] == "T1"
+    assert f["LVEF (%)"]["bound"].startswith("within 53.0–75.0 (mean 64")
     assert f["LVEDVi (mL/m²)"]["flag"] is None and f["LVEDVi (mL/m²)"]["reason"] == "metric is null"
-    assert range_flags({"LVEF (%)": 54.0}, "M", 30, TABLE)["LVEF (%)"]["flag"] == "below"
+    assert range_flags({"LVEF (%)": None}, None, None, TABLE)["LVEF (%)"]["reason"] == \
+        "metric is null"                        # the metric's own reason before the demographics'
+    assert f["RVEF (%)"] == {"flag": None, "lower": None, "upper": None, "where": None,
+                             "bound": None, "reason": "not in the reference source"}
+    low = range_flags({"LVEF (%)": 54.0}, "M", 30, TABLE)["LVEF (%)"]
+    assert low["flag"] == "below" and low["bound"] == "under the lower limit 55.0 (as published)"
+    m = Metrics({"LVEF (%)": 60.0})
+    null(m, "LVEF (%)", "one frame only")
+    assert range_flags(m, "M", 30, TABLE)["LVEF (%)"]["reason"] == "metric is null: one frame only"
 
 
-def test_packaged_ranges_cite_one_source_and_name_their_tables():
+@settings(max_examples=60, deadline=None)
+@given(mean=st.floats(1.0, 200.0), sd=st.floats(0.1, 50.0), value=st.floats(-100.0, 400.0))
+def test_flag_is_the_z_score_against_the_multiplier(mean, sd, value):
+    """A row of mean and SD: below iff z < -k, above iff z > k (k = sd_multiplier)."""
+    z = (value - mean) / sd
+    assume(abs(abs(z) - 1.96) > 1e-6)
+    table = check_table({"sd_multiplier": 1.96, "columns": ["X"],
+                         "rows": [{"column": "X", "sex": None, "mean": mean, "sd": sd}]})
+    e = range_flags({"X": value}, None, None, table)["X"]
+    assert e["flag"] == ("below" if z < -1.96 else "above" if z > 1.96 else "normal")
+    assert e["lower"] == pytest.approx(mean - 1.96 * sd) and e["reason"] == ""
+
+
+def test_malformed_range_rows_are_refused():
+    bad = {"sd_multiplier": 1.96, "columns": ["LVEF (%)"],
+           "rows": [{"column": "LVEF (%)", "sex": "X", "mean": 60, "sd": 5}]}
+    with pytest.raises(ValueError, match="row 0"):
+        check_table(bad)
+    bad["rows"][0]["sex"] = "M"
+    bad["rows"][0]["sd"] = 0
+    with pytest.raises(ValueError, match="malformed"):
+        check_table(bad)
+
+
+def test_packaged_ranges_cite_one_source_and_say_what_was_checked():
     data = load_ranges()
-    assert "Kawel-Boehm" in data["citation"] and "2020" in data["citation"]
-    assert "10.1186/s12968-020-00683-3" in data["citation"]
-    for r in data["rows"]:
-        assert r["table"] and r["column"] and (r["lower"] is not None or r["upper"] is not None)
-        assert r.get("sex") in (None, "M", "F")
+    assert "Petersen SE" in data["citation"] and "2017;19:18" in data["citation"]
+    assert "10.1186/s12968-017-0327-9" in data["citation"] and data["url"].endswith("0327-9")
+    assert data["checked_against_paper"] is True and "abstract (Results)" in data["checked"]
+    assert data["sd_multiplier"] == 1.96 and "tables" in data["missing"]
+    for r in data["rows"]:                      # only what the source's stored text gives
+        assert r["where"].startswith("Abstract") and r["sex"] in ("M", "F")
+        assert (r["age_min"], r["age_max"]) == (45, 74) and r["sd"] > 0
+        assert "lower" not in r and "upper" not in r
+    assert {r["column"] for r in data["rows"]} == {"LVEF (%)", "LVMi (g/m²)"}
+    assert set(RANGE_COLUMNS) == {f"{c} range" for c in data["columns"]}
 
 
 def test_packaged_rows_flag_hand_checked_values():
-    """Men aged 20-29, Kawel-Boehm 2020 Tables 3 (LV) and 11 (RV), as entered in the file."""
-    f = range_flags({"LVEF (%)": 45.9, "LVEDVi (mL/m²)": 112.5, "RVEF (%)": 36.0,
-                     "RVESVi (mL/m²)": 22.9}, "M", 25)
-    assert f["LVEF (%)"]["flag"] == "below" and f["LVEF (%)"]["lower"] == 46
-    assert f["LVEF (%)"]["table"] == "Table 3"
-    assert f["LVEDVi (mL/m²)"]["flag"] == "above" and f["LVEDVi (mL/m²)"]["upper"] == 112
-    assert f["RVEF (%)"]["flag"] == "normal" and f["RVEF (%)"]["table"] == "Table 11"
-    assert f["RVESVi (mL/m²)"]["flag"] == "below"
-    other = range_flags({"LVEF (%)": 60.0}, "F", 25)["LVEF (%)"]
-    assert other["flag"] is None and "no reference range" in other["reason"]
-    assert range_flags({"LVEF (%)": 60.0}, None, 25)["LVEF (%)"]["reason"] == "sex unknown"
+    """Petersen et al. 2017 (UK Biobank), Abstract, Results: LVEF 58 ± 5 % (men), 61 ± 5 %
+    (women); LV mass 53 ± 9 g/m² (men), 42 ± 7 g/m² (women); ages 45-74; limits mean ±
+    1.96 SD worked out here by hand: LVEF men 48.2-67.8, women 51.2-70.8; LVMi men
+    35.36-70.64, women 28.28-55.72."""
+    def f(col, value, sex, age=60.0):
+        return range_flags({col: value}, sex, age)[col]
+    assert f("LVEF (%)", 48.1, "M")["flag"] == "below" and f("LVEF (%)", 48.3, "M")["flag"] == "normal"
+    assert f("LVEF (%)", 67.9, "M")["flag"] == "above"
+    assert f("LVEF (%)", 51.0, "F")["flag"] == "below"       # normal for a man, low for a woman
+    assert f("LVEF (%)", 70.7, "F")["flag"] == "normal"
+    e = f("LVMi (g/m²)", 71.0, "M")
+    assert e["flag"] == "above" and e["upper"] == pytest.approx(70.64)
+    assert e["bound"] == "over the upper limit 70.6 (mean 53 ∓ 1.96 × SD 9)"
+    assert e["where"].startswith("Abstract")
+    assert f("LVMi (g/m²)", 56.0, "F")["flag"] == "above" and f("LVMi (g/m²)", 56.0, "M")["flag"] == "normal"
+    assert f("LVMi (g/m²)", 28.0, "F")["flag"] == "below"
+    assert f("LVEF (%)", 60.0, "M", 74.9)["flag"] == "normal"  # still the 45-74 cohort
+    out = f("LVEF (%)", 60.0, "M", 25.0)
+    assert out["flag"] is None and "outside the source's ages (45–74 y)" in out["reason"]
+    assert f("LVEF (%)", 60.0, "M", 75.0)["flag"] is None
+    assert f("LVEF (%)", 60.0, None)["reason"] == "sex unknown"
+    assert f("LVEF (%)", 60.0, "M", None)["reason"] == "age unknown"
+    assert f("RVEF (%)", 30.0, "M")["reason"] == "not in the reference source"   # not "normal"
 
 
 @pytest.mark.parametrize("pathology, expect", [
-    ("normal", {c: "normal" for c in ("LVEDVi (mL/m²)", "LVESVi (mL/m²)", "LVSVi (mL/m²)",
-                                      "LVEF (%)", "RVEDVi (mL/m²)", "RVESVi (mL/m²)",
-                                      "RVSVi (mL/m²)", "RVEF (%)")}),
-    ("mr", {"LVEDVi (mL/m²)": "above", "LVSVi (mL/m²)": "above"}),
-    ("phtn", {"RVEF (%)": "below", "RVESVi (mL/m²)": "above", "LVEF (%)": "normal"}),
+    ("normal", {"LVEF (%)": "normal", "LVMi (g/m²)": "normal"}),
+    ("mr", {"LVMi (g/m²)": "above"}),                        # volume overload: eccentric LVH
+    ("phtn", {"LVEF (%)": "normal", "LVMi (g/m²)": "normal", "RVEF (%)": None}),
 ])
 def test_phantom_presets_against_the_reference_ranges(pathology, expect):
-    """The presets' analytic truth, for a man of 25 with BSA 1.9 m², read against the same
-    ranges: the normal heart is normal, each pathology is flagged where it is designed to be."""
+    """The presets' analytic truth, for a man of 55 with BSA 1.9 m², read against the same
+    ranges: the normal heart is normal, each pathology is flagged where it is designed to be
+    and where the source has a range (pulmonary hypertension's low RVEF has none: null, with
+    the reason, never "normal")."""
     from cardionurbs.analysis.body import add_body_columns
     from cardionurbs.phantom.generate import generate
     truth = dict(generate(pathology, seed=0, frames=2).truth["metrics"])
     h = 180.0
     add_body_columns(truth, {"height_cm": h, "weight_kg": 1.9 ** 2 * 3600 / h})
     assert truth["BSA (m²)"] == pytest.approx(1.9)
-    f = range_flags(truth, "M", 25)
+    f = range_flags(truth, "M", 55)
     assert {c: f[c]["flag"] for c in expect} == expect
+    if pathology == "phtn":
+        assert truth["RVEF (%)"] < 40 and f["RVEF (%)"]["reason"] == "not in the reference source"
 
 
 def test_mnms_csv_row_gives_demographics(tmp_path):

@@ -262,9 +262,11 @@ def _metric_rows(metrics: dict, truth: dict | None) -> list[dict]:
         rows.append({"metric": k, "measured": _num(v), "truth": _num(t), "difference": _num(diff),
                      "qc": "; ".join(flags), "qc_surfaces": sorted({_flag_surface(f) for f in flags}),
                      "note": notes.get(k) if _num(v) is None else None,
-                     "range": [rng.get("lower"), rng.get("upper")] if rng.get("table") else None,
-                     "range_flag": rng.get("flag"), "range_table": rng.get("table"),
-                     "range_reason": rng.get("reason") or None,
+                     "range": ([rng.get("lower"), rng.get("upper")]
+                               if rng.get("lower") is not None or rng.get("upper") is not None
+                               else None),
+                     "range_flag": rng.get("flag"), "range_table": rng.get("where"),
+                     "range_reason": (rng.get("reason") or None) if _num(v) is not None else None,
                      "halfwidth": (_num(0.5 * (unc[k][1] - unc[k][0]))
                                    if isinstance(unc.get(k), list) else None)})
     return rows
@@ -502,10 +504,11 @@ def _fmt(x: Any) -> str:
 
 def _range_cell(r: Mapping) -> str:
     if not r.get("range"):
-        why = r.get("range_reason")
-        return "<td></td><td>" + (f"<span class='why'>{html.escape(why)}</span>" if why else "") + "</td>"
+        why = html.escape(r.get("range_reason") or "")
+        short = "–" if why == "not in the reference source" else why   # the common case, short
+        return "<td></td><td>" + (f"<span class='why' title='{why}'>{short}</span>" if why else "") + "</td>"
     lo, hi = r["range"]
-    text = f"{_fmt(lo) if lo is not None else ''}–{_fmt(hi) if hi is not None else ''}"
+    text = f"{'' if lo is None else f'{lo:.4g}'}–{'' if hi is None else f'{hi:.4g}'}"
     f = r.get("range_flag")
     cls = "" if f in (None, "normal") else " class='bad'"
     return (f"<td title='{html.escape(str(r.get('range_table') or ''))}'>{text}</td>"
