@@ -64,9 +64,13 @@ class Memo:
         value = table[args] = self._fn(self._obj, *args)   # an exception keeps nothing
         return value
 
-    def __contains__(self, args: Hashable) -> bool:
-        """Whether the value of these arguments exists (a tuple; one argument alone too)."""
-        return (args if isinstance(args, tuple) else (args,)) in self._table
+    def __contains__(self, arg: Hashable) -> bool:
+        """``x in memo``: whether the value of the one argument ``x`` exists."""
+        return (arg,) in self._table
+
+    def has(self, *args: Hashable) -> bool:
+        """Whether the value of these arguments exists (nothing is computed)."""
+        return args in self._table
 
     def keys(self) -> list[tuple]:
         """The argument tuples whose values exist."""
