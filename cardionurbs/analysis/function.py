@@ -245,8 +245,10 @@ def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> d
     """The volume–time curve: per reconstructed frame, trigger time (ms, None where
     unknown) and the four volumes (mL; NaN where a structure is missing): ``<mesh> (mL)``
     the consistent ones (a supported frame's from its neighbours,
-    :mod:`cardionurbs.anatomy.cycle`), ``<mesh> raw (mL)`` each frame's own, and
-    ``supported`` the frames that needed their neighbours' support.
+    :mod:`cardionurbs.anatomy.cycle`), ``<mesh> raw (mL)`` each frame's own (the LV cavity
+    of a frame with sections interpolated in time from its own contours alone, its other
+    volumes with those sections), and ``supported`` the frames that needed their
+    neighbours' support.
 
     ``every_structure=False`` (a metrics-only analysis) reports what the metrics already
     measured and builds nothing more: the LV cavity at every frame (the cavities ED, ES
@@ -277,6 +279,9 @@ def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> d
             consistent[f] = {"lv_cavity": model.consistent_lv_cavity_volume(f)}
     for key in keys:
         out[f"{key} (mL)"] = [float(consistent[f].get(key, NAN)) for f in frames]
+    for f in getattr(model, "sections_in_time", {}):     # raw: the frame's own contours
+        if "lv_cavity" in raw.get(f, {}):
+            raw[f] = {**raw[f], "lv_cavity": model.own_lv_cavity_volume(f)}
     for key in keys:
         out[f"{key} raw (mL)"] = [float(raw[f].get(key, NAN)) for f in frames]
     out["supported"] = sorted(supported)

@@ -262,12 +262,39 @@ def _finite(x) -> bool:
     return isinstance(x, (int, float)) and math.isfinite(x)
 
 
+def section_support_flag(frame: int, sections: dict) -> str:
+    """The QC flag of a frame whose sections were interpolated in time
+    (:func:`cardionurbs.anatomy.cycle.support_sections`).
+
+    Parameters
+    ----------
+    frame : int
+    sections : dict (str, str) -> (int, int)
+        (surface, slice) -> (frame before, frame after) each was interpolated from.
+
+    Returns
+    -------
+    str
+        One line naming the frame, every section and its two source frames.
+    """
+    names = ", ".join(f"{s} {sl} (from frames {a} and {b})" for (s, sl), (a, b)
+                      in sorted(sections.items()))
+    return f"frame {frame} supported by its neighbours' sections: not traced, interpolated in time: {names}"
+
+
 def _cycle_flags(model, q: Quality) -> None:
     """Every frame supported by its neighbours (:mod:`cardionurbs.anatomy.cycle`) is a flag:
     on the metrics of ED or ES when it is one of them, else on the cycle."""
     cycle = getattr(model, "cycle", None)
     for f in sorted(getattr(model, "supported", {}) or {}):
         flag = cycle.describe(f)
+        users = [m for m in q.metrics.values() if f in m["frames"]]
+        for m in users:
+            m["flags"].append(flag)
+        if not users:
+            q.cycle.append(flag)
+    for f, secs in (getattr(model, "sections_in_time", None) or {}).items():
+        flag = section_support_flag(f, secs)
         users = [m for m in q.metrics.values() if f in m["frames"]]
         for m in users:
             m["flags"].append(flag)

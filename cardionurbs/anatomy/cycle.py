@@ -20,14 +20,23 @@ time to tell noise from motion. docs/metrics.md, Frames.
 
 The raw volumes stay beside the consistent ones (metrics.json ``volume_curve``), ED
 and ES are found on the consistent curve, and every supported frame is a QC flag.
+
+Before that check, at the level of sections, :func:`support_sections` fills a gap in a
+frame's own stack (a slice traced in most frames but not in this one) with the section
+interpolated in time from the nearest frames that trace it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from cardionurbs.anatomy.sections import FrameGeometry, Section
+from cardionurbs.errors import CardioNurbsError
 
 #: a frame is supported when its volume lies beyond both neighbours by more than this
 #: fraction of the nearer one (and by more than they differ from each other)
@@ -206,3 +215,171 @@ def interpolate(values: dict[int, float], frames: list[int], sources: list[int],
         x.append(k)
     y = np.array([values.get(g, math.nan) for g in sources], float)
     return float(lagrange_weights(np.array(x, float), i) @ y)
+
+
+# --------------------------------------------------------------- section-level support
+#: a section (slice × surface) missing at a frame is interpolated in time only when its
+#: slice is traced in more than this fraction of the frames (its gaps shorter than its runs)
+SECTION_TRACED_FRACTION = 0.5
+#: the surfaces in the order they are supported (the RV sections take the septum of the
+#: slice's LV epicardium, own or interpolated)
+_SUPPORT_ORDER = ("lv_endo", "lv_epi", "rv_endo", "rv_epi")
+
+
+def traced_slices(geo: FrameGeometry) -> dict[str, set]:
+    """Per surface, the SA slices one frame's own (not interpolated) sections lie on.
+
+    Parameters
+    ----------
+    geo : FrameGeometry
+
+    Returns
+    -------
+    dict str -> set of str
+        surface -> slice identifiers.
+    """
+    return {s: {sec.slice for sec in secs if sec.slice is not None
+                and (s, sec.slice) not in geo.in_time}
+            for s, secs in geo.sections.items()}
+
+
+def _traced_or_none(raw: Mapping[int, FrameGeometry], frame: int) -> dict[str, set]:
+    """:func:`traced_slices` of one frame, nothing when its geometry cannot be made."""
+    try:
+        return traced_slices(raw[frame])
+    except CardioNurbsError:
+        return {}
+
+
+def bracketing_frames(frame: int, frames: list[int], traced: set[int],
+                      cyclic: bool) -> tuple[int, int, float] | None:
+    """The nearest frames of ``traced`` before and after ``frame`` in ``frames``.
+
+    Parameters
+    ----------
+    frame : int
+        A frame of ``frames``.
+    frames : list of int
+        The frames of the cine, in order.
+    traced : set of int
+        The frames that have the section.
+    cyclic : bool
+        Whether the frames wrap around (the last is followed by the first).
+
+    Returns
+    -------
+    (int, int, float) or None
+        The frame before, the frame after and the weight of the later one (linear in
+        frame position, in [0, 1]); None when one side has none.
+    """
+    n, i = len(frames), frames.index(frame)
+    found = []
+    for step in (-1, 1):
+        k = i + step
+        while abs(k - i) < n and (cyclic or 0 <= k < n) and frames[k % n] not in traced:
+            k += step
+        if abs(k - i) >= n or not (cyclic or 0 <= k < n):
+            return None
+        found.append(k)
+    (a, b) = found
+    return frames[a % n], frames[b % n], (i - a) / (b - a)
+
+
+def _between(geo: FrameGeometry, structure: str, sec: Section) -> bool:
+    """Whether a section lies between two of the frame's own sections of that surface.
+
+    Only such a gap is filled: beyond its end sections a frame's surface ends where its
+    motion takes it (the base descends through the basal slice in systole, the apical
+    cavity closes as the wall thickens), and its long-axis contours and valve planes say
+    where; a section interpolated there from frames of another phase contradicts them
+    (reports/validation-quality.md: on bivme-patient1 and on phantoms it moved ES the
+    wrong way)."""
+    n = geo.direction
+    levels = [float(s.points.mean(axis=0) @ n) for s in geo.sections.get(structure, [])]
+    lev = float(sec.points.mean(axis=0) @ n)
+    return len(levels) >= 2 and min(levels) < lev < max(levels)
+
+
+def support_sections(frame: int, raw: Mapping[int, FrameGeometry],
+                     frames: list[int]) -> FrameGeometry:
+    """One frame's geometry with the sections it lacks interpolated in time.
+
+    A section (SA slice × surface) traced at other frames but not at ``frame`` (not
+    traced, or left out as a partial tracing) is made from the nearest frames before and
+    after that trace it (:func:`bracketing_frames`, wrapping round a periodic cine): both
+    loops resampled from the same anatomical seam (:func:`cardionurbs.anatomy.surfaces.
+    resample_loop`) and blended linearly in frame position, point by point. Only slices
+    traced in more than :data:`SECTION_TRACED_FRACTION` of the frames are supported, and
+    only between two of the frame's own sections of that surface (:func:`_between`: a gap
+    in its stack, not beyond its ends). docs/metrics.md, Frames.
+
+    Parameters
+    ----------
+    frame : int
+    raw : mapping frame -> FrameGeometry
+        Every frame's geometry from its own contours (with ``reference`` set).
+    frames : list of int
+        The frames of the cine, in order. A cine of fewer than :data:`MIN_FRAMES` is not
+        supported (its frames are too far apart in time); a longer one is taken to cover
+        the whole cycle, so that the frames wrap around.
+
+    Returns
+    -------
+    FrameGeometry
+        ``raw[frame]`` itself when nothing is missing, else a copy whose ``sections``
+        hold the interpolated ones (``source_points`` None: they have no contour points)
+        and whose ``in_time`` maps (surface, slice) -> (frame before, frame after).
+    """
+    from cardionurbs.anatomy.surfaces import resample_loop
+    geo = raw[frame]
+    if len(frames) < MIN_FRAMES or frame not in frames:
+        return geo
+    traced = {g: _traced_or_none(raw, g) for g in frames}
+    new: dict[str, list[Section]] = {}
+    in_time: dict[tuple[str, str], tuple[int, int]] = {}
+    for s in _SUPPORT_ORDER:
+        slices = sorted({sl for g in frames for sl in traced[g].get(s, ())})
+        for sl in slices:
+            have = {g for g in frames if sl in traced[g].get(s, ())}
+            if frame in have or len(have) <= SECTION_TRACED_FRACTION * len(frames):
+                continue
+            br = bracketing_frames(frame, frames, have, cyclic=True)
+            if br is None:
+                continue
+            a, b, w = br
+            sa, sb = (next(x for x in raw[g].sections[s] if x.slice == sl) for g in (a, b))
+            n, ref = geo.direction, geo.reference
+            pts = (1 - w) * resample_loop(sa.points, n, ref) + w * resample_loop(sb.points, n, ref)
+            sec = Section(s, frame, pts, slice=sl, plane=sa.plane)
+            if _between(geo, s, sec):
+                new.setdefault(s, []).append(sec)
+                in_time[(s, sl)] = (a, b)
+    if not new:
+        return geo
+    return _with_sections(geo, new, in_time)
+
+
+def _with_sections(geo: FrameGeometry, new: dict[str, list[Section]],
+                   in_time: dict[tuple[str, str], tuple[int, int]]) -> FrameGeometry:
+    """A copy of ``geo`` with the ``new`` sections among its own (ordered base -> apex),
+    the RV sections' septa taken from their slice's LV epicardium, and one warning."""
+    n = geo.direction
+    sections = {s: list(secs) for s, secs in geo.sections.items()}
+    for s, secs in new.items():
+        sections[s] = sorted(sections.get(s, []) + secs,
+                             key=lambda sec: float(sec.points.mean(axis=0) @ n))
+    epi = {sec.slice: sec for sec in sections.get("lv_epi", [])}
+    for s in ("rv_endo", "rv_epi"):
+        sections[s] = [dataclasses.replace(sec, septum_of=epi[sec.slice].points)
+                       if sec.slice in epi and (sec.septum_of is None or ("lv_epi", sec.slice)
+                                                in in_time) else sec
+                       for sec in sections.get(s, [])]
+    by_src: dict[tuple[int, int], list[str]] = {}
+    for (s, sl), src in in_time.items():
+        by_src.setdefault(src, []).append(f"{s} {sl}")
+    text = "; ".join(f"{', '.join(v)} from frames {a} and {b}" for (a, b), v in by_src.items())
+    out = dataclasses.replace(geo, sections=sections, in_time=dict(in_time),
+                              warnings=list(geo.warnings))
+    out.warnings.append(f"frame {geo.frame}: sections not traced at this frame interpolated in "
+                        f"time (section-level support): {text}")
+    return out

@@ -6,7 +6,8 @@ itself is never pickled. What they hand back is plain values, which the parent's
 stores as if it had made them itself:
 
 * the ED/ES search (:func:`unrefined_cavity_volumes`): per frame, the unrefined and the
-  LA-corrected LV cavity volume, the contour count and the warnings the frame raised;
+  LA-corrected LV cavity volume, the contour count, the sections interpolated in time
+  (:func:`cardionurbs.anatomy.cycle.support_sections`) and the warnings the frame raised;
 * the meshes of every frame (:func:`cardionurbs.pipeline.write_meshes`): per frame, the
   values of the :data:`HANDED_BACK` mappings the worker computed (:func:`frame_results`,
   stored by :func:`adopt_frame_results`); solids and meshes stay in the worker;
@@ -90,6 +91,7 @@ def unrefined_cavity_volumes(model: BiventricularModel, jobs: int | None = 1,
             model._clipped_lv_ml.provide(r["refined"], f)
         if "contours" in r:
             model._lv_contour_count.provide(r["contours"], f)
+        model._in_time[f] = r.get("in_time", {})
         model.warnings += r["warnings"]
         model._warned |= {(f, "geometry"), (f, "lv_endo", False)}
     return lv
@@ -101,6 +103,7 @@ def _frame_volumes(model: BiventricularModel, f: int) -> dict[str, Any]:
     out: dict[str, Any] = {"unrefined": model._unrefined_or_nan(f)}
     if f in model.geometry.computed:
         out["contours"] = model._lv_contour_count(f)
+        out["in_time"] = model.geometry[f].in_time
     try:
         out["refined"] = model._clipped_lv_ml(f)
     except CardioNurbsError:

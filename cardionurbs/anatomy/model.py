@@ -23,7 +23,7 @@ from cardionurbs import nurbs
 from cardionurbs.anatomy import handback, serialise
 from cardionurbs.anatomy import mesh as meshing
 from cardionurbs.anatomy import residuals as fit_residuals
-from cardionurbs.anatomy.cycle import CycleCheck, check_curve, interpolate
+from cardionurbs.anatomy.cycle import CycleCheck, check_curve, interpolate, support_sections
 from cardionurbs.anatomy.mesh import Plane
 from cardionurbs.anatomy.outflow import OutflowTract, outflow_tracts, tract_solid
 from cardionurbs.anatomy.residuals import RESIDUAL_COLUMNS, surface_distance  # noqa: F401 (re-exported)
@@ -120,7 +120,11 @@ class BiventricularModel:
         self.refine, self.anchor_weight = bool(refine), float(anchor_weight)
         self.warnings = list(warnings or [])
         self.resolution = tuple(resolution)
+        self._in_time: dict[int, dict] = {}         # a worker's frames' sections interpolated in time
         self._warned: set[tuple] = set()    # (frame, what) whose warnings a worker process gave
+        #: each frame's geometry from its own contours; :attr:`geometry` adds the sections
+        #: it lacks, interpolated in time (:func:`cardionurbs.anatomy.cycle.support_sections`)
+        self.own_geometry = LazyFrames(self.frames, self._own_geometry)
         self.geometry = LazyFrames(self.frames, self._frame_geometry)
         if surfaces is None:          # reconstruct lazily from the study
             self.surfaces = LazyFrames(self.frames, self._all_surfaces)
@@ -215,7 +219,9 @@ class BiventricularModel:
         of it was left out (a partial tracing): such a frame counts as incomplete."""
         geo = self.geometry[frame]
         n = len(geo.sections.get("lv_endo") or []) + len(geo.la_points.get("lv_endo") or [])
-        return -n if any(s == "lv_endo" for s, _, _ in geo.left_out) else n
+        n -= sum(s == "lv_endo" for s, _ in geo.in_time)      # interpolated in time: not its own
+        lacks = any(s == "lv_endo" for s, _, _ in geo.left_out) or any(s == "lv_endo" for s, _ in geo.in_time)
+        return -n if lacks else n
 
     def _drop_frames(self, frames: list[int]) -> None:
         """Leave out of the model the frames whose LV cavity cannot be built (they stay on
@@ -249,6 +255,17 @@ class BiventricularModel:
         cycle = getattr(self, "cycle", None)
         return dict(cycle.supported) if cycle is not None else {}
 
+    @property
+    def sections_in_time(self) -> dict[int, dict[tuple[str, str], tuple[int, int]]]:
+        """Frames with sections interpolated in time (:func:`.cycle.support_sections`):
+        frame -> {(surface, slice): (frame before, frame after)}."""
+        geo = getattr(self, "geometry", None)
+        out = {f: d for f, d in self._in_time.items() if d} if hasattr(self, "_in_time") else {}
+        for f in (geo.computed if isinstance(geo, LazyFrames) else []):
+            if geo[f].in_time:
+                out[f] = geo[f].in_time
+        return dict(sorted(out.items()))
+
     def consistent_volumes(self, frame: int) -> dict[str, float]:
         """The volumes (mL, keyed like :attr:`volumes`) the metrics use at one frame: its own,
         or for a supported frame those of its nearest trusted neighbour on each side
@@ -265,6 +282,19 @@ class BiventricularModel:
         out["lv_cavity"] = self.cycle.consistent[frame]
         return {k: v for k, v in out.items() if math.isfinite(v)}
 
+    def own_lv_cavity_volume(self, frame: int) -> float:
+        """:meth:`lv_cavity_volume` from the frame's own contours, without the sections
+        interpolated in time (:attr:`sections_in_time`); NaN when those cannot be built."""
+        if frame not in self.sections_in_time:
+            return self.lv_cavity_volume(frame)
+        geo = self.own_geometry[frame]
+        try:
+            surface = build_surface(geo, "lv_endo", geo.reference, tol_px=self.tol_px).surface
+            return self._clipped_cavity_ml(frame, self._refined(geo, "lv_endo", surface)
+                                           if self.refine else surface)
+        except CardioNurbsError:
+            return math.nan
+
     def consistent_lv_cavity_volume(self, frame: int) -> float:
         """:meth:`lv_cavity_volume`, or the checked curve's value at a supported frame (mL)."""
         if frame in self.supported:
@@ -272,11 +302,15 @@ class BiventricularModel:
         return self.lv_cavity_volume(frame) if frame in self.frames else math.nan
 
     # ------------------------------------------------------------- lazy construction
-    def _frame_geometry(self, frame: int) -> FrameGeometry:
+    def _own_geometry(self, frame: int) -> FrameGeometry:
         geo = frame_geometry(self.study, frame)
+        geo.reference = _reference_direction(self.study, geo)
+        return geo
+
+    def _frame_geometry(self, frame: int) -> FrameGeometry:
+        geo = support_sections(frame, self.own_geometry, self.curve_frames)
         if (frame, "geometry") not in self._warned:
             self.warnings += geo.warnings
-        geo.reference = _reference_direction(self.study, geo)
         return geo
 
     def _outflow(self, frame: int) -> dict[str, OutflowTract]:
@@ -372,7 +406,8 @@ class BiventricularModel:
             keep = plane.signed_distance(targets) >= 0
             targets, weights = targets[keep], weights[keep]
         # the SA points every ~2 mm along each contour suffice to hold the surface
-        anchors = np.concatenate([_every(sec.source_points, 2.0) for sec in geo.sections[structure]])
+        anchors = np.concatenate([_every(sec.source_points, 2.0) for sec in geo.sections[structure]
+                                  if sec.source_points is not None])     # not those interpolated
         every = _every_index(targets, 2.0)
         return refine_surface(surface, anchors, targets[every], anchor_weight=self.anchor_weight,
                               target_weights=weights[every], passes=2)

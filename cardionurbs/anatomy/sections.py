@@ -77,6 +77,7 @@ class FrameGeometry:
     taper: dict[str, "ApicalTaper"] = field(default_factory=dict)  # SA-only apex (label maps)
     base_from_slices: set = field(default_factory=set)  # 'lv'/'rv' planes by the half-slice rule
     base_slack: float = 0.0     # how far (mm) a half-slice valve plane may later move basally
+    in_time: dict = field(default_factory=dict)  # (surface, slice) -> (frame, frame) interpolated from
     warnings: list[str] = field(default_factory=list)
 
 
