@@ -9,7 +9,9 @@ e_x toward the RV (right and anterior), orthogonalised; e_y = e_z × e_x.
 Imaging planes (DICOM Image Plane module, see cardionurbs.imaging.geometry):
 
 * SA stack: planes z = h_k ⟂ long axis, numbered from base (``sa_00``) to
-  apex, the first ``sa_first_offset_mm`` below the ED base, then every
+  apex, the first ``first_offset_mm`` below the ED base (0.6 × the spacing unless
+  ``sa_first_offset_mm`` is given: a planner puts the first slice within one gap of the
+  valve plane, so every slab of the stack cuts the ventricle), then every
   ``sa_spacing_mm`` while the ED LV cavity is still cut (h >= z_endo_apex + 3 mm).
   Row cosine at ``sa_rotation_deg`` about e_z from −e_x (RV on the image left),
   column cosine e_z × row, so the plane normal is +e_z.
@@ -31,6 +33,8 @@ from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.phantom.anatomy import Anatomy
 
 LA_VIEWS = {"la_4ch": 0.0, "la_2ch": 90.0, "la_3ch": 135.0}
+# first SA slice below the ED base, as a share of the slice spacing (6 mm at 10 mm slices)
+FIRST_OFFSET_SHARE = 0.6
 
 
 def _unit(v) -> np.ndarray:
@@ -114,7 +118,9 @@ class SliceSpec:
 
 @dataclass(frozen=True)
 class Acquisition:
-    """Imaging protocol: matrix, field of view, SA spacing/thickness."""
+    """Imaging protocol: matrix, field of view, SA spacing/thickness. ``sa_first_offset_mm``
+    (None: ``FIRST_OFFSET_SHARE`` × ``sa_spacing_mm``) is how far the first SA slice lies below
+    the ED base."""
 
     rows: int = 256
     columns: int = 256
@@ -122,7 +128,7 @@ class Acquisition:
     sa_spacing_mm: float = 10.0
     sa_thickness_mm: float = 8.0
     la_thickness_mm: float = 8.0
-    sa_first_offset_mm: float = 6.0
+    sa_first_offset_mm: float | None = None
     sa_rotation_deg: float = 20.0
     n_sa: int | None = None
 
@@ -135,6 +141,16 @@ class Acquisition:
             raise PhantomError("image matrix must be at least 32 x 32")
         if self.n_sa is not None and self.n_sa < 2:
             raise PhantomError(f"n_sa must be >= 2, got {self.n_sa!r}")
+        off = self.sa_first_offset_mm
+        if off is not None and not (np.isfinite(off) and off >= 0):
+            raise PhantomError(f"sa_first_offset_mm must be >= 0, got {off!r}")
+
+    @property
+    def first_offset_mm(self) -> float:
+        """Distance (mm) of the first SA slice below the ED base plane."""
+        if self.sa_first_offset_mm is not None:
+            return float(self.sa_first_offset_mm)
+        return FIRST_OFFSET_SHARE * self.sa_spacing_mm
 
     @property
     def pixel_mm(self) -> float:
@@ -143,8 +159,8 @@ class Acquisition:
 
 def sa_heights(anatomy: Anatomy, acq: Acquisition) -> np.ndarray:
     """Heights h_k (mm above the apex) of the SA slices, base to apex (the first one
-    ``sa_first_offset_mm`` below the base plane, or below the lowest point of a saddle annulus)."""
-    top = min(anatomy.z_base - acq.sa_first_offset_mm, anatomy.z_top_min - 2.0)
+    ``acq.first_offset_mm`` below the base plane, or below the lowest point of a saddle annulus)."""
+    top = min(anatomy.z_base - acq.first_offset_mm, anatomy.z_top_min - 2.0)
     if acq.n_sa is not None:
         h = top - acq.sa_spacing_mm * np.arange(acq.n_sa)
     else:
