@@ -97,7 +97,35 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
     allowed, in the column's unit): a wider (or missing) interval is a quality flag in ``QC``.
 
     ``strict``: a row whose metrics carry a quality flag (``QC`` not empty) is a
-    failure: ``status = "error: QC: <flags>"`` and its numbers are emptied."""
+    failure: ``status = "error: QC: <flags>"`` and its numbers are emptied.
+
+    Parameters
+    ----------
+    path : str
+        The study's folder (or single file).
+    format : str, optional
+        The study format (``"auto"``: detected; see :func:`cardionurbs.io.load_study`).
+    heart_rate_bpm : float or None, optional
+        Heart rate in beats/min for the rate metrics (None: the study's own, if any).
+    allow_outside : bool, optional
+        Let the study name files outside its folder (:func:`cardionurbs.confine.allow_outside`).
+    labels : str or None, optional
+        NIfTI label maps only: a preset (``acdc``, ``ukbb``, ``mnms``, ``bivme``) or a
+        ``lv=…,myo=…,rv=…`` mapping; None: the layout's preset or inferred roles.
+    strict : bool, optional
+        A quality flag makes the row a failure.
+    uncertainty : bool, optional
+        Add the 95 % interval columns.
+    max_halfwidth : dict of str to float, optional
+        Column -> largest interval half-width allowed, in the column's unit.
+
+    Returns
+    -------
+    dict
+        The row: ``subject``, ``status`` (``"ok"`` or ``"error: <one line>"``), every metric
+        column (mL, %, g, deg ...; NaN where not measured or on failure), ``QC``, the
+        interval, range, ``Sex``, ``warnings`` and ``notes`` cells.
+    """
     _test_fault(path)
     row = {c: NAN for c in _NUMBERS}
     row["subject"], row["warnings"], row["notes"] = Path(path).name, NAN, ""
@@ -129,7 +157,27 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
 def measure_intervals(model, metrics: dict, row: dict, columns: bool,
                       max_halfwidth: dict[str, float] | None) -> dict:
     """The interval columns of one row (``columns``) and its ``QC`` with the half-width
-    flags of ``max_halfwidth`` added."""
+    flags of ``max_halfwidth`` added.
+
+    Parameters
+    ----------
+    model : cardionurbs.anatomy.model.BiventricularModel
+        The reconstructed model of the study.
+    metrics : dict
+        Its metrics (:func:`cardionurbs.pipeline.analyse_study`).
+    row : dict
+        The row so far (its ``QC`` cell is extended).
+    columns : bool
+        Return the ``<column> lo95`` / ``hi95`` columns too.
+    max_halfwidth : dict of str to float or None
+        Column -> largest interval half-width allowed, in the column's unit.
+
+    Returns
+    -------
+    dict
+        The interval columns (when ``columns``; in each metric's unit) and ``QC``: the row's
+        flags with the half-width flags appended (``"; "``-separated).
+    """
     iv = intervals(model, metrics)
     flags = halfwidth_flags(iv, max_halfwidth or {})
     qc = "; ".join([q for q in [row.get("QC") or ""] if q] + flags)
@@ -147,7 +195,20 @@ def _clinical_cells(model, metrics: dict) -> dict:
 
 
 def failure_row(path: str, reason: str) -> dict:
-    """The row of a study that gave no result (a hang, a dead worker): reason, empty numbers."""
+    """The row of a study that gave no result (a hang, a dead worker): reason, empty numbers.
+
+    Parameters
+    ----------
+    path : str
+        The study path (its last component becomes ``subject``).
+    reason : str
+        Why no result came (e.g. ``"timeout: 600 s"``); whitespace collapsed to one line.
+
+    Returns
+    -------
+    dict
+        A row with ``status = "error: <reason>"`` and every number NaN.
+    """
     row = {c: NAN for c in _NUMBERS}
     row["warnings"], row["notes"] = NAN, ""
     row["subject"] = Path(path).name
@@ -165,6 +226,11 @@ class RowStore:
     the folder fsynced: once :meth:`put` returns the row survives a crash of the process
     or the machine. Rows are keyed by the study path as given (plus the format), so a
     rerun with the same arguments finds them.
+
+    Parameters
+    ----------
+    folder : path-like
+        The run directory (``--run-dir``); rows go to ``folder/rows``.
     """
 
     def __init__(self, folder: str | os.PathLike) -> None:
@@ -173,6 +239,20 @@ class RowStore:
 
     @staticmethod
     def key(path: str, format: str = "auto") -> str:
+        """The file stem of a row.
+
+        Parameters
+        ----------
+        path : str
+            The study path as given to the cohort run.
+        format : str, optional
+            The study format.
+
+        Returns
+        -------
+        str
+            20 hexadecimal digits of the SHA-1 of format and path.
+        """
         return hashlib.sha1(f"{format}\0{path}".encode()).hexdigest()[:20]
 
     def clear(self) -> None:
@@ -185,6 +265,17 @@ class RowStore:
                     f.unlink()
 
     def put(self, path: str, format: str, row: dict) -> None:
+        """Store one finished row durably (written, fsynced, renamed into place).
+
+        Parameters
+        ----------
+        path : str
+            The study path as given to the cohort run.
+        format : str
+            The study format it was measured with.
+        row : dict
+            The row (NaN numbers stored as JSON null).
+        """
         self.rows_dir.mkdir(parents=True, exist_ok=True)
         data = json.dumps({"path": path, "format": format,
                            "row": {k: (None if isinstance(v, float) and math.isnan(v) else v)
@@ -203,7 +294,21 @@ class RowStore:
             os.close(fd)
 
     def get(self, path: str, format: str = "auto") -> dict | None:
-        """The stored row of one study (NaN for empty numbers), or None."""
+        """The stored row of one study (NaN for empty numbers), or None.
+
+        Parameters
+        ----------
+        path : str
+            The study path as given to the cohort run.
+        format : str, optional
+            The study format the row was measured with.
+
+        Returns
+        -------
+        dict or None
+            The row (NaN for its empty numbers), or None when none is stored for this path and
+            format.
+        """
         f = self.rows_dir / f"{self.key(path, format)}.json"
         try:
             d = json.loads(f.read_text(encoding="utf-8"))
@@ -291,7 +396,18 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
 def is_cohort_table(path: str | os.PathLike) -> bool:
     """True when ``path`` is a cohort table this package wrote: a CSV whose header line
     starts with ``subject,status,`` and the metric columns, or a Parquet file whose columns
-    do (what ``--csv`` / ``--parquet`` may replace without ``--overwrite``)."""
+    do (what ``--csv`` / ``--parquet`` may replace without ``--overwrite``).
+
+    Parameters
+    ----------
+    path : path-like
+        A CSV or ``.parquet`` file (need not exist).
+
+    Returns
+    -------
+    bool
+        Whether its header matches a cohort table's first columns (False when unreadable).
+    """
     head = ",".join(CSV_COLUMNS[:4])
     p = Path(path)
     try:
@@ -305,13 +421,39 @@ def is_cohort_table(path: str | os.PathLike) -> bool:
 
 
 def write_csv(table: pd.DataFrame, path: str | os.PathLike) -> Path:
-    """Write the cohort table as CSV, atomically (empty cells for NaN)."""
+    """Write the cohort table as CSV, atomically (empty cells for NaN).
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        The cohort table (text cells made spreadsheet-safe, :func:`cardionurbs.safe.csv_safe_table`).
+    path : path-like
+        The CSV file to write (replaced atomically).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     from cardionurbs.safe import csv_safe_table
     return atomic.write_text(path, csv_safe_table(table).to_csv(index=False, float_format="%.6g"))
 
 
 def write_parquet(table: pd.DataFrame, path: str | os.PathLike) -> Path:
-    """Write the cohort table as Parquet (pyarrow), atomically."""
+    """Write the cohort table as Parquet (pyarrow), atomically.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        The cohort table.
+    path : path-like
+        The Parquet file to write (replaced atomically).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     with atomic.atomic_path(path) as tmp:
         table.to_parquet(tmp, index=False, engine="pyarrow")
     return Path(path)
@@ -325,7 +467,25 @@ EXIT_SOME_FAILED = 3
 def run_cohort(args: argparse.Namespace) -> int:
     """`cardionurbs cohort STUDY... --csv FILE [--jobs N] [--dask local|tcp://HOST:PORT]
     [--timeout S] [--resume] [--run-dir DIR] [--parquet] [--allow-failures]`; ``--csv`` is
-    checked (cardionurbs.io.outputs) before any study is read."""
+    checked (cardionurbs.io.outputs) before any study is read.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (``studies``, ``csv``, ``jobs`` and the options above).
+
+    Returns
+    -------
+    int
+        The exit code: 0, or :data:`EXIT_SOME_FAILED` (3) when a study failed without
+        ``--allow-failures``.
+
+    Raises
+    ------
+    cardionurbs.errors.UsageError
+        A bad ``--dask`` address, or an output (``--csv``, ``--parquet``, ``--run-dir``) that
+        may not be written (checked before any study is read).
+    """
     from cardionurbs.executor import check_dask_address
     from cardionurbs.io.outputs import check_output_file, check_output_place
     from cardionurbs.pipeline import study_folder

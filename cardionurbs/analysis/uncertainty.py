@@ -29,7 +29,8 @@ sections, contour points and frames:
 
 EF and SV follow by the delta method (their ED and ES errors independent except where
 the model ties the two frames: the label maps' ES valve plane is placed from ED, so their
-base errors are one). Twist, LS and strain are not covered.
+base errors are one). Twist, LS and the global tag strains:
+:mod:`cardionurbs.analysis.tag_uncertainty`.
 """
 
 from __future__ import annotations
@@ -40,13 +41,16 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cardionurbs.analysis.tag_uncertainty import TAG_COVERED, tag_intervals
 from cardionurbs.geometry import polygon_area
 
 if TYPE_CHECKING:  # pragma: no cover
     from cardionurbs.anatomy.model import BiventricularModel
 
 METHOD = ("analytic propagation: contour scatter, between-slice interpolation, base and apex "
-          "placement, ES sampling (docs/metrics.md, Uncertainty)")
+          "placement, ES sampling; tag-point scatter of the twist levels, level placement (LS), "
+          "tag-fit standard errors and motion-model error (global strain) "
+          "(docs/metrics.md, Uncertainty)")
 #: the columns given an interval
 COVERED = ("LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVM (g)",
            "RVEDV (mL)", "RVESV (mL)", "RVSV (mL)", "RVEF (%)", "RVM (g)")
@@ -417,7 +421,8 @@ def _interval(value: float, sd: float, below: float = 0.0, above: float = 0.0) -
 
 
 def intervals(model: "BiventricularModel", metrics: dict) -> dict:
-    """The 95 % intervals of the :data:`COVERED` metrics of one model, for metrics.json.
+    """The 95 % intervals of the :data:`ALL_COVERED` metrics of one model, for metrics.json
+    (the tag metrics' from :func:`cardionurbs.analysis.tag_uncertainty.tag_intervals`).
 
     Parameters
     ----------
@@ -446,6 +451,10 @@ def intervals(model: "BiventricularModel", metrics: dict) -> dict:
             r_es = _ratio(metrics.get("RVESV (mL)"), metrics.get("LVESV (mL)"))
             bias = (bias_lv[0] * r_ed, bias_lv[1] * r_es)
         _side_intervals(model, metrics, side, bias, out, notes, parts)
+    t_out, t_notes, t_parts = tag_intervals(model, metrics, Z95)
+    out.update(t_out)
+    notes.update(t_notes)
+    parts.update(t_parts)
     for c in COVERED:
         v = metrics.get(c, NAN)
         if out[c] is None and c not in notes:
@@ -467,21 +476,23 @@ def interval_columns(uncertainty: dict) -> dict[str, float]:
     """``<column> lo95`` and ``<column> hi95`` (NaN where there is no interval) of an
     :func:`intervals` result: the cohort CSV's columns."""
     out = {}
-    for c in COVERED:
+    for c in ALL_COVERED:
         iv = uncertainty.get(c)
         out[f"{c} lo95"], out[f"{c} hi95"] = (float(iv[0]), float(iv[1])) if iv else (NAN, NAN)
     return out
 
 
-#: the cohort CSV's interval columns, in :data:`COVERED` order
-INTERVAL_COLUMNS = tuple(f"{c} {end}" for c in COVERED for end in ("lo95", "hi95"))
+#: every column given an interval: the volumes' and the tag metrics'
+ALL_COVERED = COVERED + TAG_COVERED
+#: the cohort CSV's interval columns, in :data:`ALL_COVERED` order
+INTERVAL_COLUMNS = tuple(f"{c} {end}" for c in ALL_COVERED for end in ("lo95", "hi95"))
 
 
 def _column_named(name: str) -> str | None:
     """The covered column a ``--max-halfwidth`` key names: the column itself or its first
     word (``LVEF`` -> ``LVEF (%)``), case-insensitive."""
     key = name.strip().lower()
-    for c in COVERED:
+    for c in ALL_COVERED:
         if key in (c.lower(), c.split(" ")[0].lower()):
             return c
     return None
@@ -498,7 +509,7 @@ def parse_max_halfwidth(text: str) -> dict[str, float]:
         col = _column_named(name)
         if col is None or not eq:
             raise ValueError(f"--max-halfwidth: {item!r} is not METRIC=LIMIT with METRIC one of "
-                             + ", ".join(c.split(" ")[0] for c in COVERED))
+                             + ", ".join(c.split(" ")[0] for c in ALL_COVERED))
         try:
             limit = float(value)
         except ValueError:
