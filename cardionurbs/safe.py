@@ -8,7 +8,8 @@ gets its own quoting:
 
 * messages: :func:`excerpt` -- at most a short, printable quotation;
 * figure text: :func:`plain_text` -- ``$`` escaped so that matplotlib never
-  starts mathtext on a name;
+  starts mathtext on a name, and a character that no font of the figures has
+  written as ``[U+XXXX]`` (matplotlib would draw an empty box and warn);
 * HTML ``<script type="application/json">`` blocks: :func:`json_for_script` --
   ``<``, ``>``, ``&`` and the line separators written as ``\\u003c`` etc., so
   ``</script>`` and ``<!--`` cannot end or comment out the block;
@@ -19,6 +20,7 @@ gets its own quoting:
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 import unicodedata
@@ -137,8 +139,32 @@ def file_name(value: str) -> str:
     return s if s.strip(".") else "_" + s
 
 
+@functools.lru_cache(maxsize=1)
+def _drawable() -> frozenset[int] | None:
+    """The code points the figures' fonts can draw: the union of the character maps of
+    the fonts matplotlib finds for its default font families (the fonts it falls back
+    through, in order); None when matplotlib or a font cannot be read."""
+    try:
+        from matplotlib import font_manager, ft2font
+        prop = font_manager.FontProperties()
+        paths = set()
+        for family in prop.get_family():
+            try:
+                paths.add(font_manager.findfont(font_manager.FontProperties(family=family),
+                                                fallback_to_default=False))
+            except ValueError:
+                continue
+        paths = paths or {font_manager.findfont(prop)}
+        return frozenset().union(*(ft2font.FT2Font(p).get_charmap() for p in paths))
+    except Exception:   # noqa: BLE001 - figure text stays as it is
+        return None
+
+
 def plain_text(text: object) -> str:
-    """``text`` for matplotlib: every ``$`` escaped so mathtext never starts on it.
+    """``text`` for matplotlib: every ``$`` escaped so mathtext never starts on it, and
+    each character that the figures' fonts cannot draw (e.g. CJK in DejaVu Sans) written
+    as ``[U+XXXX]`` instead of the empty box matplotlib draws with a "Glyph missing"
+    warning. Line breaks and spaces are kept.
 
     Parameters
     ----------
@@ -148,9 +174,14 @@ def plain_text(text: object) -> str:
     Returns
     -------
     str
-        The text with every ``$`` written ``\\$``.
+        The text with every ``$`` written ``\\$`` and every undrawable character as
+        ``[U+XXXX]``.
     """
-    return str(text).replace("$", r"\$")
+    s = str(text).replace("$", r"\$")
+    have = _drawable()
+    if have is None or s.isascii():
+        return s
+    return "".join(c if c.isspace() or ord(c) in have else f"[U+{ord(c):04X}]" for c in s)
 
 
 def json_for_script(obj, **kw) -> str:

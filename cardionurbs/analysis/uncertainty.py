@@ -119,7 +119,7 @@ def _residual_rms(model: "BiventricularModel", frame: int, structure: str) -> di
         if p["frame"] != frame or p["structure"] != structure:
             continue
         sa = p["view"] == "SA"
-        for sl in set(p["slice"][sa]):
+        for sl in sorted(set(p["slice"][sa])):
             d = p["dist_mm"][sa & (p["slice"] == sl)]
             out[sl] = float(np.sqrt(np.mean(d * d)))
     return out
@@ -351,7 +351,7 @@ def _combine(ed: VolumeError, es: VolumeError, grad_ed: float, grad_es: float) -
     """SD of grad_ed · δEDV + grad_es · δESV: independent sources in quadrature, a shared
     source (ES's ``shared``) as one error."""
     var = 0.0
-    for k in set(ed.sd) | set(es.sd):
+    for k in sorted(set(ed.sd) | set(es.sd)):
         a, b = grad_ed * ed.sd.get(k, 0.0), grad_es * es.sd.get(k, 0.0)
         var += (a + b) ** 2 if k in es.shared else a * a + b * b
     return math.sqrt(var)
@@ -412,7 +412,7 @@ def _parts(ed: VolumeError, es: VolumeError, g_ed: float, g_es: float) -> dict[s
     """Per source, the SD of g_ed · δEDV + g_es · δESV."""
     return {k: _combine(VolumeError({k: ed.sd.get(k, 0.0)}), VolumeError({k: es.sd.get(k, 0.0)},
                                                                          es.shared), g_ed, g_es)
-            for k in set(ed.sd) | set(es.sd)}
+            for k in sorted(set(ed.sd) | set(es.sd))}
 
 
 def _interval(value: float, sd: float, below: float = 0.0, above: float = 0.0) -> list[float]:
