@@ -27,7 +27,7 @@ import re
 import sys
 import time
 from pathlib import Path
-from typing import Iterable
+from typing import Any, Iterable
 
 import pandas as pd
 
@@ -127,13 +127,12 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
         interval, range, ``Sex``, ``warnings`` and ``notes`` cells.
     """
     _test_fault(path)
-    row = {c: NAN for c in _NUMBERS}
+    row: dict[str, Any] = {c: NAN for c in _NUMBERS}
     row["subject"], row["warnings"], row["notes"] = Path(path).name, NAN, ""
     try:
         from cardionurbs.io import load_study
         from cardionurbs.pipeline import analyse_study
-        study = load_study(path, format=format, allow_outside=allow_outside,
-                           **({} if labels is None else {"labels": labels}))
+        study = load_study(path, format=format, allow_outside=allow_outside, labels=labels)
         row["subject"] = study.subject
         from cardionurbs.analysis.quality import assess
         model, metrics = analyse_study(study, heart_rate_bpm=heart_rate_bpm)
@@ -209,7 +208,7 @@ def failure_row(path: str, reason: str) -> dict:
     dict
         A row with ``status = "error: <reason>"`` and every number NaN.
     """
-    row = {c: NAN for c in _NUMBERS}
+    row: dict[str, Any] = {c: NAN for c in _NUMBERS}
     row["warnings"], row["notes"] = NAN, ""
     row["subject"] = Path(path).name
     row["status"] = f"error: {' '.join(str(reason).split())}"
@@ -327,45 +326,72 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
            allow_outside: bool = False, labels: str | None = None,
            strict: bool = False, uncertainty: bool = True,
            max_halfwidth: dict[str, float] | None = None) -> pd.DataFrame:
-    """Measure every study: a DataFrame with ``subject``, ``status`` and the docs/metrics.md
-    columns in order, one row per path (input order); when any study is a label map
-    the voxel-count columns follow (``labels``: its convention, see load_study).
+    """Measure every study: a DataFrame, one row per path in input order, with ``subject``,
+    ``status`` (a failure's error) and the docs/metrics.md columns (label maps: voxel counts).
 
-    ``jobs``: worker processes (or Dask workers for ``dask="local"``); ``dask``: run on a
-    Dask cluster (``"local"`` or a scheduler address); ``timeout``: seconds per study
-    before it becomes an error row; ``run_dir``: store each finished row durably there
-    (:class:`RowStore`); ``resume``: keep the rows already in ``run_dir`` and measure only
-    the others; ``strict``: flagged rows are failures (:func:`measure_study`);
-    ``uncertainty``, ``max_halfwidth``: the 95 % interval columns and the half-width flags
-    (:func:`measure_study`).
+    Parameters
+    ----------
+    paths : iterable of str or os.PathLike
+        The study folders or files (as :func:`cardionurbs.io.load_study` takes them).
+    jobs : int
+        Worker processes (Dask workers for ``dask="local"``); 1: this process.
+    format, allow_outside, labels
+        Passed to :func:`cardionurbs.io.load_study` for every study.
+    progress, heart_rate_bpm : bool; float or None
+        A progress bar on stderr; the heart rate (bpm) of the studies that carry none.
+    dask, timeout : str or None; float or None
+        A Dask cluster (``"local"`` or a scheduler address); seconds per study before an error row.
+    run_dir, resume : str, os.PathLike or None; bool
+        Store each finished row durably in ``run_dir`` (:class:`RowStore`); resume from them.
+    strict, uncertainty, max_halfwidth
+        Flagged rows are failures; the 95 % interval columns; column -> largest 95 %
+        half-width (the column's unit) before a row is flagged (:func:`measure_study`).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Metrics in their docs/metrics.md units, NaN where a study cannot give one.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile, cardionurbs as cn
+    >>> from cardionurbs.phantom import generate, write_phantom
+    >>> phantom = generate("normal", seed=1, frames=2, n_sa=6, matrix=128, volume_check=False)
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> folder = write_phantom(phantom, pathlib.Path(tmp.name) / "p1", dicom=False)
+    >>> table = cn.cohort([folder])
+    >>> table.loc[0, "subject"], table.loc[0, "status"], bool(table.loc[0, "LVEDV (mL)"] > 0)
+    ('normal_001', 'ok', True)
+    >>> tmp.cleanup()
     """
     from cardionurbs.executor import TaskFailure, run_tasks
 
-    paths = [str(p) for p in paths]
+    studies = [str(p) for p in paths]
     store = RowStore(run_dir) if run_dir is not None else None
-    rows: list[dict | None] = [None] * len(paths)
+    rows: list[dict | None] = [None] * len(studies)
     if store is not None:
         if resume:
-            rows = [store.get(p, format) for p in paths]
+            rows = [store.get(p, format) for p in studies]
         else:
             store.clear()
     todo = [i for i, r in enumerate(rows) if r is None]
     bar = None
     if progress:
         from tqdm import tqdm
-        bar = tqdm(total=len(paths), initial=len(paths) - len(todo), desc="studies",
+        bar = tqdm(total=len(studies), initial=len(studies) - len(todo), desc="studies",
                    unit="study", file=sys.stderr)
 
     def finished(k: int, result) -> None:
         i = todo[k]
         if isinstance(result, TaskFailure):
-            row = failure_row(paths[i], result.message if result.kind == "error" else str(result))
+            row = failure_row(studies[i], result.message if result.kind == "error" else str(result))
         else:
             row = result
         if store is not None:
-            store.put(paths[i], format, row)
-            row = store.get(paths[i], format)      # exactly what a resumed run would read
-        rows[i] = row
+            store.put(studies[i], format, row)
+            rows[i] = store.get(studies[i], format)  # exactly what a resumed run would read
+        else:
+            rows[i] = row
         if bar is not None:
             bar.update(1)
 
@@ -373,13 +399,14 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
         if dask is None and jobs <= 1 and timeout is None:
             for k, i in enumerate(todo):             # in this process: no worker to start
                 try:
-                    result = measure_study(paths[i], format, heart_rate_bpm, allow_outside,
-                                           labels, strict, uncertainty, max_halfwidth)
+                    result: dict | TaskFailure = measure_study(
+                        studies[i], format, heart_rate_bpm, allow_outside, labels, strict,
+                        uncertainty, max_halfwidth)
                 except Exception as exc:  # noqa: BLE001 - as a worker would report it
                     result = TaskFailure("error", f"{type(exc).__name__}: {_one_line(exc)}")
                 finished(k, result)
         else:
-            run_tasks(measure_study, [(paths[i], format, heart_rate_bpm, allow_outside, labels,
+            run_tasks(measure_study, [(studies[i], format, heart_rate_bpm, allow_outside, labels,
                                        strict, uncertainty, max_halfwidth)
                                       for i in todo],
                       finished, jobs=jobs, dask=dask, timeout=timeout)

@@ -21,6 +21,7 @@ import sys
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -56,7 +57,7 @@ def demo_subject(spec, out_dir: str) -> tuple[dict, dict]:
     from cardionurbs.phantom.generate import generate, write_phantom
     from cardionurbs.pipeline import analyse_study
 
-    row = {c: NAN for c in COLUMNS}
+    row: dict[str, Any] = {c: NAN for c in COLUMNS}
     row["subject"] = spec.id
     truth = {"subject": spec.id, "pathology": spec.pathology}
     try:

@@ -20,9 +20,8 @@ nothing imports the rest of the package except :mod:`cardionurbs.errors`.
 
 from __future__ import annotations
 
-from typing import Sequence
-
 import numpy as np
+from numpy.typing import ArrayLike
 
 from cardionurbs.errors import ReconstructionError
 
@@ -292,7 +291,7 @@ def stack_normal(normals: np.ndarray) -> np.ndarray:
     return m / np.linalg.norm(m)
 
 
-def slice_spacing(positions_along_normal: Sequence[float]) -> float:
+def slice_spacing(positions_along_normal: ArrayLike) -> float:
     """Median gap (mm) between consecutive distinct slice positions (rounded to 1e-6 mm);
     NaN for fewer than two distinct positions.
 
@@ -345,7 +344,7 @@ def centroid_line_axis(centroids: np.ndarray, direction: np.ndarray) -> tuple[np
     return ctr + (t.max() + gap / 2) * d, ctr + t.min() * d
 
 
-def long_axis(apex_landmarks: np.ndarray | None = None, mitral_landmarks: np.ndarray | None = None,
+def long_axis(apex_landmarks: ArrayLike | None = None, mitral_landmarks: ArrayLike | None = None,
               *, model_apex: np.ndarray | None = None, valve_origin: np.ndarray | None = None,
               sa_centroids: np.ndarray | None = None, stack_direction: np.ndarray | None = None,
               where: str = "") -> tuple[np.ndarray, np.ndarray]:

@@ -121,15 +121,37 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
             progress: Progress | None = None, jobs: int | None = 1, on_measured=None):
     """Reconstruct and measure one loaded study: (model, docs/metrics.md dict, tag result or None).
 
-    ``over_time``: also twist and LS at every tagged frame (for figures and metrics.json);
-    the docs/metrics.md columns are the same without it. ``progress``: stages on stderr.
-    ``jobs``: processes for the per-frame work -- the frames' LV cavities (``reconstruct``),
-    the tag metrics beside the volumes (:func:`measure_with_tags`) and the tag strain over
-    time (one fit per tagged frame, :func:`cardionurbs.analysis.regional.regional_metrics`);
-    1 (the default: a library call forks nothing unless asked): this process only; None: the
-    usable CPUs (``cardionurbs analyze``'s default). The results are the same either way.
-    ``on_measured(model)``: called once ED and ES are known and the volumes measured,
-    before the tag results are awaited (``analyze`` starts the meshes' workers there)."""
+    Parameters
+    ----------
+    study : Study
+        A study read by :func:`cardionurbs.io.load_study`.
+    heart_rate_bpm : float or None
+        Heart rate (bpm) when the study carries none.
+    over_time : bool
+        Also twist and LS at every tagged frame (for figures and metrics.json); the
+        docs/metrics.md columns are the same without it.
+    progress : Progress or None
+        Stages on stderr.
+    jobs : int or None
+        Processes for the per-frame work -- the frames' LV cavities (``reconstruct``), the
+        tag metrics beside the volumes (:func:`measure_with_tags`) and the tag strain over
+        time (one fit per tagged frame, :func:`cardionurbs.analysis.regional.regional_metrics`);
+        1 (the default: a library call forks nothing unless asked): this process only; None:
+        the usable CPUs (``cardionurbs analyze``'s default). The results are the same either way.
+    on_measured : callable or None
+        ``on_measured(model)`` is called once ED and ES are known and the volumes measured,
+        before the tag results are awaited (``analyze`` starts the meshes' workers there).
+
+    Returns
+    -------
+    model : BiventricularModel
+        The reconstruction.
+    metrics : dict
+        docs/metrics.md column -> float in its unit (NaN, with its reason, where the study
+        cannot give one), the tag, regional and voxel-count columns included.
+    tags : TagMetrics or None
+        The tag result (None without tag lines).
+    """
     progress = progress or Progress(False)
     progress.stage("reconstruct")
     model = reconstruct(study, progress=progress.step, jobs=jobs)
@@ -321,12 +343,23 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                    outputs: tuple[str, ...] | None = None,
                    progress: Progress | None = None, jobs: int | None = 1,
                    early_meshes: "EarlyMeshes | None" = None, uncertainty: bool = True) -> Path:
-    """Write the chosen ``outputs`` (default all; ``figures=False`` drops figures and
-    report) to ``out``, atomically (the folder is complete or untouched). ``jobs``: worker
-    processes for the per-frame meshes (:func:`write_meshes`; 1, the default: none; None:
-    the usable CPUs) and the figures; ``early_meshes``: the meshes already started
-    (:class:`EarlyMeshes`); ``uncertainty``: the metrics' 95 % intervals in metrics.json
-    (``uncertainty``, :func:`cardionurbs.analysis.uncertainty.intervals`; null when off)."""
+    """Write the chosen ``outputs`` to ``out``, atomically (complete or untouched).
+
+    Parameters
+    ----------
+    model, metrics, tags, out : BiventricularModel; dict; TagMetrics or None; path-like
+        The results of :func:`analyse`; the output folder (docs/outputs.md).
+    figures, mesh_ext, outputs, uncertainty : bool; str; tuple of str or None; bool
+        False drops figures and report; the mesh format (``ply``, ``stl``, ``obj``, ``glb``);
+        the outputs (:data:`OUTPUTS`; None: all); the 95 % intervals in metrics.json.
+    progress, jobs, early_meshes : Progress or None; int or None; EarlyMeshes or None
+        Stages on stderr; worker processes for the meshes and figures (1: none; None: the
+        usable CPUs); the meshes already started (:class:`EarlyMeshes`).
+
+    Returns
+    -------
+    pathlib.Path
+    """
     outputs = OUTPUTS if outputs is None else tuple(outputs)
     if not figures:
         outputs = tuple(o for o in outputs if o not in ("figures", "report"))
@@ -414,6 +447,7 @@ def save_model(model: BiventricularModel, path: str | Path, tags=None) -> Path:
     Parameters
     ----------
     model : BiventricularModel
+        The model (its surfaces in scanner mm, ED/ES, valve planes, sections).
     path : str or Path
         ``.json`` or ``.npz``.
     tags : TagMetrics, optional
@@ -422,6 +456,12 @@ def save_model(model: BiventricularModel, path: str | Path, tags=None) -> Path:
     Returns
     -------
     Path
+        ``path``.
+
+    Raises
+    ------
+    ExportError
+        A suffix other than ``.json`` or ``.npz``.
     """
     model_dict = model.to_dict()
     if tags is not None:                       # tag surfaces are saved with the model
@@ -437,6 +477,7 @@ def load_model(path: str | Path, study: Study | None = None) -> BiventricularMod
     Parameters
     ----------
     path : str or Path
+        A model file written by :func:`save_model`.
     study : Study, optional
         The study the model was reconstructed from (default: one reduced to subject,
         heart rate, ED/ES and the long-axis landmarks, which every volume, mass and
@@ -445,6 +486,11 @@ def load_model(path: str | Path, study: Study | None = None) -> BiventricularMod
     Returns
     -------
     BiventricularModel
+
+    Raises
+    ------
+    ExportError
+        The file cannot be read or is not a cardionurbs model file.
     """
     return BiventricularModel.from_dict(read_model_file(path), study=study)
 
@@ -612,6 +658,7 @@ class EarlyMeshes:
         progress : cardionurbs.progress.Progress or None, optional
             Where the frames meshed are counted.
         """
+        assert self.writer is not None and self.folder is not None, "start() wrote no meshes"
         self.writer.finish(progress)
         os.replace(self.folder / "meshes", mesh_dir)
 

@@ -93,7 +93,20 @@ def _nan_rates(reason: str) -> tuple[dict[str, float], str]:
 
 
 def rate_windows(t_ed: float, t_es: float, rr: float) -> dict[str, tuple[float, float]]:
-    """Time windows (ms, on the cycle starting at ED) in which each peak is sought."""
+    """Time windows (ms, on the cycle starting at ED) in which each peak is sought.
+
+    Parameters
+    ----------
+    t_ed, t_es : float
+        ED and ES times, ms.
+    rr : float
+        The beat length, ms.
+
+    Returns
+    -------
+    dict of str to (float, float)
+        Peak name -> (start, end), ms.
+    """
     dia = t_ed + rr - t_es
     return {"PER (mL/s)": (t_ed, t_es),
             "PEFR (mL/s)": (t_es, t_es + 2.0 * dia / 3.0),
@@ -103,7 +116,26 @@ def rate_windows(t_ed: float, t_es: float, rr: float) -> dict[str, tuple[float, 
 def peak_rates(dvdt, t_ed: float, t_es: float, rr: float, step_ms: float = 1.0,
                knots=()) -> dict[str, float]:
     """PER, PEFR, PAFR (mL/s) and E/A of a volume-rate function ``dvdt(t)`` (mL/ms, t in ms
-    on the cycle that starts at ``t_ED``), sampled every ``step_ms`` and at ``knots``."""
+    on the cycle that starts at ``t_ED``), sampled every ``step_ms`` and at ``knots``.
+
+    Parameters
+    ----------
+    dvdt : callable
+        ``dvdt(t)``: the volume rate (mL/ms) at times t (ms).
+    t_ed, t_es : float
+        ED and ES times, ms.
+    rr : float
+        The beat length, ms.
+    step_ms : float
+        The sampling step, ms.
+    knots : iterable of float
+        More times sampled (the curve's knots), ms.
+
+    Returns
+    -------
+    dict of str to float
+        ``PER``, ``PEFR``, ``PAFR`` (mL/s) and ``E/A`` (NaN where a peak is not found).
+    """
     out = {}
     for col, (a, b) in rate_windows(t_ed, t_es, rr).items():
         t = np.unique(np.r_[np.arange(a, b, step_ms), b, [k for k in knots if a <= k <= b]])
@@ -210,6 +242,26 @@ def filling_rates(times_ms, volumes_ml, ed_index: int, es_index: int,
     ``ed_index``, ``es_index`` index them; ``rr_ms`` the beat length (ms); ``steps``: pairs
     ``(i, j)`` of indices of consecutive frames between which the set of slices holding the
     LV changes (the volume steps there; module docstring).
+
+    Parameters
+    ----------
+    times_ms : (n,) array_like
+        Frame times, ms.
+    volumes_ml : (n,) array_like
+        LV volumes, mL.
+    ed_index, es_index : int
+        The ED and ES frames' indices.
+    rr_ms : float or None
+        The beat length, ms; None: from the frame times.
+    steps : iterable of (int, int)
+        As above.
+
+    Returns
+    -------
+    columns : dict of str to float
+        docs/metrics.md rate column -> mL/s (E/A dimensionless).
+    reason : str
+        Why they are NaN ("" when measured).
     """
     t = np.asarray(times_ms, float)
     v = np.asarray(volumes_ml, float)
@@ -254,7 +306,20 @@ def _beat_intervals(beat_index: np.ndarray, steps) -> list[int]:
 
 def model_filling_rates(model: "BiventricularModel") -> tuple[dict[str, float], str]:
     """Rates of a model's LV cavity volume curve (every reconstructed frame; the cavity of
-    each frame from :meth:`BiventricularModel.lv_cavity_volume`)."""
+    each frame from :meth:`BiventricularModel.lv_cavity_volume`).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+
+    Returns
+    -------
+    columns : dict of str to float
+        As :func:`filling_rates`.
+    reason : str
+        Why they are NaN ("" when measured).
+    """
     frames = list(getattr(model, "curve_frames", model.frames))
     if len(frames) < MIN_FRAMES:
         return _nan_rates(f"{len(frames)} reconstructed frames: filling rates need >= {MIN_FRAMES}")

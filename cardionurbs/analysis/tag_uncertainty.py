@@ -66,7 +66,20 @@ def mean_se(values: np.ndarray, lines: np.ndarray | None = None) -> float:
     two tag lines (sa1, sa2 index) each value's point lies on, two-way cluster-robust
     (Cameron, Gelbach & Miller, *J Bus Econ Stat* 29:238-249, 2011): V = V_sa1 + V_sa2 −
     V_point, each V = Σ_g (Σ_{i∈g} r_i)² / n² with the small-sample factor G / (G − 1), and
-    never below any of the three (the points of one tag line share that line's error)."""
+    never below any of the three (the points of one tag line share that line's error).
+
+    Parameters
+    ----------
+    values : (n,) ndarray
+        The values (any unit).
+    lines : (n, 2) ndarray of int or None
+        The (sa1, sa2) tag indices of each value's point; None: i.i.d.
+
+    Returns
+    -------
+    float
+        In the values' unit.
+    """
     v = np.asarray(values, float)
     n = len(v)
     r = v - v.mean()
@@ -100,6 +113,8 @@ def level_statistics(tags: Any, es_frame: int, apex: np.ndarray, base: np.ndarra
         The frame the levels were measured at.
     apex, base : (3,) mm
         The ED long axis the rotations were measured about.
+    clustered : bool
+        Cluster the rotation's standard error by tag line (False: i.i.d., for comparison).
 
     Returns
     -------

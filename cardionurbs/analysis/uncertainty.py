@@ -45,7 +45,10 @@ from cardionurbs.analysis.tag_uncertainty import TAG_COVERED, tag_intervals
 from cardionurbs.geometry import polygon_area
 
 if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Sequence
+
     from cardionurbs.anatomy.model import BiventricularModel
+    from cardionurbs.study import Contour, Landmark
 
 METHOD = ("analytic propagation: contour scatter, between-slice interpolation, base and apex "
           "placement, ES sampling; tag-point scatter of the twist levels, level placement (LS), "
@@ -78,7 +81,17 @@ NAN = float("nan")
 class VolumeError:
     """One solid's volume error at one frame: standard deviations (mL) by source, the
     sources shared with the other frame (one error, not two), and one-sided allowances
-    (mL) the volume may lie above or below the Gaussian interval."""
+    (mL) the volume may lie above or below the Gaussian interval.
+
+    Attributes
+    ----------
+    sd : dict of str to float
+        Source -> standard deviation, mL.
+    shared : frozenset of str
+        The sources shared with the other frame.
+    above, below : float
+        The one-sided allowances, mL.
+    """
 
     sd: dict[str, float] = field(default_factory=dict)
     shared: frozenset = frozenset()
@@ -86,6 +99,12 @@ class VolumeError:
     below: float = 0.0
 
     def total(self) -> float:
+        """The root sum of squares of the sources' standard deviations, mL.
+
+        Returns
+        -------
+        float
+        """
         return math.sqrt(sum(v * v for v in self.sd.values()))
 
 
@@ -138,7 +157,22 @@ def _la_scatter(model: "BiventricularModel", frame: int, structure: str) -> floa
 def section_table(model: "BiventricularModel", frame: int, structure: str) -> dict:
     """The SA sections of one surface at one frame (base -> apex): levels (n,) mm along
     the stacking direction, areas (n,) mm², perimeters (n,) mm, σ (n,) mm and point
-    spacing ds (n,) mm of their contour points; contoured sections only."""
+    spacing ds (n,) mm of their contour points; contoured sections only.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    frame : int
+        The frame.
+    structure : str
+        The surface (``lv_endo`` ...).
+
+    Returns
+    -------
+    dict of str to (n,) ndarray
+        ``level``, ``area``, ``perimeter``, ``sigma``, ``ds`` ({} without sections).
+    """
     geo = model.geometry[frame]
     n = geo.direction
     secs = [s for s in model.sections[frame].get(structure, []) if not s.synthetic
@@ -192,7 +226,22 @@ def volume_error(model: "BiventricularModel", frame: int, structure: str) -> dic
     """Standard deviations (mL) of the volume inside one surface at one frame, by source
     (contours, pixels, between, base, apex; see the module docstring) and the one-sided
     allowances ``open base``, ``open apex`` (mL, volume the model may miss beyond an end
-    the stack leaves open); {} without sections."""
+    the stack leaves open); {} without sections.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    frame : int
+        The frame.
+    structure : str
+        The surface (``lv_endo`` ...).
+
+    Returns
+    -------
+    dict of str to float
+        Source -> mL.
+    """
     t = section_table(model, frame, structure)
     if not t or len(t["area"]) < 2:
         return {}
@@ -253,7 +302,21 @@ def solid_error(model: "BiventricularModel", frame: int, solid: str) -> VolumeEr
     ``rv_myocardium``) at one frame; None when its surfaces have no sections. A wall is the
     outer surface less the inner: their errors add in quadrature, except the base plane,
     which cuts both (its error is the wall's basal area times the plane's); an apex the
-    stack leaves open may add wall (the epicardium's) or take it (the endocardium's)."""
+    stack leaves open may add wall (the epicardium's) or take it (the endocardium's).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    frame : int
+        The frame.
+    solid : str
+        ``lv_cavity``, ``rv_cavity``, ``lv_myocardium`` or ``rv_myocardium``.
+
+    Returns
+    -------
+    VolumeError or None
+    """
     outer, inner = SOLIDS[solid]
     a = volume_error(model, frame, outer)
     if not a:
@@ -300,7 +363,8 @@ def _outflow_allowance(model: "BiventricularModel", frame: int, solid: str) -> f
     side = solid[:2]
     if solid not in ("lv_cavity", "rv_cavity"):
         return 0.0
-    evidence = model.study.landmarks_at(frame, "aortic" if side == "lv" else "pulmonary")
+    evidence: Sequence[Landmark | Contour] = model.study.landmarks_at(
+        frame, "aortic" if side == "lv" else "pulmonary")
     if side == "rv":
         evidence = evidence or model.study.contours_at(frame, "rv_outlet")
     labels = isinstance(model.study.meta, dict) and bool(model.study.meta.get("voxel_volumes_ml"))
@@ -474,7 +538,18 @@ def _ratio(a, b) -> float:
 
 def interval_columns(uncertainty: dict) -> dict[str, float]:
     """``<column> lo95`` and ``<column> hi95`` (NaN where there is no interval) of an
-    :func:`intervals` result: the cohort CSV's columns."""
+    :func:`intervals` result: the cohort CSV's columns.
+
+    Parameters
+    ----------
+    uncertainty : dict
+        An :func:`intervals` result.
+
+    Returns
+    -------
+    dict of str to float
+        Column -> bound, in the metric's unit.
+    """
     out = {}
     for c in ALL_COVERED:
         iv = uncertainty.get(c)
@@ -500,7 +575,24 @@ def _column_named(name: str) -> str | None:
 
 def parse_max_halfwidth(text: str) -> dict[str, float]:
     """``"LVEF=5,LVEDV=10"`` -> {``"LVEF (%)"``: 5.0, ``"LVEDV (mL)"``: 10.0}; ValueError (one
-    line naming the item) for an unknown metric or a limit that is not a number > 0."""
+    line naming the item) for an unknown metric or a limit that is not a number > 0.
+
+    Parameters
+    ----------
+    text : str
+        Comma-separated ``metric=limit`` items (metric names as in docs/metrics.md, without
+        the unit).
+
+    Returns
+    -------
+    dict of str to float
+        Column -> largest half-width, the column's unit.
+
+    Raises
+    ------
+    ValueError
+        An unknown metric or a limit that is not a number > 0.
+    """
     out: dict[str, float] = {}
     for item in (t.strip() for t in text.split(",")):
         if not item:
@@ -526,7 +618,19 @@ def parse_max_halfwidth(text: str) -> dict[str, float]:
 def halfwidth_flags(uncertainty: dict, limits: dict[str, float]) -> list[str]:
     """Quality flags of an :func:`intervals` result against half-width ``limits`` (column ->
     largest half-width, the column's unit): one per column whose interval is wider, or
-    missing (with the reason)."""
+    missing (with the reason).
+
+    Parameters
+    ----------
+    uncertainty : dict
+        An :func:`intervals` result.
+    limits : dict of str to float
+        Column -> largest half-width.
+
+    Returns
+    -------
+    list of str
+    """
     flags = []
     for col, limit in limits.items():
         iv = uncertainty.get(col)

@@ -49,6 +49,7 @@ evidence, no RVOT wall.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -341,12 +342,13 @@ def _into_ventricle(direction: np.ndarray, body: Plane) -> np.ndarray:
 def _annulus(points: np.ndarray, axis_guess: np.ndarray) -> tuple[Plane, np.ndarray, float]:
     """Valve plane, centre and radius of annulus points."""
     plane = valve_plane(points, axis_guess)
-    if len(points) >= 3:
-        u, v = in_plane_basis(plane.normal)
-        xy = np.column_stack([(points - plane.origin) @ u, (points - plane.origin) @ v])
-        c2, r = section_circle(xy)
+    u, v = in_plane_basis(plane.normal)
+    xy = np.column_stack([(points - plane.origin) @ u, (points - plane.origin) @ v])
+    circle = section_circle(xy) if len(points) >= 3 else None
+    if circle is not None:
+        c2, r = circle
         centre = plane.origin + c2[0] * u + c2[1] * v
-    else:
+    else:                       # two points, or points that pin no circle (on one line)
         centre = points.mean(axis=0)
         r = 0.5 * float(np.linalg.norm(points[0] - points[-1]))
     return Plane(centre, plane.normal), centre, r
@@ -402,7 +404,7 @@ def _tract_runs(geo: FrameGeometry, structure: str, body: Plane,
 
 
 def build_tract(structure: str, annulus: np.ndarray | None, runs: list[np.ndarray],
-                body: Plane, fallback_axis: np.ndarray, loops: list[np.ndarray] = (),
+                body: Plane, fallback_axis: np.ndarray, loops: Sequence[np.ndarray] = (),
                 wall_mm: float = 0.0) -> OutflowTract | None:
     """One outflow tube (module docstring) from annulus points (None: the most distal
     outlet loop is the annulus), the tract's open contour runs (LA: their crossings with
@@ -626,7 +628,7 @@ def ring_through_crossings(ring: np.ndarray, normal: np.ndarray, crossings: np.n
 
 def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarray],
                body: Plane, direction: np.ndarray, ref: np.ndarray,
-               runs: list[np.ndarray] = ()) -> OutflowTract | None:
+               runs: Sequence[np.ndarray] = ()) -> OutflowTract | None:
     """An outflow tube lofted through its outlet loops (SA ``rv_outlet`` contours, planes
     across the tract): from the valve ring (:func:`annulus_ring`; without annulus points
     the most basal loop closes the tract) through the loops in stacking order to the
@@ -701,12 +703,12 @@ def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarra
                 rings.append(prev)
         # the end ring as the last stretched one (no crossings past the body's plane)
         rings.append(prev + (depth - h_prev) * n)
-    rings = np.asarray(rings)
-    centres = rings.mean(axis=1)
+    stack = np.asarray(rings)
+    centres = stack.mean(axis=1)
     levels = (centres - valve.origin) @ valve.normal
-    radii = np.linalg.norm(rings - centres[:, None], axis=2).mean(axis=1)
+    radii = np.linalg.norm(stack - centres[:, None], axis=2).mean(axis=1)
     return OutflowTract(structure, valve, body, valve.normal, levels, centres, radii, ev,
-                        rings=rings)
+                        rings=stack)
 
 
 def offset_tract(endo: OutflowTract, epi_points: np.ndarray, structure: str = "rv_epi"

@@ -693,7 +693,7 @@ def study_long_axis(study: Study, frame: int | None = None) -> tuple[np.ndarray,
                      stack_direction=direction, where=f"frame {frame}")
 
 
-def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.ndarray, np.ndarray]]]:
+def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str, np.ndarray, np.ndarray]]]:
     """Closed SA loops per surface: (slice, ordered loop points, source points).
 
     Closed contours are ordered; CAP open parts are joined: rv_endo =
@@ -715,7 +715,7 @@ def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.n
     return out
 
 
-_Loops = dict[str, list[tuple[str | None, np.ndarray, np.ndarray]]]
+_Loops = dict[str, list[tuple[str, np.ndarray, np.ndarray]]]
 
 
 def _lv_slice_loops(sl: str, d: dict[str, list[Contour]], sept: list[np.ndarray],

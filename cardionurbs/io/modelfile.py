@@ -292,7 +292,26 @@ def _npz_bytes(members: dict[str, np.ndarray]) -> bytes:
 
 def write_model_file(model_dict: dict, path: str | os.PathLike) -> Path:
     """Write a model dict compactly: ``.json`` (streams base64 inline) or ``.npz``,
-    atomically; returns ``path``."""
+    atomically.
+
+    Parameters
+    ----------
+    model_dict : dict
+        The version-1 model dict (:meth:`BiventricularModel.to_dict
+        <cardionurbs.anatomy.model.BiventricularModel.to_dict>`).
+    path : str or os.PathLike
+        The file to write; its suffix, ``.json`` or ``.npz``, chooses the container.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    ExportError
+        A suffix other than ``.json`` or ``.npz``.
+    """
     path = Path(path)
     header, streams = pack(model_dict)
     if path.suffix.lower() == ".npz":
@@ -312,7 +331,24 @@ def write_model_file(model_dict: dict, path: str | os.PathLike) -> Path:
 
 
 def read_model_file(path: str | os.PathLike) -> dict:
-    """The version-1 dict of a ``model.json`` (version 1 or 2) or ``model.npz``."""
+    """The version-1 dict of a ``model.json`` (version 1 or 2) or ``model.npz``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The model file.
+
+    Returns
+    -------
+    dict
+        The model dict :meth:`BiventricularModel.from_dict
+        <cardionurbs.anatomy.model.BiventricularModel.from_dict>` reads.
+
+    Raises
+    ------
+    ExportError
+        The file cannot be read or is not a cardionurbs model file.
+    """
     path = Path(path)
     try:
         if path.suffix.lower() == ".npz":

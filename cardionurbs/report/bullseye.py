@@ -20,6 +20,7 @@ import textwrap
 import matplotlib
 import numpy as np
 from matplotlib import cm, colors
+from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from cardionurbs.io import atomic
@@ -168,13 +169,13 @@ class BullseyeCanvas:
 
     def __init__(self) -> None:
         self.fig = Figure(figsize=(4.6, 4.4), dpi=100)
-        self.ax = self.fig.add_axes([0.03, 0.14, 0.66, 0.74], projection="polar")
+        self.ax = self.fig.add_axes((0.03, 0.14, 0.66, 0.74), projection="polar")
         draw_bullseye(self.ax, {}, cmap="viridis")
         self.bars = list(self.ax.containers[0])
         self.labels = list(self.ax.texts)
         self.title = self.fig.suptitle("", fontsize=9)
         self.caption = self.fig.text(0.02, 0.02, "", fontsize=6.5, ha="left", va="bottom")
-        self.cax = None
+        self.cax: Axes | None = None
 
     def render(self, values: Mapping[int, float], title: str, unit: str, path: Path, *,
                cmap: str = "viridis", diverging: bool = False, caption: str = "",
@@ -218,7 +219,7 @@ class BullseyeCanvas:
             t.set_color(c)
         if self.cax is not None:
             self.cax.remove()
-        self.cax = self.fig.add_axes([0.74, 0.2, 0.04, 0.62])
+        self.cax = self.fig.add_axes((0.74, 0.2, 0.04, 0.62))
         sm = cm.ScalarMappable(norm=norm, cmap=matplotlib.colormaps[cmap])
         text = f"{label or title} ({unit})"
         if fixed:

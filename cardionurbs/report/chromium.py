@@ -146,7 +146,8 @@ class _Session:
     """CDP commands with ids; events are kept in order."""
 
     def __init__(self, ws: _WebSocket) -> None:
-        self.ws, self.next_id, self.events = ws, 0, []
+        self.ws, self.next_id = ws, 0
+        self.events: list[dict] = []
 
     def call(self, method: str, **params) -> dict:
         self.next_id += 1
@@ -246,7 +247,7 @@ def open_page(path: str | Path, *, chromium: str | None = None, width: int = 140
                     raise ChromiumError("chromium did not open its DevTools port in time")
                 time.sleep(0.05)
             port = int(port_file.read_text().split()[0])
-            targets = []
+            targets: list[dict] = []
             while not targets:
                 with urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=10) as r:
                     targets = [t for t in json.load(r) if t.get("type") == "page"]

@@ -476,8 +476,8 @@ def _new_figure(n_panels: int, caption: str, *, width: float = 4.6, height: floa
     if three_d:                 # a strip left of each 3-D axes for the orientation marker
         for ax in axes:
             b = ax.get_position()
-            ax.set_position([b.x0 + MARKER_STRIP * b.width, b.y0, (1 - MARKER_STRIP) * b.width,
-                             b.height])
+            ax.set_position((b.x0 + MARKER_STRIP * b.width, b.y0, (1 - MARKER_STRIP) * b.width,
+                             b.height))
     return fig, axes
 
 
@@ -687,10 +687,10 @@ def seen_colour(structure: str, alphas: Mapping[str, float], present: Sequence[s
     """
     own = _rgb(STRUCTURE_COLOURS[structure])
     cover = COVER.get(structure)
-    a = alphas.get(cover, 1.0) if cover in present else 0.0
-    if not 0.0 < a < 1.0:
+    a = alphas.get(cover, 1.0) if cover is not None and cover in present else 0.0
+    if cover is None or not 0.0 < a < 1.0:
         return STRUCTURE_COLOURS[structure]
-    return matplotlib.colors.to_hex(a * _rgb(STRUCTURE_COLOURS[cover]) + (1 - a) * own)
+    return matplotlib.colors.to_hex(tuple(a * _rgb(STRUCTURE_COLOURS[cover]) + (1 - a) * own))
 
 
 def fig03_lv_endo(ctx, out):
@@ -1086,7 +1086,7 @@ def fig18_labelmap_overlay(ctx, out):
     from cardionurbs.report.overlay import sa_overlay
 
     frames = sorted({ctx.ed, ctx.es})
-    panels = []
+    panels: list = []
     for f in frames:                  # the same slice at ES as at ED where it has contours
         res = sa_overlay(ctx.model.study, f, panels[0].slice) if panels else None
         if res is None or isinstance(res, str) or not res.contours.get("lv_endo"):
@@ -1244,13 +1244,19 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
         return drawn
 
     bullseyes = tuple(n for n in names if n in {q[0] for q in BULLSEYE_QUANTITIES})
-    groups = [(n,) for n in names if n not in bullseyes] + ([bullseyes] if bullseyes else [])
-    here = ()
+    groups: list[tuple[str, ...] | None] = [(n,) for n in names if n not in bullseyes]
+    groups += [bullseyes] if bullseyes else []
+    here: set | tuple = ()
     if meanwhile is not None:
         groups, here = [None, *groups], {None}
-    drawn = {}
-    for g, res in zip(groups, fork_map(lambda g: meanwhile() if g is None else draw(g), groups,
-                                       jobs=jobs, here=here)):
+    drawn: dict = {}
+
+    def work(g):
+        if g is None:                          # the caller's own work, in this process
+            assert meanwhile is not None
+            return meanwhile()
+        return draw(g)
+    for g, res in zip(groups, fork_map(work, groups, jobs=jobs, here=here)):
         if g is not None:
             drawn.update(res)
     for name in names:

@@ -264,7 +264,7 @@ def _tag_groups(fig_dir: Path, fig_index: dict | None, origin: np.ndarray, pool:
     return groups, td.get("flags", []), None
 
 
-def _metric_rows(metrics: dict, truth: dict | None) -> list[dict]:
+def _metric_rows(metrics: dict, truth: Mapping | None) -> list[dict]:
     """One row per measured metric with the phantom truth and the difference beside it, its
     reference range and flag (metrics.json ``ranges``), why it is null (``notes``), its
     quality flags and the surfaces they concern."""

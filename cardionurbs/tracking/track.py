@@ -1064,11 +1064,31 @@ def track_tags(study: Study, slices: list[str] | None = None,
     (untagged or faded series, spacing or orientation far from the expected) or
     :class:`StudyError` (missing DICOM files), naming file, slice and frame.
 
-    ``labels``: the study's segmentation as NIfTI label maps (a study read by
-    :func:`cardionurbs.io.nifti.read_study`, or its path) on the tagged images' pixel grid
-    (:mod:`cardionurbs.tracking.labelmaps`): the myocardial window and the clipping of the
-    lines then use the label maps' myocardium pixels, and the crop and the temporal prior
-    their contours, in every slice they cover; the other slices keep the study's contours.
+    Parameters
+    ----------
+    study : Study
+        A study whose images name tagged DICOM files (:func:`cardionurbs.io.load_study`).
+    slices : list of str or None
+        Only these slice ids; None: every slice with DICOM files and LV epicardial contours.
+    labels : Study, str, pathlib.Path or None
+        The study's segmentation as NIfTI label maps (a study read by
+        :func:`cardionurbs.io.nifti.read_study`, or its path) on the tagged images' pixel grid
+        (:mod:`cardionurbs.tracking.labelmaps`): the myocardial window and the clipping of the
+        lines then use the label maps' myocardium pixels, and the crop and the temporal prior
+        their contours, in every slice they cover; the other slices keep the study's contours.
+
+    Returns
+    -------
+    Study
+        A copy of ``study`` with the tracked :class:`~cardionurbs.study.TagLine` s (scanner
+        mm) and ``meta["tag_tracking"]``.
+
+    Raises
+    ------
+    TagTrackingError
+        An untagged or faded series, or a tag spacing or orientation far from the expected.
+    StudyError
+        Missing DICOM files (naming file, slice and frame).
     """
     by_slice = _tracked_slices(study, slices)
     expected = expected_tag_planes(study)
