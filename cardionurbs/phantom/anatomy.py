@@ -69,7 +69,18 @@ from cardionurbs.phantom.shape import ShapeModes
 
 @lru_cache(maxsize=None)
 def gauss_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Gauss–Legendre nodes and weights on [0, 1] (cached per n)."""
+    """Gauss–Legendre nodes and weights on [0, 1] (cached per n: :func:`functools.lru_cache`).
+
+    Parameters
+    ----------
+    n : int
+        Number of nodes.
+
+    Returns
+    -------
+    nodes, weights : (n,) float64 ndarray
+        Nodes in (0, 1) and their weights (summing to 1); shared, not to be modified.
+    """
     x, w = np.polynomial.legendre.leggauss(n)
     return 0.5 * (x + 1.0), 0.5 * w
 
