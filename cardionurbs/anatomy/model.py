@@ -619,6 +619,21 @@ class BiventricularModel:
         See :meth:`solids` for the booleans. Each mesh is checked watertight with
         consistent outward winding; ReconstructionError names the mesh and frame
         on failure.
+
+        Parameters
+        ----------
+        frame : int
+            A reconstructed frame.
+
+        Returns
+        -------
+        dict of str to trimesh.Trimesh
+            Mesh name -> closed manifold mesh, scanner mm.
+
+        Raises
+        ------
+        ReconstructionError
+            A mesh that is not watertight with outward winding (naming the mesh and frame).
         """
         return {k: meshing.to_trimesh(m, what=k, frame=frame)
                 for k, m in self.solids(frame).items()}
@@ -626,7 +641,18 @@ class BiventricularModel:
     def mesh_arrays(self, frame: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """The closed meshes of :meth:`meshes` as plain (vertices (V, 3) mm, faces (F, 3))
         arrays, checked closed and outward (:func:`cardionurbs.anatomy.mesh.mesh_arrays`),
-        without trimesh: what is written to files (not cached)."""
+        without trimesh: what is written to files (not cached).
+
+        Parameters
+        ----------
+        frame : int
+            A reconstructed frame.
+
+        Returns
+        -------
+        dict of str to (vertices (V, 3) ndarray of float, faces (F, 3) ndarray of int64)
+            Mesh name -> its arrays, mm.
+        """
         if frame in self.meshes:
             return {k: (np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64))
                     for k, tm in self.meshes(frame).items()}
@@ -654,7 +680,18 @@ class BiventricularModel:
         max_px, for the given frames (default ED and ES); see :meth:`point_residuals`
         for which points and which distance. Empty for a model read back without its
         study's contours. The same numbers without pandas: :meth:`residual_columns`
-        (:func:`cardionurbs.anatomy.residuals.residual_table`)."""
+        (:func:`cardionurbs.anatomy.residuals.residual_table`).
+
+        Parameters
+        ----------
+        frames : iterable of int or None
+            The frames; None: ED and ES.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per contour; distances in mm and pixels.
+        """
         return fit_residuals.residual_table(self.point_residual_arrays(frames))
 
     def residual_columns(self, frames=None) -> dict[str, np.ndarray]:
@@ -694,7 +731,13 @@ class BiventricularModel:
     # ------------------------------------------------------------- (de)serialise (anatomy.serialise)
     def to_dict(self) -> dict:
         """JSON-safe model: surfaces (NURBS), valve planes, apex points, SA sections, outflow
-        tracts (frames that have them), ED/ES (:func:`cardionurbs.anatomy.serialise.encode`)."""
+        tracts (frames that have them), ED/ES (:func:`cardionurbs.anatomy.serialise.encode`).
+
+        Returns
+        -------
+        dict
+            The version-1 model dict (:mod:`cardionurbs.io.modelfile` writes it compactly).
+        """
         return serialise.encode(self)
 
     @classmethod
@@ -702,7 +745,19 @@ class BiventricularModel:
         """Inverse of :meth:`to_dict` (the Study is reduced to subject, heart rate,
         ED/ES labels and the apex/mitral landmarks unless ``study`` is given); also reads
         the compact version-2 dict of a model.json (:mod:`cardionurbs.io.modelfile`;
-        :func:`cardionurbs.anatomy.serialise.decode`)."""
+        :func:`cardionurbs.anatomy.serialise.decode`).
+
+        Parameters
+        ----------
+        d : dict
+            A model dict (version 1, or the compact version 2 of a model.json).
+        study : Study or None
+            The study the model was reconstructed from; None: a reduced one.
+
+        Returns
+        -------
+        BiventricularModel
+        """
         return cls(**serialise.decode(d, study))
 
 
