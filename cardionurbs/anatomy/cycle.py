@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -304,7 +305,7 @@ def _between(geo: FrameGeometry, structure: str, sec: Section) -> bool:
 #: slice's area interpolated in time (linear, from the nearest frames that trace it) and its
 #: ratio to each adjacent slice of its stack below this fraction of that ratio interpolated
 #: likewise (a fifth of it missing: on phantoms at 1 px noise, 20 frames, no section whose
-#: shortfall matters falls below 0.92 on both, reports/validation-quality.md)
+#: shortfall matters falls below 0.91 on both, reports/validation-quality.md)
 PARTIAL_AREA_FRACTION = 0.8
 #: ... and the area it lacks exceeds this fraction of the frame's largest section of that
 #: surface (an apical section a few mm² across may halve from one frame to the next; a
@@ -331,10 +332,21 @@ def section_areas(geo: FrameGeometry) -> dict[str, dict[str, float]]:
         surface -> slice -> area in mm² (interpolated sections and sections without a
         slice left out), the slices in the frame's stack order (base -> apex).
     """
-    from cardionurbs.geometry import polygon_area
-    return {s: {sec.slice: float(polygon_area(sec.points, geo.direction)) for sec in secs
+    return {s: {sec.slice: _area(sec, geo.direction) for sec in secs
                 if sec.slice is not None and (s, sec.slice) not in geo.in_time}
             for s, secs in geo.sections.items()}
+
+
+#: section -> (direction, area in mm²): every frame's areas are asked for at every frame
+_AREAS: "weakref.WeakKeyDictionary[Section, tuple[np.ndarray, float]]" = weakref.WeakKeyDictionary()
+
+
+def _area(sec: Section, direction: np.ndarray) -> float:
+    from cardionurbs.geometry import polygon_area
+    got = _AREAS.get(sec)
+    if got is None or not np.array_equal(got[0], direction):
+        got = _AREAS[sec] = (np.array(direction), float(polygon_area(sec.points, direction)))
+    return got[1]
 
 
 def _areas_or_none(raw: Mapping[int, FrameGeometry], frame: int) -> dict[str, dict[str, float]]:
