@@ -4,6 +4,8 @@
     python benchmarks/labelmaps.py benchmark    # -> reports/benchmark-nifti.md
     python benchmarks/labelmaps.py realconv     # ACDC-as-distributed phantoms, printed
     python benchmarks/labelmaps.py acdc         # ../shared/data/acdc per patient, printed
+    python benchmarks/labelmaps.py quirks       # phantoms in every --label-quirks set, printed
+    python benchmarks/labelmaps.py per50        # PER of 50-frame SA-only ukbb maps, printed
 
 realconv: phantoms (normal, MR, PHTN; seeds 0-1; 10 and 5 mm SA slices, the first 0.6 spacing
 below the ED base) written in the ACDC
@@ -359,24 +361,9 @@ REAL_KEYS = (*VOLS, "LVM (g)", "LVEF (%)", "RVEF (%)")
 SPACINGS = tuple(float(x) for x in os.environ.get("REALCONV_SPACINGS", "10,5").split(","))
 
 
-def _generate_first_offset(offset_mm: float, **kw):
-    """generate() with the first SA slice ``offset_mm`` below the ED base (the phantom's
-    Acquisition default is 6 mm: wider than a 5 mm stack's spacing, a slice a real
-    acquisition would have is then missing)."""
-    import functools
-    gen_mod = sys.modules[generate.__module__]
-    acq = gen_mod.Acquisition
-    gen_mod.Acquisition = functools.partial(acq, sa_first_offset_mm=offset_mm)
-    try:
-        return generate(**kw)
-    finally:
-        gen_mod.Acquisition = acq
-
-
 def realconv_subject(pathology: str, seed: int, spacing: float, work: Path) -> dict:
-    ph = _generate_first_offset(min(6.0, 0.6 * spacing), pathology=pathology, seed=seed,
-                                frames=20, matrix=208, fov_mm=FOV_MM, volume_check=False,
-                                sa_spacing_mm=spacing, sa_thickness_mm=min(8.0, spacing))
+    ph = generate(pathology=pathology, seed=seed, frames=20, matrix=208, fov_mm=FOV_MM,
+                  volume_check=False, sa_spacing_mm=spacing, sa_thickness_mm=min(8.0, spacing))
     folder = work / f"{pathology}{seed}_{spacing:g}"
     write_labelmaps(ph, folder, "acdc", frames=[0, ph.es_frame], images=False)
     as_distributed_acdc(folder)
@@ -418,6 +405,109 @@ def realconv() -> None:
                   f"| {int((a <= v).sum())} of {len(sub)} |")
 
 
+#: (layout, --label-quirks) of the convention table: every quirk of docs/formats.md
+QUIRK_SETS = [("acdc", "real"), ("acdc", "real,apex-first"), ("acdc", "real,lps"), ("acdc", "real,pv"),
+              ("acdc", "base-first"), ("acdc", "lps,apex-first,pv"), ("ukbb", "real")]
+#: (SA spacing, SA thickness) mm of the convention table
+QUIRK_STACKS = ((10.0, 8.0), (5.0, 5.0))
+
+
+def quirks_subject(ph, layout: str, quirks: str, work: Path) -> dict:
+    """One phantom written as ``phantom --labels LAYOUT --label-quirks QUIRKS --no-dicom`` does
+    (write_phantom), read back as ``analyze`` does and measured against its truth."""
+    from cardionurbs.phantom.generate import write_phantom
+    folder = work / f"{layout}_{quirks}"
+    write_phantom(ph, folder, dicom=False, labels=layout, label_quirks=quirks)
+    study = load_study(folder / "labelmaps")
+    _, m = analyse_study(study)
+    t = ph.truth["metrics"]
+    row = {"layout": layout, "quirks": quirks}
+    for k in REAL_KEYS:
+        row[k] = metric_error(k, m[k], t[k])
+        row[k.replace(" (", " voxel (")] = metric_error(k, m[k.replace(" (", " voxel (")], t[k])
+    return row
+
+
+def quirks_table() -> None:
+    """Normal, MR, PHTN (seed 0, 20 frames, the CLI's 256 pixels) at 10 and 5 mm slices in every
+    quirk set of QUIRK_SETS: model and voxel-count errors against the truth, printed."""
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for spacing, thick in QUIRK_STACKS:
+            for p in ("normal", "mr", "phtn"):
+                ph = generate(p, seed=0, frames=20, sa_spacing_mm=spacing, sa_thickness_mm=thick)
+                for layout, q in QUIRK_SETS:
+                    r = quirks_subject(ph, layout, q, Path(tmp))
+                    rows.append({"pathology": p, "spacing": spacing, **r})
+                    print(p, spacing, layout, q, file=sys.stderr, flush=True)
+    print("| pathology | slices (mm) | layout | quirks | " + " | ".join(k.split(" ")[0] for k in REAL_KEYS) + " |")
+    print("|---|---|---|---|" + "---|" * len(REAL_KEYS))
+    for r in rows:
+        print(f"| {r['pathology']} | {r['spacing']:g} | {r['layout']} | {r['quirks']} | "
+              + " | ".join(f"{r[k]:+.2f} / {r[k.replace(' (', ' voxel (')]:+.2f}" for k in REAL_KEYS) + " |")
+    print("\n| slices (mm) | metric | model mean abs (max abs) | voxel mean abs (max abs) | model closer on |")
+    print("|---|---|---|---|---|")
+    for spacing, _ in QUIRK_STACKS:
+        sub = [r for r in rows if r["spacing"] == spacing]
+        for k in REAL_KEYS:
+            a = np.abs([r[k] for r in sub])
+            v = np.abs([r[k.replace(" (", " voxel (")] for r in sub])
+            print(f"| {spacing:g} | {k} | {a.mean():.2f} ({a.max():.2f}) | {v.mean():.2f} ({v.max():.2f}) "
+                  f"| {int((a <= v).sum())} of {len(sub)} |")
+
+
+#: (matrix, field of view mm) of the 50-frame PER table: 1.44, 1.8 and 2.34 mm pixels
+PER_GRIDS = ((208, 300.0), (160, 288.0), (128, 300.0))
+
+
+def per50_row(pathology: str, matrix: int, fov: float, work: Path) -> str:
+    """One row of the 50-frame ukbb-layout PER table (SA only, 8 mm slices, header as UK
+    Biobank writes it): steps, kappa, PER and PEFR errors (%), PER with kappa from the stroke
+    volume and with the plain spline."""
+    from scipy.interpolate import CubicSpline
+
+    from cardionurbs.analysis import rates
+    ph = generate(pathology, seed=0, frames=50, matrix=matrix, fov_mm=fov, n_sa=10,
+                  sa_spacing_mm=8.0, volume_check=False)
+    folder = work / f"{pathology}_{matrix}"
+    write_labelmaps(ph, folder, "ukbb", quirks="real", images=False)
+    for q in folder.glob("seg*la*"):
+        q.unlink()
+    model, m = analyse_study(load_study(folder))
+    frames = list(model.curve_frames)
+    times = [model.study.frame_times_ms[f] for f in frames]
+    vols = np.array([model.consistent_lv_cavity_volume(f) for f in frames])
+    pairs = rates.extent_steps(model.study, frames, times)
+    rr = times[-1] - times[0] + float(np.median(np.diff(times)))
+    tc, vc = np.r_[times, times[0] + rr], np.r_[vols, vols[0]]
+    ks = sorted(rates._beat_intervals(np.arange(len(frames)), pairs))
+    jumps = rates.step_sizes(tc, vc, ks)
+    sm = vc.copy()
+    for k, j in zip(ks, jumps):
+        sm[k + 1:] -= j
+    sm -= jumps.sum() * (tc - tc[0]) / (tc[-1] - tc[0])
+    es, t = model.es_frame, ph.truth["metrics"]
+    kappa = rates.base_share(tc, sm, ks, jumps)
+    k_sv = (vc[0] - vc[es]) / (sm[0] - sm[es]) - 1
+    spline = CubicSpline(tc, sm, bc_type="natural")
+    sv_per = rates.peak_rates(lambda x: (1 + k_sv) * spline(x, 1), tc[0], tc[es], rr)["PER (mL/s)"]
+    plain, _ = rates.filling_rates(times, vols, 0, frames.index(es), None)
+    e = {c: metric_error(c, v, t["PER (mL/s)"]) for c, v in (("PER", m["PER (mL/s)"]), ("sv", sv_per),
+                                                              ("plain", plain["PER (mL/s)"]))}
+    return (f"| {pathology} | {fov / matrix:.2f} | {ks} | "
+            f"{kappa if np.isfinite(kappa) else k_sv:.2f}{'' if np.isfinite(kappa) else ' (SV)'} | "
+            f"{e['PER']:+.1f} | {metric_error('PEFR (mL/s)', m['PEFR (mL/s)'], t['PEFR (mL/s)']):+.1f} | "
+            f"{e['sv']:+.1f} | {e['plain']:+.1f} |")
+
+
+def per50() -> None:
+    """The 50-frame PER table of reports/validation-labelmaps.md, printed."""
+    with tempfile.TemporaryDirectory() as tmp:
+        for matrix, fov in PER_GRIDS:
+            for p in ("normal", "mr", "phtn"):
+                print(per50_row(p, matrix, fov, Path(tmp)), flush=True)
+
+
 def acdc(root: Path = ROOT.parent / "shared" / "data" / "acdc") -> None:
     keys = ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "RVESV (mL)", "LVM (g)", "LVEF (%)", "RVEF (%)")
     print("| patient | group | orientation | ES valve plane | " + " | ".join(
@@ -450,11 +540,11 @@ def study_roles():
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("what", choices=["validation", "benchmark", "realconv", "acdc"])
+    ap.add_argument("what", choices=["validation", "benchmark", "realconv", "acdc", "quirks", "per50"])
     args = ap.parse_args()
     reports = ROOT / "reports"
-    if args.what in ("realconv", "acdc"):
-        (realconv if args.what == "realconv" else acdc)()
+    if args.what in ("realconv", "acdc", "quirks", "per50"):
+        {"realconv": realconv, "acdc": acdc, "quirks": quirks_table, "per50": per50}[args.what]()
     elif args.what == "validation":
         validation(reports / "validation-labelmaps.md")
     else:

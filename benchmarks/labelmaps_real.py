@@ -1,6 +1,6 @@
 """Label maps in the real datasets' conventions to metrics, voxel counting timed beside (issue 29).
 
-    python benchmarks/labelmaps_real.py     # -> the "Real conventions" section of reports/benchmark-nifti.md
+    python benchmarks/labelmaps_real.py [REPS]   # -> the "Real conventions" section of reports/benchmark-nifti.md
 
 * a 2-frame ACDC patient, as distributed (../shared/data/acdc, the first patient folder found;
   unit-scale sform code 2, spacing in pixdim), and the same with a phantom written with
@@ -55,15 +55,18 @@ def _voxels(paths: list[Path], preset: str) -> dict:
     return out
 
 
-def _voxel_per(folder: Path, model) -> float:
-    """PER (mL/s) of the voxel-count LV curve of a ukbb folder (the same spline as the model's)."""
-    from cardionurbs.analysis.rates import filling_rates
+def _voxel_per(folder: Path, model) -> tuple[float, float]:
+    """PER (mL/s) of the voxel-count LV curve of a ukbb folder: the plain spline, and with the
+    slab steps taken out as the model's curve is (analysis.rates)."""
+    from cardionurbs.analysis.rates import extent_steps, filling_rates
     st = load_study(folder)
     fr = sorted(st.meta["voxel_volumes_ml"])
-    rates, _ = filling_rates([st.frame_times_ms[f] for f in fr],
-                             [st.meta["voxel_volumes_ml"][f]["lv_cavity"] for f in fr],
-                             fr.index(model.ed_frame), fr.index(model.es_frame))
-    return rates["PER (mL/s)"]
+    times = [st.frame_times_ms[f] for f in fr]
+    args = (times, [st.meta["voxel_volumes_ml"][f]["lv_cavity"] for f in fr],
+            fr.index(model.ed_frame), fr.index(model.es_frame))
+    plain, _ = filling_rates(*args)
+    stepped, _ = filling_rates(*args, steps=extent_steps(st, fr, times))
+    return plain["PER (mL/s)"], stepped["PER (mL/s)"]
 
 
 def _row(name: str, wall, cpu) -> str:
@@ -107,8 +110,9 @@ def cases(tmp: Path, reps: int) -> tuple[list[str], list[str]]:
         notes.append(f"ukbb 50 frames, {label}: ED {model.ed_frame}, ES {model.es_frame} (truth ES "
                      f"{big.es_frame}); PER {per:.1f} mL/s vs truth {per_t:.1f} "
                      f"({100 * (per / per_t - 1):+.1f} %); LVESV {m['LVESV (mL)']:.1f} vs "
-                     f"{truth['LVESV (mL)']:.1f} mL; the voxel-count curve's PER "
-                     f"{_voxel_per(folder, model):.1f} mL/s.")
+                     f"{truth['LVESV (mL)']:.1f} mL; "
+                     "the voxel-count curve's PER {:.1f} mL/s (spline), {:.1f} with its steps "
+                     "taken out.".format(*_voxel_per(folder, model)))
     return rows, notes
 
 
@@ -133,4 +137,4 @@ def main(reps: int = 3) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main(int(sys.argv[1]) if len(sys.argv) > 1 else 3)

@@ -58,11 +58,13 @@ NOISE = (0.0, 0.5, 1.0)
 BREATH = (0.0, 1.5)
 
 
-def conditions(n: int, seed0: int = 100) -> list[dict]:
+def conditions(n: int, seed0: int = 100, first: int = 0) -> list[dict]:
     """n subject conditions: the inputs cycled fastest, then pathology, anatomy, noise and
-    breath-hold by coprime strides, so every factor meets every other over a few dozen."""
+    breath-hold by coprime strides, so every factor meets every other over a few dozen.
+    ``first``: start at the design's row ``first`` (seed seed0 + first), so that one run of
+    60 may be measured as two processes of 30."""
     out = []
-    for k in range(n):
+    for k in range(first, first + n):
         inp = INPUTS[k % len(INPUTS)]
         out.append({"seed": seed0 + k, "input": inp,
                     "pathology": PATHOLOGIES[k % 3 if k % 2 else (k // 2) % 3],
@@ -302,6 +304,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--subjects", type=int, default=12)
     ap.add_argument("--seed0", type=int, default=100)
+    ap.add_argument("--first", type=int, default=0,
+                    help="start at this row of the design (seed SEED0 + FIRST)")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--raw", type=Path, default=None,
                     help="also write every subject's numbers (JSON lines) here")
@@ -321,7 +325,7 @@ def main(argv=None) -> int:
         if consts != RUN_CONSTANTS and not a.no_grid:   # the run's numbers, rescaled
             for r in rows:
                 r["unc"].update(rescaled(r, consts))
-    todo = ladder() if a.ladder else conditions(a.subjects, a.seed0)
+    todo = ladder() if a.ladder else conditions(a.subjects, a.seed0, a.first)
     for c in ([] if a.from_raw is not None else todo):
         try:
             rows.append(run_subject(c))

@@ -43,6 +43,8 @@ True
 from __future__ import annotations
 
 import importlib
+import sys
+import types
 
 from cardionurbs.errors import (CardioNurbsError, NurbsInputError, PhantomError,
                                 ReconstructionError, StudyError, TagError,
@@ -84,3 +86,22 @@ def __getattr__(name):
 
 def __dir__():
     return sorted(set(globals()) | set(_LAZY))
+
+
+class _Facade(types.ModuleType):
+    """The package's module type: ``cn.cohort`` stays the function, though importing the
+    submodule :mod:`cardionurbs.cohort` names it on the package (the import system's setattr
+    is ignored here; the submodule stays in ``sys.modules``, where ``from cardionurbs.cohort
+    import ...`` finds it)."""
+
+    @property
+    def cohort(self):
+        from cardionurbs.cohort import cohort
+        return cohort
+
+    @cohort.setter
+    def cohort(self, value) -> None:
+        pass
+
+
+sys.modules[__name__].__class__ = _Facade

@@ -27,7 +27,7 @@ import re
 import sys
 import time
 from pathlib import Path
-from typing import Iterable
+from typing import Any, Iterable
 
 import pandas as pd
 
@@ -97,15 +97,42 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
     allowed, in the column's unit): a wider (or missing) interval is a quality flag in ``QC``.
 
     ``strict``: a row whose metrics carry a quality flag (``QC`` not empty) is a
-    failure: ``status = "error: QC: <flags>"`` and its numbers are emptied."""
+    failure: ``status = "error: QC: <flags>"`` and its numbers are emptied.
+
+    Parameters
+    ----------
+    path : str
+        The study's folder (or single file).
+    format : str, optional
+        The study format (``"auto"``: detected; see :func:`cardionurbs.io.load_study`).
+    heart_rate_bpm : float or None, optional
+        Heart rate in beats/min for the rate metrics (None: the study's own, if any).
+    allow_outside : bool, optional
+        Let the study name files outside its folder (:func:`cardionurbs.confine.allow_outside`).
+    labels : str or None, optional
+        NIfTI label maps only: a preset (``acdc``, ``ukbb``, ``mnms``, ``bivme``) or a
+        ``lv=…,myo=…,rv=…`` mapping; None: the layout's preset or inferred roles.
+    strict : bool, optional
+        A quality flag makes the row a failure.
+    uncertainty : bool, optional
+        Add the 95 % interval columns.
+    max_halfwidth : dict of str to float, optional
+        Column -> largest interval half-width allowed, in the column's unit.
+
+    Returns
+    -------
+    dict
+        The row: ``subject``, ``status`` (``"ok"`` or ``"error: <one line>"``), every metric
+        column (mL, %, g, deg ...; NaN where not measured or on failure), ``QC``, the
+        interval, range, ``Sex``, ``warnings`` and ``notes`` cells.
+    """
     _test_fault(path)
-    row = {c: NAN for c in _NUMBERS}
+    row: dict[str, Any] = {c: NAN for c in _NUMBERS}
     row["subject"], row["warnings"], row["notes"] = Path(path).name, NAN, ""
     try:
         from cardionurbs.io import load_study
         from cardionurbs.pipeline import analyse_study
-        study = load_study(path, format=format, allow_outside=allow_outside,
-                           **({} if labels is None else {"labels": labels}))
+        study = load_study(path, format=format, allow_outside=allow_outside, labels=labels)
         row["subject"] = study.subject
         from cardionurbs.analysis.quality import assess
         model, metrics = analyse_study(study, heart_rate_bpm=heart_rate_bpm)
@@ -129,7 +156,27 @@ def measure_study(path: str, format: str = "auto", heart_rate_bpm: float | None 
 def measure_intervals(model, metrics: dict, row: dict, columns: bool,
                       max_halfwidth: dict[str, float] | None) -> dict:
     """The interval columns of one row (``columns``) and its ``QC`` with the half-width
-    flags of ``max_halfwidth`` added."""
+    flags of ``max_halfwidth`` added.
+
+    Parameters
+    ----------
+    model : cardionurbs.anatomy.model.BiventricularModel
+        The reconstructed model of the study.
+    metrics : dict
+        Its metrics (:func:`cardionurbs.pipeline.analyse_study`).
+    row : dict
+        The row so far (its ``QC`` cell is extended).
+    columns : bool
+        Return the ``<column> lo95`` / ``hi95`` columns too.
+    max_halfwidth : dict of str to float or None
+        Column -> largest interval half-width allowed, in the column's unit.
+
+    Returns
+    -------
+    dict
+        The interval columns (when ``columns``; in each metric's unit) and ``QC``: the row's
+        flags with the half-width flags appended (``"; "``-separated).
+    """
     iv = intervals(model, metrics)
     flags = halfwidth_flags(iv, max_halfwidth or {})
     qc = "; ".join([q for q in [row.get("QC") or ""] if q] + flags)
@@ -147,8 +194,21 @@ def _clinical_cells(model, metrics: dict) -> dict:
 
 
 def failure_row(path: str, reason: str) -> dict:
-    """The row of a study that gave no result (a hang, a dead worker): reason, empty numbers."""
-    row = {c: NAN for c in _NUMBERS}
+    """The row of a study that gave no result (a hang, a dead worker): reason, empty numbers.
+
+    Parameters
+    ----------
+    path : str
+        The study path (its last component becomes ``subject``).
+    reason : str
+        Why no result came (e.g. ``"timeout: 600 s"``); whitespace collapsed to one line.
+
+    Returns
+    -------
+    dict
+        A row with ``status = "error: <reason>"`` and every number NaN.
+    """
+    row: dict[str, Any] = {c: NAN for c in _NUMBERS}
     row["warnings"], row["notes"] = NAN, ""
     row["subject"] = Path(path).name
     row["status"] = f"error: {' '.join(str(reason).split())}"
@@ -165,6 +225,11 @@ class RowStore:
     the folder fsynced: once :meth:`put` returns the row survives a crash of the process
     or the machine. Rows are keyed by the study path as given (plus the format), so a
     rerun with the same arguments finds them.
+
+    Parameters
+    ----------
+    folder : path-like
+        The run directory (``--run-dir``); rows go to ``folder/rows``.
     """
 
     def __init__(self, folder: str | os.PathLike) -> None:
@@ -173,6 +238,20 @@ class RowStore:
 
     @staticmethod
     def key(path: str, format: str = "auto") -> str:
+        """The file stem of a row.
+
+        Parameters
+        ----------
+        path : str
+            The study path as given to the cohort run.
+        format : str, optional
+            The study format.
+
+        Returns
+        -------
+        str
+            20 hexadecimal digits of the SHA-1 of format and path.
+        """
         return hashlib.sha1(f"{format}\0{path}".encode()).hexdigest()[:20]
 
     def clear(self) -> None:
@@ -185,6 +264,17 @@ class RowStore:
                     f.unlink()
 
     def put(self, path: str, format: str, row: dict) -> None:
+        """Store one finished row durably (written, fsynced, renamed into place).
+
+        Parameters
+        ----------
+        path : str
+            The study path as given to the cohort run.
+        format : str
+            The study format it was measured with.
+        row : dict
+            The row (NaN numbers stored as JSON null).
+        """
         self.rows_dir.mkdir(parents=True, exist_ok=True)
         data = json.dumps({"path": path, "format": format,
                            "row": {k: (None if isinstance(v, float) and math.isnan(v) else v)
@@ -203,7 +293,21 @@ class RowStore:
             os.close(fd)
 
     def get(self, path: str, format: str = "auto") -> dict | None:
-        """The stored row of one study (NaN for empty numbers), or None."""
+        """The stored row of one study (NaN for empty numbers), or None.
+
+        Parameters
+        ----------
+        path : str
+            The study path as given to the cohort run.
+        format : str, optional
+            The study format the row was measured with.
+
+        Returns
+        -------
+        dict or None
+            The row (NaN for its empty numbers), or None when none is stored for this path and
+            format.
+        """
         f = self.rows_dir / f"{self.key(path, format)}.json"
         try:
             d = json.loads(f.read_text(encoding="utf-8"))
@@ -222,45 +326,72 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
            allow_outside: bool = False, labels: str | None = None,
            strict: bool = False, uncertainty: bool = True,
            max_halfwidth: dict[str, float] | None = None) -> pd.DataFrame:
-    """Measure every study: a DataFrame with ``subject``, ``status`` and the docs/metrics.md
-    columns in order, one row per path (input order); when any study is a label map
-    the voxel-count columns follow (``labels``: its convention, see load_study).
+    """Measure every study: a DataFrame, one row per path in input order, with ``subject``,
+    ``status`` (a failure's error) and the docs/metrics.md columns (label maps: voxel counts).
 
-    ``jobs``: worker processes (or Dask workers for ``dask="local"``); ``dask``: run on a
-    Dask cluster (``"local"`` or a scheduler address); ``timeout``: seconds per study
-    before it becomes an error row; ``run_dir``: store each finished row durably there
-    (:class:`RowStore`); ``resume``: keep the rows already in ``run_dir`` and measure only
-    the others; ``strict``: flagged rows are failures (:func:`measure_study`);
-    ``uncertainty``, ``max_halfwidth``: the 95 % interval columns and the half-width flags
-    (:func:`measure_study`).
+    Parameters
+    ----------
+    paths : iterable of str or os.PathLike
+        The study folders or files (as :func:`cardionurbs.io.load_study` takes them).
+    jobs : int
+        Worker processes (Dask workers for ``dask="local"``); 1: this process.
+    format, allow_outside, labels
+        Passed to :func:`cardionurbs.io.load_study` for every study.
+    progress, heart_rate_bpm : bool; float or None
+        A progress bar on stderr; the heart rate (bpm) of the studies that carry none.
+    dask, timeout : str or None; float or None
+        A Dask cluster (``"local"`` or a scheduler address); seconds per study before an error row.
+    run_dir, resume : str, os.PathLike or None; bool
+        Store each finished row durably in ``run_dir`` (:class:`RowStore`); resume from them.
+    strict, uncertainty, max_halfwidth
+        Flagged rows are failures; the 95 % interval columns; column -> largest 95 %
+        half-width (the column's unit) before a row is flagged (:func:`measure_study`).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Metrics in their docs/metrics.md units, NaN where a study cannot give one.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile, cardionurbs as cn
+    >>> from cardionurbs.phantom import generate, write_phantom
+    >>> phantom = generate("normal", seed=1, frames=2, n_sa=6, matrix=128, volume_check=False)
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> folder = write_phantom(phantom, pathlib.Path(tmp.name) / "p1", dicom=False)
+    >>> table = cn.cohort([folder])
+    >>> table.loc[0, "subject"], table.loc[0, "status"], bool(table.loc[0, "LVEDV (mL)"] > 0)
+    ('normal_001', 'ok', True)
+    >>> tmp.cleanup()
     """
     from cardionurbs.executor import TaskFailure, run_tasks
 
-    paths = [str(p) for p in paths]
+    studies = [str(p) for p in paths]
     store = RowStore(run_dir) if run_dir is not None else None
-    rows: list[dict | None] = [None] * len(paths)
+    rows: list[dict | None] = [None] * len(studies)
     if store is not None:
         if resume:
-            rows = [store.get(p, format) for p in paths]
+            rows = [store.get(p, format) for p in studies]
         else:
             store.clear()
     todo = [i for i, r in enumerate(rows) if r is None]
     bar = None
     if progress:
         from tqdm import tqdm
-        bar = tqdm(total=len(paths), initial=len(paths) - len(todo), desc="studies",
+        bar = tqdm(total=len(studies), initial=len(studies) - len(todo), desc="studies",
                    unit="study", file=sys.stderr)
 
     def finished(k: int, result) -> None:
         i = todo[k]
         if isinstance(result, TaskFailure):
-            row = failure_row(paths[i], result.message if result.kind == "error" else str(result))
+            row = failure_row(studies[i], result.message if result.kind == "error" else str(result))
         else:
             row = result
         if store is not None:
-            store.put(paths[i], format, row)
-            row = store.get(paths[i], format)      # exactly what a resumed run would read
-        rows[i] = row
+            store.put(studies[i], format, row)
+            rows[i] = store.get(studies[i], format)  # exactly what a resumed run would read
+        else:
+            rows[i] = row
         if bar is not None:
             bar.update(1)
 
@@ -268,13 +399,14 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
         if dask is None and jobs <= 1 and timeout is None:
             for k, i in enumerate(todo):             # in this process: no worker to start
                 try:
-                    result = measure_study(paths[i], format, heart_rate_bpm, allow_outside,
-                                           labels, strict, uncertainty, max_halfwidth)
+                    result: dict | TaskFailure = measure_study(
+                        studies[i], format, heart_rate_bpm, allow_outside, labels, strict,
+                        uncertainty, max_halfwidth)
                 except Exception as exc:  # noqa: BLE001 - as a worker would report it
                     result = TaskFailure("error", f"{type(exc).__name__}: {_one_line(exc)}")
                 finished(k, result)
         else:
-            run_tasks(measure_study, [(paths[i], format, heart_rate_bpm, allow_outside, labels,
+            run_tasks(measure_study, [(studies[i], format, heart_rate_bpm, allow_outside, labels,
                                        strict, uncertainty, max_halfwidth)
                                       for i in todo],
                       finished, jobs=jobs, dask=dask, timeout=timeout)
@@ -291,7 +423,18 @@ def cohort(paths: Iterable[str | os.PathLike], jobs: int = 1, *, format: str = "
 def is_cohort_table(path: str | os.PathLike) -> bool:
     """True when ``path`` is a cohort table this package wrote: a CSV whose header line
     starts with ``subject,status,`` and the metric columns, or a Parquet file whose columns
-    do (what ``--csv`` / ``--parquet`` may replace without ``--overwrite``)."""
+    do (what ``--csv`` / ``--parquet`` may replace without ``--overwrite``).
+
+    Parameters
+    ----------
+    path : path-like
+        A CSV or ``.parquet`` file (need not exist).
+
+    Returns
+    -------
+    bool
+        Whether its header matches a cohort table's first columns (False when unreadable).
+    """
     head = ",".join(CSV_COLUMNS[:4])
     p = Path(path)
     try:
@@ -305,13 +448,39 @@ def is_cohort_table(path: str | os.PathLike) -> bool:
 
 
 def write_csv(table: pd.DataFrame, path: str | os.PathLike) -> Path:
-    """Write the cohort table as CSV, atomically (empty cells for NaN)."""
+    """Write the cohort table as CSV, atomically (empty cells for NaN).
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        The cohort table (text cells made spreadsheet-safe, :func:`cardionurbs.safe.csv_safe_table`).
+    path : path-like
+        The CSV file to write (replaced atomically).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     from cardionurbs.safe import csv_safe_table
     return atomic.write_text(path, csv_safe_table(table).to_csv(index=False, float_format="%.6g"))
 
 
 def write_parquet(table: pd.DataFrame, path: str | os.PathLike) -> Path:
-    """Write the cohort table as Parquet (pyarrow), atomically."""
+    """Write the cohort table as Parquet (pyarrow), atomically.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        The cohort table.
+    path : path-like
+        The Parquet file to write (replaced atomically).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     with atomic.atomic_path(path) as tmp:
         table.to_parquet(tmp, index=False, engine="pyarrow")
     return Path(path)
@@ -325,7 +494,25 @@ EXIT_SOME_FAILED = 3
 def run_cohort(args: argparse.Namespace) -> int:
     """`cardionurbs cohort STUDY... --csv FILE [--jobs N] [--dask local|tcp://HOST:PORT]
     [--timeout S] [--resume] [--run-dir DIR] [--parquet] [--allow-failures]`; ``--csv`` is
-    checked (cardionurbs.io.outputs) before any study is read."""
+    checked (cardionurbs.io.outputs) before any study is read.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line (``studies``, ``csv``, ``jobs`` and the options above).
+
+    Returns
+    -------
+    int
+        The exit code: 0, or :data:`EXIT_SOME_FAILED` (3) when a study failed without
+        ``--allow-failures``.
+
+    Raises
+    ------
+    cardionurbs.errors.UsageError
+        A bad ``--dask`` address, or an output (``--csv``, ``--parquet``, ``--run-dir``) that
+        may not be written (checked before any study is read).
+    """
     from cardionurbs.executor import check_dask_address
     from cardionurbs.io.outputs import check_output_file, check_output_place
     from cardionurbs.pipeline import study_folder

@@ -40,7 +40,19 @@ HINT = "(files must lie inside the study folder; --allow-outside lifts this)"
 
 @contextmanager
 def allow_outside(flag: bool = True) -> Iterator[None]:
-    """Within this block, studies may name files outside their folder (when ``flag``)."""
+    """Within this block, studies may name files outside their folder (when ``flag``).
+
+    Parameters
+    ----------
+    flag : bool, optional
+        ``True`` (default): lift the check for the block; ``False``: keep it (so that a
+        caller can pass its ``allow_outside`` argument through unchanged).
+
+    Yields
+    ------
+    None
+        Control to the ``with`` block.
+    """
     token = _ALLOW_OUTSIDE.set(bool(flag))
     try:
         yield
@@ -49,7 +61,13 @@ def allow_outside(flag: bool = True) -> Iterator[None]:
 
 
 def outside_allowed() -> bool:
-    """True inside :func:`allow_outside`."""
+    """True inside :func:`allow_outside`.
+
+    Returns
+    -------
+    bool
+        Whether the enclosing :func:`allow_outside` block lifted the check.
+    """
     return _ALLOW_OUTSIDE.get()
 
 
@@ -59,7 +77,18 @@ def study_root(path: str | os.PathLike) -> Iterator[Path]:
     the folder of a single-file study), links followed once here. An enclosing root wins
     (a reader called from another reader keeps the outer study's root).
 
-    Yields the resolved root."""
+    Yields the resolved root.
+
+    Parameters
+    ----------
+    path : path-like
+        The study folder, or a single-file study (its parent folder is the root).
+
+    Yields
+    ------
+    pathlib.Path
+        The resolved root (the enclosing study's root when one is set already).
+    """
     outer = _ROOT.get()
     if outer is not None:
         yield outer
@@ -74,7 +103,13 @@ def study_root(path: str | os.PathLike) -> Iterator[Path]:
 
 
 def current_root() -> Path | None:
-    """The resolved root set by :func:`study_root`, or None outside a study read."""
+    """The resolved root set by :func:`study_root`, or None outside a study read.
+
+    Returns
+    -------
+    pathlib.Path or None
+        The resolved study root, or None when no study is being read.
+    """
     return _ROOT.get()
 
 
@@ -85,7 +120,20 @@ def _root_for(folder: str | os.PathLike) -> Path:
 
 def is_inside(folder: str | os.PathLike, path: str | os.PathLike) -> bool:
     """True when ``path``, every symbolic link followed, lies inside the current study root
-    (:func:`study_root`) or, outside a study read, inside ``folder`` (also followed)."""
+    (:func:`study_root`) or, outside a study read, inside ``folder`` (also followed).
+
+    Parameters
+    ----------
+    folder : path-like
+        The bound outside a study read (resolved); inside one the study root is used.
+    path : path-like
+        The file or folder to test, links followed.
+
+    Returns
+    -------
+    bool
+        Whether the resolved ``path`` lies inside the bound.
+    """
     return Path(os.path.realpath(path)).is_relative_to(_root_for(folder))
 
 
@@ -119,7 +167,35 @@ def study_file(folder: str | os.PathLike, name: object, *, file: object, field: 
                slice: object = None, frame: object = None) -> Path:
     """``folder / name`` for a file name read from a study (``file``'s ``field``), checked to
     stay inside ``folder``: a non-empty relative path without ``..`` that, links followed,
-    resolves inside. Raises StudyError quoting only an excerpt of ``name``."""
+    resolves inside. Raises StudyError quoting only an excerpt of ``name``.
+
+    Parameters
+    ----------
+    folder : path-like
+        The folder the name is relative to (the study folder or one of its subfolders).
+    name : object
+        The file name as read from the study file (must be non-empty text).
+    file : path-like or str
+        The study file that named it, for the message.
+    field : str
+        The field of ``file`` that held the name (``"points"``, ``"file"``).
+    slice : object, optional
+        The slice id the entry belongs to, for the message.
+    frame : object, optional
+        The frame index (0-based) the entry belongs to, for the message.
+
+    Returns
+    -------
+    pathlib.Path
+        ``folder / name`` (not resolved). Under :func:`allow_outside` only the text checks
+        (non-empty, no NUL) are made.
+
+    Raises
+    ------
+    cardionurbs.errors.StudyError
+        ``name`` is not text, empty, holds a NUL, is absolute, has a ``..`` component or
+        resolves (links followed) outside the study; the message quotes only an excerpt.
+    """
     where = dict(file=file, field=field, slice=slice, frame=frame)
     if not isinstance(name, str) or not name.strip():
         raise StudyError(f"a file name must be non-empty text, got {excerpt(name)}", **where)
@@ -145,7 +221,27 @@ def files_inside(folder: str | os.PathLike, paths: Iterable[Path], *, what: str 
     """``paths`` (found by walking ``folder``), each checked to resolve inside ``folder``;
     a symbolic link leading out raises StudyError naming the link (not its target).
     Inside a study read the bound is the study root (:func:`study_root`), not ``folder``:
-    a walked subfolder that is itself a link elsewhere does not widen it."""
+    a walked subfolder that is itself a link elsewhere does not widen it.
+
+    Parameters
+    ----------
+    folder : path-like
+        The walked folder (the bound outside a study read).
+    paths : iterable of pathlib.Path
+        The files found by walking it.
+    what : str, optional
+        How the message names a file (``"DICOM file"``).
+
+    Returns
+    -------
+    list of pathlib.Path
+        ``paths`` as a list, unchanged.
+
+    Raises
+    ------
+    cardionurbs.errors.StudyError
+        A path resolves outside the bound; the message names the link, not its target.
+    """
     paths = list(paths)
     if outside_allowed():
         return paths

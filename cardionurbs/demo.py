@@ -21,6 +21,7 @@ import sys
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -34,11 +35,29 @@ _ABSOLUTE = ("LVEF (%)", "RVEF (%)", "MR RegFrac (%)", "LS (%)", "EI ES", "Twist
 
 
 def demo_subject(spec, out_dir: str) -> tuple[dict, dict]:
-    """Generate, write and measure one cohort subject: (CSV row, truth row)."""
+    """Generate, write and measure one cohort subject: (CSV row, truth row).
+
+    Parameters
+    ----------
+    spec : cardionurbs.phantom.presets.SubjectSpec
+        One subject of the cohort file (id, pathology, seed, frames, noise in px, tag jumps).
+    out_dir : str
+        Folder the subject's study is written into (as ``out_dir/<id>``, native format).
+
+    Returns
+    -------
+    row : dict
+        The cohort CSV row (:data:`~cardionurbs.cohort.CSV_COLUMNS`: metrics in mL, %, g,
+        deg ..., QC and clinical cells, ``status`` ``"ok"`` or ``"error: ..."``); every metric
+        NaN when the subject failed.
+    truth : dict
+        ``subject``, ``pathology`` and the phantom's analytic value of every metric column
+        (NaN where the phantom has none).
+    """
     from cardionurbs.phantom.generate import generate, write_phantom
     from cardionurbs.pipeline import analyse_study
 
-    row = {c: NAN for c in COLUMNS}
+    row: dict[str, Any] = {c: NAN for c in COLUMNS}
     row["subject"] = spec.id
     truth = {"subject": spec.id, "pathology": spec.pathology}
     try:
@@ -62,7 +81,22 @@ def demo_subject(spec, out_dir: str) -> tuple[dict, dict]:
 
 def comparison_table(measured: pd.DataFrame, truth: pd.DataFrame) -> pd.DataFrame:
     """Long table: subject, metric, measured, truth, error (relative % for volumes and
-    masses, absolute for percentages, ratios-of-percent and tag metrics)."""
+    masses, absolute for percentages, ratios-of-percent and tag metrics).
+
+    Parameters
+    ----------
+    measured : pandas.DataFrame
+        The cohort table, one row per subject (``subject`` and the metric columns).
+    truth : pandas.DataFrame
+        The truth table, one row per subject (``subject`` and the same metric columns).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``subject, metric, measured, truth, error, error_unit``: one row per subject
+        and metric where either value is known; ``error`` is ``100 (measured / truth - 1)``
+        (``error_unit`` ``"%"``) or ``measured - truth`` in the metric's own unit (``"abs"``).
+    """
     rows = []
     t = truth.set_index("subject")
     for _, r in measured.iterrows():
@@ -98,7 +132,23 @@ def format_comparison(comp: pd.DataFrame, measured: pd.DataFrame,
                       truth: pd.DataFrame | None = None) -> str:
     """The printed summary: one line per subject (pathology, then measured / truth for
     :data:`SUMMARY`), a failed subject with its status, and the mean |error| per metric.
-    Every metric is in comparison.csv."""
+    Every metric is in comparison.csv.
+
+    Parameters
+    ----------
+    comp : pandas.DataFrame
+        The long table of :func:`comparison_table`.
+    measured : pandas.DataFrame
+        The cohort table (``subject``, ``status`` and the metric columns).
+    truth : pandas.DataFrame or None, optional
+        The truth table; None shows ``—`` for every truth cell and no pathology.
+
+    Returns
+    -------
+    str
+        The table's lines joined by newlines (a header, one line per subject, the mean
+        |error| of each :data:`SUMMARY` metric).
+    """
     t = truth.set_index("subject") if truth is not None else None
     head = f"{'subject':10s} {'pathology':9s} " + " ".join(f"{n:>13s}" for _, n, _ in SUMMARY)
     lines = ["measured / truth", head]
@@ -123,7 +173,19 @@ def format_comparison(comp: pd.DataFrame, measured: pd.DataFrame,
 def run_demo(args: argparse.Namespace) -> int:
     """`cardionurbs demo [--out DIR [--overwrite]] [--keep] [--jobs N]` (default: one job per
     CPU core). With ``--out`` the folder is checked first and written atomically; without it
-    the demo works in a temporary folder, removed at the end unless ``--keep``."""
+    the demo works in a temporary folder, removed at the end unless ``--keep``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line: ``out`` (folder or None), ``overwrite``, ``keep`` and
+        ``jobs`` (worker processes; None or 0: one per CPU core).
+
+    Returns
+    -------
+    int
+        The exit code, 0 (bad input raises before anything is written).
+    """
     import shutil
 
     from cardionurbs.io.atomic import atomic_dir

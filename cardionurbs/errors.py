@@ -23,6 +23,14 @@ class StudyError(CardioNurbsError):
     The message is built from the parts that locate the fault, e.g.
     ``StudyError("contour has 3 points, needs >= 5", file="c.csv", slice="sa_03", frame=0)``
     gives ``c.csv: slice sa_03, frame 0: contour has 3 points, needs >= 5``.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong (one line; whitespace runs are collapsed).
+    file, slice, frame, field : object or None
+        Where: the file, the slice id, the frame index and the field (column, tag or
+        option) of the fault; each kept as an attribute of the same name.
     """
 
     def __init__(self, message: str, *, file: object = None, slice: object = None,

@@ -67,7 +67,15 @@ WORKER_CONFIG = {
 
 @dataclass(frozen=True)
 class TaskFailure:
-    """Why a task produced no result: ``kind`` is ``error``, ``timeout`` or ``worker died``."""
+    """Why a task produced no result: ``kind`` is ``error``, ``timeout`` or ``worker died``.
+
+    Parameters
+    ----------
+    kind : str
+        ``"error"``, ``"timeout"`` or ``"worker died"``.
+    message : str
+        One line: the exception's message, the timeout in s, or how the worker ended.
+    """
 
     kind: str
     message: str
@@ -84,7 +92,32 @@ def run_tasks(fn: Callable[..., Any], tasks: Sequence[tuple], on_result: Callabl
               *, jobs: int | None = 1, dask: str | None = None, timeout: float | None = None) -> None:
     """Run ``fn(*tasks[i])`` for every i; ``on_result(i, result or TaskFailure)`` once per task,
     in completion order, in this process. ``fn`` must be importable by the workers.
-    ``jobs``: worker processes (None: every usable CPU; :func:`cardionurbs.workers.resolve_jobs`)."""
+    ``jobs``: worker processes (None: every usable CPU; :func:`cardionurbs.workers.resolve_jobs`).
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(*args)``, importable by name in the workers; its result must pickle.
+    tasks : sequence of tuple
+        The arguments of each task.
+    on_result : callable
+        ``on_result(i, result)`` with the task's result or a :class:`TaskFailure`; called
+        once per task, in completion order, in this process.
+    jobs : int or None, optional
+        Worker processes (default 1; None: every usable CPU).
+    dask : str or None, optional
+        ``"local"`` or a scheduler address ``tcp://host:port``; None (default): local
+        processes.
+    timeout : float or None, optional
+        Longest run of one task, in s (None: no limit).
+
+    Raises
+    ------
+    ValueError
+        ``timeout`` not > 0, or ``jobs`` not a whole number >= 1 or None.
+    cardionurbs.errors.UsageError
+        ``dask`` is not ``"local"`` or an address, or no scheduler answers there.
+    """
     if not tasks:
         return
     if timeout is not None and not timeout > 0:
@@ -196,7 +229,23 @@ def _excerpt(text: str, n: int = 60) -> str:
 
 def check_dask_address(address: str) -> tuple[str, int] | None:
     """``"local"`` (None) or ``scheme://host:port`` ((host, port)); UsageError otherwise,
-    naming an excerpt of the address."""
+    naming an excerpt of the address.
+
+    Parameters
+    ----------
+    address : str
+        The ``--dask`` value.
+
+    Returns
+    -------
+    tuple of (str, int) or None
+        None for ``"local"``, else the scheduler's (host, port).
+
+    Raises
+    ------
+    cardionurbs.errors.UsageError
+        Not ``"local"`` nor a ``scheme://host:port`` address of a Dask scheme.
+    """
     from urllib.parse import urlsplit
 
     from cardionurbs.errors import UsageError
@@ -228,7 +277,28 @@ def _reach(address: str, host: str, port: int) -> None:
 def dask_client(address: str, jobs: int):
     """(client, cluster or None): a LocalCluster of ``jobs`` single-threaded worker processes
     on 127.0.0.1 for ``"local"``, else a client of the scheduler at ``address`` (checked to
-    be an address, and to answer within :data:`DASK_CONNECT_TIMEOUT_S`)."""
+    be an address, and to answer within :data:`DASK_CONNECT_TIMEOUT_S`).
+
+    Parameters
+    ----------
+    address : str
+        ``"local"`` or a scheduler address ``tcp://host:port``.
+    jobs : int
+        Worker processes of a local cluster (ignored for a scheduler of your own).
+
+    Returns
+    -------
+    client : distributed.Client
+        Connected to the cluster.
+    cluster : distributed.LocalCluster or None
+        The local cluster started here (to be closed by the caller), None for ``address``.
+
+    Raises
+    ------
+    cardionurbs.errors.UsageError
+        ``address`` is not an address, or no scheduler answers there within
+        :data:`DASK_CONNECT_TIMEOUT_S` s.
+    """
     target = check_dask_address(address)
     if target is not None and target[0] and address.startswith(("tcp", "ws")):
         _reach(address, *target)

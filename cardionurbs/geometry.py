@@ -20,9 +20,8 @@ nothing imports the rest of the package except :mod:`cardionurbs.errors`.
 
 from __future__ import annotations
 
-from typing import Sequence
-
 import numpy as np
+from numpy.typing import ArrayLike
 
 from cardionurbs.errors import ReconstructionError
 
@@ -36,6 +35,18 @@ def fit_plane(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
     The normal is the right singular vector of the centred points with the
     smallest singular value (total least squares).
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3)
+        Points in mm (scanner coordinates), n >= 3.
+
+    Returns
+    -------
+    centroid : ndarray, shape (3,)
+        The points' mean, in mm.
+    normal : ndarray, shape (3,)
+        Unit normal of the plane (its sign is the SVD's).
     """
     p = np.asarray(points, dtype=float)
     c = p.mean(axis=0)
@@ -50,7 +61,18 @@ def _cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def in_plane_basis(normal: np.ndarray) -> np.ndarray:
     """(2, 3) orthonormal in-plane axes (e1, e2) of a plane with this normal, with
-    (e1, e2, n̂) right-handed; e1 ⟂ the coordinate axis least aligned with n̂."""
+    (e1, e2, n̂) right-handed; e1 ⟂ the coordinate axis least aligned with n̂.
+
+    Parameters
+    ----------
+    normal : ndarray, shape (3,)
+        The plane's normal (any length but 0).
+
+    Returns
+    -------
+    ndarray, shape (2, 3)
+        Rows e1, e2: unit, orthogonal to each other and to the normal.
+    """
     n = np.asarray(normal, dtype=float)
     n = n / np.sqrt(n @ n)
     t = np.eye(3)[np.argmin(np.abs(n))]
@@ -80,6 +102,25 @@ def polygon_area(points: np.ndarray, normal: np.ndarray | None = None, *,
     loop itself, |vector area|. ``signed=True`` keeps the sign: positive when
     the loop runs counter-clockwise (about ``normal`` in 3-D). Fewer than 3
     points enclose no area (0).
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 2) or (n, 3)
+        The polygon's vertices in order, in mm.
+    normal : ndarray, shape (3,), optional
+        Unit normal of the projection plane (3-D loops only).
+    signed : bool, optional
+        Keep the sign (counter-clockwise positive); a 3-D loop then needs ``normal``.
+
+    Returns
+    -------
+    float
+        The area in mm² (0 for fewer than 3 points).
+
+    Raises
+    ------
+    ValueError
+        ``signed`` for a 3-D loop without ``normal``.
     """
     p = np.asarray(points, dtype=float)
     if len(p) < 3:
@@ -100,7 +141,20 @@ def polygon_area(points: np.ndarray, normal: np.ndarray | None = None, *,
 def polygon_centroid(points: np.ndarray, normal: np.ndarray | None = None) -> np.ndarray:
     """Area centroid of a closed polygon (shoelace): (2,) for (n, 2) points, (3,) for a
     planar (n, 3) loop, computed in its plane (normal ``normal``, else the best-fit
-    plane). A polygon enclosing (almost) no area gives the mean of its points."""
+    plane). A polygon enclosing (almost) no area gives the mean of its points.
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 2) or (n, 3)
+        The polygon's vertices in order, in mm.
+    normal : ndarray, shape (3,), optional
+        The plane's normal for a 3-D loop; default: the best-fit plane's (:func:`fit_plane`).
+
+    Returns
+    -------
+    ndarray, shape (2,) or (3,)
+        The area centroid, in mm (the vertices' mean for a degenerate polygon).
+    """
     p = np.asarray(points, dtype=float)
     c0 = p.mean(axis=0)
     if p.shape[1] == 3:
@@ -122,7 +176,24 @@ def polyline_crossings(polyline: np.ndarray, direction: np.ndarray, level: float
                        closed: bool = False) -> np.ndarray:
     """Points (k, 3) where a polyline (n, 3) crosses the plane x·direction = level: linear
     interpolation on every segment that changes side (a vertex on the plane counts once);
-    ``closed``: the last point joins the first."""
+    ``closed``: the last point joins the first.
+
+    Parameters
+    ----------
+    polyline : ndarray, shape (n, 3)
+        The polyline's points in order, in mm.
+    direction : ndarray, shape (3,)
+        The plane's normal (the level is measured along it; unit for ``level`` in mm).
+    level : float
+        The plane's offset: points x with x · direction = level, in mm for a unit direction.
+    closed : bool, optional
+        The polyline is a loop (last point joined to the first).
+
+    Returns
+    -------
+    ndarray, shape (k, 3)
+        The crossing points in the polyline's order, in mm (k = 0: no crossing).
+    """
     p = np.vstack([polyline, polyline[:1]]) if closed else np.asarray(polyline)
     h = p @ direction - level
     a, b = h[:-1], h[1:]
@@ -137,7 +208,20 @@ def points_in_polygon(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     """Which 2-D points (m, 2) lie inside a closed polygon (n, 2): the even-odd
     crossing-number test (a horizontal ray from each point crosses the boundary an odd
     number of times), vectorised over points and edges. Points exactly on the boundary
-    may fall either way, as with any floating-point inside test."""
+    may fall either way, as with any floating-point inside test.
+
+    Parameters
+    ----------
+    xy : ndarray, shape (m, 2)
+        The points to test (any shape reshapable to (m, 2)), in mm.
+    polygon : ndarray, shape (n, 2)
+        The polygon's vertices in order (first not repeated), in mm.
+
+    Returns
+    -------
+    ndarray of bool, shape (m,)
+        True for a point inside.
+    """
     p = np.asarray(xy, dtype=float).reshape(-1, 2)
     a = np.asarray(polygon, dtype=float)
     b = np.roll(a, -1, axis=0)
@@ -154,6 +238,20 @@ def chord_length(xy: np.ndarray, origin: np.ndarray, direction: np.ndarray) -> f
     All intersections of the line with the polygon's edges are found at once;
     the chord runs from the smallest to the largest t (the polygon is assumed
     star-shaped about ``origin``, as a cavity is about its centroid).
+
+    Parameters
+    ----------
+    xy : ndarray, shape (n, 2)
+        The closed polygon's vertices in order, in mm (in-plane coordinates).
+    origin : ndarray, shape (2,)
+        A point of the line, in mm (e.g. the cavity's centroid).
+    direction : ndarray, shape (2,)
+        The line's direction (any length but 0).
+
+    Returns
+    -------
+    float
+        The chord length in mm; NaN when the line misses the polygon.
     """
     d = direction / np.linalg.norm(direction)
     a, b = xy, np.roll(xy, -1, axis=0)
@@ -176,6 +274,16 @@ def stack_normal(normals: np.ndarray) -> np.ndarray:
 
     The sign of the result is the first normal's; orienting it base → apex is
     the caller's rule (e.g. :func:`cardionurbs.anatomy.sections.stacking_direction`).
+
+    Parameters
+    ----------
+    normals : ndarray, shape (k, 3)
+        The slice planes' normals (unit or not; any shape reshapable to (k, 3)).
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        The unit mean normal, signed like ``normals[0]``.
     """
     normals = np.asarray(normals, float).reshape(-1, 3)
     signs = np.where(normals @ normals[0] < 0, -1.0, 1.0)
@@ -183,9 +291,20 @@ def stack_normal(normals: np.ndarray) -> np.ndarray:
     return m / np.linalg.norm(m)
 
 
-def slice_spacing(positions_along_normal: Sequence[float]) -> float:
+def slice_spacing(positions_along_normal: ArrayLike) -> float:
     """Median gap (mm) between consecutive distinct slice positions (rounded to 1e-6 mm);
-    NaN for fewer than two distinct positions."""
+    NaN for fewer than two distinct positions.
+
+    Parameters
+    ----------
+    positions_along_normal : array_like of float, shape (k,)
+        Each slice's position along the stack normal, in mm (repeats allowed).
+
+    Returns
+    -------
+    float
+        The median gap in mm, NaN for fewer than two distinct positions.
+    """
     s = np.unique(np.round(np.asarray(positions_along_normal, float), 6))
     if s.size < 2:
         return float("nan")
@@ -199,6 +318,20 @@ def centroid_line_axis(centroids: np.ndarray, direction: np.ndarray) -> tuple[np
     The line is the principal direction of the centres, signed along
     ``direction`` (base → apex); the base is the most basal centre's foot on
     it, the apex lies half a (median) centre gap beyond the most apical one.
+
+    Parameters
+    ----------
+    centroids : ndarray, shape (k, 3)
+        SA contour centres in mm (scanner coordinates), k >= 2.
+    direction : ndarray, shape (3,)
+        The stacking direction, base to apex.
+
+    Returns
+    -------
+    apex : ndarray, shape (3,)
+        Half a median centre gap beyond the most apical centre, on the line, in mm.
+    base : ndarray, shape (3,)
+        The most basal centre's foot on the line, in mm.
     """
     P = np.asarray(centroids, float).reshape(-1, 3)
     P = P[np.argsort(P @ np.asarray(direction, float), kind="stable")]
@@ -211,7 +344,7 @@ def centroid_line_axis(centroids: np.ndarray, direction: np.ndarray) -> tuple[np
     return ctr + (t.max() + gap / 2) * d, ctr + t.min() * d
 
 
-def long_axis(apex_landmarks: np.ndarray | None = None, mitral_landmarks: np.ndarray | None = None,
+def long_axis(apex_landmarks: ArrayLike | None = None, mitral_landmarks: ArrayLike | None = None,
               *, model_apex: np.ndarray | None = None, valve_origin: np.ndarray | None = None,
               sa_centroids: np.ndarray | None = None, stack_direction: np.ndarray | None = None,
               where: str = "") -> tuple[np.ndarray, np.ndarray]:
@@ -230,6 +363,35 @@ def long_axis(apex_landmarks: np.ndarray | None = None, mitral_landmarks: np.nda
 
     Raises :class:`~cardionurbs.errors.ReconstructionError` (prefixed with
     ``where``) when no input fixes an end.
+
+    Parameters
+    ----------
+    apex_landmarks : ndarray, shape (k, 3), optional
+        LV apex landmarks in mm (scanner coordinates); their mean is the apex.
+    mitral_landmarks : ndarray, shape (k, 3), optional
+        Mitral valve landmarks in mm; their mean is the base centre.
+    model_apex : ndarray, shape (3,), optional
+        The model's LV apex in mm (second choice for the apex).
+    valve_origin : ndarray, shape (3,), optional
+        The origin of the LV valve plane in mm (second choice for the base centre).
+    sa_centroids : ndarray, shape (k, 3), optional
+        SA contour centres in mm, k >= 2 (last choice for both ends).
+    stack_direction : ndarray, shape (3,), optional
+        The SA stacking direction, base to apex (needed with ``sa_centroids``).
+    where : str, optional
+        Prefix of the error message (the study or frame).
+
+    Returns
+    -------
+    apex : ndarray, shape (3,)
+        The LV apex, in mm.
+    base : ndarray, shape (3,)
+        The base (mitral) centre, in mm.
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        No input fixes the apex or the base centre.
     """
     def given(a):
         return a is not None and np.asarray(a).size > 0
@@ -259,7 +421,24 @@ def averaged_normals(points: np.ndarray, normals: np.ndarray, weights: np.ndarra
                      radius_mm: float) -> np.ndarray:
     """Unit normals (n, 3) of surface samples ``points`` (n, 3) averaged, weighted by
     ``weights`` (n,) (e.g. area), over the samples within ``radius_mm`` of each sample
-    (itself included)."""
+    (itself included).
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3)
+        Surface sample positions, in mm.
+    normals : ndarray, shape (n, 3)
+        Their normals (unit or not).
+    weights : ndarray, shape (n,)
+        Each sample's weight (e.g. its area in mm²).
+    radius_mm : float
+        The averaging radius, in mm.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        The unit averaged normals.
+    """
     from scipy.sparse import csr_matrix
     from scipy.spatial import cKDTree
     pairs = cKDTree(points).query_pairs(radius_mm, output_type="ndarray")

@@ -23,7 +23,13 @@ from contextlib import contextmanager
 @contextmanager
 def long_lived() -> Iterator[None]:
     """Freeze the objects alive now out of the collector's reach for the block
-    (:func:`gc.freeze`, undone by :func:`gc.unfreeze` on the way out)."""
+    (:func:`gc.freeze`, undone by :func:`gc.unfreeze` on the way out).
+
+    Yields
+    ------
+    None
+        Control to the ``with`` block while the objects alive on entry are frozen.
+    """
     gc.freeze()
     try:
         yield
@@ -35,7 +41,13 @@ def long_lived() -> Iterator[None]:
 def acyclic() -> Iterator[None]:
     """Pause the collector for a block that builds plain data (re-enabled on the way out
     only if it was enabled on the way in; a cycle made inside is found by the next pass
-    after the block)."""
+    after the block).
+
+    Yields
+    ------
+    None
+        Control to the ``with`` block while the collector is paused.
+    """
     was = gc.isenabled()
     gc.disable()
     try:

@@ -16,7 +16,19 @@ __all__ = ["median"]
 
 def median(values) -> float:
     """Median of the values (flattened) as a float, equal to ``float(np.median(values))``;
-    NaN for an empty sample or one holding a NaN."""
+    NaN for an empty sample or one holding a NaN.
+
+    Parameters
+    ----------
+    values : array_like of float
+        The sample, any shape (flattened); its unit is kept (mm, ms, ...).
+
+    Returns
+    -------
+    float
+        The middle value, or the mean (a + b) / 2 of the two middle values of an even-sized
+        sample, in the unit of ``values``; NaN when the sample is empty or holds a NaN.
+    """
     a = np.asarray(values, dtype=float).ravel()
     n = a.size
     if n == 0:

@@ -58,7 +58,13 @@ __all__ = ["ForkMap", "RemoteTraceback", "WorkerDied", "can_fork", "fork_map", "
 
 def can_fork() -> bool:
     """True where :func:`fork_map` may start workers: ``fork`` exists (not Windows, not
-    macOS) and this process is not daemonic (a cohort or Dask worker)."""
+    macOS) and this process is not daemonic (a cohort or Dask worker).
+
+    Returns
+    -------
+    bool
+        Whether workers may be forked here.
+    """
     return ("fork" in mp.get_all_start_methods() and sys.platform != "darwin"
             and not mp.current_process().daemon)
 
@@ -68,7 +74,27 @@ def worker_count(jobs: int | None, n_items: int, n_here: int = 0) -> int:
     beside ``n_here`` items of this process: ``jobs`` (None: :func:`usable_cpus`) capped by
     ``n_items``; 0 (serial) when ``jobs`` is 1, when fewer than two processes would work
     (one worker and nothing here) or when :func:`can_fork` is False. Raises ValueError for
-    ``jobs`` < 1."""
+    ``jobs`` < 1.
+
+    Parameters
+    ----------
+    jobs : int or None
+        Worker processes asked for (None: :func:`usable_cpus`; 1: serial).
+    n_items : int
+        Items that would go to workers.
+    n_here : int, optional
+        Items run in this process meanwhile (default 0).
+
+    Returns
+    -------
+    int
+        Worker processes to start; 0 means run serially in this process.
+
+    Raises
+    ------
+    ValueError
+        ``jobs`` is not a whole number >= 1 or None.
+    """
     jobs = resolve_jobs(jobs)
     n = min(jobs, n_items)
     return n if jobs >= 2 and n + (n_here > 0) >= 2 and can_fork() else 0
@@ -79,7 +105,34 @@ def fork_map(fn: Callable[[T], R], items: Sequence[T], *, jobs: int | None = Non
     """``[fn(x) for x in items]``, the items not in ``here`` computed by forked workers
     (module docstring). ``jobs``: worker processes (None: the usable CPUs; 1: serial).
     ``on_result(i, result)`` is called in this process as each item's result arrives (in
-    arrival order; e.g. progress)."""
+    arrival order; e.g. progress).
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(item) -> result``; its result must pickle (it comes back through a pipe).
+    items : sequence
+        The inputs, e.g. frame indices (0-based).
+    jobs : int or None, optional
+        Worker processes (None: the usable CPUs; 1: serial).
+    here : collection, optional
+        Items run in this process (what they leave in its objects stays).
+    on_result : callable, optional
+        ``on_result(i, result)``, called in this process as item ``i``'s result arrives.
+
+    Returns
+    -------
+    list
+        ``fn(x)`` for every item, in the items' order.
+
+    Raises
+    ------
+    cardionurbs.errors.WorkerDied
+        A worker ended without sending its results (a signal, the out-of-memory killer).
+    Exception
+        The first failing item's exception (type and message), with the worker's traceback
+        as its ``__cause__`` (:class:`~cardionurbs.errors.RemoteTraceback`).
+    """
     return ForkMap(fn, items, jobs=jobs, here=here).results(on_result)
 
 
@@ -92,7 +145,24 @@ class ForkMap:
     then killed.
 
     A worker keeps its results until it has no item left and then sends them all (so that
-    it does not wait on a full pipe while this process is busy elsewhere)."""
+    it does not wait on a full pipe while this process is busy elsewhere).
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(item) -> result`` (picklable result).
+    items : sequence
+        The inputs, e.g. frame indices.
+    jobs : int or None, optional
+        Worker processes (None: the usable CPUs; 1: serial).
+    here : collection, optional
+        Items run in this process by :meth:`results`.
+
+    Attributes
+    ----------
+    workers : int
+        Worker processes started (0: serial).
+    """
 
     def __init__(self, fn: Callable[[T], R], items: Sequence[T], *, jobs: int | None = None,
                  here: Collection = ()) -> None:
@@ -105,7 +175,25 @@ class ForkMap:
         self._open = True
 
     def results(self, on_result: Callable[[int, R], None] | None = None) -> list[R]:
-        """The results in the items' order (see :func:`fork_map`); once."""
+        """The results in the items' order (see :func:`fork_map`); once.
+
+        Parameters
+        ----------
+        on_result : callable, optional
+            ``on_result(i, result)``, called in this process as item ``i``'s result arrives.
+
+        Returns
+        -------
+        list
+            ``fn(x)`` for every item, in the items' order.
+
+        Raises
+        ------
+        RuntimeError
+            Called a second time, or after :meth:`cancel`.
+        cardionurbs.errors.WorkerDied
+            A worker ended without sending its results.
+        """
         if not self._open:
             raise RuntimeError("ForkMap results already collected or cancelled")
         self._open = False

@@ -58,7 +58,23 @@ OUTPUTS = ("metrics", "model", "meshes", "figures", "report")
 def parse_outputs(text: str | None) -> tuple[str, ...]:
     """``"metrics,figures"`` -> the outputs to write, in :data:`OUTPUTS` order (None or
     ``"all"``: everything). ``report`` brings ``metrics`` and ``model`` (its inputs).
-    Raises ValueError naming an unknown output."""
+    Raises ValueError naming an unknown output.
+
+    Parameters
+    ----------
+    text : str or None
+        The ``--outputs`` value: comma-separated names of :data:`OUTPUTS`, or ``"all"``.
+
+    Returns
+    -------
+    tuple of str
+        The outputs to write, in :data:`OUTPUTS` order.
+
+    Raises
+    ------
+    ValueError
+        An unknown output, or none named.
+    """
     if text is None or text.strip() == "all":
         return OUTPUTS
     want = {t.strip() for t in text.split(",") if t.strip()}
@@ -79,7 +95,21 @@ def tag_metrics_hook(model: BiventricularModel, over_time: bool = True):
     study has tag lines; None otherwise (the columns then stay NaN). Twist and LS over
     time are included when three or more frames are tagged, so this one result serves
     the metrics, metrics.json, model.json and the figures. ``over_time=False`` (metrics
-    only) measures at ED and ES alone: the same columns, without the time course."""
+    only) measures at ED and ES alone: the same columns, without the time course.
+
+    Parameters
+    ----------
+    model : cardionurbs.anatomy.model.BiventricularModel
+        The reconstructed model of a study.
+    over_time : bool, optional
+        Also measure twist and LS at every tagged frame (when three or more are tagged).
+
+    Returns
+    -------
+    cardionurbs.analysis.tags.TagMetrics or None
+        Column -> value (deg, deg/cm, %) with the level table, QC flags and tag surfaces;
+        None when the study has no tag lines.
+    """
     if not model.study.tags:
         return None
     from cardionurbs.analysis.tags import tag_metrics
@@ -90,15 +120,37 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
             progress: Progress | None = None, jobs: int | None = 1, on_measured=None):
     """Reconstruct and measure one loaded study: (model, docs/metrics.md dict, tag result or None).
 
-    ``over_time``: also twist and LS at every tagged frame (for figures and metrics.json);
-    the docs/metrics.md columns are the same without it. ``progress``: stages on stderr.
-    ``jobs``: processes for the per-frame work -- the frames' LV cavities (``reconstruct``),
-    the tag metrics beside the volumes (:func:`measure_with_tags`) and the tag strain over
-    time (one fit per tagged frame, :func:`cardionurbs.analysis.regional.regional_metrics`);
-    1 (the default: a library call forks nothing unless asked): this process only; None: the
-    usable CPUs (``cardionurbs analyze``'s default). The results are the same either way.
-    ``on_measured(model)``: called once ED and ES are known and the volumes measured,
-    before the tag results are awaited (``analyze`` starts the meshes' workers there)."""
+    Parameters
+    ----------
+    study : Study
+        A study read by :func:`cardionurbs.io.load_study`.
+    heart_rate_bpm : float or None
+        Heart rate (bpm) when the study carries none.
+    over_time : bool
+        Also twist and LS at every tagged frame (for figures and metrics.json); the
+        docs/metrics.md columns are the same without it.
+    progress : Progress or None
+        Stages on stderr.
+    jobs : int or None
+        Processes for the per-frame work -- the frames' LV cavities (``reconstruct``), the
+        tag metrics beside the volumes (:func:`measure_with_tags`) and the tag strain over
+        time (one fit per tagged frame, :func:`cardionurbs.analysis.regional.regional_metrics`);
+        1 (the default: a library call forks nothing unless asked): this process only; None:
+        the usable CPUs (``cardionurbs analyze``'s default). The results are the same either way.
+    on_measured : callable or None
+        ``on_measured(model)`` is called once ED and ES are known and the volumes measured,
+        before the tag results are awaited (``analyze`` starts the meshes' workers there).
+
+    Returns
+    -------
+    model : BiventricularModel
+        The reconstruction.
+    metrics : dict
+        docs/metrics.md column -> float in its unit (NaN, with its reason, where the study
+        cannot give one), the tag, regional and voxel-count columns included.
+    tags : TagMetrics or None
+        The tag result (None without tag lines).
+    """
     progress = progress or Progress(False)
     progress.stage("reconstruct")
     model = reconstruct(study, progress=progress.step, jobs=jobs)
@@ -106,6 +158,7 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
                                       jobs=jobs, progress=progress, on_measured=on_measured)
     if tags is not None:
         metrics.update({k: float(v) for k, v in dict(tags).items() if k in metrics})
+    model.tag_result = tags                       # the tag intervals read it (analysis/tag_uncertainty)
     from cardionurbs.analysis.regional import regional_metrics
     regional = regional_metrics(model, tags, jobs=jobs)
     metrics.update({k: float(v) for k, v in regional.items() if k in metrics})
@@ -121,14 +174,41 @@ def analyse(study: Study, *, heart_rate_bpm: float | None = None, over_time: boo
 def analysis_warnings(model: BiventricularModel, metrics: dict, tags=None) -> list[dict]:
     """Every warning of one analysis, ``[{"source": load|reconstruct|measure, "message"}]``
     (:func:`cardionurbs.analysis.notes.collect_warnings`): the study's, the model's, the
-    metrics', the tag and regional notes."""
+    metrics', the tag and regional notes.
+
+    Parameters
+    ----------
+    model : cardionurbs.anatomy.model.BiventricularModel
+        The reconstructed model (its study's and its own warnings).
+    metrics : dict
+        Its docs/metrics.md dict (the notes of its null values).
+    tags : cardionurbs.analysis.tags.TagMetrics or None, optional
+        The tag metrics, whose notes are added.
+
+    Returns
+    -------
+    list of dict
+        One ``{"source": "load" | "reconstruct" | "measure", "message": str}`` per warning.
+    """
     regional = getattr(model, "regional", None)
     extra = list(getattr(tags, "notes", None) or []) + list(getattr(regional, "notes", None) or [])
     return collect_warnings(model.study, model, metrics, measure_notes=extra)
 
 
 def body_json(study: Study) -> dict:
-    """Height (cm), weight (kg), age (y), sex and where each came from (metrics.json ``body``)."""
+    """Height (cm), weight (kg), age (y), sex and where each came from (metrics.json ``body``).
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        The loaded study (its ``meta["body"]``).
+
+    Returns
+    -------
+    dict
+        ``height_cm`` (cm), ``weight_kg`` (kg), ``age_y`` (years), ``sex`` and ``source``; None
+        for each one the study does not give.
+    """
     body = dict(study.meta.get("body") or {}) if isinstance(study.meta, dict) else {}
     return {k: body.get(k) for k in ("height_cm", "weight_kg", "age_y", "sex", "source")}
 
@@ -136,7 +216,20 @@ def body_json(study: Study) -> dict:
 def range_flags_json(metrics: dict, study: Study) -> dict:
     """metrics.json ``ranges``: the citation and, per metric with a reference range, its
     flag (below / normal / above or None), limits and table
-    (:func:`cardionurbs.analysis.ranges.range_flags`)."""
+    (:func:`cardionurbs.analysis.ranges.range_flags`).
+
+    Parameters
+    ----------
+    metrics : dict
+        The docs/metrics.md dict of one study.
+    study : cardionurbs.study.Study
+        The study, whose sex and age choose the reference table.
+
+    Returns
+    -------
+    dict
+        ``citation``, ``url``, ``limits`` and ``flags`` (metric -> flag, limits and table).
+    """
     from cardionurbs.analysis.ranges import load_ranges, range_flags
     body, table = body_json(study), load_ranges()
     return {"citation": table["citation"], "url": table.get("url"), "limits": table.get("limits"),
@@ -157,7 +250,30 @@ def measure_with_tags(model: BiventricularModel, *, heart_rate_bpm: float | None
     process's. Neither changes the model except for warnings: the tag metrics' are added
     after the volumes' (the serial order); the residual worker's repeat this process's
     (the same surfaces) and are dropped. ``on_measured(model)`` is called in this process
-    right after the volumes are measured (:func:`analyse`)."""
+    right after the volumes are measured (:func:`analyse`).
+
+    Parameters
+    ----------
+    model : cardionurbs.anatomy.model.BiventricularModel
+        The reconstructed model.
+    heart_rate_bpm : float or None, optional
+        Heart rate in beats/min for the rate metrics (None: the study's own).
+    over_time : bool, optional
+        Also measure twist and LS over time (see :func:`tag_metrics_hook`).
+    jobs : int or None, optional
+        Worker processes (1, the default: all in this process; None: the usable CPUs).
+    progress : cardionurbs.progress.Progress or None, optional
+        Where the stages are shown (None: nowhere).
+    on_measured : callable, optional
+        ``on_measured(model)``, called right after the volumes are measured.
+
+    Returns
+    -------
+    metrics : dict
+        docs/metrics.md column -> value (mL, %, g, mL/s ...; NaN where not measured).
+    tags : cardionurbs.analysis.tags.TagMetrics or None
+        The tag metrics, None without tag lines.
+    """
     from cardionurbs.parallel import fork_map
     progress = progress or Progress(False)
     tagged = bool(model.study.tags)
@@ -201,7 +317,22 @@ def analyse_study(study: Study, *, heart_rate_bpm: float | None = None
                   ) -> tuple[BiventricularModel, dict[str, float]]:
     """Reconstruct and measure one loaded study: (model, docs/metrics.md dict) -- the metrics
     only (what a cohort row needs: no tag time course), in this process (a cohort runs one
-    study per core)."""
+    study per core).
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        A loaded study.
+    heart_rate_bpm : float or None, optional
+        Heart rate in beats/min for the rate metrics (None: the study's own).
+
+    Returns
+    -------
+    model : cardionurbs.anatomy.model.BiventricularModel
+        The reconstructed model.
+    metrics : dict of str to float
+        docs/metrics.md column -> value (NaN where not measured).
+    """
     model, metrics, _ = analyse(study, heart_rate_bpm=heart_rate_bpm, over_time=False, jobs=1)
     return model, metrics
 
@@ -211,12 +342,23 @@ def write_analysis(model: BiventricularModel, metrics: dict, out: str | Path, *,
                    outputs: tuple[str, ...] | None = None,
                    progress: Progress | None = None, jobs: int | None = 1,
                    early_meshes: "EarlyMeshes | None" = None, uncertainty: bool = True) -> Path:
-    """Write the chosen ``outputs`` (default all; ``figures=False`` drops figures and
-    report) to ``out``, atomically (the folder is complete or untouched). ``jobs``: worker
-    processes for the per-frame meshes (:func:`write_meshes`; 1, the default: none; None:
-    the usable CPUs) and the figures; ``early_meshes``: the meshes already started
-    (:class:`EarlyMeshes`); ``uncertainty``: the metrics' 95 % intervals in metrics.json
-    (``uncertainty``, :func:`cardionurbs.analysis.uncertainty.intervals`; null when off)."""
+    """Write the chosen ``outputs`` to ``out``, atomically (complete or untouched).
+
+    Parameters
+    ----------
+    model, metrics, tags, out : BiventricularModel; dict; TagMetrics or None; path-like
+        The results of :func:`analyse`; the output folder (docs/outputs.md).
+    figures, mesh_ext, outputs, uncertainty : bool; str; tuple of str or None; bool
+        False drops figures and report; the mesh format (``ply``, ``stl``, ``obj``, ``glb``);
+        the outputs (:data:`OUTPUTS`; None: all); the 95 % intervals in metrics.json.
+    progress, jobs, early_meshes : Progress or None; int or None; EarlyMeshes or None
+        Stages on stderr; worker processes for the meshes and figures (1: none; None: the
+        usable CPUs); the meshes already started (:class:`EarlyMeshes`).
+
+    Returns
+    -------
+    pathlib.Path
+    """
     outputs = OUTPUTS if outputs is None else tuple(outputs)
     if not figures:
         outputs = tuple(o for o in outputs if o not in ("figures", "report"))
@@ -304,6 +446,7 @@ def save_model(model: BiventricularModel, path: str | Path, tags=None) -> Path:
     Parameters
     ----------
     model : BiventricularModel
+        The model (its surfaces in scanner mm, ED/ES, valve planes, sections).
     path : str or Path
         ``.json`` or ``.npz``.
     tags : TagMetrics, optional
@@ -312,6 +455,12 @@ def save_model(model: BiventricularModel, path: str | Path, tags=None) -> Path:
     Returns
     -------
     Path
+        ``path``.
+
+    Raises
+    ------
+    ExportError
+        A suffix other than ``.json`` or ``.npz``.
     """
     model_dict = model.to_dict()
     if tags is not None:                       # tag surfaces are saved with the model
@@ -327,6 +476,7 @@ def load_model(path: str | Path, study: Study | None = None) -> BiventricularMod
     Parameters
     ----------
     path : str or Path
+        A model file written by :func:`save_model`.
     study : Study, optional
         The study the model was reconstructed from (default: one reduced to subject,
         heart rate, ED/ES and the long-axis landmarks, which every volume, mass and
@@ -335,6 +485,11 @@ def load_model(path: str | Path, study: Study | None = None) -> BiventricularMod
     Returns
     -------
     BiventricularModel
+
+    Raises
+    ------
+    ExportError
+        The file cannot be read or is not a cardionurbs model file.
     """
     return BiventricularModel.from_dict(read_model_file(path), study=study)
 
@@ -344,7 +499,22 @@ def write_meshes(model: BiventricularModel, mesh_dir: Path, mesh_ext: str = "ply
     """Every frame's closed meshes into ``mesh_dir`` (``frame_NN_<mesh>.<mesh_ext>``), with
     every frame's volumes kept in ``model.volumes`` (the volume curve of metrics.json and
     the figures); ``jobs`` worker processes (:class:`MeshWriter`; 1, the default: all here;
-    None: the usable CPUs)."""
+    None: the usable CPUs).
+
+    Parameters
+    ----------
+    model : cardionurbs.anatomy.model.BiventricularModel
+        The reconstructed model (``model.volumes`` filled for every frame).
+    mesh_dir : pathlib.Path
+        The folder the meshes go to (made when missing).
+    mesh_ext : str, optional
+        The mesh format: ``"ply"`` (default), ``"vtp"`` (with point data and a ``.pvd``
+        series) or any extension trimesh exports (``"stl"``, ``"obj"``).
+    jobs : int or None, optional
+        Worker processes (1, the default: all here; None: the usable CPUs).
+    progress : cardionurbs.progress.Progress or None, optional
+        Where the frames meshed are counted.
+    """
     MeshWriter(model, mesh_dir, mesh_ext, jobs=jobs).finish(progress)
 
 
@@ -360,7 +530,19 @@ class MeshWriter:
     files and hands back what a frame added to the model (surfaces, volumes:
     :meth:`BiventricularModel.frame_results`) and its warnings, added in frame order: the
     model ends as a serial loop leaves it, less the other frames' solids (released after
-    writing, as that loop does)."""
+    writing, as that loop does).
+
+    Parameters
+    ----------
+    model : cardionurbs.anatomy.model.BiventricularModel
+        The reconstructed model (ED and ES frames chosen).
+    mesh_dir : pathlib.Path
+        The folder the meshes go to (made now when missing).
+    mesh_ext : str, optional
+        The mesh format (see :func:`write_meshes`).
+    jobs : int or None, optional
+        Worker processes (None, the default: the usable CPUs; 1: every frame in :meth:`finish`).
+    """
 
     def __init__(self, model: BiventricularModel, mesh_dir: Path, mesh_ext: str = "ply", *,
                  jobs: int | None = None) -> None:
@@ -398,7 +580,13 @@ class MeshWriter:
         return self.work.workers > 0
 
     def finish(self, progress: Progress | None = None) -> None:
-        """Mesh ED and ES here, collect the workers' frames, update the model."""
+        """Mesh ED and ES here, collect the workers' frames, update the model.
+
+        Parameters
+        ----------
+        progress : cardionurbs.progress.Progress or None, optional
+            Where the frames meshed are counted.
+        """
         progress = progress or Progress(False)
         model, done = self.model, [0]
 
@@ -426,7 +614,17 @@ class EarlyMeshes:
     ``on_measured`` hook of :func:`analyse`), in a marked temporary folder beside the
     output (:func:`cardionurbs.io.atomic.sibling_temporary_dir`) that
     :func:`write_analysis` moves into its own; :meth:`close` stops the workers and removes
-    that folder when the analysis did not get that far."""
+    that folder when the analysis did not get that far.
+
+    Parameters
+    ----------
+    out : path-like
+        The output folder of ``analyze`` (the temporary folder is made beside it).
+    mesh_ext : str, optional
+        The mesh format (see :func:`write_meshes`).
+    jobs : int or None, optional
+        Worker processes (None: the usable CPUs; 1: nothing is started early).
+    """
 
     def __init__(self, out: str | Path, mesh_ext: str = "ply", jobs: int | None = None) -> None:
         self.out, self.mesh_ext, self.jobs = Path(out), mesh_ext, jobs
@@ -434,6 +632,14 @@ class EarlyMeshes:
         self.folder: Path | None = None
 
     def start(self, model: BiventricularModel) -> None:
+        """Fork the mesh workers for the frames other than ED and ES (nothing when only one
+        process would work: :func:`write_analysis` meshes every frame then).
+
+        Parameters
+        ----------
+        model : cardionurbs.anatomy.model.BiventricularModel
+            The model, its ED and ES frames chosen.
+        """
         from cardionurbs.parallel import worker_count
         n_other = len(set(model.frames) - {model.ed_frame, model.es_frame})
         if worker_count(self.jobs, n_other, 1) == 0:
@@ -442,11 +648,21 @@ class EarlyMeshes:
         self.writer = MeshWriter(model, self.folder / "meshes", self.mesh_ext, jobs=self.jobs)
 
     def finish_into(self, mesh_dir: Path, progress: Progress | None = None) -> None:
-        """Finish the meshes and move them to ``mesh_dir``."""
+        """Finish the meshes and move them to ``mesh_dir``.
+
+        Parameters
+        ----------
+        mesh_dir : pathlib.Path
+            The final meshes folder (must not exist yet).
+        progress : cardionurbs.progress.Progress or None, optional
+            Where the frames meshed are counted.
+        """
+        assert self.writer is not None and self.folder is not None, "start() wrote no meshes"
         self.writer.finish(progress)
         os.replace(self.folder / "meshes", mesh_dir)
 
     def close(self) -> None:
+        """Stop the workers and remove the temporary folder (nothing once moved)."""
         if self.writer is not None:
             self.writer.cancel()
         if self.folder is not None:
@@ -488,7 +704,18 @@ def _label_option(args: argparse.Namespace) -> dict:
 def study_folder(path: str | Path) -> Path:
     """The folder of a study given as a folder or as a file in it (its study.json); a
     single-file study (a NIfTI label map) is the file itself, whose reader reads nothing
-    else, so an output folder beside it is allowed."""
+    else, so an output folder beside it is allowed.
+
+    Parameters
+    ----------
+    path : path-like
+        A study folder, a file in it, or a NIfTI label map.
+
+    Returns
+    -------
+    pathlib.Path
+        The folder the study's files lie in (the NIfTI file itself for a single-file study).
+    """
     p = Path(path)
     if p.is_file() and p.name.lower().endswith((".nii", ".nii.gz")):
         return p
@@ -498,7 +725,29 @@ def study_folder(path: str | Path) -> Path:
 def run_analyze(args: argparse.Namespace) -> int:
     """Load, reconstruct, measure and write one study (outputs: docs/formats.md); ``--out`` is
     checked (cardionurbs.io.outputs) before anything is read; ``--outputs`` chooses what is
-    written, ``--progress`` (or a terminal on stderr) shows the stages."""
+    written, ``--progress`` (or a terminal on stderr) shows the stages.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed ``analyze`` command line (``study``, ``out``, ``format``, ``outputs`` ...).
+
+    Returns
+    -------
+    int
+        The exit code, 0.
+
+    Raises
+    ------
+    cardionurbs.errors.UsageError
+        An unknown ``--outputs`` name.
+    cardionurbs.errors.ExportError
+        ``--mesh-format vtp`` without the vtk extra (before any work).
+    cardionurbs.errors.OutputError
+        ``--out`` may not be written (checked before anything is read).
+    cardionurbs.errors.StudyError
+        The study cannot be read.
+    """
     from cardionurbs.io.outputs import check_output_dir
     try:
         outputs = parse_outputs(getattr(args, "outputs", None))
@@ -563,7 +812,24 @@ def _value(metrics: dict, column: str, unit: str) -> str:
 
 
 def summary_line(subject: str, model: BiventricularModel, metrics: dict, out) -> str:
-    """``analyze``'s line on stdout: ED/ES, LVEDV and LVEF (a null one with its reason)."""
+    """``analyze``'s line on stdout: ED/ES, LVEDV and LVEF (a null one with its reason).
+
+    Parameters
+    ----------
+    subject : str
+        The study's subject.
+    model : cardionurbs.anatomy.model.BiventricularModel
+        The reconstructed model (its ED and ES frame indices, 0-based).
+    metrics : dict
+        Its docs/metrics.md dict.
+    out : path-like
+        The output folder written.
+
+    Returns
+    -------
+    str
+        One line: ED and ES frames, LVEDV in mL and LVEF in %, the output folder.
+    """
     return (f"{subject}: ED frame {model.ed_frame}, ES frame {model.es_frame}; "
             f"LVEDV {_value(metrics, 'LVEDV (mL)', 'mL')}, LVEF {_value(metrics, 'LVEF (%)', '%')}; "
             f"wrote {out}")
@@ -575,7 +841,17 @@ SHOWN_WARNINGS = 3
 
 def report_warnings(warnings: list[dict], *, verbose: bool = False, file=None) -> None:
     """On stderr: ``N warnings (load 2, reconstruct 1; all in metrics.json)`` and the first
-    :data:`SHOWN_WARNINGS` of them, load warnings first (every one with ``verbose``)."""
+    :data:`SHOWN_WARNINGS` of them, load warnings first (every one with ``verbose``).
+
+    Parameters
+    ----------
+    warnings : list of dict
+        ``{"source", "message"}`` per warning (:func:`analysis_warnings`).
+    verbose : bool, optional
+        Print every warning, not the first :data:`SHOWN_WARNINGS`.
+    file : text stream, optional
+        Where to print (default :data:`sys.stderr`).
+    """
     import sys
     file = file or sys.stderr
     if not warnings:

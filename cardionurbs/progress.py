@@ -14,7 +14,22 @@ from typing import TextIO
 
 
 class Progress:
-    """Report stages (``stage(name)``) and counted steps (``step(k, n)``) of one command."""
+    """Report stages (``stage(name)``) and counted steps (``step(k, n)``) of one command.
+
+    Parameters
+    ----------
+    enabled : bool or None, optional
+        Write stage lines at all; ``None`` (default): only when ``stream`` is a terminal.
+    prefix : str, optional
+        Text before every line, usually the command name (``"cardionurbs"``).
+    stream : text stream or None, optional
+        Where the lines go; ``None`` (default): :data:`sys.stderr`.
+
+    Attributes
+    ----------
+    timings : dict of str to float
+        Wall time of every ended stage, in s (repeated stages summed).
+    """
 
     def __init__(self, enabled: bool | None = None, prefix: str = "cardionurbs",
                  stream: TextIO | None = None) -> None:
@@ -27,7 +42,18 @@ class Progress:
         self.timings: dict[str, float] = {}
 
     def stage(self, name: str) -> "Progress":
-        """Start stage ``name`` (ends the previous one)."""
+        """Start stage ``name`` (ends the previous one).
+
+        Parameters
+        ----------
+        name : str
+            The stage's name as shown (``"reconstruct"``) and as keyed in :attr:`timings`.
+
+        Returns
+        -------
+        Progress
+            ``self``, so that ``progress.stage("x")`` can be chained.
+        """
         self.done()
         self._name, self._t0 = name, time.perf_counter()
         if self.enabled and self.tty:
@@ -35,7 +61,15 @@ class Progress:
         return self
 
     def step(self, k: int, n: int) -> None:
-        """Step k of n of the current stage done (rewrites the line on a terminal)."""
+        """Step k of n of the current stage done (rewrites the line on a terminal).
+
+        Parameters
+        ----------
+        k : int
+            Steps done so far (1-based: ``k`` of ``n``).
+        n : int
+            Steps the stage has in all.
+        """
         if self.enabled and self.tty:
             self._write(f"\r{self.prefix}: {self._name} {k}/{n}\x1b[K")
 

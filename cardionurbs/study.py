@@ -61,11 +61,34 @@ def _points(value, what: str, *, slice=None, frame=None, ndim: int = 3) -> np.nd
 class Contour:
     """One delineated boundary on one image: (n, 3) scanner-mm points in drawing order.
 
-    ``closed`` is True for a closed loop (SA ``lv_endo`` etc.; the first point
-    is not repeated at the end); LA contours and RV septum / free-wall parts are
-    open. ``index`` tells apart several pieces of one structure on one image.
-    ``weights`` (optional, (n,) >= 0): each point's fitting weight as the input
-    gives it (CAP guide-point files); None means 1 for every point.
+    Attributes
+    ----------
+    structure : str
+        One of :data:`STRUCTURES` (``lv_endo``, ``lv_epi``, ``rv_endo``, ``rv_epi``, the RV
+        parts) or :data:`OTHER_STRUCTURES` (kept, not reconstructed).
+    view : {"SA", "LA"}
+        Short- or long-axis image.
+    slice : str
+        The slice id (the same at every frame).
+    frame : int
+        Cardiac frame index (0-based).
+    points : (n, 3) ndarray of float
+        Scanner (patient LPS) coordinates, mm, in drawing order.
+    image : str or None
+        Id of the :class:`~cardionurbs.imaging.geometry.ImagePlane` the contour lies on.
+    closed : bool
+        True for a closed loop (SA ``lv_endo`` etc.; the first point is not repeated at the
+        end); LA contours and RV septum / free-wall parts are open.
+    index : int
+        Tells apart several pieces of one structure on one image.
+    weights : (n,) ndarray of float or None
+        Each point's fitting weight (>= 0) as the input gives it (CAP guide-point files);
+        None means 1 for every point.
+
+    Raises
+    ------
+    StudyError
+        An unknown structure or view, points not (n, 3) finite numbers, or bad weights.
     """
 
     structure: str
@@ -105,7 +128,30 @@ class Contour:
 
 @dataclass(eq=False)
 class TagLine:
-    """One tracked tag line on one image: family, tag index, (n, 3) scanner-mm points."""
+    """One tracked tag line on one image: family, tag index, (n, 3) scanner-mm points.
+
+    Attributes
+    ----------
+    family : {"sa1", "sa2", "la"}
+        The tag plane family (:data:`TAG_FAMILIES`): two SA grid directions, the LA spokes.
+    index : int
+        The tag's index within its family (the same tag plane at every frame).
+    view : {"SA", "LA"}
+        The image view.
+    slice : str
+        The slice id.
+    frame : int
+        Cardiac frame index (0-based).
+    points : (n, 3) ndarray of float
+        Scanner coordinates, mm, along the line.
+    image : str or None
+        Id of the image plane the line lies on.
+
+    Raises
+    ------
+    StudyError
+        An unknown family or view, or points not (n, 3) finite numbers.
+    """
 
     family: str
     index: int
@@ -130,7 +176,27 @@ class TagLine:
 
 @dataclass(eq=False)
 class Landmark:
-    """An anatomical landmark point (scanner mm) at one frame."""
+    """An anatomical landmark point (scanner mm) at one frame.
+
+    Attributes
+    ----------
+    name : str
+        One of :data:`LANDMARKS` (``apex``, ``mitral``, ``tricuspid``, ``aortic``,
+        ``pulmonary``, ``rv_insert``).
+    frame : int
+        Cardiac frame index (0-based).
+    point : (3,) ndarray of float
+        Scanner coordinates, mm.
+    index : int
+        Tells apart several points of one name on one slice.
+    slice, view, image : str or None
+        The slice, view and image the point was picked on, where known.
+
+    Raises
+    ------
+    StudyError
+        An unknown name, or a point that is not three finite numbers.
+    """
 
     name: str
     frame: int
@@ -207,10 +273,26 @@ class Study:
 
     @property
     def tagged_frames(self) -> list[int]:
+        """Sorted frames that have at least one tag line."""
         return sorted({t.frame for t in self.tags})
 
     def image(self, image_id: str) -> ImagePlane:
-        """The image plane with this id (StudyError naming the id if absent)."""
+        """The image plane with this id.
+
+        Parameters
+        ----------
+        image_id : str
+            An :attr:`ImagePlane.id <cardionurbs.imaging.geometry.ImagePlane.id>`.
+
+        Returns
+        -------
+        ImagePlane
+
+        Raises
+        ------
+        StudyError
+            No image of the study has this id (naming it).
+        """
         idx = self._image_index()
         if image_id not in idx:
             raise StudyError(f"reference to image {image_id!r} that is not in the study",
@@ -225,11 +307,39 @@ class Study:
         return cache
 
     def images_at(self, frame: int, view: str | None = None) -> list[ImagePlane]:
+        """Image planes of one frame, in the order of ``images``.
+
+        Parameters
+        ----------
+        frame : int
+            Cardiac frame index.
+        view : {"SA", "LA"} or None
+            Only this view; None: both.
+
+        Returns
+        -------
+        list of ImagePlane
+        """
         return [im for im in self.images if im.frame == frame and (view is None or im.view == view)]
 
     def contours_at(self, frame: int, structure: str | Iterable[str] | None = None,
                     view: str | None = None) -> list[Contour]:
-        """Contours of one frame, optionally of some structures and one view."""
+        """Contours of one frame, optionally of some structures and one view.
+
+        Parameters
+        ----------
+        frame : int
+            Cardiac frame index.
+        structure : str, iterable of str, or None
+            Only these structures (e.g. ``"lv_endo"``); None: every structure.
+        view : {"SA", "LA"} or None
+            Only this view; None: both.
+
+        Returns
+        -------
+        list of Contour
+            In the order of ``contours``.
+        """
         if isinstance(structure, str):
             structure = (structure,)
         return [c for c in self._contour_index().get(frame, ())
@@ -249,7 +359,19 @@ class Study:
         return cache[2]
 
     def tags_at(self, frame: int, family: str | None = None) -> list[TagLine]:
-        """Tag lines of one frame (optionally of one family), in the order of ``tags``."""
+        """Tag lines of one frame (optionally of one family), in the order of ``tags``.
+
+        Parameters
+        ----------
+        frame : int
+            Cardiac frame index.
+        family : {"sa1", "sa2", "la"} or None
+            Only this tag family; None: every family.
+
+        Returns
+        -------
+        list of TagLine
+        """
         return list(self._tag_index().get((frame, family), ()))
 
     def _tag_index(self) -> dict[tuple[int, str | None], list[TagLine]]:
@@ -267,17 +389,54 @@ class Study:
         return cache[2]
 
     def landmarks_at(self, frame: int, name: str | None = None) -> list[Landmark]:
+        """Landmarks of one frame, in the order of ``landmarks``.
+
+        Parameters
+        ----------
+        frame : int
+            Cardiac frame index.
+        name : str or None
+            Only this landmark name (:data:`LANDMARKS`); None: every name.
+
+        Returns
+        -------
+        list of Landmark
+        """
         return [lm for lm in self.landmarks if lm.frame == frame and (name is None or lm.name == name)]
 
     def slice_plane(self, slice_id: str, frame: int | None = None) -> ImagePlane:
-        """The plane of a slice (at a frame, or at any frame for a static slice)."""
+        """The plane of a slice.
+
+        Parameters
+        ----------
+        slice_id : str
+            The slice id.
+        frame : int or None
+            The plane at this frame; None: the first image of the slice (any frame, for a
+            static slice).
+
+        Returns
+        -------
+        ImagePlane
+
+        Raises
+        ------
+        StudyError
+            The slice has no image (at that frame).
+        """
         for im in self.images:
             if im.slice == slice_id and (frame is None or im.frame == frame):
                 return im
         raise StudyError("no image for this slice", file=self.source, slice=slice_id, frame=frame)
 
     def summary(self) -> str:
-        """One line for logs: counts of what the study holds."""
+        """One line for logs: counts of what the study holds.
+
+        Returns
+        -------
+        str
+            ``"<subject>: <n> frames, <k> SA + <l> LA slices, ... landmarks"``.
+        """
         views = sorted({(im.view, im.slice) for im in self.images})
         n_sa = sum(v == "SA" for v, _ in views)
         n_la = sum(v == "LA" for v, _ in views)

@@ -40,7 +40,13 @@ _PR_SET_PDEATHSIG = 1
 
 def usable_cpus() -> int:
     """CPUs this process may run on (its affinity mask; :func:`os.cpu_count` where the
-    platform has no affinity)."""
+    platform has no affinity).
+
+    Returns
+    -------
+    int
+        At least 1.
+    """
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):
@@ -71,14 +77,36 @@ def resolve_jobs(jobs: int | None) -> int:
 def context(fork: bool = True):
     """The multiprocessing context of the workers: ``fork`` where it exists and is safe
     (not macOS, whose system frameworks do not survive a fork) and ``fork`` is asked for,
-    else ``spawn``."""
+    else ``spawn``.
+
+    Parameters
+    ----------
+    fork : bool, optional
+        Ask for ``fork`` (default); ``False`` always gives ``spawn``.
+
+    Returns
+    -------
+    multiprocessing.context.BaseContext
+        The ``fork`` or the ``spawn`` context.
+    """
     if fork and "fork" in mp.get_all_start_methods() and sys.platform != "darwin":
         return mp.get_context("fork")
     return mp.get_context("spawn")
 
 
 def exit_text(exitcode: int | None) -> str:
-    """How a worker ended, in words: ``killed by signal 9`` or ``exit code 7``."""
+    """How a worker ended, in words: ``killed by signal 9`` or ``exit code 7``.
+
+    Parameters
+    ----------
+    exitcode : int or None
+        :attr:`multiprocessing.Process.exitcode`: negative for a signal, None while running.
+
+    Returns
+    -------
+    str
+        ``"killed by signal N"`` or ``"exit code N"``.
+    """
     if exitcode is not None and exitcode < 0:
         return f"killed by signal {-exitcode}"
     return f"exit code {exitcode}"
@@ -152,7 +180,21 @@ def start(target: Callable[..., Any], args: tuple = (), *, ctx=None, duplex: boo
 def stop(proc, conn, *, kill: bool = False, polite: Any = None, grace_s: float = 5.0) -> None:
     """End a worker and reap it: killed at once (``kill``), or sent ``polite`` (e.g. None,
     "no more tasks") through ``conn`` and killed if it has not ended after ``grace_s``
-    seconds; then ``conn`` is closed."""
+    seconds; then ``conn`` is closed.
+
+    Parameters
+    ----------
+    proc : multiprocessing.Process
+        The worker, as returned by :func:`start`.
+    conn : multiprocessing.connection.Connection
+        The parent's end of its pipe; closed on return.
+    kill : bool, optional
+        Kill the worker at once instead of asking it to end.
+    polite : object, optional
+        The message that asks the worker to end (default None).
+    grace_s : float, optional
+        Seconds to wait for the worker to end before it is killed (default 5).
+    """
     if kill:
         if proc.is_alive():
             proc.kill()

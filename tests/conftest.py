@@ -41,3 +41,43 @@ def la_spoke_fans():
             for (fam, _), secs in qc_sections(study, f, axis).items() if fam == "la"]
     assert fans
     return fans, axis
+
+
+#: session fixtures that xdist keeps in one worker: every test using one of them (directly
+#: or through another fixture) gets the xdist_group of its name (``--dist loadgroup``,
+#: pyproject.toml), so the fixture is built once, not once per worker
+SHARED_FIXTURES = ("phantom20_analysed", "bivme_model")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        used = [n for n in SHARED_FIXTURES if n in getattr(item, "fixturenames", ())]
+        if used:
+            item.add_marker(pytest.mark.xdist_group(used[0]))
+
+
+@pytest.fixture(scope="session")
+def bivme_model():
+    """bivme-patient1 (CAP) loaded and reconstructed, all 25 frames: (study, model).
+    Shared by test_cycle.py, test_quality.py and test_model_realdata.py (a model is
+    read, never changed, by them; what they compute on it is cached on it)."""
+    from cardionurbs import load_study, reconstruct
+    study = load_study(shared_data("bivme-patient1"))
+    return study, reconstruct(study)
+
+
+@pytest.fixture(scope="session")
+def phantom20_analysed(tmp_path_factory):
+    """A 20-frame tagged 'normal' phantom (no DICOM) analysed once per test process with
+    two processes: (study folder, output folder). The output holds metrics.json,
+    model.json, model.3dm, residuals.csv and the VTK meshes (a .vtp per frame and mesh, a
+    .pvd per mesh). Used by test_model_file.py and test_vtk_outputs.py."""
+    from cardionurbs.cli import main
+    root = tmp_path_factory.mktemp("phantom20")
+    study, out = root / "study", root / "out"
+    assert main(["phantom", "--pathology", "normal", "--frames", "20", "--no-dicom",
+                 "--out", str(study)]) == 0
+    assert main(["analyze", str(study), "--outputs", "metrics,model,meshes", "--mesh-format",
+                 "vtp", "--jobs", "2", "--out", str(out)]) == 0
+    return study, out

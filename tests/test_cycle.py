@@ -13,14 +13,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cardionurbs import load_study, reconstruct
+from cardionurbs import reconstruct
 from cardionurbs.analysis.function import measure, volume_curve
 from cardionurbs.analysis.quality import assess, partial_tracings, section_support_flag
 from cardionurbs.anatomy.cycle import (MIN_FRAMES, bracketing_frames, check_curve,
                                        lagrange_weights, partial_sections, section_areas)
 from cardionurbs.anatomy.model import BiventricularModel
 from cardionurbs.anatomy.sections import frame_geometry
-from conftest import shared_data
 
 generate = importlib.import_module("cardionurbs.phantom.generate")
 
@@ -110,9 +109,9 @@ def _lv_curve(study):
 
 
 @pytest.fixture(scope="module")
-def bivme():
-    study = load_study(shared_data("bivme-patient1"))
-    model, curve = _lv_curve(study)
+def bivme(bivme_model):
+    study, model = bivme_model                    # conftest.py: reconstructed once per session
+    curve = np.array(volume_curve(model, every_structure=False)["lv_cavity (mL)"])
     return study, curve, model.sections_in_time
 
 

@@ -60,9 +60,8 @@ def test_sunnybrook_meshes_closed(sunnybrook):
 
 
 @pytest.fixture(scope="module")
-def bivme():
-    st = load_study(shared_data("bivme-patient1"))
-    return st, reconstruct(st)
+def bivme(bivme_model):
+    return bivme_model                            # conftest.py: reconstructed once per session
 
 
 def test_bivme_all_frames_and_ed_es(bivme):

@@ -16,15 +16,13 @@ import pytest
 from cardionurbs import load_study, measure, reconstruct
 from cardionurbs.analysis.quality import DERIVED, QC_COLUMNS, QC_LIMIT_PX, SOURCES, assess
 from cardionurbs.cohort import cohort, measure_study
-from conftest import shared_data
 
 generate = importlib.import_module("cardionurbs.phantom.generate")
 
 
 @pytest.fixture(scope="module")
-def bivme():
-    study = load_study(shared_data("bivme-patient1"))
-    model = reconstruct(study)
+def bivme(bivme_model):
+    model = bivme_model[1]                        # conftest.py: reconstructed once per session
     metrics = measure(model)
     return model, metrics, assess(model, metrics)
 

@@ -1,8 +1,8 @@
 """`analyze --mesh-format vtp`: VTK PolyData per frame and mesh with point data, and a
 ParaView .pvd time series per mesh (issue 33), read back with VTK's own readers.
 
-One 20-frame tagged phantom is analysed once for the module (metrics and vtp meshes,
-two processes); every file is read with ``vtkXMLPolyDataReader`` (the .pvd with VTK's
+One 20-frame tagged phantom is analysed once for this module and test_model_file.py
+(conftest.py's ``phantom20_analysed``: metrics, model and vtp meshes, two processes); every file is read with ``vtkXMLPolyDataReader`` (the .pvd with VTK's
 XML parser, ``vtkXMLDataParser``: the VTK wheel has no .pvd reader, ParaView has)."""
 
 from __future__ import annotations
@@ -26,14 +26,9 @@ FRAMES = 20
 
 
 @pytest.fixture(scope="module")
-def analysed(tmp_path_factory):
-    root = tmp_path_factory.mktemp("vtp")
-    study = root / "study"
-    assert main(["phantom", "--pathology", "normal", "--frames", str(FRAMES), "--no-dicom",
-                 "--out", str(study)]) == 0
-    out = root / "out"
-    assert main(["analyze", str(study), "--outputs", "metrics,meshes", "--mesh-format", "vtp",
-                 "--jobs", "2", "--out", str(out)]) == 0
+def analysed(phantom20_analysed):
+    """The shared 20-frame phantom (conftest.py): output folder, metrics.json, frame times."""
+    study, out = phantom20_analysed
     times = {int(k): v for k, v in json.loads((study / "study.json").read_text())
              ["frame_times_ms"].items()}
     return out, json.loads((out / "metrics.json").read_text()), times

@@ -61,14 +61,38 @@ N_SEGMENTS = 17
 
 
 def circular_mean(angles: np.ndarray, weights: np.ndarray | None = None) -> float:
-    """Mean direction (rad) of angles (rad)."""
+    """Mean direction (rad) of angles (rad).
+
+    Parameters
+    ----------
+    angles : (n,) ndarray
+        Angles, rad.
+    weights : (n,) ndarray or None
+        Their weights; None: equal.
+
+    Returns
+    -------
+    float
+        The mean direction in (−π, π], rad.
+    """
     a = np.asarray(angles, float)
     w = np.ones_like(a) if weights is None else np.asarray(weights, float)
     return float(np.arctan2((w * np.sin(a)).sum(), (w * np.cos(a)).sum()))
 
 
 def wrap(angle) -> np.ndarray:
-    """Angle(s) wrapped to [−π, π)."""
+    """Angle(s) wrapped to [−π, π).
+
+    Parameters
+    ----------
+    angle : float or ndarray
+        Angle(s), rad.
+
+    Returns
+    -------
+    ndarray
+        The same shape, in [−π, π).
+    """
     return (np.asarray(angle, float) + np.pi) % (2 * np.pi) - np.pi
 
 
@@ -76,10 +100,16 @@ def wrap(angle) -> np.ndarray:
 class AhaFrame:
     """The geometry the 17 segments are cut with at one frame (scanner mm, radians).
 
-    apex, base : (3,) ends of the long axis (apex, mitral centre)
-    cap_height : h of the LV endocardial apex (mm from the apex along the axis)
-    septal_angle : θ_s (rad) in the axis frame :func:`axis_frame` (apex, base)
-    source : how θ_s was found ("rv_insert landmarks" or "RV contours")
+    Attributes
+    ----------
+    apex, base : (3,) ndarray
+        The ends of the long axis (apex, mitral centre), mm.
+    cap_height : float
+        h of the LV endocardial apex (mm from the apex along the axis).
+    septal_angle : float
+        θ_s (rad) in the axis frame :func:`axis_frame` (apex, base).
+    source : str
+        How θ_s was found (``"rv_insert landmarks"`` or ``"RV contours"``).
     """
 
     apex: np.ndarray
@@ -93,7 +123,18 @@ class AhaFrame:
         return float(np.linalg.norm(self.base - self.apex))
 
     def cylindrical(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(h mm along apex → base, θ rad from the septal centre in [−π, π), r mm from the axis)."""
+        """(h mm along apex → base, θ rad from the septal centre in [−π, π), r mm from the axis).
+
+        Parameters
+        ----------
+        points : (n, 3) ndarray
+            Scanner points, mm.
+
+        Returns
+        -------
+        h, theta, r : (n,) ndarray
+            Height (mm), angle (rad), radius (mm).
+        """
         e1, e2, e = axis_frame(self.apex, self.base)
         d = np.asarray(points, float).reshape(-1, 3) - self.apex
         h = -(d @ e)
@@ -102,11 +143,28 @@ class AhaFrame:
         return h, th, r
 
     def segments(self, points: np.ndarray) -> np.ndarray:
-        """AHA segment (1..17) of each (n, 3) point; 0 above the mitral plane."""
+        """AHA segment (1..17) of each (n, 3) point; 0 above the mitral plane.
+
+        Parameters
+        ----------
+        points : (n, 3) ndarray
+            Scanner points, mm.
+
+        Returns
+        -------
+        (n,) ndarray of int
+            The segment of each point (17: the apical cap).
+        """
         h, th, _ = self.cylindrical(points)
         return segment_labels(h, th, self.cap_height, self.length)
 
     def to_dict(self) -> dict:
+        """JSON-safe: apex and base (mm), ``cap_height_mm``, ``septal_angle_deg``, ``source``.
+
+        Returns
+        -------
+        dict
+        """
         return {"apex": [float(x) for x in self.apex], "base": [float(x) for x in self.base],
                 "cap_height_mm": float(self.cap_height),
                 "septal_angle_deg": float(np.degrees(self.septal_angle)), "source": self.source}
@@ -114,7 +172,24 @@ class AhaFrame:
 
 def segment_labels(h: np.ndarray, theta: np.ndarray, cap_height: float, length: float) -> np.ndarray:
     """AHA segments from height h (mm from the apex) and angle θ (rad from the septal centre,
-    CCW seen from the apex); 0 beyond the base (h > length)."""
+    CCW seen from the apex); 0 beyond the base (h > length).
+
+    Parameters
+    ----------
+    h : (n,) ndarray
+        Height from the apex along the axis, mm.
+    theta : (n,) ndarray
+        Angle from the septal centre, rad.
+    cap_height : float
+        Height of the apical cap (segment 17), mm.
+    length : float
+        Axis length apex -> base, mm.
+
+    Returns
+    -------
+    (n,) ndarray of int
+        Segments 1..17, 0 beyond the base.
+    """
     h = np.asarray(h, float)
     t = np.mod(np.asarray(theta, float), 2 * np.pi)
     third = (length - cap_height) / 3.0
@@ -129,7 +204,18 @@ def segment_labels(h: np.ndarray, theta: np.ndarray, cap_height: float, length: 
 
 def insertion_bisector(angles: np.ndarray) -> float:
     """θ_s (rad) from the angles of RV insertion points: the two clusters split at the largest
-    angular gaps, θ_s the midpoint of the shorter arc between their circular means."""
+    angular gaps, θ_s the midpoint of the shorter arc between their circular means.
+
+    Parameters
+    ----------
+    angles : (n,) ndarray
+        Angles of the RV insertion points in the axis frame, rad (n >= 2).
+
+    Returns
+    -------
+    float
+        θ_s, rad.
+    """
     a = np.sort(np.mod(np.asarray(angles, float), 2 * np.pi))
     if len(a) < 2:
         raise SegmentError("one RV insertion point: two (anterior and inferior) are needed")
@@ -147,7 +233,22 @@ def insertion_bisector(angles: np.ndarray) -> float:
 
 
 def septal_angle_from_landmarks(study: Study, frame: int, apex, base) -> float | None:
-    """θ_s from the frame's ``rv_insert`` landmarks, None without two of them."""
+    """θ_s from the frame's ``rv_insert`` landmarks, None without two of them.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    frame : int
+        The frame.
+    apex, base : (3,) ndarray
+        The long axis' ends, mm.
+
+    Returns
+    -------
+    float or None
+        θ_s, rad.
+    """
     pts = [lm.point for lm in study.landmarks_at(frame, "rv_insert")]
     if len(pts) < 2:
         return None
@@ -158,7 +259,22 @@ def septal_angle_from_landmarks(study: Study, frame: int, apex, base) -> float |
 
 def septal_angle_from_contours(study: Study, frame: int, apex, base) -> float | None:
     """θ_s from the SA RV and LV epicardial contours of the frame (module docstring), None
-    when no slice has both."""
+    when no slice has both.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    frame : int
+        The frame.
+    apex, base : (3,) ndarray
+        The long axis' ends, mm.
+
+    Returns
+    -------
+    float or None
+        θ_s, rad.
+    """
     e1, e2, e = axis_frame(apex, base)
     epi = {c.slice: c.points for c in study.contours_at(frame, "lv_epi", view="SA") if c.closed}
     rv: dict = {}
@@ -174,9 +290,9 @@ def septal_angle_from_contours(study: Study, frame: int, apex, base) -> float | 
             continue
         d = pts[near] - apex
         ang = np.arctan2(d @ e2, d @ e1)
-        c = circular_mean(ang)
-        rel = wrap(ang - c)
-        mids.append(c + 0.5 * (rel.min() + rel.max()))
+        centre = circular_mean(ang)
+        rel = wrap(ang - centre)
+        mids.append(centre + 0.5 * (rel.min() + rel.max()))
         weights.append(1.0)
     if not mids:
         return None
@@ -185,7 +301,28 @@ def septal_angle_from_contours(study: Study, frame: int, apex, base) -> float | 
 
 def aha_frame(study: Study, frame: int, apex: np.ndarray, base: np.ndarray,
               cap_height: float) -> AhaFrame:
-    """The segment geometry of one frame; SegmentError when the frame has no RV data."""
+    """The segment geometry of one frame; SegmentError when the frame has no RV data.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    frame : int
+        The frame.
+    apex, base : (3,) ndarray
+        The long axis' ends, mm.
+    cap_height : float
+        Height of the LV endocardial apex above ``apex``, mm.
+
+    Returns
+    -------
+    AhaFrame
+
+    Raises
+    ------
+    SegmentError
+        No ``rv_insert`` landmarks and no slice with RV and LV epicardial contours.
+    """
     apex, base = np.asarray(apex, float), np.asarray(base, float)
     th = septal_angle_from_landmarks(study, frame, apex, base)
     source = "rv_insert landmarks"
@@ -203,7 +340,24 @@ def model_aha_frame(model, frame: int) -> AhaFrame:
     """:func:`aha_frame` of a reconstructed model at ``frame``: the long axis of
     :func:`cardionurbs.geometry.long_axis` with that frame's landmarks and model apex and
     valve plane (at ED the model's own :meth:`long_axis`), the cap at the model's LV
-    endocardial apex."""
+    endocardial apex.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    frame : int
+        The frame.
+
+    Returns
+    -------
+    AhaFrame
+
+    Raises
+    ------
+    SegmentError
+        The frame has no RV data to place the septum.
+    """
     if frame == model.ed_frame:
         apex, base = model.long_axis()
     else:

@@ -28,7 +28,20 @@ INDEXED_COLUMNS = tuple(INDEXED)
 
 
 def bsa_mosteller(height_cm: float, weight_kg: float) -> float:
-    """Body surface area (m²) by Mosteller: sqrt(height cm · weight kg / 3600)."""
+    """Body surface area (m²) by Mosteller: sqrt(height cm · weight kg / 3600).
+
+    Parameters
+    ----------
+    height_cm : float
+        Height, cm.
+    weight_kg : float
+        Weight, kg.
+
+    Returns
+    -------
+    float
+        m².
+    """
     return math.sqrt(float(height_cm) * float(weight_kg) / 3600.0)
 
 

@@ -60,7 +60,20 @@ def _ratio(a: float, b: float) -> float:
 
 
 def ventricular_function(edv: float, esv: float, hr_bpm: float) -> dict[str, float]:
-    """SV (mL), EF (%) and CO (L/min) of one ventricle from EDV, ESV (mL) and HR (bpm)."""
+    """SV (mL), EF (%) and CO (L/min) of one ventricle from EDV, ESV (mL) and HR (bpm).
+
+    Parameters
+    ----------
+    edv, esv : float
+        End-diastolic and end-systolic volume, mL.
+    hr_bpm : float
+        Heart rate, bpm (NaN: no CO).
+
+    Returns
+    -------
+    dict of str to float
+        ``SV`` (mL), ``EF`` (%, NaN for a zero or missing EDV), ``CO`` (L/min, NaN without HR).
+    """
     sv = edv - esv
     ef = 100.0 * _ratio(sv, edv)
     co = sv * hr_bpm / 1000.0 if np.isfinite(hr_bpm) else NAN
@@ -71,6 +84,18 @@ def regurgitation(lvsv: float, rvsv: float) -> tuple[float, float]:
     """Mitral regurgitant volume (mL) and fraction (%): max(0, LVSV − RVSV), 100·RegVol/LVSV.
 
     Valid when no other valve leaks (the forward flow then equals RVSV).
+
+    Parameters
+    ----------
+    lvsv, rvsv : float
+        LV and RV stroke volume, mL.
+
+    Returns
+    -------
+    regvol : float
+        mL.
+    regfrac : float
+        %.
     """
     if not (np.isfinite(lvsv) and np.isfinite(rvsv)):
         return NAN, NAN
@@ -89,13 +114,34 @@ def regurgitation_stated(meta: dict) -> bool:
     """True when the study states its pathology (``meta["pathology"]``, any non-empty text:
     a phantom's preset, the study's metadata or ``analyze --pathology``), so that MR RegVol
     and RegFrac answer a question someone asked; otherwise LVSV − RVSV is only a difference
-    of two measurements (docs/metrics.md)."""
+    of two measurements (docs/metrics.md).
+
+    Parameters
+    ----------
+    meta : dict
+        ``study.meta``.
+
+    Returns
+    -------
+    bool
+    """
     p = (meta or {}).get("pathology")
     return isinstance(p, str) and p.strip() != ""
 
 
 def mass_g(myocardial_volume_ml: float) -> float:
-    """Myocardial mass (g) = 1.05 g/mL · volume (mL)."""
+    """Myocardial mass (g) = 1.05 g/mL · volume (mL).
+
+    Parameters
+    ----------
+    myocardial_volume_ml : float
+        Myocardial volume, mL.
+
+    Returns
+    -------
+    float
+        g.
+    """
     return MYOCARDIAL_DENSITY_G_PER_ML * myocardial_volume_ml
 
 
@@ -105,6 +151,18 @@ def eccentricity_index(lv_xy: np.ndarray, rv_xy: np.ndarray) -> float:
     ``lv_xy``, ``rv_xy``: LV and RV cavity boundaries in in-plane mm. The
     septum direction is perpendicular to (RV centroid − LV centroid); EI is the
     LV chord through its centroid along the septum over the chord across it.
+
+    Parameters
+    ----------
+    lv_xy : (n, 2) ndarray
+        The LV cavity boundary, in-plane mm.
+    rv_xy : (m, 2) ndarray
+        The RV cavity boundary, in-plane mm.
+
+    Returns
+    -------
+    float
+        EI (dimensionless).
     """
     c_lv, c_rv = polygon_centroid(lv_xy), polygon_centroid(rv_xy)
     across = c_rv - c_lv
@@ -115,7 +173,17 @@ def eccentricity_index(lv_xy: np.ndarray, rv_xy: np.ndarray) -> float:
 
 
 def eccentricity_index_es(model: "BiventricularModel") -> float:
-    """EI at ES on the mid-ventricular SA slice (docs/metrics.md), NaN without RV contours."""
+    """EI at ES on the mid-ventricular SA slice (docs/metrics.md), NaN without RV contours.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+
+    Returns
+    -------
+    float
+    """
     fr = model.es_frame
     secs = model.sections.get(fr, {})
     lv = {s.slice: s for s in secs.get("lv_endo", []) if s.slice is not None}
@@ -140,14 +208,47 @@ def measure(model: "BiventricularModel", *, heart_rate_bpm: float | None = None,
     """Every docs/metrics.md column for one model, as floats (NaN where not measurable),
     with the reason of every NaN in ``.notes`` (:mod:`cardionurbs.analysis.notes`).
 
-    ``uncertainty``: also the 95 % interval of each global metric as ``<column> lo95`` and
-    ``<column> hi95`` (NaN where there is none; docs/metrics.md, Uncertainty;
-    :func:`cardionurbs.analysis.uncertainty.intervals` gives the reasons and sources).
+    Tag columns are NaN here (:func:`cardionurbs.pipeline.analyse` adds them). The body-size
+    columns (:mod:`cardionurbs.analysis.body`) follow from ``model.study.meta["body"]``.
 
-    ``heart_rate_bpm`` is used when the study carries no heart rate (the
-    user-given value of docs/metrics.md, Frames); outside 20-300 bpm it is refused
-    (CardioNurbsError). Tag columns are NaN here. The body-size columns
-    (:mod:`cardionurbs.analysis.body`) follow from ``model.study.meta["body"]``.
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model of :func:`cardionurbs.anatomy.model.reconstruct`.
+    heart_rate_bpm : float or None
+        Heart rate (bpm), used when the study carries none (the user-given value of
+        docs/metrics.md, Frames).
+    uncertainty : bool
+        Also the 95 % interval of each global metric as ``<column> lo95`` and
+        ``<column> hi95`` (NaN where there is none; docs/metrics.md, Uncertainty;
+        :func:`cardionurbs.analysis.uncertainty.intervals` gives the reasons and sources).
+
+    Returns
+    -------
+    Metrics
+        A dict column -> float in the column's unit (mL, g, %, ms, mm, deg; NaN where the
+        study cannot give one), with ``.notes`` column -> reason of each NaN.
+
+    Raises
+    ------
+    CardioNurbsError
+        ``heart_rate_bpm`` outside 20-300 bpm.
+
+    Examples
+    --------
+    A phantom's LV end-diastolic volume against its closed-form truth:
+
+    >>> import pathlib, tempfile
+    >>> import cardionurbs as cn
+    >>> from cardionurbs.phantom import generate, write_phantom
+    >>> phantom = generate("normal", seed=1, frames=2, n_sa=6, matrix=128, volume_check=False)
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> folder = write_phantom(phantom, pathlib.Path(tmp.name) / "p1", dicom=False)
+    >>> m = cn.measure(cn.reconstruct(cn.load_study(folder)))
+    >>> truth = phantom.truth["metrics"]["LVEDV (mL)"]
+    >>> bool(abs(m["LVEDV (mL)"] - truth) < 0.01 * truth)
+    True
+    >>> tmp.cleanup()
     """
     if heart_rate_bpm is not None and not (
             HEART_RATE_RANGE_BPM[0] <= heart_rate_bpm <= HEART_RATE_RANGE_BPM[1]):
@@ -213,7 +314,20 @@ def explain_nulls(model: "BiventricularModel", metrics: dict) -> dict:
     ("one frame only"), not 0; the readers' reasons (``study.meta["metric_notes"]``) are
     adopted; every other NaN gets the first reason that applies (no RV contours, no heart
     rate, no tag lines, ...). Called by :func:`measure` and again once the tag and
-    regional columns are in (:func:`cardionurbs.pipeline.analyse`). Returns ``metrics``."""
+    regional columns are in (:func:`cardionurbs.pipeline.analyse`). Returns ``metrics``.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model measured.
+    metrics : dict
+        Its metrics (a :class:`~cardionurbs.analysis.notes.Metrics`), changed in place.
+
+    Returns
+    -------
+    dict
+        ``metrics``.
+    """
     study = model.study
     notes = getattr(metrics, "notes", {})
     for column in [c for c in notes if c in metrics and not is_null(metrics[c])]:
@@ -254,7 +368,21 @@ def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> d
     measured and builds nothing more: the LV cavity at every frame (the cavities ED, ES
     and the filling rates come from) and the other three volumes at ED and ES only (NaN
     at the other frames). Building every frame's other surfaces and booleans just for
-    this curve would cost several times the whole metrics analysis."""
+    this curve would cost several times the whole metrics analysis.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    every_structure : bool
+        As above.
+
+    Returns
+    -------
+    dict of str to list
+        ``frame``, ``time (ms)``, the ``<mesh> (mL)`` and ``<mesh> raw (mL)`` columns and
+        ``supported``.
+    """
     frames = list(getattr(model, "curve_frames", model.frames))
     built = set(model.frames)
     times = [model.study.frame_times_ms.get(f) for f in frames]

@@ -45,7 +45,22 @@ _GRID = 15
 
 
 def surface_grid(surface, n: int = _GRID) -> tuple[np.ndarray, np.ndarray]:
-    """Parameters (n², 2) and points (n², 3) of a uniform n × n grid on a surface."""
+    """Parameters (n², 2) and points (n², 3) of a uniform n × n grid on a surface.
+
+    Parameters
+    ----------
+    surface : NurbsSurface
+        A surface, scanner mm.
+    n : int
+        Nodes per parameter direction.
+
+    Returns
+    -------
+    params : (n², 2) ndarray
+        (u, v) of each node.
+    points : (n², 3) ndarray
+        The surface there, mm.
+    """
     t = np.linspace(0.0, 1.0, n)
     pts = np.asarray(surface.evaluate(t, t)).reshape(-1, 3)
     uu, vv = np.meshgrid(t, t, indexing="ij")
@@ -87,8 +102,22 @@ def myocardium_margin(study: Study, frame: int, points: np.ndarray) -> np.ndarra
     outside the endocardium); between slices it is interpolated linearly
     along the stack normal; beyond the first or last contoured slice it is
     negative. None when the frame has no such contour pair.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    frame : int
+        The frame whose contours are used.
+    points : (n, 3) ndarray
+        Scanner points, mm.
+
+    Returns
+    -------
+    (n,) ndarray or None
+        The signed margin, mm.
     """
-    rings = {}
+    rings: dict[str, dict[str, np.ndarray]] = {}
     for c in study.contours_at(frame, ("lv_endo", "lv_epi"), view="SA"):
         if c.closed:
             rings.setdefault(c.slice, {})[c.structure] = c.points
@@ -158,7 +187,19 @@ def _wrap_or_clip(params: np.ndarray, periodic: tuple[bool, bool, bool]) -> np.n
 
 
 def in_domain(params: np.ndarray, tol: float = 1e-9) -> np.ndarray:
-    """Rows whose six surface parameters all lie in [0, 1] (not on a surface's extension)."""
+    """Rows whose six surface parameters all lie in [0, 1] (not on a surface's extension).
+
+    Parameters
+    ----------
+    params : (n, 6) ndarray
+        The (u, v) of each point on the three surfaces.
+    tol : float
+        Tolerance on [0, 1].
+
+    Returns
+    -------
+    (n,) ndarray of bool
+    """
     with np.errstate(invalid="ignore"):
         return np.all((params >= -tol) & (params <= 1 + tol), axis=1)
 
@@ -171,9 +212,30 @@ def intersect_three_surfaces(surfs: _Surfaces, triples: np.ndarray, params: np.n
     Gauss–Newton step with Levenberg damping λ = 1e-10·tr(JᵀJ), limited to
     0.2 in any parameter; non-periodic parameters are clipped to [0, 1], the
     angular parameter of the closed LA fan wraps.
+
+    Parameters
+    ----------
+    surfs : _Surfaces
+        One frame's tag surfaces by family.
+    triples : (n, 3) ndarray of int
+        Tag indices (sa1, sa2, la).
+    params : (n, 6) ndarray
+        Starting (u, v) on each of the three surfaces.
+    max_iter : int
+        Gauss–Newton iterations.
+
+    Returns
+    -------
+    points : (n, 3) ndarray
+        The intersections, mm.
+    params : (n, 6) ndarray
+        Their parameters.
+    residual : (n,) ndarray
+        The largest point-to-surface distance, mm.
     """
-    periodic = tuple(bool(next(iter(surfs.by_family[f].values())).periodic_v)
-                     if surfs.by_family[f] else False for f in FAMILIES)
+    sa1, sa2, la = (bool(next(iter(surfs.by_family[f].values())).periodic_v)
+                    if surfs.by_family[f] else False for f in FAMILIES)
+    periodic = (sa1, sa2, la)
     p = _wrap_or_clip(np.asarray(params, float), periodic)
     n = len(triples)
     active = np.ones(n, bool)
@@ -214,13 +276,30 @@ def intersect_three_surfaces(surfs: _Surfaces, triples: np.ndarray, params: np.n
     return X, p, res
 
 
-def start_from_planes(surfs: _Surfaces, triples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def start_from_planes(surfs: _Surfaces,
+                      triples: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Starting points and parameters (n, 3), (n, 6) from the three least-squares planes.
 
     The planes' intersection point is projected on each surface by the
     nearest node of a 25 × 25 parameter grid. Also returns, as the third
     item of the tuple, the largest point-to-grid distance (mm) per triple, a
     cheap test of whether the point is inside all three surfaces' domains.
+
+    Parameters
+    ----------
+    surfs : _Surfaces
+        One frame's tag surfaces by family.
+    triples : (n, 3) ndarray of int
+        Tag indices (sa1, sa2, la).
+
+    Returns
+    -------
+    points : (n, 3) ndarray
+        The planes' intersections, mm.
+    params : (n, 6) ndarray
+        The nearest grid nodes' parameters.
+    gap : (n,) ndarray
+        The largest point-to-grid distance, mm.
     """
     planes = {}
     grids = {}
@@ -267,6 +346,12 @@ class MaterialPoints:
     dropped : int
         Triples left out at ED (outside the myocardium or the surfaces).
     notes : list of str
+        Why triples or frames are missing.
+    params : dict frame -> (n, 6)
+        The three surfaces' (u, v) parameters of each point at each frame.
+    extended : dict frame -> (n, 3)
+        Scanner mm also where the surfaces meet only on their linear extensions
+        (:meth:`found`).
     """
 
     triples: np.ndarray
@@ -283,7 +368,17 @@ class MaterialPoints:
         return sorted(self.positions)
 
     def tracked(self, *frames: int) -> np.ndarray:
-        """Triples found inside all three surfaces' domains at every one of ``frames``."""
+        """Triples found inside all three surfaces' domains at every one of ``frames``.
+
+        Parameters
+        ----------
+        *frames : int
+            Frames.
+
+        Returns
+        -------
+        (n,) ndarray of bool
+        """
         m = np.ones(len(self.triples), bool)
         for f in frames:
             m &= np.all(np.isfinite(self.positions[f]), axis=1)
@@ -294,14 +389,35 @@ class MaterialPoints:
     def found(self, *frames: int) -> np.ndarray:
         """Triples found at every one of ``frames``, also on the surfaces' linear extensions
         (up to ``EXTENSION`` in parameter beyond the data: used to place a level that
-        leaves the SA stack)."""
+        leaves the SA stack).
+
+        Parameters
+        ----------
+        *frames : int
+            Frames.
+
+        Returns
+        -------
+        (n,) ndarray of bool
+        """
         m = np.ones(len(self.triples), bool)
         for f in frames:
             m &= np.all(np.isfinite(self.positions[f]), axis=1)
         return m
 
     def displacement(self, f0: int | None = None, f1: int | None = None) -> np.ndarray:
-        """(n, 3) displacement, mm, from frame f0 (ED) to f1 (ES)."""
+        """(n, 3) displacement, mm, from frame f0 (ED) to f1 (ES).
+
+        Parameters
+        ----------
+        f0, f1 : int or None
+            The frames; None: ED and ES.
+
+        Returns
+        -------
+        (n, 3) ndarray
+            mm (NaN where a point is not found at either frame).
+        """
         f0 = self.ed_frame if f0 is None else f0
         f1 = self.es_frame if f1 is None else f1
         return self.positions[f1] - self.positions[f0]
@@ -321,9 +437,10 @@ def material_points(study: Study, ed_frame: int | None = None, es_frame: int | N
     ----------
     study : Study
         With tag lines of all three families at ED.
-    ed_frame, es_frame : int
-        Default to the study's labels; ``frames`` defaults to every tagged
-        frame (ED first).
+    ed_frame, es_frame : int or None
+        Default to the study's labels.
+    frames : list of int or None
+        The frames tracked; None: every tagged frame (ED first).
     long_axis : (apex, base centre) at ED, mm
         For lofting the LA family; from the landmarks when omitted.
     surfaces : dict frame -> {(family, index): TagSurface}, optional
@@ -332,6 +449,10 @@ def material_points(study: Study, ed_frame: int | None = None, es_frame: int | N
         A point is kept when its ED signed distance inside the LV
         myocardium is >= -margin_mm (mm): half a millimetre of tolerance,
         the order of contour tracing noise (no test without ED contours).
+
+    Returns
+    -------
+    MaterialPoints
     """
     ed_frame, es_frame = resolve_frames(study, ed_frame, es_frame)
     if frames is None:

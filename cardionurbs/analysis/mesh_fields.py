@@ -38,7 +38,20 @@ TIME = "time (ms)"
 
 
 def frame_time_ms(model, frame: int) -> float:
-    """The trigger time of ``frame`` (ms); the frame index where the study has no times."""
+    """The trigger time of ``frame`` (ms); the frame index where the study has no times.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    frame : int
+        A frame index.
+
+    Returns
+    -------
+    float
+        ms, or the index.
+    """
     t = (model.study.frame_times_ms or {}).get(frame)
     return float(frame) if t is None else float(t)
 
@@ -93,7 +106,24 @@ def wall_fields(samples: dict, vertices: np.ndarray) -> dict[str, np.ndarray]:
 
 def endocardium_fields(model, frame: int, aha, vertices: np.ndarray) -> dict[str, np.ndarray]:
     """``AHA segment`` of each LV endocardial vertex and, for a tagged study, the segment
-    strains ED → ``frame`` (``Err (%)``, ``Ecc (%)``, ``Ell (%)``; module docstring)."""
+    strains ED → ``frame`` (``Err (%)``, ``Ecc (%)``, ``Ell (%)``; module docstring).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model (with ``model.regional`` for the strains).
+    frame : int
+        The frame.
+    aha : AhaFrame
+        The frame's AHA segment frame (:mod:`cardionurbs.analysis.aha`).
+    vertices : (V, 3) ndarray
+        The LV endocardial mesh vertices, mm.
+
+    Returns
+    -------
+    dict of str to (V,) ndarray
+        Array name -> per-vertex values (the AHA segment; strains in %).
+    """
     seg = aha.segments(np.asarray(vertices, float)).astype(np.int32)
     out: dict[str, np.ndarray] = {SEGMENT: seg}
     if not model.study.tags:
@@ -117,7 +147,21 @@ def frame_point_data(model, frame: int, meshes: dict[str, tuple[np.ndarray, np.n
                      ) -> dict[str, dict[str, np.ndarray]]:
     """Point data of every mesh of one frame (module docstring): mesh name -> {array
     name -> (V,) array}. AHA segments and thickness are left out (with a warning in
-    ``model.warnings``) when the frame's segments cannot be placed."""
+    ``model.warnings``) when the frame's segments cannot be placed.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    frame : int
+        The frame.
+    meshes : dict of str to (vertices (V, 3), faces (F, 3))
+        The frame's meshes (:meth:`~cardionurbs.anatomy.model.BiventricularModel.mesh_arrays`).
+
+    Returns
+    -------
+    dict of str to dict of str to ndarray
+    """
     t = frame_time_ms(model, frame)
     out = {name: {TIME: np.full(len(v), t)} for name, (v, _) in meshes.items()}
     if not {"lv_cavity", "lv_myocardium"} & set(meshes):
@@ -136,13 +180,40 @@ def frame_point_data(model, frame: int, meshes: dict[str, tuple[np.ndarray, np.n
 
 
 def vtp_name(frame: int, mesh: str) -> str:
-    """The file name of one frame's mesh: ``frame_NN_<mesh>.vtp``."""
+    """The file name of one frame's mesh: ``frame_NN_<mesh>.vtp``.
+
+    Parameters
+    ----------
+    frame : int
+        The frame.
+    mesh : str
+        The mesh name (``lv_cavity`` ...).
+
+    Returns
+    -------
+    str
+    """
     return f"frame_{frame:02d}_{mesh}.vtp"
 
 
 def write_frame_vtp(model, frame: int, mesh_dir: str | Path) -> list[Path]:
     """Write every mesh of ``frame`` as ``mesh_dir/frame_NN_<mesh>.vtp`` with its point
-    data (:func:`frame_point_data`); returns the paths."""
+    data (:func:`frame_point_data`).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The reconstructed model.
+    frame : int
+        The frame whose closed meshes (scanner mm) are written.
+    mesh_dir : str or pathlib.Path
+        The folder to write into (it must exist).
+
+    Returns
+    -------
+    list of pathlib.Path
+        The ``.vtp`` files written, one per mesh.
+    """
     meshes = model.mesh_arrays(frame)
     data = frame_point_data(model, frame, meshes)
     t = frame_time_ms(model, frame)
@@ -152,7 +223,23 @@ def write_frame_vtp(model, frame: int, mesh_dir: str | Path) -> list[Path]:
 
 def write_pvd_series(model, mesh_dir: str | Path) -> list[Path]:
     """One ParaView collection per mesh, ``mesh_dir/<mesh>.pvd``, over the frames whose
-    ``.vtp`` files are in ``mesh_dir``, at the frames' times (ms)."""
+    ``.vtp`` files are in ``mesh_dir``, at the frames' times (ms).
+
+    Without frame times in the study the timesteps are frame indices, and a warning says so
+    in ``model.warnings``.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model whose frames' ``.vtp`` files (:func:`write_frame_vtp`) are collected.
+    mesh_dir : str or pathlib.Path
+        The folder holding them.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The ``.pvd`` files written, one per mesh, sorted by mesh name.
+    """
     mesh_dir = Path(mesh_dir)
     names: dict[str, list[tuple[float, str]]] = {}
     for f in model.frames:

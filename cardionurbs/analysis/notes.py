@@ -29,7 +29,13 @@ SOURCES = ("load", "reconstruct", "measure")
 
 class Metrics(dict):
     """docs/metrics.md column -> float (NaN where not measured), with ``notes``
-    (column -> why it is null) and ``warnings`` (one-line measure warnings)."""
+    (column -> why it is null) and ``warnings`` (one-line measure warnings).
+
+    Parameters
+    ----------
+    *args, **kwargs
+        As for :class:`dict`: the columns and their values.
+    """
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
@@ -37,13 +43,31 @@ class Metrics(dict):
         self.warnings: list[str] = []
 
     def copy(self) -> "Metrics":
+        """A copy of the columns, the notes and the warnings.
+
+        Returns
+        -------
+        Metrics
+            A shallow copy, with copies of ``notes`` and ``warnings``.
+        """
         out = Metrics(self)
         out.notes, out.warnings = dict(self.notes), list(self.warnings)
         return out
 
 
 def notes_of(metrics: Mapping) -> dict[str, str]:
-    """The ``notes`` dict of ``metrics`` ({} for a mapping without one)."""
+    """The ``notes`` dict of ``metrics`` ({} for a mapping without one).
+
+    Parameters
+    ----------
+    metrics : mapping
+        A :class:`Metrics` or any column -> value mapping.
+
+    Returns
+    -------
+    dict of str to str
+        Column -> reason it is null.
+    """
     return getattr(metrics, "notes", {})
 
 
@@ -68,13 +92,31 @@ def null(metrics: dict, column: str, reason: str, *, keep_first: bool = True) ->
 
 
 def warn(metrics: dict, message: str) -> None:
-    """Record a measure warning (one line) on ``metrics`` (a :class:`Metrics`)."""
+    """Record a measure warning (one line) on ``metrics`` (a :class:`Metrics`).
+
+    Parameters
+    ----------
+    metrics : Metrics
+        The metrics the warning is about.
+    message : str
+        The warning, one line.
+    """
     if hasattr(metrics, "warnings"):
         metrics.warnings.append(" ".join(str(message).split()))
 
 
 def is_null(value) -> bool:
-    """True for None and NaN (a metric with no number)."""
+    """True for None and NaN (a metric with no number).
+
+    Parameters
+    ----------
+    value : object
+        A metric value.
+
+    Returns
+    -------
+    bool
+    """
     if value is None:
         return True
     try:
@@ -85,7 +127,15 @@ def is_null(value) -> bool:
 
 def adopt_study_notes(metrics: dict, meta: Mapping | None) -> None:
     """Reasons a reader recorded (``study.meta["metric_notes"]``, column -> reason) for
-    columns it knows the study cannot give: those columns become null with that reason."""
+    columns it knows the study cannot give: those columns become null with that reason.
+
+    Parameters
+    ----------
+    metrics : Metrics
+        The metrics, changed in place.
+    meta : mapping or None
+        ``study.meta``.
+    """
     for column, reason in dict((meta or {}).get("metric_notes") or {}).items():
         if column in metrics:
             null(metrics, column, reason)
@@ -96,7 +146,17 @@ def explain_missing(metrics: dict, reasons: Iterable[tuple[Iterable[str], str]],
     """Give every null column without a reason the first matching one.
 
     ``reasons``: (columns, reason) pairs tried in order; ``columns``: which columns to
-    consider (default: all of ``metrics``)."""
+    consider (default: all of ``metrics``).
+
+    Parameters
+    ----------
+    metrics : Metrics
+        The metrics, whose ``notes`` are filled in place.
+    reasons : iterable of (iterable of str, str)
+        (columns, reason) pairs, tried in order.
+    columns : iterable of str or None
+        The columns to consider; None: all of ``metrics``.
+    """
     notes = getattr(metrics, "notes", None)
     if notes is None:
         return
@@ -113,7 +173,24 @@ def explain_missing(metrics: dict, reasons: Iterable[tuple[Iterable[str], str]],
 def collect_warnings(study=None, model=None, metrics: Mapping | None = None,
                      measure_notes: Iterable[str] = ()) -> list[dict[str, str]]:
     """Every warning of one analysis as ``[{"source": load|reconstruct|measure,
-    "message": ...}]`` (duplicates within a source dropped, order kept)."""
+    "message": ...}]`` (duplicates within a source dropped, order kept).
+
+    Parameters
+    ----------
+    study : Study or None
+        Its ``warnings`` are the ``load`` ones.
+    model : BiventricularModel or None
+        Its ``warnings`` are the ``reconstruct`` ones.
+    metrics : mapping or None
+        Its ``warnings`` (a :class:`Metrics`) are ``measure`` ones.
+    measure_notes : iterable of str
+        More ``measure`` warnings.
+
+    Returns
+    -------
+    list of dict
+        ``{"source": ..., "message": ...}`` in order.
+    """
     out: list[dict[str, str]] = []
     parts = (("load", getattr(study, "warnings", None) or []),
              ("reconstruct", getattr(model, "warnings", None) or []),
@@ -138,7 +215,24 @@ def notes_text(notes: Mapping[str, str], warnings: list[dict] | None = None, *,
     """One readable cell for the cohort CSV: the first ``reasons`` null reasons, grouped
     by reason, each as ``LVEF (%): one frame only (also LVESV (mL) and 40 more)``, then
     the first ``shown_warnings`` warnings (``load: ...``), ``; ``-separated, and
-    ``(+N more)`` for what is left out (all of it is in metrics.json)."""
+    ``(+N more)`` for what is left out (all of it is in metrics.json).
+
+    Parameters
+    ----------
+    notes : mapping of str to str
+        Column -> reason it is null.
+    warnings : list of dict or None
+        :func:`collect_warnings`'s list.
+    reasons : int
+        How many reasons are shown.
+    shown_warnings : int
+        How many warnings are shown.
+
+    Returns
+    -------
+    str
+        The cell (empty when there is nothing to say).
+    """
     groups: dict[str, list[str]] = {}
     for column in sorted(notes, key=lambda c: HEADLINE.index(c) if c in HEADLINE else 99):
         groups.setdefault(notes[column], []).append(column)

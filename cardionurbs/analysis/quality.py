@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeGuard
 
 import numpy as np
 
@@ -76,8 +76,22 @@ QC_COLUMNS = tuple(f"{s} fit {q} ({u})" for s in SURFACE_LABELS.values() for u i
 
 
 def residual_stats(d_mm: np.ndarray, d_px: np.ndarray) -> dict[str, float]:
-    """Median, 95th percentile and maximum of point distances, in mm and pixels."""
-    out = {"n_points": int(len(d_mm))}
+    """Median, 95th percentile and maximum of point distances, in mm and pixels.
+
+    Parameters
+    ----------
+    d_mm : (n,) ndarray
+        Point distances, mm.
+    d_px : (n,) ndarray
+        The same, pixels.
+
+    Returns
+    -------
+    dict of str to float
+        ``n_points`` and ``median``, ``p95``, ``max`` in ``_mm`` and ``_px`` (NaN without
+        points).
+    """
+    out: dict[str, float] = {"n_points": int(len(d_mm))}
     for unit, d in (("mm", np.asarray(d_mm, float)), ("px", np.asarray(d_px, float))):
         q = np.percentile(d, [50, 95, 100]) if len(d) else [math.nan] * 3
         out.update({f"{k}_{unit}": float(v) for k, v in zip(_STATS, q)})
@@ -88,9 +102,19 @@ def residual_stats(d_mm: np.ndarray, d_px: np.ndarray) -> dict[str, float]:
 class Quality:
     """The evidence and the flags of one model's metrics (see module doc).
 
-    ``surfaces[frame][surface]``: residual stats (:func:`residual_stats`);
-    ``left_out[frame]``: [(structure, slice, why)]; ``metrics[column]``: dict with
-    ``flags`` (list of str), ``surfaces`` and ``frames`` it comes from."""
+    Attributes
+    ----------
+    surfaces : dict of int to dict of str to dict
+        ``surfaces[frame][surface]``: residual stats (:func:`residual_stats`).
+    left_out : dict of int to list
+        ``left_out[frame]``: [(structure, slice, why)].
+    metrics : dict of str to dict
+        ``metrics[column]``: ``flags`` (list of str), the ``surfaces`` and ``frames`` it
+        comes from.
+    limit_px : float
+        The residual limit of the flags, pixels.
+    cycle : list of str
+        Flags of the cycle (frames supported by their neighbours) that no metric carries."""
 
     surfaces: dict[int, dict[str, dict]] = field(default_factory=dict)
     left_out: dict[int, list] = field(default_factory=dict)
@@ -109,11 +133,27 @@ class Quality:
         return out + [f for f in self.cycle if f not in out]
 
     def flagged(self, column: str) -> bool:
+        """Whether the metric ``column`` carries a quality flag.
+
+        Parameters
+        ----------
+        column : str
+            A docs/metrics.md column.
+
+        Returns
+        -------
+        bool
+        """
         return bool(self.metrics.get(column, {}).get("flags"))
 
     def row(self) -> dict:
         """The cohort row's quality columns (:data:`QC_COLUMNS`): each surface's residuals
-        over ED and ES, the contours left out, and ``QC`` = the flags joined by '; '."""
+        over ED and ES, the contours left out, and ``QC`` = the flags joined by '; '.
+
+        Returns
+        -------
+        dict
+        """
         out: dict = {c: math.nan for c in QC_COLUMNS}
         for s, label in SURFACE_LABELS.items():
             st = self._pooled.get(s)
@@ -128,6 +168,12 @@ class Quality:
         return out
 
     def to_json(self) -> dict:
+        """JSON-safe: metrics.json's ``quality`` (limit, residuals, left-out contours, flags).
+
+        Returns
+        -------
+        dict
+        """
         return {"limit_px": self.limit_px,
                 "surfaces": {str(f): d for f, d in self.surfaces.items()},
                 "pooled": self._pooled,
@@ -157,7 +203,20 @@ def residual_summary(model: "BiventricularModel", frames=None) -> dict[str, dict
     slice and view of one frame) of each contour's mean point distance, ``max_mm`` and
     ``max_px`` the largest point distance (mm, pixels); surfaces in name order. The same
     numbers as the per-contour table (:meth:`BiventricularModel.residual_table`), without
-    pandas."""
+    pandas.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    frames : iterable of int or None
+        The frames; None: ED and ES.
+
+    Returns
+    -------
+    dict of str to dict of str to float
+        Surface -> ``mean_mm``, ``max_mm``, ``max_px``.
+    """
     if frames is None:
         frames = sorted({model.ed_frame, model.es_frame})
     out: dict[str, dict[str, float]] = {}
@@ -258,7 +317,7 @@ def assess(model: "BiventricularModel", metrics: dict[str, float]) -> Quality:
     return q
 
 
-def _finite(x) -> bool:
+def _finite(x: object) -> TypeGuard[int | float]:
     return isinstance(x, (int, float)) and math.isfinite(x)
 
 
@@ -302,6 +361,8 @@ def _cycle_flags(model, q: Quality) -> None:
     """Every frame supported by its neighbours (:mod:`cardionurbs.anatomy.cycle`) is a flag:
     on the metrics of ED or ES when it is one of them, else on the cycle."""
     cycle = getattr(model, "cycle", None)
+    if cycle is None:                    # no cycle check made, no frame supported by it
+        return
     for f in sorted(getattr(model, "supported", {}) or {}):
         flag = cycle.describe(f)
         users = [m for m in q.metrics.values() if f in m["frames"]]

@@ -40,7 +40,25 @@ WALL_SUBDIVISION = 4
 @dataclass
 class RegionalMetrics(ColumnMapping):
     """Regional columns -> float (a read-only mapping), with the segment geometry per frame
-    (``aha``: frame -> AhaFrame), the thickness samples per frame (``samples``) and ``notes``."""
+    (``aha``: frame -> AhaFrame), the thickness samples per frame (``samples``) and ``notes``.
+
+    Attributes
+    ----------
+    columns : dict of str to float
+        Regional docs/metrics.md column -> value (mm, %, NaN where not measured).
+    aha : dict of int to AhaFrame
+        Frame -> its segment geometry.
+    samples : dict of int to dict
+        Frame -> the thickness samples (:func:`~cardionurbs.analysis.thickness.thickness_by_segment`).
+    notes : list of str
+        Why columns are null.
+    strain : dict
+        The ES tag strain fit's summary (segment strains, quality), empty without tags.
+    over_time : dict of int to dict
+        Tagged frame -> its strain summary.
+    surface : dict
+        The contour-based surface strains' details.
+    """
 
     columns: dict[str, float]
     aha: dict[int, AhaFrame] = field(default_factory=dict)
@@ -51,7 +69,12 @@ class RegionalMetrics(ColumnMapping):
     surface: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
-        """JSON-safe summary for metrics.json (NaN -> None)."""
+        """JSON-safe summary for metrics.json (NaN -> None).
+
+        Returns
+        -------
+        dict
+        """
         def num(x):
             return None if x is None or not np.isfinite(x) else float(x)
         def clean(d):
@@ -83,7 +106,22 @@ def wall_boundaries(model, frame: int, cache: dict | None = None) -> list[Bounda
     """The LV endo- and epicardial contours of ``frame`` (every view) with the same surface at
     the model's ED frame, sampled on a (u, v) grid (:data:`~cardionurbs.analysis.tag_motion.BOUNDARY_SAMPLES`)
     for the tag-line fit's boundary term; ``cache``: {structure: (samples, normals, their
-    k-d tree)} shared between frames."""
+    k-d tree)} shared between frames.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    frame : int
+        The frame whose contours are taken.
+    cache : dict or None
+        Shared samples, filled in place.
+
+    Returns
+    -------
+    list of Boundary
+        One per structure that has contours at ``frame``.
+    """
     cache = {} if cache is None else cache
     ed = model.surfaces[model.ed_frame]
     out = []
@@ -102,19 +140,28 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
                      volume_prior_sd: float | None = None, boundaries: bool = True,
                      deformation=None, misfit_noise: bool = True,
                      jobs: int | None = 1) -> RegionalMetrics:
-    """Regional columns of a model; ``tags``: its :class:`~cardionurbs.analysis.tags.TagMetrics`
-    (material points) when the study is tagged. ``incompressibility``: how the tag-strain fit
-    of noisy tags uses near-incompressibility (:func:`cardionurbs.analysis.strain.tag_strain`:
-    "prior", the default, with its spread ``volume_prior_sd`` (default: the stated one);
-    "risk" or False for comparison). ``boundaries``: the contours of the LV endo- and
-    epicardium join the tag-line fit as material boundaries (:func:`wall_boundaries`; False:
-    the tags alone, for comparison). ``deformation``: (points, frame) -> F replacing the
-    fitted F in the strains (:func:`~cardionurbs.analysis.strain.tag_strain`; validation with
-    a known motion). ``misfit_noise``: the tag-line fit's σ is the larger of the tracking
-    noise and its own misfit (False: the tracking noise alone, for comparison). ``jobs``:
-    processes for the strain over time, one independent fit per tagged frame
-    (:func:`cardionurbs.parallel.fork_map`: ES in this process, the other frames on ``jobs``
-    forked workers; None: the usable CPUs; 1, the default: all here)."""
+    """Regional columns of a model (wall thickness, tag and surface strain per AHA segment).
+
+    Parameters
+    ----------
+    model, tags : BiventricularModel; TagMetrics or None
+        The model, and its tag result (material points) when the study is tagged.
+    incompressibility, volume_prior_sd : {"prior", "risk"} or bool; float or None
+        How the tag-strain fit of noisy tags uses near-incompressibility
+        (:func:`~cardionurbs.analysis.strain.tag_strain`): "prior" with the spread
+        ``volume_prior_sd`` (None: the stated one); "risk" or False for comparison.
+    boundaries, misfit_noise : bool
+        The LV contours join the tag-line fit as material boundaries (:func:`wall_boundaries`);
+        the fit's σ is the larger of the tracking noise and its misfit (False: comparisons).
+    deformation : callable or None
+        (points, frame) -> F replacing the fitted F in the strains (validation).
+    jobs : int or None
+        Processes for the strain over time, one fit per tagged frame (None: the usable CPUs).
+
+    Returns
+    -------
+    RegionalMetrics
+    """
     cols = {c: NAN for c in THICKNESS_COLUMNS + STRAIN_COLUMNS + SURFACE_STRAIN_COLUMNS}
     out = RegionalMetrics(cols)
     ed, es = model.ed_frame, model.es_frame
@@ -155,7 +202,7 @@ def regional_metrics(model, tags=None, incompressibility: bool | str = "prior",
     study = model.study
     flagged = {(fl.family, fl.index, fl.slice, fl.frame) for fl in getattr(tags, "flags", [])}
     planes = ed_tag_planes(study, material.ed_frame, flagged)
-    ed_samples = {}
+    ed_samples: dict[str, tuple] = {}
     if boundaries:                  # the ED surface samples' k-d trees, built before any fork
         wall_boundaries(model, es, ed_samples)
 

@@ -21,7 +21,20 @@ from cardionurbs.study import Study
 
 def disk_areas(study: Study, frame: int) -> dict[str, dict[str, float]]:
     """Area (mm²) of each surface's SA contour per slice at one frame
-    (CAP open RV parts closed as in the models)."""
+    (CAP open RV parts closed as in the models).
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    frame : int
+        The frame.
+
+    Returns
+    -------
+    dict of str to dict of str to float
+        Surface (``lv_endo`` ...) -> slice -> area, mm².
+    """
     n, _ = stacking_direction(study, frame)
     out: dict[str, dict[str, float]] = {}
     for s, loops in _sa_loops(study, frame).items():
@@ -35,6 +48,20 @@ def disk_volumes(study: Study, frame: int, spacing: float | None = None) -> dict
 
     RV cavity area = area(rv_endo); RV wall area = area(rv_epi) − area(rv_endo)
     (docs/metrics.md: rv_epi encloses the RV cavity and free wall).
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    frame : int
+        The frame.
+    spacing : float or None
+        The disk thickness, mm; None: the median SA slice gap.
+
+    Returns
+    -------
+    dict of str to float
+        Solid -> volume, mL.
     """
     n, _ = stacking_direction(study, frame)
     if spacing is None:
@@ -60,7 +87,22 @@ def disk_volumes(study: Study, frame: int, spacing: float | None = None) -> dict
 
 def simpson_metrics(study: Study, ed_frame: int, es_frame: int,
                     heart_rate_bpm: float | None = None) -> dict[str, float]:
-    """The volume columns of docs/metrics.md by disk summation at the given ED/ES frames."""
+    """The volume columns of docs/metrics.md by disk summation at the given ED/ES frames.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    ed_frame, es_frame : int
+        The ED and ES frames.
+    heart_rate_bpm : float or None
+        For the cardiac output columns; None: the study's.
+
+    Returns
+    -------
+    dict of str to float
+        docs/metrics.md column -> value (mL, %, g, L/min).
+    """
     hr = study.heart_rate_bpm if study.heart_rate_bpm is not None else heart_rate_bpm
     hr = float(hr) if hr is not None else NAN
     ed, es = disk_volumes(study, ed_frame), disk_volumes(study, es_frame)

@@ -124,7 +124,19 @@ RISK_SAMPLES = 600
 
 def aligned_frame(e1: np.ndarray, apex: np.ndarray, base: np.ndarray):
     """(e1', e2', e') about the axis apex–base, with e1' the ED e1 made orthogonal to e'
-    (the minimal turn of the ED frame onto the new axis)."""
+    (the minimal turn of the ED frame onto the new axis).
+
+    Parameters
+    ----------
+    e1 : (3,) ndarray
+        The ED frame's first axis.
+    apex, base : (3,) ndarray
+        The frame's long axis, mm.
+
+    Returns
+    -------
+    e1, e2, e : (3,) ndarray
+    """
     e = np.asarray(apex, float) - np.asarray(base, float)
     e /= np.linalg.norm(e)
     a = e1 - (e1 @ e) * e
@@ -133,7 +145,26 @@ def aligned_frame(e1: np.ndarray, apex: np.ndarray, base: np.ndarray):
 
 
 def cylindrical(X: np.ndarray, apex: np.ndarray, frame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(r, θ, ζ) of (n, 3) points in the axis frame (e1, e2, e) through ``apex``."""
+    """(r, θ, ζ) of (n, 3) points in the axis frame (e1, e2, e) through ``apex``.
+
+    Parameters
+    ----------
+    X : (n, 3) ndarray
+        Points, mm.
+    apex : (3,) ndarray
+        The axis origin, mm.
+    frame : (e1, e2, e)
+        The axis frame (:func:`~cardionurbs.analysis.tag_surfaces.axis_frame`).
+
+    Returns
+    -------
+    r : (n,) ndarray
+        Distance from the axis, mm.
+    theta : (n,) ndarray
+        Angle, rad.
+    zeta : (n,) ndarray
+        Height along e, mm.
+    """
     e1, e2, e = frame
     d = np.asarray(X, float) - apex
     zeta = d @ e
@@ -141,7 +172,29 @@ def cylindrical(X: np.ndarray, apex: np.ndarray, frame) -> tuple[np.ndarray, np.
 
 
 class CylindricalMotionFit:
-    """The least-squares map (S1) of ED (q = r², θ, ζ) to the frame's (r'², θ' − θ, ζ')."""
+    """The least-squares map (S1) of ED (q = r², θ, ζ) to the frame's (r'², θ' − θ, ζ').
+
+    Fitted twice: gross outliers (farther than max(:data:`OUTLIER_MM`, 4 × the median
+    error)) are left out of the second fit; ``outliers`` counts them, ``residual_mm`` is
+    the RMS error of the others (mm).
+
+    Parameters
+    ----------
+    X : (n, 3) ndarray
+        ED points (the material points), scanner mm.
+    x : (n, 3) ndarray
+        Their positions at the frame, mm.
+    ed_axis : (apex (3,), base (3,))
+        The ED long axis, mm.
+    axis : (apex (3,), base (3,)) or None
+        The frame's long axis; None: ``ed_axis``.
+    orders : (int, int, int)
+        Polynomial orders in ζ and q and the harmonic order in θ of (S1).
+    ridge : float
+        Relative ridge weight keeping the normal equations regular.
+    transmural : (int, int)
+        The ζ and θ orders of the transmural (q-dependent) terms.
+    """
 
     def __init__(self, X: np.ndarray, x: np.ndarray, ed_axis: tuple, axis: tuple | None = None,
                  orders: tuple[int, int, int] = ORDERS, ridge: float = 1e-8,
@@ -199,7 +252,21 @@ class CylindricalMotionFit:
                  axial_harmonics: int | None = None) -> "CylindricalMotionFit":
         """A copy on a basis containing this one (same charts and scalings; the arguments as
         :meth:`_set_basis`'s) whose added terms start at zero: the same map, free to refine on
-        more data (the tag lines)."""
+        more data (the tag lines).
+
+        Parameters
+        ----------
+        orders : (int, int, int)
+            The larger basis' orders.
+        transmural : (int, int)
+            Its transmural orders.
+        axial_harmonics : int or None
+            The ζ' component's highest harmonic; None: all.
+
+        Returns
+        -------
+        CylindricalMotionFit
+        """
         old = list(zip(*self._index))
         out = copy.copy(self)
         out._set_basis(orders, transmural, axial_harmonics)
@@ -263,10 +330,10 @@ class CylindricalMotionFit:
         ``factors``: also the basis factors (:meth:`_factors`) as a last item."""
         want_factors = factors
         r, th, zeta = cylindrical(X, self.apex0, self.frame0)
-        factors = self._factors(r * r, th, zeta, derivatives)
-        L, R, T = factors[:3]
+        basis = self._factors(r * r, th, zeta, derivatives)
+        L, R, T = basis[:3]
         pa, pb, pm = self.orders
-        C = np.zeros((2 * pm + 1, pa + 1, pb + 1, 3))
+        C: np.ndarray = np.zeros((2 * pm + 1, pa + 1, pb + 1, 3))
         ia, ib, ic = self._index
         C[ic, ia, ib] = self.coef
         C = C.reshape(2 * pm + 1, -1)
@@ -277,20 +344,42 @@ class CylindricalMotionFit:
             return np.einsum("nk,nkc->nc", (La[:, :, None] * Rb[:, None, :]).reshape(len(th), -1), W)
         values = contract(L, R, W)
         if not derivatives:
-            return ((r, th, zeta), values) + ((factors,) if want_factors else ())
-        dL, dR, dT = factors[3:]
+            return ((r, th, zeta), values) + ((basis,) if want_factors else ())
+        dL, dR, dT = basis[3:]
         d_theta = contract(L, R, (dT @ C).reshape(shape))
         return ((r, th, zeta), values, (contract(L, dR, W), d_theta, contract(dL, R, W))) + (
-            (factors,) if want_factors else ())
+            (basis,) if want_factors else ())
 
     def image_radius(self, X: np.ndarray) -> np.ndarray:
         """r' (mm): the fitted distance of the images of ED points X (n, 3) from the frame's
-        long axis (the square root of the fitted r'², 0 where that is negative)."""
+        long axis (the square root of the fitted r'², 0 where that is negative).
+
+        Parameters
+        ----------
+        X : (n, 3) ndarray
+            ED points, mm.
+
+        Returns
+        -------
+        (n,) ndarray
+            mm.
+        """
         m = self._mapped(X, derivatives=False)[1]
         return np.sqrt(np.maximum(m[:, 0], 0.0))
 
     def position(self, X: np.ndarray) -> np.ndarray:
-        """The fitted image x (n, 3) of ED points X (n, 3)."""
+        """The fitted image x (n, 3) of ED points X (n, 3).
+
+        Parameters
+        ----------
+        X : (n, 3) ndarray
+            ED points, mm.
+
+        Returns
+        -------
+        (n, 3) ndarray
+            mm.
+        """
         (_, th, _), m = self._mapped(X, derivatives=False)
         return self._position(m, th)
 
@@ -298,7 +387,21 @@ class CylindricalMotionFit:
         """(x (n, 3), (T (n, 3, 3), D (n, b)), F (n, 3, 3)) at ED points X: the image, its
         derivative with respect to the coefficients in factored form — ∂x/∂coef[j, c] =
         T[:, :, c] · D[:, j], with T = ∂x/∂(q', θ', ζ') and D the basis values (of which
-        :attr:`free` selects the coefficients in use) — and the deformation gradient."""
+        :attr:`free` selects the coefficients in use) — and the deformation gradient.
+
+        Parameters
+        ----------
+        X : (n, 3) ndarray
+            ED points, mm.
+
+        Returns
+        -------
+        x : (n, 3) ndarray
+            mm.
+        derivative : ((n, 3, 3) ndarray, (n, b) ndarray)
+            (T, D).
+        F : (n, 3, 3) ndarray
+        """
         (r, th, _), m, dm, factors = self._mapped(X, factors=True)
         D = self._basis_values(*factors[:3])                    # the derivatives stay contracted
         e1, e2, e = self.frame1
@@ -315,7 +418,19 @@ class CylindricalMotionFit:
         the evaluation points of central differences with respect to the coefficients. The
         map (S1) is linear in its coefficients, so moving coefficient j by h moves the map's
         values and derivatives at X by h times basis function j's; F follows from them by
-        (S2), all perturbations in one batch."""
+        (S2), all perturbations in one batch.
+
+        Parameters
+        ----------
+        X : (n, 3) ndarray
+            ED points, mm.
+        steps : (p,) ndarray
+            The step of each free coefficient.
+
+        Returns
+        -------
+        (2p, n, 3, 3) ndarray
+        """
         r, th, zeta = cylindrical(X, self.apex0, self.frame0)
         D = self._design(r * r, th, zeta)                        # values, d/dq, d/dθ, d/dζ: (n, b)
         nb = D[0].shape[1]
@@ -332,12 +447,34 @@ class CylindricalMotionFit:
         return self._gradient(r, th, moved[0], moved[1:])
 
     def radius_and_gradient(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(:meth:`image_radius`, :meth:`gradient`) of ED points X (n, 3), the map evaluated once."""
+        """(:meth:`image_radius`, :meth:`gradient`) of ED points X (n, 3), the map evaluated once.
+
+        Parameters
+        ----------
+        X : (n, 3) ndarray
+            ED points, mm.
+
+        Returns
+        -------
+        radius : (n,) ndarray
+            mm.
+        F : (n, 3, 3) ndarray
+        """
         (r, th, _), m, dm = self._mapped(X)
         return np.sqrt(np.maximum(m[:, 0], 0.0)), self._gradient(r, th, m, dm)
 
     def gradient(self, X: np.ndarray) -> np.ndarray:
-        """F = ∂x/∂X (n, 3, 3), Cartesian, by the chain rule through (S1)."""
+        """F = ∂x/∂X (n, 3, 3), Cartesian, by the chain rule through (S1).
+
+        Parameters
+        ----------
+        X : (n, 3) ndarray
+            ED points, mm.
+
+        Returns
+        -------
+        (n, 3, 3) ndarray
+        """
         (r, th, _), m, dm = self._mapped(X)
         return self._gradient(r, th, m, dm)
 
@@ -362,14 +499,40 @@ class CylindricalMotionFit:
 
 
 def green_lagrange(F: np.ndarray) -> np.ndarray:
-    """E = ½ (FᵀF − I) for (n, 3, 3) F."""
+    """E = ½ (FᵀF − I) for (n, 3, 3) F.
+
+    Parameters
+    ----------
+    F : (..., 3, 3) ndarray
+        Deformation gradients.
+
+    Returns
+    -------
+    (..., 3, 3) ndarray
+    """
     return 0.5 * (np.einsum("nki,nkj->nij", F, F) - np.eye(3))
 
 
 def cardiac_directions(X: np.ndarray, endo_points: np.ndarray, endo_normals: np.ndarray,
                        apex: np.ndarray, base: np.ndarray) -> np.ndarray:
     """Unit (c, l, r) rows (n, 3, 3) at ED points: r the outward normal of the nearest
-    endocardial sample, c the circumferential direction orthogonal to r, l = r × c."""
+    endocardial sample, c the circumferential direction orthogonal to r, l = r × c.
+
+    Parameters
+    ----------
+    X : (n, 3) ndarray
+        ED wall points, mm.
+    endo_points : (k, 3) ndarray
+        ED endocardial samples, mm.
+    endo_normals : (k, 3) ndarray
+        Their outward unit normals.
+    apex, base : (3,) ndarray
+        The ED long axis, mm.
+
+    Returns
+    -------
+    (n, 3, 3) ndarray
+    """
     _, idx = cKDTree(endo_points).query(X)
     r = endo_normals[idx]
     e1, e2, e = axis_frame(apex, base)
@@ -383,7 +546,20 @@ def cardiac_directions(X: np.ndarray, endo_points: np.ndarray, endo_normals: np.
 
 def directional_strains(E: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """(…, n, 3) strains in % along the rows of ``dirs`` (n, 3, 3): 100 dᵀEd (Cartesian E
-    (…, n, 3, 3) and d; a leading batch axis of E shares the directions)."""
+    (…, n, 3, 3) and d; a leading batch axis of E shares the directions).
+
+    Parameters
+    ----------
+    E : (..., n, 3, 3) ndarray
+        Green–Lagrange strains.
+    dirs : (n, 3, 3) ndarray
+        Unit directions as rows.
+
+    Returns
+    -------
+    (..., n, 3) ndarray
+        %.
+    """
     return 100.0 * np.einsum("...nki,...nij,...nkj->...nk", dirs, E, dirs)
 
 
@@ -393,7 +569,23 @@ def segment_strain_quantities(points: np.ndarray, directions: np.ndarray, labels
     :class:`~cardionurbs.analysis.tag_motion.PointQuantities` giving, for F (k, n, 3, 3), the
     weighted means (k, 3 s) over the segments 1–16 present (segment-major, then Ecc, Ell,
     Err) of the strains along ``directions`` (:func:`directional_strains` of the Green–Lagrange
-    strain, every F of the batch at once)."""
+    strain, every F of the batch at once).
+
+    Parameters
+    ----------
+    points : (n, 3) ndarray
+        ED wall points, mm.
+    directions : (n, 3, 3) ndarray
+        Their (c, l, r) directions (:func:`cardiac_directions`).
+    labels : (n,) ndarray of int
+        Their AHA segments.
+    weights : (n,) ndarray
+        Their volumes, mm³.
+
+    Returns
+    -------
+    PointQuantities
+    """
     from cardionurbs.analysis.tag_motion import PointQuantities, segment_mean_matrix
     seg = (labels >= 1) & (labels <= 16)
     M = np.zeros((len(np.unique(labels[seg])), len(labels)))
@@ -408,7 +600,24 @@ def segment_strain_quantities(points: np.ndarray, directions: np.ndarray, labels
 def strain_columns(values: np.ndarray, labels: np.ndarray, weights: np.ndarray | None = None
                    ) -> tuple[dict[str, float], dict]:
     """Ecc/Ell/Err per segment and global from per-point (n, 3) strains (%), labels and
-    (volume) weights."""
+    (volume) weights.
+
+    Parameters
+    ----------
+    values : (n, 3) ndarray
+        Per-point (Ecc, Ell, Err), %.
+    labels : (n,) ndarray of int
+        AHA segments.
+    weights : (n,) ndarray or None
+        Volumes; None: equal.
+
+    Returns
+    -------
+    columns : dict of str to float
+        docs/metrics.md strain column -> %.
+    counts : dict
+        Points per segment.
+    """
     out: dict[str, float] = {}
     w = np.ones(len(labels)) if weights is None else np.asarray(weights, float)
     counts = {k: int((labels == k).sum()) for k in range(1, 17)}
@@ -439,7 +648,34 @@ def myocardium_samples(endo_points: np.ndarray, endo_normals: np.ndarray, thickn
     ~3 mm of height, the layers of a ray inclined to the axis (near the apex) cross a range's
     ends at heights several mm apart, so a range of a few mm kept the inner layers of some
     rays and the outer layers of others (+4 strain points of Err in apical segments on a
-    noise-free phantom, whose exact motion gave the same error at those samples)."""
+    noise-free phantom, whose exact motion gave the same error at those samples).
+
+    Parameters
+    ----------
+    endo_points : (k, 3) ndarray
+        Ray feet on the ED endocardium, mm.
+    endo_normals : (k, 3) ndarray
+        Ray directions (outward unit normals).
+    thickness : (k,) ndarray
+        Wall thickness along each ray, mm (NaN rays left out).
+    area : (k,) ndarray
+        Each ray's endocardial area, mm².
+    apex, base : (3,) ndarray
+        The ED long axis, mm.
+    layers : int
+        Points per ray.
+    grid : ((int, int), (k,) ndarray) or None
+        As above.
+    subdivide : int
+        As above.
+
+    Returns
+    -------
+    points : (m, 3) ndarray
+        mm.
+    volumes : (m,) ndarray
+        mm³.
+    """
     ok = np.isfinite(thickness)
     P, N, t, A = endo_points[ok], endo_normals[ok], thickness[ok], area[ok]
     if grid is not None and subdivide > 1:
@@ -496,7 +732,23 @@ def smoothed_normals(points: np.ndarray, normals: np.ndarray, weights: np.ndarra
     the ≥ 20 mm radii of curvature of the LV wall, so a smooth surface's normal changes by
     < 0.1° — removes most of it; 10 mm (:data:`DIRECTION_SMOOTHING_MM`, the strain
     directions) most of the rest. (:func:`cardionurbs.geometry.averaged_normals`, which the
-    phantom's strain truth uses with the same radius.)"""
+    phantom's strain truth uses with the same radius.)
+
+    Parameters
+    ----------
+    points : (k, 3) ndarray
+        Samples, mm.
+    normals : (k, 3) ndarray
+        Their unit normals.
+    weights : (k,) ndarray
+        Their weights.
+    radius_mm : float
+        The averaging radius, mm.
+
+    Returns
+    -------
+    (k, 3) ndarray
+    """
     return averaged_normals(points, normals, weights, radius_mm)
 
 

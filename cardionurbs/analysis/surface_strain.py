@@ -39,8 +39,22 @@ CUTOFF_MM = 15.0
 NAN = float("nan")
 
 
-def whittaker_smooth(points: np.ndarray, closed: bool, cutoff_mm: float = None) -> np.ndarray:
-    """Points (n, d) smoothed by the Whittaker smoother of the module docstring."""
+def whittaker_smooth(points: np.ndarray, closed: bool, cutoff_mm: float | None = None) -> np.ndarray:
+    """Points (n, d) smoothed by the Whittaker smoother of the module docstring.
+
+    Parameters
+    ----------
+    points : (n, d) ndarray
+        Ordered points, mm.
+    closed : bool
+        Whether they form a loop.
+    cutoff_mm : float or None
+        The smoother's cut-off wavelength, mm; None: :data:`CUTOFF_MM`.
+
+    Returns
+    -------
+    (n, d) ndarray
+    """
     p = np.asarray(points, float)
     n = len(p)
     cutoff_mm = CUTOFF_MM if cutoff_mm is None else cutoff_mm
@@ -60,7 +74,23 @@ def whittaker_smooth(points: np.ndarray, closed: bool, cutoff_mm: float = None) 
 
 
 def curve_length(points: np.ndarray, closed: bool, tol_mm: float | None = None) -> float:
-    """Length (mm) of ordered contour points after smoothing (module docstring)."""
+    """Length (mm) of ordered contour points after smoothing (module docstring).
+
+    Parameters
+    ----------
+    points : (n, 3) ndarray
+        Ordered contour points, mm.
+    closed : bool
+        Whether they form a loop.
+    tol_mm : float or None
+        The contour's pixel tolerance, mm; not used by the smoothed length (the smoother's
+        cut-off is fixed), kept for the callers that pass it.
+
+    Returns
+    -------
+    float
+        mm.
+    """
     s = whittaker_smooth(points, closed)
     if closed:
         s = np.vstack([s, s[:1]])
@@ -76,7 +106,22 @@ def _tol(study: Study, contour) -> float:
 
 
 def gls_surface(study: Study, ed: int, es: int) -> tuple[float, dict]:
-    """GLS surface (%) and the per-view strains {view: %}."""
+    """GLS surface (%) and the per-view strains {view: %}.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    ed, es : int
+        The ED and ES frames.
+
+    Returns
+    -------
+    gls : float
+        %, NaN without an LA view contoured at both frames.
+    per_view : dict of str to float
+        LA view -> its strain, %.
+    """
     views = {}
     la_ed = {c.slice: c for c in study.contours_at(ed, "lv_endo", view="LA")}
     for c in study.contours_at(es, "lv_endo", view="LA"):
@@ -88,7 +133,22 @@ def gls_surface(study: Study, ed: int, es: int) -> tuple[float, dict]:
 
 
 def mid_sa_slice(study: Study, ed: int, apex: np.ndarray, base: np.ndarray) -> str | None:
-    """The SA slice whose ED ``lv_endo`` centroid is nearest the axis midpoint, along the axis."""
+    """The SA slice whose ED ``lv_endo`` centroid is nearest the axis midpoint, along the axis.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    ed : int
+        The ED frame.
+    apex, base : (3,) ndarray
+        The long axis' ends, mm.
+
+    Returns
+    -------
+    str or None
+        The slice id; None without SA lv_endo contours.
+    """
     e = (base - apex) / np.linalg.norm(base - apex)
     mid = 0.5 * float((base - apex) @ e)
     best, gap = None, np.inf
@@ -100,7 +160,24 @@ def mid_sa_slice(study: Study, ed: int, apex: np.ndarray, base: np.ndarray) -> s
 
 
 def gcs_surface(study: Study, ed: int, es: int, apex: np.ndarray, base: np.ndarray) -> tuple[float, str | None]:
-    """GCS surface (%) and the mid slice it was measured on."""
+    """GCS surface (%) and the mid slice it was measured on.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    ed, es : int
+        The ED and ES frames.
+    apex, base : (3,) ndarray
+        The long axis' ends, mm.
+
+    Returns
+    -------
+    gcs : float
+        %, NaN without the mid slice at both frames.
+    slice : str or None
+        The mid slice.
+    """
     s = mid_sa_slice(study, ed, np.asarray(apex, float), np.asarray(base, float))
     if s is None:
         return NAN, None
@@ -114,7 +191,20 @@ def gcs_surface(study: Study, ed: int, es: int, apex: np.ndarray, base: np.ndarr
 
 
 def surface_strains(model) -> tuple[dict[str, float], dict]:
-    """Both columns of a model (its study, ED/ES and ED long axis), with details."""
+    """Both columns of a model (its study, ED/ES and ED long axis), with details.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+
+    Returns
+    -------
+    columns : dict of str to float
+        ``GLS surface (%)``, ``GCS surface (%)``.
+    details : dict
+        Per-view strains and the mid slice.
+    """
     study, ed, es = model.study, model.ed_frame, model.es_frame
     gls, views = gls_surface(study, ed, es)
     apex, base = model.long_axis()

@@ -162,7 +162,19 @@ class Boundary:
     epicardium), ``points`` (c, 3) mm, and that surface at ED as dense ``samples`` (m, 3)
     with unit ``normals`` (m, 3) (term (T3) of the module docstring); ``tree``: a
     :class:`scipy.spatial.cKDTree` of the samples when one is at hand (shared by the frames of
-    a time course), else built when needed."""
+    a time course), else built when needed.
+
+    Attributes
+    ----------
+    points : (c, 3) ndarray
+        The contour points, mm.
+    samples : (m, 3) ndarray
+        The ED surface samples, mm.
+    normals : (m, 3) ndarray
+        Their unit normals.
+    tree : scipy.spatial.cKDTree or None
+        A k-d tree of ``samples``.
+    """
     points: np.ndarray
     samples: np.ndarray
     normals: np.ndarray
@@ -172,7 +184,19 @@ class Boundary:
 @dataclass(frozen=True)
 class TagPlanes:
     """The ED tag planes: keys (family, index), unit normals (k, 3), offsets d (k,) with
-    n·X = d on the plane, and the RMS distance (mm) of the ED tag points to them."""
+    n·X = d on the plane, and the RMS distance (mm) of the ED tag points to them.
+
+    Attributes
+    ----------
+    keys : tuple of (str, int)
+        (family, index) of each plane.
+    normals : (k, 3) ndarray
+        Unit normals.
+    offsets : (k,) ndarray
+        d, mm.
+    rms_mm : float
+        The ED tag points' RMS distance to their planes, mm.
+    """
 
     keys: tuple
     normals: np.ndarray
@@ -180,12 +204,32 @@ class TagPlanes:
     rms_mm: float
 
     def index(self) -> dict:
+        """Key (family, index) -> its row in ``normals`` and ``offsets``.
+
+        Returns
+        -------
+        dict of (str, int) to int
+        """
         return {k: j for j, k in enumerate(self.keys)}
 
 
 def ed_tag_planes(study: Study, ed_frame: int, exclude: frozenset | set = frozenset()) -> TagPlanes | None:
     """Total-least-squares plane of every tag's ED lines (two or more lines, or one LA line);
-    ``exclude``: {(family, index, slice, frame)} lines left out. None without tags at ED."""
+    ``exclude``: {(family, index, slice, frame)} lines left out. None without tags at ED.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    ed_frame : int
+        The ED frame.
+    exclude : set of (str, int, str, int)
+        As above.
+
+    Returns
+    -------
+    TagPlanes or None
+    """
     groups: dict[tuple, list[np.ndarray]] = {}
     for t in study.tags_at(ed_frame):
         if (t.family, t.index, t.slice, t.frame) in exclude:
@@ -223,7 +267,21 @@ def tag_grid(planes: TagPlanes, points: dict, level: float = GRID_TEST_LEVEL) ->
 
     A family keeps its separately fitted planes when it has fewer than three, or when the
     grid is rejected by the F-test of the nested least-squares fits (3 parameters per plane
-    against 4 per family) at ``level``: its tags are not one parallel, equally spaced set."""
+    against 4 per family) at ``level``: its tags are not one parallel, equally spaced set.
+
+    Parameters
+    ----------
+    planes : TagPlanes
+        The separately fitted planes.
+    points : dict
+        Key (family, index) -> its ED tag points (n, 3), mm.
+    level : float
+        The F-test's level.
+
+    Returns
+    -------
+    TagPlanes
+    """
     from scipy.special import fdtri  # the F distribution's quantile (scipy.stats.f.ppf calls it)
     fam_of = [k[0] for k in planes.keys]
     normals, offsets = planes.normals.copy(), planes.offsets.copy()
@@ -267,7 +325,26 @@ def frame_tag_points(study: Study, frame: int, planes: TagPlanes,
     moved in, so for a line crossing the wall obliquely it shifts the kept points across
     the tag near both surfaces, in opposite directions — a bias of the transmural gradient
     (at 0.6 mm noise a 0.5 mm margin made the mean segment Err of a phantom 1–4 points lower
-    than 1.75 mm did)."""
+    than 1.75 mm did).
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    frame : int
+        The frame.
+    planes : TagPlanes
+        The ED tag planes.
+    exclude : set of (str, int, str, int)
+        Lines left out.
+    margin_mm : float or None
+        As above.
+
+    Returns
+    -------
+    (points (n, 3) ndarray, plane index (n,) ndarray) or None
+        mm.
+    """
     if margin_mm is None:
         margin_mm = max(MARGIN_MM, NOISE_MARGIN * planes.rms_mm)
     where = planes.index()
@@ -290,7 +367,17 @@ def frame_tag_points(study: Study, frame: int, planes: TagPlanes,
 
 def plane_bases(normals: np.ndarray) -> np.ndarray:
     """(n, 2, 3) orthonormal in-plane axes of planes with unit ``normals`` (n, 3), vectorised
-    :func:`cardionurbs.geometry.in_plane_basis`."""
+    :func:`cardionurbs.geometry.in_plane_basis`.
+
+    Parameters
+    ----------
+    normals : (n, 3) ndarray
+        Unit normals.
+
+    Returns
+    -------
+    (n, 2, 3) ndarray
+    """
     helper = np.eye(3)[np.argmin(np.abs(normals), axis=1)]
     e1 = np.cross(normals, helper)
     e1 /= np.linalg.norm(e1, axis=1)[:, None]
@@ -349,7 +436,13 @@ class PointQuantities:
     points: ``parts`` ((points (n, 3), reduce), …), reduce mapping F (k, n, 3, 3) to (k, q);
     the quantities are the parts' outputs concatenated. Called with a fit, they are its
     values; :func:`quantity_jacobian` evaluates all central differences in one batch
-    (:meth:`~cardionurbs.analysis.strain.CylindricalMotionFit.perturbed_gradients`)."""
+    (:meth:`~cardionurbs.analysis.strain.CylindricalMotionFit.perturbed_gradients`).
+
+    Attributes
+    ----------
+    parts : tuple of ((n, 3) ndarray, callable)
+        The (points, reduce) parts.
+    """
     parts: tuple
 
     def __call__(self, fit) -> np.ndarray:
@@ -362,7 +455,23 @@ class PointQuantities:
 def quantity_jacobian(fit, quantities, coef: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """∂q/∂params (k, p) of ``quantities(fit)`` by central differences, step 1e-3 × ``scale``
     (the coefficients' standard errors), the fit's coefficients restored after.
-    :class:`PointQuantities` are differenced in one batch (the same differences)."""
+    :class:`PointQuantities` are differenced in one batch (the same differences).
+
+    Parameters
+    ----------
+    fit : CylindricalMotionFit
+        The fit.
+    quantities : callable
+        fit -> (k,) quantities (a :class:`PointQuantities` is differenced in one batch).
+    coef : (p,) ndarray
+        The free coefficients to difference about.
+    scale : (p,) ndarray
+        Their standard errors.
+
+    Returns
+    -------
+    (k, p) ndarray
+    """
     h = 1e-3 * np.maximum(scale, 1e-12)
     if isinstance(quantities, PointQuantities):
         fit.params = coef
@@ -394,7 +503,17 @@ def penalty_groups(fit) -> list[np.ndarray]:
        transmural gradient changes with height and angle) — the terms that carry the
        noise of the radial strain, since only the tag spacing across a ~1 cm wall
        informs them;
-    2. the highest Legendre order in height (the finest longitudinal detail)."""
+    2. the highest Legendre order in height (the finest longitudinal detail).
+
+    Parameters
+    ----------
+    fit : CylindricalMotionFit
+        The fit.
+
+    Returns
+    -------
+    list of (p,) ndarray of bool
+    """
     a, b, m = fit._index
     groups = [(b == 1) & ~((a == 0) & (m == 0)), (b == 0) & (a == a.max())]
     return [np.tile(g, 3)[fit.free] for g in groups]
@@ -440,7 +559,29 @@ def choose_penalty(S: np.ndarray, coef: np.ndarray, groups: list[np.ndarray], si
 
     over the positive grid values (λ = 0 is a flat prior, whose evidence vanishes); it
     needs no ``B`` and takes no ``terms``. With σ = 0, λ = 0 (and no fixed term).
-    Returns (P_λ (m, m) including the fixed terms, λ per group then per term)."""
+
+    Parameters
+    ----------
+    S, coef : (m, m) ndarray; (m,) ndarray
+        The reduced Gauss–Newton matrix; the unregularised optimum c.
+    groups : list of (m,) ndarray of bool
+        The ridge groups (:func:`penalty_groups`).
+    sigma_mm : float
+        The tag tracking noise σ, mm.
+    B : (k, m) ndarray
+        The quantities' derivative with respect to the coefficients.
+    grid, ridge : (g,) ndarray; float
+        The candidate weights λ; a relative ridge keeping S + P regular.
+    terms, fixed : tuple of (Q, r)
+        Quadratics whose weights are chosen; quadratics of weight 1.
+    criterion : {"risk", "evidence"}
+        The unbiased risk estimate, or the marginal likelihood (above).
+
+    Returns
+    -------
+    P, weights : (m, m) ndarray; tuple of float
+        P_λ including the fixed terms; λ per group, then per term.
+    """
     if criterion not in ("risk", "evidence") or (criterion == "evidence" and terms):
         raise ValueError(f"criterion {criterion!r}: 'risk', or 'evidence' without terms")
     m = len(coef)
@@ -486,7 +627,24 @@ def incompressibility_term(G: np.ndarray, g: np.ndarray, weights: np.ndarray, sc
 
     with g_s = J̄_s − 1 at the current coefficients, G = ∂J̄/∂coef (k, m) and ``weights``
     w_s (normalised here to sum 1; e.g. the segments' volumes). ``scale``
-    (:func:`incompressibility_scale`) makes κ dimensionless."""
+    (:func:`incompressibility_scale`) makes κ dimensionless.
+
+    Parameters
+    ----------
+    G : (k, m) ndarray
+        ∂J̄/∂coef.
+    g : (k,) ndarray
+        J̄_s − 1.
+    weights : (k,) ndarray
+        w_s.
+    scale : float
+        :func:`incompressibility_scale`.
+
+    Returns
+    -------
+    Q : (m, m) ndarray
+    r : (m,) ndarray
+    """
     w = np.asarray(weights, float) / np.sum(weights)
     return scale * (G.T @ (w[:, None] * G)), scale * (G.T @ (w * g))
 
@@ -494,20 +652,61 @@ def incompressibility_term(G: np.ndarray, g: np.ndarray, weights: np.ndarray, sc
 def volume_prior_weight(noise_mm: float, prior_sd: float) -> float:
     """σ² / s²: the weight of ½ Σ_s (J̄_s − 1)² beside the data term ½ Σ_i |φ(X_i) − x_i|² (mm²)
     when the segment-mean volume ratios J̄_s are a priori independent N(1, s²) and the tag
-    points have isotropic tracking noise σ (mm): the negative log posterior times σ²."""
+    points have isotropic tracking noise σ (mm): the negative log posterior times σ².
+
+    Parameters
+    ----------
+    noise_mm : float
+        σ, mm.
+    prior_sd : float
+        s.
+
+    Returns
+    -------
+    float
+        mm².
+    """
     return float(noise_mm) ** 2 / float(prior_sd) ** 2
 
 
 def incompressibility_scale(G: np.ndarray, weights: np.ndarray, S: np.ndarray) -> float:
     """tr S / tr(Gᵀ W G): with it κ = 1 gives the incompressibility penalty the trace of the
-    data's Gauss–Newton matrix S, as λ = 1 does for a ridge group."""
+    data's Gauss–Newton matrix S, as λ = 1 does for a ridge group.
+
+    Parameters
+    ----------
+    G : (k, m) ndarray
+        ∂J̄/∂coef.
+    weights : (k,) ndarray
+        The segments' weights W.
+    S : (m, m) ndarray
+        The Gauss–Newton matrix.
+
+    Returns
+    -------
+    float
+    """
     w = np.asarray(weights, float) / np.sum(weights)
     return float(np.trace(S) / max(float(np.einsum("ka,k,ka->", G, w, G)), 1e-300))
 
 
 def segment_mean_matrix(labels: np.ndarray, volumes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(M (k, n), v (k,)): M @ values gives the volume means of per-sample ``values`` over the
-    k segments present in ``labels``, v the segments' volumes."""
+    k segments present in ``labels``, v the segments' volumes.
+
+    Parameters
+    ----------
+    labels : (n,) ndarray of int
+        Segment of each sample.
+    volumes : (n,) ndarray
+        Their volumes, mm³.
+
+    Returns
+    -------
+    M : (k, n) ndarray
+    v : (k,) ndarray
+        mm³.
+    """
     segs = np.unique(labels)
     M = (np.asarray(labels)[None, :] == segs[:, None]) * np.asarray(volumes, float)[None, :]
     v = M.sum(axis=1)
@@ -523,7 +722,22 @@ def boundary_start(fit, boundary, ed_tag_points: np.ndarray):
 
     Y starts at the fixed-point preimage of y under ``fit`` and is then moved along its
     surface by Gauss–Newton with the motion held (three steps), so that φ(Y) − y is y's
-    distance from the moved surface."""
+    distance from the moved surface.
+
+    Parameters
+    ----------
+    fit : CylindricalMotionFit
+        The motion fit (ED → frame).
+    boundary : Boundary
+        One surface's contour points and ED samples.
+    ed_tag_points : (n, 3) ndarray
+        The ED tag points, mm.
+
+    Returns
+    -------
+    tuple
+        (y, Y, bases, slide) as above.
+    """
     from scipy.spatial import cKDTree
     trees = [cKDTree(b.samples) if b.tree is None else b.tree for b in boundary]
     label = np.concatenate([np.full(len(b.points), i) for i, b in enumerate(boundary)])

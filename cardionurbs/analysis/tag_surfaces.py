@@ -66,6 +66,18 @@ def check_tags(study: Study, ed_frame: int | None = None) -> None:
     frame is tagged. The lines are checked once per ``study.tags`` list (again when the
     list is replaced or changes length, as for the study's tag index): the analysis asks
     at every stage.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    ed_frame : int or None
+        The ED frame, checked to be tagged.
+
+    Raises
+    ------
+    TagError
+        The first problem, naming family, index, slice and frame.
     """
     checked = study.__dict__.get("_tags_checked")
     if checked is None or checked[0] is not study.tags or checked[1] != len(study.tags):
@@ -99,7 +111,25 @@ def _check_tag_lines(study: Study) -> None:
 
 
 def resolve_frames(study: Study, ed_frame: int | None, es_frame: int | None) -> tuple[int, int]:
-    """ED and ES frames: the arguments, else the study's labels; TagError when unknown."""
+    """ED and ES frames: the arguments, else the study's labels; TagError when unknown.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    ed_frame, es_frame : int or None
+        The frames asked for; None: the study's labels.
+
+    Returns
+    -------
+    (int, int)
+        ED and ES.
+
+    Raises
+    ------
+    TagError
+        A frame neither given nor labelled.
+    """
     ed = study.ed_frame if ed_frame is None else int(ed_frame)
     es = study.es_frame if es_frame is None else int(es_frame)
     if ed is None:
@@ -113,7 +143,18 @@ def resolve_frames(study: Study, ed_frame: int | None, es_frame: int | None) -> 
 
 # --------------------------------------------------------------- line helpers
 def gap_limit(points: np.ndarray) -> float:
-    """Step length (mm) above which consecutive points of a line are across a gap."""
+    """Step length (mm) above which consecutive points of a line are across a gap.
+
+    Parameters
+    ----------
+    points : (n, 3) ndarray
+        A tag line's points, mm.
+
+    Returns
+    -------
+    float
+        mm.
+    """
     steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
     if len(steps) < 2:
         return np.inf
@@ -121,19 +162,52 @@ def gap_limit(points: np.ndarray) -> float:
 
 
 def uniform_knots(n_ctrl: int, degree: int = 3) -> np.ndarray:
-    """Clamped knot vector on [0, 1] with uniformly spaced interior knots."""
+    """Clamped knot vector on [0, 1] with uniformly spaced interior knots.
+
+    Parameters
+    ----------
+    n_ctrl : int
+        Control points.
+    degree : int
+        Curve degree p.
+
+    Returns
+    -------
+    (n_ctrl + p + 1,) ndarray
+    """
     inner = np.arange(1, n_ctrl - degree) / (n_ctrl - degree)
     return np.concatenate([np.zeros(degree + 1), inner, np.ones(degree + 1)])
 
 
 def control_count(lines: list[np.ndarray]) -> int:
-    """Control points for a family's tag lines: one per ~12 mm of the median line, 4..8."""
+    """Control points for a family's tag lines: one per ~12 mm of the median line, 4..8.
+
+    Parameters
+    ----------
+    lines : list of (n, 3) ndarray
+        The family's tag lines, mm.
+
+    Returns
+    -------
+    int
+    """
     lengths = polyline_lengths(lines)
     return int(np.clip(round(median(lengths) / 12.0) + 3, 4, 8))
 
 
 def polyline_lengths(lines: list[np.ndarray]) -> np.ndarray:
-    """Length (mm) of each polyline (sum of its steps), all lines in one batch."""
+    """Length (mm) of each polyline (sum of its steps), all lines in one batch.
+
+    Parameters
+    ----------
+    lines : list of (n, 3) ndarray
+        Polylines, mm.
+
+    Returns
+    -------
+    (L,) ndarray
+        mm.
+    """
     n = np.array([len(p) for p in lines])
     if len(lines) == 0:
         return np.zeros(0)
@@ -166,6 +240,24 @@ def fit_tag_curves(lines: list[np.ndarray], n_ctrl: int, degree: int = 3,
     tolerance), so tracking noise is smoothed rather than interpolated.
 
     Returns (knots (n + p + 1,), control points (L, n, 3)).
+
+    Parameters
+    ----------
+    lines : list of (m, 3) ndarray
+        L tag lines, mm.
+    n_ctrl : int
+        Control points per curve.
+    degree : int
+        Curve degree p.
+    smoothing : float
+        The second-difference penalty's relative weight.
+
+    Returns
+    -------
+    knots : (n + p + 1,) ndarray
+        The shared knot vector.
+    ctrl : (L, n, 3) ndarray
+        The control points of each line's curve, mm.
     """
     from cardionurbs.nurbs.basis import basis_matrix
     U = uniform_knots(n_ctrl, degree)
@@ -200,7 +292,17 @@ def fit_tag_curves(lines: list[np.ndarray], n_ctrl: int, degree: int = 3,
 
 
 def fit_tag_curve(points: np.ndarray) -> "nurbs.NurbsCurve":
-    """One tag line's curve (:func:`fit_tag_curves` with the count of :func:`control_count`)."""
+    """One tag line's curve (:func:`fit_tag_curves` with the count of :func:`control_count`).
+
+    Parameters
+    ----------
+    points : (m, 3) ndarray
+        A tag line, mm.
+
+    Returns
+    -------
+    NurbsCurve
+    """
     U, P = fit_tag_curves([np.asarray(points, float)], control_count([points]))
     return nurbs.NurbsCurve(3, U, P[0])
 
@@ -210,10 +312,30 @@ def fit_tag_curve(points: np.ndarray) -> "nurbs.NurbsCurve":
 class TagSection:
     """One tag line (or, for ``la``, one spoke of it) ready for lofting.
 
-    points : (n, 3) scanner mm, oriented (SA: along the family direction;
-    LA spoke: from the long axis outward). ``key`` orders sections within a
-    surface: the position along the SA stack normal (mm) or the spoke's
-    angle about the long axis (rad).
+    Attributes
+    ----------
+    family : {"sa1", "sa2", "la"}
+        The tag family.
+    index : int
+        The tag's index in its family.
+    slice : str
+        The slice the line is on.
+    frame : int
+        The frame.
+    points : (n, 3) ndarray
+        Scanner mm, oriented (SA: along the family direction; LA spoke: from the long
+        axis outward).
+    plane : ImagePlane
+        The image plane of the line.
+    key : float
+        Orders sections within a surface: the position along the SA stack normal (mm)
+        or the spoke's angle about the long axis (rad).
+    half : int
+        Which spoke of an LA line (0, 1); 0 for SA.
+    knots : (n + p + 1,) ndarray or None
+        The fitted curve's knot vector (:func:`fit_sections`), None before fitting.
+    ctrl : (k, 3) ndarray or None
+        Its control points, mm.
     """
 
     family: str
@@ -238,7 +360,23 @@ class TagSection:
 
 @dataclass(eq=False)
 class TagSurface:
-    """The tag surface of one (family, index) at one frame, with its sections."""
+    """The tag surface of one (family, index) at one frame, with its sections.
+
+    Attributes
+    ----------
+    family : {"sa1", "sa2", "la"}
+        The tag family.
+    index : int
+        The tag's index in its family.
+    frame : int
+        The frame.
+    surface : NurbsSurface
+        The lofted surface, scanner mm.
+    sections : list of TagSection
+        Its sections in loft order.
+    periodic_v : bool
+        Closed in v (the LA spoke fan).
+    """
 
     family: str
     index: int
@@ -258,7 +396,7 @@ class TagSurface:
 
 def _principal_direction(points: np.ndarray) -> np.ndarray:
     d = points[-1] - points[0]
-    n = np.linalg.norm(d)
+    n = float(np.linalg.norm(d))
     if n < 1e-9:
         c = points - points.mean(axis=0)
         d = np.linalg.svd(c, full_matrices=False)[2][0]
@@ -268,7 +406,17 @@ def _principal_direction(points: np.ndarray) -> np.ndarray:
 
 def principal_directions(lines: list[np.ndarray]) -> np.ndarray:
     """(n, 3) unit direction of each line: :func:`_principal_direction` of every line in one
-    batch (first to last point; the principal axis where the two nearly coincide)."""
+    batch (first to last point; the principal axis where the two nearly coincide).
+
+    Parameters
+    ----------
+    lines : list of (n, 3) ndarray
+        Lines, mm.
+
+    Returns
+    -------
+    (L, 3) ndarray
+    """
     d = np.array([p[-1] for p in lines], dtype=float) - np.array([p[0] for p in lines], dtype=float)
     n = np.linalg.norm(d, axis=1)
     short = n < 1e-9
@@ -280,7 +428,19 @@ def principal_directions(lines: list[np.ndarray]) -> np.ndarray:
 
 def family_direction(lines: list[np.ndarray], dirs: np.ndarray | None = None) -> np.ndarray:
     """Mean unit direction of a family's lines (signs aligned to the first line);
-    ``dirs``: their :func:`principal_directions` when already known."""
+    ``dirs``: their :func:`principal_directions` when already known.
+
+    Parameters
+    ----------
+    lines : list of (n, 3) ndarray
+        The family's lines, mm.
+    dirs : (L, 3) ndarray or None
+        Their directions, if known.
+
+    Returns
+    -------
+    (3,) ndarray
+    """
     dirs = principal_directions(lines) if dirs is None else np.array(dirs)
     ref = dirs[0]
     dirs *= np.where(dirs @ ref < 0, -1.0, 1.0)[:, None]
@@ -289,7 +449,22 @@ def family_direction(lines: list[np.ndarray], dirs: np.ndarray | None = None) ->
 
 
 def sa_sections(study: Study, family: str, frame: int) -> dict[int, list[TagSection]]:
-    """Oriented SA sections of every tag index of one family at one frame, ordered base → apex."""
+    """Oriented SA sections of every tag index of one family at one frame, ordered base → apex.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    family : {"sa1", "sa2"}
+        The SA family.
+    frame : int
+        The frame.
+
+    Returns
+    -------
+    dict of int to list of TagSection
+        Tag index -> its sections.
+    """
     lines = [t for t in study.tags_at(frame, family)]
     if not lines:
         return {}
@@ -327,6 +502,15 @@ def axis_frame(apex: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, np.ndarr
     ``e`` points from the base to the apex, so an angle measured
     right-handed about ``e`` (from e1 towards e2) is counter-clockwise as
     seen from the apex looking toward the base (docs/metrics.md sign).
+
+    Parameters
+    ----------
+    apex, base : (3,) ndarray
+        The long axis' ends, mm.
+
+    Returns
+    -------
+    e1, e2, e : (3,) ndarray
     """
     apex, base = np.asarray(apex, float), np.asarray(base, float)
     key = (apex.tobytes(), base.tobytes())
@@ -356,6 +540,20 @@ def la_sections(study: Study, frame: int, apex: np.ndarray,
     nearest the axis — into two spokes running outward. A spoke keeps the
     cut point and the first wall segment beyond it (so the RV walls of a
     four-chamber line are left out).
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    frame : int
+        The frame.
+    apex, base : (3,) ndarray
+        The long axis' ends at ED, mm.
+
+    Returns
+    -------
+    dict of int to list of TagSection
+        Tag index -> its spokes.
     """
     apex, base = np.asarray(apex, float), np.asarray(base, float)
     e = (base - apex) / np.linalg.norm(base - apex)
@@ -379,7 +577,8 @@ def la_sections(study: Study, frame: int, apex: np.ndarray,
         limit = max(GAP_FACTOR * median(steps), GAP_MIN_MM) if len(steps) >= 2 else np.inf
         gaps = np.flatnonzero(steps > limit)                # (gap_limit of the line)
         # the gap nearest the axis, if the axis lies across it
-        cut_pt, lo, hi = None, None, None
+        cut_pt: np.ndarray | None = None
+        lo = hi = 0
         if len(gaps):
             mid_r = np.linalg.norm(((radial[gaps] + radial[gaps + 1]) / 2), axis=1)
             g = gaps[np.argmin(mid_r)]
@@ -418,7 +617,13 @@ def la_sections(study: Study, frame: int, apex: np.ndarray,
 
 # ------------------------------------------------------------------- lofting
 def fit_sections(sections: list[TagSection]) -> None:
-    """Fit every section's curve (:func:`fit_tag_curves`, one batch per call), in place."""
+    """Fit every section's curve (:func:`fit_tag_curves`, one batch per call), in place.
+
+    Parameters
+    ----------
+    sections : list of TagSection
+        Sections; their ``knots`` and ``ctrl`` are set.
+    """
     todo = [s for s in sections if s.ctrl is None]
     if not todo:
         return
@@ -435,13 +640,26 @@ def loft_sections(sections: list[TagSection], periodic: bool = False,
     go through :func:`cardionurbs.nurbs.loft_compatible`, others through
     :func:`cardionurbs.nurbs.loft`. ``periodic`` repeats the first section
     at the end (the LA spoke fan). Returns None with fewer than two sections.
+
+    Parameters
+    ----------
+    sections : list of TagSection
+        Sections in loft order.
+    periodic : bool
+        Close the loft (the LA spoke fan).
+    degree_v : int
+        Degree across the sections.
+
+    Returns
+    -------
+    NurbsSurface or None
     """
     fit_sections(sections)
     secs = list(sections) + ([sections[0]] if periodic and len(sections) >= 2 else [])
     if len(secs) < 2:
         return None
     U = secs[0].knots
-    if all(s.knots is not None and s.knots.shape == U.shape and np.array_equal(s.knots, U)
+    if U is not None and all(s.knots is not None and s.knots.shape == U.shape and np.array_equal(s.knots, U)
            for s in secs):
         return nurbs.loft_compatible(np.array([s.ctrl for s in secs]), U, 3, degree_v)
     return nurbs.loft([s.curve for s in secs], degree_v=min(degree_v, len(secs) - 1))
@@ -454,6 +672,23 @@ def build_tag_surfaces(study: Study, frame: int, long_axis: tuple | None = None,
 
     ``exclude``: {(family, index, slice)} tag lines left out (e.g. flagged
     by the tag-jump QC).
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    frame : int
+        The frame.
+    long_axis : (apex (3,), base (3,)) or None
+        At ED, mm; None: from the ED landmarks.
+    families : tuple of str
+        The families built.
+    exclude : set of (str, int, str)
+        As above.
+
+    Returns
+    -------
+    dict of (str, int) to TagSurface
     """
     check_tags(study)
     out: dict[tuple[str, int], TagSurface] = {}
@@ -489,5 +724,18 @@ def tag_surfaces(study: Study, frame: int, long_axis: tuple | None = None) -> di
     (module docstring). ``long_axis`` = (apex, base centre) at ED, mm; taken
     from the ED landmarks when omitted (needed for ``la`` only). A tag seen in
     fewer than two slices (three spokes for ``la``) has no surface.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    frame : int
+        The frame.
+    long_axis : (apex (3,), base (3,)) or None
+        As above.
+
+    Returns
+    -------
+    dict of (str, int) to NurbsSurface
     """
     return {k: ts.surface for k, ts in build_tag_surfaces(study, frame, long_axis).items()}

@@ -49,6 +49,8 @@ divided by their index difference).
 from __future__ import annotations
 
 from bisect import bisect_left
+from collections.abc import Sequence
+from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
 from itertools import product
 
@@ -66,7 +68,23 @@ _NU = 48
 
 @dataclass(frozen=True)
 class TagFlag:
-    """One tag line judged mistracked: departure in tag spacings from the others' surface."""
+    """One tag line judged mistracked: departure in tag spacings from the others' surface.
+
+    Attributes
+    ----------
+    family : {"sa1", "sa2", "la"}
+        The tag family.
+    index : int
+        The tag's index.
+    slice : str
+        The slice of the line.
+    frame : int
+        The frame.
+    departure : float
+        Tag spacings (NaN for a low-confidence flag).
+    reason : {"jump", "low confidence"}
+        Why it is flagged.
+    """
 
     family: str
     index: int
@@ -76,12 +94,34 @@ class TagFlag:
     reason: str = "jump"     # "jump", or "low confidence" (tracked from images, see below)
 
     def as_tuple(self) -> tuple:
+        """(family, index, slice, frame, departure).
+
+        Returns
+        -------
+        tuple
+        """
         return (self.family, self.index, self.slice, self.frame, self.departure)
 
 
 @dataclass(frozen=True)
 class LineDeparture:
-    """Leave-one-out departure of one tag line (every line, flagged or not)."""
+    """Leave-one-out departure of one tag line (every line, flagged or not).
+
+    Attributes
+    ----------
+    family : {"sa1", "sa2", "la"}
+        The tag family.
+    index : int
+        The tag's index.
+    slice : str
+        The slice of the line.
+    frame : int
+        The frame.
+    departure : float
+        Tag spacings.
+    flagged : bool
+        Whether it was flagged.
+    """
 
     family: str
     index: int
@@ -117,6 +157,22 @@ def blend_trace(Ca: np.ndarray, Cb: np.ndarray, origin: np.ndarray, normal: np.n
 
     T(u) = C_a(u) + t(u) (C_b(u) − C_a(u)), t = d_a / (d_a − d_b), d the
     signed distances from the plane (t outside [0, 1] extends the blend).
+
+    Parameters
+    ----------
+    Ca, Cb : (k, 3) ndarray
+        The two sections sampled at the same k parameters, mm.
+    origin : (3,) ndarray
+        A point of the plane, mm.
+    normal : (3,) ndarray
+        The plane's unit normal.
+
+    Returns
+    -------
+    trace : (k, 3) ndarray
+        mm.
+    tangents : (k, 3) ndarray
+        Unit tangents.
     """
     da = (Ca - origin) @ normal
     db = (Cb - origin) @ normal
@@ -138,7 +194,24 @@ def signed_distance_to_trace(points: np.ndarray, trace: np.ndarray, tangents: np
                              normal: np.ndarray) -> np.ndarray:
     """In-plane distance (mm) of points from a trace across its tangent, signed along
     normal × tangent (the same side for every tag of a family: their lines share one
-    orientation)."""
+    orientation).
+
+    Parameters
+    ----------
+    points : (n, 3) ndarray
+        Points in the plane, mm.
+    trace : (k, 3) ndarray
+        The trace, mm.
+    tangents : (k, 3) ndarray
+        Its unit tangents.
+    normal : (3,) ndarray
+        The plane's unit normal.
+
+    Returns
+    -------
+    (n,) ndarray
+        mm.
+    """
     if len(trace) == 0:
         return np.full(len(points), np.nan)
     diff = points[:, None, :] - trace[None]
@@ -155,7 +228,22 @@ def _cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def distance_to_trace(points: np.ndarray, trace: np.ndarray, tangents: np.ndarray) -> np.ndarray:
-    """Distance (mm) of each point from the nearest trace point, across the trace's tangent."""
+    """Distance (mm) of each point from the nearest trace point, across the trace's tangent.
+
+    Parameters
+    ----------
+    points : (n, 3) ndarray
+        Points, mm.
+    trace : (k, 3) ndarray
+        The trace, mm.
+    tangents : (k, 3) ndarray
+        Its unit tangents.
+
+    Returns
+    -------
+    (n,) ndarray
+        mm.
+    """
     if len(trace) == 0:
         return np.full(len(points), np.inf)
     diff = points[:, None, :] - trace[None]
@@ -169,7 +257,24 @@ def distance_to_trace(points: np.ndarray, trace: np.ndarray, tangents: np.ndarra
 # ------------------------------------------------------------------ spacing
 def tag_spacing(study: Study, family: str, frame: int,
                 sections: dict[int, list[TagSection]] | None = None) -> float:
-    """Tag spacing (mm) of one family at one frame (see module docstring); NaN when unknown."""
+    """Tag spacing (mm) of one family at one frame (see module docstring); NaN when unknown.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    family : {"sa1", "sa2", "la"}
+        The tag family.
+    frame : int
+        The frame.
+    sections : dict of int to list of TagSection or None
+        The family's sections, when already built.
+
+    Returns
+    -------
+    float
+        mm.
+    """
     given = study.meta.get("tag_spacing_mm") if isinstance(study.meta, dict) else None
     if given:
         return float(given)
@@ -254,6 +359,20 @@ def spoke_height_departure(points: np.ndarray, Ca: np.ndarray, Cb: np.ndarray,
     (its samples interpolated in r, held constant beyond its ends). A
     straight blend of two radial spokes would follow their chord, far inside
     the wall at the left-out angle.
+
+    Parameters
+    ----------
+    points : (n, 3) ndarray
+        The left-out spoke's points, mm.
+    Ca, Cb : (k, 3) ndarray
+        The neighbouring spokes sampled, mm.
+    axis : (apex (3,), base (3,))
+        The long axis, mm.
+
+    Returns
+    -------
+    (n,) ndarray
+        mm.
     """
     frame = _axis_cylinder(axis)
     return _spoke_departure(cylindrical(points, *frame), _spoke_profile(Ca, frame),
@@ -312,7 +431,7 @@ def _spoke_departure(cyl: tuple, prof_a: tuple, prof_b: tuple) -> np.ndarray:
 
 
 def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: float,
-                   periodic: bool, exclude: set[str] = frozenset(),
+                   periodic: bool, exclude: AbstractSet[str] = frozenset(),
                    axis: tuple | None = None, profiles: dict | None = None) -> dict[str, float]:
     """Leave-one-out departure (tag spacings) of each slice's line of one tag at one frame.
 
@@ -325,12 +444,34 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
     points' cylindrical coordinates (key ``("points", index)``) between calls on the same
     ``secs``, ``samples`` and ``axis`` (the worst-first passes).
     Returns {slice: departure}; slices that cannot be judged are absent.
+
+    Parameters
+    ----------
+    secs : list of TagSection
+        As above.
+    samples : list of (k, 3) ndarray
+        As above.
+    spacing : float
+        The family's tag spacing, mm.
+    periodic : bool
+        The LA spoke fan.
+    exclude : set of str
+        As above.
+    axis : (apex (3,), base (3,)) or None
+        As above.
+    profiles : dict or None
+        As above.
+
+    Returns
+    -------
+    dict of str to float
     """
     names = list(dict.fromkeys(s.slice for s in secs if s.slice not in exclude))
     out: dict[str, float] = {}
     if len(names) < 3:
         return out
     if periodic:       # each spoke's profile once, however many left-out spokes it predicts
+        assert axis is not None, "the LA spoke fan's departures need its axis"
         cyl = _axis_cylinder(axis)
         profiles = {} if profiles is None else profiles
         if not profiles:                 # every spoke's profile and points, in one batch
@@ -338,8 +479,10 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
             profiles.update({("points", k): c
                              for k, c in enumerate(_spoke_points_cylindrical(secs, cyl))})
 
+        known = profiles
+
         def profile(k: int) -> tuple:
-            return profiles[k]
+            return known[k]
     for left in names:
         keep = [k for k, s in enumerate(secs) if s.slice != left and s.slice not in exclude]
         mine = [k for k, s in enumerate(secs) if s.slice == left]
@@ -349,7 +492,7 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
             for k in mine:
                 nb = _neighbours_cyclic(keys, secs[k].key)
                 if nb is not None:   # a spoke's first point is the cut on the axis, not data
-                    dist.append(_spoke_departure(profiles[("points", k)],
+                    dist.append(_spoke_departure(known[("points", k)],
                                                  profile(keep[nb[0]]), profile(keep[nb[1]])))
             if dist:
                 out[left] = median(np.concatenate(dist)) / spacing
@@ -367,20 +510,45 @@ def loo_departures(secs: list[TagSection], samples: list[np.ndarray], spacing: f
 
 
 def loo_residuals(secs: list[TagSection], samples: list[np.ndarray],
-                  exclude: set[str] = frozenset()) -> dict[str, dict[tuple[str, str], float]]:
+                  exclude: AbstractSet[str] = frozenset()) -> dict[str, dict[tuple[str, str], float]]:
     """Signed leave-one-out residual (mm) of each SA slice's line of one tag, per predictor.
 
     {slice: {(slice_a, slice_b): median signed in-plane distance of the line's
     points from the degree-1 loft of sections a, b}} (module docstring, steps 1–3).
+
+    Parameters
+    ----------
+    secs : list of TagSection
+        One tag's SA sections in loft order.
+    samples : list of (k, 3) ndarray
+        Their fitted curves at uniform u, mm.
+    exclude : set of str
+        Slices left out of every loft.
+
+    Returns
+    -------
+    dict of str to dict of (str, str) to float
+        mm.
     """
     return loo_residuals_many([(secs, samples, exclude)])[0]
 
 
-def loo_residuals_many(tags: list[tuple[list[TagSection], list[np.ndarray], set[str]]]
+def loo_residuals_many(tags: Sequence[tuple[Sequence[TagSection], list[np.ndarray], AbstractSet[str]]]
                        ) -> list[dict[str, dict[tuple[str, str], float]]]:
     """:func:`loo_residuals` of several tags, ``tags`` = [(secs, samples, exclude)], with
     every (left-out line, predictor pair) of all of them measured in one batch
-    (:func:`_pair_residuals_many`): the same numbers, without a numpy call per line."""
+    (:func:`_pair_residuals_many`): the same numbers, without a numpy call per line.
+
+    Parameters
+    ----------
+    tags : sequence of (sections, samples, exclude)
+        As :func:`loo_residuals`' arguments, one triple per tag.
+
+    Returns
+    -------
+    list of dict
+        :func:`loo_residuals` of each tag, in order.
+    """
     lines = []            # (tag, slice, pair names) per problem
     points, Ca, Cb, origins, normals = [], [], [], [], []
     for t, (secs, samples, exclude) in enumerate(tags):
@@ -591,7 +759,7 @@ def _stack_ends(secs: list[TagSection], slices, exclude: set[str]) -> dict[str, 
     return out
 
 
-def _time_witnesses(temporal: list[dict], i: int, slc: str, pair: tuple[str, str]) -> list[float]:
+def _time_witnesses(temporal: Sequence[dict], i: int, slc: str, pair: tuple[str, str]) -> list[float]:
     """Residuals (mm) of the same line against the same pair at the neighbouring frames (each
     a separate witness, so that a jump at one neighbouring frame cannot make a good line look
     bad); empty when no neighbouring frame has it."""
@@ -600,7 +768,7 @@ def _time_witnesses(temporal: list[dict], i: int, slc: str, pair: tuple[str, str
 
 def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
                          threshold: float, residuals: dict | None = None,
-                         temporal: list[dict] = ()) -> list[tuple[int, str, float, bool]]:
+                         temporal: Sequence[dict] = ()) -> list[tuple[int, str, float, bool]]:
     """Departures (tag spacings) of every line of one SA family at one frame, with flags.
 
     A line's residual r against a predictor pair is also compared with the
@@ -624,6 +792,24 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
     when both neighbouring frames have it (bracketed in time, as interior
     lines are bracketed in space); otherwise — the first or last frame, an
     ED + ES study — the index trend is kept.
+
+    Parameters
+    ----------
+    groups : dict of int to list of TagSection
+        Tag index -> its SA sections.
+    spacing : float
+        The family's tag spacing, mm.
+    threshold : float
+        The flag threshold, tag spacings.
+    residuals : dict or None
+        Tag index -> its :func:`loo_residuals`, when already measured.
+    temporal : sequence of dict
+        As above.
+
+    Returns
+    -------
+    list of (int, str, float, bool)
+        (index, slice, departure in tag spacings, flagged).
     """
     samples: dict[int, list[np.ndarray]] = {}     # each tag's sampled sections, when needed
 
@@ -649,16 +835,16 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
                 extrap = ends.get(slc, False)
                 for pair, r in R[i][slc].items():
                     trends = _time_witnesses(temporal, i, slc, pair) if extrap else []
-                    if len(trends) < 2:      # not bracketed in time: the index trend
+                    bracketed = len(trends) >= 2
+                    if not bracketed:        # not bracketed in time: the index trend
                         nb = [(j, r_j) for j, r_j in by_pair[(slc, pair)] if j != i]
                         index_problems.append((nb, i))
-                        trends = None
-                    lines.append(((i, slc), r, trends))
+                    lines.append(((i, slc), r, trends if bracketed else None))
         fitted = iter(_index_trends([v for v, _ in index_problems], [i for _, i in index_problems],
                                     0.5 * spacing))
         best: dict[tuple[int, str], float] = {}
-        for key, r, trends in lines:
-            trends = [float(next(fitted))] if trends is None else trends
+        for key, r, witnesses in lines:
+            trends = [float(next(fitted))] if witnesses is None else witnesses
             best[key] = min(best.get(key, np.inf), abs(r), *(abs(r - t) for t in trends))
         return {k: v / spacing for k, v in best.items()}
 
@@ -668,7 +854,7 @@ def sa_family_departures(groups: dict[int, list[TagSection]], spacing: float,
         over = {k: v for k, v in deps.items() if v > threshold}
         if not over:
             break
-        worst = max(over, key=over.get)
+        worst = max(over, key=over.__getitem__)
         flagged[worst] = over[worst]
         excl[worst[0]].add(worst[1])
         R[worst[0]] = loo_residuals(groups[worst[0]], sampled(worst[0]), excl[worst[0]])
@@ -684,7 +870,21 @@ def _qc_axis(study: Study, long_axis: tuple | None) -> tuple | None:
 
 
 def qc_sections(study: Study, frame: int, long_axis: tuple | None) -> dict[tuple[str, int], list]:
-    """Fitted sections of every tag at one frame (no lofting), keyed (family, index)."""
+    """Fitted sections of every tag at one frame (no lofting), keyed (family, index).
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    frame : int
+        The frame.
+    long_axis : (apex (3,), base (3,)) or None
+        At ED, mm (for the LA spokes).
+
+    Returns
+    -------
+    dict of (str, int) to list of TagSection
+    """
     from cardionurbs.analysis.tag_surfaces import fit_sections, la_sections, sa_sections
     out: dict[tuple[str, int], list] = {}
     for fam in ("sa1", "sa2"):
@@ -785,6 +985,24 @@ def tag_qc(study: Study, threshold: float = DEFAULT_THRESHOLD, frames: list[int]
     tag spacings) per line whose departure from the surface lofted through
     the other slices of its tag exceeds ``threshold`` spacings, sorted by
     frame, family, index, slice.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    threshold : float
+        Tag spacings.
+    frames : list of int or None
+        The frames judged; None: every tagged frame.
+    long_axis : (apex (3,), base (3,)) or None
+        At ED, mm; None: from the landmarks.
+    surfaces : dict or None
+        Frame -> its tag surfaces (:func:`~cardionurbs.analysis.tag_surfaces.build_tag_surfaces`),
+        when already built.
+
+    Returns
+    -------
+    list of TagFlag
     """
     deps = tag_departures(study, threshold, frames, long_axis, surfaces)
     flags = [TagFlag(d.family, d.index, d.slice, d.frame, d.departure) for d in deps if d.flagged]
@@ -804,7 +1022,19 @@ def confidence_flags(study: Study, frames: list[int] | None = None) -> list[TagF
     (:mod:`cardionurbs.tracking`) records — harmonic magnitude over the first frame's
     below :data:`MIN_MAGNITUDE` (faded tags), or RMS phase residual of the line's tracked
     points above :data:`MAX_PHASE_RESIDUAL` rad (points that lost their tag). ``departure``
-    is NaN for these flags (they are not measured against the other slices)."""
+    is NaN for these flags (they are not measured against the other slices).
+
+    Parameters
+    ----------
+    study : Study
+        A study with ``meta["tag_tracking"]``.
+    frames : list of int or None
+        The frames; None: all.
+
+    Returns
+    -------
+    list of TagFlag
+    """
     info = study.meta.get("tag_tracking") if isinstance(study.meta, dict) else None
     cols = info.get("lines") if isinstance(info, dict) else None
     if not isinstance(cols, dict) or not cols.get("family"):

@@ -84,7 +84,20 @@ def _wrap_deg(a: np.ndarray) -> np.ndarray:
 
 
 def rotation_deg(x0: np.ndarray, x1: np.ndarray, apex: np.ndarray, base: np.ndarray) -> np.ndarray:
-    """Angle (deg) swept about the long axis from x0 to x1 (T1), CCW seen from the apex."""
+    """Angle (deg) swept about the long axis from x0 to x1 (T1), CCW seen from the apex.
+
+    Parameters
+    ----------
+    x0, x1 : (n, 3) ndarray
+        Positions at ED and at the frame, mm.
+    apex, base : (3,) ndarray
+        The long axis, mm.
+
+    Returns
+    -------
+    (n,) ndarray
+        deg.
+    """
     e1, e2, _ = axis_frame(apex, base)
     d0, d1 = x0 - apex, x1 - apex
     th0 = np.arctan2(d0 @ e2, d0 @ e1)
@@ -101,6 +114,20 @@ def epicardial_radius_profile(study: Study, frame: int, apex: np.ndarray,
     uniformly by arc length, ρ its mean distance from the long axis, z its
     mean axial position — joined by a cubic spline (not-a-knot; linear with
     two slices, constant beyond the ends). None without contours.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    frame : int
+        The frame.
+    apex, base : (3,) ndarray
+        The long axis, mm.
+
+    Returns
+    -------
+    callable or None
+        ρ(z), mm.
     """
     from scipy.interpolate import CubicSpline
     ez = (base - apex) / np.linalg.norm(base - apex)
@@ -137,6 +164,22 @@ def curve_crossings(curves: list, raw: list[np.ndarray], pairs: np.ndarray,
     do not meet within 0.01 mm or the crossing is not on the data of both
     lines (farther than two point spacings from every tag point, i.e. across
     a cavity gap). Started from the nearest pair of 24-point samples.
+
+    Parameters
+    ----------
+    curves : list of NurbsCurve
+        Fitted tag curves, mm.
+    raw : list of (n, 3) ndarray
+        Their tag points, mm.
+    pairs : (k, 2) ndarray of int
+        Indices into ``curves``.
+    iterations : int
+        Gauss–Newton iterations.
+
+    Returns
+    -------
+    (k, 3) ndarray
+        mm.
     """
     from cardionurbs.analysis.material import CurveBatch
     k = len(pairs)
@@ -173,10 +216,10 @@ def curve_crossings(curves: list, raw: list[np.ndarray], pairs: np.ndarray,
         steps = np.linalg.norm(np.diff(P, axis=0), axis=1)
         reach[li] = max(2.0 * median(steps) if len(steps) else 0.0, 1.0)
     for col in (0, 1):
-        li = pairs[:, col]
+        ends = pairs[:, col]
         with np.errstate(invalid="ignore"):
-            d2 = ((pad[li] - X[:, None, :]) ** 2).sum(-1)
-        ok &= np.sqrt(np.nanmin(d2, axis=1)) <= reach[li]
+            d2 = ((pad[ends] - X[:, None, :]) ** 2).sum(-1)
+        ok &= np.sqrt(np.nanmin(d2, axis=1)) <= reach[ends]
     X[~ok] = np.nan
     return X
 
@@ -272,17 +315,28 @@ def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base:
 class TagMetrics(ColumnMapping):
     """Tag metrics of one study; a read-only mapping docs/metrics.md column -> float.
 
-    ``dict(result)`` gives the columns; the rest are attributes:
+    ``dict(result)`` gives the columns; the rest are attributes.
 
-    columns : docs/metrics.md tag columns -> float (NaN when not measurable)
-    levels : list of dicts (index, distance_from_apex_mm, rotation_deg,
-        epi_radius_mm, n_points, in_twist) sorted apex → base
+    Attributes
+    ----------
+    columns : dict of str to float
+        docs/metrics.md tag columns -> value (deg, %, NaN when not measurable).
+    levels : list of dict
+        (index, distance_from_apex_mm, rotation_deg, epi_radius_mm, n_points, in_twist),
+        sorted apex → base.
     flags : list of TagFlag
-    slices_2d : per-slice rotations of the Twist 2D measure
-    notes : one-line remarks (e.g. "no tag lines")
-    over_time : {frame: {"Twist (deg)", "LS (%)"}} when computed
-    surfaces : {frame: {(family, index): TagSurface}} the tag surfaces the metrics were
-        measured on (flagged lines left out), for saving with the model
+        The tag lines the QC flagged.
+    slices_2d : list of dict
+        Per-slice rotations of the Twist 2D measure.
+    notes : list of str
+        One-line remarks (e.g. "no tag lines").
+    over_time : dict of int to dict of str to float
+        {frame: {"Twist (deg)", "LS (%)"}} when computed.
+    material : MaterialPoints or None
+        The material points the metrics come from.
+    surfaces : dict
+        {frame: {(family, index): TagSurface}} the tag surfaces the metrics were
+        measured on (flagged lines left out), for saving with the model.
     """
 
     columns: dict[str, float]
@@ -295,7 +349,12 @@ class TagMetrics(ColumnMapping):
     surfaces: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
-        """JSON-safe dict for metrics.json (NaN -> None)."""
+        """JSON-safe dict for metrics.json (NaN -> None).
+
+        Returns
+        -------
+        dict
+        """
         def num(x):
             return None if x is None or (isinstance(x, float) and not np.isfinite(x)) else x
         return {
@@ -316,7 +375,20 @@ def _empty(note: str) -> TagMetrics:
 
 
 def tagged_stack_range(study: Study, ed_frame: int, frame: int) -> tuple[np.ndarray, float, float] | None:
-    """(stack normal, lowest, highest plane position) of the SA slices tagged at both frames."""
+    """(stack normal, lowest, highest plane position) of the SA slices tagged at both frames.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    ed_frame, frame : int
+        The two frames.
+
+    Returns
+    -------
+    (normal (3,), lowest, highest) or None
+        Positions in mm along the normal; None without SA slices tagged at both.
+    """
     n = stacking_direction(study)[0]
     both = ({t.slice for t in study.tags_at(ed_frame) if t.family != "la"}
             & {t.slice for t in study.tags_at(frame) if t.family != "la"})
@@ -336,6 +408,20 @@ def longitudinal_height_map(h_ed: np.ndarray, h_at: np.ndarray, use: np.ndarray)
     tagged stack (b = λ for an axial scaling z -> λ z). Returns a callable;
     with fewer than 2 distinct ED heights the identity shift by the mean
     displacement.
+
+    Parameters
+    ----------
+    h_ed : (n,) ndarray
+        Material points' ED stack heights, mm.
+    h_at : (n,) ndarray
+        Their heights at the frame, mm.
+    use : (n,) ndarray of bool
+        The points fitted on.
+
+    Returns
+    -------
+    callable
+        h_ED (mm) -> h_f (mm).
     """
     h0, h1 = np.asarray(h_ed, float)[use], np.asarray(h_at, float)[use]
     if len(h0) >= 2 and np.ptp(h0) > 0:
@@ -354,6 +440,24 @@ def level_table(mp: MaterialPoints, frame: int, apex: np.ndarray, base: np.ndarr
     mean position of its points lies strictly between the most basal and
     most apical SA slices tagged at both frames, at ED and at ``frame`` (the
     position at ``frame`` from the pooled :func:`longitudinal_height_map`).
+
+    Parameters
+    ----------
+    mp : MaterialPoints
+        The material points.
+    frame : int
+        The frame.
+    apex, base : (3,) ndarray
+        The ED long axis, mm.
+    radius : callable or None
+        ρ(z) (:func:`epicardial_radius_profile`).
+    stack : (normal, lowest, highest) or None
+        As above.
+
+    Returns
+    -------
+    list of dict
+        As :attr:`TagMetrics.levels`.
     """
     ez = (base - apex) / np.linalg.norm(base - apex)
     X0 = mp.positions[mp.ed_frame]
@@ -387,7 +491,18 @@ def level_table(mp: MaterialPoints, frame: int, apex: np.ndarray, base: np.ndarr
 
 
 def twist_from_levels(levels: list[dict]) -> dict[str, float]:
-    """Twist, Torsion, CL shear and LS from a level table (docs/metrics.md formulas)."""
+    """Twist, Torsion, CL shear and LS from a level table (docs/metrics.md formulas).
+
+    Parameters
+    ----------
+    levels : list of dict
+        :func:`level_table`'s rows.
+
+    Returns
+    -------
+    dict of str to float
+        Column -> deg, deg/cm, deg or %.
+    """
     if len(levels) < 2:
         return {"Twist (deg)": NAN, "Torsion (deg/cm)": NAN, "CL shear (deg)": NAN, "LS (%)": NAN}
     a, b = levels[0], levels[-1]
@@ -499,6 +614,21 @@ def tag_surfaces_dict(study: Study, frames: list[int] | None = None,
     tagged frame. Read back with :meth:`cardionurbs.nurbs.NurbsSurface.from_dict`.
     ``surfaces`` ({frame: {(family, index): TagSurface}}, e.g.
     :attr:`TagMetrics.surfaces`) are used where given instead of being rebuilt.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    frames : list of int or None
+        As above.
+    long_axis : (apex (3,), base (3,)) or None
+        At ED, mm; None: from the landmarks.
+    surfaces : dict or None
+        As above.
+
+    Returns
+    -------
+    dict
     """
     surfaces = surfaces or {}
     frames = study.tagged_frames if frames is None else list(frames)
@@ -529,6 +659,26 @@ def tag_figure_data(study: Study, frame: int, long_axis: tuple | None = None,
     ``lines``: [{"slice", "points" (n, 3), "flagged"}] the tag lines.
     ``flags`` defaults to :func:`tag_qc` of that frame. ``surfaces``: that frame's
     ``build_tag_surfaces(study, frame, long_axis)`` when already built (every line kept).
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    frame : int
+        The frame.
+    long_axis : (apex (3,), base (3,)) or None
+        At ED, mm.
+    flags : list of TagFlag or None
+        As above.
+    nu, nv : int
+        Tessellation samples per surface.
+    surfaces : dict or None
+        As above.
+
+    Returns
+    -------
+    list of dict
+        As above.
     """
     from cardionurbs import nurbs
     if long_axis is None and study.tags_at(frame, "la"):

@@ -41,7 +41,26 @@ THICKNESS_COLUMNS = WT_COLUMNS + WT_ES_COLUMNS + THICKENING_COLUMNS
 
 
 def surface_samples(surface, n_u: int = 96, n_v: int = 64, v_range=(0.0, 1.0)):
-    """Points (k, 3), unit normals (k, 3) and area weights (k,) on a cell-centred (u, v) grid."""
+    """Points (k, 3), unit normals (k, 3) and area weights (k,) on a cell-centred (u, v) grid.
+
+    Parameters
+    ----------
+    surface : NurbsSurface
+        A surface, scanner mm.
+    n_u, n_v : int
+        Grid cells in u and v.
+    v_range : (float, float)
+        The v interval sampled.
+
+    Returns
+    -------
+    points : (k, 3) ndarray
+        Cell centres, mm.
+    normals : (k, 3) ndarray
+        Unit normals there.
+    weights : (k,) ndarray
+        Cell areas, mm².
+    """
     du, dv = 1.0 / n_u, (v_range[1] - v_range[0]) / n_v
     u = (np.arange(n_u) + 0.5) * du
     v = v_range[0] + (np.arange(n_v) + 0.5) * dv
@@ -55,7 +74,22 @@ def surface_samples(surface, n_u: int = 96, n_v: int = 64, v_range=(0.0, 1.0)):
 
 def orient_outward(points: np.ndarray, normals: np.ndarray, apex: np.ndarray,
                    base: np.ndarray) -> np.ndarray:
-    """Normals flipped, as a whole, to point away from the long axis on average."""
+    """Normals flipped, as a whole, to point away from the long axis on average.
+
+    Parameters
+    ----------
+    points : (k, 3) ndarray
+        Surface points, mm.
+    normals : (k, 3) ndarray
+        Their unit normals.
+    apex, base : (3,) ndarray
+        The long axis' ends, mm.
+
+    Returns
+    -------
+    (k, 3) ndarray
+        ``normals`` or ``-normals``.
+    """
     e = (base - apex) / np.linalg.norm(base - apex)
     d = points - apex
     radial = d - np.outer(d @ e, e)
@@ -69,7 +103,30 @@ def ray_surface_distance(surface, origins: np.ndarray, directions: np.ndarray,
                          ) -> np.ndarray:
     """Distance t (mm) along each unit ray origin + t·direction to a NURBS surface (the
     intersection nearest the start node on the ray's forward side); NaN where Newton does
-    not land on the surface within ``tol_mm`` inside its parameter domain or t <= 0."""
+    not land on the surface within ``tol_mm`` inside its parameter domain or t <= 0.
+
+    Parameters
+    ----------
+    surface : NurbsSurface
+        The target surface, scanner mm.
+    origins : (n, 3) ndarray
+        Ray starts, mm.
+    directions : (n, 3) ndarray
+        Unit ray directions.
+    grid : (int, int)
+        The (u, v) grid of start nodes.
+    iterations : int
+        Newton iterations.
+    tol_mm : float
+        Largest distance from the surface accepted, mm.
+    probe_mm : tuple of float
+        Distances along each ray where start nodes are looked for, mm.
+
+    Returns
+    -------
+    (n,) ndarray
+        t, mm (NaN where not found).
+    """
     o = np.asarray(origins, float)
     d = np.asarray(directions, float)
     nu, nv = grid
@@ -111,7 +168,23 @@ def ray_surface_distance(surface, origins: np.ndarray, directions: np.ndarray,
 
 def segment_means(values: np.ndarray, weights: np.ndarray, labels: np.ndarray,
                   segments=range(1, 17)) -> dict[int, float]:
-    """Weighted mean of ``values`` per segment label (NaN values left out; NaN if empty)."""
+    """Weighted mean of ``values`` per segment label (NaN values left out; NaN if empty).
+
+    Parameters
+    ----------
+    values : (k,) ndarray
+        Sample values.
+    weights : (k,) ndarray
+        Their weights (areas, mm²).
+    labels : (k,) ndarray of int
+        Their segment labels.
+    segments : iterable of int
+        The segments reported (AHA 1..16).
+
+    Returns
+    -------
+    dict of int to float
+    """
     out = {}
     for k in segments:
         m = (labels == k) & np.isfinite(values)
@@ -131,6 +204,26 @@ def thickness_by_segment(endo, epi, aha: AhaFrame, base_plane=None,
     (:func:`cardionurbs.analysis.strain.smoothed_normals`; 0: the raw NURBS normal), and the
     samples' ``normals`` are those averaged normals (``raw_normals``: the outward NURBS
     normals before averaging); ``grid``: ((n_u, n_v), the flat (u, v) grid index of each sample).
+
+    Parameters
+    ----------
+    endo, epi : NurbsSurface
+        The LV endo- and epicardial surfaces of one frame, scanner mm.
+    aha : AhaFrame
+        The frame's AHA segment frame (:mod:`cardionurbs.analysis.aha`).
+    base_plane : Plane or None
+        The mitral valve plane (normal apical).
+    samples : (int, int)
+        The (u, v) sample grid on the endocardium.
+    smoothing_mm : float
+        The normal-averaging radius, mm (0: the raw NURBS normal).
+
+    Returns
+    -------
+    thickness : dict of int to float
+        Segment -> mean wall thickness, mm (NaN where no ray lands).
+    samples : dict
+        The per-sample arrays above.
     """
     P, N, W = surface_samples(endo, *samples)
     N = orient_outward(P, N, aha.apex, aha.base)
@@ -147,7 +240,18 @@ def thickness_by_segment(endo, epi, aha: AhaFrame, base_plane=None,
 
 
 def thickness_columns(ed: dict[int, float], es: dict[int, float]) -> dict[str, float]:
-    """The WT, WT_ES and Thickening columns from per-segment thickness at ED and ES (mm)."""
+    """The WT, WT_ES and Thickening columns from per-segment thickness at ED and ES (mm).
+
+    Parameters
+    ----------
+    ed, es : dict of int to float
+        Segment -> mean wall thickness at ED and ES, mm.
+
+    Returns
+    -------
+    dict of str to float
+        docs/metrics.md column -> value (mm, %).
+    """
     out: dict[str, float] = {}
     g_ed = float(np.nanmean([ed[k] for k in range(1, 17)])) if any(np.isfinite(list(ed.values()))) else NAN
     g_es = float(np.nanmean([es[k] for k in range(1, 17)])) if any(np.isfinite(list(es.values()))) else NAN

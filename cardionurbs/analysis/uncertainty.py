@@ -29,7 +29,8 @@ sections, contour points and frames:
 
 EF and SV follow by the delta method (their ED and ES errors independent except where
 the model ties the two frames: the label maps' ES valve plane is placed from ED, so their
-base errors are one). Twist, LS and strain are not covered.
+base errors are one). Twist, LS and the global tag strains:
+:mod:`cardionurbs.analysis.tag_uncertainty`.
 """
 
 from __future__ import annotations
@@ -40,13 +41,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cardionurbs.analysis.tag_uncertainty import TAG_COVERED, tag_intervals
 from cardionurbs.geometry import polygon_area
 
 if TYPE_CHECKING:  # pragma: no cover
+    from collections.abc import Sequence
+
     from cardionurbs.anatomy.model import BiventricularModel
+    from cardionurbs.study import Contour, Landmark
 
 METHOD = ("analytic propagation: contour scatter, between-slice interpolation, base and apex "
-          "placement, ES sampling (docs/metrics.md, Uncertainty)")
+          "placement, ES sampling; tag-point scatter of the twist levels, level placement (LS), "
+          "tag-fit standard errors and motion-model error (global strain) "
+          "(docs/metrics.md, Uncertainty)")
 #: the columns given an interval
 COVERED = ("LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVM (g)",
            "RVEDV (mL)", "RVESV (mL)", "RVSV (mL)", "RVEF (%)", "RVM (g)")
@@ -74,7 +81,17 @@ NAN = float("nan")
 class VolumeError:
     """One solid's volume error at one frame: standard deviations (mL) by source, the
     sources shared with the other frame (one error, not two), and one-sided allowances
-    (mL) the volume may lie above or below the Gaussian interval."""
+    (mL) the volume may lie above or below the Gaussian interval.
+
+    Attributes
+    ----------
+    sd : dict of str to float
+        Source -> standard deviation, mL.
+    shared : frozenset of str
+        The sources shared with the other frame.
+    above, below : float
+        The one-sided allowances, mL.
+    """
 
     sd: dict[str, float] = field(default_factory=dict)
     shared: frozenset = frozenset()
@@ -82,6 +99,12 @@ class VolumeError:
     below: float = 0.0
 
     def total(self) -> float:
+        """The root sum of squares of the sources' standard deviations, mL.
+
+        Returns
+        -------
+        float
+        """
         return math.sqrt(sum(v * v for v in self.sd.values()))
 
 
@@ -115,7 +138,7 @@ def _residual_rms(model: "BiventricularModel", frame: int, structure: str) -> di
         if p["frame"] != frame or p["structure"] != structure:
             continue
         sa = p["view"] == "SA"
-        for sl in set(p["slice"][sa]):
+        for sl in sorted(set(p["slice"][sa])):
             d = p["dist_mm"][sa & (p["slice"] == sl)]
             out[sl] = float(np.sqrt(np.mean(d * d)))
     return out
@@ -134,7 +157,22 @@ def _la_scatter(model: "BiventricularModel", frame: int, structure: str) -> floa
 def section_table(model: "BiventricularModel", frame: int, structure: str) -> dict:
     """The SA sections of one surface at one frame (base -> apex): levels (n,) mm along
     the stacking direction, areas (n,) mm², perimeters (n,) mm, σ (n,) mm and point
-    spacing ds (n,) mm of their contour points; contoured sections only."""
+    spacing ds (n,) mm of their contour points; contoured sections only.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    frame : int
+        The frame.
+    structure : str
+        The surface (``lv_endo`` ...).
+
+    Returns
+    -------
+    dict of str to (n,) ndarray
+        ``level``, ``area``, ``perimeter``, ``sigma``, ``ds`` ({} without sections).
+    """
     geo = model.geometry[frame]
     n = geo.direction
     secs = [s for s in model.sections[frame].get(structure, []) if not s.synthetic
@@ -188,7 +226,22 @@ def volume_error(model: "BiventricularModel", frame: int, structure: str) -> dic
     """Standard deviations (mL) of the volume inside one surface at one frame, by source
     (contours, pixels, between, base, apex; see the module docstring) and the one-sided
     allowances ``open base``, ``open apex`` (mL, volume the model may miss beyond an end
-    the stack leaves open); {} without sections."""
+    the stack leaves open); {} without sections.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    frame : int
+        The frame.
+    structure : str
+        The surface (``lv_endo`` ...).
+
+    Returns
+    -------
+    dict of str to float
+        Source -> mL.
+    """
     t = section_table(model, frame, structure)
     if not t or len(t["area"]) < 2:
         return {}
@@ -249,7 +302,21 @@ def solid_error(model: "BiventricularModel", frame: int, solid: str) -> VolumeEr
     ``rv_myocardium``) at one frame; None when its surfaces have no sections. A wall is the
     outer surface less the inner: their errors add in quadrature, except the base plane,
     which cuts both (its error is the wall's basal area times the plane's); an apex the
-    stack leaves open may add wall (the epicardium's) or take it (the endocardium's)."""
+    stack leaves open may add wall (the epicardium's) or take it (the endocardium's).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    frame : int
+        The frame.
+    solid : str
+        ``lv_cavity``, ``rv_cavity``, ``lv_myocardium`` or ``rv_myocardium``.
+
+    Returns
+    -------
+    VolumeError or None
+    """
     outer, inner = SOLIDS[solid]
     a = volume_error(model, frame, outer)
     if not a:
@@ -296,7 +363,8 @@ def _outflow_allowance(model: "BiventricularModel", frame: int, solid: str) -> f
     side = solid[:2]
     if solid not in ("lv_cavity", "rv_cavity"):
         return 0.0
-    evidence = model.study.landmarks_at(frame, "aortic" if side == "lv" else "pulmonary")
+    evidence: Sequence[Landmark | Contour] = model.study.landmarks_at(
+        frame, "aortic" if side == "lv" else "pulmonary")
     if side == "rv":
         evidence = evidence or model.study.contours_at(frame, "rv_outlet")
     labels = isinstance(model.study.meta, dict) and bool(model.study.meta.get("voxel_volumes_ml"))
@@ -347,7 +415,7 @@ def _combine(ed: VolumeError, es: VolumeError, grad_ed: float, grad_es: float) -
     """SD of grad_ed · δEDV + grad_es · δESV: independent sources in quadrature, a shared
     source (ES's ``shared``) as one error."""
     var = 0.0
-    for k in set(ed.sd) | set(es.sd):
+    for k in sorted(set(ed.sd) | set(es.sd)):
         a, b = grad_ed * ed.sd.get(k, 0.0), grad_es * es.sd.get(k, 0.0)
         var += (a + b) ** 2 if k in es.shared else a * a + b * b
     return math.sqrt(var)
@@ -408,7 +476,7 @@ def _parts(ed: VolumeError, es: VolumeError, g_ed: float, g_es: float) -> dict[s
     """Per source, the SD of g_ed · δEDV + g_es · δESV."""
     return {k: _combine(VolumeError({k: ed.sd.get(k, 0.0)}), VolumeError({k: es.sd.get(k, 0.0)},
                                                                          es.shared), g_ed, g_es)
-            for k in set(ed.sd) | set(es.sd)}
+            for k in sorted(set(ed.sd) | set(es.sd))}
 
 
 def _interval(value: float, sd: float, below: float = 0.0, above: float = 0.0) -> list[float]:
@@ -417,7 +485,8 @@ def _interval(value: float, sd: float, below: float = 0.0, above: float = 0.0) -
 
 
 def intervals(model: "BiventricularModel", metrics: dict) -> dict:
-    """The 95 % intervals of the :data:`COVERED` metrics of one model, for metrics.json.
+    """The 95 % intervals of the :data:`ALL_COVERED` metrics of one model, for metrics.json
+    (the tag metrics' from :func:`cardionurbs.analysis.tag_uncertainty.tag_intervals`).
 
     Parameters
     ----------
@@ -446,6 +515,10 @@ def intervals(model: "BiventricularModel", metrics: dict) -> dict:
             r_es = _ratio(metrics.get("RVESV (mL)"), metrics.get("LVESV (mL)"))
             bias = (bias_lv[0] * r_ed, bias_lv[1] * r_es)
         _side_intervals(model, metrics, side, bias, out, notes, parts)
+    t_out, t_notes, t_parts = tag_intervals(model, metrics, Z95)
+    out.update(t_out)
+    notes.update(t_notes)
+    parts.update(t_parts)
     for c in COVERED:
         v = metrics.get(c, NAN)
         if out[c] is None and c not in notes:
@@ -465,23 +538,36 @@ def _ratio(a, b) -> float:
 
 def interval_columns(uncertainty: dict) -> dict[str, float]:
     """``<column> lo95`` and ``<column> hi95`` (NaN where there is no interval) of an
-    :func:`intervals` result: the cohort CSV's columns."""
+    :func:`intervals` result: the cohort CSV's columns.
+
+    Parameters
+    ----------
+    uncertainty : dict
+        An :func:`intervals` result.
+
+    Returns
+    -------
+    dict of str to float
+        Column -> bound, in the metric's unit.
+    """
     out = {}
-    for c in COVERED:
+    for c in ALL_COVERED:
         iv = uncertainty.get(c)
         out[f"{c} lo95"], out[f"{c} hi95"] = (float(iv[0]), float(iv[1])) if iv else (NAN, NAN)
     return out
 
 
-#: the cohort CSV's interval columns, in :data:`COVERED` order
-INTERVAL_COLUMNS = tuple(f"{c} {end}" for c in COVERED for end in ("lo95", "hi95"))
+#: every column given an interval: the volumes' and the tag metrics'
+ALL_COVERED = COVERED + TAG_COVERED
+#: the cohort CSV's interval columns, in :data:`ALL_COVERED` order
+INTERVAL_COLUMNS = tuple(f"{c} {end}" for c in ALL_COVERED for end in ("lo95", "hi95"))
 
 
 def _column_named(name: str) -> str | None:
     """The covered column a ``--max-halfwidth`` key names: the column itself or its first
     word (``LVEF`` -> ``LVEF (%)``), case-insensitive."""
     key = name.strip().lower()
-    for c in COVERED:
+    for c in ALL_COVERED:
         if key in (c.lower(), c.split(" ")[0].lower()):
             return c
     return None
@@ -489,7 +575,24 @@ def _column_named(name: str) -> str | None:
 
 def parse_max_halfwidth(text: str) -> dict[str, float]:
     """``"LVEF=5,LVEDV=10"`` -> {``"LVEF (%)"``: 5.0, ``"LVEDV (mL)"``: 10.0}; ValueError (one
-    line naming the item) for an unknown metric or a limit that is not a number > 0."""
+    line naming the item) for an unknown metric or a limit that is not a number > 0.
+
+    Parameters
+    ----------
+    text : str
+        Comma-separated ``metric=limit`` items (metric names as in docs/metrics.md, without
+        the unit).
+
+    Returns
+    -------
+    dict of str to float
+        Column -> largest half-width, the column's unit.
+
+    Raises
+    ------
+    ValueError
+        An unknown metric or a limit that is not a number > 0.
+    """
     out: dict[str, float] = {}
     for item in (t.strip() for t in text.split(",")):
         if not item:
@@ -498,7 +601,7 @@ def parse_max_halfwidth(text: str) -> dict[str, float]:
         col = _column_named(name)
         if col is None or not eq:
             raise ValueError(f"--max-halfwidth: {item!r} is not METRIC=LIMIT with METRIC one of "
-                             + ", ".join(c.split(" ")[0] for c in COVERED))
+                             + ", ".join(c.split(" ")[0] for c in ALL_COVERED))
         try:
             limit = float(value)
         except ValueError:
@@ -515,7 +618,19 @@ def parse_max_halfwidth(text: str) -> dict[str, float]:
 def halfwidth_flags(uncertainty: dict, limits: dict[str, float]) -> list[str]:
     """Quality flags of an :func:`intervals` result against half-width ``limits`` (column ->
     largest half-width, the column's unit): one per column whose interval is wider, or
-    missing (with the reason)."""
+    missing (with the reason).
+
+    Parameters
+    ----------
+    uncertainty : dict
+        An :func:`intervals` result.
+    limits : dict of str to float
+        Column -> largest half-width.
+
+    Returns
+    -------
+    list of str
+    """
     flags = []
     for col, limit in limits.items():
         iv = uncertainty.get(col)

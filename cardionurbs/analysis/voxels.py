@@ -18,6 +18,7 @@ map lacks the frame or the structure.
 from __future__ import annotations
 
 import math
+from typing import TypeGuard
 
 from cardionurbs.analysis.function import NAN, mass_g, ventricular_function
 
@@ -26,7 +27,20 @@ VOXEL_COLUMNS = ("LVEDV voxel (mL)", "LVESV voxel (mL)", "LVEF voxel (%)",
 
 
 def voxel_metrics(voxel_volumes_ml: dict, ed_frame: int, es_frame: int) -> dict[str, float]:
-    """The VOXEL_COLUMNS from per-frame voxel-count volumes (frame -> structure -> mL)."""
+    """The VOXEL_COLUMNS from per-frame voxel-count volumes (frame -> structure -> mL).
+
+    Parameters
+    ----------
+    voxel_volumes_ml : dict
+        Frame -> structure -> mL (``study.meta["voxel_volumes_ml"]``).
+    ed_frame, es_frame : int
+        The model's ED and ES frames.
+
+    Returns
+    -------
+    dict of str to float
+        Voxel column -> mL, g or % (NaN where the frame is not labelled).
+    """
     def v(frame, key):
         x = voxel_volumes_ml.get(frame, voxel_volumes_ml.get(str(frame), {})).get(key)
         return float(x) if x is not None else NAN
@@ -56,13 +70,34 @@ ES_NEIGHBOUR_BOUND = 0.15
 ES_METRICS = ("LVESV (mL)", "LVEF (%)", "LVSV (mL)")
 
 
-def is_finite_number(x) -> bool:
+def is_finite_number(x: object) -> TypeGuard[int | float]:
+    """Whether ``x`` is an int or float and finite (not NaN, not ±inf).
+
+    Parameters
+    ----------
+    x : object
+        A value.
+
+    Returns
+    -------
+    bool
+    """
     return isinstance(x, (int, float)) and math.isfinite(x)
 
 
 def voxel_disagreement(metrics: dict) -> dict[str, list[str]]:
     """Flags of the metrics whose model value and voxel count differ beyond
-    :data:`VOXEL_BOUND` (metric -> flags)."""
+    :data:`VOXEL_BOUND` (metric -> flags).
+
+    Parameters
+    ----------
+    metrics : dict
+        The metrics with their voxel columns.
+
+    Returns
+    -------
+    dict of str to list of str
+    """
     out: dict[str, list[str]] = {}
     for col, bound in VOXEL_BOUND.items():
         m, v = metrics.get(col), metrics.get(col.replace(" (", " voxel ("))
@@ -120,7 +155,19 @@ def myocardium_flags(voxel_volumes_ml: dict, ed: int, es: int,
 
 
 def label_map_flags(model, metrics: dict) -> dict[str, list[str]]:
-    """Every label-map QC flag of ``model`` (metric -> flags); {} for other studies."""
+    """Every label-map QC flag of ``model`` (metric -> flags); {} for other studies.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+    metrics : dict
+        Its metrics.
+
+    Returns
+    -------
+    dict of str to list of str
+    """
     vox = model.study.meta.get("voxel_volumes_ml") if isinstance(model.study.meta, dict) else None
     if not vox:
         return {}

@@ -53,7 +53,21 @@ class CycleCheck:
 
     ``raw`` and ``consistent``: frame -> mL; ``supported``: frame -> the frames it was
     interpolated from; ``departure``: frame -> raw / consistent − 1 (NaN: not built);
-    ``cyclic``: whether the frames were taken to wrap around."""
+    ``cyclic``: whether the frames were taken to wrap around.
+
+    Attributes
+    ----------
+    raw : dict of int to float
+        Frame -> the LV cavity volume built from its own contours, in mL (NaN: not built).
+    consistent : dict of int to float
+        Frame -> the volume used, in mL (the raw one, or its neighbours' interpolation).
+    supported : dict of int to list of int
+        Supported frame -> the frames (0-based) it was interpolated from.
+    departure : dict of int to float
+        Supported frame -> raw / consistent − 1 (dimensionless; NaN: not built).
+    cyclic : bool
+        Whether the frames were taken to wrap around (a whole cine cycle).
+    """
 
     raw: dict[int, float]
     consistent: dict[int, float]
@@ -62,7 +76,18 @@ class CycleCheck:
     cyclic: bool = False
 
     def describe(self, frame: int) -> str:
-        """One line naming a supported frame, its raw and its consistent volume."""
+        """One line naming a supported frame, its raw and its consistent volume.
+
+        Parameters
+        ----------
+        frame : int
+            A frame of :attr:`supported`.
+
+        Returns
+        -------
+        str
+            The line, volumes in mL and the departure in %.
+        """
         src = ", ".join(str(g) for g in self.supported[frame])
         if not math.isfinite(self.raw[frame]):
             return (f"frame {frame} supported by its neighbours: its LV cavity cannot be built; "
@@ -74,7 +99,18 @@ class CycleCheck:
 
 def is_cyclic(values: np.ndarray) -> bool:
     """True when the curve closes on itself: the step from the last frame back to the
-    first is no larger than the largest step between consecutive frames."""
+    first is no larger than the largest step between consecutive frames.
+
+    Parameters
+    ----------
+    values : ndarray, shape (n,)
+        The curve in frame order (e.g. mL).
+
+    Returns
+    -------
+    bool
+        Whether the curve wraps (False for fewer than :data:`MIN_FRAMES` frames).
+    """
     if len(values) < MIN_FRAMES:
         return False
     steps = np.abs(np.diff(values))
@@ -101,7 +137,20 @@ def _neighbours(i: int, trusted: np.ndarray, cyclic: bool) -> np.ndarray | None:
 
 
 def lagrange_weights(x: np.ndarray, at: float) -> np.ndarray:
-    """Weights w with sum(w · y(x)) = the polynomial through (x, y) evaluated at ``at``."""
+    """Weights w with sum(w · y(x)) = the polynomial through (x, y) evaluated at ``at``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (k,)
+        Distinct abscissae (frame positions).
+    at : float
+        Where the polynomial is evaluated.
+
+    Returns
+    -------
+    ndarray, shape (k,)
+        The Lagrange basis polynomials at ``at``.
+    """
     x = np.asarray(x, float)
     w = np.ones(len(x))
     for j in range(len(x)):
@@ -203,7 +252,26 @@ def interpolate(values: dict[int, float], frames: list[int], sources: list[int],
                 frame: int, cyclic: bool) -> float:
     """A supported frame's value of another volume: the polynomial through the frames
     ``sources`` (their positions in ``frames``, wrapped when ``cyclic``) at ``frame``
-    (``values``: frame -> mL; NaN when a source lacks it)."""
+    (``values``: frame -> mL; NaN when a source lacks it).
+
+    Parameters
+    ----------
+    values : dict of int to float
+        Frame -> value (mL).
+    frames : list of int
+        Every frame of the curve, in order.
+    sources : list of int
+        The frames interpolated from (:attr:`CycleCheck.supported`).
+    frame : int
+        The supported frame.
+    cyclic : bool
+        Wrap positions round the cycle.
+
+    Returns
+    -------
+    float
+        The interpolated value (mL), NaN when a source lacks a value.
+    """
     pos = {f: k for k, f in enumerate(frames)}
     i = pos[frame]
     x = []

@@ -34,7 +34,15 @@ if TYPE_CHECKING:    # trimesh (~0.3 s to import) only where meshes are made
 @dataclass(frozen=True)
 class Plane:
     """An oriented plane: points x with (x − origin)·normal = 0; ``normal`` (3,) unit,
-    pointing to the side that is KEPT (the apical side of a valve plane)."""
+    pointing to the side that is KEPT (the apical side of a valve plane).
+
+    Attributes
+    ----------
+    origin : ndarray, shape (3,)
+        A point of the plane, in mm (scanner coordinates).
+    normal : ndarray, shape (3,)
+        The unit normal (normalised on construction), towards the kept side.
+    """
 
     origin: np.ndarray
     normal: np.ndarray
@@ -45,14 +53,44 @@ class Plane:
         object.__setattr__(self, "normal", n / np.linalg.norm(n))
 
     def signed_distance(self, points: np.ndarray) -> np.ndarray:
-        """Signed distance (mm) of (n, 3) points; positive on the kept side."""
+        """Signed distance (mm) of (n, 3) points; positive on the kept side.
+
+        Parameters
+        ----------
+        points : ndarray, shape (n, 3)
+            Points in mm.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            (x − origin) · normal, in mm.
+        """
         return (np.asarray(points, dtype=float) - self.origin) @ self.normal
 
     def to_dict(self) -> dict:
+        """JSON-safe plane.
+
+        Returns
+        -------
+        dict
+            ``{"origin": 3 numbers (mm), "normal": 3 numbers}``.
+        """
         return {"origin": [float(x) for x in self.origin], "normal": [float(x) for x in self.normal]}
 
     @classmethod
     def from_dict(cls, d: dict) -> "Plane":
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        d : dict
+            ``origin`` and ``normal``, 3 numbers each.
+
+        Returns
+        -------
+        Plane
+            The plane (normal made unit).
+        """
         return cls(np.asarray(d["origin"], float), np.asarray(d["normal"], float))
 
 
@@ -63,6 +101,21 @@ def boundary_loops(faces: np.ndarray) -> list[np.ndarray]:
     A boundary edge is a directed edge (a, b) whose reverse (b, a) belongs to
     no face. Raises ReconstructionError when the boundary is not a set of
     simple loops (a non-manifold edge or a vertex where two loops touch).
+
+    Parameters
+    ----------
+    faces : ndarray of int, shape (F, 3)
+        Consistently oriented triangles.
+
+    Returns
+    -------
+    list of ndarray of int
+        One array of vertex indices per loop ([] for a closed mesh).
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        A directed edge used twice, or a boundary that is not a set of simple loops.
     """
     f = np.asarray(faces, dtype=np.int64)
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
@@ -107,6 +160,18 @@ def cap_loop(vertices: np.ndarray, loop: np.ndarray) -> np.ndarray:
     points) and triangulated by manifold3d's ear clipper; the cap's triangles
     run the boundary edges in the reverse direction, so that the capped mesh
     is consistently oriented (every edge used once in each direction).
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        The mesh's vertices, in mm.
+    loop : ndarray of int, shape (k,)
+        One boundary loop (:func:`boundary_loops`).
+
+    Returns
+    -------
+    ndarray of int, shape (k - 2, 3)
+        The cap's triangles (vertex indices).
     """
     p = vertices[loop]
     c = p.mean(axis=0)
@@ -128,6 +193,25 @@ def closed_mesh(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np
 
     Returns (vertices, faces) of a closed, consistently oriented triangle mesh
     whose signed volume (divergence theorem) is positive.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        The surface's vertices, in mm.
+    faces : ndarray of int, shape (F, 3)
+        Its consistently oriented triangles.
+
+    Returns
+    -------
+    vertices : ndarray, shape (V, 3)
+        Unchanged, in mm.
+    faces : ndarray of int, shape (F + c, 3)
+        The triangles with the caps, oriented outward.
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        The boundary is not a set of simple loops.
     """
     v = np.asarray(vertices, dtype=float)
     f = np.asarray(faces, dtype=np.int64)
@@ -140,7 +224,20 @@ def closed_mesh(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np
 
 
 def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
-    """Signed volume enclosed by a closed triangle mesh (divergence theorem), units³."""
+    """Signed volume enclosed by a closed triangle mesh (divergence theorem), units³.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        Vertices (mm for mm³).
+    faces : ndarray of int, shape (F, 3)
+        Triangles.
+
+    Returns
+    -------
+    float
+        Σ a · (b × c) / 6, positive for outward normals.
+    """
     t = np.asarray(vertices, dtype=float)[np.asarray(faces, dtype=np.int64)]
     return float(np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6.0)
 
@@ -156,6 +253,20 @@ def clipped_volume(vertices: np.ndarray, faces: np.ndarray, plane: Plane | None)
     where x · n = 0, so it adds nothing and is never built. Equals the volume of
     :func:`solid` trimmed by the plane (manifold3d) to rounding; it does not check the
     mesh (:func:`solid` does).
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        A closed, outward-oriented mesh's vertices (mm for mm³).
+    faces : ndarray of int, shape (F, 3)
+        Its triangles.
+    plane : Plane or None
+        The clipping plane (its kept side), or None for the whole mesh.
+
+    Returns
+    -------
+    float
+        The clipped volume, in the vertices' unit cubed.
     """
     v = np.asarray(vertices, dtype=float)
     f = np.asarray(faces, dtype=np.int64)
@@ -197,6 +308,27 @@ def to_manifold(vertices: np.ndarray, faces: np.ndarray, *, what: str = "surface
 
     Raises ReconstructionError naming ``what`` and ``frame`` if manifold3d
     rejects the mesh (not a closed 2-manifold).
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        Vertices in mm.
+    faces : ndarray of int, shape (F, 3)
+        Outward-oriented triangles.
+    what : str, optional
+        What the mesh is, for the message (``"lv_endo"``).
+    frame : int or None, optional
+        The frame index, for the message.
+
+    Returns
+    -------
+    manifold3d.Manifold
+        The solid.
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        manifold3d rejects the mesh.
     """
     mesh = manifold3d.Mesh64(vert_properties=np.ascontiguousarray(vertices, dtype=np.float64),
                              tri_verts=np.ascontiguousarray(faces, dtype=np.uint64))
@@ -213,6 +345,29 @@ def solid(vertices: np.ndarray, faces: np.ndarray, *, plane: Plane | None = None
     """The solid bounded by a tessellated surface, capped, and trimmed by ``plane``.
 
     ``plane.normal`` points to the side that is kept (manifold3d trim_by_plane).
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        The tessellated surface's vertices, in mm.
+    faces : ndarray of int, shape (F, 3)
+        Its triangles.
+    plane : Plane or None, optional
+        The trimming plane (valve plane).
+    what : str, optional
+        What the surface is, for the messages.
+    frame : int or None, optional
+        The frame index, for the messages.
+
+    Returns
+    -------
+    manifold3d.Manifold
+        The capped, trimmed solid (mm).
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        The capped mesh is not a closed manifold, or nothing lies on the kept side.
     """
     v, f = closed_mesh(vertices, faces)
     m = to_manifold(v, f, what=what, frame=frame)
@@ -231,6 +386,25 @@ def to_trimesh(m: manifold3d.Manifold, *, what: str = "mesh",
     The result is watertight, a volume (consistent outward winding) and has
     positive volume, as both trimesh and manifold3d see it; otherwise
     ReconstructionError naming ``what`` and ``frame``.
+
+    Parameters
+    ----------
+    m : manifold3d.Manifold
+        A solid.
+    what : str, optional
+        What it is, for the messages.
+    frame : int or None, optional
+        The frame index, for the messages.
+
+    Returns
+    -------
+    trimesh.Trimesh
+        The closed mesh (vertices in mm).
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        The solid is empty, not manifold, or its mesh fails :func:`check_closed`.
     """
     if m.status() != manifold3d.Error.NoError or m.is_empty():
         raise ReconstructionError(f"{what}, frame {frame}: boolean result is empty or not "
@@ -245,7 +419,22 @@ def to_trimesh(m: manifold3d.Manifold, *, what: str = "mesh",
 
 def check_closed(tm: trimesh.Trimesh, *, what: str = "mesh", frame: int | None = None) -> None:
     """Raise ReconstructionError unless ``tm`` is watertight, a volume with outward
-    normals (trimesh) and a valid manifold3d solid."""
+    normals (trimesh) and a valid manifold3d solid.
+
+    Parameters
+    ----------
+    tm : trimesh.Trimesh
+        The mesh.
+    what : str, optional
+        What it is, for the messages.
+    frame : int or None, optional
+        The frame index, for the messages.
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        Empty, not watertight, inconsistent winding, or inward normals.
+    """
     if len(tm.faces) == 0:
         raise ReconstructionError(f"{what}, frame {frame}: mesh is empty")
     if not tm.is_watertight:
@@ -260,7 +449,29 @@ def mesh_arrays(m: manifold3d.Manifold, *, what: str = "mesh",
                 frame: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (V, 3) float64 mm, faces (F, 3) int64) of a manifold3d solid, checked
     closed by :func:`check_closed_arrays` -- what :func:`to_trimesh` hands out, without
-    making (or importing) trimesh, for writing meshes to files."""
+    making (or importing) trimesh, for writing meshes to files.
+
+    Parameters
+    ----------
+    m : manifold3d.Manifold
+        A solid.
+    what : str, optional
+        What it is, for the messages.
+    frame : int or None, optional
+        The frame index, for the messages.
+
+    Returns
+    -------
+    vertices : ndarray of float64, shape (V, 3)
+        In mm.
+    faces : ndarray of int64, shape (F, 3)
+        Outward-oriented triangles.
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        The solid is empty, not manifold, or its mesh not closed.
+    """
     if m.status() != manifold3d.Error.NoError or m.is_empty():
         raise ReconstructionError(f"{what}, frame {frame}: boolean result is empty or not "
                                   f"manifold ({m.status().name})")
@@ -280,7 +491,24 @@ def check_closed_arrays(vertices: np.ndarray, faces: np.ndarray, *, what: str = 
     two faces wound the same way along it (or more than two faces at the edge); an edge
     without its reverse is a boundary (a hole). Then the signed volume (divergence
     theorem) is positive when the normals point outward. Raises ReconstructionError
-    naming ``what`` and ``frame``."""
+    naming ``what`` and ``frame``.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        Vertices in mm.
+    faces : ndarray of int, shape (F, 3)
+        Triangles.
+    what : str, optional
+        What the mesh is, for the messages.
+    frame : int or None, optional
+        The frame index, for the messages.
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        Empty, not watertight, inconsistent winding, or inward normals.
+    """
     f = np.asarray(faces, dtype=np.int64)
     if len(f) == 0:
         raise ReconstructionError(f"{what}, frame {frame}: mesh is empty")
@@ -298,5 +526,16 @@ def check_closed_arrays(vertices: np.ndarray, faces: np.ndarray, *, what: str = 
 
 
 def volume_ml(m: manifold3d.Manifold) -> float:
-    """Volume of a solid in scanner mm³ expressed in mL (1 mL = 1000 mm³)."""
+    """Volume of a solid in scanner mm³ expressed in mL (1 mL = 1000 mm³).
+
+    Parameters
+    ----------
+    m : manifold3d.Manifold
+        A solid in mm.
+
+    Returns
+    -------
+    float
+        Its volume in mL.
+    """
     return float(m.volume()) / 1000.0

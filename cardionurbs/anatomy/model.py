@@ -136,6 +136,33 @@ class BiventricularModel:
     volumes : frame -> dict mesh -> mL
     ed_frame, es_frame : int
     warnings : list of str
+
+    Parameters
+    ----------
+    study : Study
+        The study the model is of (scanner mm).
+    frames : list of int
+        The frames to model (each with LV endocardial contours).
+    surfaces, base_planes, apex_points, outflow, sections : mapping or None
+        Frame -> the per-frame values above (and the outflow tracts), given when the model
+        is read back (:meth:`from_dict`); None: built from the study on first access.
+    tol_px : float
+        Curve-fit tolerance, pixels (paper §4.2.1).
+    refine : bool
+        Correct the LV surfaces towards the LA contour points (:mod:`cardionurbs.anatomy.refine`).
+    anchor_weight : float
+        Weight of the SA contour points against the LA points in that correction.
+    ed_es : (int, int) or None
+        The ED and ES frames of a model read back; None: chosen by the model's rule
+        (:func:`ed_es_frames`).
+    warnings : list of str or None
+        Warnings carried over (a model read back).
+    resolution : (int, int)
+        Tessellation samples (around, along) of each surface's mesh.
+    progress : callable or None
+        Told ``(k, n)`` after each frame's LV cavity is built.
+    jobs : int or None
+        Processes for the frames' LV cavities (1: this one; None: the usable CPUs).
     """
 
     def __init__(self, study: Study, frames: list[int], *, surfaces: Mapping | None = None,
@@ -590,7 +617,13 @@ class BiventricularModel:
         """The LV long axis at ED, (apex (3,), base centre (3,)) in mm, by the one rule of
         :func:`cardionurbs.geometry.long_axis` (docs/metrics.md): the apex landmark, else
         the model's LV epicardial (else endocardial) apex; the mean of the mitral
-        landmarks, else the LV valve plane's origin."""
+        landmarks, else the LV valve plane's origin.
+
+        Returns
+        -------
+        apex, base : (3,) ndarray
+            Scanner mm.
+        """
         fr = self.ed_frame
         ap = self.apex_points.get(fr, {})
         valve = self.base_planes.get(fr, {}).get("lv")
@@ -965,14 +998,53 @@ def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float 
     ED and ES); the other surfaces are built when first asked for (measuring
     asks only at ED and ES).
 
-    ``tol_px``: curve-fit tolerance, pixels (paper §4.2.1: < 1 px).
-    ``refine``: correct the LV surfaces towards the LA contour points
-    (:mod:`cardionurbs.anatomy.refine`), where the study has LA contours.
-    ``progress``: optional callable (k, n) told after each frame's LV cavity is built.
-    ``jobs``: processes for the frames' LV cavities (1: this one; None: the usable CPUs;
-    :func:`cardionurbs.parallel.fork_map`): the same model either way.
-    Raises ReconstructionError naming the structure and frame when a surface
-    cannot be built.
+    Parameters
+    ----------
+    study : Study
+        A study read by :func:`cardionurbs.io.load_study` (scanner mm).
+    frames : list of int or None
+        The frames to model; None: every frame with LV endocardial contours.
+    tol_px : float
+        Curve-fit tolerance, pixels (paper §4.2.1: < 1 px).
+    refine : bool
+        Correct the LV surfaces towards the LA contour points
+        (:mod:`cardionurbs.anatomy.refine`), where the study has LA contours.
+    resolution : (int, int)
+        Tessellation samples (around, along) of each surface's mesh.
+    progress : callable or None
+        Told ``(k, n)`` after each frame's LV cavity is built.
+    jobs : int or None
+        Processes for the frames' LV cavities (1: this one; None: the usable CPUs;
+        :func:`cardionurbs.parallel.fork_map`): the same model either way.
+
+    Returns
+    -------
+    BiventricularModel
+        The surfaces per frame (scanner mm), ED and ES, volumes (mL) on demand.
+
+    Raises
+    ------
+    ReconstructionError
+        A frame without LV endocardial contours, or a surface that cannot be built (naming
+        the structure and frame).
+
+    Examples
+    --------
+    A two-frame phantom, reconstructed (its other surfaces and meshes are built when first
+    asked for):
+
+    >>> import pathlib, tempfile
+    >>> import cardionurbs as cn
+    >>> from cardionurbs.phantom import generate, write_phantom
+    >>> phantom = generate("normal", seed=1, frames=2, n_sa=6, matrix=128, volume_check=False)
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> folder = write_phantom(phantom, pathlib.Path(tmp.name) / "p1", dicom=False)
+    >>> model = cn.reconstruct(cn.load_study(folder))
+    >>> model.frames, model.ed_frame, model.es_frame
+    ([0, 1], 0, 1)
+    >>> sorted(model.surfaces[0])
+    ['lv_endo', 'lv_epi', 'rv_endo', 'rv_epi']
+    >>> tmp.cleanup()
     """
     avail = study.contoured_frames
     if frames is None:

@@ -49,6 +49,7 @@ evidence, no RVOT wall.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,6 +88,28 @@ class OutflowTract:
     ``levels`` (k,), ``centres`` (k, 3), ``radii`` (k,): the circular sections at
     distance ``levels`` along ``axis`` from the valve centre; ``evidence``: the contour
     points it was fitted to (m, 3).
+
+    Attributes
+    ----------
+    structure : str
+        ``"rv_endo"``, ``"rv_epi"`` (RVOT lumen and outer wall) or ``"lv_endo"`` (LVOT).
+    valve : cardionurbs.anatomy.mesh.Plane
+        The outflow valve plane, origin in mm, normal into the ventricle.
+    body_plane : cardionurbs.anatomy.mesh.Plane
+        The ventricle body's valve plane (tricuspid or mitral).
+    axis : ndarray, shape (3,)
+        The tube's unit axis, from the valve into the ventricle.
+    levels : ndarray, shape (k,)
+        Each section's distance along ``axis`` from the valve centre, in mm.
+    centres : ndarray, shape (k, 3)
+        Section centres, in mm.
+    radii : ndarray, shape (k,)
+        Section radii, in mm.
+    evidence : ndarray, shape (m, 3)
+        The contour points the tube was fitted to, in mm.
+    rings : ndarray, shape (k, n, 3) or None
+        Lofted sections (through outlet loops) in mm, corresponding point to point; None for
+        a tube of circles.
     """
 
     structure: str
@@ -100,7 +123,14 @@ class OutflowTract:
     rings: np.ndarray | None = None     # (k, m, 3) lofted sections (outlet loops), else circles
 
     def to_dict(self) -> dict:
-        """JSON-safe tract (the model file keeps it beside the surfaces)."""
+        """JSON-safe tract (the model file keeps it beside the surfaces).
+
+        Returns
+        -------
+        dict
+            ``structure``, ``valve`` and ``body_plane`` (plane dicts), and ``axis``, ``levels``,
+            ``centres``, ``radii``, ``evidence``, ``rings`` as nested lists (mm).
+        """
         def arr(a):
             return None if a is None else np.asarray(a, float).tolist()
         return {"structure": self.structure, "valve": self.valve.to_dict(),
@@ -111,6 +141,18 @@ class OutflowTract:
 
     @classmethod
     def from_dict(cls, d: dict) -> "OutflowTract":
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        d : dict
+            A :meth:`to_dict` mapping.
+
+        Returns
+        -------
+        OutflowTract
+            The tube.
+        """
         def arr(a):
             return None if a is None else np.asarray(a, float)
         return cls(d["structure"], Plane.from_dict(d["valve"]), Plane.from_dict(d["body_plane"]),
@@ -118,7 +160,18 @@ class OutflowTract:
                    arr(d["evidence"]).reshape(-1, 3), rings=arr(d.get("rings")))
 
     def ring_points(self, around: int = AROUND) -> np.ndarray:
-        """(k, m, 3) the tube's sections as point rings, valve end first."""
+        """(k, m, 3) the tube's sections as point rings, valve end first.
+
+        Parameters
+        ----------
+        around : int, optional
+            Points per circular section (ignored for lofted rings).
+
+        Returns
+        -------
+        ndarray, shape (k, m, 3)
+            The sections' points in mm.
+        """
         if self.rings is not None:
             return self.rings
         u, v = in_plane_basis(self.axis)
@@ -127,7 +180,20 @@ class OutflowTract:
         return self.centres[:, None, :] + self.radii[:, None, None] * ring[None]
 
     def mesh(self, around: int = AROUND) -> tuple[np.ndarray, np.ndarray]:
-        """Closed, outward-oriented triangle mesh of the tube (its two ends capped)."""
+        """Closed, outward-oriented triangle mesh of the tube (its two ends capped).
+
+        Parameters
+        ----------
+        around : int, optional
+            Points per circular section.
+
+        Returns
+        -------
+        vertices : ndarray, shape (V, 3)
+            In mm.
+        faces : ndarray of int, shape (F, 3)
+            Triangles, outward-oriented.
+        """
         pts = self.ring_points(around)
         k, m = pts.shape[:2]
         idx = np.arange(k * m).reshape(k, m)
@@ -141,7 +207,18 @@ class OutflowTract:
         """Distance (mm) of points to the tube's wall within its tract: to the section
         circle at the point's level (the nearest end section beyond the tube's ends);
         infinite for points on the apical side of the body's valve plane, where the
-        body's surface bounds the cavity instead."""
+        body's surface bounds the cavity instead.
+
+        Parameters
+        ----------
+        points : ndarray, shape (n, 3)
+            Points in mm.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            Distance to the wall in mm (inf on the apical side of the body plane).
+        """
         p = np.asarray(points, float)
         if self.rings is not None:        # lofted rings: to the densely sampled wall
             r = self.rings
@@ -163,7 +240,29 @@ def tract_solid(t: OutflowTract, valve: Plane | None = None, overlap_mm: float =
     """The tube as a manifold3d solid trimmed to its tract: the apical side of ``valve``
     (default its own valve plane) and the basal side of the body's valve plane moved
     ``overlap_mm`` apically, so that its union with the body has no coplanar faces.
-    None when nothing is left."""
+    None when nothing is left.
+
+    Parameters
+    ----------
+    t : OutflowTract
+        The tube.
+    valve : cardionurbs.anatomy.mesh.Plane, optional
+        The trimming valve plane (default ``t.valve``).
+    overlap_mm : float, optional
+        How far past the body's valve plane the tube reaches, in mm.
+    frame : int or None, optional
+        The frame index, for the messages.
+
+    Returns
+    -------
+    manifold3d.Manifold or None
+        The trimmed solid (mm), None when empty.
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        The tube's mesh is not a closed manifold.
+    """
     from cardionurbs.anatomy.mesh import to_manifold
     valve = t.valve if valve is None else valve
     m = to_manifold(*t.mesh(), what=f"{t.structure} outflow tract", frame=frame)
@@ -175,7 +274,20 @@ def tract_solid(t: OutflowTract, valve: Plane | None = None, overlap_mm: float =
 
 def circle_fit(points: np.ndarray) -> tuple[np.ndarray, float]:
     """Least-squares circle (Kåsa: x² + y² + D x + E y + F = 0) through (k, 2) points,
-    k ≥ 3: (centre (2,), radius)."""
+    k ≥ 3: (centre (2,), radius).
+
+    Parameters
+    ----------
+    points : ndarray, shape (k, 2)
+        In-plane points, in mm, k >= 3.
+
+    Returns
+    -------
+    centre : ndarray, shape (2,)
+        In mm.
+    radius : float
+        In mm.
+    """
     x, y = points[:, 0], points[:, 1]
     A = np.column_stack([x, y, np.ones_like(x)])
     sol, *_ = np.linalg.lstsq(A, -(x * x + y * y), rcond=None)
@@ -189,7 +301,20 @@ def section_circle(points: np.ndarray, diameter_pair: bool = True
     line, spanning an arc that pins the circle (radius at most twice their spread):
     least-squares circle; otherwise, when ``diameter_pair`` (crossings of LA planes
     through the tract, which cut it across), the two farthest apart: their midpoint and
-    half their distance. None when neither applies."""
+    half their distance. None when neither applies.
+
+    Parameters
+    ----------
+    points : ndarray, shape (k, 2)
+        In-plane wall points of one section, in mm.
+    diameter_pair : bool, optional
+        Fall back to the two farthest points as a diameter.
+
+    Returns
+    -------
+    tuple of (ndarray, float) or None
+        (centre (2,) in mm, radius in mm), or None.
+    """
     p = np.asarray(points, float)
     if len(p) < 2:
         return None
@@ -217,12 +342,13 @@ def _into_ventricle(direction: np.ndarray, body: Plane) -> np.ndarray:
 def _annulus(points: np.ndarray, axis_guess: np.ndarray) -> tuple[Plane, np.ndarray, float]:
     """Valve plane, centre and radius of annulus points."""
     plane = valve_plane(points, axis_guess)
-    if len(points) >= 3:
-        u, v = in_plane_basis(plane.normal)
-        xy = np.column_stack([(points - plane.origin) @ u, (points - plane.origin) @ v])
-        c2, r = section_circle(xy)
+    u, v = in_plane_basis(plane.normal)
+    xy = np.column_stack([(points - plane.origin) @ u, (points - plane.origin) @ v])
+    circle = section_circle(xy) if len(points) >= 3 else None
+    if circle is not None:
+        c2, r = circle
         centre = plane.origin + c2[0] * u + c2[1] * v
-    else:
+    else:                       # two points, or points that pin no circle (on one line)
         centre = points.mean(axis=0)
         r = 0.5 * float(np.linalg.norm(points[0] - points[-1]))
     return Plane(centre, plane.normal), centre, r
@@ -231,7 +357,20 @@ def _annulus(points: np.ndarray, axis_guess: np.ndarray) -> tuple[Plane, np.ndar
 def outlet_loops(study: Study, frame: int) -> dict[str, list[np.ndarray]]:
     """The RV outlet loops of one frame: ``rv_endo`` the ``rv_outlet`` SA contours,
     ``rv_epi`` the SA RV epicardial contours of slices that have an outlet but no RV
-    body (endocardial) contour — each as its (k, 3) points."""
+    body (endocardial) contour — each as its (k, 3) points.
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        The study.
+    frame : int
+        The frame index, 0-based.
+
+    Returns
+    -------
+    dict of str to list of ndarray
+        ``"rv_endo"`` and ``"rv_epi"`` -> loops, each (k, 3) in mm (k >= 3).
+    """
     by_slice: dict = {}
     for c in study.contours_at(frame, view="SA"):
         by_slice.setdefault(c.slice, {}).setdefault(c.structure, []).append(c.points)
@@ -265,13 +404,36 @@ def _tract_runs(geo: FrameGeometry, structure: str, body: Plane,
 
 
 def build_tract(structure: str, annulus: np.ndarray | None, runs: list[np.ndarray],
-                body: Plane, fallback_axis: np.ndarray, loops: list[np.ndarray] = (),
+                body: Plane, fallback_axis: np.ndarray, loops: Sequence[np.ndarray] = (),
                 wall_mm: float = 0.0) -> OutflowTract | None:
     """One outflow tube (module docstring) from annulus points (None: the most distal
     outlet loop is the annulus), the tract's open contour runs (LA: their crossings with
     each section), its outlet loops (SA: their points within half a step of each section,
     projected along the axis), and the body's valve plane. ``wall_mm`` is added to the
-    annulus radius."""
+    annulus radius.
+
+    Parameters
+    ----------
+    structure : str
+        ``"rv_endo"`` or ``"lv_endo"``.
+    annulus : ndarray, shape (a, 3) or None
+        Valve annulus landmarks, in mm.
+    runs : list of ndarray, shape (n, 3)
+        The tract's LA contour runs, in mm.
+    body : cardionurbs.anatomy.mesh.Plane
+        The ventricle body's valve plane.
+    fallback_axis : ndarray, shape (3,)
+        The axis guess without evidence (the stacking direction).
+    loops : list of ndarray, shape (n, 3), optional
+        SA outlet loops, in mm.
+    wall_mm : float, optional
+        Added to the annulus radius, in mm.
+
+    Returns
+    -------
+    OutflowTract or None
+        The tube of circles (every :data:`STEP_MM` mm), None when the evidence allows none.
+    """
     loops = [np.asarray(q, float) for q in loops]
     if annulus is None or len(annulus) == 0:
         if not loops:
@@ -340,7 +502,24 @@ def ring_from(points: np.ndarray, normal: np.ndarray, ref: np.ndarray, m: int = 
               ) -> np.ndarray:
     """``m`` points uniformly spaced in arc length round a closed loop, counter-clockwise
     about ``normal``, starting at the loop's point farthest along ``ref`` (so that the
-    sections of one tract correspond point to point)."""
+    sections of one tract correspond point to point).
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3)
+        A closed loop (first point not repeated), in mm.
+    normal : ndarray, shape (3,)
+        The direction the loop runs counter-clockwise about.
+    ref : ndarray, shape (3,)
+        The direction whose farthest point starts the ring.
+    m : int, optional
+        Points of the ring.
+
+    Returns
+    -------
+    ndarray, shape (m, 3)
+        The ring, in mm.
+    """
     p = np.asarray(points, float)
     if polygon_area(p, normal, signed=True) < 0:
         p = p[::-1]
@@ -359,7 +538,28 @@ def annulus_ring(valve: Plane, centre: np.ndarray, radius: float, normal: np.nda
     the section passes through every annulus point whatever the annulus shape (a crescent
     RVOT annulus is not round: its least-squares circle missed the points by up to 4.5 mm);
     fewer points: the annulus circle (centre and radius from the points, :func:`_annulus`).
-    Joined as a polygon, a few ring points would cut the area (8 points: by 10 %)."""
+    Joined as a polygon, a few ring points would cut the area (8 points: by 10 %).
+
+    Parameters
+    ----------
+    valve : cardionurbs.anatomy.mesh.Plane
+        The valve plane.
+    centre : ndarray, shape (3,)
+        The annulus centre, in mm.
+    radius : float
+        The annulus radius, in mm.
+    normal : ndarray, shape (3,)
+        The direction the ring runs counter-clockwise about.
+    ref : ndarray, shape (3,)
+        The direction whose farthest point starts the ring.
+    points : ndarray, shape (a, 3), optional
+        The annulus landmarks, in mm.
+
+    Returns
+    -------
+    ndarray, shape (AROUND, 3)
+        The valve ring, in mm.
+    """
     u, v = in_plane_basis(valve.normal)
     if points is not None and len(points) >= ANNULUS_SPLINE_MIN:
         from cardionurbs.anatomy.surfaces import periodic_spline
@@ -389,7 +589,24 @@ def ring_through_crossings(ring: np.ndarray, normal: np.ndarray, crossings: np.n
     in φ between its vertices); each ring vertex is scaled by s(φ), the periodic linear
     interpolation of the s_i in φ. One crossing seen scales its side only (s = 1 at the
     opposite angle). The scales are kept within ``limits``. Points off the section plane
-    are used as projected along ``normal``."""
+    are used as projected along ``normal``.
+
+    Parameters
+    ----------
+    ring : ndarray, shape (m, 3)
+        A section ring, in mm.
+    normal : ndarray, shape (3,)
+        Its plane's normal.
+    crossings : ndarray, shape (c, 3)
+        Wall points seen on the plane, in mm.
+    limits : tuple of (float, float), optional
+        The least and largest radial scale.
+
+    Returns
+    -------
+    ndarray, shape (m, 3)
+        The stretched ring, in mm (``ring`` itself without crossings).
+    """
     ring = np.asarray(ring, float)
     x = np.asarray(crossings, float).reshape(-1, 3)
     if not len(x):
@@ -411,7 +628,7 @@ def ring_through_crossings(ring: np.ndarray, normal: np.ndarray, crossings: np.n
 
 def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarray],
                body: Plane, direction: np.ndarray, ref: np.ndarray,
-               runs: list[np.ndarray] = ()) -> OutflowTract | None:
+               runs: Sequence[np.ndarray] = ()) -> OutflowTract | None:
     """An outflow tube lofted through its outlet loops (SA ``rv_outlet`` contours, planes
     across the tract): from the valve ring (:func:`annulus_ring`; without annulus points
     the most basal loop closes the tract) through the loops in stacking order to the
@@ -424,7 +641,30 @@ def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarra
     :data:`STEP_MM` and stretched through their crossings of each section plane
     (:func:`ring_through_crossings`), each from the one before, so that a wall no longer
     seen keeps where it was last seen: the tract widens there into the ventricle's body,
-    which the moved loop alone would miss."""
+    which the moved loop alone would miss.
+
+    Parameters
+    ----------
+    structure : str
+        ``"rv_endo"`` (the RVOT lumen).
+    annulus : ndarray, shape (a, 3) or None
+        Valve annulus landmarks, in mm.
+    loops : list of ndarray, shape (n, 3)
+        SA outlet loops, in mm.
+    body : cardionurbs.anatomy.mesh.Plane
+        The ventricle body's valve plane.
+    direction : ndarray, shape (3,)
+        The stacking direction, base to apex.
+    ref : ndarray, shape (3,)
+        The LV → RV direction (ring correspondence).
+    runs : list of ndarray, shape (n, 3), optional
+        The tract's LA contour runs, in mm.
+
+    Returns
+    -------
+    OutflowTract or None
+        The lofted tube (``rings`` set), None without loops or when the valve is not basal.
+    """
     loops = [np.asarray(q, float) for q in loops if len(q) >= 3]
     if not loops:
         return None
@@ -463,12 +703,12 @@ def loft_tract(structure: str, annulus: np.ndarray | None, loops: list[np.ndarra
                 rings.append(prev)
         # the end ring as the last stretched one (no crossings past the body's plane)
         rings.append(prev + (depth - h_prev) * n)
-    rings = np.asarray(rings)
-    centres = rings.mean(axis=1)
+    stack = np.asarray(rings)
+    centres = stack.mean(axis=1)
     levels = (centres - valve.origin) @ valve.normal
-    radii = np.linalg.norm(rings - centres[:, None], axis=2).mean(axis=1)
+    radii = np.linalg.norm(stack - centres[:, None], axis=2).mean(axis=1)
     return OutflowTract(structure, valve, body, valve.normal, levels, centres, radii, ev,
-                        rings=rings)
+                        rings=stack)
 
 
 def offset_tract(endo: OutflowTract, epi_points: np.ndarray, structure: str = "rv_epi"
@@ -481,7 +721,22 @@ def offset_tract(endo: OutflowTract, epi_points: np.ndarray, structure: str = "r
     thickness the epicardial points give (:func:`ring_wall_thickness`): the RVOT has a free
     wall, but on its septal side the RV epicardial contours run on the lumen's wall (the LV
     epicardium, the aortic root), where a uniform widening would add a wall no contour
-    shows. A tube of circles is widened by the median distance outside it."""
+    shows. A tube of circles is widened by the median distance outside it.
+
+    Parameters
+    ----------
+    endo : OutflowTract
+        The lumen's tube.
+    epi_points : ndarray, shape (n, 3)
+        Epicardial contour points of the tract, in mm.
+    structure : str, optional
+        The new tube's structure.
+
+    Returns
+    -------
+    OutflowTract or None
+        The widened tube, None as above.
+    """
     if endo.rings is not None:
         d = endo.distance(epi_points)
         d = d[np.isfinite(d)]
@@ -501,7 +756,18 @@ def offset_tract(endo: OutflowTract, epi_points: np.ndarray, structure: str = "r
 
 
 def ring_normals(r: np.ndarray) -> np.ndarray:
-    """(m, 3) unit outward normals, in its own plane, of a counter-clockwise ring's vertices."""
+    """(m, 3) unit outward normals, in its own plane, of a counter-clockwise ring's vertices.
+
+    Parameters
+    ----------
+    r : ndarray, shape (m, 3)
+        A closed planar ring, in mm.
+
+    Returns
+    -------
+    ndarray, shape (m, 3)
+        Unit outward normals.
+    """
     nrm = fit_plane(r)[1]
     if polygon_area(r, nrm, signed=True) < 0:
         nrm = -nrm
@@ -518,7 +784,22 @@ def ring_wall_thickness(rings: np.ndarray, points: np.ndarray, window: int = WAL
     j is the median over the points at positions within ``window`` of j (round the ring),
     and positions without points take the periodic linear interpolation of the others.
     The rings correspond position to position (:func:`ring_from`), so position j is one
-    side of the tract along its length."""
+    side of the tract along its length.
+
+    Parameters
+    ----------
+    rings : ndarray, shape (k, m, 3)
+        The lumen's lofted rings, in mm.
+    points : ndarray, shape (n, 3)
+        Epicardial points, in mm.
+    window : int, optional
+        Ring positions either side pooled for each median.
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        Wall thickness at each ring position, in mm.
+    """
     k, m = rings.shape[:2]
     w = np.linspace(0.0, 1.0, 5)[:-1]
     dense = np.concatenate([(1 - t) * rings[:-1] + t * rings[1:] for t in w] + [rings[-1:]])
@@ -538,7 +819,20 @@ def ring_wall_thickness(rings: np.ndarray, points: np.ndarray, window: int = WAL
 
 def offset_rings(rings: np.ndarray, by) -> np.ndarray:
     """Each ring moved ``by`` mm outward in its own plane (vertex normals of the
-    counter-clockwise ring); ``by`` a number or one value per ring position (m,)."""
+    counter-clockwise ring); ``by`` a number or one value per ring position (m,).
+
+    Parameters
+    ----------
+    rings : ndarray, shape (k, m, 3)
+        Closed planar rings, in mm.
+    by : float or ndarray, shape (m,)
+        The outward offset, in mm.
+
+    Returns
+    -------
+    ndarray, shape (k, m, 3)
+        The moved rings, in mm.
+    """
     by = np.broadcast_to(np.asarray(by, float), (rings.shape[1],))[:, None]
     return np.asarray([r + by * ring_normals(r) for r in rings])
 
@@ -546,7 +840,20 @@ def offset_rings(rings: np.ndarray, by) -> np.ndarray:
 def endo_signed_depth(t: OutflowTract, points: np.ndarray) -> np.ndarray:
     """Signed distance (mm) of points inside the tube from its wall, section by section
     (positive inside): the section radius at the point's level minus its distance from the
-    section centre; points beyond the tube's ends are measured at the end sections."""
+    section centre; points beyond the tube's ends are measured at the end sections.
+
+    Parameters
+    ----------
+    t : OutflowTract
+        A tube of circles.
+    points : ndarray, shape (n, 3)
+        Points in mm.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Signed depth in mm (> 0 inside).
+    """
     p = np.asarray(points, float)
     h = (p - t.valve.origin) @ t.axis
     c = np.column_stack([np.interp(h, t.levels, t.centres[:, i]) for i in range(3)])
@@ -558,7 +865,20 @@ def endo_signed_depth(t: OutflowTract, points: np.ndarray) -> np.ndarray:
 
 def outflow_tracts(study: Study, geo: FrameGeometry) -> dict[str, OutflowTract]:
     """The outflow tubes one frame's evidence allows: ``rv_endo`` / ``rv_epi`` (RVOT lumen
-    and outer wall) and ``lv_endo`` (LVOT lumen); {} without evidence (module docstring)."""
+    and outer wall) and ``lv_endo`` (LVOT lumen); {} without evidence (module docstring).
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        The study (valve landmarks, outlet contours).
+    geo : cardionurbs.anatomy.sections.FrameGeometry
+        The frame's sections, valve planes and LA points.
+
+    Returns
+    -------
+    dict of str to OutflowTract
+        Structure -> tube, for the tracts the frame's evidence gives.
+    """
     frame = geo.frame
     loops = outlet_loops(study, frame)
     out: dict[str, OutflowTract] = {}

@@ -29,14 +29,44 @@ from cardionurbs.nurbs.basis import basis_matrix
 
 
 def greville(knots: np.ndarray, degree: int, n: int, periodic: bool) -> np.ndarray:
-    """Greville abscissae (n,) of n control points: mean of the p knots after each."""
+    """Greville abscissae (n,) of n control points: mean of the p knots after each.
+
+    Parameters
+    ----------
+    knots : ndarray, shape (m,)
+        The knot vector (normalised parameter).
+    degree : int
+        The degree p.
+    n : int
+        Control points (for a periodic direction: the distinct ones).
+    periodic : bool
+        Wrap the abscissae into [0, 1) (a closed direction).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The parameter value of each control point.
+    """
     U = np.asarray(knots, float)
     g = np.array([U[j + 1:j + degree + 1].mean() for j in range(n)])
     return np.mod(g, 1.0) if periodic else g
 
 
 def collocation(surface, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Tensor-product basis matrix (k, nu·nv) of a non-rational surface at (u_i, v_i)."""
+    """Tensor-product basis matrix (k, nu·nv) of a non-rational surface at (u_i, v_i).
+
+    Parameters
+    ----------
+    surface : cardionurbs.nurbs.NurbsSurface
+        A non-rational surface (``nu x nv`` control points).
+    u, v : ndarray, shape (k,)
+        Parameter values of the k points.
+
+    Returns
+    -------
+    ndarray, shape (k, nu * nv)
+        N_i(u) N_j(v) for every point and control point (row-major over (i, j)).
+    """
     nu, nv = surface.control_points.shape[:2]
     Bu = basis_matrix(surface.knots_u, surface.degree_u, u,
                       n_periodic=nu if surface.closed_u else None)
@@ -45,7 +75,20 @@ def collocation(surface, u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 def grid_laplacian(nu: int, nv: int, periodic_u: bool) -> np.ndarray:
-    """Graph Laplacian (nu·nv, nu·nv) of the control grid (4-neighbours, periodic in u)."""
+    """Graph Laplacian (nu·nv, nu·nv) of the control grid (4-neighbours, periodic in u).
+
+    Parameters
+    ----------
+    nu, nv : int
+        The control grid's size.
+    periodic_u : bool
+        The first index wraps around (a closed direction).
+
+    Returns
+    -------
+    ndarray, shape (nu * nv, nu * nv)
+        The dense Laplacian (degree on the diagonal, −1 per neighbour pair).
+    """
     idx = np.arange(nu * nv).reshape(nu, nv)
     pairs = [np.stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()], 1)]
     if periodic_u:
@@ -69,6 +112,24 @@ def grid_projection(surface, points: np.ndarray, nu: int = 192, nv: int = 96
     (q − S)·N is what the linearised correction uses; it is insensitive to the
     tangential offset of a grid node (error O(h²), h the grid spacing), so a
     grid projection replaces Newton projection here at a fraction of the cost.
+
+    Parameters
+    ----------
+    surface : cardionurbs.nurbs.NurbsSurface
+        The surface (control points in mm).
+    points : ndarray, shape (k, 3)
+        The points to project, in mm.
+    nu, nv : int, optional
+        The parameter grid's size.
+
+    Returns
+    -------
+    u, v : ndarray, shape (k,)
+        The nearest grid node's parameters.
+    S : ndarray, shape (k, 3)
+        The surface point there, in mm.
+    N : ndarray, shape (k, 3)
+        The unit surface normal there.
     """
     lo_u, hi_u = surface.domain_u
     lo_v, hi_v = surface.domain_v
@@ -93,6 +154,32 @@ def refine_surface(surface, anchors: np.ndarray, targets: np.ndarray, *,
     normal equations, so they do not depend on the point counts. ``target_weights``
     (len(targets),): each LA point's weight w_i in the least squares (the input's
     guide-point weights; default 1).
+
+    Parameters
+    ----------
+    surface : cardionurbs.nurbs.NurbsSurface
+        The lofted surface (control points in mm).
+    anchors : ndarray, shape (a, 3)
+        SA contour points it must keep passing through, in mm.
+    targets : ndarray, shape (t, 3)
+        LA contour points it is moved towards, in mm.
+    smoothing : float, optional
+        λ, relative to the mean diagonal of the normal equations.
+    ridge : float, optional
+        ε, relative likewise.
+    passes : int, optional
+        Projection and solve passes.
+    anchor_weight : float, optional
+        The weight w_i of every anchor.
+    max_step_mm : float, optional
+        Largest move of a control point per pass, in mm.
+    target_weights : ndarray, shape (t,), optional
+        Each target's weight w_i (default 1).
+
+    Returns
+    -------
+    cardionurbs.nurbs.NurbsSurface
+        The corrected surface (``surface`` itself when there are no targets).
     """
     if len(targets) == 0:
         return surface

@@ -37,7 +37,31 @@ SURFACES = ("lv_endo", "lv_epi", "rv_endo", "rv_epi")
 
 @dataclass(eq=False)
 class Section:
-    """One closed planar cross-section of a surface (scanner mm, ordered loop)."""
+    """One closed planar cross-section of a surface (scanner mm, ordered loop).
+
+    Attributes
+    ----------
+    structure : str
+        The surface (``"lv_endo"``, ``"lv_epi"``, ``"rv_endo"``, ``"rv_epi"``).
+    frame : int
+        The frame index, 0-based.
+    points : ndarray, shape (k, 3)
+        The ordered loop, in mm (scanner coordinates).
+    slice : str or None
+        The SA slice it comes from (None: synthetic).
+    plane : cardionurbs.imaging.geometry.ImagePlane or None
+        That slice's image plane.
+    synthetic : bool
+        Made by :func:`scaled_section`, not from a contour.
+    source_points : ndarray, shape (m, 3) or None
+        The contour points it was made of, in mm.
+    septum_of : ndarray, shape (n, 3) or None
+        RV sections: the LV epicardial loop of the slice, in mm.
+    scale : float
+        Synthetic sections: the scale s of their template.
+    template : int or None
+        Synthetic sections: 0 (basal) or -1 (apical) template.
+    """
 
     structure: str
     frame: int
@@ -59,6 +83,44 @@ class FrameGeometry:
     [structure]`` the LA contour polylines (each (k, 3)); ``apex[structure]``
     the collapsed-end point of each surface; ``base_planes['lv'|'rv']`` the
     valve planes; ``direction`` the stacking direction (base -> apex).
+
+    Attributes
+    ----------
+    frame : int
+        The frame index, 0-based.
+    direction : ndarray, shape (3,)
+        The unit stacking direction, base to apex.
+    sections : dict of str to list of Section
+        Structure -> SA sections, base to apex.
+    la_points : dict of str to list of ndarray
+        Structure -> LA contour polylines, each (k, 3) in mm.
+    apex : dict of str to ndarray
+        Structure -> the collapsed-end (apex) point (3,), in mm.
+    base_planes : dict of str to cardionurbs.anatomy.mesh.Plane
+        ``"lv"`` / ``"rv"`` -> the valve plane (apical side kept).
+    la_slices : dict of str to list of str
+        Structure -> the LA slice id of each polyline.
+    la_pixel_mm : dict of str to list of float
+        Structure -> the pixel spacing of each polyline's image, in mm.
+    la_weights : dict of str to list of ndarray
+        Structure -> each polyline's point weights (k,).
+    left_out : list of tuple of (str, str or None, str)
+        (structure, slice, why) of every contour left out.
+    thickness : float
+        The mean SA slice thickness, in mm.
+    reference : ndarray, shape (3,) or None
+        The in-plane LV → RV direction (section seams).
+    taper : dict of str to ApicalTaper
+        Structure -> the apical taper of an SA-only surface (label maps).
+    base_from_slices : set of str
+        ``"lv"`` / ``"rv"``: valve planes placed by the half-slice rule.
+    base_slack : float
+        How far a half-slice valve plane may later move basally, in mm.
+    warnings : list of str
+        The frame's warnings, one line each.
+    in_time : dict
+        (surface, slice) -> (frame, frame): sections interpolated in time from those two
+        frames (:func:`cardionurbs.anatomy.cycle.support_sections`).
     """
 
     frame: int
@@ -140,6 +202,16 @@ def order_open(points: np.ndarray) -> np.ndarray:
     Points in drawing order are kept (a cyclic rotation is undone by cutting at
     the largest gap); otherwise the chain starts at one end of the diameter of
     the points' Euclidean minimum spanning tree and follows nearest neighbours.
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3)
+        An open contour's points, any order, in mm.
+
+    Returns
+    -------
+    ndarray of int, shape (n,)
+        The order (indices into ``points``), end to end.
     """
     p = np.asarray(points, dtype=float)
     if len(p) < 3:
@@ -158,7 +230,18 @@ def order_open(points: np.ndarray) -> np.ndarray:
 
 
 def order_closed(points: np.ndarray) -> np.ndarray:
-    """Order a closed contour's points around the loop (drawing order kept if present)."""
+    """Order a closed contour's points around the loop (drawing order kept if present).
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3)
+        A closed contour's points, any order, in mm.
+
+    Returns
+    -------
+    ndarray of int, shape (n,)
+        The order (indices into ``points``) around the loop.
+    """
     p = np.asarray(points, dtype=float)
     if len(p) < 4 or _in_drawing_order(p, closed=True):
         return p
@@ -174,7 +257,20 @@ def is_open_arc(points: np.ndarray, gap_steps: float = ARC_GAP_STEPS) -> bool:
     """True when a trace, ordered from one end to the other (:func:`order_open`: a trace
     written from the middle of its arc is rotated), leaves a gap between its ends wider
     than ``gap_steps`` median point spacings and a quarter of its extent (an arc, such as
-    a CAP LV epicardial trace that stops at the RV insertions); False for a loop."""
+    a CAP LV epicardial trace that stops at the RV insertions); False for a loop.
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3)
+        A trace's points, in mm.
+    gap_steps : float, optional
+        The gap, in median point spacings, above which the ends do not meet.
+
+    Returns
+    -------
+    bool
+        Whether the trace is an open arc.
+    """
     p = np.asarray(points, float)
     if len(p) < 5:
         return False
@@ -195,6 +291,21 @@ def join_open_parts(parts: list[np.ndarray]) -> np.ndarray:
 
     Each part is ordered, then the parts are chained greedily: the next part is
     the one with an end nearest the current loop end, reversed if needed.
+
+    Parameters
+    ----------
+    parts : list of ndarray, shape (k, 3)
+        Open curves, in mm.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        The loop's points, in mm.
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        No points to join.
     """
     parts = [order_open(p) for p in parts if len(p)]
     if not parts:
@@ -222,6 +333,22 @@ def ray_exit(points: np.ndarray, origin: np.ndarray, direction: np.ndarray,
 
     Vectorised over the loop's edges (line–segment intersection by Cramer's rule
     in the loop's plane, of normal ``normal`` — fitted when not given).
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3)
+        A closed planar loop, in mm.
+    origin : ndarray, shape (3,)
+        The ray's origin, in mm (in the loop's plane).
+    direction : ndarray, shape (3,)
+        The ray's direction (t in mm for a unit direction).
+    normal : ndarray, shape (3,), optional
+        The loop's plane normal (default: fitted).
+
+    Returns
+    -------
+    float
+        The largest t, NaN when the ray misses.
     """
     return float(ray_exits(points, origin, np.asarray(direction, float)[None], normal)[0])
 
@@ -230,7 +357,24 @@ def ray_exits(points: np.ndarray, origin: np.ndarray, directions: np.ndarray,
               normal: np.ndarray | None = None) -> np.ndarray:
     """:func:`ray_exit` of many rays (k, 3) from one origin: (k,) largest t, NaN where a
     ray misses. The loop's in-plane coordinates and edges are computed once for all rays
-    (the same arithmetic per ray)."""
+    (the same arithmetic per ray).
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3)
+        A closed planar loop, in mm.
+    origin : ndarray, shape (3,)
+        The rays' origin, in mm.
+    directions : ndarray, shape (k, 3)
+        The rays' directions.
+    normal : ndarray, shape (3,), optional
+        The loop's plane normal (default: fitted).
+
+    Returns
+    -------
+    ndarray, shape (k,)
+        The largest t of each ray, NaN where it misses.
+    """
     b = in_plane_basis(fit_plane(points)[1] if normal is None else normal)
     xy = (points - origin) @ b.T
     a, e = xy, np.roll(xy, -1, axis=0) - xy
@@ -257,6 +401,28 @@ def scaled_section(template: Section, level: float, direction: np.ndarray,
     target points (LA contour crossings of the level plane), of
     |q − centre| / r_T(θ_q), r_T the template's radius from the anchor in the
     direction of q; without targets ``default_scale`` is used (None: no section).
+
+    Parameters
+    ----------
+    template : Section
+        The section whose shape is copied.
+    level : float
+        The new section's level along ``direction``, in mm.
+    direction : ndarray, shape (3,)
+        The unit stacking direction.
+    centre : ndarray, shape (3,)
+        The new section's centre, in mm.
+    targets : ndarray, shape (m, 3) or None
+        LA contour crossings of the level plane, in mm.
+    default_scale : float or None, optional
+        The scale without targets (None: no section).
+    anchor : ndarray, shape (3,), optional
+        The scaling anchor a (default: the template's centroid).
+
+    Returns
+    -------
+    tuple of (ndarray, float) or None
+        (points (k, 3) in mm, scale s), or None without targets and default.
     """
     t = template.points
     ct = polygon_centroid(t, direction) if anchor is None else anchor
@@ -284,7 +450,20 @@ def scaled_section(template: Section, level: float, direction: np.ndarray,
 def fill_short_gaps(mask: np.ndarray, max_gap: int) -> np.ndarray:
     """Circular morphological closing of a boolean sequence: runs of False of at most
     ``max_gap`` entries with True on both sides become True (the septum of an RV loop is
-    one contiguous run; contour noise must not split it)."""
+    one contiguous run; contour noise must not split it).
+
+    Parameters
+    ----------
+    mask : ndarray of bool, shape (n,)
+        A circular sequence.
+    max_gap : int
+        The longest run of False filled.
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+        The closed sequence.
+    """
     m = np.asarray(mask, dtype=bool)
     if max_gap <= 0 or m.all() or not m.any():
         return m
@@ -307,7 +486,26 @@ def septal_mask(rv_points: np.ndarray, lv_epi_loop: np.ndarray, normal: np.ndarr
     """Which RV contour points lie on the septum: inside the LV epicardial loop or within
     ``near_mm`` of it (vectorised point-segment distances in the plane); for an ordered
     loop, free-wall runs of at most ``max_gap`` points between septal ones are septal too
-    (:func:`fill_short_gaps`)."""
+    (:func:`fill_short_gaps`).
+
+    Parameters
+    ----------
+    rv_points : ndarray, shape (n, 3)
+        An RV contour's points, in mm.
+    lv_epi_loop : ndarray, shape (m, 3)
+        The LV epicardial loop of the same slice, in mm.
+    normal : ndarray, shape (3,)
+        The slice's normal.
+    near_mm : float, optional
+        Distance within which a point is septal, in mm.
+    max_gap : int, optional
+        Longest free-wall run between septal points made septal (ordered loops).
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+        True for a septal point.
+    """
     b = in_plane_basis(normal)
     c = polygon_centroid(lv_epi_loop, normal)
     poly = (lv_epi_loop - c) @ b.T
@@ -336,6 +534,30 @@ def embed_septum(rv_loop: np.ndarray, lv_epi_loop: np.ndarray, normal: np.ndarra
     surface, and the loop's corners lie inside the LV wall where their rounding
     does not matter. The free-wall points (the ones kept) are what the
     residuals are measured on. ``mask``: the septal points when already known.
+
+    Parameters
+    ----------
+    rv_loop : ndarray, shape (n, 3)
+        An ordered RV loop, in mm.
+    lv_epi_loop : ndarray, shape (m, 3)
+        The LV epicardial loop of the slice, in mm.
+    normal : ndarray, shape (3,)
+        The slice's normal.
+    near_mm : float, optional
+        Septal distance, in mm.
+    depth_mm : float, optional
+        How far the septal points move towards the LV centroid, in mm.
+    max_gap : int, optional
+        Longest free-wall run made septal.
+    mask : ndarray of bool, shape (n,), optional
+        The septal points, when known (default :func:`septal_mask`).
+
+    Returns
+    -------
+    loop : ndarray, shape (n, 3)
+        The loop with its septal points moved, in mm.
+    free_wall : ndarray, shape (f, 3)
+        The free-wall points, in mm.
     """
     sept = septal_mask(rv_loop, lv_epi_loop, normal, near_mm, max_gap) if mask is None else mask
     if not sept.any() or sept.all():
@@ -365,6 +587,25 @@ def stacking_direction(study: Study, frame: int | None = None) -> tuple[np.ndarr
     towards the end with the smaller LV endocardial area. Cached on the study per frame
     (again when its images, landmarks or contours lists are replaced or change length):
     the tag analysis asks for it once per family and frame.
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        The study.
+    frame : int or None, optional
+        The frame index, 0-based (None: all SA images).
+
+    Returns
+    -------
+    direction : ndarray, shape (3,)
+        The unit stacking direction, base to apex.
+    thickness : float
+        The mean SA slice thickness, in mm.
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        The study has no SA image plane.
     """
     lists = (study.images, study.landmarks, study.contours)
     token = tuple((id(x), len(x)) for x in lists)
@@ -418,6 +659,25 @@ def study_long_axis(study: Study, frame: int | None = None) -> tuple[np.ndarray,
     ``frame`` None: ED (the study's label, else its first tagged frame, else
     0); when that frame has no apex landmark and no LV contour, the first
     frame that has an apex landmark.
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        The study.
+    frame : int or None, optional
+        The frame index, 0-based (None: as above).
+
+    Returns
+    -------
+    apex : ndarray, shape (3,)
+        The LV apex, in mm.
+    base : ndarray, shape (3,)
+        The base (mitral) centre, in mm.
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        No landmark or SA contour fixes an end.
     """
     if frame is None:
         frame = study.ed_frame if study.ed_frame is not None else \
@@ -438,7 +698,7 @@ def study_long_axis(study: Study, frame: int | None = None) -> tuple[np.ndarray,
                      stack_direction=direction, where=f"frame {frame}")
 
 
-def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.ndarray, np.ndarray]]]:
+def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str, np.ndarray, np.ndarray]]]:
     """Closed SA loops per surface: (slice, ordered loop points, source points).
 
     Closed contours are ordered; CAP open parts are joined: rv_endo =
@@ -460,7 +720,7 @@ def _sa_loops(study: Study, frame: int) -> dict[str, list[tuple[str | None, np.n
     return out
 
 
-_Loops = dict[str, list[tuple[str | None, np.ndarray, np.ndarray]]]
+_Loops = dict[str, list[tuple[str, np.ndarray, np.ndarray]]]
 
 
 def _lv_slice_loops(sl: str, d: dict[str, list[Contour]], sept: list[np.ndarray],
@@ -533,7 +793,20 @@ def septum_from_endocardium(arc: np.ndarray, lv_endo: np.ndarray) -> np.ndarray 
     slice without an RV septal trace: the LV endocardium's septal part moved outwards by
     the free wall's median thickness, in polar coordinates about the endocardium's
     centroid, sampled at the arc's point spacing across its angular gap (mm, (k, 3));
-    None when the arc covers no clear gap."""
+    None when the arc covers no clear gap.
+
+    Parameters
+    ----------
+    arc : ndarray, shape (n, 3)
+        The LV epicardial arc over the free wall, in mm.
+    lv_endo : ndarray, shape (m, 3)
+        The slice's LV endocardial loop, in mm.
+
+    Returns
+    -------
+    ndarray, shape (k, 3) or None
+        The septal run, in mm.
+    """
     c, n = fit_plane(lv_endo)
     b = in_plane_basis(n)
     c = polygon_centroid(lv_endo, n)
@@ -565,7 +838,22 @@ def septal_parts(rv_points: np.ndarray, lv_epi: np.ndarray, near_mm: float = 1.0
                  ) -> list[np.ndarray]:
     """The septal part of an undivided RV endocardial trace: its points on (within
     ``near_mm`` of) or inside the LV epicardial contour of the same image, as one
-    array in trace order ([] when none touches it)."""
+    array in trace order ([] when none touches it).
+
+    Parameters
+    ----------
+    rv_points : ndarray, shape (n, 3)
+        The RV endocardial trace, in trace order, in mm.
+    lv_epi : ndarray, shape (m, 3)
+        The LV epicardial contour of the same image, in mm.
+    near_mm : float, optional
+        Distance within which a point is septal, in mm.
+
+    Returns
+    -------
+    list of ndarray
+        ``[septal points (k, 3)]`` in mm, or ``[]``.
+    """
     n = fit_plane(lv_epi)[1]
     mask = septal_mask(rv_points, order_closed(lv_epi), n, near_mm)
     return [rv_points[mask]] if mask.sum() >= 2 else []
@@ -597,7 +885,18 @@ def _la_polylines(study: Study, frame: int) -> tuple[dict, dict, dict]:
 
 def weighted_part(c: Contour) -> Contour:
     """The contour without its zero-weight points (a weight of 0 in the input means: do not
-    fit this point); the contour itself when every weight is positive."""
+    fit this point); the contour itself when every weight is positive.
+
+    Parameters
+    ----------
+    c : cardionurbs.study.Contour
+        A contour with point weights.
+
+    Returns
+    -------
+    cardionurbs.study.Contour
+        The contour of its positively weighted points.
+    """
     if c.weights is None or np.all(c.weights > 0):
         return c
     keep = c.weights > 0
@@ -611,6 +910,18 @@ def valve_plane(points: np.ndarray, axis: np.ndarray) -> Plane:
     Three or more points: least-squares plane (SVD). Two points: the plane that
     contains both and is as perpendicular to the axis as possible. One: the
     plane through it perpendicular to the axis.
+
+    Parameters
+    ----------
+    points : ndarray, shape (k, 3)
+        Annulus landmarks, in mm, k >= 1.
+    axis : ndarray, shape (3,)
+        The direction the normal is oriented along (base to apex).
+
+    Returns
+    -------
+    cardionurbs.anatomy.mesh.Plane
+        The valve plane (origin the points' mean, in mm).
     """
     p = np.atleast_2d(points)
     if len(p) >= 3:
@@ -631,7 +942,20 @@ MIN_LV_ROUNDNESS = 0.2
 
 
 def isoperimetric_quotient(points: np.ndarray, normal: np.ndarray) -> float:
-    """4*pi*|A| / P**2 of a closed loop (1 for a circle, near 0 for a loop that folds back)."""
+    """4*pi*|A| / P**2 of a closed loop (1 for a circle, near 0 for a loop that folds back).
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3)
+        A closed planar loop, in mm.
+    normal : ndarray, shape (3,)
+        Its plane's unit normal.
+
+    Returns
+    -------
+    float
+        The quotient, in (0, 1].
+    """
     perimeter = float(np.linalg.norm(np.diff(np.vstack([points, points[:1]]), axis=0), axis=1).sum())
     if perimeter <= 0:
         return 0.0
@@ -691,6 +1015,17 @@ class ApicalTaper:
     first) fitted to the apical sections, whose root beyond ``level`` is ``root``.
     When the apex is held before that root (a more apical slice without the
     structure), the profile is compressed into [level, apex].
+
+    Attributes
+    ----------
+    level : float
+        The last section's level, in mm along the stacking direction.
+    apex : float
+        The apex level, in mm.
+    root : float
+        The area profile's root beyond ``level``, in mm.
+    coeffs : tuple of float
+        The profile A(h) in mm² (polynomial coefficients, highest power first).
     """
 
     level: float
@@ -699,7 +1034,18 @@ class ApicalTaper:
     coeffs: tuple[float, ...]
 
     def area_ratio(self, h: np.ndarray | float) -> np.ndarray:
-        """A(h) / A(level) for levels between the last section and the apex (0 beyond)."""
+        """A(h) / A(level) for levels between the last section and the apex (0 beyond).
+
+        Parameters
+        ----------
+        h : float or ndarray
+            Levels, in mm along the stacking direction.
+
+        Returns
+        -------
+        ndarray
+            A(h) / A(level), in [0, 1], shape of ``h``.
+        """
         h = np.asarray(h, float)
         t = np.clip((h - self.level) / max(self.apex - self.level, 1e-9), 0.0, 1.0)
         hp = self.level + t * (self.root - self.level)
@@ -722,6 +1068,20 @@ def apical_taper(levels: np.ndarray, areas: np.ndarray,
     section, and at most at ``limit`` (a more apical slice that shows no such
     structure). None when there are fewer than three sections or the areas do
     not decrease towards the apex (the half-slice rule applies then).
+
+    Parameters
+    ----------
+    levels : ndarray, shape (k,)
+        The sections' levels, in mm along the stacking direction.
+    areas : ndarray, shape (k,)
+        Their areas, in mm².
+    limit : float or None, optional
+        The most apical level the apex may reach, in mm.
+
+    Returns
+    -------
+    ApicalTaper or None
+        The taper, or None as above.
     """
     h = np.asarray(levels, float)[-3:]
     a = np.asarray(areas, float)[-3:]
@@ -792,6 +1152,23 @@ def frame_geometry(study: Study, frame: int) -> FrameGeometry:
     centroid along the stacking direction (docs/metrics.md).
     Valve planes: ``mitral`` (LV) and ``tricuspid`` (RV) landmarks; else the
     most basal SA contour's plane moved half a slice thickness towards the base.
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        The study.
+    frame : int
+        The frame index, 0-based.
+
+    Returns
+    -------
+    FrameGeometry
+        The frame's sections, LA polylines, apex points and valve planes, with its warnings.
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        The frame has no SA image plane, or its contours cannot be made into sections.
     """
     n, thick = stacking_direction(study, frame)
     geo = FrameGeometry(frame=frame, direction=n, thickness=thick)
@@ -865,7 +1242,20 @@ MYO_CONSERVED_BOUND = 0.12
 
 def labelled_myocardium_ratio(study: Study, ed: int, es: int) -> float | None:
     """The label map's LV myocardial voxel count at ES over that at ED, or None when the
-    study is not a label map or lacks either count (``study.meta["voxel_volumes_ml"]``)."""
+    study is not a label map or lacks either count (``study.meta["voxel_volumes_ml"]``).
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        The study.
+    ed, es : int
+        The ED and ES frame indices, 0-based.
+
+    Returns
+    -------
+    float or None
+        The ratio (dimensionless), or None.
+    """
     vox = study.meta.get("voxel_volumes_ml") if isinstance(study.meta, dict) else None
     if not vox:
         return None
@@ -879,7 +1269,20 @@ def labelled_myocardium_ratio(study: Study, ed: int, es: int) -> float | None:
 
 def labels_do_not_conserve(ratio: float, es: int) -> str:
     """The warning of an ES valve plane left at the labels' slab (see
-    :data:`MYO_CONSERVED_BOUND`)."""
+    :data:`MYO_CONSERVED_BOUND`).
+
+    Parameters
+    ----------
+    ratio : float
+        :func:`labelled_myocardium_ratio`.
+    es : int
+        The ES frame index.
+
+    Returns
+    -------
+    str
+        The warning, one line.
+    """
     return (f"frame {es}: the labels' LV myocardium changes by {100 * (ratio - 1):+.0f} % from "
             f"ED to ES, more than partial volume explains (±{100 * MYO_CONSERVED_BOUND:.0f} %): "
             "the ES valve plane is kept half a slice beyond the most basal labelled slice, as "
@@ -889,7 +1292,18 @@ def labels_do_not_conserve(ratio: float, es: int) -> str:
 def moves_with_lv(geo: FrameGeometry) -> list[str]:
     """The half-slice valve planes that move with the LV's at ES (the atrioventricular
     plane moves as one): the LV's, and the RV's when its most basal section lies on the
-    same slice as the LV's — an RV that starts slices more apically has its own slab."""
+    same slice as the LV's — an RV that starts slices more apically has its own slab.
+
+    Parameters
+    ----------
+    geo : FrameGeometry
+        The ES frame's geometry.
+
+    Returns
+    -------
+    list of str
+        ``["lv"]`` or ``["lv", "rv"]``: the planes that move together.
+    """
     out = [s for s in geo.base_from_slices if s == "lv"]
     lv, rv = geo.sections.get("lv_endo") or [], geo.sections.get("rv_endo") or []
     if "rv" in geo.base_from_slices and lv and rv and lv[0].slice == rv[0].slice:

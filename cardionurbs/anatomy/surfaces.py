@@ -69,7 +69,28 @@ SEPTUM_GAP_FRACTION = 0.125
 
 @dataclass(eq=False)
 class SurfaceFit:
-    """A lofted surface and what it was made of."""
+    """A lofted surface and what it was made of.
+
+    Attributes
+    ----------
+    structure : str
+        The surface (``"lv_endo"``, ``"lv_epi"``, ``"rv_endo"``, ``"rv_epi"``).
+    frame : int
+        The frame index, 0-based.
+    surface : cardionurbs.nurbs.NurbsSurface
+        The lofted surface (control points in mm; u around, v base to apex).
+    sections : list of cardionurbs.anatomy.sections.Section
+        The sections lofted, base to apex (real and synthetic).
+    apex : ndarray, shape (3,)
+        The collapsed apex point, in mm.
+    n_ctrl : int
+        Control points per section curve.
+    curve_error_mm : float
+        The largest distance of a contour point to its section curve where it exceeds the
+        tolerance, in mm; NaN when every section met it.
+    warnings : list of str
+        What the fit left out or could not meet, one line each.
+    """
 
     structure: str
     frame: int
@@ -85,7 +106,20 @@ class SurfaceFit:
 # ---------------------------------------------------------------- resampling
 def periodic_spline(points: np.ndarray) -> tuple[CubicSpline, float]:
     """Periodic cubic interpolant through a closed loop, parameterised by chord
-    length (paper eq. 6–8 applied to the closed polygon); returns (spline, length)."""
+    length (paper eq. 6–8 applied to the closed polygon); returns (spline, length).
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3)
+        A closed loop (first point not repeated), in mm.
+
+    Returns
+    -------
+    spline : scipy.interpolate.CubicSpline
+        The loop as a function of arc parameter s in mm, periodic.
+    length : float
+        The chord length of the loop, in mm.
+    """
     p = np.asarray(points, dtype=float)
     step = np.linalg.norm(np.diff(np.vstack([p, p[:1]]), axis=0), axis=1)
     p = p[step > 1e-9]                      # drop repeated points (and a repeated end point)
@@ -98,7 +132,26 @@ def resample_loop(points: np.ndarray, direction: np.ndarray, ref: np.ndarray,
                   origin: np.ndarray | None = None, m: int = N_SAMPLES) -> np.ndarray:
     """``m`` points uniformly spaced in arc length around a closed loop,
     counter-clockwise about ``direction``, starting where the ray from ``origin``
-    (default: the loop's centroid) along ``ref`` leaves the loop."""
+    (default: the loop's centroid) along ``ref`` leaves the loop.
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, 3)
+        A closed loop, in mm.
+    direction : ndarray, shape (3,)
+        The unit stacking direction (the loop runs counter-clockwise about it).
+    ref : ndarray, shape (3,)
+        The seam direction (LV → RV).
+    origin : ndarray, shape (3,), optional
+        The seam ray's origin, in mm (default the loop's area centroid).
+    m : int, optional
+        Points of the result (default :data:`N_SAMPLES`).
+
+    Returns
+    -------
+    ndarray, shape (m, 3)
+        The resampled loop, in mm.
+    """
     p = np.asarray(points, dtype=float)
     if polygon_area(p, direction, signed=True) < 0:
         p = p[::-1]
@@ -132,7 +185,22 @@ def free_wall_targets(targets: np.ndarray, centre: np.ndarray,
     """The LA crossing on the RV free wall: of the crossings on the RV side of the LV
     centre ((q − centre)·side > 0, ``side`` the LV -> RV direction), the one farthest
     from it (the septal crossings lie on the LV epicardium, nearer the centre).
-    ``side`` None: all targets (LV surfaces)."""
+    ``side`` None: all targets (LV surfaces).
+
+    Parameters
+    ----------
+    targets : ndarray, shape (k, 3)
+        LA contour crossings of a level plane, in mm.
+    centre : ndarray, shape (3,)
+        The LV centre at that level, in mm.
+    side : ndarray, shape (3,) or None
+        The LV → RV direction.
+
+    Returns
+    -------
+    ndarray, shape (j, 3)
+        The kept crossings (j <= 1 with ``side``), in mm.
+    """
     if side is None or not len(targets):
         return targets
     rel = targets - centre
@@ -160,7 +228,26 @@ def synthetic_offsets(span: float, step: float, sa_gap: float | None = None,
 
     ``reach_end``: the sections divide the rest of the span into equal intervals of at most
     ``step`` up to its end (the apex, which is itself a section of the loft); otherwise they
-    continue every ``step`` while inside the span."""
+    continue every ``step`` while inside the span.
+
+    Parameters
+    ----------
+    span : float
+        The distance available, in mm.
+    step : float
+        The largest spacing, in mm.
+    sa_gap : float or None, optional
+        The end SA section's spacing to its neighbour, in mm.
+    ratio : float or None, optional
+        The grading ratio (default :data:`GRADING_RATIO`).
+    reach_end : bool, optional
+        Divide the rest of the span equally up to its end.
+
+    Returns
+    -------
+    ndarray, shape (k,)
+        The offsets, in mm, increasing.
+    """
     ratio = GRADING_RATIO if ratio is None else float(ratio)
     graded: list[float] = []
     d = 0.0
@@ -182,7 +269,22 @@ def synthetic_offsets(span: float, step: float, sa_gap: float | None = None,
 
 def end_gap(secs: list[Section], direction: np.ndarray, end: int) -> float | None:
     """Spacing (mm) along ``direction`` between the end SA section (``end`` 0: basal, -1:
-    apical) and its neighbour; None for a single section."""
+    apical) and its neighbour; None for a single section.
+
+    Parameters
+    ----------
+    secs : list of cardionurbs.anatomy.sections.Section
+        The SA sections, base to apex.
+    direction : ndarray, shape (3,)
+        The unit stacking direction.
+    end : int
+        0 (basal) or -1 (apical).
+
+    Returns
+    -------
+    float or None
+        The spacing in mm.
+    """
     if len(secs) < 2:
         return None
     nb = 1 if end == 0 else -2
@@ -192,7 +294,26 @@ def end_gap(secs: list[Section], direction: np.ndarray, end: int) -> float | Non
 
 def synthetic_sections(geo: FrameGeometry, structure: str, secs: list[Section],
                        apex: np.ndarray) -> tuple[list[Section], list[Section]]:
-    """Synthetic (basal, apical) sections from LA contour crossings (see module doc)."""
+    """Synthetic (basal, apical) sections from LA contour crossings (see module doc).
+
+    Parameters
+    ----------
+    geo : cardionurbs.anatomy.sections.FrameGeometry
+        The frame's geometry.
+    structure : str
+        The surface.
+    secs : list of cardionurbs.anatomy.sections.Section
+        Its SA sections, base to apex.
+    apex : ndarray, shape (3,)
+        Its apex point, in mm.
+
+    Returns
+    -------
+    basal : list of cardionurbs.anatomy.sections.Section
+        Synthetic sections beyond the basal SA section, towards the valve plane.
+    apical : list of cardionurbs.anatomy.sections.Section
+        Synthetic sections beyond the apical SA section, towards the apex.
+    """
     n = geo.direction
     la = geo.la_points.get(structure, [])
     if not la and secs and structure in geo.taper:
@@ -259,7 +380,20 @@ def septal_anchor(sec: Section, direction: np.ndarray) -> np.ndarray | None:
     nearest their centroid): the point a tapering crescent shrinks towards, so that it keeps
     its septal middle on the septum (scaled about the LV centre it would sink into the LV
     wall, which the RV solids subtract). None without an LV epicardial loop or septal
-    points (then the crescent scales about its centroid)."""
+    points (then the crescent scales about its centroid).
+
+    Parameters
+    ----------
+    sec : cardionurbs.anatomy.sections.Section
+        An RV section (with ``septum_of``).
+    direction : ndarray, shape (3,)
+        The unit stacking direction.
+
+    Returns
+    -------
+    ndarray, shape (3,) or None
+        The anchor, in mm.
+    """
     if sec.septum_of is None:
         return None
     sept = septal_mask(sec.points, sec.septum_of, direction, SEPTUM_NEAR_MM_TAPER)
@@ -278,7 +412,22 @@ def taper_sections(geo: FrameGeometry, structure: str, secs: list[Section]) -> l
     is chosen so that the part outside the LV epicardium at that level (the RV solids
     subtract the LV) has the tapered area (:func:`crescent_scale`); scaled by the square
     root of the area ratio alone, its tips would sink into the LV wall and the RV apex
-    would come out too small."""
+    would come out too small.
+
+    Parameters
+    ----------
+    geo : cardionurbs.anatomy.sections.FrameGeometry
+        The frame's geometry (its ``taper``).
+    structure : str
+        The surface.
+    secs : list of cardionurbs.anatomy.sections.Section
+        Its SA sections, base to apex.
+
+    Returns
+    -------
+    list of cardionurbs.anatomy.sections.Section
+        The synthetic apical sections, base to apex.
+    """
     n, tp = geo.direction, geo.taper[structure]
     last = secs[-1]
     rv = structure.startswith("rv")
@@ -318,7 +467,22 @@ def lv_epi_loop_at(geo: FrameGeometry, level: float, n_angles: int = 180) -> np.
     """The LV epicardial section at ``level`` (mm along the stacking direction) of an SA-only
     frame: between two SA sections the radii about their centroids interpolated linearly in
     the level; beyond the most apical one, that section scaled by its apical taper; None
-    where there is no LV epicardium."""
+    where there is no LV epicardium.
+
+    Parameters
+    ----------
+    geo : cardionurbs.anatomy.sections.FrameGeometry
+        An SA-only frame's geometry.
+    level : float
+        The level, in mm along the stacking direction.
+    n_angles : int, optional
+        Points of the loop.
+
+    Returns
+    -------
+    ndarray, shape (n_angles, 3) or None
+        The loop, in mm.
+    """
     secs = geo.sections.get("lv_epi") or []
     if not secs:
         return None
@@ -351,7 +515,28 @@ def crescent_scale(template: np.ndarray, anchor: np.ndarray, target_area: float,
     """The scale s of ``anchor + s·(template − anchor)`` (in-plane) whose part outside the LV
     epicardial loop ``lv_epi`` has ``target_area`` (mm²): the template's interior sampled on a
     grid (``samples`` steps across its extent), each sample weighing s²·dA, bisection on s
-    in (0, 1] (the crescent only shrinks towards the apex)."""
+    in (0, 1] (the crescent only shrinks towards the apex).
+
+    Parameters
+    ----------
+    template : ndarray, shape (k, 3)
+        The RV section loop, in mm.
+    anchor : ndarray, shape (3,)
+        The scaling anchor, in mm.
+    target_area : float
+        The area wanted outside the LV epicardium, in mm².
+    lv_epi : ndarray, shape (m, 3)
+        The LV epicardial loop at that level, in mm.
+    normal : ndarray, shape (3,)
+        The plane's unit normal.
+    samples : int, optional
+        Grid steps across the template.
+
+    Returns
+    -------
+    float
+        The scale s in (0, 1].
+    """
     basis = in_plane_basis(normal)
     t = (template - anchor) @ basis.T
     lv = (lv_epi - anchor) @ basis.T
@@ -390,7 +575,21 @@ def embed_septa(real: list[Section], synthetic: list[Section], direction: np.nda
     RV apex) such a step spans many sample spacings; fitted on the loop's uniform
     parameters the curve must jump there, its control points swing tens of millimetres
     out, and the loft folds through them (a negative volume that the divergence theorem
-    subtracts from the cavity)."""
+    subtracts from the cavity).
+
+    Parameters
+    ----------
+    real : list of cardionurbs.anatomy.sections.Section
+        The RV surface's SA sections (moved in place).
+    synthetic : list of cardionurbs.anatomy.sections.Section
+        Its synthetic sections (moved in place).
+    direction : ndarray, shape (3,)
+        The unit stacking direction.
+    near_px : float
+        Septal distance, in pixels of each section's image.
+    ref : ndarray, shape (3,) or None, optional
+        The seam direction; given, every moved loop is resampled from it.
+    """
     disp = []
     for sec in real:
         d = np.zeros_like(sec.points)
@@ -411,7 +610,18 @@ def embed_septa(real: list[Section], synthetic: list[Section], direction: np.nda
 
 def septum_gap(n_points: int) -> int:
     """Longest run of an ordered RV loop's points (``SEPTUM_GAP_FRACTION`` of them) that
-    may lie between septal points and still be septal (contour noise, not free wall)."""
+    may lie between septal points and still be septal (contour noise, not free wall).
+
+    Parameters
+    ----------
+    n_points : int
+        Points of the loop.
+
+    Returns
+    -------
+    int
+        The longest run, in points.
+    """
     return int(SEPTUM_GAP_FRACTION * n_points)
 
 
@@ -424,7 +634,24 @@ def free_wall_points(sec: Section, direction: np.ndarray, near_px: float = SEPTU
     its nearest point of the section's ordered loop lies in a short gap of the loop's
     septal run (:func:`cardionurbs.anatomy.sections.fill_short_gaps`), so that the
     points classified agree with the loop that is embedded (``loop_mask``: the loop's
-    own septal points before the gaps are filled, when already known)."""
+    own septal points before the gaps are filled, when already known).
+
+    Parameters
+    ----------
+    sec : cardionurbs.anatomy.sections.Section
+        An RV section with ``source_points`` and ``septum_of``.
+    direction : ndarray, shape (3,)
+        The unit stacking direction.
+    near_px : float, optional
+        Septal distance, in pixels of the section's image.
+    loop_mask : ndarray of bool, optional
+        The loop's septal points before the gaps are filled.
+
+    Returns
+    -------
+    ndarray, shape (f, 3)
+        The free-wall source points, in mm.
+    """
     if sec.septum_of is None or sec.source_points is None:
         return sec.source_points
     near = near_px * _pixel_mm(sec)
@@ -447,7 +674,24 @@ def extension_section(basal: Section, geo: FrameGeometry, structure: str,
     """The basal section moved along −n until all of it lies ≥ ``margin_mm`` beyond
     the valve plane (and at least half a slice thickness, plus ``geo.base_slack``
     and the margin when the plane may still move basally), so that trimming by
-    the plane leaves a clean planar base."""
+    the plane leaves a clean planar base.
+
+    Parameters
+    ----------
+    basal : cardionurbs.anatomy.sections.Section
+        The most basal section.
+    geo : cardionurbs.anatomy.sections.FrameGeometry
+        The frame's geometry (valve planes, thickness, base slack).
+    structure : str
+        The surface.
+    margin_mm : float, optional
+        The least distance beyond the valve plane, in mm.
+
+    Returns
+    -------
+    cardionurbs.anatomy.sections.Section
+        The moved (synthetic) section.
+    """
     n = geo.direction
     plane = geo.base_planes.get("lv" if structure.startswith("lv") else "rv")
     t = 0.5 * geo.thickness + (geo.base_slack + margin_mm if geo.base_slack > 0 else 0.0)
@@ -471,6 +715,20 @@ def skin(curves: list, apex: np.ndarray, degree_v: int = 3):
     merging), so only the interpolation across sections is done, by
     :func:`cardionurbs.nurbs.loft_compatible` (the loft's own last step).
     Falls back to :func:`cardionurbs.nurbs.loft` when the knots differ.
+
+    Parameters
+    ----------
+    curves : list of cardionurbs.nurbs.NurbsCurve
+        Compatible closed section curves, base to apex (control points in mm).
+    apex : ndarray, shape (3,)
+        The collapsed apex point, in mm.
+    degree_v : int, optional
+        The degree across sections.
+
+    Returns
+    -------
+    cardionurbs.nurbs.NurbsSurface
+        The lofted surface (u around, v base to apex, the last row collapsed at ``apex``).
     """
     k0 = curves[0].knots
     if not all(c.knots.shape == k0.shape and np.allclose(c.knots, k0, atol=1e-12)
@@ -490,6 +748,27 @@ def build_surface(geo: FrameGeometry, structure: str, ref: np.ndarray,
 
     ``ref`` is the in-plane reference direction (from LV towards RV) that fixes
     where every section's parameterisation starts.
+
+    Parameters
+    ----------
+    geo : cardionurbs.anatomy.sections.FrameGeometry
+        The frame's geometry.
+    structure : str
+        The surface (``"lv_endo"``, ``"lv_epi"``, ``"rv_endo"``, ``"rv_epi"``).
+    ref : ndarray, shape (3,)
+        The in-plane reference direction (LV → RV).
+    tol_px : float, optional
+        The section curves' fitting tolerance, in pixels of each section's image.
+
+    Returns
+    -------
+    SurfaceFit
+        The surface, its sections, apex and warnings.
+
+    Raises
+    ------
+    cardionurbs.errors.ReconstructionError
+        Too few SA contours, or the loft fails.
     """
     secs = geo.sections.get(structure) or []
     frame = geo.frame

@@ -76,7 +76,53 @@ def _quiet_pydicom() -> Iterator[None]:
 
 @dataclass(frozen=True, eq=False)
 class DicomHeader:
-    """The header fields of one image file that geometry and timing need."""
+    """The header fields of one image file that geometry and timing need.
+
+    Attributes
+    ----------
+    file : pathlib.Path
+        The DICOM file the image is in.
+    sop_instance_uid : str
+        SOPInstanceUID (0008,0018): the image's id.
+    series_instance_uid : str
+        SeriesInstanceUID (0020,000E).
+    series_number : int or None
+        SeriesNumber (0020,0011).
+    series_description : str
+        SeriesDescription (0008,103E), ``""`` when absent.
+    instance_number : int or None
+        InstanceNumber (0020,0013).
+    position : ndarray, shape (3,)
+        ImagePositionPatient: the centre of the first pixel, in mm (scanner coordinates).
+    orientation : ndarray, shape (6,)
+        ImageOrientationPatient: row direction cosine, then column direction cosine.
+    pixel_spacing : tuple of (float, float)
+        PixelSpacing: (between rows, between columns), in mm.
+    rows : int
+        Rows (pixels per column).
+    columns : int
+        Columns (pixels per row).
+    thickness : float or None
+        SliceThickness, in mm.
+    trigger_time : float or None
+        TriggerTime: time after the R wave, in ms.
+    heart_rate : float or None
+        HeartRate, in beats/min.
+    nominal_interval : float or None
+        NominalInterval: the R-R interval, in ms.
+    cardiac_number_of_images : int or None
+        CardiacNumberOfImages: phases per cycle.
+    frame_number : int or None
+        The 1-based frame of a multi-frame (enhanced) object, None for a classic image.
+    patient_id : str
+        PatientID (0010,0020).
+    study_instance_uid : str
+        StudyInstanceUID (0020,000D).
+    frame_of_reference_uid : str
+        FrameOfReferenceUID (0020,0052).
+    normal : ndarray, shape (3,)
+        The unit image normal, row cosine × column cosine.
+    """
 
     file: Path
     sop_instance_uid: str
@@ -169,7 +215,25 @@ def _first_line(exc: BaseException) -> str:
 
 def headers_from_dataset(ds, path: Path) -> list[DicomHeader]:
     """One :class:`DicomHeader` per image: one for a classic image, one per frame of an
-    enhanced (multi-frame) MR object."""
+    enhanced (multi-frame) MR object.
+
+    Parameters
+    ----------
+    ds : pydicom.Dataset
+        A read DICOM dataset (its pixel data need not be loaded).
+    path : pathlib.Path
+        The file it was read from, for the messages.
+
+    Returns
+    -------
+    list of DicomHeader
+        One per image, in frame order.
+
+    Raises
+    ------
+    cardionurbs.errors.StudyError
+        A geometry tag is missing or not a number (the message names the file and the tag).
+    """
     with _quiet_pydicom():
         if _is_multiframe(ds, path):
             return _enhanced_headers(ds, Path(path))
@@ -320,7 +384,18 @@ def check_one_subject(headers: list[DicomHeader]) -> None:
     (StudyInstanceUID), a missing value counting as one more; or, when every series keeps
     one FrameOfReferenceUID, when series disagree on it (a patient repositioned between
     series). Series that give each image its own FrameOfReferenceUID (as the Sunnybrook
-    export does) are not compared. The message names one file of each."""
+    export does) are not compared. The message names one file of each.
+
+    Parameters
+    ----------
+    headers : list of DicomHeader
+        Every image header of the study.
+
+    Raises
+    ------
+    cardionurbs.errors.StudyError
+        PatientID, StudyInstanceUID or (as above) FrameOfReferenceUID differ between images.
+    """
     series_for: dict[str, set[str]] = {}
     for h in headers:
         series_for.setdefault(h.series_instance_uid, set()).add(h.frame_of_reference_uid)
@@ -361,7 +436,25 @@ def _pixel_data_short(path: Path, ds, offset: int | None) -> str | None:
 
 
 def read_header(path: str | Path) -> DicomHeader:
-    """Read and validate the header of one single-frame DICOM image file (no pixel data)."""
+    """Read and validate the header of one single-frame DICOM image file (no pixel data).
+
+    Parameters
+    ----------
+    path : path-like
+        A single-frame DICOM image file.
+
+    Returns
+    -------
+    DicomHeader
+        Its validated header.
+
+    Raises
+    ------
+    cardionurbs.errors.UnsupportedInputError
+        The file is a multi-frame object.
+    cardionurbs.errors.StudyError
+        Not DICOM, truncated, or a geometry tag missing (naming the file and the tag).
+    """
     headers = read_file_headers(path)
     if len(headers) != 1:
         raise UnsupportedInputError(f"multi-frame object ({len(headers)} frames): read it with "
@@ -375,6 +468,22 @@ def read_file_headers(path: str | Path) -> list[DicomHeader]:
 
     When a required tag is missing, the file is read once more in full to tell
     a truncated file (it ends before its pixel data) from an incomplete header.
+
+    Parameters
+    ----------
+    path : path-like
+        A DICOM file.
+
+    Returns
+    -------
+    list of DicomHeader
+        One per image (frame) of the file.
+
+    Raises
+    ------
+    cardionurbs.errors.StudyError
+        Not DICOM, truncated (pixel data shorter than Rows x Columns x bits), or a
+        geometry tag missing; the message names the file and the tag.
     """
     path = Path(path)
     try:
@@ -419,7 +528,25 @@ def _is_truncated(path: Path) -> bool:
 
 def read_pixels(path: str | Path, frame_number: int | None = None) -> np.ndarray:
     """The pixel array (rows, columns) of one DICOM image file, as float; of frame
-    ``frame_number`` (1-based) for a multi-frame object."""
+    ``frame_number`` (1-based) for a multi-frame object.
+
+    Parameters
+    ----------
+    path : path-like
+        A DICOM image file.
+    frame_number : int or None, optional
+        The 1-based frame of a multi-frame object (ignored for a single frame).
+
+    Returns
+    -------
+    ndarray of float, shape (rows, columns)
+        The stored pixel values (no rescale applied).
+
+    Raises
+    ------
+    cardionurbs.errors.StudyError
+        The pixel data cannot be decoded (truncated, or compressed without a decoder).
+    """
     path = Path(path)
     ds = _dcmread(path, pixels=True)
     try:
@@ -438,6 +565,23 @@ def find_dicom_files(folder: str | Path, exclude: Iterable[str | Path] = ()) -> 
 
     Files with a suffix in :data:`NOT_DICOM_SUFFIXES` and everything under a
     path in ``exclude`` are left out.
+
+    Parameters
+    ----------
+    folder : path-like
+        The folder to walk (or a single file, returned as is).
+    exclude : iterable of path-like, optional
+        Files and folders left out (e.g. the contour folders of a Sunnybrook study).
+
+    Returns
+    -------
+    list of pathlib.Path
+        The candidate files, in natural order (``img2`` before ``img10``).
+
+    Raises
+    ------
+    cardionurbs.errors.StudyError
+        A file found is a symbolic link leading out of the study (:func:`~cardionurbs.confine.files_inside`).
     """
     folder = Path(folder)
     if folder.is_file():
@@ -464,6 +608,22 @@ def read_headers(files: Iterable[Path]) -> list[DicomHeader]:
 
     A file with a ``.dcm``/``.ima`` suffix must be readable DICOM; a file with
     another or no suffix that lacks the DICM preamble is skipped.
+
+    Parameters
+    ----------
+    files : iterable of pathlib.Path
+        Candidate DICOM files (:func:`find_dicom_files`).
+
+    Returns
+    -------
+    list of DicomHeader
+        The headers of every image of the DICOM files, in file order.
+
+    Raises
+    ------
+    cardionurbs.errors.StudyError
+        A ``.dcm``, ``.ima`` or ``.dicom`` file that cannot be read, or any DICOM file that is
+        truncated or lacks a geometry tag.
     """
     out = []
     for f in files:
@@ -484,6 +644,26 @@ class DicomSeries:
     ``images`` carry ``meta`` entries ``instance_number``, ``series_uid``,
     ``series_number``, ``series_description``; ``pixels`` maps image id to
     its pixel array when read with ``pixels=True``.
+
+    Attributes
+    ----------
+    root : pathlib.Path
+        The folder (or file) read.
+    images : list of cardionurbs.imaging.geometry.ImagePlane
+        Every image plane, SA slices first (base to apex ``sa_00``, ``sa_01`` ...), then LA,
+        each by frame (0-based).
+    frame_times_ms : dict of int to float
+        Frame index -> mean TriggerTime of its images, in ms.
+    heart_rate_bpm : float or None
+        From HeartRate or NominalInterval (:func:`cardionurbs.imaging.phases.heart_rate_bpm`).
+    slice_spacing_mm : float or None
+        Median gap between SA slices along their normal, in mm.
+    base_apex_rule : str or None
+        How the SA stack's base-to-apex direction was decided (None without an SA stack).
+    headers : dict of str to DicomHeader
+        Image id (SOPInstanceUID) -> its header.
+    pixels : dict of str to ndarray
+        Image id -> pixel array (rows, columns), float, for the images read so far.
     """
 
     root: Path
@@ -496,7 +676,18 @@ class DicomSeries:
     pixels: dict[str, np.ndarray] = field(default_factory=dict)
 
     def by_instance_number(self) -> dict[int, ImagePlane]:
-        """InstanceNumber -> image (StudyError when a number is used twice)."""
+        """InstanceNumber -> image (StudyError when a number is used twice).
+
+        Returns
+        -------
+        dict of int to cardionurbs.imaging.geometry.ImagePlane
+            InstanceNumber -> image, for the images that have one.
+
+        Raises
+        ------
+        cardionurbs.errors.StudyError
+            Two images share an InstanceNumber.
+        """
         out: dict[int, ImagePlane] = {}
         for im in self.images:
             n = im.meta.get("instance_number")
@@ -510,7 +701,23 @@ class DicomSeries:
         return out
 
     def read_pixels(self, image_id: str) -> np.ndarray:
-        """Pixel array of one image (read now unless already loaded)."""
+        """Pixel array of one image (read now unless already loaded).
+
+        Parameters
+        ----------
+        image_id : str
+            The image's SOPInstanceUID.
+
+        Returns
+        -------
+        ndarray of float, shape (rows, columns)
+            Its pixel values (kept in :attr:`pixels`).
+
+        Raises
+        ------
+        cardionurbs.errors.StudyError
+            The pixel data cannot be decoded.
+        """
         if image_id not in self.pixels:
             h = self.headers[image_id]
             self.pixels[image_id] = read_pixels(h.file, h.frame_number)
@@ -542,6 +749,11 @@ def read_dicom_folder(folder: str | Path, *, pixels: bool = False,
         No DICOM image, unreadable or truncated file, missing geometry tag,
         duplicate SOPInstanceUID or duplicate (slice, phase); the message names
         the file and the tag.
+
+    Returns
+    -------
+    DicomSeries
+        The image planes, frame times (ms), heart rate (beats/min) and SA slice spacing (mm).
     """
     root = Path(folder)
     if not root.exists():

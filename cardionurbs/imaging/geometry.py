@@ -70,6 +70,15 @@ class ImagePlane:
         TriggerTime, ms.
     file : str or None
         Path of the image file relative to the study folder, if any.
+    meta : dict
+        Reader-specific extras (DICOM: ``instance_number``, ``series_uid``,
+        ``series_number``, ``series_description``, ``frame_number``).
+
+    Raises
+    ------
+    cardionurbs.errors.StudyError
+        A position or cosine not 3 finite numbers, cosines not orthonormal, a pixel
+        spacing or slice thickness outside its plausible range, an unknown view.
     """
 
     id: str
@@ -149,30 +158,84 @@ class ImagePlane:
         return self.pixel_to_scanner(np.array([[(self.columns - 1) / 2, (self.rows - 1) / 2]]))[0]
 
     def pixel_to_scanner(self, pixels: np.ndarray) -> np.ndarray:
-        """Map (n, 2) pixel coordinates (column c, row r) to (n, 3) scanner mm."""
+        """Map (n, 2) pixel coordinates (column c, row r) to (n, 3) scanner mm.
+
+        Parameters
+        ----------
+        pixels : ndarray, shape (n, 2)
+            Pixel coordinates (column c, row r), 0 at the first pixel's centre.
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+            Scanner coordinates in mm: position + c Δc row_cosine + r Δr column_cosine.
+        """
         p = np.asarray(pixels, dtype=float).reshape(-1, 2)
         return (self.position
                 + p[:, :1] * self.pixel_spacing[1] * self.row_cosine
                 + p[:, 1:2] * self.pixel_spacing[0] * self.column_cosine)
 
     def scanner_to_pixel(self, points: np.ndarray) -> np.ndarray:
-        """Map (n, 3) scanner mm to (n, 2) pixel coordinates (c, r), projecting onto the plane."""
+        """Map (n, 3) scanner mm to (n, 2) pixel coordinates (c, r), projecting onto the plane.
+
+        Parameters
+        ----------
+        points : ndarray, shape (n, 3)
+            Scanner coordinates in mm.
+
+        Returns
+        -------
+        ndarray, shape (n, 2)
+            Pixel coordinates (column c, row r) of their feet on the plane (fractional).
+        """
         d = np.asarray(points, dtype=float).reshape(-1, 3) - self.position
         return np.column_stack([_dot3(d, self.row_cosine) / self.pixel_spacing[1],
                                 _dot3(d, self.column_cosine) / self.pixel_spacing[0]])
 
     def distance_to_plane(self, points: np.ndarray) -> np.ndarray:
-        """Signed distance (mm) of (n, 3) scanner points from the image plane."""
+        """Signed distance (mm) of (n, 3) scanner points from the image plane.
+
+        Parameters
+        ----------
+        points : ndarray, shape (n, 3)
+            Scanner coordinates in mm.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            Signed distance along :attr:`normal`, in mm.
+        """
         return _dot3(np.asarray(points, dtype=float).reshape(-1, 3) - self.position, self.normal)
 
     def same_geometry(self, other: "ImagePlane", tol: float = 1e-6) -> bool:
-        """True when both planes share position, orientation and spacing."""
+        """True when both planes share position, orientation and spacing.
+
+        Parameters
+        ----------
+        other : ImagePlane
+            The plane to compare with.
+        tol : float, optional
+            Largest difference allowed per coordinate (mm, cosine, mm for spacing).
+
+        Returns
+        -------
+        bool
+            Whether position, orientation and pixel spacing agree within ``tol``.
+        """
         return (np.allclose(self.position, other.position, atol=tol)
                 and np.allclose(self.orientation, other.orientation, atol=tol)
                 and np.allclose(self.pixel_spacing, other.pixel_spacing, atol=tol))
 
     def to_dict(self) -> dict:
-        """JSON-safe description (the native manifest's ``images`` entries)."""
+        """JSON-safe description (the native manifest's ``images`` entries).
+
+        Returns
+        -------
+        dict
+            ``id, slice, view, frame, position`` (mm), ``orientation`` (6 cosines),
+            ``pixel_spacing`` (mm), ``rows, columns, thickness`` (mm) and, when set,
+            ``trigger_time`` (ms) and ``file``.
+        """
         d = {
             "id": self.id, "slice": self.slice, "view": self.view, "frame": self.frame,
             "position": [float(x) for x in self.position],
@@ -188,7 +251,23 @@ class ImagePlane:
 
     @classmethod
     def from_dict(cls, d: dict) -> "ImagePlane":
-        """Inverse of :meth:`to_dict`."""
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        d : dict
+            A :meth:`to_dict` mapping (``rows``, ``columns``, ``thickness`` optional).
+
+        Returns
+        -------
+        ImagePlane
+            The plane, validated.
+
+        Raises
+        ------
+        cardionurbs.errors.StudyError
+            ``orientation`` is not 6 numbers, or a value fails the plane's checks.
+        """
         ori = np.asarray(d["orientation"], dtype=float)
         if ori.shape != (6,):
             raise StudyError("orientation must be 6 numbers", slice=d.get("slice"),

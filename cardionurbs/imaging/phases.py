@@ -41,6 +41,8 @@ def phase_indices(trigger_times_ms: Sequence[float], n_phases: int | None = None
         CardiacNumberOfImages N (phases per R-R interval).
     rr_ms : float, optional
         R-R interval, ms (NominalInterval, or 60000 / HeartRate).
+    slice : object, optional
+        The slice id, for the messages.
 
     Returns
     -------
@@ -77,7 +79,20 @@ def phase_indices(trigger_times_ms: Sequence[float], n_phases: int | None = None
 
 def rr_interval_ms(heart_rate_bpm: float | None = None,
                    nominal_interval_ms: float | None = None) -> float | None:
-    """R-R interval in ms: NominalInterval when given, else 60000 / HeartRate."""
+    """R-R interval in ms: NominalInterval when given, else 60000 / HeartRate.
+
+    Parameters
+    ----------
+    heart_rate_bpm : float or None, optional
+        HeartRate (0018,1088), in beats/min.
+    nominal_interval_ms : float or None, optional
+        NominalInterval (0018,1062), in ms.
+
+    Returns
+    -------
+    float or None
+        The R-R interval in ms; None when neither value is given and > 0.
+    """
     if nominal_interval_ms is not None and nominal_interval_ms > 0:
         return float(nominal_interval_ms)
     if heart_rate_bpm is not None and heart_rate_bpm > 0:
@@ -92,6 +107,18 @@ def heart_rate_bpm(heart_rates: Sequence[float | None],
 
     Zero or missing values (scanners write 0 when they do not know) are ignored, and so
     are implausible ones (outside 20-300 bpm, or a NominalInterval giving such a rate).
+
+    Parameters
+    ----------
+    heart_rates : sequence of float or None
+        HeartRate of every image, in beats/min (None where absent).
+    nominal_intervals_ms : sequence of float or None, optional
+        NominalInterval of every image, in ms (None where absent).
+
+    Returns
+    -------
+    float or None
+        The heart rate in beats/min, None when no plausible value is given.
     """
     lo, hi = HEART_RATE_RANGE_BPM
     hr = np.array([h for h in heart_rates if h is not None], dtype=float)

@@ -46,6 +46,18 @@ def group_parallel(normals: np.ndarray, max_angle_deg: float) -> np.ndarray:
     Greedy: each normal joins the first group whose first member is within
     ``max_angle_deg`` of it (|cos| test), else starts a new group. Labels are
     numbered in order of first appearance.
+
+    Parameters
+    ----------
+    normals : ndarray, shape (n, 3)
+        Unit slice-plane normals.
+    max_angle_deg : float
+        Largest angle between parallel normals, in degrees.
+
+    Returns
+    -------
+    ndarray of int, shape (n,)
+        Group label of each normal, 0, 1, ... in order of first appearance.
     """
     normals = np.asarray(normals, float).reshape(-1, 3)
     cos_tol = np.cos(np.deg2rad(max_angle_deg))
@@ -63,7 +75,20 @@ def group_parallel(normals: np.ndarray, max_angle_deg: float) -> np.ndarray:
 
 
 def split_stack(normals: np.ndarray, stack_angle_deg: float = 20.0) -> np.ndarray:
-    """Boolean (n,) mask of the slices forming the SA stack (see module docstring)."""
+    """Boolean (n,) mask of the slices forming the SA stack (see module docstring).
+
+    Parameters
+    ----------
+    normals : ndarray, shape (n, 3)
+        Unit slice-plane normals, one per slice.
+    stack_angle_deg : float, optional
+        Largest angle between the normals of one stack, in degrees (default 20).
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+        True for the SA slices (all False when no two slices are parallel).
+    """
     normals = np.asarray(normals, float).reshape(-1, 3)
     if len(normals) == 0:
         return np.zeros(0, dtype=bool)
@@ -82,6 +107,24 @@ def base_to_apex_direction(normal: np.ndarray, centers: np.ndarray, *,
 
     Returns ``(u, rule)`` with ``rule`` one of ``"apex landmark"``,
     ``"mitral landmarks"``, ``"LPS prior"`` (see module docstring).
+
+    Parameters
+    ----------
+    normal : ndarray, shape (3,)
+        The stack normal (either sign, any length but 0).
+    centers : ndarray, shape (k, 3)
+        The SA slice centres, in mm (scanner coordinates).
+    apex : ndarray, shape (3,), optional
+        An LV apex landmark, in mm.
+    mitral : ndarray, shape (m, 3), optional
+        Mitral valve landmarks, in mm.
+
+    Returns
+    -------
+    u : ndarray, shape (3,)
+        The unit stack normal pointing from base to apex.
+    rule : str
+        ``"apex landmark"``, ``"mitral landmarks"`` or ``"LPS prior"``.
     """
     u = np.asarray(normal, float) / np.linalg.norm(normal)
     centre = np.asarray(centers, float).reshape(-1, 3).mean(axis=0)
@@ -176,7 +219,18 @@ def base_end_from_anatomy(lv: np.ndarray, myo: np.ndarray, rv: np.ndarray | None
 
 
 def describe_votes(votes: dict[str, int]) -> str:
-    """One line naming which end each anatomical cue puts the base at."""
+    """One line naming which end each anatomical cue puts the base at.
+
+    Parameters
+    ----------
+    votes : dict of str to int
+        Cue -> vote (+1, -1, 0), as :func:`base_end_from_anatomy` returns them.
+
+    Returns
+    -------
+    str
+        ``"<cue>: base at the first slice; ..."``.
+    """
     where = {1: "base at the first slice", -1: "base at the last slice", 0: "no say"}
     return "; ".join(f"{k}: {where[v]}" for k, v in votes.items())
 

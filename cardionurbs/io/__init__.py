@@ -26,6 +26,21 @@ def detect_format(path: str | Path) -> str:
     ``gpfile`` (GPFile_NNN.txt + SliceInfoFile.txt), ``sunnybrook``
     (``*contour-manual.txt`` files beside DICOM images), ``nifti`` (a ``.nii``/``.nii.gz``
     label map, or a folder in the ACDC, UK Biobank or M&Ms layout).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A study folder or a file in it.
+
+    Returns
+    -------
+    str
+        ``native``, ``gpfile``, ``sunnybrook`` or ``nifti``.
+
+    Raises
+    ------
+    StudyError
+        ``path`` does not exist, or no format's files are there (with a hint at what is).
     """
     from cardionurbs.io import native
 
@@ -76,25 +91,61 @@ def _extra_detectors():
 
 def load_study(path: str | Path, format: str = "auto", *, allow_outside: bool = False,
                labels=None, ed_frame: int | None = None, es_frame: int | None = None) -> Study:
-    """Read a study from ``path`` in ``format`` (``auto`` tells it from the files), then
-    check it (:func:`cardionurbs.io.checks.check_study`).
+    """Read a study from ``path`` in ``format``, then check it
+    (:func:`cardionurbs.io.checks.check_study`).
 
     ``phantom`` is a native study written by ``cardionurbs phantom`` (it reads
     the same way; ``truth.json`` beside it is not part of the Study). For a
     native study whose images name DICOM files that exist, the manifest's
     geometry is cross-checked against the DICOM headers.
 
-    Every file the study names must lie inside its folder (no absolute paths,
-    ``..`` or symbolic links leading out) unless ``allow_outside``
-    (:mod:`cardionurbs.confine`).
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The study folder, or a file in it (a ``study.json`` manifest, a ``.nii``/``.nii.gz``
+        label map).
+    format : {"auto", "native", "sunnybrook", "gpfile", "phantom", "nifti"}
+        The study format (docs/formats.md); ``auto`` tells it from the files
+        (:func:`detect_format`).
+    allow_outside : bool
+        Let the study name files outside its folder (absolute paths, ``..`` or symbolic
+        links leading out), refused by default (:mod:`cardionurbs.confine`).
+    labels : str, dict or None
+        NIfTI label maps only: a preset (``acdc``, ``ukbb``, ``mnms``, ``bivme``) or a
+        ``lv=…,myo=…,rv=…`` mapping of roles to label values; None takes the layout's preset,
+        or infers the roles from topology for a single file (:mod:`cardionurbs.io.labels`).
+    ed_frame, es_frame : int or None
+        NIfTI label maps only: the ED and ES frame indices (0-based); None reads them from
+        the layout's files, else the model's rule chooses.
 
-    Returns the Study with ``study.warnings`` (list of one-line
-    strings). Raises StudyError for unreadable or inconsistent input.
+    Returns
+    -------
+    Study
+        Geometry in scanner (patient LPS) mm, times in ms; ``study.warnings`` holds the
+        checks' one-line warnings (not printed: callers decide how to show them).
 
-    ``labels`` (NIfTI label maps only): a preset (``acdc``, ``ukbb``, ``mnms``,
-    ``bivme``) or a ``lv=…,myo=…,rv=…`` mapping; None takes the layout's preset, or
-    infers the roles from topology for a single file (see :mod:`cardionurbs.io.labels`).
-    ``ed_frame``/``es_frame`` (NIfTI only) give ED and ES frame indices (0-based).
+    Raises
+    ------
+    StudyError
+        Unreadable, unsafe or inconsistent input: one line naming the file, slice, frame and
+        field.
+
+    Examples
+    --------
+    A phantom study (known truth) written as a native study folder and read back:
+
+    >>> import pathlib, tempfile
+    >>> import cardionurbs as cn
+    >>> from cardionurbs.phantom import generate, write_phantom
+    >>> phantom = generate("normal", seed=1, frames=2, n_sa=6, matrix=128, volume_check=False)
+    >>> tmp = tempfile.TemporaryDirectory()
+    >>> folder = write_phantom(phantom, pathlib.Path(tmp.name) / "p1", dicom=False)
+    >>> study = cn.load_study(folder)
+    >>> study.subject, sorted(study.frames), study.ed_frame
+    ('normal_001', [0, 1], 0)
+    >>> sorted({c.structure for c in study.contours})[:3]
+    ['lv_endo', 'lv_epi', 'rv_endo']
+    >>> tmp.cleanup()
     """
     from cardionurbs.confine import allow_outside as _allow
     from cardionurbs.confine import study_root
@@ -125,8 +176,8 @@ def _load_study(path: str | Path, format: str, *, labels=None, ed_frame: int | N
         from cardionurbs.io.gpfile import read_study
         study = read_study(path)
     elif fmt == "nifti":
-        from cardionurbs.io.nifti import read_study
-        study = read_study(path, labels=labels, ed_frame=ed_frame, es_frame=es_frame)
+        from cardionurbs.io.nifti import read_study as read_nifti_study
+        study = read_nifti_study(path, labels=labels, ed_frame=ed_frame, es_frame=es_frame)
     else:  # pragma: no cover - FORMATS and this list agree
         raise StudyError(f"format {fmt!r} is not readable", file=path)
     study.warnings = (list(study.meta.pop("reader_warnings", [])) + list(study.warnings or [])

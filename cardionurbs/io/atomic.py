@@ -70,7 +70,20 @@ def _tree_files(folder: Path) -> list[str]:
 
 def read_marker(folder: str | os.PathLike) -> tuple[str | None, dict | None]:
     """(the marker's name, its manifest) of ``folder``: (None, None) without a marker, the
-    name and None for a marker without a readable manifest (an older cardionurbs)."""
+    name and None for a marker without a readable manifest (an older cardionurbs).
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        A folder that may hold a cardionurbs marker (:data:`MARKERS`).
+
+    Returns
+    -------
+    name : str or None
+        The marker's file name, None without one.
+    manifest : dict or None
+        Its manifest (``files``, ``trees``), None when absent or unreadable.
+    """
     import json
     for name in MARKERS:
         path = Path(folder) / name
@@ -88,7 +101,13 @@ _umask_lock = threading.Lock()
 
 
 def current_umask() -> int:
-    """The process umask (read without changing it on Linux, else set and restored)."""
+    """The process umask (read without changing it on Linux, else set and restored).
+
+    Returns
+    -------
+    int
+        The umask bits (e.g. ``0o022``).
+    """
     try:
         with open("/proc/self/status", encoding="ascii") as f:
             for line in f:
@@ -126,7 +145,18 @@ def remove_stale_temporaries(path: str | os.PathLike) -> list[Path]:
     ``.<name>.<pid>-*.tmp`` / ``.old`` siblings whose process is gone); temporary
     folders only when they hold the cardionurbs marker. When ``path`` itself is
     missing but a killed run left the previous output as ``.<name>.<pid>-*.old``,
-    that output is put back first. Returns what was removed."""
+    that output is put back first. Returns what was removed.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output path whose hidden siblings are examined.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The temporaries removed.
+    """
     path = Path(path)
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
@@ -163,7 +193,20 @@ def _chmod_umask(path: Path, base: int) -> None:
 def sibling_temporary_dir(path: str | os.PathLike, marker: str = MARKER) -> Path:
     """A new temporary folder beside ``path``, named and marked as :func:`atomic_dir`'s (so
     that :func:`remove_stale_temporaries` removes it when its process was killed); the
-    caller removes it, or renames it into place after deleting ``marker`` from it."""
+    caller removes it, or renames it into place after deleting ``marker`` from it.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output folder the temporary one is beside (``path`` need not exist).
+    marker : str
+        The marker file written into it (:data:`MARKER` or :data:`STUDY_MARKER`).
+
+    Returns
+    -------
+    pathlib.Path
+        The new, marked, empty folder.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=_prefix(path), suffix=".tmp", dir=path.parent))
@@ -182,6 +225,16 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
 
     On an exception (or an interrupt) the temporary file is removed and ``path``
     is untouched. The file gets the umask's permissions.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write.
+
+    Yields
+    ------
+    pathlib.Path
+        The temporary path to write to.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -198,14 +251,40 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:
-    """Atomically write UTF-8 text."""
+    """Atomically write UTF-8 text.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write (replaced whole, or untouched on failure).
+    text : str
+        Its content, written as UTF-8.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)
 
 
 def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Atomically write bytes."""
+    """Atomically write bytes.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file to write (replaced whole, or untouched on failure).
+    data : bytes
+        Its content.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     return Path(path)
@@ -240,6 +319,19 @@ def atomic_dir(path: str | os.PathLike, marker: str = MARKER) -> Iterator[Path]:
     files written (:func:`write_marker`), which is all ``--overwrite`` may replace. An existing ``path`` is swapped with the new content in one atomic
     step where the system allows (Linux ``renameat2``), else renamed aside just
     before; callers check ``path`` first (:func:`cardionurbs.io.outputs.check_output_dir`).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output folder.
+    marker : str
+        The marker written into it: :data:`MARKER` (outputs) or :data:`STUDY_MARKER` (a
+        generated study).
+
+    Yields
+    ------
+    pathlib.Path
+        The temporary folder to write into.
     """
     path = Path(path)
     tmp = sibling_temporary_dir(path, marker)

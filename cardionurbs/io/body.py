@@ -35,7 +35,25 @@ _AGE_UNITS = {"Y": 1.0, "M": 1 / 12, "W": 7 / 365.25, "D": 1 / 365.25}
 
 def clean_value(field: str, value) -> float | str | None:
     """``value`` as the field's number (str for ``sex``: ``"M"``/``"F"``); None when absent
-    or unknown (``""``, ``"O"``); ValueError naming the field when implausible."""
+    or unknown (``""``, ``"O"``); ValueError naming the field when implausible.
+
+    Parameters
+    ----------
+    field : {"height_cm", "weight_kg", "age_y", "sex"}
+        The field (:data:`FIELDS`).
+    value : object
+        The raw value (number or text).
+
+    Returns
+    -------
+    float, str or None
+        cm, kg or years; ``"M"``/``"F"`` for ``sex``; None when absent or unknown.
+
+    Raises
+    ------
+    ValueError
+        An implausible value (naming the field).
+    """
     if value is None or (isinstance(value, str) and not value.strip()):
         return None
     if field == "sex":
@@ -85,7 +103,20 @@ def _manifest_values(meta: Mapping) -> dict:
 
 def mnms_values(folder: Path, code: str) -> dict:
     """Age, sex, height and weight of M&Ms subject ``code`` from a CSV beside its folder
-    ({} when there is none)."""
+    ({} when there is none).
+
+    Parameters
+    ----------
+    folder : pathlib.Path
+        The subject's folder.
+    code : str
+        The subject's M&Ms code.
+
+    Returns
+    -------
+    dict
+        Field (:data:`FIELDS`) -> raw value found.
+    """
     keys = {"age": "age_y", "sex": "sex", "height": "height_cm", "weight": "weight_kg"}
     for d in (folder, folder.parent):
         for q in sorted(d.glob("*.csv")):
@@ -101,7 +132,18 @@ def mnms_values(folder: Path, code: str) -> dict:
 
 
 def dicom_values(path: str | Path) -> dict:
-    """Height (cm), weight, age and sex from one DICOM header ({} when unreadable)."""
+    """Height (cm), weight, age and sex from one DICOM header ({} when unreadable).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A DICOM file.
+
+    Returns
+    -------
+    dict
+        Field (:data:`FIELDS`) -> value: cm, kg, years, ``"M"``/``"F"``.
+    """
     import pydicom
     try:
         ds = pydicom.dcmread(str(path), stop_before_pixels=True, force=True)
@@ -136,7 +178,26 @@ def _first_dicom(study) -> Path | None:
 def attach_body(study, given: Mapping | None = None) -> dict:
     """Fill ``study.meta["body"]`` (see the module docstring) and return it; warnings about
     left-out values are appended to ``study.warnings``. ``given``: the user's values
-    (field -> value or None), refused with UsageError when implausible."""
+    (field -> value or None), refused with UsageError when implausible.
+
+    Parameters
+    ----------
+    study : Study
+        The study; ``meta["body"]`` and ``warnings`` are filled in place.
+    given : mapping or None
+        The user's values, field (:data:`FIELDS`) -> value or None.
+
+    Returns
+    -------
+    dict
+        ``study.meta["body"]``: the four fields (cm, kg, years, sex; None where unknown) and
+        ``source``: field -> where it came from.
+
+    Raises
+    ------
+    UsageError
+        An implausible user-given value.
+    """
     body: dict = {f: None for f in FIELDS}
     body["source"] = {}
     for field, value in (given or {}).items():

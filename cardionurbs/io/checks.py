@@ -57,7 +57,20 @@ GAP_FACTOR = 1.5
 # --------------------------------------------------------------------- geometry
 def in_plane_coordinates(points: np.ndarray, plane: ImagePlane | None = None) -> np.ndarray:
     """(n, 2) coordinates of (n, 3) points in the image plane (mm along row and column
-    cosines); without a plane, in the best-fit plane (SVD)."""
+    cosines); without a plane, in the best-fit plane (SVD).
+
+    Parameters
+    ----------
+    points : (n, 3) ndarray
+        Scanner points, mm.
+    plane : ImagePlane or None
+        The image plane; None: the points' best-fit plane.
+
+    Returns
+    -------
+    (n, 2) ndarray
+        mm.
+    """
     p = np.asarray(points, float).reshape(-1, 3)
     if plane is not None:
         d = p - plane.position
@@ -86,6 +99,20 @@ def self_intersections(xy: np.ndarray, closed: bool, first: bool = False) -> np.
     vectorised chunks of at most ``_PAIR_CHUNK`` pairs, so memory stays
     O(n + chunk) and time O(n log n + k) for k candidate pairs along that
     direction (measured in reports/limits.md).
+
+    Parameters
+    ----------
+    xy : (n, 2) ndarray
+        The polyline's points (mm or pixels).
+    closed : bool
+        Whether the last point joins the first.
+    first : bool
+        Stop at the first pair found.
+
+    Returns
+    -------
+    (k, 2) ndarray of int
+        Index pairs (i, j), i < j, into the de-duplicated polyline.
     """
     xy = np.asarray(xy, float).reshape(-1, 2)
     keep_pt = np.r_[True, np.any(np.diff(xy, axis=0) != 0, axis=1)]
@@ -184,7 +211,19 @@ def known_simple(curves: list[np.ndarray], closed: list[bool]) -> np.ndarray:
     :func:`_angularly_monotone`, then for the rest every pair of non-adjacent segments
     whose bounding boxes overlap through the predicate of :func:`_segments_meet` (with
     each curve's own tolerance), in blocks -- what the per-curve sweep does, without a
-    numpy call per curve (a study holds hundreds of contours of a few dozen points)."""
+    numpy call per curve (a study holds hundreds of contours of a few dozen points).
+
+    Parameters
+    ----------
+    curves : list of (n, 2) ndarray
+        2-D polylines.
+    closed : list of bool
+        Whether each is closed.
+
+    Returns
+    -------
+    (len(curves),) ndarray of bool
+    """
     out = np.zeros(len(curves), dtype=bool)
     dedup = [_deduplicated(c, cl) for c, cl in zip(curves, closed)]
     groups: dict[tuple[int, bool], list[int]] = defaultdict(list)
@@ -233,7 +272,7 @@ def _overlapping_extents(a: np.ndarray, b: np.ndarray):
     """Yield chunks (i, j), i < j, of segment pairs a->b whose extents overlap along the
     sweep direction with the fewest such pairs and whose bounding boxes overlap."""
     m = len(a)
-    best = None
+    best: tuple[int, np.ndarray, np.ndarray] | None = None
     for u in _SWEEP_DIRECTIONS:
         pa, pb = a @ u, b @ u
         lo, hi = np.minimum(pa, pb), np.maximum(pa, pb)
@@ -247,6 +286,7 @@ def _overlapping_extents(a: np.ndarray, b: np.ndarray):
         total = int(counts.sum())
         if best is None or total < best[0]:
             best = (total, order, counts)
+    assert best is not None                     # _SWEEP_DIRECTIONS is not empty
     _, order, counts = best
     blo, bhi = np.minimum(a, b), np.maximum(a, b)
     csum = np.cumsum(counts)
@@ -288,7 +328,23 @@ def _angularly_monotone(xy: np.ndarray, closed: bool) -> bool:
 # ----------------------------------------------------------------------- checks
 def check_study(study: Study) -> list[str]:
     """Check ``study`` (see module docstring): raise StudyError on the first fatal
-    problem, else return the warnings, one line each."""
+    problem, else return the warnings, one line each.
+
+    Parameters
+    ----------
+    study : Study
+        A study just read.
+
+    Returns
+    -------
+    list of str
+        The warnings.
+
+    Raises
+    ------
+    StudyError
+        The first fatal problem (naming file, slice, frame and field).
+    """
     warnings: list[str] = []
     check_bounds(study)
     planes = _check_images(study, warnings)
@@ -304,7 +360,20 @@ def check_bounds(study: Study) -> None:
     text of at most MAX_NAME_LENGTH characters; at most MAX_IMAGES images, frame indices
     0..MAX_FRAMES-1, MAX_CONTOURS_PER_STUDY contours (and tag lines), MAX_POINTS_PER_CONTOUR
     points per contour or tag line, MAX_POINTS_PER_STUDY points in all. Raises LimitError /
-    StudyError naming the file, slice, frame and field."""
+    StudyError naming the file, slice, frame and field.
+
+    Parameters
+    ----------
+    study : Study
+        A study just read.
+
+    Raises
+    ------
+    LimitError
+        A documented limit exceeded.
+    StudyError
+        A name that is not safe printable text.
+    """
     src = study.source
     try:
         check_name(study.subject, "subject")
@@ -602,7 +671,20 @@ def input_ed_es_frames(study: Study) -> tuple[int | None, int | None, str]:
     """ED and ES frames *for the input checks*: the input's labels, else estimated as the
     frames of largest and smallest summed SA ``lv_endo`` area (a volume proxy); and how
     they were found. The metrics use the model's rule instead
-    (:func:`cardionurbs.anatomy.model.ed_es_frames`, docs/metrics.md, Frames)."""
+    (:func:`cardionurbs.anatomy.model.ed_es_frames`, docs/metrics.md, Frames).
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+
+    Returns
+    -------
+    ed, es : int or None
+        The frames (None without labels or SA ``lv_endo`` contours).
+    how : str
+        ``labelled``, ``estimated from SA lv_endo areas`` or ``unknown``.
+    """
     ed, es = study.ed_frame, study.es_frame
     if ed is not None and es is not None:
         return ed, es, "labelled"
@@ -633,10 +715,10 @@ def _check_frames(study: Study, warnings: list[str]) -> None:
         if frame not in present[("lv_endo", "SA")] | present[("lv_endo", "LA")]:
             raise StudyError(f"no lv_endo contour at the {label} frame the input labels",
                              file=study.source, frame=frame)
-        for (structure, view), frames in sorted(present.items()):
-            if frame not in frames and structure != "lv_endo":
+        for (structure, view), seen in sorted(present.items()):
+            if frame not in seen and structure != "lv_endo":
                 warnings.append(f"{study.source}: frame {frame}: {structure} ({view}) is missing "
-                                f"at {label} ({how}) but present at frame(s) {_short_list(sorted(frames))}")
+                                f"at {label} ({how}) but present at frame(s) {_short_list(sorted(seen))}")
     frames = sorted({im.frame for im in study.images} | {c.frame for c in study.contours})
     timed = [f for f in frames if f in study.frame_times_ms]
     if timed and len(timed) < len(frames):

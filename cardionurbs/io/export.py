@@ -27,7 +27,23 @@ MESH_FORMATS = ("stl", "ply", "obj", "glb")
 
 
 def mesh_format(path: str | os.PathLike) -> str:
-    """The mesh format of ``path`` from its extension (ExportError if unsupported)."""
+    """The mesh format of ``path`` from its extension (ExportError if unsupported).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A mesh file name.
+
+    Returns
+    -------
+    str
+        One of :data:`MESH_FORMATS` (``stl``, ``ply``, ``obj``, ``glb``).
+
+    Raises
+    ------
+    ExportError
+        Another extension.
+    """
     ext = Path(path).suffix.lower().lstrip(".")
     if ext not in MESH_FORMATS:
         raise ExportError(f"{path}: unsupported mesh format {ext!r}; expected one of "
@@ -36,7 +52,26 @@ def mesh_format(path: str | os.PathLike) -> str:
 
 
 def export_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike) -> Path:
-    """Write one mesh (scanner mm) to ``path`` in the format its extension names."""
+    """Write one mesh (scanner mm) to ``path`` in the format its extension names.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        A triangle mesh, scanner mm; written in :func:`canonical_order` (the same bytes
+        whatever the order it was built in).
+    path : str or os.PathLike
+        The file; its extension names the format (:func:`mesh_format`).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    ExportError
+        An unsupported extension.
+    """
     fmt = mesh_format(path)
     import trimesh as _tm
     v, f = canonical_order(np.asarray(mesh.vertices), np.asarray(mesh.faces))
@@ -44,6 +79,7 @@ def export_mesh(mesh: trimesh.Trimesh, path: str | os.PathLike) -> Path:
     data = mesh.export(file_type=fmt)
     if isinstance(data, str):
         data = data.encode("utf-8")
+    assert isinstance(data, bytes)                  # every MESH_FORMATS format is one file
     return atomic.write_bytes(path, data)
 
 
@@ -105,7 +141,22 @@ def write_ply(vertices, faces, path: str | os.PathLike) -> Path:
 
     ``analyze`` writes every frame's meshes this way straight from the manifold3d arrays
     (:func:`cardionurbs.anatomy.mesh.mesh_arrays`): importing trimesh only to serialise
-    them costs about 0.4 s and 20 MB per study, more than writing all of them."""
+    them costs about 0.4 s and 20 MB per study, more than writing all of them.
+
+    Parameters
+    ----------
+    vertices : (V, 3) array_like of float
+        Vertex coordinates, mm.
+    faces : (F, 3) array_like of int
+        Vertex indices of each triangle.
+    path : str or os.PathLike
+        The ``.ply`` file.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     v = np.asarray(vertices, dtype="<f4").reshape(-1, 3)
     f = np.asarray(faces).reshape(-1, 3)
     if len(f) and (f.min() < 0 or f.max() >= len(v)):
@@ -126,7 +177,18 @@ def table_csv(columns: dict) -> str:
     line, ``\\n`` line ends, minimal quoting (the csv module's rules, pandas' too); text
     cells through :func:`cardionurbs.safe.csv_cell` (no spreadsheet formulas); floats in
     numpy's shortest round-trip form (``str``), NaN and None as empty cells; integers as
-    they are."""
+    they are.
+
+    Parameters
+    ----------
+    columns : dict of str to sequence
+        Column name -> its cells, all of one length.
+
+    Returns
+    -------
+    str
+        The CSV text.
+    """
     import csv
     import io
 
@@ -177,7 +239,22 @@ def write_json(obj, path: str | os.PathLike, indent: int | None = 1) -> Path:
 
     ``indent=None`` writes compact JSON through the C encoder (large files such as
     model.json: several times faster). Values without NaN or infinity are encoded as
-    they are; otherwise every value goes through :func:`_json_safe` first."""
+    they are; otherwise every value goes through :func:`_json_safe` first.
+
+    Parameters
+    ----------
+    obj : object
+        JSON-serialisable data (numpy scalars and arrays included).
+    path : str or os.PathLike
+        The file to write.
+    indent : int or None
+        Indentation; None: compact.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     try:
         text = json.dumps(obj, indent=indent, allow_nan=False, default=_plain)
     except (ValueError, TypeError):
@@ -188,7 +265,22 @@ def write_json(obj, path: str | os.PathLike, indent: int | None = 1) -> Path:
 def export_model_3dm(model, path: str | os.PathLike, frame: int | None = None) -> Path:
     """Write one frame's NURBS surfaces (frame defaults to ED) as a Rhino .3dm file,
     atomically, through :func:`cardionurbs.nurbs.write_3dm` (needs the ``cad`` extra,
-    rhino3dm). Objects are named ``<surface>_frame<N>``."""
+    rhino3dm). Objects are named ``<surface>_frame<N>``.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The reconstructed model.
+    path : str or os.PathLike
+        The ``.3dm`` file.
+    frame : int or None
+        The frame; None: ED.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     frame = model.ed_frame if frame is None else frame
     surfaces = model.surfaces[frame]
     try:

@@ -85,7 +85,7 @@ import io
 import re
 from collections import Counter
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -140,7 +140,17 @@ SEPTUM_TOL_MM = 0.5
 
 
 def detect(path: str | Path) -> bool:
-    """True when ``path`` is a folder (or a file in one) with GPFile_*.txt and SliceInfoFile.txt."""
+    """True when ``path`` is a folder (or a file in one) with GPFile_*.txt and SliceInfoFile.txt.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A file or folder.
+
+    Returns
+    -------
+    bool
+    """
     p = Path(path)
     folder = p if p.is_dir() else p.parent
     return (folder / SLICE_INFO).is_file() and any(GP_FILE.match(q.name) for q in folder.iterdir())
@@ -174,6 +184,21 @@ def read_slice_info(path: str | Path) -> list[dict]:
     (first-listed order): file, id, line, position, orientation, pixel_spacing, the numbers
     as written (``tokens``) and ``entries`` [(line, time frame or None, image token)].
     The style (label, separator, line order) is on the first dict's ``style``.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The SliceInfoFile.txt.
+
+    Returns
+    -------
+    list of dict
+        As above (positions mm).
+
+    Raises
+    ------
+    StudyError
+        A missing file, field or number, or one slice listed with two geometries.
     """
     path = Path(path)
     if not path.is_file():
@@ -192,7 +217,7 @@ def read_slice_info(path: str | Path) -> list[dict]:
         raw = next(t for t in line.split(sep) if t.strip() == label) if sep == "\t" else label
         labels.append(raw)
         seps.append(sep)
-        rec = {"file": tok[0], "line": k}
+        rec: dict[str, Any] = {"file": tok[0], "line": k}
         for key, n in ((label, 1), ("ImagePositionPatient", 3),
                        ("ImageOrientationPatient", 6), ("PixelSpacing", 2)):
             name = "sliceID" if key in SLICE_LABELS else key
@@ -289,7 +314,27 @@ def read_gp_table(path: str | Path) -> tuple[dict[str, np.ndarray], str, int | N
 
     A plain file (ASCII, tab-separated, 7 fields on every line, every number an ordinary
     decimal) is split and converted by numpy (:func:`_plain_rows`); any other is read by
-    pandas, whose reader and messages define what is accepted and how it is reported."""
+    pandas, whose reader and messages define what is accepted and how it is reported.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A GPFile_NNN.txt.
+
+    Returns
+    -------
+    columns : dict of str to ndarray
+        The columns above.
+    header : str
+        The header line.
+    decimals : int or None
+        The fixed decimals of x y z.
+
+    Raises
+    ------
+    StudyError
+        A bad value (naming file and line).
+    """
     path = checked(path, what="GPFile")
     try:
         text = path.read_text(encoding="utf-8")
@@ -431,7 +476,23 @@ def read_study(path: str | Path) -> Study:
 
     EXCLUDED guide points are dropped; atrial, venous and extent traces are kept as
     non-ventricular contours (one warning counts them); the weight column becomes each
-    contour's point weights (``Contour.weights``)."""
+    contour's point weights (``Contour.weights``).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The GPFile folder, or a file in it.
+
+    Returns
+    -------
+    Study
+        Scanner mm.
+
+    Raises
+    ------
+    StudyError
+        A missing or bad file, or points on no slice plane (naming file, line and field).
+    """
     p = Path(path)
     folder = p if p.is_dir() else p.parent
     files = _gp_files(folder)
@@ -569,7 +630,19 @@ def is_loop(points: np.ndarray, gap_steps: float = LOOP_GAP_STEPS) -> bool:
     """True when an ordered trace closes on itself: it has >= 5 points, its ends are no
     farther apart than ``gap_steps`` times its median point spacing and than a quarter
     of its extent, no step along it is longer than that either (an open arc written from
-    its middle jumps between its ends), and closing it does not make it cross itself."""
+    its middle jumps between its ends), and closing it does not make it cross itself.
+
+    Parameters
+    ----------
+    points : (n, 3) ndarray
+        An ordered trace, mm.
+    gap_steps : float
+        The closing gap allowed, in median point spacings.
+
+    Returns
+    -------
+    bool
+    """
     if len(points) < 5:
         return False
     step = np.linalg.norm(np.diff(points, axis=0), axis=1)
@@ -597,7 +670,7 @@ def _placed(pts: np.ndarray, sid: int, gp_type: str, planes: dict, names: dict, 
     placed = sid
     if off(sid) > ON_PLANE_MM:
         dist = {i: off(i) for i in planes}
-        placed = min(dist, key=dist.get)
+        placed = min(dist, key=dist.__getitem__)
         if dist[placed] > ON_PLANE_MM:
             raise StudyError(f"{where}: {gp_type} points lie on no slice plane of {SLICE_INFO} "
                              f"({off(sid):.1f} mm from slice {sid}, their frameID; nearest plane "
@@ -614,7 +687,7 @@ def _placed(pts: np.ndarray, sid: int, gp_type: str, planes: dict, names: dict, 
 
 
 def _read_blocks(t: dict[str, np.ndarray], frame: int, f: Path, names: dict, views: dict,
-                 contours: list, landmarks: list, planes: dict | None = None,
+                 contours: list, landmarks: list, planes: dict[int, ImagePlane],
                  warnings: list[str] | None = None):
     """Contours and landmarks of one frame's rows (:func:`read_gp_table`), in file order;
     the block order and the (weight, time frame) runs for write-back. A contour's slice
@@ -682,7 +755,7 @@ def _read_blocks(t: dict[str, np.ndarray], frame: int, f: Path, names: dict, vie
             raise StudyError(f"line {lines[s]}: {exc}", file=f) from None
     wt = t["weight"]
     tm = t["time"]
-    runs = []
+    runs: list[list[Any]] = []                      # [count, weight, time frame]
     for w, tt in zip(wt, tm):
         if runs and runs[-1][1] == w and runs[-1][2] == tt:
             runs[-1][0] += 1
@@ -695,7 +768,22 @@ def check_gp_values(t: dict[str, np.ndarray], path: Path, last_frame: int) -> No
     """Values in range, before any arithmetic: |x|, |y|, |z| within
     :data:`cardionurbs.limits.MAX_COORDINATE_MM`, and each ``time frame`` (when given) a
     whole number from 0 to ``last_frame + 1`` (1-based exports). StudyError names the line
-    with a short excerpt of the value."""
+    with a short excerpt of the value.
+
+    Parameters
+    ----------
+    t : dict of str to ndarray
+        The file's columns (:func:`read_gp_table`).
+    path : pathlib.Path
+        The file, for the messages.
+    last_frame : int
+        The study's last frame index.
+
+    Raises
+    ------
+    StudyError
+        A value out of range.
+    """
     from cardionurbs.limits import MAX_COORDINATE_MM
     for col in ("x", "y", "z"):
         far = np.abs(np.asarray(t[col], float)) > MAX_COORDINATE_MM
@@ -870,9 +958,10 @@ def _slice_numbering(study: Study, gp: dict):
 
 def _tokens_plane(tok: dict, like: ImagePlane) -> ImagePlane:
     ori = np.array([float(v) for v in tok["orientation"]])
+    row, column = (float(v) for v in tok["pixel_spacing"])
     return ImagePlane(id="t", slice=like.slice, view=like.view, frame=0,
-                      position=[float(v) for v in tok["position"]], row_cosine=ori[:3],
-                      column_cosine=ori[3:], pixel_spacing=[float(v) for v in tok["pixel_spacing"]])
+                      position=np.array([float(v) for v in tok["position"]]), row_cosine=ori[:3],
+                      column_cosine=ori[3:], pixel_spacing=(row, column))
 
 
 def _static_planes(study: Study) -> dict[str, ImagePlane]:
@@ -926,7 +1015,7 @@ def _frame_rows(study: Study, frame: int, fm: dict | None, slice_ids: dict, plan
 
 def _nearest_slice(study: Study, lm: Landmark, planes: dict) -> str:
     d = {s: abs(float(p.distance_to_plane(lm.point)[0])) for s, p in planes.items()}
-    return min(d, key=d.get)
+    return min(d, key=d.__getitem__)
 
 
 def _split_rv_endo(study: Study, c: Contour, slice_ids: dict):

@@ -35,7 +35,22 @@ ROLES = ("lv", "myo", "rv", "rv_myo", "la", "ra")
 
 @dataclass(frozen=True)
 class LabelRoles:
-    """Label value of each structure (None where the convention has none)."""
+    """Label value of each structure (None where the convention has none).
+
+    Attributes
+    ----------
+    lv, myo : int
+        The label values of the LV cavity and the LV myocardium.
+    rv, rv_myo, la, ra : int or None
+        Those of the RV cavity, the RV myocardium and the atria (None: not labelled).
+    name : str
+        The convention's name (a preset's, or ``mapping``).
+
+    Raises
+    ------
+    StudyError
+        One label value given two roles.
+    """
 
     lv: int
     myo: int
@@ -55,11 +70,21 @@ class LabelRoles:
                              "(0 is background)", field="labels")
 
     def values(self) -> dict[str, int]:
-        """Role -> label value, for the roles this convention has."""
+        """Role -> label value, for the roles this convention has.
+
+        Returns
+        -------
+        dict of str to int
+        """
         return {r: getattr(self, r) for r in ROLES if getattr(self, r) is not None}
 
     def describe(self) -> str:
-        """``acdc (lv=3, myo=2, rv=1)``: the name and the mapping, for messages."""
+        """``acdc (lv=3, myo=2, rv=1)``: the name and the mapping, for messages.
+
+        Returns
+        -------
+        str
+        """
         return f"{self.name} (" + ", ".join(f"{r}={v}" for r, v in self.values().items()) + ")"
 
 
@@ -72,7 +97,23 @@ PRESETS: dict[str, LabelRoles] = {
 
 
 def parse_labels(spec: "str | LabelRoles | None") -> LabelRoles | None:
-    """A preset name, an explicit ``lv=…,myo=…,rv=…`` mapping, a LabelRoles, or None (infer)."""
+    """A preset name, an explicit ``lv=…,myo=…,rv=…`` mapping, a LabelRoles, or None (infer).
+
+    Parameters
+    ----------
+    spec : str, LabelRoles or None
+        ``acdc``, ``ukbb``, ``mnms``, ``bivme``, or ``lv=3,myo=2,rv=1``-style text.
+
+    Returns
+    -------
+    LabelRoles or None
+        None: infer the roles from the map (:func:`infer_roles`).
+
+    Raises
+    ------
+    StudyError
+        An unknown preset or a malformed mapping.
+    """
     if spec is None or isinstance(spec, LabelRoles):
         return spec
     text = str(spec).strip()
@@ -97,7 +138,22 @@ def parse_labels(spec: "str | LabelRoles | None") -> LabelRoles | None:
 
 
 def check_values(present: set[int], roles: LabelRoles, where: str) -> None:
-    """StudyError when the map holds a label the convention does not name."""
+    """StudyError when the map holds a label the convention does not name.
+
+    Parameters
+    ----------
+    present : set of int
+        The label values in the map (0, background, allowed).
+    roles : LabelRoles
+        The convention.
+    where : str
+        The file, for the message.
+
+    Raises
+    ------
+    StudyError
+        A label value the convention does not name.
+    """
     extra = sorted(present - set(roles.values().values()) - {0})
     if extra:
         raise StudyError(f"label {extra[0]} is not in the label convention {roles.describe()}",

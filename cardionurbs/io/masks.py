@@ -55,7 +55,21 @@ GAP_PX = 4                # free-wall gaps shorter than this within the septum a
 
 @dataclass
 class SliceContours:
-    """Contours of one 2-D label image, pixel coordinates (c, r)."""
+    """Contours of one 2-D label image, pixel coordinates (c, r).
+
+    Attributes
+    ----------
+    closed : dict of str to (n, 2) ndarray
+        Structure -> its closed loop (first point not repeated), pixels (c, r).
+    open : dict of str to list of (n, 2) ndarray
+        Structure -> its open traces (RV septum and free wall, LA contours), pixels.
+    landmarks : dict of str to (k, 2) ndarray
+        Landmark name -> its points, pixels.
+    skipped : list of str
+        Structures present in the labels but not contoured (too small, not a ring).
+    notes : list of str
+        One-line notes on what was left out and why.
+    """
 
     closed: dict[str, np.ndarray] = field(default_factory=dict)
     open: dict[str, list[np.ndarray]] = field(default_factory=dict)
@@ -65,7 +79,22 @@ class SliceContours:
 
 
 def largest_component(mask: np.ndarray) -> tuple[np.ndarray, int, int]:
-    """(largest 8-connected part, number of other parts, their pixels)."""
+    """(largest 8-connected part, number of other parts, their pixels).
+
+    Parameters
+    ----------
+    mask : (H, W) ndarray of bool
+        A binary image.
+
+    Returns
+    -------
+    part : (H, W) ndarray of bool
+        Its largest 8-connected component.
+    others : int
+        The number of other components.
+    other_pixels : int
+        Their pixel count.
+    """
     lab, n = ndimage.label(mask, structure=np.ones((3, 3), bool))
     if n <= 1:
         return mask, 0, 0
@@ -77,7 +106,17 @@ def largest_component(mask: np.ndarray) -> tuple[np.ndarray, int, int]:
 def fill_holes(mask: np.ndarray) -> np.ndarray:
     """The mask with its holes filled: background pixels not 4-connected to the image
     border become foreground (what :func:`scipy.ndimage.binary_fill_holes` does, by one
-    labelling pass instead of an iterated dilation)."""
+    labelling pass instead of an iterated dilation).
+
+    Parameters
+    ----------
+    mask : (H, W) ndarray of bool
+        A binary image.
+
+    Returns
+    -------
+    (H, W) ndarray of bool
+    """
     bg, n = ndimage.label(~mask)
     if n == 0:
         return mask.copy()
@@ -96,7 +135,20 @@ def _bbox(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def boundary_loop(mask: np.ndarray, sigma: float = SIGMA_PX) -> np.ndarray | None:
     """The outer boundary of a binary mask as one closed (n, 2) loop in pixels (c, r),
-    first point not repeated; None when the mask is empty or smaller than MIN_AREA_PX."""
+    first point not repeated; None when the mask is empty or smaller than MIN_AREA_PX.
+
+    Parameters
+    ----------
+    mask : (H, W) ndarray of bool
+        A binary image.
+    sigma : float
+        Gaussian smoothing of the mask before the iso-contour is traced, pixels.
+
+    Returns
+    -------
+    (n, 2) ndarray of float or None
+        The loop, pixels (c, r).
+    """
     if mask.sum() < MIN_AREA_PX:
         return None
     first, last = _bbox(mask)
@@ -123,7 +175,22 @@ def _area(xy: np.ndarray) -> float:
 
 def outside_labels(loop: np.ndarray, labels: np.ndarray, push_px: float = 0.75) -> np.ndarray:
     """Label of the pixel just outside each point of a closed loop (pushed along the
-    outward normal by ``push_px``; the loop encloses its mask)."""
+    outward normal by ``push_px``; the loop encloses its mask).
+
+    Parameters
+    ----------
+    loop : (n, 2) ndarray of float
+        A closed loop, pixels (c, r).
+    labels : (H, W) ndarray of int
+        The label image.
+    push_px : float
+        How far outside each point is looked at, pixels.
+
+    Returns
+    -------
+    (n,) ndarray of int
+        The label there (0 outside the image).
+    """
     p = np.asarray(loop, float)
     t = np.roll(p, -1, axis=0) - np.roll(p, 1, axis=0)
     nrm = np.column_stack([t[:, 1], -t[:, 0]])
@@ -158,7 +225,18 @@ def _runs(f: np.ndarray) -> list[tuple[int, int, bool]]:
 
 
 def cyclic_runs(flag: np.ndarray) -> list[np.ndarray]:
-    """Index arrays of the cyclic True runs of a boolean array (a run may wrap)."""
+    """Index arrays of the cyclic True runs of a boolean array (a run may wrap).
+
+    Parameters
+    ----------
+    flag : (n,) ndarray of bool
+        Flags along a closed loop.
+
+    Returns
+    -------
+    list of ndarray of int
+        The indices of each run, in loop order (a wrapping run continues past n - 1 at 0).
+    """
     if flag.all():
         return [np.arange(len(flag))]
     if not flag.any():
@@ -189,7 +267,21 @@ def _cropped(fn):
 
 @_cropped
 def sa_slice_contours(labels: np.ndarray, roles: LabelRoles, sigma: float = SIGMA_PX) -> SliceContours:
-    """Contours of one short-axis label image (see the module docstring)."""
+    """Contours of one short-axis label image (see the module docstring).
+
+    Parameters
+    ----------
+    labels : (H, W) ndarray of int
+        One short-axis label image.
+    roles : LabelRoles
+        Which label value is LV cavity, myocardium, RV (:mod:`cardionurbs.io.labels`).
+    sigma : float
+        Smoothing of each mask before its boundary is traced, pixels (:func:`boundary_loop`).
+
+    Returns
+    -------
+    SliceContours
+    """
     out = SliceContours()
     lv = labels == roles.lv
     myo = labels == roles.myo
@@ -281,7 +373,21 @@ def _open_part(loop: np.ndarray, keep: np.ndarray) -> np.ndarray | None:
 
 @_cropped
 def la_slice_contours(labels: np.ndarray, roles: LabelRoles, sigma: float = SIGMA_PX) -> SliceContours:
-    """Open contours of one long-axis label image (see the module docstring)."""
+    """Open contours of one long-axis label image (see the module docstring).
+
+    Parameters
+    ----------
+    labels : (H, W) ndarray of int
+        One long-axis label image.
+    roles : LabelRoles
+        Which label value is LV cavity, myocardium, RV (:mod:`cardionurbs.io.labels`).
+    sigma : float
+        Smoothing of each mask before its boundary is traced, pixels (:func:`boundary_loop`).
+
+    Returns
+    -------
+    SliceContours
+    """
     out = SliceContours()
     lv, myo = labels == roles.lv, labels == roles.myo
     if not (lv.any() and myo.any()):
@@ -318,7 +424,20 @@ def la_slice_contours(labels: np.ndarray, roles: LabelRoles, sigma: float = SIGM
 def ring_fraction(lv: np.ndarray, myo: np.ndarray) -> float:
     """Share of the pixels bordering an LV cavity mask (4-neighbours outside it) that are
     myocardium: 1 for a cavity ringed all round, low for one open to the outflow tract or
-    the atrium. NaN without a cavity."""
+    the atrium. NaN without a cavity.
+
+    Parameters
+    ----------
+    lv : (H, W) ndarray of bool
+        The LV cavity mask.
+    myo : (H, W) ndarray of bool
+        The myocardium mask.
+
+    Returns
+    -------
+    float
+        In [0, 1], or NaN.
+    """
     if not lv.any():
         return float("nan")
     border = ndimage.binary_dilation(lv) & ~lv
@@ -333,7 +452,20 @@ class StackAnatomy:
     ``lv``, ``myo``, ``rv``: (k,) label areas in pixels summed over the frames; ``cap`` and
     ``outflow``: whether the first / last labelled slice of some frame shows myocardium
     without cavity (and less of it than the other end slice's LV holds), or a cavity not
-    ringed by myocardium (ring < MIN_RING_FRACTION)."""
+    ringed by myocardium (ring < MIN_RING_FRACTION).
+
+    Attributes
+    ----------
+    lv, myo : (k,) ndarray of float
+        LV cavity and myocardium label areas per slice, pixels summed over the frames.
+    rv : (k,) ndarray of float or None
+        The RV's, None without an RV label.
+    cap : (bool, bool)
+        Whether the first / last labelled slice shows myocardium without cavity (an apical cap).
+    outflow : (bool, bool)
+        Whether the first / last labelled slice shows a cavity not ringed by myocardium
+        (ring < :data:`MIN_RING_FRACTION`: an outflow tract or the atrium).
+    """
 
     lv: np.ndarray
     myo: np.ndarray
@@ -343,7 +475,21 @@ class StackAnatomy:
 
 
 def stack_anatomy(data: np.ndarray, roles: LabelRoles, frames) -> StackAnatomy:
-    """:class:`StackAnatomy` of a (x, y, k, t) label array at the volume frames ``frames``."""
+    """:class:`StackAnatomy` of a (x, y, k, t) label array at the volume frames ``frames``.
+
+    Parameters
+    ----------
+    data : (x, y, k, t) ndarray of int
+        The SA label volume over time.
+    roles : LabelRoles
+        Which label value is LV cavity, myocardium, RV.
+    frames : iterable of int
+        The volume frames to sum over (ED and ES).
+
+    Returns
+    -------
+    StackAnatomy
+    """
     nk = data.shape[2]
     lv, myo, rv = np.zeros(nk), np.zeros(nk), np.zeros(nk)
     cap, outflow = [False, False], [False, False]
@@ -368,4 +514,5 @@ def stack_anatomy(data: np.ndarray, roles: LabelRoles, frames) -> StackAnatomy:
             if a_lv[k] > 0 and a_myo[k] > 0:
                 outflow[end] |= ring_fraction(fill_holes(lvm[:, :, k]), myom[:, :, k]) \
                     < MIN_RING_FRACTION
-    return StackAnatomy(lv, myo, rv if roles.rv is not None else None, tuple(cap), tuple(outflow))
+    return StackAnatomy(lv, myo, rv if roles.rv is not None else None,
+                        (cap[0], cap[1]), (outflow[0], outflow[1]))

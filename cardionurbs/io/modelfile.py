@@ -26,8 +26,10 @@ Encoding
     the order the surfaces are listed (knots in key order, then control points, then
     weights): ``"control_points": [nu, nv, 3]``, ``"knots_u": n``, ``"weights": [nu, nv]``
     (absent: all 1).
-    ``model.npz`` (``numpy.savez_compressed``) holds the same streams as uint8 members
-    (not base64) and the rest as the JSON text of the member ``model.json``.
+    ``model.npz`` (a deflated zip that ``numpy.load`` reads) holds the same streams as
+    uint8 members (not base64) and the rest as the JSON text of the member
+    ``model.json``; its members carry a fixed time (1980-01-01, the zip format's
+    earliest), so the same model gives the same bytes.
 
 Version 1 files (every float as JSON text, with the SA sections) still load:
 :func:`unpack` passes them through.
@@ -39,6 +41,7 @@ import base64
 import io
 import json
 import os
+import zipfile
 import zlib
 from pathlib import Path
 from typing import Any
@@ -270,17 +273,51 @@ def unpack(d: dict, streams: dict[str, bytes] | None = None) -> dict:
     return body
 
 
+#: the time stamped on every member of a model.npz (the zip format's earliest)
+ZIP_TIME = (1980, 1, 1, 0, 0, 0)
+
+
+def _npz_bytes(members: dict[str, np.ndarray]) -> bytes:
+    """The bytes of a deflated ``.npz`` of ``members``, the same for the same arrays
+    (``numpy.savez_compressed`` stamps each member with the current time)."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as z:
+        for name, a in members.items():
+            info = zipfile.ZipInfo(name + ".npy", date_time=ZIP_TIME)
+            info.compress_type = zipfile.ZIP_DEFLATED
+            with z.open(info, "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.asarray(a), allow_pickle=False)
+    return buf.getvalue()
+
+
 def write_model_file(model_dict: dict, path: str | os.PathLike) -> Path:
     """Write a model dict compactly: ``.json`` (streams base64 inline) or ``.npz``,
-    atomically; returns ``path``."""
+    atomically.
+
+    Parameters
+    ----------
+    model_dict : dict
+        The version-1 model dict (:meth:`BiventricularModel.to_dict
+        <cardionurbs.anatomy.model.BiventricularModel.to_dict>`).
+    path : str or os.PathLike
+        The file to write; its suffix, ``.json`` or ``.npz``, chooses the container.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    ExportError
+        A suffix other than ``.json`` or ``.npz``.
+    """
     path = Path(path)
     header, streams = pack(model_dict)
     if path.suffix.lower() == ".npz":
         members = {k: np.frombuffer(v, np.uint8) for k, v in streams.items()}
         members["model.json"] = np.frombuffer(json.dumps(header).encode(), np.uint8)
-        buf = io.BytesIO()
-        np.savez_compressed(buf, **members)
-        return atomic.write_bytes(path, buf.getvalue())
+        return atomic.write_bytes(path, _npz_bytes(members))
     if path.suffix.lower() != ".json":
         raise ExportError(f"{path}: a model file is .json or .npz")
     for k, v in streams.items():
@@ -294,7 +331,24 @@ def write_model_file(model_dict: dict, path: str | os.PathLike) -> Path:
 
 
 def read_model_file(path: str | os.PathLike) -> dict:
-    """The version-1 dict of a ``model.json`` (version 1 or 2) or ``model.npz``."""
+    """The version-1 dict of a ``model.json`` (version 1 or 2) or ``model.npz``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The model file.
+
+    Returns
+    -------
+    dict
+        The model dict :meth:`BiventricularModel.from_dict
+        <cardionurbs.anatomy.model.BiventricularModel.from_dict>` reads.
+
+    Raises
+    ------
+    ExportError
+        The file cannot be read or is not a cardionurbs model file.
+    """
     path = Path(path)
     try:
         if path.suffix.lower() == ".npz":

@@ -112,7 +112,17 @@ _TEXT = ("kind", "name", "view", "slice", "image", "closed")
 
 
 def is_native(path: str | Path) -> bool:
-    """True when ``path`` is a native study folder (or its manifest)."""
+    """True when ``path`` is a native study folder (or its manifest).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A file or folder.
+
+    Returns
+    -------
+    bool
+    """
     p = Path(path)
     manifest = p / MANIFEST if p.is_dir() else p
     if manifest.name != MANIFEST or not manifest.is_file():
@@ -134,6 +144,22 @@ def study_to_frames(study: Study, pixel_coordinates: bool = True,
     so writing costs a few array operations whatever the number of annotations.
     ``decimals``: round x, y, z to that many decimals first (what :func:`write_study`
     writes), so that px, py are those of the coordinates a reader will see.
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    pixel_coordinates : bool
+        Also px, py columns (pixel coordinates in each point's image).
+    decimals : int or None
+        Round x, y, z to this many decimals; None: as they are.
+
+    Returns
+    -------
+    manifest : dict
+        The ``study.json`` content.
+    points : pandas.DataFrame
+        One row per annotation point (docs/formats.md, native).
     """
     import pandas as pd
     images = study._image_index()
@@ -199,7 +225,28 @@ def write_study(study: Study, folder: str | Path, pixel_coordinates: bool = True
     None writes 17 significant digits (lossless). ``points``: the points file's form,
     ``"csv"``, ``"parquet"`` or ``"auto"`` (Parquet above ``PARQUET_ROWS`` points).
     ``sidecar``: with a CSV points file, also write ``points.parquet`` beside it (see the
-    module docstring)."""
+    module docstring).
+
+    Parameters
+    ----------
+    study : Study
+        The study.
+    folder : str or pathlib.Path
+        The study folder (created).
+    pixel_coordinates : bool
+        Also px, py columns.
+    decimals : int or None
+        As above.
+    sidecar : bool
+        As above.
+    points : {"auto", "csv", "parquet"}
+        As above.
+
+    Returns
+    -------
+    pathlib.Path
+        ``folder``.
+    """
     if points not in POINT_FORMATS:
         raise ValueError(f"points must be one of {', '.join(POINT_FORMATS)}, got {points!r}")
     folder = Path(folder)
@@ -264,7 +311,22 @@ def _write_sidecar(csv_path: Path, path: Path, crc: int) -> Path:
 
 # --------------------------------------------------------------------- reading
 def read_study(path: str | Path) -> Study:
-    """Read a native study folder (or its ``study.json``) into a :class:`Study`."""
+    """Read a native study folder (or its ``study.json``) into a :class:`Study`.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The study folder or its ``study.json``.
+
+    Returns
+    -------
+    Study
+
+    Raises
+    ------
+    StudyError
+        A missing, unreadable or inconsistent file (naming file, row and field).
+    """
     path = Path(path)
     folder = path if path.is_dir() else path.parent
     manifest_path = folder / MANIFEST
@@ -735,7 +797,23 @@ def check_dicom_geometry(study: Study) -> int:
     names (ImagePositionPatient, ImageOrientationPatient, PixelSpacing, Rows, Columns, and
     SOPInstanceUID = image id when the id looks like a UID). Returns the number of images
     checked; StudyError names the DICOM file, slice, frame and field that disagree.
-    pydicom is imported only when the study names DICOM files (0.2 s of a start-up)."""
+    pydicom is imported only when the study names DICOM files (0.2 s of a start-up).
+
+    Parameters
+    ----------
+    study : Study
+        A native study read from its manifest.
+
+    Returns
+    -------
+    int
+        Images checked.
+
+    Raises
+    ------
+    StudyError
+        A disagreement.
+    """
     pairs = _dicom_files(study)
     if not pairs:
         return 0
@@ -771,6 +849,20 @@ def read_study_from_dicom(path: str | Path) -> Study:
     pixel spacing, matrix, thickness and trigger time from the DICOM headers;
     every annotation point given in pixels (px, py) is mapped through the DICOM
     geometry (DICOM PS3.3 C.7.6.2.1.1), its x, y, z column ignored.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The study folder or its ``study.json``.
+
+    Returns
+    -------
+    Study
+
+    Raises
+    ------
+    StudyError
+        A missing DICOM file, or no image naming one.
     """
     from cardionurbs.imaging.dicom import read_header
 
@@ -794,6 +886,7 @@ def read_study_from_dicom(path: str | Path) -> Study:
     study.images = images
     study.__dict__.pop("_image_cache", None)
     study.contours, study.tags, study.landmarks = [], [], []
+    assert study.source is not None                 # read_study names the study folder
     folder = Path(study.source)
     manifest = load_manifest(folder / MANIFEST)
     _read_points(study, _points_path(folder, manifest, folder / MANIFEST), prefer_pixels=True,

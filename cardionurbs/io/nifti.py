@@ -85,7 +85,17 @@ RR_RANGE_MS = (60000.0 / HEART_RATE_RANGE_BPM[1], 60000.0 / HEART_RATE_RANGE_BPM
 
 
 def is_nifti(path: str | Path) -> bool:
-    """True for a file named ``*.nii`` or ``*.nii.gz``."""
+    """True for a file named ``*.nii`` or ``*.nii.gz``.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A path.
+
+    Returns
+    -------
+    bool
+    """
     name = Path(path).name.lower()
     return name.endswith(".nii") or name.endswith(".nii.gz")
 
@@ -95,7 +105,17 @@ def _stem(path: Path) -> str:
 
 
 def detect(path: str | Path) -> str | None:
-    """The layout of ``path`` (``file``, ``acdc``, ``ukbb``, ``mnms``, ``mnms2``) or None."""
+    """The layout of ``path`` (``file``, ``acdc``, ``ukbb``, ``mnms``, ``mnms2``) or None.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A label-map file or a folder.
+
+    Returns
+    -------
+    str or None
+    """
     p = Path(path)
     if p.is_file():
         return "file" if is_nifti(p) else None
@@ -115,7 +135,23 @@ def detect(path: str | Path) -> str | None:
 
 # ------------------------------------------------------------------ one file
 class LabelVolume:
-    """One label map: integer data (x, y, slices, frames), LPS affine, frame interval."""
+    """One label map: integer data (x, y, slices, frames), LPS affine, frame interval.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The file read.
+    data : (x, y, slices, frames) ndarray of int
+        The label values.
+    affine_lps : (4, 4) ndarray
+        Voxel index -> scanner LPS mm.
+    dt_ms : float or None
+        The frame interval, ms (None: unknown).
+    warnings : list of str
+        The reader's warnings about this file.
+    header : dict or None
+        What the header said and what was used.
+    """
 
     def __init__(self, path: Path, data: np.ndarray, affine_lps: np.ndarray,
                  dt_ms: float | None, warnings: list[str], header: dict | None = None) -> None:
@@ -126,9 +162,22 @@ class LabelVolume:
 
     @property
     def voxel_ml(self) -> float:
+        """The volume of one voxel, mL."""
         return abs(float(np.linalg.det(self.affine[:3, :3]))) / 1000.0
 
     def same_grid(self, other: "LabelVolume") -> bool:
+        """Whether ``other`` has the same voxel grid: shape (x, y, slices) and affine
+        (to 1e-4 mm).
+
+        Parameters
+        ----------
+        other : LabelVolume
+            Another map.
+
+        Returns
+        -------
+        bool
+        """
         return (self.data.shape[:3] == other.data.shape[:3]
                 and np.allclose(self.affine, other.affine, atol=1e-4))
 
@@ -137,7 +186,22 @@ def check_volume_size(path: Path, shape: tuple[int, ...], itemsize: int) -> None
     """Refuse, from the header alone and before any allocation, a map past the limits of
     :mod:`cardionurbs.limits`: frames, voxels per axis and in all, and the bytes its gzip
     stream expands to: nibabel decompresses only the header's voxel bytes, so bounding those
-    bounds a decompression bomb. Raises LimitError naming the file."""
+    bounds a decompression bomb. Raises LimitError naming the file.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The file, for the message.
+    shape : tuple of int
+        The header's data shape.
+    itemsize : int
+        Bytes per voxel.
+
+    Raises
+    ------
+    LimitError
+        A limit exceeded.
+    """
     from cardionurbs.errors import LimitError
     from cardionurbs.limits import (MAX_DECOMPRESSED_BYTES, MAX_FRAMES, MAX_LABEL_AXIS,
                                     MAX_LABEL_VOXELS)
@@ -416,7 +480,29 @@ def _raw_pixdim(path: Path, header_class) -> np.ndarray:
 # ------------------------------------------------------------------ geometry
 def slice_plane(vol: LabelVolume, k: int, *, slice_id: str, view: str, frame: int,
                 trigger_time: float | None, image_id: str) -> ImagePlane:
-    """The image plane of slice k of a label volume (see the module docstring)."""
+    """The image plane of slice k of a label volume (see the module docstring).
+
+    Parameters
+    ----------
+    vol : LabelVolume
+        The label map.
+    k : int
+        The slice index.
+    slice_id : str
+        The slice id of the plane.
+    view : {"SA", "LA"}
+        Its view.
+    frame : int
+        Its frame.
+    trigger_time : float or None
+        Its trigger time, ms.
+    image_id : str
+        Its image id.
+
+    Returns
+    -------
+    ImagePlane
+    """
     a = vol.affine
     dc, dr, dk = (float(np.linalg.norm(a[:3, i])) for i in range(3))
     return ImagePlane(id=image_id, slice=slice_id, view=view, frame=frame,
@@ -427,7 +513,22 @@ def slice_plane(vol: LabelVolume, k: int, *, slice_id: str, view: str, frame: in
 
 
 def to_scanner(vol: LabelVolume, k: int, pixels: np.ndarray) -> np.ndarray:
-    """(n, 2) pixel coordinates (c, r) of slice k -> (n, 3) scanner LPS mm."""
+    """(n, 2) pixel coordinates (c, r) of slice k -> (n, 3) scanner LPS mm.
+
+    Parameters
+    ----------
+    vol : LabelVolume
+        The label map.
+    k : int
+        The slice index.
+    pixels : (n, 2) ndarray
+        Pixel coordinates (c, r) in slice k.
+
+    Returns
+    -------
+    (n, 3) ndarray
+        Scanner LPS mm.
+    """
     p = np.asarray(pixels, float).reshape(-1, 2)
     a = vol.affine
     return a[:3, 3] + k * a[:3, 2] + p[:, :1] * a[:3, 0] + p[:, 1:2] * a[:3, 1]
@@ -440,7 +541,7 @@ class _Builder:
     def __init__(self, subject: str, source: Path, roles: LabelRoles) -> None:
         self.study = Study(subject=subject, source=str(source))
         self.roles = roles
-        self.files: list[str] = []
+        self.files: list[str | None] = []
         self.issues: dict[tuple[str, str], list[int]] = defaultdict(list)
 
     def note(self, slice_id: str, message: str, frame: int) -> None:
@@ -544,7 +645,17 @@ def _add_sa(b: _Builder, vol: LabelVolume, frames: dict[int, int], times: dict[i
 
 def label_counts(data: np.ndarray) -> np.ndarray:
     """Number of voxels of each label value 1..MAX_LABEL (index = value; index 0 set to 0);
-    the label values are whole numbers ≥ 0 (checked when the map is read)."""
+    the label values are whole numbers ≥ 0 (checked when the map is read).
+
+    Parameters
+    ----------
+    data : ndarray of int
+        Label values.
+
+    Returns
+    -------
+    (MAX_LABEL + 1,) ndarray of int
+    """
     counts = np.bincount(data.ravel(), minlength=MAX_LABEL + 1)
     counts[0] = 0
     return counts
@@ -552,7 +663,22 @@ def label_counts(data: np.ndarray) -> np.ndarray:
 
 def voxel_volumes(vol: LabelVolume, roles: LabelRoles, frames: dict[int, int]) -> dict[int, dict]:
     """Voxel-count volumes (mL) per frame: LV cavity, LV myocardium, RV cavity (and RV
-    myocardium where labelled) — number of voxels times the voxel volume."""
+    myocardium where labelled) — number of voxels times the voxel volume.
+
+    Parameters
+    ----------
+    vol : LabelVolume
+        The SA label map.
+    roles : LabelRoles
+        Which label is which structure.
+    frames : dict of int to int
+        Study frame -> volume frame index.
+
+    Returns
+    -------
+    dict of int to dict of str to float
+        Study frame -> structure -> mL.
+    """
     out = {}
     for t_vol, frame in frames.items():
         counts = label_counts(vol.data[..., t_vol])
@@ -644,7 +770,19 @@ def _times(vol: LabelVolume, frames) -> dict[int, float]:
 
 # ------------------------------------------------------------------ layouts
 def read_file(path: Path, labels=None) -> Study:
-    """One 3-D or 4-D label map (all its slices are the SA stack)."""
+    """One 3-D or 4-D label map (all its slices are the SA stack).
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The ``.nii``/``.nii.gz`` file.
+    labels : str, LabelRoles or None
+        The label convention (:func:`cardionurbs.io.labels.parse_labels`); None: inferred.
+
+    Returns
+    -------
+    Study
+    """
     vol = read_label_volume(path)
     if not vol.data.any():
         raise StudyError("the label map is empty (every voxel is 0)", file=str(path))
@@ -666,26 +804,44 @@ def _info_cfg(path: Path) -> dict[str, str]:
 
 
 def read_acdc(folder: Path, labels=None) -> Study:
-    """ACDC: patientNNN_frameMM_gt.nii.gz per labelled frame + Info.cfg (ED, ES, Height, Weight)."""
+    """ACDC: patientNNN_frameMM_gt.nii.gz per labelled frame + Info.cfg (ED, ES, Height, Weight).
+
+    Parameters
+    ----------
+    folder : pathlib.Path
+        The patient folder.
+    labels : str, LabelRoles or None
+        The label convention; None: ``acdc``.
+
+    Returns
+    -------
+    Study
+
+    Raises
+    ------
+    StudyError
+        A bad Info.cfg value, a missing or mismatched frame map.
+    """
     gts = sorted(q for q in folder.iterdir() if re.fullmatch(r".+_frame\d+_gt\.nii(\.gz)?", q.name))
     info_path = folder / "Info.cfg"
     info = _info_cfg(info_path) if info_path.is_file() else {}
     by_frame: dict[int, Path] = {}
     for q in gts:
-        f = int(re.search(r"_frame(\d+)_gt", q.name).group(1)) - 1
-        by_frame[f] = q
+        number = re.search(r"_frame(\d+)_gt", q.name)
+        assert number is not None                   # the fullmatch above holds it
+        by_frame[int(number.group(1)) - 1] = q
     ed = es = None
     for key in ("ED", "ES"):
         if key in info:
             try:
-                v = int(float(info[key])) - 1
+                n = int(float(info[key])) - 1
             except ValueError:
                 raise StudyError(f"{key} is not a frame number: {info[key]!r}", file=str(info_path),
                                  field=key) from None
-            if v not in by_frame:
-                raise StudyError(f"{key} is frame {v + 1} but there is no "
-                                 f"*_frame{v + 1:02d}_gt label map", file=str(info_path), field=key)
-            ed, es = (v, es) if key == "ED" else (ed, v)
+            if n not in by_frame:
+                raise StudyError(f"{key} is frame {n + 1} but there is no "
+                                 f"*_frame{n + 1:02d}_gt label map", file=str(info_path), field=key)
+            ed, es = (n, es) if key == "ED" else (ed, n)
     vols = {f: read_label_volume(q) for f, q in sorted(by_frame.items())}
     first = next(iter(vols.values()))
     for f, v in vols.items():
@@ -724,7 +880,19 @@ def _find(folder: Path, stem: str) -> Path | None:
 
 
 def read_ukbb(folder: Path, labels=None) -> Study:
-    """UK Biobank / ukbb_cardiac: seg_sa (4-D) or seg_sa_ED + seg_sa_ES; LA maps where present."""
+    """UK Biobank / ukbb_cardiac: seg_sa (4-D) or seg_sa_ED + seg_sa_ES; LA maps where present.
+
+    Parameters
+    ----------
+    folder : pathlib.Path
+        The subject folder.
+    labels : str, LabelRoles or None
+        The label convention; None: ``ukbb``.
+
+    Returns
+    -------
+    Study
+    """
     sa_path = _find(folder, "seg_sa")
     meta: dict = {"layout": "ukbb"}
     if sa_path is not None:
@@ -824,7 +992,22 @@ def _mnms_csv(folder: Path, code: str) -> tuple[int, int] | None:
 
 def read_mnms(folder: Path, labels=None, ed_frame: int | None = None,
               es_frame: int | None = None) -> Study:
-    """M&Ms: <code>_sa_gt.nii.gz (4-D, ED and ES labelled); ED/ES from arguments or a CSV."""
+    """M&Ms: <code>_sa_gt.nii.gz (4-D, ED and ES labelled); ED/ES from arguments or a CSV.
+
+    Parameters
+    ----------
+    folder : pathlib.Path
+        The subject folder.
+    labels : str, LabelRoles or None
+        The label convention; None: ``mnms``.
+    ed_frame, es_frame : int or None
+        ED and ES frame indices (0-based); None: from the dataset's CSV, else the labelled
+        frames.
+
+    Returns
+    -------
+    Study
+    """
     gts = sorted(q for q in folder.iterdir() if re.fullmatch(r".+_sa_gt\.nii(\.gz)?", q.name))
     if len(gts) != 1:
         raise StudyError(f"M&Ms layout needs one *_sa_gt.nii.gz, found {len(gts)}", file=str(folder))
@@ -863,7 +1046,19 @@ def read_mnms(folder: Path, labels=None, ed_frame: int | None = None,
 def read_mnms2(folder: Path, labels=None) -> Study:
     """M&Ms-2: ``NNN_SA_ED_gt`` + ``NNN_SA_ES_gt`` (3-D SA maps, frames 0 = ED and 1 = ES) and
     ``NNN_LA_ED_gt`` + ``NNN_LA_ES_gt`` (one 4-chamber slice each) where present; images
-    ``NNN_{SA,LA}_{ED,ES}`` beside them; label preset ``mnms`` (1 LV, 2 MYO, 3 RV)."""
+    ``NNN_{SA,LA}_{ED,ES}`` beside them; label preset ``mnms`` (1 LV, 2 MYO, 3 RV).
+
+    Parameters
+    ----------
+    folder : pathlib.Path
+        The subject folder.
+    labels : str, LabelRoles or None
+        The label convention; None: ``mnms``.
+
+    Returns
+    -------
+    Study
+    """
     found: dict[tuple[str, str], Path] = {}
     codes = set()
     for q in sorted(folder.iterdir()):
@@ -928,7 +1123,27 @@ def read_study(path: str | Path, *, labels: "str | LabelRoles | None" = None,
                ed_frame: int | None = None, es_frame: int | None = None) -> Study:
     """Read a label-map study in any layout (:func:`detect`); ``labels`` is a preset name,
     a ``lv=…,myo=…,rv=…`` mapping or None (the layout's preset; for a single file, inferred
-    from topology with a warning). Reader warnings are in ``study.meta["reader_warnings"]``."""
+    from topology with a warning). Reader warnings are in ``study.meta["reader_warnings"]``.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A label-map file or a dataset folder.
+    labels : str, LabelRoles or None
+        As above.
+    ed_frame, es_frame : int or None
+        ED and ES frame indices (0-based; M&Ms, a single file).
+
+    Returns
+    -------
+    Study
+        In scanner LPS mm, with ``meta["voxel_volumes_ml"]`` (the voxel-count reference).
+
+    Raises
+    ------
+    StudyError
+        An unreadable, unsafe or inconsistent map (naming file, slice, frame and field).
+    """
     p = Path(path)
     if not p.exists():
         raise StudyError("no such file or folder", file=str(p))

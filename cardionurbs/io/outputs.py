@@ -43,7 +43,17 @@ __all__ = ["MARKER", "STUDY_MARKER", "check_output_dir", "check_output_file",
 
 
 def is_cardionurbs_output(path: str | os.PathLike) -> bool:
-    """True when ``path`` is a folder holding the marker this package writes into its outputs."""
+    """True when ``path`` is a folder holding the marker this package writes into its outputs.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A path.
+
+    Returns
+    -------
+    bool
+    """
     p = Path(path)
     return p.is_dir() and (p / MARKER).is_file()
 
@@ -51,7 +61,20 @@ def is_cardionurbs_output(path: str | os.PathLike) -> bool:
 def foreign_files(folder: str | os.PathLike, manifest: dict) -> list[str]:
     """The entries under ``folder`` that ``manifest`` (a marker's, :func:`read_marker`) does
     not list: files and links outside its ``files`` and ``trees``, and empty folders
-    that are not parents of a listed file. Sorted POSIX relative paths."""
+    that are not parents of a listed file. Sorted POSIX relative paths.
+
+    Parameters
+    ----------
+    folder : str or os.PathLike
+        An earlier output folder.
+    manifest : dict
+        Its marker's manifest (``files``, ``trees``).
+
+    Returns
+    -------
+    list of str
+        The entries the manifest does not account for.
+    """
     folder = Path(folder)
     listed = {f for f in manifest.get("files", []) if isinstance(f, str)}
     trees = tuple(t.rstrip("/") + "/" for t in manifest.get("trees", []) if isinstance(t, str))
@@ -155,6 +178,30 @@ def check_output_dir(out: str | os.PathLike, *, inputs: Iterable = (), overwrite
     output of the same kind (``marker``: :data:`MARKER` for outputs, :data:`STUDY_MARKER`
     for ``phantom``) holding only the files its manifest lists. Stale temporaries of
     killed runs beside ``out`` are removed. Raises :class:`OutputError` naming ``option``.
+
+    Parameters
+    ----------
+    out : str or os.PathLike
+        The output folder asked for.
+    inputs : iterable of path-like
+        What the command reads.
+    overwrite : bool
+        Allow replacing an earlier cardionurbs output of the same kind.
+    option : str
+        The option that named ``out``, for the message (``--out``).
+    marker : str
+        The kind of output (:data:`~cardionurbs.io.atomic.MARKER` or
+        :data:`~cardionurbs.io.atomic.STUDY_MARKER`).
+
+    Returns
+    -------
+    pathlib.Path
+        ``out``.
+
+    Raises
+    ------
+    OutputError
+        ``out`` may not be written (naming ``option`` and why).
     """
     shown = os.fspath(out)
     p = Path(out)
@@ -184,7 +231,27 @@ def check_output_place(out: str | os.PathLike, *, inputs: Iterable = (),
                        option: str = "--run-dir") -> Path:
     """Check that the folder ``out`` (which may exist and be reused, e.g. ``--run-dir``) is
     neither a symbolic link nor a file, and neither is, contains nor lies inside any of
-    ``inputs`` (a study). Returns it as given; raises :class:`OutputError` naming ``option``."""
+    ``inputs`` (a study). Returns it as given; raises :class:`OutputError` naming ``option``.
+
+    Parameters
+    ----------
+    out : str or os.PathLike
+        The folder asked for.
+    inputs : iterable of path-like
+        What the command reads.
+    option : str
+        The option that named ``out``, for the message.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out``.
+
+    Raises
+    ------
+    OutputError
+        A link, a file, or a place overlapping the inputs.
+    """
     shown = os.fspath(out)
     p = Path(out)
     if p.is_symlink():
@@ -206,6 +273,29 @@ def check_output_file(out: str | os.PathLike, *, inputs: Iterable = (), option: 
     usual ``-o FILE`` behaviour) -- unless ``ours`` is given (a test ``path -> bool`` that
     tells a file this package wrote): then a file it did not write needs ``overwrite``.
     Stale temporaries beside ``out`` are removed.
+
+    Parameters
+    ----------
+    out : str or os.PathLike
+        The output file asked for.
+    inputs : iterable of path-like
+        What the command reads.
+    option : str
+        The option that named ``out``, for the message (``--out``).
+    ours : callable or None
+        ``ours(path) -> bool``: whether an existing file was written by this package.
+    overwrite : bool
+        Allow replacing a file ``ours`` does not recognise.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out``.
+
+    Raises
+    ------
+    OutputError
+        ``out`` may not be written (naming ``option`` and why).
     """
     shown = os.fspath(out)
     p = Path(out)

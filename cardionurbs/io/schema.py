@@ -49,7 +49,23 @@ VIEWS = ("SA", "LA")
 
 
 def load_manifest(path: Path) -> Any:
-    """Parse ``path`` as JSON within the size and depth limits (StudyError otherwise)."""
+    """Parse ``path`` as JSON within the size and depth limits (StudyError otherwise).
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The ``study.json`` file.
+
+    Returns
+    -------
+    object
+        The parsed JSON (the caller checks its schema, :func:`check_manifest`).
+
+    Raises
+    ------
+    StudyError
+        Unreadable, too large, too deep or not JSON.
+    """
     checked(path, what="manifest")
     try:
         size = path.stat().st_size
@@ -144,7 +160,20 @@ def _kind(v) -> str:
 
 def check_manifest(m: Any, path: Path) -> None:
     """Check a parsed native manifest against the schema above; StudyError on the first
-    violation, naming ``path`` and the field."""
+    violation, naming ``path`` and the field.
+
+    Parameters
+    ----------
+    m : object
+        The parsed manifest (:func:`load_manifest`).
+    path : pathlib.Path
+        Its file, for the messages.
+
+    Raises
+    ------
+    StudyError
+        The first violation, naming ``path`` and the field.
+    """
     c = _Checker(path)
     if not isinstance(m, dict):
         c.fail("format", f"the manifest must be a JSON object, got {_kind(m)}")

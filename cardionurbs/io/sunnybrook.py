@@ -42,7 +42,17 @@ SKIPPED_KINDS = ("p1", "p2")
 
 
 def contour_files(folder: str | Path) -> list[Path]:
-    """Every ``*contour*.txt`` file under ``folder`` (recursive, sorted)."""
+    """Every ``*contour*.txt`` file under ``folder`` (recursive, sorted).
+
+    Parameters
+    ----------
+    folder : str or pathlib.Path
+        A Sunnybrook study folder.
+
+    Returns
+    -------
+    list of pathlib.Path
+    """
     folder = Path(folder)
     return sorted(p for p in folder.rglob("*.txt") if LOOSE_CONTOUR_FILE.search(p.name)
                   and not any(part.startswith(".") for part in p.relative_to(folder).parts))
@@ -55,7 +65,17 @@ def _confined_contour_files(folder: Path) -> list[Path]:
 
 
 def detect(path: str | Path) -> bool:
-    """True when ``path`` is a folder holding Sunnybrook contour files and DICOM images."""
+    """True when ``path`` is a folder holding Sunnybrook contour files and DICOM images.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A file or folder.
+
+    Returns
+    -------
+    bool
+    """
     p = Path(path)
     if not p.is_dir():
         return False
@@ -70,6 +90,21 @@ def read_contour_file(path: str | Path) -> np.ndarray:
 
     Raises StudyError naming the file and line for an empty file, a line that
     is not two numbers, or a NaN / infinite value.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A ``*contour-manual.txt`` file.
+
+    Returns
+    -------
+    (n, 2) ndarray of float
+        Pixel coordinates (x, y).
+
+    Raises
+    ------
+    StudyError
+        As above.
     """
     path = checked(path, what="contour file")
     try:
@@ -104,7 +139,22 @@ def read_contour_file(path: str | Path) -> np.ndarray:
 def check_pixels_in_image(pix: np.ndarray, image, path: Path) -> None:
     """Every (x, y) pixel of a contour lies within its image, give or take
     :data:`cardionurbs.limits.CONTOUR_PIXEL_MARGIN` pixels; StudyError names the file, the
-    line and the image size otherwise (a short number, never a 300-digit echo)."""
+    line and the image size otherwise (a short number, never a 300-digit echo).
+
+    Parameters
+    ----------
+    pix : (n, 2) ndarray of float
+        The contour's pixel coordinates (x, y).
+    image : ImagePlane
+        Its image (``columns``, ``rows``).
+    path : pathlib.Path
+        The contour file, for the message.
+
+    Raises
+    ------
+    StudyError
+        A point outside the image.
+    """
     from cardionurbs.limits import CONTOUR_PIXEL_MARGIN as m
     cols, rows = getattr(image, "columns", None), getattr(image, "rows", None)
     if not cols or not rows:
@@ -123,6 +173,21 @@ def read_study(path: str | Path) -> Study:
     Each contour's pixel pairs are mapped through the plane of the image with
     the InstanceNumber in its file name (DICOM PS3.3 C.7.6.2.1.1), so every
     point lies exactly on that image plane.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The study folder (contour folders beside DICOM images).
+
+    Returns
+    -------
+    Study
+        Contours, images and frame times; scanner mm, ms.
+
+    Raises
+    ------
+    StudyError
+        A missing or unreadable file, a contour outside its image, an image without geometry.
     """
     folder = Path(path)
     if not folder.is_dir():

@@ -5,11 +5,19 @@ knot vectors without the two superfluous end knots (``n + p - 1`` knots).
 Closed (periodic) curves and surfaces are written in their equivalent clamped
 form (:meth:`NurbsCurve.to_clamped`, :meth:`NurbsSurface.to_clamped`), which
 Rhino reads as closed geometry with the same shape.
+
+The same geometries give the same bytes (:func:`write_3dm`, docs/safety.md): object and
+layer ids are name-based UUIDs (RFC 4122 version 5) of the names and numbers written,
+no revision history (creation and edit times) is stamped, and the file is encoded in
+memory, so no file name is stored in it.
 """
 
 from __future__ import annotations
 
+import base64
+import hashlib
 import os
+import uuid
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -20,6 +28,9 @@ from cardionurbs.nurbs.curve import NurbsCurve
 from cardionurbs.nurbs.surface import NurbsSurface
 
 __all__ = ["to_rhino", "write_3dm"]
+
+#: the namespace of the name-based ids of the objects and the layer a .3dm file holds
+ID_NAMESPACE = uuid.uuid5(uuid.NAMESPACE_URL, "cardionurbs:3dm")
 
 
 def _rhino3dm() -> Any:
@@ -82,13 +93,44 @@ def to_rhino(geometry: NurbsCurve | NurbsSurface) -> Any:
     raise NurbsInputError(f"geometry: expected a NurbsCurve or NurbsSurface, got {type(geometry).__name__}")
 
 
+def geometry_id(geometry: NurbsCurve | NurbsSurface, name: str | None) -> uuid.UUID:
+    """The object id of ``geometry`` in a .3dm file: a version-5 UUID of its name and
+    the bytes of its degrees, knots, control points and weights (the same geometry
+    and name, the same id; another, another id).
+
+    Parameters
+    ----------
+    geometry : NurbsCurve or NurbsSurface
+    name : str or None
+        The object's name.
+
+    Returns
+    -------
+    uuid.UUID
+    """
+    h = hashlib.sha256(f"{type(geometry).__name__}\0{name or ''}".encode())
+    if isinstance(geometry, NurbsCurve):
+        parts = [[geometry.degree], geometry.knots]
+    else:
+        parts = [[geometry.degree_u, geometry.degree_v], geometry.knots_u, geometry.knots_v]
+    for a in (*parts, geometry.control_points, geometry.weights):
+        h.update(np.ascontiguousarray(a, "<f8").tobytes())
+    return uuid.uuid5(ID_NAMESPACE, h.hexdigest())
+
+
 def write_3dm(path: str | os.PathLike, geometries: Iterable[NurbsCurve | NurbsSurface],
               names: Iterable[str] | None = None, version: int = 7) -> Path:
-    """Write curves and surfaces to a ``.3dm`` file.
+    """Write curves and surfaces to a ``.3dm`` file, the same bytes for the same input.
 
     A plain write (this package knows no file policy): callers that must never
     leave a half-written file write to a temporary path and rename it
     (:func:`cardionurbs.io.export.export_model_3dm` does).
+
+    Reproducible bytes: each object's id is :func:`geometry_id`, the one layer's id
+    a version-5 UUID of those ids; the model's revision count is set so that openNURBS
+    stamps no revision history (``ONX_Model::Write`` adds one with the current time
+    when the count is 0); the file is encoded in memory (``File3dm.Encode``), where
+    openNURBS records no file name (``File3dm.Write`` records the path written).
 
     Parameters
     ----------
@@ -107,19 +149,30 @@ def write_3dm(path: str | os.PathLike, geometries: Iterable[NurbsCurve | NurbsSu
     """
     r = _rhino3dm()
     model = r.File3dm()
+    model.Revision = 1
     geoms = list(geometries)
     labels = list(names) if names is not None else [None] * len(geoms)
     if len(labels) != len(geoms):
         raise NurbsInputError(f"names: {len(labels)} names for {len(geoms)} geometries")
-    for g, name in zip(geoms, labels):
+    ids = [geometry_id(g, name) for g, name in zip(geoms, labels)]
+    layer = r.Layer()
+    layer.Name = "Default"
+    layer.Id = uuid.uuid5(ID_NAMESPACE, "layer:" + ",".join(map(str, ids)))
+    model.Layers.Add(layer)
+    for g, name, oid in zip(geoms, labels, ids):
         rg = to_rhino(g)
         attrs = r.ObjectAttributes()
+        attrs.Id, attrs.LayerIndex = oid, 0
         if name:
             attrs.Name = str(name)
         if isinstance(g, NurbsCurve):
             model.Objects.AddCurve(rg, attrs)
         else:
             model.Objects.AddSurface(rg, attrs)
-    if not model.Write(str(path), version):
-        raise OSError(f"{path}: rhino3dm could not write the file")
+    options = r.File3dmWriteOptions()
+    options.Version = int(version)
+    data = base64.b64decode(model.Encode(options))
+    if not data:
+        raise OSError(f"{path}: rhino3dm could not encode the file")
+    Path(path).write_bytes(data)
     return Path(path)

@@ -79,14 +79,46 @@ def gauss_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
 
 def spheroid_s_unclamped(z, r_short: float, r_long: float, z_center: float) -> np.ndarray:
     """a² (1 − ((z − z_c)/c)²): the spheroid's squared section radius (eq. A1), negative beyond its
-    poles (the continuation the realistic LA contours use below an apex)."""
+    poles (the continuation the realistic LA contours use below an apex).
+
+    Parameters
+    ----------
+    z : float or ndarray
+        Height above the epicardial apex, mm.
+    r_short : float
+        The spheroid's equatorial semi-axis a, mm.
+    r_long : float
+        Its polar semi-axis c, mm.
+    z_center : float
+        The height of its centre z_c, mm.
+    Returns
+    -------
+    ndarray
+        a² (1 − ((z − z_c)/c)²), mm², shape of ``z``.
+    """
     u = (np.asarray(z, dtype=float) - z_center) / r_long
     return r_short * r_short * (1.0 - u * u)
 
 
 def spheroid_section_s(z: np.ndarray, r_short: float, r_long: float, z_center: float) -> np.ndarray:
     """Squared radius of a prolate spheroid's section at height z (eq. A1); 0 outside it (where
-    the continuation of :func:`spheroid_s_unclamped` is ≤ 0)."""
+    the continuation of :func:`spheroid_s_unclamped` is ≤ 0).
+
+    Parameters
+    ----------
+    z : float or ndarray
+        Height above the epicardial apex, mm.
+    r_short : float
+        The spheroid's equatorial semi-axis a, mm.
+    r_long : float
+        Its polar semi-axis c, mm.
+    z_center : float
+        The height of its centre z_c, mm.
+    Returns
+    -------
+    ndarray
+        The squared section radius, mm² (0 outside), shape of ``z``.
+    """
     return np.maximum(spheroid_s_unclamped(z, r_short, r_long, z_center), 0.0)
 
 
@@ -94,6 +126,21 @@ def truncated_spheroid_volume(r_short: float, r_long: float, z_center: float, z_
     """Volume (mm³) of a spheroid below the plane z = z_top (eq. A4).
 
     V = π a² [(z_top − z_lo) − ((z_top − z_c)³ − (z_lo − z_c)³) / (3 c²)], z_lo = z_c − c.
+
+    Parameters
+    ----------
+    r_short : float
+        The spheroid's equatorial semi-axis a, mm.
+    r_long : float
+        Its polar semi-axis c, mm.
+    z_center : float
+        The height of its centre z_c, mm.
+    z_top : float
+        The cutting plane's height, mm.
+    Returns
+    -------
+    float
+        The volume, mm³.
     """
     z_top = min(max(z_top, z_center - r_long), z_center + r_long)
     lo, hi = -r_long, z_top - z_center
@@ -102,12 +149,32 @@ def truncated_spheroid_volume(r_short: float, r_long: float, z_center: float, z_
 
 def unit_phasor(theta) -> np.ndarray:
     """e^{iθ}: its real and imaginary parts are exactly ``np.cos(θ)`` and ``np.sin(θ)`` (one
-    evaluation serves the shape modes and every cos θ, sin θ of the same angles)."""
+    evaluation serves the shape modes and every cos θ, sin θ of the same angles).
+
+    Parameters
+    ----------
+    theta : float or array_like
+        Angles, rad.
+    Returns
+    -------
+    ndarray of complex
+        e^{iθ}, shape of ``theta``.
+    """
     return np.exp(1j * np.asarray(theta, dtype=float))
 
 
 def wrap_angle(theta) -> np.ndarray:
-    """θ wrapped to [−π, π] (radians): θ − 2π round(θ / 2π), without complex exponentials."""
+    """θ wrapped to [−π, π] (radians): θ − 2π round(θ / 2π), without complex exponentials.
+
+    Parameters
+    ----------
+    theta : float or array_like
+        Angles, rad.
+    Returns
+    -------
+    ndarray
+        The wrapped angles, rad.
+    """
     theta = np.asarray(theta, dtype=float)
     return theta - (2.0 * np.pi) * np.round(theta / (2.0 * np.pi))
 
@@ -115,7 +182,23 @@ def wrap_angle(theta) -> np.ndarray:
 def ellipse_far_radius_sq_cs(ct: np.ndarray, st: np.ndarray, a_free: float, b_wrap: float,
                              x_center: float) -> np.ndarray:
     """P(θ) = ρ(θ)²: squared distance from the origin to the ellipse boundary along θ (eq. A3),
-    from cos θ and sin θ (several ellipses along the same rays share them)."""
+    from cos θ and sin θ (several ellipses along the same rays share them).
+
+    Parameters
+    ----------
+    ct, st : ndarray
+        cos θ and sin θ of the rays.
+    a_free : float
+        The ellipse's semi-axis toward the free wall, mm.
+    b_wrap : float
+        Its semi-axis along the septum, mm.
+    x_center : float
+        Its centre's offset along x, mm.
+    Returns
+    -------
+    ndarray
+        P(θ), mm², shape of ``ct``.
+    """
     a = ct * ct / a_free ** 2 + st * st / b_wrap ** 2
     b = x_center * ct / a_free ** 2
     c = x_center ** 2 / a_free ** 2 - 1.0
@@ -136,6 +219,32 @@ class Anatomy:
 
     ``shape`` (None for the ideal anatomy) adds the realistic departures of
     :mod:`cardionurbs.phantom.shape`; every section function then needs the angle θ.
+
+    Attributes
+    ----------
+    r_short_endo, r_short_epi : float
+        LV equatorial semi-axes of the endo- and epicardial spheroids, mm.
+    r_long_endo, r_long_epi : float
+        Their polar semi-axes, mm.
+    base_height : float
+        Base-plane height above the spheroids' equator, mm.
+    r_free_endo : float
+        RV endocardial semi-axis toward the free wall, mm.
+    r_wrap_endo : float
+        RV endocardial semi-axis along the septum, mm.
+    r_long_rv_endo : float
+        RV endocardial length (apex to base), mm.
+    rv_wall : float
+        RV free-wall thickness, mm.
+    rv_offset : float
+        RV section centre offset, as a fraction of ``r_free_endo``.
+    shape : cardionurbs.phantom.shape.ShapeModes or None
+        The realistic departures (None: the ideal spheroids).
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        A length not positive, walls not nested, or a base or RV out of range.
     """
 
     r_short_endo: float
@@ -201,11 +310,33 @@ class Anatomy:
             raise ValueError("a realistic anatomy's sections depend on the angle: pass theta")
 
     def zeta(self, z) -> np.ndarray:
-        """Normalised height ζ = (z − z_c) / r_long_endo of the shape modes."""
+        """Normalised height ζ = (z − z_c) / r_long_endo of the shape modes.
+
+        Parameters
+        ----------
+        z : float or ndarray
+            Height above the epicardial apex, mm.
+        Returns
+        -------
+        ndarray
+            ζ (dimensionless), shape of ``z``.
+        """
         return (np.asarray(z, dtype=float) - self.z_center) / self.r_long_endo
 
     def s_lv_endo(self, z: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
-        """Squared LV endocardial radius at height z (eq. A1; × the modes of eq. R1), mm²."""
+        """Squared LV endocardial radius at height z (eq. A1; × the modes of eq. R1), mm².
+
+        Parameters
+        ----------
+        z : float or ndarray
+            Height above the epicardial apex, mm.
+        theta : float or ndarray, optional
+            Angle θ about the LV axis, rad (needed for a realistic anatomy).
+        Returns
+        -------
+        ndarray
+            S_endo, mm², broadcast shape.
+        """
         s = spheroid_section_s(z, self.r_short_endo, self.r_long_endo, self.z_center)
         if self.shape is None:
             return s
@@ -223,7 +354,19 @@ class Anatomy:
     def s_lv_epi(self, z: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
         """Squared LV epicardial radius at height z (eq. A1; realistic: wall-following modes and
         septal thickening of :mod:`cardionurbs.phantom.shape`), mm². An infarct thins the wall
-        from the inside (:meth:`s_lv_endo`): the epicardium, hence the RV, is unchanged."""
+        from the inside (:meth:`s_lv_endo`): the epicardium, hence the RV, is unchanged.
+
+        Parameters
+        ----------
+        z : float or ndarray
+            Height above the epicardial apex, mm.
+        theta : float or ndarray, optional
+            Angle θ about the LV axis, rad (needed for a realistic anatomy).
+        Returns
+        -------
+        ndarray
+            S_epi, mm², broadcast shape.
+        """
         s = spheroid_section_s(z, self.r_short_epi, self.r_long_epi, self.z_center)
         if self.shape is None:
             return s
@@ -240,7 +383,21 @@ class Anatomy:
                     e: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(S_endo, S_epi) at (z, θ): :meth:`s_lv_endo` and :meth:`s_lv_epi` sharing one evaluation
         of the shape modes, mm². ``e`` = e^{iθ} when the caller has it (it needs cos θ and sin θ
-        too: :func:`unit_phasor`)."""
+        too: :func:`unit_phasor`).
+
+        Parameters
+        ----------
+        z : float or ndarray
+            Height above the epicardial apex, mm.
+        theta : float or ndarray, optional
+            Angle θ about the LV axis, rad (needed for a realistic anatomy).
+        e : ndarray of complex, optional
+            e^{iθ}.
+        Returns
+        -------
+        s_endo, s_epi : ndarray
+            mm², broadcast shape.
+        """
         if self.shape is None or self.shape.infarct is not None:
             return self.s_lv_endo(z, theta), self.s_lv_epi(z, theta)
         z = np.asarray(z, dtype=float)
@@ -255,7 +412,17 @@ class Anatomy:
 
     def z_top(self, theta: np.ndarray | None = None) -> np.ndarray:
         """Height of the mitral annulus (top of the LV walls) at angle θ, mm: z_b (ideal) or
-        z_b + h cos 2(θ − θ_s) (saddle)."""
+        z_b + h cos 2(θ − θ_s) (saddle).
+
+        Parameters
+        ----------
+        theta : float or ndarray, optional
+            Angle θ about the LV axis, rad (needed for a realistic anatomy).
+        Returns
+        -------
+        ndarray
+            The annulus height, mm.
+        """
         if self.shape is None:
             return np.full(np.shape(theta) if theta is not None else (), self.z_base)
         return self.z_base + self.shape.saddle(theta)
@@ -272,7 +439,13 @@ class Anatomy:
     def tricuspid_span(self) -> tuple[float, float]:
         """(θ_0, θ_1): the angles of the tricuspid annulus' dip — the endocardial RV crescent at the
         base, with an outflow tract only up to the tract's epicardial window (the tract and its
-        side wall rise from the plane z = z_b)."""
+        side wall rise from the plane z = z_b).
+
+        Returns
+        -------
+        tuple of (float, float)
+            (θ_0, θ_1), rad.
+        """
         return self._tricuspid_span
 
     @cached_property
@@ -288,7 +461,17 @@ class Anatomy:
         with a dip h_t (realistic) z_b − h_t sin²(π (θ − θ_0) / (θ_1 − θ_0)) over the tricuspid
         span [θ_0, θ_1] (:meth:`tricuspid_span`) and z_b outside it. The crescent's tips stay at
         z_b and its free wall and septum dip at the middle angle: around the annulus ring (free
-        wall out, septum back) two highs and two lows, a saddle."""
+        wall out, septum back) two highs and two lows, a saddle.
+
+        Parameters
+        ----------
+        theta : float or ndarray
+            Angle θ about the LV axis, rad.
+        Returns
+        -------
+        ndarray
+            The annulus height, mm, shape of ``theta``.
+        """
         theta = np.asarray(theta, dtype=float)
         if self.tricuspid_dip == 0.0:
             return np.full(theta.shape, self.z_base)
@@ -309,7 +492,19 @@ class Anatomy:
         return self.rv_offset * self.r_free_endo
 
     def rv_g2(self, z: np.ndarray, epi: bool = False) -> np.ndarray:
-        """g(z)² of eq. (A2) for the RV endocardial (or epicardial) shell; 0 above the base."""
+        """g(z)² of eq. (A2) for the RV endocardial (or epicardial) shell; 0 above the base.
+
+        Parameters
+        ----------
+        z : float or ndarray
+            Height above the epicardial apex, mm.
+        epi : bool, optional
+            The epicardial shell (else the endocardial).
+        Returns
+        -------
+        ndarray
+            g(z)² (dimensionless), shape of ``z``.
+        """
         c = self.r_long_rv_endo + (self.rv_wall if epi else 0.0)
         z = np.asarray(z, dtype=float)
         u = (z - self.z_base) / c
@@ -331,7 +526,21 @@ class Anatomy:
 
     def rv_p(self, theta: np.ndarray, epi: bool = False, z: np.ndarray | None = None) -> np.ndarray:
         """P(θ) of eq. (A3) for the RV endocardial (or epicardial) shell, mm²; realistic: the
-        ellipse stretched about the axis by the wrap factor w(z) and scaled by the reach factor."""
+        ellipse stretched about the axis by the wrap factor w(z) and scaled by the reach factor.
+
+        Parameters
+        ----------
+        theta : float or ndarray
+            Angle θ about the LV axis, rad.
+        epi : bool, optional
+            The epicardial shell (else the endocardial).
+        z : ndarray, optional
+            Height, mm (needed for a realistic anatomy).
+        Returns
+        -------
+        ndarray
+            P(θ), mm².
+        """
         t = self.rv_wall if epi else 0.0
         ct, st, reach = self._rv_rays(theta, z)
         p = ellipse_far_radius_sq_cs(ct, st, self.r_free_endo + t, self.r_wrap_endo + t,
@@ -340,7 +549,19 @@ class Anatomy:
 
     def rv_p_pair(self, theta: np.ndarray, z: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(P_endo, P_epi) of :meth:`rv_p` at the same (θ, z): both ellipses along the same rays
-        (one cosine and sine of the ray angle for both; the same values as two calls)."""
+        (one cosine and sine of the ray angle for both; the same values as two calls).
+
+        Parameters
+        ----------
+        theta : float or ndarray
+            Angle θ about the LV axis, rad.
+        z : ndarray, optional
+            Height, mm.
+        Returns
+        -------
+        p_endo, p_epi : ndarray
+            mm².
+        """
         ct, st, reach = self._rv_rays(theta, z)
         out = tuple(ellipse_far_radius_sq_cs(ct, st, self.r_free_endo + w, self.r_wrap_endo + w,
                                              self.rv_x_center) for w in (0.0, self.rv_wall))
@@ -349,7 +570,21 @@ class Anatomy:
     def s_rv_pair(self, theta: np.ndarray, z: np.ndarray, s_epi=None) -> tuple[np.ndarray, np.ndarray]:
         """(S_rv_endo, S_rv_epi) of :meth:`s_rv` at the same (θ, z), sharing every common factor
         (the ray's cosine and sine, the tract's inputs); ``s_epi``: the LV epicardial S at (θ, z)
-        when the caller has it (the RVOT's inner side). The same values as two calls."""
+        when the caller has it (the RVOT's inner side). The same values as two calls.
+
+        Parameters
+        ----------
+        theta : float or ndarray
+            Angle θ about the LV axis, rad.
+        z : float or ndarray
+            Height above the epicardial apex, mm.
+        s_epi : ndarray, optional
+            The LV epicardial S at (θ, z), mm².
+        Returns
+        -------
+        s_rv_endo, s_rv_epi : ndarray
+            mm², broadcast shape.
+        """
         theta, z = np.broadcast_arrays(np.asarray(theta, dtype=float), np.asarray(z, dtype=float))
         p_endo, p_epi = self.rv_p_pair(theta, z)
         body = (self.rv_g2(z, False) * p_endo, self.rv_g2(z, True) * p_epi)
@@ -375,7 +610,27 @@ class Anatomy:
         """Squared radius of the RV endo/epi shell along θ at height z, mm² (0 where absent).
         ``body`` (:meth:`s_rv_body`), ``r_b`` (the tract's base radius,
         :func:`cardionurbs.phantom.outflow.rvot_base_radius`) and ``s_epi`` (the LV epicardial S)
-        at the same (θ, z) when the caller has them already (the same values)."""
+        at the same (θ, z) when the caller has them already (the same values).
+
+        Parameters
+        ----------
+        theta : float or ndarray
+            Angle θ about the LV axis, rad.
+        z : float or ndarray
+            Height above the epicardial apex, mm.
+        epi : bool, optional
+            The epicardial shell (else the endocardial).
+        body : ndarray, optional
+            :meth:`s_rv_body` at (θ, z), mm².
+        r_b : ndarray, optional
+            The tract's base radius at θ, mm.
+        s_epi : ndarray, optional
+            The LV epicardial S at (θ, z), mm².
+        Returns
+        -------
+        ndarray
+            mm², broadcast shape.
+        """
         if self.shape is None:
             return self.rv_g2(z, epi) * self.rv_p(theta, epi)
         if body is None:
@@ -395,7 +650,21 @@ class Anatomy:
         return out
 
     def s_rv_body(self, theta: np.ndarray, z: np.ndarray, epi: bool = False) -> np.ndarray:
-        """The RV body's shell alone (0 above the tricuspid plane, also with an outflow tract), mm²."""
+        """The RV body's shell alone (0 above the tricuspid plane, also with an outflow tract), mm².
+
+        Parameters
+        ----------
+        theta : float or ndarray
+            Angle θ about the LV axis, rad.
+        z : float or ndarray
+            Height above the epicardial apex, mm.
+        epi : bool, optional
+            The epicardial shell (else the endocardial).
+        Returns
+        -------
+        ndarray
+            mm², broadcast shape.
+        """
         if self.shape is None:
             return self.rv_g2(z, epi) * self.rv_p(theta, epi)
         return self.rv_g2(z, epi) * self.rv_p(theta, epi, z)
@@ -409,7 +678,22 @@ class Anatomy:
         """(θ_lo, θ_hi): the RV crescent at height z spans θ_lo ≤ θ ≤ θ_hi (both 0 where there is
         none). Ideal: ±θ_e(z). Realistic: going out both ways from the angle where the crescent is
         widest (max of S_rv − S_epi on a 2 (n_table − 1) grid), the first sign change, refined by
-        eight regula falsi steps; both edges equal that angle where there is no crescent."""
+        eight regula falsi steps; both edges equal that angle where there is no crescent.
+
+        Parameters
+        ----------
+        z : float or ndarray
+            Height above the epicardial apex, mm.
+        epi : bool, optional
+            The epicardial shell (else the endocardial).
+        n_table : int, optional
+            Grid size of the realistic search.
+
+        Returns
+        -------
+        theta_lo, theta_hi : ndarray
+            The crescent's angular limits, rad, shape of ``atleast_1d(z)``.
+        """
         if self.shape is not None and np.ndim(z) == 0 and n_table == 181:
             key = (float(z), bool(epi))
             hit = self.memo.get(("rv_sector", key))
@@ -470,6 +754,17 @@ class Anatomy:
         on [0, π] (checked by :meth:`validate`), so a 4097-point table of P gives a start to
         ~1e-7 rad by linear interpolation, then three Newton steps (central-difference
         derivative) reach machine precision.
+
+        Parameters
+        ----------
+        z : float or ndarray
+            Height above the epicardial apex, mm.
+        epi : bool, optional
+            The epicardial shell (else the endocardial).
+        Returns
+        -------
+        ndarray
+            θ_e(z), rad, shape of ``z``.
         """
         z = np.atleast_1d(np.asarray(z, dtype=float))
         g2, s2 = self.rv_g2(z, epi), self.s_lv_epi(z)
@@ -489,7 +784,13 @@ class Anatomy:
     def prime_rv_sectors(self, z: np.ndarray) -> None:
         """Solve the realistic RV sectors (endo and epi) at many heights in one vectorised call, for
         the scalar look-ups of the SA contours and insertion points (the same arithmetic
-        element by element, so the same values)."""
+        element by element, so the same values).
+
+        Parameters
+        ----------
+        z : ndarray
+            Heights, mm.
+        """
         if self.shape is None:
             return
         z = np.unique(np.asarray(z, dtype=float))
@@ -499,7 +800,19 @@ class Anatomy:
                               for a, b, c in zip(z, lo, hi)})
 
     def rv_onset(self, epi: bool = False, iters: int = 80) -> float:
-        """Lowest height z0 where the RV shell leaves the LV epicardium (crescent onset), mm."""
+        """Lowest height z0 where the RV shell leaves the LV epicardium (crescent onset), mm.
+
+        Parameters
+        ----------
+        epi : bool, optional
+            The epicardial shell (else the endocardial).
+        iters : int, optional
+            Bisection steps.
+        Returns
+        -------
+        float
+            z0, mm.
+        """
         c = self.r_long_rv_endo + (self.rv_wall if epi else 0.0)
         lo, hi = self.z_base - c, self.z_base
         if self.shape is not None:
@@ -523,7 +836,18 @@ class Anatomy:
         return 0.5 * (lo + hi)
 
     def validate(self) -> "Anatomy":
-        """Check the RV crescent is a single sector on every section; PhantomError otherwise."""
+        """Check the RV crescent is a single sector on every section; PhantomError otherwise.
+
+        Returns
+        -------
+        Anatomy
+            ``self``, once checked.
+
+        Raises
+        ------
+        cardionurbs.errors.PhantomError
+            The crescent is not one sector on some section (or, realistic, the walls not nested).
+        """
         if self.shape is not None:
             return self._validate_realistic()
         th = np.linspace(0.0, np.pi, 1025)
@@ -584,19 +908,38 @@ class Anatomy:
 
     def lv_cavity_volume(self) -> float:
         """LV cavity volume at ED closed by the base plane z = z_b, mm³ (eq. A4; realistic:
-        section quadrature)."""
+        section quadrature).
+
+        Returns
+        -------
+        float
+            The volume, mm³.
+        """
         if self.shape is not None:
             return self._section_quadrature(self.s_lv_endo, self.z_endo_apex, self.z_base)
         return truncated_spheroid_volume(self.r_short_endo, self.r_long_endo, self.z_center, self.z_base)
 
     def lv_epi_volume(self) -> float:
         """Volume inside the LV epicardium below the base plane, mm³ (eq. A4; realistic: section
-        quadrature)."""
+        quadrature).
+
+        Returns
+        -------
+        float
+            The volume, mm³.
+        """
         if self.shape is not None:
             return self._section_quadrature(self.s_lv_epi, 0.0, self.z_base)
         return truncated_spheroid_volume(self.r_short_epi, self.r_long_epi, self.z_center, self.z_base)
 
     def lv_myocardial_volume(self) -> float:
+        """LV myocardial volume: :meth:`lv_epi_volume` − :meth:`lv_cavity_volume`.
+
+        Returns
+        -------
+        float
+            The volume, mm³.
+        """
         return self.lv_epi_volume() - self.lv_cavity_volume()
 
     def rv_shell_volume(self, epi: bool = False, n_z: int = 256, n_theta: int = 64) -> float:
@@ -606,6 +949,19 @@ class Anatomy:
         Gauss–Legendre rule (smooth integrand there); outer integral over [z0, z_b] with an
         n_z-point Gauss–Legendre rule after the substitution z = z0 + (z_b − z0) u^2, which
         removes the (z − z0)^{3/2} onset singularity of the section area.
+
+        Parameters
+        ----------
+        epi : bool, optional
+            The epicardial shell (else the endocardial).
+        n_z : int, optional
+            Gauss–Legendre points along z.
+        n_theta : int, optional
+            Gauss–Legendre points along θ.
+        Returns
+        -------
+        float
+            The volume, mm³.
         """
         z0 = self.rv_onset(epi)
         u, wu = gauss_legendre(n_z)
@@ -628,16 +984,41 @@ class Anatomy:
         return float((area * wz).sum())
 
     def rv_cavity_volume(self) -> float:
-        """RV cavity volume at ED (inside the RV endocardium, outside the LV), mm³."""
+        """RV cavity volume at ED (inside the RV endocardium, outside the LV), mm³.
+
+        Returns
+        -------
+        float
+            The volume, mm³.
+        """
         return self.rv_shell_volume(epi=False)
 
     def rv_myocardial_volume(self) -> float:
-        """RV free-wall volume at ED, mm³."""
+        """RV free-wall volume at ED, mm³.
+
+        Returns
+        -------
+        float
+            The volume, mm³.
+        """
         return self.rv_shell_volume(epi=True) - self.rv_shell_volume(epi=False)
 
     def to_dict(self) -> dict:
-        """The size parameters (mm; the shape modes are in :meth:`shape_dict`)."""
+        """The size parameters (mm; the shape modes are in :meth:`shape_dict`).
+
+        Returns
+        -------
+        dict of str to float
+            Field -> value, mm (``rv_offset`` a fraction), without ``shape``.
+        """
         return {k: float(getattr(self, k)) for k in self.__dataclass_fields__ if k != "shape"}
 
     def shape_dict(self) -> dict | None:
+        """The shape modes as JSON-safe data.
+
+        Returns
+        -------
+        dict or None
+            :meth:`cardionurbs.phantom.shape.ShapeModes.to_dict`, None for the ideal anatomy.
+        """
         return None if self.shape is None else self.shape.to_dict()

@@ -40,7 +40,21 @@ BASE_MARGIN_MM = 1.0     # SA planes must cut tissue at least this far below the
 
 @dataclass(frozen=True)
 class TagGrid:
-    """The ED tag pattern: spacing (mm), SA family angles (rad, about e_z), first plane offsets."""
+    """The ED tag pattern: spacing (mm), SA family angles (rad, about e_z), first plane offsets.
+
+    Attributes
+    ----------
+    spacing : float
+        The tag spacing d, mm.
+    sa_angle : float
+        Angle of the sa1 plane normal from e_x, rad (sa2 is +90°).
+    n_half : int
+        SA tag indices run 0 .. 2 n_half, index n_half nearest the axis.
+    sa_offset : float
+        c_i = (i − n_half) d + sa_offset, mm.
+    la_offset : float
+        z_j = la_offset + j d, mm.
+    """
 
     spacing: float
     sa_angle: float          # angle of the sa1 plane normal from e_x; sa2 is +90°
@@ -49,24 +63,77 @@ class TagGrid:
     la_offset: float         # z_j = la_offset + j d
 
     def sa_normal(self, family: str) -> np.ndarray:
+        """Unit normal of an SA family's planes.
+
+        Parameters
+        ----------
+        family : str
+            ``"sa1"`` or ``"sa2"``.
+
+        Returns
+        -------
+        ndarray, shape (3,)
+            The normal, heart frame (in the xy-plane).
+        """
         a = self.sa_angle + (0.0 if family == "sa1" else 0.5 * np.pi)
         return np.array([np.cos(a), np.sin(a), 0.0])
 
     def sa_positions(self) -> np.ndarray:
+        """Offsets c_i of the SA tag planes along their normal.
+
+        Returns
+        -------
+        ndarray, shape (2 n_half + 1,)
+            c_i for i = 0 .. 2 n_half, mm.
+        """
         return (np.arange(2 * self.n_half + 1) - self.n_half) * self.spacing + self.sa_offset
 
     def la_positions(self, z_max: float) -> np.ndarray:
+        """Heights z_j of the LA tag planes up to ``z_max``.
+
+        Parameters
+        ----------
+        z_max : float
+            The highest height, mm.
+
+        Returns
+        -------
+        ndarray
+            z_j = la_offset + j d <= z_max, mm.
+        """
         n = int(np.floor((z_max - self.la_offset) / self.spacing)) + 1
         return self.la_offset + self.spacing * np.arange(max(n, 0))
 
     def to_dict(self) -> dict:
+        """JSON-safe tag pattern (truth.json).
+
+        Returns
+        -------
+        dict
+            ``spacing_mm``, ``sa1_normal_angle_deg``, ``sa_first_index_position_mm``,
+            ``n_sa_tags``, ``la_first_plane_mm``.
+        """
         return {"spacing_mm": self.spacing, "sa1_normal_angle_deg": float(np.degrees(self.sa_angle)),
                 "sa_first_index_position_mm": float(self.sa_positions()[0]),
                 "n_sa_tags": int(2 * self.n_half + 1), "la_first_plane_mm": self.la_offset}
 
 
 def make_tag_grid(anatomy: Anatomy, spacing: float, sa_angle_deg: float = 45.0) -> TagGrid:
-    """Tag planes covering the heart: SA indices symmetric about the axis, LA from the apex."""
+    """Tag planes covering the heart: SA indices symmetric about the axis, LA from the apex.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved anatomy (heart frame, mm).
+    spacing : float
+        The tag spacing, mm.
+    sa_angle_deg : float, optional
+        Angle of the sa1 plane normal from e_x, degrees.
+    Returns
+    -------
+    TagGrid
+        The tag planes at ED.
+    """
     reach = np.sqrt(anatomy.r_short_epi ** 2 * (1 + (anatomy.base_height / anatomy.r_long_epi) ** 2))
     reach = max(reach, anatomy.r_free_endo * (1 + anatomy.rv_offset) + anatomy.rv_wall)
     n_half = int(np.ceil(reach / spacing)) + 1
@@ -81,12 +148,48 @@ def _polar(sp: np.ndarray, thp: np.ndarray, zp) -> np.ndarray:
 
 
 def sa_material_height(motion: Motion, spec: SliceSpec, f: float) -> float:
+    """The material (ED) height z = z' / λ(f) that an SA plane cuts at phase f.
+
+    Parameters
+    ----------
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    spec : cardionurbs.phantom.geometry.SliceSpec
+        An SA slice (its height z', mm).
+    f : float
+        The cycle phase.
+
+    Returns
+    -------
+    float
+        z, mm.
+    """
     return float(spec.height / motion.lam(f))
 
 
 def sa_contours(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float,
                 n_lv: int = 60, n_rv_free: int = 32, n_rv_septum: int = 16) -> dict[str, np.ndarray]:
-    """Closed SA contours (heart frame at phase f) of one SA plane: lv_endo, lv_epi, rv_endo, rv_epi."""
+    """Closed SA contours (heart frame at phase f) of one SA plane: lv_endo, lv_epi, rv_endo, rv_epi.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    spec : cardionurbs.phantom.geometry.SliceSpec
+        The slice.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    n_lv : int, optional
+        Points per LV contour.
+    n_rv_free, n_rv_septum : int, optional
+        Points on the RV free wall and septum.
+    Returns
+    -------
+    dict of str to ndarray
+        Structure -> closed contour (k, 3), heart frame, mm (RV ones where the plane cuts the RV).
+    """
     z = sa_material_height(motion, spec, f)
     out: dict[str, np.ndarray] = {}
     if anatomy.realistic:
@@ -192,14 +295,38 @@ PLANE_STEP_MM = 1.0      # sampling of an LA plane for the realistic contours (m
 
 
 def unbend(anatomy: Anatomy, points: np.ndarray) -> np.ndarray:
-    """Realistic heart-frame points -> the motion frame (the apex bend undone; a copy)."""
+    """Realistic heart-frame points -> the motion frame (the apex bend undone; a copy).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved anatomy (heart frame, mm).
+    points : ndarray, shape (n, 3)
+        Realistic heart-frame points, mm.
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        The points in the motion frame, mm.
+    """
     if anatomy.shape is None:
         return np.array(points, dtype=float).reshape(-1, 3)
     return anatomy.shape.displace(points, anatomy.z_base, -1.0)
 
 
 def bend(anatomy: Anatomy, points: np.ndarray) -> np.ndarray:
-    """The motion frame -> realistic heart-frame points (the apex bend; a copy)."""
+    """The motion frame -> realistic heart-frame points (the apex bend; a copy).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved anatomy (heart frame, mm).
+    points : ndarray, shape (n, 3)
+        Motion-frame points, mm.
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        The points in the realistic heart frame, mm.
+    """
     if anatomy.shape is None:
         return np.array(points, dtype=float).reshape(-1, 3)
     return anatomy.shape.displace(points, anatomy.z_base, 1.0)
@@ -220,6 +347,24 @@ def material_fields(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: flo
     below the apex instead of touching zero along the axis. Scaled by 1/50 mm to read roughly as
     mm. Also returned: ``s`` (= s'), ``s1``, ``s2`` (the deformed LV boundaries), ``theta``, ``z``.
     ``regions``: only these regions' terms (all four by default).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    points : ndarray, shape (n, 3)
+        Realistic heart-frame points at phase f, mm.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    regions : iterable of str, optional
+        The regions wanted (default all four).
+    Returns
+    -------
+    dict
+        Region -> tuple of its terms, each (n,) (≈ mm, negative inside), and ``s``, ``s1``,
+        ``s2`` (mm²), ``theta`` (rad), ``z`` (mm), each (n,).
     """
     x = unbend(anatomy, points)
     z = x[:, 2] / float(motion.lam(f))
@@ -338,7 +483,23 @@ def region_logic(name: str, n_terms: int) -> tuple[tuple, set, dict]:
     The tree nests ``("max", …)`` (inside all) and ``("min", …)`` (inside any) over term
     indices; closure terms are valve planes and the LVOT's aorto-mitral curtain (not contoured);
     wall parts group the wall terms that continue one another (the RV body's and the outflow
-    tract's free wall), between which no corner is solved."""
+    tract's free wall), between which no corner is solved.
+
+    Parameters
+    ----------
+    name : str
+        The region (``"lv_endo"``, ``"lv_epi"``, ``"rv_endo"``, ``"rv_epi"``).
+    n_terms : int
+        Its number of terms.
+    Returns
+    -------
+    tree : tuple
+        The min/max tree.
+    closure : set of int
+        The closure terms.
+    parts : dict of int to int
+        Wall term index -> its wall part.
+    """
     if name.startswith("lv"):
         if n_terms == 4:        # LV endocardium with the LVOT: wall ∧ (mitral ∨ (cylinder ∧ aortic))
             return ("max", 0, ("min", 1, ("max", 2, 3))), {1, 2, 3}, {0: 0}
@@ -349,7 +510,19 @@ def region_logic(name: str, n_terms: int) -> tuple[tuple, set, dict]:
 
 
 def tree_value(tree, terms) -> np.ndarray:
-    """The value of a min/max tree over arrays of terms (:func:`tree_eval` without the index)."""
+    """The value of a min/max tree over arrays of terms (:func:`tree_eval` without the index).
+
+    Parameters
+    ----------
+    tree : tuple or int
+        A ``("max", ...)`` / ``("min", ...)`` tree over term indices (:func:`region_logic`).
+    terms : sequence of ndarray
+        The terms, each shape (n,).
+    Returns
+    -------
+    ndarray, shape (n,)
+        The tree's value.
+    """
     if isinstance(tree, int):
         return terms[tree]
     op, *kids = tree
@@ -357,7 +530,21 @@ def tree_value(tree, terms) -> np.ndarray:
 
 
 def tree_eval(tree, terms) -> tuple[np.ndarray, np.ndarray]:
-    """(value, index of the term that gives it) of a min/max tree over arrays of terms."""
+    """(value, index of the term that gives it) of a min/max tree over arrays of terms.
+
+    Parameters
+    ----------
+    tree : tuple or int
+        A ``("max", ...)`` / ``("min", ...)`` tree over term indices (:func:`region_logic`).
+    terms : sequence of ndarray
+        The terms, each shape (n,).
+    Returns
+    -------
+    value : ndarray, shape (n,)
+        The tree's value.
+    index : ndarray of int, shape (n,)
+        The term giving it.
+    """
     if isinstance(tree, int):
         return terms[tree], np.full(np.shape(terms[tree]), tree)
     op, *kids = tree
@@ -719,7 +906,27 @@ def la_contours_realistic_views(anatomy: Anatomy, motion: Motion, views, f: floa
     """:func:`la_contours` of a realistic anatomy for several LA views at one phase f: ``views`` is
     a list of (spec, with_rv, with_lv); returns spec id -> contours. The exact region terms every
     view's contours ask for are evaluated together, in one :func:`material_fields` call per step
-    (the same values as one view at a time: every term is computed point by point)."""
+    (the same values as one view at a time: every term is computed point by point).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    views : list of tuple
+        (spec, with_rv, with_lv) per LA view.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    n_side : int, optional
+        Points per side of a contour.
+    step : float, optional
+        The marching step, mm.
+    Returns
+    -------
+    dict of str to dict of str to ndarray
+        Slice id -> structure -> open contour (k, 3), mm.
+    """
     runs, out = [], {}
     for spec, with_rv, with_lv in views:
         w, v, pts = _plane_grid(anatomy, spec, step)
@@ -806,7 +1013,29 @@ def _la_side(motion: Motion, alpha: float, z: np.ndarray, f: float):
 def la_contours(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float, n_side: int = 30,
                 with_rv: bool = False, with_lv: bool = True) -> dict[str, np.ndarray]:
     """Open LA contours (annulus → apex → annulus) in an LA plane at phase f (heart frame); a
-    realistic anatomy's ``la_rvot`` view has RV contours only (``with_lv=False``)."""
+    realistic anatomy's ``la_rvot`` view has RV contours only (``with_lv=False``).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    spec : cardionurbs.phantom.geometry.SliceSpec
+        The slice.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    n_side : int, optional
+        Points per side (annulus to apex).
+    with_rv : bool, optional
+        Also the RV contours.
+    with_lv : bool, optional
+        The LV contours.
+    Returns
+    -------
+    dict of str to ndarray
+        Structure -> open contour (k, 3), heart frame, mm.
+    """
     if anatomy.realistic:
         return _la_contours_realistic(anatomy, motion, spec, f, n_side, with_rv, with_lv=with_lv)
     out: dict[str, np.ndarray] = {}
@@ -868,7 +1097,25 @@ def landmarks(anatomy: Anatomy, motion: Motion, f: float, n_mitral: int = 6,
     """Apex (LV epicardial apex), mitral annulus (on the LV endocardium in the base plane) and
     tricuspid annulus points (4 on the RV free wall, 2 on the septum; realistic: at the annulus
     height of each angle, :meth:`Anatomy.z_top_rv`) at phase f, heart frame; with outflow tracts
-    also their valves' (:func:`outflow_landmarks`) unless ``outflow`` is False."""
+    also their valves' (:func:`outflow_landmarks`) unless ``outflow`` is False.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    n_mitral : int, optional
+        Mitral annulus points.
+    outflow : bool, optional
+        Add the outflow valves' points.
+    Returns
+    -------
+    dict of str to ndarray
+        ``apex`` (1, 3), ``mitral``, ``tricuspid`` (and ``pulmonary``, ``aortic``) points (k, 3), mm.
+    """
     zb = anatomy.z_base
     th = np.linspace(0.0, 2 * np.pi, n_mitral, endpoint=False)
     if anatomy.realistic:
@@ -907,7 +1154,23 @@ def landmarks(anatomy: Anatomy, motion: Motion, f: float, n_mitral: int = 6,
 def outflow_landmarks(anatomy: Anatomy, motion: Motion, f: float, n_ring: int = 6) -> dict[str, np.ndarray]:
     """``pulmonary`` and ``aortic`` annulus points at phase f (motion frame): first the two points
     where the RVOT view (``la_rvot``), resp. the 3-chamber view, cuts the annulus, then ``n_ring``
-    points evenly spaced around it (docs/phantoms.md)."""
+    points evenly spaced around it (docs/phantoms.md).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    n_ring : int, optional
+        Points evenly spaced around each annulus.
+    Returns
+    -------
+    dict of str to ndarray
+        ``pulmonary`` and ``aortic`` -> points (2 + n_ring, 3), mm.
+    """
     from cardionurbs.phantom import outflow as ofl
     from cardionurbs.phantom.geometry import la_plane
     out = {}
@@ -925,7 +1188,25 @@ def outflow_landmarks(anatomy: Anatomy, motion: Motion, f: float, n_ring: int = 
 
 
 def rv_insertion_points(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float):
-    """The two RV insertion points (RV epicardium meets LV epicardium) on an SA plane, or None."""
+    """The two RV insertion points (RV epicardium meets LV epicardium) on an SA plane, or None.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    spec : cardionurbs.phantom.geometry.SliceSpec
+        The slice.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+
+    Returns
+    -------
+    ndarray, shape (2, 3) or None
+        The two insertion points, heart frame at phase f, mm; None where
+        the plane shows no RV.
+    """
     z = sa_material_height(motion, spec, f)
     if anatomy.realistic:
         if not (0.0 < z <= anatomy.z_top_rv_min - BASE_MARGIN_MM):
@@ -991,7 +1272,27 @@ def _sa_line(c: float, n: np.ndarray, segs, step: float, z: float) -> np.ndarray
 
 def sa_tag_lines(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpec, f: float,
                  step: float) -> list[tuple[str, int, np.ndarray]]:
-    """(family, index, points) of the SA tag lines on one SA plane at phase f, clipped to the LV wall."""
+    """(family, index, points) of the SA tag lines on one SA plane at phase f, clipped to the LV wall.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    grid : TagGrid
+        The tag pattern at ED.
+    spec : cardionurbs.phantom.geometry.SliceSpec
+        The slice.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    step : float
+        Point spacing along the lines, mm.
+    Returns
+    -------
+    list of tuple of (str, int, ndarray)
+        (``"sa1"`` | ``"sa2"``, tag index, points (k, 3) in mm) per line piece.
+    """
     z = sa_material_height(motion, spec, f)
     if anatomy.realistic:
         return _sa_tag_lines_realistic(anatomy, motion, grid, spec, f, z, step)
@@ -1053,7 +1354,27 @@ def _sa_tag_lines_realistic(anatomy: Anatomy, motion: Motion, grid: TagGrid, spe
 
 def la_tag_lines(anatomy: Anatomy, motion: Motion, grid: TagGrid, spec: SliceSpec, f: float,
                  step: float) -> list[tuple[str, int, np.ndarray]]:
-    """(``"la"``, index, points) of the LA tag lines on one LA plane at phase f, clipped to the LV wall."""
+    """(``"la"``, index, points) of the LA tag lines on one LA plane at phase f, clipped to the LV wall.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    grid : TagGrid
+        The tag pattern at ED.
+    spec : cardionurbs.phantom.geometry.SliceSpec
+        The slice.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    step : float
+        Point spacing along the lines, mm.
+    Returns
+    -------
+    list of tuple of (str, int, ndarray)
+        (``"la"``, tag index, points (k, 3) in mm) per line piece.
+    """
     if anatomy.realistic:
         return _la_tag_lines_realistic(anatomy, motion, grid, spec, f, step)
     alpha = spec.azimuth

@@ -14,7 +14,25 @@ from cardionurbs.phantom.presets import SubjectSpec, load_cohort_spec
 
 def run_phantom(args: argparse.Namespace) -> int:
     """Run the ``phantom`` command (args: pathology, cohort, seed, frames, noise_px, tag_jumps,
-    breath_hold_mm, snr, no_dicom, out). Exactly one of --pathology and --cohort is required."""
+    breath_hold_mm, snr, no_dicom, out). Exactly one of --pathology and --cohort is required.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed ``phantom`` command line.
+
+    Returns
+    -------
+    int
+        The exit code: 0, or 3 when a subject of a ``--cohort --n`` mix failed.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        Conflicting or incomplete options (checked before anything is written).
+    cardionurbs.errors.OutputError
+        ``--out`` may not be written.
+    """
     if bool(args.pathology) == bool(args.cohort):
         raise PhantomError("phantom: give exactly one of --pathology and --cohort")
     if getattr(args, "label_quirks", None):
@@ -62,7 +80,19 @@ def run_phantom(args: argparse.Namespace) -> int:
 def anatomy_options(args: argparse.Namespace) -> dict:
     """generate() keywords of --anatomy, --infarct, --realism and --[no-]outflow (only those
     given, so that older callers' phantoms stay byte-identical; generate() decides the tracts'
-    default from the anatomy)."""
+    default from the anatomy).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed ``phantom`` command line.
+
+    Returns
+    -------
+    dict
+        :func:`~cardionurbs.phantom.generate.generate` keywords: ``anatomy_model``,
+        ``infarct``, ``realism``, ``outflow``, ``sa_spacing_mm``, ``sa_thickness_mm`` (mm).
+    """
     out = {}
     if getattr(args, "anatomy", "ideal") not in (None, "ideal"):
         out["anatomy_model"] = args.anatomy
@@ -88,7 +118,25 @@ def mix_subjects(spec: list[SubjectSpec], n: int) -> list[SubjectSpec]:
     subject k mod m (m subjects) as its template -- pathology, frames, faults -- with seed
     template.seed + (k div m) * SEED_STEP and id ``<template id>`` in the first round,
     ``<template id>_r<round>`` after it. Subject k is the same whatever ``n``, and the
-    first m subjects are the spec's own."""
+    first m subjects are the spec's own.
+
+    Parameters
+    ----------
+    spec : list of cardionurbs.phantom.presets.SubjectSpec
+        The mix's template subjects.
+    n : int
+        Subjects wanted, >= 1.
+
+    Returns
+    -------
+    list of cardionurbs.phantom.presets.SubjectSpec
+        The ``n`` subjects.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        ``n`` < 1.
+    """
     if n < 1:
         raise PhantomError(f"--n must be >= 1, got {n}")
     m = len(spec)
@@ -102,7 +150,28 @@ def mix_subjects(spec: list[SubjectSpec], n: int) -> list[SubjectSpec]:
 
 def generate_subject(subject: SubjectSpec, out_dir: str, dicom: bool, noise_px: float,
                      tag_jumps: int, extra: dict) -> dict:
-    """Generate and write one subject into ``out_dir/<id>`` (a worker task): a summary row."""
+    """Generate and write one subject into ``out_dir/<id>`` (a worker task): a summary row.
+
+    Parameters
+    ----------
+    subject : cardionurbs.phantom.presets.SubjectSpec
+        The subject (its own noise and tag jumps win over the command's).
+    out_dir : str
+        The cohort folder.
+    dicom : bool
+        Write synthetic DICOM images too.
+    noise_px : float
+        Contour and tag noise σ, in pixels.
+    tag_jumps : int
+        Tag jumps injected.
+    extra : dict
+        Further :func:`~cardionurbs.phantom.generate.generate` keywords (``snr``, anatomy).
+
+    Returns
+    -------
+    dict
+        ``subject``, ``status`` (``"ok"``), ``path`` and ``summary``.
+    """
     ph = generate(subject.pathology, seed=subject.seed, frames=subject.frames,
                   noise_px=subject.noise_px or noise_px, tag_jumps=subject.tag_jumps or tag_jumps,
                   breath_hold_mm=subject.breath_hold_mm, subject=subject.id, **extra)

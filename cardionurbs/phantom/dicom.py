@@ -77,7 +77,18 @@ COMPRESSIONS = ("jpegls", "rle", None)
 
 
 def noise_sigma(snr: float | None) -> float:
-    """Channel noise σ (same units as the signal, myocardium = 0.3) for an SNR; default 0.025."""
+    """Channel noise σ (same units as the signal, myocardium = 0.3) for an SNR; default 0.025.
+
+    Parameters
+    ----------
+    snr : float or None
+        Untagged myocardium signal over the channel noise σ (None: the default σ).
+
+    Returns
+    -------
+    float
+        σ, in signal units (0.3 / snr).
+    """
     if snr is None:
         return NOISE
     return MYO / float(snr)
@@ -85,7 +96,18 @@ def noise_sigma(snr: float | None) -> float:
 
 def grey_levels_per_unit(sigma: float) -> float:
     """Grey levels per unit signal (1/Δ) for channel noise σ: NOISE_GREY_LEVELS / σ, at most
-    SCALE (noise-free or very high SNR images)."""
+    SCALE (noise-free or very high SNR images).
+
+    Parameters
+    ----------
+    sigma : float
+        The channel noise σ, in signal units.
+
+    Returns
+    -------
+    float
+        Grey levels per unit signal.
+    """
     if not sigma > 0:
         return SCALE
     return min(SCALE, NOISE_GREY_LEVELS / float(sigma))
@@ -108,7 +130,25 @@ def material_sections(an, mo, points: np.ndarray, f: float):
     """φ_f⁻¹ of (n, 3) heart-frame positions at phase f with every section value there computed
     once: material (s, θ, z) and S1 = s_endo, S2 = s_epi, S3 = max(S2, S_rv_endo),
     S4 = max(S3, S_rv_epi) at (θ, z) (the values of :meth:`Motion.inverse_cylindrical` and of
-    :meth:`Anatomy.s_rv`, each factor shared between the surfaces that need it), and e^{iθ}."""
+    :meth:`Anatomy.s_rv`, each factor shared between the surfaces that need it), and e^{iθ}.
+
+    Parameters
+    ----------
+    an : cardionurbs.phantom.anatomy.Anatomy
+        The anatomy.
+    mo : cardionurbs.phantom.motion.Motion
+        The motion.
+    points : ndarray, shape (n, 3)
+        Heart-frame positions at phase f, in mm.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+
+    Returns
+    -------
+    tuple of ndarray, each shape (n,)
+        (s, θ, z, S1, S2, S3, S4, e^{iθ}): the material coordinates (s = r² in mm², θ in rad,
+        z in mm) and the section values, in mm².
+    """
     p = np.asarray(points, dtype=float).reshape(-1, 3)
     z = p[:, 2] / mo.lam(f)
     th = np.arctan2(p[:, 1], p[:, 0]) + mo.psi(z, f)
@@ -129,7 +169,26 @@ def tissue_masks(an, s: np.ndarray, th: np.ndarray, z: np.ndarray, s1: np.ndarra
     (half-ellipsoid caps above the base), and, for a realistic anatomy, ``papillary`` and
     ``band`` (papillary muscles and the RV trabecular band: muscle inside the cavities, which
     the metric definitions count as cavity — drawn in images, labelled as cavity in label maps).
-    ``s4`` = max(S3, S_rv_epi) and ``xy`` = the material (x, y) when the caller has them."""
+    ``s4`` = max(S3, S_rv_epi) and ``xy`` = the material (x, y) when the caller has them.
+
+    Parameters
+    ----------
+    an : cardionurbs.phantom.anatomy.Anatomy
+        The anatomy.
+    s, th, z : ndarray, shape (n,)
+        Material coordinates: s = r² (mm²), θ (rad), z (mm).
+    s1, s2, s3 : ndarray, shape (n,)
+        S1 = s_endo, S2 = s_epi, S3 = max(S2, S_rv_endo) at (θ, z), in mm².
+    s4 : ndarray, shape (n,), optional
+        S4 = max(S3, S_rv_epi), in mm².
+    xy : tuple of (ndarray, ndarray), optional
+        The material (x, y), in mm.
+
+    Returns
+    -------
+    dict of str to ndarray of bool
+        Tissue name -> mask (n,).
+    """
     if s4 is None:
         s4 = np.maximum(s3, an.s_rv(th, z, epi=True))
     real = an.shape is not None
@@ -202,6 +261,20 @@ def pixel_heart_points(phantom, plane: ImagePlane) -> tuple[np.ndarray, np.ndarr
     """Heart-frame positions of the pixel centres inside the heart region of interest, and its mask.
 
     The same for every frame of a slice (planes are static); includes the slice's breath-hold shift.
+
+    Parameters
+    ----------
+    phantom : cardionurbs.phantom.generate.Phantom
+        The phantom.
+    plane : cardionurbs.imaging.geometry.ImagePlane
+        The image plane.
+
+    Returns
+    -------
+    points : ndarray, shape (k, 3)
+        Heart-frame positions of the pixels inside the region, in mm.
+    mask : ndarray of bool, shape (rows * columns,)
+        Which pixels (row-major) are inside.
     """
     an, pose = phantom.anatomy, phantom.pose
     cc, rr = np.meshgrid(np.arange(plane.columns, dtype=float), np.arange(plane.rows, dtype=float))
@@ -223,6 +296,26 @@ def render_image(phantom, plane: ImagePlane, rng: np.random.Generator | None = N
     ``rng`` adds Rician noise of channel standard deviation ``sigma`` (default
     from the phantom's ``snr``); ``tag_depth`` the SPAMM depth at t = 0 (default
     the phantom's, 0.9; 0 gives an untagged image).
+
+    Parameters
+    ----------
+    phantom : cardionurbs.phantom.generate.Phantom
+        The phantom.
+    plane : cardionurbs.imaging.geometry.ImagePlane
+        The image plane (its frame).
+    rng : numpy.random.Generator or None, optional
+        The noise generator (None: no noise).
+    roi_points : tuple of (ndarray, ndarray), optional
+        :func:`pixel_heart_points` of the plane, when already computed.
+    sigma : float or None, optional
+        The channel noise σ, in signal units.
+    tag_depth : float or None, optional
+        SPAMM tag depth at t = 0, in [0, 1].
+
+    Returns
+    -------
+    ndarray of float, shape (rows, columns)
+        Signal (myocardium about 0.3).
     """
     an, mo, grid = phantom.anatomy, phantom.motion, phantom.tag_grid
     f = float(phantom.phases[plane.frame])
@@ -341,7 +434,22 @@ def _series_header(phantom, series: str, series_uid: str, series_number: int, le
 def write_dicom(phantom, folder: str | Path, compression: str | None = "jpegls") -> list[Path]:
     """Write every image of the phantom's study under ``folder`` (paths = ImagePlane.file);
     ``compression``: ``"jpegls"`` (JPEG-LS Lossless, default), ``"rle"`` (RLE Lossless) or
-    None (uncompressed). The grey-level step is matched to the noise (module docstring, 5)."""
+    None (uncompressed). The grey-level step is matched to the noise (module docstring, 5).
+
+    Parameters
+    ----------
+    phantom : cardionurbs.phantom.generate.Phantom
+        The phantom.
+    folder : path-like
+        The study folder (files at ``ImagePlane.file``).
+    compression : str or None, optional
+        ``"jpegls"``, ``"rle"`` or None.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The DICOM files written.
+    """
     if compression not in COMPRESSIONS:
         raise ValueError(f"compression must be 'jpegls', 'rle' or None, got {compression!r}")
     folder = Path(folder)

@@ -35,6 +35,29 @@ def add_noise(study: Study, sigma_px: float, rng: np.random.Generator, tries: in
     exactly the noise it would get without the redraws), up to ``tries`` times; a contour that
     crosses under every draw is left out, as an analyst leaves out a crescent thinner than the
     noise. Returns the left-out contours (slice, frame, structure).
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        The phantom's study (contour and tag points changed in place).
+    sigma_px : float
+        σ, in pixels (0 or less: no noise).
+    rng : numpy.random.Generator
+        The phantom's random generator.
+    tries : int, optional
+        Draws of a crossing contour before it is left out.
+    targets : tuple of str, optional
+        ``"contours"`` and/or ``"tags"``.
+
+    Returns
+    -------
+    list of dict
+        ``{"slice", "frame", "structure"}`` of every contour left out.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        ``targets`` names anything else.
     """
     from cardionurbs.io.checks import in_plane_coordinates, self_intersections
     if not set(targets) <= {"contours", "tags"}:
@@ -74,7 +97,27 @@ def add_noise(study: Study, sigma_px: float, rng: np.random.Generator, tries: in
 
 
 def inject_tag_jumps(study: Study, k: int, rng: np.random.Generator) -> list[dict]:
-    """Replace one SA tag line by its neighbour's on k (slice, frame ≠ ED) pairs, in place."""
+    """Replace one SA tag line by its neighbour's on k (slice, frame ≠ ED) pairs, in place.
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        The phantom's study (tag lines changed in place).
+    k : int
+        Tag jumps to inject (0 or less: none).
+    rng : numpy.random.Generator
+        The phantom's random generator.
+
+    Returns
+    -------
+    list of dict
+        ``{"slice", "frame", "family", "index", "replaced_by_index"}`` per jump.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        ``k`` exceeds the tagged SA (slice, frame) pairs after ED.
+    """
     if k <= 0:
         return []
     by_image: dict[tuple[str, int], dict[tuple[str, int], object]] = {}
@@ -102,7 +145,22 @@ def inject_tag_jumps(study: Study, k: int, rng: np.random.Generator) -> list[dic
 
 
 def breath_hold_offsets(slice_ids: list[str], sigma_mm: float, rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """In-plane (row, column) displacement in mm of each SA slice (zeros when σ = 0)."""
+    """In-plane (row, column) displacement in mm of each SA slice (zeros when σ = 0).
+
+    Parameters
+    ----------
+    slice_ids : list of str
+        The SA slice ids.
+    sigma_mm : float
+        σ per in-plane axis, in mm.
+    rng : numpy.random.Generator
+        The phantom's random generator.
+
+    Returns
+    -------
+    dict of str to ndarray
+        Slice id -> (row, column) displacement (2,), in mm.
+    """
     if sigma_mm <= 0:
         return {s: np.zeros(2) for s in slice_ids}
     return {s: rng.normal(0.0, sigma_mm, size=2) for s in slice_ids}

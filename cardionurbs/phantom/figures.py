@@ -18,7 +18,18 @@ COLORS = {"lv_endo": "#e41a1c", "lv_epi": "#4daf4a", "rv_endo": "#377eb8", "rv_e
 
 
 def mid_sa_slice(phantom) -> str:
-    """The SA slice used for EI (mid-ventricular at ES), else the middle of the stack."""
+    """The SA slice used for EI (mid-ventricular at ES), else the middle of the stack.
+
+    Parameters
+    ----------
+    phantom : cardionurbs.phantom.generate.Phantom
+        A generated phantom.
+
+    Returns
+    -------
+    str
+        The SA slice id.
+    """
     sid = phantom.truth.get("tags", {}).get("ei_slice")
     if sid:
         return sid
@@ -28,7 +39,28 @@ def mid_sa_slice(phantom) -> str:
 
 def plot_sa_frame(phantom, slice_id: str, frame: int, path: str | Path, title: str | None = None,
                   noise: bool = True) -> Path:
-    """Save the tagged SA image of one slice and frame with contours and tag lines (PNG)."""
+    """Save the tagged SA image of one slice and frame with contours and tag lines (PNG).
+
+    Parameters
+    ----------
+    phantom : cardionurbs.phantom.generate.Phantom
+        A generated phantom.
+    slice_id : str
+        The SA slice.
+    frame : int
+        The frame index, 0-based.
+    path : path-like
+        The PNG to write (its folder is made).
+    title : str or None, optional
+        The title (default subject, slice and frame).
+    noise : bool, optional
+        Render the image with noise (seeded by the frame).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -72,7 +104,22 @@ def plot_sa_frame(phantom, slice_id: str, frame: int, path: str | Path, title: s
 
 
 def write_preset_figures(out_dir: str | Path, seed: int = 0, frames: int = 20) -> list[Path]:
-    """ED and ES mid-ventricular figures for every preset (see the module docstring)."""
+    """ED and ES mid-ventricular figures for every preset (see the module docstring).
+
+    Parameters
+    ----------
+    out_dir : path-like
+        The folder the PNGs go to (``phantom_<preset>_ed.png``, ``_es.png``).
+    seed : int, optional
+        The phantoms' seed.
+    frames : int, optional
+        Frames per cycle.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The PNGs written.
+    """
     from cardionurbs.phantom.generate import generate
     from cardionurbs.phantom.presets import PATHOLOGIES
 
@@ -92,7 +139,19 @@ TABLE_COLUMNS = ("LVEDV (mL)", "LVEF (%)", "LVM (g)", "RVEDV (mL)", "RVEF (%)", 
 
 
 def cohort_truth_table(spec_path: str | Path) -> str:
-    """Markdown table of the truth metrics of every subject of a cohort spec."""
+    """Markdown table of the truth metrics of every subject of a cohort spec.
+
+    Parameters
+    ----------
+    spec_path : path-like
+        A cohort spec (TOML, :func:`cardionurbs.phantom.presets.load_cohort_spec`).
+
+    Returns
+    -------
+    str
+        The Markdown table: subject, pathology, HR (bpm) and :data:`TABLE_COLUMNS` (mL, %, g,
+        deg, deg/cm).
+    """
     from cardionurbs.phantom.generate import generate
     from cardionurbs.phantom.presets import load_cohort_spec
 

@@ -46,7 +46,40 @@ SERIES = {"SA": "sa", "la_2ch": "la_2ch", "la_3ch": "la_3ch", "la_4ch": "la_4ch"
 
 @dataclass
 class Phantom:
-    """A generated phantom: the study, its truth and the analytic model behind them."""
+    """A generated phantom: the study, its truth and the analytic model behind them.
+
+    Attributes
+    ----------
+    study : cardionurbs.study.Study
+        The generated study (images, contours, tag lines, landmarks; scanner mm).
+    truth : dict
+        The analytic truth written as ``truth.json`` (``metrics`` in docs/metrics.md units,
+        faults, tag levels, volumes).
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED geometry (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The analytic motion through the cycle.
+    pose : cardionurbs.phantom.geometry.HeartPose
+        Heart frame -> scanner frame (rotation and origin in mm).
+    acquisition : cardionurbs.phantom.geometry.Acquisition
+        Matrix, field of view and SA stack of the images.
+    slices : list of cardionurbs.phantom.geometry.SliceSpec
+        The SA and LA slices imaged.
+    tag_grid : cardionurbs.phantom.annotate.TagGrid
+        The SPAMM tag planes at ED.
+    phases : ndarray, shape (frames,)
+        The cycle phase f (0 at ED, 1 at ES) of every frame.
+    es_frame : int
+        The ES frame index, 0-based.
+    draw : cardionurbs.phantom.presets.SubjectDraw
+        The subject's drawn parameters.
+    config : dict
+        The :func:`generate` arguments that made it.
+    shifts : dict of str to ndarray
+        SA slice id -> its breath-hold in-plane shift (row, column), in mm.
+    frame_times_ms : ndarray, shape (frames,)
+        Every frame's time after the R wave, in ms.
+    """
 
     study: Study
     truth: dict
@@ -69,7 +102,20 @@ class Phantom:
     def deformation_gradient(self, points: np.ndarray, frame: int) -> np.ndarray:
         """F (n, 3, 3) of the exact motion from ED to ``frame`` at ED points (n, 3, scanner mm):
         :func:`cardionurbs.phantom.regional.deformation_gradient` in the heart frame (the
-        realistic apex bend is part of its map), turned into the scanner frame, R F Rᵀ."""
+        realistic apex bend is part of its map), turned into the scanner frame, R F Rᵀ.
+
+        Parameters
+        ----------
+        points : ndarray, shape (n, 3)
+            Material points at ED, in scanner mm.
+        frame : int
+            The frame index, 0-based.
+
+        Returns
+        -------
+        ndarray, shape (n, 3, 3)
+            The deformation gradient F = ∂x/∂X in scanner axes (dimensionless).
+        """
         from cardionurbs.phantom import regional
         R = self.pose.rotation
         X = (np.asarray(points, dtype=float).reshape(-1, 3) - self.pose.origin) @ R
@@ -144,7 +190,7 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
              volume_check: bool = True, anatomy: dict | None = None, snr: float | None = None,
              tag_depth: float | None = None, anatomy_model: str = "ideal", infarct: str | None = None,
              realism: str | None = None, outflow: bool | None = None) -> Phantom:
-    """Generate one phantom subject.
+    """Generate one phantom subject (a bad argument: :class:`~cardionurbs.errors.PhantomError`).
 
     Parameters
     ----------
@@ -153,26 +199,26 @@ def generate(pathology: str = "normal", seed: int = 0, frames: int = 20, noise_p
     frames : cardiac phases N >= 2 over one RR interval; frame 0 = ED.
     noise_px, tag_jumps, breath_hold_mm : faults (see :mod:`cardionurbs.phantom.faults`).
     sa_spacing_mm, sa_thickness_mm, n_sa : SA stack (n_sa None = cover base to apex).
-    tag_spacing_px : SPAMM tag spacing in pixels (7 in the paper).
+    tag_spacing_px, fov_mm, matrix : SPAMM tag spacing (px; 7 in the paper), field of view (mm), px a side.
+    subject : the study's subject id (default ``<pathology>_<seed, 3 digits>``).
     volume_check : also compute the method-B mesh volumes at ED and ES into the truth.
-    snr : image SNR of the tagged DICOM (untagged myocardium over the Rician channel noise σ;
-        default σ = 0.025, i.e. 12); see :mod:`cardionurbs.phantom.dicom`.
+    snr : image SNR of the tagged DICOM (myocardium over the Rician channel noise σ; default 12).
     tag_depth : SPAMM tag depth at t = 0 in (0, 1] (default 0.9; 0 writes untagged images).
-    anatomy : optional overrides of the solved ED geometry (Anatomy field -> mm), e.g.
-        ``{"r_short_endo": 30.0}``; the truth is computed from the overridden shape (the
-        preset's target ranges then no longer apply).
-    anatomy_model : ``"ideal"`` (spheroids, the default) or ``"realistic"`` (shape modes, segmental
-        wall thickness, varying RV crescent, saddle mitral and tricuspid annuli, apex off the axis,
-        outflow tracts; drawn from the seed, see :mod:`cardionurbs.phantom.shape`).
+    anatomy : overrides of the solved ED geometry (Anatomy field -> mm, e.g. ``{"r_short_endo": 30.0}``);
+        the truth follows them (the preset's target ranges then no longer apply).
+    anatomy_model : ``"ideal"`` (spheroids) or ``"realistic"`` (shape modes, segmental walls, varying RV,
+        saddle annuli, bent apex, outflow tracts; drawn from the seed, :mod:`cardionurbs.phantom.shape`).
     infarct : ``"lad"``, ``"rca"`` or ``"lcx"``: that coronary territory thinner and hypokinetic.
-    realism : ``"clinical"``: the acquisition faults of clinical data at once — 0.5 px contour
-        noise, 1.5 mm breath-hold slice shifts, image SNR 15 (each unless given explicitly);
-        the truth is unchanged.
-    outflow : the RV outflow tract to a pulmonary valve and the LV outflow tract to an aortic
-        valve (:mod:`cardionurbs.phantom.outflow`), with their ``la_rvot`` view, ``rv_outlet`` SA
-        contours, ``pulmonary``/``aortic`` landmarks and truth. ``None`` (default): on for the
-        realistic anatomy, off for the ideal one; ``False`` leaves them out of a realistic heart;
-        ``True`` with the ideal anatomy is an error (the spheroids have no tracts).
+    realism : ``"clinical"``: 0.5 px contour noise, 1.5 mm breath-hold shifts, image SNR 15 at once
+        (each unless given explicitly); the truth is unchanged.
+    outflow : RV and LV outflow tracts to pulmonary and aortic valves (:mod:`cardionurbs.phantom.outflow`),
+        their ``la_rvot`` view, ``rv_outlet`` contours, landmarks and truth; ``None``: on for the
+        realistic anatomy only; ``True`` with the ideal anatomy is an error.
+
+    Returns
+    -------
+    Phantom
+        The study, its truth and the analytic model.
     """
     _check_args(pathology, seed, frames, noise_px, tag_jumps, breath_hold_mm)
     outflow = _check_options(snr, tag_depth, anatomy_model, infarct, outflow, realism)
@@ -449,6 +495,21 @@ def tag_planes_scanner(grid: annotate.TagGrid, pose: HeartPose, anatomy: Anatomy
 
     This is what the scanner protocol knows (spacing, orientation, where the grid starts);
     the tag tracker cross-checks the images against it and takes its index labels from it.
+
+    Parameters
+    ----------
+    grid : cardionurbs.phantom.annotate.TagGrid
+        The tag grid (heart frame).
+    pose : cardionurbs.phantom.geometry.HeartPose
+        Heart frame -> scanner frame.
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved anatomy.
+
+    Returns
+    -------
+    dict
+        Family (``"sa1"``, ``"sa2"``, ``"la"``) -> ``{"normal": 3 numbers, "spacing_mm",
+        "index0_mm"}`` (mm).
     """
     out = {}
     for fam in ("sa1", "sa2", "la"):
@@ -493,6 +554,24 @@ def write_phantom(phantom: Phantom, out_dir: str | Path, dicom: bool = True,
     :mod:`cardionurbs.phantom.labelmaps`).
 
     The folder is replaced atomically; the same phantom gives byte-identical files.
+
+    Parameters
+    ----------
+    phantom : Phantom
+        The phantom.
+    out_dir : path-like
+        The study folder (replaced atomically).
+    dicom : bool, optional
+        Write the synthetic DICOM images.
+    labels : str or None, optional
+        A label-map layout: ``"acdc"``, ``"ukbb"``, ``"mnms"``, ``"mnms2"``.
+    label_quirks : str or None, optional
+        Header quirks of the label maps (:func:`cardionurbs.phantom.labelmaps.parse_quirks`).
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_dir``.
     """
     out_dir = Path(out_dir)
     study = phantom.study
@@ -517,6 +596,28 @@ def generate_cohort(subjects: list[SubjectSpec], out_dir: str | Path, dicom: boo
 
     ``noise_px`` and ``tag_jumps`` apply to subjects whose spec sets none; ``report`` (optional
     callable) receives (path, phantom) after each subject is written.
+
+    Parameters
+    ----------
+    subjects : list of cardionurbs.phantom.presets.SubjectSpec
+        The cohort spec's subjects.
+    out_dir : path-like
+        The cohort folder.
+    dicom : bool, optional
+        Write the synthetic DICOM images.
+    noise_px : float, optional
+        Contour and tag noise σ in pixels, for subjects that set none.
+    tag_jumps : int, optional
+        Tag jumps, for subjects that set none.
+    report : callable, optional
+        ``report(path, phantom)``, after each subject is written.
+    **kw
+        Further :func:`generate` keywords.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The subject folders written.
     """
     out_dir = Path(out_dir)
     paths = []

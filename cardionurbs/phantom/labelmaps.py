@@ -58,7 +58,22 @@ LPS_TO_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
 def tissue_codes(phantom, hp: np.ndarray, f: float) -> np.ndarray:
-    """Tissue code (BG, LV, MYO_LV, RV, MYO_RV, LA, RA) of heart-frame points at phase f."""
+    """Tissue code (BG, LV, MYO_LV, RV, MYO_RV, LA, RA) of heart-frame points at phase f.
+
+    Parameters
+    ----------
+    phantom : cardionurbs.phantom.generate.Phantom
+        The phantom.
+    hp : ndarray, shape (n, 3)
+        Heart-frame positions at phase f, mm.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+
+    Returns
+    -------
+    ndarray of uint8, shape (n,)
+        The tissue code of each point.
+    """
     an, mo = phantom.anatomy, phantom.motion
     s, th, z, s1, s2, s3 = mo.inverse_cylindrical(an, hp, f)
     tm = tissue_masks(an, s, th, z, s1, s2, s3)
@@ -75,7 +90,24 @@ def tissue_codes(phantom, hp: np.ndarray, f: float) -> np.ndarray:
 def plane_codes(phantom, plane: ImagePlane, supersample: int = 1,
                 cache: dict | None = None) -> np.ndarray:
     """(columns, rows) tissue codes of one image plane at its frame (pixel centre, or the
-    majority of supersample² sub-pixel centres)."""
+    majority of supersample² sub-pixel centres).
+
+    Parameters
+    ----------
+    phantom : cardionurbs.phantom.generate.Phantom
+        The phantom.
+    plane : cardionurbs.imaging.geometry.ImagePlane
+        The image plane (its frame).
+    supersample : int, optional
+        Sub-pixels per side voted over.
+    cache : dict, optional
+        Heart-frame pixel positions per (slice, sub-pixel offset), filled and reused.
+
+    Returns
+    -------
+    ndarray of uint8, shape (columns, rows)
+        Tissue codes, first axis the column index.
+    """
     f = float(phantom.phases[plane.frame])
     s = int(supersample)
     votes = []
@@ -109,7 +141,20 @@ def plane_codes(phantom, plane: ImagePlane, supersample: int = 1,
 
 
 def convention_lut(preset: str, atria: bool = False) -> np.ndarray:
-    """Tissue code -> label value of a convention (0 for what it does not label)."""
+    """Tissue code -> label value of a convention (0 for what it does not label).
+
+    Parameters
+    ----------
+    preset : str
+        A label convention of :data:`cardionurbs.io.labels.PRESETS` (``"acdc"``, ``"ukbb"`` ...).
+    atria : bool, optional
+        Label the atria too (where the convention has them).
+
+    Returns
+    -------
+    ndarray of uint8, shape (7,)
+        Label value per tissue code.
+    """
     roles = PRESETS[preset]
     lut = np.zeros(7, dtype=np.uint8)
     lut[LV], lut[MYO_LV] = roles.lv, roles.myo
@@ -122,7 +167,20 @@ def convention_lut(preset: str, atria: bool = False) -> np.ndarray:
 
 def cine_image(codes: np.ndarray, blur_px: float = 0.0) -> np.ndarray:
     """Untagged cine-like intensities (0..4095) of a code image: blood bright, myocardium
-    dark, body grey, lung black; ``blur_px`` > 0 adds Gaussian partial-volume blur."""
+    dark, body grey, lung black; ``blur_px`` > 0 adds Gaussian partial-volume blur.
+
+    Parameters
+    ----------
+    codes : ndarray of uint8
+        A tissue code image, any shape.
+    blur_px : float, optional
+        Gaussian blur σ, in pixels.
+
+    Returns
+    -------
+    ndarray of int16
+        Intensities in 0..4095, shape of ``codes``.
+    """
     val = np.array([BODY, BLOOD, MYO, BLOOD, MYO, BLOOD, BLOOD], float)
     img = val[codes]
     img = np.where(codes == BG, np.where(ndimage.binary_dilation(codes > 0, iterations=15), BODY, LUNG),
@@ -134,7 +192,18 @@ def cine_image(codes: np.ndarray, blur_px: float = 0.0) -> np.ndarray:
 
 def plane_affine_ras(planes: list[ImagePlane]) -> np.ndarray:
     """RAS+ voxel-to-world affine of a stack of parallel planes (k = list order; one plane:
-    the third axis is the normal times the slice thickness)."""
+    the third axis is the normal times the slice thickness).
+
+    Parameters
+    ----------
+    planes : list of cardionurbs.imaging.geometry.ImagePlane
+        Parallel planes in stack order.
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
+        Voxel (i, j, k) to RAS+ world mm.
+    """
     p0 = planes[0]
     a = np.eye(4)
     a[:3, 0] = p0.row_cosine * p0.pixel_spacing[1]
@@ -152,7 +221,23 @@ ACDC_SFORM = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 def parse_quirks(spec: "str | list[str] | tuple[str, ...] | None") -> tuple[str, ...]:
     """``"real,lps"`` (or a list) -> ("real", "lps"); PhantomError for an unknown quirk or for
-    ``apex-first`` with ``base-first``."""
+    ``apex-first`` with ``base-first``.
+
+    Parameters
+    ----------
+    spec : str, list of str, tuple of str or None
+        Comma-separated quirk names, or a list of them.
+
+    Returns
+    -------
+    tuple of str
+        The quirks, lower case, repeats dropped, in order.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        An unknown quirk, or ``apex-first`` with ``base-first``.
+    """
     if spec is None:
         return ()
     items = spec.split(",") if isinstance(spec, str) else list(spec)
@@ -261,7 +346,37 @@ def write_labelmaps(phantom, folder: str | Path, convention: str = "ukbb", *,
                     images: bool = True, quirks: "str | list[str] | None" = None) -> list[Path]:
     """Write the phantom's label maps in the layout of ``convention`` (``acdc``, ``ukbb``,
     ``mnms``, ``mnms2``) into ``folder`` with the header ``quirks`` of :data:`QUIRKS`
-    (module docstring); returns the files written."""
+    (module docstring); returns the files written.
+
+    Parameters
+    ----------
+    phantom : cardionurbs.phantom.generate.Phantom
+        The phantom.
+    folder : path-like
+        The output folder (made).
+    convention : str, optional
+        ``"acdc"``, ``"ukbb"`` (default), ``"mnms"`` or ``"mnms2"``.
+    supersample : int, optional
+        Sub-pixels per side of the label vote, >= 1.
+    blur_px : float, optional
+        Partial-volume blur of the cine images, in pixels.
+    frames : list of int or None, optional
+        The frames written (default all; 0-based).
+    images : bool, optional
+        Also write the untagged cine-like image NIfTI.
+    quirks : str or list of str, optional
+        Header quirks (:data:`QUIRKS`).
+
+    Returns
+    -------
+    list of pathlib.Path
+        The files written.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        An unknown convention or quirk, or ``supersample`` < 1.
+    """
     if convention not in LAYOUT_PRESETS:
         raise PhantomError(f"unknown label convention {convention!r}; expected one of "
                            f"{', '.join(LAYOUT_PRESETS)}")

@@ -58,6 +58,21 @@ class VolumeCurve:
     contraction, ejection (fast then slow) up to ES, then isovolumic relaxation,
     rapid filling, diastasis and the atrial kick (fraction of the stroke volume
     refilled in each phase given by the knot values).
+
+    Attributes
+    ----------
+    es_fraction : float
+        τ of ES, in [0.2, 0.6].
+    rapid_filling : float
+        Fraction of the stroke volume refilled in rapid filling.
+    diastasis : float
+        Further fraction refilled in diastasis (the rest is the atrial kick).
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        ``es_fraction`` out of range, or the filling fractions not positive or summing to 1 or
+        more.
     """
 
     es_fraction: float = 0.35
@@ -73,6 +88,15 @@ class VolumeCurve:
             raise PhantomError("filling fractions must be positive and sum below 1")
 
     def knots(self) -> tuple[np.ndarray, np.ndarray]:
+        """The PCHIP knots of the curve.
+
+        Returns
+        -------
+        tau : ndarray, shape (10,)
+            Knot times τ = t / RR, from 0 to 1.
+        f : ndarray, shape (10,)
+            The phase at each knot (0 at ED, 1 at ES).
+        """
         e = self.es_fraction
         d = 1.0 - e
         ts = [0.0, 0.1 * e, 0.5 * e, 0.8 * e, e,
@@ -89,7 +113,18 @@ class VolumeCurve:
     def derivative(self, tau: np.ndarray) -> np.ndarray:
         """df/dτ, exact (the derivative of the piecewise cubic); one-sided at the knots
         (at τ = 0 the slope of the start of the beat, τ -> 1 the end: the curve has a
-        corner at ED)."""
+        corner at ED).
+
+        Parameters
+        ----------
+        tau : float or ndarray
+            τ = t / RR (taken modulo 1).
+
+        Returns
+        -------
+        ndarray
+            df/dτ, shape of ``tau``.
+        """
         ts, fs = self.knots()
         return PchipInterpolator(ts, fs).derivative()(np.mod(np.asarray(tau, dtype=float), 1.0))
 
@@ -98,13 +133,28 @@ class VolumeCurve:
 class Motion:
     """Prescribed motion parameters at ES (f = 1), see the module docstring.
 
-    ls : longitudinal shortening fraction (1 − λ at ES).
-    lv_ef, rv_ef : ejection fractions (fractions, not %).
-    septal_flattening : ε at ES.
-    apex_rotation_deg, base_rotation_deg : ψ at z = 0 and z = z_b at ES, degrees
-        counter-clockwise seen from the apex.
-    z_base : base height used in ψ(z), mm.
-    curve : the phase curve f.
+    Attributes
+    ----------
+    ls : float
+        Longitudinal shortening fraction (1 − λ at ES), in [0, 0.5).
+    lv_ef, rv_ef : float
+        Ejection fractions (fractions, not %), in [0, 0.95).
+    septal_flattening : float
+        ε at ES, in [0, 0.8).
+    apex_rotation_deg, base_rotation_deg : float
+        ψ at z = 0 and z = z_b at ES, degrees counter-clockwise seen from the apex (M2).
+    z_base : float
+        Base height used in ψ(z), mm.
+    curve : VolumeCurve
+        The phase curve f.
+    z_twist_max : float or None
+        Height above which ψ is held (the top of the mitral saddle), mm; None: not held.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        A parameter out of its range, or an LV cavity that ejection and septal flattening
+        would collapse.
     """
 
     ls: float
@@ -128,11 +178,35 @@ class Motion:
 
     # ------------------------------------------------------------ fields
     def lam(self, f) -> np.ndarray:
-        """λ(f) of eq. (M1)."""
+        """λ(f) of eq. (M1).
+
+        Parameters
+        ----------
+        f : float or ndarray
+            The cycle phase.
+
+        Returns
+        -------
+        ndarray
+            λ, shape of ``f``.
+        """
         return 1.0 - self.ls * np.asarray(f, dtype=float)
 
     def psi(self, z, f) -> np.ndarray:
-        """ψ(z, f) of eq. (M2), radians, CCW seen from the apex."""
+        """ψ(z, f) of eq. (M2), radians, CCW seen from the apex.
+
+        Parameters
+        ----------
+        z : float or ndarray
+            Material height, mm.
+        f : float or ndarray
+            The cycle phase.
+
+        Returns
+        -------
+        ndarray
+            ψ in rad, broadcast shape.
+        """
         a, b = np.radians(self.apex_rotation_deg), np.radians(self.base_rotation_deg)
         z = np.asarray(z, dtype=float)
         if self.z_twist_max is not None:
@@ -142,7 +216,24 @@ class Motion:
 
     def kappa_lv(self, theta, f, z=None, anatomy: Anatomy | None = None) -> np.ndarray:
         """κ_L(θ, f); with an infarcted realistic anatomy the ejection term is reduced by the
-        hypokinesis inside the territory: 1 − EF f (1 − η w_i(θ, z/z_b))."""
+        hypokinesis inside the territory: 1 − EF f (1 − η w_i(θ, z/z_b)).
+
+        Parameters
+        ----------
+        theta : float or ndarray
+            Material angle θ, rad.
+        f : float or ndarray
+            The cycle phase.
+        z : float or ndarray, optional
+            Material height, mm (needed for the infarct).
+        anatomy : cardionurbs.phantom.anatomy.Anatomy, optional
+            The anatomy (its infarct).
+
+        Returns
+        -------
+        ndarray
+            κ_L, broadcast shape.
+        """
         f = np.asarray(f, dtype=float)
         eject = self.lv_ef * f
         shape = anatomy.shape if anatomy is not None else None
@@ -152,6 +243,18 @@ class Motion:
         return (1.0 - eject) * (1.0 - self.septal_flattening * f * np.cos(2.0 * np.asarray(theta)))
 
     def kappa_rv(self, f) -> np.ndarray:
+        """κ_R(f) = 1 − EF_R f, the RV cavity's scaling in (M3).
+
+        Parameters
+        ----------
+        f : float or ndarray
+            The cycle phase (0 at ED, 1 at ES).
+
+        Returns
+        -------
+        ndarray
+            κ_R, shape of ``f``.
+        """
         return 1.0 - self.rv_ef * np.asarray(f, dtype=float)
 
     # ------------------------------------------------------------ the map
@@ -173,14 +276,56 @@ class Motion:
     def knots(self, anatomy: Anatomy, theta, z, f, layers=None):
         """The knots, slopes and knot images of (M3) at material (θ, z), phase f (:meth:`_knots`),
         to pass as ``knots=`` to :meth:`radial_map` and :meth:`inverse_radial_map` when several
-        maps share one place (the same values as computing them in each call)."""
+        maps share one place (the same values as computing them in each call).
+
+        Parameters
+        ----------
+        anatomy : cardionurbs.phantom.anatomy.Anatomy
+            The anatomy.
+        theta : float or ndarray
+            Material angle θ, rad.
+        z : float or ndarray
+            Material height, mm.
+        f : float
+            The cycle phase.
+        layers : tuple of ndarray, optional
+            (S1, S2, S3) at (θ, z), mm².
+
+        Returns
+        -------
+        tuple
+            ((S1, S2, S3), (κ_L, κ_R), (B1, B2, B3)), the S and B in mm².
+        """
         return self._knots(anatomy, np.asarray(theta, dtype=float), np.asarray(z, dtype=float), f,
                            layers)
 
     def radial_map(self, anatomy: Anatomy, s, theta, z, f, layers=None, knots=None) -> np.ndarray:
         """s' = G(s; θ, z) of eq. (M3) for material (s, θ, z) at phase f. ``layers``: the section
         values (S1, S2, S3) at (θ, z) when the caller has them already (several s at one place);
-        ``knots``: :meth:`knots` at (θ, z), f, likewise."""
+        ``knots``: :meth:`knots` at (θ, z), f, likewise.
+
+        Parameters
+        ----------
+        anatomy : cardionurbs.phantom.anatomy.Anatomy
+            The anatomy.
+        s : float or ndarray
+            Material s = r², mm².
+        theta : float or ndarray
+            Material angle θ, rad.
+        z : float or ndarray
+            Material height, mm.
+        f : float
+            The cycle phase.
+        layers : tuple of ndarray, optional
+            (S1, S2, S3) at (θ, z), mm².
+        knots : tuple, optional
+            :meth:`knots` at (θ, z), f.
+
+        Returns
+        -------
+        ndarray
+            s' in mm², broadcast shape.
+        """
         if knots is None:
             s, theta, z = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (s, theta, z)))
             knots = self._knots(anatomy, theta, z, f, layers)
@@ -205,7 +350,30 @@ class Motion:
 
     def inverse_radial_map(self, anatomy: Anatomy, s_def, theta, z, f, layers=None,
                            knots=None) -> np.ndarray:
-        """Material s from deformed s' at material (θ, z): inverse of eq. (M3)."""
+        """Material s from deformed s' at material (θ, z): inverse of eq. (M3).
+
+        Parameters
+        ----------
+        anatomy : cardionurbs.phantom.anatomy.Anatomy
+            The anatomy.
+        s_def : float or ndarray
+            Deformed s' = r'², mm².
+        theta : float or ndarray
+            Material angle θ, rad.
+        z : float or ndarray
+            Material height, mm.
+        f : float
+            The cycle phase.
+        layers : tuple of ndarray, optional
+            (S1, S2, S3) at (θ, z), mm².
+        knots : tuple, optional
+            :meth:`knots` at (θ, z), f.
+
+        Returns
+        -------
+        ndarray
+            Material s in mm², broadcast shape.
+        """
         if knots is not None:
             return self._inverse_layers(anatomy, np.asarray(s_def, dtype=float), theta, z, f,
                                         knots=knots)[0]
@@ -213,7 +381,22 @@ class Motion:
         return self._inverse_layers(anatomy, sp, theta, z, f, layers)[0]
 
     def forward(self, anatomy: Anatomy, points: np.ndarray, f: float) -> np.ndarray:
-        """φ_f: (n, 3) material heart-frame points (ED, mm) -> positions at phase f (mm)."""
+        """φ_f: (n, 3) material heart-frame points (ED, mm) -> positions at phase f (mm).
+
+        Parameters
+        ----------
+        anatomy : cardionurbs.phantom.anatomy.Anatomy
+            The anatomy.
+        points : ndarray, shape (n, 3)
+            Material (ED) heart-frame points, mm.
+        f : float
+            The cycle phase.
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+            Positions at phase f, mm.
+        """
         p = np.asarray(points, dtype=float).reshape(-1, 3)
         x, y, z = p[:, 0], p[:, 1], p[:, 2]
         s, theta = x * x + y * y, np.arctan2(y, x)
@@ -224,7 +407,22 @@ class Motion:
 
     def inverse_cylindrical(self, anatomy: Anatomy, points: np.ndarray, f: float):
         """φ_f⁻¹ in cylindrical form: material (s, θ, z) of (n, 3) heart-frame positions at phase f,
-        with the section values S1 = s_endo, S2 = s_epi, S3 = max(S2, S_rv_endo) at (θ, z)."""
+        with the section values S1 = s_endo, S2 = s_epi, S3 = max(S2, S_rv_endo) at (θ, z).
+
+        Parameters
+        ----------
+        anatomy : cardionurbs.phantom.anatomy.Anatomy
+            The anatomy.
+        points : ndarray, shape (n, 3)
+            Heart-frame positions at phase f, mm.
+        f : float
+            The cycle phase.
+
+        Returns
+        -------
+        tuple of ndarray, each shape (n,)
+            (s, θ, z, S1, S2, S3): s and the S in mm², θ in rad, z in mm.
+        """
         p = np.asarray(points, dtype=float).reshape(-1, 3)
         z = p[:, 2] / self.lam(f)
         theta = np.arctan2(p[:, 1], p[:, 0]) + self.psi(z, f)
@@ -232,12 +430,35 @@ class Motion:
         return s, theta, z, s1, s2, s3
 
     def inverse(self, anatomy: Anatomy, points: np.ndarray, f: float) -> np.ndarray:
-        """φ_f⁻¹: (n, 3) heart-frame positions at phase f -> material ED points (mm)."""
+        """φ_f⁻¹: (n, 3) heart-frame positions at phase f -> material ED points (mm).
+
+        Parameters
+        ----------
+        anatomy : cardionurbs.phantom.anatomy.Anatomy
+            The anatomy.
+        points : ndarray, shape (n, 3)
+            Heart-frame positions at phase f, mm.
+        f : float
+            The cycle phase.
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+            Material (ED) points, mm.
+        """
         s, theta, z = self.inverse_cylindrical(anatomy, points, f)[:3]
         r = np.sqrt(np.maximum(s, 0.0))
         return np.column_stack([r * np.cos(theta), r * np.sin(theta), z])
 
     def to_dict(self) -> dict:
+        """JSON-safe parameters (truth.json ``motion``).
+
+        Returns
+        -------
+        dict
+            The fields (``z_base_mm``, ``z_twist_max_mm`` when set, in mm; rotations in
+            degrees) and the curve's ``es_fraction``, ``rapid_filling``, ``diastasis``.
+        """
         return {"ls": self.ls, "lv_ef": self.lv_ef, "rv_ef": self.rv_ef,
                 "septal_flattening": self.septal_flattening,
                 "apex_rotation_deg": self.apex_rotation_deg,

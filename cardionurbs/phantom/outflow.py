@@ -51,7 +51,36 @@ from cardionurbs.errors import PhantomError
 
 @dataclass(frozen=True)
 class OutflowTracts:
-    """Outflow-tract parameters (angles in degrees, lengths in mm, ratios dimensionless)."""
+    """Outflow-tract parameters (angles in degrees, lengths in mm, ratios dimensionless).
+
+    Attributes
+    ----------
+    rvot_start_deg : float
+        θ_a, the septal-side edge of the RVOT window at the base, degrees.
+    rvot_height_mm : float
+        H, the pulmonary valve centre above the tricuspid plane, mm (10-35).
+    rvot_narrowing : float
+        β_1 / β_0, the window's narrowing towards the valve (0.3-1).
+    rvot_width_mm : float
+        w_1, the radial lumen width at the valve, mm.
+    pulmonary_tilt_deg : float
+        τ_p, the pulmonary valve plane's tilt, degrees (0-25).
+    lvot_azimuth_deg : float
+        α_ao, the LVOT's azimuth about the LV axis, degrees.
+    lvot_offset : float
+        d / r_short_endo, the LVOT axis's distance from the LV axis.
+    lvot_radius : float
+        ρ / r_short_endo, the LVOT cylinder's radius.
+    aortic_height_mm : float
+        H_ao, the aortic valve centre above z_b, mm (6-25).
+    aortic_tilt_deg : float
+        τ_a, the aortic valve plane's tilt, degrees (0-20).
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        A parameter out of its range.
+    """
 
     rvot_start_deg: float = 24.0          # θ_a, septal-side edge of the RVOT window at the base
     rvot_height_mm: float = 20.0          # H, pulmonary valve centre above the tricuspid plane
@@ -80,12 +109,29 @@ class OutflowTracts:
             raise PhantomError("aortic_height_mm must be in [6, 25]")
 
     def to_dict(self) -> dict:
+        """JSON-safe fields.
+
+        Returns
+        -------
+        dict of str to float
+            Field -> value (degrees, mm, ratios).
+        """
         return {k: float(v) for k, v in asdict(self).items()}
 
 
 def draw_outflow(rng: np.random.Generator) -> OutflowTracts:
     """Outflow tracts drawn per subject from ranges that give an RVOT of roughly 10–15 % of the
-    RV end-diastolic volume, a 25–30 mm pulmonary and an about 20 mm LVOT diameter."""
+    RV end-diastolic volume, a 25–30 mm pulmonary and an about 20 mm LVOT diameter.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The subject's generator.
+    Returns
+    -------
+    OutflowTracts
+        The drawn parameters.
+    """
     return OutflowTracts(rvot_start_deg=float(rng.uniform(22.0, 28.0)),
                          rvot_height_mm=float(rng.uniform(18.0, 24.0)),
                          rvot_narrowing=float(rng.uniform(0.55, 0.7)),
@@ -100,7 +146,29 @@ def draw_outflow(rng: np.random.Generator) -> OutflowTracts:
 # ----------------------------------------------------------------- RVOT
 @dataclass(frozen=True)
 class RvotFrame:
-    """Derived RVOT geometry of one anatomy (radians, mm)."""
+    """Derived RVOT geometry of one anatomy (radians, mm).
+
+    Attributes
+    ----------
+    z_base : float
+        The base height z_b, mm.
+    height : float
+        H, mm.
+    alpha : float
+        The window's centre angle, rad.
+    beta0, beta1 : float
+        The window's half-width at the base and at the valve, rad.
+    delta : float
+        Angular thickness of the side walls, rad.
+    w0, w1 : float
+        The radial lumen width at the base and at the valve, mm.
+    wall : float
+        The RV wall thickness, mm.
+    plane_point : tuple of float
+        A point of the pulmonary valve plane (material), mm.
+    plane_normal : tuple of float
+        Its unit normal.
+    """
 
     z_base: float
     height: float
@@ -115,7 +183,21 @@ class RvotFrame:
     plane_normal: tuple
 
     def profile(self, z, epi: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """(β(z), w(z)) of eq. (O1): ease-out from the base values to the valve values over H."""
+        """(β(z), w(z)) of eq. (O1): ease-out from the base values to the valve values over H.
+
+        Parameters
+        ----------
+        z : float or ndarray
+            Material height, mm.
+        epi : bool, optional
+            The epicardial shell (else the endocardial).
+        Returns
+        -------
+        beta : ndarray
+            The window half-width β(z), rad.
+        w : ndarray
+            The lumen width w(z), mm.
+        """
         u = np.minimum(np.maximum((np.asarray(z, dtype=float) - self.z_base) / self.height, 0.0), 1.0)
         m = 1.0 - (1.0 - u) ** 2
         beta = self.beta0 + (self.beta1 - self.beta0) * m
@@ -125,19 +207,55 @@ class RvotFrame:
         return beta, w
 
     def window(self, z, epi: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        """(θ_lo, θ_hi) of the tract's crescent at material height z (> z_b)."""
+        """(θ_lo, θ_hi) of the tract's crescent at material height z (> z_b).
+
+        Parameters
+        ----------
+        z : float or ndarray
+            Material height, mm.
+        epi : bool, optional
+            The epicardial shell (else the endocardial).
+        Returns
+        -------
+        theta_lo, theta_hi : ndarray
+            The window's angular limits, rad.
+        """
         beta = self.profile(z, epi)[0]
         return self.alpha - beta, self.alpha + beta
 
     def top(self, x, y) -> np.ndarray:
-        """Height of the pulmonary valve plane above material (x, y), mm."""
+        """Height of the pulmonary valve plane above material (x, y), mm.
+
+        Parameters
+        ----------
+        x, y : float or ndarray
+            Material coordinates, mm.
+        Returns
+        -------
+        ndarray
+            The plane's height z there, mm.
+        """
         c, n = np.asarray(self.plane_point), np.asarray(self.plane_normal)
         return c[2] - (n[0] * (np.asarray(x) - c[0]) + n[1] * (np.asarray(y) - c[1])) / n[2]
 
 
 def rvot_base_radius(anatomy, theta, epi: bool = False) -> np.ndarray:
     """r_b(θ): the RV body's endo- (epi-)cardial radius in the base plane, mm (the cap of the
-    tract's radius, eq. O1)."""
+    tract's radius, eq. O1).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        A realistic anatomy with outflow tracts (material frame, mm).
+    theta : float or ndarray
+        Material angle θ, rad.
+    epi : bool, optional
+        The epicardial shell (else the endocardial).
+    Returns
+    -------
+    ndarray
+        r_b(θ), mm.
+    """
     return _rb(anatomy, theta, epi)
 
 
@@ -177,7 +295,27 @@ def rvot_frame(anatomy) -> RvotFrame:
 
 def rvot_radius(anatomy, theta, z, epi: bool = False, s_epi=None, r_b=None) -> np.ndarray:
     """R_ot(θ, z) of eq. (O1) (endo- or epicardial), mm; below r_2 outside the window. ``s_epi``:
-    the LV epicardial S(θ, z), ``r_b``: :func:`rvot_base_radius` at θ, when the caller has them."""
+    the LV epicardial S(θ, z), ``r_b``: :func:`rvot_base_radius` at θ, when the caller has them.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        A realistic anatomy with outflow tracts (material frame, mm).
+    theta : float or ndarray
+        Material angle θ, rad.
+    z : float or ndarray
+        Material height, mm.
+    epi : bool, optional
+        The epicardial shell (else the endocardial).
+    s_epi : ndarray, optional
+        The LV epicardial S(θ, z), mm².
+    r_b : ndarray, optional
+        :func:`rvot_base_radius` at θ, mm.
+    Returns
+    -------
+    ndarray
+        R_ot(θ, z), mm.
+    """
     fr = rvot_frame(anatomy)
     theta = np.asarray(theta, dtype=float)
     z = np.asarray(z, dtype=float)
@@ -191,7 +329,25 @@ def rvot_radius(anatomy, theta, z, epi: bool = False, s_epi=None, r_b=None) -> n
 
 def s_rvot_pair(anatomy, theta, z, s_epi=None, r_b=None) -> tuple[np.ndarray, np.ndarray]:
     """(:func:`s_rvot` endo, epi) at the same (θ, z), sharing cos(θ − α) and the LV epicardium;
-    ``r_b``: the pair of base radii when the caller has them. The same values as two calls."""
+    ``r_b``: the pair of base radii when the caller has them. The same values as two calls.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        A realistic anatomy with outflow tracts (material frame, mm).
+    theta : float or ndarray
+        Material angle θ, rad.
+    z : float or ndarray
+        Material height, mm.
+    s_epi : ndarray, optional
+        The LV epicardial S(θ, z), mm².
+    r_b : tuple of ndarray, optional
+        The (endo, epi) base radii at θ, mm.
+    Returns
+    -------
+    s_endo, s_epi : ndarray
+        The squared radii of both shells, mm².
+    """
     fr = rvot_frame(anatomy)
     theta = np.asarray(theta, dtype=float)
     z = np.asarray(z, dtype=float)
@@ -208,19 +364,67 @@ def s_rvot_pair(anatomy, theta, z, s_epi=None, r_b=None) -> tuple[np.ndarray, np
 
 
 def s_rvot(anatomy, theta, z, epi: bool = False, s_epi=None, r_b=None) -> np.ndarray:
-    """Squared radius of the RVOT endo- (epi-)cardial shell, mm² (below S_epi outside the tract)."""
+    """Squared radius of the RVOT endo- (epi-)cardial shell, mm² (below S_epi outside the tract).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        A realistic anatomy with outflow tracts (material frame, mm).
+    theta : float or ndarray
+        Material angle θ, rad.
+    z : float or ndarray
+        Material height, mm.
+    epi : bool, optional
+        The epicardial shell (else the endocardial).
+    s_epi : ndarray, optional
+        The LV epicardial S(θ, z), mm².
+    r_b : ndarray, optional
+        :func:`rvot_base_radius` at θ, mm.
+    Returns
+    -------
+    ndarray
+        The squared radius, mm².
+    """
     r = rvot_radius(anatomy, theta, z, epi, s_epi, r_b)
     return np.maximum(r, 0.0) ** 2
 
 
 def rvot_top_term(anatomy, x, y, z) -> np.ndarray:
-    """Signed height above the pulmonary valve plane (mm; negative below it) of material points."""
+    """Signed height above the pulmonary valve plane (mm; negative below it) of material points.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        A realistic anatomy with outflow tracts (material frame, mm).
+    x, y, z : float or ndarray
+        Material coordinates, mm.
+    Returns
+    -------
+    ndarray
+        z − top(x, y), mm.
+    """
     return np.asarray(z, dtype=float) - rvot_frame(anatomy).top(x, y)
 
 
 # ----------------------------------------------------------------- LVOT
 @dataclass(frozen=True)
 class LvotFrame:
+    """Derived LVOT geometry of one anatomy (mm): the cylinder and the aortic valve plane.
+
+    Attributes
+    ----------
+    center : tuple of float
+        The cylinder axis (x, y), mm.
+    radius : float
+        ρ, mm.
+    z_base : float
+        The base height z_b, mm.
+    plane_point : tuple of float
+        A point of the aortic valve plane (material), mm.
+    plane_normal : tuple of float
+        Its unit normal.
+    """
+
     center: tuple       # cylinder axis (x, y), mm
     radius: float       # ρ, mm
     z_base: float
@@ -228,6 +432,18 @@ class LvotFrame:
     plane_normal: tuple
 
     def top(self, x, y) -> np.ndarray:
+        """Height of the aortic valve plane above material (x, y).
+
+        Parameters
+        ----------
+        x, y : float or ndarray
+            Material coordinates, mm.
+
+        Returns
+        -------
+        ndarray
+            The plane's height z there, mm.
+        """
         c, n = np.asarray(self.plane_point), np.asarray(self.plane_normal)
         return c[2] - (n[0] * (np.asarray(x) - c[0]) + n[1] * (np.asarray(y) - c[1])) / n[2]
 
@@ -249,19 +465,66 @@ def lvot_frame(anatomy) -> LvotFrame:
 
 
 def lvot_cylinder_term(anatomy, x, y) -> np.ndarray:
-    """Signed distance (mm, negative inside) of material (x, y) to the LVOT cylinder."""
+    """Signed distance (mm, negative inside) of material (x, y) to the LVOT cylinder.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        A realistic anatomy with outflow tracts (material frame, mm).
+    x, y : float or ndarray
+        Material coordinates, mm.
+    Returns
+    -------
+    ndarray
+        The signed distance, mm.
+    """
     fr = lvot_frame(anatomy)
     return np.hypot(np.asarray(x) - fr.center[0], np.asarray(y) - fr.center[1]) - fr.radius
 
 
 def lvot_top_term(anatomy, x, y, z) -> np.ndarray:
+    """Signed height above the aortic valve plane (mm; negative below it) of material points.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        A realistic anatomy with outflow tracts.
+    x, y, z : float or ndarray
+        Material coordinates, mm.
+
+    Returns
+    -------
+    ndarray
+        z − top(x, y), mm.
+    """
     return np.asarray(z, dtype=float) - lvot_frame(anatomy).top(x, y)
 
 
 def lvot_boundary(anatomy, phi, z, iters: int = 12) -> np.ndarray:
     """Material (x, y) of the LVOT section boundary at height z along the rays from the cylinder axis
     at angles φ (broadcast together): the ray meets the cylinder (t = ρ) or, first, the LV
-    endocardium (the root of |c + t u|² = S_endo(θ, z) in (0, ρ), Illinois regula falsi). (…, 2)."""
+    endocardium (the root of |c + t u|² = S_endo(θ, z) in (0, ρ), Illinois regula falsi). (…, 2).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        A realistic anatomy with outflow tracts (material frame, mm).
+    phi : float or ndarray
+        Ray angles about the cylinder axis, rad.
+    z : float or ndarray
+        Material height, mm.
+    iters : int, optional
+        Regula falsi iterations.
+    Returns
+    -------
+    ndarray, shape (..., 2)
+        The boundary's (x, y), mm.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        The LVOT axis leaves the LV endocardium.
+    """
     fr = lvot_frame(anatomy)
     phi, z = np.broadcast_arrays(np.asarray(phi, dtype=float), np.asarray(z, dtype=float))
     cx, cy = fr.center

@@ -57,7 +57,23 @@ _REQUIRED = ("heart_rate_bpm", "lvedv_ml", "lvef_pct", "lvm_g", "rv_lv_mass_rati
 
 
 def read_toml(path: str | Path) -> dict:
-    """Parse a TOML file; PhantomError (one line, naming the file) if missing or malformed."""
+    """Parse a TOML file; PhantomError (one line, naming the file) if missing or malformed.
+
+    Parameters
+    ----------
+    path : path-like
+        A TOML file.
+
+    Returns
+    -------
+    dict
+        Its tables and values.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        Missing, a folder, malformed TOML, or not UTF-8.
+    """
     path = Path(path)
     try:
         with open(path, "rb") as fh:
@@ -73,12 +89,40 @@ def read_toml(path: str | Path) -> dict:
 
 
 def data_path(name: str) -> Path:
-    """Path of a file shipped in cardionurbs/data (presets and the paper12 cohort)."""
+    """Path of a file shipped in cardionurbs/data (presets and the paper12 cohort).
+
+    Parameters
+    ----------
+    name : str
+        A file name in cardionurbs/data (``"normal.toml"``, ``"paper12.toml"``).
+
+    Returns
+    -------
+    pathlib.Path
+        Its path (not checked to exist).
+    """
     return Path(str(resources.files("cardionurbs").joinpath("data", name)))
 
 
 def load_preset(pathology: str | Path) -> dict:
-    """A validated preset dict, by pathology name (packaged) or TOML path."""
+    """A validated preset dict, by pathology name (packaged) or TOML path.
+
+    Parameters
+    ----------
+    pathology : str or path-like
+        ``"normal"``, ``"mr"``, ``"phtn"``, or the path of a preset ``.toml``.
+
+    Returns
+    -------
+    dict
+        The preset's ``[preset]``, ``[sample]`` (key -> [low, high]) and ``[targets]`` (metric
+        column -> [low, high]) tables.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        An unknown pathology, or a file that is not a valid preset (naming file and key).
+    """
     if isinstance(pathology, str) and pathology in PATHOLOGIES:
         path = data_path(f"{pathology}.toml")
     elif isinstance(pathology, (str, Path)) and str(pathology).endswith(".toml"):
@@ -120,11 +164,26 @@ def _validate_preset(d: dict, path) -> None:
 
 @dataclass(frozen=True)
 class SubjectDraw:
-    """Sampled physiological values of one subject (the preset's [sample] keys, derived values)."""
+    """Sampled physiological values of one subject (the preset's [sample] keys, derived values).
+
+    Attributes
+    ----------
+    values : dict of str to float
+        Sampled key -> value in its own unit (``lvedv_ml`` mL, ``lvef_pct`` %, ``lvm_g`` g,
+        ``heart_rate_bpm`` beats/min, ``twist_deg`` deg, ratios dimensionless).
+    """
 
     values: dict
 
     def predicted_metrics(self) -> dict:
+        """The metrics the draw implies (what the anatomy is solved to reproduce).
+
+        Returns
+        -------
+        dict of str to float
+            docs/metrics.md column -> value (HR bpm, volumes mL, EF %, masses g, ratios,
+            twist deg, LS %, EI ES).
+        """
         v = self.values
         lvsv = v["lvedv_ml"] * v["lvef_pct"] / 100.0
         if "regurgitant_fraction_pct" in v:
@@ -143,7 +202,20 @@ class SubjectDraw:
 
 
 def in_targets(metrics: dict, targets: dict) -> list[str]:
-    """Names of the target columns that ``metrics`` misses (NaN counts as a miss)."""
+    """Names of the target columns that ``metrics`` misses (NaN counts as a miss).
+
+    Parameters
+    ----------
+    metrics : dict
+        Metric column -> value (docs/metrics.md units).
+    targets : dict
+        Metric column -> (low, high) in the same units.
+
+    Returns
+    -------
+    list of str
+        The columns present in ``metrics`` whose value lies outside its target.
+    """
     bad = []
     for key, (lo, hi) in targets.items():
         if key in metrics and not (lo <= metrics[key] <= hi):
@@ -152,7 +224,27 @@ def in_targets(metrics: dict, targets: dict) -> list[str]:
 
 
 def sample_subject(preset: dict, rng: np.random.Generator, max_tries: int = 5000) -> SubjectDraw:
-    """Draw the [sample] ranges until the predicted metrics meet the [targets] (rejection)."""
+    """Draw the [sample] ranges until the predicted metrics meet the [targets] (rejection).
+
+    Parameters
+    ----------
+    preset : dict
+        A preset (:func:`load_preset`).
+    rng : numpy.random.Generator
+        The subject's generator.
+    max_tries : int, optional
+        Draws before giving up.
+
+    Returns
+    -------
+    SubjectDraw
+        The first draw whose predicted metrics meet the targets.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        No draw meets the targets in ``max_tries``.
+    """
     keys = sorted(preset["sample"])
     for _ in range(max_tries):
         vals = {k: float(rng.uniform(*preset["sample"][k])) for k in keys}
@@ -169,7 +261,20 @@ def solve_anatomy(draw: SubjectDraw, shape=None) -> Anatomy:
     With realistic ``shape`` modes (:mod:`cardionurbs.phantom.shape`) the LV sizes are those of the
     ideal solution (the modes keep every section's area) and the RV size and wall are solved again
     on the realistic RV (its modes change the crescent's area); an infarct's thinning then lowers
-    the LV mass below the draw, as it would in a patient."""
+    the LV mass below the draw, as it would in a patient.
+
+    Parameters
+    ----------
+    draw : SubjectDraw
+        The subject's values.
+    shape : cardionurbs.phantom.shape.ShapeModes, optional
+        Realistic shape modes (None: the ideal spheroids).
+
+    Returns
+    -------
+    cardionurbs.phantom.anatomy.Anatomy
+        The ED anatomy (mm).
+    """
     v = draw.values
     pm = draw.predicted_metrics()
     rho, eta, k = v["lv_long_short_ratio"], v["base_height_ratio"], v["apex_wall_ratio"]
@@ -266,7 +371,25 @@ _SUBJECT_OPTIONS = ("frames", "noise_px", "tag_jumps", "breath_hold_mm")
 
 @dataclass(frozen=True)
 class SubjectSpec:
-    """One subject of a cohort spec."""
+    """One subject of a cohort spec.
+
+    Attributes
+    ----------
+    id : str
+        The subject id (its folder name).
+    pathology : str
+        ``"normal"``, ``"mr"`` or ``"phtn"``.
+    seed : int
+        The subject's seed.
+    frames : int
+        Frames per cycle.
+    noise_px : float
+        Contour and tag noise σ, in pixels.
+    tag_jumps : int
+        Tag jumps injected.
+    breath_hold_mm : float
+        Breath-hold slice shift σ, in mm.
+    """
 
     id: str
     pathology: str
@@ -278,7 +401,24 @@ class SubjectSpec:
 
 
 def load_cohort_spec(path: str | Path) -> list[SubjectSpec]:
-    """Subjects of a cohort TOML (``[cohort]`` defaults + ``[[subject]]`` entries)."""
+    """Subjects of a cohort TOML (``[cohort]`` defaults + ``[[subject]]`` entries).
+
+    Parameters
+    ----------
+    path : path-like
+        A cohort TOML.
+
+    Returns
+    -------
+    list of SubjectSpec
+        The subjects, in file order.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        No ``[[subject]]``, a missing or bad field, or a repeated or unsafe id (naming the file
+        and the subject).
+    """
     path = Path(path)
     d = read_toml(path)
     subjects = d.get("subject")

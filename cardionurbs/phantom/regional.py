@@ -46,7 +46,27 @@ def filling_rate_truth(anatomy: Anatomy, motion: Motion, n_frames: int, es_frame
 
     dV/dt = dV/df · f'(τ) / RR. ``dv_df`` (mL per unit phase, a function of f): by default the
     ideal anatomy's exact −V_ED EF; a realistic anatomy passes the derivative of its numerical
-    volume curve (:func:`realistic_regional_truth`)."""
+    volume curve (:func:`realistic_regional_truth`).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    n_frames : int
+        Frames per cycle.
+    es_frame : int
+        The ES frame index, 0-based.
+    rr_ms : float
+        The R-R interval, ms.
+    dv_df : callable, optional
+        dV/df in mL per unit phase, as a function of f.
+    Returns
+    -------
+    dict of str to float
+        ``PER (mL/s)``, ``PEFR (mL/s)``, ``PAFR (mL/s)``, ``E/A ratio``.
+    """
     if n_frames < MIN_FRAMES:
         return {c: NAN for c in RATE_COLUMNS}
     if dv_df is None:
@@ -72,6 +92,18 @@ def filling_rate_truth(anatomy: Anatomy, motion: Motion, n_frames: int, es_frame
 
 # ----------------------------------------------------------------- AHA segments
 def wrap(angle):
+    """Angles wrapped to [−π, π).
+
+    Parameters
+    ----------
+    angle : float or array_like
+        Angles, rad.
+
+    Returns
+    -------
+    ndarray
+        The wrapped angles, rad.
+    """
     return (np.asarray(angle, float) + np.pi) % (2 * np.pi) - np.pi
 
 
@@ -79,7 +111,21 @@ def wrap(angle):
 class TruthSegments:
     """The AHA geometry of the phantom at one phase, in the heart frame (apex at the origin,
     z along the axis): axis length, cap height and septal angle θ_s (rad; angles are
-    counter-clockwise seen from the apex, i.e. θ = −atan2(y, x))."""
+    counter-clockwise seen from the apex, i.e. θ = −atan2(y, x)).
+
+    Attributes
+    ----------
+    length : float
+        Axis length, apex to mitral centre, mm.
+    cap : float
+        Height of the apical cap (segment 17), mm.
+    septal_angle : float
+        θ_s, rad.
+    origin : tuple of float
+        The apex in the heart frame, mm.
+    basis : tuple of tuple of float
+        Rows e1, e2 and the axis e (unit vectors).
+    """
 
     length: float
     cap: float
@@ -88,12 +134,32 @@ class TruthSegments:
     basis: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))   # rows e1, e2, axis
 
     def local(self, x: np.ndarray) -> np.ndarray:
-        """Heart-frame points in the axis frame (apex origin, z along apex → mitral centre)."""
+        """Heart-frame points in the axis frame (apex origin, z along apex → mitral centre).
+
+        Parameters
+        ----------
+        x : ndarray, shape (n, 3)
+            Heart-frame points, mm.
+        Returns
+        -------
+        ndarray, shape (n, 3)
+            Axis-frame coordinates, mm.
+        """
         return (np.asarray(x, float).reshape(-1, 3) - np.asarray(self.origin)) @ np.asarray(self.basis).T
 
     def segments(self, x: np.ndarray) -> np.ndarray:
         """AHA segment 1..17 of heart-frame points (0 beyond the base); the rule of
-        docs/metrics.md written out independently of the measurement."""
+        docs/metrics.md written out independently of the measurement.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n, 3)
+            Heart-frame points, mm.
+        Returns
+        -------
+        ndarray of int, shape (n,)
+            AHA segment 1..17, 0 beyond the base.
+        """
         x = self.local(x)
         h = x[:, 2]
         t = np.mod(-np.arctan2(x[:, 1], x[:, 0]) - self.septal_angle, 2 * np.pi)
@@ -110,7 +176,23 @@ def truth_segments(anatomy: Anatomy, motion: Motion, specs, f: float) -> TruthSe
     """Segments at phase f from analytic landmarks: the epicardial apex (fixed at the origin),
     the mitral centre at height λ z_b, the endocardial apex at λ z_endo_apex, and θ_s the
     midpoint between the mean angles of the anterior and of the inferior RV insertion points
-    (:func:`annotate.rv_insertion_points` on every SA slice at phase f)."""
+    (:func:`annotate.rv_insertion_points` on every SA slice at phase f).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    specs : list of cardionurbs.phantom.geometry.SliceSpec
+        The imaged slices.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    Returns
+    -------
+    TruthSegments
+        The segment geometry at phase f.
+    """
     from cardionurbs.phantom import annotate
     lam = float(motion.lam(f))
     pts = [annotate.rv_insertion_points(anatomy, motion, s, f) for s in specs if s.view == "SA"]
@@ -128,7 +210,23 @@ def truth_segments(anatomy: Anatomy, motion: Motion, specs, f: float) -> TruthSe
 def axis_frame(anatomy: Anatomy, motion: Motion, f: float) -> tuple[np.ndarray, np.ndarray]:
     """(origin, basis rows e1, e2, e) of a realistic heart at phase f, heart frame: the bent
     epicardial apex, e toward the centroid of the (bent) mitral annulus points, e1 the heart x
-    axis made perpendicular to e, e2 = e × e1 (the heart frame's handedness)."""
+    axis made perpendicular to e, e2 = e × e1 (the heart frame's handedness).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    Returns
+    -------
+    origin : ndarray, shape (3,)
+        The bent epicardial apex, mm.
+    basis : ndarray, shape (3, 3)
+        Rows e1, e2, e.
+    """
     from cardionurbs.phantom import annotate
     lm = annotate.landmarks(anatomy, motion, f)
     apex = annotate.bend(anatomy, lm["apex"])[0]
@@ -158,7 +256,21 @@ def _realistic_segments(anatomy: Anatomy, motion: Motion, pts: list, f: float) -
 
 
 def segment_means(values: np.ndarray, weights: np.ndarray, labels: np.ndarray) -> dict[int, float]:
-    """Weighted mean per segment 1..16 (NaN where a segment has no sample)."""
+    """Weighted mean per segment 1..16 (NaN where a segment has no sample).
+
+    Parameters
+    ----------
+    values : ndarray, shape (n,)
+        Sample values.
+    weights : ndarray, shape (n,)
+        Their weights (e.g. areas, mm²).
+    labels : ndarray of int, shape (n,)
+        Their AHA segments.
+    Returns
+    -------
+    dict of int to float
+        Segment 1..16 -> weighted mean.
+    """
     return {k: (float(np.average(values[labels == k], weights=weights[labels == k]))
                 if np.any(labels == k) else NAN) for k in SEGMENTS}
 
@@ -166,7 +278,25 @@ def segment_means(values: np.ndarray, weights: np.ndarray, labels: np.ndarray) -
 def endocardial_grid(anatomy: Anatomy, n_mu: int, n_theta: int):
     """Cell-centred material (μ, θ) grid on the ED LV endocardium below the base: z = z_c − c cos μ
     and, at that height, x = r cos θ, y = r sin θ with r = a sin μ (ideal spheroid) or the
-    realistic section's √S_endo(z, θ) (shape modes and an infarct's thinning; heart frame)."""
+    realistic section's √S_endo(z, θ) (shape modes and an infarct's thinning; heart frame).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    n_mu : int
+        Cells along the endocardium (μ).
+    n_theta : int
+        Cells around it (θ).
+    Returns
+    -------
+    mu, theta : ndarray, shape (n_mu * n_theta,)
+        The cell centres, rad.
+    dmu, dth : float
+        The cell sizes, rad.
+    point : callable
+        ``point(mu, theta) -> (n, 3)`` material points, mm.
+    """
     a, c, zc = anatomy.r_short_endo, anatomy.r_long_endo, anatomy.z_center
     mu_b = float(np.arccos(-(anatomy.z_base - zc) / c))
     dmu, dth = mu_b / n_mu, 2 * np.pi / n_theta
@@ -185,7 +315,23 @@ def endocardial_grid(anatomy: Anatomy, n_mu: int, n_theta: int):
 
 
 def placed(anatomy: Anatomy, motion: Motion, x: np.ndarray, f: float) -> np.ndarray:
-    """Material heart-frame points -> positions at phase f in the (realistic, bent) heart frame."""
+    """Material heart-frame points -> positions at phase f in the (realistic, bent) heart frame.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    x : ndarray, shape (n, 3)
+        Material heart-frame points, mm.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        Positions at phase f in the bent heart frame, mm.
+    """
     from cardionurbs.phantom import annotate
     return annotate.bend(anatomy, x if motion is None else motion.forward(anatomy, x, f))
 
@@ -200,6 +346,29 @@ def wall_thickness_samples(anatomy: Anatomy, motion: Motion, f: float, n_mu: int
     The epicardium at phase f is {x : s(φ_f⁻¹(x)) = s_epi(z(φ_f⁻¹(x)))} (the material
     epicardium, moved); along each ray the root of s − s_epi (negative on the
     endocardium, increasing outward) is bracketed in [0, 60] mm and bisected (30 halvings: 6e-8 mm).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    n_mu, n_theta : int, optional
+        Grid cells along (μ) and around (θ) the endocardium.
+    iterations : int, optional
+        Bisection halvings.
+    Returns
+    -------
+    points : ndarray, shape (n, 3)
+        Endocardial points at phase f, mm.
+    normals : ndarray, shape (n, 3)
+        Outward unit normals.
+    weights : ndarray, shape (n,)
+        Area weights, mm².
+    thickness : ndarray, shape (n,)
+        Wall thickness along the normal, mm.
     """
     from cardionurbs.phantom import annotate
     M, T, dmu, dth, point = endocardial_grid(anatomy, n_mu, n_theta)
@@ -231,7 +400,26 @@ def wall_thickness_samples(anatomy: Anatomy, motion: Motion, f: float, n_mu: int
 def wall_thickness_truth(anatomy: Anatomy, motion: Motion, specs, f_es: float,
                          n_mu: int = 80, n_theta: int = 160) -> dict[str, float]:
     """WT, WT_ES and Thickening columns of the analytic phantom (mm, %), per AHA segment of
-    the frame's own geometry (:func:`truth_aha_frame`), area-weighted over the endocardium."""
+    the frame's own geometry (:func:`truth_aha_frame`), area-weighted over the endocardium.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    specs : list of cardionurbs.phantom.geometry.SliceSpec
+        The imaged slices.
+    f_es : float
+        The cycle phase of the ES frame.
+    n_mu, n_theta : int, optional
+        Grid cells along (μ) and around (θ) the endocardium.
+    Returns
+    -------
+    dict of str to float
+        ``WT_AHA_k (mm)``, ``WT_ES_AHA_k (mm)``, ``Thickening_AHA_k (%)`` columns and their
+        global values.
+    """
     per = {}
     for key, f in (("ed", 0.0), ("es", f_es)):
         x, _, w, t = wall_thickness_samples(anatomy, motion, f, n_mu, n_theta)
@@ -253,7 +441,25 @@ def endocardial_normal_field(anatomy: Anatomy, n_mu: int = 200, n_theta: int = 4
     """Points on the ED endocardium (heart frame) and their outward unit normals: the gradient
     of s / a² + (z − z_c)² / c² on the ideal spheroid, the cross product of the grid's
     tangents on a realistic one (for nearest-point queries); ``with_area`` (realistic only):
-    also each grid point's area element |∂x/∂μ × ∂x/∂θ| (the cells are equal in (μ, θ))."""
+    also each grid point's area element |∂x/∂μ × ∂x/∂θ| (the cells are equal in (μ, θ)).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    n_mu, n_theta : int, optional
+        Grid cells along (μ) and around (θ) the endocardium.
+    with_area : bool, optional
+        Also return each point's area element (realistic anatomy).
+    Returns
+    -------
+    points : ndarray, shape (n, 3)
+        ED endocardial points, mm.
+    normals : ndarray, shape (n, 3)
+        Outward unit normals.
+    area : ndarray, shape (n,)
+        Area elements, mm² per unit (μ, θ) cell (with ``with_area`` only).
+    """
     M, T, _, _, point = endocardial_grid(anatomy, n_mu, n_theta)
     p = point(M, T)
     if anatomy.realistic:
@@ -276,7 +482,23 @@ def endocardial_normal_field(anatomy: Anatomy, n_mu: int = 200, n_theta: int = 4
 
 def motion_map(anatomy: Anatomy, motion: Motion, X: np.ndarray, f: float) -> np.ndarray:
     """φ_f(X): the exact image (n, 3) at phase f of ED heart-frame points X (n, 3) (for the
-    realistic anatomy, ED bent frame → bent frame at f)."""
+    realistic anatomy, ED bent frame → bent frame at f).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    X : ndarray, shape (n, 3)
+        ED heart-frame points, mm.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        Their positions at phase f, mm.
+    """
     from cardionurbs.phantom import annotate
     if anatomy.realistic:
         return placed(anatomy, motion, annotate.unbend(anatomy, X), f)
@@ -285,7 +507,23 @@ def motion_map(anatomy: Anatomy, motion: Motion, X: np.ndarray, f: float) -> np.
 
 def axis_distance(anatomy: Anatomy, motion: Motion, x: np.ndarray, f: float) -> np.ndarray:
     """Distance (mm) of heart-frame points x (n, 3) at phase f from the LV long axis at f
-    (the z axis of the ideal anatomy; :func:`axis_frame` of the realistic one)."""
+    (the z axis of the ideal anatomy; :func:`axis_frame` of the realistic one).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    x : ndarray, shape (n, 3)
+        Heart-frame points at phase f, mm.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    Returns
+    -------
+    ndarray, shape (n,)
+        Distance from the long axis, mm.
+    """
     x = np.asarray(x, float)
     if not anatomy.realistic:
         return np.hypot(x[:, 0], x[:, 1])
@@ -296,7 +534,25 @@ def axis_distance(anatomy: Anatomy, motion: Motion, x: np.ndarray, f: float) -> 
 def deformation_gradient(anatomy: Anatomy, motion: Motion, X: np.ndarray, f: float,
                          h: float = 1e-3) -> np.ndarray:
     """F = ∂φ_f/∂X (n, 3, 3), heart frame, by central differences of the exact motion
-    (step h mm; the map is smooth inside each tissue layer)."""
+    (step h mm; the map is smooth inside each tissue layer).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    X : ndarray, shape (n, 3)
+        ED heart-frame points, mm.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    h : float, optional
+        The difference step, mm.
+    Returns
+    -------
+    ndarray, shape (n, 3, 3)
+        F (dimensionless).
+    """
     def phi(p):
         return motion_map(anatomy, motion, p, f)
 
@@ -325,6 +581,28 @@ def strain_truth(anatomy: Anatomy, motion: Motion, specs, levels: list[dict], f:
     myocardium away from the apical tip around the axis). Directions
     at each point follow the measurement's definition with the analytic endocardium
     (:func:`endocardial_normal_field`); segments are those of :func:`truth_segments` at ED.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    specs : list of cardionurbs.phantom.geometry.SliceSpec
+        The imaged slices.
+    levels : list of dict
+        :func:`cardionurbs.phantom.truth.strain_levels`, apex to base.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    spacing_mm : float, optional
+        The sampling grid's spacing, mm.
+    axis_clearance_mm : float, optional
+        Least distance from the long axis, mm.
+    Returns
+    -------
+    dict
+        ``columns`` (``Ecc_AHA_k (%)`` ... and global columns; NaN where no sample) and
+        ``det_F`` (mean det F, dimensionless).
     """
     kinds = ("Ecc", "Ell", "Err")
     if not levels:
@@ -444,7 +722,23 @@ def surface_strain_truth(anatomy: Anatomy, motion: Motion, specs, f_es: float) -
     """GLS surface and GCS surface (%) of the analytic contours, finely sampled (the LA
     endocardial curves with 600 points a side, the mid SA circumference with 2880 points);
     the mid SA slice is the one nearest z_b / 2 at ED (the measurement's rule, with the
-    analytic apex and mitral centre)."""
+    analytic apex and mitral centre).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    specs : list of cardionurbs.phantom.geometry.SliceSpec
+        The imaged slices.
+    f_es : float
+        The cycle phase of the ES frame.
+    Returns
+    -------
+    dict of str to float
+        ``GLS surface (%)`` and ``GCS surface (%)``.
+    """
     from cardionurbs.phantom import annotate
     gls = []
     for s in specs:
@@ -479,6 +773,25 @@ def realistic_regional_truth(anatomy: Anatomy, motion: Motion, specs, n_frames: 
     by :func:`filling_rate_truth`. (Wall thickness, tag strain and surface strain:
     :func:`wall_thickness_truth`, :func:`strain_truth` and :func:`surface_strain_truth`, which
     handle both anatomies.)
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    specs : list of cardionurbs.phantom.geometry.SliceSpec
+        The imaged slices.
+    n_frames : int
+        Frames per cycle.
+    es_frame : int
+        The ES frame index, 0-based.
+    rr_ms : float
+        The R-R interval, ms.
+    Returns
+    -------
+    dict of str to float
+        The filling-rate columns (mL/s) and ``E/A ratio``.
     """
     from cardionurbs.phantom.truth_realistic import volume_polynomials
 

@@ -74,16 +74,37 @@ def _smooth_window(x: np.ndarray, lo: float, hi: float, border: float) -> np.nda
 class ShapeModes:
     """Shape departures from the ideal spheroids (all dimensionless unless in mm or degrees).
 
-    endo_modes : ((k, a0, a1, phase_deg), ...) — mode k of the LV endocardium with amplitude
-        ``a0 + a1 ζ`` on S (ζ = (z − z_c)/r_long_endo, clipped to [−1, 1]).
-    septal_thickening : amplitude of the ``cos θ`` mode on the LV epicardial S (≈ twice the
-        relative radius change at the septum).
-    rv_wrap_base, rv_wrap_apex : wrap factor w of the RV section at the base and at the RV apex.
-    rv_reach : ν, relative change of the RV free-wall reach from base (+ν/2) to apex (−ν/2).
-    saddle_mm, saddle_phase_deg : mitral annulus height amplitude h and orientation θ_s.
-    tricuspid_dip_mm : h_t, how far the tricuspid annulus dips below the base plane (0: planar).
-    apex_shift_mm : D, the in-plane displacement of the apex (x, y) in mm.
-    infarct : territory name or None; infarct_thinning, infarct_hypokinesis in [0, 1).
+    Attributes
+    ----------
+    endo_modes : tuple of (int, float, float, float)
+        ((k, a0, a1, phase_deg), ...) — mode k of the LV endocardium with amplitude
+        ``a0 + a1 ζ`` on S (ζ = (z − z_c)/r_long_endo, clipped to [−1, 1]); eq. (R1).
+    septal_thickening : float
+        Amplitude of the ``cos θ`` mode on the LV epicardial S (≈ twice the relative radius
+        change at the septum).
+    rv_wrap_base, rv_wrap_apex : float
+        Wrap factor w of the RV section at the base and at the RV apex, in [0.6, 1.4].
+    rv_reach : float
+        ν, relative change of the RV free-wall reach from base (+ν/2) to apex (−ν/2).
+    saddle_mm, saddle_phase_deg : float
+        Mitral annulus height amplitude h (mm) and orientation θ_s (degrees).
+    tricuspid_dip_mm : float
+        h_t, how far the tricuspid annulus dips below the base plane, mm (0: planar).
+    apex_shift_mm : tuple of (float, float)
+        D, the in-plane displacement of the apex (x, y), mm.
+    infarct : str or None
+        Coronary territory (``"lad"``, ``"rca"``, ``"lcx"``) or None.
+    infarct_thinning, infarct_hypokinesis : float
+        Wall thinning and loss of contraction in the territory, in [0, 1).
+    outflow : cardionurbs.phantom.outflow.OutflowTracts or None
+        The outflow tracts, or None.
+    bends : bool
+        Whether the apex is shifted off the axis (``apex_shift_mm`` not zero).
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        An amplitude out of its range or an unknown territory.
     """
 
     endo_modes: tuple = ()
@@ -123,7 +144,22 @@ class ShapeModes:
     # ------------------------------------------------------------ LV
     def endo_factor(self, theta, zeta, e=None) -> np.ndarray:
         """1 + Σ a_k(ζ) cos k(θ − φ_k): the zero-mean modulation of eq. (R1) (powers of e^{iθ}
-        instead of one cosine per mode; ``e`` = e^{iθ} when the caller has it)."""
+        instead of one cosine per mode; ``e`` = e^{iθ} when the caller has it).
+
+        Parameters
+        ----------
+        theta : float or ndarray
+            Angle θ about the LV axis, rad (θ = 0 towards the RV).
+        zeta : float or ndarray
+            ζ = (z − z_c) / r_long_endo (clipped to [−1, 1]).
+        e : ndarray of complex, optional
+            e^{iθ}.
+
+        Returns
+        -------
+        ndarray
+            The factor on S_ideal, broadcast shape of ``theta`` and ``zeta``.
+        """
         theta = np.asarray(theta, dtype=float)
         zeta = np.minimum(np.maximum(np.asarray(zeta, dtype=float), -1.0), 1.0)     # clipped
         out = np.ones(np.broadcast(theta, zeta).shape)
@@ -140,14 +176,42 @@ class ShapeModes:
 
     def epi_factor(self, theta, zeta, ratio) -> np.ndarray:
         """Epicardial modulation: the endocardial modes scaled by ``ratio`` = sqrt(S_endo/S_epi)
-        (equal radial displacement), plus the septal ``cos θ`` mode."""
+        (equal radial displacement), plus the septal ``cos θ`` mode.
+
+        Parameters
+        ----------
+        theta : float or ndarray
+            Angle θ, rad.
+        zeta : float or ndarray
+            ζ as in :meth:`endo_factor`.
+        ratio : float or ndarray
+            sqrt(S_endo / S_epi).
+
+        Returns
+        -------
+        ndarray
+            The factor on the ideal epicardial S.
+        """
         theta = np.asarray(theta, dtype=float)
         e = np.exp(1j * theta)          # shared by the modes and the septal cos θ (its real part)
         return (1.0 + np.asarray(ratio) * (self.endo_factor(theta, zeta, e) - 1.0)
                 + self.septal_thickening * e.real)
 
     def infarct_weight(self, theta, zn) -> np.ndarray:
-        """w_i(θ, z/z_b) ∈ [0, 1]: 1 in the infarcted territory, 0 outside, cosine border zone."""
+        """w_i(θ, z/z_b) ∈ [0, 1]: 1 in the infarcted territory, 0 outside, cosine border zone.
+
+        Parameters
+        ----------
+        theta : float or ndarray
+            Angle θ, rad.
+        zn : float or ndarray
+            Normalised height z / z_b.
+
+        Returns
+        -------
+        ndarray
+            The weight, broadcast shape (0 without an infarct).
+        """
         theta = np.asarray(theta, dtype=float)
         if self.infarct is None:
             return np.zeros(np.broadcast(theta, zn).shape)
@@ -158,22 +222,70 @@ class ShapeModes:
 
     # ------------------------------------------------------------ RV
     def rv_wrap(self, u) -> np.ndarray:
-        """w at normalised RV height u ∈ [0, 1] (0 at the RV apex, 1 at the base)."""
+        """w at normalised RV height u ∈ [0, 1] (0 at the RV apex, 1 at the base).
+
+        Parameters
+        ----------
+        u : float or ndarray
+            Normalised RV height, clipped to [0, 1].
+
+        Returns
+        -------
+        ndarray
+            The wrap factor w, shape of ``u``.
+        """
         u = np.minimum(np.maximum(np.asarray(u, dtype=float), 0.0), 1.0)     # clipped
         return self.rv_wrap_apex + (self.rv_wrap_base - self.rv_wrap_apex) * u
 
     def rv_reach_factor(self, u) -> np.ndarray:
+        """(1 + ν (u − ½))²: the factor of the RV free-wall reach on S at normalised RV
+        height u.
+
+        Parameters
+        ----------
+        u : float or ndarray
+            Normalised RV height, clipped to [0, 1] (0 at the RV apex, 1 at the base).
+
+        Returns
+        -------
+        ndarray
+            The factor, shape of ``u``.
+        """
         u = np.minimum(np.maximum(np.asarray(u, dtype=float), 0.0), 1.0)     # clipped
         return (1.0 + self.rv_reach * (u - 0.5)) ** 2
 
     # ------------------------------------------------------------ base and apex
     def saddle(self, theta) -> np.ndarray:
-        """Height of the mitral annulus above the nominal base plane, mm: h cos 2(θ − θ_s)."""
+        """Height of the mitral annulus above the nominal base plane, mm: h cos 2(θ − θ_s).
+
+        Parameters
+        ----------
+        theta : float or ndarray
+            Angle θ, rad.
+
+        Returns
+        -------
+        ndarray
+            The height in mm, shape of ``theta``.
+        """
         return self.saddle_mm * np.cos(2.0 * (np.asarray(theta, dtype=float)
                                               - np.radians(self.saddle_phase_deg)))
 
     def apex_shift(self, z, z_base: float) -> np.ndarray:
-        """d(z) = D (1 − z/z_b)² for z below the base (0 above it), (n, 2) mm."""
+        """d(z) = D (1 − z/z_b)² for z below the base (0 above it), (n, 2) mm.
+
+        Parameters
+        ----------
+        z : float or ndarray, shape (n,)
+            Heights in the heart frame, mm.
+        z_base : float
+            The base height z_b, mm.
+
+        Returns
+        -------
+        ndarray, shape (n, 2)
+            The in-plane displacement (x, y), mm.
+        """
         z = np.atleast_1d(np.asarray(z, dtype=float))
         w = np.maximum(1.0 - z / z_base, 0.0) ** 2
         return w[:, None] * np.asarray(self.apex_shift_mm, dtype=float)[None, :]
@@ -184,13 +296,36 @@ class ShapeModes:
 
     def displace(self, points: np.ndarray, z_base: float, sign: float = 1.0) -> np.ndarray:
         """(n, 3) points moved by ``sign`` · d(z) within their z-planes (+1: the apex bend, −1: its
-        inverse, exact because z is kept); a copy."""
+        inverse, exact because z is kept); a copy.
+
+        Parameters
+        ----------
+        points : ndarray, shape (n, 3)
+            Heart-frame positions, mm.
+        z_base : float
+            The base height z_b, mm.
+        sign : float, optional
+            +1 (the bend) or −1 (its inverse).
+
+        Returns
+        -------
+        ndarray, shape (n, 3)
+            The moved points, mm.
+        """
         p = np.array(points, dtype=float).reshape(-1, 3)
         if self.bends:
             p[:, :2] += sign * self.apex_shift(p[:, 2], z_base)
         return p
 
     def to_dict(self) -> dict:
+        """JSON-safe fields (truth.json ``shape``).
+
+        Returns
+        -------
+        dict
+            Every field, tuples as lists, ``outflow`` as its dict; ``outflow`` and a zero
+            ``tricuspid_dip_mm`` left out (the files of older phantoms stay the same).
+        """
         d = asdict(self)
         d["endo_modes"] = [list(m) for m in self.endo_modes]
         d["apex_shift_mm"] = [float(v) for v in self.apex_shift_mm]
@@ -207,7 +342,20 @@ def draw_shape(rng: np.random.Generator, infarct: str | None = None) -> ShapeMod
     """Realistic shape departures drawn per subject (ranges chosen so that a mid-ventricular
     endocardial section departs from its best-fit ellipse by 1–2 mm RMS and the annulus from its
     plane by 2.5–4 mm at the high points). The tricuspid dip comes from its own generator
-    (:func:`draw_tricuspid_dip`), so that adding it changed no other draw."""
+    (:func:`draw_tricuspid_dip`), so that adding it changed no other draw.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The subject's shape generator.
+    infarct : str or None, optional
+        A coronary territory (``"lad"``, ``"rca"``, ``"lcx"``).
+
+    Returns
+    -------
+    ShapeModes
+        The drawn departures (no tricuspid dip, no outflow tracts).
+    """
     modes = []
     for k, lo, hi in ((2, 0.06, 0.12), (3, 0.11, 0.14), (4, 0.07, 0.09)):
         a0 = float(rng.uniform(lo, hi))
@@ -228,7 +376,18 @@ def draw_shape(rng: np.random.Generator, infarct: str | None = None) -> ShapeMod
 
 
 def draw_tricuspid_dip(rng: np.random.Generator) -> float:
-    """h_t, how far the saddle-shaped tricuspid annulus dips below the base plane: 3–5 mm."""
+    """h_t, how far the saddle-shaped tricuspid annulus dips below the base plane: 3–5 mm.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Its own generator.
+
+    Returns
+    -------
+    float
+        h_t in mm.
+    """
     return float(rng.uniform(3.0, 5.0))
 
 
@@ -239,6 +398,22 @@ def _apex_shift(rng: np.random.Generator) -> tuple:
 
 
 def infarct_only(infarct: str) -> ShapeModes:
-    """The ideal shapes with only an infarct (thinning 40 %, hypokinesis 80 % in the territory)."""
+    """The ideal shapes with only an infarct (thinning 40 %, hypokinesis 80 % in the territory).
+
+    Parameters
+    ----------
+    infarct : str
+        A coronary territory.
+
+    Returns
+    -------
+    ShapeModes
+        The modes.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        An unknown territory.
+    """
     return ShapeModes(infarct=infarct, infarct_thinning=INFARCT_THINNING,
                       infarct_hypokinesis=INFARCT_HYPOKINESIS)

@@ -51,7 +51,19 @@ METRIC_COLUMNS = ("HR (bpm)", "LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)
 # ----------------------------------------------------------------- method B: meshes
 def closed_revolution_volume(grid: np.ndarray, cap_center: np.ndarray) -> float:
     """Volume (mm³) enclosed by a (m+1, n, 3) vertex grid (row 0 a pole, θ periodic) closed by a
-    planar fan cap at the last row, by the divergence theorem V = Σ a·(b × c) / 6."""
+    planar fan cap at the last row, by the divergence theorem V = Σ a·(b × c) / 6.
+
+    Parameters
+    ----------
+    grid : ndarray, shape (m + 1, n, 3)
+        Vertex rings, mm (row 0 a pole, θ periodic).
+    cap_center : ndarray, shape (3,)
+        The fan cap's centre at the last row, mm.
+    Returns
+    -------
+    float
+        The volume in mm³.
+    """
     p = grid
     a, b, c, d = p[:-1], np.roll(p[:-1], -1, axis=1), np.roll(p[1:], -1, axis=1), p[1:]
 
@@ -80,6 +92,21 @@ def crescent_grid(anatomy: Anatomy, epi: bool, n_z: int, n_v: int) -> np.ndarray
     Row k is the section z_k = z0 + (z_b − z0) u_k² (u uniform; z0 the crescent onset): the
     free wall θ = v θ_e(z_k), v ∈ [−1, 1] on the RV shell s = g² P(θ), then back along the
     septum on the LV epicardium s = s_epi(z_k). Row 0 collapses to the onset point.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    epi : bool
+        The RV epicardial shell (else the endocardial).
+    n_z : int
+        Rings from the onset to the base.
+    n_v : int
+        Points per half ring.
+    Returns
+    -------
+    ndarray, shape (n_z + 1, 2 n_v, 3)
+        Material (ED) vertex rings, mm.
     """
     z0 = anatomy.rv_onset(epi)
     u = np.linspace(0.0, 1.0, n_z + 1)
@@ -100,7 +127,25 @@ def crescent_grid(anatomy: Anatomy, epi: bool, n_z: int, n_v: int) -> np.ndarray
 
 def mesh_volumes(anatomy: Anatomy, motion: Motion, f: float, n_mu: int = 160, n_theta: int = 320,
                  n_z_rv: int = 160, n_v_rv: int = 160) -> dict[str, float]:
-    """Method B: LV/RV cavity and wall volumes (mL) at phase f from forward-mapped fine meshes."""
+    """Method B: LV/RV cavity and wall volumes (mL) at phase f from forward-mapped fine meshes.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    n_mu, n_theta : int, optional
+        Grid of the LV spheroids (along and around).
+    n_z_rv, n_v_rv : int, optional
+        Grid of the RV crescents (rings and half-ring points).
+    Returns
+    -------
+    dict of str to float
+        ``lv_cavity``, ``lv_myocardium``, ``rv_cavity``, ``rv_myocardium``, in mL.
+    """
     zb = anatomy.z_base
     cap = motion.forward(anatomy, np.array([[0.0, 0.0, zb]]), f)[0]
 
@@ -125,7 +170,21 @@ def mesh_volumes(anatomy: Anatomy, motion: Motion, f: float, n_mu: int = 160, n_
 
 
 def analytic_volumes(anatomy: Anatomy, motion: Motion, f: float) -> dict[str, float]:
-    """Method A: the same volumes (mL) from eqs. A4, A5 and the exact κ scaling of eq. M3."""
+    """Method A: the same volumes (mL) from eqs. A4, A5 and the exact κ scaling of eq. M3.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    Returns
+    -------
+    dict of str to float
+        ``lv_cavity``, ``lv_myocardium``, ``rv_cavity``, ``rv_myocardium``, in mL.
+    """
     return {"lv_cavity": float((1 - motion.lv_ef * f) * anatomy.lv_cavity_volume()) / 1000.0,
             "lv_myocardium": anatomy.lv_myocardial_volume() / 1000.0,
             "rv_cavity": float((1 - motion.rv_ef * f) * anatomy.rv_cavity_volume()) / 1000.0,
@@ -134,7 +193,23 @@ def analytic_volumes(anatomy: Anatomy, motion: Motion, f: float) -> dict[str, fl
 
 # ----------------------------------------------------------------- tag truth
 def sa_plane_cuts_wall(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float) -> bool:
-    """True where an SA plane shows LV myocardium (and hence tag lines) at phase f."""
+    """True where an SA plane shows LV myocardium (and hence tag lines) at phase f.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    spec : cardionurbs.phantom.geometry.SliceSpec
+        An SA slice.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    Returns
+    -------
+    bool
+        Whether the plane shows LV myocardium.
+    """
     z = annotate.sa_material_height(motion, spec, f)
     th = np.linspace(0.0, 2 * np.pi, 64, endpoint=False)
     return bool(0.0 < z <= anatomy.z_top_min - annotate.BASE_MARGIN_MM
@@ -142,7 +217,23 @@ def sa_plane_cuts_wall(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: flo
 
 
 def tagged_sa_slices(anatomy: Anatomy, motion: Motion, specs: list[SliceSpec], f_es: float) -> list[SliceSpec]:
-    """SA slices carrying tag lines both at ED and at ES, base to apex."""
+    """SA slices carrying tag lines both at ED and at ES, base to apex.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    specs : list of cardionurbs.phantom.geometry.SliceSpec
+        The imaged slices (SA and LA).
+    f_es : float
+        The cycle phase of the ES frame.
+    Returns
+    -------
+    list of cardionurbs.phantom.geometry.SliceSpec
+        The tagged SA slices, base to apex.
+    """
     return [s for s in specs if s.view == "SA" and sa_plane_cuts_wall(anatomy, motion, s, 0.0)
             and sa_plane_cuts_wall(anatomy, motion, s, f_es)]
 
@@ -155,7 +246,25 @@ def strain_levels(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, spec
     tagged slices; :meth:`cardionurbs.analysis.material.MaterialPoints.tracked`). Wider than
     :func:`tag_levels`, which asks both of the slices tagged at both frames; the tag strain's
     truth averages over the tissue between these planes, as the measurement averages between
-    its extreme tracked points. [{"index", "distance_from_apex_mm"}], apex to base."""
+    its extreme tracked points. [{"index", "distance_from_apex_mm"}], apex to base.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    grid : cardionurbs.phantom.annotate.TagGrid
+        The SPAMM tag planes at ED.
+    specs : list of cardionurbs.phantom.geometry.SliceSpec
+        The imaged slices (SA and LA).
+    f_es : float
+        The cycle phase of the ES frame.
+    Returns
+    -------
+    list of dict
+        ``{"index", "distance_from_apex_mm"}`` per LA tag plane, apex to base.
+    """
     def span(f):
         h = [s.height for s in specs if s.view == "SA" and sa_plane_cuts_wall(anatomy, motion, s, f)]
         return (min(h), max(h)) if len(h) >= 2 else None
@@ -171,7 +280,26 @@ def strain_levels(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, spec
 def tag_levels(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, specs: list[SliceSpec],
                f_es: float) -> list[dict]:
     """LA tag planes with material points (docs/metrics.md): z_j strictly between the most apical
-    and most basal tagged SA planes at ED, and λ_ES z_j also between them at ES."""
+    and most basal tagged SA planes at ED, and λ_ES z_j also between them at ES.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    grid : cardionurbs.phantom.annotate.TagGrid
+        The SPAMM tag planes at ED.
+    specs : list of cardionurbs.phantom.geometry.SliceSpec
+        The imaged slices (SA and LA).
+    f_es : float
+        The cycle phase of the ES frame.
+    Returns
+    -------
+    list of dict
+        One dict per LA tag plane, apex to base: ``index``, ``distance_from_apex_mm``,
+        ``rotation_deg`` (ED to ES, CCW seen from the apex), ``epi_radius_mm``, ``in_twist``.
+    """
     tagged = tagged_sa_slices(anatomy, motion, specs, f_es)
     if len(tagged) < 2:
         return []
@@ -193,7 +321,20 @@ def tag_levels(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, specs: 
 
 
 def twist_from_levels(levels: list[dict], f_es_lambda: float) -> dict[str, float]:
-    """Twist, torsion, CL shear and LS from the most apical and most basal levels (docs/metrics.md)."""
+    """Twist, torsion, CL shear and LS from the most apical and most basal levels (docs/metrics.md).
+
+    Parameters
+    ----------
+    levels : list of dict
+        :func:`tag_levels`, apex to base.
+    f_es_lambda : float
+        λ at ES (eq. M1).
+    Returns
+    -------
+    dict of str to float
+        ``Twist (deg)``, ``Torsion (deg/cm)``, ``CL shear (deg)``, ``LS (%)``; NaN with fewer
+        than two levels.
+    """
     if len(levels) < 2:
         nan = float("nan")
         return {"Twist (deg)": nan, "Torsion (deg/cm)": nan, "CL shear (deg)": nan, "LS (%)": nan}
@@ -214,7 +355,25 @@ def _lv_centroid(anatomy, motion, spec, f) -> np.ndarray:
 def slice_rotation_deg(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, spec: SliceSpec,
                        f_es: float) -> float:
     """Mean ED→ES rotation (deg, CCW seen from the apex) of the sa1 × sa2 tag crossings in the LV
-    wall of one SA slice, each about the slice's LV (cavity) centroid at its frame."""
+    wall of one SA slice, each about the slice's LV (cavity) centroid at its frame.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    grid : cardionurbs.phantom.annotate.TagGrid
+        The SPAMM tag planes at ED.
+    spec : cardionurbs.phantom.geometry.SliceSpec
+        An SA slice.
+    f_es : float
+        The cycle phase of the ES frame.
+    Returns
+    -------
+    float
+        The mean rotation in degrees (NaN without tag crossings in the wall).
+    """
     n1, n2 = grid.sa_normal("sa1"), grid.sa_normal("sa2")
     c = grid.sa_positions()
     ci, cj = np.meshgrid(c, c, indexing="ij")
@@ -246,7 +405,27 @@ def slice_rotation_deg(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid,
 
 def twist_2d(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, specs: list[SliceSpec],
              f_es: float) -> tuple[float, dict]:
-    """Slice-based twist: rotation of the most apical minus the most basal tagged SA slice."""
+    """Slice-based twist: rotation of the most apical minus the most basal tagged SA slice.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    grid : cardionurbs.phantom.annotate.TagGrid
+        The SPAMM tag planes at ED.
+    specs : list of cardionurbs.phantom.geometry.SliceSpec
+        The imaged slices (SA and LA).
+    f_es : float
+        The cycle phase of the ES frame.
+    Returns
+    -------
+    twist : float
+        Twist 2D in degrees (NaN with fewer than two tagged SA slices).
+    detail : dict
+        The slices used and their rotations.
+    """
     tagged = tagged_sa_slices(anatomy, motion, specs, f_es)
     if len(tagged) < 2:
         return float("nan"), {}
@@ -258,7 +437,25 @@ def twist_2d(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, specs: li
 
 
 def eccentricity_index(anatomy: Anatomy, motion: Motion, specs: list[SliceSpec], f_es: float) -> tuple[float, str]:
-    """EI at ES on the mid-ventricular SA slice (docs/metrics.md definition)."""
+    """EI at ES on the mid-ventricular SA slice (docs/metrics.md definition).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    specs : list of cardionurbs.phantom.geometry.SliceSpec
+        The imaged slices (SA and LA).
+    f_es : float
+        The cycle phase of the ES frame.
+    Returns
+    -------
+    ei : float
+        The eccentricity index at ES (dimensionless; NaN without an SA slice with both cavities).
+    slice : str
+        The slice used (``""`` without one).
+    """
     lam = float(motion.lam(f_es))
     target = lam * 0.5 * (anatomy.z_endo_apex + anatomy.z_base)
     best = None
@@ -282,7 +479,33 @@ def eccentricity_index(anatomy: Anatomy, motion: Motion, specs: list[SliceSpec],
 # ----------------------------------------------------------------- all metrics
 def compute_metrics(anatomy: Anatomy, motion: Motion, grid: annotate.TagGrid, specs: list[SliceSpec],
                     phases: np.ndarray, es_frame: int, heart_rate: float, n_tag_jumps: int) -> tuple[dict, dict]:
-    """docs/metrics.md columns (method A) and the tag-level truth."""
+    """docs/metrics.md columns (method A) and the tag-level truth.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    grid : cardionurbs.phantom.annotate.TagGrid
+        The SPAMM tag planes at ED.
+    specs : list of cardionurbs.phantom.geometry.SliceSpec
+        The imaged slices (SA and LA).
+    phases : ndarray, shape (frames,)
+        The cycle phase of every frame.
+    es_frame : int
+        The ES frame index, 0-based.
+    heart_rate : float
+        Heart rate, beats/min.
+    n_tag_jumps : int
+        Tag jumps injected (the ``Tag QC flags`` truth).
+    Returns
+    -------
+    metrics : dict
+        docs/metrics.md column -> value (mL, %, g, deg, deg/cm, bpm).
+    tags : dict
+        The tag-level truth (levels, slices, EI slice).
+    """
     f_es = float(phases[es_frame])
     if anatomy.realistic:
         from cardionurbs.phantom.truth_realistic import section_volumes
@@ -326,7 +549,26 @@ def volume_table(anatomy: Anatomy, motion: Motion, phases: np.ndarray, mesh_fram
 
     A realistic anatomy has no closed form: method A (:func:`truth_realistic.section_volumes`)
     runs on the mesh frames, and the other frames take the quadratic in the phase f through
-    method A at f = 0, f_max / 2 and f_max (:func:`truth_realistic.volume_curve`)."""
+    method A at f = 0, f_max / 2 and f_max (:func:`truth_realistic.volume_curve`).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved ED anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    phases : ndarray, shape (frames,)
+        The cycle phase of every frame.
+    mesh_frames : list of int
+        Frames whose method-B mesh volumes are computed.
+    **mesh_kw
+        Grid sizes for :func:`mesh_volumes`.
+    Returns
+    -------
+    dict
+        ``analytic_mL`` (frame -> volumes in mL), ``mesh_check`` (frame -> mesh volumes and
+        relative differences), ``max_relative_difference``.
+    """
     if anatomy.realistic:
         from cardionurbs.phantom import truth_realistic as trr
         curve = trr.volume_curve(anatomy, motion, float(np.max(phases)))

@@ -40,7 +40,21 @@ from cardionurbs.phantom.motion import Motion
 
 def valve_planes(anatomy: Anatomy, motion: Motion, f: float) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """(centroid, unit normal toward the base) of the mitral and tricuspid annulus points at
-    phase f, realistic heart frame (mm)."""
+    phase f, realistic heart frame (mm).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved realistic anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    Returns
+    -------
+    dict of str to tuple of (ndarray, ndarray)
+        ``"mitral"`` and ``"tricuspid"`` -> (centroid (3,) in mm, unit normal (3,)).
+    """
     lm = annotate.landmarks(anatomy, motion, f)
     out = {}
     keys = ("mitral", "tricuspid") + (("pulmonary", "aortic") if anatomy.outflow is not None else ())
@@ -57,6 +71,19 @@ def clipped_areas(poly: np.ndarray, zp: np.ndarray, plane: tuple[np.ndarray, np.
     Shoelace over the clipped boundary: each edge contributes its inside part, P × Q; the closing
     segments run along the cut line X = o + t u, where P × Q = (o × u)(t_Q − t_P) is linear in t,
     so together they contribute (o × u)(Σ t_entry − Σ t_exit) whatever their pairing.
+
+    Parameters
+    ----------
+    poly : ndarray, shape (L, n, 2)
+        Closed polygons (x', y'), one per level, mm.
+    zp : ndarray, shape (L,)
+        Their levels z', mm.
+    plane : tuple of (ndarray, ndarray)
+        (point (3,) in mm, unit normal (3,) toward the side cut off).
+    Returns
+    -------
+    ndarray, shape (L,)
+        The areas below the plane, mm².
     """
     c, n = plane
     nxy = n[:2]
@@ -145,7 +172,27 @@ def _levels(top: float, planes, reach: float, dz: float, dz_fine: float) -> np.n
 
 def section_volumes(anatomy: Anatomy, motion: Motion, f: float, dz: float = 0.25, dz_fine: float = 0.02,
                     n: int = 360) -> dict[str, float]:
-    """Method A: LV cavity, LV myocardium, RV cavity, RV myocardium (mL) at phase f."""
+    """Method A: LV cavity, LV myocardium, RV cavity, RV myocardium (mL) at phase f.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved realistic anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    dz : float, optional
+        Level spacing of the section integral, mm.
+    dz_fine : float, optional
+        Level spacing near the valve planes, mm.
+    n : int, optional
+        Points per section polygon.
+    Returns
+    -------
+    dict of str to float
+        ``lv_cavity``, ``lv_myocardium``, ``rv_cavity``, ``rv_myocardium``, in mL.
+    """
     return dict(_section_volumes(anatomy, motion, float(f), dz, dz_fine, n))
 
 
@@ -217,7 +264,29 @@ def tricuspid_cap_volumes(anatomy: Anatomy, motion: Motion, f: float, plane, n: 
     The RV cavity (docs/metrics.md) is the body closed at the tricuspid plane united with the
     tract's lumen above that plane: below z_b the tract is the body's window part, so with
     tracts (2) is added to the body below the plane; (1) is what the body's volume up to z_b
-    (the preset solver's) overcounts (``body=False``: not computed, 0)."""
+    (the preset solver's) overcounts (``body=False``: not computed, 0).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved realistic anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    plane : tuple of (ndarray, ndarray)
+        The tricuspid plane (centroid (3,) mm, unit normal toward the base).
+    n : int, optional
+        Points per section.
+    dz_fine : float, optional
+        Level spacing, mm.
+    body : bool, optional
+        Compute (1) as well.
+    Returns
+    -------
+    dict of str to tuple of (float, float)
+        ``rv_endo``, ``rv_epi`` -> ((1), (2)) in mL.
+    """
     lam = float(motion.lam(f))
     z_lo, z_hi = _cap_levels(anatomy)
     zs = _outflow_levels(lam * z_lo, lam * z_hi, dz_fine)
@@ -239,7 +308,21 @@ def ed_tricuspid_correction(anatomy: Anatomy, n: int = 64, dz_fine: float = 0.25
     """What the tricuspid closure changes at end-diastole (mm³; ``rv_endo``, ``rv_epi``) against the
     RV body up to the base plane (the preset solver's volumes): minus the body on the basal side of
     the best-fit tricuspid plane, plus, with tracts, the window's part there (the tract's lumen
-    starting at the plane). 0 for a planar annulus."""
+    starting at the plane). 0 for a planar annulus.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved realistic anatomy.
+    n : int, optional
+        Points per section.
+    dz_fine : float, optional
+        Level spacing, mm.
+    Returns
+    -------
+    dict of str to float
+        ``rv_endo``, ``rv_epi`` -> the change in mm³.
+    """
     if anatomy.tricuspid_dip == 0.0:
         return {"rv_endo": 0.0, "rv_epi": 0.0}
     still = Motion(ls=0.0, lv_ef=0.0, rv_ef=0.0, septal_flattening=0.0, apex_rotation_deg=0.0,
@@ -296,7 +379,25 @@ def ed_outflow_volumes(anatomy: Anatomy, parts=("rv", "lv"), dz: float = 0.25, n
     """Method A at end-diastole for the outflow tracts alone (mL; ``rv_endo``, ``rv_epi``,
     ``lv_endo`` as in :func:`section_volumes`): what the preset solver adds to the body volumes.
     ``exact_planes=False`` (the solver): the material valve planes, the mitral one fitted to the
-    unbent annulus (the apex bend moves it by ~0.01 mm at the base)."""
+    unbent annulus (the apex bend moves it by ~0.01 mm at the base).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved realistic anatomy.
+    parts : tuple of str, optional
+        ``"rv"`` and/or ``"lv"``.
+    dz : float, optional
+        Level spacing, mm.
+    n : int, optional
+        Points per section.
+    exact_planes : bool, optional
+        The valve planes at ED (else the material ones, as the solver uses).
+    Returns
+    -------
+    dict of str to float
+        ``rv_endo``, ``rv_epi``, ``lv_endo`` -> the tract's volume in mL.
+    """
     still = Motion(ls=0.0, lv_ef=0.0, rv_ef=0.0, septal_flattening=0.0, apex_rotation_deg=0.0,
                    base_rotation_deg=0.0, z_base=anatomy.z_base)
     if exact_planes:
@@ -406,7 +507,23 @@ def _closed_sphere(rings: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def myocardium_rings(anatomy: Anatomy, n_mu: int, n_theta: int, n_strip: int = 8) -> np.ndarray:
     """Material rings of the closed LV myocardium: the epicardium from its apex up to the saddle
     annulus, the annulus strip from epicardium to endocardium, the endocardium back down to its
-    apex."""
+    apex.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved realistic anatomy.
+    n_mu : int
+        Rings along each surface.
+    n_theta : int
+        Points per ring.
+    n_strip : int, optional
+        Rings across the annulus strip.
+    Returns
+    -------
+    ndarray, shape (k, n_theta, 3)
+        Material rings, mm (apex to apex, through the annulus).
+    """
     th = np.linspace(0.0, 2 * np.pi, n_theta, endpoint=False)
     zt = anatomy.z_top(th)
     epi = _lv_rings(anatomy, "lv_epi", zt, n_mu, n_theta)
@@ -522,7 +639,26 @@ def _moved(anatomy: Anatomy, motion: Motion, rings: np.ndarray, f: float) -> np.
 def mesh_volumes(anatomy: Anatomy, motion: Motion, f: float, n_mu: int = 120, n_theta: int = 240,
                  n_z_rv: int = 120, n_v_rv: int = 120) -> dict[str, float]:
     """Method B: the same four volumes (mL) from closed meshes trimmed by the valve planes, and the
-    material myocardial volumes (LV wall up to the saddle annulus, RV free wall)."""
+    material myocardial volumes (LV wall up to the saddle annulus, RV free wall).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved realistic anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    n_mu, n_theta : int, optional
+        Grid of the LV surfaces (rings and points per ring).
+    n_z_rv, n_v_rv : int, optional
+        Grid of the RV crescents.
+    Returns
+    -------
+    dict of str to float
+        The four volumes of :func:`section_volumes` and ``lv_myocardium_material`` (the LV
+        wall up to the saddle annulus), in mL.
+    """
     planes = valve_planes(anatomy, motion, f)
     cap = anatomy.z_base + anatomy.shape.saddle_mm + 6.0
     vols = {}
@@ -614,13 +750,41 @@ def _rings_3d(anatomy: Anatomy, motion: Motion, f: float, st: np.ndarray, z: np.
 def volume_polynomials(anatomy: Anatomy, motion: Motion, f_max: float) -> dict[str, np.poly1d]:
     """V(f) per volume (mL) as the quadratic in the phase f through method A at f = 0, f_max / 2
     and f_max (the cavity scalings κ of the motion are quadratic in f; the valve planes move
-    smoothly)."""
+    smoothly).
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved realistic anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    f_max : float
+        The largest phase of the cycle (that of ES).
+    Returns
+    -------
+    dict of str to numpy.poly1d
+        Volume name -> V(f) in mL.
+    """
     fs = np.array([0.0, 0.5 * f_max, f_max])
     vals = [section_volumes(anatomy, motion, float(f)) for f in fs]
     return {k: np.poly1d(np.polyfit(fs, [v[k] for v in vals], 2)) for k in vals[0]}
 
 
 def volume_curve(anatomy: Anatomy, motion: Motion, f_max: float):
-    """V(f) for every phase, from :func:`volume_polynomials`: a callable f -> dict of mL."""
+    """V(f) for every phase, from :func:`volume_polynomials`: a callable f -> dict of mL.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        The solved realistic anatomy (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    f_max : float
+        The largest phase of the cycle.
+    Returns
+    -------
+    callable
+        ``curve(f) -> dict`` of the four volumes in mL.
+    """
     poly = volume_polynomials(anatomy, motion, f_max)
     return lambda f: {k: float(p(f)) for k, p in poly.items()}

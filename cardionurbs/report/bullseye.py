@@ -20,6 +20,7 @@ import textwrap
 import matplotlib
 import numpy as np
 from matplotlib import cm, colors
+from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from cardionurbs.io import atomic
@@ -45,7 +46,14 @@ QUANTITIES = (
 
 
 def segment_wedges() -> dict[int, tuple[float, float, float, float]]:
-    """Segment -> (start angle rad, width rad, inner radius, outer radius) of the layout."""
+    """Segment -> (start angle rad, width rad, inner radius, outer radius) of the layout.
+
+    Returns
+    -------
+    dict of int to tuple of float
+        AHA segment 1..17 -> (start angle in rad, angular width in rad, inner radius, outer
+        radius) in the plot's radius units (basal ring 3-4, mid 2-3, apical 1-2, apex 0-1).
+    """
     out = {17: (0.0, 2 * np.pi, 0.0, 1.0)}
     for k in range(1, 13):
         ring = 3.0 if k <= 6 else 2.0
@@ -86,7 +94,27 @@ def _label_positions() -> list[tuple[float, float]]:
 
 def draw_bullseye(ax, values: Mapping[int, float], *, cmap: str = "viridis", norm=None,
                   fmt: str = "{:.1f}") -> colors.Normalize:
-    """Draw the segments of ``values`` (segment -> value, NaN/absent = no value) on a polar axes."""
+    """Draw the segments of ``values`` (segment -> value, NaN/absent = no value) on a polar axes.
+
+    Parameters
+    ----------
+    ax : matplotlib.projections.polar.PolarAxes
+        The axes drawn on.
+    values : mapping of int to float
+        AHA segment (1..17) -> value in the quantity's unit; NaN or absent: no value (grey,
+        hatched).
+    cmap : str, optional
+        A matplotlib colour map name.
+    norm : matplotlib.colors.Normalize, optional
+        The colour scale; default: the values' range.
+    fmt : str, optional
+        Format of the value printed in each segment.
+
+    Returns
+    -------
+    matplotlib.colors.Normalize
+        The colour scale used (for a colour bar).
+    """
     norm, faces, hatches, texts, ink = _segment_style(values, cmap, norm, fmt)
     seg = np.array(list(segment_wedges().values()))  # (start, width, inner, outer) per segment
     # one bar call for the 17 segments (one container, not 17): the same patches
@@ -100,7 +128,20 @@ def draw_bullseye(ax, values: Mapping[int, float], *, cmap: str = "viridis", nor
 
 
 def fixed_norm(stem: str, diverging: bool):
-    """The colour normalisation of a quantity (:data:`SCALES`; diverging ones centred on 0)."""
+    """The colour normalisation of a quantity (:data:`SCALES`; diverging ones centred on 0).
+
+    Parameters
+    ----------
+    stem : str
+        The column family, e.g. ``"WT_AHA_{k} (mm)"`` (its part before ``_AHA`` keys :data:`SCALES`).
+    diverging : bool
+        Centre the scale on 0 when it straddles 0.
+
+    Returns
+    -------
+    matplotlib.colors.Normalize
+        ``TwoSlopeNorm`` about 0 or a plain ``Normalize`` over the quantity's fixed range.
+    """
     lo, hi = SCALES[stem.split("_AHA")[0]]
     return colors.TwoSlopeNorm(0.0, lo, hi) if diverging and lo < 0 < hi else colors.Normalize(lo, hi)
 
@@ -128,18 +169,45 @@ class BullseyeCanvas:
 
     def __init__(self) -> None:
         self.fig = Figure(figsize=(4.6, 4.4), dpi=100)
-        self.ax = self.fig.add_axes([0.03, 0.14, 0.66, 0.74], projection="polar")
+        self.ax = self.fig.add_axes((0.03, 0.14, 0.66, 0.74), projection="polar")
         draw_bullseye(self.ax, {}, cmap="viridis")
         self.bars = list(self.ax.containers[0])
         self.labels = list(self.ax.texts)
         self.title = self.fig.suptitle("", fontsize=9)
         self.caption = self.fig.text(0.02, 0.02, "", fontsize=6.5, ha="left", va="bottom")
-        self.cax = None
+        self.cax: Axes | None = None
 
     def render(self, values: Mapping[int, float], title: str, unit: str, path: Path, *,
                cmap: str = "viridis", diverging: bool = False, caption: str = "",
                label: str | None = None, norm=None) -> Path:
-        """Draw one quantity and write the PNG (atomically); see :func:`bullseye_figure`."""
+        """Draw one quantity and write the PNG (atomically); see :func:`bullseye_figure`.
+
+        Parameters
+        ----------
+        values : mapping of int to float
+            AHA segment -> value in ``unit`` (NaN or absent: no value).
+        title : str
+            The figure's title.
+        unit : str
+            The unit shown on the colour bar (``"mm"``, ``"%"``).
+        path : pathlib.Path
+            The PNG to write.
+        cmap : str, optional
+            A matplotlib colour map name.
+        diverging : bool, optional
+            Without ``norm``: a scale symmetric about 0 when the values straddle it.
+        caption : str, optional
+            The text under the figure.
+        label : str or None, optional
+            The colour bar's quantity name (default ``title``).
+        norm : matplotlib.colors.Normalize, optional
+            A fixed colour scale (stated in the bar); default: the values' range.
+
+        Returns
+        -------
+        pathlib.Path
+            ``path``.
+        """
         fixed = norm is not None
         norm, faces, hatches, texts, ink = _segment_style(
             values, cmap, norm if fixed else _norm_of(values, diverging), "{:.1f}")
@@ -151,7 +219,7 @@ class BullseyeCanvas:
             t.set_color(c)
         if self.cax is not None:
             self.cax.remove()
-        self.cax = self.fig.add_axes([0.74, 0.2, 0.04, 0.62])
+        self.cax = self.fig.add_axes((0.74, 0.2, 0.04, 0.62))
         sm = cm.ScalarMappable(norm=norm, cmap=matplotlib.colormaps[cmap])
         text = f"{label or title} ({unit})"
         if fixed:
@@ -171,14 +239,56 @@ def bullseye_figure(values: Mapping[int, float], title: str, unit: str, path: Pa
                     norm=None) -> Path:
     """One bull's-eye PNG with a colour bar labelled with the quantity and unit (drawn on
     ``canvas`` when given: the figures of one study share one); ``norm``: a fixed colour
-    scale (:func:`fixed_norm`, stated in the bar), else the values' range."""
+    scale (:func:`fixed_norm`, stated in the bar), else the values' range.
+
+    Parameters
+    ----------
+    values : mapping of int to float
+        AHA segment -> value in ``unit`` (NaN or absent: no value).
+    title : str
+        The figure's title.
+    unit : str
+        The unit shown on the colour bar.
+    path : pathlib.Path
+        The PNG to write (atomically).
+    cmap : str, optional
+        A matplotlib colour map name.
+    diverging : bool, optional
+        Without ``norm``: a scale symmetric about 0 when the values straddle it.
+    caption : str, optional
+        The text under the figure.
+    label : str or None, optional
+        The colour bar's quantity name (default ``title``).
+    canvas : BullseyeCanvas or None, optional
+        A canvas to re-use (default: a new one).
+    norm : matplotlib.colors.Normalize, optional
+        A fixed colour scale.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     return (canvas or BullseyeCanvas()).render(values, title, unit, path, cmap=cmap,
                                                diverging=diverging, caption=caption, label=label,
                                                norm=norm)
 
 
 def segment_values(metrics: Mapping[str, float] | None, stem: str) -> dict[int, float]:
-    """Segment -> value of one column family (1..16) from a metrics dict."""
+    """Segment -> value of one column family (1..16) from a metrics dict.
+
+    Parameters
+    ----------
+    metrics : mapping of str to float or None
+        A docs/metrics.md dict.
+    stem : str
+        The column family with a ``{k}`` field, e.g. ``"WT_AHA_{k} (mm)"``.
+
+    Returns
+    -------
+    dict of int to float
+        Segment 1..16 -> value in the column's unit (NaN where absent).
+    """
     out = {}
     for k in range(1, 17):
         v = (metrics or {}).get(stem.format(k=k))
@@ -190,7 +300,29 @@ def quantity_figure(metrics: Mapping[str, float] | None, quantity: tuple, subjec
                     out: Path, frames: str = "", canvas: BullseyeCanvas | None = None
                     ) -> tuple[Path, str] | str:
     """The bull's-eye PNG of one entry of :data:`QUANTITIES`: (path, caption), or the reason
-    it is not drawn (no value in any segment)."""
+    it is not drawn (no value in any segment).
+
+    Parameters
+    ----------
+    metrics : mapping of str to float or None
+        A docs/metrics.md dict.
+    quantity : tuple
+        One entry of :data:`QUANTITIES`: (file name, column stem, title, unit, colour map,
+        diverging).
+    subject : str
+        The study's subject, for the caption.
+    out : pathlib.Path
+        The folder the PNG goes to.
+    frames : str, optional
+        Which frame the values are at (``"ES frame 7"``), for the caption.
+    canvas : BullseyeCanvas or None, optional
+        A canvas to re-use.
+
+    Returns
+    -------
+    tuple of (pathlib.Path, str) or str
+        (PNG path, caption), or why the figure is not drawn.
+    """
     name, stem, title, unit, cmap, diverging = quantity
     vals = segment_values(metrics, stem)
     if not any(np.isfinite(v) for v in vals.values()):

@@ -46,7 +46,13 @@ CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic
 
 
 def find_chromium() -> str | None:
-    """Path of a Chromium/Chrome executable (``CHROMIUM`` env var first), or None."""
+    """Path of a Chromium/Chrome executable (``CHROMIUM`` env var first), or None.
+
+    Returns
+    -------
+    str or None
+        The executable's path, None when none is installed.
+    """
     env = os.environ.get("CHROMIUM")
     if env and Path(env).is_file():
         return env
@@ -140,7 +146,8 @@ class _Session:
     """CDP commands with ids; events are kept in order."""
 
     def __init__(self, ws: _WebSocket) -> None:
-        self.ws, self.next_id, self.events = ws, 0, []
+        self.ws, self.next_id = ws, 0
+        self.events: list[dict] = []
 
     def call(self, method: str, **params) -> dict:
         self.next_id += 1
@@ -166,7 +173,27 @@ class _Session:
 # ------------------------------------------------------------- page run
 @dataclass
 class PageRun:
-    """What happened when a page was opened (see module doc)."""
+    """What happened when a page was opened (see module doc).
+
+    Attributes
+    ----------
+    url : str
+        The ``file://`` URL opened.
+    ready : bool
+        Whether ``ready_js`` became true before the timeout.
+    value : object
+        What ``value_js`` returned (JSON-like), None without it.
+    errors : list of str
+        Console errors, assertions, uncaught exceptions and error log entries.
+    console : list of str
+        Every console message and log entry.
+    requests : list of str
+        Network requests to anything but the page itself (and data:, blob: URLs).
+    screenshot : bytes
+        The PNG screenshot taken once ready.
+    seconds : float
+        Wall time of the run, in s.
+    """
 
     url: str
     ready: bool
@@ -186,9 +213,20 @@ def open_page(path: str | Path, *, chromium: str | None = None, width: int = 140
               height: int = 1000, ready_js: str = "document.readyState === 'complete'",
               value_js: str | None = None, timeout: float = 60.0, settle: float = 0.8
               ) -> PageRun:
-    """Open ``path`` in headless Chromium; wait until ``ready_js`` is truthy (or timeout),
-    screenshot, then evaluate ``value_js`` (may return a promise), and report errors and
-    network requests seen meanwhile."""
+    """Open ``path`` in headless Chromium; wait until ``ready_js`` is truthy (or timeout), screenshot,
+    then evaluate ``value_js`` (may return a promise); report errors and requests seen meanwhile.
+
+    Parameters
+    ----------
+    path : path-like (the HTML file)
+    chromium, ready_js, value_js : str (executable, default :func:`find_chromium`; JavaScript)
+    width, height : int (window size, CSS pixels)
+    timeout, settle : float (longest wait; time from ready to the screenshot; in s)
+
+    Returns
+    -------
+    PageRun
+        What happened (no browser, or none answering: :class:`~cardionurbs.errors.ChromiumError`)."""
     exe = chromium or find_chromium()
     if not exe:
         raise ChromiumError("no chromium executable found (apt-get install chromium)")
@@ -209,7 +247,7 @@ def open_page(path: str | Path, *, chromium: str | None = None, width: int = 140
                     raise ChromiumError("chromium did not open its DevTools port in time")
                 time.sleep(0.05)
             port = int(port_file.read_text().split()[0])
-            targets = []
+            targets: list[dict] = []
             while not targets:
                 with urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=10) as r:
                     targets = [t for t in json.load(r) if t.get("type") == "page"]

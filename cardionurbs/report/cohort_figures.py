@@ -60,7 +60,19 @@ _EXTRA = (OKABE_ITO["reddish_purple"], OKABE_ITO["orange"], OKABE_ITO["sky_blue"
 
 @dataclass(frozen=True)
 class BlandAltman:
-    """Bland–Altman agreement of paired values: bias, SD of differences, 95 % limits."""
+    """Bland–Altman agreement of paired values: bias, SD of differences, 95 % limits.
+
+    Attributes
+    ----------
+    n : int
+        Finite (measured, truth) pairs.
+    bias : float
+        Mean difference measured − truth, in the metric's unit.
+    sd : float
+        Sample standard deviation of the differences (ddof = 1), in the metric's unit.
+    lower, upper : float
+        The 95 % limits of agreement, bias ∓ 1.96 sd.
+    """
 
     n: int
     bias: float
@@ -73,6 +85,18 @@ def bland_altman(measured: Sequence[float], truth: Sequence[float]) -> BlandAltm
     """Bias d̄ = mean(m − t), s_d (ddof = 1), limits d̄ ± 1.96 s_d over finite pairs.
 
     With one pair s_d is NaN (and so are the limits); with none, everything is NaN.
+
+    Parameters
+    ----------
+    measured : sequence of float, shape (n,)
+        Measured values of one metric, one per subject.
+    truth : sequence of float, shape (n,)
+        Their reference values, same order and unit.
+
+    Returns
+    -------
+    BlandAltman
+        n, bias, sd and the limits, in the metric's unit (NaN as above).
     """
     m, t = np.asarray(measured, float), np.asarray(truth, float)
     ok = np.isfinite(m) & np.isfinite(t)
@@ -98,7 +122,25 @@ def _read_csv(path: Path, what: str) -> pd.DataFrame:
 
 def read_truth(truth: str | Path | pd.DataFrame | None) -> pd.DataFrame | None:
     """Truth table (subject, [pathology], docs/metrics.md columns) from a CSV, a folder of
-    phantom studies (``*/truth.json``), or a DataFrame; None stays None."""
+    phantom studies (``*/truth.json``), or a DataFrame; None stays None.
+
+    Parameters
+    ----------
+    truth : str, path-like, pandas.DataFrame or None
+        A truth CSV (with a ``subject`` column), a folder of phantom studies, or a table.
+
+    Returns
+    -------
+    pandas.DataFrame or None
+        One row per subject: ``subject``, ``pathology`` (folders) and the metric columns in
+        their docs/metrics.md units (NaN where the truth has none); None for None.
+
+    Raises
+    ------
+    cardionurbs.errors.CohortInputError
+        The CSV cannot be read or has no ``subject`` column; a ``truth.json`` is not JSON;
+        the folder holds no ``*/truth.json``.
+    """
     if truth is None or isinstance(truth, pd.DataFrame):
         return truth
     p = Path(truth)
@@ -120,7 +162,22 @@ def read_truth(truth: str | Path | pd.DataFrame | None) -> pd.DataFrame | None:
 
 def cohort_groups(cohort: pd.DataFrame, truth: pd.DataFrame | None = None,
                   groups: Mapping[str, str] | None = None) -> pd.Series:
-    """Group label per subject (index: subject), see module doc."""
+    """Group label per subject (index: subject), see module doc.
+
+    Parameters
+    ----------
+    cohort : pandas.DataFrame
+        The cohort table (``subject``, optionally ``group`` or ``pathology``).
+    truth : pandas.DataFrame or None, optional
+        The truth table, whose ``group`` or ``pathology`` is used when the cohort has none.
+    groups : mapping of str to str, optional
+        Subject -> group, taking precedence over both (a missing subject is ``"other"``).
+
+    Returns
+    -------
+    pandas.Series
+        Group name per subject (index: subject); ``"all"`` when nothing names groups.
+    """
     subjects = cohort["subject"].astype(str)
     if groups:
         lab = subjects.map(lambda s: groups.get(s, "other"))
@@ -288,6 +345,29 @@ def write_cohort_figures(cohort_csv: str | Path | pd.DataFrame, out_dir: str | P
 
     Also writes ``cohort_agreement.csv`` (metric, n, bias, sd, lower, upper) when truth is
     given, and ``skipped.txt`` (one line per figure left out).
+
+    Parameters
+    ----------
+    cohort_csv : str, path-like or pandas.DataFrame
+        The cohort table (``subject``, ``status`` and metric columns) or its CSV.
+    out_dir : path-like
+        The folder the PNGs, ``cohort_agreement.csv`` and ``skipped.txt`` go to (made).
+    truth : str, path-like, pandas.DataFrame or None, optional
+        The truth (see :func:`read_truth`); without it only the distributions are drawn.
+    groups : mapping of str to str, optional
+        Subject -> group (see :func:`cohort_groups`).
+    metrics : sequence of str, optional
+        The metric columns drawn (default :data:`DEFAULT_METRICS`).
+
+    Returns
+    -------
+    cardionurbs.report.figures.FigureSet
+        The figures written (paths and captions) and, per figure left out, why.
+
+    Raises
+    ------
+    cardionurbs.errors.CohortInputError
+        The cohort or truth CSV cannot be read or lacks a ``subject`` column.
     """
     from cardionurbs.io import atomic
     out = Path(out_dir)

@@ -77,7 +77,22 @@ LIGHT = np.array([0.35, -0.45, 0.82])
 # ----------------------------------------------------------------- results
 @dataclass
 class FigureResult:
-    """One written figure: file, caption, and the opaque colours it must show."""
+    """One written figure: file, caption, and the opaque colours it must show.
+
+    Attributes
+    ----------
+    name : str
+        The figure's name (``"fig03_lv_endo_ed_es"``), also its file stem.
+    path : pathlib.Path
+        The PNG written.
+    caption : str
+        Its caption.
+    colours : dict of str to str
+        Label -> hex colour of every opaque face or line the PNG must show (checked by the
+        figure tests).
+    legend_boxes : list of tuple of float
+        Pixel boxes (x0, y0, x1, y1; origin top-left) of the legends in the PNG.
+    """
 
     name: str
     path: Path
@@ -89,7 +104,19 @@ class FigureResult:
 
 @dataclass
 class FigureSet:
-    """Figures of one study: written ones, and one-line reasons for those left out."""
+    """Figures of one study: written ones, and one-line reasons for those left out.
+
+    Attributes
+    ----------
+    figures : list of FigureResult
+        The figures written, in drawing order.
+    skipped : dict of str to str
+        Figure name -> the one-line reason it was left out.
+    report_tags : dict or None
+        The content of ``report_tags.json`` (None without tag surfaces).
+    paths : list of pathlib.Path
+        The PNG files of :attr:`figures`.
+    """
 
     figures: list[FigureResult] = field(default_factory=list)
     skipped: dict[str, str] = field(default_factory=dict)
@@ -114,7 +141,24 @@ def _unit(v: np.ndarray) -> np.ndarray:
 def lambert_colours(vertices: np.ndarray, faces: np.ndarray, colour: str, alpha: float = 1.0
                     ) -> np.ndarray:
     """RGBA per face: the colour scaled by 0.55 + 0.45 |n · l| (two-sided Lambert, unit
-    face normal n, fixed light l); hue is preserved, only brightness changes."""
+    face normal n, fixed light l); hue is preserved, only brightness changes.
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (V, 3)
+        Mesh vertices, in mm.
+    faces : ndarray of int, shape (F, 3)
+        Vertex indices of each triangle.
+    colour : str
+        The base colour (hex or matplotlib name).
+    alpha : float, optional
+        Opacity of every face, 0 to 1.
+
+    Returns
+    -------
+    ndarray, shape (F, 4)
+        RGBA per face, each in [0, 1].
+    """
     tri = vertices[faces]
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     norm = np.linalg.norm(n, axis=1, keepdims=True)
@@ -128,7 +172,17 @@ def lambert_colours(vertices: np.ndarray, faces: np.ndarray, colour: str, alpha:
 
 @dataclass
 class View:
-    """Camera of a 3D panel: matplotlib (elev, azim, roll) in degrees and the data box."""
+    """Camera of a 3D panel: matplotlib (elev, azim, roll) in degrees and the data box.
+
+    Attributes
+    ----------
+    elev, azim, roll : float
+        matplotlib's camera angles, in degrees.
+    centre : ndarray, shape (3,)
+        Centre of the data box, in mm.
+    half : float
+        Half the side of the (cubic) data box, in mm.
+    """
 
     elev: float
     azim: float
@@ -145,6 +199,20 @@ def view_frame(axis: tuple[np.ndarray, np.ndarray], side: np.ndarray | None = No
     ``side`` (e.g. RV centroid − LV centroid) is kept in the screen plane: w ⟂ side
     and w ⟂ axis, with w chosen on the anterior side (w · (0, −1, 0) ≥ 0, LPS).
     Without ``side``, w is the anterior direction made perpendicular to the axis.
+
+    Parameters
+    ----------
+    axis : tuple of (ndarray, ndarray)
+        The LV long axis (apex (3,), base centre (3,)), in mm (scanner coordinates).
+    side : ndarray, shape (3,), optional
+        A direction kept in the screen plane (RV centroid − LV centroid).
+
+    Returns
+    -------
+    w : ndarray, shape (3,)
+        Unit view direction, centre to eye.
+    up : ndarray, shape (3,)
+        Unit screen-up direction, apex to base.
     """
     apex, base = (np.asarray(a, float) for a in axis)
     up = _unit(base - apex)
@@ -208,7 +276,21 @@ def _probe_axes():
 
 @dataclass
 class Mesh:
-    """A triangle mesh to draw: vertices (V, 3) mm, faces (F, 3), colour, alpha, label."""
+    """A triangle mesh to draw: vertices (V, 3) mm, faces (F, 3), colour, alpha, label.
+
+    Attributes
+    ----------
+    vertices : ndarray, shape (V, 3)
+        Vertices, in mm.
+    faces : ndarray of int, shape (F, 3)
+        Vertex indices of each triangle.
+    colour : str
+        Face colour (hex).
+    alpha : float
+        Opacity, 0 to 1.
+    label : str
+        The legend label.
+    """
 
     vertices: np.ndarray
     faces: np.ndarray
@@ -219,7 +301,26 @@ class Mesh:
 
 def surface_mesh(surface: Any, colour: str, alpha: float = 1.0, label: str = "",
                  grid: tuple[int, int] = SURFACE_GRID) -> Mesh:
-    """Tessellate a NURBS surface (``nu x nv`` grid) into a :class:`Mesh`."""
+    """Tessellate a NURBS surface (``nu x nv`` grid) into a :class:`Mesh`.
+
+    Parameters
+    ----------
+    surface : cardionurbs.nurbs.NurbsSurface
+        The surface (control points in mm).
+    colour : str
+        Face colour (hex).
+    alpha : float, optional
+        Opacity, 0 to 1.
+    label : str, optional
+        The legend label.
+    grid : tuple of (int, int), optional
+        Samples (nu, nv) of the tessellation (default :data:`SURFACE_GRID`).
+
+    Returns
+    -------
+    Mesh
+        The triangles, vertices in mm.
+    """
     v, f = nurbs.tessellate(surface, *grid)
     return Mesh(np.asarray(v, float), np.asarray(f, np.int64), colour, alpha, label)
 
@@ -235,6 +336,21 @@ def draw_panel(ax, meshes: Sequence[Mesh], view: View, *, lines: Sequence[tuple]
     """Draw meshes (one depth-sorted collection) and polylines on a 3D axes.
 
     ``lines``: (points (n, 3), colour, width) polylines drawn on top of the surfaces.
+
+    Parameters
+    ----------
+    ax : mpl_toolkits.mplot3d.Axes3D
+        The 3D axes drawn on.
+    meshes : sequence of Mesh
+        The surfaces, drawn as one depth-sorted collection.
+    view : View
+        The camera and data box.
+    lines : sequence of tuple, optional
+        (points (n, 3) in mm, colour, line width in pt) polylines drawn on top.
+    title : str, optional
+        The panel's title.
+    marker : bool, optional
+        Draw the orientation arrows (:func:`orientation_marker`).
     """
     polys, colours = [], []
     for m in meshes:
@@ -282,7 +398,13 @@ def orientation_marker(ax) -> None:
     """Inset arrows (upper-left of a 3D panel, clear of the axis labels below) for the
     anterior (−y), left (+x) and head
     (+z) directions (LPS), projected with the panel's own camera; an arrow's length is
-    its projected length relative to the longest of the three (short = toward the eye)."""
+    its projected length relative to the longest of the three (short = toward the eye).
+
+    Parameters
+    ----------
+    ax : mpl_toolkits.mplot3d.Axes3D
+        A 3D panel whose camera is set.
+    """
     M = ax.get_proj()
     origin = np.array(proj3d.proj_transform(0.0, 0.0, 0.0, M)[:2])
     span = float(np.diff(ax.get_xlim3d())[0]) * 0.2
@@ -354,8 +476,8 @@ def _new_figure(n_panels: int, caption: str, *, width: float = 4.6, height: floa
     if three_d:                 # a strip left of each 3-D axes for the orientation marker
         for ax in axes:
             b = ax.get_position()
-            ax.set_position([b.x0 + MARKER_STRIP * b.width, b.y0, (1 - MARKER_STRIP) * b.width,
-                             b.height])
+            ax.set_position((b.x0 + MARKER_STRIP * b.width, b.y0, (1 - MARKER_STRIP) * b.width,
+                             b.height))
     return fig, axes
 
 
@@ -465,6 +587,27 @@ def tag_data(model, tags: Any = None, frames: Sequence[int] | None = None,
     ``tags`` lacks ``over_time`` (needed for the twist–time curve) — the metrics are
     computed here. ``note`` says why there
     are no tag surfaces (no tag lines, or the analysis failed), else None.
+
+    Parameters
+    ----------
+    model : cardionurbs.anatomy.model.BiventricularModel
+        The reconstructed model.
+    tags : cardionurbs.analysis.tags.TagMetrics or None, optional
+        The tag metrics of the analysis (QC flags, tag surfaces, over-time values).
+    frames : sequence of int, optional
+        The frames wanted (0-based; default every tagged frame).
+    grid : tuple of (int, int), optional
+        Samples (nu, nv) of each tag surface's tessellation.
+
+    Returns
+    -------
+    tags : cardionurbs.analysis.tags.TagMetrics or None
+        The tag metrics used.
+    data : dict of int to list of dict
+        Frame -> one :func:`cardionurbs.analysis.tags.tag_figure_data` dict per tag surface
+        (vertices in mm, faces, family, index, lines, flags).
+    note : str or None
+        Why there are no tag surfaces, None when there are.
     """
     study = model.study
     if not getattr(study, "tags", None):
@@ -526,32 +669,104 @@ COVER = {"lv_endo": "lv_epi", "rv_endo": "rv_epi"}     # the wall around each ca
 
 def seen_colour(structure: str, alphas: Mapping[str, float], present: Sequence[str]) -> str:
     """Colour an opaque surface shows in the PNG: its own, or — inside a translucent wall of
-    opacity a — the blend a·wall + (1 − a)·own (both shaded alike, so still a scaled colour)."""
+    opacity a — the blend a·wall + (1 − a)·own (both shaded alike, so still a scaled colour).
+
+    Parameters
+    ----------
+    structure : str
+        The surface (``"lv_endo"``, ``"rv_endo"`` ...).
+    alphas : mapping of str to float
+        Structure -> opacity of the translucent walls of the figure.
+    present : sequence of str
+        The structures drawn.
+
+    Returns
+    -------
+    str
+        The hex colour the surface shows.
+    """
     own = _rgb(STRUCTURE_COLOURS[structure])
     cover = COVER.get(structure)
-    a = alphas.get(cover, 1.0) if cover in present else 0.0
-    if not 0.0 < a < 1.0:
+    a = alphas.get(cover, 1.0) if cover is not None and cover in present else 0.0
+    if cover is None or not 0.0 < a < 1.0:
         return STRUCTURE_COLOURS[structure]
-    return matplotlib.colors.to_hex(a * _rgb(STRUCTURE_COLOURS[cover]) + (1 - a) * own)
+    return matplotlib.colors.to_hex(tuple(a * _rgb(STRUCTURE_COLOURS[cover]) + (1 - a) * own))
 
 
 def fig03_lv_endo(ctx, out):
+    """Paper Fig. 3: the LV endocardial surface at ED and ES.
+
+    Parameters
+    ----------
+    ctx : _Context
+        The study's shared figure context (model, ED/ES frames, views, metrics, tags).
+    out : pathlib.Path
+        The folder the PNG goes to.
+
+    Returns
+    -------
+    FigureResult or str
+        The figure, or why it is left out.
+    """
     return _wall_pair(ctx, out, "fig03_lv_endo_ed_es", ["lv_endo"], "3",
                       "LV endocardial surface (lv_endo)")
 
 
 def fig04_lv_endo_epi(ctx, out):
+    """Paper Fig. 4: the LV endocardium (opaque) inside the translucent epicardium, ED
+    and ES.
+
+    Parameters
+    ----------
+    ctx : _Context
+        The study's shared figure context (model, ED/ES frames, views, metrics, tags).
+    out : pathlib.Path
+        The folder the PNG goes to.
+
+    Returns
+    -------
+    FigureResult or str
+        The figure, or why it is left out.
+    """
     return _wall_pair(ctx, out, "fig04_lv_endo_epi", ["lv_endo", "lv_epi"], "4",
                       "LV endocardium (lv_endo, opaque) inside the LV epicardium (lv_epi, "
                       "translucent)", {"lv_epi": 0.35})
 
 
 def fig05_rv_endo(ctx, out):
+    """Paper Fig. 5: the RV endocardial surface (free wall and septum) at ED and ES.
+
+    Parameters
+    ----------
+    ctx : _Context
+        The study's shared figure context (model, ED/ES frames, views, metrics, tags).
+    out : pathlib.Path
+        The folder the PNG goes to.
+
+    Returns
+    -------
+    FigureResult or str
+        The figure, or why it is left out.
+    """
     return _wall_pair(ctx, out, "fig05_rv_endo_ed_es", ["rv_endo"], "5",
                       "RV endocardial surface (rv_endo, free wall and septum)")
 
 
 def fig06_rv_lv(ctx, out):
+    """Paper Fig. 6: the RV endo- and epicardium around the LV epicardium, ED and ES.
+
+    Parameters
+    ----------
+    ctx : _Context
+        The study's shared figure context (model, ED/ES frames, views, metrics, tags).
+    out : pathlib.Path
+        The folder the PNG goes to.
+
+    Returns
+    -------
+    FigureResult or str
+        The figure, or why it is left out.
+    """
     return _wall_pair(ctx, out, "fig06_rv_with_lv", ["lv_epi", "rv_endo", "rv_epi"], "6",
                       "RV endocardium (rv_endo, opaque) and epicardium (rv_epi, translucent) "
                       "wrapped around the LV epicardium (lv_epi)", {"rv_epi": 0.3})
@@ -574,7 +789,20 @@ def _need_tags(ctx: _Context, frames: Sequence[int]) -> str | None:
 def fig07_tag_surface(ctx, out):
     """One SA tag surface (middle index of family sa1) at ED and ES, with the long axis;
     the ES panel shows the ED surface as a grey outline: twist bends the plane about the
-    axis and shortening moves its apical edge toward the base."""
+    axis and shortening moves its apical edge toward the base.
+
+    Parameters
+    ----------
+    ctx : _Context
+        The study's shared figure context.
+    out : pathlib.Path
+        The folder the PNG goes to.
+
+    Returns
+    -------
+    FigureResult or str
+        The figure, or why it is left out.
+    """
     if ctx.ed == ctx.es:
         return "one frame only: ED and ES tag surfaces cannot be compared"
     why = _need_tags(ctx, [ctx.ed, ctx.es])
@@ -611,7 +839,20 @@ def fig07_tag_surface(ctx, out):
 
 def fig08_tag_qc(ctx, out):
     """Tag surfaces (translucent grey) and their tag lines at the frame with most QC
-    flags (else ES): lines flagged as mistracked in vermillion, the others in blue."""
+    flags (else ES): lines flagged as mistracked in vermillion, the others in blue.
+
+    Parameters
+    ----------
+    ctx : _Context
+        The study's shared figure context.
+    out : pathlib.Path
+        The folder the PNG goes to.
+
+    Returns
+    -------
+    FigureResult or str
+        The figure, or why it is left out.
+    """
     why = _need_tags(ctx, [])
     if why:
         return why
@@ -646,6 +887,20 @@ def fig08_tag_qc(ctx, out):
 
 
 def fig09_all_tag_surfaces(ctx, out):
+    """Paper Fig. 9: every LV tag surface at ED (LA discs translucent).
+
+    Parameters
+    ----------
+    ctx : _Context
+        The study's shared figure context (model, ED/ES frames, views, metrics, tags).
+    out : pathlib.Path
+        The folder the PNG goes to.
+
+    Returns
+    -------
+    FigureResult or str
+        The figure, or why it is left out.
+    """
     why = _need_tags(ctx, [ctx.ed])
     if why:
         return why
@@ -664,6 +919,20 @@ def fig09_all_tag_surfaces(ctx, out):
 
 
 def fig10_biventricular(ctx, out):
+    """Paper Fig. 10: the biventricular surfaces at ED with the tag planes.
+
+    Parameters
+    ----------
+    ctx : _Context
+        The study's shared figure context (model, ED/ES frames, views, metrics, tags).
+    out : pathlib.Path
+        The folder the PNG goes to.
+
+    Returns
+    -------
+    FigureResult or str
+        The figure, or why it is left out.
+    """
     surf = ctx.surfaces(ctx.ed)
     if "rv_endo" not in surf:               # LV alone is figs 3-4: nothing biventricular to show
         return "no rv_endo surface in the model: the biventricular figure needs the RV"
@@ -697,7 +966,20 @@ def _times(ctx: _Context, frames: Sequence[int]) -> tuple[np.ndarray, str]:
 
 
 def fig11_volume_time(ctx, out):
-    """LV and RV cavity volume (mL, closed manifold meshes) at every reconstructed frame."""
+    """LV and RV cavity volume (mL, closed manifold meshes) at every reconstructed frame.
+
+    Parameters
+    ----------
+    ctx : _Context
+        The study's shared figure context.
+    out : pathlib.Path
+        The folder the PNG goes to.
+
+    Returns
+    -------
+    FigureResult or str
+        The figure, or why it is left out (fewer than 3 frames).
+    """
     frames = list(ctx.model.frames)
     if len(frames) < 3:
         return (f"{len(frames)} reconstructed frame(s) ({frames}): a volume–time curve needs "
@@ -735,7 +1017,20 @@ def fig11_volume_time(ctx, out):
 
 
 def fig12_twist_time(ctx, out):
-    """Twist (deg) and LS (%) relative to ED at every tagged frame (TagMetrics.over_time)."""
+    """Twist (deg) and LS (%) relative to ED at every tagged frame (TagMetrics.over_time).
+
+    Parameters
+    ----------
+    ctx : _Context
+        The study's shared figure context.
+    out : pathlib.Path
+        The folder the PNG goes to.
+
+    Returns
+    -------
+    FigureResult or str
+        The figure, or why it is left out.
+    """
     if ctx.tag_note and ctx.tags is None:
         return ctx.tag_note
     over = dict(getattr(ctx.tags, "over_time", {}) or {})
@@ -774,11 +1069,24 @@ def fig12_twist_time(ctx, out):
 def fig18_labelmap_overlay(ctx, out):
     """Label-map studies with an image NIfTI beside them: the mid-ventricular SA image at
     ED and ES with the contours the label map gave drawn over it
-    (:func:`cardionurbs.report.overlay.sa_overlay`)."""
+    (:func:`cardionurbs.report.overlay.sa_overlay`).
+
+    Parameters
+    ----------
+    ctx : _Context
+        The study's shared figure context.
+    out : pathlib.Path
+        The folder the PNG goes to.
+
+    Returns
+    -------
+    FigureResult or str
+        The figure, or why it is left out (no image NIfTI, slice or frame not in it).
+    """
     from cardionurbs.report.overlay import sa_overlay
 
     frames = sorted({ctx.ed, ctx.es})
-    panels = []
+    panels: list = []
     for f in frames:                  # the same slice at ES as at ED where it has contours
         res = sa_overlay(ctx.model.study, f, panels[0].slice) if panels else None
         if res is None or isinstance(res, str) or not res.contours.get("lv_endo"):
@@ -892,6 +1200,23 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
     1, the default: all in this process, None: the usable CPUs); the files are those one
     process draws. ``meanwhile``: work of the caller run in this process while the workers
     draw (before the figures when they are drawn here).
+
+    Parameters
+    ----------
+    model : cardionurbs.anatomy.model.BiventricularModel
+    out_dir : path-like (the folder of the PNGs and their index files; made)
+    metrics : mapping, optional (the docs/metrics.md dict: captions, bull's-eyes, curves)
+    truth : mapping, str or path-like, optional (phantom truth or its ``truth.json``)
+    tags : cardionurbs.analysis.tags.TagMetrics, optional (computed here when needed)
+    only : sequence of str, optional (names of the figures to draw; default all)
+    tag_grid : tuple of (int, int), optional (samples (nu, nv) of each tag surface)
+    jobs : int or None, optional (processes drawing; 1: this one, None: the usable CPUs)
+    meanwhile : callable, optional (run in this process while the workers draw)
+
+    Returns
+    -------
+    FigureSet
+        The figures written, the reasons for those left out, the report's tag surfaces.
     """
     from cardionurbs.parallel import fork_map
     out = Path(out_dir)
@@ -919,13 +1244,19 @@ def render_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = No
         return drawn
 
     bullseyes = tuple(n for n in names if n in {q[0] for q in BULLSEYE_QUANTITIES})
-    groups = [(n,) for n in names if n not in bullseyes] + ([bullseyes] if bullseyes else [])
-    here = ()
+    groups: list[tuple[str, ...] | None] = [(n,) for n in names if n not in bullseyes]
+    groups += [bullseyes] if bullseyes else []
+    here: set | tuple = ()
     if meanwhile is not None:
         groups, here = [None, *groups], {None}
-    drawn = {}
-    for g, res in zip(groups, fork_map(lambda g: meanwhile() if g is None else draw(g), groups,
-                                       jobs=jobs, here=here)):
+    drawn: dict = {}
+
+    def work(g):
+        if g is None:                          # the caller's own work, in this process
+            assert meanwhile is not None
+            return meanwhile()
+        return draw(g)
+    for g, res in zip(groups, fork_map(work, groups, jobs=jobs, here=here)):
         if g is not None:
             drawn.update(res)
     for name in names:
@@ -995,5 +1326,10 @@ def write_figures(model: Any, out_dir: str | Path, metrics: Mapping | None = Non
     tag surfaces (Fig. 9), fig10 biventricular + tag planes (Fig. 10), fig11
     volume–time, fig12 twist–time; label-map studies also fig13, the SA image NIfTI beside
     the labels with their contours over it (when the image is there).
+
+    Returns
+    -------
+    list of pathlib.Path
+        The PNG files written.
     """
     return render_figures(model, out_dir, metrics=metrics, truth=truth, tags=tags).paths

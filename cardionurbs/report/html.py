@@ -62,7 +62,27 @@ def _b64(a: np.ndarray) -> str:
 
 
 def quantise(vertices: np.ndarray, origin: np.ndarray, quantum: float = QUANTUM_MM) -> str:
-    """base64 of little-endian int16 ``round((v − origin) / quantum)`` (±3.2 m at 0.1 mm)."""
+    """base64 of little-endian int16 ``round((v − origin) / quantum)`` (±3.2 m at 0.1 mm).
+
+    Parameters
+    ----------
+    vertices : ndarray, shape (n, 3)
+        Vertex positions, in mm (scanner coordinates).
+    origin : ndarray, shape (3,)
+        The model centre the offsets are taken from, in mm.
+    quantum : float, optional
+        The step of the integer grid, in mm (default :data:`QUANTUM_MM`, 0.1 mm).
+
+    Returns
+    -------
+    str
+        base64 text of the (n, 3) int16 offsets, little-endian, row-major.
+
+    Raises
+    ------
+    cardionurbs.errors.ReportInputError
+        A vertex lies farther than 32767 quanta from ``origin``.
+    """
     q = np.rint((np.asarray(vertices, float) - origin) / quantum)
     if q.size and np.abs(q).max() > 32767:
         raise ReportInputError(f"coordinates farther than {32767 * quantum:.0f} mm from the "
@@ -244,7 +264,7 @@ def _tag_groups(fig_dir: Path, fig_index: dict | None, origin: np.ndarray, pool:
     return groups, td.get("flags", []), None
 
 
-def _metric_rows(metrics: dict, truth: dict | None) -> list[dict]:
+def _metric_rows(metrics: dict, truth: Mapping | None) -> list[dict]:
     """One row per measured metric with the phantom truth and the difference beside it, its
     reference range and flag (metrics.json ``ranges``), why it is null (``notes``), its
     quality flags and the surfaces they concern."""
@@ -289,7 +309,18 @@ GROUPS = (
 
 
 def group_rows(rows: list[dict]) -> list[tuple[str, list[dict]]]:
-    """The metric rows by :data:`GROUPS` (empty groups left out), in page order."""
+    """The metric rows by :data:`GROUPS` (empty groups left out), in page order.
+
+    Parameters
+    ----------
+    rows : list of dict
+        The metric rows of the report (each with ``metric``: a docs/metrics.md column).
+
+    Returns
+    -------
+    list of tuple of (str, list of dict)
+        (group title, its rows in input order) for every non-empty group.
+    """
     out: dict[str, list[dict]] = {t: [] for t, _ in GROUPS}
     for r in rows:
         out[next(t for t, test in GROUPS if test(r["metric"]))].append(r)
@@ -306,7 +337,19 @@ def _flag_surface(flag: str) -> str:
 
 def quality_lines(rows: list[dict]) -> list[dict]:
     """One line per surface (or input) with a quality flag: its distinct evidence and the
-    metrics it flags (the report shows each as one expandable line)."""
+    metrics it flags (the report shows each as one expandable line).
+
+    Parameters
+    ----------
+    rows : list of dict
+        The metric rows (``metric`` and ``qc``: ``"; "``-separated quality flags).
+
+    Returns
+    -------
+    list of dict
+        ``{"surface", "evidence": [flag, ...], "metrics": [column, ...]}`` per flagged surface
+        or input, in order of first appearance.
+    """
     by: dict[str, dict] = {}
     for r in rows:
         for f in filter(None, (r.get("qc") or "").split("; ")):
@@ -348,7 +391,29 @@ def report_payload(output_dir: str | Path, *, model: BiventricularModel | None =
     ``model`` and ``tag_data``: the model that ``model.json`` was written from and the
     content of ``figures/report_tags.json``, when the caller (``analyze``) has them in
     memory: the same report without reading those files back (the model's surfaces
-    survive the JSON round trip exactly, so the page is the same)."""
+    survive the JSON round trip exactly, so the page is the same).
+
+    Parameters
+    ----------
+    output_dir : path-like
+        An ``analyze`` output folder (``metrics.json``, ``model.json``, ``figures/``).
+    model : cardionurbs.anatomy.model.BiventricularModel, optional
+        The model ``model.json`` was written from (not read back when given).
+    tag_data : mapping, optional
+        The content of ``figures/report_tags.json`` (not read back when given).
+
+    Returns
+    -------
+    dict
+        JSON-safe: subject, frames and ED/ES (0-based), frame times (ms), origin (mm) and
+        quantum (mm) of the quantised surfaces, camera, faces, surface groups, metric rows
+        (with truth, ranges, QC, notes), warnings, body, figures.
+
+    Raises
+    ------
+    cardionurbs.errors.ReportInputError
+        The folder is not an analysis output (a file missing or unreadable, named).
+    """
     out = Path(output_dir)
     model, metrics, fig_dir, fig_index = _load_analysis(out, model)
     truth, truth_path = _find_truth(out, fig_index)
@@ -579,7 +644,18 @@ def _body_note(p: Mapping) -> str:
 def page_parts(payload: Mapping) -> list[str]:
     """The report page for a :func:`report_payload` as consecutive pieces (their
     concatenation is the page): written one after another, the page (plotly.js,
-    the data, the figures: several MB) is never held whole as text and again as bytes."""
+    the data, the figures: several MB) is never held whole as text and again as bytes.
+
+    Parameters
+    ----------
+    payload : mapping
+        A :func:`report_payload` dict.
+
+    Returns
+    -------
+    list of str
+        The page's pieces, in order (HTML, plotly.js, the JSON data, the figures).
+    """
     from plotly.offline import get_plotlyjs
 
     esc = html.escape
@@ -656,6 +732,22 @@ def write_report(output_dir: str | Path, out_path: str | Path, *,
 
     Raises :class:`ReportInputError` (one line, naming the file) when the folder is not an
     analysis output.
+
+    Parameters
+    ----------
+    output_dir : path-like
+        An ``analyze`` output folder.
+    out_path : path-like
+        The HTML file to write (replaced atomically).
+    model : cardionurbs.anatomy.model.BiventricularModel, optional
+        The model already in memory (see :func:`report_payload`).
+    tag_data : mapping, optional
+        The report tag surfaces already in memory.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_path``.
     """
     with acyclic():                  # plain lists, dicts and strings (cardionurbs.heap)
         parts = page_parts(report_payload(output_dir, model=model, tag_data=tag_data))
@@ -667,7 +759,26 @@ def write_report(output_dir: str | Path, out_path: str | Path, *,
 
 
 def run_report(args: argparse.Namespace) -> int:
-    """CLI: ``cardionurbs report OUTPUT_DIR --out report.html``."""
+    """CLI: ``cardionurbs report OUTPUT_DIR --out report.html``.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line: ``output_dir`` and ``out``.
+
+    Returns
+    -------
+    int
+        The exit code, 0.
+
+    Raises
+    ------
+    cardionurbs.errors.OutputError
+        ``--out`` may not be written (an input of the report, or a file cardionurbs did not
+        write).
+    cardionurbs.errors.ReportInputError
+        ``output_dir`` is not an analysis output.
+    """
     from cardionurbs.io.outputs import check_output_file
     src = Path(args.output_dir)
     check_output_file(args.out, inputs=[src / n for n in ("metrics.json", "model.json", "figures",

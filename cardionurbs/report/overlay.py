@@ -24,7 +24,20 @@ RAS_TO_LPS = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 @dataclass
 class SliceOverlay:
-    """One SA image (columns, rows) and the contours on it in pixel coordinates (c, r)."""
+    """One SA image (columns, rows) and the contours on it in pixel coordinates (c, r).
+
+    Attributes
+    ----------
+    slice : str
+        The slice id (``"sa_04"``).
+    frame : int
+        The frame index, 0-based.
+    image : ndarray of float, shape (columns, rows)
+        The NIfTI image's voxels of that slice and frame (first voxel axis first).
+    contours : dict of str to list of ndarray
+        Structure (``"lv_endo"``, ``"lv_epi"``, ``"rv_endo"``) -> its contours on the slice,
+        each (n, 2) in voxel coordinates (i, j) of ``image``.
+    """
 
     slice: str
     frame: int
@@ -33,7 +46,19 @@ class SliceOverlay:
 
 
 def sa_image_path(study) -> Path | None:
-    """The short-axis image NIfTI beside a label-map study, or None."""
+    """The short-axis image NIfTI beside a label-map study, or None.
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        A study read from label maps (its ``meta["image_files"]`` and ``source``).
+
+    Returns
+    -------
+    pathlib.Path or None
+        The first short-axis image file (``sa.nii.gz``, ``*_4d.nii.gz``, ``*_sa.nii.gz``)
+        that exists beside the label map; None when there is none.
+    """
     names = [n for n in (study.meta.get("image_files") or []) if SA_IMAGE.fullmatch(n)]
     if not names or not study.source:
         return None
@@ -55,7 +80,22 @@ def _image(path: Path):
 def sa_overlay(study, frame: int, slice_id: str | None = None) -> SliceOverlay | str:
     """The SA image of ``slice_id`` (default: the middle SA slice with an LV endocardium at
     ``frame``) at ``frame``, with that slice's contours in its pixels; a reason (str) when
-    there is no image, or it does not hold that slice or frame."""
+    there is no image, or it does not hold that slice or frame.
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        A label-map study with its SA image NIfTI beside it.
+    frame : int
+        The frame index, 0-based.
+    slice_id : str or None, optional
+        The SA slice (default: the middle one with an LV endocardium at ``frame``).
+
+    Returns
+    -------
+    SliceOverlay or str
+        The image and its contours, or the reason there is none (one line).
+    """
     path = sa_image_path(study)
     if path is None:
         return "no short-axis image NIfTI beside the label map"

@@ -58,12 +58,38 @@ SLIP = 0.35
 
 
 def wrap(a: np.ndarray) -> np.ndarray:
-    """Angle(s) wrapped to [−π, π)."""
+    """Angle(s) wrapped to [−π, π).
+
+    Parameters
+    ----------
+    a : array_like of float
+        Angles in rad, any shape.
+
+    Returns
+    -------
+    ndarray
+        The angles wrapped to [−π, π), same shape.
+    """
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
 def harmonic_filter(shape: tuple[int, int], k: np.ndarray, sigma: float = FILTER_SIGMA) -> np.ndarray:
-    """Gaussian band-pass (rows, columns) around k = (k_c, k_r), std ``sigma`` |k| (cycles/px)."""
+    """Gaussian band-pass (rows, columns) around k = (k_c, k_r), std ``sigma`` |k| (cycles/px).
+
+    Parameters
+    ----------
+    shape : tuple of (int, int)
+        The image shape (rows, columns).
+    k : ndarray, shape (2,)
+        The harmonic peak (k_c, k_r), in cycles/pixel.
+    sigma : float, optional
+        The filter's standard deviation as a fraction of |k| (default :data:`FILTER_SIGMA`).
+
+    Returns
+    -------
+    ndarray of float, shape (rows, columns)
+        The filter in FFT order (:func:`numpy.fft.fftfreq` frequencies), 1 at k.
+    """
     kr = np.fft.fftfreq(shape[0])[:, None]
     kc = np.fft.fftfreq(shape[1])[None, :]
     s = sigma * float(np.linalg.norm(k))
@@ -72,7 +98,15 @@ def harmonic_filter(shape: tuple[int, int], k: np.ndarray, sigma: float = FILTER
 
 @dataclass
 class HarmonicSeries:
-    """Baseband harmonic images D_t (T, rows, columns) of one tag family, and their k."""
+    """Baseband harmonic images D_t (T, rows, columns) of one tag family, and their k.
+
+    Attributes
+    ----------
+    k : ndarray, shape (2,)
+        The family's harmonic peak (k_c, k_r), in cycles/pixel.
+    baseband : ndarray of complex, shape (T, rows, columns)
+        D_t(x) = H_t(x) exp(−2πi k·x) of every frame t (0-based).
+    """
 
     k: np.ndarray
     baseband: np.ndarray
@@ -82,7 +116,24 @@ class HarmonicSeries:
                     spectra: np.ndarray | None = None) -> "HarmonicSeries":
         """Band-pass every frame of ``images`` (T, rows, columns) around k and demodulate.
 
-        ``spectra``: the frames' 2-D FFTs when already computed (shared by the families)."""
+        ``spectra``: the frames' 2-D FFTs when already computed (shared by the families).
+
+        Parameters
+        ----------
+        images : ndarray, shape (T, rows, columns)
+            The tagged cine frames of one slice (intensities).
+        k : ndarray, shape (2,)
+            The family's harmonic peak (k_c, k_r), in cycles/pixel.
+        sigma : float, optional
+            The filter's width as a fraction of |k|.
+        spectra : ndarray of complex, shape (T, rows, columns), optional
+            ``scipy.fft.fft2`` of ``images`` over the last two axes.
+
+        Returns
+        -------
+        HarmonicSeries
+            The baseband harmonic images of the family.
+        """
         images = np.asarray(images, dtype=float)
         if spectra is None:
             spectra = sfft.fft2(images, axes=(-2, -1))
@@ -102,7 +153,18 @@ class HarmonicSeries:
         return self.baseband.shape[0]
 
     def harmonic(self, t: int) -> np.ndarray:
-        """H_t on the pixel grid (complex)."""
+        """H_t on the pixel grid (complex).
+
+        Parameters
+        ----------
+        t : int
+            The frame index, 0-based.
+
+        Returns
+        -------
+        ndarray of complex, shape (rows, columns)
+            H_t = A exp(iφ): magnitude and harmonic phase at every pixel.
+        """
         rows, cols = self.baseband.shape[1:]
         carrier = np.exp(2j * np.pi * (self.k[0] * np.arange(cols)[None, :]
                                        + self.k[1] * np.arange(rows)[:, None]))
@@ -124,7 +186,24 @@ class HarmonicSeries:
         return f
 
     def sample(self, t: int, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(phase φ (n,), gradient ∇φ (n, 2) rad/px in (c, r), magnitude (n,)) at (n, 2) (c, r)."""
+        """(phase φ (n,), gradient ∇φ (n, 2) rad/px in (c, r), magnitude (n,)) at (n, 2) (c, r).
+
+        Parameters
+        ----------
+        t : int
+            The frame index, 0-based.
+        points : ndarray, shape (n, 2)
+            Pixel positions (column c, row r), sub-pixel.
+
+        Returns
+        -------
+        phase : ndarray, shape (n,)
+            The unwrapped-by-carrier harmonic phase φ, in rad.
+        gradient : ndarray, shape (n, 2)
+            ∇φ in rad/px, (∂/∂c, ∂/∂r).
+        magnitude : ndarray, shape (n,)
+            The harmonic magnitude |H| (image intensity units).
+        """
         p = np.asarray(points, float)
         re, im, gc, gr = bilinear(self._grid_fields(t), p)
         phase = np.angle(re + 1j * im) + 2 * np.pi * (p @ self.k)
@@ -134,7 +213,20 @@ class HarmonicSeries:
 
 def bilinear(fields: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Bilinear interpolation of (m, rows, cols) fields at (n, 2) (c, r) points -> (m, n);
-    points beyond the grid take the border values."""
+    points beyond the grid take the border values.
+
+    Parameters
+    ----------
+    fields : ndarray, shape (m, rows, columns)
+        The fields sampled.
+    points : ndarray, shape (n, 2)
+        Pixel positions (column c, row r).
+
+    Returns
+    -------
+    ndarray, shape (m, n)
+        Each field's value at each point.
+    """
     R, C = fields.shape[1:]
     c = np.clip(points[:, 0], 0.0, C - 1 - 1e-9)
     r = np.clip(points[:, 1], 0.0, R - 1 - 1e-9)
@@ -146,7 +238,21 @@ def bilinear(fields: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 
 def newton_step(residuals: list[np.ndarray], gradients: list[np.ndarray]) -> np.ndarray:
-    """Newton step (n, 2) for wrapped phase residuals of one or two families (see module doc)."""
+    """Newton step (n, 2) for wrapped phase residuals of one or two families (see module doc).
+
+    Parameters
+    ----------
+    residuals : list of ndarray, shape (n,)
+        Wrapped phase residuals r_j in rad, one array per family (one or two).
+    gradients : list of ndarray, shape (n, 2)
+        The phase gradients ∇φ_j in rad/px, (c, r), one array per family.
+
+    Returns
+    -------
+    ndarray, shape (n, 2)
+        The step (Δc, Δr) in px: −J⁻¹ r for two families, −r ∇φ / |∇φ|² for one
+        (Osman 1999, eq. 12).
+    """
     if len(residuals) == 1:
         g, r = gradients[0], residuals[0]
         return -(r / np.maximum((g * g).sum(1), 1e-12))[:, None] * g
@@ -162,7 +268,29 @@ def newton_step(residuals: list[np.ndarray], gradients: list[np.ndarray]) -> np.
 def solve_phase(series: list[HarmonicSeries], t: int, start: np.ndarray, targets: list[np.ndarray],
                 iterations: int = NEWTON_ITERATIONS) -> tuple[np.ndarray, np.ndarray]:
     """Positions (n, 2) at frame t whose phases equal ``targets`` (Newton from ``start``), and
-    the final residual (n,) rad (largest over the families)."""
+    the final residual (n,) rad (largest over the families).
+
+    Parameters
+    ----------
+    series : list of HarmonicSeries
+        The families of the slice (one or two).
+    t : int
+        The frame index, 0-based.
+    start : ndarray, shape (n, 2)
+        Start positions (c, r), in px.
+    targets : list of ndarray, shape (n,)
+        Each family's target phase of each point, in rad.
+    iterations : int, optional
+        Newton iterations (default :data:`NEWTON_ITERATIONS`); each step is capped at a
+        quarter tag period.
+
+    Returns
+    -------
+    positions : ndarray, shape (n, 2)
+        The found positions (c, r), in px.
+    residual : ndarray, shape (n,)
+        The largest |wrapped phase residual| over the families, in rad.
+    """
     x = np.array(start, float)
     max_step = 0.25 / max(float(np.linalg.norm(s.k)) for s in series)
     for _ in range(iterations):
@@ -187,6 +315,26 @@ def track(series: list[HarmonicSeries], seeds: np.ndarray, frames: int | None = 
     neighbour refinement that restarts 2π slips. ``prior(t, positions)``, when given,
     returns the expected displacement (n, 2) from frame t − 1 to t (e.g. from the moving
     contours), or None to use the damped constant-velocity prior at that frame.
+
+    Parameters
+    ----------
+    series : list of HarmonicSeries
+        The families of the slice (one or two).
+    seeds : ndarray, shape (n, 2)
+        The points at frame 0, (c, r) in px.
+    frames : int or None, optional
+        Frames tracked, T (default: all of the series).
+    neighbours : int, optional
+        Neighbours whose median displacement tests each point for a slip.
+    prior : callable, optional
+        ``prior(t, positions) -> (n, 2) displacement in px or None``.
+
+    Returns
+    -------
+    positions : ndarray, shape (T, n, 2)
+        The tracked positions (c, r) in px at every frame.
+    residuals : ndarray, shape (T, n)
+        Phase residuals in rad (0 at frame 0).
     """
     T = series[0].frames if frames is None else int(frames)
     seeds = np.asarray(seeds, float)
@@ -226,6 +374,22 @@ def phase_isolines(series: HarmonicSeries, t: int, level: float = np.pi,
 
     Contoured on ψ = wrap(φ − level), continuous away from its branch cut ψ = ±π, which the
     cells with |ψ| > 2 rad leave out (a line of ψ = 0 never comes near it).
+
+    Parameters
+    ----------
+    series : HarmonicSeries
+        One tag family.
+    t : int
+        The frame index, 0-based.
+    level : float, optional
+        The phase of the lines, in rad (default π: the tag troughs).
+    mask : ndarray of bool, shape (rows, columns), optional
+        Pixels where lines may run (e.g. the myocardium).
+
+    Returns
+    -------
+    list of ndarray, shape (m, 2)
+        The lines, (c, r) in px, each at least 2 points.
     """
     from skimage.measure import find_contours
     psi = np.angle(series.harmonic(t) * np.exp(-1j * level))
@@ -246,6 +410,24 @@ def trough_refine(image: np.ndarray, points: np.ndarray, gradients: np.ndarray,
     smallest sample and its two neighbours fitted by a parabola give the trough's sub-pixel
     offset, and the offsets are median-filtered along the line (``smooth`` points) against
     noise. A point whose trough is at the end of its search range keeps its position.
+
+    Parameters
+    ----------
+    image : ndarray, shape (rows, columns)
+        The tagged image (intensities).
+    points : ndarray, shape (n, 2)
+        Ordered points of one tag line, (c, r) in px.
+    gradients : ndarray, shape (n, 2)
+        The phase gradient at each point (the tag normal), any length.
+    reach : float
+        Search half-width along the normal, in px.
+    smooth : int, optional
+        Median-filter length along the line, in points.
+
+    Returns
+    -------
+    ndarray, shape (n, 2)
+        The moved points, (c, r) in px.
     """
     from scipy.ndimage import median_filter
     p = np.asarray(points, float)

@@ -33,7 +33,19 @@ SPACING_TOL = 1e-3         # relative
 
 
 def same_grid(a: ImagePlane, b: ImagePlane) -> bool:
-    """True when two image planes share their pixel grid (size, spacing, orientation, origin)."""
+    """True when two image planes share their pixel grid (size, spacing, orientation, origin).
+
+    Parameters
+    ----------
+    a, b : cardionurbs.imaging.geometry.ImagePlane
+        The two images.
+
+    Returns
+    -------
+    bool
+        Same matrix size, pixel spacing within :data:`SPACING_TOL` (relative), cosines within
+        :data:`COSINE_TOL` and ImagePositionPatient within :data:`POSITION_TOL` pixels.
+    """
     if (a.rows, a.columns) != (b.rows, b.columns):
         return False
     sa, sb = np.asarray(a.pixel_spacing, float), np.asarray(b.pixel_spacing, float)
@@ -48,7 +60,18 @@ def same_grid(a: ImagePlane, b: ImagePlane) -> bool:
 def signed_border_distance(mask: np.ndarray) -> np.ndarray:
     """Signed distance (px) of every pixel centre to the border of ``mask`` (rows, columns):
     positive inside, negative outside; the border runs between the pixels, half a pixel from
-    the centres next to it (Euclidean distance transform, scipy.ndimage)."""
+    the centres next to it (Euclidean distance transform, scipy.ndimage).
+
+    Parameters
+    ----------
+    mask : ndarray of bool, shape (rows, columns)
+        The region's pixels.
+
+    Returns
+    -------
+    ndarray of float, shape (rows, columns)
+        The signed distance in px (> 0 inside).
+    """
     inside = ndimage.distance_transform_edt(mask)
     outside = ndimage.distance_transform_edt(~mask)
     return np.where(mask, inside - 0.5, 0.5 - outside)
@@ -57,7 +80,13 @@ def signed_border_distance(mask: np.ndarray) -> np.ndarray:
 @dataclass
 class LabelMyocardium:
     """Myocardium pixels of one image (rows, columns) of a label map, with the signed
-    distance to their border for the clipping margin."""
+    distance to their border for the clipping margin.
+
+    Parameters
+    ----------
+    pixels : ndarray of bool, shape (rows, columns)
+        The myocardium pixels of one tagged image.
+    """
 
     pixels: np.ndarray
 
@@ -68,7 +97,18 @@ class LabelMyocardium:
 
     def distance(self, pts: np.ndarray) -> np.ndarray:
         """Signed distance (px, bilinear between pixel centres) of points (n, 2) (c, r) to the
-        border of the myocardium pixels: > 0 inside."""
+        border of the myocardium pixels: > 0 inside.
+
+        Parameters
+        ----------
+        pts : ndarray, shape (n, 2)
+            Pixel positions (column c, row r), sub-pixel.
+
+        Returns
+        -------
+        ndarray, shape (n,)
+            The signed distance in px (> 0 inside).
+        """
         return ndimage.map_coordinates(self.signed_distance, [pts[:, 1], pts[:, 0]], order=1,
                                        mode="nearest")
 
@@ -87,6 +127,26 @@ class LabelMaps:
     ``LabelMaps(tagged, label_study)`` pairs every slice of ``tagged`` (the study whose images
     name the tagged DICOM) with the slice of ``label_study`` (read by
     :func:`cardionurbs.io.nifti.read_study`) on the same pixel grid.
+
+    Parameters
+    ----------
+    tagged : cardionurbs.study.Study
+        The tagged study (its images are the tagged DICOM).
+    label_study : cardionurbs.study.Study
+        The label-map study (``meta["format"] == "nifti"``, ``labels`` naming ``myo=<value>``).
+
+    Attributes
+    ----------
+    slice_of : dict of str to str
+        Tagged slice id -> the label study's slice id on the same grid.
+    frames : set of int
+        The label study's frames (0-based) with an LV epicardium.
+
+    Raises
+    ------
+    cardionurbs.errors.TagTrackingError
+        ``label_study`` is not read from NIfTI label maps, has no folder, or does not say
+        which label is the myocardium.
     """
 
     def __init__(self, tagged: Study, label_study: Study) -> None:
@@ -126,7 +186,25 @@ class LabelMaps:
 
     def pixels(self, slice_id: str, frame: int) -> np.ndarray | None:
         """Myocardium pixels (rows, columns) of the tagged slice ``slice_id`` at ``frame``, or
-        None when the label maps have no such slice or frame, or no myocardium there."""
+        None when the label maps have no such slice or frame, or no myocardium there.
+
+        Parameters
+        ----------
+        slice_id : str
+            The tagged study's slice id.
+        frame : int
+            The frame index, 0-based.
+
+        Returns
+        -------
+        ndarray of bool, shape (rows, columns) or None
+            The myocardium pixels, or None (see above).
+
+        Raises
+        ------
+        cardionurbs.errors.StudyError
+            The label map file named by the study is missing or unreadable.
+        """
         lslice = self.slice_of.get(slice_id)
         lim = self._by_key.get((lslice, frame)) if lslice is not None else None
         if lim is None or not lim.file:
@@ -141,13 +219,45 @@ class LabelMaps:
         return m if m.any() else None
 
     def contours_slice(self, slice_id: str) -> str | None:
-        """The label study's slice id matched to the tagged slice ``slice_id``."""
+        """The label study's slice id matched to the tagged slice ``slice_id``.
+
+        Parameters
+        ----------
+        slice_id : str
+            The tagged study's slice id.
+
+        Returns
+        -------
+        str or None
+            The label study's slice id, None when no label slice lies on its grid.
+        """
         return self.slice_of.get(slice_id)
 
 
 def load_label_maps(tagged: Study, labels: "Study | str | Path") -> LabelMaps:
     """:class:`LabelMaps` from a label-map study or its path (any :mod:`cardionurbs.io.nifti`
-    layout); a TagTrackingError when no slice of ``tagged`` lies on a label map's grid."""
+    layout); a TagTrackingError when no slice of ``tagged`` lies on a label map's grid.
+
+    Parameters
+    ----------
+    tagged : cardionurbs.study.Study
+        The tagged study.
+    labels : cardionurbs.study.Study, str or path-like
+        The label-map study, or the path of its NIfTI file or folder.
+
+    Returns
+    -------
+    LabelMaps
+        The pairing of tagged and label slices.
+
+    Raises
+    ------
+    cardionurbs.errors.TagTrackingError
+        No tagged slice lies on a label map's grid, or the labels are unusable (see
+        :class:`LabelMaps`).
+    cardionurbs.errors.StudyError
+        ``labels`` cannot be read as a label-map study.
+    """
     if not isinstance(labels, Study):
         from cardionurbs.io.nifti import read_study
         labels = read_study(labels)

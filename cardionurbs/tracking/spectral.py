@@ -43,7 +43,22 @@ MIN_CONTRAST = 4.2
 
 @dataclass(frozen=True)
 class TagPeak:
-    """One tag family's first harmonic peak: k (cycles/pixel, (k_c, k_r)), magnitude, contrast."""
+    """One tag family's first harmonic peak: k (cycles/pixel, (k_c, k_r)), magnitude, contrast.
+
+    Attributes
+    ----------
+    k : ndarray, shape (2,)
+        The peak's wave vector (k_c, k_r), in cycles/pixel (sub-bin).
+    magnitude : float
+        |FFT| at the peak's bin (image intensity × pixels).
+    contrast : float
+        The magnitude over the mean of its square annulus (dimensionless; a tag family
+        stands out above :data:`MIN_CONTRAST`).
+    period_px : float
+        Tag spacing along k, in px.
+    direction : ndarray, shape (2,)
+        Unit (c, r) normal of the tag lines.
+    """
 
     k: np.ndarray
     magnitude: float
@@ -61,14 +76,36 @@ class TagPeak:
 
 
 def frequency_grid(shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """(k_c, k_r) of every FFT bin of an image of ``shape`` = (rows, columns), cycles/pixel."""
+    """(k_c, k_r) of every FFT bin of an image of ``shape`` = (rows, columns), cycles/pixel.
+
+    Parameters
+    ----------
+    shape : tuple of (int, int)
+        The image shape (rows, columns).
+
+    Returns
+    -------
+    k_c, k_r : ndarray, shape (rows, columns)
+        The frequency of every bin along the columns and the rows, in cycles/pixel (FFT order).
+    """
     kr = np.fft.fftfreq(shape[0])[:, None]
     kc = np.fft.fftfreq(shape[1])[None, :]
     return np.broadcast_to(kc, shape), np.broadcast_to(kr, shape)
 
 
 def windowed_spectrum(image: np.ndarray) -> np.ndarray:
-    """|FFT| of the mean-free, Hann-windowed image."""
+    """|FFT| of the mean-free, Hann-windowed image.
+
+    Parameters
+    ----------
+    image : ndarray, shape (rows, columns)
+        One image (intensities).
+
+    Returns
+    -------
+    ndarray of float, shape (rows, columns)
+        The magnitude spectrum, FFT order.
+    """
     img = np.asarray(image, dtype=float)
     w = np.outer(np.hanning(img.shape[0]), np.hanning(img.shape[1]))
     return np.abs(np.fft.fft2((img - img.mean()) * w))
@@ -76,7 +113,22 @@ def windowed_spectrum(image: np.ndarray) -> np.ndarray:
 
 def annulus_mean(mag: np.ndarray, inner: int = 2, outer: int = 6) -> np.ndarray:
     """Mean of ``mag`` over the square annulus inner < max(|dr|, |dc|) <= outer around each bin
-    (periodic, as the spectrum)."""
+    (periodic, as the spectrum).
+
+    Parameters
+    ----------
+    mag : ndarray, shape (rows, columns)
+        A magnitude spectrum.
+    inner : int, optional
+        Half-width of the square left out, in bins.
+    outer : int, optional
+        Half-width of the square averaged, in bins.
+
+    Returns
+    -------
+    ndarray, shape (rows, columns)
+        The annulus mean around every bin.
+    """
     from scipy.ndimage import uniform_filter
     a, b = 2 * outer + 1, 2 * inner + 1
     big = uniform_filter(mag, a, mode="wrap") * a * a
@@ -120,6 +172,21 @@ def tag_peaks(image: np.ndarray, families: int, min_period_px: float = 3.0,
 
     Returns fewer peaks when the band has no candidate (tiny images); the caller judges
     ``contrast`` against :data:`MIN_CONTRAST`.
+
+    Parameters
+    ----------
+    image : ndarray, shape (rows, columns)
+        The first tagged frame of a slice (intensities).
+    families : int
+        Tag families expected: 2 for an SA grid, 1 for LA lines.
+    min_period_px, max_period_px : float, optional
+        The band searched: tag spacings from 3 to 25 px by default.
+
+    Returns
+    -------
+    list of TagPeak
+        At most ``families`` peaks, strongest first; the second at 50-90° from the first and
+        0.6 to 1.6 times its frequency.
     """
     mag = windowed_spectrum(image)
     kc, kr = frequency_grid(mag.shape)

@@ -155,7 +155,19 @@ def _closed_polygon(points_px: np.ndarray):
 @dataclass
 class Myocardium:
     """LV myocardium of one image: polygons in pixel coordinates (outer minus inner), or the
-    myocardium pixels of a label map (``labels``)."""
+    myocardium pixels of a label map (``labels``).
+
+    Attributes
+    ----------
+    outer : matplotlib.path.Path or None
+        The epicardium polygon in pixel coordinates (c, r); None with ``labels``.
+    inner : matplotlib.path.Path or None
+        The endocardium polygon (None: no cavity cut out).
+    drawn : bool
+        False when borrowed from the slice's nearest contoured frame.
+    labels : cardionurbs.tracking.labelmaps.LabelMyocardium or None
+        The label map's myocardium pixels, used instead of the polygons.
+    """
 
     outer: Any              #: matplotlib.path.Path of the epicardium, or None with labels
     inner: Any | None       #: that of the endocardium
@@ -163,7 +175,20 @@ class Myocardium:
     labels: LabelMyocardium | None = None
 
     def contains(self, pts: np.ndarray, margin: float = 0.0) -> np.ndarray:
-        """Points (n, 2) px inside the myocardium, at least ``margin`` px from its borders."""
+        """Points (n, 2) px inside the myocardium, at least ``margin`` px from its borders.
+
+        Parameters
+        ----------
+        pts : ndarray, shape (n, 2)
+            Pixel positions (column c, row r).
+        margin : float, optional
+            Least distance from the borders, in px (0: inside at all).
+
+        Returns
+        -------
+        ndarray of bool, shape (n,)
+            True for a point inside, ``margin`` px clear of the borders.
+        """
         if len(pts) == 0:
             return np.zeros(0, bool)
         if self.labels is not None:
@@ -251,7 +276,17 @@ def _crop_box(study: Study, images: list[ImagePlane],
 # ------------------------------------------------------------ expectations
 @dataclass
 class TagPlanes:
-    """One family's 3-D tag planes: unit normal N (scanner), spacing d (mm), index0 (mm or None)."""
+    """One family's 3-D tag planes: unit normal N (scanner), spacing d (mm), index0 (mm or None).
+
+    Attributes
+    ----------
+    normal : ndarray, shape (3,)
+        The planes' unit normal N, scanner coordinates.
+    spacing : float
+        The tag spacing d along N, in mm.
+    index0 : float or None
+        The offset of tag index 0 along N (x · N = index0 + i d), in mm; None when unknown.
+    """
 
     normal: np.ndarray
     spacing: float
@@ -259,7 +294,24 @@ class TagPlanes:
 
 
 def expected_tag_planes(study: Study) -> dict[str, TagPlanes]:
-    """What the study expects: ``meta["tag_planes"]``, else its own tag lines at their first frame."""
+    """What the study expects: ``meta["tag_planes"]``, else its own tag lines at their first frame.
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        The tagged study (``meta["tag_planes"]`` or its tag lines).
+
+    Returns
+    -------
+    dict of str to TagPlanes
+        Family (``"sa1"``, ``"sa2"``, ``"la"``) -> its expected planes; empty when the study
+        says nothing.
+
+    Raises
+    ------
+    cardionurbs.errors.StudyError
+        A ``meta["tag_planes"]`` entry lacks a 3-number ``normal`` or ``spacing_mm``.
+    """
     out: dict[str, TagPlanes] = {}
     given = study.meta.get("tag_planes") if isinstance(study.meta, dict) else None
     if isinstance(given, dict):
@@ -300,7 +352,23 @@ def expected_tag_planes(study: Study) -> dict[str, TagPlanes]:
 # ------------------------------------------------------------------ per slice
 @dataclass
 class SliceGeometry:
-    """Tag families found in one slice: family -> (k px, in-plane scanner unit normal, spacing mm)."""
+    """Tag families found in one slice: family -> (k px, in-plane scanner unit normal, spacing mm).
+
+    Attributes
+    ----------
+    slice : str
+        The slice id.
+    view : str
+        ``"SA"`` or ``"LA"``.
+    k : dict of str to ndarray
+        Family -> harmonic peak (k_c, k_r), in cycles/pixel.
+    normal : dict of str to ndarray
+        Family -> in-plane unit tag normal, scanner coordinates (3,).
+    spacing_mm : dict of str to float
+        Family -> tag spacing in the image plane, in mm.
+    contrast : dict of str to float
+        Family -> spectral peak contrast of the slice's first frame (dimensionless).
+    """
 
     slice: str
     view: str
@@ -328,7 +396,29 @@ def _in_plane(n: np.ndarray, plane: ImagePlane) -> np.ndarray:
 def first_frame_peaks(image: np.ndarray, plane: ImagePlane, path,
                       expected: dict[str, TagPlanes]) -> list[spectral.TagPeak]:
     """The tag peaks of one slice's first frame (one per family of its view), searched near the
-    expected spacing when the study has one (weak peaks included; the caller judges)."""
+    expected spacing when the study has one (weak peaks included; the caller judges).
+
+    Parameters
+    ----------
+    image : ndarray, shape (rows, columns)
+        The slice's first tagged frame.
+    plane : cardionurbs.imaging.geometry.ImagePlane
+        Its image plane.
+    path : path-like
+        Its file, for the messages.
+    expected : dict of str to TagPlanes
+        The study's expected tag planes (:func:`expected_tag_planes`).
+
+    Returns
+    -------
+    list of cardionurbs.tracking.spectral.TagPeak
+        One peak per family of the view (fewer when none is found), strongest first.
+
+    Raises
+    ------
+    cardionurbs.errors.TagTrackingError
+        Expected tag planes nearly parallel to the image plane.
+    """
     fams = FAMILIES[plane.view]
     where = dict(file=path, slice=plane.slice, frame=plane.frame)
     exp_px = []
@@ -361,6 +451,24 @@ def resolve_geometry(group: list[tuple[ImagePlane, object, list[spectral.TagPeak
     over those slices, scanner cycles/mm) then stands in for a slice whose own peak is weak,
     more than ``ANGLE_TOL_DEG`` off or ``SPACING_TOL`` from it in spacing (a small apical
     section has little tagged tissue, or its strongest peak is a harmonic).
+
+    Parameters
+    ----------
+    group : list of tuple
+        (image plane, file, first-frame peaks) of each slice of the group.
+    expected : dict of str to TagPlanes
+        The study's expected tag planes.
+
+    Returns
+    -------
+    dict of str to SliceGeometry
+        Slice id -> its tag families.
+
+    Raises
+    ------
+    cardionurbs.errors.TagTrackingError
+        Fewer than half the slices show a tag pattern (untagged or faded series), or the
+        consensus disagrees with ``expected`` (naming file, slice and frame).
     """
     plane0, path0, _ = group[0]
     fams = FAMILIES[plane0.view]
@@ -508,7 +616,18 @@ def _grid_mask(myo: Myocardium, box, dilate_px: int = 3) -> np.ndarray:
 @dataclass
 class SliceTracking:
     """Tracked lines of one slice: [(family, index, frame, points px (full image), magnitude,
-    phase_residual)], and notes."""
+    phase_residual)], and notes.
+
+    Attributes
+    ----------
+    lines : list of tuple
+        (family, tag index, frame (0-based), points (n, 2) in full-image px (c, r), harmonic
+        magnitude, phase residual in rad) per tracked line piece.
+    notes : list of str
+        What the tracking left out or changed, one line each.
+    frames_tracked : int
+        Frames tracked before the tags faded.
+    """
 
     lines: list[tuple]
     notes: list[str]
@@ -550,7 +669,22 @@ def slice_contours_px(study: Study, images: list[ImagePlane],
                       slice_id: str | None = None) -> list[list[tuple[np.ndarray, bool]] | None]:
     """Per frame of a slice: its lv_endo and lv_epi contours resampled by arc length (px), or
     None when not both are drawn (the contours of ``study``'s slice ``slice_id``, default the
-    images' own)."""
+    images' own).
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        The study holding the contours.
+    images : list of cardionurbs.imaging.geometry.ImagePlane
+        The slice's images, one per frame.
+    slice_id : str or None, optional
+        The study's slice whose contours are taken (default each image's own).
+
+    Returns
+    -------
+    list of (list of tuple of (ndarray, bool)) or None
+        Per frame, [(lv_endo points (96, 2) px, closed), (lv_epi points, closed)] or None.
+    """
     out: list[list[tuple[np.ndarray, bool]] | None] = []
     for im in images:
         cs = {c.structure: c for c in study.contours_at(im.frame, ("lv_endo", "lv_epi"))
@@ -565,7 +699,18 @@ def slice_contours_px(study: Study, images: list[ImagePlane],
 
 def best_cyclic_shift(a: np.ndarray, b: np.ndarray) -> int:
     """The k minimising Σ |roll(b, k) − a|² for two closed curves of n samples (n, 2): the
-    maximum of the circular cross-correlation Σ_i a_i · b_{i−k}, by FFT."""
+    maximum of the circular cross-correlation Σ_i a_i · b_{i−k}, by FFT.
+
+    Parameters
+    ----------
+    a, b : ndarray, shape (n, 2)
+        Two closed curves sampled alike (px).
+
+    Returns
+    -------
+    int
+        The shift k in 0..n-1.
+    """
     fa, fb = np.fft.rfft(a, axis=0), np.fft.rfft(b, axis=0)
     corr = np.fft.irfft((fa * np.conj(fb)).sum(axis=1), n=len(a))
     return int(np.argmax(corr))
@@ -626,7 +771,22 @@ def tag_curve(P: np.ndarray, k: np.ndarray, deg: int = TAG_CURVE_DEGREE) -> np.n
     across the whole line (both wall pieces) is the model :func:`_on_one_tag` already rejects
     slipped points against; a fit per wall piece does not remove the bias. On the phantoms'
     own (true) lines the model moves points by a few hundredths of a pixel typically, up to
-    ~0.5 px at end systole, and changes Twist by less than 0.02 deg."""
+    ~0.5 px at end systole, and changes Twist by less than 0.02 deg.
+
+    Parameters
+    ----------
+    P : ndarray, shape (n, 2)
+        The line's tracked points, px (c, r).
+    k : ndarray, shape (2,)
+        The family's harmonic peak (the tag normal), cycles/pixel.
+    deg : int, optional
+        The polynomial degree (default :data:`TAG_CURVE_DEGREE`).
+
+    Returns
+    -------
+    ndarray, shape (n, 2)
+        The points on the fitted curve, px (c, r), at their own positions along the tag.
+    """
     khat = k / np.linalg.norm(k)
     along = np.array([-khat[1], khat[0]])
     u, o = P @ along, P @ khat
@@ -647,6 +807,20 @@ def myocardial_window(crop: np.ndarray, myo_masks: list[np.ndarray | None],
     the border. A frame whose myocardium is borrowed from a neighbouring frame
     (``drawn[t]`` False) keeps ``WINDOW_BORROWED_PX`` more pixels around it; a frame without
     one (None) is left as it is.
+
+    Parameters
+    ----------
+    crop : ndarray, shape (T, rows, columns)
+        The cropped frames of one slice.
+    myo_masks : list of (ndarray of bool or None)
+        Per frame, the myocardium pixels of the crop (None: none known).
+    drawn : list of bool, optional
+        Per frame, whether its myocardium was drawn (not borrowed).
+
+    Returns
+    -------
+    ndarray of float, shape (T, rows, columns)
+        The windowed frames.
     """
     out = np.array(crop, float)
     for t, m in enumerate(myo_masks):
@@ -662,7 +836,30 @@ def myocardial_window(crop: np.ndarray, myo_masks: list[np.ndarray | None],
 def track_slice(frames_px: np.ndarray, images: list[ImagePlane], myos: list[Myocardium],
                 geom: SliceGeometry, tag_planes: dict[str, TagPlanes], box,
                 study_contours=None) -> SliceTracking:
-    """HARP tracking of one slice's tag lines through its frames (module docstring, 2–6)."""
+    """HARP tracking of one slice's tag lines through its frames (module docstring, 2–6).
+
+    Parameters
+    ----------
+    frames_px : ndarray, shape (T, rows, columns)
+        The slice's tagged frames (full images).
+    images : list of cardionurbs.imaging.geometry.ImagePlane
+        Their image planes, one per frame.
+    myos : list of Myocardium or None
+        Per frame, the LV myocardium (None: the frame is not tracked).
+    geom : SliceGeometry
+        The slice's tag families.
+    tag_planes : dict of str to TagPlanes
+        The study's tag planes (line indices).
+    box : tuple of int
+        The crop (row0, row1, col0, col1), in px.
+    study_contours : list, optional
+        :func:`slice_contours_px` of the slice, for the temporal prior.
+
+    Returns
+    -------
+    SliceTracking
+        The tracked line pieces and notes.
+    """
     plane = images[0]
     offset = np.array([box[2], box[0]], float)
     crop, inner, masks, hs_by_fam = _harmonic_series(frames_px, myos, geom, box)
@@ -867,11 +1064,31 @@ def track_tags(study: Study, slices: list[str] | None = None,
     (untagged or faded series, spacing or orientation far from the expected) or
     :class:`StudyError` (missing DICOM files), naming file, slice and frame.
 
-    ``labels``: the study's segmentation as NIfTI label maps (a study read by
-    :func:`cardionurbs.io.nifti.read_study`, or its path) on the tagged images' pixel grid
-    (:mod:`cardionurbs.tracking.labelmaps`): the myocardial window and the clipping of the
-    lines then use the label maps' myocardium pixels, and the crop and the temporal prior
-    their contours, in every slice they cover; the other slices keep the study's contours.
+    Parameters
+    ----------
+    study : Study
+        A study whose images name tagged DICOM files (:func:`cardionurbs.io.load_study`).
+    slices : list of str or None
+        Only these slice ids; None: every slice with DICOM files and LV epicardial contours.
+    labels : Study, str, pathlib.Path or None
+        The study's segmentation as NIfTI label maps (a study read by
+        :func:`cardionurbs.io.nifti.read_study`, or its path) on the tagged images' pixel grid
+        (:mod:`cardionurbs.tracking.labelmaps`): the myocardial window and the clipping of the
+        lines then use the label maps' myocardium pixels, and the crop and the temporal prior
+        their contours, in every slice they cover; the other slices keep the study's contours.
+
+    Returns
+    -------
+    Study
+        A copy of ``study`` with the tracked :class:`~cardionurbs.study.TagLine` s (scanner
+        mm) and ``meta["tag_tracking"]``.
+
+    Raises
+    ------
+    TagTrackingError
+        An untagged or faded series, or a tag spacing or orientation far from the expected.
+    StudyError
+        Missing DICOM files (naming file, slice and frame).
     """
     by_slice = _tracked_slices(study, slices)
     expected = expected_tag_planes(study)
@@ -1012,6 +1229,23 @@ def write_tracked_study(study: Study, out: str | Path) -> Path:
 
     The DICOM files it references are hard-linked (copied across file systems) beside it under
     the same relative paths, and ``truth.json`` (phantoms) with them, so the folder stands alone.
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        A study returned by :func:`track_tags`.
+    out : path-like
+        The new study folder (must not be the study's own).
+
+    Returns
+    -------
+    pathlib.Path
+        ``out``.
+
+    Raises
+    ------
+    cardionurbs.errors.StudyError
+        ``out`` is the study's own folder.
     """
     src = _study_folder(study)
     out = Path(out)
@@ -1031,7 +1265,28 @@ def write_tracked_study(study: Study, out: str | Path) -> Path:
 def run_track(args) -> int:
     """``cardionurbs track STUDY --out DIR [--label-maps PATH]``: the study with its tag lines
     tracked from its tagged DICOM (:func:`track_tags`; with ``--label-maps`` clipped to the
-    label maps' myocardium pixels), written as a native study (exit 2 on bad input)."""
+    label maps' myocardium pixels), written as a native study (exit 2 on bad input).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed command line: ``study``, ``out``, ``label_maps``, ``overwrite``,
+        ``allow_outside``.
+
+    Returns
+    -------
+    int
+        The exit code, 0.
+
+    Raises
+    ------
+    cardionurbs.errors.OutputError
+        ``--out`` may not be written.
+    cardionurbs.errors.StudyError
+        The study cannot be read.
+    cardionurbs.errors.TagTrackingError
+        No tag pattern can be tracked.
+    """
     import sys
     given = Path(args.study)
     folder = given if given.is_dir() or not given.exists() else given.parent
