@@ -323,8 +323,18 @@ def _finite(x: object) -> TypeGuard[int | float]:
 
 def partial_tracings(model, frame: int) -> set:
     """The (surface, slice) sections of a frame left out as partial tracings against its
-    neighbouring frames (:func:`cardionurbs.anatomy.cycle.partial_sections`); empty for a
-    model read back or a frame not built."""
+    neighbouring frames (:func:`cardionurbs.anatomy.cycle.partial_sections`).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+    frame : int
+
+    Returns
+    -------
+    set of (str, str)
+        (surface, slice) pairs; empty for a model read back or a frame not built.
+    """
     from cardionurbs.anatomy.cycle import PARTIAL_PREFIX
     geo = getattr(model, "geometry", None)
     if geo is None or frame not in (getattr(geo, "computed", None) or []):
