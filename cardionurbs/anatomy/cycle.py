@@ -206,6 +206,7 @@ def check_curve(volumes: dict[int, float], *, bound: float = SUPPORT_BOUND,
     beside: set[int] = set()
     for i in np.argsort(-excess, kind="stable")[:len(y) // 4]:
         if excess[i] > 0 and int(i) not in beside:
+            i = _the_outlier(y, int(i), excess, finite, cyclic)
             trusted[i] = False
             nb = _neighbours(int(i), finite, cyclic)
             beside |= {int(nb[1]) % len(y), int(nb[2]) % len(y)}
@@ -221,6 +222,50 @@ def check_curve(volumes: dict[int, float], *, bound: float = SUPPORT_BOUND,
         out.consistent[f] = float(lagrange_weights(nb, i) @ y[nb % len(y)])
         out.departure[f] = float(y[i] / out.consistent[f] - 1.0)
     return out
+
+
+def _cubic_at(y: np.ndarray, i: int, finite: np.ndarray, cyclic: bool) -> float:
+    """The cubic through the two nearest finite frames on each side of position ``i``."""
+    nb = _neighbours(i, finite, cyclic)
+    return math.nan if nb is None else float(lagrange_weights(nb, i) @ y[nb % len(y)])
+
+
+def _the_outlier(y: np.ndarray, i: int, excess: np.ndarray, finite: np.ndarray,
+                 cyclic: bool) -> int:
+    """Of candidate ``i`` and an adjacent candidate (both beyond the bound), the frame to
+    support: the one whose replacement by its cubic leaves the other consistent. On a steep
+    limb a spike makes its neighbour look like one too, by a departure that can come within
+    a few percent of its own (near-ties that the ranking alone decides at random).
+
+    Parameters
+    ----------
+    y : ndarray, shape (n,)
+        The raw volumes (mL) in frame order.
+    i : int
+        The candidate's position.
+    excess : ndarray, shape (n,)
+        Each position's departure from its cubic where it is a candidate, else 0.
+    finite, cyclic
+        As in :func:`check_curve`.
+
+    Returns
+    -------
+    int
+        ``i``, or the adjacent candidate's position.
+    """
+    n = len(y)
+    for j in (i - 1, i + 1):
+        j %= n
+        if j == i or excess[j] <= 0:
+            continue
+        left = []
+        for a, b in ((i, j), (j, i)):
+            z = y.copy()
+            z[a] = _cubic_at(y, a, finite, cyclic)
+            left.append(abs(z[b] / _cubic_at(z, b, finite, cyclic) - 1.0))
+        if left[1] < left[0]:
+            return j
+    return i
 
 
 def _incomplete(contours: dict[int, int], frames: list[int], nb: np.ndarray, i: int) -> bool:
