@@ -52,6 +52,7 @@ from bisect import bisect_left
 from collections.abc import Sequence
 from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
+from functools import lru_cache
 from itertools import product
 
 import numpy as np
@@ -134,21 +135,15 @@ class LineDeparture:
 # ---------------------------------------------------------------- geometry
 def _samples(section, ns: int = _NU) -> np.ndarray:
     """(ns, 3) points of a section's fitted curve at uniform u."""
+    return _uniform_basis(np.asarray(section.knots, float).tobytes(), ns) @ section.ctrl
+
+
+@lru_cache(maxsize=64)
+def _uniform_basis(knots: bytes, ns: int) -> np.ndarray:
+    """(ns, n) cubic basis at ns uniform u of a knot vector (float64 bytes): the sections of
+    one fit share one knot vector (fit_sections)."""
     from cardionurbs.nurbs.basis import basis_matrix
-    U = section.knots
-    key = (len(U), ns)
-    B = _BASIS.get(key)
-    # the sections of one fit share one knot array (fit_sections): the same object is the
-    # same knots; another array is compared value by value
-    if B is None or (B[2] is not U and (B[0].shape != U.shape or not np.array_equal(B[0], U))):
-        B = (U.copy(), basis_matrix(U, 3, np.linspace(0.0, 1.0, ns)), U)
-    elif B[2] is not U:
-        B = (B[0], B[1], U)
-    _BASIS[key] = B
-    return B[1] @ section.ctrl
-
-
-_BASIS: dict = {}
+    return basis_matrix(np.frombuffer(knots), 3, np.linspace(0.0, 1.0, ns))
 
 
 def blend_trace(Ca: np.ndarray, Cb: np.ndarray, origin: np.ndarray, normal: np.ndarray

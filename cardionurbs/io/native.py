@@ -884,7 +884,6 @@ def read_study_from_dicom(path: str | Path) -> Study:
                                  trigger_time=h.trigger_time if h.trigger_time is not None
                                  else im.trigger_time, file=im.file))
     study.images = images
-    study.__dict__.pop("_image_cache", None)
     study.contours, study.tags, study.landmarks = [], [], []
     assert study.source is not None                 # read_study names the study folder
     folder = Path(study.source)
