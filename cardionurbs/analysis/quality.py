@@ -423,7 +423,28 @@ def _finite(x: object) -> TypeGuard[int | float]:
     return isinstance(x, (int, float)) and math.isfinite(x)
 
 
-def section_support_flag(frame: int, sections: dict) -> str:
+def partial_tracings(model, frame: int) -> set:
+    """The (surface, slice) sections of a frame left out as partial tracings against its
+    neighbouring frames (:func:`cardionurbs.anatomy.cycle.partial_sections`).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+    frame : int
+
+    Returns
+    -------
+    set of (str, str)
+        (surface, slice) pairs; empty for a model read back or a frame not built.
+    """
+    from cardionurbs.anatomy.cycle import PARTIAL_PREFIX
+    geo = getattr(model, "geometry", None)
+    if geo is None or frame not in (getattr(geo, "computed", None) or []):
+        return set()
+    return {(s, sl) for s, sl, why in geo[frame].left_out if why.startswith(PARTIAL_PREFIX)}
+
+
+def section_support_flag(frame: int, sections: dict, partial: set | None = None) -> str:
     """The QC flag of a frame whose sections were interpolated in time
     (:func:`cardionurbs.anatomy.cycle.support_sections`).
 
@@ -432,15 +453,20 @@ def section_support_flag(frame: int, sections: dict) -> str:
     frame : int
     sections : dict (str, str) -> (int, int)
         (surface, slice) -> (frame before, frame after) each was interpolated from.
+    partial : set of (str, str), optional
+        The sections among them that the frame traced, but partially
+        (:func:`partial_tracings`).
 
     Returns
     -------
     str
         One line naming the frame, every section and its two source frames.
     """
-    names = ", ".join(f"{s} {sl} (from frames {a} and {b})" for (s, sl), (a, b)
-                      in sorted(sections.items()))
-    return f"frame {frame} supported by its neighbours' sections: not traced, interpolated in time: {names}"
+    partial = partial or set()
+    names = ", ".join(f"{s} {sl} ({'a partial tracing, ' if (s, sl) in partial else ''}"
+                      f"from frames {a} and {b})" for (s, sl), (a, b) in sorted(sections.items()))
+    what = "not traced or partially traced" if partial else "not traced"
+    return f"frame {frame} supported by its neighbours' sections: {what}, interpolated in time: {names}"
 
 
 def _cycle_flags(model, q: Quality) -> None:
@@ -457,7 +483,7 @@ def _cycle_flags(model, q: Quality) -> None:
         if not users:
             q.cycle.append(flag)
     for f, secs in (getattr(model, "sections_in_time", None) or {}).items():
-        flag = section_support_flag(f, secs)
+        flag = section_support_flag(f, secs, partial_tracings(model, f))
         users = [m for m in q.metrics.values() if f in m["frames"]]
         for m in users:
             m["flags"].append(flag)
