@@ -42,6 +42,7 @@ from pathlib import Path
 from cardionurbs.analysis.function import explain_nulls, measure, volume_curve
 from cardionurbs.analysis.notes import collect_warnings, notes_of
 from cardionurbs.analysis.uncertainty import intervals
+from cardionurbs.anatomy import handback
 from cardionurbs.anatomy.model import BiventricularModel, reconstruct
 from cardionurbs.errors import UsageError
 from cardionurbs.heap import acyclic, long_lived
@@ -528,7 +529,7 @@ class MeshWriter:
     :meth:`finish`), which work while this process goes on (``analyze`` starts them once
     ED and ES are known, before the tags are measured). Each worker writes its frames'
     files and hands back what a frame added to the model (surfaces, volumes:
-    :meth:`BiventricularModel.frame_results`) and its warnings, added in frame order: the
+    :func:`cardionurbs.anatomy.handback.frame_results`) and its warnings, added in frame order: the
     model ends as a serial loop leaves it, less the other frames' solids (released after
     writing, as that loop does).
 
@@ -549,7 +550,7 @@ class MeshWriter:
         from cardionurbs.parallel import ForkMap
         self.model = model
         keep = {model.ed_frame, model.es_frame}
-        before = model.computed()
+        before = handback.computed(model)
         Path(mesh_dir).mkdir(parents=True, exist_ok=True)
 
         def frame_meshes(f: int) -> tuple[dict, list[str]]:
@@ -566,7 +567,7 @@ class MeshWriter:
                     export_mesh(m, Path(mesh_dir) / f"frame_{f:02d}_{name}.{mesh_ext}")
             warnings = model.warnings[n_warnings:]
             del model.warnings[n_warnings:]         # added back by finish, in frame order
-            results = model.frame_results(f, before)
+            results = handback.frame_results(model, f, before)
             if f not in keep:                       # the meshes written and let go
                 model.release(f)
             return results, warnings
@@ -598,7 +599,7 @@ class MeshWriter:
         # this process does between the fork and here -- the tags -- builds surfaces or
         # solids of frames other than ED and ES, so the warnings are not added twice)
         for f, (results, warnings) in zip(model.frames, self.work.results(on_result=step)):
-            model.adopt_frame_results(f, results)
+            handback.adopt_frame_results(model, f, results)
             model.warnings += warnings
         if self.mesh_ext == "vtp":                  # the time series ParaView plays
             from cardionurbs.analysis.mesh_fields import write_pvd_series

@@ -33,6 +33,7 @@ from typing import Iterable
 
 import numpy as np
 
+from cardionurbs.cache import memoized
 from cardionurbs.errors import StudyError
 from cardionurbs.imaging.geometry import VIEWS, ImagePlane
 
@@ -299,12 +300,10 @@ class Study:
                              file=self.source, field="image")
         return idx[image_id]
 
+    @memoized(depends=("images",))
     def _image_index(self) -> dict[str, ImagePlane]:
-        cache = self.__dict__.get("_image_cache")
-        if cache is None or len(cache) != len(self.images):
-            cache = {im.id: im for im in self.images}
-            self.__dict__["_image_cache"] = cache
-        return cache
+        """{id: image}; made again when ``images`` is replaced or changes length."""
+        return {im.id: im for im in self.images}
 
     def images_at(self, frame: int, view: str | None = None) -> list[ImagePlane]:
         """Image planes of one frame, in the order of ``images``.
@@ -346,17 +345,14 @@ class Study:
                 if (structure is None or c.structure in structure)
                 and (view is None or c.view == view)]
 
+    @memoized(depends=("contours",))
     def _contour_index(self) -> dict[int, list[Contour]]:
         """{frame: contours}, in the order of ``contours``; rebuilt when ``contours`` is
         replaced or changes length (as :meth:`_tag_index`)."""
-        cache = self.__dict__.get("_contour_cache")
-        if cache is None or cache[0] is not self.contours or cache[1] != len(self.contours):
-            idx: dict[int, list[Contour]] = {}
-            for c in self.contours:
-                idx.setdefault(c.frame, []).append(c)
-            cache = (self.contours, len(self.contours), idx)
-            self.__dict__["_contour_cache"] = cache
-        return cache[2]
+        idx: dict[int, list[Contour]] = {}
+        for c in self.contours:
+            idx.setdefault(c.frame, []).append(c)
+        return idx
 
     def tags_at(self, frame: int, family: str | None = None) -> list[TagLine]:
         """Tag lines of one frame (optionally of one family), in the order of ``tags``.
@@ -374,19 +370,16 @@ class Study:
         """
         return list(self._tag_index().get((frame, family), ()))
 
+    @memoized(depends=("tags",))
     def _tag_index(self) -> dict[tuple[int, str | None], list[TagLine]]:
         """{(frame, family or None): lines}, rebuilt when ``tags`` is replaced or changes
         length (the analysis asks for one frame's lines thousands of times: a scan of
         every line each time was quadratic in the study's size)."""
-        cache = self.__dict__.get("_tag_cache")
-        if cache is None or cache[0] is not self.tags or cache[1] != len(self.tags):
-            idx: dict[tuple[int, str | None], list[TagLine]] = {}
-            for t in self.tags:
-                idx.setdefault((t.frame, None), []).append(t)
-                idx.setdefault((t.frame, t.family), []).append(t)
-            cache = (self.tags, len(self.tags), idx)
-            self.__dict__["_tag_cache"] = cache
-        return cache[2]
+        idx: dict[tuple[int, str | None], list[TagLine]] = {}
+        for t in self.tags:
+            idx.setdefault((t.frame, None), []).append(t)
+            idx.setdefault((t.frame, t.family), []).append(t)
+        return idx
 
     def landmarks_at(self, frame: int, name: str | None = None) -> list[Landmark]:
         """Landmarks of one frame, in the order of ``landmarks``.

@@ -40,26 +40,11 @@ DOCTESTED = ["cardionurbs", "cardionurbs.io", "cardionurbs.anatomy.model",
 EXAMPLES = ["cardionurbs.nurbs.NurbsCurve", "cardionurbs.nurbs.fit_curve", "cardionurbs.nurbs.loft",
             "cardionurbs.nurbs.tessellate", "cardionurbs.load_study", "cardionurbs.reconstruct",
             "cardionurbs.measure", "cardionurbs.cohort"]
-#: the 11 functions another branch is splitting into named steps (#35 item 2, the LONG and
-#: BRANCHY lists of tests/test_structure.py): their docstrings are left to it. Remove this
-#: list once the split has landed (their steps are then checked like every other function).
-BEING_SPLIT = {
-    "cardionurbs.io.gpfile.write_study", "cardionurbs.io.native._read_points",
-    "cardionurbs.io.nifti.read_label_volume", "cardionurbs.io.labels.infer_roles",
-    "cardionurbs.io.checks._check_annotations", "cardionurbs.analysis.tagqc.tag_departures",
-    "cardionurbs.analysis.tags.twist_2d", "cardionurbs.analysis.tags.tag_metrics",
-    "cardionurbs.analysis.quality.assess", "cardionurbs.analysis.strain.tag_strain",
-    "cardionurbs.analysis.tag_motion.fit_tag_motion",
-}
-
-
 def _checked(named) -> list[str]:
-    """The problems of (dotted name, object) pairs, less the names left to the split; a
-    name of :data:`NOT_YET` is a problem when it has none (the list may only shrink)."""
+    """The problems of (dotted name, object) pairs; a name of :data:`NOT_YET` is a problem
+    when it has none (the list may only shrink)."""
     bad = []
     for name, obj in named:
-        if name in BEING_SPLIT:
-            continue
         problems = _problems(name, obj)
         if name in NOT_YET:
             bad += [] if problems else [f"{name}: documented now: take it off NOT_YET"]
@@ -251,17 +236,9 @@ def test_doctests(modname):
     assert result.failed == 0
 
 
-#: public names whose numpydoc sections are still to be written (#35 item 4): their docstrings
-#: are being rewritten on another branch this session (BiventricularModel's members, with the
-#: model's split into modules). The list may only
-#: shrink -- a name here that passes fails the test (:func:`_checked`): take it off then.
-NOT_YET = {
-    "cardionurbs.anatomy.model.BiventricularModel.from_dict",
-    "cardionurbs.anatomy.model.BiventricularModel.mesh_arrays",
-    "cardionurbs.anatomy.model.BiventricularModel.meshes",
-    "cardionurbs.anatomy.model.BiventricularModel.residual_table",
-    "cardionurbs.anatomy.model.BiventricularModel.to_dict",
-}
+#: public names whose numpydoc sections are still to be written (#35 item 4); empty now. The
+#: list may only shrink -- a name here that passes fails the test (:func:`_checked`).
+NOT_YET: set[str] = set()
 
 
 # ----------------------------------------------------- the rest of the package (#35 item 4)
@@ -291,9 +268,7 @@ REST_MODULES = [
 #: and docs/api.md objects: `types`; lines the `caches` branch rewrites); a name
 #: here is skipped while undocumented and fails once documented, so the set may only shrink:
 #: empty it as those branches land
-REST_ELSEWHERE = {
-    "cardionurbs.phantom.anatomy.gauss_legendre",
-}
+REST_ELSEWHERE: set[str] = set()
 
 
 def _rest_problems(qual: str, obj) -> list[str]:

@@ -22,7 +22,7 @@ PACKAGE = ROOT / "cardionurbs"
 
 #: docs/architecture.md, "Layer order" (top-level part of the package -> layer).
 LAYERS = {
-    "errors": 0, "limits": 0, "median": 0, "workers": 0,
+    "errors": 0, "limits": 0, "median": 0, "workers": 0, "cache": 0,
     "safe": 1, "progress": 1, "executor": 1, "heap": 1, "parallel": 1,
     "confine": 2,
     "nurbs": 3, "geometry": 3,

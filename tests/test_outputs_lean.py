@@ -72,15 +72,14 @@ def test_points_without_a_slice_are_left_out_and_runs_of_one_contour_merge(model
     sl = p["slice"].copy()
     sl[: n // 4] = None                                 # no slice: not a contour of the table
     sl[n // 2: n // 2 + 3] = sl[-1]                      # the last contour also appears earlier
-    model._solid_cache[("point_residuals", (model.ed_frame, model.es_frame))][0] = \
-        {**p, "slice": sl}
+    model._point_residuals(model._residual_frames())[0] = {**p, "slice": sl}
     try:
         new = model.residual_columns()
         pts = model.point_residuals()
         assert pts["slice"].isna().sum() == n // 4
         _same_table(new, _pandas_table(pts))
     finally:
-        model._solid_cache[("point_residuals", (model.ed_frame, model.es_frame))][0] = p
+        model._point_residuals(model._residual_frames())[0] = p
 
 
 def test_residual_table_keeps_its_columns_and_empty_form(model):

@@ -242,86 +242,209 @@ def residual_summary(model: "BiventricularModel", frames=None) -> dict[str, dict
 
 
 def assess(model: "BiventricularModel", metrics: dict[str, float]) -> Quality:
-    """The evidence and flags of every metric of ``model`` (module doc)."""
+    """The evidence and flags of every metric of ``model`` (module doc).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The reconstructed model.
+    metrics : dict
+        Its docs/metrics.md column -> value (a column without a finite value carries no
+        surface flag).
+
+    Returns
+    -------
+    Quality
+        The surfaces' residuals, the contours left out and each column's evidence.
+    """
     ed, es = model.ed_frame, model.es_frame
-    frames = sorted({ed, es})
-    q = Quality()
-    parts = _residual_arrays(model, frames)
-    for f in frames:
-        q.surfaces[f] = {}
-        q.left_out[f] = list(model.geometry[f].left_out) if model.study.contours else []
-    # per (surface, frame) and per surface over the frames, surfaces in name order
-    for s in sorted({p["structure"] for p in parts}):
-        mine = [p for p in parts if p["structure"] == s]           # in frame order
-        for p in sorted(mine, key=lambda p: p["frame"]):
-            q.surfaces[int(p["frame"])][s] = residual_stats(p["dist_mm"], p["dist_px"])
-        q._pooled[s] = residual_stats(np.concatenate([p["dist_mm"] for p in mine]),
-                                      np.concatenate([p["dist_px"] for p in mine]))
-
-    def surface_flags(surfaces, which) -> list[str]:
-        out = []
-        fr = sorted({ed if w == "ED" else es for w in which})
-        for s in surfaces:
-            worst = None
-            for f in fr:
-                st = q.surfaces.get(f, {}).get(s)
-                if st and st["max_px"] > q.limit_px and (worst is None or st["max_px"] > worst[1]["max_px"]):
-                    worst = (f, st)
-            if worst:
-                f, st = worst
-                out.append(f"{SURFACE_LABELS[s]} fit max {st['max_mm']:.1f} mm "
-                           f"({st['max_px']:.1f} px) > {q.limit_px:g} px at frame {f}")
-            for f in fr:
-                out += [f"{s} slice {sl} left out at frame {f}" for st_, sl, _ in q.left_out.get(f, [])
-                        if st_ == s]
-        return out
-
-    hr = metrics.get("HR (bpm)", math.nan)
-    hr_flag = [] if isinstance(hr, (int, float)) and math.isfinite(hr) else ["heart rate unknown"]
-    from cardionurbs.analysis.rates import RATE_COLUMNS
-    axis = (model.study.meta or {}).get("time_axis") or {}
-    time_flag = ["implausible time axis"] if axis.get("plausible") is False else []
+    q = _surface_evidence(model, sorted({ed, es}))
+    extra = _input_flags(model, metrics)
     for col in COLUMNS:
-        entry = {"flags": [], "surfaces": [], "frames": []}
-        if col in SOURCES:
-            surfaces, which = SOURCES[col]
-            entry["surfaces"] = list(surfaces)
-            entry["frames"] = sorted({ed if w == "ED" else es for w in which})
-            value = metrics.get(col, math.nan)
-            if isinstance(value, (int, float)) and math.isfinite(value):
-                entry["flags"] = surface_flags(surfaces, which)
-        if col in ("HR (bpm)", "LVCO (L/min)"):
-            entry["flags"] = entry["flags"] + hr_flag
-        if col in RATE_COLUMNS:
-            entry["flags"] = entry["flags"] + time_flag
-        if col in TAG_COLUMNS:
-            n = metrics.get("Tag QC flags", math.nan)
-            if isinstance(n, (int, float)) and math.isfinite(n) and n > 0:
-                entry["flags"] = [f"{int(n)} tag line(s) flagged as mistracked"]
-        q.metrics[col] = entry
+        q.metrics[col] = _column_entry(q, col, metrics, (ed, es), extra.get(col, []))
     _cycle_flags(model, q)
     _wall_flags(model, q, metrics)
     _stroke_volume_flags(model, q, metrics)
     for col, flags in label_map_flags(model, metrics).items():   # label maps (analysis.voxels)
         if col in q.metrics and is_finite_number(metrics.get(col, math.nan)):
             q.metrics[col]["flags"] += flags
+    _derived_entries(q, metrics)
+    return q
+
+
+def _surface_evidence(model: "BiventricularModel", frames: list[int]) -> Quality:
+    """A Quality with the fit residuals of every surface at ``frames`` and pooled over them
+    (surfaces in name order) and the contours left out of each frame's fit.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+    frames : list of int
+        ED and ES, ascending (one frame when they are the same).
+
+    Returns
+    -------
+    Quality
+        ``surfaces``, ``left_out`` and the pooled residuals filled, no metric yet.
+    """
+    q = Quality()
+    parts = _residual_arrays(model, frames)
+    for f in frames:
+        q.surfaces[f] = {}
+        q.left_out[f] = list(model.geometry[f].left_out) if model.study.contours else []
+    for s in sorted({p["structure"] for p in parts}):
+        mine = [p for p in parts if p["structure"] == s]           # in frame order
+        for p in sorted(mine, key=lambda p: p["frame"]):
+            q.surfaces[int(p["frame"])][s] = residual_stats(p["dist_mm"], p["dist_px"])
+        q._pooled[s] = residual_stats(np.concatenate([p["dist_mm"] for p in mine]),
+                                      np.concatenate([p["dist_px"] for p in mine]))
+    return q
+
+
+def _frames_of(which: tuple[str, ...], ed: int, es: int) -> list[int]:
+    """The frames ("ED", "ES") of ``which``, ascending and distinct."""
+    return sorted({ed if w == "ED" else es for w in which})
+
+
+def _surface_flags(q: Quality, surfaces: tuple[str, ...], which: tuple[str, ...], ed: int,
+                   es: int) -> list[str]:
+    """The flags a metric measured on ``surfaces`` at ``which`` frames carries: each
+    surface's worst fit beyond ``q.limit_px`` and its contours left out.
+
+    Parameters
+    ----------
+    q : Quality
+        With the surfaces' residuals and left-out contours (:func:`_surface_evidence`).
+    surfaces : tuple of str
+        The surfaces the metric comes from.
+    which : tuple of str
+        "ED" and/or "ES".
+    ed, es : int
+        The ED and ES frames.
+
+    Returns
+    -------
+    list of str
+    """
+    out = []
+    fr = _frames_of(which, ed, es)
+    for s in surfaces:
+        worst = None
+        for f in fr:
+            st = q.surfaces.get(f, {}).get(s)
+            if st and st["max_px"] > q.limit_px and (worst is None or st["max_px"] > worst[1]["max_px"]):
+                worst = (f, st)
+        if worst:
+            f, st = worst
+            out.append(f"{SURFACE_LABELS[s]} fit max {st['max_mm']:.1f} mm "
+                       f"({st['max_px']:.1f} px) > {q.limit_px:g} px at frame {f}")
+        for f in fr:
+            out += [f"{s} slice {sl} left out at frame {f}" for st_, sl, _ in q.left_out.get(f, [])
+                    if st_ == s]
+    return out
+
+
+def _input_flags(model: "BiventricularModel", metrics: dict[str, float]) -> dict[str, list[str]]:
+    """Column -> the flags of its inputs other than the surfaces: an unknown heart rate
+    (HR, LVCO), an implausible time axis (the filling and ejection rates).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+    metrics : dict
+        docs/metrics.md column -> value.
+
+    Returns
+    -------
+    dict
+        Only the columns such inputs feed.
+    """
+    from cardionurbs.analysis.rates import RATE_COLUMNS
+    hr_flag = [] if _finite(metrics.get("HR (bpm)", math.nan)) else ["heart rate unknown"]
+    axis = (model.study.meta or {}).get("time_axis") or {}
+    time_flag = ["implausible time axis"] if axis.get("plausible") is False else []
+    out = {col: list(hr_flag) for col in ("HR (bpm)", "LVCO (L/min)")}
+    for col in RATE_COLUMNS:
+        out[col] = out.get(col, []) + time_flag
+    return out
+
+
+def _column_entry(q: Quality, col: str, metrics: dict[str, float], ed_es: tuple[int, int],
+                  extra: list[str]) -> dict:
+    """One column's evidence: {"flags", "surfaces", "frames"}.
+
+    Parameters
+    ----------
+    q : Quality
+        With the surfaces' residuals (:func:`_surface_evidence`).
+    col : str
+        A docs/metrics.md column.
+    metrics : dict
+        Column -> value (a column without a finite value carries no surface flag).
+    ed_es : (int, int)
+        The ED and ES frames.
+    extra : list of str
+        The flags of its other inputs (:func:`_input_flags`).
+
+    Returns
+    -------
+    dict
+        A tag column's flags are the tag QC's alone.
+    """
+    entry: dict = {"flags": [], "surfaces": [], "frames": []}
+    if col in SOURCES:
+        surfaces, which = SOURCES[col]
+        entry["surfaces"] = list(surfaces)
+        entry["frames"] = _frames_of(which, *ed_es)
+        if _finite(metrics.get(col, math.nan)):
+            entry["flags"] = _surface_flags(q, surfaces, which, *ed_es)
+    entry["flags"] = entry["flags"] + extra
+    if col in TAG_COLUMNS:
+        n = metrics.get("Tag QC flags", math.nan)
+        if _finite(n) and n > 0:
+            entry["flags"] = [f"{int(n)} tag line(s) flagged as mistracked"]
+    return entry
+
+
+def _derived_entries(q: Quality, metrics: dict[str, float]) -> None:
+    """A derived column's evidence (:data:`DERIVED`) is its inputs': their surfaces, frames
+    and, where it has a finite value, their flags (each once)."""
     for col, inputs in DERIVED.items():
         e = q.metrics[col]
         e["inputs"] = list(inputs)
         e["surfaces"] = sorted({s for i in inputs for s in q.metrics[i]["surfaces"]})
         e["frames"] = sorted({f for i in inputs for f in q.metrics[i]["frames"]})
-        value = metrics.get(col, math.nan)
-        if isinstance(value, (int, float)) and math.isfinite(value):
+        if _finite(metrics.get(col, math.nan)):
             for i in inputs:
                 e["flags"] += [f for f in q.metrics[i]["flags"] if f not in e["flags"]]
-    return q
 
 
 def _finite(x: object) -> TypeGuard[int | float]:
     return isinstance(x, (int, float)) and math.isfinite(x)
 
 
-def section_support_flag(frame: int, sections: dict) -> str:
+def partial_tracings(model, frame: int) -> set:
+    """The (surface, slice) sections of a frame left out as partial tracings against its
+    neighbouring frames (:func:`cardionurbs.anatomy.cycle.partial_sections`).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+    frame : int
+
+    Returns
+    -------
+    set of (str, str)
+        (surface, slice) pairs; empty for a model read back or a frame not built.
+    """
+    from cardionurbs.anatomy.cycle import PARTIAL_PREFIX
+    geo = getattr(model, "geometry", None)
+    if geo is None or frame not in (getattr(geo, "computed", None) or []):
+        return set()
+    return {(s, sl) for s, sl, why in geo[frame].left_out if why.startswith(PARTIAL_PREFIX)}
+
+
+def section_support_flag(frame: int, sections: dict, partial: set | None = None) -> str:
     """The QC flag of a frame whose sections were interpolated in time
     (:func:`cardionurbs.anatomy.cycle.support_sections`).
 
@@ -330,15 +453,20 @@ def section_support_flag(frame: int, sections: dict) -> str:
     frame : int
     sections : dict (str, str) -> (int, int)
         (surface, slice) -> (frame before, frame after) each was interpolated from.
+    partial : set of (str, str), optional
+        The sections among them that the frame traced, but partially
+        (:func:`partial_tracings`).
 
     Returns
     -------
     str
         One line naming the frame, every section and its two source frames.
     """
-    names = ", ".join(f"{s} {sl} (from frames {a} and {b})" for (s, sl), (a, b)
-                      in sorted(sections.items()))
-    return f"frame {frame} supported by its neighbours' sections: not traced, interpolated in time: {names}"
+    partial = partial or set()
+    names = ", ".join(f"{s} {sl} ({'a partial tracing, ' if (s, sl) in partial else ''}"
+                      f"from frames {a} and {b})" for (s, sl), (a, b) in sorted(sections.items()))
+    what = "not traced or partially traced" if partial else "not traced"
+    return f"frame {frame} supported by its neighbours' sections: {what}, interpolated in time: {names}"
 
 
 def _cycle_flags(model, q: Quality) -> None:
@@ -355,7 +483,7 @@ def _cycle_flags(model, q: Quality) -> None:
         if not users:
             q.cycle.append(flag)
     for f, secs in (getattr(model, "sections_in_time", None) or {}).items():
-        flag = section_support_flag(f, secs)
+        flag = section_support_flag(f, secs, partial_tracings(model, f))
         users = [m for m in q.metrics.values() if f in m["frames"]]
         for m in users:
             m["flags"].append(flag)

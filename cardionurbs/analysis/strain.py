@@ -759,47 +759,77 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
                noise_mm: float = 0.0, incompressibility: bool | str = "prior",
                volume_prior_sd: float | None = None, boundary=(), deformation=None,
                misfit_noise: bool = True) -> dict | None:
-    """Strain ED → ``frame`` from the tracked material points: {"columns", "det_F" (mean),
-    "det_F_range", "n_points", "counts", "fit_residual_mm", "method"}; None with too few points.
-    ``apex``, ``base``: the ED long axis; ``axis``: (apex, base) at ``frame`` (default ED's).
-    ``myocardium``: (points, volumes) filling the ED wall (:func:`myocardium_samples`): the
-    fitted field is averaged over those between the most apical and most basal tracked
-    points (a volume mean over the tagged myocardium); default: the material points. It may
-    carry the samples' strain directions and AHA segments as third and fourth items
-    (:func:`cardiac_directions` with these ``endo_points``/``endo_normals``/axis, and
-    ``aha.segments``): both are per point and the same at every frame, so a time course
-    computes them once.
-    ``tag_lines``: (points (n, 3), ED plane normals (n, 3), offsets (n,)) of the frame's tag
-    points (:mod:`cardionurbs.analysis.tag_motion`): the fit of the material points is then
-    refined on them by orthogonal-distance regression (method "tag lines"); else the
-    material points alone are fitted (method "material points"). ``noise_mm``: the tag
-    tracking noise (the ED tag-plane residual), which sets the regularisation of that fit;
-    with it the result also has "segment_se": {kind: {segment: standard error (strain
-    points)}} of the unregularised fit (a Cramér–Rao bound for unbiased estimates in (S1)),
-    "segment_sd" (the same for the regularised fit: its noise, without its bias), and
-    "det_F_unregularised" (volume mean over the wall samples the penalty is evaluated on) with
-    "det_F_unregularised_range": det F of the fit before the penalties, the incompressibility
-    check that the near-incompressibility penalty does not pull towards 1.
-    ``incompressibility``: how the noisy-tag fit uses the near-incompressibility of myocardium
-    (:mod:`cardionurbs.analysis.tag_motion`): "prior" (or True; the default) — the Bayesian
-    prior J̄_s ~ N(1, s²) on each segment's mean det F with the stated s
-    (:data:`~cardionurbs.analysis.tag_motion.VOLUME_PRIOR_SD`), the ridge weights chosen by
-    the evidence; "risk" — a penalty whose weight the unbiased risk estimate chooses with the
-    ridge weights (the estimator before the prior); False — the ridge penalties alone.
-    ``volume_prior_sd``: the prior's s (default :data:`~cardionurbs.analysis.tag_motion.VOLUME_PRIOR_SD`;
-    other values only to show how much the result depends on it).
-    ``boundary``: the frame's contour points on the LV endo- and epicardium with those
-    surfaces at ED (:class:`~cardionurbs.analysis.tag_motion.Boundary`): the wall's material
-    boundaries join the tag-line fit as data (term (T3) of
-    :mod:`cardionurbs.analysis.tag_motion`).
-    ``misfit_noise``: the fit's σ is the larger of ``noise_mm`` and the tag points' misfit
-    (:func:`~cardionurbs.analysis.tag_motion.fit_tag_motion`; "sigma_mm" in the result);
-    False: ``noise_mm`` alone, for comparison.
-    ``deformation``: (points, frame) -> F (n, 3, 3), used in place of the fitted map's F for the
-    strains (validation: a phantom's exact motion,
-    :meth:`cardionurbs.phantom.generate.Phantom.deformation_gradient`; the fit, the near-axis
-    rule and the averaging unchanged)."""
-    from cardionurbs.analysis.tag_motion import MIN_TAG_POINTS, VOLUME_PRIOR_SD, fit_tag_motion
+    """Strain ED → ``frame`` from the tracked material points.
+
+    Parameters
+    ----------
+    material : MaterialPoints
+        The tracked material points.
+    frame : int
+        The frame the strain is measured at (relative to ED).
+    apex, base : (3,) float ndarray
+        The ED long axis, mm.
+    endo_points, endo_normals : (m, 3) float ndarray
+        The ED endocardium's points and normals, for the strain directions
+        (:func:`cardiac_directions`).
+    aha
+        The AHA segments at ED (``aha.segments(points)``).
+    axis : (apex, base) at ``frame``, optional
+        Default ED's.
+    myocardium : tuple, optional
+        (points, volumes) filling the ED wall (:func:`myocardium_samples`): the fitted
+        field is averaged over those between the most apical and most basal tracked points
+        (a volume mean over the tagged myocardium); default: the material points. It may
+        carry the samples' strain directions and AHA segments as third and fourth items
+        (:func:`cardiac_directions` with these ``endo_points``/``endo_normals``/axis, and
+        ``aha.segments``): both are per point and the same at every frame, so a time course
+        computes them once.
+    tag_lines : (points (n, 3), ED plane normals (n, 3), offsets (n,)), optional
+        The frame's tag points (:mod:`cardionurbs.analysis.tag_motion`): the fit of the
+        material points is then refined on them by orthogonal-distance regression (method
+        "tag lines"); else the material points alone are fitted (method "material points").
+    noise_mm : float
+        The tag tracking noise (the ED tag-plane residual), which sets the regularisation
+        of that fit; with it the result also has "segment_se": {kind: {segment: standard
+        error (strain points)}} of the unregularised fit (a Cramér–Rao bound for unbiased
+        estimates in (S1)), "segment_sd" (the same for the regularised fit: its noise,
+        without its bias), and "det_F_unregularised" (volume mean over the wall samples the
+        penalty is evaluated on) with "det_F_unregularised_range": det F of the fit before
+        the penalties, the incompressibility check that the near-incompressibility penalty
+        does not pull towards 1.
+    incompressibility : bool or str
+        How the noisy-tag fit uses the near-incompressibility of myocardium
+        (:mod:`cardionurbs.analysis.tag_motion`): "prior" (or True; the default) — the
+        Bayesian prior J̄_s ~ N(1, s²) on each segment's mean det F with the stated s
+        (:data:`~cardionurbs.analysis.tag_motion.VOLUME_PRIOR_SD`), the ridge weights chosen
+        by the evidence; "risk" — a penalty whose weight the unbiased risk estimate chooses
+        with the ridge weights (the estimator before the prior); False — the ridge
+        penalties alone.
+    volume_prior_sd : float, optional
+        The prior's s (default :data:`~cardionurbs.analysis.tag_motion.VOLUME_PRIOR_SD`;
+        other values only to show how much the result depends on it).
+    boundary : sequence of Boundary
+        The frame's contour points on the LV endo- and epicardium with those surfaces at ED
+        (:class:`~cardionurbs.analysis.tag_motion.Boundary`): the wall's material
+        boundaries join the tag-line fit as data (term (T3) of
+        :mod:`cardionurbs.analysis.tag_motion`).
+    deformation : callable, optional
+        (points, frame) -> F (n, 3, 3), used in place of the fitted map's F for the strains
+        (validation: a phantom's exact motion,
+        :meth:`cardionurbs.phantom.generate.Phantom.deformation_gradient`; the fit, the
+        near-axis rule and the averaging unchanged).
+    misfit_noise : bool
+        The fit's σ is the larger of ``noise_mm`` and the tag points' misfit
+        (:func:`~cardionurbs.analysis.tag_motion.fit_tag_motion`; "sigma_mm" in the
+        result); False: ``noise_mm`` alone, for comparison.
+
+    Returns
+    -------
+    dict or None
+        {"columns", "det_F" (mean), "det_F_range", "n_points", "counts",
+        "fit_residual_mm", "method", ...}; None with too few points.
+    """
+    from cardionurbs.analysis.tag_motion import MIN_TAG_POINTS
     ok = material.tracked(material.ed_frame, frame)
     if ok.sum() < MIN_POINTS:
         return None
@@ -809,6 +839,47 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
     fit = CylindricalMotionFit(X, x, (apex, base), axis)
     info = {"n_points": int(ok.sum()), "outliers": fit.outliers, "fit_residual_mm": fit.residual_mm,
             "method": "material points"}
+    Y, vol, dirs, labels = _wall_samples(X, apex, base, myocardium, endo_points, endo_normals, aha)
+    if tag_lines is not None and len(tag_lines[0]) >= MIN_TAG_POINTS:
+        fit, tag_info = _refine_on_tag_lines(
+            fit, tag_lines, (Y, dirs, labels, np.ones(len(Y)) if vol is None else vol),
+            noise_mm=noise_mm, incompressibility=incompressibility,
+            volume_prior_sd=volume_prior_sd, boundary=boundary, misfit_noise=misfit_noise)
+        info.update(tag_info)
+    return _frame_strains(fit, frame, (Y, vol, dirs, labels), deformation, info)
+
+
+def _wall_samples(X: np.ndarray, apex: np.ndarray, base: np.ndarray, myocardium, endo_points,
+                  endo_normals, aha) -> tuple:
+    """The points :func:`tag_strain` averages over, with their volumes, strain directions
+    and AHA segments.
+
+    Parameters
+    ----------
+    X : (n, 3) float ndarray
+        The tracked material points at ED, mm.
+    apex, base : (3,) float ndarray
+        The ED long axis, mm.
+    myocardium : tuple or None
+        (points, volumes[, directions, segments]) filling the ED wall
+        (:func:`myocardium_samples`); None: the material points themselves.
+    endo_points, endo_normals : ndarray
+        The ED endocardium, for the directions (:func:`cardiac_directions`).
+    aha
+        The AHA segments (``aha.segments(points)``).
+
+    Returns
+    -------
+    Y : (k, 3) float ndarray
+        The samples: those of ``myocardium`` between the most apical and most basal
+        tracked points and clear of the axis, else ``X``.
+    vol : (k,) float ndarray or None
+        Their volumes (None for the material points).
+    dirs : (k, 3, 3) float ndarray
+        Their circumferential, longitudinal and radial directions.
+    labels : (k,) int ndarray
+        Their AHA segments.
+    """
     Y, vol = X, None
     if myocardium is not None:
         e = (base - apex) / np.linalg.norm(base - apex)
@@ -817,53 +888,134 @@ def tag_strain(material, frame: int, apex: np.ndarray, base: np.ndarray, endo_po
         inside = ((hy >= h.min()) & (hy <= h.max())
                   & (np.linalg.norm(radial, axis=1) >= AXIS_CLEARANCE_MM))
         Y, vol = myocardium[0][inside], myocardium[1][inside]
-    if myocardium is not None and len(myocardium) == 4:
-        dirs, labels = myocardium[2][inside], myocardium[3][inside]
-    else:
-        dirs = cardiac_directions(Y, endo_points, endo_normals, apex, base)
-        labels = aha.segments(Y)
-    w = np.ones(len(Y)) if vol is None else vol
-    if tag_lines is not None and len(tag_lines[0]) >= MIN_TAG_POINTS:
-        # the quantities the regularisation is chosen for: the segment strains over a
-        # subsample of the wall, the near-axis rule applied with the material-point fit
-        sub = np.arange(0, len(Y), max(1, len(Y) // (2 * RISK_SAMPLES)))
-        sub = sub[fit.image_radius(Y[sub]) >= AXIS_CLEARANCE_MM]
-        sub = sub[::max(1, len(sub) // RISK_SAMPLES)]
-        segment_strains = segment_strain_quantities(Y[sub], dirs[sub], labels[sub], w[sub])
-        if incompressibility not in (True, False, None, "prior", "risk"):
-            raise ValueError(f"incompressibility: 'prior', 'risk' or False, not {incompressibility!r}")
-        prior_sd = None
-        if incompressibility in (True, "prior"):
-            prior_sd = VOLUME_PRIOR_SD if volume_prior_sd is None else float(volume_prior_sd)
-        fit = fit.expanded(TAG_LINE_ORDERS, TRANSMURAL_ORDERS, AXIAL_HARMONICS)
-        out = fit_tag_motion(fit, *tag_lines, noise_mm=noise_mm, quantities=segment_strains,
-                             volume_samples=(Y[sub], w[sub], labels[sub]) if incompressibility else None,
-                             volume_prior_sd=prior_sd, boundary=boundary, misfit_noise=misfit_noise)
-        info.update(method="tag lines", n_tag_points=out["n_points"], penalty=out["lambda"],
-                    tag_outliers=out["outliers"], fit_residual_mm=out["residual_mm"],
-                    sigma_mm=out["sigma_mm"])
-        if out["boundary_points"]:
-            info.update(boundary_points=out["boundary_points"],
-                        boundary_residual_mm=out["boundary_residual_mm"],
-                        boundary_noise_mm=out["boundary_noise_mm"])
-        if prior_sd is not None and out["lambda"]:
-            info["volume_prior_sd"] = prior_sd
-        if out["det_F_unregularised"] is not None:
-            info["det_F_unregularised"] = out["det_F_unregularised"][0]
-            info["det_F_unregularised_range"] = list(out["det_F_unregularised"][1:])
-        present = [k for k in range(1, 17) if (labels[sub] == k).any()]
-        for key, name in (("quantity_se", "segment_se"), ("regularised_sd", "segment_sd")):
-            if out[key] is not None:     # per segment present, (Ecc, Ell, Err) each
-                se = out[key].reshape(-1, 3)
-                info[name] = {kind: {str(k): float(v) for k, v in zip(present, se[:, j])}
-                              for j, kind in enumerate(STRAIN_KINDS)}
-    # the near-axis rule at the frame, with the final fit
+        if len(myocardium) == 4:
+            return Y, vol, myocardium[2][inside], myocardium[3][inside]
+    return Y, vol, cardiac_directions(Y, endo_points, endo_normals, apex, base), aha.segments(Y)
+
+
+def _risk_subsample(fit: CylindricalMotionFit, Y: np.ndarray) -> np.ndarray:
+    """About :data:`RISK_SAMPLES` of the samples ``Y`` (indices), evenly spread and clear of
+    the axis under the material-point fit: where the segment strains the regularisation is
+    chosen for are evaluated."""
+    sub = np.arange(0, len(Y), max(1, len(Y) // (2 * RISK_SAMPLES)))
+    sub = sub[fit.image_radius(Y[sub]) >= AXIS_CLEARANCE_MM]
+    return sub[::max(1, len(sub) // RISK_SAMPLES)]
+
+
+def _refine_on_tag_lines(fit: CylindricalMotionFit,
+                         tag_lines: tuple[np.ndarray, np.ndarray, np.ndarray], samples: tuple, *,
+                         noise_mm: float, incompressibility: bool | str,
+                         volume_prior_sd: float | None, boundary, misfit_noise: bool
+                         ) -> tuple[CylindricalMotionFit, dict]:
+    """The material-point fit expanded and refined on the frame's tag lines
+    (:func:`~cardionurbs.analysis.tag_motion.fit_tag_motion`), regularised for the segment
+    strains over a subsample of the wall.
+
+    Parameters
+    ----------
+    fit : CylindricalMotionFit
+        The material-point fit.
+    tag_lines : (points (n, 3), ED plane normals (n, 3), offsets (n,))
+        The frame's tag points.
+    samples : (Y, dirs, labels, weights)
+        The wall samples (:func:`_wall_samples`), their weights (volumes, or 1).
+    noise_mm, incompressibility, volume_prior_sd, boundary, misfit_noise
+        As :func:`tag_strain`.
+
+    Returns
+    -------
+    fit : CylindricalMotionFit
+        The refined fit.
+    info : dict
+        The fit's summary: method, n_tag_points, penalty, tag_outliers, fit_residual_mm,
+        sigma_mm, and where they apply the boundary points, the prior's s, the
+        unregularised det F and the segments' standard errors.
+    """
+    from cardionurbs.analysis.tag_motion import VOLUME_PRIOR_SD, fit_tag_motion
+    Y, dirs, labels, w = samples
+    # the quantities the regularisation is chosen for: the segment strains over a
+    # subsample of the wall, the near-axis rule applied with the material-point fit
+    sub = _risk_subsample(fit, Y)
+    segment_strains = segment_strain_quantities(Y[sub], dirs[sub], labels[sub], w[sub])
+    if incompressibility not in (True, False, None, "prior", "risk"):
+        raise ValueError(f"incompressibility: 'prior', 'risk' or False, not {incompressibility!r}")
+    prior_sd = None
+    if incompressibility in (True, "prior"):
+        prior_sd = VOLUME_PRIOR_SD if volume_prior_sd is None else float(volume_prior_sd)
+    fit = fit.expanded(TAG_LINE_ORDERS, TRANSMURAL_ORDERS, AXIAL_HARMONICS)
+    out = fit_tag_motion(fit, *tag_lines, noise_mm=noise_mm, quantities=segment_strains,
+                         volume_samples=(Y[sub], w[sub], labels[sub]) if incompressibility else None,
+                         volume_prior_sd=prior_sd, boundary=boundary, misfit_noise=misfit_noise)
+    present = [k for k in range(1, 17) if (labels[sub] == k).any()]
+    return fit, _tag_fit_info(out, prior_sd, present)
+
+
+def _tag_fit_info(out: dict, prior_sd: float | None, present: list[int]) -> dict:
+    """The summary :func:`tag_strain` reports of a tag-line fit.
+
+    Parameters
+    ----------
+    out : dict
+        :func:`~cardionurbs.analysis.tag_motion.fit_tag_motion`'s result.
+    prior_sd : float or None
+        The volume prior's s used (None: no prior).
+    present : list of int
+        The AHA segments of the subsample, ascending (the order of the per-segment
+        standard errors).
+
+    Returns
+    -------
+    dict
+    """
+    info = dict(method="tag lines", n_tag_points=out["n_points"], penalty=out["lambda"],
+                tag_outliers=out["outliers"], fit_residual_mm=out["residual_mm"],
+                sigma_mm=out["sigma_mm"])
+    if out["boundary_points"]:
+        info.update(boundary_points=out["boundary_points"],
+                    boundary_residual_mm=out["boundary_residual_mm"],
+                    boundary_noise_mm=out["boundary_noise_mm"])
+    if prior_sd is not None and out["lambda"]:
+        info["volume_prior_sd"] = prior_sd
+    if out["det_F_unregularised"] is not None:
+        info["det_F_unregularised"] = out["det_F_unregularised"][0]
+        info["det_F_unregularised_range"] = list(out["det_F_unregularised"][1:])
+    for key, name in (("quantity_se", "segment_se"), ("regularised_sd", "segment_sd")):
+        if out[key] is not None:     # per segment present, (Ecc, Ell, Err) each
+            se = out[key].reshape(-1, 3)
+            info[name] = {kind: {str(k): float(v) for k, v in zip(present, se[:, j])}
+                          for j, kind in enumerate(STRAIN_KINDS)}
+    return info
+
+
+def _frame_strains(fit: CylindricalMotionFit, frame: int, samples: tuple, deformation,
+                   info: dict) -> dict:
+    """The strain columns at ``frame`` of the fit's F (or ``deformation``'s) over the wall
+    samples clear of the axis at that frame (the near-axis rule with the final fit).
+
+    Parameters
+    ----------
+    fit : CylindricalMotionFit
+        The final fit.
+    frame : int
+    samples : (Y, vol, dirs, labels)
+        The wall samples (:func:`_wall_samples`).
+    deformation : callable or None
+        (points, frame) -> F (n, 3, 3), in place of the fit's.
+    info : dict
+        The fit's summary; ``near_axis_excluded`` is added.
+
+    Returns
+    -------
+    dict
+        {"columns", "det_F", "det_F_range", "counts", **info}.
+    """
+    Y, vol, dirs, labels = samples
     radius, F = fit.radius_and_gradient(Y)
     if deformation is not None:
         F = deformation(Y, frame)
     clear = radius >= AXIS_CLEARANCE_MM
     info["near_axis_excluded"] = int((~clear).sum())
-    Y, dirs, labels = Y[clear], dirs[clear], labels[clear]
+    dirs, labels = dirs[clear], labels[clear]
     vol = None if vol is None else vol[clear]
     F = F[clear]
     vals = directional_strains(green_lagrange(F), dirs)

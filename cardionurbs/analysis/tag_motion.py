@@ -108,7 +108,9 @@ are used.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -785,64 +787,136 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
                    boundary: list[Boundary] | tuple[Boundary, ...] = (),
                    misfit_noise: bool = True) -> dict:
     """Refine a :class:`~cardionurbs.analysis.strain.CylindricalMotionFit` ``fit`` (ED → frame,
-    started from the material points) on tag points (n, 3) whose ED planes are
-    (``normals`` (n, 3), ``offsets`` (n,)) by (T2), in place.
+    started from the material points) on tag points by (T2), in place.
 
-    Regularisation: with a noise σ (the tracking noise ``noise_mm``, e.g.
-    :attr:`TagPlanes.rms_mm`, or the misfit if larger: ``misfit_noise`` below) of at
-    least :data:`NOISE_FLOOR_MM` and ``quantities`` (a callable: the fit -> the vector of
-    quantities the fit is for, e.g. the segment strains; :class:`PointQuantities` are
-    differenced faster), the fit is refined once more
-    with the ridge penalties of :func:`choose_penalty` on the groups of :func:`penalty_groups`
-    and, given ``volume_samples`` ((k, 3) ED wall points, (k,) their volumes, (k,) their AHA
-    segments), a near-incompressibility term on the segments' mean det F
-    (:func:`incompressibility_term`): with ``volume_prior_sd`` s the prior J̄_s ~ N(1, s²)
-    (weight σ² / s², :func:`volume_prior_weight`) and the ridge weights that maximise the
-    evidence; with ``volume_prior_sd=None`` a weight κ chosen with the ridge weights to
-    minimise the estimated mean squared error of the quantities (see
-    "Near-incompressibility, as a prior" above).
-    Returns {"residual_mm" (RMS distance to the fitted surfaces), "outliers", "n_points",
-    "lambda" (penalty weight per group, then the incompressibility weight κ with
-    ``volume_samples`` and no ``volume_prior_sd``), "ed_points" (the fitted X_i), "quantity_se" (the standard errors
-    σ √diag(B S⁻¹ Bᵀ) of the quantities for the unregularised fit, B their derivative with
-    respect to the coefficients; None without regularisation), "regularised_sd" (the
-    standard deviations σ √diag(B A S A Bᵀ) of the regularised fit's quantities, A = (S +
-    P)⁻¹: its noise, not its bias), "det_F_unregularised" (volume-weighted mean, min, max
-    of det F over ``volume_samples`` for the unregularised fit: the incompressibility check
-    independent of the penalty), "boundary_points" and "boundary_residual_mm" (the contour
-    points of ``boundary`` used and their RMS distance to the moved ED surfaces; 0 and None
-    without), "boundary_noise_mm" (σ_c)}.
+    Regularisation: with a noise σ (the tracking noise ``noise_mm``, or the misfit if
+    larger: ``misfit_noise``) of at least :data:`NOISE_FLOOR_MM` and ``quantities``, the
+    fit is refined once more with the ridge penalties of :func:`choose_penalty` on the
+    groups of :func:`penalty_groups` and, given ``volume_samples``, a near-incompressibility
+    term on the segments' mean det F (:func:`incompressibility_term`): with
+    ``volume_prior_sd`` s the prior J̄_s ~ N(1, s²) (weight σ² / s²,
+    :func:`volume_prior_weight`) and the ridge weights that maximise the evidence; with
+    ``volume_prior_sd=None`` a weight κ chosen with the ridge weights to minimise the
+    estimated mean squared error of the quantities (see "Near-incompressibility, as a
+    prior" above).
 
-    ``boundary``: contour points on the wall's material surfaces with those surfaces at ED
-    (:class:`Boundary`, term (T3)); they join the fit after the tag-only iterations, weighted
-    σ / σ_c against the tags.
+    Parameters
+    ----------
+    fit : CylindricalMotionFit
+        The map ED → frame, refined in place.
+    points : (n, 3) float ndarray
+        The frame's tag points, mm.
+    normals, offsets : (n, 3) and (n,) float ndarray
+        Their ED tag planes (n · X = d), mm.
+    noise_mm : float
+        The tracking noise, e.g. :attr:`TagPlanes.rms_mm`.
+    quantities : callable or PointQuantities, optional
+        The fit -> the vector of quantities the fit is for, e.g. the segment strains
+        (:class:`PointQuantities` are differenced faster); None: no regularisation.
+    ridge : float
+        The relative ridge that keeps the normal matrix invertible.
+    volume_samples : ((k, 3), (k,), (k,)) ndarrays, optional
+        ED wall points, their volumes and their AHA segments, for the
+        near-incompressibility term.
+    volume_prior_sd : float, optional
+        The prior's s (None: κ chosen by the risk estimate).
+    boundary : sequence of Boundary
+        Contour points on the wall's material surfaces with those surfaces at ED
+        (:class:`Boundary`, term (T3)); they join the fit after the tag-only iterations,
+        weighted σ / σ_c against the tags.
+    misfit_noise : bool
+        The σ of the regularisation is the larger of ``noise_mm`` and the tag points'
+        misfit to the unregularised fit, √(Σ e_i² / (n − p)) (p the free coefficients);
+        False: ``noise_mm`` alone (the estimator before, for comparison).
 
-    ``misfit_noise``: the σ of the regularisation is the larger of ``noise_mm`` and the tag
-    points' misfit to the unregularised fit, √(Σ e_i² / (n − p)) (p the free coefficients;
-    returned as "misfit_mm", the σ used as "sigma_mm"); False: ``noise_mm`` alone (the
-    estimator before, for comparison).
+    Returns
+    -------
+    dict
+        "residual_mm" (RMS distance to the fitted surfaces), "outliers", "n_points",
+        "lambda" (penalty weight per group, then the incompressibility weight κ with
+        ``volume_samples`` and no ``volume_prior_sd``), "ed_points" (the fitted X_i),
+        "quantity_se" (the standard errors σ √diag(B S⁻¹ Bᵀ) of the quantities for the
+        unregularised fit, B their derivative with respect to the coefficients; None
+        without regularisation), "regularised_sd" (the standard deviations
+        σ √diag(B A S A Bᵀ) of the regularised fit's quantities, A = (S + P)⁻¹: its noise,
+        not its bias), "det_F_unregularised" (volume-weighted mean, min, max of det F over
+        ``volume_samples`` for the unregularised fit: the incompressibility check
+        independent of the penalty), "boundary_points" and "boundary_residual_mm" (the
+        contour points of ``boundary`` used and their RMS distance to the moved ED
+        surfaces; 0 and None without), "boundary_noise_mm" (σ_c), "misfit_mm" and
+        "sigma_mm" (the σ used).
     """
-    x = np.asarray(points, float)
-    n = np.asarray(normals, float)
-    d = np.asarray(offsets, float)
-    n_tag = len(x)
-    basis = plane_bases(n)                                             # (n, 2, 3)
-    # start: the fixed-point preimage of each point under the start map, on its plane
-    X = x.copy()
-    for _ in range(3):
-        X = X + (x - fit.position(X))
-        X -= ((np.einsum("ni,ni->n", n, X) - d))[:, None] * n
-    use = np.ones(len(x), bool)
-    weight = np.ones(len(x))
-    slide = None                     # the boundary points' surfaces (after the tag-only fit)
+    state = _TagLineFit(fit, points, normals, offsets, ridge)
+    S = state.tag_only()
+    S, sigma_c = state.join_boundary(boundary, noise_mm, S)
+    volume = _segment_volumes(fit, volume_samples)
+    # the σ of the regularisation: the tracking noise, or the tag points' misfit if larger
+    # (what the map (S1) cannot follow is noise to it too; see "The misfit as noise" above)
+    misfit = state.misfit()
+    sigma = max(float(noise_mm), misfit) if misfit_noise else float(noise_mm)
+    lams, se, sd = (), None, None
+    if sigma >= NOISE_FLOOR_MM and quantities is not None:
+        lams, se, sd = _regularise(state, S, quantities, volume, sigma, volume_prior_sd)
+    return state.result(lams, se, sd, volume, sigma_c, misfit, sigma)
 
-    def step(penalty=None, penalty_grad=None):
+
+class _TagLineFit:
+    """The data and state of the orthogonal-distance regression (T2) of a motion ``fit``,
+    with the boundary points of (T3) appended once they join.
+
+    Attributes
+    ----------
+    fit : CylindricalMotionFit
+        Refined in place.
+    x : (m, 3) float ndarray
+        The points at the frame, mm: the n_tag tag points, then the boundary points.
+    X : (m, 3) float ndarray
+        Their ED preimages on their ED planes (boundary points: on their ED surfaces), mm.
+    basis : (m, 2, 3) float ndarray
+        An orthonormal basis of each point's ED plane (tangent plane).
+    use : (m,) bool ndarray
+        The points fitted (not outliers).
+    weight : (m,) float ndarray
+        Their weights (1 for tags, σ / σ_c for boundary points).
+    slide : callable or None
+        Boundary preimages -> (back on the ED surfaces, their tangent bases).
+    err : (m,) float ndarray
+        Each point's distance from the fitted map's image of its preimage, mm (after the
+        last stage).
+    """
+
+    def __init__(self, fit, points: np.ndarray, normals: np.ndarray, offsets: np.ndarray,
+                 ridge: float) -> None:
+        self.fit, self.ridge = fit, ridge
+        self.x = np.asarray(points, float)
+        n = np.asarray(normals, float)
+        d = np.asarray(offsets, float)
+        self.n_tag = len(self.x)
+        self.n_boundary = 0
+        self.basis = plane_bases(n)                                    # (n, 2, 3)
+        # start: the fixed-point preimage of each point under the start map, on its plane
+        X = self.x.copy()
+        for _ in range(3):
+            X = X + (self.x - fit.position(X))
+            X -= ((np.einsum("ni,ni->n", n, X) - d))[:, None] * n
+        self.X = X
+        self.use = np.ones(len(self.x), bool)
+        self.weight = np.ones(len(self.x))
+        self.slide = None            # the boundary points' surfaces (after the tag-only fit)
+        self.err = np.zeros(len(self.x))
+
+    def step(self, penalty: np.ndarray | None = None,
+             penalty_grad: np.ndarray | None = None) -> np.ndarray:
+        """One Gauss–Newton step of coefficients and preimages (:func:`_schur_step`), halved
+        until the data term does not grow (a regularised step is judged with its penalty);
+        returns the data term's normal matrix S (p, p)."""
+        fit, x, X, basis, use = self.fit, self.x, self.X, self.basis, self.use
         pos, (T, D), F = fit.linearisation(X[use])
         J_pt = F @ basis[use].transpose(0, 2, 1)                         # (n, 3, 2)
         coef = fit.params                                               # component-major
-        w = weight[use][:, None]
+        w = self.weight[use][:, None]
         d_coef, d_pt, S = _schur_step(T * w[:, :, None], D, fit.free, J_pt * w[:, :, None],
-                                      (pos - x[use]) * w, ridge, penalty, penalty_grad)
+                                      (pos - x[use]) * w, self.ridge, penalty, penalty_grad)
         before = float(np.sum(((pos - x[use]) * w) ** 2))
         X0, basis0, move = X.copy(), basis.copy(), np.einsum("nk,nkj->nj", d_pt, basis[use])
         for halving in range(MAX_HALVINGS + 1):
@@ -850,104 +924,265 @@ def fit_tag_motion(fit, points: np.ndarray, normals: np.ndarray, offsets: np.nda
             fit.params = coef + t * d_coef
             X[:], basis[:] = X0, basis0
             X[use] += t * move
-            if slide is not None:        # back onto the ED surfaces; their new tangent planes
-                X[n_tag:], basis[n_tag:] = slide(X[n_tag:])
+            if self.slide is not None:   # back onto the ED surfaces; their new tangent planes
+                X[self.n_tag:], basis[self.n_tag:] = self.slide(X[self.n_tag:])
             # the data term must not grow (a regularised step is judged with its penalty)
             if penalty is not None or float(np.sum(((fit.position(X[use]) - x[use]) * w) ** 2)) <= before:
                 break
         return S
-    for stage, iters in enumerate(ITERATIONS):
-        for _ in range(iters):
-            S = step()
-        err = np.linalg.norm(fit.position(X) - x, axis=1)
-        if stage == 0:
-            use = err <= max(OUTLIER_MM, 4.0 * float(np.median(err)))
-    b_rms, sigma_c, n_b = None, None, 0
-    if len(boundary):
-        y, Y, basis_b, slide = boundary_start(fit, boundary, X[use])
-        n_b = len(y)
-    if n_b:
-        # the boundary noise σ_c: the RMS distance of the points (gross outliers left out)
-        # from the ED surfaces moved by the tag-only fit
-        e_b = np.linalg.norm(fit.position(Y) - y, axis=1)
+
+    def measure(self) -> None:
+        """Each point's distance from the fitted map's image of its preimage (``err``)."""
+        self.err = np.linalg.norm(self.fit.position(self.X) - self.x, axis=1)
+
+    def tag_only(self) -> np.ndarray:
+        """The tag-only stages of :data:`ITERATIONS`, the outliers left out after the first;
+        returns the last step's S."""
+        S = None
+        for stage, iters in enumerate(ITERATIONS):
+            for _ in range(iters):
+                S = self.step()
+            self.measure()
+            if stage == 0:
+                self.use = self.err <= max(OUTLIER_MM, 4.0 * float(np.median(self.err)))
+        assert S is not None, "ITERATIONS takes at least one step"
+        return S
+
+    def join_boundary(self, boundary, noise_mm: float,
+                      S: np.ndarray) -> tuple[np.ndarray, float | None]:
+        """Join the boundary points (term (T3)) and run :data:`JOINT_ITERATIONS` steps.
+
+        Parameters
+        ----------
+        boundary : sequence of Boundary
+            May be empty.
+        noise_mm : float
+            The tag tracking noise σ_t, mm.
+        S : (p, p) ndarray
+            The last step's normal matrix (returned when no boundary point joins).
+
+        Returns
+        -------
+        S : (p, p) ndarray
+            The last step's normal matrix.
+        sigma_c : float or None
+            The boundary noise σ_c, mm: the RMS distance of the points (gross outliers
+            left out) from the ED surfaces moved by the tag-only fit; None without.
+        """
+        if not len(boundary):
+            return S, None
+        y, Y, basis_b, self.slide = boundary_start(self.fit, boundary, self.X[self.use])
+        self.n_boundary = len(y)
+        if not self.n_boundary:
+            return S, None
+        e_b = np.linalg.norm(self.fit.position(Y) - y, axis=1)
         keep_b = e_b <= max(OUTLIER_MM, 4.0 * float(np.median(e_b)))
         sigma_c = max(float(np.sqrt(np.mean(e_b[keep_b] ** 2))), NOISE_FLOOR_MM)
         sigma_t = max(float(noise_mm), NOISE_FLOOR_MM)
-        x = np.r_[x, y]
-        X = np.r_[X, Y]
-        basis = np.r_[basis, basis_b]
-        use = np.r_[use, keep_b]
-        weight = np.r_[weight, np.full(len(y), sigma_t / sigma_c)]
+        self.x = np.r_[self.x, y]
+        self.X = np.r_[self.X, Y]
+        self.basis = np.r_[self.basis, basis_b]
+        self.use = np.r_[self.use, keep_b]
+        self.weight = np.r_[self.weight, np.full(len(y), sigma_t / sigma_c)]
         for _ in range(JOINT_ITERATIONS):
-            S = step()
-        err = np.linalg.norm(fit.position(X) - x, axis=1)
-    lams, se, sd, det0 = (), None, None, None
-    if volume_samples is not None:
-        V, vol, lab = (np.asarray(v) for v in volume_samples)
-        M, seg_vol = segment_mean_matrix(lab, vol)
+            S = self.step()
+        self.measure()
+        return S, sigma_c
 
-        def mean_det_minus_one(F):                                     # J̄_s − 1, F (k, n, 3, 3)
-            return np.linalg.det(F) @ M.T - 1.0
-        segment_volume_change = PointQuantities(((V, mean_det_minus_one),))
-        dj = np.linalg.det(fit.gradient(V))
-        det0 = (float(np.average(dj, weights=vol)), float(dj.min()), float(dj.max()))
-    # the σ of the regularisation: the tracking noise, or the tag points' misfit if larger
-    # (what the map (S1) cannot follow is noise to it too; see "The misfit as noise" above)
-    n_used = int(use[:n_tag].sum())
-    misfit = float(np.sqrt(np.sum(err[:n_tag][use[:n_tag]] ** 2) / max(n_used - len(fit.params), 1)))
-    noise_mm = max(float(noise_mm), misfit) if misfit_noise else float(noise_mm)
-    if noise_mm >= NOISE_FLOOR_MM and quantities is not None:
-        coef = fit.params
-        k = len(quantities(fit))
+    def misfit(self) -> float:
+        """The tag points' misfit √(Σ e_i² / (n − p)), mm (p the free coefficients)."""
+        tags = self.use[:self.n_tag]
+        n_used = int(tags.sum())
+        return float(np.sqrt(np.sum(self.err[:self.n_tag][tags] ** 2)
+                             / max(n_used - len(self.fit.params), 1)))
 
-        if isinstance(quantities, PointQuantities) and volume_samples is not None:
-            all_quantities = quantities + segment_volume_change
-        else:
-            def all_quantities(f):
-                q = quantities(f)
-                return q if volume_samples is None else np.r_[q, segment_volume_change(f)]
-        S_inv = np.linalg.pinv(S)
-        step_scale = np.sqrt(np.diag(S_inv)) * noise_mm
-        J = quantity_jacobian(fit, all_quantities, coef, step_scale)
-        B = J[:k]
-        # the unregularised fit's standard errors of the quantities, σ √diag(B S⁻¹ Bᵀ): the
-        # Cramér–Rao bound of any unbiased estimate within the motion model (S1)
-        se = noise_mm * np.sqrt(np.maximum(np.einsum("ka,ab,kb->k", B, S_inv, B), 0.0))
-        groups = penalty_groups(fit)
-        terms, fixed, scale, inc_w = (), (), 0.0, seg_vol if volume_samples is not None else None
-        if volume_samples is not None and volume_prior_sd is not None:
-            # the prior J̄_s ~ N(1, s²), independent per segment, against the data's σ
-            inc_w, scale = np.ones(len(seg_vol)), len(seg_vol) * volume_prior_weight(noise_mm, volume_prior_sd)
-            fixed = (incompressibility_term(J[k:], segment_volume_change(fit), inc_w, scale),)
-        elif volume_samples is not None:
-            scale = incompressibility_scale(J[k:], seg_vol, S)
-            terms = (incompressibility_term(J[k:], segment_volume_change(fit), seg_vol, scale),)
-        P, lams = choose_penalty(S, coef, groups, noise_mm, B, terms=terms, fixed=fixed,
-                                 criterion="evidence" if fixed else "risk")
-        A = np.linalg.inv(S + P + ridge * np.trace(S) / len(coef) * np.eye(len(coef)))
-        sd = noise_mm * np.sqrt(np.maximum(np.einsum("ka,ab,kb->k", B, A @ S @ A, B), 0.0))
-        if any(lams) or fixed:
-            diag = np.diag(S)
-            ridge_P = sum((lam * np.diag(np.where(gr, diag, 0.0)) for lam, gr in zip(lams, groups)),
-                          np.zeros((len(coef), len(coef))))
-            kappa = lams[-1] if terms else (1.0 if fixed else 0.0)
-            for _ in range(REGULARISED_ITERATIONS):
-                # Gauss–Newton on data + penalty: the incompressibility term re-linearised
-                # at the current coefficients
-                c = fit.params
-                P, grad = ridge_P, ridge_P @ c
-                if kappa:
-                    G = quantity_jacobian(fit, segment_volume_change, c, step_scale)
-                    Q, r = incompressibility_term(G, segment_volume_change(fit), inc_w, scale)
-                    P, grad = P + kappa * Q, grad + kappa * r
-                step(P, grad)
-            err = np.linalg.norm(fit.position(X) - x, axis=1)
-    tags = use[:n_tag]
-    if n_b:
-        b_rms = float(np.sqrt(np.mean(err[n_tag:][use[n_tag:]] ** 2)))
-    return {"residual_mm": float(np.sqrt(np.mean(err[:n_tag][tags] ** 2))),
-            "outliers": int((~tags).sum()), "n_points": int(tags.sum()),
-            "lambda": [float(v) for v in lams], "ed_points": X[:n_tag][tags],
-            "quantity_se": se, "regularised_sd": sd, "det_F_unregularised": det0,
-            "boundary_points": int(use[n_tag:].sum()), "boundary_residual_mm": b_rms,
-            "boundary_noise_mm": sigma_c, "misfit_mm": misfit, "sigma_mm": noise_mm}
+    def result(self, lams, se, sd, volume: "_SegmentVolumes | None", sigma_c: float | None,
+               misfit: float, sigma: float) -> dict:
+        """The dict :func:`fit_tag_motion` returns."""
+        n_tag, use, err = self.n_tag, self.use, self.err
+        tags = use[:n_tag]
+        b_rms = float(np.sqrt(np.mean(err[n_tag:][use[n_tag:]] ** 2))) if self.n_boundary else None
+        return {"residual_mm": float(np.sqrt(np.mean(err[:n_tag][tags] ** 2))),
+                "outliers": int((~tags).sum()), "n_points": int(tags.sum()),
+                "lambda": [float(v) for v in lams], "ed_points": self.X[:n_tag][tags],
+                "quantity_se": se, "regularised_sd": sd,
+                "det_F_unregularised": None if volume is None else volume.det0,
+                "boundary_points": int(use[n_tag:].sum()), "boundary_residual_mm": b_rms,
+                "boundary_noise_mm": sigma_c, "misfit_mm": misfit, "sigma_mm": sigma}
+
+
+@dataclass
+class _SegmentVolumes:
+    """The segments' mean det F of a fit, for the near-incompressibility term.
+
+    Attributes
+    ----------
+    change : PointQuantities
+        A fit -> (k,) J̄_s − 1, each segment's volume-weighted mean det F minus 1.
+    seg_vol : (k,) float ndarray
+        The segments' volumes (their weights in the risk-chosen term).
+    det0 : (float, float, float)
+        Volume-weighted mean, min and max of det F over the samples for the fit as it was
+        before the regularisation.
+    """
+
+    change: PointQuantities
+    seg_vol: np.ndarray
+    det0: tuple[float, float, float]
+
+
+def _segment_volumes(fit, volume_samples) -> _SegmentVolumes | None:
+    """:class:`_SegmentVolumes` of ``volume_samples`` ((k, 3) ED wall points, (k,) their
+    volumes, (k,) their AHA segments) for ``fit`` as it is now; None without samples."""
+    if volume_samples is None:
+        return None
+    V, vol, lab = (np.asarray(v) for v in volume_samples)
+    M, seg_vol = segment_mean_matrix(lab, vol)
+
+    def mean_det_minus_one(F):                                     # J̄_s − 1, F (k, n, 3, 3)
+        return np.linalg.det(F) @ M.T - 1.0
+    dj = np.linalg.det(fit.gradient(V))
+    return _SegmentVolumes(PointQuantities(((V, mean_det_minus_one),)), seg_vol,
+                           (float(np.average(dj, weights=vol)), float(dj.min()), float(dj.max())))
+
+
+def _with_volume_change(quantities, volume: _SegmentVolumes | None) -> Callable[[Any], np.ndarray]:
+    """A fit -> its ``quantities`` followed by the segments' J̄_s − 1 (with ``volume``)."""
+    if isinstance(quantities, PointQuantities) and volume is not None:
+        return quantities + volume.change
+
+    def all_quantities(f):
+        q = quantities(f)
+        return q if volume is None else np.r_[q, volume.change(f)]
+    return all_quantities
+
+
+def _incompressibility(J_v: np.ndarray, S: np.ndarray, fit, volume: _SegmentVolumes | None,
+                       noise_mm: float, volume_prior_sd: float | None) -> tuple:
+    """The near-incompressibility term of the regularised fit (:func:`incompressibility_term`).
+
+    Parameters
+    ----------
+    J_v : (k, p) float ndarray
+        The derivative of the segments' J̄_s − 1 with respect to the coefficients.
+    S : (p, p) float ndarray
+        The data term's normal matrix.
+    fit : CylindricalMotionFit
+    volume : _SegmentVolumes or None
+    noise_mm : float
+        The fit's σ, mm.
+    volume_prior_sd : float or None
+        The prior's s (None: the weight is chosen with the ridge weights).
+
+    Returns
+    -------
+    terms : tuple
+        The term whose weight κ :func:`choose_penalty` chooses (risk), or empty.
+    fixed : tuple
+        The prior's term (weight 1), or empty.
+    scale : float
+        The term's scale.
+    inc_w : (k,) float ndarray or None
+        The segments' weights in the term.
+    """
+    if volume is None:
+        return (), (), 0.0, None
+    if volume_prior_sd is not None:
+        # the prior J̄_s ~ N(1, s²), independent per segment, against the data's σ
+        inc_w = np.ones(len(volume.seg_vol))
+        scale = len(volume.seg_vol) * volume_prior_weight(noise_mm, volume_prior_sd)
+        return (), (incompressibility_term(J_v, volume.change(fit), inc_w, scale),), scale, inc_w
+    scale = incompressibility_scale(J_v, volume.seg_vol, S)
+    return ((incompressibility_term(J_v, volume.change(fit), volume.seg_vol, scale),), (), scale,
+            volume.seg_vol)
+
+
+def _regularise(state: _TagLineFit, S: np.ndarray, quantities, volume: _SegmentVolumes | None,
+                noise_mm: float, volume_prior_sd: float | None) -> tuple:
+    """Choose the penalties for the quantities and refine the fit with them.
+
+    Parameters
+    ----------
+    state : _TagLineFit
+        After the unregularised stages; refined in place.
+    S : (p, p) float ndarray
+        The data term's normal matrix of the last step.
+    quantities : callable or PointQuantities
+        A fit -> the (k,) quantities the fit is for.
+    volume : _SegmentVolumes or None
+        The segments' volume change (the near-incompressibility term), if any.
+    noise_mm : float
+        The fit's σ, mm.
+    volume_prior_sd : float or None
+        The prior's s.
+
+    Returns
+    -------
+    lams : list of float
+        The penalty weight per group (then κ with a risk-chosen incompressibility term).
+    se : (k,) float ndarray
+        The unregularised fit's standard errors σ √diag(B S⁻¹ Bᵀ) of the quantities.
+    sd : (k,) float ndarray
+        The regularised fit's standard deviations σ √diag(B A S A Bᵀ).
+    """
+    fit = state.fit
+    coef = fit.params
+    k = len(quantities(fit))
+    all_quantities = _with_volume_change(quantities, volume)
+    S_inv = np.linalg.pinv(S)
+    step_scale = np.sqrt(np.diag(S_inv)) * noise_mm
+    J = quantity_jacobian(fit, all_quantities, coef, step_scale)
+    B = J[:k]
+    # the unregularised fit's standard errors of the quantities, σ √diag(B S⁻¹ Bᵀ): the
+    # Cramér–Rao bound of any unbiased estimate within the motion model (S1)
+    se = noise_mm * np.sqrt(np.maximum(np.einsum("ka,ab,kb->k", B, S_inv, B), 0.0))
+    groups = penalty_groups(fit)
+    terms, fixed, scale, inc_w = _incompressibility(J[k:], S, fit, volume, noise_mm,
+                                                    volume_prior_sd)
+    P, lams = choose_penalty(S, coef, groups, noise_mm, B, terms=terms, fixed=fixed,
+                             criterion="evidence" if fixed else "risk")
+    A = np.linalg.inv(S + P + state.ridge * np.trace(S) / len(coef) * np.eye(len(coef)))
+    sd = noise_mm * np.sqrt(np.maximum(np.einsum("ka,ab,kb->k", B, A @ S @ A, B), 0.0))
+    if any(lams) or fixed:
+        diag = np.diag(S)
+        ridge_P = sum((lam * np.diag(np.where(gr, diag, 0.0)) for lam, gr in zip(lams, groups)),
+                      np.zeros((len(coef), len(coef))))
+        kappa = lams[-1] if terms else (1.0 if fixed else 0.0)
+        _penalised_steps(state, ridge_P, kappa, volume, inc_w, scale, step_scale)
+    return lams, se, sd
+
+
+def _penalised_steps(state: _TagLineFit, ridge_P: np.ndarray, kappa: float,
+                     volume: _SegmentVolumes | None, inc_w, scale: float,
+                     step_scale: np.ndarray) -> None:
+    """:data:`REGULARISED_ITERATIONS` Gauss–Newton steps on data + penalty, the
+    incompressibility term (weight ``kappa``) re-linearised at the current coefficients.
+
+    Parameters
+    ----------
+    state : _TagLineFit
+        Refined in place (its ``err`` measured after).
+    ridge_P : (p, p) float ndarray
+        The ridge penalties.
+    kappa : float
+        The incompressibility term's weight (0: none).
+    volume : _SegmentVolumes or None
+        Needed when ``kappa`` is not 0.
+    inc_w : (k,) float ndarray or None
+        The segments' weights in the term.
+    scale : float
+        The term's scale.
+    step_scale : (p,) float ndarray
+        The coefficients' difference steps.
+    """
+    fit = state.fit
+    for _ in range(REGULARISED_ITERATIONS):
+        c = fit.params
+        P, grad = ridge_P, ridge_P @ c
+        if kappa:
+            assert volume is not None, "an incompressibility weight needs the segment volumes"
+            G = quantity_jacobian(fit, volume.change, c, step_scale)
+            Q, r = incompressibility_term(G, volume.change(fit), inc_w, scale)
+            P, grad = P + kappa * Q, grad + kappa * r
+        state.step(P, grad)
+    state.measure()

@@ -36,11 +36,13 @@ from __future__ import annotations
 
 from collections import defaultdict
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
 from cardionurbs import nurbs
 from cardionurbs.anatomy.sections import stacking_direction, study_long_axis
+from cardionurbs.cache import attached
 from cardionurbs.errors import TagError
 from cardionurbs.imaging.geometry import ImagePlane
 from cardionurbs.nurbs.loft import loft_compatible  # noqa: F401  (old import path, benchmarks)
@@ -79,10 +81,7 @@ def check_tags(study: Study, ed_frame: int | None = None) -> None:
     TagError
         The first problem, naming family, index, slice and frame.
     """
-    checked = study.__dict__.get("_tags_checked")
-    if checked is None or checked[0] is not study.tags or checked[1] != len(study.tags):
-        _check_tag_lines(study)
-        study.__dict__["_tags_checked"] = (study.tags, len(study.tags))
+    attached(study, "_tags_checked", _check_tag_lines, depends=("tags",))()
     if ed_frame is not None and study.tags and not any(t.frame == ed_frame for t in study.tags):
         raise TagError(f"tag lines exist (frames {study.tagged_frames}) but none at the ED frame "
                        f"{ed_frame}", field="ed_frame")
@@ -513,22 +512,20 @@ def axis_frame(apex: np.ndarray, base: np.ndarray) -> tuple[np.ndarray, np.ndarr
     e1, e2, e : (3,) ndarray
     """
     apex, base = np.asarray(apex, float), np.asarray(base, float)
-    key = (apex.tobytes(), base.tobytes())
-    frame = _AXIS_FRAMES.get(key)
-    if frame is None:                     # asked thousands of times per study (tag QC)
-        e = apex - base
-        e /= np.linalg.norm(e)
-        helper = np.eye(3)[np.argmin(np.abs(e))]
-        e1 = np.cross(e, helper)
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(e, e1)
-        if len(_AXIS_FRAMES) > 64:
-            _AXIS_FRAMES.clear()
-        frame = _AXIS_FRAMES[key] = (e1, e2, e)
-    return tuple(x.copy() for x in frame)
+    # asked thousands of times per study (tag QC): cached per (apex, base)
+    return tuple(x.copy() for x in _axis_frame(apex.tobytes(), base.tobytes()))
 
 
-_AXIS_FRAMES: dict = {}
+@lru_cache(maxsize=64)
+def _axis_frame(apex: bytes, base: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`axis_frame` of the (3,) float64 points given as bytes."""
+    e = np.frombuffer(apex) - np.frombuffer(base)
+    e /= np.linalg.norm(e)
+    helper = np.eye(3)[np.argmin(np.abs(e))]
+    e1 = np.cross(e, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(e, e1)
+    return e1, e2, e
 
 
 def la_sections(study: Study, frame: int, apex: np.ndarray,

@@ -52,6 +52,7 @@ from bisect import bisect_left
 from collections.abc import Sequence
 from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
+from functools import lru_cache
 from itertools import product
 
 import numpy as np
@@ -134,21 +135,15 @@ class LineDeparture:
 # ---------------------------------------------------------------- geometry
 def _samples(section, ns: int = _NU) -> np.ndarray:
     """(ns, 3) points of a section's fitted curve at uniform u."""
+    return _uniform_basis(np.asarray(section.knots, float).tobytes(), ns) @ section.ctrl
+
+
+@lru_cache(maxsize=64)
+def _uniform_basis(knots: bytes, ns: int) -> np.ndarray:
+    """(ns, n) cubic basis at ns uniform u of a knot vector (float64 bytes): the sections of
+    one fit share one knot vector (fit_sections)."""
     from cardionurbs.nurbs.basis import basis_matrix
-    U = section.knots
-    key = (len(U), ns)
-    B = _BASIS.get(key)
-    # the sections of one fit share one knot array (fit_sections): the same object is the
-    # same knots; another array is compared value by value
-    if B is None or (B[2] is not U and (B[0].shape != U.shape or not np.array_equal(B[0], U))):
-        B = (U.copy(), basis_matrix(U, 3, np.linspace(0.0, 1.0, ns)), U)
-    elif B[2] is not U:
-        B = (B[0], B[1], U)
-    _BASIS[key] = B
-    return B[1] @ section.ctrl
-
-
-_BASIS: dict = {}
+    return basis_matrix(np.frombuffer(knots), 3, np.linspace(0.0, 1.0, ns))
 
 
 def blend_trace(Ca: np.ndarray, Cb: np.ndarray, origin: np.ndarray, normal: np.ndarray
@@ -907,67 +902,194 @@ def tag_departures(study: Study, threshold: float = DEFAULT_THRESHOLD,
                    surfaces: dict | None = None) -> list[LineDeparture]:
     """Departure of every judgeable tag line, with the iterative worst-first flagging.
 
-    See the module docstring. ``surfaces``: optional {frame: build_tag_surfaces(...)}
-    whose fitted sections are reused.
+    See the module docstring.
+
+    Parameters
+    ----------
+    study : Study
+        A tagged study.
+    threshold : float
+        Departure (tag spacings) beyond which a line is flagged.
+    frames : list of int, optional
+        The frames judged (default: every tagged frame).
+    long_axis : (apex, base), mm, optional
+        Default: from the study's landmarks where it has apex and mitral ones.
+    surfaces : dict, optional
+        {frame: build_tag_surfaces(...)} whose fitted sections are reused.
+
+    Returns
+    -------
+    list of LineDeparture
+        Per frame (ascending): the SA lines family by family, then the LA lines.
     """
     from cardionurbs.analysis.tag_surfaces import check_tags
     check_tags(study)
-    frames = study.tagged_frames if frames is None else list(frames)
+    frames = sorted(study.tagged_frames if frames is None else list(frames))
     long_axis = _qc_axis(study, long_axis)
-    out: list[LineDeparture] = []
-    frames = sorted(frames)
     groups_at: dict[int, dict] = {}
     spacing_at: dict[int, dict] = {}
-    R0: dict[tuple[int, str], dict] = {key: {} for key in product(frames, ("sa1", "sa2"))}
-    sa = []                   # every SA tag of every frame: (frame, family, index, sections)
     for f in frames:
-        if surfaces is not None and f in surfaces:
-            groups_at[f] = {k: ts.sections for k, ts in surfaces[f].items()}
-        else:
-            groups_at[f] = qc_sections(study, f, long_axis)
+        groups_at[f] = _frame_sections(study, f, long_axis, surfaces)
         spacing_at[f] = {fam: tag_spacing(study, fam, f) for fam in TAG_FAMILIES}
-        sa += [(f, fam, i, secs) for (fam, i), secs in groups_at[f].items() if fam in ("sa1", "sa2")]
-    # the initial SA residuals (per frame and family) of many frames' tags per batch (a few
-    # megabytes of samples each)
+    R0 = _initial_sa_residuals(frames, groups_at)
+    out: list[LineDeparture] = []
+    for n, f in enumerate(frames):
+        near = [frames[m] for m in (n - 1, n + 1) if 0 <= m < len(frames)]
+        out += _sa_departures(f, groups_at[f], spacing_at[f], threshold, R0, near)
+        out += _la_departures(f, groups_at[f], spacing_at[f], threshold, long_axis)
+    return out
+
+
+def _frame_sections(study: Study, frame: int, long_axis: tuple | None,
+                    surfaces: dict | None) -> dict:
+    """{(family, index): sections} of a frame's tags: the fitted sections of ``surfaces``
+    where it has the frame, else fitted here (:func:`qc_sections`)."""
+    if surfaces is not None and frame in surfaces:
+        return {k: ts.sections for k, ts in surfaces[frame].items()}
+    return qc_sections(study, frame, long_axis)
+
+
+def _initial_sa_residuals(frames: list[int], groups_at: dict[int, dict]) -> dict:
+    """The leave-one-out residuals of every SA tag of every frame with no line left out,
+    many frames' tags per batch (a few megabytes of samples each).
+
+    Parameters
+    ----------
+    frames : list of int
+        The frames, ascending.
+    groups_at : dict
+        Frame -> {(family, index): sections} (:func:`_frame_sections`).
+
+    Returns
+    -------
+    dict
+        (frame, family) -> {index: residuals} for the families sa1 and sa2.
+    """
+    R0: dict[tuple[int, str], dict] = {key: {} for key in product(frames, ("sa1", "sa2"))}
+    sa = [(f, fam, i, secs) for f in frames for (fam, i), secs in groups_at[f].items()
+          if fam in ("sa1", "sa2")]
     for start in range(0, len(sa), _TAGS_PER_BATCH):
         part = sa[start:start + _TAGS_PER_BATCH]
         res = loo_residuals_many([(secs, [_samples(s) for s in secs], frozenset())
                                   for _, _, _, secs in part])
         for (f, fam, i, _), r in zip(part, res):
             R0[(f, fam)][i] = r
-    for n, f in enumerate(frames):
-        groups, spacing = groups_at[f], spacing_at[f]
-        near = [frames[m] for m in (n - 1, n + 1) if 0 <= m < len(frames)]
-        for fam in ("sa1", "sa2"):
-            sp = spacing[fam]
-            fam_groups = {i: secs for (g, i), secs in groups.items() if g == fam}
-            if not fam_groups or not np.isfinite(sp) or sp <= 0:
-                continue
-            for i, slc, d, fl in sa_family_departures(fam_groups, sp, threshold, R0[(f, fam)],
-                                                      [R0[(g, fam)] for g in near]):
-                out.append(LineDeparture(fam, i, slc, f, d, fl))
-        for (fam, idx), secs in sorted(groups.items()):
-            sp = spacing[fam]
-            if fam != "la" or not np.isfinite(sp) or sp <= 0:
-                continue
-            periodic = True
-            samples = [_samples(s) for s in secs]
-            flagged: dict[str, float] = {}
-            last: dict[str, float] = {}
-            profiles: dict[int, tuple] = {}      # each spoke's profile, for every pass
-            while True:
-                dep = loo_departures(secs, samples, sp, periodic, exclude=set(flagged),
-                                     axis=long_axis, profiles=profiles)
-                if not dep:
-                    break
-                last.update(dep)
-                worst = max(dep, key=dep.get)
-                if dep[worst] <= threshold:
-                    break
-                flagged[worst] = dep[worst]
-            for slc, d in last.items():
-                out.append(LineDeparture(fam, idx, slc, f, flagged.get(slc, d), slc in flagged))
+    return R0
+
+
+def _usable_spacing(sp: float) -> bool:
+    """A tag spacing departures can be measured in (finite and positive)."""
+    return bool(np.isfinite(sp) and sp > 0)
+
+
+def _sa_departures(f: int, groups: dict, spacing: dict, threshold: float, R0: dict,
+                   near: list[int]) -> list[LineDeparture]:
+    """The departures of frame ``f``'s SA tag lines, family by family
+    (:func:`sa_family_departures`, the neighbouring frames ``near`` as references).
+
+    Parameters
+    ----------
+    f : int
+        The frame.
+    groups : dict
+        {(family, index): sections} of the frame.
+    spacing : dict
+        Family -> tag spacing at the frame, mm.
+    threshold : float
+        Departure (tag spacings) beyond which a line is flagged.
+    R0 : dict
+        The initial residuals (:func:`_initial_sa_residuals`).
+    near : list of int
+        The frames before and after ``f`` (where there are).
+
+    Returns
+    -------
+    list of LineDeparture
+    """
+    out = []
+    for fam in ("sa1", "sa2"):
+        sp = spacing[fam]
+        fam_groups = {i: secs for (g, i), secs in groups.items() if g == fam}
+        if not fam_groups or not _usable_spacing(sp):
+            continue
+        for i, slc, d, fl in sa_family_departures(fam_groups, sp, threshold, R0[(f, fam)],
+                                                  [R0[(g, fam)] for g in near]):
+            out.append(LineDeparture(fam, i, slc, f, d, fl))
     return out
+
+
+def _la_departures(f: int, groups: dict, spacing: dict, threshold: float,
+                   long_axis: tuple | None) -> list[LineDeparture]:
+    """The departures of frame ``f``'s LA tag lines, each tag on its own, its worst line
+    flagged and left out again and again while beyond ``threshold``.
+
+    Parameters
+    ----------
+    f : int
+        The frame.
+    groups : dict
+        {(family, index): sections} of the frame.
+    spacing : dict
+        Family -> tag spacing at the frame, mm.
+    threshold : float
+        Departure (tag spacings) beyond which a line is flagged.
+    long_axis : tuple or None
+        (apex, base), mm.
+
+    Returns
+    -------
+    list of LineDeparture
+        In (family, index) order.
+    """
+    out = []
+    for (fam, idx), secs in sorted(groups.items()):
+        sp = spacing[fam]
+        if fam != "la" or not _usable_spacing(sp):
+            continue
+        last, flagged = _worst_first(secs, sp, threshold, long_axis)
+        for slc, d in last.items():
+            out.append(LineDeparture(fam, idx, slc, f, flagged.get(slc, d), slc in flagged))
+    return out
+
+
+def _worst_first(secs: list, sp: float, threshold: float,
+                 long_axis: tuple | None) -> tuple[dict[str, float], dict[str, float]]:
+    """Leave-one-out departures of one LA tag's lines, flagging the worst line and leaving it
+    out while it departs beyond ``threshold``.
+
+    Parameters
+    ----------
+    secs : list
+        The tag's sections, one per slice.
+    sp : float
+        Its spacing, mm.
+    threshold : float
+        Tag spacings.
+    long_axis : tuple or None
+        (apex, base), mm.
+
+    Returns
+    -------
+    last : dict
+        Slice -> departure in the last pass that measured it (tag spacings).
+    flagged : dict
+        Slice -> departure when flagged, for the flagged lines.
+    """
+    samples = [_samples(s) for s in secs]
+    flagged: dict[str, float] = {}
+    last: dict[str, float] = {}
+    profiles: dict[int, tuple] = {}      # each spoke's profile, for every pass
+    while True:
+        dep = loo_departures(secs, samples, sp, True, exclude=set(flagged),
+                             axis=long_axis, profiles=profiles)
+        if not dep:
+            break
+        last.update(dep)
+        worst = max(dep, key=lambda k: dep[k])
+        if dep[worst] <= threshold:
+            break
+        flagged[worst] = dep[worst]
+    return last, flagged
 
 
 def _can_axis(study: Study, long_axis) -> bool:

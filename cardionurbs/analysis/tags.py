@@ -53,6 +53,7 @@ Twist 2D
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -236,28 +237,104 @@ def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base:
              ) -> tuple[float, list[dict]]:
     """Slice-based twist (deg) and per-slice rotations (see module docstring).
 
-    ``surfaces`` ({frame: build_tag_surfaces(...)}) lends its fitted section
-    curves; lines not found there are fitted here. ``exclude``: {(family,
-    index, slice, frame)} lines left out (flagged by the QC).
+    Parameters
+    ----------
+    study : Study
+        A tagged study.
+    ed_frame, es_frame : int
+        The frames the rotation is measured between.
+    apex, base : (3,) float ndarray
+        The ED long axis, mm.
+    surfaces : dict, optional
+        {frame: build_tag_surfaces(...)}: lends its fitted section curves; lines not
+        found there are fitted here.
+    exclude : set
+        {(family, index, slice, frame)} lines left out (flagged by the QC).
+
+    Returns
+    -------
+    twist : float
+        The most basal slice's rotation minus the most apical's, deg (NaN with fewer than
+        two slices measured).
+    rows : list of dict
+        Per slice measured, in stack order: {"slice", "rotation_deg", "n_crossings"}.
     """
-    fitted: dict[tuple, object] = {}
+    frames = (ed_frame, es_frame)
+    lines = _sa_tag_lines(study, frames, exclude)
+    n_stack = stacking_direction(study)[0]
+    ax = (apex - base) / np.linalg.norm(apex - base)
+    slices = sorted({k[2] for k in lines}, key=lambda s: float(study.slice_plane(s).position @ n_stack))
+    curves, raw, pairs, meta = _crossing_pairs(lines, _fitted_sections(surfaces), slices, frames)
+    if not pairs:
+        return NAN, []
+    X = curve_crossings(curves, raw, np.asarray(pairs, int))
+    meta_arr = np.array([(m[0], m[3]) for m in meta], dtype=object)
+    rows = []
+    for s in slices:
+        row = _slice_rotation(study, s, X, meta_arr, frames, ax)
+        if row is not None:
+            rows.append(row)
+    if len(rows) < 2:
+        return NAN, rows
+    return rows[-1]["rotation_deg"] - rows[0]["rotation_deg"], rows
+
+
+def _fitted_sections(surfaces: dict | None) -> dict[tuple, tuple]:
+    """(family, index, slice, frame) -> (SplineData, points) of every fitted SA section of
+    ``surfaces`` ({frame: {(family, index): TagSurface}})."""
+    fitted: dict[tuple, tuple] = {}
     for f, surfs in (surfaces or {}).items():
         for (fam, idx), ts in surfs.items():
-            if fam in ("sa1", "sa2"):
-                for sec in ts.sections:
-                    if sec.ctrl is not None:
-                        fitted[(fam, idx, sec.slice, f)] = (
-                            SplineData(3, sec.knots, sec.ctrl, np.ones(len(sec.ctrl))), sec.points)
+            if fam not in ("sa1", "sa2"):
+                continue
+            for sec in ts.sections:
+                if sec.ctrl is not None:
+                    fitted[(fam, idx, sec.slice, f)] = (
+                        SplineData(3, sec.knots, sec.ctrl, np.ones(len(sec.ctrl))), sec.points)
+    return fitted
+
+
+def _sa_tag_lines(study: Study, frames: tuple[int, int],
+                  exclude: set | frozenset) -> dict[tuple, np.ndarray]:
+    """(family, index, slice, frame) -> (n, 3) points of every SA tag line at ``frames``
+    that is not excluded."""
     lines = {}
-    for f in (ed_frame, es_frame):
+    for f in frames:
         for t in study.tags_at(f):
             if t.family in ("sa1", "sa2") and (t.family, t.index, t.slice, f) not in exclude:
                 lines[(t.family, t.index, t.slice, f)] = t.points
-    n_stack = stacking_direction(study)[0]
-    ax = (apex - base) / np.linalg.norm(apex - base)
-    curves, raw = [], []
+    return lines
+
+
+def _crossing_pairs(lines: dict, fitted: dict, slices: list[str],
+                    frames: tuple[int, int]) -> tuple[list, list, list, list]:
+    """The (sa1, sa2) line pairs whose crossings give a slice's rotation: every pair of a
+    slice present at both ``frames``, each line's curve fitted once.
+
+    Parameters
+    ----------
+    lines : dict
+        (family, index, slice, frame) -> (n, 3) points (:func:`_sa_tag_lines`).
+    fitted : dict
+        (family, index, slice, frame) -> (curve, points) already fitted
+        (:func:`_fitted_sections`); the other lines are fitted here.
+    slices : list of str
+        The slices, in stack order.
+    frames : (int, int)
+        ED and ES.
+
+    Returns
+    -------
+    curves, raw : list
+        Each line's curve and its points (float (n, 3)).
+    pairs : list of (int, int)
+        Indices into ``curves`` of the two lines that cross.
+    meta : list of (slice, sa1 index, sa2 index, frame)
+        One per pair.
+    """
+    curves: list = []
+    raw: list[np.ndarray] = []
     pairs, meta = [], []
-    slices = sorted({k[2] for k in lines}, key=lambda s: float(study.slice_plane(s).position @ n_stack))
     pos: dict[tuple, int] = {}
 
     def line_id(key):
@@ -273,41 +350,57 @@ def twist_2d(study: Study, ed_frame: int, es_frame: int, apex: np.ndarray, base:
     for s in slices:
         i_s = sorted({k[1] for k in lines if k[0] == "sa1" and k[2] == s})
         j_s = sorted({k[1] for k in lines if k[0] == "sa2" and k[2] == s})
-        for i in i_s:
-            for j in j_s:
-                if all((fam, x, s, f) in lines for fam, x in (("sa1", i), ("sa2", j))
-                       for f in (ed_frame, es_frame)):
-                    for f in (ed_frame, es_frame):
-                        pairs.append((line_id(("sa1", i, s, f)), line_id(("sa2", j, s, f))))
-                        meta.append((s, i, j, f))
-    if not pairs:
-        return NAN, []
-    X = curve_crossings(curves, raw, np.asarray(pairs, int))
-    meta_arr = np.array([(m[0], m[3]) for m in meta], dtype=object)
-    rows = []
-    for s in slices:
-        sel = {f: np.flatnonzero((meta_arr[:, 0] == s) & (meta_arr[:, 1] == f))
-               for f in (ed_frame, es_frame)}
-        if len(sel[ed_frame]) == 0:
-            continue
-        X0, X1 = X[sel[ed_frame]], X[sel[es_frame]]
-        ok = np.all(np.isfinite(X0), 1) & np.all(np.isfinite(X1), 1)
-        if ok.sum() < MIN_LEVEL_POINTS:
-            continue
-        plane = study.slice_plane(s)
-        n = plane.normal if plane.normal @ ax > 0 else -plane.normal
-        e1 = plane.row_cosine
-        e2 = np.cross(n, e1)
-        ang = {}
-        for f, Xf in ((ed_frame, X0), (es_frame, X1)):
-            c = _slice_centroid(study, s, f, Xf[ok].mean(axis=0))
-            d = Xf[ok] - c
-            ang[f] = np.arctan2(d @ e2, d @ e1)
-        rot = _wrap_deg(np.degrees(ang[es_frame] - ang[ed_frame]))
-        rows.append({"slice": s, "rotation_deg": float(rot.mean()), "n_crossings": int(ok.sum())})
-    if len(rows) < 2:
-        return NAN, rows
-    return rows[-1]["rotation_deg"] - rows[0]["rotation_deg"], rows
+        for i, j in itertools.product(i_s, j_s):
+            if all((fam, x, s, f) in lines for fam, x in (("sa1", i), ("sa2", j)) for f in frames):
+                for f in frames:
+                    pairs.append((line_id(("sa1", i, s, f)), line_id(("sa2", j, s, f))))
+                    meta.append((s, i, j, f))
+    return curves, raw, pairs, meta
+
+
+def _slice_rotation(study: Study, s: str, X: np.ndarray, meta_arr: np.ndarray,
+                    frames: tuple[int, int], ax: np.ndarray) -> dict | None:
+    """One slice's mean rotation ED -> ES of its tag crossings about its centroid.
+
+    Parameters
+    ----------
+    study : Study
+    s : str
+        The slice.
+    X : (m, 3) float ndarray
+        The crossings of every pair, mm (NaN where two lines do not cross).
+    meta_arr : (m, 2) object ndarray
+        Each pair's (slice, frame).
+    frames : (int, int)
+        ED and ES.
+    ax : (3,) float ndarray
+        The unit long axis, base to apex.
+
+    Returns
+    -------
+    dict or None
+        {"slice", "rotation_deg", "n_crossings"}; None with fewer than
+        MIN_LEVEL_POINTS crossings found at both frames.
+    """
+    ed_frame, es_frame = frames
+    sel = {f: np.flatnonzero((meta_arr[:, 0] == s) & (meta_arr[:, 1] == f)) for f in frames}
+    if len(sel[ed_frame]) == 0:
+        return None
+    X0, X1 = X[sel[ed_frame]], X[sel[es_frame]]
+    ok = np.all(np.isfinite(X0), 1) & np.all(np.isfinite(X1), 1)
+    if ok.sum() < MIN_LEVEL_POINTS:
+        return None
+    plane = study.slice_plane(s)
+    n = plane.normal if plane.normal @ ax > 0 else -plane.normal
+    e1 = plane.row_cosine
+    e2 = np.cross(n, e1)
+    ang = {}
+    for f, Xf in ((ed_frame, X0), (es_frame, X1)):
+        c = _slice_centroid(study, s, f, Xf[ok].mean(axis=0))
+        d = Xf[ok] - c
+        ang[f] = np.arctan2(d @ e2, d @ e1)
+    rot = _wrap_deg(np.degrees(ang[es_frame] - ang[ed_frame]))
+    return {"slice": s, "rotation_deg": float(rot.mean()), "n_crossings": int(ok.sum())}
 
 
 # ---------------------------------------------------------------- results
@@ -535,26 +628,21 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
     qc : bool
         Run the tag-jump QC (:func:`tag_qc`) on every tagged frame and fill
         ``Tag QC flags`` (the number of flagged lines).
+    over_time : bool
+        Also twist and LS at every tagged frame (relative to ED).
+    threshold : float
+        The QC's departure (tag spacings) beyond which a line is flagged.
     exclude_flagged : bool
         Leave the flagged lines out of the tag surfaces the material points
         are computed from (with ``qc``).
-    over_time : bool
-        Also twist and LS at every tagged frame (relative to ED).
 
-    Returns a :class:`TagMetrics` (a mapping of the columns, with the level
-    table, flags and notes as attributes). A study without tag lines gives
-    NaN columns and one note.
+    Returns
+    -------
+    TagMetrics
+        A mapping of the columns, with the level table, flags and notes as
+        attributes. A study without tag lines gives NaN columns and one note.
     """
-    if not isinstance(study, Study) and hasattr(study, "study"):
-        model = study
-        study = model.study
-        ed_frame = model.ed_frame if ed_frame is None else ed_frame
-        es_frame = model.es_frame if es_frame is None else es_frame
-        if long_axis is None and study.tags:
-            try:
-                long_axis = model.long_axis()
-            except (KeyError, AttributeError, TypeError, CardioNurbsError):
-                long_axis = None
+    study, ed_frame, es_frame, long_axis = _model_defaults(study, ed_frame, es_frame, long_axis)
     if not study.tags:
         return _empty("no tag lines: tag metrics not measured")
     ed_frame, es_frame = resolve_frames(study, ed_frame, es_frame)
@@ -567,16 +655,8 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
     notes: list[str] = []
     bad: set = set()
     if qc:
-        flags = tag_qc(study, threshold, frames=study.tagged_frames, long_axis=(apex, base),
-                       surfaces=surfaces)
-        bad = {(fl.family, fl.index, fl.slice, fl.frame) for fl in flags}
-        if exclude_flagged and any(b[3] in surfaces for b in bad):
-            for f in frames:
-                ex = {(b[0], b[1], b[2]) for b in bad if b[3] == f}
-                if ex:
-                    surfaces[f] = build_tag_surfaces(study, f, (apex, base), exclude=ex)
-            notes.append(f"{sum(b[3] in surfaces for b in bad)} flagged tag line(s) left out of "
-                         "the tag surfaces")
+        flags, bad, notes = _flag_and_leave_out(study, threshold, (apex, base), surfaces,
+                                                frames, exclude_flagged)
     mp = material_points(study, ed_frame, es_frame, frames=frames, long_axis=(apex, base),
                          surfaces=surfaces)
     notes += list(mp.notes)
@@ -595,13 +675,107 @@ def tag_metrics(study: Any, ed_frame: int | None = None, es_frame: int | None = 
     cols["Twist 2D (deg)"] = t2d
     if qc:
         cols["Tag QC flags"] = float(len(flags))
-    times = {}
-    if over_time:
-        for f in frames:
-            lv = level_table(mp, f, apex, base, radius, tagged_stack_range(study, ed_frame, f))
-            t = twist_from_levels(lv)
-            times[f] = {"Twist (deg)": t["Twist (deg)"], "LS (%)": t["LS (%)"]}
+    times = _twist_over_time(study, mp, frames, ed_frame, (apex, base), radius) if over_time else {}
     return TagMetrics(cols, levels, flags, rows2d, notes, times, mp, surfaces)
+
+
+def _model_defaults(study: Any, ed_frame: int | None, es_frame: int | None,
+                    long_axis: tuple | None) -> tuple[Study, int | None, int | None, tuple | None]:
+    """The study, ED and ES frames and long axis of :func:`tag_metrics`: a model
+    (anything with a ``study``) lends its study, frames and long axis where not given.
+
+    Parameters
+    ----------
+    study : Study or BiventricularModel
+    ed_frame, es_frame : int, optional
+    long_axis : (apex, base centre), mm, optional
+
+    Returns
+    -------
+    (Study, int or None, int or None, tuple or None)
+        The long axis stays None when the model cannot give one.
+    """
+    if isinstance(study, Study) or not hasattr(study, "study"):
+        return study, ed_frame, es_frame, long_axis
+    model = study
+    study = model.study
+    ed_frame = model.ed_frame if ed_frame is None else ed_frame
+    es_frame = model.es_frame if es_frame is None else es_frame
+    if long_axis is None and study.tags:
+        try:
+            long_axis = model.long_axis()
+        except (KeyError, AttributeError, TypeError, CardioNurbsError):
+            long_axis = None
+    return study, ed_frame, es_frame, long_axis
+
+
+def _flag_and_leave_out(study: Study, threshold: float, long_axis: tuple, surfaces: dict,
+                        frames: list[int], exclude_flagged: bool
+                        ) -> tuple[list[TagFlag], set, list[str]]:
+    """The tag QC (:func:`tag_qc`) on every tagged frame; with ``exclude_flagged`` the
+    flagged lines are left out of the tag surfaces of ``frames`` (``surfaces`` rebuilt in
+    place).
+
+    Parameters
+    ----------
+    study : Study
+    threshold : float
+        Departure (tag spacings) beyond which a line is flagged.
+    long_axis : (apex, base), mm
+    surfaces : dict
+        Frame -> {(family, index): TagSurface}, updated in place.
+    frames : list of int
+        The frames measured.
+    exclude_flagged : bool
+
+    Returns
+    -------
+    flags : list of TagFlag
+    bad : set
+        (family, index, slice, frame) of the flagged lines.
+    notes : list of str
+        How many lines were left out (empty when none).
+    """
+    flags = tag_qc(study, threshold, frames=study.tagged_frames, long_axis=long_axis,
+                   surfaces=surfaces)
+    bad = {(fl.family, fl.index, fl.slice, fl.frame) for fl in flags}
+    notes: list[str] = []
+    if exclude_flagged and any(b[3] in surfaces for b in bad):
+        for f in frames:
+            ex = {(b[0], b[1], b[2]) for b in bad if b[3] == f}
+            if ex:
+                surfaces[f] = build_tag_surfaces(study, f, long_axis, exclude=ex)
+        notes.append(f"{sum(b[3] in surfaces for b in bad)} flagged tag line(s) left out of "
+                     "the tag surfaces")
+    return flags, bad, notes
+
+
+def _twist_over_time(study: Study, mp: MaterialPoints, frames: list[int], ed_frame: int,
+                     long_axis: tuple, radius) -> dict[int, dict[str, float]]:
+    """Frame -> {"Twist (deg)", "LS (%)"} relative to ED at every one of ``frames``.
+
+    Parameters
+    ----------
+    study : Study
+    mp : MaterialPoints
+        The material points of the frames.
+    frames : list of int
+    ed_frame : int
+    long_axis : (apex, base), mm
+    radius : callable or None
+        The ED epicardial radius profile (:func:`epicardial_radius_profile`).
+
+    Returns
+    -------
+    dict
+    """
+    apex, base = long_axis
+    times = {}
+    for f in frames:
+        lv = level_table(mp, f, apex, base, radius, tagged_stack_range(study, ed_frame, f))
+        t = twist_from_levels(lv)
+        times[f] = {"Twist (deg)": t["Twist (deg)"], "LS (%)": t["LS (%)"]}
+    return times
 
 
 # ---------------------------------------------------------------- export

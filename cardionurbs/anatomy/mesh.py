@@ -31,7 +31,7 @@ if TYPE_CHECKING:    # trimesh (~0.3 s to import) only where meshes are made
     import trimesh
 
 
-@dataclass(frozen=True)
+@dataclass
 class Plane:
     """An oriented plane: points x with (x − origin)·normal = 0; ``normal`` (3,) unit,
     pointing to the side that is KEPT (the apical side of a valve plane).
@@ -49,8 +49,8 @@ class Plane:
 
     def __post_init__(self) -> None:
         n = np.asarray(self.normal, dtype=float)
-        object.__setattr__(self, "origin", np.asarray(self.origin, dtype=float))
-        object.__setattr__(self, "normal", n / np.linalg.norm(n))
+        self.origin = np.asarray(self.origin, dtype=float)
+        self.normal = n / np.linalg.norm(n)
 
     def signed_distance(self, points: np.ndarray) -> np.ndarray:
         """Signed distance (mm) of (n, 3) points; positive on the kept side.

@@ -20,18 +20,21 @@ import manifold3d
 import numpy as np
 
 from cardionurbs import nurbs
+from cardionurbs.anatomy import handback, serialise
 from cardionurbs.anatomy import mesh as meshing
+from cardionurbs.anatomy import residuals as fit_residuals
 from cardionurbs.anatomy.cycle import CycleCheck, check_curve, interpolate, support_sections
 from cardionurbs.anatomy.mesh import Plane
 from cardionurbs.anatomy.outflow import OutflowTract, outflow_tracts, tract_solid
-from cardionurbs.anatomy.sections import (MYO_CONSERVED_BOUND, SURFACES, FrameGeometry, Section,
+from cardionurbs.anatomy.residuals import RESIDUAL_COLUMNS, surface_distance  # noqa: F401 (re-exported)
+from cardionurbs.anatomy.sections import (MYO_CONSERVED_BOUND, SURFACES, FrameGeometry,
                                           frame_geometry, labelled_myocardium_ratio,
                                           labels_do_not_conserve, moves_with_lv)
 from cardionurbs.anatomy.refine import refine_surface
-from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface, free_wall_points
+from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface
+from cardionurbs.cache import LazyFrames, memoized
 from cardionurbs.errors import CardioNurbsError, ReconstructionError
 from cardionurbs.geometry import long_axis, polygon_centroid
-from cardionurbs.io.modelfile import unpack
 from cardionurbs.median import median
 from cardionurbs.study import Study
 
@@ -40,9 +43,6 @@ if TYPE_CHECKING:    # trimesh (~0.3 s to import) only where meshes are made, pa
     import trimesh
 
 MESHES = ("lv_cavity", "rv_cavity", "lv_myocardium", "rv_myocardium")
-#: columns of :meth:`BiventricularModel.residual_table` (and residuals.csv)
-RESIDUAL_COLUMNS = ("structure", "frame", "slice", "view", "n_points", "mean_mm", "max_mm",
-                    "mean_px", "max_px")
 #: default tessellation (around, along) of each surface before the booleans
 RESOLUTION = (56, 36)
 
@@ -77,50 +77,15 @@ def _reference_direction(study: Study, geo: FrameGeometry) -> np.ndarray:
     return d / np.linalg.norm(d)
 
 
-class LazyFrames(Mapping):
-    """A read-only mapping frame -> value that computes each value on first access.
-
-    Lets a model of many frames build only what is asked for: measuring needs
-    every frame's LV cavity (to find ED and ES) but the other surfaces only at
-    ED and ES; exporting asks for everything.
-    """
-
-    def __init__(self, frames, compute) -> None:
-        self._frames = list(frames)
-        self._compute = compute
-        self._cache: dict = {}
-
-    def __getitem__(self, frame):
-        if frame not in self._frames:
-            raise KeyError(frame)
-        if frame not in self._cache:
-            self._cache[frame] = self._compute(frame)
-        return self._cache[frame]
-
-    def __iter__(self):
-        return iter(self._frames)
-
-    def __len__(self) -> int:
-        return len(self._frames)
-
-    @property
-    def computed(self) -> list:
-        """Frames computed so far."""
-        return [f for f in self._frames if f in self._cache]
-
-    def provide(self, frame, value) -> None:
-        """Store the value of one frame computed elsewhere (a worker process of
-        :func:`cardionurbs.parallel.fork_map`), unless this mapping has one."""
-        if frame not in self._frames:
-            raise KeyError(frame)
-        self._cache.setdefault(frame, value)
-
-
 class BiventricularModel:
     """NURBS surfaces of the ventricles per frame, with meshes, volumes and residuals.
 
     Per-frame attributes are mappings frame -> value, computed on first access
-    (:class:`LazyFrames`) when the model is reconstructed from a study.
+    (:class:`cardionurbs.cache.LazyFrames`) when the model is reconstructed from a study;
+    solids, meshes and the fit residuals are memoized methods (:mod:`cardionurbs.cache`).
+    The residual tables are made by :mod:`cardionurbs.anatomy.residuals`, the dict form by
+    :mod:`cardionurbs.anatomy.serialise`, and what worker processes build for the model
+    comes back through :mod:`cardionurbs.anatomy.handback`.
 
     Attributes
     ----------
@@ -182,11 +147,6 @@ class BiventricularModel:
         self.refine, self.anchor_weight = bool(refine), float(anchor_weight)
         self.warnings = list(warnings or [])
         self.resolution = tuple(resolution)
-        self._meshes: dict[int, dict[str, trimesh.Trimesh]] = {}
-        self._solid_cache: dict[tuple[int, str], object] = {}
-        self._fits: dict[tuple[int, str], SurfaceFit] = {}
-        self._clipped_ml: dict[int, float] = {}     # lv_cavity_volume of frames without solids
-        self._contour_counts: dict[int, int] = {}   # LV endocardial contours of a worker's frames
         self._in_time: dict[int, dict] = {}         # a worker's frames' sections interpolated in time
         self._warned: set[tuple] = set()    # (frame, what) whose warnings a worker process gave
         #: each frame's geometry from its own contours; :attr:`geometry` adds the sections
@@ -248,7 +208,8 @@ class BiventricularModel:
             ed, es = int(ed_es[0]), int(ed_es[1])
         else:
             if isinstance(self.surfaces, LazyFrames):
-                lv = self._corrected_cavity_volumes(self._unrefined_cavity_volumes(jobs, progress))
+                lv = self._corrected_cavity_volumes(
+                    handback.unrefined_cavity_volumes(self, jobs, progress))
             else:
                 lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
             self.lv_volume_by_frame = lv      # the per-frame LV cavity volumes (mL), raw
@@ -264,62 +225,6 @@ class BiventricularModel:
                 es = int(study.es_frame)
         return ed, es
 
-    def _unrefined_cavity_volumes(self, jobs: int | None = 1, progress=None) -> dict[int, float]:
-        """Every frame's :meth:`lv_cavity_volume_unrefined` (mL), which ED and ES are found
-        with; ``progress(k, n)`` after each frame.
-
-        With worker processes (``jobs``, :func:`cardionurbs.parallel.fork_map`) each worker
-        also makes its frames' LA-corrected LV cavity volume (:meth:`lv_cavity_volume`
-        asks for it next: the volume curve and the filling rates) and hands back the two
-        volumes and the warnings the frame raised, which are added here in frame order.
-        Nothing else comes back: the surfaces this process needs later (ED and ES) are
-        built here again, from the study, so that they are the serial loop's to the last
-        bit (a section's points unpickled are contiguous copies of what were views, and
-        numpy sums those in another order), and their warnings, already recorded, are not
-        added twice. A frame whose corrected volume fails leaves it to be made (and fail)
-        where the serial order makes it."""
-        from cardionurbs.parallel import fork_map, worker_count
-        n = len(self.frames)
-        if worker_count(jobs, n) == 0:
-            lv = {}
-            for k, f in enumerate(self.frames):
-                lv[f] = self._unrefined_or_nan(f)
-                if progress is not None:
-                    progress(k + 1, n)
-            return lv
-
-        def frame_volumes(f: int) -> dict:
-            n_warnings = len(self.warnings)
-            out = {"unrefined": self._unrefined_or_nan(f)}
-            if f in self.geometry.computed:
-                out["contours"] = self._lv_contour_count(f)
-                out["in_time"] = self.geometry[f].in_time
-            try:
-                out["refined"] = self._clipped_cavity_ml(f, self._surface(f, "lv_endo"))
-            except CardioNurbsError:
-                pass
-            out["warnings"] = self.warnings[n_warnings:]
-            return out
-
-        done = [0]
-
-        def told(i: int, result: dict) -> None:
-            done[0] += 1
-            if progress is not None:
-                progress(done[0], n)
-        results = fork_map(frame_volumes, self.frames, jobs=jobs, on_result=told)
-        lv = {}
-        for f, r in zip(self.frames, results):
-            lv[f] = r["unrefined"]
-            if "refined" in r:
-                self._clipped_ml[f] = r["refined"]
-            if "contours" in r:
-                self._contour_counts[f] = r["contours"]
-            self._in_time[f] = r.get("in_time", {})
-            self.warnings += r["warnings"]
-            self._warned |= {(f, "geometry"), (f, "lv_endo", False)}
-        return lv
-
     def _unrefined_or_nan(self, frame: int) -> float:
         """:meth:`lv_cavity_volume_unrefined`, NaN with a warning when the frame's LV
         endocardium cannot be built (its neighbours then support it, :mod:`.cycle`)."""
@@ -333,9 +238,9 @@ class BiventricularModel:
     def _lv_contour_counts(self, lv: dict[int, float]) -> dict[int, int]:
         """Per built frame, the SA sections and LA contours its LV endocardium comes from
         (the evidence of an incomplete frame, :func:`cardionurbs.anatomy.cycle.check_curve`)."""
-        return {f: (self._contour_counts[f] if f in self._contour_counts
-                    else self._lv_contour_count(f)) for f, v in lv.items() if math.isfinite(v)}
+        return {f: self._lv_contour_count(f) for f, v in lv.items() if math.isfinite(v)}
 
+    @memoized
     def _lv_contour_count(self, frame: int) -> int:
         """SA sections + LA contours of one frame's LV endocardium, negative when a contour
         of it was left out (a partial tracing): such a frame counts as incomplete."""
@@ -354,9 +259,7 @@ class BiventricularModel:
         self.frames = [f for f in self.frames if f not in frames]
         for lazy in vars(self).values():
             if isinstance(lazy, LazyFrames):
-                lazy._frames = [f for f in lazy._frames if f not in frames]
-                for f in frames:
-                    lazy._cache.pop(f, None)
+                lazy.drop(frames)
 
     def _corrected_cavity_volumes(self, unrefined: dict[int, float]) -> dict[int, float]:
         """Every frame's LA-corrected LV cavity volume (mL; what the volume curve reports,
@@ -366,13 +269,10 @@ class BiventricularModel:
             if not math.isfinite(unrefined[f]):
                 lv[f] = unrefined[f]
                 continue
-            if f not in self._clipped_ml:
-                try:
-                    self._clipped_ml[f] = self._clipped_cavity_ml(f, self._surface(f, "lv_endo"))
-                except CardioNurbsError:
-                    lv[f] = unrefined[f]
-                    continue
-            lv[f] = self._clipped_ml[f]
+            try:
+                lv[f] = self._clipped_lv_ml(f)
+            except CardioNurbsError:
+                lv[f] = unrefined[f]
         return lv
 
     @property
@@ -443,22 +343,19 @@ class BiventricularModel:
     def _outflow(self, frame: int) -> dict[str, OutflowTract]:
         return outflow_tracts(self.study, self.geometry[frame])
 
+    @memoized
     def _tract_part(self, frame: int, structure: str):
         """The outflow tube of one surface trimmed to its tract (cached; None without one):
         the apical side of the outflow valve plane (the RV epicardial tube: of the
         pulmonary plane of the endocardial one) and the basal side of the body's valve
         plane, overlapping the body by 0.01 mm so that the union has no coplanar faces
         (docs/metrics.md, Cavities and walls)."""
-        key = (frame, "tract", structure)
-        if key not in self._solid_cache:
-            tracts = self.outflow[frame]
-            t = tracts.get(structure)
-            m = None
-            if t is not None:
-                valve = tracts.get("rv_endo", t).valve if structure == "rv_epi" else t.valve
-                m = tract_solid(t, valve, frame=frame)
-            self._solid_cache[key] = m
-        return self._solid_cache[key]
+        tracts = self.outflow[frame]
+        t = tracts.get(structure)
+        if t is None:
+            return None
+        valve = tracts.get("rv_endo", t).valve if structure == "rv_epi" else t.valve
+        return tract_solid(t, valve, frame=frame)
 
     def _structures(self, frame: int) -> list[str]:
         """Surfaces that frame's contours allow (SA contours on >= 2 slices)."""
@@ -470,19 +367,20 @@ class BiventricularModel:
         ``refined``: corrected towards the LA contours (LV surfaces, when enabled)."""
         refined = refined and self.refine and structure in ("lv_endo", "lv_epi") \
             and bool(self.geometry[frame].la_points.get(structure))
-        key = (frame, structure, refined)
-        if key not in self._fits:
-            if refined:
-                base = self.fit(frame, structure, refined=False)
-                f = dataclasses.replace(base, surface=self._refined(self.geometry[frame], structure,
-                                                                    base.surface), warnings=[])
-            else:
-                geo = self.geometry[frame]
-                f = build_surface(geo, structure, geo.reference, tol_px=self.tol_px)
-                if key not in self._warned:
-                    self.warnings += f.warnings
-            self._fits[key] = f
-        return self._fits[key]
+        return self._fit(frame, structure, refined)
+
+    @memoized
+    def _fit(self, frame: int, structure: str, refined: bool) -> SurfaceFit:
+        """:meth:`fit` once ``refined`` says whether the refinement applies."""
+        if refined:
+            base = self._fit(frame, structure, False)
+            return dataclasses.replace(base, surface=self._refined(self.geometry[frame], structure,
+                                                                   base.surface), warnings=[])
+        geo = self.geometry[frame]
+        f = build_surface(geo, structure, geo.reference, tol_px=self.tol_px)
+        if (frame, structure, refined) not in self._warned:
+            self.warnings += f.warnings
+        return f
 
     def lv_cavity_volume_unrefined(self, frame: int) -> float:
         """LV cavity volume (mL) of the loft through the SA contours alone: what ED and
@@ -511,11 +409,15 @@ class BiventricularModel:
         (and any frame whose solids exist) from the checked manifold solid; at the other
         frames (the volume curve, filling rates) from the clipped tessellation of the same
         surface, which gives the same volume to rounding without building the solid."""
-        if frame in (self.ed_frame, self.es_frame) or (frame, "lv_cavity") in self._solid_cache:
+        if frame in (self.ed_frame, self.es_frame) or frame in self.lv_cavity_solid:
             return meshing.volume_ml(self.lv_cavity_solid(frame))
-        if frame not in self._clipped_ml:           # the filling rates and the volume curve ask
-            self._clipped_ml[frame] = self._clipped_cavity_ml(frame, self._surface(frame, "lv_endo"))
-        return self._clipped_ml[frame]
+        return self._clipped_lv_ml(frame)           # the filling rates and the volume curve ask
+
+    @memoized
+    def _clipped_lv_ml(self, frame: int) -> float:
+        """The LV cavity volume (mL) of a frame without solids (:meth:`_clipped_cavity_ml` of
+        its LV endocardium; cached, or given by a worker process)."""
+        return self._clipped_cavity_ml(frame, self._surface(frame, "lv_endo"))
 
     def _refined(self, geo: FrameGeometry, structure: str, surface):
         """The surface corrected towards the LA contour points on the apical side of the
@@ -584,9 +486,9 @@ class BiventricularModel:
             p = g_es.base_planes[side]
             g_es.base_planes[side] = Plane(p.origin - shift * p.normal, p.normal)
         self.base_shift_mm[es] = shift
-        for key in [k for k in self._solid_cache if k[0] == es and k[1] not in SURFACES]:
-            del self._solid_cache[key]
-        self._meshes.pop(es, None)
+        for memo in (self.lv_cavity_solid, self.solids, self._tract_part):
+            memo.forget_where(lambda k: k[0] == es)
+        self.meshes.forget(es)
 
     def _stationary_epicardial_apex(self, g_ed: FrameGeometry, g_es: FrameGeometry) -> None:
         """The LV epicardial apex of a taper-closed surface at ES is put at the level found
@@ -607,10 +509,9 @@ class BiventricularModel:
         c = polygon_centroid(g_es.sections["lv_epi"][-1].points, n)
         g_es.apex["lv_epi"] = c + (level - float(c @ n)) * n
         es = g_es.frame
-        for key in [k for k in self._fits if k[0] == es and k[1] == "lv_epi"]:
-            del self._fits[key]
-        for key in ((es, "lv_epi"), (es, None)):
-            self._solid_cache.pop(key, None)
+        self._fit.forget_where(lambda k: k[:2] == (es, "lv_epi"))
+        self._solid.forget(es, "lv_epi")
+        self.solids.forget(es)
 
     # ------------------------------------------------------------- geometry
     def long_axis(self) -> tuple[np.ndarray, np.ndarray]:
@@ -633,15 +534,13 @@ class BiventricularModel:
                          valve_origin=None if valve is None else valve.origin,
                          where=f"frame {fr}")
 
+    @memoized
     def _solid(self, frame: int, structure: str):
         """manifold3d solid bounded by one surface, capped beyond its valve plane but not
         yet trimmed by it (cached)."""
-        key = (frame, structure)
-        if key not in self._solid_cache:
-            surf = self._surface(frame, structure)
-            v, f = nurbs.tessellate(surf, *self.resolution, volume_corrected=True)
-            self._solid_cache[key] = meshing.solid(v, f, what=structure, frame=frame)
-        return self._solid_cache[key]
+        v, f = nurbs.tessellate(self._surface(frame, structure), *self.resolution,
+                                volume_corrected=True)
+        return meshing.solid(v, f, what=structure, frame=frame)
 
     def _trim(self, m, frame: int, side: str, shift_mm: float = 0.0, what: str = ""):
         """Keep the apical side of a valve plane (moved ``shift_mm`` towards the base)."""
@@ -654,16 +553,15 @@ class BiventricularModel:
                                       "of the valve plane")
         return out
 
+    @memoized
     def lv_cavity_solid(self, frame: int):
         """The LV cavity of one frame: LV endocardial solid trimmed by the mitral plane,
-        united with the LVOT lumen where the frame has one (:meth:`_tract_part`)."""
-        key = (frame, "lv_cavity")
-        if key not in self._solid_cache:
-            m = self._trim(self._solid(frame, "lv_endo"), frame, "lv", what="lv_cavity")
-            lvot = self._tract_part(frame, "lv_endo")
-            self._solid_cache[key] = m if lvot is None else m + lvot
-        return self._solid_cache[key]
+        united with the LVOT lumen where the frame has one (:meth:`_tract_part`; cached)."""
+        m = self._trim(self._solid(frame, "lv_endo"), frame, "lv", what="lv_cavity")
+        lvot = self._tract_part(frame, "lv_endo")
+        return m if lvot is None else m + lvot
 
+    @memoized
     def solids(self, frame: int) -> dict:
         """manifold3d solids of one frame keyed like :meth:`meshes` (cached)::
 
@@ -678,8 +576,6 @@ class BiventricularModel:
         beyond the mitral plane for the same reason when the two valve planes
         coincide (SA-only input).
         """
-        if (frame, None) in self._solid_cache:
-            return self._solid_cache[(frame, None)]
         if frame not in self.surfaces:
             raise ReconstructionError(f"frame {frame} is not reconstructed "
                                       f"(reconstructed: {self.frames})")
@@ -713,9 +609,9 @@ class BiventricularModel:
             if m.status() != manifold3d.Error.NoError or m.is_empty():
                 raise ReconstructionError(f"{k}, frame {frame}: boolean result is empty or not "
                                           f"manifold ({m.status().name})")
-        self._solid_cache[(frame, None)] = out
         return out
 
+    @memoized
     def meshes(self, frame: int) -> dict[str, trimesh.Trimesh]:
         """Closed manifold meshes (scanner mm) of one frame, keyed lv_cavity,
         rv_cavity, lv_myocardium, rv_myocardium (those the surfaces allow); cached.
@@ -723,54 +619,54 @@ class BiventricularModel:
         See :meth:`solids` for the booleans. Each mesh is checked watertight with
         consistent outward winding; ReconstructionError names the mesh and frame
         on failure.
+
+        Parameters
+        ----------
+        frame : int
+            A reconstructed frame.
+
+        Returns
+        -------
+        dict of str to trimesh.Trimesh
+            Mesh name -> closed manifold mesh, scanner mm.
+
+        Raises
+        ------
+        ReconstructionError
+            A mesh that is not watertight with outward winding (naming the mesh and frame).
         """
-        if frame not in self._meshes:
-            self._meshes[frame] = {k: meshing.to_trimesh(m, what=k, frame=frame)
-                                   for k, m in self.solids(frame).items()}
-        return self._meshes[frame]
+        return {k: meshing.to_trimesh(m, what=k, frame=frame)
+                for k, m in self.solids(frame).items()}
 
     def mesh_arrays(self, frame: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """The closed meshes of :meth:`meshes` as plain (vertices (V, 3) mm, faces (F, 3))
         arrays, checked closed and outward (:func:`cardionurbs.anatomy.mesh.mesh_arrays`),
-        without trimesh: what is written to files (not cached)."""
-        if frame in self._meshes:
+        without trimesh: what is written to files (not cached).
+
+        Parameters
+        ----------
+        frame : int
+            A reconstructed frame.
+
+        Returns
+        -------
+        dict of str to (vertices (V, 3) ndarray of float, faces (F, 3) ndarray of int64)
+            Mesh name -> its arrays, mm.
+        """
+        if frame in self.meshes:
             return {k: (np.asarray(tm.vertices, float), np.asarray(tm.faces, np.int64))
-                    for k, tm in self._meshes[frame].items()}
+                    for k, tm in self.meshes(frame).items()}
         return {k: meshing.mesh_arrays(m, what=k, frame=frame)
                 for k, m in self.solids(frame).items()}
 
     def release(self, frame: int) -> None:
         """Forget the cached solids and meshes of one frame (its volumes and surfaces are
         kept): exporting every frame's meshes then holds one frame's at a time."""
-        self._meshes.pop(frame, None)
-        for key in [k for k in self._solid_cache if k[0] == frame]:
-            del self._solid_cache[key]
+        self.meshes.forget(frame)
+        for memo in (self._solid, self.lv_cavity_solid, self.solids, self._tract_part):
+            memo.forget_where(lambda k: k[0] == frame)
 
-    # ------------------------------------------------------------- worker processes
-    #: the per-frame mappings a worker process that built one frame's solids hands back
-    #: (:meth:`frame_results`); base planes, apex points and sections follow from geometry
-    HANDED_BACK = ("geometry", "outflow", "surfaces", "volumes")
-
-    def computed(self) -> dict[str, set]:
-        """Frames whose :data:`HANDED_BACK` values exist, per mapping (see :meth:`frame_results`)."""
-        return {k: set(getattr(self, k).computed) for k in self.HANDED_BACK
-                if isinstance(getattr(self, k), LazyFrames)}
-
-    def frame_results(self, frame: int, before: dict[str, set]) -> dict:
-        """The values of one frame computed since :meth:`computed` returned ``before``:
-        what a worker process (:func:`cardionurbs.parallel.fork_map`) that made the frame's
-        solids returns so that this model in the parent process, given them by
-        :meth:`adopt_frame_results`, is as if it had made them itself (solids and meshes
-        are not handed back: :meth:`release` drops them)."""
-        return {k: getattr(self, k)[frame] for k, done in before.items()
-                if frame not in done and frame in getattr(self, k).computed}
-
-    def adopt_frame_results(self, frame: int, results: dict) -> None:
-        """Store the values :meth:`frame_results` returned (those this model has are kept)."""
-        for k, value in results.items():
-            getattr(self, k).provide(frame, value)
-
-    # ------------------------------------------------------------- residuals
+    # ------------------------------------------------------------- residuals (anatomy.residuals)
     @cached_property
     def residuals(self) -> pd.DataFrame:
         """Distance of every contour point to its surface, every frame (see
@@ -783,63 +679,33 @@ class BiventricularModel:
         columns structure, frame, slice, view, n_points, mean_mm, max_mm, mean_px,
         max_px, for the given frames (default ED and ES); see :meth:`point_residuals`
         for which points and which distance. Empty for a model read back without its
-        study's contours. The same numbers without pandas: :meth:`residual_columns`."""
-        import pandas as pd
-        return pd.DataFrame(self.residual_columns(frames), columns=RESIDUAL_COLUMNS)
+        study's contours. The same numbers without pandas: :meth:`residual_columns`
+        (:func:`cardionurbs.anatomy.residuals.residual_table`).
+
+        Parameters
+        ----------
+        frames : iterable of int or None
+            The frames; None: ED and ES.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per contour; distances in mm and pixels.
+        """
+        return fit_residuals.residual_table(self.point_residual_arrays(frames))
 
     def residual_columns(self, frames=None) -> dict[str, np.ndarray]:
-        """The columns of :meth:`residual_table` as numpy arrays (no pandas): one row per
-        contour, i.e. per (structure, frame, slice, view) in the order the contours come,
-        points without a slice left out (as a pandas group-by leaves out a missing key).
-        ``mean_*``: the correctly rounded sum of the contour's distances over their count
-        (a pandas group-by mean, whose compensated sum can differ from it in the last
-        digit)."""
-        cols: dict[str, list] = {c: [] for c in RESIDUAL_COLUMNS}
-        for p in self.point_residual_arrays(frames):
-            keys: dict[tuple, int] = {}
-            group = np.empty(len(p["dist_mm"]), dtype=np.int64)
-            sl, vw = p["slice"], p["view"]
-            start = 0
-            for stop in [*np.flatnonzero((sl[1:] != sl[:-1]) | (vw[1:] != vw[:-1])) + 1, len(sl)]:
-                k = (sl[start], vw[start])         # one run of points of one contour
-                group[start:stop] = -1 if k[0] is None else keys.setdefault(k, len(keys))
-                start = stop
-            if not keys:
-                continue
-            n = np.bincount(group[group >= 0], minlength=len(keys))
-            for c, d in (("mm", p["dist_mm"]), ("px", p["dist_px"])):
-                cols[f"mean_{c}"].append(_grouped_fsum(d, group, len(keys)) / n)
-                mx = np.full(len(keys), -np.inf)
-                np.maximum.at(mx, group[group >= 0], d[group >= 0])
-                cols[f"max_{c}"].append(mx)
-            cols["structure"].append(np.full(len(keys), p["structure"], dtype=object))
-            cols["frame"].append(np.full(len(keys), p["frame"], dtype=np.int64))
-            cols["slice"].append(np.array([k[0] for k in keys], dtype=object))
-            cols["view"].append(np.array([k[1] for k in keys], dtype=object))
-            cols["n_points"].append(n.astype(np.int64))
-        empty = {"frame": np.int64, "n_points": np.int64, "structure": object, "slice": object,
-                 "view": object}
-        return {c: (np.concatenate(v) if v else np.array([], dtype=empty.get(c, float)))
-                for c, v in cols.items()}
+        """The columns of :meth:`residual_table` as numpy arrays, no pandas
+        (:func:`cardionurbs.anatomy.residuals.residual_columns`)."""
+        return fit_residuals.residual_columns(self.point_residual_arrays(frames))
 
     def point_residuals(self, frames=None) -> pd.DataFrame:
         """Every contour point's distance to the surface it was fitted by (mm and pixels of
         its image), at the given frames (default ED and ES): columns structure, frame,
-        slice, view, dist_mm, dist_px.
-
-        SA points are the contour points of each slice (for the RV, the free wall: the
-        septal part is the LV epicardium's); LA points are the LA contours. An RV point's
-        distance is to the boundary of the RV solids, which the RV surface and the LV
-        epicardium make together (RV cavity = RV endo − LV epi): the nearer of the two
-        surfaces, so that the septal run of an LA RV contour, which lies on the LV
-        epicardium, is measured where it lies. The same numbers without pandas:
+        slice, view, dist_mm, dist_px (:func:`cardionurbs.anatomy.residuals.point_residual_parts`
+        says which points and which distance). The same numbers without pandas:
         :meth:`point_residual_arrays`."""
-        import pandas as pd
-        cols = ["structure", "frame", "slice", "view", "dist_mm", "dist_px"]
-        parts = self.point_residual_arrays(frames)
-        if not parts:
-            return pd.DataFrame([], columns=cols)
-        return pd.concat([pd.DataFrame(p) for p in parts], ignore_index=True)[cols]
+        return fit_residuals.point_residuals(self.point_residual_arrays(frames))
 
     def point_residual_arrays(self, frames=None) -> list[dict]:
         """:meth:`point_residuals` as numpy arrays (cached), one dict per (frame, structure)
@@ -847,108 +713,52 @@ class BiventricularModel:
         ``view``, ``dist_mm``, ``dist_px``; [] without the study's contours."""
         if not self.study.contours:
             return []
-        frames, key = self._point_residuals_key(frames)
-        if key not in self._solid_cache:
-            self._solid_cache[key] = self._point_residuals(frames)
-        return [dict(p) for p in self._solid_cache[key]]
+        return [dict(p) for p in self._point_residuals(self._residual_frames(frames))]
 
-    def _point_residuals_key(self, frames=None) -> tuple[list, tuple]:
-        """(frames, their cache key) of :meth:`point_residual_arrays` (default ED and ES)."""
-        if frames is None:
-            frames = sorted({self.ed_frame, self.es_frame})
-        return frames, ("point_residuals", tuple(frames))
+    def _residual_frames(self, frames=None) -> tuple[int, ...]:
+        """The frames of :meth:`point_residual_arrays` (default ED and ES), as its key."""
+        return tuple(sorted({self.ed_frame, self.es_frame}) if frames is None else frames)
 
     def provide_point_residuals(self, parts: list[dict], frames=None) -> None:
         """Store :meth:`point_residual_arrays` computed elsewhere (a worker process of
         :func:`cardionurbs.parallel.fork_map`), unless this model has them."""
-        self._solid_cache.setdefault(self._point_residuals_key(frames)[1], [dict(p) for p in parts])
+        self._point_residuals.provide([dict(p) for p in parts], self._residual_frames(frames))
 
-    def _point_residuals(self, frames) -> list[dict]:
-        parts = []
-        for f in frames:
-            geo = self.geometry[f]
-            surfs = self.surfaces[f]
-            for s, surf in surfs.items():
-                items = [(sec.slice, "SA", free_wall_points(sec, geo.direction), _pixel_mm(sec.plane))
-                         for sec in self.sections[f].get(s, []) if sec.source_points is not None]
-                items += [(sl, "LA", pts, px) for sl, pts, px in
-                          zip(geo.la_slices.get(s, []), geo.la_points.get(s, []),
-                              geo.la_pixel_mm.get(s, []))]
-                if not items:
-                    continue
-                allp = np.concatenate([it[2] for it in items])
-                d = surface_distance(surf, allp)
-                if s.startswith("rv") and "lv_epi" in surfs:
-                    d = np.minimum(d, surface_distance(surfs["lv_epi"], allp))
-                tract = self.outflow[f].get(s)
-                if tract is not None:     # the outflow tract's wall is the surface there
-                    d = np.minimum(d, tract.distance(allp))
-                n = [len(it[2]) for it in items]
-                px = np.repeat([it[3] for it in items], n)
-                parts.append({
-                    "structure": s, "frame": f,
-                    "slice": np.repeat(np.array([it[0] for it in items], dtype=object), n),
-                    "view": np.repeat([it[1] for it in items], n), "dist_mm": d,
-                    "dist_px": d / px})
-        return parts
+    @memoized
+    def _point_residuals(self, frames: tuple[int, ...]) -> list[dict]:
+        return fit_residuals.point_residual_parts(self, frames)
 
-    # ------------------------------------------------------------- (de)serialise
+    # ------------------------------------------------------------- (de)serialise (anatomy.serialise)
     def to_dict(self) -> dict:
         """JSON-safe model: surfaces (NURBS), valve planes, apex points, SA sections, outflow
-        tracts (frames that have them), ED/ES."""
-        def arr(a):
-            return np.asarray(a, float).tolist()
-        return {
-            "format": "cardionurbs-model", "version": 1,
-            "subject": self.study.subject, "frames": self.frames,
-            "ed_frame": self.ed_frame, "es_frame": self.es_frame,
-            "heart_rate_bpm": self.study.heart_rate_bpm,
-            "resolution": list(self.resolution),
-            "surfaces": {str(f): {s: surf.to_dict() for s, surf in d.items()}
-                         for f, d in self.surfaces.items()},
-            "base_planes": {str(f): {k: p.to_dict() for k, p in d.items()}
-                            for f, d in self.base_planes.items()},
-            "apex_points": {str(f): {k: arr(p) for k, p in d.items()}
-                            for f, d in self.apex_points.items()},
-            "sections": {str(f): {s: [{"slice": sec.slice, "points": arr(sec.points)} for sec in secs]
-                                  for s, secs in d.items()} for f, d in self.sections.items()},
-            "outflow": {str(f): {s: t.to_dict() for s, t in self.outflow[f].items()}
-                        for f in self.frames if self.outflow[f]},
-            "landmarks": [{"name": lm.name, "frame": lm.frame, "index": lm.index,
-                           "point": arr(lm.point)} for lm in self.study.landmarks
-                          if lm.name in ("apex", "mitral")],
-            "warnings": self.warnings,
-        }
+        tracts (frames that have them), ED/ES (:func:`cardionurbs.anatomy.serialise.encode`).
+
+        Returns
+        -------
+        dict
+            The version-1 model dict (:mod:`cardionurbs.io.modelfile` writes it compactly).
+        """
+        return serialise.encode(self)
 
     @classmethod
     def from_dict(cls, d: dict, study: Study | None = None) -> "BiventricularModel":
         """Inverse of :meth:`to_dict` (the Study is reduced to subject, heart rate,
         ED/ES labels and the apex/mitral landmarks unless ``study`` is given); also reads
-        the compact version-2 dict of a model.json (:mod:`cardionurbs.io.modelfile`)."""
-        from cardionurbs.study import Landmark
-        d = unpack(d)
-        if study is None:
-            study = Study(subject=d["subject"], heart_rate_bpm=d.get("heart_rate_bpm"),
-                          ed_frame=d.get("ed_frame"), es_frame=d.get("es_frame"),
-                          landmarks=[Landmark(lm["name"], lm["frame"], lm["point"], lm["index"])
-                                     for lm in d.get("landmarks", [])])
-        surfaces = {int(f): {s: nurbs.NurbsSurface.from_dict(sd) for s, sd in dd.items()}
-                    for f, dd in d["surfaces"].items()}
-        planes = {int(f): {k: Plane.from_dict(p) for k, p in dd.items()}
-                  for f, dd in d["base_planes"].items()}
-        apex = {int(f): {k: np.asarray(p, float) for k, p in dd.items()}
-                for f, dd in d["apex_points"].items()}
-        sections = {int(f): {s: [Section(s, int(f), np.asarray(x["points"], float), slice=x["slice"])
-                                 for x in secs] for s, secs in dd.items()}
-                    for f, dd in d.get("sections", {}).items()}
-        ed_es = (d["ed_frame"], d["es_frame"]) if "ed_frame" in d and "es_frame" in d else None
-        outflow = {int(f): {s: OutflowTract.from_dict(td) for s, td in dd.items()}
-                   for f, dd in d.get("outflow", {}).items()}
-        m = cls(study, d["frames"], surfaces=surfaces, base_planes=planes, apex_points=apex,
-                outflow=outflow,
-                sections=sections, warnings=d.get("warnings"), ed_es=ed_es,
-                resolution=tuple(d.get("resolution", RESOLUTION)))
-        return m
+        the compact version-2 dict of a model.json (:mod:`cardionurbs.io.modelfile`;
+        :func:`cardionurbs.anatomy.serialise.decode`).
+
+        Parameters
+        ----------
+        d : dict
+            A model dict (version 1, or the compact version 2 of a model.json).
+        study : Study or None
+            The study the model was reconstructed from; None: a reduced one.
+
+        Returns
+        -------
+        BiventricularModel
+        """
+        return cls(**serialise.decode(d, study))
 
 
 def _every(points: np.ndarray, spacing_mm: float) -> np.ndarray:
@@ -962,30 +772,6 @@ def _every_index(points: np.ndarray, spacing_mm: float) -> slice:
         return slice(None)
     step = median(np.linalg.norm(np.diff(points, axis=0), axis=1)) or spacing_mm
     return slice(None, None, max(1, int(round(spacing_mm / step))))
-
-
-def _grouped_fsum(x: np.ndarray, group: np.ndarray, n_groups: int) -> np.ndarray:
-    """Per group, the correctly rounded sum of ``x`` (:func:`math.fsum`; ``group`` -1:
-    left out)."""
-    keep = np.flatnonzero(group >= 0)
-    order = keep[np.argsort(group[keep], kind="stable")]
-    bounds = np.cumsum(np.bincount(group[keep], minlength=n_groups))[:-1]
-    return np.array([math.fsum(part) for part in np.split(np.asarray(x, float)[order], bounds)])
-
-
-def _pixel_mm(plane) -> float:
-    return float(np.mean(plane.pixel_spacing)) if plane is not None else 1.0
-
-
-def surface_distance(surface, points: np.ndarray) -> np.ndarray:
-    """Distance (mm) of each point to a NURBS surface (closest-point projection)."""
-    res = nurbs.closest_points(surface, np.asarray(points, float))
-    if isinstance(res, tuple):
-        res = res[-1]
-    res = np.asarray(res, float)
-    if res.ndim == 2:  # closest points returned
-        return np.linalg.norm(res - points, axis=1)
-    return res
 
 
 def reconstruct(study: Study, *, frames: list[int] | None = None, tol_px: float = 1.0,

@@ -25,6 +25,7 @@ from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
 from cardionurbs.anatomy.mesh import Plane
+from cardionurbs.cache import attached
 from cardionurbs.errors import ReconstructionError
 from cardionurbs.geometry import (fit_plane, in_plane_basis, long_axis, points_in_polygon,
                                   polygon_area, polygon_centroid, stack_normal)
@@ -607,15 +608,9 @@ def stacking_direction(study: Study, frame: int | None = None) -> tuple[np.ndarr
     cardionurbs.errors.ReconstructionError
         The study has no SA image plane.
     """
-    lists = (study.images, study.landmarks, study.contours)
-    token = tuple((id(x), len(x)) for x in lists)
-    cache = study.__dict__.setdefault("_stacking_direction", {})
-    hit = cache.get(frame)
-    if hit is not None and hit[0] == token and all(a is b for a, b in zip(hit[1], lists)):
-        return hit[2].copy(), hit[3]
-    n, thickness = _stacking_direction(study, frame)
-    cache[frame] = (token, lists, n.copy(), thickness)
-    return n, thickness
+    n, thickness = attached(study, "_stacking_direction", _stacking_direction,
+                            depends=("images", "landmarks", "contours"))(frame)
+    return n.copy(), thickness
 
 
 def _stacking_direction(study: Study, frame: int | None) -> tuple[np.ndarray, float]:

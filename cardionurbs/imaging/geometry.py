@@ -41,7 +41,7 @@ def _vec3(value, name: str, plane_id: str) -> np.ndarray:
     return arr
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(eq=False)
 class ImagePlane:
     """One image (one slice at one frame) and its geometry in scanner mm.
 
@@ -117,15 +117,13 @@ class ImagePlane:
             raise StudyError(f"SliceThickness must be in (0, {THICKNESS_RANGE_MM[1]:g}] mm, got "
                              f"{excerpt(self.thickness)}",
                              slice=self.slice, frame=self.frame, field="SliceThickness")
-        object.__setattr__(self, "position", pos)
+        self.position = pos
         # renormalise only what is visibly off, so written values read back bit-exact
-        object.__setattr__(self, "row_cosine", rc / nr if abs(nr - 1) > 1e-12 else rc)
-        object.__setattr__(self, "column_cosine", cc / nc if abs(nc - 1) > 1e-12 else cc)
-        object.__setattr__(self, "pixel_spacing", sp)
-        object.__setattr__(self, "frame", int(self.frame))
-        object.__setattr__(self, "rows", int(self.rows))
-        object.__setattr__(self, "columns", int(self.columns))
-        object.__setattr__(self, "thickness", float(self.thickness))
+        self.row_cosine = rc / nr if abs(nr - 1) > 1e-12 else rc
+        self.column_cosine = cc / nc if abs(nc - 1) > 1e-12 else cc
+        self.pixel_spacing = sp
+        self.frame, self.rows, self.columns = int(self.frame), int(self.rows), int(self.columns)
+        self.thickness = float(self.thickness)
 
     # ------------------------------------------------------------------ geometry
     @cached_property

@@ -588,54 +588,150 @@ def _off_plane_distances(items: list, planes: list[ImagePlane], normals: _Normal
 
 
 def _check_annotations(study: Study, warnings: list[str]) -> None:
+    """Check every contour, tag line and landmark against its image plane, in that order.
+
+    Parameters
+    ----------
+    study : Study
+        The study; StudyError (naming file, slice and frame) on its first fatal problem.
+    warnings : list of str
+        Appended to, one line per warning.
+    """
     files = _annotation_files(study)
     normals = _Normals()
-    no_plane = 0
-    # every ventricular contour's plane and in-plane points first, and which of them are
-    # simple, judged all at once (known_simple); the checks below then run contour by
-    # contour in order, the exact crossing search only where that batch was not sure
+    no_plane = _check_contours(study, files, warnings, normals)
+    _check_tags(study, warnings, normals)
+    _check_landmarks(study, warnings, normals)
+    if no_plane:
+        warnings.append(f"{study.source}: {no_plane} contour(s) have no image plane to check "
+                        "them against")
+
+
+def _contour_planes(study: Study, files: list) -> tuple[dict, dict, dict]:
+    """Every ventricular contour's plane and in-plane points, and which of them are simple,
+    judged all at once (:func:`known_simple`), so that the checks contour by contour run the
+    exact crossing search only where that batch was not sure.
+
+    Parameters
+    ----------
+    study : Study
+    files : list
+        Each contour's source file (:func:`_annotation_files`).
+
+    Returns
+    -------
+    planes : dict
+        Contour number -> ImagePlane or None (contours whose plane raised are left out:
+        the error is raised again, in its turn, by :func:`_check_contours`).
+    xys : dict
+        Contour number -> (n, 2) in-plane coordinates, mm.
+    simple : dict
+        Contour number -> True where the contour is known not to cross itself.
+    """
     planes: dict[int, ImagePlane | None] = {}
     xys: dict[int, np.ndarray] = {}
     for k, (c, file) in enumerate(zip(study.contours, files)):
         if c.ventricular and len(c.points) >= 3:
             try:
                 planes[k] = _plane_of(study, c, file)
-            except StudyError:              # raised again, in its turn, by the loop below
+            except StudyError:
                 continue
             xys[k] = in_plane_coordinates(c.points, planes[k])
     order = list(xys)
     simple = dict(zip(order, known_simple([xys[k] for k in order],
                                           [bool(study.contours[k].closed) for k in order])))
+    return planes, xys, simple
+
+
+def _refuse_or_warn(study: Study, c, file, msg: str, fatal: bool, warnings: list[str]) -> None:
+    """Raise ``msg`` as a StudyError naming the contour's file, slice and frame when
+    ``fatal``, else warn it as a problem of an open contour."""
+    if fatal:
+        raise StudyError(msg, file=_src(study, file), slice=c.slice, frame=c.frame)
+    warnings.append(f"{_src(study, file)}: slice {c.slice}, frame {c.frame}: open {msg}")
+
+
+def _check_contours(study: Study, files: list, warnings: list[str], normals: _Normals) -> int:
+    """Check each contour in order: its plane (every contour), and for the ventricular ones
+    its number of points and whether it crosses itself (fatal for closed contours).
+
+    Parameters
+    ----------
+    study : Study
+    files : list
+        Each contour's source file (:func:`_annotation_files`).
+    warnings : list of str
+        Appended to.
+    normals : _Normals
+        The shared plane-normal cache.
+
+    Returns
+    -------
+    int
+        The number of ventricular contours without an image plane to check them against.
+    """
+    planes, xys, simple = _contour_planes(study, files)
+    no_plane = 0
     for k, (c, file) in enumerate(zip(study.contours, files)):
         what = f"{c.structure} contour" + (f" #{c.index}" if c.index else "")
-        n = len(c.points)
         if not c.ventricular:  # atrial / venous / extent traces: only their plane is checked
             plane = _plane_of(study, c, file)
             if plane is not None:
                 _off_plane(study, plane, c.points, what, file, c, warnings, normals)
             continue
-        if n < MIN_CONTOUR_POINTS:
-            msg = f"{what} has {n} point(s), needs >= {MIN_CONTOUR_POINTS}"
-            if c.closed or c.structure in ("lv_endo", "lv_epi"):
-                raise StudyError(msg, file=_src(study, file), slice=c.slice, frame=c.frame)
-            warnings.append(f"{_src(study, file)}: slice {c.slice}, frame {c.frame}: open {msg}")
+        if len(c.points) < MIN_CONTOUR_POINTS:
+            _refuse_or_warn(study, c, file, f"{what} has {len(c.points)} point(s), needs >= "
+                            f"{MIN_CONTOUR_POINTS}",
+                            bool(c.closed or c.structure in ("lv_endo", "lv_epi")), warnings)
         plane = planes[k] if k in planes else _plane_of(study, c, file)
         if plane is None:
             no_plane += 1
         else:
             _off_plane(study, plane, c.points, what, file, c, warnings, normals)
-        if simple.get(k, False):
-            continue
-        xy = xys[k] if k in xys else in_plane_coordinates(c.points, plane)
-        cross = self_intersections(xy, c.closed, first=True)
-        if len(cross):
-            i, j = map(int, cross[0])
-            msg = (f"{what} crosses itself (segment {i}-{i + 1} crosses segment "
-                   f"{j}-{(j + 1) % n})")
-            if c.closed:
-                raise StudyError(msg, file=_src(study, file), slice=c.slice, frame=c.frame)
-            warnings.append(f"{_src(study, file)}: slice {c.slice}, frame {c.frame}: open {msg}")
-    # every tag line's plane and distance from it first (one batch), then the checks in order
+        if not simple.get(k, False):
+            xy = xys[k] if k in xys else in_plane_coordinates(c.points, plane)
+            _check_crossing(study, c, file, what, xy, warnings)
+    return no_plane
+
+
+def _check_crossing(study: Study, c, file, what: str, xy: np.ndarray,
+                    warnings: list[str]) -> None:
+    """Refuse a closed contour that crosses itself (warn for an open one), naming the first
+    two segments that cross.
+
+    Parameters
+    ----------
+    study : Study
+    c : Contour
+    file
+        The contour's source file.
+    what : str
+        The contour as named in messages.
+    xy : (n, 2) float ndarray
+        Its in-plane coordinates, mm.
+    warnings : list of str
+        Appended to.
+    """
+    cross = self_intersections(xy, c.closed, first=True)
+    if len(cross):
+        i, j = map(int, cross[0])
+        msg = (f"{what} crosses itself (segment {i}-{i + 1} crosses segment "
+               f"{j}-{(j + 1) % len(c.points)})")
+        _refuse_or_warn(study, c, file, msg, bool(c.closed), warnings)
+
+
+def _check_tags(study: Study, warnings: list[str], normals: _Normals) -> None:
+    """Each tag line needs 2 points and must lie in its image plane; the planes and the
+    distances from them are found first, in one batch, then checked line by line.
+
+    Parameters
+    ----------
+    study : Study
+    warnings : list of str
+        Appended to.
+    normals : _Normals
+        The shared plane-normal cache.
+    """
     tag_planes: dict[int, ImagePlane | None] = {}
     for k, t in enumerate(study.tags):
         if len(t.points) >= 2:
@@ -643,9 +739,9 @@ def _check_annotations(study: Study, warnings: list[str]) -> None:
                 tag_planes[k] = _plane_of(study, t, None)
             except StudyError:              # raised again, in its turn, below
                 continue
-    placed = [k for k, p in tag_planes.items() if p is not None]
+    placed = {k: p for k, p in tag_planes.items() if p is not None}
     tag_d = dict(zip(placed, _off_plane_distances([study.tags[k] for k in placed],
-                                                  [tag_planes[k] for k in placed], normals)
+                                                  list(placed.values()), normals)
                      if placed else []))
     for k, t in enumerate(study.tags):
         what = f"tag {t.family}#{t.index}"
@@ -656,15 +752,16 @@ def _check_annotations(study: Study, warnings: list[str]) -> None:
         if plane is not None:
             _off_plane(study, plane, t.points, what, None, t, warnings, normals,
                        d=float(tag_d[k]) if k in tag_d else None)
+
+
+def _check_landmarks(study: Study, warnings: list[str], normals: _Normals) -> None:
+    """Warn (never refuse) a landmark off its image plane: a landmark is a 3-D point, its
+    slice only where it was picked."""
     for lm in study.landmarks:
         plane = _plane_of(study, lm, None)
         if plane is not None:
-            # a landmark is a 3-D point; its slice is where it was picked: warn only
             _off_plane(study, plane, lm.point, f"landmark {lm.name}", None, lm, warnings, normals,
                        fatal=False)
-    if no_plane:
-        warnings.append(f"{study.source}: {no_plane} contour(s) have no image plane to check "
-                        "them against")
 
 
 def input_ed_es_frames(study: Study) -> tuple[int | None, int | None, str]:

@@ -851,36 +851,103 @@ def write_study(study: Study, folder: str | Path, *, style: str | None = None,
                 vocabulary: str = "parts") -> Path:
     """Write ``study`` as GPFile_NNN.txt (one per frame) + SliceInfoFile.txt into ``folder``.
 
-    ``style``: the SliceInfoFile style (:data:`SLICE_INFO_STYLES`); default the style
-    the study was read in (a study read from GPFiles), else ``sliceID``.
-    ``vocabulary``: ``parts`` writes an ``rv_endo`` contour as RV_SEPTUM (points within
-    0.5 mm of the LV epicardium of the same image) and RV_FREEWALL (the rest);
-    ``undivided`` writes it as one RV_ENDOCARDIAL trace. With ``parts`` the SA epicardial
-    contours leave out their septal run, as CAP and biv-me exports do (LV_EPICARDIAL over
-    the LV free wall, RV_EPICARDIAL over the RV free wall: :func:`_free_wall_epi`), so that
-    a study written here and fitted by biv-me is compared on equal terms; ``undivided``
-    writes them whole. Slice geometry must be static
-    (one plane per slice). Tag lines have no GPFile type and are not written. Files are
-    written atomically.
+    Slice geometry must be static (one plane per slice). Tag lines have no GPFile type and
+    are not written. Files are written atomically.
+
+    Parameters
+    ----------
+    study : Study
+        The study (scanner mm).
+    folder : str or Path
+        The folder to write into (made if missing).
+    style : str, optional
+        The SliceInfoFile style (:data:`SLICE_INFO_STYLES`); default the style the study
+        was read in (a study read from GPFiles), else ``sliceID``.
+    vocabulary : str
+        ``parts`` writes an ``rv_endo`` contour as RV_SEPTUM (points within 0.5 mm of the
+        LV epicardium of the same image) and RV_FREEWALL (the rest), and the SA epicardial
+        contours without their septal run, as CAP and biv-me exports do (LV_EPICARDIAL over
+        the LV free wall, RV_EPICARDIAL over the RV free wall: :func:`_free_wall_epi`), so
+        that a study written here and fitted by biv-me is compared on equal terms;
+        ``undivided`` writes ``rv_endo`` as one RV_ENDOCARDIAL trace and the epicardia whole.
+
+    Returns
+    -------
+    Path
+        ``folder``.
     """
+    _check_write_options(style, vocabulary)
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    read_as = study.meta.get("gpfile")
+    gp: dict = read_as if isinstance(read_as, dict) else {}
+    slice_ids, slice_files, slice_tokens = _slice_numbering(study, gp)
+    planes = _static_planes(study)
+    atomic.write_text(folder / SLICE_INFO, _slice_info_text(study, gp, style, slice_ids,
+                                                           slice_files, slice_tokens, planes))
+    exact = (gp.get("n_contours") == len(study.contours)
+             and gp.get("n_landmarks") == len(study.landmarks) and vocabulary == "parts")
+    frame_meta = gp.get("frames", {}) if exact else {}
+    for frame in study.frames:
+        fm = frame_meta.get(str(frame))
+        name = (fm or {}).get("file") or f"GPFile_{frame:03d}.txt"
+        atomic.write_text(folder / name, _gp_file_text(study, frame, fm, gp, slice_ids, planes,
+                                                       vocabulary))
+    return folder
+
+
+def _check_write_options(style: str | None, vocabulary: str) -> None:
+    """StudyError naming the option for an unknown SliceInfoFile style or vocabulary."""
     if style is not None and style not in SLICE_INFO_STYLES:
         raise StudyError(f"unknown SliceInfoFile style {style!r}; expected one of "
                          f"{', '.join(SLICE_INFO_STYLES)}", field="style")
     if vocabulary not in VOCABULARIES:
         raise StudyError(f"unknown vocabulary {vocabulary!r}; expected one of "
                          f"{', '.join(VOCABULARIES)}", field="vocabulary")
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    gp = study.meta.get("gpfile") if isinstance(study.meta.get("gpfile"), dict) else {}
-    slice_ids, slice_files, slice_tokens = _slice_numbering(study, gp)
-    planes = _static_planes(study)
-    if style is None:
-        si = gp.get("slice_info") or {}
-        fmt = {"label": si.get("label", "sliceID: "), "sep": si.get("sep", "\t"),
-               "per_frame": si.get("order") is not None}
-        order = si.get("order")
-    else:
-        fmt, order = SLICE_INFO_STYLES[style], None
+
+
+def _slice_info_format(gp: dict, style: str | None) -> tuple[dict, list | None]:
+    """The SliceInfoFile format ({"label", "sep", "per_frame"}) and the row order read with
+    the study (None: none kept) for ``style``, default the style the study was read in.
+
+    Parameters
+    ----------
+    gp : dict
+        ``study.meta["gpfile"]`` (empty for a study not read from GPFiles).
+    style : str, optional
+        A key of :data:`SLICE_INFO_STYLES`.
+
+    Returns
+    -------
+    (dict, list or None)
+    """
+    if style is not None:
+        return SLICE_INFO_STYLES[style], None
+    si = gp.get("slice_info") or {}
+    fmt = {"label": si.get("label", "sliceID: "), "sep": si.get("sep", "\t"),
+           "per_frame": si.get("order") is not None}
+    return fmt, si.get("order")
+
+
+def _slice_geometry(slice_ids: dict, slice_tokens: dict, planes: dict) -> dict[int, list]:
+    """GP slice number -> the tokens of its geometry: the tokens read with the study where
+    they still give the slice's plane (to 1e-9), else the plane's numbers formatted anew.
+
+    Parameters
+    ----------
+    slice_ids : dict
+        Slice -> GP slice number (:func:`_slice_numbering`).
+    slice_tokens : dict
+        Slice -> the geometry tokens read with the study.
+    planes : dict
+        Slice -> its ImagePlane (:func:`_static_planes`).
+
+    Returns
+    -------
+    dict
+        Slice number -> [position..., "ImageOrientationPatient", orientation...,
+        "PixelSpacing", spacing...] (str).
+    """
     geometry = {}
     for sl, sid in slice_ids.items():
         im = planes[sl]
@@ -891,6 +958,34 @@ def write_study(study: Study, folder: str | Path, *, style: str | None = None,
         else:
             geometry[sid] = [*_fmt(im.position), "ImageOrientationPatient", *_fmt(im.orientation),
                              "PixelSpacing", *_fmt(im.pixel_spacing)]
+    return geometry
+
+
+def _slice_info_text(study: Study, gp: dict, style: str | None, slice_ids: dict,
+                     slice_files: dict, slice_tokens: dict, planes: dict) -> str:
+    """The text of SliceInfoFile.txt: one line per slice (per slice and frame in the
+    ``frameID`` styles), in the order the study was read in where that still fits.
+
+    Parameters
+    ----------
+    study : Study
+    gp : dict
+        ``study.meta["gpfile"]`` (empty for a study not read from GPFiles).
+    style : str, optional
+        A key of :data:`SLICE_INFO_STYLES` (default: the style read).
+    slice_ids, slice_files, slice_tokens : dict
+        Slice -> GP slice number, DICOM file name, geometry tokens
+        (:func:`_slice_numbering`).
+    planes : dict
+        Slice -> its ImagePlane (:func:`_static_planes`).
+
+    Returns
+    -------
+    str
+        The file's lines, each ending in a newline.
+    """
+    fmt, order = _slice_info_format(gp, style)
+    geometry = _slice_geometry(slice_ids, slice_tokens, planes)
     name_of = {sid: slice_files.get(sl) or (Path(planes[sl].file).name if planes[sl].file
                                              else f"{sl}.dcm") for sl, sid in slice_ids.items()}
     known = set(slice_ids.values())
@@ -905,26 +1000,46 @@ def write_study(study: Study, folder: str | Path, *, style: str | None = None,
         time = [] if t is None else ["timeFrame", str(t)]
         lines.append(fmt["sep"].join([name, fmt["label"], str(sid), *time, "ImagePositionPatient",
                                       *geometry[int(sid)]]))
-    atomic.write_text(folder / SLICE_INFO, "\n".join(lines) + "\n")
-    exact = (gp.get("n_contours") == len(study.contours)
-             and gp.get("n_landmarks") == len(study.landmarks) and vocabulary == "parts")
-    frame_meta = gp.get("frames", {}) if exact else {}
-    header = gp.get("header") or HEADER
-    for frame in study.frames:
-        fm = frame_meta.get(str(frame))
-        rows = _frame_rows(study, frame, fm, slice_ids, planes, vocabulary)
-        n = sum(len(r[0]) for r in rows)
-        weights = [w for r in rows for w in _fmt(r[3])]
-        times = [str(frame)] * n
-        if fm and sum(r[0] for r in fm["runs"]) == n:
-            weights = [w for c, w, _ in fm["runs"] for _ in range(c)]
-            times = [tt for c, _, tt in fm["runs"] for _ in range(c)]
-        points = _expand(rows, gp.get("decimals"))
-        body = [f"{x}\t{y}\t{z}\t{ty}\t{sid}\t{w}\t{tt}"
-                for (x, y, z, ty, sid), w, tt in zip(points, weights, times)]
-        name = (fm or {}).get("file") or f"GPFile_{frame:03d}.txt"
-        atomic.write_text(folder / name, "\n".join([header, *body]) + "\n")
-    return folder
+    return "\n".join(lines) + "\n"
+
+
+def _gp_file_text(study: Study, frame: int, fm: dict | None, gp: dict, slice_ids: dict,
+                  planes: dict, vocabulary: str) -> str:
+    """The text of one frame's GPFile: the header, then one line per point (x, y, z, type,
+    slice number, weight, time frame), with the weights and time tokens read with the study
+    where its point count still matches.
+
+    Parameters
+    ----------
+    study : Study
+    frame : int
+    fm : dict, optional
+        The frame's file layout read with the study (``gp["frames"]``), None if not kept.
+    gp : dict
+        ``study.meta["gpfile"]`` (empty for a study not read from GPFiles).
+    slice_ids : dict
+        Slice -> GP slice number.
+    planes : dict
+        Slice -> its ImagePlane.
+    vocabulary : str
+        A member of :data:`VOCABULARIES`.
+
+    Returns
+    -------
+    str
+        The file's lines, each ending in a newline.
+    """
+    rows = _frame_rows(study, frame, fm, slice_ids, planes, vocabulary)
+    n = sum(len(r[0]) for r in rows)
+    weights = [w for r in rows for w in _fmt(r[3])]
+    times = [str(frame)] * n
+    if fm and sum(r[0] for r in fm["runs"]) == n:
+        weights = [w for c, w, _ in fm["runs"] for _ in range(c)]
+        times = [tt for c, _, tt in fm["runs"] for _ in range(c)]
+    points = _expand(rows, gp.get("decimals"))
+    body = [f"{x}\t{y}\t{z}\t{ty}\t{sid}\t{w}\t{tt}"
+            for (x, y, z, ty, sid), w, tt in zip(points, weights, times)]
+    return "\n".join([gp.get("header") or HEADER, *body]) + "\n"
 
 
 def _expand(rows, decimals):

@@ -194,19 +194,61 @@ def _contact(vol: np.ndarray, a: int, b: int) -> int:
 
 
 def infer_roles(vol: np.ndarray, where: str = "") -> tuple[LabelRoles, str]:
-    """Roles of the labels of a short-axis label volume (x, y, slices[, frames]) from topology.
+    """Roles of the labels of a short-axis label volume from topology.
 
     LV cavity = the label ``a`` that some label ``b`` (the myocardium) rings in the most
     slices; RV cavity = the remaining label with the longest boundary with the myocardium;
     a further label sharing the longest boundary with the RV cavity outside the ring is the
-    RV myocardium. Returns (roles, one-line description of what was inferred); StudyError
-    when no ring is found, or when two readings of the map are equally good.
+    RV myocardium. StudyError when no ring is found, or when two readings of the map are
+    equally good.
+
+    Parameters
+    ----------
+    vol : (x, y, slices[, frames]) int ndarray
+        The label volume (0 is background).
+    where : str
+        The file, for the errors.
+
+    Returns
+    -------
+    roles : LabelRoles
+        Named ``inferred``.
+    note : str
+        One line describing what was inferred (and which presets it agrees with).
     """
     present = sorted(int(v) for v in np.unique(vol) if v != 0)
     if len(present) < 2:
         raise StudyError("cannot infer the label convention: the map needs at least an LV cavity "
                          f"and a myocardium label, it holds {present or 'no labels'}",
                          file=where, field="labels")
+    lv, myo = _ringed_pair(vol, present, where)
+    rest = [v for v in present if v not in (lv, myo)]
+    rv = rv_myo = None
+    if rest:
+        rv = _rv_cavity(vol, rest, myo, where)
+        rv_myo = _rv_myocardium(vol, [v for v in rest if v != rv], (lv, myo, rv), where)
+    roles = LabelRoles(lv=lv, myo=myo, rv=rv, rv_myo=rv_myo, name="inferred")
+    return roles, _inferred_note(roles, present)
+
+
+def _ringed_pair(vol: np.ndarray, present: list[int], where: str) -> tuple[int, int]:
+    """(LV cavity, myocardium): the pair (a, b) with b ringing a in the most slices.
+
+    Parameters
+    ----------
+    vol : (x, y, slices[, frames]) int ndarray
+        The label volume.
+    present : list of int
+        Its non-zero labels, ascending.
+    where : str
+        The file, for the error.
+
+    Returns
+    -------
+    (int, int)
+        The ringed label and the label ringing it; StudyError when no pair rings or two
+        pairs ring in as many slices.
+    """
     scores = {(a, b): _ring_score(vol, a, b) for a in present for b in present if a != b}
     best = max(scores.values())
     top = [k for k, s in scores.items() if s == best]
@@ -218,34 +260,90 @@ def infer_roles(vol: np.ndarray, where: str = "") -> tuple[LabelRoles, str]:
         raise StudyError(f"ambiguous label map: labels {top[0][0]} and {top[1][0]} are both "
                          "ringed by another label in as many slices; give --labels "
                          "(e.g. acdc, ukbb or lv=…,myo=…,rv=…)", file=where, field="labels")
-    lv, myo = top[0]
-    rest = [v for v in present if v not in (lv, myo)]
-    rv = rv_myo = None
-    if rest:
-        contact = {v: _contact(vol, v, myo) for v in rest}
-        order = sorted(rest, key=lambda v: -contact[v])
-        if contact[order[0]] == 0:
-            raise StudyError(f"cannot infer the label convention: none of labels {rest} touches "
-                             f"the myocardium (label {myo}); give --labels", file=where,
-                             field="labels")
-        if len(order) > 1 and contact[order[1]] == contact[order[0]]:
-            raise StudyError(f"ambiguous label map: labels {order[0]} and {order[1]} touch the "
-                             "myocardium equally; give --labels", file=where, field="labels")
-        rv = order[0]
-        others = [v for v in rest if v != rv]
-        if others:
-            c_rv = {v: _contact(vol, v, rv) for v in others}
-            cand = max(others, key=lambda v: c_rv[v])
-            if c_rv[cand] > 0:
-                rv_myo = cand
-            left = [v for v in others if v != rv_myo]
-            if left:
-                raise StudyError(f"cannot infer the role of label(s) {left} (the LV cavity is "
-                                 f"{lv}, myocardium {myo}, RV {rv}); give --labels", file=where,
-                                 field="labels")
-    roles = LabelRoles(lv=lv, myo=myo, rv=rv, rv_myo=rv_myo, name="inferred")
+    return top[0]
+
+
+def _rv_cavity(vol: np.ndarray, rest: list[int], myo: int, where: str) -> int:
+    """The RV cavity: of the labels ``rest`` (neither LV cavity nor myocardium), the one
+    with the longest boundary with the myocardium ``myo``.
+
+    Parameters
+    ----------
+    vol : (x, y, slices[, frames]) int ndarray
+    rest : list of int
+        The candidate labels (at least one).
+    myo : int
+        The myocardium label.
+    where : str
+        The file, for the error.
+
+    Returns
+    -------
+    int
+        The RV cavity label; StudyError when none touches the myocardium or two touch it
+        equally.
+    """
+    contact = {v: _contact(vol, v, myo) for v in rest}
+    order = sorted(rest, key=lambda v: -contact[v])
+    if contact[order[0]] == 0:
+        raise StudyError(f"cannot infer the label convention: none of labels {rest} touches "
+                         f"the myocardium (label {myo}); give --labels", file=where,
+                         field="labels")
+    if len(order) > 1 and contact[order[1]] == contact[order[0]]:
+        raise StudyError(f"ambiguous label map: labels {order[0]} and {order[1]} touch the "
+                         "myocardium equally; give --labels", file=where, field="labels")
+    return order[0]
+
+
+def _rv_myocardium(vol: np.ndarray, others: list[int], known: tuple[int, int, int],
+                   where: str) -> int | None:
+    """The RV myocardium: of the labels ``others`` left over, the one with the longest
+    boundary with the RV cavity (None when none touches it).
+
+    Parameters
+    ----------
+    vol : (x, y, slices[, frames]) int ndarray
+    others : list of int
+        The labels left once LV cavity, myocardium and RV cavity are known (may be empty).
+    known : (int, int, int)
+        (LV cavity, myocardium, RV cavity), for the error.
+    where : str
+        The file, for the error.
+
+    Returns
+    -------
+    int or None
+        The RV myocardium label; StudyError when any other label is left without a role.
+    """
+    if not others:
+        return None
+    lv, myo, rv = known
+    c_rv = {v: _contact(vol, v, rv) for v in others}
+    cand = max(others, key=lambda v: c_rv[v])
+    rv_myo = cand if c_rv[cand] > 0 else None
+    left = [v for v in others if v != rv_myo]
+    if left:
+        raise StudyError(f"cannot infer the role of label(s) {left} (the LV cavity is "
+                         f"{lv}, myocardium {myo}, RV {rv}); give --labels", file=where,
+                         field="labels")
+    return rv_myo
+
+
+def _inferred_note(roles: LabelRoles, present: list[int]) -> str:
+    """The one-line note of an inferred convention, naming the presets it agrees with.
+
+    Parameters
+    ----------
+    roles : LabelRoles
+        The inferred roles.
+    present : list of int
+        The map's non-zero labels.
+
+    Returns
+    -------
+    str
+    """
     same = [n for n, p in PRESETS.items()
             if {k: v for k, v in p.values().items() if v in present} == roles.values()]
-    note = (f"label convention inferred from topology: {roles.describe()}"
+    return (f"label convention inferred from topology: {roles.describe()}"
             + (f" (as {'/'.join(same)})" if same else "") + "; give --labels to set it")
-    return roles, note

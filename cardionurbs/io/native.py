@@ -78,7 +78,7 @@ import zlib
 from contextlib import contextmanager
 from pathlib import Path
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -685,8 +685,55 @@ def _check_coordinate_range(xyz: np.ndarray, points_path: Path) -> None:
 
 def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False,
                  expected_rows: int | None = None, sidecar: Path | None = None) -> None:
+    """Append the contours, tag lines and landmarks of a points file to ``study``.
+
+    Parameters
+    ----------
+    study : Study
+        The study being read (its images already known); its warnings are appended to.
+    points_path : Path
+        points.csv (or .csv.gz, .parquet).
+    prefer_pixels : bool
+        Place every row with pixel coordinates through its image, not only the rows
+        without scanner coordinates.
+    expected_rows : int, optional
+        The row count the manifest states (a shorter file is warned about).
+    sidecar : Path, optional
+        An older points.parquet beside the CSV, read in its place where it is current.
+    """
     if not checked(points_path, what="points file").is_file():
         raise StudyError("points file is missing", file=points_path)
+    cols, table = _point_source(points_path, sidecar)
+    n = cols.n if cols is not None else len(table)
+    warning = _check_complete(points_path, n, expected_rows)
+    if warning:
+        study.warnings.append(warning)
+    if n == 0:
+        return
+    if cols is None:
+        cols = _columns_of(table, points_path)
+        del table
+    images = study._image_index()
+    xyz = _scanner_points(cols, images, prefer_pixels, points_path)
+    starts = _annotation_starts(cols, n)
+    _add_annotations(study, cols, xyz, starts, images, points_path)
+
+
+def _point_source(points_path: Path, sidecar: Path | None):
+    """The points as columns read straight from Parquet, or else as a table.
+
+    Parameters
+    ----------
+    points_path : Path
+        The points file.
+    sidecar : Path, optional
+        A current points.parquet beside it (read in its place).
+
+    Returns
+    -------
+    (_Columns or None, DataFrame or None)
+        Exactly one of the two; StudyError when the table lacks a column.
+    """
     table = cols = None
     if sidecar is not None and checked(sidecar).is_file() and sidecar != points_path:
         table = _sidecar_table(sidecar, points_path)
@@ -698,24 +745,36 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False,
         missing = [c for c in COLUMNS if c not in table.columns]
         if missing:
             raise StudyError(f"missing column(s) {', '.join(missing)}", file=points_path)
-    n = cols.n if cols is not None else len(table)
-    warning = _check_complete(points_path, n, expected_rows)
-    if warning:
-        study.warnings.append(warning)
-    if n == 0:
-        return
-    if cols is None:
-        cols = _columns_of(table, points_path)
-        del table
+    return cols, table
+
+
+def _scanner_points(cols: _Columns, images: dict, prefer_pixels: bool,
+                    points_path: Path) -> np.ndarray:
+    """Every row's scanner position, the pixel-only rows (every row with pixels when
+    ``prefer_pixels``) placed through their image.
+
+    Parameters
+    ----------
+    cols : _Columns
+        The points file's columns.
+    images : dict
+        Image id -> ImagePlane of the study.
+    prefer_pixels : bool
+        See :func:`_read_points`.
+    points_path : Path
+        The file, for the errors.
+
+    Returns
+    -------
+    (n, 3) float ndarray, Fortran order
+        Scanner mm; StudyError for a coordinate out of range.
+    """
     num = cols.numbers
     # column-major, as a DataFrame's block gives them: the points of each annotation are
     # views of these, and their layout steers the rounding of later products
     xyz = np.asfortranarray(np.column_stack([num["x"], num["y"], num["z"]]))
     pix = np.asfortranarray(np.column_stack([num["px"], num["py"]]))
-    has_xyz = np.isfinite(xyz).all(axis=1)
-    images = study._image_index()
-    # pixel-only rows (every row with pixels when prefer_pixels) -> scanner mm through their image
-    need = ~has_xyz
+    need = ~np.isfinite(xyz).all(axis=1)
     if prefer_pixels:
         image_codes, image_values = cols.text["image"]
         known = np.array([v in images for v in image_values], dtype=bool)
@@ -723,17 +782,91 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False,
     if need.any():
         _pixels_to_scanner(cols, need, pix, xyz, images, points_path)
     _check_coordinate_range(xyz, points_path)
-    # a new annotation starts where any key column differs from the row before (vectorised,
-    # on integer codes of the text columns: no per-row Python strings)
+    return xyz
+
+
+def _annotation_starts(cols: _Columns, n: int) -> np.ndarray:
+    """The first row of every annotation: where any key column differs from the row before
+    (vectorised, on integer codes of the text columns: no per-row Python strings).
+
+    Parameters
+    ----------
+    cols : _Columns
+        The points file's columns.
+    n : int
+        Its number of rows (at least 1).
+
+    Returns
+    -------
+    (k,) int ndarray
+        Row indices, ascending, the first 0.
+    """
     change = np.zeros(max(n - 1, 0), dtype=bool)
     for col in _KEY:
-        values = cols.text[col][0] if col in cols.text else num[col]
+        values = cols.text[col][0] if col in cols.text else cols.numbers[col]
         change |= values[1:] != values[:-1]
-    starts = np.flatnonzero(np.r_[True, change])
-    ends = np.r_[starts[1:], n]
+    return np.flatnonzero(np.r_[True, change])
+
+
+class _Run(NamedTuple):
+    """One annotation of a points file: its key columns and its rows' scanner points."""
+
+    name: str
+    view: str
+    slice: str
+    frame: int
+    number: int
+    closed: object
+    image: str | None
+    points: np.ndarray
+
+
+def _add_contour(study: Study, run: _Run) -> None:
+    study.contours.append(Contour(run.name, run.view, run.slice, run.frame, run.points,
+                                  image=run.image, closed=str(run.closed).strip().lower() not in
+                                  ("0", "false", "0.0"), index=run.number))
+
+
+def _add_tag(study: Study, run: _Run) -> None:
+    study.tags.append(TagLine(run.name, run.number, run.view, run.slice, run.frame, run.points,
+                              image=run.image))
+
+
+def _add_landmarks(study: Study, run: _Run) -> None:
+    for point in run.points:
+        study.landmarks.append(Landmark(run.name, run.frame, point, index=run.number,
+                                        slice=run.slice or None, view=run.view or None,
+                                        image=run.image))
+
+
+#: what each ``kind`` of a points file row adds to the study
+_ADD = {"contour": _add_contour, "tag": _add_tag, "landmark": _add_landmarks}
+
+
+def _add_annotations(study: Study, cols: _Columns, xyz: np.ndarray, starts: np.ndarray,
+                     images: dict, points_path: Path) -> None:
+    """Append one contour, tag line or landmark(s) per annotation (rows ``starts[k]`` up to
+    the next start) to ``study``, in file order.
+
+    Parameters
+    ----------
+    study : Study
+        The study being read.
+    cols : _Columns
+        The points file's columns.
+    xyz : (n, 3) float ndarray
+        Every row's scanner position, mm (:func:`_scanner_points`).
+    starts : (k,) int ndarray
+        The annotations' first rows (:func:`_annotation_starts`).
+    images : dict
+        Image id -> ImagePlane of the study.
+    points_path : Path
+        The file, for the errors (each naming its line).
+    """
+    ends = np.r_[starts[1:], len(xyz)]
     kinds, names, views, slices, imgs, closed = (
         cols.strings(col, starts) for col in ("kind", "name", "view", "slice", "image", "closed"))
-    frames, idxs = num["frame"].astype(int)[starts], num["index"].astype(int)[starts]
+    frames, idxs = cols.numbers["frame"].astype(int)[starts], cols.numbers["index"].astype(int)[starts]
     _check_closed(kinds, closed, starts, points_path)
     for k, (s, e) in enumerate(zip(starts, ends)):
         kind, image = kinds[k], imgs[k] or None
@@ -741,22 +874,12 @@ def _read_points(study: Study, points_path: Path, prefer_pixels: bool = False,
             raise StudyError(f"line {s + 2}: reference to image {excerpt(image)} that is not in the manifest",
                              file=points_path, field="image")
         try:
-            if kind == "contour":
-                study.contours.append(Contour(names[k], views[k], slices[k], frames[k], xyz[s:e],
-                                              image=image, closed=str(closed[k]).strip().lower() not in
-                                              ("0", "false", "0.0"),
-                                              index=idxs[k]))
-            elif kind == "tag":
-                study.tags.append(TagLine(names[k], idxs[k], views[k], slices[k], frames[k],
-                                          xyz[s:e], image=image))
-            elif kind == "landmark":
-                for row in range(s, e):
-                    study.landmarks.append(Landmark(names[k], frames[k], xyz[row], index=idxs[k],
-                                                    slice=slices[k] or None, view=views[k] or None,
-                                                    image=image))
-            else:
+            add = _ADD.get(kind)
+            if add is None:
                 raise StudyError(f"line {s + 2}: unknown kind {excerpt(kind)} (contour, tag or landmark)",
                                  file=points_path, field="kind")
+            add(study, _Run(names[k], views[k], slices[k], frames[k], idxs[k], closed[k], image,
+                            xyz[s:e]))
         except StudyError as exc:
             if exc.file is not None:
                 raise
@@ -884,7 +1007,6 @@ def read_study_from_dicom(path: str | Path) -> Study:
                                  trigger_time=h.trigger_time if h.trigger_time is not None
                                  else im.trigger_time, file=im.file))
     study.images = images
-    study.__dict__.pop("_image_cache", None)
     study.contours, study.tags, study.landmarks = [], [], []
     assert study.source is not None                 # read_study names the study folder
     folder = Path(study.source)

@@ -219,13 +219,51 @@ def check_volume_size(path: Path, shape: tuple[int, ...], itemsize: int) -> None
 
 
 def read_label_volume(path: str | Path) -> LabelVolume:
-    """Read one NIfTI label map (StudyError naming the file for anything unusable)."""
+    """Read one NIfTI label map (StudyError naming the file for anything unusable).
+
+    Parameters
+    ----------
+    path : str or Path
+        A NIfTI-1 or NIfTI-2 file (.nii or .nii.gz), 3-D (x, y, slices) or 4-D
+        (x, y, slices, frames).
+
+    Returns
+    -------
+    LabelVolume
+        uint8 labels (x, y, slices, frames), the voxel-to-LPS affine (mm), the frame
+        interval (ms, None when unknown), the warnings and the header notes.
+    """
+    path = checked(path, what="label map")
+    where = str(path)
+    img = _load_nifti(path, where)
+    shape = _label_shape(img, where)
+    check_volume_size(path, shape, img.header.get_data_dtype().itemsize)
+    data = _label_data(img, shape, where)
+    warnings: list[str] = []
+    aff = _label_affine(img, path, where, warnings)
+    header = _header_notes(img, aff, where, warnings)
+    dt, header["time"] = time_step_ms(img.header, data.shape[3], where, warnings)
+    return LabelVolume(path, data, RAS_TO_LPS @ aff, dt, warnings, header)
+
+
+def _load_nifti(path: Path, where: str):
+    """The nibabel image of a NIfTI-1 or NIfTI-2 file (StudyError for anything else).
+
+    Parameters
+    ----------
+    path : Path
+        The file.
+    where : str
+        The file as named in messages.
+
+    Returns
+    -------
+    nibabel.Nifti1Image or nibabel.Nifti2Image
+        The image, its voxel data not yet read.
+    """
     import nibabel as nib
     from nibabel.filebasedimages import ImageFileError
     from nibabel.spatialimages import HeaderDataError
-
-    path = checked(path, what="label map")
-    where = str(path)
     try:
         img = nib.load(str(path))
     except FileNotFoundError:
@@ -235,6 +273,24 @@ def read_label_volume(path: str | Path) -> LabelVolume:
                          file=where) from None
     if not isinstance(img, (nib.Nifti1Image, nib.Nifti2Image)):
         raise StudyError(f"not a NIfTI image ({type(img).__name__})", file=where)
+    return img
+
+
+def _label_shape(img, where: str) -> tuple[int, ...]:
+    """The image's shape as (x, y, slices) or (x, y, slices, frames): trailing unit axes
+    dropped, time moved from the 5th axis (x, y, z, 1, t) to the 4th.
+
+    Parameters
+    ----------
+    img : nibabel NIfTI image
+    where : str
+        The file, for the errors.
+
+    Returns
+    -------
+    tuple of int
+        3 or 4 lengths, none 0; StudyError for any other shape.
+    """
     shape = tuple(int(s) for s in img.shape)
     while len(shape) > 4 and shape[-1] == 1:
         shape = shape[:-1]
@@ -250,7 +306,26 @@ def read_label_volume(path: str | Path) -> LabelVolume:
         raise StudyError("the time axis has length 0 (no frames)", file=where)
     if min(shape) == 0:
         raise StudyError(f"an empty image (shape {shape})", file=where)
-    check_volume_size(path, shape, img.header.get_data_dtype().itemsize)
+    return shape
+
+
+def _label_data(img, shape: tuple[int, ...], where: str) -> np.ndarray:
+    """The voxel labels as uint8 (x, y, slices, frames), checked to be labels.
+
+    Parameters
+    ----------
+    img : nibabel NIfTI image
+    shape : tuple of int
+        From :func:`_label_shape`.
+    where : str
+        The file, for the errors.
+
+    Returns
+    -------
+    (x, y, slices, frames) uint8 ndarray
+        StudyError for unreadable voxels, a non-integer or non-label type, or values
+        outside 0..MAX_LABEL.
+    """
     try:
         raw = np.asanyarray(img.dataobj)
     except (EOFError, OSError, zlib.error, ValueError) as exc:
@@ -266,8 +341,28 @@ def read_label_volume(path: str | Path) -> LabelVolume:
     if raw.size and (raw.min() < 0 or raw.max() > MAX_LABEL):
         raise StudyError(f"label values must lie in 0..{MAX_LABEL}, got {raw.min():g}..{raw.max():g}: "
                          "an image, not a label map?", file=where)
-    data = raw.astype(np.uint8)
-    warnings: list[str] = []
+    return raw.astype(np.uint8)
+
+
+def _label_affine(img, path: Path, where: str, warnings: list[str]) -> np.ndarray:
+    """The voxel-to-RAS affine (mm): the sform, else the qform, else the voxel sizes alone
+    (with a warning), its spacing from ``pixdim`` (:func:`_spacing_from_pixdim`), checked.
+
+    Parameters
+    ----------
+    img : nibabel NIfTI image
+    path : Path
+        The file (its raw ``pixdim`` when neither form is set).
+    where : str
+        The file, for the errors and warnings.
+    warnings : list of str
+        Appended to (no geometry, replaced spacing, identity affine).
+
+    Returns
+    -------
+    (4, 4) float ndarray
+        StudyError for a non-finite, singular or sheared affine.
+    """
     hdr = img.header
     scode, qcode = int(hdr["sform_code"]), int(hdr["qform_code"])
     if scode > 0:
@@ -286,7 +381,16 @@ def read_label_volume(path: str | Path) -> LabelVolume:
     if not np.all(np.isfinite(aff)):
         raise StudyError("the affine holds NaN or infinity", file=where, field="affine")
     aff = _spacing_from_pixdim(aff, hdr, scode, where, warnings)
-    m = aff[:3, :3]
+    _check_voxel_axes(aff[:3, :3], where)
+    if scode > 0 and np.allclose(aff, np.eye(4)) or (scode == 0 and qcode > 0 and np.allclose(aff, np.eye(4))):
+        warnings.append(f"{where}: identity affine: 1 mm voxels at the origin, no real scanner "
+                        "position or orientation")
+    return aff
+
+
+def _check_voxel_axes(m: np.ndarray, where: str) -> None:
+    """StudyError unless the voxel axes (columns of ``m``, (3, 3), mm) span space and the
+    two in-plane axes are perpendicular (cos below 1e-3)."""
     lengths = np.linalg.norm(m, axis=0)
     if np.any(lengths < 1e-6) or abs(np.linalg.det(m)) < 1e-6 * np.prod(np.maximum(lengths, 1e-6)):
         raise StudyError("singular affine (voxel axes of zero length or in one plane)",
@@ -295,12 +399,6 @@ def read_label_volume(path: str | Path) -> LabelVolume:
     if cos > 1e-3:
         raise StudyError(f"in-plane voxel axes are not perpendicular (cos {cos:.3g}): sheared "
                          "affine", file=where, field="affine")
-    if scode > 0 and np.allclose(aff, np.eye(4)) or (scode == 0 and qcode > 0 and np.allclose(aff, np.eye(4))):
-        warnings.append(f"{where}: identity affine: 1 mm voxels at the origin, no real scanner "
-                        "position or orientation")
-    header = _header_notes(img, aff, where, warnings)
-    dt, header["time"] = time_step_ms(hdr, data.shape[3], where, warnings)
-    return LabelVolume(path, data, RAS_TO_LPS @ aff, dt, warnings, header)
 
 
 def _spacing_from_pixdim(aff: np.ndarray, hdr, scode: int, where: str,

@@ -59,22 +59,30 @@ Gauss–Legendre rules on smooth intervals.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 
+from cardionurbs.cache import memoized
 from cardionurbs.errors import PhantomError
 from cardionurbs.phantom.shape import ShapeModes
 
-_GL_CACHE: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-
-
+@lru_cache(maxsize=None)
 def gauss_legendre(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Gauss–Legendre nodes and weights on [0, 1]."""
-    if n not in _GL_CACHE:
-        x, w = np.polynomial.legendre.leggauss(n)
-        _GL_CACHE[n] = (0.5 * (x + 1.0), 0.5 * w)
-    return _GL_CACHE[n]
+    """Gauss–Legendre nodes and weights on [0, 1] (cached per n: :func:`functools.lru_cache`).
+
+    Parameters
+    ----------
+    n : int
+        Number of nodes.
+
+    Returns
+    -------
+    nodes, weights : (n,) float64 ndarray
+        Nodes in (0, 1) and their weights (summing to 1); shared, not to be modified.
+    """
+    x, w = np.polynomial.legendre.leggauss(n)
+    return 0.5 * (x + 1.0), 0.5 * w
 
 
 def spheroid_s_unclamped(z, r_short: float, r_long: float, z_center: float) -> np.ndarray:
@@ -296,14 +304,6 @@ class Anatomy:
     @property
     def realistic(self) -> bool:
         return self.shape is not None
-
-    @cached_property
-    def memo(self) -> dict:
-        """Values derived from this (frozen) anatomy, computed once each, by key: the RV sectors
-        per (height, surface), the P tables, and what other phantom modules derive from it
-        (annotate's outer radius table). Not a field: equality, hashing and
-        ``dataclasses.replace`` ignore it (a replaced anatomy starts with an empty one)."""
-        return {}
 
     def _need_theta(self, theta) -> None:
         if theta is None and self.shape is not None:
@@ -695,12 +695,8 @@ class Anatomy:
             The crescent's angular limits, rad, shape of ``atleast_1d(z)``.
         """
         if self.shape is not None and np.ndim(z) == 0 and n_table == 181:
-            key = (float(z), bool(epi))
-            hit = self.memo.get(("rv_sector", key))
-            if hit is None:
-                lo_, hi_ = self.rv_sector(np.array([key[0]]), key[1])
-                hit = self.memo[("rv_sector", key)] = (float(lo_[0]), float(hi_[0]))
-            return np.array([hit[0]]), np.array([hit[1]])
+            lo, hi = self._rv_sector_at(float(z), bool(epi))
+            return np.array([lo]), np.array([hi])
         z = np.atleast_1d(np.asarray(z, dtype=float))
         if self.shape is None:
             e = self.rv_sector_edge(z, epi)
@@ -739,13 +735,18 @@ class Anatomy:
         out = np.where(has, edge, theta_m)
         return out[0], out[1]
 
+    @memoized
+    def _rv_sector_at(self, z: float, epi: bool) -> tuple[float, float]:
+        """:meth:`rv_sector` of a realistic anatomy at one height (cached per (z, surface);
+        :meth:`prime_rv_sectors` solves many at once)."""
+        lo, hi = self.rv_sector(np.array([z]), epi)
+        return float(lo[0]), float(hi[0])
+
+    @memoized
     def _p_table(self, epi: bool) -> tuple[np.ndarray, np.ndarray]:
         """(θ, P(θ)) on 4097 angles of [0, π] (per surface, computed once)."""
-        tab = self.memo.get(("p_table", epi))
-        if tab is None:
-            th = np.linspace(0.0, np.pi, 4097)
-            tab = self.memo[("p_table", epi)] = (th, self.rv_p(th, epi))
-        return tab
+        th = np.linspace(0.0, np.pi, 4097)
+        return th, self.rv_p(th, epi)
 
     def rv_sector_edge(self, z: np.ndarray, epi: bool = False) -> np.ndarray:
         """θ_e(z) in [0, π]: half-angle of the RV crescent at height z (0 where there is none).
@@ -796,8 +797,8 @@ class Anatomy:
         z = np.unique(np.asarray(z, dtype=float))
         for epi in (False, True):
             lo, hi = self.rv_sector(z, epi)
-            self.memo.update({("rv_sector", (float(a), epi)): (float(b), float(c))
-                              for a, b, c in zip(z, lo, hi)})
+            for a, b, c in zip(z, lo, hi):
+                self._rv_sector_at.store((float(b), float(c)), float(a), epi)
 
     def rv_onset(self, epi: bool = False, iters: int = 80) -> float:
         """Lowest height z0 where the RV shell leaves the LV epicardium (crescent onset), mm.

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from cardionurbs.cache import attached, memoized
 from cardionurbs.geometry import polyline_crossings
 from cardionurbs.phantom.anatomy import Anatomy, spheroid_s_unclamped, unit_phasor, wrap_angle
 from cardionurbs.phantom.geometry import SliceSpec
@@ -415,36 +416,33 @@ class _RvShells:
 
     def __init__(self, anatomy: Anatomy, th: np.ndarray, z: np.ndarray, s_epi=None) -> None:
         """``s_epi``: the LV epicardial S at (θ, z) when the caller has it (the tract's inner side)."""
-        self.anatomy, self.th, self.z, self.s_epi, self._memo = anatomy, th, z, s_epi, {}
+        self.anatomy, self.th, self.z, self.s_epi = anatomy, th, z, s_epi
 
-    def _get(self, key, fn):
-        if key not in self._memo:
-            self._memo[key] = fn()
-        return self._memo[key]
-
+    @memoized
     def body(self, epi: bool) -> np.ndarray:
-        return self._get(("body", epi), lambda: self.anatomy.s_rv_body(self.th, self.z, epi))
+        return self.anatomy.s_rv_body(self.th, self.z, epi)
 
+    @memoized
     def base_radius(self, epi: bool):
         if self.anatomy.outflow is None:
             return None
         from cardionurbs.phantom.outflow import rvot_base_radius
-        return self._get(("r_b", epi), lambda: rvot_base_radius(self.anatomy, self.th, epi))
+        return rvot_base_radius(self.anatomy, self.th, epi)
 
+    @memoized
     def tract(self, epi: bool) -> np.ndarray:
         """The RVOT shell's S (:func:`cardionurbs.phantom.outflow.s_rvot`) at every point."""
         from cardionurbs.phantom.outflow import s_rvot
-        return self._get(("tract", epi), lambda: s_rvot(self.anatomy, self.th, self.z, epi, s_epi=self.s_epi,
-                                                        r_b=self.base_radius(epi)))
+        return s_rvot(self.anatomy, self.th, self.z, epi, s_epi=self.s_epi, r_b=self.base_radius(epi))
 
+    @memoized
     def s_rv(self, epi: bool) -> np.ndarray:
         """:meth:`Anatomy.s_rv`: the body, and above the tricuspid plane the tract (taken from
         :meth:`tract` when that has been asked for: the same values)."""
-        if ("tract", epi) in self._memo:
-            return self._get(("s_rv", epi), lambda: np.where(self.z > self.anatomy.z_base, self.tract(epi),
-                                                             self.body(epi)))
-        return self._get(("s_rv", epi), lambda: self.anatomy.s_rv(
-            self.th, self.z, epi, body=self.body(epi), r_b=self.base_radius(epi), s_epi=self.s_epi))
+        if epi in self.tract:
+            return np.where(self.z > self.anatomy.z_base, self.tract(epi), self.body(epi))
+        return self.anatomy.s_rv(self.th, self.z, epi, body=self.body(epi),
+                                 r_b=self.base_radius(epi), s_epi=self.s_epi)
 
 
 def _outflow_terms(anatomy: Anatomy, motion: Motion, out: dict, regions, sp, th, z, f, layers,
@@ -825,7 +823,7 @@ def _la_contours_realistic(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f:
 OUTER_MARGIN, OUTER_MARGIN_MM2 = 0.1, 25.0
 
 
-def _outer_s_table(anatomy: Anatomy, n: int = 720, n_z: int = 160) -> np.ndarray:
+def _outer_s_table(anatomy: Anatomy, n: int = 720, n_z: int = 160) -> tuple:
     """S_out(θ) on n bins of θ ∈ [−π, π): an upper bound, over the heights (z_lo, z_hi) also
     returned, of the squared radius of every boundary the region terms compare with (LV
     epicardium, RV endo- and epicardium, RVOT shells), each bin's maximum over itself and two
@@ -833,26 +831,27 @@ def _outer_s_table(anatomy: Anatomy, n: int = 720, n_z: int = 160) -> np.ndarray
     ~0.8 mm; with the heights where the surfaces have kinks or jumps: the LV equator, the base, the
     tract's top): the smooth maxima between samples exceed the samples by far less than the
     margins of :func:`_beyond_every_boundary`."""
-    tab = anatomy.memo.get("outer_s_table")
-    if tab is None:
-        th = -np.pi + (np.arange(2 * n) + 0.5) * (2 * np.pi / (2 * n))
-        top = anatomy.z_base + 80.0
-        marks = [anatomy.z_center, anatomy.z_base, np.nextafter(anatomy.z_base, np.inf)]
-        if anatomy.outflow is not None:
-            from cardionurbs.phantom import outflow as ofl
-            top = max(top, float(ofl.pulmonary_ring(anatomy)[:, 2].max()) + 20.0)
-            marks.append(anatomy.z_base + ofl.rvot_frame(anatomy).height)
-        z = np.unique(np.r_[np.linspace(-10.0, top, n_z), marks])[:, None]
-        T = np.broadcast_to(th[None, :], (len(z), len(th)))
-        Z = np.broadcast_to(z, T.shape)
-        parts = [anatomy.s_lv_epi(Z, T), anatomy.s_rv(T, Z, False), anatomy.s_rv(T, Z, True)]
-        if anatomy.outflow is not None:
-            from cardionurbs.phantom import outflow as ofl
-            parts += list(ofl.s_rvot_pair(anatomy, T, Z))
-        per = np.max([p.max(axis=0) for p in parts], axis=0).reshape(n, 2).max(axis=1)
-        tab = (np.max([np.roll(per, k) for k in range(-2, 3)], axis=0), (-10.0, top))
-        anatomy.memo["outer_s_table"] = tab
-    return tab
+    return attached(anatomy, "_outer_s_table", _make_outer_s_table)(n, n_z)
+
+
+def _make_outer_s_table(anatomy: Anatomy, n: int, n_z: int) -> tuple:
+    """:func:`_outer_s_table` made (once per anatomy and sampling)."""
+    th = -np.pi + (np.arange(2 * n) + 0.5) * (2 * np.pi / (2 * n))
+    top = anatomy.z_base + 80.0
+    marks = [anatomy.z_center, anatomy.z_base, np.nextafter(anatomy.z_base, np.inf)]
+    if anatomy.outflow is not None:
+        from cardionurbs.phantom import outflow as ofl
+        top = max(top, float(ofl.pulmonary_ring(anatomy)[:, 2].max()) + 20.0)
+        marks.append(anatomy.z_base + ofl.rvot_frame(anatomy).height)
+    z = np.unique(np.r_[np.linspace(-10.0, top, n_z), marks])[:, None]
+    T = np.broadcast_to(th[None, :], (len(z), len(th)))
+    Z = np.broadcast_to(z, T.shape)
+    parts = [anatomy.s_lv_epi(Z, T), anatomy.s_rv(T, Z, False), anatomy.s_rv(T, Z, True)]
+    if anatomy.outflow is not None:
+        from cardionurbs.phantom import outflow as ofl
+        parts += list(ofl.s_rvot_pair(anatomy, T, Z))
+    per = np.max([p.max(axis=0) for p in parts], axis=0).reshape(n, 2).max(axis=1)
+    return np.max([np.roll(per, k) for k in range(-2, 3)], axis=0), (-10.0, top)
 
 
 def _outside_heart(anatomy: Anatomy, motion: Motion, points: np.ndarray, f: float,

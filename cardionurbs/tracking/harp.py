@@ -43,11 +43,12 @@ Tracking
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 from scipy import fft as sfft
 from scipy.spatial import cKDTree
+
+from cardionurbs.cache import memoized
 
 #: Gaussian band-pass standard deviation, as a fraction of |k|
 FILTER_SIGMA = 0.25
@@ -143,11 +144,6 @@ class HarmonicSeries:
                                         + k[1] * np.arange(rows)[:, None]))
         return cls(np.asarray(k, float), H * carrier)
 
-    @cached_property
-    def _field_memo(self) -> dict[int, np.ndarray]:
-        """Frame -> :meth:`_grid_fields` of that frame, filled as they are asked for."""
-        return {}
-
     @property
     def frames(self) -> int:
         return self.baseband.shape[0]
@@ -170,20 +166,17 @@ class HarmonicSeries:
                                        + self.k[1] * np.arange(rows)[:, None]))
         return self.baseband[t] * carrier
 
+    @memoized
     def _grid_fields(self, t: int) -> np.ndarray:
         """(4, rows, cols): Re D, Im D, ∂ arg D/∂c, ∂ arg D/∂r at frame t (cached)."""
-        f = self._field_memo.get(t)
-        if f is None:
-            D = self.baseband[t]
-            gc = np.zeros(D.shape)
-            gr = np.zeros(D.shape)
-            gc[:, 1:-1] = np.angle(D[:, 2:] * np.conj(D[:, :-2])) / 2
-            gc[:, 0], gc[:, -1] = gc[:, 1], gc[:, -2]
-            gr[1:-1] = np.angle(D[2:] * np.conj(D[:-2])) / 2
-            gr[0], gr[-1] = gr[1], gr[-2]
-            f = np.stack([D.real, D.imag, gc, gr])
-            self._field_memo[t] = f
-        return f
+        D = self.baseband[t]
+        gc = np.zeros(D.shape)
+        gr = np.zeros(D.shape)
+        gc[:, 1:-1] = np.angle(D[:, 2:] * np.conj(D[:, :-2])) / 2
+        gc[:, 0], gc[:, -1] = gc[:, 1], gc[:, -2]
+        gr[1:-1] = np.angle(D[2:] * np.conj(D[:-2])) / 2
+        gr[0], gr[-1] = gr[1], gr[-2]
+        return np.stack([D.real, D.imag, gc, gr])
 
     def sample(self, t: int, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(phase φ (n,), gradient ∇φ (n, 2) rad/px in (c, r), magnitude (n,)) at (n, 2) (c, r).
