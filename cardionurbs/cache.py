@@ -50,6 +50,15 @@ class Memo:
 
     The values live in a plain dict (``table``) in the instance's ``__dict__``; a Memo
     itself is a light view made on attribute access.
+
+    Parameters
+    ----------
+    fn : callable
+        The method, ``fn(obj, *args)``.
+    obj : object
+        The instance.
+    table : dict
+        Argument tuple -> value, kept in the instance's ``__dict__``.
     """
 
     __slots__ = ("_fn", "_obj", "_table")
@@ -69,31 +78,84 @@ class Memo:
         return (arg,) in self._table
 
     def has(self, *args: Hashable) -> bool:
-        """Whether the value of these arguments exists (nothing is computed)."""
+        """Whether the value of these arguments exists (nothing is computed).
+
+        Parameters
+        ----------
+        *args : hashable
+            The arguments.
+
+        Returns
+        -------
+        bool
+        """
         return args in self._table
 
     def keys(self) -> list[tuple]:
-        """The argument tuples whose values exist."""
+        """The argument tuples whose values exist.
+
+        Returns
+        -------
+        list of tuple
+        """
         return [k for k in self._table if k is not None]
 
     def get(self, *args: Hashable) -> Any:
-        """The value of these arguments if it exists, else None (nothing is computed)."""
+        """The value of these arguments if it exists, else None (nothing is computed).
+
+        Parameters
+        ----------
+        *args : hashable
+            The arguments.
+
+        Returns
+        -------
+        object or None
+        """
         return self._table.get(args)
 
     def provide(self, value: Any, *args: Hashable) -> None:
-        """Store a value computed elsewhere (a worker process), unless one exists."""
+        """Store a value computed elsewhere (a worker process), unless one exists.
+
+        Parameters
+        ----------
+        value : object
+            The value.
+        *args : hashable
+            The arguments it is the value of.
+        """
         self._table.setdefault(args, value)
 
     def store(self, value: Any, *args: Hashable) -> None:
-        """Store a value computed elsewhere, replacing the one that exists."""
+        """Store a value computed elsewhere, replacing the one that exists.
+
+        Parameters
+        ----------
+        value : object
+            The value.
+        *args : hashable
+            The arguments it is the value of.
+        """
         self._table[args] = value
 
     def forget(self, *args: Hashable) -> None:
-        """Drop the value of these arguments (nothing when it does not exist)."""
+        """Drop the value of these arguments (nothing when it does not exist).
+
+        Parameters
+        ----------
+        *args : hashable
+            The arguments.
+        """
         self._table.pop(args, None)
 
     def forget_where(self, where: Callable[[tuple], bool]) -> None:
-        """Drop every value whose argument tuple satisfies ``where``."""
+        """Drop every value whose argument tuple satisfies ``where``.
+
+        Parameters
+        ----------
+        where : callable (tuple) -> bool
+            True for an argument tuple whose value is to be dropped.
+        """
         for key in [k for k in self.keys() if where(k)]:
             del self._table[key]
 
@@ -158,7 +220,24 @@ def attached(obj: Any, name: str, fn: Callable, depends: Iterable[str] = ()) -> 
     """A memo of ``fn(obj, *args)`` kept on ``obj`` under ``name``: for a function of a
     higher layer that caches on an object it does not own (e.g. a study's stacking
     direction per frame, :mod:`cardionurbs.anatomy.sections`). Same rules as
-    :class:`memoized`."""
+    :class:`memoized`.
+
+    Parameters
+    ----------
+    obj : object
+        The object the memo's table is kept on (in its ``__dict__``).
+    name : str
+        The table's attribute name.
+    fn : callable
+        ``fn(obj, *args)``, the value to keep per argument tuple.
+    depends : iterable of str
+        Attributes of ``obj`` whose replacement (or change of length) drops every value.
+
+    Returns
+    -------
+    Memo
+        Callable as ``memo(*args)``, with ``forget``, ``provide`` and ``in``.
+    """
     return Memo(fn, obj, _table(obj, name, tuple(depends)))
 
 
@@ -202,13 +281,27 @@ class LazyFrames(Mapping):
 
     def provide(self, frame: Any, value: Any) -> None:
         """Store the value of one frame computed elsewhere (a worker process of
-        :func:`cardionurbs.parallel.fork_map`), unless this mapping has one."""
+        :func:`cardionurbs.parallel.fork_map`), unless this mapping has one.
+
+        Parameters
+        ----------
+        frame : hashable
+            One of the mapping's keys.
+        value : object
+            Its value.
+        """
         if frame not in self._frames:
             raise KeyError(frame)
         self._values.setdefault(frame, value)
 
     def drop(self, frames: Iterable) -> None:
-        """Remove frames from the keys (and their values)."""
+        """Remove frames from the keys (and their values).
+
+        Parameters
+        ----------
+        frames : iterable
+            Keys to remove.
+        """
         gone = set(frames)
         self._frames = [f for f in self._frames if f not in gone]
         for f in gone:

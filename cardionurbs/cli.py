@@ -168,6 +168,13 @@ def _analyze_output_options(parser: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``cardionurbs`` argument parser, every subcommand and option (docs/usage.md).
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        Usage errors leave it as one line and exit code 2.
+    """
     p = _Parser(prog="cardionurbs", description=DESCRIPTION, formatter_class=_HelpFormatter)
     p.add_argument("--version", action="version", version="cardionurbs 0.1.0")
     p.add_argument("--debug", action="store_true",
@@ -369,7 +376,13 @@ def _run(args: argparse.Namespace) -> int:
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised in the main thread so that cleanup (atomic outputs) runs."""
+    """SIGTERM, raised in the main thread so that cleanup (atomic outputs) runs.
+
+    Parameters
+    ----------
+    signum : int
+        The signal number (15).
+    """
 
     def __init__(self, signum: int) -> None:
         super().__init__(signum)
@@ -416,6 +429,11 @@ def one_blas_thread() -> bool:
     CPU waking and spinning its threads than it saves: a metrics-only ``analyze`` of a
     20-frame phantom took about 60 % more CPU time with the default threads than with
     one (reports/benchmark-throughput.md), and a cohort runs one worker per core anyway.
+
+    Returns
+    -------
+    bool
+        True when the limit was set.
     """
     if "numpy" in sys.modules or any(v in os.environ for v in BLAS_THREAD_VARIABLES):
         return False
@@ -425,7 +443,18 @@ def one_blas_thread() -> bool:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``cardionurbs`` console script (exit codes: module docstring)."""
+    """Entry point of the ``cardionurbs`` console script (exit codes: module docstring).
+
+    Parameters
+    ----------
+    argv : sequence of str or None
+        The arguments after the program name; None: ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        The exit code (0, 1, 2, 3, 130 or 143: the module docstring says when).
+    """
     one_blas_thread()
     argv = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in argv[:argv.index("--")] if "--" in argv else "--debug" in argv

@@ -93,7 +93,15 @@ class ChromiumError(RuntimeError):
 
 class OutputError(CardioNurbsError):
     """An output path that would destroy data (an input, a folder cardionurbs did not
-    write, an existing file) or cannot be written; names the option (``--out``, ``--csv``)."""
+    write, an existing file) or cannot be written; names the option (``--out``, ``--csv``).
+
+    Parameters
+    ----------
+    message : str
+        The one-line message.
+    option : str or None
+        The option it concerns (``--out``, ``--csv``, ...).
+    """
 
     def __init__(self, message: str, *, option: str | None = None) -> None:
         self.option = option

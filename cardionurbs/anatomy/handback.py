@@ -31,7 +31,18 @@ HANDED_BACK = ("geometry", "outflow", "surfaces", "volumes")
 
 
 def computed(model: BiventricularModel) -> dict[str, set]:
-    """Frames whose :data:`HANDED_BACK` values exist, per mapping (see :func:`frame_results`)."""
+    """Frames whose :data:`HANDED_BACK` values exist, per mapping (see :func:`frame_results`).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model (in a worker process, before it makes a frame).
+
+    Returns
+    -------
+    dict of str to set of int
+        Per handed-back mapping, the frames whose values exist now.
+    """
     return {k: set(getattr(model, k).computed) for k in HANDED_BACK
             if isinstance(getattr(model, k), LazyFrames)}
 
@@ -41,13 +52,38 @@ def frame_results(model: BiventricularModel, frame: int, before: dict[str, set])
     a worker process that made the frame's solids returns so that the model in the parent
     process, given them by :func:`adopt_frame_results`, is as if it had made them itself
     (solids and meshes are not handed back: :meth:`BiventricularModel.release` drops them).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model in the worker process.
+    frame : int
+        The frame the worker made.
+    before : dict of str to set of int
+        What :func:`computed` returned before the frame was made.
+
+    Returns
+    -------
+    dict
+        Mapping name -> the frame's new value (surfaces, sections, volumes as the model keeps
+        them), picklable.
     """
     return {k: getattr(model, k)[frame] for k, done in before.items()
             if frame not in done and frame in getattr(model, k).computed}
 
 
 def adopt_frame_results(model: BiventricularModel, frame: int, results: dict) -> None:
-    """Store the values :func:`frame_results` returned (those the model has are kept)."""
+    """Store the values :func:`frame_results` returned (those the model has are kept).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model in the parent process.
+    frame : int
+        The frame the values belong to.
+    results : dict
+        What :func:`frame_results` returned in the worker.
+    """
     for k, value in results.items():
         getattr(model, k).provide(frame, value)
 
@@ -67,6 +103,20 @@ def unrefined_cavity_volumes(model: BiventricularModel, jobs: int | None = 1,
     another order), and their warnings, already recorded, are not added twice. A frame
     whose corrected volume fails leaves it to be made (and fail) where the serial order
     makes it.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model whose frames are measured.
+    jobs : int or None
+        Worker processes (:func:`cardionurbs.parallel.worker_count`: 1 serial, None every CPU).
+    progress : callable (int, int) -> None, optional
+        Called with (frames done, frames in all) after each frame.
+
+    Returns
+    -------
+    dict of int to float
+        Frame -> unrefined LV cavity volume (mL); NaN where the cavity cannot be built.
     """
     from cardionurbs.parallel import fork_map, worker_count
     n = len(model.frames)

@@ -50,7 +50,25 @@ RESOLUTION = (56, 36)
 def ed_es_frames(lv_volumes: dict[int, float], ed_label: int | None = None,
                  es_label: int | None = None) -> tuple[int, int]:
     """ED = frame of maximum, ES = frame of minimum LV cavity volume (docs/metrics.md);
-    when exactly two frames are measured and both labels name them, the labels win."""
+    when exactly two frames are measured and both labels name them, the labels win.
+
+    Parameters
+    ----------
+    lv_volumes : dict of int to float
+        Frame -> LV cavity volume (mL); None or NaN frames are not used.
+    ed_label, es_label : int or None
+        The study's own ED and ES frames, when it names them.
+
+    Returns
+    -------
+    (int, int)
+        The ED and ES frames.
+
+    Raises
+    ------
+    ReconstructionError
+        No frame has a finite LV cavity volume.
+    """
     vols = {f: v for f, v in lv_volumes.items() if v is not None and math.isfinite(v)}
     if not vols:
         raise ReconstructionError("no frame has an LV cavity volume: cannot find ED and ES")
@@ -297,7 +315,18 @@ class BiventricularModel:
         """The volumes (mL, keyed like :attr:`volumes`) the metrics use at one frame: its own,
         or for a supported frame those of its nearest trusted neighbour on each side
         interpolated linearly to it (:func:`cardionurbs.anatomy.cycle.interpolate`: two
-        frames' solids, not four), the LV cavity from the checked curve (the cubic)."""
+        frames' solids, not four), the LV cavity from the checked curve (the cubic).
+
+        Parameters
+        ----------
+        frame : int
+            A frame of the model.
+
+        Returns
+        -------
+        dict of str to float
+            Volume name (as :attr:`volumes`) -> mL.
+        """
         src = self.supported.get(frame)
         if src is None:
             return dict(self.volumes[frame]) if frame in self.frames else {}
@@ -311,7 +340,18 @@ class BiventricularModel:
 
     def own_lv_cavity_volume(self, frame: int) -> float:
         """:meth:`lv_cavity_volume` from the frame's own contours, without the sections
-        interpolated in time (:attr:`sections_in_time`); NaN when those cannot be built."""
+        interpolated in time (:attr:`sections_in_time`); NaN when those cannot be built.
+
+        Parameters
+        ----------
+        frame : int
+            A frame of the model.
+
+        Returns
+        -------
+        float
+            LV cavity volume, mL (NaN when it cannot be built).
+        """
         if frame not in self.sections_in_time:
             return self.lv_cavity_volume(frame)
         geo = self.own_geometry[frame]
@@ -323,7 +363,18 @@ class BiventricularModel:
             return math.nan
 
     def consistent_lv_cavity_volume(self, frame: int) -> float:
-        """:meth:`lv_cavity_volume`, or the checked curve's value at a supported frame (mL)."""
+        """:meth:`lv_cavity_volume`, or the checked curve's value at a supported frame (mL).
+
+        Parameters
+        ----------
+        frame : int
+            A frame of the model.
+
+        Returns
+        -------
+        float
+            LV cavity volume, mL.
+        """
         if frame in self.supported:
             return self.cycle.consistent[frame]
         return self.lv_cavity_volume(frame) if frame in self.frames else math.nan
@@ -364,7 +415,22 @@ class BiventricularModel:
 
     def fit(self, frame: int, structure: str, refined: bool = True) -> SurfaceFit:
         """The lofted surface of one structure at one frame, with its sections (cached);
-        ``refined``: corrected towards the LA contours (LV surfaces, when enabled)."""
+        ``refined``: corrected towards the LA contours (LV surfaces, when enabled).
+
+        Parameters
+        ----------
+        frame : int
+            A frame of the model.
+        structure : str
+            ``lv_endo``, ``lv_epi``, ``rv_endo`` or ``rv_epi``.
+        refined : bool
+            Corrected towards the LA contours (True) or the loft through the SA sections alone.
+
+        Returns
+        -------
+        SurfaceFit
+            The surface (NURBS, scanner mm) and the sections it was lofted through.
+        """
         refined = refined and self.refine and structure in ("lv_endo", "lv_epi") \
             and bool(self.geometry[frame].la_points.get(structure))
         return self._fit(frame, structure, refined)
@@ -385,7 +451,18 @@ class BiventricularModel:
     def lv_cavity_volume_unrefined(self, frame: int) -> float:
         """LV cavity volume (mL) of the loft through the SA contours alone: what ED and
         ES are found with (cheap for every frame; the LA correction is applied only
-        to the frames that are reported)."""
+        to the frames that are reported).
+
+        Parameters
+        ----------
+        frame : int
+            A frame of the model.
+
+        Returns
+        -------
+        float
+            LV cavity volume, mL.
+        """
         return self._clipped_cavity_ml(frame, self.fit(frame, "lv_endo", refined=False).surface)
 
     def _clipped_cavity_ml(self, frame: int, surface) -> float:
@@ -408,7 +485,18 @@ class BiventricularModel:
         """The LV cavity volume (mL) of one frame, as :meth:`volumes` has it: at ED and ES
         (and any frame whose solids exist) from the checked manifold solid; at the other
         frames (the volume curve, filling rates) from the clipped tessellation of the same
-        surface, which gives the same volume to rounding without building the solid."""
+        surface, which gives the same volume to rounding without building the solid.
+
+        Parameters
+        ----------
+        frame : int
+            A frame of the model.
+
+        Returns
+        -------
+        float
+            LV cavity volume, mL.
+        """
         if frame in (self.ed_frame, self.es_frame) or frame in self.lv_cavity_solid:
             return meshing.volume_ml(self.lv_cavity_solid(frame))
         return self._clipped_lv_ml(frame)           # the filling rates and the volume curve ask
@@ -661,7 +749,13 @@ class BiventricularModel:
 
     def release(self, frame: int) -> None:
         """Forget the cached solids and meshes of one frame (its volumes and surfaces are
-        kept): exporting every frame's meshes then holds one frame's at a time."""
+        kept): exporting every frame's meshes then holds one frame's at a time.
+
+        Parameters
+        ----------
+        frame : int
+            A frame of the model.
+        """
         self.meshes.forget(frame)
         for memo in (self._solid, self.lv_cavity_solid, self.solids, self._tract_part):
             memo.forget_where(lambda k: k[0] == frame)
@@ -696,7 +790,18 @@ class BiventricularModel:
 
     def residual_columns(self, frames=None) -> dict[str, np.ndarray]:
         """The columns of :meth:`residual_table` as numpy arrays, no pandas
-        (:func:`cardionurbs.anatomy.residuals.residual_columns`)."""
+        (:func:`cardionurbs.anatomy.residuals.residual_columns`).
+
+        Parameters
+        ----------
+        frames : iterable of int or None
+            The frames; None: ED and ES.
+
+        Returns
+        -------
+        dict of str to ndarray
+            Column name -> array (C,), one entry per contour (mm and pixels).
+        """
         return fit_residuals.residual_columns(self.point_residual_arrays(frames))
 
     def point_residuals(self, frames=None) -> pd.DataFrame:
@@ -704,13 +809,36 @@ class BiventricularModel:
         its image), at the given frames (default ED and ES): columns structure, frame,
         slice, view, dist_mm, dist_px (:func:`cardionurbs.anatomy.residuals.point_residual_parts`
         says which points and which distance). The same numbers without pandas:
-        :meth:`point_residual_arrays`."""
+        :meth:`point_residual_arrays`.
+
+        Parameters
+        ----------
+        frames : iterable of int or None
+            The frames; None: ED and ES.
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per contour point.
+        """
         return fit_residuals.point_residuals(self.point_residual_arrays(frames))
 
     def point_residual_arrays(self, frames=None) -> list[dict]:
         """:meth:`point_residuals` as numpy arrays (cached), one dict per (frame, structure)
         in frame order: ``structure``, ``frame``, and per point ``slice`` (object array),
-        ``view``, ``dist_mm``, ``dist_px``; [] without the study's contours."""
+        ``view``, ``dist_mm``, ``dist_px``; [] without the study's contours.
+
+        Parameters
+        ----------
+        frames : iterable of int or None
+            The frames; None: ED and ES.
+
+        Returns
+        -------
+        list of dict
+            One dict per (frame, structure), as
+            :func:`cardionurbs.anatomy.residuals.point_residual_parts`.
+        """
         if not self.study.contours:
             return []
         return [dict(p) for p in self._point_residuals(self._residual_frames(frames))]
@@ -721,7 +849,15 @@ class BiventricularModel:
 
     def provide_point_residuals(self, parts: list[dict], frames=None) -> None:
         """Store :meth:`point_residual_arrays` computed elsewhere (a worker process of
-        :func:`cardionurbs.parallel.fork_map`), unless this model has them."""
+        :func:`cardionurbs.parallel.fork_map`), unless this model has them.
+
+        Parameters
+        ----------
+        parts : list of dict
+            What :meth:`point_residual_arrays` returned in the worker.
+        frames : iterable of int or None
+            The frames they are of; None: ED and ES.
+        """
         self._point_residuals.provide([dict(p) for p in parts], self._residual_frames(frames))
 
     @memoized

@@ -39,6 +39,20 @@ def point_residual_parts(model: Any, frames: tuple[int, ...]) -> list[dict]:
     surfaces, so that the septal run of an LA RV contour, which lies on the LV
     epicardium, is measured where it lies; where a surface has an outflow tract, the
     nearer of the surface and the tract's wall.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        A model with its study's contours.
+    frames : tuple of int
+        The frames to measure.
+
+    Returns
+    -------
+    list of dict
+        One dict per (frame, structure): ``structure`` (str), ``frame`` (int) and per point
+        ``slice`` (object array (P,)), ``view`` (object array (P,)), ``dist_mm`` (float array
+        (P,), mm), ``dist_px`` (float array (P,), pixels).
     """
     parts = []
     for f in frames:
@@ -75,7 +89,19 @@ def residual_columns(parts: list[dict]) -> dict[str, np.ndarray]:
     view) in the order the contours come, points without a slice left out (as a pandas
     group-by leaves out a missing key). ``mean_*``: the correctly rounded sum of the
     contour's distances over their count (a pandas group-by mean, whose compensated sum
-    can differ from it in the last digit)."""
+    can differ from it in the last digit).
+
+    Parameters
+    ----------
+    parts : list of dict
+        What :func:`point_residual_parts` returned.
+
+    Returns
+    -------
+    dict of str to ndarray
+        :data:`RESIDUAL_COLUMNS` -> one array (C,) per column, one entry per contour
+        (``mean_mm``/``max_mm`` in mm, ``mean_px``/``max_px`` in pixels).
+    """
     cols: dict[str, list] = {c: [] for c in RESIDUAL_COLUMNS}
     for p in parts:
         keys: dict[tuple, int] = {}
@@ -106,13 +132,35 @@ def residual_columns(parts: list[dict]) -> dict[str, np.ndarray]:
 
 
 def residual_table(parts: list[dict]) -> pd.DataFrame:
-    """:func:`residual_columns` as a DataFrame (columns :data:`RESIDUAL_COLUMNS`)."""
+    """:func:`residual_columns` as a DataFrame (columns :data:`RESIDUAL_COLUMNS`).
+
+    Parameters
+    ----------
+    parts : list of dict
+        What :func:`point_residual_parts` returned.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per contour, columns :data:`RESIDUAL_COLUMNS`.
+    """
     import pandas as pd
     return pd.DataFrame(residual_columns(parts), columns=RESIDUAL_COLUMNS)
 
 
 def point_residuals(parts: list[dict]) -> pd.DataFrame:
-    """:func:`point_residual_parts` as one DataFrame (columns :data:`POINT_COLUMNS`)."""
+    """:func:`point_residual_parts` as one DataFrame (columns :data:`POINT_COLUMNS`).
+
+    Parameters
+    ----------
+    parts : list of dict
+        What :func:`point_residual_parts` returned.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per contour point, columns :data:`POINT_COLUMNS` (distances in mm and pixels).
+    """
     import pandas as pd
     if not parts:
         return pd.DataFrame([], columns=POINT_COLUMNS)
@@ -133,7 +181,20 @@ def _pixel_mm(plane) -> float:
 
 
 def surface_distance(surface, points: np.ndarray) -> np.ndarray:
-    """Distance (mm) of each point to a NURBS surface (closest-point projection)."""
+    """Distance (mm) of each point to a NURBS surface (closest-point projection).
+
+    Parameters
+    ----------
+    surface : NurbsSurface
+        The surface.
+    points : ndarray, shape (P, 3)
+        Points, scanner mm.
+
+    Returns
+    -------
+    ndarray, shape (P,)
+        Each point's distance to the surface, mm.
+    """
     res = nurbs.closest_points(surface, np.asarray(points, float))
     if isinstance(res, tuple):
         res = res[-1]

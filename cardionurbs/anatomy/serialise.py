@@ -29,7 +29,18 @@ def _arr(a) -> list:
 def encode(model: Any) -> dict:
     """JSON-safe dict of a :class:`~cardionurbs.anatomy.model.BiventricularModel`: surfaces
     (NURBS), valve planes, apex points, SA sections, outflow tracts (frames that have them),
-    ED/ES (``"format": "cardionurbs-model", "version": 1``)."""
+    ED/ES (``"format": "cardionurbs-model", "version": 1``).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+
+    Returns
+    -------
+    dict
+        The version-1 model dict (JSON-safe: lists and numbers; coordinates in scanner mm).
+    """
     return {
         "format": "cardionurbs-model", "version": 1,
         "subject": model.study.subject, "frames": model.frames,
@@ -56,7 +67,20 @@ def encode(model: Any) -> dict:
 def decode(d: dict, study: Study | None = None) -> dict[str, Any]:
     """The keyword arguments of ``BiventricularModel(**kwargs)`` for a dict of
     :func:`encode` (or a model.json's version 2). The Study is reduced to subject, heart
-    rate, ED/ES labels and the apex/mitral landmarks unless ``study`` is given."""
+    rate, ED/ES labels and the apex/mitral landmarks unless ``study`` is given.
+
+    Parameters
+    ----------
+    d : dict
+        A dict of :func:`encode`, or a model.json's compact version 2.
+    study : Study or None
+        The study the model was reconstructed from; None: a reduced one.
+
+    Returns
+    -------
+    dict of str to object
+        The keyword arguments of ``BiventricularModel(**kwargs)``.
+    """
     d = unpack(d)
     if study is None:
         study = Study(subject=d["subject"], heart_rate_bpm=d.get("heart_rate_bpm"),
