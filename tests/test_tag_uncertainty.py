@@ -106,4 +106,6 @@ def test_clustered_se_covers_a_shared_line_error(g, seed):
         assert c >= s
         hits_c += abs(v.mean()) <= 1.96 * c
         hits_i += abs(v.mean()) <= 1.96 * s
-    assert hits_c / trials > 0.8 > hits_i / trials
+    # expected (4000 trials): clustered 0.85 (g = 4, few clusters) to 0.92 (g = 9), i.i.d.
+    # 0.55 to 0.44; 0.75 lies > 4 SD of 200 trials from both (0.8 failed ~1 run in 5 at g = 4)
+    assert hits_c / trials > 0.75 > hits_i / trials
