@@ -196,7 +196,7 @@ def check_curve(volumes: dict[int, float], *, bound: float = SUPPORT_BOUND,
     for i in np.flatnonzero(finite):          # against the nearest built frame on each side
         nb = _neighbours(int(i), finite, cyclic)
         if nb is not None:
-            dep = abs(y[i] / (lagrange_weights(nb, i) @ y[nb % len(y)]) - 1.0)
+            dep = abs(y[i] / _cubic(y, nb, int(i)) - 1.0)
             if dep > bound and (_spike(y[i], y[nb[1] % len(y)], y[nb[2] % len(y)], bound) > 0
                                 or contours and _incomplete(contours, frames, nb, int(i))):
                 excess[i] = dep        # ranked by the departure from the cubic without it
@@ -219,15 +219,20 @@ def check_curve(volumes: dict[int, float], *, bound: float = SUPPORT_BOUND,
             out.departure.pop(f, None)
             continue
         out.supported[f] = [frames[k % len(y)] for k in nb]
-        out.consistent[f] = float(lagrange_weights(nb, i) @ y[nb % len(y)])
+        out.consistent[f] = _cubic(y, nb, int(i))
         out.departure[f] = float(y[i] / out.consistent[f] - 1.0)
     return out
+
+
+def _cubic(y: np.ndarray, nb: np.ndarray, i: int) -> float:
+    """The cubic through the volumes at positions ``nb`` (:func:`_neighbours`), at ``i``."""
+    return float(lagrange_weights(nb, i) @ y[nb % len(y)])
 
 
 def _cubic_at(y: np.ndarray, i: int, finite: np.ndarray, cyclic: bool) -> float:
     """The cubic through the two nearest finite frames on each side of position ``i``."""
     nb = _neighbours(i, finite, cyclic)
-    return math.nan if nb is None else float(lagrange_weights(nb, i) @ y[nb % len(y)])
+    return math.nan if nb is None else _cubic(y, nb, i)
 
 
 def _the_outlier(y: np.ndarray, i: int, excess: np.ndarray, finite: np.ndarray,
