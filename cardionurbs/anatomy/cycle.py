@@ -30,13 +30,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from cardionurbs.anatomy.sections import FrameGeometry, Section
+from cardionurbs.cache import attached
 from cardionurbs.errors import CardioNurbsError
 
 #: a frame is supported when its volume lies beyond both neighbours by more than this
@@ -455,16 +455,15 @@ def section_areas(geo: FrameGeometry) -> dict[str, dict[str, float]]:
             for s, secs in geo.sections.items()}
 
 
-#: section -> (direction, area in mm²): every frame's areas are asked for at every frame
-_AREAS: "weakref.WeakKeyDictionary[Section, tuple[np.ndarray, float]]" = weakref.WeakKeyDictionary()
-
-
 def _area(sec: Section, direction: np.ndarray) -> float:
+    """The section's area (mm²) about the stack direction, kept on the section
+    (:func:`cardionurbs.cache.attached`): every frame's areas are asked for at every frame."""
+    return attached(sec, "_area_along", _section_area)(tuple(map(float, direction)))
+
+
+def _section_area(sec: Section, direction: tuple[float, float, float]) -> float:
     from cardionurbs.geometry import polygon_area
-    got = _AREAS.get(sec)
-    if got is None or not np.array_equal(got[0], direction):
-        got = _AREAS[sec] = (np.array(direction), float(polygon_area(sec.points, direction)))
-    return got[1]
+    return float(polygon_area(sec.points, np.array(direction)))
 
 
 def _areas_or_none(raw: Mapping[int, FrameGeometry], frame: int) -> dict[str, dict[str, float]]:
