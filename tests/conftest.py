@@ -79,14 +79,10 @@ def _group_name(keys: set[tuple[str, str]]) -> str:
     return Path(min(k for k, _ in keys).split("::")[0]).stem
 
 
-@pytest.hookimpl(tryfirst=True)
-def pytest_collection_modifyitems(config, items):
-    """One xdist group (``--dist loadgroup``, pyproject.toml) for the tests that share a fixture
-    wider than a function, so that it is built once and not once per worker: the tests
-    connected through such fixtures (a module's tests sharing a module fixture, every module
-    using a session fixture of this file, an explicit ``xdist_group`` mark) make one group.
-    Without it ``loadgroup`` hands a module's tests to both workers one by one, and each
-    worker builds the module's fixtures."""
+def _mark_groups(items) -> None:
+    """Give the tests connected through fixtures wider than a function (a module's tests
+    sharing a module fixture, every module using a session fixture of this file, an explicit
+    ``xdist_group`` mark) one ``xdist_group`` mark."""
     parent: dict = {}
 
     def root(k):
@@ -106,6 +102,35 @@ def pytest_collection_modifyitems(config, items):
         keys = used[id(item)]
         if keys:
             item.add_marker(pytest.mark.xdist_group(_group_name(members[root(keys[0])])), append=False)
+
+
+def _group_suffix(item) -> None:
+    """The ``@group`` suffix of the node id, by which ``--dist loadgroup`` schedules: what
+    pytest-xdist (3.8) writes to ``item._nodeid``, which pytest 9.2 no longer reads (its
+    node ids are ``item._id``, a NodeId); without it no test is grouped."""
+    names = sorted({str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+                    for m in item.iter_markers("xdist_group")})
+    suffix = "@" + "_".join(names)
+    if not names or item.nodeid.endswith(suffix):
+        return
+    from _pytest.nodeid import NodeId
+    path, _, rest = (item.nodeid + suffix).partition("::")
+    item._id = NodeId(path=path, names=tuple(rest.split("::")))     # "[params]@group" a name
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_collection_modifyitems(config, items):
+    """One xdist group (``--dist loadgroup``, pyproject.toml) for the tests that share a fixture
+    wider than a function, so that it is built once and not once per worker (without it
+    ``loadgroup`` hands a module's tests to both workers one by one, and each worker builds
+    the module's fixtures): the marks go on before pytest-xdist's own hook reads them, the
+    node ids are checked after it."""
+    _mark_groups(items)
+    result = yield
+    if getattr(config.option, "loadgroup", False):          # an xdist worker
+        for item in items:
+            _group_suffix(item)
+    return result
 
 
 @pytest.fixture(scope="session")
