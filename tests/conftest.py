@@ -57,8 +57,13 @@ def _shared_fixtures(item) -> list[tuple[str, str]]:
             for m in item.iter_markers("xdist_group")]
     for name in getattr(item, "fixturenames", ()):
         fd = defs.get(name, [None])[-1]
-        where = Path(inspect.getfile(fd.func)) if fd is not None else None
-        if where is None or fd.scope == "function" or not where.is_relative_to(TESTS):
+        if fd is None or fd.scope == "function":
+            continue
+        try:
+            where = Path(inspect.getfile(fd.func))
+        except TypeError:                       # not a Python function: not one of ours
+            continue
+        if not where.is_relative_to(TESTS):
             continue
         if fd.scope == "class":
             node = item.nodeid.rsplit("::", 1)[0]
