@@ -56,7 +56,7 @@ def _shared_fixtures(item) -> list[tuple[str, str]]:
     keys = [("mark", m.args[0] if m.args else m.kwargs["name"])
             for m in item.iter_markers("xdist_group")]
     for name in getattr(item, "fixturenames", ()):
-        fd = defs.get(name, [None])[-1]
+        fd = (defs.get(name) or [None])[-1]
         if fd is None or fd.scope == "function":
             continue
         try:
