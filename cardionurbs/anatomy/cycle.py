@@ -442,8 +442,9 @@ def basal_edges(stacks: Mapping[int, list[str]], frames: list[int],
     Parameters
     ----------
     stacks : mapping frame -> list of str
-        Per frame whose LV cavity was built, its own (traced, not interpolated) LV
-        endocardial SA slices, base -> apex.
+        Per frame whose LV cavity was built, the SA slices of its LV endocardium, base ->
+        apex (its own and those interpolated in time: a gap filled inside its stack, or a
+        partial tracing replaced, is not a change at its base).
     frames : list of int
         The frames of the curve, in order.
     cyclic : bool
@@ -493,7 +494,8 @@ def support_basal(volumes: dict[int, float], edges: Mapping[int, str], ref: str,
     slice is compared with the cubic through the two nearest frames on each side whose
     basal evidence is whole (Lagrange interpolation in frame number, wrapping round a
     whole cycle), held within the range of the nearest of them on each side (across a gap
-    the cubic may make a trough they do not show); where they differ by more than ``bound`` of the frame's volume, the
+    the cubic may make a trough they do not show), when those lie within
+    :data:`PARTIAL_MAX_STEP` frames of it; where they differ by more than ``bound`` of the frame's volume, the
     frame keeps its own cavity apical to the slice and takes the cubic's basal region.
     A cine of fewer than :data:`MIN_FRAMES` frames is not supported.
 
@@ -527,8 +529,8 @@ def support_basal(volumes: dict[int, float], edges: Mapping[int, str], ref: str,
     for f in sorted(edges):
         i = frames.index(f)
         nb = _neighbours(i, whole, cyclic) if finite[i] else None
-        if nb is None:
-            continue
+        if nb is None or max(i - nb[1], nb[2] - i) > PARTIAL_MAX_STEP:
+            continue            # too far apart in time to stand in for the frame's own base
         src = [frames[k % len(frames)] for k in nb]
         b = np.array([basal_ml(g) for g in src], float)
         # held within the nearest source on each side: across a gap that spans the ES trough

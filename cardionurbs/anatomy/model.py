@@ -256,7 +256,7 @@ class BiventricularModel:
             if math.isfinite(v):
                 geo = self.geometry[f]
                 stacks[f] = [sec.slice for sec in geo.sections.get("lv_endo") or []
-                             if sec.slice is not None and ("lv_endo", sec.slice) not in geo.in_time]
+                             if sec.slice is not None]
         finite = np.array([v for v in lv.values() if math.isfinite(v)])
         ref, edges = basal_edges(stacks, sorted(lv), is_cyclic(finite))
         if ref is None or not edges:
