@@ -23,7 +23,9 @@ from cardionurbs import nurbs
 from cardionurbs.anatomy import handback, serialise
 from cardionurbs.anatomy import mesh as meshing
 from cardionurbs.anatomy import residuals as fit_residuals
-from cardionurbs.anatomy.cycle import CycleCheck, check_curve, interpolate, support_sections
+from cardionurbs.anatomy.cycle import (MIN_FRAMES, BasalSupport, CycleCheck, basal_edges,
+                                       check_curve, interpolate, is_cyclic, support_basal,
+                                       support_sections)
 from cardionurbs.anatomy.mesh import Plane
 from cardionurbs.anatomy.outflow import OutflowTract, outflow_tracts, tract_solid
 from cardionurbs.anatomy.residuals import RESIDUAL_COLUMNS, surface_distance  # noqa: F401 (re-exported)
@@ -232,7 +234,8 @@ class BiventricularModel:
             else:
                 lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
             self.lv_volume_by_frame = lv      # the per-frame LV cavity volumes (mL), raw
-            self.cycle = check_curve(lv, contours=self._lv_contour_counts(lv))
+            self.cycle = check_curve(lv, contours=self._lv_contour_counts(lv),
+                                     basal=self._basal_support(lv))
             failed = [f for f, v in lv.items() if not math.isfinite(v)]
             if failed:
                 self._drop_frames(failed)
@@ -243,6 +246,34 @@ class BiventricularModel:
             if "ES" in given and study.es_frame in lv:
                 es = int(study.es_frame)
         return ed, es
+
+    def _basal_support(self, lv: dict[int, float]) -> dict[int, BasalSupport]:
+        """The frames at an edge of a basal slice's run whose basal region their neighbours
+        support (:func:`cardionurbs.anatomy.cycle.support_basal`); {} for a model read back."""
+        if not isinstance(self.surfaces, LazyFrames) or len(lv) < MIN_FRAMES:
+            return {}
+        stacks = {}
+        for f, v in lv.items():
+            if math.isfinite(v):
+                geo = self.geometry[f]
+                stacks[f] = [sec.slice for sec in geo.sections.get("lv_endo") or []
+                             if sec.slice is not None]
+        finite = np.array([v for v in lv.values() if math.isfinite(v)])
+        ref, edges = basal_edges(stacks, sorted(lv), is_cyclic(finite))
+        if ref is None or not edges:
+            return {}
+        return support_basal(lv, edges, ref, lambda f: lv[f] - self._lv_apical_ml(f, ref))
+
+    def _lv_apical_ml(self, frame: int, slice_id: str) -> float:
+        """One frame's LV cavity (mL) on the apical side of an SA slice's plane (NaN when
+        the frame has no section of its LV endocardium there)."""
+        geo = self.geometry[frame]
+        sec = next((x for x in geo.sections.get("lv_endo") or [] if x.slice == slice_id), None)
+        if sec is None:
+            return math.nan
+        v, f = meshing.closed_mesh(*nurbs.tessellate(self._surface(frame, "lv_endo"),
+                                                    *self.resolution, volume_corrected=True))
+        return meshing.clipped_volume(v, f, Plane(sec.points.mean(axis=0), geo.direction)) / 1000.0
 
     def _unrefined_or_nan(self, frame: int) -> float:
         """:meth:`lv_cavity_volume_unrefined`, NaN with a warning when the frame's LV
