@@ -349,6 +349,10 @@ def read_gp_table(path: str | Path) -> tuple[dict[str, np.ndarray], str, int | N
         float(lines[0].split("\t")[0].strip())
     except ValueError:
         header, start = lines[0], 1
+    perm = header_order(header)
+    if perm is not None:                       # columns named in another order: reorder them
+        lines = lines[:start] + [_reordered(ln, perm) for ln in lines[start:]]
+        text = "\n".join(lines) + "\n"
     rows = _plain_rows(text, lines, start)
     if rows is not None:
         return rows, header, _fixed_decimals([rows.pop(f"{c}_text") for c in "xyz"])
@@ -378,6 +382,46 @@ def read_gp_table(path: str | Path) -> tuple[dict[str, np.ndarray], str, int | N
             "slice_id": table["slice_id"].to_numpy(int),
             "weight": table["weight"].to_numpy(object), "time": table["time"].to_numpy(object),
             "line": table["line"].to_numpy(int)}, header, decimals
+
+
+#: a GPFile header's column names (lower case, without spaces and underscores) -> column
+_COLUMN_NAMES = {"x": "x", "y": "y", "z": "z", "contourtype": "type", "type": "type",
+                 "frameid": "slice", "sliceid": "slice", "slice": "slice", "weight": "weight",
+                 "timeframe": "time", "time": "time"}
+_HEADER_TOKEN = re.compile(r"contour[ _]?type|time[ _]?frame|frame[ _]?id|slice[ _]?id|[^\s]+", re.I)
+
+
+def header_order(header: str) -> list[int] | None:
+    """Where a GPFile's header puts each of the columns x, y, z, contour type, frameID
+    (``sliceID``), weight, time frame: the file column of each, in that order; None when the
+    header names them in that order (or does not name the seven; the order is then taken to
+    be that one). biv-me reads the columns by these names, so a file may order them its way.
+
+    Parameters
+    ----------
+    header : str
+        The header line ("" for none).
+
+    Returns
+    -------
+    list of int or None
+        Seven file-column indices, or None.
+    """
+    names = [_COLUMN_NAMES.get(re.sub(r"[\s_]", "", t).lower()) for t in _HEADER_TOKEN.findall(header)]
+    if len(names) != 7 or sorted(map(str, names)) != sorted(_COLUMNS):
+        return None
+    perm = [names.index(c) for c in _COLUMNS]
+    return None if perm == list(range(7)) else perm
+
+
+def _reordered(line: str, perm: list[int]) -> str:
+    """One data line with its fields (tab or whitespace separated) in the standard order."""
+    tok = line.split("\t")
+    if len(tok) != 7:
+        tok = line.split()
+    if len(tok) != 7:
+        return line                            # left to the readers' error naming the line
+    return "\t".join(tok[i].strip() for i in perm)
 
 
 #: characters that make a file not plain (:func:`_plain_rows`): controls other than tab and
@@ -1037,8 +1081,10 @@ def _gp_file_text(study: Study, frame: int, fm: dict | None, gp: dict, slice_ids
         weights = [w for c, w, _ in fm["runs"] for _ in range(c)]
         times = [tt for c, _, tt in fm["runs"] for _ in range(c)]
     points = _expand(rows, gp.get("decimals"))
-    body = [f"{x}\t{y}\t{z}\t{ty}\t{sid}\t{w}\t{tt}"
-            for (x, y, z, ty, sid), w, tt in zip(points, weights, times)]
+    perm = header_order(gp.get("header") or HEADER)
+    order = range(7) if perm is None else [perm.index(i) for i in range(7)]
+    body = ["\t".join(str(f[i]) for i in order)
+            for f in ((*p, w, tt) for p, w, tt in zip(points, weights, times))]
     return "\n".join([gp.get("header") or HEADER, *body]) + "\n"
 
 

@@ -894,7 +894,9 @@ def read_file(path: Path, labels=None) -> Study:
 
 def _info_cfg(path: Path) -> dict[str, str]:
     out = {}
-    for line in checked(path, what="Info.cfg").read_text(errors="replace").splitlines():
+    # utf-8-sig: a byte-order mark (as Windows editors write) must not hide the first key
+    for line in checked(path, what="Info.cfg").read_text(encoding="utf-8-sig",
+                                                          errors="replace").splitlines():
         if ":" in line:
             k, v = line.split(":", 1)
             out[k.strip()] = v.strip()
@@ -1021,23 +1023,10 @@ def read_ukbb(folder: Path, labels=None) -> Study:
     la: dict = {}
     skipped: list[str] = []
     for view_id, stems in LA_FILES.items():
-        p = next((q for q in (_find(folder, s) for s in stems) if q is not None), None)
-        if p is None:
-            continue
-        v = read_label_volume(p)
-        v.warnings = _unrepeated(v.warnings, sa.warnings)
-        if v.data.shape[3] != sa.data.shape[3]:
-            skipped.append(f"{p}: {v.data.shape[3]} frame(s) where the SA map has "
-                           f"{sa.data.shape[3]}: long-axis map left out")
-            continue
-        present = {int(x) for x in np.unique(v.data)} - {0}
-        if not {roles.lv, roles.myo} <= present:
-            skipped.append(f"{p}: no LV cavity and myocardium labels ({roles.describe()}): an "
-                           "atrial segmentation? long-axis map left out")
-            continue
-        check_values(present, roles, str(p))
-        la[view_id] = (v, frames)
-        files.append(p.name)
+        got = _ukbb_la(folder, stems, sa, roles, paired=sa_path is None, skipped=skipped)
+        if got is not None:
+            la[view_id] = (got[0], frames)
+            files += got[1]
     meta["label_files"] = files
     images = [q.name for q in folder.iterdir()
               if re.fullmatch(r"(sa|la_[234]ch)\.nii(\.gz)?", q.name)]
@@ -1057,6 +1046,69 @@ def read_ukbb(folder: Path, labels=None) -> Study:
     return study
 
 
+#: a long-axis map's LV cavity is bordered by myocardium over at least this share of its
+#: boundary (median over its labelled slices and frames; the rest is the mitral opening): a
+#: ventricular map gives 0.6-0.9, ukbb_cardiac's atrial ``seg_la_4ch`` (1 LA, 2 RA, which
+#: touch only along the atrial septum) well under it
+MIN_LA_WALL_FRACTION = 0.45
+
+
+def _not_ventricular(vol: LabelVolume, roles: LabelRoles, present: set[int]) -> str | None:
+    """Why a long-axis map does not label the ventricles in ``roles`` (None when it does): no
+    LV cavity or myocardium label, or a "cavity" the "myocardium" borders too little of (the
+    atria of ukbb_cardiac's ``seg_la_2ch``/``seg_la_4ch``, labelled 1 LA and 2 RA)."""
+    if not {roles.lv, roles.myo} <= present:
+        return f"no LV cavity and myocardium labels ({roles.describe()})"
+    fr = [masks.ring_fraction(vol.data[:, :, k, t] == roles.lv, vol.data[:, :, k, t] == roles.myo)
+          for t in range(vol.data.shape[3]) for k in range(vol.data.shape[2])]
+    fr = [f for f in fr if np.isfinite(f)]
+    share = float(np.median(fr)) if fr else 0.0
+    if share < MIN_LA_WALL_FRACTION:
+        return (f"label {roles.myo} borders label {roles.lv} over {share:.0%} of its boundary (a "
+                f"ventricular map: > {MIN_LA_WALL_FRACTION:.0%}), so they are not the LV cavity "
+                f"and myocardium of {roles.describe()}")
+    return None
+
+
+def _ukbb_la(folder: Path, stems: tuple[str, ...], sa: LabelVolume, roles: LabelRoles, *,
+             paired: bool, skipped: list[str]) -> tuple[LabelVolume, list[str]] | None:
+    """One view's long-axis map of a ukbb_cardiac folder, on the SA map's frames: the cine map
+    (``seg4_la_4ch``, ...) with as many frames, or, beside ``seg_sa_ED`` + ``seg_sa_ES``, the
+    ``<stem>_ED`` + ``<stem>_ES`` pair ukbb_cardiac writes with them. None (the reason appended
+    to ``skipped``) when absent, on other frames, or not a ventricular map."""
+    for stem in stems:
+        p = _find(folder, stem)
+        pair = (_find(folder, f"{stem}_ED"), _find(folder, f"{stem}_ES"))
+        if paired and None not in pair:
+            assert pair[0] is not None and pair[1] is not None
+            try:
+                v = _ed_es_pair(pair[0], pair[1], folder / f"{stem}_ED+ES")
+            except StudyError as exc:
+                skipped.append(f"{exc}: long-axis maps left out")
+                return None
+            names = [pair[0].name, pair[1].name]
+        elif p is not None:
+            v, names = read_label_volume(p), [p.name]
+        else:
+            if None not in pair:
+                skipped.append(f"{folder}: {stem}_ED/_ES beside a 4-D seg_sa, whose frames they "
+                               f"do not name: long-axis maps left out (the cine {stem} is used)")
+            continue
+        v.warnings = _unrepeated(v.warnings, sa.warnings)
+        if v.data.shape[3] != sa.data.shape[3]:
+            skipped.append(f"{v.path}: {v.data.shape[3]} frame(s) where the SA map has "
+                           f"{sa.data.shape[3]}: long-axis map left out")
+            return None
+        present = {int(x) for x in np.unique(v.data)} - {0}
+        problem = _not_ventricular(v, roles, present)
+        if problem:
+            skipped.append(f"{v.path}: {problem}: an atrial segmentation? long-axis map left out")
+            continue
+        check_values(present, roles, str(v.path))
+        return v, names
+    return None
+
+
 def _smallest_lv_cavity(vol: LabelVolume, roles: LabelRoles, frames: dict[int, int]) -> int:
     """The study frame whose LV cavity has the fewest voxels (the first of equals)."""
     counts = {frame: int(np.count_nonzero(vol.data[..., t] == roles.lv)) for t, frame in frames.items()}
@@ -1072,13 +1124,18 @@ def _layout_ed_es(study: Study, ed: int | None, es: int | None, source: str) -> 
         study.meta["ed_es_source"] = source
 
 
+#: how far above a subject folder the M&Ms dataset table is looked for: the challenge ships
+#: it at the dataset root, OpenDataset/<split>/[Labeled/]<code>/ (read with --allow-outside)
+MNMS_CSV_LEVELS = 3
+
+
 def _mnms_csv(folder: Path, code: str) -> tuple[int, int] | None:
-    for d in (folder, folder.parent):
+    for d in (folder, *list(folder.resolve().parents)[:MNMS_CSV_LEVELS]):
         for q in sorted(d.glob("*.csv")):
             if not (outside_allowed() or is_inside(folder, q)):
                 continue                        # the dataset's table beside the study: opt-in
             try:
-                with q.open(newline="", errors="replace") as fh:
+                with q.open(newline="", encoding="utf-8-sig", errors="replace") as fh:
                     for row in csv.DictReader(fh):
                         row = {k.strip(): v for k, v in row.items() if k}
                         if row.get("External code", "").strip() == code and "ED" in row and "ES" in row:
@@ -1138,6 +1195,13 @@ def read_mnms(folder: Path, labels=None, ed_frame: int | None = None,
         meta["image_files"] = [img.name]
     study = _build(code, folder, sa, frames, _times(sa, frames), roles, note, meta=meta)
     _layout_ed_es(study, ed_frame, es_frame, source)
+    if ed_frame is None and es_frame is None:
+        where = (f"the subject folder or the {MNMS_CSV_LEVELS} above it" if outside_allowed()
+                 else "the subject folder (one above it is read with --allow-outside)")
+        study.meta["reader_warnings"].append(
+            f"{folder}: no row for {code} in an M&Ms dataset table (a *.csv with External code, "
+            f"ED, ES) in {where}: ED and ES from the LV volumes of the labelled frames "
+            f"{', '.join(map(str, fr))}")
     return study
 
 
@@ -1184,9 +1248,9 @@ def read_mnms2(folder: Path, labels=None) -> Study:
             lvol = _ed_es_pair(found[("LA", "ED")], found[("LA", "ES")], folder / f"{code}_LA_ED+ES")
             present = {int(x) for x in np.unique(lvol.data)} - {0}
             check_values(present, roles, str(lvol.path))
-            if not {roles.lv, roles.myo} <= present:
-                raise StudyError(f"no LV cavity and myocardium labels ({roles.describe()})",
-                                 file=str(lvol.path))
+            problem = _not_ventricular(lvol, roles, present)
+            if problem:
+                raise StudyError(problem, file=str(lvol.path))
             la["la_4ch"] = (lvol, frames)
             meta["label_files"] += [found[("LA", p)].name for p in ("ED", "ES")]
         except StudyError as exc:
