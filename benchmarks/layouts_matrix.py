@@ -1,7 +1,8 @@
 """Real files in other datasets' layouts read back the same (issues 29 and 30: "on real data we
 keep aside").
 
-    python benchmarks/layouts_matrix.py [--only SUBSTRING] [PATIENT]   # default patient015
+    python benchmarks/layouts_matrix.py [--only A,B] [--labels-only | --cap-only]
+        [--phantoms DIR [--phantoms-only]] [PATIENT]                    # default patient015
 
 Each row builds, in a temporary folder, one layout as a dataset distributes it from the real
 files in ../shared/data (an ACDC patient; bivme-patient1), loads it as ``cardionurbs analyze``
@@ -356,6 +357,21 @@ def la_as_sax(frame, rows):
             else r for r in rows]
 
 
+def sa_as_lax(frame, rows):
+    """The points of one mid short-axis slice's LV endocardium labelled LAX."""
+    sa = sorted({r[4] for r in rows if r[3] == "SAX_LV_ENDOCARDIAL"}, key=int)
+    mid = sa[len(sa) // 2] if sa else None
+    return [[*r[:3], "LAX_LV_ENDOCARDIAL", *r[4:]] if r[3] == "SAX_LV_ENDOCARDIAL" and r[4] == mid
+            else r for r in rows]
+
+
+def frameid_style(dest: Path) -> Path:
+    """bivme-patient1 written back with the CAP export's SliceInfoFile (frameID:, per frame)."""
+    from cardionurbs.io import gpfile
+    gpfile.write_study(load_study(BIVME), dest, style="frameID")
+    return dest
+
+
 def cap_rows(tmp: Path) -> list[tuple[str, Path, dict, str]]:
     z = tmp / "cap"
     return [
@@ -376,11 +392,102 @@ def cap_rows(tmp: Path) -> list[tuple[str, Path, dict, str]]:
         ("CAP a long-axis slice labelled SAX", cap_copy(z / "i", edit=la_as_sax), {}, "same"),
         ("CAP no RV epicardium", cap_copy(
             z / "j", edit=lambda f, rows: [r for r in rows if "RV_EPICARDIAL" not in r[3]]), {}, "RVM null"),
+        ("CAP a short-axis slice labelled LAX", cap_copy(z / "m", edit=sa_as_lax), {}, "same"),
+        ("CAP lines ending in a tab (8th empty field)", cap_copy(
+            z / "n", edit=lambda f, rows: [[*r, ""] for r in rows]), {}, "same"),
+        ("CAP no landmarks (contours only)", cap_copy(
+            z / "o", edit=lambda f, rows: [r for r in rows if r[3].startswith(("SAX_", "LAX_"))]),
+         {}, "informative"),
+        ("CAP SliceInfoFile frameID style (per frame, timeFrame)", frameid_style(z / "p"), {}, "same"),
         ("CAP SliceInfoFile with spaces", cap_copy(
             z / "k", slice_info=lambda t: t.replace("\t", " ")), {}, "same"),
         ("CAP SliceInfoFile CRLF", cap_copy(
             z / "l", slice_info=lambda t: t.replace("\n", "\r\n")), {}, "same"),
     ]
+
+
+# ------------------------------------------------------------------ phantoms in real layouts
+def _copy_maps(src: Path, dest: Path, rename=None, skip=()) -> Path:
+    dest.mkdir(parents=True)
+    for f in sorted(src.iterdir()):
+        if f.name not in skip:
+            shutil.copy(f, dest / (rename(f.name) if rename else f.name))
+    return dest
+
+
+def _atrial(path: Path, dest: Path, labels: dict[int, int]) -> None:
+    """``path``'s map relabelled as ukbb_cardiac's atrial networks write it (old -> new
+    value; the rest 0): seg_la_2ch = 1 LA, seg_la_4ch = 1 LA, 2 RA."""
+    img = nib.load(str(path))
+    a = np.asanyarray(img.dataobj)
+    out = np.zeros_like(a)
+    for old, new in labels.items():
+        out[a == old] = new
+    nib.save(nib.Nifti1Image(out, img.affine, img.header), str(dest))
+
+
+def _frames_of(path: Path, dest_stem: Path, frames: dict[str, int]) -> None:
+    img = nib.load(str(path))
+    a = np.asanyarray(img.dataobj)
+    for ph, t in frames.items():
+        hdr = img.header.copy()
+        nib.save(nib.Nifti1Image(a[..., t], img.affine, hdr), f"{dest_stem}_{ph}.nii.gz")
+
+
+def phantom_rows(root: Path, tmp: Path) -> list[tuple[str, Path, dict, str]]:
+    """Phantom label maps (``cardionurbs phantom --labels L --label-quirks real --out
+    ROOT/ph_L``) rearranged as each dataset distributes them; compared with the truth."""
+    rows: list[tuple[str, Path, dict, str]] = []
+    z = tmp / "ph"
+    u = root / "ph_ukbb" / "labelmaps"
+    if u.is_dir():
+        rows.append(("phantom ukbb as written (seg_sa + seg4_la_4ch + seg_la_2ch/3ch)", u, {}, "truth"))
+        d = _copy_maps(u, z / "u1", skip=("seg_la_2ch.nii.gz",))
+        _atrial(u / "seg_la_2ch.nii.gz", d / "seg_la_2ch.nii.gz", {4: 1})
+        _atrial(u / "seg4_la_4ch.nii.gz", d / "seg_la_4ch.nii.gz", {4: 1, 5: 2})
+        rows.append(("phantom ukbb + atrial seg_la_2ch, seg_la_4ch (ukbb_cardiac's atrial nets)",
+                     d, {}, "truth"))
+        es = json_truth(root / "ph_ukbb")["es_frame"]
+        d = z / "u2"
+        d.mkdir(parents=True)
+        _frames_of(u / "seg_sa.nii.gz", d / "seg_sa", {"ED": 0, "ES": es})
+        _frames_of(u / "seg4_la_4ch.nii.gz", d / "seg4_la_4ch", {"ED": 0, "ES": es})
+        _frames_of(u / "seg_la_2ch.nii.gz", d / "seg_la_2ch", {"ED": 0, "ES": es})
+        rows.append(("phantom ukbb seg_sa_ED/ES + seg4_la_4ch_ED/ES + seg_la_2ch_ED/ES", d, {}, "truth"))
+    m = root / "ph_mnms" / "labelmaps"
+    if m.is_dir():
+        rows.append(("phantom M&Ms-1 as written (CSV beside)", m, {}, "truth"))
+        code = next(m.glob("*_sa_gt.nii.gz")).name[:-len("_sa_gt.nii.gz")]
+        subj = _copy_maps(m, z / "m1" / "OpenDataset" / "Training" / "Labeled" / code, skip=("mnms_info.csv",))
+        table = (m / "mnms_info.csv").read_text().splitlines()
+        ed_es = table[1].split(",")[1:3]
+        (z / "m1" / "OpenDataset" / "211230_M&Ms_Dataset_information_diagnosis_opendataset.csv").write_text(
+            ",External code,VendorName,Vendor,Centre,ED,ES,Age,Pathology,Sex,Height,Weight\n"
+            f"0,{code},Siemens,A,1,{ed_es[0]},{ed_es[1]},50,NOR,M,170,70\n")
+        rows.append(("phantom M&Ms-1 OpenDataset tree, table at the root, --allow-outside", subj,
+                     {"allow_outside": True}, "truth"))
+        rows.append(("phantom M&Ms-1 OpenDataset tree, table at the root", subj, {}, "truth"))
+    m2 = root / "ph_mnms2" / "labelmaps"
+    if m2.is_dir():
+        rows.append(("phantom M&Ms-2 as written (SA + LA ED/ES)", m2, {}, "truth"))
+        code = next(m2.glob("*_SA_ED_gt.nii.gz")).name[:-len("_SA_ED_gt.nii.gz")]
+        d = _copy_maps(m2, z / "m2" / "dataset" / "001", rename=lambda n: n.replace(code, "001"))
+        shutil.copy(root / "ph_ukbb" / "labelmaps" / "sa.nii.gz", d / "001_SA_CINE.nii.gz") \
+            if (root / "ph_ukbb").is_dir() else None
+        rows.append(("phantom M&Ms-2 dataset/001 + SA_CINE", d, {}, "truth"))
+    a = root / "ph_acdc" / "labelmaps"
+    if a.is_dir():
+        rows.append(("phantom ACDC as written (real header, 4d image)", a, {}, "truth"))
+        d = _copy_maps(a, z / "a" / "database" / "testing" / "patient101",
+                       rename=lambda n: n.replace(next(a.glob("*_4d.nii.gz")).name[:-len("_4d.nii.gz")],
+                                                  "patient101"))
+        rows.append(("phantom ACDC testing/patient101 names", d, {}, "truth"))
+    return rows
+
+
+def json_truth(folder: Path) -> dict:
+    import json
+    return json.loads((folder / "truth.json").read_text())
 
 
 def run(path: Path, kw: dict) -> tuple[str, dict | None, dict | None, float]:
@@ -398,7 +505,8 @@ def run(path: Path, kw: dict) -> tuple[str, dict | None, dict | None, float]:
         time.perf_counter() - t0
 
 
-def compare(m: dict, ref: dict) -> list[str]:
+def compare(m: dict, ref: dict, vol_rel: float = 0.02, mass_rel: float = 0.02,
+            pts: float = 2.0) -> list[str]:
     out = []
     for k in KEYS:
         a, b = m.get(k, float("nan")), ref.get(k, float("nan"))
@@ -406,7 +514,7 @@ def compare(m: dict, ref: dict) -> list[str]:
             if np.isfinite(a) != np.isfinite(b):
                 out.append(f"{k.split(' ')[0]} {a} vs {b}")
             continue
-        lim = 2.0 if "%" in k else 0.02 * abs(b)
+        lim = pts if "%" in k else (mass_rel if "(g)" in k else vol_rel) * abs(b)
         if abs(a - b) > lim:
             out.append(f"{k.split(' ')[0]} {a:.1f} vs {b:.1f}")
     return out
@@ -415,9 +523,11 @@ def compare(m: dict, ref: dict) -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("patient", nargs="?", default="patient015")
-    ap.add_argument("--only", default="")
+    ap.add_argument("--only", default="", help="rows whose name holds one of these (comma-separated)")
     ap.add_argument("--cap-only", action="store_true")
     ap.add_argument("--labels-only", action="store_true")
+    ap.add_argument("--phantoms", default="", help="folder of phantom outputs ph_{ukbb,mnms,mnms2,acdc}")
+    ap.add_argument("--phantoms-only", action="store_true")
     args = ap.parse_args()
     src = DATA / "acdc" / args.patient
     print("| layout | expected | status | LVEDV | LVESV | RVEDV | LVM | LVEF | RVEF | ED/ES | s |")
@@ -425,9 +535,16 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         ref = None
         rows = [] if args.cap_only else label_rows(src, Path(tmp))
-        rows += cap_rows(Path(tmp)) if not args.labels_only else []
+        rows += cap_rows(Path(tmp)) if not (args.labels_only or args.phantoms_only) else []
+        if args.phantoms_only:
+            rows = []
+        if args.phantoms:
+            rows += phantom_rows(Path(args.phantoms), Path(tmp))
+            truths = {r: json_truth(Path(args.phantoms) / r)["metrics"] for r in
+                      ("ph_ukbb", "ph_mnms", "ph_mnms2", "ph_acdc")
+                      if (Path(args.phantoms) / r / "truth.json").is_file()}
         for name, path, kw, expect in rows:
-            if args.only and args.only not in name and expect != "ref":
+            if args.only and not any(o in name for o in args.only.split(",")) and expect != "ref":
                 continue
             err, m, info, dt = run(path, kw)
             if expect == "ref":
@@ -436,7 +553,12 @@ def main() -> None:
                 status = err if expect == "refused" else f"**{err}**"
                 print(f"| {name} | {expect} | {status[:160]} |" + " |" * 7 + f" {dt:.0f} |", flush=True)
                 continue
-            bad = compare(m, ref) if expect not in ("EF null", "RVM null") else []
+            if expect == "truth":
+                key = {"ukbb": "ph_ukbb", "m&ms-1": "ph_mnms", "m&ms-2": "ph_mnms2",
+                       "acdc": "ph_acdc"}[name.split(" ")[1].lower()]
+                bad = compare(m, truths[key], vol_rel=0.03, mass_rel=0.05, pts=2.0)
+            else:
+                bad = compare(m, ref) if expect not in ("EF null", "RVM null", "informative") else []
             if expect == "RVM null" and np.isfinite(m.get("RVM (g)", np.nan)):
                 bad = ["RVM given without an RV epicardium"]
             status = "ok" if not bad else "**DIFF** " + "; ".join(bad)

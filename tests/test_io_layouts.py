@@ -176,3 +176,63 @@ def test_gpfile_columns_in_another_order_are_read_by_their_header_names(tmp_path
     gpfile.write_study(got, tmp_path / "back")          # written back in the order it was read
     for f in ("GPFile_000.txt", "GPFile_001.txt"):
         assert (tmp_path / "back" / f).read_bytes() == (tmp_path / "perm" / f).read_bytes()
+
+
+# ------------------------------------------------------------------ a dataset's tree
+def _acdc_patient(folder: Path, labels: bool = True) -> Path:
+    folder.mkdir(parents=True)
+    aff = np.diag([-1, -1, 1, 1.0])
+    for f, r in ((1, 9.0), (5, 6.0)):
+        data = _rings(radii=[r])[..., 0]
+        if labels:
+            _write(data, folder / f"{folder.name}_frame{f:02d}_gt.nii.gz", sform=aff, scode=2,
+                   zooms=PIXDIM, units=None)
+        _write(data.astype(np.int16) * 300, folder / f"{folder.name}_frame{f:02d}.nii.gz",
+               sform=aff, scode=2, zooms=PIXDIM, units=None)
+    (folder / "Info.cfg").write_text("ED: 1\nES: 5\nGroup: NOR\nHeight: 170\nNbFrame: 9\n"
+                                     "Weight: 70\n")
+    return folder
+
+
+def test_cohort_over_a_dataset_tree_measures_the_patients_in_it(tmp_path):
+    """`cardionurbs cohort database` (ACDC's training/ and testing/ trees) was one failed row,
+    "cannot tell the study format"."""
+    from cardionurbs.cohort import expand_folders
+    from cardionurbs.io import studies_in
+    db = tmp_path / "database"
+    for split, name in (("training", "patient001"), ("training", "patient002"),
+                        ("testing", "patient101")):
+        _acdc_patient(db / split / name)
+    _acdc_patient(db / "testing" / "patient102", labels=False)      # images only: not a study
+    found = [p.name for p in studies_in(db)]
+    assert found == ["patient101", "patient001", "patient002"]
+    assert expand_folders([str(db / "training"), str(tmp_path / "nothing")]) == [
+        str(db / "training" / "patient001"), str(db / "training" / "patient002"),
+        str(tmp_path / "nothing")]
+
+
+def test_a_folder_of_studies_or_of_images_only_is_refused_with_what_it_is(tmp_path, capsys):
+    from cardionurbs.cli import main
+    db = tmp_path / "training"
+    _acdc_patient(db / "patient001")
+    _acdc_patient(db / "patient002")
+    _acdc_patient(tmp_path / "patient103", labels=False)
+    assert main(["analyze", str(db), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "a folder of 2 studies: patient001, patient002" in err[0]
+    assert "cardionurbs cohort" in err[0]
+    assert main(["analyze", str(tmp_path / "patient103"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "ACDC patient folder without label maps" in err[0]
+
+
+def test_a_stray_label_value_is_refused_with_the_values_and_a_mapping_to_give(tmp_path):
+    from cardionurbs import StudyError
+    folder = _acdc_patient(tmp_path / "patient001")
+    f = folder / "patient001_frame01_gt.nii.gz"
+    data = _rings(radii=[9.0])[..., 0]
+    data[0, 0, 0] = 4
+    _write(data, f, sform=np.diag([-1, -1, 1, 1.0]), scode=2, zooms=PIXDIM, units=None)
+    with pytest.raises(StudyError, match=r"label 4 is not in .* values present: 1, 2, 3, 4; .*"
+                                         r"--labels, e\.g\. lv=3,myo=2,rv=1,ROLE=4 with ROLE one of rv_myo, la, ra"):
+        load_study(folder)

@@ -11,13 +11,16 @@ Layouts (:func:`detect`)
            ``Weight:``); label preset ``acdc``.
 ``ukbb``   ukbb_cardiac output: ``seg_sa.nii.gz`` (4-D) or ``seg_sa_ED.nii.gz``
            + ``seg_sa_ES.nii.gz``; long-axis ``seg4_la_4ch.nii.gz`` (preferred)
-           or ``seg_la_4ch``/``seg_la_2ch``/``seg_la_3ch.nii.gz`` when they hold
-           ventricles; label preset ``ukbb``. ED is frame 0 (ukbb_cardiac's
+           or ``seg_la_4ch``/``seg_la_2ch``/``seg_la_3ch.nii.gz`` (their ``_ED`` +
+           ``_ES`` pairs beside ``seg_sa_ED/_ES``) when they hold ventricles
+           (:func:`_not_ventricular`: ukbb_cardiac's atrial maps do not); label
+           preset ``ukbb``. ED is frame 0 (ukbb_cardiac's
            convention), ES the frame of the smallest LV cavity by voxel count.
 ``mnms``   ``<code>_sa_gt.nii.gz`` (4-D, only ED and ES labelled); ED/ES frame
-           indices from a CSV beside it or in the parent folder (columns
-           ``External code``, ``ED``, ``ES``) or the ``ed_frame``/``es_frame``
-           arguments, else the labelled frames; label preset ``mnms``.
+           indices from a CSV in the subject folder or (``--allow-outside``) up to
+           :data:`MNMS_CSV_LEVELS` folders above it (columns ``External code``,
+           ``ED``, ``ES``) or the ``ed_frame``/``es_frame`` arguments, else the
+           labelled frames (a warning); label preset ``mnms``.
 ``mnms2``  ``NNN_SA_ED_gt`` + ``NNN_SA_ES_gt`` (3-D, frames 0 = ED and 1 = ES) and
            ``NNN_LA_ED_gt`` + ``NNN_LA_ES_gt`` (the 4-chamber slice, used as the
            ukbb long-axis maps are); label preset ``mnms`` (1 LV, 2 MYO, 3 RV).
