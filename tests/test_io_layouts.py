@@ -233,6 +233,20 @@ def test_a_stray_label_value_is_refused_with_the_values_and_a_mapping_to_give(tm
     data = _rings(radii=[9.0])[..., 0]
     data[0, 0, 0] = 4
     _write(data, f, sform=np.diag([-1, -1, 1, 1.0]), scode=2, zooms=PIXDIM, units=None)
-    with pytest.raises(StudyError, match=r"label 4 is not in .* values present: 1, 2, 3, 4; .*"
+    with pytest.raises(StudyError, match=r"label 4 is not in .*\(values present: 1, 2, 3, 4; .*"
                                          r"--labels, e\.g\. lv=3,myo=2,rv=1,ROLE=4 with ROLE one of rv_myo, la, ra"):
         load_study(folder)
+
+
+@pytest.mark.parametrize("named", [".nii.gz", ".nii"])
+def test_a_map_whose_name_and_compression_disagree_is_read_by_its_content(tmp_path, named):
+    """A .nii.gz that is not gzipped (or a gzipped .nii) was refused ("not a gzip file")."""
+    data = _rings(slices=5, radii=[9.0])[..., 0]
+    aff = _scanner_affine(zooms=(1.5, 1.5, 8.0))
+    right = _write(data, tmp_path / ("right" + (".nii" if named == ".nii.gz" else ".nii.gz")),
+                   sform=aff, qform=aff)
+    wrong = tmp_path / ("seg" + named)
+    wrong.write_bytes(right.read_bytes())               # the other form's bytes under this name
+    a, b = load_study(right, labels="ukbb"), load_study(wrong, labels="ukbb")
+    assert a.meta["voxel_volumes_ml"] == b.meta["voxel_volumes_ml"]
+    assert [w for w in b.warnings if "gzip-compressed" in w and "read by its content" in w]

@@ -238,19 +238,23 @@ def read_label_volume(path: str | Path) -> LabelVolume:
     """
     path = checked(path, what="label map")
     where = str(path)
-    img = _load_nifti(path, where)
+    warnings: list[str] = []
+    img = _load_nifti(path, where, warnings)
     shape = _label_shape(img, where)
     check_volume_size(path, shape, img.header.get_data_dtype().itemsize)
     data = _label_data(img, shape, where)
-    warnings: list[str] = []
     aff = _label_affine(img, path, where, warnings)
     header = _header_notes(img, aff, where, warnings)
     dt, header["time"] = time_step_ms(img.header, data.shape[3], where, warnings)
     return LabelVolume(path, data, RAS_TO_LPS @ aff, dt, warnings, header)
 
 
-def _load_nifti(path: Path, where: str):
+def _load_nifti(path: Path, where: str, warnings: list[str] | None = None):
     """The nibabel image of a NIfTI-1 or NIfTI-2 file (StudyError for anything else).
+
+    A file whose content and name disagree -- a ``.nii.gz`` that is not gzip-compressed,
+    or a ``.nii`` that is (some converters write them; ITK, Slicer and FSL read them by
+    content) -- is read by its content, with a warning.
 
     Parameters
     ----------
@@ -258,6 +262,8 @@ def _load_nifti(path: Path, where: str):
         The file.
     where : str
         The file as named in messages.
+    warnings : list of str, optional
+        Appended to when the name and the content disagree.
 
     Returns
     -------
@@ -268,7 +274,14 @@ def _load_nifti(path: Path, where: str):
     from nibabel.filebasedimages import ImageFileError
     from nibabel.spatialimages import HeaderDataError
     try:
-        img = nib.load(str(path))
+        gz = _is_gzip(path)
+        if gz is not None and gz != path.name.lower().endswith(".gz"):
+            img = _load_by_content(path, gz)
+            if warnings is not None:
+                warnings.append(f"{where}: the file is {'' if gz else 'not '}gzip-compressed, its "
+                                f"name says {'not' if gz else 'it is'}: read by its content")
+        else:
+            img = nib.load(str(path))
     except FileNotFoundError:
         raise StudyError("no such file", file=where) from None
     except (ImageFileError, HeaderDataError, EOFError, OSError, zlib.error, ValueError) as exc:
@@ -277,6 +290,33 @@ def _load_nifti(path: Path, where: str):
     if not isinstance(img, (nib.Nifti1Image, nib.Nifti2Image)):
         raise StudyError(f"not a NIfTI image ({type(img).__name__})", file=where)
     return img
+
+
+def _is_gzip(path: Path) -> bool | None:
+    """Whether the file starts with the gzip magic number (None: unreadable)."""
+    try:
+        with path.open("rb") as fh:
+            return fh.read(2) == b"\x1f\x8b"
+    except OSError:
+        return None
+
+
+def _load_by_content(path: Path, gz: bool):
+    """A NIfTI-1 (else NIfTI-2) image from the file's bytes, decompressed when ``gz``; the
+    voxel data stays unread (lazy, from the open stream) until the header is checked."""
+    import gzip
+
+    import nibabel as nib
+    from nibabel.filebasedimages import ImageFileError
+    why = ""
+    for klass in (nib.Nifti1Image, nib.Nifti2Image):
+        fh = gzip.open(path, "rb") if gz else path.open("rb")
+        try:
+            return klass.from_stream(fh)
+        except Exception as exc:  # noqa: BLE001 - the other NIfTI version, else reported
+            fh.close()
+            why = f"{type(exc).__name__}: {exc}"
+    raise ImageFileError(f"neither NIfTI-1 nor NIfTI-2 by its content ({why})")
 
 
 def _label_shape(img, where: str) -> tuple[int, ...]:
