@@ -306,6 +306,16 @@ def label_rows(src: Path, tmp: Path) -> list[tuple[str, Path, dict, str]]:
     for where in ("root", "parent", "subject", "none"):
         rows.append((f"M&Ms-1 OpenDataset tree, CSV in {where}", mnms1(src, tmp / f"mnms_{where}", csv_where=where),
                      {}, "same"))
+    rows.append(("M&Ms-1 OpenDataset tree, CSV in root, --allow-outside", tmp / "mnms_root" / "OpenDataset"
+                 / "Training" / "Labeled" / "A1B2C3", {"allow_outside": True}, "same"))
+    d = ukbb_ed_es(src, z / "h")
+    data, ed0, es0 = four_d(src, TO_UKBB)
+    zz = gt(src, 1).header.get_zooms()[:3]
+    for ph, t in (("ED", ed0), ("ES", es0)):       # an LA plane through the stack (a mid row)
+        la_aff = real_affine(zz) @ np.array([[1, 0, 0, 0], [0, 0, 1, data.shape[1] // 2],
+                                             [0, 1, 0, 0], [0, 0, 0, 1.0]])
+        save(data[:, data.shape[1] // 2, :, t][:, :, None], d / f"seg4_la_4ch_{ph}.nii.gz", la_aff)
+    rows.append(("ukbb seg_sa_ED/ES + seg4_la_4ch_ED/ES", d, {}, "informative"))
     s = mnms1(src, tmp / "mnms_file", csv_where="none")
     rows.append(("M&Ms-1 <code>_sa_gt.nii.gz as one file + --ed-frame/--es-frame",
                  next(s.glob("*_sa_gt.nii.gz")), {"ed_frame": ed - 1, "es_frame": es - 1, "labels": "mnms"}, "same"))
@@ -500,8 +510,10 @@ def run(path: Path, kw: dict) -> tuple[str, dict | None, dict | None, float]:
     except Exception as exc:  # noqa: BLE001 - a crash is a row of the matrix
         return f"CRASH {type(exc).__name__}: {exc}", None, None, time.perf_counter() - t0
     vox = study.meta.get("voxel_volumes_ml")
+    la = sorted({c.slice for c in study.contours if c.view == "LA"})
     return "", m, {"vox": vox, "ed": study.ed_frame, "es": study.es_frame,
-                   "src": study.meta.get("ed_es_source"), "n_warn": len(study.warnings)}, \
+                   "src": study.meta.get("ed_es_source"), "n_warn": len(study.warnings),
+                   "la": ",".join(la) if study.meta.get("format") == "nifti" else f"{len(la)} LA"}, \
         time.perf_counter() - t0
 
 
@@ -530,8 +542,9 @@ def main() -> None:
     ap.add_argument("--phantoms-only", action="store_true")
     args = ap.parse_args()
     src = DATA / "acdc" / args.patient
-    print("| layout | expected | status | LVEDV | LVESV | RVEDV | LVM | LVEF | RVEF | ED/ES | s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| layout | expected | status | LVEDV | LVESV | RVEDV | LVM | LVEF | RVEF | ED/ES (rule) "
+          "| LA used | s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         ref = None
         rows = [] if args.cap_only else label_rows(src, Path(tmp))
@@ -551,7 +564,7 @@ def main() -> None:
                 ref = m
             if err:
                 status = err if expect == "refused" else f"**{err}**"
-                print(f"| {name} | {expect} | {status[:160]} |" + " |" * 7 + f" {dt:.0f} |", flush=True)
+                print(f"| {name} | {expect} | {status[:220]} |" + " |" * 8 + f" {dt:.0f} |", flush=True)
                 continue
             if expect == "truth":
                 key = {"ukbb": "ph_ukbb", "m&ms-1": "ph_mnms", "m&ms-2": "ph_mnms2",
@@ -564,8 +577,9 @@ def main() -> None:
             status = "ok" if not bad else "**DIFF** " + "; ".join(bad)
             cells = [f"{m[k]:.1f}" for k in ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "LVM (g)",
                                              "LVEF (%)", "RVEF (%)")]
+            rule = (info["src"] or "model: LV volumes").split(" (")[0].split(":")[0]
             print(f"| {name} | {expect} | {status} | " + " | ".join(cells)
-                  + f" | {info['ed']}/{info['es']} | {dt:.0f} |", flush=True)
+                  + f" | {info['ed']}/{info['es']} ({rule}) | {info['la'] or '-'} | {dt:.0f} |", flush=True)
         shutil.rmtree(tmp, ignore_errors=True)
 
 

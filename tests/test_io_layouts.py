@@ -250,3 +250,17 @@ def test_a_map_whose_name_and_compression_disagree_is_read_by_its_content(tmp_pa
     a, b = load_study(right, labels="ukbb"), load_study(wrong, labels="ukbb")
     assert a.meta["voxel_volumes_ml"] == b.meta["voxel_volumes_ml"]
     assert [w for w in b.warnings if "gzip-compressed" in w and "read by its content" in w]
+
+
+def test_seg_sa_alone_has_ukbb_cardiacs_ed_and_es_as_in_its_folder(tmp_path):
+    """`analyze seg_sa.nii.gz` took ED from the volumes (frame 2 here), its folder frame 0."""
+    radii = [8.0, 9.0, 10.0, 7.0, 6.0, 6.5, 7.5]              # largest at 2, smallest at 4
+    folder = tmp_path / "ukbb"
+    folder.mkdir()
+    aff = _scanner_affine(zooms=(1.5, 1.5, 8.0))
+    _write(_rings(slices=5, radii=radii), folder / "seg_sa.nii.gz", sform=aff, qform=aff,
+           units=None, dt=0.12)
+    a, b = load_study(folder), load_study(folder / "seg_sa.nii.gz")
+    assert (a.ed_frame, a.es_frame) == (b.ed_frame, b.es_frame) == (0, 4)
+    assert b.meta["ed_es_given"] == ["ED", "ES"] and "ukbb_cardiac" in b.meta["ed_es_source"]
+    assert a.meta["voxel_volumes_ml"] == b.meta["voxel_volumes_ml"]

@@ -911,7 +911,9 @@ def _times(vol: LabelVolume, frames) -> dict[int, float]:
 
 # ------------------------------------------------------------------ layouts
 def read_file(path: Path, labels=None) -> Study:
-    """One 3-D or 4-D label map (all its slices are the SA stack).
+    """One 3-D or 4-D label map (all its slices are the SA stack). A 4-D map named
+    ``seg_sa.nii[.gz]`` has ukbb_cardiac's ED and ES (frame 0, the smallest LV cavity), as
+    in its folder.
 
     Parameters
     ----------
@@ -931,8 +933,11 @@ def read_file(path: Path, labels=None) -> Study:
     roles, note = _resolve_roles(labels, None, vol, fr)
     _check_roles(vol, roles)
     frames = {t: t for t in fr}
-    return _build(_stem(path), path, vol, frames, _times(vol, frames), roles, note,
-                  meta={"layout": "file", "label_files": [path.name]})
+    study = _build(_stem(path), path, vol, frames, _times(vol, frames), roles, note,
+                   meta={"layout": "file", "label_files": [path.name]})
+    if _stem(path) == "seg_sa" and vol.data.shape[3] > 1:
+        _ukbb_ed_es(study, vol, roles, frames)     # named as ukbb_cardiac names it: its rule
+    return study
 
 
 def _info_cfg(path: Path) -> dict[str, str]:
@@ -1079,14 +1084,22 @@ def read_ukbb(folder: Path, labels=None) -> Study:
     study.meta["reader_warnings"] += skipped
     if sa_path is None:
         _layout_ed_es(study, 0, 1, "ukbb_cardiac: seg_sa_ED and seg_sa_ES")
-    elif 0 in frames:
-        es = _smallest_lv_cavity(sa, roles, frames)
-        if es == 0:
-            study.ed_frame = 0
-        else:
-            _layout_ed_es(study, 0, es, f"ukbb_cardiac: ED the first frame, ES the frame of the "
-                                        f"smallest LV cavity by voxel count ({es})")
+    else:
+        _ukbb_ed_es(study, sa, roles, frames)
     return study
+
+
+def _ukbb_ed_es(study: Study, sa: LabelVolume, roles: LabelRoles, frames: dict[int, int]) -> None:
+    """ukbb_cardiac's ED and ES of a 4-D ``seg_sa``: the first frame, and the frame of the
+    smallest LV cavity by voxel count (where frame 0 is labelled)."""
+    if 0 not in frames:
+        return
+    es = _smallest_lv_cavity(sa, roles, frames)
+    if es == 0:
+        study.ed_frame = 0
+    else:
+        _layout_ed_es(study, 0, es, f"ukbb_cardiac: ED the first frame, ES the frame of the "
+                                    f"smallest LV cavity by voxel count ({es})")
 
 
 #: a long-axis map's LV cavity is bordered by myocardium over at least this share of its
