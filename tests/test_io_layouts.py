@@ -223,7 +223,7 @@ def test_a_folder_of_studies_or_of_images_only_is_refused_with_what_it_is(tmp_pa
     assert "cardionurbs cohort" in err[0]
     assert main(["analyze", str(tmp_path / "patient103"), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "ACDC patient folder without label maps" in err[0]
+    assert len(err) == 1 and "ACDC patient folder without its label maps" in err[0]
 
 
 def test_a_stray_label_value_is_refused_with_the_values_and_a_mapping_to_give(tmp_path):
@@ -264,3 +264,13 @@ def test_seg_sa_alone_has_ukbb_cardiacs_ed_and_es_as_in_its_folder(tmp_path):
     assert (a.ed_frame, a.es_frame) == (b.ed_frame, b.es_frame) == (0, 4)
     assert b.meta["ed_es_given"] == ["ED", "ES"] and "ukbb_cardiac" in b.meta["ed_es_source"]
     assert a.meta["voxel_volumes_ml"] == b.meta["voxel_volumes_ml"]
+
+
+def test_a_frame_missing_from_a_gpfile_series_is_named(tmp_path):
+    """GPFile_001 absent between _000 and _002: the gap went unsaid."""
+    folder = _cap_copy(tmp_path / "gap", frames=(0, 2, 3))
+    study = load_study(folder)
+    said = [w for w in study.warnings if "no GPFile for frame 1 " in w]
+    assert len(said) == 1 and "GPFile_000.txt and GPFile_003.txt" in said[0]
+    assert not [w for w in load_study(_cap_copy(tmp_path / "whole", frames=(0, 1, 2))).warnings
+                if "no GPFile for" in w]

@@ -9,6 +9,7 @@ not printed, so that callers decide how to show them).
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from cardionurbs.errors import StudyError
@@ -57,8 +58,12 @@ def detect_format(path: str | Path) -> str:
         hint = (f" (a folder of {len(inner)} studies: {shown}: analyze one of them, or measure "
                 "them all with `cardionurbs cohort FOLDER --csv FILE`)")
     elif p.is_dir() and (p / "Info.cfg").is_file():
-        hint = (" (an ACDC patient folder without label maps: the *_frameMM_gt.nii.gz files are "
-                "what is measured)")
+        other = sorted(q.name for q in p.iterdir() if q.name.lower().endswith((".nii", ".nii.gz"))
+                       and not q.name.lower().endswith(("_4d.nii", "_4d.nii.gz"))
+                       and not re.search(r"_frame\d+\.nii", q.name, re.I))
+        hint = (" (an ACDC patient folder without its label maps, the *_frameMM_gt.nii.gz files"
+                + (f"; to read another map give the file itself: {', '.join(other[:3])}" if other
+                   else "") + ")")
     elif p.is_dir() and _has_dicom(p):
         hint = " (DICOM images but no contours beside them)"
     raise StudyError("cannot tell the study format (expected a native study.json, Sunnybrook "

@@ -597,6 +597,12 @@ def read_study(path: str | Path) -> Study:
                         f"kept but not used for the ventricles ({counts})")
     if excluded:
         warnings.append(f"{folder}: {excluded} EXCLUDED guide point(s) dropped")
+    gaps = sorted(set(range(frames[0], frames[-1] + 1)) - set(frames))
+    if gaps:
+        shown = ", ".join(map(str, gaps[:8])) + (", ..." if len(gaps) > 8 else "")
+        warnings.append(f"{folder}: no GPFile for frame{'s' if len(gaps) > 1 else ''} {shown} "
+                        f"(between {files[0][1].name} and {files[-1][1].name}): missing from the "
+                        "volume curve, ED and ES chosen among the other frames")
     style = slices[0]["style"]
     meta = {"format": "gpfile", "base_apex_rule": rule,
             "gpfile": {"header": header, "frames": frame_meta,
