@@ -274,3 +274,17 @@ def test_a_frame_missing_from_a_gpfile_series_is_named(tmp_path):
     assert len(said) == 1 and "GPFile_000.txt and GPFile_003.txt" in said[0]
     assert not [w for w in load_study(_cap_copy(tmp_path / "whole", frames=(0, 1, 2))).warnings
                 if "no GPFile for" in w]
+
+
+def test_an_export_without_valve_or_apex_points_says_how_base_and_apex_are_placed(tmp_path):
+    """Without APEX_POINT/MITRAL_VALVE/TRICUSPID_VALVE the stack order came from the LPS
+    prior and the bases from the slices, unsaid (LVEDV -15 % on bivme-patient1)."""
+    folder = _cap_copy(tmp_path / "nolm", frames=(0, 1))
+    for f in folder.glob("GPFile_*.txt"):
+        lines = f.read_text().splitlines()
+        f.write_text("\n".join([lines[0]] + [ln for ln in lines[1:]
+                                             if ln.split("\t")[3].startswith(("SAX_", "LAX_"))]) + "\n")
+    said = [w for w in load_study(folder).warnings if "guide points" in w]
+    assert len(said) == 3 and "LPS prior" in said[0]
+    assert "MITRAL_VALVE" in said[1] and "TRICUSPID_VALVE" in said[2]
+    assert not [w for w in load_study(_cap_copy(tmp_path / "all")).warnings if "guide points" in w]

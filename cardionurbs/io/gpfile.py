@@ -597,6 +597,16 @@ def read_study(path: str | Path) -> Study:
                         f"kept but not used for the ventricles ({counts})")
     if excluded:
         warnings.append(f"{folder}: {excluded} EXCLUDED guide point(s) dropped")
+    if rule == "LPS prior":
+        warnings.append(f"{folder}: no APEX_POINT or MITRAL_VALVE guide points: base and apex of "
+                        "the short-axis stack from the patient axes (LPS prior) only: check the "
+                        "slice order")
+    valves = {lm.name for lm in landmarks} & {"mitral", "tricuspid"}
+    for side, name, gp_name in (("LV", "mitral", "MITRAL_VALVE"), ("RV", "tricuspid", "TRICUSPID_VALVE")):
+        if name not in valves:
+            warnings.append(f"{folder}: no {gp_name} guide points: the {side} base closed half a "
+                            "slice beyond its most basal short-axis contour (volumes need not match "
+                            "a fit to the valve)")
     gaps = sorted(set(range(frames[0], frames[-1] + 1)) - set(frames))
     if gaps:
         shown = ", ".join(map(str, gaps[:8])) + (", ..." if len(gaps) > 8 else "")
