@@ -597,22 +597,7 @@ def read_study(path: str | Path) -> Study:
                         f"kept but not used for the ventricles ({counts})")
     if excluded:
         warnings.append(f"{folder}: {excluded} EXCLUDED guide point(s) dropped")
-    if rule == "LPS prior":
-        warnings.append(f"{folder}: no APEX_POINT or MITRAL_VALVE guide points: base and apex of "
-                        "the short-axis stack from the patient axes (LPS prior) only: check the "
-                        "slice order")
-    valves = {lm.name for lm in landmarks} & {"mitral", "tricuspid"}
-    for side, name, gp_name in (("LV", "mitral", "MITRAL_VALVE"), ("RV", "tricuspid", "TRICUSPID_VALVE")):
-        if name not in valves:
-            warnings.append(f"{folder}: no {gp_name} guide points: the {side} base closed half a "
-                            "slice beyond its most basal short-axis contour (volumes need not match "
-                            "a fit to the valve)")
-    gaps = sorted(set(range(frames[0], frames[-1] + 1)) - set(frames))
-    if gaps:
-        shown = ", ".join(map(str, gaps[:8])) + (", ..." if len(gaps) > 8 else "")
-        warnings.append(f"{folder}: no GPFile for frame{'s' if len(gaps) > 1 else ''} {shown} "
-                        f"(between {files[0][1].name} and {files[-1][1].name}): missing from the "
-                        "volume curve, ED and ES chosen among the other frames")
+    warnings += _export_warnings(folder, rule, landmarks, files)
     style = slices[0]["style"]
     meta = {"format": "gpfile", "base_apex_rule": rule,
             "gpfile": {"header": header, "frames": frame_meta,
@@ -626,6 +611,31 @@ def read_study(path: str | Path) -> Study:
                                    "SliceInfoFile.txt"}}
     return Study(subject=folder.name, images=images, contours=contours, landmarks=landmarks,
                  source=str(folder), meta=meta, warnings=warnings)
+
+
+def _export_warnings(folder: Path, rule: str | None, landmarks: list[Landmark],
+                     files: list[tuple[int, Path]]) -> list[str]:
+    """What an export lacks that changes how it is reconstructed: the APEX_POINT and
+    MITRAL_VALVE points that order the stack, the valve points that place the bases, and
+    GPFiles missing from the frame series."""
+    out = []
+    if rule == "LPS prior":
+        out.append(f"{folder}: no APEX_POINT or MITRAL_VALVE guide points: base and apex of the "
+                   "short-axis stack from the patient axes (LPS prior) only: check the slice order")
+    valves = {lm.name for lm in landmarks} & {"mitral", "tricuspid"}
+    for side, name, gp_name in (("LV", "mitral", "MITRAL_VALVE"), ("RV", "tricuspid", "TRICUSPID_VALVE")):
+        if name not in valves:
+            out.append(f"{folder}: no {gp_name} guide points: the {side} base closed half a slice "
+                       "beyond its most basal short-axis contour (volumes need not match a fit to "
+                       "the valve)")
+    frames = [f for f, _ in files]
+    gaps = sorted(set(range(frames[0], frames[-1] + 1)) - set(frames))
+    if gaps:
+        shown = ", ".join(map(str, gaps[:8])) + (", ..." if len(gaps) > 8 else "")
+        out.append(f"{folder}: no GPFile for frame{'s' if len(gaps) > 1 else ''} {shown} (between "
+                   f"{files[0][1].name} and {files[-1][1].name}): missing from the volume curve, ED "
+                   "and ES chosen among the other frames")
+    return out
 
 
 def _slice_planes(slices: list[dict], tables: list[dict[str, np.ndarray]], folder: Path):
