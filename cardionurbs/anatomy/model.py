@@ -27,9 +27,10 @@ from cardionurbs.anatomy.cycle import CycleCheck, check_curve, interpolate, supp
 from cardionurbs.anatomy.mesh import Plane
 from cardionurbs.anatomy.outflow import OutflowTract, outflow_tracts, tract_solid
 from cardionurbs.anatomy.residuals import RESIDUAL_COLUMNS, surface_distance  # noqa: F401 (re-exported)
-from cardionurbs.anatomy.sections import (MYO_CONSERVED_BOUND, SURFACES, FrameGeometry,
-                                          frame_geometry, labelled_myocardium_ratio,
-                                          labels_do_not_conserve, moves_with_lv)
+from cardionurbs.anatomy.sections import (MYO_CONSERVED_BOUND, SA_APEX_TAPER, SURFACES,
+                                          FrameGeometry, frame_geometry,
+                                          labelled_myocardium_ratio, labels_do_not_conserve,
+                                          moves_with_lv)
 from cardionurbs.anatomy.refine import refine_surface
 from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface
 from cardionurbs.cache import LazyFrames, memoized
@@ -383,6 +384,8 @@ class BiventricularModel:
     def _own_geometry(self, frame: int) -> FrameGeometry:
         geo = frame_geometry(self.study, frame)
         geo.reference = _reference_direction(self.study, geo)
+        if geo.base_from_slices and self.study.meta.get("sa_apex") != SA_APEX_TAPER:
+            base_between_slices(self.study, geo)          # hand contours (label maps: their slab)
         return geo
 
     def _frame_geometry(self, frame: int) -> FrameGeometry:
@@ -925,6 +928,44 @@ class BiventricularModel:
         BiventricularModel
         """
         return cls(**serialise.decode(d, study))
+
+
+def base_between_slices(study: Study, geo: FrameGeometry) -> None:
+    """Hand-drawn SA contours without valve landmarks: each valve plane the half-slice rule
+    placed is moved to half-way between its most basal section and the next imaged SA plane
+    on the basal side (when the slices are farther apart than they are thick: the valve
+    lies anywhere in that gap, not only in the section's own slab), and the ES plane may
+    then move up to that next plane (``geo.base_slack``), where the LV myocardial volume
+    equals ED's (:meth:`BiventricularModel._conserve_myocardium`).
+
+    Parameters
+    ----------
+    study : Study
+        The study (its SA image planes at ``geo.frame``).
+    geo : FrameGeometry
+        One frame's geometry; its ``base_planes`` and ``base_slack`` are changed in place.
+    """
+    n = geo.direction
+    levels = np.array([float(im.position @ n) for im in study.images
+                       if im.view == "SA" and im.frame == geo.frame])
+    slack = 0.5 * geo.thickness
+    for side, surf in (("lv", "lv_endo"), ("rv", "rv_endo")):
+        secs = geo.sections.get(surf) or []
+        if side not in geo.base_from_slices or not secs:
+            continue
+        level = float(secs[0].points.mean(axis=0) @ n)
+        above = levels[levels < level - 0.5]
+        if not len(above):
+            continue
+        half_gap = 0.5 * (level - float(above.max()))
+        extra = half_gap - 0.5 * geo.thickness
+        if extra > 0:
+            p = geo.base_planes[side]
+            geo.base_planes[side] = Plane(p.origin - extra * p.normal, p.normal)
+        if side == "lv":
+            slack = max(half_gap, slack)
+    if "lv" in geo.base_from_slices:
+        geo.base_slack = slack
 
 
 #: how far beyond one slice thickness the most apical SA section of an LV surface may lie
