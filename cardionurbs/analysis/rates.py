@@ -92,6 +92,7 @@ reports/validation-labelmaps.md has the phantom figures.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -576,7 +577,23 @@ def _model_sweep(model, frames: list[int], times: list, ed: int, es: int) -> np.
     stack = stack_profile(model.study, frames)
     if stack is None:
         return None
+    reach = _model_reach(model)
+    if reach is not None:                 # where the model closes beyond its basal section
+        stack = dataclasses.replace(stack, reach_mm=reach)
     return base_sweep(stack, [int(i) for i in np.argsort(times)], ed, es)
+
+
+def _model_reach(model) -> float | None:
+    """How far (mm) the model's ED LV valve plane lies beyond its most basal section (the
+    half-slice rule, or half-way to the next imaged plane); None where it cannot be read."""
+    try:
+        geo = model.geometry[model.ed_frame]
+        plane = geo.base_planes["lv"]
+        centre = geo.sections["lv_endo"][0].points.mean(axis=0)
+    except (AttributeError, KeyError, IndexError, TypeError):
+        return None
+    reach = float((centre - plane.origin) @ np.asarray(geo.direction, float))
+    return reach if reach > 0 else None
 
 
 def extent_steps(study, frames: list[int], times: list[float]) -> list[tuple[int, int]]:
