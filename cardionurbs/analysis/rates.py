@@ -438,7 +438,8 @@ def stack_profile(study, frames: list[int]) -> BaseStack | None:
     BaseStack or None
         None where no slice comes and goes, none holds the LV at every frame, or a frame
         has no section. The base is the end where slices come and go; the reach is half
-        the median SA slice thickness (the model's half-slice closing).
+        the median SA slice thickness (the half-slice closing; model_filling_rates reads
+        the model's own reach instead).
     """
     from cardionurbs.geometry import polygon_area
     sa = [im for im in study.images if im.view == "SA"]
