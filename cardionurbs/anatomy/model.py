@@ -635,11 +635,14 @@ class BiventricularModel:
                 and "lv" in g_ed.base_planes and "lv" in g_es.base_planes):
             return
         n = g_es.direction
-        descent = float((g_es.base_planes["lv"].origin - g_ed.base_planes["lv"].origin) @ n)
+        m_ed, m_es = g_ed.base_planes["lv"], g_es.base_planes["lv"]
         p_ed, p_es = g_ed.base_planes["rv"], g_es.base_planes["rv"]
-        k = float(p_es.normal @ n)
-        if k < 0.05:
+        k, km = float(p_es.normal @ n), float(m_es.normal @ n)
+        if min(k, km) < 0.05:
             return
+        # along n from the ED mitral centre to the ES mitral plane (not the landmarks' means:
+        # another subset of annulus points at ES would shift the mean along a tilted annulus)
+        descent = float((m_es.origin - m_ed.origin) @ m_es.normal) / km
         shift = (float((p_es.origin - p_ed.origin) @ n) - descent) / k
         shift = float(np.clip(shift, -0.5 * g_es.thickness, max(g_es.base_slack, 0.0)))
         self.rv_base_shift_mm[g_es.frame] = shift
