@@ -97,10 +97,15 @@ def _sa_only(study) -> None:
 #: the constants the run measured with (the module's at the time of the --raw file)
 RUN_CONSTANTS = {"BETWEEN_FACTOR": 0.25, "OUTFLOW_SHARE": 1.0, "PIXEL_BIAS": 0.1,
                  "OPEN_SLAB_MM": 10.0, "CONTOUR_FACTOR": 1.0, "RV_SHAPE_REL": 0.0,
-                 "LV_SHAPE_LABELS": 0.0, "LV_SHAPE_LABELS_LA": 0.0, "LV_SHAPE_CONTOURS": 0.0}
+                 "LV_SHAPE_LABELS": 0.0, "LV_SHAPE_LABELS_LA": 0.0, "LV_SHAPE_CONTOURS": 0.0,
+                 "RV_SHAPE_LABELS": None, "RV_SHAPE_LABELS_LA": None, "RV_SHAPE_CONTOURS": None}
 #: the benchmark's names of the module's LV_SHAPE_REL entries
 LV_KEYS = {"LV_SHAPE_LABELS": "labels", "LV_SHAPE_LABELS_LA": "labels+LA",
            "LV_SHAPE_CONTOURS": "contours"}
+#: and of its RV_SHAPE_REL entries (RV_SHAPE_REL: a run's one value for every kind, before
+#: the entries; used where a setting gives no entry)
+RV_KEYS = {"RV_SHAPE_LABELS": "labels", "RV_SHAPE_LABELS_LA": "labels+LA",
+           "RV_SHAPE_CONTOURS": "contours"}
 #: the module's input kind (uncertainty.lv_input_kind) of each design input
 INPUT_KIND = {"labels acdc 10mm": "labels", "labels acdc 5mm": "labels",
               "labels ukbb 10mm": "labels+LA", "contours SA-only": "contours"}
@@ -108,9 +113,22 @@ INPUT_KIND = {"labels acdc 10mm": "labels", "labels acdc 5mm": "labels",
 
 def module_constants() -> dict[str, float]:
     """The module's constants under :data:`RUN_CONSTANTS`' names."""
-    out = {k: float(getattr(U, k)) for k in RUN_CONSTANTS if k not in LV_KEYS}
+    out = {k: float(getattr(U, k)) for k in RUN_CONSTANTS
+           if k not in LV_KEYS and k not in RV_KEYS and k != "RV_SHAPE_REL"}
     out.update({k: float(U.LV_SHAPE_REL[kind]) for k, kind in LV_KEYS.items()})
+    out.update({k: float(U.RV_SHAPE_REL[kind]) for k, kind in RV_KEYS.items()})
+    out["RV_SHAPE_REL"] = RUN_CONSTANTS["RV_SHAPE_REL"]      # superseded by the entries
     return out
+
+
+def _rv_rel(r: dict, consts: dict) -> float:
+    """The RV_SHAPE_REL of a subject's input kind under ``consts`` (0 for contours with
+    long-axis views: the module gives them no rv shape)."""
+    kind = INPUT_KIND.get(r["input"])
+    if kind is None:
+        return 0.0
+    key = next(k for k, v in RV_KEYS.items() if v == kind)
+    return consts[key] if consts.get(key) is not None else consts["RV_SHAPE_REL"]
 
 
 def _lv_shape_sd(r: dict, col: str, consts: dict) -> float:
@@ -156,7 +174,7 @@ def rescaled(r: dict, consts: dict) -> dict:
     scale = {"contours": consts["CONTOUR_FACTOR"] / RUN_CONSTANTS["CONTOUR_FACTOR"],
              "pixels": consts["PIXEL_BIAS"] / RUN_CONSTANTS["PIXEL_BIAS"],
              "between": consts["BETWEEN_FACTOR"] / RUN_CONSTANTS["BETWEEN_FACTOR"]}
-    rv_old, rv_new = RUN_CONSTANTS["RV_SHAPE_REL"], consts["RV_SHAPE_REL"]
+    rv_old, rv_new = _rv_rel(r, RUN_CONSTANTS), _rv_rel(r, consts)
     if rv_old > 0:      # the run has an ``rv shape`` source already: scale it
         scale["rv shape"], rv_new = rv_new / rv_old, 0.0
     name = next(n for n, c in VARIANTS.items() if c["OUTFLOW_SHARE"] == consts["OUTFLOW_SHARE"]
@@ -191,10 +209,24 @@ GRID = [{"OUTFLOW_SHARE": o, "CONTOUR_FACTOR": c, "BETWEEN_FACTOR": b, "PIXEL_BI
         for p in (0.1, 0.2) for v in (0.0, 0.03, 0.05, 0.08)]
 
 
-#: the LV model-error settings (the other constants the run's), ``--lv-grid``
+#: the model-error settings by input kind (the other constants the run's), ``--lv-grid``:
+#: the LV entries act on LVEDV and LVESV only and the RV entries on RVEDV and RVEF only, so
+#: that choosing each on its own (:func:`choose_by_kind`) is the joint choice
 LV_GRID = [{"LV_SHAPE_LABELS": a, "LV_SHAPE_LABELS_LA": b, "LV_SHAPE_CONTOURS": c}
            for a in (0.0, 0.02, 0.03, 0.04, 0.05, 0.06, 0.08) for b in (0.0, 0.01, 0.02, 0.03, 0.04)
            for c in (0.0, 0.03, 0.05, 0.08, 0.10, 0.12, 0.15)]
+RV_GRID = [{"RV_SHAPE_LABELS": a, "RV_SHAPE_LABELS_LA": b, "RV_SHAPE_CONTOURS": c}
+           for a in (0.0, 0.03, 0.05, 0.08, 0.10) for b in (0.0, 0.03, 0.05, 0.08, 0.10)
+           for c in (0.0, 0.03, 0.05, 0.08)]
+
+
+def choose_by_kind(rows: list[dict]) -> tuple[dict, list[str]]:
+    """:func:`choose` over :data:`LV_GRID`, then over :data:`RV_GRID` with the LV entries
+    chosen; the setting and both tables."""
+    lv, t_lv = choose(rows, LV_GRID)
+    rv, t_rv = choose(rows, [{**lv, **g} for g in RV_GRID])
+    return rv, ["LV entries (the RV the run's):", "", *t_lv, "", "RV entries (the LV chosen):", "",
+                *t_rv]
 
 
 def grid_coverage(rows: list[dict], consts: dict) -> tuple[list[float], float]:
@@ -448,7 +480,7 @@ def main(argv=None) -> int:
             "one with the most of the six in range, then the highest lowest coverage, then the "
             "narrowest. Every setting is computed on every subject "
             "from the same reconstruction (`rescaled()`: exact, no refit).", "",
-            *(choose(rows, LV_GRID if a.lv_grid else None)[1] if rows and rows[0].get("variants") and not a.no_grid else
+            *((choose_by_kind(rows) if a.lv_grid else choose(rows))[1] if rows and rows[0].get("variants") and not a.no_grid else
               ["(not recomputed for this run: --no-grid)"]), "",
             "## Every subject (error = model − truth / half-width; ✗ truth outside)", "",
             *subject_table(rows), ""]

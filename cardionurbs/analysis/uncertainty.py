@@ -23,7 +23,8 @@ sections, contour points and frames:
   without long-axis maps, SA contours with a rule-placed base): :data:`LV_SHAPE_REL` of its
   volume, one error at ED and ES (a model-error term set on the calibration phantoms);
 * **rv shape** -- an RV cavity no landmark or long-axis contour closes (label maps, SA-only
-  contours): :data:`RV_SHAPE_REL` of its volume (a model-error term set on the phantoms);
+  contours): :data:`RV_SHAPE_REL` of its volume by input kind (a model-error term set on the
+  calibration phantoms);
 * **one-sided allowances** -- an end the stack leaves open beyond one slice gap, an outflow
   tract the model did not build, an epicardial cap beyond a rule-placed apex;
 * **ES sampling** -- on a sampled cycle whose ES (ED) frame is the volume minimum
@@ -61,13 +62,13 @@ METHOD = ("analytic propagation: contour scatter, between-slice interpolation, b
 COVERED = ("LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVM (g)",
            "RVEDV (mL)", "RVESV (mL)", "RVSV (mL)", "RVEF (%)", "RVM (g)")
 Z95 = 1.959963984540054
-#: relative SD of an RV cavity that no landmark or long-axis contour closes (label maps,
-#: SA-only contours)
-RV_SHAPE_REL = 0.03
+#: relative SD of an RV cavity that no landmark or long-axis contour closes, by input kind
+#: (:func:`lv_input_kind`; label maps, SA-only contours): ED and ES independent
+RV_SHAPE_REL = {"labels": 0.03, "labels+LA": 0.05, "contours": 0.0}
 #: relative SD of an LV cavity by input kind (:func:`lv_input_kind`): the reconstruction's
 #: own error at a base no SA section closes, one error at ED and ES (a model-error term set
 #: on the calibration phantoms, docs/metrics.md, Uncertainty)
-LV_SHAPE_REL = {"labels": 0.0, "labels+LA": 0.0, "contours": 0.0}
+LV_SHAPE_REL = {"labels": 0.02, "labels+LA": 0.0, "contours": 0.03}
 #: the contours term's factor over independent point noise (docs/metrics.md, Uncertainty)
 CONTOUR_FACTOR = 1.5
 #: fraction of the trapezoid error that a lofted (cubic) surface keeps between slices
@@ -354,13 +355,14 @@ def solid_error(model: "BiventricularModel", frame: int, solid: str) -> VolumeEr
 
 def _rv_shape(model: "BiventricularModel", frame: int) -> float:
     """SD (mL) of the RV cavity's shape where no valve landmark or long-axis contour closes
-    it (a label map, or the half-slice rule): :data:`RV_SHAPE_REL` of its volume. The SA
+    it (a label map, or the half-slice rule): :data:`RV_SHAPE_REL` (by input kind) of its volume. The SA
     stack cuts the RV's basal third and outflow region obliquely, and what lies between
     those sections is the loft's guess (docs/metrics.md, Uncertainty: set on the phantoms)."""
     labels = isinstance(model.study.meta, dict) and bool(model.study.meta.get("voxel_volumes_ml"))
     if not (labels or "rv" in model.geometry[frame].base_from_slices):
         return 0.0
-    return RV_SHAPE_REL * float(model.volumes[frame].get("rv_cavity", 0.0))
+    rel = RV_SHAPE_REL.get(lv_input_kind(model) or "contours", 0.0)
+    return rel * float(model.volumes[frame].get("rv_cavity", 0.0))
 
 
 def lv_input_kind(model: "BiventricularModel") -> str | None:
