@@ -19,7 +19,10 @@ A metric is *flagged* when any of its evidence fails:
 * a contour of one of its surfaces was left out at one of its frames;
 * ``heart rate unknown`` (HR, CO); ``N tag line(s) flagged as mistracked`` (tag metrics);
 * ``implausible time axis`` (the filling rates) when the reader found the frames ×
-  interval outside a cardiac cycle (:func:`cardionurbs.io.nifti.time_step_ms`).
+  interval outside a cardiac cycle (:func:`cardionurbs.io.nifti.time_step_ms`);
+* ``SA stack contradicts the long-axis views`` (every measured metric of that frame's
+  surfaces) when the most apical SA section lies far beyond the LA contours' apex
+  (:meth:`cardionurbs.anatomy.model.BiventricularModel.stack_flag`).
 
 Derived metrics (SV, EF, CO, MR RegVol and RegFrac, the RV/LV ratios) inherit
 their inputs' flags: ``MR RegFrac`` is flagged when either ventricle's SV is.
@@ -265,6 +268,7 @@ def assess(model: "BiventricularModel", metrics: dict[str, float]) -> Quality:
     _cycle_flags(model, q)
     _wall_flags(model, q, metrics)
     _stroke_volume_flags(model, q, metrics)
+    _stack_flags(model, q, metrics)
     for col, flags in label_map_flags(model, metrics).items():   # label maps (analysis.voxels)
         if col in q.metrics and is_finite_number(metrics.get(col, math.nan)):
             q.metrics[col]["flags"] += flags
@@ -526,3 +530,19 @@ def _stroke_volume_flags(model, q: Quality, metrics: dict) -> None:
                 f"{d:+.1f} mL > {limit:.1f} mL ({100 * SV_BOUND:g} % of their mean)")
         for col in ("LVSV (mL)", "RVSV (mL)", "LVSV-RVSV (mL)"):
             q.metrics[col]["flags"].append(flag)
+
+
+def _stack_flags(model, q: Quality, metrics: dict) -> None:
+    """An SA stack its long-axis contours contradict at ED or ES
+    (:meth:`~cardionurbs.anatomy.model.BiventricularModel.stack_flag`) flags every measured
+    metric of its surfaces at that frame."""
+    flag_of = getattr(model, "stack_flag", None)
+    if flag_of is None:
+        return
+    for f in sorted({model.ed_frame, model.es_frame}):
+        flag = flag_of(f)
+        if flag is None:
+            continue
+        for col, entry in q.metrics.items():
+            if col in SOURCES and f in entry["frames"] and _finite(metrics.get(col)):
+                entry["flags"].append(flag)

@@ -760,6 +760,36 @@ class BiventricularModel:
         for memo in (self._solid, self.lv_cavity_solid, self.solids, self._tract_part):
             memo.forget_where(lambda k: k[0] == frame)
 
+    def stack_flag(self, frame: int) -> str | None:
+        """The QC flag of an SA stack its long-axis contours contradict at ``frame``: an LV
+        surface's most apical SA section more than one slice thickness plus
+        :data:`LA_OVERSHOOT_SLACK_MM` beyond the LA apex (:func:`la_overshoot_mm`; e.g. a
+        label map whose slice spacing is not where the slices were imaged). None: consistent,
+        no LA contours, or a model read back without its study.
+
+        Parameters
+        ----------
+        frame : int
+            A frame of the model.
+
+        Returns
+        -------
+        str or None
+            The flag, naming the surface, the distance and the bound in mm.
+        """
+        if frame not in self.frames or not self.study.contours:
+            return None
+        geo = self.own_geometry[frame]
+        bound = geo.thickness + LA_OVERSHOOT_SLACK_MM
+        over = {s: d for s, d in la_overshoot_mm(geo).items() if d > bound}
+        if not over:
+            return None
+        s = max(over, key=over.__getitem__)
+        return (f"SA stack contradicts the long-axis views at frame {frame}: the "
+                f"{'LV endo' if s == 'lv_endo' else 'LV epi'} SA sections reach {over[s]:.1f} mm beyond the apex of the "
+                f"LA contours (bound {bound:.1f} mm); the SA slice positions (spacing) or the "
+                f"LA planes are wrong, so the volumes are not measured honestly")
+
     # ------------------------------------------------------------- residuals (anatomy.residuals)
     @cached_property
     def residuals(self) -> pd.DataFrame:
@@ -895,6 +925,40 @@ class BiventricularModel:
         BiventricularModel
         """
         return cls(**serialise.decode(d, study))
+
+
+#: how far beyond one slice thickness the most apical SA section of an LV surface may lie
+#: beyond the apex of its long-axis contours before the two views contradict each other
+#: (breath-hold misregistration between the SA and LA acquisitions is a few mm), mm
+LA_OVERSHOOT_SLACK_MM = 10.0
+
+
+def la_overshoot_mm(geo: FrameGeometry) -> dict[str, float]:
+    """How far the most apical SA section of each LV surface lies beyond the apex its LA
+    contours show, along the stacking direction.
+
+    The centroid of the most apical SA contour lies on the base side of the LA contours'
+    apex in a consistent study (the slice cuts the cavity, the LA contour turns beyond it);
+    a positive value is SA cavity where the long-axis views have none.
+
+    Parameters
+    ----------
+    geo : FrameGeometry
+        One frame's sections and LA polylines (:func:`cardionurbs.anatomy.sections.frame_geometry`).
+
+    Returns
+    -------
+    dict
+        ``lv_endo`` / ``lv_epi`` (those with SA sections and LA contours) -> the distance,
+        mm (negative: the LA apex lies beyond the SA stack, as it should).
+    """
+    n, out = geo.direction, {}
+    for s in ("lv_endo", "lv_epi"):
+        secs, la = geo.sections.get(s) or [], geo.la_points.get(s) or []
+        if secs and la:
+            la_apex = float((np.concatenate(la) @ n).max())
+            out[s] = float(secs[-1].points.mean(axis=0) @ n) - la_apex
+    return out
 
 
 def _every(points: np.ndarray, spacing_mm: float) -> np.ndarray:

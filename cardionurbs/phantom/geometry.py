@@ -376,7 +376,9 @@ def slice_specs(anatomy: Anatomy, acq: Acquisition) -> list[SliceSpec]:
 
 def outlet_heights(anatomy: Anatomy, top: float, spacing: float) -> np.ndarray:
     """SA heights above the stack's top slice that cut the RV outflow tract wholly below the
-    pulmonary valve at ED (the stack continued at its spacing), highest first.
+    pulmonary valve at ED (the stack continued at its spacing, with no slot left out: a
+    slice within 1 mm of the base, where the stack's top is held below a saddle annulus,
+    is one of them), highest first.
 
     Parameters
     ----------
@@ -395,8 +397,9 @@ def outlet_heights(anatomy: Anatomy, top: float, spacing: float) -> np.ndarray:
     from cardionurbs.phantom.outflow import pulmonary_ring
     z_valve = float(pulmonary_ring(anatomy)[:, 2].min()) - 1.0
     h = top + spacing * np.arange(1, 20)
-    h = h[(h > anatomy.z_base + 1.0) & (h < z_valve)]
-    return h[::-1]
+    # every slot up to the valve: one left out (once ``h > z_base + 1``) made the stack
+    # uneven, and a NIfTI stack of one spacing misplaced every slice beyond the gap
+    return h[h < z_valve][::-1]
 
 
 def la_plane(anatomy: Anatomy, name: str) -> SliceSpec:

@@ -204,8 +204,18 @@ def plane_affine_ras(planes: list[ImagePlane]) -> np.ndarray:
     -------
     ndarray, shape (4, 4)
         Voxel (i, j, k) to RAS+ world mm.
+
+    Raises
+    ------
+    cardionurbs.errors.PhantomError
+        The planes are not evenly spaced (one affine would misplace every plane beyond the
+        first step).
     """
     p0 = planes[0]
+    steps = np.diff([p.position for p in planes], axis=0)
+    if len(steps) > 1 and not np.allclose(steps, steps[0], atol=1e-3):
+        raise PhantomError(f"the stack {planes[0].slice}..{planes[-1].slice} is not evenly "
+                           "spaced: one NIfTI affine cannot place its slices")
     a = np.eye(4)
     a[:3, 0] = p0.row_cosine * p0.pixel_spacing[1]
     a[:3, 1] = p0.column_cosine * p0.pixel_spacing[0]
