@@ -40,7 +40,6 @@ labels, 3 x 3 supersampling); see docs/formats.md.
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -302,41 +301,15 @@ def _flip_in_plane(codes: np.ndarray, affine_ras: np.ndarray) -> tuple[np.ndarra
     return np.ascontiguousarray(codes[::-1, ::-1]), a
 
 
-def _uniform(planes: list[ImagePlane]) -> list[ImagePlane]:
-    """The planes of one stack with any gap of m spacings (m >= 2; the spacing the smallest
-    step between neighbours) filled by m - 1 planes at the stack's spacing: a NIfTI volume
-    holds slices at one spacing, and a stack written with a gap would put every slice beyond
-    it at a false position (the realistic phantom's outflow-tract slices begin above the
-    valve, which at 5 mm skips a stack position). A filler's slice is ``<slice>+k``."""
-    if len(planes) < 3:
-        return planes
-    n = planes[0].normal
-    steps = np.diff([float(p.position @ n) for p in planes])
-    h = float(np.min(np.abs(steps)))
-    if h <= 0:
-        return planes
-    out = [planes[0]]
-    for p, step in zip(planes[1:], steps):
-        m = int(round(abs(step) / h))
-        prev = out[-1]
-        for k in range(1, m):
-            out.append(dataclasses.replace(prev, id=f"{prev.id}+{k}", slice=f"{prev.slice}+{k}",
-                                           position=prev.position + (k * step / m) * n))
-        out.append(p)
-    return out
-
-
 def _stack(phantom, slice_ids: list[str], frames: list[int], supersample: int, cache: dict):
-    """(columns, rows, k, len(frames)) codes and the k planes of frame frames[0]: the planes
-    of ``slice_ids``, a gap in their spacing filled (:func:`_uniform`)."""
+    """(columns, rows, len(slice_ids), len(frames)) codes and the planes of frame frames[0]."""
     by_key = {(im.slice, im.frame): im for im in phantom.study.images}
-    per_frame = [_uniform([by_key[(s, fr)] for s in slice_ids]) for fr in frames]
-    planes = per_frame[0]
+    planes = [by_key[(s, frames[0])] for s in slice_ids]
     p0 = planes[0]
-    codes = np.zeros((p0.columns, p0.rows, len(planes), len(frames)), dtype=np.uint8)
-    for j, frame_planes in enumerate(per_frame):
-        for i, plane in enumerate(frame_planes):
-            codes[:, :, i, j] = plane_codes(phantom, plane, supersample, cache)
+    codes = np.zeros((p0.columns, p0.rows, len(slice_ids), len(frames)), dtype=np.uint8)
+    for j, fr in enumerate(frames):
+        for i, s in enumerate(slice_ids):
+            codes[:, :, i, j] = plane_codes(phantom, by_key[(s, fr)], supersample, cache)
     return codes, planes
 
 
