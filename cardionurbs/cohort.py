@@ -491,6 +491,29 @@ def write_parquet(table: pd.DataFrame, path: str | os.PathLike) -> Path:
 EXIT_SOME_FAILED = 3
 
 
+def expand_folders(paths: Iterable[str]) -> list[str]:
+    """Each path, or, for a folder that is no study but holds some (a dataset's tree), the
+    studies below it (:func:`cardionurbs.io.studies_in`); a path with neither is kept so that
+    its row names what is wrong with it.
+
+    Parameters
+    ----------
+    paths : iterable of str
+        The STUDY arguments.
+
+    Returns
+    -------
+    list of str
+        The studies to measure, in order.
+    """
+    from cardionurbs.io import studies_in
+    out: list[str] = []
+    for p in paths:
+        found = studies_in(p)
+        out += [str(q) for q in found] if found else [str(p)]
+    return out
+
+
 def run_cohort(args: argparse.Namespace) -> int:
     """`cardionurbs cohort STUDY... --csv FILE [--jobs N] [--dask local|tcp://HOST:PORT]
     [--timeout S] [--resume] [--run-dir DIR] [--parquet] [--allow-failures]`; ``--csv`` is
@@ -518,6 +541,7 @@ def run_cohort(args: argparse.Namespace) -> int:
     from cardionurbs.pipeline import study_folder
     if getattr(args, "dask", None):
         check_dask_address(args.dask)           # before any file is touched
+    args.studies = expand_folders(args.studies)
     studies = [study_folder(s) for s in args.studies]
     overwrite = getattr(args, "overwrite", False)
     check_output_file(args.csv, inputs=studies, option="--csv", ours=is_cohort_table,

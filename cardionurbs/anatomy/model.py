@@ -23,13 +23,16 @@ from cardionurbs import nurbs
 from cardionurbs.anatomy import handback, serialise
 from cardionurbs.anatomy import mesh as meshing
 from cardionurbs.anatomy import residuals as fit_residuals
-from cardionurbs.anatomy.cycle import CycleCheck, check_curve, interpolate, support_sections
+from cardionurbs.anatomy.cycle import (MIN_FRAMES, BasalSupport, CycleCheck, basal_edges,
+                                       check_curve, interpolate, is_cyclic, support_basal,
+                                       support_sections)
 from cardionurbs.anatomy.mesh import Plane
 from cardionurbs.anatomy.outflow import OutflowTract, outflow_tracts, tract_solid
 from cardionurbs.anatomy.residuals import RESIDUAL_COLUMNS, surface_distance  # noqa: F401 (re-exported)
-from cardionurbs.anatomy.sections import (MYO_CONSERVED_BOUND, SURFACES, FrameGeometry,
-                                          frame_geometry, labelled_myocardium_ratio,
-                                          labels_do_not_conserve, moves_with_lv)
+from cardionurbs.anatomy.sections import (MYO_CONSERVED_BOUND, SA_APEX_TAPER, SURFACES,
+                                          FrameGeometry, frame_geometry,
+                                          labelled_myocardium_ratio, labels_do_not_conserve,
+                                          moves_with_lv)
 from cardionurbs.anatomy.refine import refine_surface
 from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface
 from cardionurbs.cache import LazyFrames, memoized
@@ -231,7 +234,8 @@ class BiventricularModel:
             else:
                 lv = {f: meshing.volume_ml(self.lv_cavity_solid(f)) for f in self.frames}
             self.lv_volume_by_frame = lv      # the per-frame LV cavity volumes (mL), raw
-            self.cycle = check_curve(lv, contours=self._lv_contour_counts(lv))
+            self.cycle = check_curve(lv, contours=self._lv_contour_counts(lv),
+                                     basal=self._basal_support(lv))
             failed = [f for f, v in lv.items() if not math.isfinite(v)]
             if failed:
                 self._drop_frames(failed)
@@ -242,6 +246,34 @@ class BiventricularModel:
             if "ES" in given and study.es_frame in lv:
                 es = int(study.es_frame)
         return ed, es
+
+    def _basal_support(self, lv: dict[int, float]) -> dict[int, BasalSupport]:
+        """The frames at an edge of a basal slice's run whose basal region their neighbours
+        support (:func:`cardionurbs.anatomy.cycle.support_basal`); {} for a model read back."""
+        if not isinstance(self.surfaces, LazyFrames) or len(lv) < MIN_FRAMES:
+            return {}
+        stacks = {}
+        for f, v in lv.items():
+            if math.isfinite(v):
+                geo = self.geometry[f]
+                stacks[f] = [sec.slice for sec in geo.sections.get("lv_endo") or []
+                             if sec.slice is not None]
+        finite = np.array([v for v in lv.values() if math.isfinite(v)])
+        ref, edges = basal_edges(stacks, sorted(lv), is_cyclic(finite))
+        if ref is None or not edges:
+            return {}
+        return support_basal(lv, edges, ref, lambda f: lv[f] - self._lv_apical_ml(f, ref))
+
+    def _lv_apical_ml(self, frame: int, slice_id: str) -> float:
+        """One frame's LV cavity (mL) on the apical side of an SA slice's plane (NaN when
+        the frame has no section of its LV endocardium there)."""
+        geo = self.geometry[frame]
+        sec = next((x for x in geo.sections.get("lv_endo") or [] if x.slice == slice_id), None)
+        if sec is None:
+            return math.nan
+        v, f = meshing.closed_mesh(*nurbs.tessellate(self._surface(frame, "lv_endo"),
+                                                    *self.resolution, volume_corrected=True))
+        return meshing.clipped_volume(v, f, Plane(sec.points.mean(axis=0), geo.direction)) / 1000.0
 
     def _unrefined_or_nan(self, frame: int) -> float:
         """:meth:`lv_cavity_volume_unrefined`, NaN with a warning when the frame's LV
@@ -383,6 +415,8 @@ class BiventricularModel:
     def _own_geometry(self, frame: int) -> FrameGeometry:
         geo = frame_geometry(self.study, frame)
         geo.reference = _reference_direction(self.study, geo)
+        if geo.base_from_slices and self.study.meta.get("sa_apex") != SA_APEX_TAPER:
+            base_between_slices(self.study, geo)          # hand contours (label maps: their slab)
         return geo
 
     def _frame_geometry(self, frame: int) -> FrameGeometry:
@@ -925,6 +959,44 @@ class BiventricularModel:
         BiventricularModel
         """
         return cls(**serialise.decode(d, study))
+
+
+def base_between_slices(study: Study, geo: FrameGeometry) -> None:
+    """Hand-drawn SA contours without valve landmarks: each valve plane the half-slice rule
+    placed is moved to half-way between its most basal section and the next imaged SA plane
+    on the basal side (when the slices are farther apart than they are thick: the valve
+    lies anywhere in that gap, not only in the section's own slab), and the ES plane may
+    then move up to that next plane (``geo.base_slack``), where the LV myocardial volume
+    equals ED's (:meth:`BiventricularModel._conserve_myocardium`).
+
+    Parameters
+    ----------
+    study : Study
+        The study (its SA image planes at ``geo.frame``).
+    geo : FrameGeometry
+        One frame's geometry; its ``base_planes`` and ``base_slack`` are changed in place.
+    """
+    n = geo.direction
+    levels = np.array([float(im.position @ n) for im in study.images
+                       if im.view == "SA" and im.frame == geo.frame])
+    slack = 0.5 * geo.thickness
+    for side, surf in (("lv", "lv_endo"), ("rv", "rv_endo")):
+        secs = geo.sections.get(surf) or []
+        if side not in geo.base_from_slices or not secs:
+            continue
+        level = float(secs[0].points.mean(axis=0) @ n)
+        above = levels[levels < level - 0.5]
+        if not len(above):
+            continue
+        half_gap = 0.5 * (level - float(above.max()))
+        extra = half_gap - 0.5 * geo.thickness
+        if extra > 0:
+            p = geo.base_planes[side]
+            geo.base_planes[side] = Plane(p.origin - extra * p.normal, p.normal)
+        if side == "lv":
+            slack = max(half_gap, slack)
+    if "lv" in geo.base_from_slices:
+        geo.base_slack = slack
 
 
 #: how far beyond one slice thickness the most apical SA section of an LV surface may lie

@@ -9,6 +9,7 @@ not printed, so that callers decide how to show them).
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from cardionurbs.errors import StudyError
@@ -16,7 +17,7 @@ from cardionurbs.io.checks import check_study
 from cardionurbs.study import Study
 
 FORMATS = ("auto", "native", "sunnybrook", "gpfile", "phantom", "nifti")
-__all__ = ["FORMATS", "detect_format", "load_study", "check_study"]
+__all__ = ["FORMATS", "detect_format", "load_study", "check_study", "studies_in"]
 
 
 def detect_format(path: str | Path) -> str:
@@ -42,25 +43,77 @@ def detect_format(path: str | Path) -> str:
     StudyError
         ``path`` does not exist, or no format's files are there (with a hint at what is).
     """
-    from cardionurbs.io import native
-
     p = Path(path)
     if not p.exists():
         raise StudyError("no such file or folder", file=p)
+    fmt = _format_or_none(p)
+    if fmt:
+        return fmt
+    hint = ""
+    inner = [q.name for q in _subfolders(p) if _format_or_none(q)] if p.is_dir() else []
+    if p.is_file():
+        hint = " (expected a .nii/.nii.gz label map or a study folder)"
+    elif inner:
+        shown = ", ".join(inner[:3]) + (", ..." if len(inner) > 3 else "")
+        hint = (f" (a folder of {len(inner)} studies: {shown}: analyze one of them, or measure "
+                "them all with `cardionurbs cohort FOLDER --csv FILE`)")
+    elif p.is_dir() and (p / "Info.cfg").is_file():
+        other = sorted(q.name for q in p.iterdir() if q.name.lower().endswith((".nii", ".nii.gz"))
+                       and not q.name.lower().endswith(("_4d.nii", "_4d.nii.gz"))
+                       and not re.search(r"_frame\d+\.nii", q.name, re.I))
+        hint = (" (an ACDC patient folder without its label maps, the *_frameMM_gt.nii.gz files"
+                + (f"; to read another map give the file itself: {', '.join(other[:3])}" if other
+                   else "") + ")")
+    elif p.is_dir() and _has_dicom(p):
+        hint = " (DICOM images but no contours beside them)"
+    raise StudyError("cannot tell the study format (expected a native study.json, Sunnybrook "
+                     "contour folders beside DICOM, GPFile_*.txt + SliceInfoFile.txt, or NIfTI label maps)" + hint,
+                     file=p)
+
+
+def _format_or_none(p: Path) -> str | None:
+    from cardionurbs.io import native
+
     if native.is_native(p) or (p.is_dir() and (p / native.MANIFEST).is_file()):
         return "native"  # a broken study.json is reported by the native reader
     for reader in _extra_detectors():
         fmt = reader(p)
         if fmt:
             return fmt
-    hint = ""
-    if p.is_file():
-        hint = " (expected a .nii/.nii.gz label map or a study folder)"
-    elif p.is_dir() and _has_dicom(p):
-        hint = " (DICOM images but no contours beside them)"
-    raise StudyError("cannot tell the study format (expected a native study.json, Sunnybrook "
-                     "contour folders beside DICOM, GPFile_*.txt + SliceInfoFile.txt, or NIfTI label maps)" + hint,
-                     file=p)
+    return None
+
+
+def _subfolders(p: Path) -> list[Path]:
+    """The folders directly in ``p`` (symbolic links not followed), by name."""
+    return sorted(q for q in p.iterdir() if q.is_dir() and not q.is_symlink())
+
+
+def studies_in(path: str | Path, depth: int = 3) -> list[Path]:
+    """The studies at or below ``path``: ``[path]`` when it is a study, else the study
+    folders up to ``depth`` levels below it (a dataset as distributed: ACDC
+    ``database/training/patientNNN``, M&Ms ``OpenDataset/Training/Labeled/<code>``), by
+    name, not looking inside a study; symbolic links are not followed.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        A study, or a folder of them.
+    depth : int, optional
+        How many folder levels below ``path`` to look.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The studies found (empty when none).
+    """
+    p = Path(path)
+    if not p.exists():
+        return []
+    if _format_or_none(p):
+        return [p]
+    if not p.is_dir() or depth <= 0:
+        return []
+    return [s for q in _subfolders(p) for s in studies_in(q, depth - 1)]
 
 
 def _has_dicom(p: Path) -> bool:

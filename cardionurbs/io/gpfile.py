@@ -349,6 +349,10 @@ def read_gp_table(path: str | Path) -> tuple[dict[str, np.ndarray], str, int | N
         float(lines[0].split("\t")[0].strip())
     except ValueError:
         header, start = lines[0], 1
+    perm = header_order(header)
+    if perm is not None:                       # columns named in another order: reorder them
+        lines = lines[:start] + [_reordered(ln, perm) for ln in lines[start:]]
+        text = "\n".join(lines) + "\n"
     rows = _plain_rows(text, lines, start)
     if rows is not None:
         return rows, header, _fixed_decimals([rows.pop(f"{c}_text") for c in "xyz"])
@@ -378,6 +382,46 @@ def read_gp_table(path: str | Path) -> tuple[dict[str, np.ndarray], str, int | N
             "slice_id": table["slice_id"].to_numpy(int),
             "weight": table["weight"].to_numpy(object), "time": table["time"].to_numpy(object),
             "line": table["line"].to_numpy(int)}, header, decimals
+
+
+#: a GPFile header's column names (lower case, without spaces and underscores) -> column
+_COLUMN_NAMES = {"x": "x", "y": "y", "z": "z", "contourtype": "type", "type": "type",
+                 "frameid": "slice", "sliceid": "slice", "slice": "slice", "weight": "weight",
+                 "timeframe": "time", "time": "time"}
+_HEADER_TOKEN = re.compile(r"contour[ _]?type|time[ _]?frame|frame[ _]?id|slice[ _]?id|[^\s]+", re.I)
+
+
+def header_order(header: str) -> list[int] | None:
+    """Where a GPFile's header puts each of the columns x, y, z, contour type, frameID
+    (``sliceID``), weight, time frame: the file column of each, in that order; None when the
+    header names them in that order (or does not name the seven; the order is then taken to
+    be that one). biv-me reads the columns by these names, so a file may order them its way.
+
+    Parameters
+    ----------
+    header : str
+        The header line ("" for none).
+
+    Returns
+    -------
+    list of int or None
+        Seven file-column indices, or None.
+    """
+    names = [_COLUMN_NAMES.get(re.sub(r"[\s_]", "", t).lower()) for t in _HEADER_TOKEN.findall(header)]
+    if len(names) != 7 or sorted(map(str, names)) != sorted(_COLUMNS):
+        return None
+    perm = [names.index(c) for c in _COLUMNS]
+    return None if perm == list(range(7)) else perm
+
+
+def _reordered(line: str, perm: list[int]) -> str:
+    """One data line with its fields (tab or whitespace separated) in the standard order."""
+    tok = line.split("\t")
+    if len(tok) != 7:
+        tok = line.split()
+    if len(tok) != 7:
+        return line                            # left to the readers' error naming the line
+    return "\t".join(tok[i].strip() for i in perm)
 
 
 #: characters that make a file not plain (:func:`_plain_rows`): controls other than tab and
@@ -553,6 +597,7 @@ def read_study(path: str | Path) -> Study:
                         f"kept but not used for the ventricles ({counts})")
     if excluded:
         warnings.append(f"{folder}: {excluded} EXCLUDED guide point(s) dropped")
+    warnings += _export_warnings(folder, rule, landmarks, files)
     style = slices[0]["style"]
     meta = {"format": "gpfile", "base_apex_rule": rule,
             "gpfile": {"header": header, "frames": frame_meta,
@@ -566,6 +611,31 @@ def read_study(path: str | Path) -> Study:
                                    "SliceInfoFile.txt"}}
     return Study(subject=folder.name, images=images, contours=contours, landmarks=landmarks,
                  source=str(folder), meta=meta, warnings=warnings)
+
+
+def _export_warnings(folder: Path, rule: str | None, landmarks: list[Landmark],
+                     files: list[tuple[int, Path]]) -> list[str]:
+    """What an export lacks that changes how it is reconstructed: the APEX_POINT and
+    MITRAL_VALVE points that order the stack, the valve points that place the bases, and
+    GPFiles missing from the frame series."""
+    out = []
+    if rule == "LPS prior":
+        out.append(f"{folder}: no APEX_POINT or MITRAL_VALVE guide points: base and apex of the "
+                   "short-axis stack from the patient axes (LPS prior) only: check the slice order")
+    valves = {lm.name for lm in landmarks} & {"mitral", "tricuspid"}
+    for side, name, gp_name in (("LV", "mitral", "MITRAL_VALVE"), ("RV", "tricuspid", "TRICUSPID_VALVE")):
+        if name not in valves:
+            out.append(f"{folder}: no {gp_name} guide points: the {side} base closed half a slice "
+                       "beyond its most basal short-axis contour (volumes need not match a fit to "
+                       "the valve)")
+    frames = [f for f, _ in files]
+    gaps = sorted(set(range(frames[0], frames[-1] + 1)) - set(frames))
+    if gaps:
+        shown = ", ".join(map(str, gaps[:8])) + (", ..." if len(gaps) > 8 else "")
+        out.append(f"{folder}: no GPFile for frame{'s' if len(gaps) > 1 else ''} {shown} (between "
+                   f"{files[0][1].name} and {files[-1][1].name}): missing from the volume curve, ED "
+                   "and ES chosen among the other frames")
+    return out
 
 
 def _slice_planes(slices: list[dict], tables: list[dict[str, np.ndarray]], folder: Path):
@@ -1037,8 +1107,10 @@ def _gp_file_text(study: Study, frame: int, fm: dict | None, gp: dict, slice_ids
         weights = [w for c, w, _ in fm["runs"] for _ in range(c)]
         times = [tt for c, _, tt in fm["runs"] for _ in range(c)]
     points = _expand(rows, gp.get("decimals"))
-    body = [f"{x}\t{y}\t{z}\t{ty}\t{sid}\t{w}\t{tt}"
-            for (x, y, z, ty, sid), w, tt in zip(points, weights, times)]
+    perm = header_order(gp.get("header") or HEADER)
+    order = range(7) if perm is None else [perm.index(i) for i in range(7)]
+    body = ["\t".join(str(f[i]) for i in order)
+            for f in ((*p, w, tt) for p, w, tt in zip(points, weights, times))]
     return "\n".join([gp.get("header") or HEADER, *body]) + "\n"
 
 

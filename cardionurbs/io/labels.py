@@ -156,7 +156,12 @@ def check_values(present: set[int], roles: LabelRoles, where: str) -> None:
     """
     extra = sorted(present - set(roles.values().values()) - {0})
     if extra:
-        raise StudyError(f"label {extra[0]} is not in the label convention {roles.describe()}",
+        mapping = ",".join(f"{r}={v}" for r, v in roles.values().items())
+        free = [r for r in ROLES if getattr(roles, r) is None]
+        hint = f"{mapping},ROLE={extra[0]} with ROLE one of {', '.join(free)}" if free else mapping
+        raise StudyError(f"label {extra[0]} is not in the label convention {roles.describe()} "
+                         f"(values present: {', '.join(map(str, sorted(present - {0})))}; name "
+                         f"the map's own convention with --labels, e.g. {hint})",
                          file=where, field="labels")
 
 

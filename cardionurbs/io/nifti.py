@@ -11,13 +11,16 @@ Layouts (:func:`detect`)
            ``Weight:``); label preset ``acdc``.
 ``ukbb``   ukbb_cardiac output: ``seg_sa.nii.gz`` (4-D) or ``seg_sa_ED.nii.gz``
            + ``seg_sa_ES.nii.gz``; long-axis ``seg4_la_4ch.nii.gz`` (preferred)
-           or ``seg_la_4ch``/``seg_la_2ch``/``seg_la_3ch.nii.gz`` when they hold
-           ventricles; label preset ``ukbb``. ED is frame 0 (ukbb_cardiac's
+           or ``seg_la_4ch``/``seg_la_2ch``/``seg_la_3ch.nii.gz`` (their ``_ED`` +
+           ``_ES`` pairs beside ``seg_sa_ED/_ES``) when they hold ventricles
+           (:func:`_not_ventricular`: ukbb_cardiac's atrial maps do not); label
+           preset ``ukbb``. ED is frame 0 (ukbb_cardiac's
            convention), ES the frame of the smallest LV cavity by voxel count.
 ``mnms``   ``<code>_sa_gt.nii.gz`` (4-D, only ED and ES labelled); ED/ES frame
-           indices from a CSV beside it or in the parent folder (columns
-           ``External code``, ``ED``, ``ES``) or the ``ed_frame``/``es_frame``
-           arguments, else the labelled frames; label preset ``mnms``.
+           indices from a CSV in the subject folder or (``--allow-outside``) up to
+           :data:`MNMS_CSV_LEVELS` folders above it (columns ``External code``,
+           ``ED``, ``ES``) or the ``ed_frame``/``es_frame`` arguments, else the
+           labelled frames (a warning); label preset ``mnms``.
 ``mnms2``  ``NNN_SA_ED_gt`` + ``NNN_SA_ES_gt`` (3-D, frames 0 = ED and 1 = ES) and
            ``NNN_LA_ED_gt`` + ``NNN_LA_ES_gt`` (the 4-chamber slice, used as the
            ukbb long-axis maps are); label preset ``mnms`` (1 LV, 2 MYO, 3 RV).
@@ -235,19 +238,23 @@ def read_label_volume(path: str | Path) -> LabelVolume:
     """
     path = checked(path, what="label map")
     where = str(path)
-    img = _load_nifti(path, where)
+    warnings: list[str] = []
+    img = _load_nifti(path, where, warnings)
     shape = _label_shape(img, where)
     check_volume_size(path, shape, img.header.get_data_dtype().itemsize)
     data = _label_data(img, shape, where)
-    warnings: list[str] = []
     aff = _label_affine(img, path, where, warnings)
     header = _header_notes(img, aff, where, warnings)
     dt, header["time"] = time_step_ms(img.header, data.shape[3], where, warnings)
     return LabelVolume(path, data, RAS_TO_LPS @ aff, dt, warnings, header)
 
 
-def _load_nifti(path: Path, where: str):
+def _load_nifti(path: Path, where: str, warnings: list[str] | None = None):
     """The nibabel image of a NIfTI-1 or NIfTI-2 file (StudyError for anything else).
+
+    A file whose content and name disagree -- a ``.nii.gz`` that is not gzip-compressed,
+    or a ``.nii`` that is (some converters write them; ITK, Slicer and FSL read them by
+    content) -- is read by its content, with a warning.
 
     Parameters
     ----------
@@ -255,6 +262,8 @@ def _load_nifti(path: Path, where: str):
         The file.
     where : str
         The file as named in messages.
+    warnings : list of str, optional
+        Appended to when the name and the content disagree.
 
     Returns
     -------
@@ -265,7 +274,14 @@ def _load_nifti(path: Path, where: str):
     from nibabel.filebasedimages import ImageFileError
     from nibabel.spatialimages import HeaderDataError
     try:
-        img = nib.load(str(path))
+        gz = _is_gzip(path)
+        if gz is not None and gz != path.name.lower().endswith(".gz"):
+            img = _load_by_content(path, gz)
+            if warnings is not None:
+                warnings.append(f"{where}: the file is {'' if gz else 'not '}gzip-compressed, its "
+                                f"name says {'not' if gz else 'it is'}: read by its content")
+        else:
+            img = nib.load(str(path))
     except FileNotFoundError:
         raise StudyError("no such file", file=where) from None
     except (ImageFileError, HeaderDataError, EOFError, OSError, zlib.error, ValueError) as exc:
@@ -274,6 +290,33 @@ def _load_nifti(path: Path, where: str):
     if not isinstance(img, (nib.Nifti1Image, nib.Nifti2Image)):
         raise StudyError(f"not a NIfTI image ({type(img).__name__})", file=where)
     return img
+
+
+def _is_gzip(path: Path) -> bool | None:
+    """Whether the file starts with the gzip magic number (None: unreadable)."""
+    try:
+        with path.open("rb") as fh:
+            return fh.read(2) == b"\x1f\x8b"
+    except OSError:
+        return None
+
+
+def _load_by_content(path: Path, gz: bool):
+    """A NIfTI-1 (else NIfTI-2) image from the file's bytes, decompressed when ``gz``; the
+    voxel data stays unread (lazy, from the open stream) until the header is checked."""
+    import gzip
+
+    import nibabel as nib
+    from nibabel.filebasedimages import ImageFileError
+    why = ""
+    for klass in (nib.Nifti1Image, nib.Nifti2Image):
+        fh = gzip.open(path, "rb") if gz else path.open("rb")
+        try:
+            return klass.from_stream(fh)
+        except Exception as exc:  # noqa: BLE001 - the other NIfTI version, else reported
+            fh.close()
+            why = f"{type(exc).__name__}: {exc}"
+    raise ImageFileError(f"neither NIfTI-1 nor NIfTI-2 by its content ({why})")
 
 
 def _label_shape(img, where: str) -> tuple[int, ...]:
@@ -868,7 +911,9 @@ def _times(vol: LabelVolume, frames) -> dict[int, float]:
 
 # ------------------------------------------------------------------ layouts
 def read_file(path: Path, labels=None) -> Study:
-    """One 3-D or 4-D label map (all its slices are the SA stack).
+    """One 3-D or 4-D label map (all its slices are the SA stack). A 4-D map named
+    ``seg_sa.nii[.gz]`` has ukbb_cardiac's ED and ES (frame 0, the smallest LV cavity), as
+    in its folder.
 
     Parameters
     ----------
@@ -888,13 +933,18 @@ def read_file(path: Path, labels=None) -> Study:
     roles, note = _resolve_roles(labels, None, vol, fr)
     _check_roles(vol, roles)
     frames = {t: t for t in fr}
-    return _build(_stem(path), path, vol, frames, _times(vol, frames), roles, note,
-                  meta={"layout": "file", "label_files": [path.name]})
+    study = _build(_stem(path), path, vol, frames, _times(vol, frames), roles, note,
+                   meta={"layout": "file", "label_files": [path.name]})
+    if _stem(path) == "seg_sa" and vol.data.shape[3] > 1:
+        _ukbb_ed_es(study, vol, roles, frames)     # named as ukbb_cardiac names it: its rule
+    return study
 
 
 def _info_cfg(path: Path) -> dict[str, str]:
     out = {}
-    for line in checked(path, what="Info.cfg").read_text(errors="replace").splitlines():
+    # utf-8-sig: a byte-order mark (as Windows editors write) must not hide the first key
+    for line in checked(path, what="Info.cfg").read_text(encoding="utf-8-sig",
+                                                          errors="replace").splitlines():
         if ":" in line:
             k, v = line.split(":", 1)
             out[k.strip()] = v.strip()
@@ -1021,23 +1071,10 @@ def read_ukbb(folder: Path, labels=None) -> Study:
     la: dict = {}
     skipped: list[str] = []
     for view_id, stems in LA_FILES.items():
-        p = next((q for q in (_find(folder, s) for s in stems) if q is not None), None)
-        if p is None:
-            continue
-        v = read_label_volume(p)
-        v.warnings = _unrepeated(v.warnings, sa.warnings)
-        if v.data.shape[3] != sa.data.shape[3]:
-            skipped.append(f"{p}: {v.data.shape[3]} frame(s) where the SA map has "
-                           f"{sa.data.shape[3]}: long-axis map left out")
-            continue
-        present = {int(x) for x in np.unique(v.data)} - {0}
-        if not {roles.lv, roles.myo} <= present:
-            skipped.append(f"{p}: no LV cavity and myocardium labels ({roles.describe()}): an "
-                           "atrial segmentation? long-axis map left out")
-            continue
-        check_values(present, roles, str(p))
-        la[view_id] = (v, frames)
-        files.append(p.name)
+        got = _ukbb_la(folder, stems, sa, roles, paired=sa_path is None, skipped=skipped)
+        if got is not None:
+            la[view_id] = (got[0], frames)
+            files += got[1]
     meta["label_files"] = files
     images = [q.name for q in folder.iterdir()
               if re.fullmatch(r"(sa|la_[234]ch)\.nii(\.gz)?", q.name)]
@@ -1047,14 +1084,85 @@ def read_ukbb(folder: Path, labels=None) -> Study:
     study.meta["reader_warnings"] += skipped
     if sa_path is None:
         _layout_ed_es(study, 0, 1, "ukbb_cardiac: seg_sa_ED and seg_sa_ES")
-    elif 0 in frames:
-        es = _smallest_lv_cavity(sa, roles, frames)
-        if es == 0:
-            study.ed_frame = 0
-        else:
-            _layout_ed_es(study, 0, es, f"ukbb_cardiac: ED the first frame, ES the frame of the "
-                                        f"smallest LV cavity by voxel count ({es})")
+    else:
+        _ukbb_ed_es(study, sa, roles, frames)
     return study
+
+
+def _ukbb_ed_es(study: Study, sa: LabelVolume, roles: LabelRoles, frames: dict[int, int]) -> None:
+    """ukbb_cardiac's ED and ES of a 4-D ``seg_sa``: the first frame, and the frame of the
+    smallest LV cavity by voxel count (where frame 0 is labelled)."""
+    if 0 not in frames:
+        return
+    es = _smallest_lv_cavity(sa, roles, frames)
+    if es == 0:
+        study.ed_frame = 0
+    else:
+        _layout_ed_es(study, 0, es, f"ukbb_cardiac: ED the first frame, ES the frame of the "
+                                    f"smallest LV cavity by voxel count ({es})")
+
+
+#: a long-axis map's LV cavity is bordered by myocardium over at least this share of its
+#: boundary (median over its labelled slices and frames; the rest is the mitral opening): a
+#: ventricular map gives 0.6-0.9, ukbb_cardiac's atrial ``seg_la_4ch`` (1 LA, 2 RA, which
+#: touch only along the atrial septum) well under it
+MIN_LA_WALL_FRACTION = 0.45
+
+
+def _not_ventricular(vol: LabelVolume, roles: LabelRoles, present: set[int]) -> str | None:
+    """Why a long-axis map does not label the ventricles in ``roles`` (None when it does): no
+    LV cavity or myocardium label, or a "cavity" the "myocardium" borders too little of (the
+    atria of ukbb_cardiac's ``seg_la_2ch``/``seg_la_4ch``, labelled 1 LA and 2 RA)."""
+    if not {roles.lv, roles.myo} <= present:
+        return f"no LV cavity and myocardium labels ({roles.describe()})"
+    fr = [masks.ring_fraction(vol.data[:, :, k, t] == roles.lv, vol.data[:, :, k, t] == roles.myo)
+          for t in range(vol.data.shape[3]) for k in range(vol.data.shape[2])]
+    fr = [f for f in fr if np.isfinite(f)]
+    share = float(np.median(fr)) if fr else 0.0
+    if share < MIN_LA_WALL_FRACTION:
+        return (f"label {roles.myo} borders label {roles.lv} over {share:.0%} of its boundary (a "
+                f"ventricular map: > {MIN_LA_WALL_FRACTION:.0%}), so they are not the LV cavity "
+                f"and myocardium of {roles.describe()}")
+    return None
+
+
+def _ukbb_la(folder: Path, stems: tuple[str, ...], sa: LabelVolume, roles: LabelRoles, *,
+             paired: bool, skipped: list[str]) -> tuple[LabelVolume, list[str]] | None:
+    """One view's long-axis map of a ukbb_cardiac folder, on the SA map's frames: the cine map
+    (``seg4_la_4ch``, ...) with as many frames, or, beside ``seg_sa_ED`` + ``seg_sa_ES``, the
+    ``<stem>_ED`` + ``<stem>_ES`` pair ukbb_cardiac writes with them. None (the reason appended
+    to ``skipped``) when absent, on other frames, or not a ventricular map."""
+    for stem in stems:
+        p = _find(folder, stem)
+        pair = (_find(folder, f"{stem}_ED"), _find(folder, f"{stem}_ES"))
+        if paired and None not in pair:
+            assert pair[0] is not None and pair[1] is not None
+            try:
+                v = _ed_es_pair(pair[0], pair[1], folder / f"{stem}_ED+ES")
+            except StudyError as exc:
+                skipped.append(f"{exc}: long-axis maps left out")
+                return None
+            names = [pair[0].name, pair[1].name]
+        elif p is not None:
+            v, names = read_label_volume(p), [p.name]
+        else:
+            if None not in pair:
+                skipped.append(f"{folder}: {stem}_ED/_ES beside a 4-D seg_sa, whose frames they "
+                               f"do not name: long-axis maps left out (the cine {stem} is used)")
+            continue
+        v.warnings = _unrepeated(v.warnings, sa.warnings)
+        if v.data.shape[3] != sa.data.shape[3]:
+            skipped.append(f"{v.path}: {v.data.shape[3]} frame(s) where the SA map has "
+                           f"{sa.data.shape[3]}: long-axis map left out")
+            return None
+        present = {int(x) for x in np.unique(v.data)} - {0}
+        problem = _not_ventricular(v, roles, present)
+        if problem:
+            skipped.append(f"{v.path}: {problem}: an atrial segmentation? long-axis map left out")
+            continue
+        check_values(present, roles, str(v.path))
+        return v, names
+    return None
 
 
 def _smallest_lv_cavity(vol: LabelVolume, roles: LabelRoles, frames: dict[int, int]) -> int:
@@ -1072,13 +1180,18 @@ def _layout_ed_es(study: Study, ed: int | None, es: int | None, source: str) -> 
         study.meta["ed_es_source"] = source
 
 
+#: how far above a subject folder the M&Ms dataset table is looked for: the challenge ships
+#: it at the dataset root, OpenDataset/<split>/[Labeled/]<code>/ (read with --allow-outside)
+MNMS_CSV_LEVELS = 3
+
+
 def _mnms_csv(folder: Path, code: str) -> tuple[int, int] | None:
-    for d in (folder, folder.parent):
+    for d in (folder, *list(folder.resolve().parents)[:MNMS_CSV_LEVELS]):
         for q in sorted(d.glob("*.csv")):
             if not (outside_allowed() or is_inside(folder, q)):
                 continue                        # the dataset's table beside the study: opt-in
             try:
-                with q.open(newline="", errors="replace") as fh:
+                with q.open(newline="", encoding="utf-8-sig", errors="replace") as fh:
                     for row in csv.DictReader(fh):
                         row = {k.strip(): v for k, v in row.items() if k}
                         if row.get("External code", "").strip() == code and "ED" in row and "ES" in row:
@@ -1138,6 +1251,13 @@ def read_mnms(folder: Path, labels=None, ed_frame: int | None = None,
         meta["image_files"] = [img.name]
     study = _build(code, folder, sa, frames, _times(sa, frames), roles, note, meta=meta)
     _layout_ed_es(study, ed_frame, es_frame, source)
+    if ed_frame is None and es_frame is None:
+        where = (f"the subject folder or the {MNMS_CSV_LEVELS} above it" if outside_allowed()
+                 else "the subject folder (one above it is read with --allow-outside)")
+        study.meta["reader_warnings"].append(
+            f"{folder}: no row for {code} in an M&Ms dataset table (a *.csv with External code, "
+            f"ED, ES) in {where}: ED and ES from the LV volumes of the labelled frames "
+            f"{', '.join(map(str, fr))}")
     return study
 
 
@@ -1184,9 +1304,9 @@ def read_mnms2(folder: Path, labels=None) -> Study:
             lvol = _ed_es_pair(found[("LA", "ED")], found[("LA", "ES")], folder / f"{code}_LA_ED+ES")
             present = {int(x) for x in np.unique(lvol.data)} - {0}
             check_values(present, roles, str(lvol.path))
-            if not {roles.lv, roles.myo} <= present:
-                raise StudyError(f"no LV cavity and myocardium labels ({roles.describe()})",
-                                 file=str(lvol.path))
+            problem = _not_ventricular(lvol, roles, present)
+            if problem:
+                raise StudyError(problem, file=str(lvol.path))
             la["la_4ch"] = (lvol, frames)
             meta["label_files"] += [found[("LA", p)].name for p in ("ED", "ES")]
         except StudyError as exc:
