@@ -6,6 +6,7 @@
     python benchmarks/labelmaps.py acdc         # ../shared/data/acdc per patient, printed
     python benchmarks/labelmaps.py quirks       # phantoms in every --label-quirks set, printed
     python benchmarks/labelmaps.py per50        # PER of 50-frame SA-only ukbb maps, printed
+    python benchmarks/labelmaps.py per50 --seeds 0,1,2 --spacings 8,10,5 --units unknown,sec,msec
 
 realconv: phantoms (normal, MR, PHTN; seeds 0-1; 10 and 5 mm SA slices, the first 0.6 spacing
 below the ED base) written in the ACDC
@@ -458,54 +459,108 @@ def quirks_table() -> None:
 
 #: (matrix, field of view mm) of the 50-frame PER table: 1.44, 1.8 and 2.34 mm pixels
 PER_GRIDS = ((208, 300.0), (160, 288.0), (128, 300.0))
+RATE_KEYS = ("PER (mL/s)", "PEFR (mL/s)", "PAFR (mL/s)")
 
 
-def per50_row(pathology: str, matrix: int, fov: float, work: Path) -> str:
-    """One row of the 50-frame ukbb-layout PER table (SA only, 8 mm slices, header as UK
-    Biobank writes it): steps, kappa, PER and PEFR errors (%), PER with kappa from the stroke
-    volume and with the plain spline."""
-    from scipy.interpolate import CubicSpline
+def _set_time_unit(path: Path, unit: str) -> None:
+    """Rewrite ``path``'s header with its time step in ``unit`` ("sec", "msec"; "unknown":
+    as UK Biobank writes it, seconds with no unit), the same interval."""
+    import nibabel as nib
+    if unit == "unknown":
+        return
+    img = nib.load(str(path))
+    h = img.header.copy()
+    z = list(h.get_zooms())
+    h.set_xyzt_units("mm", unit)
+    z[3] = z[3] * (1000.0 if unit == "msec" else 1.0)
+    h.set_zooms(z)
+    nib.save(nib.Nifti1Image(np.asanyarray(img.dataobj), img.affine, h), str(path))
+
+
+def _old_stepped_per(times, vols, pairs, es: int) -> float:
+    """PER (mL/s) of the slab-stepped curve as the previous version had it (steps and one
+    base share kappa, rates.stepped_rate), for the table's *before* column."""
+    from cardionurbs.analysis import rates
+    rr = times[-1] - times[0] + float(np.median(np.diff(times)))
+    tc, vc = np.r_[times, times[0] + rr], np.r_[vols, vols[0]]
+    ks = sorted(rates._beat_intervals(np.arange(len(times)), pairs))
+    rate = rates.stepped_rate(tc, vc, ks, es)
+    return rates.peak_rates(rate, tc[0], tc[es], rr, knots=tc)["PER (mL/s)"]
+
+
+def per50_row(pathology: str, seed: int, matrix: int, fov: float, spacing: float, unit: str,
+              work: Path) -> dict:
+    """One row of the 50-frame ukbb-layout PER table (SA only, header as UK Biobank writes it,
+    its time unit then rewritten as ``unit``): errors (%) of PER, PEFR, PAFR of the model
+    (``analyse_study``), of the voxel-count curve treated the same way, and PER as the
+    previous version had it."""
+    import dataclasses
 
     from cardionurbs.analysis import rates
-    ph = generate(pathology, seed=0, frames=50, matrix=matrix, fov_mm=fov, n_sa=10,
-                  sa_spacing_mm=8.0, volume_check=False)
-    folder = work / f"{pathology}_{matrix}"
+    ph = generate(pathology, seed=seed, frames=50, matrix=matrix, fov_mm=fov,
+                  n_sa=10 if spacing == 8.0 else None, sa_spacing_mm=spacing,
+                  sa_thickness_mm=min(8.0, spacing), volume_check=False)
+    folder = work / f"{pathology}_{seed}_{matrix}_{spacing:g}_{unit}"
     write_labelmaps(ph, folder, "ukbb", quirks="real", images=False)
     for q in folder.glob("seg*la*"):
         q.unlink()
-    model, m = analyse_study(load_study(folder))
+    _set_time_unit(folder / "seg_sa.nii.gz", unit)
+    study = load_study(folder)
+    model, m = analyse_study(study)
+    t = ph.truth["metrics"]
     frames = list(model.curve_frames)
-    times = [model.study.frame_times_ms[f] for f in frames]
+    times = np.array([model.study.frame_times_ms[f] for f in frames])
+    ed, es = frames.index(model.ed_frame), frames.index(model.es_frame)
+    pairs = rates.extent_steps(model.study, frames, list(times))
+    vox = np.array([study.meta["voxel_volumes_ml"][f]["lv_cavity"] for f in frames])
+    stack = rates.stack_profile(model.study, frames)
+    order = [int(i) for i in np.argsort(times)]
+    sweep = (rates.base_sweep(dataclasses.replace(stack, reach_mm=0.5 * spacing), order, ed, es)
+             if stack is not None and pairs else None)       # voxel slabs reach half a spacing
+    vr, _ = rates.filling_rates(times, vox, ed, es, None, steps=pairs, sweep=sweep)
     vols = np.array([model.consistent_lv_cavity_volume(f) for f in frames])
-    pairs = rates.extent_steps(model.study, frames, times)
-    rr = times[-1] - times[0] + float(np.median(np.diff(times)))
-    tc, vc = np.r_[times, times[0] + rr], np.r_[vols, vols[0]]
-    ks = sorted(rates._beat_intervals(np.arange(len(frames)), pairs))
-    jumps = rates.step_sizes(tc, vc, ks)
-    sm = vc.copy()
-    for k, j in zip(ks, jumps):
-        sm[k + 1:] -= j
-    sm -= jumps.sum() * (tc - tc[0]) / (tc[-1] - tc[0])
-    es, t = model.es_frame, ph.truth["metrics"]
-    kappa = rates.base_share(tc, sm, ks, jumps)
-    k_sv = (vc[0] - vc[es]) / (sm[0] - sm[es]) - 1
-    spline = CubicSpline(tc, sm, bc_type="natural")
-    sv_per = rates.peak_rates(lambda x: (1 + k_sv) * spline(x, 1), tc[0], tc[es], rr)["PER (mL/s)"]
-    plain, _ = rates.filling_rates(times, vols, 0, frames.index(es), None)
-    e = {c: metric_error(c, v, t["PER (mL/s)"]) for c, v in (("PER", m["PER (mL/s)"]), ("sv", sv_per),
-                                                              ("plain", plain["PER (mL/s)"]))}
-    return (f"| {pathology} | {fov / matrix:.2f} | {ks} | "
-            f"{kappa if np.isfinite(kappa) else k_sv:.2f}{'' if np.isfinite(kappa) else ' (SV)'} | "
-            f"{e['PER']:+.1f} | {metric_error('PEFR (mL/s)', m['PEFR (mL/s)'], t['PEFR (mL/s)']):+.1f} | "
-            f"{e['sv']:+.1f} | {e['plain']:+.1f} |")
+    row = {"pathology": pathology, "seed": seed, "pixel": fov / matrix, "spacing": spacing,
+           "unit": unit, "ed": model.ed_frame, "es": model.es_frame, "es_truth": ph.es_frame,
+           "dt": float(times[1] - times[0]), "steps": sorted(rates._beat_intervals(
+               np.arange(len(frames)), pairs)),
+           "old": metric_error("PER (mL/s)", _old_stepped_per(times, vols, pairs, es),
+                               t["PER (mL/s)"]) if pairs else float("nan")}
+    for k in RATE_KEYS:
+        row[k] = metric_error(k, m[k], t[k])
+        row[k + " voxel"] = metric_error(k, vr[k], t[k])
+    return row
 
 
-def per50() -> None:
-    """The 50-frame PER table of reports/validation-labelmaps.md, printed."""
+def per50(seeds=(0,), spacings=(8.0,), units=("unknown",), grids=PER_GRIDS) -> None:
+    """The 50-frame PER table of reports/validation-labelmaps.md, printed: every pathology,
+    grid, seed, SA spacing and header time unit asked, then the spread."""
+    rows = []
+    print("| pathology | seed | pixel (mm) | slices (mm) | time unit | frame (ms) | ED, ES (truth ES) | "
+          "steps | PER | PEFR | PAFR | PER voxel | PEFR voxel | PAFR voxel | PER before |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
-        for matrix, fov in PER_GRIDS:
-            for p in ("normal", "mr", "phtn"):
-                print(per50_row(p, matrix, fov, Path(tmp)), flush=True)
+        for spacing in spacings:
+            for unit in units:
+                for seed in seeds:
+                    for matrix, fov in grids:
+                        for p in ("normal", "mr", "phtn"):
+                            r = per50_row(p, seed, matrix, fov, spacing, unit, Path(tmp))
+                            rows.append(r)
+                            print(f"| {p} | {seed} | {r['pixel']:.2f} | {spacing:g} | {unit} | "
+                                  f"{r['dt']:.1f} | {r['ed']}, {r['es']} ({r['es_truth']}) | "
+                                  f"{r['steps']} | " + " | ".join(
+                                      f"{r[k]:+.1f}" for k in (*RATE_KEYS, *(k + ' voxel' for k in RATE_KEYS), 'old'))
+                                  + " |", flush=True)
+    print("\n| slices (mm) | column | mean abs % | max abs % | within 5 % |")
+    print("|---|---|---|---|---|")
+    for spacing in spacings:
+        sub = [r for r in rows if r["spacing"] == spacing]
+        for k in (*RATE_KEYS, *(k + " voxel" for k in RATE_KEYS), "old"):
+            a = np.abs([r[k] for r in sub])
+            a = a[np.isfinite(a)]
+            if len(a):
+                print(f"| {spacing:g} | {k if k != 'old' else 'PER before'} | {a.mean():.1f} | "
+                      f"{a.max():.1f} | {int((a <= 5).sum())} of {len(a)} |")
 
 
 def acdc(root: Path = ROOT.parent / "shared" / "data" / "acdc") -> None:
@@ -541,10 +596,19 @@ def study_roles():
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("what", choices=["validation", "benchmark", "realconv", "acdc", "quirks", "per50"])
+    ap.add_argument("--seeds", default="0", help="per50: phantom seeds, comma-separated")
+    ap.add_argument("--spacings", default="8", help="per50: SA slice spacings (mm), comma-separated")
+    ap.add_argument("--units", default="unknown",
+                    help="per50: header time units, comma-separated (unknown, sec, msec)")
+    ap.add_argument("--grids", default="208,160,128", help="per50: matrices (of PER_GRIDS)")
     args = ap.parse_args()
     reports = ROOT / "reports"
-    if args.what in ("realconv", "acdc", "quirks", "per50"):
-        {"realconv": realconv, "acdc": acdc, "quirks": quirks_table, "per50": per50}[args.what]()
+    if args.what == "per50":
+        grids = tuple(g for g in PER_GRIDS if str(g[0]) in args.grids.split(","))
+        per50(tuple(int(x) for x in args.seeds.split(",")),
+              tuple(float(x) for x in args.spacings.split(",")), tuple(args.units.split(",")), grids)
+    elif args.what in ("realconv", "acdc", "quirks"):
+        {"realconv": realconv, "acdc": acdc, "quirks": quirks_table}[args.what]()
     elif args.what == "validation":
         validation(reports / "validation-labelmaps.md")
     else:

@@ -83,12 +83,22 @@ def _cli(args, **kw):
                             cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kw)
 
 
-def test_sigkill_midway_then_resume_gives_the_same_csv_without_redoing_rows(studies, tmp_path):
+@pytest.fixture(scope="module")
+def reference_csv(studies, tmp_path_factory) -> bytes:
+    """The uninterrupted run's CSV of the good studies (``--jobs 2``): the one the killed
+    and resumed runs of both kill tests must give, whatever their job count."""
     good, _, _ = studies
-    paths = list(good)
-    ref = _cli([*paths, "--csv", str(tmp_path / "ref.csv")])
+    csv = tmp_path_factory.mktemp("ref") / "ref.csv"
+    ref = _cli([*good, "--csv", str(csv), "--jobs", "2"])
     ref.communicate(timeout=300)
     assert ref.returncode == 0
+    return csv.read_bytes()
+
+
+def test_sigkill_midway_then_resume_gives_the_same_csv_without_redoing_rows(
+        studies, reference_csv, tmp_path):
+    good, _, _ = studies
+    paths = list(good)
     # the same run, killed with SIGKILL once it has finished at least one subject
     csv = tmp_path / "killed.csv"
     rows = RowStore(tmp_path / "killed.csv.rows").rows_dir
@@ -107,7 +117,7 @@ def test_sigkill_midway_then_resume_gives_the_same_csv_without_redoing_rows(stud
     again = _cli([*paths, "--csv", str(csv), "--resume"])
     again.communicate(timeout=300)
     assert again.returncode == 0
-    assert csv.read_bytes() == (tmp_path / "ref.csv").read_bytes()
+    assert csv.read_bytes() == reference_csv            # run with one job, the reference with two
     for name, mtime in done.items():        # finished subjects were not measured again
         assert (rows / name).stat().st_mtime_ns == mtime
     assert len(list(rows.glob("*.json"))) == len(paths)
@@ -157,14 +167,12 @@ def test_dask_local_workers_run_without_the_profiler_and_with_slow_ticks():
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
-def test_kill_9_of_the_parent_alone_leaves_no_worker_and_resume_matches(studies, tmp_path):
+def test_kill_9_of_the_parent_alone_leaves_no_worker_and_resume_matches(
+        studies, reference_csv, tmp_path):
     """Issue 31, finding 6: SIGKILL of ``cohort --jobs 2`` itself (not its process group):
     both workers end within 2 s (the death-of-parent watch of cardionurbs.workers), and
     ``--resume`` then gives the uninterrupted run's CSV byte for byte."""
     good, _, _ = studies
-    ref = _cli([*good, "--csv", str(tmp_path / "ref.csv"), "--jobs", "2"])
-    ref.communicate(timeout=300)
-    assert ref.returncode == 0
     csv = tmp_path / "killed.csv"
     rows = RowStore(tmp_path / "killed.csv.rows").rows_dir
     run = _cli([*good, "--csv", str(csv), "--jobs", "2"], start_new_session=True)
@@ -186,5 +194,5 @@ def test_kill_9_of_the_parent_alone_leaves_no_worker_and_resume_matches(studies,
     again = _cli([*good, "--csv", str(csv), "--resume", "--jobs", "2"])
     again.communicate(timeout=300)
     assert again.returncode == 0
-    assert csv.read_bytes() == (tmp_path / "ref.csv").read_bytes()
+    assert csv.read_bytes() == reference_csv
     assert len(list(rows.glob("*.json"))) == len(good)
