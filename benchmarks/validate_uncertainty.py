@@ -96,7 +96,52 @@ def _sa_only(study) -> None:
 
 #: the constants the run measured with (the module's at the time of the --raw file)
 RUN_CONSTANTS = {"BETWEEN_FACTOR": 0.25, "OUTFLOW_SHARE": 1.0, "PIXEL_BIAS": 0.1,
-                 "OPEN_SLAB_MM": 10.0, "CONTOUR_FACTOR": 1.0, "RV_SHAPE_REL": 0.0}
+                 "OPEN_SLAB_MM": 10.0, "CONTOUR_FACTOR": 1.0, "RV_SHAPE_REL": 0.0,
+                 "LV_SHAPE_LABELS": 0.0, "LV_SHAPE_LABELS_LA": 0.0, "LV_SHAPE_CONTOURS": 0.0,
+                 "RV_SHAPE_LABELS": None, "RV_SHAPE_LABELS_LA": None, "RV_SHAPE_CONTOURS": None}
+#: the benchmark's names of the module's LV_SHAPE_REL entries
+LV_KEYS = {"LV_SHAPE_LABELS": "labels", "LV_SHAPE_LABELS_LA": "labels+LA",
+           "LV_SHAPE_CONTOURS": "contours"}
+#: and of its RV_SHAPE_REL entries (RV_SHAPE_REL: a run's one value for every kind, before
+#: the entries; used where a setting gives no entry)
+RV_KEYS = {"RV_SHAPE_LABELS": "labels", "RV_SHAPE_LABELS_LA": "labels+LA",
+           "RV_SHAPE_CONTOURS": "contours"}
+#: the module's input kind (uncertainty.lv_input_kind) of each design input
+INPUT_KIND = {"labels acdc 10mm": "labels", "labels acdc 5mm": "labels",
+              "labels ukbb 10mm": "labels+LA", "contours SA-only": "contours"}
+
+
+def module_constants() -> dict[str, float]:
+    """The module's constants under :data:`RUN_CONSTANTS`' names."""
+    out = {k: float(getattr(U, k)) for k in RUN_CONSTANTS
+           if k not in LV_KEYS and k not in RV_KEYS and k != "RV_SHAPE_REL"}
+    out.update({k: float(U.LV_SHAPE_REL[kind]) for k, kind in LV_KEYS.items()})
+    out.update({k: float(U.RV_SHAPE_REL[kind]) for k, kind in RV_KEYS.items()})
+    out["RV_SHAPE_REL"] = RUN_CONSTANTS["RV_SHAPE_REL"]      # superseded by the entries
+    return out
+
+
+def _rv_rel(r: dict, consts: dict) -> float:
+    """The RV_SHAPE_REL of a subject's input kind under ``consts`` (0 for contours with
+    long-axis views: the module gives them no rv shape)."""
+    kind = INPUT_KIND.get(r["input"])
+    if kind is None:
+        return 0.0
+    key = next(k for k, v in RV_KEYS.items() if v == kind)
+    return consts[key] if consts.get(key) is not None else consts["RV_SHAPE_REL"]
+
+
+def _lv_shape_sd(r: dict, col: str, consts: dict) -> float:
+    """The ``lv shape`` source of :mod:`cardionurbs.analysis.uncertainty` under ``consts`` (the
+    input kind's share of the LV cavity volume, one error at ED and ES) propagated to
+    ``col``: f EDV, f ESV, f SV; 0 for EF (a shared scale cancels) and every other column."""
+    kind = INPUT_KIND.get(r["input"])
+    key = next((k for k, v in LV_KEYS.items() if v == kind), None)
+    f = consts.get(key, 0.0) if key else 0.0
+    m = r["metrics"]
+    base = {"LVEDV (mL)": m["LVEDV (mL)"], "LVESV (mL)": m["LVESV (mL)"],
+            "LVSV (mL)": abs(m["LVSV (mL)"])}
+    return f * base.get(col, 0.0)
 
 
 def _rv_shape_sd(r: dict, col: str, f: float) -> float:
@@ -122,29 +167,36 @@ def _rv_shape_sd(r: dict, col: str, f: float) -> float:
 def rescaled(r: dict, consts: dict) -> dict:
     """A subject's intervals under other constants, from the run's own numbers: the Gaussian
     part's sources scale linearly with their constants (contours with CONTOUR_FACTOR,
-    pixels with PIXEL_BIAS, between with BETWEEN_FACTOR) and the one-sided allowances are
+    pixels with PIXEL_BIAS, between with BETWEEN_FACTOR; ``rv shape`` and ``lv shape`` with
+    theirs, or are added when the run had them at 0) and the one-sided allowances are
     those of the variant with the same OUTFLOW_SHARE (same OPEN_SLAB_MM). Exact: the
-    module gives the same numbers with these constants (checked by --check)."""
+    module gives the same numbers with these constants."""
     scale = {"contours": consts["CONTOUR_FACTOR"] / RUN_CONSTANTS["CONTOUR_FACTOR"],
              "pixels": consts["PIXEL_BIAS"] / RUN_CONSTANTS["PIXEL_BIAS"],
              "between": consts["BETWEEN_FACTOR"] / RUN_CONSTANTS["BETWEEN_FACTOR"]}
-    rv_old, rv_new = RUN_CONSTANTS["RV_SHAPE_REL"], consts["RV_SHAPE_REL"]
+    rv_old, rv_new = _rv_rel(r, RUN_CONSTANTS), _rv_rel(r, consts)
     if rv_old > 0:      # the run has an ``rv shape`` source already: scale it
         scale["rv shape"], rv_new = rv_new / rv_old, 0.0
     name = next(n for n, c in VARIANTS.items() if c["OUTFLOW_SHARE"] == consts["OUTFLOW_SHARE"]
                 and c["OPEN_SLAB_MM"] == RUN_CONSTANTS["OPEN_SLAB_MM"]
                 and c["BETWEEN_FACTOR"] == RUN_CONSTANTS["BETWEEN_FACTOR"]
                 and c["PIXEL_BIAS"] == RUN_CONSTANTS["PIXEL_BIAS"])
+    # a --no-variants run: its own allowances, valid while OUTFLOW_SHARE is the run's
+    own = not r.get("variants") and consts["OUTFLOW_SHARE"] == RUN_CONSTANTS["OUTFLOW_SHARE"]
     out = {}
     for col in METRICS:
-        iv, var, sd = r["unc"].get(col), r["variants"][name].get(col), r["unc"]["sd"].get(col)
+        iv, sd = r["unc"].get(col), r["unc"]["sd"].get(col)
+        var = iv if own else r["variants"][name].get(col)
         if iv is None or var is None or sd is None:
             out[col] = None
             continue
         v = r["metrics"][col]
-        z_old = U.Z95 * float(np.sqrt(sum(x * x for x in sd.values())))
+        sd = {k: x for k, x in sd.items() if k != "lv shape"}      # recomputed below
+        z_old = U.Z95 * float(np.sqrt(sum(x * x for x in sd.values())
+                                      + _lv_shape_sd(r, col, RUN_CONSTANTS) ** 2))
         z_new = U.Z95 * float(np.sqrt(sum((x * scale.get(k, 1.0)) ** 2 for k, x in sd.items())
-                                      + _rv_shape_sd(r, col, rv_new) ** 2))
+                                      + _rv_shape_sd(r, col, rv_new) ** 2
+                                      + _lv_shape_sd(r, col, consts) ** 2))
         below, above = (v - var[0]) - z_old, (var[1] - v) - z_old
         out[col] = [v - z_new - below, v + z_new + above]
     return out
@@ -155,6 +207,26 @@ GRID = [{"OUTFLOW_SHARE": o, "CONTOUR_FACTOR": c, "BETWEEN_FACTOR": b, "PIXEL_BI
          "RV_SHAPE_REL": v}
         for o in (0.0, 0.5, 1.0) for c in (1.0, 1.5, 2.0, 3.0) for b in (0.25, 1.0)
         for p in (0.1, 0.2) for v in (0.0, 0.03, 0.05, 0.08)]
+
+
+#: the model-error settings by input kind (the other constants the run's), ``--lv-grid``:
+#: the LV entries act on LVEDV and LVESV only and the RV entries on RVEDV and RVEF only, so
+#: that choosing each on its own (:func:`choose_by_kind`) is the joint choice
+LV_GRID = [{"LV_SHAPE_LABELS": a, "LV_SHAPE_LABELS_LA": b, "LV_SHAPE_CONTOURS": c}
+           for a in (0.0, 0.02, 0.03, 0.04, 0.05, 0.06, 0.08) for b in (0.0, 0.01, 0.02, 0.03, 0.04)
+           for c in (0.0, 0.03, 0.05, 0.08, 0.10, 0.12, 0.15)]
+RV_GRID = [{"RV_SHAPE_LABELS": a, "RV_SHAPE_LABELS_LA": b, "RV_SHAPE_CONTOURS": c}
+           for a in (0.0, 0.03, 0.05, 0.08, 0.10) for b in (0.0, 0.03, 0.05, 0.08, 0.10)
+           for c in (0.0, 0.03, 0.05, 0.08)]
+
+
+def choose_by_kind(rows: list[dict]) -> tuple[dict, list[str]]:
+    """:func:`choose` over :data:`LV_GRID`, then over :data:`RV_GRID` with the LV entries
+    chosen; the setting and both tables."""
+    lv, t_lv = choose(rows, LV_GRID)
+    rv, t_rv = choose(rows, [{**lv, **g} for g in RV_GRID])
+    return rv, ["LV entries (the RV the run's):", "", *t_lv, "", "RV entries (the LV chosen):", "",
+                *t_rv]
 
 
 def grid_coverage(rows: list[dict], consts: dict) -> tuple[list[float], float]:
@@ -170,27 +242,29 @@ def grid_coverage(rows: list[dict], consts: dict) -> tuple[list[float], float]:
     return cov, float(np.mean(rel))
 
 
-def choose(rows: list[dict]) -> tuple[dict, list[str]]:
+def choose(rows: list[dict], grid: list[dict] | None = None) -> tuple[dict, list[str]]:
     """The rule the constants are set by (stated before the 60-subject run ended): of
     :data:`GRID`, the setting whose six coverages all lie in 90-98 % with the narrowest
     intervals (mean half-width relative to the value); if none does, the one with the most
     of the six in range, then the highest lowest coverage, then the narrowest. Returns it
     and the table of all."""
+    grid = GRID if grid is None else grid
+    keys = list(grid[0])
     scored = []
-    for g in GRID:
+    for g in grid:
         cov, rel = grid_coverage(rows, g)
         scored.append((all(90 <= c <= 98 for c in cov), min(cov), rel, g, cov,
                        sum(90 <= c <= 98 for c in cov)))
     ok = [x for x in scored if x[0]]
     best = min(ok, key=lambda x: x[2]) if ok else max(scored, key=lambda x: (x[5], x[1], -x[2]))
-    table = ["| outflow | contours | between | pixels | rv shape | " + " | ".join(DONE_WHEN)
-             + " | mean half-width / value | all six in 90-98 % |", "|---" * 12 + "|"]
+    table = ["| " + " | ".join(keys) + " | " + " | ".join(DONE_WHEN)
+             + " | mean half-width / value | all six in 90-98 % |",
+             "|---" * (len(keys) + len(DONE_WHEN) + 2) + "|"]
     for x in sorted(scored, key=lambda x: (not x[0], -x[5], -x[1], x[2])):
         g = x[3]
         mark = " **(chosen)**" if g is best[3] else ""
-        table.append(f"| {g['OUTFLOW_SHARE']:g} | {g['CONTOUR_FACTOR']:g} | {g['BETWEEN_FACTOR']:g} | "
-                     f"{g['PIXEL_BIAS']:g} | {g['RV_SHAPE_REL']:g} | "
-                     + " | ".join(f"{c:.0f}" for c in x[4])
+        table.append("| " + " | ".join(f"{g[k]:g}" for k in keys) + " | "
+                     + " | ".join(f"{c:.1f}" for c in x[4])
                      + f" | {100 * x[2]:.1f} % | {'yes' if x[0] else 'no'}{mark} |")
     return best[3], table
 
@@ -210,8 +284,9 @@ def variant_intervals(model, metrics) -> dict:
     return out
 
 
-def run_subject(c: dict) -> dict:
-    """Generate, reconstruct and measure one condition; the truth, metrics and intervals."""
+def run_subject(c: dict, variants: bool = True) -> dict:
+    """Generate, reconstruct and measure one condition; the truth, metrics and intervals
+    (``variants``: also those of every :data:`VARIANTS` setting, for choosing constants)."""
     spacing = 5.0 if "5mm" in c["input"] else 10.0
     # where the stack starts below the base: anywhere in one slice gap (the generator's
     # default is a fixed 6 mm), drawn from the seed
@@ -235,7 +310,7 @@ def run_subject(c: dict) -> dict:
             t1 = time.process_time()
             unc = intervals(model, metrics)
             cpu = (t1 - t0, time.process_time() - t1)
-            var = variant_intervals(model, metrics)
+            var = variant_intervals(model, metrics) if variants else {}
     else:
         study = ph.study
         if "SA-only" in c["input"]:
@@ -245,7 +320,7 @@ def run_subject(c: dict) -> dict:
         t1 = time.process_time()
         unc = intervals(model, metrics)
         cpu = (t1 - t0, time.process_time() - t1)
-        var = variant_intervals(model, metrics)
+        var = variant_intervals(model, metrics) if variants else {}
     return {**c, "spacing": spacing, "offset": offset,
             "truth": {k: ph.truth["metrics"].get(k) for k in METRICS},
             "metrics": {k: metrics[k] for k in METRICS}, "unc": unc, "variants": var,
@@ -325,6 +400,11 @@ def main(argv=None) -> int:
                     help="also write every subject's numbers (JSON lines) here")
     ap.add_argument("--no-grid", action="store_true",
                     help="with --from-raw: report the run as measured (its own constants)")
+    ap.add_argument("--no-variants", action="store_true",
+                    help="measure the module's constants only (a validation run: no VARIANTS)")
+    ap.add_argument("--lv-grid", action="store_true",
+                    help="with --from-raw: choose the LV_SHAPE_REL entries (LV_GRID), the other "
+                         "constants the run's")
     ap.add_argument("--ladder", action="store_true",
                     help="the noise and spacing ladder of two subjects instead (see ladder())")
     ap.add_argument("--from-raw", type=Path, default=None,
@@ -343,7 +423,7 @@ def main(argv=None) -> int:
     raw = a.raw.open("w") if a.raw is not None else None
     if a.from_raw is not None:
         rows = [json.loads(line) for line in a.from_raw.read_text().splitlines() if line.strip()]
-        consts = {k: getattr(U, k) for k in RUN_CONSTANTS}
+        consts = module_constants()
         if a.apply:
             consts = {**RUN_CONSTANTS, **_kv(a.apply)}
         if consts != RUN_CONSTANTS and not a.no_grid:   # the run's numbers, rescaled
@@ -352,7 +432,7 @@ def main(argv=None) -> int:
     todo = ladder() if a.ladder else conditions(a.subjects, a.seed0, a.first)
     for c in ([] if a.from_raw is not None else todo):
         try:
-            rows.append(run_subject(c))
+            rows.append(run_subject(c, variants=not a.no_variants))
         except Exception as e:          # a failing subject is reported, not hidden
             print(f"seed {c['seed']} {c['input']}: {type(e).__name__}: {e}", file=sys.stderr)
             continue
@@ -376,7 +456,7 @@ def main(argv=None) -> int:
             f"- machine: {platform.machine()}, {os.cpu_count()} cores, Python "
             f"{platform.python_version()}, load {load[0]:.1f} (shared)",
             "- method: `cardionurbs.analysis.uncertainty` (docs/metrics.md, Uncertainty), its "
-            "constants " + ", ".join(f"{k} = {getattr(U, k):g}" for k in RUN_CONSTANTS)
+            "constants " + ", ".join(f"{k} = {v:g}" for k, v in module_constants().items())
             + "; truth: the phantoms' analytic truth.json", "",
             "## Coverage (truth inside the 95 % interval)", "", *coverage_table(rows), "",
             "## Half-width as the data improve", "",
@@ -400,7 +480,7 @@ def main(argv=None) -> int:
             "one with the most of the six in range, then the highest lowest coverage, then the "
             "narrowest. Every setting is computed on every subject "
             "from the same reconstruction (`rescaled()`: exact, no refit).", "",
-            *(choose(rows)[1] if rows and "variants" in rows[0] and not a.no_grid else
+            *((choose_by_kind(rows) if a.lv_grid else choose(rows))[1] if rows and rows[0].get("variants") and not a.no_grid else
               ["(not recomputed for this run: --no-grid)"]), "",
             "## Every subject (error = model − truth / half-width; ✗ truth outside)", "",
             *subject_table(rows), ""]

@@ -14,6 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import cardionurbs.analysis.uncertainty as U
 from cardionurbs import measure, reconstruct
 from cardionurbs.analysis.uncertainty import (COVERED, INTERVAL_COLUMNS, _normal_scatter,
                                               halfwidth_flags, intervals, parse_max_halfwidth)
@@ -71,6 +72,8 @@ def test_contour_noise_widens_the_intervals(clean, noisy):
 def test_sources_and_method_in_the_result(clean):
     _, model, m = clean
     iv = intervals(model, m)
+    assert U.lv_input_kind(model) is None       # long-axis contours fix the base: no lv shape
+    assert iv["sd"]["LVEDV (mL)"]["lv shape"] == 0.0
     assert "analytic" in iv["method"]
     sd = iv["sd"]["LVEDV (mL)"]
     assert {"contours", "between", "base", "apex"} <= set(sd)
@@ -94,6 +97,15 @@ def test_without_long_axis_views_the_ends_dominate():
     assert sd["base"] > 5 * sd["contours"]
     lo, hi = iv["LVEDV (mL)"]
     assert lo <= ph.truth["metrics"]["LVEDV (mL)"] <= hi
+    # the rule-placed base's model-error term: the input kind's share of each volume, one
+    # error at ED and ES, so that it cancels in EF
+    assert U.lv_input_kind(model) == "contours"
+    rel = U.LV_SHAPE_REL["contours"]
+    assert rel > 0
+    assert sd["lv shape"] == pytest.approx(rel * m["LVEDV (mL)"], rel=1e-3)
+    assert iv["sd"]["LVESV (mL)"]["lv shape"] == pytest.approx(rel * m["LVESV (mL)"], rel=1e-3)
+    assert iv["sd"]["LVSV (mL)"]["lv shape"] == pytest.approx(rel * m["LVSV (mL)"], rel=1e-3)
+    assert iv["sd"]["LVEF (%)"]["lv shape"] == pytest.approx(0.0, abs=1e-9)
 
 
 def test_one_frame_study_has_no_ef_interval(clean):

@@ -19,8 +19,12 @@ sections, contour points and frames:
   map) lies anywhere within about one slice spacing, uniformly: σ = A_end · h / √12
   (apex: times :data:`CAP_SHAPE`, a tapering cap); with landmarks or long-axis
   contours the end is observed, σ from their scatter about the surface;
+* **lv shape** -- the LV cavity's reconstruction error by input kind (label maps with and
+  without long-axis maps, SA contours with a rule-placed base): :data:`LV_SHAPE_REL` of its
+  volume, one error at ED and ES (a model-error term set on the calibration phantoms);
 * **rv shape** -- an RV cavity no landmark or long-axis contour closes (label maps, SA-only
-  contours): :data:`RV_SHAPE_REL` of its volume (a model-error term set on the phantoms);
+  contours): :data:`RV_SHAPE_REL` of its volume by input kind (a model-error term set on the
+  calibration phantoms);
 * **one-sided allowances** -- an end the stack leaves open beyond one slice gap, an outflow
   tract the model did not build, an epicardial cap beyond a rule-placed apex;
 * **ES sampling** -- on a sampled cycle whose ES (ED) frame is the volume minimum
@@ -58,9 +62,13 @@ METHOD = ("analytic propagation: contour scatter, between-slice interpolation, b
 COVERED = ("LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVM (g)",
            "RVEDV (mL)", "RVESV (mL)", "RVSV (mL)", "RVEF (%)", "RVM (g)")
 Z95 = 1.959963984540054
-#: relative SD of an RV cavity that no landmark or long-axis contour closes (label maps,
-#: SA-only contours)
-RV_SHAPE_REL = 0.03
+#: relative SD of an RV cavity that no landmark or long-axis contour closes, by input kind
+#: (:func:`lv_input_kind`; label maps, SA-only contours): ED and ES independent
+RV_SHAPE_REL = {"labels": 0.03, "labels+LA": 0.05, "contours": 0.0}
+#: relative SD of an LV cavity by input kind (:func:`lv_input_kind`): the reconstruction's
+#: own error at a base no SA section closes, one error at ED and ES (a model-error term set
+#: on the calibration phantoms, docs/metrics.md, Uncertainty)
+LV_SHAPE_REL = {"labels": 0.02, "labels+LA": 0.0, "contours": 0.03}
 #: the contours term's factor over independent point noise (docs/metrics.md, Uncertainty)
 CONTOUR_FACTOR = 1.5
 #: fraction of the trapezoid error that a lofted (cubic) surface keeps between slices
@@ -321,11 +329,14 @@ def solid_error(model: "BiventricularModel", frame: int, solid: str) -> VolumeEr
     a = volume_error(model, frame, outer)
     if not a:
         return None
-    shared = {"pixels"} | ({"base"} if frame in getattr(model, "base_shift_mm", {}) else set())
+    shared = {"pixels", "lv shape"} | ({"base"} if frame in getattr(model, "base_shift_mm", {})
+                                       else set())
     if inner is None:
         sd, above = _split(a)
         if solid == "rv_cavity":
             sd["rv shape"] = _rv_shape(model, frame)
+        else:
+            sd["lv shape"] = _lv_shape(model, frame)
         return VolumeError(sd, frozenset(shared), above + _outflow_allowance(model, frame, solid),
                            0.0)
     b = volume_error(model, frame, inner)
@@ -344,13 +355,47 @@ def solid_error(model: "BiventricularModel", frame: int, solid: str) -> VolumeEr
 
 def _rv_shape(model: "BiventricularModel", frame: int) -> float:
     """SD (mL) of the RV cavity's shape where no valve landmark or long-axis contour closes
-    it (a label map, or the half-slice rule): :data:`RV_SHAPE_REL` of its volume. The SA
+    it (a label map, or the half-slice rule): :data:`RV_SHAPE_REL` (by input kind) of its volume. The SA
     stack cuts the RV's basal third and outflow region obliquely, and what lies between
     those sections is the loft's guess (docs/metrics.md, Uncertainty: set on the phantoms)."""
     labels = isinstance(model.study.meta, dict) and bool(model.study.meta.get("voxel_volumes_ml"))
     if not (labels or "rv" in model.geometry[frame].base_from_slices):
         return 0.0
-    return RV_SHAPE_REL * float(model.volumes[frame].get("rv_cavity", 0.0))
+    rel = RV_SHAPE_REL.get(lv_input_kind(model) or "contours", 0.0)
+    return rel * float(model.volumes[frame].get("rv_cavity", 0.0))
+
+
+def lv_input_kind(model: "BiventricularModel") -> str | None:
+    """The input kind the ``lv shape`` term is keyed to (:data:`LV_SHAPE_REL`): ``labels`` (a
+    label map whose LV base the SA slices give), ``labels+LA`` (a label map whose long-axis
+    maps give the mitral annulus), ``contours`` (SA contours whose LV base the half-slice rule
+    placed) or None (contours with the base observed: valve landmarks or long-axis contours).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+
+    Returns
+    -------
+    str or None
+    """
+    labels = isinstance(model.study.meta, dict) and bool(model.study.meta.get("voxel_volumes_ml"))
+    rule = "lv" in model.geometry[model.ed_frame].base_from_slices
+    if labels:
+        return "labels" if rule else "labels+LA"
+    return "contours" if rule else None
+
+
+def _lv_shape(model: "BiventricularModel", frame: int) -> float:
+    """SD (mL) of the LV cavity's own reconstruction error for its input kind:
+    :data:`LV_SHAPE_REL` of its volume (0 for contours whose base the data fix). The SA
+    sections leave the basal LV (the annulus' saddle, the outflow root) to the rule or the
+    map's last slice, and the realistic base differs from the loft's guess by a share of the
+    cavity that is alike at ED and ES (one error, shared: EF keeps its interval)."""
+    kind = lv_input_kind(model)
+    rel = LV_SHAPE_REL.get(kind, 0.0) if kind is not None else 0.0
+    return rel * float(model.volumes[frame].get("lv_cavity", 0.0))
 
 
 def _outflow_allowance(model: "BiventricularModel", frame: int, solid: str) -> float:
