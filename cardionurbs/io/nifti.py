@@ -66,6 +66,7 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
 from cardionurbs.confine import checked, is_inside, outside_allowed
 from cardionurbs.errors import ReconstructionError, StudyError
@@ -1107,6 +1108,8 @@ def _ukbb_ed_es(study: Study, sa: LabelVolume, roles: LabelRoles, frames: dict[i
 #: ventricular map gives 0.6-0.9, ukbb_cardiac's atrial ``seg_la_4ch`` (1 LA, 2 RA, which
 #: touch only along the atrial septum) well under it
 MIN_LA_WALL_FRACTION = 0.45
+#: the gap (pixels) between a long-axis map's cavity and wall labels still read as touching
+WALL_GAP_PX = 2
 
 
 def _not_ventricular(vol: LabelVolume, roles: LabelRoles, present: set[int]) -> str | None:
@@ -1115,7 +1118,11 @@ def _not_ventricular(vol: LabelVolume, roles: LabelRoles, present: set[int]) -> 
     atria of ukbb_cardiac's ``seg_la_2ch``/``seg_la_4ch``, labelled 1 LA and 2 RA)."""
     if not {roles.lv, roles.myo} <= present:
         return f"no LV cavity and myocardium labels ({roles.describe()})"
-    fr = [masks.ring_fraction(vol.data[:, :, k, t] == roles.lv, vol.data[:, :, k, t] == roles.myo)
+    # the myocardium taken 2 px wider: a map whose labels leave a thin gap between cavity and
+    # wall (an eroded or hand-drawn myocardium) is still ventricular; the atria stay apart
+    fr = [masks.ring_fraction(vol.data[:, :, k, t] == roles.lv,
+                              ndimage.binary_dilation(vol.data[:, :, k, t] == roles.myo,
+                                                      iterations=WALL_GAP_PX))
           for t in range(vol.data.shape[3]) for k in range(vol.data.shape[2])]
     fr = [f for f in fr if np.isfinite(f)]
     share = float(np.median(fr)) if fr else 0.0
