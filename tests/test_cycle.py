@@ -56,6 +56,7 @@ def test_smooth_curves_need_no_support(n, es, ef, noise, seed):
 @given(n=st.integers(20, 40), es=st.floats(0.3, 0.45), ef=st.floats(0.3, 0.7),
        where=st.floats(0.05, 0.95), up=st.booleans(), extra=st.floats(0.06, 0.2))
 @example(n=20, es=0.3046875, ef=0.625, where=0.0625, up=False, extra=0.125)  # a near-tie
+@example(n=22, es=0.3, ef=0.6953125, where=0.25, up=False, extra=0.1)  # a dip beside ES
 def test_a_spike_is_supported_and_its_volume_restored(n, es, ef, where, up, extra):
     """A frame beyond both neighbours (by more than they differ and than 4 %)."""
     truth = _curve(n, es, ef=ef)

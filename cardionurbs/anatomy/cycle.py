@@ -240,14 +240,20 @@ def _check_curve(volumes: dict[int, float], bound: float,
                 excess[i] = dep        # ranked by the departure from the cubic without it
     # the worst first, at most a quarter; a frame beside one already supported was judged
     # against it and is not (a spike's neighbours depart from their cubics too, by about
-    # two thirds of its own departure: the cubic's weight on an adjacent frame)
+    # two thirds of its own departure: the cubic's weight on an adjacent frame); a frame
+    # two away from one is judged again with the supported frames' cubic values in
+    # their place (their raw volume pulled its cubic: a deep dip beside an ES trough made
+    # the trough itself depart)
     beside: set[int] = set()
+    work = y.copy()
     for i in np.argsort(-excess, kind="stable")[:len(y) // 4]:
-        if excess[i] > 0 and int(i) not in beside:
+        if excess[i] > 0 and int(i) not in beside and _departs(work, int(i), finite, cyclic,
+                                                               bound):
             i = _the_outlier(y, int(i), excess, finite, cyclic)
             trusted[i] = False
             nb = _neighbours(int(i), finite, cyclic)
             beside |= {int(nb[1]) % len(y), int(nb[2]) % len(y)}
+            work[i] = _within(work, nb, int(i))
     for i in np.flatnonzero(~trusted):     # each from the trusted frames around it
         nb = _neighbours(int(i), trusted, cyclic)
         f = frames[int(i)]
@@ -260,6 +266,13 @@ def _check_curve(volumes: dict[int, float], bound: float,
         out.consistent[f] = _within(y, nb, int(i))
         out.departure[f] = float(y[i] / out.consistent[f] - 1.0)
     return out
+
+
+def _departs(y: np.ndarray, i: int, finite: np.ndarray, cyclic: bool, bound: float) -> bool:
+    """Whether position ``i`` still departs beyond ``bound`` from the cubic through its
+    neighbours in ``y`` (the curve with the frames supported so far replaced)."""
+    nb = _neighbours(i, finite, cyclic)
+    return nb is not None and abs(y[i] / _within(y, nb, i) - 1.0) > bound
 
 
 def _cubic(y: np.ndarray, nb: np.ndarray, i: int) -> float:
