@@ -281,7 +281,8 @@ def choose_min_inside(rows: list[dict], n_min: int) -> tuple[dict, list[str]]:
     """The rule of session 15: of CORE_GRID × the LV and RV entries (ENTRY_VALUES), the
     narrowest setting (mean half-width / value over the six DONE_WHEN metrics) with at
     least ``n_min`` subjects inside for every one of the six. Returns it and a table of the
-    best setting of each CORE_GRID row."""
+    best setting of each CORE_GRID row. OUTFLOW_SHARE stays the run's, so that rows of a
+    ``--no-variants`` run are rescaled exactly too (their own one-sided allowances)."""
     table = ["| " + " | ".join(CORE_GRID[0]) + " | LV entries | RV entries | "
              + " | ".join(DONE_WHEN) + " | mean half-width / value |", "|---" * 12 + "|"]
     best = None
@@ -566,7 +567,7 @@ def main(argv=None) -> int:
             "one with the most of the six in range, then the highest lowest coverage, then the "
             "narrowest. Every setting is computed on every subject "
             "from the same reconstruction (`rescaled()`: exact, no refit).", "",
-            *((choose_min_inside(rows, a.min_inside) if a.min_inside else choose_by_kind(rows) if a.lv_grid else choose(rows))[1] if rows and rows[0].get("variants") and not a.no_grid else
+            *((choose_min_inside(rows, a.min_inside) if a.min_inside else choose_by_kind(rows) if a.lv_grid else choose(rows))[1] if rows and (a.min_inside or rows[0].get("variants")) and not a.no_grid else
               ["(not recomputed for this run: --no-grid)"]), "",
             "## Every subject (error = model − truth / half-width; ✗ truth outside)", "",
             *subject_table(rows), ""]
