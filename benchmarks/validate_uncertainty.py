@@ -19,6 +19,7 @@ import argparse
 import datetime as dt
 import functools
 import importlib
+import itertools
 import json
 import os
 import platform
@@ -229,6 +230,89 @@ def choose_by_kind(rows: list[dict]) -> tuple[dict, list[str]]:
                 *t_rv]
 
 
+#: the settings of the constants every input kind shares, ``--min-inside`` (GRID's values;
+#: OUTFLOW_SHARE stays the run's, so that a ``--no-variants`` run is rescaled exactly)
+CORE_GRID = [{"CONTOUR_FACTOR": c, "BETWEEN_FACTOR": b, "PIXEL_BIAS": p}
+             for c in (1.0, 1.5, 2.0, 3.0) for b in (0.25, 1.0) for p in (0.1, 0.2)]
+#: each entry's values (those of LV_GRID and RV_GRID)
+ENTRY_VALUES = {k: sorted({g[k] for g in grid}) for grid in (LV_GRID, RV_GRID) for k in grid[0]}
+#: the metrics each family of entries acts on
+ACTS_ON = {"LV": ("LVEDV (mL)", "LVESV (mL)"), "RV": ("RVEDV (mL)", "RVEF (%)")}
+
+
+def _stats(rows: list[dict], consts: dict) -> np.ndarray:
+    """(inside, half-width / value) of every row (axis 0) and DONE_WHEN metric (axis 1)
+    under ``consts``, shape (n, 6, 2); NaN where the row has no interval or no truth."""
+    out = np.full((len(rows), len(DONE_WHEN), 2), np.nan)
+    for i, r in enumerate(rows):
+        iv = rescaled(r, {**RUN_CONSTANTS, **consts})
+        for j, col in enumerate(DONE_WHEN):
+            t, v = r["truth"].get(col), r["metrics"][col]
+            if iv[col] is not None and t is not None:
+                out[i, j] = (iv[col][0] <= t <= iv[col][1],
+                             0.5 * (iv[col][1] - iv[col][0]) / abs(v) if v else 0.0)
+    return out
+
+
+def _best_entries(rows: list[dict], core: dict, family: str, n_min: int, base: np.ndarray):
+    """The narrowest entries of one family (LV_KEYS or RV_KEYS) under the shared constants
+    ``core`` with at least ``n_min`` inside for each metric they act on: (entries, inside
+    counts of those metrics, sum of their half-widths / value) or None. Each entry acts
+    on its own input kind's rows only, so the counts of a setting are sums over kinds."""
+    keys = LV_KEYS if family == "LV" else RV_KEYS
+    cols = [DONE_WHEN.index(c) for c in ACTS_ON[family]]
+    kinds = np.array([INPUT_KIND.get(r["input"]) for r in rows], dtype=object)
+    rest = ~np.isin(kinds, list(keys.values()))
+    fixed = np.nansum(base[rest][:, cols], axis=0)              # rows no entry acts on
+    per_key = {}
+    for key, kind in keys.items():
+        sel = [r for r, k in zip(rows, kinds) if k == kind]
+        per_key[key] = {v: np.nansum(_stats(sel, {**core, key: v})[:, cols], axis=0)
+                        for v in ENTRY_VALUES[key]}
+    best = None
+    for combo in itertools.product(*(ENTRY_VALUES[k] for k in keys)):
+        tot = fixed + sum(per_key[k][v] for k, v in zip(keys, combo))
+        if (tot[:, 0] >= n_min).all() and (best is None or tot[:, 1].sum() < best[2]):
+            best = (dict(zip(keys, combo)), tot[:, 0], float(tot[:, 1].sum()))
+    return best
+
+
+def choose_min_inside(rows: list[dict], n_min: int) -> tuple[dict, list[str]]:
+    """The rule of session 15: of CORE_GRID × the LV and RV entries (ENTRY_VALUES), the
+    narrowest setting (mean half-width / value over the six DONE_WHEN metrics) with at
+    least ``n_min`` subjects inside for every one of the six. Returns it and a table of the
+    best setting of each CORE_GRID row. OUTFLOW_SHARE stays the run's, so that rows of a
+    ``--no-variants`` run are rescaled exactly too (their own one-sided allowances)."""
+    table = ["| " + " | ".join(CORE_GRID[0]) + " | LV entries | RV entries | "
+             + " | ".join(DONE_WHEN) + " | mean half-width / value |", "|---" * 12 + "|"]
+    best = None
+    for core in CORE_GRID:
+        base = _stats(rows, core)
+        inside = np.nansum(base[:, :, 0], axis=0)
+        lv = _best_entries(rows, core, "LV", n_min, base)
+        rv = _best_entries(rows, core, "RV", n_min, base)
+        if lv is None or rv is None:
+            table.append("| " + " | ".join(f"{core[k]:g}" for k in core)
+                         + " | none | none | " + " | ".join(f"{x:.0f}" for x in inside)
+                         + " | (no setting with every metric >= " + str(n_min) + ") |")
+            continue
+        consts = {**core, **lv[0], **rv[0]}
+        st = _stats(rows, consts)
+        inside, rel = np.nansum(st[:, :, 0], axis=0), float(np.nanmean(st[:, :, 1]))
+        ok = bool((inside >= n_min).all())
+        table.append("| " + " | ".join(f"{core[k]:g}" for k in core) + " | "
+                     + ", ".join(f"{LV_KEYS[k]} {v:g}" for k, v in lv[0].items()) + " | "
+                     + ", ".join(f"{RV_KEYS[k]} {v:g}" for k, v in rv[0].items()) + " | "
+                     + " | ".join(f"{x:.0f}" for x in inside) + f" | {100 * rel:.2f} %"
+                     + ("" if ok else " (LVEF or LVM short)") + " |")
+        if ok and (best is None or rel < best[1]):
+            best = (consts, rel, len(table) - 1)
+    if best is None:
+        return {}, table + ["", "(no setting meets the rule)"]
+    table[best[2]] = table[best[2]][:-2] + " **(chosen)** |"
+    return best[0], table
+
+
 def grid_coverage(rows: list[dict], consts: dict) -> tuple[list[float], float]:
     """(coverage % of each DONE_WHEN metric, mean half-width relative to the value) of
     one setting on these subjects."""
@@ -405,6 +489,9 @@ def main(argv=None) -> int:
     ap.add_argument("--lv-grid", action="store_true",
                     help="with --from-raw: choose the LV_SHAPE_REL entries (LV_GRID), the other "
                          "constants the run's")
+    ap.add_argument("--min-inside", type=int, default=None,
+                    help="with --from-raw: choose CORE_GRID x the LV and RV entries by "
+                         "choose_min_inside (at least N inside for each of the six)")
     ap.add_argument("--ladder", action="store_true",
                     help="the noise and spacing ladder of two subjects instead (see ladder())")
     ap.add_argument("--from-raw", type=Path, default=None,
@@ -480,7 +567,7 @@ def main(argv=None) -> int:
             "one with the most of the six in range, then the highest lowest coverage, then the "
             "narrowest. Every setting is computed on every subject "
             "from the same reconstruction (`rescaled()`: exact, no refit).", "",
-            *((choose_by_kind(rows) if a.lv_grid else choose(rows))[1] if rows and rows[0].get("variants") and not a.no_grid else
+            *((choose_min_inside(rows, a.min_inside) if a.min_inside else choose_by_kind(rows) if a.lv_grid else choose(rows))[1] if rows and (a.min_inside or rows[0].get("variants")) and not a.no_grid else
               ["(not recomputed for this run: --no-grid)"]), "",
             "## Every subject (error = model − truth / half-width; ✗ truth outside)", "",
             *subject_table(rows), ""]

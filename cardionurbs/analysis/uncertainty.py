@@ -64,13 +64,13 @@ COVERED = ("LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVM (g)",
 Z95 = 1.959963984540054
 #: relative SD of an RV cavity that no landmark or long-axis contour closes, by input kind
 #: (:func:`lv_input_kind`; label maps, SA-only contours): ED and ES independent
-RV_SHAPE_REL = {"labels": 0.03, "labels+LA": 0.05, "contours": 0.0}
+RV_SHAPE_REL = {"labels": 0.05, "labels+LA": 0.05, "contours": 0.0}
 #: relative SD of an LV cavity by input kind (:func:`lv_input_kind`): the reconstruction's
 #: own error at a base no SA section closes, one error at ED and ES (a model-error term set
 #: on the calibration phantoms, docs/metrics.md, Uncertainty)
-LV_SHAPE_REL = {"labels": 0.02, "labels+LA": 0.0, "contours": 0.03}
+LV_SHAPE_REL = {"labels": 0.03, "labels+LA": 0.01, "contours": 0.0}
 #: the contours term's factor over independent point noise (docs/metrics.md, Uncertainty)
-CONTOUR_FACTOR = 1.5
+CONTOUR_FACTOR = 2.0
 #: fraction of the trapezoid error that a lofted (cubic) surface keeps between slices
 BETWEEN_FACTOR = 1.0
 #: cap volume per (end area × cap length): 1/2 for a paraboloid, 1/3 for a cone
@@ -78,7 +78,7 @@ CAP_SHAPE = 0.5
 #: how far (mm) at least an end the stack leaves open may reach beyond its end section
 OPEN_SLAB_MM = 10.0
 #: systematic boundary placement of a label map's contours, in pixels (1 SD)
-PIXEL_BIAS = 0.2
+PIXEL_BIAS = 0.1
 #: share of the basal LV section that continues into an unseen outflow tract
 OUTFLOW_SHARE = 0.0
 SQRT12 = math.sqrt(12.0)
