@@ -197,6 +197,9 @@ class BiventricularModel:
             self.warnings.append(f"only one frame ({ed}) has LV contours: ED = ES, so SV, EF and the "
                                  "other ED-to-ES metrics are null")
         self.base_shift_mm: dict[int, float] = {}
+        #: ES frame -> how far (mm, basally) the RV's half-slice plane followed the mitral
+        #: landmarks' descent (:meth:`_follow_mitral_descent`)
+        self.rv_base_shift_mm: dict[int, float] = {}
         if surfaces is None and ed != es:
             self._conserve_myocardium(ed, es)
 
@@ -583,6 +586,9 @@ class BiventricularModel:
         plane moves as one). Only when both frames' LV valve planes come from the
         half-slice rule and both have LV endo- and epicardial surfaces."""
         g_ed, g_es = self.geometry[ed], self.geometry[es]
+        if not ("lv" in g_es.base_from_slices or "lv" in g_ed.base_from_slices):
+            self._follow_mitral_descent(g_ed, g_es)
+            return
         if not (g_es.base_slack > 0 and "lv" in g_es.base_from_slices
                 and "lv" in g_ed.base_from_slices):
             return
@@ -604,13 +610,44 @@ class BiventricularModel:
                          for d in shifts])
         vols = np.maximum.accumulate(vols)            # more basal plane, never less wall
         shift = float(np.interp(target, vols, shifts))
-        for side in moves_with_lv(g_es):
+        self._move_es_planes(g_es, moves_with_lv(g_es), shift)
+        self.base_shift_mm[es] = shift
+
+    def _move_es_planes(self, g_es: FrameGeometry, sides: list[str], shift: float) -> None:
+        """Move the ES valve planes ``sides`` ``shift`` mm basally along their normals and
+        forget what was built on them."""
+        for side in sides:
             p = g_es.base_planes[side]
             g_es.base_planes[side] = Plane(p.origin - shift * p.normal, p.normal)
-        self.base_shift_mm[es] = shift
+        es = g_es.frame
         for memo in (self.lv_cavity_solid, self.solids, self._tract_part):
             memo.forget_where(lambda k: k[0] == es)
         self.meshes.forget(es)
+
+    def _follow_mitral_descent(self, g_ed: FrameGeometry, g_es: FrameGeometry) -> None:
+        """The RV's ES half-slice valve plane when both frames' mitral planes come from
+        landmarks but the RV's from the half-slice rule (docs/metrics.md, Cavities and
+        walls): it is put where the RV's ED plane lies plus the mitral plane's measured
+        descent from ED to ES along the stacking direction (the atrioventricular plane
+        moves as one), within the slab the stack allows at ES (from the most basal RV
+        section's centre to ``base_slack`` beyond the half-slice plane)."""
+        if not ("rv" in g_es.base_from_slices and "rv" in g_ed.base_from_slices
+                and "lv" in g_ed.base_planes and "lv" in g_es.base_planes):
+            return
+        n = g_es.direction
+        m_ed, m_es = g_ed.base_planes["lv"], g_es.base_planes["lv"]
+        p_ed, p_es = g_ed.base_planes["rv"], g_es.base_planes["rv"]
+        k, km = float(p_es.normal @ n), float(m_es.normal @ n)
+        if min(k, km) < 0.05:
+            return
+        # along n from the ED mitral centre to the ES mitral plane (not the landmarks' means:
+        # another subset of annulus points at ES would shift the mean along a tilted annulus)
+        descent = float((m_es.origin - m_ed.origin) @ m_es.normal) / km
+        shift = (float((p_es.origin - p_ed.origin) @ n) - descent) / k
+        shift = float(np.clip(shift, -0.5 * g_es.thickness, max(g_es.base_slack, 0.0)))
+        self.rv_base_shift_mm[g_es.frame] = shift
+        if shift:
+            self._move_es_planes(g_es, ["rv"], shift)
 
     def _stationary_epicardial_apex(self, g_ed: FrameGeometry, g_es: FrameGeometry) -> None:
         """The LV epicardial apex of a taper-closed surface at ES is put at the level found
