@@ -21,9 +21,16 @@ What a short-axis slice gives (:func:`sa_slice_contours`):
   convention has an RV wall.
 
 What is left out, with a reason (``skipped``): extra islands (the largest
-connected part is kept), an LV cavity that the myocardium does not ring over
-at least ``MIN_RING_FRACTION`` of its boundary (LV outflow tract or a cavity
-open to the atrium), loops under ``MIN_AREA_PX`` pixels (beyond the apex).
+connected part is kept), an LV cavity that the myocardium does not ring (see
+below), loops under ``MIN_AREA_PX`` pixels (beyond the apex). An LV cavity ringed
+over less than ``MIN_RING_FRACTION`` of its boundary — a basal slice where
+the wall opens to the LV outflow tract or the mitral orifice — is kept, with
+a note, when the myocardium faces at least ``MIN_OPEN_RING_FRACTION`` of its
+boundary and ``MIN_ENCLOSED_FRACTION`` of the cavity lies inside the convex
+hull of the myocardium it borders (:func:`enclosed_fraction`; a blob lying
+against the outside of the wall has next to none there): its contour runs
+along the labels' edge across the opening, so the section holds the cavity the
+labels (and voxel counting) hold there, and dropping it would lose a slab.
 
 Long-axis slices (:func:`la_slice_contours`) give open contours: the part of
 the LV cavity boundary that faces the myocardium (``lv_endo``), the part of
@@ -42,6 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 from skimage.measure import find_contours
+from skimage.morphology import convex_hull_image
 
 from cardionurbs.geometry import polygon_area
 from cardionurbs.io.labels import LabelRoles
@@ -49,6 +57,8 @@ from cardionurbs.io.labels import LabelRoles
 SIGMA_PX = 0.5            # Gaussian smoothing of the indicator, pixels
 MIN_AREA_PX = 3.0         # smaller loops are noise or the apical tip
 MIN_RING_FRACTION = 0.6   # share of the LV cavity boundary that must face myocardium
+MIN_OPEN_RING_FRACTION = 0.1  # an open basal cavity: the share that must face myocardium
+MIN_ENCLOSED_FRACTION = 0.25  # ... and of it inside the hull of the wall it borders
 MIN_SEPTUM_PX = 3         # septal runs shorter than this (boundary points) are free wall
 GAP_PX = 4                # free-wall gaps shorter than this within the septum are septum
 
@@ -298,17 +308,9 @@ def sa_slice_contours(labels: np.ndarray, roles: LabelRoles, sigma: float = SIGM
         wall = fill_holes(wall)
         lv &= wall
     endo = boundary_loop(lv, sigma) if lv.any() else None
-    if endo is not None:
-        outside = outside_labels(endo, labels)
-        ring = float(np.mean((outside == roles.myo) | (outside == roles.lv)))
-        if not myo.any():
-            out.skipped.append("LV cavity without myocardium: left out")
-            endo = None
-        elif ring < MIN_RING_FRACTION:
-            out.skipped.append(f"LV cavity not ringed by myocardium ({ring:.0%} of its boundary; "
-                               "outflow tract or open to the atrium): lv_endo left out")
-            endo = None
-    elif lv.any():
+    if endo is not None and not _lv_cavity_kept(endo, lv, myo, labels, roles, out):
+        endo = None
+    elif endo is None and lv.any():
         out.skipped.append("LV cavity smaller than the smallest contour: left out (apex?)")
     if endo is not None:
         out.closed["lv_endo"] = endo
@@ -318,6 +320,55 @@ def sa_slice_contours(labels: np.ndarray, roles: LabelRoles, sigma: float = SIGM
     if roles.rv is not None:
         _rv_contours(labels, roles, wall, sigma, out)
     return out
+
+
+def _lv_cavity_kept(endo: np.ndarray, lv: np.ndarray, myo: np.ndarray, labels: np.ndarray,
+                    roles: LabelRoles, out: SliceContours) -> bool:
+    """Whether an SA slice's LV cavity is the LV's (its reason in ``out`` when not, a note
+    when it is kept open): ringed by myocardium over MIN_RING_FRACTION of its boundary, or
+    — a basal slice where the wall opens to the LV outflow or the mitral orifice — over
+    MIN_OPEN_RING_FRACTION with MIN_ENCLOSED_FRACTION of it inside the wall it borders."""
+    outside = outside_labels(endo, labels)
+    ring = float(np.mean((outside == roles.myo) | (outside == roles.lv)))
+    if not myo.any():
+        out.skipped.append("LV cavity without myocardium: left out")
+        return False
+    if ring >= MIN_RING_FRACTION:
+        return True
+    inside = enclosed_fraction(lv, myo) if ring >= MIN_OPEN_RING_FRACTION else 0.0
+    if inside < MIN_ENCLOSED_FRACTION:
+        out.skipped.append(f"LV cavity not ringed by myocardium ({ring:.0%} of its boundary, "
+                           f"{inside:.0%} of it within the wall it touches: not the LV's "
+                           "cavity?): lv_endo left out")
+        return False
+    out.notes.append(f"LV cavity ringed by myocardium over {ring:.0%} of its boundary (open "
+                     "to the outflow tract or the atrium): kept as an open basal section, "
+                     "bounded by the labels across the opening")
+    return True
+
+
+def enclosed_fraction(lv: np.ndarray, myo: np.ndarray) -> float:
+    """Share of an LV cavity mask inside the convex hull of the myocardium pixels bordering
+    it: near 1 for a cavity the wall wraps (also where it opens over half its border, 0.5
+    and more), near 0 for a blob lying against the outside of the wall.
+
+    Parameters
+    ----------
+    lv : (H, W) ndarray of bool
+        The LV cavity mask (non-empty).
+    myo : (H, W) ndarray of bool
+        The myocardium mask.
+
+    Returns
+    -------
+    float
+        In [0, 1]; 0 when fewer than three myocardium pixels border the cavity.
+    """
+    face = ndimage.binary_dilation(lv) & ~lv & myo
+    if np.count_nonzero(face) < 3:
+        return 0.0
+    hull = convex_hull_image(face)
+    return float(np.count_nonzero(lv & hull)) / max(int(np.count_nonzero(lv)), 1)
 
 
 def _rv_contours(labels, roles: LabelRoles, wall: np.ndarray, sigma: float, out: SliceContours) -> None:
