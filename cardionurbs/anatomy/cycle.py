@@ -234,7 +234,7 @@ def _check_curve(volumes: dict[int, float], bound: float,
     for i in np.flatnonzero(finite):          # against the nearest built frame on each side
         nb = _neighbours(int(i), finite, cyclic)
         if nb is not None:
-            dep = abs(y[i] / _within(y, nb, int(i)) - 1.0)
+            dep = _departure(y, nb, int(i))
             if dep > bound and (_spike(y[i], y[nb[1] % len(y)], y[nb[2] % len(y)], bound) > 0
                                 or contours and _incomplete(contours, frames, nb, int(i))):
                 excess[i] = dep        # ranked by the departure from the cubic without it
@@ -272,7 +272,12 @@ def _departs(y: np.ndarray, i: int, finite: np.ndarray, cyclic: bool, bound: flo
     """Whether position ``i`` still departs beyond ``bound`` from the cubic through its
     neighbours in ``y`` (the curve with the frames supported so far replaced)."""
     nb = _neighbours(i, finite, cyclic)
-    return nb is not None and abs(y[i] / _within(y, nb, i) - 1.0) > bound
+    return nb is not None and _departure(y, nb, i) > bound
+
+
+def _departure(y: np.ndarray, nb: np.ndarray, i: int) -> float:
+    """|y[i] / the bounded cubic through its neighbours ``nb`` (:func:`_within`) - 1|."""
+    return abs(y[i] / _within(y, nb, i) - 1.0)
 
 
 def _cubic(y: np.ndarray, nb: np.ndarray, i: int) -> float:

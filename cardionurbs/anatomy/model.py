@@ -274,8 +274,7 @@ class BiventricularModel:
         sec = next((x for x in geo.sections.get("lv_endo") or [] if x.slice == slice_id), None)
         if sec is None:
             return math.nan
-        v, f = meshing.closed_mesh(*nurbs.tessellate(self._surface(frame, "lv_endo"),
-                                                    *self.resolution, volume_corrected=True))
+        v, f = self._capped_tessellation(self._surface(frame, "lv_endo"))
         return meshing.clipped_volume(v, f, Plane(sec.points.mean(axis=0), geo.direction)) / 1000.0
 
     def _unrefined_or_nan(self, frame: int) -> float:
@@ -502,13 +501,18 @@ class BiventricularModel:
         """
         return self._clipped_cavity_ml(frame, self.fit(frame, "lv_endo", refined=False).surface)
 
+    def _capped_tessellation(self, surface) -> tuple[np.ndarray, np.ndarray]:
+        """A cavity surface tessellated at the model's resolution (volume-corrected) and
+        capped closed: (V, 3) vertices in scanner mm and (F, 3) triangles."""
+        return meshing.closed_mesh(*nurbs.tessellate(surface, *self.resolution,
+                                                     volume_corrected=True))
+
     def _clipped_cavity_ml(self, frame: int, surface) -> float:
         """LV cavity volume (mL) inside one frame's LV endocardial ``surface``: its capped
         tessellation clipped by the mitral plane
         (:func:`cardionurbs.anatomy.mesh.clipped_volume`: the divergence theorem, no
         manifold solid built)."""
-        v, f = meshing.closed_mesh(*nurbs.tessellate(surface, *self.resolution,
-                                                    volume_corrected=True))
+        v, f = self._capped_tessellation(surface)
         vol = meshing.clipped_volume(v, f, self.base_planes[frame].get("lv")) / 1000.0
         lvot = self._tract_part(frame, "lv_endo")
         if lvot is not None:      # the LVOT lies beyond the mitral plane: the volumes add
