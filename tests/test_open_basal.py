@@ -85,3 +85,56 @@ def test_the_open_basal_slab_is_in_the_model(tmp_path):
     model = reconstruct(study)
     vox = study.meta["voxel_volumes_ml"][model.ed_frame]["lv_cavity"]
     assert model.volumes[model.ed_frame]["lv_cavity"] == pytest.approx(vox, rel=0.03)
+
+
+def _save(tmp_path, data: np.ndarray):
+    aff = np.diag([PX, PX, DZ, 1.0])
+    img = nib.Nifti1Image(data, aff)
+    img.set_sform(aff, code=2)
+    nib.save(img, str(tmp_path / "seg.nii.gz"))
+    return load_study(tmp_path / "seg.nii.gz", labels="acdc")
+
+
+def test_a_small_open_basal_section_stays_in_the_surface(tmp_path):
+    """An open basal slice whose cavity is under MIN_BASAL_AREA_RATIO of the next slice's
+    (the slice across the annulus' saddle): a label map's section is the labelled cavity,
+    not a partial tracing, so it stays the basal section and its slab is in the ED volume
+    (dropped as a partial tracing, the model lost it: issue 29, seed 210 at 10 mm)."""
+    from cardionurbs.anatomy.sections import MIN_BASAL_AREA_RATIO
+    radii = [10.0, 24.0, 23.0, 21.0, 17.0, 10.0]
+    assert (radii[0] / radii[1]) ** 2 < MIN_BASAL_AREA_RATIO
+    study = _save(tmp_path, np.stack([_slice(r, open_side=i == 0) for i, r in enumerate(radii)],
+                                     axis=2))
+    model = reconstruct(study)
+    geo = model.geometry[model.ed_frame]
+    assert geo.sections["lv_endo"][0].slice == "sa_00" and not geo.left_out
+    vox = study.meta["voxel_volumes_ml"][model.ed_frame]["lv_cavity"]
+    assert model.volumes[model.ed_frame]["lv_cavity"] == pytest.approx(vox, rel=0.03)
+
+
+def test_an_outflow_slice_without_wall_counts_as_its_slab(tmp_path):
+    """A basal slice holding LV cavity but no myocardium (the LV outflow tract below the
+    aortic valve): no section, but the labels' cavity there stands for its slab, so the
+    model's LV cavity holds the voxel count (without it, short by that slab)."""
+    from cardionurbs.anatomy.sections import labelled_beyond_base_ml
+    X, Y = _grid()
+    tract = np.where(np.hypot(X - 8.0, Y) < 12.0, 3, 0).astype(np.uint8)
+    radii = [24.0, 23.0, 21.0, 17.0, 10.0]
+    study = _save(tmp_path, np.stack([tract] + [_slice(r) for r in radii], axis=2))
+    assert any("without myocardium" in w and "slice sa_00" in w for w in study.warnings)
+    model = reconstruct(study)
+    ed = model.ed_frame
+    slab = float((tract == 3).sum()) * PX * PX * DZ / 1000.0
+    beyond = labelled_beyond_base_ml(study, model.geometry[ed])
+    assert beyond == pytest.approx(slab, rel=0.02)      # the half-slice plane lies in its own slab
+    vox = study.meta["voxel_volumes_ml"][ed]["lv_cavity"]
+    assert model.volumes[ed]["lv_cavity"] == pytest.approx(vox, rel=0.03)
+    assert vox - (model.volumes[ed]["lv_cavity"] - beyond) > 0.5 * slab   # the surface alone
+
+
+def test_no_labelled_slab_beyond_the_base_of_contours():
+    """Hand contours (no ``lv_slice_ml``) gain nothing beyond their base."""
+    from cardionurbs.anatomy.sections import FrameGeometry, labelled_beyond_base_ml
+    from cardionurbs.study import Study
+    geo = FrameGeometry(frame=0, direction=np.array([0.0, 0.0, 1.0]), thickness=8.0)
+    assert labelled_beyond_base_ml(Study(subject="x", source="x"), geo) == 0.0
