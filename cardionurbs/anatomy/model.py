@@ -546,11 +546,11 @@ class BiventricularModel:
     def _beyond_base_ml(self, frame: int, what: str = "lv_cavity") -> float:
         """The label map's LV cavity (``what``: or myocardium) on SA slices basal to the
         surface's half-slice valve plane, each slice its slab
-        (:func:`cardionurbs.anatomy.sections.labelled_beyond_base_ml`; 0 for other studies
-        and other volumes), mL."""
+        (:func:`cardionurbs.anatomy.sections.labelled_beyond_base_ml`; 0 for other studies,
+        other volumes and a model read back from its file, whose volumes are its meshes'), mL."""
         meta = getattr(self.study, "meta", None)
-        if what not in ("lv_cavity", "lv_myocardium") or not (
-                isinstance(meta, dict) and meta.get("lv_slice_ml")):
+        if what not in ("lv_cavity", "lv_myocardium") or not isinstance(self.surfaces, LazyFrames) \
+                or not (isinstance(meta, dict) and meta.get("lv_slice_ml")):
             return 0.0
         return labelled_beyond_base_ml(self.study, self.geometry[frame], what)
 
