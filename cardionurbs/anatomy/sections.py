@@ -1331,9 +1331,9 @@ def moves_with_lv(geo: FrameGeometry) -> list[str]:
 
 
 def labelled_beyond_base_ml(study: Study, geo: FrameGeometry, what: str = "lv_cavity") -> float:
-    """LV cavity (or myocardium, ``what``) a label map holds on SA slices basal to the surface's base (mL): each
-    labelled slice stands for its slab (what voxel counting and ACDC's evaluation assume),
-    and slices beyond the most basal LV endocardial section — an outflow tract without a
+    """LV cavity (or myocardium, ``what``) a label map holds on SA slices basal to the
+    surface's base (mL): each labelled slice stands for its slab (what voxel counting and
+    ACDC's evaluation assume), and slices beyond the most basal LV endocardial section — an outflow tract without a
     myocardial ring, a slice across the annulus' saddle that no closed loop describes —
     hold cavity that the lofted surface, closed at its half-slice valve plane, does not.
     Each such slice counts with the part of its slab beyond that plane. 0 for a study that
