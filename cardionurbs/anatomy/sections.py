@@ -1336,14 +1336,17 @@ def labelled_beyond_base_ml(study: Study, geo: FrameGeometry, what: str = "lv_ca
     ACDC's evaluation assume), and slices beyond the most basal LV endocardial section — an outflow tract without a
     myocardial ring, a slice across the annulus' saddle that no closed loop describes —
     hold cavity that the lofted surface, closed at its half-slice valve plane, does not.
-    Each such slice counts with the part of its slab beyond that plane. 0 for a study that
-    is not a label map or whose LV valve plane does not come from the slices.
+    Each such slice counts with the part of its slab beyond the LV valve plane (the
+    half-slice plane, or the mitral landmarks' plane where it meets the stacking line
+    through the slice's labelled cavity). 0 for a study that is not a label map, and where
+    aortic landmarks give the frame an LVOT tube (which holds that cavity).
 
     Parameters
     ----------
     study : cardionurbs.study.Study
         The study (``meta["lv_slice_ml"]``: frame -> SA slice -> ``lv_cavity`` and
-        ``lv_myocardium`` -> the labels' volume on the slice, mL).
+        ``lv_myocardium`` -> the labels' volume on the slice, mL, and ``centroid`` -> the
+        labelled cavity's centroid, scanner mm).
     geo : FrameGeometry
         One frame's geometry (its LV endocardial sections and LV valve plane).
     what : {"lv_cavity", "lv_myocardium"}
@@ -1358,21 +1361,25 @@ def labelled_beyond_base_ml(study: Study, geo: FrameGeometry, what: str = "lv_ca
     per = (per or {}).get(geo.frame, (per or {}).get(str(geo.frame)))
     secs = geo.sections.get("lv_endo") or []
     plane = geo.base_planes.get("lv")
-    if not per or not secs or plane is None or "lv" not in geo.base_from_slices:
+    if not per or not secs or plane is None or study.landmarks_at(geo.frame, "aortic"):
         return 0.0
     n = geo.direction
+    cos = float(plane.normal @ n)
+    if cos < 0.2:                         # a valve plane along the stacking direction
+        return 0.0
     level = {im.slice: float(im.position @ n) for im in study.images
              if im.view == "SA" and im.frame == geo.frame}
     if secs[0].slice not in level or len(level) < 2:
         return 0.0
     spacing = float(np.median(np.diff(np.sort(list(level.values())))))
     base = level[secs[0].slice]
-    reach = float(plane.origin @ n)           # the valve plane's level (n: base to apex)
     total = 0.0
     for sl, ml in per.items():
         z = level.get(sl)
         if z is None or z >= base - 0.5 * spacing:
             continue                      # the base section's own slab or apical to it
+        c = np.asarray(ml.get("centroid", secs[0].points.mean(axis=0)), dtype=float)
+        reach = float(c @ n) + float((plane.origin - c) @ plane.normal) / cos   # plane's level there
         top, bottom = z - 0.5 * spacing, min(z + 0.5 * spacing, reach)
         total += float(ml.get(what, 0.0)) * float(np.clip((bottom - top) / spacing, 0.0, 1.0))
     return total
