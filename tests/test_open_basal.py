@@ -138,3 +138,49 @@ def test_no_labelled_slab_beyond_the_base_of_contours():
     from cardionurbs.study import Study
     geo = FrameGeometry(frame=0, direction=np.array([0.0, 0.0, 1.0]), thickness=8.0)
     assert labelled_beyond_base_ml(Study(subject="x", source="x"), geo) == 0.0
+
+
+def _planes_study(levels, per):
+    """A study of SA planes at ``levels`` (mm along z) and the reader's per-slice counts."""
+    from cardionurbs.imaging.geometry import ImagePlane
+    from cardionurbs.study import Study
+    study = Study(subject="x", source="x")
+    for i, z in enumerate(levels):
+        study.images.append(ImagePlane(f"sa_{i:02d}_f000", f"sa_{i:02d}", "SA", 0,
+                                       np.array([0.0, 0.0, z]), np.array([1.0, 0.0, 0.0]),
+                                       np.array([0.0, 1.0, 0.0]), (1.0, 1.0)))
+    study.meta = {"lv_slice_ml": {0: per}}
+    return study
+
+
+def _geometry(plane, base_slice="sa_02"):
+    from cardionurbs.anatomy.mesh import Plane
+    from cardionurbs.anatomy.sections import FrameGeometry, Section
+    n = np.array([0.0, 0.0, 1.0])
+    geo = FrameGeometry(frame=0, direction=n, thickness=10.0)
+    ring = np.c_[np.cos(np.linspace(0, 6, 12)), np.sin(np.linspace(0, 6, 12)), np.full(12, 20.0)]
+    geo.sections["lv_endo"] = [Section("lv_endo", 0, 20.0 * ring * [1, 1, 0.05], slice=base_slice)]
+    geo.base_planes["lv"] = Plane(*plane)
+    return geo
+
+
+def test_the_slab_beyond_a_half_slice_and_a_landmark_plane():
+    """Slices at z = 0, 10 (basal) and the base section at 20 mm (n = +z, base to apex): with
+    the half-slice plane at 15 mm the two basal slabs count whole; with a mitral plane tilted
+    so that it lies at z = 8 under the outflow slice's cavity (centroid x = 10) and at 12
+    elsewhere, sa_01's slab [5, 15] counts over [5, 8] only, sa_00's whole; aortic landmarks
+    (an LVOT tube) count nothing."""
+    from cardionurbs.anatomy.sections import labelled_beyond_base_ml
+    from cardionurbs.study import Landmark
+    per = {"sa_00": {"lv_cavity": 1.0, "centroid": [10.0, 0.0, 0.0]},
+           "sa_01": {"lv_cavity": 2.0, "lv_myocardium": 0.5, "centroid": [10.0, 0.0, 10.0]},
+           "sa_02": {"lv_cavity": 9.0, "centroid": [0.0, 0.0, 20.0]}}
+    study = _planes_study([0.0, 10.0, 20.0], per)
+    half = _geometry((np.array([0.0, 0.0, 15.0]), np.array([0.0, 0.0, 1.0])))
+    assert labelled_beyond_base_ml(study, half) == pytest.approx(3.0)
+    assert labelled_beyond_base_ml(study, half, "lv_myocardium") == pytest.approx(0.5)
+    m = np.array([0.4, 0.0, 1.0]) / np.linalg.norm([0.4, 0.0, 1.0])   # z = 12 - 0.4 x
+    tilted = _geometry((np.array([0.0, 0.0, 12.0]), m))
+    assert labelled_beyond_base_ml(study, tilted) == pytest.approx(1.0 + 2.0 * 3.0 / 10.0)
+    study.landmarks.append(Landmark("aortic", 0, np.array([10.0, 0.0, 5.0])))
+    assert labelled_beyond_base_ml(study, tilted) == 0.0
