@@ -515,7 +515,10 @@ def per50_row(pathology: str, seed: int, matrix: int, fov: float, spacing: float
     vox = np.array([study.meta["voxel_volumes_ml"][f]["lv_cavity"] for f in frames])
     stack = rates.stack_profile(model.study, frames)
     order = [int(i) for i in np.argsort(times)]
-    sweep = (rates.base_sweep(dataclasses.replace(stack, reach_mm=0.5 * spacing), order, ed, es)
+    beyond = rates._plane_beyond_section(model, model.es_frame)   # the model's ES valve plane
+    es_level = None if stack is None or beyond is None else float(stack.top_level[es]) + beyond
+    sweep = (rates.base_sweep(dataclasses.replace(stack, reach_mm=0.5 * spacing), order, ed, es,
+                              volumes=vox, es_level=es_level)
              if stack is not None and pairs else None)       # voxel slabs reach half a spacing
     vr, _ = rates.filling_rates(times, vox, ed, es, None, steps=pairs, sweep=sweep)
     vols = np.array([model.consistent_lv_cavity_volume(f) for f in frames])
