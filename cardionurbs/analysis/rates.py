@@ -622,6 +622,11 @@ def model_filling_rates(model: "BiventricularModel") -> tuple[dict[str, float], 
     rr = 60000.0 / hr if hr else None
     ed, es = frames.index(model.ed_frame), frames.index(model.es_frame)
     steps = extent_steps(model.study, frames, [float(x or 0.0) for x in times])
+    voxels = _voxel_curve(model.study, frames) if steps else None
+    if voxels is not None:             # an SA-only label map: its own voxel-count curve
+        sweep = _model_sweep(model, frames, times, voxels[0], None, reach=0.5 * voxels[1])
+        if sweep is not None:
+            return filling_rates(times, voxels[0], ed, es, rr, steps=steps, sweep=sweep)
     weights = np.ones(len(frames))
     if getattr(model, "base_shift_mm", {}).get(model.es_frame, 0.0):
         weights[es] = 0.0              # its valve plane moved by another rule than its neighbours'
@@ -630,15 +635,33 @@ def model_filling_rates(model: "BiventricularModel") -> tuple[dict[str, float], 
                          weights=weights if sweep is not None else None)
 
 
+def _voxel_curve(study, frames: list[int]) -> tuple[list[float], float] | None:
+    """The voxel-count LV cavity volumes (mL) of ``frames`` and the SA slice spacing (mm, the
+    voxel's depth) of a label-map study; None where a frame has none (not a label map)."""
+    vox = study.meta.get("voxel_volumes_ml") if isinstance(study.meta, dict) else None
+    if not vox:
+        return None
+    vols = [(vox.get(f) or vox.get(str(f)) or {}).get("lv_cavity") for f in frames]
+    sa = [im for im in study.images if im.view == "SA"]
+    if not sa or any(v is None or not np.isfinite(v) for v in vols):
+        return None
+    n = np.asarray(sa[0].normal, float)
+    levels = np.unique(np.round([float(np.asarray(im.position, float) @ n) for im in sa], 3))
+    if len(levels) < 2:
+        return None
+    return [float(v) for v in vols if v is not None], float(np.median(np.diff(levels)))
+
+
 def _model_sweep(model, frames: list[int], times: list, vols: list[float],
-                 weights: np.ndarray) -> np.ndarray | None:
+                 weights: np.ndarray | None, reach: float | None = None) -> np.ndarray | None:
     """:func:`base_sweep` of the model's SA stack over ``frames`` (None where not found): the
-    phase from the completed volume, the ES end from the model's ES valve plane."""
+    phase from the completed volume, the ES end from the model's ES valve plane; ``reach``
+    (mm) how far ``vols`` reach beyond the most basal section (None: the model's own)."""
     stack = stack_profile(model.study, frames)
     if stack is None:
         return None
-    reach = _model_reach(model)
-    if reach is not None:                 # where the model closes beyond its basal section
+    reach = _model_reach(model) if reach is None else reach
+    if reach is not None:                 # where the curve closes beyond its basal section
         stack = dataclasses.replace(stack, reach_mm=reach)
     ed, es = frames.index(model.ed_frame), frames.index(model.es_frame)
     beyond = _plane_beyond_section(model, model.es_frame)
