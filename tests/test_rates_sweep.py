@@ -188,3 +188,21 @@ def test_smoothed_rate_has_a_least_smoothing():
     rate = smoothed_rate(tc, vc, np.ones(len(tc)))
     assert np.max(-rate(x)) == pytest.approx(np.max(-plain(x, 1)), rel=0.002)
     assert np.max(rate(y)) == pytest.approx(np.max(plain(y, 1)), rel=0.002)
+
+
+def test_voxel_curve_of_a_label_map_study():
+    """The voxel-count LV cavity volumes of the curve's frames and the SA spacing (the voxel's
+    depth: its slabs reach half of it); None where a frame has none or no meta (a contour study)."""
+    from types import SimpleNamespace
+
+    from cardionurbs.analysis.rates import _voxel_curve
+    normal = np.array([0.0, 0.6, 0.8])
+    images = [SimpleNamespace(view="SA", normal=normal, position=np.array([1.0, 2.0, 3.0]) + normal * 8.0 * k)
+              for k in range(4) for _ in range(2)] + [SimpleNamespace(view="2CH", normal=np.array([1.0, 0, 0]),
+                                                                      position=np.zeros(3))]
+    meta = {"voxel_volumes_ml": {0: {"lv_cavity": 150.0}, "1": {"lv_cavity": 120.5}}}
+    study = SimpleNamespace(meta=meta, images=images)
+    vols, spacing = _voxel_curve(study, [0, 1])
+    assert vols == [150.0, 120.5] and spacing == pytest.approx(8.0)
+    assert _voxel_curve(study, [0, 1, 2]) is None
+    assert _voxel_curve(SimpleNamespace(meta={}, images=images), [0, 1]) is None

@@ -80,7 +80,12 @@ the interpolating spline differentiates, and GCV alone often chose to
 interpolate them. A model's ES frame whose valve plane was moved to conserve
 the myocardium (its neighbours keep the half-slice rule) has weight 0: its
 time is kept, its volume is not on the curve's footing (nor on the phase's
-scale). With the stack's geometry unknown (``filling_rates``
+scale). On an SA-only label map (``model_filling_rates``, the study's voxel
+counts for every frame) the curve completed is the voxel-count one, its slabs
+reaching half the slice spacing, the base line the model's (its ES valve
+plane): the labels' own volumes, without the model's contour-fit noise (on
+the 50-frame phantoms PER within 5 % on 43 of 44 maps against 41 of 44 from
+the model's volumes, PAFR on 29 against 19). With the stack's geometry unknown (``filling_rates``
 given ``steps`` only) the older partial spline is kept: each step J is the
 interval's change minus the four-point cubic prediction from its neighbours'
 mean rates, r = (-r_-2 + 4 r_-1 + 4 r_+1 - r_+2) / 6, taken out of every
