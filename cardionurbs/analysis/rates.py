@@ -69,7 +69,7 @@ them). Where the base passes one level only, how far beyond it the base lies at
 ED and at ES is not in the stack: the line turns about the crossing, between
 two guesses of its ends, the half-slice rule at ED (the middle of the gap
 beyond the most basal slice) and the model's ES valve plane (placed where the
-myocardium keeps its ED volume; within 1.3 mm of the phantoms' base), by least
+myocardium keeps its ED volume; within 1.8 mm of the phantoms' base), by least
 squares; the half-slice guess alone put D a third low on 10 mm phantoms whose ED
 base lies 0.6 of the gap beyond the first slice (PER -7 %). The rates are those
 of a weighted cubic smoothing spline of the continuous curve (natural, its
@@ -84,8 +84,8 @@ scale). On an SA-only label map (``model_filling_rates``, the study's voxel
 counts for every frame) the curve completed is the voxel-count one, its slabs
 reaching half the slice spacing, the base line the model's (its ES valve
 plane): the labels' own volumes, without the model's contour-fit noise (on
-the 50-frame phantoms PER within 5 % on 43 of 44 maps against 41 of 44 from
-the model's volumes, PAFR on 29 against 19). With the stack's geometry unknown (``filling_rates``
+the 45 50-frame phantom maps of reports/validation-labelmaps.md PER within 5 %
+on 44 against 43 from the model's volumes, PAFR on 31 against 22). With the stack's geometry unknown (``filling_rates``
 given ``steps`` only) the older partial spline is kept: each step J is the
 interval's change minus the four-point cubic prediction from its neighbours'
 mean rates, r = (-r_-2 + 4 r_-1 + 4 r_+1 - r_+2) / 6, taken out of every
