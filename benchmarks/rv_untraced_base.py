@@ -3,6 +3,7 @@
     nice -n 10 python benchmarks/rv_untraced_base.py --seed0 200 > FILE.jsonl   # design rows 1, 7, ..., 55
     nice -n 10 python benchmarks/rv_untraced_base.py --seed0 5000 > FILE.jsonl
     nice -n 10 python benchmarks/rv_untraced_base.py --extra > FILE.jsonl        # normal/PHTN, noise, breath-hold
+    nice -n 10 python benchmarks/rv_untraced_base.py --subject 203:normal:realistic > FILE.jsonl
     python benchmarks/rv_untraced_base.py --table FILE.jsonl ...                  # the markdown tables
 
 Each subject is built as benchmarks/validate_uncertainty.py builds it (its SA-only rows;
@@ -101,12 +102,17 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed0", type=int)
     ap.add_argument("--extra", action="store_true")
+    ap.add_argument("--subject", action="append", default=[], metavar="SEED:PATHOLOGY:ANATOMY",
+                    help="a noise-free subject of one's own choosing instead (repeatable)")
     ap.add_argument("--table", nargs="+")
     a = ap.parse_args(argv)
     if a.table:
         print("\n".join(table([json.loads(line) for f in a.table for line in open(f)])))
         return 0
-    for c in B.subjects(None if a.extra else a.seed0):
+    todo = [{"seed": int(seed), "input": "contours SA-only", "pathology": path, "anatomy": anat,
+             "noise_px": 0.0, "breath_hold_mm": 0.0}
+            for seed, path, anat in (x.split(":") for x in a.subject)]
+    for c in todo or B.subjects(None if a.extra else a.seed0):
         for r in measure(c):
             print(json.dumps(r), flush=True)
     return 0
