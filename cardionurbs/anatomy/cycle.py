@@ -11,7 +11,10 @@ nearest frames on each side (which follows a smooth peak or trough). Such a fram
 frame that is *incomplete* (built from fewer LV endocardial contours than both its
 neighbours, or with one of them left out as a partial tracing) and departs from that
 cubic by more than the bound, and a frame whose LV
-cavity cannot be built at all, is *supported*:
+cavity cannot be built at all, is *supported* (at the curve's highest frame, ED, a
+cusp the cubic under-reaches, only when it also lies above both one-sided linear
+extrapolations; at its lowest an incomplete frame only when it lies below both:
+:func:`_evidence`):
 its volumes are taken from the cubic through the two nearest trusted frames on each side
 (Lagrange interpolation in frame number), and it supports no other (at most a quarter of
 the frames, the worst, are supported). A cine of
@@ -351,16 +354,18 @@ def _evidence(y: np.ndarray, nb: np.ndarray, i: int, spike: bool, partial: bool,
 
     At the highest frame (ED) the cubic is no reference: ED is a cusp (filling stops,
     ejection starts) that the cubic through its neighbours under-reaches (a phantom's
-    analytic truth by +3.5 to +5.7 %), so a frame there is a candidate only when it also
-    lies above both one-sided linear extrapolations (:func:`_beyond_both_sides`): ejection
-    starts from rest, so the extrapolation of the ejection limb lies above an exact ED
-    (on phantoms at 1 px noise by 6 to 11 %). At the lowest frame (ES) the trough is
-    rounded and a spike is judged against the cubic as elsewhere (bivme-patient1's ES
-    frame 10 lies 8.7 % below it, yet above the extrapolation of its steep filling limb),
-    but incompleteness alone is no evidence unless the frame lies below both one-sided
-    extrapolations too: an ES frame often has a section fewer (the apical cavity closes)
-    and the cubic across a gap beside the trough overshoots it (a phantom's truth departs
-    up to +2.2 % from it). reports/validation-quality.md.
+    analytic truth by +3.5 to +5.1 %, 30 phantoms of 20 frames), so a frame there is a
+    candidate only when it also lies above both one-sided linear extrapolations by more
+    than ``bound`` (:func:`_beyond_both_sides`): ejection starts from rest, so the
+    extrapolation of the ejection limb lies above an exact ED (the truth's by 6.3 to
+    9.8 %, at 1 px noise by 4.0 to 12.1 %). At the lowest frame (ES) the trough is
+    rounded (the truth departs -0.3 to +0.8 % from the cubic) and a spike is judged
+    against the cubic as elsewhere (bivme-patient1's ES frame 10 lies 8.7 % below it, yet
+    above the extrapolation of its steep filling limb), but incompleteness alone is no
+    evidence unless the frame lies below both one-sided extrapolations by more than
+    ``bound`` too: an ES frame often has a section fewer (the apical cavity closes) and the
+    cubic across a gap beside the trough overshoots it (the truth departs up to +2.2 % from
+    the cubic through ES - 3, ES - 2, ES + 1, ES + 2). reports/validation-quality.md.
 
     Parameters
     ----------
@@ -371,11 +376,11 @@ def _evidence(y: np.ndarray, nb: np.ndarray, i: int, spike: bool, partial: bool,
         (:func:`_neighbours`).
     i : int
         The frame's position.
-    finite : ndarray of bool, shape (n,)
-        Which frames were built.
     spike, partial : bool
         Whether the frame is a spike (:func:`_spike`) and whether it is incomplete
         (:func:`_incomplete`).
+    bound : float
+        How far beyond each extrapolation (a fraction of it) an extreme must lie.
 
     Returns
     -------
@@ -392,7 +397,7 @@ def _beyond_both_sides(y: np.ndarray, nb: np.ndarray, i: int, sign: int,
                        bound: float) -> bool:
     """Whether the volume at position ``i`` lies above (``sign`` +1) or below (-1) both
     linear extrapolations to ``i``, each through the two nearest frames on one side
-    (``nb``, :func:`_neighbours`), by more than ``bound`` of the farther one."""
+    (``nb``, :func:`_neighbours`), each by more than ``bound`` of it."""
     sides = [float(lagrange_weights(x, i) @ y[x % len(y)]) for x in (nb[:2], nb[2:])]
     return bool(all(sign * (y[i] - v) > bound * abs(v) for v in sides))
 
