@@ -1,7 +1,8 @@
 """Phantoms at 1 px noise with two frames corrupted: ES and EF against the truth (issue #30).
 
     env -u OPENBLAS_CORETYPE -u OPENBLAS_L2_SIZE OPENBLAS_NUM_THREADS=1 \\
-        python benchmarks/corrupted_frames.py [--pathology normal] [--record DIR] SEED...
+        python benchmarks/corrupted_frames.py [--pathology normal] [--noise-px 1] \\
+        [--record DIR] SEED...
 
 For each seed, ``cardionurbs.phantom.generate.generate(P, seed=S, frames=20, noise_px=1.0)``
 is reconstructed untouched and corrupted as
@@ -95,13 +96,15 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("seeds", nargs="+", type=int)
     ap.add_argument("--pathology", default="normal")
+    ap.add_argument("--noise-px", type=float, default=1.0)
     ap.add_argument("--record", type=Path, default=None)
     a = ap.parse_args(argv)
     print("| phantom | truth ES, LVEF | untouched ES, EF − truth, supported "
           "| corrupted ES, EF − truth, supported |")
     print("|---|---|---|---|")
     for s in a.seeds:
-        ph = generate.generate(a.pathology, seed=s, frames=20, noise_px=1.0, volume_check=False)
+        ph = generate.generate(a.pathology, seed=s, frames=20, noise_px=a.noise_px,
+                               volume_check=False)
         es, ef = ph.truth["es_frame"], ph.truth["metrics"]["LVEF (%)"]
         cells, rec = [], {}
         studies = {"untouched": ph.study,
@@ -117,7 +120,8 @@ def main(argv: list[str] | None = None) -> None:
         if a.record:
             a.record.mkdir(parents=True, exist_ok=True)
             rec["truth"] = {"es": es, "lvef": ef, "lv_cavity": truth_curve(ph)}
-            (a.record / f"{a.pathology}{s}.json").write_text(json.dumps(rec))
+            tag = "" if a.noise_px == 1.0 else f"_noise{a.noise_px:g}"
+            (a.record / f"{a.pathology}{s}{tag}.json").write_text(json.dumps(rec))
 
 
 if __name__ == "__main__":
