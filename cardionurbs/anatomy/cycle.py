@@ -364,7 +364,7 @@ def _evidence(y: np.ndarray, nb: np.ndarray, i: int, spike: bool, partial: bool,
     above the extrapolation of its steep filling limb), but incompleteness alone is no
     evidence unless the frame lies below both one-sided extrapolations by more than
     ``bound`` too: an ES frame often has a section fewer (the apical cavity closes) and the
-    cubic across a gap beside the trough overshoots it (the truth departs up to +2.2 % from
+    cubic across a gap beside the trough overshoots it (the truth departs up to +2.9 % from
     the cubic through ES - 3, ES - 2, ES + 1, ES + 2). reports/validation-quality.md.
 
     Parameters
