@@ -74,7 +74,7 @@ def test_single_file_reads_as_the_per_frame_study(pair):
     _assert_same_study(a, b)
     assert detect_format(root / "single") == "gpfile"
     told = [w for w in b.warnings if "time frame column" in w]
-    assert len(told) == 1 and "GPFile.txt" in told[0] and "3 frame(s) (0-2)" in told[0]
+    assert len(told) == 1 and "GPFile.txt" in told[0] and "3 frames (0-2)" in told[0]
     assert not any("time frame column" in w for w in a.warnings)
 
 
@@ -121,6 +121,17 @@ def test_bad_time_frame_one_clear_line(tmp_path, bad, said):
     assert said in msg and f"line {n0 + 6}" in msg and "GPFile.txt" in msg and "\n" not in msg
 
 
+def test_missing_time_frame_column_one_clear_line(tmp_path):
+    _single(tmp_path, frames=(0, 1))
+    gp = tmp_path / "GPFile.txt"
+    rows = [ln.rsplit("\t", 1)[0] for ln in gp.read_text().splitlines()]
+    gp.write_text("\n".join(rows) + "\n")
+    with pytest.raises(StudyError) as e:
+        load_study(tmp_path)
+    msg = str(e.value)
+    assert "GPFile.txt" in msg and "line 2" in msg and "time_frame" in msg and "\n" not in msg
+
+
 def test_time_frames_the_slice_info_does_not_list(tmp_path):
     """A CAP SliceInfoFile with timeFrame numbers: a frame of the column it does not list
     is refused, naming the frame's first line."""
@@ -147,12 +158,14 @@ def test_per_frame_files_win_over_a_stray_single_file(pair, tmp_path):
 
 
 def test_two_digit_frame_numbers(pair, tmp_path):
-    """example/guidepoints style GPFile_03.txt reads as GPFile_003.txt; both for one frame
-    is refused naming both files."""
+    """biv-me's example/guidepoints/patient1 mixes GPFile_000.txt with GPFile_03.txt: both
+    numberings read as one series; two files for one frame are refused naming both."""
     _, a, _ = pair
     _assert_same_study(a, load_study(_per_frame(tmp_path / "two", name="GPFile_{:02d}.txt")))
     mixed = _per_frame(tmp_path / "mixed")
-    shutil.copy(mixed / "GPFile_001.txt", mixed / "GPFile_01.txt")
+    (mixed / "GPFile_001.txt").rename(mixed / "GPFile_01.txt")
+    _assert_same_study(a, load_study(mixed))
+    shutil.copy(mixed / "GPFile_01.txt", mixed / "GPFile_001.txt")
     with pytest.raises(StudyError, match=r"two GPFiles for frame 1 \(GPFile_001.txt and "
                                          r"GPFile_01.txt\)"):
         load_study(mixed)
@@ -181,18 +194,19 @@ def test_cohort_discovery_finds_single_file_studies(pair):
 
 
 def test_same_geometry_slice_numbers_merged(tmp_path):
-    """A CAP export numbering each frame's image of a slice apart (SliceInfoFile: one
-    number per image, the same geometry): one slice per geometry, told in one warning."""
+    """biv-me's test_data style: a ``slice`` header column, a SliceInfoFile of ``frameID:``
+    lines, one number per image (each frame's image of a slice numbered apart, the same
+    geometry): one slice per geometry, told in one warning."""
     _single(tmp_path, frames=(0, 1))
     info = tmp_path / "SliceInfoFile.txt"
-    lines = info.read_text().splitlines()
+    lines = [ln.replace("sliceID:", "frameID:") for ln in info.read_text().splitlines()]
     ids = [int(ln.split("\t")[2]) for ln in lines]
     shift = 100
     extra = [ln.replace(f"\t{i}\t", f"\t{i + shift}\t", 1) for ln, i in zip(lines, ids)]
     info.write_text("\n".join(lines + extra) + "\n")
     gp = tmp_path / "GPFile.txt"
     rows = gp.read_text().splitlines()
-    out = [rows[0]]
+    out = ["x\ty\tz\tcontour type\tslice\tweight\ttime frame"]
     for ln in rows[1:]:           # frame 1 refers to the second set of numbers
         tok = ln.split("\t")
         if tok[6] == "1":
@@ -201,8 +215,9 @@ def test_same_geometry_slice_numbers_merged(tmp_path):
     gp.write_text("\n".join(out) + "\n")
     s = load_study(tmp_path)
     ref = load_study(_single(tmp_path / "ref", frames=(0, 1)))
-    assert sorted({im.slice for im in s.images}) == sorted({im.slice for im in ref.images})
+    assert [im.id for im in s.images] == [im.id for im in ref.images]
     assert [(c.structure, c.slice, c.frame) for c in s.contours] == \
            [(c.structure, c.slice, c.frame) for c in ref.contours]
     told = [w for w in s.warnings if "merged into" in w]
     assert len(told) == 1 and f"{len(lines)} slice number(s)" in told[0]
+    assert f"merged into {len(lines)} slice(s)" in told[0]

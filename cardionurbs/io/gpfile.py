@@ -711,8 +711,10 @@ def read_study(path: str | Path) -> Study:
     if excluded:
         warnings.append(f"{folder}: {excluded} EXCLUDED guide point(s) dropped")
     if single is not None:
-        warnings.append(f"{single}: one file for every frame: {len(files)} frame(s) "
-                        f"({files[0][0]}-{files[-1][0]}) told apart by its time frame column")
+        span = (f"1 frame ({files[0][0]})" if len(files) == 1
+                else f"{len(files)} frames ({files[0][0]}-{files[-1][0]})")
+        warnings.append(f"{single}: one file for every frame: {span} told apart by its time "
+                        "frame column")
     if alias:
         warnings.append(f"{folder / SLICE_INFO}: {len(alias)} slice number(s) with the geometry "
                         f"of another (one image number per frame, as CAP exports number them) "
