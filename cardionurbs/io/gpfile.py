@@ -2,6 +2,13 @@
 
 Read and written so that a study can go to biv-me and back.
 
+Two layouts: one ``GPFile_NNN.txt`` per frame (any number of digits: biv-me's examples mix
+``GPFile_03.txt`` with ``GPFile_000.txt``; two files for one frame are refused), or, as in
+biv-me's ``test_data``, one ``GPFile.txt`` holding every frame, split by its ``time frame``
+column (each line's frame, a whole number >= 0; one warning says the frames come from the
+column). A folder with both reads the per-frame files; ``GPFile.txt`` itself as the path
+reads the single file. A study read from one file is written back as one file.
+
 ``GPFile_NNN.txt`` (one per frame NNN = 0, 1, ...), tab separated, one header
 line, then one guide point per line in scanner mm::
 
@@ -20,7 +27,9 @@ one contour, in drawing order.
     <image>  frameID:  <n>  [timeFrame  <t>]  ImagePositionPatient ...      (CAP exports)
 
 ``<image>`` is a DICOM file name or a UID. The CAP export lists each slice once
-per frame; lines of one slice are merged when their geometry agrees (1e-3 mm,
+per frame, under one number or (biv-me ``test_data``) a number per image: lines of one
+number, and numbers of one geometry (one warning counts them), are merged when their
+geometry agrees (1e-3 mm,
 1e-5 in the direction cosines) and a StudyError names both lines when it does
 not. With ``timeFrame`` numbers, every GPFile frame must be listed (0- or
 1-based). :func:`write_study` writes a study back in the style it was read in
@@ -623,7 +632,8 @@ def _read_tables(files: list[tuple[int, Path]], single: Path | None):
 
 
 def read_study(path: str | Path) -> Study:
-    """Read a GPFile folder (GPFile_NNN.txt per frame + SliceInfoFile.txt) into a Study.
+    """Read a GPFile folder (GPFile_NNN.txt per frame, or one GPFile.txt holding every
+    frame, + SliceInfoFile.txt) into a Study.
 
     EXCLUDED guide points are dropped; atrial, venous and extent traces are kept as
     non-ventricular contours (one warning counts them); the weight column becomes each
@@ -632,7 +642,7 @@ def read_study(path: str | Path) -> Study:
     Parameters
     ----------
     path : str or pathlib.Path
-        The GPFile folder, or a file in it.
+        The GPFile folder, or a file in it (``GPFile.txt``: that single file).
 
     Returns
     -------
