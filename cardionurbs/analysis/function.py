@@ -399,8 +399,10 @@ def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> d
                for f in frames}
     consistent = {}
     for f in frames:
-        if f not in supported:
-            consistent[f] = raw[f]
+        if f not in supported:      # its own (the RV's basal region may be supported)
+            consistent[f] = (model.consistent_volumes(f) if f in built and (
+                every_structure or f in reported) and hasattr(model, "consistent_volumes")
+                else raw[f])
         elif every_structure or f in reported:
             consistent[f] = model.consistent_volumes(f)
         else:               # metrics only: the neighbours' other solids are not built for this
