@@ -347,10 +347,12 @@ class BiventricularModel:
         return dict(sorted(out.items()))
 
     def consistent_volumes(self, frame: int) -> dict[str, float]:
-        """The volumes (mL, keyed like :attr:`volumes`) the metrics use at one frame: its own,
-        or for a supported frame those of its nearest trusted neighbour on each side
-        interpolated linearly to it (:func:`cardionurbs.anatomy.cycle.interpolate`: two
-        frames' solids, not four), the LV cavity from the checked curve (the cubic).
+        """The volumes (mL, keyed like :attr:`volumes`) the metrics use at one frame: its own
+        (the RV cavity with its basal region from its neighbours where
+        :meth:`rv_basal_support` says so), or for a supported frame those of its nearest
+        trusted neighbour on each side interpolated linearly to it
+        (:func:`cardionurbs.anatomy.cycle.interpolate`: two frames' solids, not four), the
+        LV cavity from the checked curve (the cubic).
 
         Parameters
         ----------
