@@ -44,9 +44,7 @@ def main(out: str) -> None:
     print("\n## The cycle of bivme-patient1 (issue #30)\n")
     print("```\ncardionurbs analyze ../shared/data/bivme-patient1 --outputs metrics,meshes --out OUT"
           "\npython benchmarks/validate_cycle.py OUT\n```\n")
-    msgs = [w.get("message", "") if isinstance(w, dict) else str(w) for w in m.get("warnings", [])]
-    rv = sorted(int(w.split()[1]) for w in msgs
-                if w.startswith("frame ") and " RV supported by its neighbours' basal region" in w)
+    rv = vc.get("rv_basal_supported")
     print(f"ED frame {ed}, ES frame {es} (on the consistent curve); frames supported by their "
           f"neighbours: {vc.get('supported')}; RV basal region supported: {rv}.\n")
     print("| frame | LV raw (mL) | LV (mL) | LV vs neighbours (%) | RV raw (mL) | RV (mL) "
