@@ -702,8 +702,22 @@ class BiventricularModel:
                          for d in shifts])
         vols = np.maximum.accumulate(vols)            # more basal plane, never less wall
         shift = float(np.interp(target, vols, shifts))
-        self._move_es_planes(g_es, moves_with_lv(g_es), shift)
+        self._move_es_planes(g_es, self._moving_with_lv(g_es), shift)
         self.base_shift_mm[es] = shift
+
+    def _moving_with_lv(self, g_es: FrameGeometry) -> list[str]:
+        """:func:`moves_with_lv`, and the RV's plane too when :func:`base_between_slices`
+        closed the RV beyond an untraced plane on which the LV's most basal section lies
+        (the two valve planes are then one; hand contours only)."""
+        sides = moves_with_lv(g_es)
+        if ("rv" in sides or "rv" not in g_es.base_from_slices or "lv" not in sides
+                or self.study.meta.get("sa_apex") == SA_APEX_TAPER):
+            return sides                  # label maps keep their own RV slab
+        n, planes = g_es.direction, g_es.base_planes
+        one = abs(float((planes["rv"].origin - planes["lv"].origin) @ n)) < 0.05
+        if one and rv_untraced_basal_level(self.study, g_es) is not None:
+            sides.append("rv")
+        return sides
 
     def _move_es_planes(self, g_es: FrameGeometry, sides: list[str], shift: float) -> None:
         """Move the ES valve planes ``sides`` ``shift`` mm basally along their normals and
@@ -1098,6 +1112,11 @@ def base_between_slices(study: Study, geo: FrameGeometry) -> None:
     then move up to that next plane (``geo.base_slack``), where the LV myocardial volume
     equals ED's (:meth:`BiventricularModel._conserve_myocardium`).
 
+    The RV's plane goes further when that next plane carries an LV section but no RV one
+    (:func:`rv_untraced_basal_level`): the plane cuts the tricuspid annulus, part ventricle
+    and part atrium, so the RV reaches into it and is closed half-way beyond it, as if it
+    had a section there (docs/metrics.md, Cavities and walls).
+
     Parameters
     ----------
     study : Study
@@ -1106,8 +1125,7 @@ def base_between_slices(study: Study, geo: FrameGeometry) -> None:
         One frame's geometry; its ``base_planes`` and ``base_slack`` are changed in place.
     """
     n = geo.direction
-    levels = np.array([float(im.position @ n) for im in study.images
-                       if im.view == "SA" and im.frame == geo.frame])
+    levels = _sa_levels(study, geo)
     slack = 0.5 * geo.thickness
     for side, surf in (("lv", "lv_endo"), ("rv", "rv_endo")):
         secs = geo.sections.get(surf) or []
@@ -1119,6 +1137,11 @@ def base_between_slices(study: Study, geo: FrameGeometry) -> None:
             continue
         half_gap = 0.5 * (level - float(above.max()))
         extra = half_gap - 0.5 * geo.thickness
+        untraced = rv_untraced_basal_level(study, geo) if side == "rv" else None
+        if untraced is not None:          # closed half-way beyond the untraced plane
+            beyond = levels[levels < untraced - 0.5]
+            reach = 0.5 * (untraced - float(beyond.max())) if len(beyond) else 0.0
+            extra = (level - untraced) + max(reach, 0.5 * geo.thickness) - 0.5 * geo.thickness
         if extra > 0:
             p = geo.base_planes[side]
             geo.base_planes[side] = Plane(p.origin - extra * p.normal, p.normal)
@@ -1126,6 +1149,57 @@ def base_between_slices(study: Study, geo: FrameGeometry) -> None:
             slack = max(half_gap, slack)
     if "lv" in geo.base_from_slices:
         geo.base_slack = slack
+
+
+def _sa_levels(study: Study, geo: FrameGeometry) -> np.ndarray:
+    """The levels along ``geo.direction`` of the frame's SA image planes, mm, shape (k,)."""
+    n = geo.direction
+    return np.array([float(im.position @ n) for im in study.images
+                     if im.view == "SA" and im.frame == geo.frame])
+
+
+def rv_untraced_basal_level(study: Study, geo: FrameGeometry) -> float | None:
+    """The level of the SA plane next to the RV's most basal section on the basal side
+    when that plane carries an LV section but no RV one, else None.
+
+    A tracer leaves out a ventricle on a slice that cuts its valve annulus (part wall,
+    part atrium). The LV traced on that plane says the atrioventricular plane lies in or
+    beyond it; the RV not traced there says its annulus dips into it: the RV reaches
+    into that slice, not only into the gap before it (an SA-only stack of hand contours
+    whose RV half-slice plane was put in the gap made RVEDV 30-38 mL low on realistic
+    phantoms, reports/rv-sa-only.md). Only for an RV valve plane from the half-slice rule.
+
+    Parameters
+    ----------
+    study : Study
+        The study (its SA image planes at ``geo.frame``).
+    geo : FrameGeometry
+        One frame's geometry (sections, stacking direction).
+
+    Returns
+    -------
+    float or None
+        The plane's level along ``geo.direction``, mm (SA image position · direction).
+    """
+    if "rv" not in geo.base_from_slices:
+        return None
+    rv = geo.sections.get("rv_endo") or []
+    if not rv:
+        return None
+    n = geo.direction
+    level = float(rv[0].points.mean(axis=0) @ n)
+    levels = _sa_levels(study, geo)
+    above = levels[levels < level - 0.5]
+    if not len(above):
+        return None
+    nxt = float(above.max())
+
+    def on_plane(structure: str) -> bool:
+        return any(abs(float(s.points.mean(axis=0) @ n) - nxt) < 0.5
+                   for s in geo.sections.get(structure) or [])
+    if not (on_plane("lv_endo") or on_plane("lv_epi")) or on_plane("rv_epi"):
+        return None
+    return nxt
 
 
 #: how far beyond one slice thickness the most apical SA section of an LV surface may lie
