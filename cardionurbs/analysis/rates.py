@@ -112,6 +112,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from cardionurbs.anatomy.cycle import lagrange_weights
+
 if TYPE_CHECKING:  # pragma: no cover
     from cardionurbs.anatomy.model import BiventricularModel
 
@@ -195,17 +197,32 @@ def step_sizes(tc: np.ndarray, vc: np.ndarray, steps: list[int]) -> np.ndarray:
     -------
     (len(steps),) array
         Each interval's volume change (mL) minus the change the four-point cubic prediction
-        r = (−r₋₂ + 4 r₋₁ + 4 r₊₁ − r₊₂) / 6 from its neighbours' mean rates gives (intervals
-        taken cyclically; exact for a cubic).
+        from its neighbours' mean rates gives: r = (−r₋₂ + 4 r₋₁ + 4 r₊₁ − r₊₂) / 6 where the
+        two intervals on each side do not step themselves, else the cubic (Lagrange) through
+        the two nearest step-free intervals on each side (intervals taken cyclically; exact for
+        a cubic). A step's neighbour that steps too (the base passing a slice and back within
+        a frame or two, at the sweep's extreme) would carry its slab into the prediction.
     """
     h = np.diff(tc)
     n = len(h)
     r = np.diff(vc) / h
+    stepping = set(k % n for k in steps)
     out = np.empty(len(steps))
     for i, k in enumerate(steps):
-        nb = r[[(k - 2) % n, (k - 1) % n, (k + 1) % n, (k + 2) % n]]
-        out[i] = (r[k] - (-nb[0] + 4.0 * nb[1] + 4.0 * nb[2] - nb[3]) / 6.0) * h[k]
+        offsets = _step_free_offsets(k, n, stepping)
+        w = lagrange_weights(np.asarray(offsets, float), 0.0)
+        out[i] = (r[k] - float(w @ r[[(k + o) % n for o in offsets]])) * h[k]
     return out
+
+
+def _step_free_offsets(k: int, n: int, stepping: set[int]) -> list[int]:
+    """Offsets of the two nearest intervals on each side of interval ``k`` (of ``n``, cyclic)
+    that are not in ``stepping``; the plain ±1, ±2 where fewer than four such remain."""
+    before = [-o for o in range(1, n) if (k - o) % n not in stepping][:2]
+    after = [o for o in range(1, n) if (k + o) % n not in stepping][:2]
+    if len(before) < 2 or len(after) < 2 or len({(k + o) % n for o in before + after}) < 4:
+        return [-2, -1, 1, 2]
+    return sorted(before) + after
 
 
 def base_share(tc: np.ndarray, smooth: np.ndarray, steps: list[int], jumps: np.ndarray) -> float:

@@ -32,8 +32,8 @@ from cardionurbs.anatomy.outflow import (TIME_PRIOR_MIN_FRAMES, OutflowTract, ou
 from cardionurbs.anatomy.residuals import RESIDUAL_COLUMNS, surface_distance  # noqa: F401 (re-exported)
 from cardionurbs.anatomy.sections import (MYO_CONSERVED_BOUND, SA_APEX_TAPER, SURFACES,
                                           FrameGeometry, frame_geometry,
-                                          labelled_myocardium_ratio, labels_do_not_conserve,
-                                          moves_with_lv)
+                                          labelled_beyond_base_ml, labelled_myocardium_ratio,
+                                          labels_do_not_conserve, moves_with_lv)
 from cardionurbs.anatomy.refine import refine_surface
 from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface
 from cardionurbs.cache import LazyFrames, memoized
@@ -189,7 +189,7 @@ class BiventricularModel:
         self.outflow = LazyFrames(self.frames, self._outflow) if surfaces is None else \
             LazyFrames(self.frames, lambda f: dict((outflow or {}).get(f, {})))
         self.volumes = LazyFrames(self.frames, lambda f: {
-            k: meshing.volume_ml(m) for k, m in self.solids(f).items()})
+            k: meshing.volume_ml(m) + self._beyond_base_ml(f, k) for k, m in self.solids(f).items()})
         ed, es = self._choose_ed_es(study, ed_es, jobs, progress)
         self.ed_frame, self.es_frame = ed, es
         for f in getattr(self, "cycle", CycleCheck({}, {})).supported:
@@ -605,6 +605,7 @@ class BiventricularModel:
         lvot = self._tract_part(frame, "lv_endo")
         if lvot is not None:      # the LVOT lies beyond the mitral plane: the volumes add
             vol += meshing.volume_ml(lvot)
+        vol += self._beyond_base_ml(frame)
         if not vol > 0:
             raise ReconstructionError(f"lv_cavity, frame {frame}: nothing lies on the apical "
                                       "side of the valve plane")
@@ -627,8 +628,19 @@ class BiventricularModel:
             LV cavity volume, mL.
         """
         if frame in (self.ed_frame, self.es_frame) or frame in self.lv_cavity_solid:
-            return meshing.volume_ml(self.lv_cavity_solid(frame))
+            return meshing.volume_ml(self.lv_cavity_solid(frame)) + self._beyond_base_ml(frame)
         return self._clipped_lv_ml(frame)           # the filling rates and the volume curve ask
+
+    def _beyond_base_ml(self, frame: int, what: str = "lv_cavity") -> float:
+        """The label map's LV cavity (``what``: or myocardium) on SA slices basal to the
+        surface's half-slice valve plane, each slice its slab
+        (:func:`cardionurbs.anatomy.sections.labelled_beyond_base_ml`; 0 for other studies,
+        other volumes and a model read back from its file, whose volumes are its meshes'), mL."""
+        meta = getattr(self.study, "meta", None)
+        if what not in ("lv_cavity", "lv_myocardium") or not isinstance(self.surfaces, LazyFrames) \
+                or not (isinstance(meta, dict) and meta.get("lv_slice_ml")):
+            return 0.0
+        return labelled_beyond_base_ml(self.study, self.geometry[frame], what)
 
     @memoized
     def _clipped_lv_ml(self, frame: int) -> float:
@@ -693,7 +705,7 @@ class BiventricularModel:
             self.warnings.append(labels_do_not_conserve(ratio, es))
             self.base_shift_mm[es] = 0.0
             return                        # the labels' own slab at ES (docs/metrics.md)
-        target = meshing.volume_ml(self.solids(ed)["lv_myocardium"])
+        target = self.volumes[ed]["lv_myocardium"] - self._beyond_base_ml(es, "lv_myocardium")
         myo = self._solid(es, "lv_epi") - self._solid(es, "lv_endo")
         plane = g_es.base_planes["lv"]
         shifts = np.linspace(-0.5 * g_es.thickness, g_es.base_slack, samples)
