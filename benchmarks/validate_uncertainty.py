@@ -113,23 +113,27 @@ def _sa_only(study) -> None:
 RUN_CONSTANTS = {"BETWEEN_FACTOR": 0.25, "OUTFLOW_SHARE": 1.0, "PIXEL_BIAS": 0.1,
                  "OPEN_SLAB_MM": 10.0, "CONTOUR_FACTOR": 1.0, "RV_SHAPE_REL": 0.0,
                  "LV_SHAPE_LABELS": 0.0, "LV_SHAPE_LABELS_LA": 0.0, "LV_SHAPE_CONTOURS": 0.0,
+                 "LV_SHAPE_OBSERVED": 0.0,
                  "RV_SHAPE_LABELS": None, "RV_SHAPE_LABELS_LA": None, "RV_SHAPE_CONTOURS": None,
+                 "RV_SHAPE_OBSERVED": 0.0,
                  "LVM_LABELS": 1.0, "LVM_LABELS_LA": 1.0, "LVM_CONTOURS": 1.0, "LVM_OBSERVED": 1.0}
 #: the benchmark's names of the module's LV_SHAPE_REL entries
 LV_KEYS = {"LV_SHAPE_LABELS": "labels", "LV_SHAPE_LABELS_LA": "labels+LA",
-           "LV_SHAPE_CONTOURS": "contours"}
+           "LV_SHAPE_CONTOURS": "contours", "LV_SHAPE_OBSERVED": "observed"}
 #: and of its RV_SHAPE_REL entries (RV_SHAPE_REL: a run's one value for every kind, before
 #: the entries; used where a setting gives no entry)
 RV_KEYS = {"RV_SHAPE_LABELS": "labels", "RV_SHAPE_LABELS_LA": "labels+LA",
-           "RV_SHAPE_CONTOURS": "contours"}
+           "RV_SHAPE_CONTOURS": "contours", "RV_SHAPE_OBSERVED": "observed"}
 #: and of its LVM_FACTOR entries (before session 16's runs: 1, no such factor)
 LVM_KEYS = {"LVM_LABELS": "labels", "LVM_LABELS_LA": "labels+LA", "LVM_CONTOURS": "contours",
             "LVM_OBSERVED": "observed"}
 #: the module's input kind (uncertainty.lv_input_kind) of each design input
+#: (``observed``: lv_input_kind None, the RV closed by long-axis contours too)
 INPUT_KIND = {"labels acdc 10mm": "labels", "labels acdc 5mm": "labels",
-              "labels ukbb 10mm": "labels+LA", "contours SA-only": "contours"}
-#: the LVM_FACTOR kind of each design input (``observed``: lv_input_kind None)
-MASS_KIND = {**INPUT_KIND, "contours+LA": "observed", "contours+LA 5mm": "observed"}
+              "labels ukbb 10mm": "labels+LA", "contours SA-only": "contours",
+              "contours+LA": "observed", "contours+LA 5mm": "observed"}
+#: the LVM_FACTOR kind of each design input
+MASS_KIND = INPUT_KIND
 
 
 def module_constants() -> dict[str, float]:
@@ -144,11 +148,8 @@ def module_constants() -> dict[str, float]:
 
 
 def _rv_rel(r: dict, consts: dict) -> float:
-    """The RV_SHAPE_REL of a subject's input kind under ``consts`` (0 for contours with
-    long-axis views: the module gives them no rv shape)."""
-    kind = INPUT_KIND.get(r["input"])
-    if kind is None:
-        return 0.0
+    """The RV_SHAPE_REL of a subject's input kind under ``consts``."""
+    kind = INPUT_KIND[r["input"]]
     key = next(k for k, v in RV_KEYS.items() if v == kind)
     return consts[key] if consts.get(key) is not None else consts["RV_SHAPE_REL"]
 
@@ -168,11 +169,9 @@ def _lv_shape_sd(r: dict, col: str, consts: dict) -> float:
 
 def _rv_shape_sd(r: dict, col: str, f: float) -> float:
     """The ``rv shape`` source of :mod:`cardionurbs.analysis.uncertainty` (f of the RV cavity
-    volume at each frame, ED and ES independent) for an input whose RV no landmark or
-    long-axis contour closes (label maps, SA-only contours: here, every input but
-    ``contours+LA``), propagated to ``col``."""
-    if f == 0 or r["input"].startswith("contours+LA") or not col.startswith("RV") \
-            or col == "RVM (g)":
+    volume at each frame, ED and ES independent; f the input kind's entry, ``observed`` for
+    the ``contours+LA`` inputs), propagated to ``col``."""
+    if f == 0 or not col.startswith("RV") or col == "RVM (g)":
         return 0.0
     m = r["metrics"]
     edv, esv = f * m["RVEDV (mL)"], f * m["RVESV (mL)"]
@@ -267,10 +266,14 @@ CORE_GRID = [{"CONTOUR_FACTOR": c, "BETWEEN_FACTOR": b, "PIXEL_BIAS": p}
              for c in (1.0, 1.5, 2.0, 3.0) for b in (0.25, 1.0) for p in (0.1, 0.2)]
 #: each entry's values (those of LV_GRID and RV_GRID; the LVM factors' own)
 ENTRY_VALUES = {k: sorted({g[k] for g in grid}) for grid in (LV_GRID, RV_GRID) for k in grid[0]}
-ENTRY_VALUES.update({k: [0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.25] for k in LVM_KEYS})
+ENTRY_VALUES.update({"LV_SHAPE_OBSERVED": [0.0, 0.005, 0.01, 0.02],
+                     "RV_SHAPE_OBSERVED": [0.0, 0.01, 0.02, 0.03, 0.05]})
+ENTRY_VALUES.update({k: [0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.25] for k in LVM_KEYS})
 #: the metrics each family of entries acts on
 ACTS_ON = {"LV": ("LVEDV (mL)", "LVESV (mL)"), "RV": ("RVEDV (mL)", "RVEF (%)"),
            "LVM": ("LVM (g)",)}
+#: the families whose entries take one value for every input kind (``--lvm-tied``)
+TIED: set[str] = set()
 #: each family's entries and the input kind map they are keyed by
 FAMILIES = {"LV": (LV_KEYS, INPUT_KIND), "RV": (RV_KEYS, INPUT_KIND), "LVM": (LVM_KEYS, MASS_KIND)}
 
@@ -305,7 +308,9 @@ def _best_entries(rows: list[dict], core: dict, family: str, n_min: int, base: n
         per_key[key] = {v: np.nansum(_stats(sel, {**core, key: v})[:, cols], axis=0)
                         for v in ENTRY_VALUES[key]}
     best = None
-    for combo in itertools.product(*(ENTRY_VALUES[k] for k in keys)):
+    combos = ([(v,) * len(keys) for v in ENTRY_VALUES[next(iter(keys))]] if family in TIED
+              else itertools.product(*(ENTRY_VALUES[k] for k in keys)))
+    for combo in combos:
         tot = fixed + sum(per_key[k][v] for k, v in zip(keys, combo))
         if (tot[:, 0] >= n_min).all() and (best is None or tot[:, 1].sum() < best[2]):
             best = (dict(zip(keys, combo)), tot[:, 0], float(tot[:, 1].sum()))
@@ -313,6 +318,17 @@ def _best_entries(rows: list[dict], core: dict, family: str, n_min: int, base: n
 
 
 def choose_min_inside(rows: list[dict], n_min: int, lvm: bool = True) -> tuple[dict, list[str]]:
+    """:func:`choose_at_least` at ``n_min``; where no setting has ``n_min`` inside for each
+    of the six, at the highest count some setting reaches (said under the table)."""
+    for n in range(n_min, 0, -1):
+        consts, table = choose_at_least(rows, n, lvm)
+        if consts:
+            return consts, table + ([] if n == n_min else [
+                "", f"(no setting has {n_min} inside for each of the six: the rule applied at {n})"])
+    return {}, table
+
+
+def choose_at_least(rows: list[dict], n_min: int, lvm: bool = True) -> tuple[dict, list[str]]:
     """The rule of session 15: of CORE_GRID × the LV and RV entries (ENTRY_VALUES), the
     narrowest setting (mean half-width / value over the six DONE_WHEN metrics) with at
     least ``n_min`` subjects inside for every one of the six. ``lvm`` (session 16): the
@@ -350,7 +366,7 @@ def choose_min_inside(rows: list[dict], n_min: int, lvm: bool = True) -> tuple[d
         if ok and (best is None or rel < best[1]):
             best = (consts, rel, len(table) - 1)
     if best is None:
-        return {}, table + ["", "(no setting meets the rule)"]
+        return {}, table + ["", f"(no setting has {n_min} inside for each of the six)"]
     table[best[2]] = table[best[2]][:-2] + " **(chosen)** |"
     return best[0], table
 
@@ -536,6 +552,8 @@ def main(argv=None) -> int:
                          "choose_min_inside (at least N inside for each of the six)")
     ap.add_argument("--design", choices=("crossed", "legacy"), default="crossed",
                     help="the subject design (conditions(); legacy: sessions 9-15's)")
+    ap.add_argument("--lvm-tied", action="store_true",
+                    help="with --min-inside: one LVM_FACTOR value for every input kind")
     ap.add_argument("--no-lvm-entries", action="store_true",
                     help="with --min-inside: keep the LVM_FACTOR entries the run's (session 15's "
                          "rule)")
@@ -552,6 +570,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.run_constants:
         RUN_CONSTANTS.update(_kv(a.run_constants))
+    if a.lvm_tied:
+        TIED.add("LVM")
     rows = []
     start = time.time()
     raw = a.raw.open("w") if a.raw is not None else None

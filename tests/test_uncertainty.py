@@ -72,8 +72,9 @@ def test_contour_noise_widens_the_intervals(clean, noisy):
 def test_sources_and_method_in_the_result(clean):
     _, model, m = clean
     iv = intervals(model, m)
-    assert U.lv_input_kind(model) is None       # long-axis contours fix the base: no lv shape
-    assert iv["sd"]["LVEDV (mL)"]["lv shape"] == 0.0
+    assert U.lv_input_kind(model) is None       # long-axis contours fix the base: observed
+    assert iv["sd"]["LVEDV (mL)"]["lv shape"] == pytest.approx(
+        U.LV_SHAPE_REL["observed"] * m["LVEDV (mL)"], rel=1e-3)
     assert "analytic" in iv["method"]
     sd = iv["sd"]["LVEDV (mL)"]
     assert {"contours", "between", "base", "apex"} <= set(sd)

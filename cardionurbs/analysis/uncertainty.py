@@ -65,13 +65,15 @@ METHOD = ("analytic propagation: contour scatter, between-slice interpolation, b
 COVERED = ("LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVM (g)",
            "RVEDV (mL)", "RVESV (mL)", "RVSV (mL)", "RVEF (%)", "RVM (g)")
 Z95 = 1.959963984540054
-#: relative SD of an RV cavity that no landmark or long-axis contour closes, by input kind
-#: (:func:`lv_input_kind`; label maps, SA-only contours): ED and ES independent
-RV_SHAPE_REL = {"labels": 0.05, "labels+LA": 0.05, "contours": 0.0}
-#: relative SD of an LV cavity by input kind (:func:`lv_input_kind`): the reconstruction's
+#: relative SD of an RV cavity by input kind (:func:`lv_input_kind`; label maps, SA-only
+#: contours; ``observed``: a cavity the landmarks or long-axis contours close): ED and ES
+#: independent
+RV_SHAPE_REL = {"labels": 0.05, "labels+LA": 0.05, "contours": 0.0, "observed": 0.0}
+#: relative SD of an LV cavity by input kind (:func:`lv_input_kind`, ``observed`` for None):
+#: the reconstruction's
 #: own error at a base no SA section closes, one error at ED and ES (a model-error term set
 #: on the calibration phantoms, docs/metrics.md, Uncertainty)
-LV_SHAPE_REL = {"labels": 0.03, "labels+LA": 0.01, "contours": 0.0}
+LV_SHAPE_REL = {"labels": 0.03, "labels+LA": 0.01, "contours": 0.0, "observed": 0.0}
 #: factor over the LV wall's propagated SD (every source above; not the one-sided
 #: allowances) by input kind (:func:`lv_input_kind`, ``observed`` for contours whose base the
 #: data fix): the wall's error is not its cavity's (epicardium and endocardium share most of
@@ -363,14 +365,16 @@ def solid_error(model: "BiventricularModel", frame: int, solid: str) -> VolumeEr
 
 
 def _rv_shape(model: "BiventricularModel", frame: int) -> float:
-    """SD (mL) of the RV cavity's shape where no valve landmark or long-axis contour closes
-    it (a label map, or the half-slice rule): :data:`RV_SHAPE_REL` (by input kind) of its volume. The SA
-    stack cuts the RV's basal third and outflow region obliquely, and what lies between
-    those sections is the loft's guess (docs/metrics.md, Uncertainty: set on the phantoms)."""
+    """SD (mL) of the RV cavity's shape: :data:`RV_SHAPE_REL` (by input kind) of its volume.
+    Where no valve landmark or long-axis contour closes it (a label map, or the half-slice
+    rule) the SA stack cuts the RV's basal third and outflow region obliquely, and what lies
+    between those sections is the loft's guess; where the data close it (``observed``), the
+    loft's own error (docs/metrics.md, Uncertainty: set on the phantoms)."""
     labels = isinstance(model.study.meta, dict) and bool(model.study.meta.get("voxel_volumes_ml"))
     if not (labels or "rv" in model.geometry[frame].base_from_slices):
-        return 0.0
-    rel = RV_SHAPE_REL.get(lv_input_kind(model) or "contours", 0.0)
+        rel = RV_SHAPE_REL.get("observed", 0.0)      # closed by the data: the loft's own error
+    else:
+        rel = RV_SHAPE_REL.get(lv_input_kind(model) or "contours", 0.0)
     return rel * float(model.volumes[frame].get("rv_cavity", 0.0))
 
 
@@ -414,12 +418,11 @@ def lvm_factor(model: "BiventricularModel") -> float:
 
 def _lv_shape(model: "BiventricularModel", frame: int) -> float:
     """SD (mL) of the LV cavity's own reconstruction error for its input kind:
-    :data:`LV_SHAPE_REL` of its volume (0 for contours whose base the data fix). The SA
+    :data:`LV_SHAPE_REL` of its volume (``observed``: contours whose base the data fix). The SA
     sections leave the basal LV (the annulus' saddle, the outflow root) to the rule or the
     map's last slice, and the realistic base differs from the loft's guess by a share of the
     cavity that is alike at ED and ES (one error, shared: EF keeps its interval)."""
-    kind = lv_input_kind(model)
-    rel = LV_SHAPE_REL.get(kind, 0.0) if kind is not None else 0.0
+    rel = LV_SHAPE_REL.get(lv_input_kind(model) or "observed", 0.0)
     return rel * float(model.volumes[frame].get("lv_cavity", 0.0))
 
 
