@@ -31,8 +31,8 @@ from cardionurbs.anatomy.outflow import OutflowTract, outflow_tracts, tract_soli
 from cardionurbs.anatomy.residuals import RESIDUAL_COLUMNS, surface_distance  # noqa: F401 (re-exported)
 from cardionurbs.anatomy.sections import (MYO_CONSERVED_BOUND, SA_APEX_TAPER, SURFACES,
                                           FrameGeometry, frame_geometry,
-                                          labelled_myocardium_ratio, labels_do_not_conserve,
-                                          moves_with_lv)
+                                          labelled_beyond_base_ml, labelled_myocardium_ratio,
+                                          labels_do_not_conserve, moves_with_lv)
 from cardionurbs.anatomy.refine import refine_surface
 from cardionurbs.anatomy.surfaces import SurfaceFit, build_surface
 from cardionurbs.cache import LazyFrames, memoized
@@ -188,7 +188,7 @@ class BiventricularModel:
         self.outflow = LazyFrames(self.frames, self._outflow) if surfaces is None else \
             LazyFrames(self.frames, lambda f: dict((outflow or {}).get(f, {})))
         self.volumes = LazyFrames(self.frames, lambda f: {
-            k: meshing.volume_ml(m) for k, m in self.solids(f).items()})
+            k: meshing.volume_ml(m) + self._beyond_base_ml(f, k) for k, m in self.solids(f).items()})
         ed, es = self._choose_ed_es(study, ed_es, jobs, progress)
         self.ed_frame, self.es_frame = ed, es
         for f in getattr(self, "cycle", CycleCheck({}, {})).supported:
@@ -517,6 +517,7 @@ class BiventricularModel:
         lvot = self._tract_part(frame, "lv_endo")
         if lvot is not None:      # the LVOT lies beyond the mitral plane: the volumes add
             vol += meshing.volume_ml(lvot)
+        vol += self._beyond_base_ml(frame)
         if not vol > 0:
             raise ReconstructionError(f"lv_cavity, frame {frame}: nothing lies on the apical "
                                       "side of the valve plane")
@@ -539,8 +540,19 @@ class BiventricularModel:
             LV cavity volume, mL.
         """
         if frame in (self.ed_frame, self.es_frame) or frame in self.lv_cavity_solid:
-            return meshing.volume_ml(self.lv_cavity_solid(frame))
+            return meshing.volume_ml(self.lv_cavity_solid(frame)) + self._beyond_base_ml(frame)
         return self._clipped_lv_ml(frame)           # the filling rates and the volume curve ask
+
+    def _beyond_base_ml(self, frame: int, what: str = "lv_cavity") -> float:
+        """The label map's LV cavity (``what``: or myocardium) on SA slices basal to the
+        surface's half-slice valve plane, each slice its slab
+        (:func:`cardionurbs.anatomy.sections.labelled_beyond_base_ml`; 0 for other studies,
+        other volumes and a model read back from its file, whose volumes are its meshes'), mL."""
+        meta = getattr(self.study, "meta", None)
+        if what not in ("lv_cavity", "lv_myocardium") or not isinstance(self.surfaces, LazyFrames) \
+                or not (isinstance(meta, dict) and meta.get("lv_slice_ml")):
+            return 0.0
+        return labelled_beyond_base_ml(self.study, self.geometry[frame], what)
 
     @memoized
     def _clipped_lv_ml(self, frame: int) -> float:
@@ -605,7 +617,7 @@ class BiventricularModel:
             self.warnings.append(labels_do_not_conserve(ratio, es))
             self.base_shift_mm[es] = 0.0
             return                        # the labels' own slab at ES (docs/metrics.md)
-        target = meshing.volume_ml(self.solids(ed)["lv_myocardium"])
+        target = self.volumes[ed]["lv_myocardium"] - self._beyond_base_ml(es, "lv_myocardium")
         myo = self._solid(es, "lv_epi") - self._solid(es, "lv_endo")
         plane = g_es.base_planes["lv"]
         shifts = np.linspace(-0.5 * g_es.thickness, g_es.base_slack, samples)
@@ -614,8 +626,22 @@ class BiventricularModel:
                          for d in shifts])
         vols = np.maximum.accumulate(vols)            # more basal plane, never less wall
         shift = float(np.interp(target, vols, shifts))
-        self._move_es_planes(g_es, moves_with_lv(g_es), shift)
+        self._move_es_planes(g_es, self._moving_with_lv(g_es), shift)
         self.base_shift_mm[es] = shift
+
+    def _moving_with_lv(self, g_es: FrameGeometry) -> list[str]:
+        """:func:`moves_with_lv`, and the RV's plane too when :func:`base_between_slices`
+        closed the RV beyond an untraced plane on which the LV's most basal section lies
+        (the two valve planes are then one; hand contours only)."""
+        sides = moves_with_lv(g_es)
+        if ("rv" in sides or "rv" not in g_es.base_from_slices or "lv" not in sides
+                or self.study.meta.get("sa_apex") == SA_APEX_TAPER):
+            return sides                  # label maps keep their own RV slab
+        n, planes = g_es.direction, g_es.base_planes
+        one = abs(float((planes["rv"].origin - planes["lv"].origin) @ n)) < 0.05
+        if one and rv_untraced_basal_level(self.study, g_es) is not None:
+            sides.append("rv")
+        return sides
 
     def _move_es_planes(self, g_es: FrameGeometry, sides: list[str], shift: float) -> None:
         """Move the ES valve planes ``sides`` ``shift`` mm basally along their normals and
@@ -1010,6 +1036,11 @@ def base_between_slices(study: Study, geo: FrameGeometry) -> None:
     then move up to that next plane (``geo.base_slack``), where the LV myocardial volume
     equals ED's (:meth:`BiventricularModel._conserve_myocardium`).
 
+    The RV's plane goes further when that next plane carries an LV section but no RV one
+    (:func:`rv_untraced_basal_level`): the plane cuts the tricuspid annulus, part ventricle
+    and part atrium, so the RV reaches into it and is closed half-way beyond it, as if it
+    had a section there (docs/metrics.md, Cavities and walls).
+
     Parameters
     ----------
     study : Study
@@ -1018,8 +1049,7 @@ def base_between_slices(study: Study, geo: FrameGeometry) -> None:
         One frame's geometry; its ``base_planes`` and ``base_slack`` are changed in place.
     """
     n = geo.direction
-    levels = np.array([float(im.position @ n) for im in study.images
-                       if im.view == "SA" and im.frame == geo.frame])
+    levels = _sa_levels(study, geo)
     slack = 0.5 * geo.thickness
     for side, surf in (("lv", "lv_endo"), ("rv", "rv_endo")):
         secs = geo.sections.get(surf) or []
@@ -1031,6 +1061,11 @@ def base_between_slices(study: Study, geo: FrameGeometry) -> None:
             continue
         half_gap = 0.5 * (level - float(above.max()))
         extra = half_gap - 0.5 * geo.thickness
+        untraced = rv_untraced_basal_level(study, geo) if side == "rv" else None
+        if untraced is not None:          # closed half-way beyond the untraced plane
+            beyond = levels[levels < untraced - 0.5]
+            reach = 0.5 * (untraced - float(beyond.max())) if len(beyond) else 0.0
+            extra = (level - untraced) + max(reach, 0.5 * geo.thickness) - 0.5 * geo.thickness
         if extra > 0:
             p = geo.base_planes[side]
             geo.base_planes[side] = Plane(p.origin - extra * p.normal, p.normal)
@@ -1038,6 +1073,57 @@ def base_between_slices(study: Study, geo: FrameGeometry) -> None:
             slack = max(half_gap, slack)
     if "lv" in geo.base_from_slices:
         geo.base_slack = slack
+
+
+def _sa_levels(study: Study, geo: FrameGeometry) -> np.ndarray:
+    """The levels along ``geo.direction`` of the frame's SA image planes, mm, shape (k,)."""
+    n = geo.direction
+    return np.array([float(im.position @ n) for im in study.images
+                     if im.view == "SA" and im.frame == geo.frame])
+
+
+def rv_untraced_basal_level(study: Study, geo: FrameGeometry) -> float | None:
+    """The level of the SA plane next to the RV's most basal section on the basal side
+    when that plane carries an LV section but no RV one, else None.
+
+    A tracer leaves out a ventricle on a slice that cuts its valve annulus (part wall,
+    part atrium). The LV traced on that plane says the atrioventricular plane lies in or
+    beyond it; the RV not traced there says its annulus dips into it: the RV reaches
+    into that slice, not only into the gap before it (an SA-only stack of hand contours
+    whose RV half-slice plane was put in the gap made RVEDV 30-38 mL low on realistic
+    phantoms, reports/rv-sa-only.md). Only for an RV valve plane from the half-slice rule.
+
+    Parameters
+    ----------
+    study : Study
+        The study (its SA image planes at ``geo.frame``).
+    geo : FrameGeometry
+        One frame's geometry (sections, stacking direction).
+
+    Returns
+    -------
+    float or None
+        The plane's level along ``geo.direction``, mm (SA image position · direction).
+    """
+    if "rv" not in geo.base_from_slices:
+        return None
+    rv = geo.sections.get("rv_endo") or []
+    if not rv:
+        return None
+    n = geo.direction
+    level = float(rv[0].points.mean(axis=0) @ n)
+    levels = _sa_levels(study, geo)
+    above = levels[levels < level - 0.5]
+    if not len(above):
+        return None
+    nxt = float(above.max())
+
+    def on_plane(structure: str) -> bool:
+        return any(abs(float(s.points.mean(axis=0) @ n) - nxt) < 0.5
+                   for s in geo.sections.get(structure) or [])
+    if not (on_plane("lv_endo") or on_plane("lv_epi")) or on_plane("rv_epi"):
+        return None
+    return nxt
 
 
 #: how far beyond one slice thickness the most apical SA section of an LV surface may lie

@@ -958,11 +958,12 @@ def isoperimetric_quotient(points: np.ndarray, normal: np.ndarray) -> float:
 
 
 #: a basal LV loop smaller than this fraction of the next one is taken as a partial tracing
+#: (hand contours only: a label map's basal section is the labelled cavity, whole)
 MIN_BASAL_AREA_RATIO = 0.35
 
 
 def _drop_degenerate_loops(secs: list, n: np.ndarray, warnings: list[str],
-                           left_out: list | None = None) -> list:
+                           left_out: list | None = None, labelled: bool = False) -> list:
     """Leave out LV loops (sorted base -> apex) that cannot be whole cross-sections.
 
     Two signs of a partial or back-and-forth tracing (typically a basal slice
@@ -972,6 +973,28 @@ def _drop_degenerate_loops(secs: list, n: np.ndarray, warnings: list[str],
     ``MIN_BASAL_AREA_RATIO`` of the loop apical to it — the LV is widest near
     its base, so a section that collapses there is not the ventricle's. Lofted
     as full sections they bend the surface and distort the cavity volume.
+    The second is a sign only in hand contours: a label map's loop is the
+    boundary of what is labelled on the slice, so a small basal loop there is a
+    small basal section (the slice cuts the annulus' saddle or opens to the
+    outflow tract), which voxel counting and the truth hold (``labelled``: kept).
+
+    Parameters
+    ----------
+    secs : list of Section
+        One LV surface's sections of one frame, sorted base to apex.
+    n : ndarray, shape (3,)
+        The stacking direction (unit, base to apex).
+    warnings : list of str
+        Appended: one line per loop left out.
+    left_out : list or None
+        Appended: (structure, slice, reason) per loop left out.
+    labelled : bool
+        The sections are a label map's (the basal-area rule does not apply).
+
+    Returns
+    -------
+    list of Section
+        The sections kept, base to apex.
     """
     def drop(sec, why):
         if left_out is not None:
@@ -986,7 +1009,7 @@ def _drop_degenerate_loops(secs: list, n: np.ndarray, warnings: list[str],
             drop(sec, f"encloses almost no area (isoperimetric quotient {q:.2f})")
         else:
             kept.append(sec)
-    while len(kept) >= 3:
+    while len(kept) >= 3 and not labelled:
         a0 = polygon_area(kept[0].points, n)
         a1 = polygon_area(kept[1].points, n)
         if a0 >= MIN_BASAL_AREA_RATIO * a1:
@@ -1171,13 +1194,14 @@ def frame_geometry(study: Study, frame: int) -> FrameGeometry:
     for im in study.images:
         if im.view == "SA" and (im.frame == frame or im.slice not in planes):
             planes[im.slice] = im
+    labelled = isinstance(study.meta, dict) and bool(study.meta.get("voxel_volumes_ml"))
     for s, loops in _sa_loops(study, frame).items():
         secs = []
         for sl, pts, src in loops:
             secs.append(Section(s, frame, pts, slice=sl, plane=planes.get(sl), source_points=src))
         secs.sort(key=lambda sec: float(sec.points.mean(axis=0) @ n))
         if s in ("lv_endo", "lv_epi"):
-            secs = _drop_degenerate_loops(secs, n, geo.warnings, geo.left_out)
+            secs = _drop_degenerate_loops(secs, n, geo.warnings, geo.left_out, labelled)
         geo.sections[s] = secs
     lv_epi = {sec.slice: sec for sec in geo.sections.get("lv_epi", [])}
     for s in ("rv_endo", "rv_epi"):
@@ -1304,3 +1328,58 @@ def moves_with_lv(geo: FrameGeometry) -> list[str]:
     if "rv" in geo.base_from_slices and lv and rv and lv[0].slice == rv[0].slice:
         out.append("rv")
     return out
+
+
+def labelled_beyond_base_ml(study: Study, geo: FrameGeometry, what: str = "lv_cavity") -> float:
+    """LV cavity (or myocardium, ``what``) a label map holds on SA slices basal to the
+    surface's base (mL): each labelled slice stands for its slab (what voxel counting and
+    ACDC's evaluation assume), and slices beyond the most basal LV endocardial section — an outflow tract without a
+    myocardial ring, a slice across the annulus' saddle that no closed loop describes —
+    hold cavity that the lofted surface, closed at its half-slice valve plane, does not.
+    Each such slice counts with the part of its slab beyond the LV valve plane (the
+    half-slice plane, or the mitral landmarks' plane where it meets the stacking line
+    through the slice's labelled cavity). 0 for a study that is not a label map, and where
+    aortic landmarks give the frame an LVOT tube (which holds that cavity).
+
+    Parameters
+    ----------
+    study : cardionurbs.study.Study
+        The study (``meta["lv_slice_ml"]``: frame -> SA slice -> ``lv_cavity`` and
+        ``lv_myocardium`` -> the labels' volume on the slice, mL, and ``centroid`` -> the
+        labelled cavity's centroid, scanner mm).
+    geo : FrameGeometry
+        One frame's geometry (its LV endocardial sections and LV valve plane).
+    what : {"lv_cavity", "lv_myocardium"}
+        Which label.
+
+    Returns
+    -------
+    float
+        The labels' volume beyond the valve plane, mL (>= 0).
+    """
+    per = study.meta.get("lv_slice_ml") if isinstance(study.meta, dict) else None
+    per = (per or {}).get(geo.frame, (per or {}).get(str(geo.frame)))
+    secs = geo.sections.get("lv_endo") or []
+    plane = geo.base_planes.get("lv")
+    if not per or not secs or plane is None or study.landmarks_at(geo.frame, "aortic"):
+        return 0.0
+    n = geo.direction
+    cos = float(plane.normal @ n)
+    if cos < 0.2:                         # a valve plane along the stacking direction
+        return 0.0
+    level = {im.slice: float(im.position @ n) for im in study.images
+             if im.view == "SA" and im.frame == geo.frame}
+    if secs[0].slice not in level or len(level) < 2:
+        return 0.0
+    spacing = float(np.median(np.diff(np.sort(list(level.values())))))
+    base = level[secs[0].slice]
+    total = 0.0
+    for sl, ml in per.items():
+        z = level.get(sl)
+        if z is None or z >= base - 0.5 * spacing:
+            continue                      # the base section's own slab or apical to it
+        c = np.asarray(ml.get("centroid", secs[0].points.mean(axis=0)), dtype=float)
+        reach = float(c @ n) + float((plane.origin - c) @ plane.normal) / cos   # plane's level there
+        top, bottom = z - 0.5 * spacing, min(z + 0.5 * spacing, reach)
+        total += float(ml.get(what, 0.0)) * float(np.clip((bottom - top) / spacing, 0.0, 1.0))
+    return total

@@ -776,6 +776,13 @@ def _add_sa(b: _Builder, vol: LabelVolume, frames: dict[int, int], times: dict[i
                 b.note(sid, "no labels (beyond the apex or base?): left out", frame)
                 continue
             sc = masks.sa_slice_contours(lab, b.roles)
+            if (lab == b.roles.lv).any():   # what the slice holds (sections.labelled_beyond_base_ml)
+                got: dict[str, float | list[float]] = {
+                    key: float(np.count_nonzero(lab == v)) * vol.voxel_ml
+                    for key, v in (("lv_cavity", b.roles.lv), ("lv_myocardium", b.roles.myo))}
+                got["centroid"] = [float(x) for x in
+                                   to_scanner(vol, k, np.argwhere(lab == b.roles.lv).mean(axis=0))[0]]
+                b.study.meta.setdefault("lv_slice_ml", {}).setdefault(frame, {})[sid] = got
             for msg in sc.skipped + sc.notes:
                 b.note(sid, msg, frame)
             for name, pix in sc.closed.items():
