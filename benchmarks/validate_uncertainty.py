@@ -59,19 +59,33 @@ NOISE = (0.0, 0.5, 1.0)
 BREATH = (0.0, 1.5)
 
 
-def conditions(n: int, seed0: int = 100, first: int = 0) -> list[dict]:
-    """n subject conditions: the inputs cycled fastest, then pathology, anatomy, noise and
-    breath-hold by coprime strides, so every factor meets every other over a few dozen.
-    ``first``: start at the design's row ``first`` (seed seed0 + first), so that one run of
-    60 may be measured as two processes of 30."""
+def conditions(n: int, seed0: int = 100, first: int = 0, design: str = "crossed") -> list[dict]:
+    """n subject conditions, the inputs cycled fastest. ``crossed`` (session 16): within each
+    input, its j-th subject (j = k // 6) has anatomy j mod 2, pathology (j + k) mod 3, contour
+    noise (j // 2 + k) mod 3 (hand contours; label maps none) and breath-hold (j // 3 + k)
+    mod 2, so that every input meets both anatomies, the three pathologies, the three noise
+    levels and both breath-holds within 10 subjects (anatomy × noise and anatomy ×
+    pathology fully crossed in 6). ``legacy``: sessions 9-15's strides, which tie
+    pathology, noise and breath-hold to the input (contours+LA: normal, 0 px; SA-only: MR,
+    0 px; ukbb: MR; acdc 10 mm: normal; acdc 5 mm: PHTN; contours+LA 5 mm: PHTN, 1 px; no
+    subject at 0.5 px). ``first``: start at the design's row ``first`` (seed seed0 +
+    first), so that one run of 60 may be measured as two processes of 30."""
+    if design not in ("crossed", "legacy"):
+        raise ValueError(f"design {design!r}: crossed or legacy")
     out = []
     for k in range(first, first + n):
         inp = INPUTS[k % len(INPUTS)]
-        out.append({"seed": seed0 + k, "input": inp,
-                    "pathology": PATHOLOGIES[k % 3 if k % 2 else (k // 2) % 3],
-                    "anatomy": ANATOMIES[(k // len(INPUTS)) % 2],
-                    "noise_px": 0.0 if inp.startswith("labels") else NOISE[(k // 2) % 3],
-                    "breath_hold_mm": BREATH[(k // 3) % 2]})
+        j = k // len(INPUTS)
+        if design == "legacy":
+            path, noise = PATHOLOGIES[k % 3 if k % 2 else (k // 2) % 3], NOISE[(k // 2) % 3]
+            breath = BREATH[(k // 3) % 2]
+        else:
+            path, noise = PATHOLOGIES[(j + k) % 3], NOISE[(j // 2 + k) % 3]
+            breath = BREATH[(j // 3 + k) % 2]
+        out.append({"seed": seed0 + k, "input": inp, "pathology": path,
+                    "anatomy": ANATOMIES[j % 2],
+                    "noise_px": 0.0 if inp.startswith("labels") else noise,
+                    "breath_hold_mm": breath})
     return out
 
 
@@ -99,35 +113,43 @@ def _sa_only(study) -> None:
 RUN_CONSTANTS = {"BETWEEN_FACTOR": 0.25, "OUTFLOW_SHARE": 1.0, "PIXEL_BIAS": 0.1,
                  "OPEN_SLAB_MM": 10.0, "CONTOUR_FACTOR": 1.0, "RV_SHAPE_REL": 0.0,
                  "LV_SHAPE_LABELS": 0.0, "LV_SHAPE_LABELS_LA": 0.0, "LV_SHAPE_CONTOURS": 0.0,
-                 "RV_SHAPE_LABELS": None, "RV_SHAPE_LABELS_LA": None, "RV_SHAPE_CONTOURS": None}
+                 "LV_SHAPE_OBSERVED": 0.0,
+                 "RV_SHAPE_LABELS": None, "RV_SHAPE_LABELS_LA": None, "RV_SHAPE_CONTOURS": None,
+                 "RV_SHAPE_OBSERVED": 0.0,
+                 "LVM_LABELS": 1.0, "LVM_LABELS_LA": 1.0, "LVM_CONTOURS": 1.0, "LVM_OBSERVED": 1.0}
 #: the benchmark's names of the module's LV_SHAPE_REL entries
 LV_KEYS = {"LV_SHAPE_LABELS": "labels", "LV_SHAPE_LABELS_LA": "labels+LA",
-           "LV_SHAPE_CONTOURS": "contours"}
+           "LV_SHAPE_CONTOURS": "contours", "LV_SHAPE_OBSERVED": "observed"}
 #: and of its RV_SHAPE_REL entries (RV_SHAPE_REL: a run's one value for every kind, before
 #: the entries; used where a setting gives no entry)
 RV_KEYS = {"RV_SHAPE_LABELS": "labels", "RV_SHAPE_LABELS_LA": "labels+LA",
-           "RV_SHAPE_CONTOURS": "contours"}
+           "RV_SHAPE_CONTOURS": "contours", "RV_SHAPE_OBSERVED": "observed"}
+#: and of its LVM_FACTOR entries (before session 16's runs: 1, no such factor)
+LVM_KEYS = {"LVM_LABELS": "labels", "LVM_LABELS_LA": "labels+LA", "LVM_CONTOURS": "contours",
+            "LVM_OBSERVED": "observed"}
 #: the module's input kind (uncertainty.lv_input_kind) of each design input
+#: (``observed``: lv_input_kind None, the RV closed by long-axis contours too)
 INPUT_KIND = {"labels acdc 10mm": "labels", "labels acdc 5mm": "labels",
-              "labels ukbb 10mm": "labels+LA", "contours SA-only": "contours"}
+              "labels ukbb 10mm": "labels+LA", "contours SA-only": "contours",
+              "contours+LA": "observed", "contours+LA 5mm": "observed"}
+#: the LVM_FACTOR kind of each design input
+MASS_KIND = INPUT_KIND
 
 
 def module_constants() -> dict[str, float]:
     """The module's constants under :data:`RUN_CONSTANTS`' names."""
     out = {k: float(getattr(U, k)) for k in RUN_CONSTANTS
-           if k not in LV_KEYS and k not in RV_KEYS and k != "RV_SHAPE_REL"}
+           if k not in LV_KEYS and k not in RV_KEYS and k not in LVM_KEYS and k != "RV_SHAPE_REL"}
     out.update({k: float(U.LV_SHAPE_REL[kind]) for k, kind in LV_KEYS.items()})
+    out.update({k: float(U.LVM_FACTOR[kind]) for k, kind in LVM_KEYS.items()})
     out.update({k: float(U.RV_SHAPE_REL[kind]) for k, kind in RV_KEYS.items()})
     out["RV_SHAPE_REL"] = RUN_CONSTANTS["RV_SHAPE_REL"]      # superseded by the entries
     return out
 
 
 def _rv_rel(r: dict, consts: dict) -> float:
-    """The RV_SHAPE_REL of a subject's input kind under ``consts`` (0 for contours with
-    long-axis views: the module gives them no rv shape)."""
-    kind = INPUT_KIND.get(r["input"])
-    if kind is None:
-        return 0.0
+    """The RV_SHAPE_REL of a subject's input kind under ``consts``."""
+    kind = INPUT_KIND[r["input"]]
     key = next(k for k, v in RV_KEYS.items() if v == kind)
     return consts[key] if consts.get(key) is not None else consts["RV_SHAPE_REL"]
 
@@ -147,11 +169,9 @@ def _lv_shape_sd(r: dict, col: str, consts: dict) -> float:
 
 def _rv_shape_sd(r: dict, col: str, f: float) -> float:
     """The ``rv shape`` source of :mod:`cardionurbs.analysis.uncertainty` (f of the RV cavity
-    volume at each frame, ED and ES independent) for an input whose RV no landmark or
-    long-axis contour closes (label maps, SA-only contours: here, every input but
-    ``contours+LA``), propagated to ``col``."""
-    if f == 0 or r["input"].startswith("contours+LA") or not col.startswith("RV") \
-            or col == "RVM (g)":
+    volume at each frame, ED and ES independent; f the input kind's entry, ``observed`` for
+    the ``contours+LA`` inputs), propagated to ``col``."""
+    if f == 0 or not col.startswith("RV") or col == "RVM (g)":
         return 0.0
     m = r["metrics"]
     edv, esv = f * m["RVEDV (mL)"], f * m["RVESV (mL)"]
@@ -165,13 +185,21 @@ def _rv_shape_sd(r: dict, col: str, f: float) -> float:
     return float(np.hypot(g_ed * edv, g_es * esv))
 
 
+def _lvm_factor(r: dict, consts: dict) -> float:
+    """The LVM_FACTOR of a subject's input kind under ``consts`` (1 where a run has none)."""
+    key = next(k for k, v in LVM_KEYS.items() if v == MASS_KIND[r["input"]])
+    x = consts.get(key)
+    return 1.0 if x is None else float(x)
+
+
 def rescaled(r: dict, consts: dict) -> dict:
     """A subject's intervals under other constants, from the run's own numbers: the Gaussian
     part's sources scale linearly with their constants (contours with CONTOUR_FACTOR,
     pixels with PIXEL_BIAS, between with BETWEEN_FACTOR; ``rv shape`` and ``lv shape`` with
     theirs, or are added when the run had them at 0) and the one-sided allowances are
-    those of the variant with the same OUTFLOW_SHARE (same OPEN_SLAB_MM). Exact: the
-    module gives the same numbers with these constants."""
+    those of the variant with the same OUTFLOW_SHARE (same OPEN_SLAB_MM); LVM's Gaussian
+    part scales as a whole with its input kind's LVM_FACTOR. Exact: the module gives the
+    same numbers with these constants."""
     scale = {"contours": consts["CONTOUR_FACTOR"] / RUN_CONSTANTS["CONTOUR_FACTOR"],
              "pixels": consts["PIXEL_BIAS"] / RUN_CONSTANTS["PIXEL_BIAS"],
              "between": consts["BETWEEN_FACTOR"] / RUN_CONSTANTS["BETWEEN_FACTOR"]}
@@ -198,6 +226,8 @@ def rescaled(r: dict, consts: dict) -> dict:
         z_new = U.Z95 * float(np.sqrt(sum((x * scale.get(k, 1.0)) ** 2 for k, x in sd.items())
                                       + _rv_shape_sd(r, col, rv_new) ** 2
                                       + _lv_shape_sd(r, col, consts) ** 2))
+        if col == "LVM (g)":
+            z_new *= _lvm_factor(r, consts) / _lvm_factor(r, RUN_CONSTANTS)
         below, above = (v - var[0]) - z_old, (var[1] - v) - z_old
         out[col] = [v - z_new - below, v + z_new + above]
     return out
@@ -234,10 +264,18 @@ def choose_by_kind(rows: list[dict]) -> tuple[dict, list[str]]:
 #: OUTFLOW_SHARE stays the run's, so that a ``--no-variants`` run is rescaled exactly)
 CORE_GRID = [{"CONTOUR_FACTOR": c, "BETWEEN_FACTOR": b, "PIXEL_BIAS": p}
              for c in (1.0, 1.5, 2.0, 3.0) for b in (0.25, 1.0) for p in (0.1, 0.2)]
-#: each entry's values (those of LV_GRID and RV_GRID)
+#: each entry's values (those of LV_GRID and RV_GRID; the LVM factors' own)
 ENTRY_VALUES = {k: sorted({g[k] for g in grid}) for grid in (LV_GRID, RV_GRID) for k in grid[0]}
+ENTRY_VALUES.update({"LV_SHAPE_OBSERVED": [0.0, 0.005, 0.01, 0.02],
+                     "RV_SHAPE_OBSERVED": [0.0, 0.01, 0.02, 0.03, 0.05]})
+ENTRY_VALUES.update({k: [0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.25] for k in LVM_KEYS})
 #: the metrics each family of entries acts on
-ACTS_ON = {"LV": ("LVEDV (mL)", "LVESV (mL)"), "RV": ("RVEDV (mL)", "RVEF (%)")}
+ACTS_ON = {"LV": ("LVEDV (mL)", "LVESV (mL)"), "RV": ("RVEDV (mL)", "RVEF (%)"),
+           "LVM": ("LVM (g)",)}
+#: the families whose entries take one value for every input kind (``--lvm-tied``)
+TIED: set[str] = set()
+#: each family's entries and the input kind map they are keyed by
+FAMILIES = {"LV": (LV_KEYS, INPUT_KIND), "RV": (RV_KEYS, INPUT_KIND), "LVM": (LVM_KEYS, MASS_KIND)}
 
 
 def _stats(rows: list[dict], consts: dict) -> np.ndarray:
@@ -255,13 +293,13 @@ def _stats(rows: list[dict], consts: dict) -> np.ndarray:
 
 
 def _best_entries(rows: list[dict], core: dict, family: str, n_min: int, base: np.ndarray):
-    """The narrowest entries of one family (LV_KEYS or RV_KEYS) under the shared constants
+    """The narrowest entries of one family (LV_KEYS, RV_KEYS, LVM_KEYS) under the shared constants
     ``core`` with at least ``n_min`` inside for each metric they act on: (entries, inside
     counts of those metrics, sum of their half-widths / value) or None. Each entry acts
     on its own input kind's rows only, so the counts of a setting are sums over kinds."""
-    keys = LV_KEYS if family == "LV" else RV_KEYS
+    keys, kind_of = FAMILIES[family]
     cols = [DONE_WHEN.index(c) for c in ACTS_ON[family]]
-    kinds = np.array([INPUT_KIND.get(r["input"]) for r in rows], dtype=object)
+    kinds = np.array([kind_of.get(r["input"]) for r in rows], dtype=object)
     rest = ~np.isin(kinds, list(keys.values()))
     fixed = np.nansum(base[rest][:, cols], axis=0)              # rows no entry acts on
     per_key = {}
@@ -270,45 +308,65 @@ def _best_entries(rows: list[dict], core: dict, family: str, n_min: int, base: n
         per_key[key] = {v: np.nansum(_stats(sel, {**core, key: v})[:, cols], axis=0)
                         for v in ENTRY_VALUES[key]}
     best = None
-    for combo in itertools.product(*(ENTRY_VALUES[k] for k in keys)):
+    combos = ([(v,) * len(keys) for v in ENTRY_VALUES[next(iter(keys))]] if family in TIED
+              else itertools.product(*(ENTRY_VALUES[k] for k in keys)))
+    for combo in combos:
         tot = fixed + sum(per_key[k][v] for k, v in zip(keys, combo))
         if (tot[:, 0] >= n_min).all() and (best is None or tot[:, 1].sum() < best[2]):
             best = (dict(zip(keys, combo)), tot[:, 0], float(tot[:, 1].sum()))
     return best
 
 
-def choose_min_inside(rows: list[dict], n_min: int) -> tuple[dict, list[str]]:
+def choose_min_inside(rows: list[dict], n_min: int, lvm: bool = True) -> tuple[dict, list[str]]:
+    """:func:`choose_at_least` at ``n_min``; where no setting has ``n_min`` inside for each
+    of the six, at the highest count some setting reaches (said under the table)."""
+    for n in range(n_min, 0, -1):
+        consts, table = choose_at_least(rows, n, lvm)
+        if consts:
+            return consts, table + ([] if n == n_min else [
+                "", f"(no setting has {n_min} inside for each of the six: the rule applied at {n})"])
+    return {}, table
+
+
+def choose_at_least(rows: list[dict], n_min: int, lvm: bool = True) -> tuple[dict, list[str]]:
     """The rule of session 15: of CORE_GRID × the LV and RV entries (ENTRY_VALUES), the
     narrowest setting (mean half-width / value over the six DONE_WHEN metrics) with at
-    least ``n_min`` subjects inside for every one of the six. Returns it and a table of the
-    best setting of each CORE_GRID row. OUTFLOW_SHARE stays the run's, so that rows of a
-    ``--no-variants`` run are rescaled exactly too (their own one-sided allowances)."""
-    table = ["| " + " | ".join(CORE_GRID[0]) + " | LV entries | RV entries | "
-             + " | ".join(DONE_WHEN) + " | mean half-width / value |", "|---" * 12 + "|"]
+    least ``n_min`` subjects inside for every one of the six. ``lvm`` (session 16): the
+    LVM_FACTOR entries are chosen too, the narrowest with at least ``n_min`` LVM inside
+    (they act on LVM alone), so that LVM is not left as wide as the shared constants make
+    it; without, they stay the run's. Returns it and a table of the best setting of each
+    CORE_GRID row. OUTFLOW_SHARE stays the run's, so that rows of a ``--no-variants`` run
+    are rescaled exactly too (their own one-sided allowances)."""
+    families = ("LV", "RV", "LVM") if lvm else ("LV", "RV")
+    table = ["| " + " | ".join(CORE_GRID[0]) + " | "
+             + " | ".join(f"{f} entries" for f in families) + " | "
+             + " | ".join(DONE_WHEN) + " | mean half-width / value |",
+             "|---" * (len(CORE_GRID[0]) + len(families) + len(DONE_WHEN) + 1) + "|"]
     best = None
     for core in CORE_GRID:
         base = _stats(rows, core)
         inside = np.nansum(base[:, :, 0], axis=0)
-        lv = _best_entries(rows, core, "LV", n_min, base)
-        rv = _best_entries(rows, core, "RV", n_min, base)
-        if lv is None or rv is None:
+        found = [_best_entries(rows, core, f, n_min, base) for f in families]
+        if any(x is None for x in found):
             table.append("| " + " | ".join(f"{core[k]:g}" for k in core)
-                         + " | none | none | " + " | ".join(f"{x:.0f}" for x in inside)
+                         + " | none" * len(families) + " | " + " | ".join(f"{x:.0f}" for x in inside)
                          + " | (no setting with every metric >= " + str(n_min) + ") |")
             continue
-        consts = {**core, **lv[0], **rv[0]}
+        consts = dict(core)
+        for x in found:
+            consts.update(x[0])
         st = _stats(rows, consts)
         inside, rel = np.nansum(st[:, :, 0], axis=0), float(np.nanmean(st[:, :, 1]))
         ok = bool((inside >= n_min).all())
         table.append("| " + " | ".join(f"{core[k]:g}" for k in core) + " | "
-                     + ", ".join(f"{LV_KEYS[k]} {v:g}" for k, v in lv[0].items()) + " | "
-                     + ", ".join(f"{RV_KEYS[k]} {v:g}" for k, v in rv[0].items()) + " | "
+                     + " | ".join(", ".join(f"{FAMILIES[f][0][k]} {v:g}" for k, v in x[0].items())
+                                  for f, x in zip(families, found)) + " | "
                      + " | ".join(f"{x:.0f}" for x in inside) + f" | {100 * rel:.2f} %"
-                     + ("" if ok else " (LVEF or LVM short)") + " |")
+                     + ("" if ok else " (LVEF short)") + " |")
         if ok and (best is None or rel < best[1]):
             best = (consts, rel, len(table) - 1)
     if best is None:
-        return {}, table + ["", "(no setting meets the rule)"]
+        return {}, table + ["", f"(no setting has {n_min} inside for each of the six)"]
     table[best[2]] = table[best[2]][:-2] + " **(chosen)** |"
     return best[0], table
 
@@ -492,6 +550,13 @@ def main(argv=None) -> int:
     ap.add_argument("--min-inside", type=int, default=None,
                     help="with --from-raw: choose CORE_GRID x the LV and RV entries by "
                          "choose_min_inside (at least N inside for each of the six)")
+    ap.add_argument("--design", choices=("crossed", "legacy"), default="crossed",
+                    help="the subject design (conditions(); legacy: sessions 9-15's)")
+    ap.add_argument("--lvm-tied", action="store_true",
+                    help="with --min-inside: one LVM_FACTOR value for every input kind")
+    ap.add_argument("--no-lvm-entries", action="store_true",
+                    help="with --min-inside: keep the LVM_FACTOR entries the run's (session 15's "
+                         "rule)")
     ap.add_argument("--ladder", action="store_true",
                     help="the noise and spacing ladder of two subjects instead (see ladder())")
     ap.add_argument("--from-raw", type=Path, default=None,
@@ -505,6 +570,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.run_constants:
         RUN_CONSTANTS.update(_kv(a.run_constants))
+    if a.lvm_tied:
+        TIED.add("LVM")
     rows = []
     start = time.time()
     raw = a.raw.open("w") if a.raw is not None else None
@@ -516,7 +583,7 @@ def main(argv=None) -> int:
         if consts != RUN_CONSTANTS and not a.no_grid:   # the run's numbers, rescaled
             for r in rows:
                 r["unc"].update(rescaled(r, consts))
-    todo = ladder() if a.ladder else conditions(a.subjects, a.seed0, a.first)
+    todo = ladder() if a.ladder else conditions(a.subjects, a.seed0, a.first, a.design)
     for c in ([] if a.from_raw is not None else todo):
         try:
             rows.append(run_subject(c, variants=not a.no_variants))
@@ -567,7 +634,7 @@ def main(argv=None) -> int:
             "one with the most of the six in range, then the highest lowest coverage, then the "
             "narrowest. Every setting is computed on every subject "
             "from the same reconstruction (`rescaled()`: exact, no refit).", "",
-            *((choose_min_inside(rows, a.min_inside) if a.min_inside else choose_by_kind(rows) if a.lv_grid else choose(rows))[1] if rows and (a.min_inside or rows[0].get("variants")) and not a.no_grid else
+            *((choose_min_inside(rows, a.min_inside, not a.no_lvm_entries) if a.min_inside else choose_by_kind(rows) if a.lv_grid else choose(rows))[1] if rows and (a.min_inside or rows[0].get("variants")) and not a.no_grid else
               ["(not recomputed for this run: --no-grid)"]), "",
             "## Every subject (error = model − truth / half-width; ✗ truth outside)", "",
             *subject_table(rows), ""]

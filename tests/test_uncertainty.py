@@ -72,8 +72,9 @@ def test_contour_noise_widens_the_intervals(clean, noisy):
 def test_sources_and_method_in_the_result(clean):
     _, model, m = clean
     iv = intervals(model, m)
-    assert U.lv_input_kind(model) is None       # long-axis contours fix the base: no lv shape
-    assert iv["sd"]["LVEDV (mL)"]["lv shape"] == 0.0
+    assert U.lv_input_kind(model) is None       # long-axis contours fix the base: observed
+    assert iv["sd"]["LVEDV (mL)"]["lv shape"] == pytest.approx(
+        U.LV_SHAPE_REL["observed"] * m["LVEDV (mL)"], rel=1e-3)
     assert "analytic" in iv["method"]
     sd = iv["sd"]["LVEDV (mL)"]
     assert {"contours", "between", "base", "apex"} <= set(sd)
@@ -81,6 +82,27 @@ def test_sources_and_method_in_the_result(clean):
     # SA-only ends are placed by a rule: the base and apex allowances grow without LA views
     assert {k: v for k, v in iv["notes"].items() if k in COVERED} == {}
     assert iv["notes"]["Twist (deg)"] == "the metric is empty"     # no tags here
+
+
+def test_lvm_factor_scales_the_wall_interval_alone(clean, monkeypatch):
+    """LVM's own width: its input kind's LVM_FACTOR multiplies the wall's propagated SD (every
+    source) and nothing else; the one-sided allowances and the other columns are kept."""
+    _, model, m = clean
+    assert U.lvm_factor(model) == U.LVM_FACTOR["observed"]    # long-axis contours: observed
+    before = intervals(model, m)
+    monkeypatch.setitem(U.LVM_FACTOR, "observed", 0.5 * U.LVM_FACTOR["observed"])
+    after = intervals(model, m)
+    col, v = "LVM (g)", m["LVM (g)"]
+    for k, sd in before["sd"][col].items():
+        assert after["sd"][col][k] == pytest.approx(0.5 * sd, abs=1e-12), k
+    total = math.sqrt(sum(x * x for x in before["sd"][col].values()))
+    assert (before[col][1] - v) - (after[col][1] - v) == pytest.approx(0.5 * U.Z95 * total)
+    assert (v - before[col][0]) - (v - after[col][0]) == pytest.approx(0.5 * U.Z95 * total)
+    for c in COVERED:
+        if c != col:
+            assert after[c] == before[c], c
+    monkeypatch.setitem(U.LVM_FACTOR, "labels", 7.0)           # another kind's entry: no effect
+    assert intervals(model, m)[col] == after[col]
 
 
 def test_without_long_axis_views_the_ends_dominate(monkeypatch):
@@ -103,6 +125,7 @@ def test_without_long_axis_views_the_ends_dominate(monkeypatch):
     # the rule-placed base's model-error term: the input kind's share of each volume, one
     # error at ED and ES, so that it cancels in EF
     assert U.lv_input_kind(model) == "contours"
+    assert U.lvm_factor(model) == U.LVM_FACTOR["contours"]
     rel = U.LV_SHAPE_REL["contours"]
     assert sd["lv shape"] == pytest.approx(rel * m["LVEDV (mL)"], rel=1e-3)
     assert iv["sd"]["LVESV (mL)"]["lv shape"] == pytest.approx(rel * m["LVESV (mL)"], rel=1e-3)

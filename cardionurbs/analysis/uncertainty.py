@@ -25,6 +25,9 @@ sections, contour points and frames:
 * **rv shape** -- an RV cavity no landmark or long-axis contour closes (label maps, SA-only
   contours): :data:`RV_SHAPE_REL` of its volume by input kind (a model-error term set on the
   calibration phantoms);
+* **the LV wall's own width** -- the LV myocardium's SD (all of the above, propagated to
+  the wall) times :data:`LVM_FACTOR` of its input kind: a wall's error is not its
+  cavity's (set on the calibration phantoms);
 * **one-sided allowances** -- an end the stack leaves open beyond one slice gap, an outflow
   tract the model did not build, an epicardial cap beyond a rule-placed apex;
 * **ES sampling** -- on a sampled cycle whose ES (ED) frame is the volume minimum
@@ -62,13 +65,21 @@ METHOD = ("analytic propagation: contour scatter, between-slice interpolation, b
 COVERED = ("LVEDV (mL)", "LVESV (mL)", "LVSV (mL)", "LVEF (%)", "LVM (g)",
            "RVEDV (mL)", "RVESV (mL)", "RVSV (mL)", "RVEF (%)", "RVM (g)")
 Z95 = 1.959963984540054
-#: relative SD of an RV cavity that no landmark or long-axis contour closes, by input kind
-#: (:func:`lv_input_kind`; label maps, SA-only contours): ED and ES independent
-RV_SHAPE_REL = {"labels": 0.05, "labels+LA": 0.05, "contours": 0.0}
-#: relative SD of an LV cavity by input kind (:func:`lv_input_kind`): the reconstruction's
+#: relative SD of an RV cavity by input kind (:func:`lv_input_kind`; label maps, SA-only
+#: contours; ``observed``: a cavity the landmarks or long-axis contours close): ED and ES
+#: independent
+RV_SHAPE_REL = {"labels": 0.05, "labels+LA": 0.05, "contours": 0.0, "observed": 0.0}
+#: relative SD of an LV cavity by input kind (:func:`lv_input_kind`, ``observed`` for None):
+#: the reconstruction's
 #: own error at a base no SA section closes, one error at ED and ES (a model-error term set
 #: on the calibration phantoms, docs/metrics.md, Uncertainty)
-LV_SHAPE_REL = {"labels": 0.03, "labels+LA": 0.01, "contours": 0.0}
+LV_SHAPE_REL = {"labels": 0.03, "labels+LA": 0.01, "contours": 0.0, "observed": 0.0}
+#: factor over the LV wall's propagated SD (every source above; not the one-sided
+#: allowances) by input kind (:func:`lv_input_kind`, ``observed`` for contours whose base the
+#: data fix): the wall's error is not its cavity's (epicardium and endocardium share most of
+#: a slice's misplacement and its between-slice shape), so LVM gets its own width, set on the
+#: calibration phantoms (docs/metrics.md, Uncertainty)
+LVM_FACTOR = {"labels": 1.0, "labels+LA": 1.0, "contours": 1.0, "observed": 1.0}
 #: the contours term's factor over independent point noise (docs/metrics.md, Uncertainty)
 CONTOUR_FACTOR = 2.0
 #: fraction of the trapezoid error that a lofted (cubic) surface keeps between slices
@@ -354,14 +365,16 @@ def solid_error(model: "BiventricularModel", frame: int, solid: str) -> VolumeEr
 
 
 def _rv_shape(model: "BiventricularModel", frame: int) -> float:
-    """SD (mL) of the RV cavity's shape where no valve landmark or long-axis contour closes
-    it (a label map, or the half-slice rule): :data:`RV_SHAPE_REL` (by input kind) of its volume. The SA
-    stack cuts the RV's basal third and outflow region obliquely, and what lies between
-    those sections is the loft's guess (docs/metrics.md, Uncertainty: set on the phantoms)."""
+    """SD (mL) of the RV cavity's shape: :data:`RV_SHAPE_REL` (by input kind) of its volume.
+    Where no valve landmark or long-axis contour closes it (a label map, or the half-slice
+    rule) the SA stack cuts the RV's basal third and outflow region obliquely, and what lies
+    between those sections is the loft's guess; where the data close it (``observed``), the
+    loft's own error (docs/metrics.md, Uncertainty: set on the phantoms)."""
     labels = isinstance(model.study.meta, dict) and bool(model.study.meta.get("voxel_volumes_ml"))
     if not (labels or "rv" in model.geometry[frame].base_from_slices):
-        return 0.0
-    rel = RV_SHAPE_REL.get(lv_input_kind(model) or "contours", 0.0)
+        rel = RV_SHAPE_REL.get("observed", 0.0)      # closed by the data: the loft's own error
+    else:
+        rel = RV_SHAPE_REL.get(lv_input_kind(model) or "contours", 0.0)
     return rel * float(model.volumes[frame].get("rv_cavity", 0.0))
 
 
@@ -387,14 +400,29 @@ def lv_input_kind(model: "BiventricularModel") -> str | None:
     return "contours" if rule else None
 
 
+def lvm_factor(model: "BiventricularModel") -> float:
+    """The :data:`LVM_FACTOR` of the model's input kind (:func:`lv_input_kind`; ``observed``
+    when it is None): the factor over the LV wall's propagated SD.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+
+    Returns
+    -------
+    float
+    """
+    return float(LVM_FACTOR.get(lv_input_kind(model) or "observed", 1.0))
+
+
 def _lv_shape(model: "BiventricularModel", frame: int) -> float:
     """SD (mL) of the LV cavity's own reconstruction error for its input kind:
-    :data:`LV_SHAPE_REL` of its volume (0 for contours whose base the data fix). The SA
+    :data:`LV_SHAPE_REL` of its volume (``observed``: contours whose base the data fix). The SA
     sections leave the basal LV (the annulus' saddle, the outflow root) to the rule or the
     map's last slice, and the realistic base differs from the loft's guess by a share of the
     cavity that is alike at ED and ES (one error, shared: EF keeps its interval)."""
-    kind = lv_input_kind(model)
-    rel = LV_SHAPE_REL.get(kind, 0.0) if kind is not None else 0.0
+    rel = LV_SHAPE_REL.get(lv_input_kind(model) or "observed", 0.0)
     return rel * float(model.volumes[frame].get("lv_cavity", 0.0))
 
 
@@ -493,9 +521,10 @@ def _side_intervals(model, metrics: dict, side: str, bias: tuple[float, float],
     e_m = solid_error(model, ed, myo) if math.isfinite(mass) else None
     if e_m is not None:
         density = mass / model.volumes[ed][myo]
-        out[f"{side}M (g)"] = _interval(mass, density * e_m.total(), density * e_m.below,
+        f = lvm_factor(model) if side == "LV" else 1.0
+        out[f"{side}M (g)"] = _interval(mass, f * density * e_m.total(), density * e_m.below,
                                         density * e_m.above)
-        parts[f"{side}M (g)"] = {k: density * v for k, v in e_m.sd.items()}
+        parts[f"{side}M (g)"] = {k: f * density * v for k, v in e_m.sd.items()}
     cols = (f"{side}ESV (mL)", f"{side}SV (mL)", f"{side}EF (%)")
     if ed == es:
         for c in cols:
