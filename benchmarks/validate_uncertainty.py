@@ -116,7 +116,8 @@ RUN_CONSTANTS = {"BETWEEN_FACTOR": 0.25, "OUTFLOW_SHARE": 1.0, "PIXEL_BIAS": 0.1
                  "LV_SHAPE_OBSERVED": 0.0,
                  "RV_SHAPE_LABELS": None, "RV_SHAPE_LABELS_LA": None, "RV_SHAPE_CONTOURS": None,
                  "RV_SHAPE_OBSERVED": 0.0,
-                 "LVM_LABELS": 1.0, "LVM_LABELS_LA": 1.0, "LVM_CONTOURS": 1.0, "LVM_OBSERVED": 1.0}
+                 "LVM_LABELS": 1.0, "LVM_LABELS_LA": 1.0, "LVM_CONTOURS": 1.0, "LVM_OBSERVED": 1.0,
+                 "LV_SHAPE_CORR": 1.0}
 #: the benchmark's names of the module's LV_SHAPE_REL entries
 LV_KEYS = {"LV_SHAPE_LABELS": "labels", "LV_SHAPE_LABELS_LA": "labels+LA",
            "LV_SHAPE_CONTOURS": "contours", "LV_SHAPE_OBSERVED": "observed"}
@@ -156,15 +157,25 @@ def _rv_rel(r: dict, consts: dict) -> float:
 
 def _lv_shape_sd(r: dict, col: str, consts: dict) -> float:
     """The ``lv shape`` source of :mod:`cardionurbs.analysis.uncertainty` under ``consts`` (the
-    input kind's share of the LV cavity volume, one error at ED and ES) propagated to
-    ``col``: f EDV, f ESV, f SV; 0 for EF (a shared scale cancels) and every other column."""
+    input kind's share f of the LV cavity volume at ED and ES, the two errors correlated by
+    LV_SHAPE_CORR ρ) propagated to ``col``: f EDV, f ESV, √(a² + b² − 2ρab) for SV and
+    (100 f ESV / EDV) √(2 (1 − ρ)) for EF (0 when ρ = 1: a shared scale cancels); 0 for
+    every other column."""
     kind = INPUT_KIND.get(r["input"])
     key = next((k for k, v in LV_KEYS.items() if v == kind), None)
     f = consts.get(key, 0.0) if key else 0.0
+    rho = float(consts.get("LV_SHAPE_CORR", 1.0))
     m = r["metrics"]
-    base = {"LVEDV (mL)": m["LVEDV (mL)"], "LVESV (mL)": m["LVESV (mL)"],
-            "LVSV (mL)": abs(m["LVSV (mL)"])}
-    return f * base.get(col, 0.0)
+    a, b = f * m["LVEDV (mL)"], f * m["LVESV (mL)"]
+    if col == "LVEDV (mL)":
+        return a
+    if col == "LVESV (mL)":
+        return b
+    if col == "LVSV (mL)":
+        return float(np.sqrt(max(a * a + b * b - 2 * rho * a * b, 0.0)))
+    if col == "LVEF (%)" and m["LVEDV (mL)"]:
+        return 100.0 * b / m["LVEDV (mL)"] * float(np.sqrt(max(2.0 * (1.0 - rho), 0.0)))
+    return 0.0
 
 
 def _rv_shape_sd(r: dict, col: str, f: float) -> float:
@@ -262,15 +273,16 @@ def choose_by_kind(rows: list[dict]) -> tuple[dict, list[str]]:
 
 #: the settings of the constants every input kind shares, ``--min-inside`` (GRID's values;
 #: OUTFLOW_SHARE stays the run's, so that a ``--no-variants`` run is rescaled exactly)
-CORE_GRID = [{"CONTOUR_FACTOR": c, "BETWEEN_FACTOR": b, "PIXEL_BIAS": p}
-             for c in (1.0, 1.5, 2.0, 3.0) for b in (0.25, 1.0) for p in (0.1, 0.2)]
+CORE_GRID = [{"CONTOUR_FACTOR": c, "BETWEEN_FACTOR": b, "PIXEL_BIAS": p, "LV_SHAPE_CORR": q}
+             for c in (1.0, 1.5, 2.0, 3.0) for b in (0.25, 1.0) for p in (0.1, 0.2)
+             for q in (1.0, 0.5, 0.0)]
 #: each entry's values (those of LV_GRID and RV_GRID; the LVM factors' own)
 ENTRY_VALUES = {k: sorted({g[k] for g in grid}) for grid in (LV_GRID, RV_GRID) for k in grid[0]}
 ENTRY_VALUES.update({"LV_SHAPE_OBSERVED": [0.0, 0.005, 0.01, 0.02],
                      "RV_SHAPE_OBSERVED": [0.0, 0.01, 0.02, 0.03, 0.05]})
 ENTRY_VALUES.update({k: [0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.25] for k in LVM_KEYS})
 #: the metrics each family of entries acts on
-ACTS_ON = {"LV": ("LVEDV (mL)", "LVESV (mL)"), "RV": ("RVEDV (mL)", "RVEF (%)"),
+ACTS_ON = {"LV": ("LVEDV (mL)", "LVESV (mL)", "LVEF (%)"), "RV": ("RVEDV (mL)", "RVEF (%)"),
            "LVM": ("LVM (g)",)}
 #: the families whose entries take one value for every input kind (``--lvm-tied``)
 TIED: set[str] = set()
