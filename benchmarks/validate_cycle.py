@@ -44,8 +44,9 @@ def main(out: str) -> None:
     print("\n## The cycle of bivme-patient1 (issue #30)\n")
     print("```\ncardionurbs analyze ../shared/data/bivme-patient1 --outputs metrics,meshes --out OUT"
           "\npython benchmarks/validate_cycle.py OUT\n```\n")
+    rv = vc.get("rv_basal_supported")
     print(f"ED frame {ed}, ES frame {es} (on the consistent curve); frames supported by their "
-          f"neighbours: {vc.get('supported')}.\n")
+          f"neighbours: {vc.get('supported')}; RV basal region supported: {rv}.\n")
     print("| frame | LV raw (mL) | LV (mL) | LV vs neighbours (%) | RV raw (mL) | RV (mL) "
           "| RV vs neighbours (%) |")
     print("|---|---|---|---|---|---|---|")

@@ -20,7 +20,7 @@ from cardionurbs.phantom.generate import generate
 
 
 @settings(max_examples=60, deadline=None)
-@given(h=st.floats(0.0, 1.0), th=st.floats(-np.pi, np.pi), k=st.integers(1, 5))
+@given(h=st.floats(1e-4, 1.0), th=st.floats(-np.pi, np.pi), k=st.integers(1, 5))   # h = 0: the cap
 def test_turning_by_whole_segments_moves_the_label(h, th, k):
     step = np.radians(15.0)
     assume(abs(th / step - round(th / step)) > 1e-6)        # not on a segment boundary
@@ -45,6 +45,9 @@ def test_segment_rules():
     assert A.segment_labels(20.0, np.pi, cap, length) == 16
     assert A.segment_labels(3.0, 1.0, cap, length) == 17
     assert A.segment_labels(97.0, 1.0, cap, length) == 0
+    # the endocardial apex itself (h = cap to rounding, either side) is the apical cap
+    assert (A.segment_labels(cap + np.array([-1e-14, 0.0, 5e-15]), 1.0, cap, length) == 17).all()
+    assert A.segment_labels(cap + 1e-3, 1.0, cap, length) != 17
 
 
 def test_insertion_bisector_unequal_clusters():

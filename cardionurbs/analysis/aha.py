@@ -58,6 +58,9 @@ SEGMENT_NAMES = ("basal anterior", "basal anteroseptal", "basal inferoseptal", "
                  "mid inferolateral", "mid anterolateral",
                  "apical anterior", "apical septal", "apical inferior", "apical lateral", "apex")
 N_SEGMENTS = 17
+#: the endocardial apex (h = cap height) belongs to the apical cap, segment 17: its mesh vertex
+#: lies at the cap height to rounding (1e-14 mm either side), so the cap is closed by this margin
+CAP_TOL_MM = 1e-6
 
 
 def circular_mean(angles: np.ndarray, weights: np.ndarray | None = None) -> float:
@@ -188,7 +191,7 @@ def segment_labels(h: np.ndarray, theta: np.ndarray, cap_height: float, length: 
     Returns
     -------
     (n,) ndarray of int
-        Segments 1..17, 0 beyond the base.
+        Segments 1..17 (17 where h <= cap_height, to :data:`CAP_TOL_MM`), 0 beyond the base.
     """
     h = np.asarray(h, float)
     t = np.mod(np.asarray(theta, float), 2 * np.pi)
@@ -198,7 +201,7 @@ def segment_labels(h: np.ndarray, theta: np.ndarray, cap_height: float, length: 
     four = np.floor(np.mod(t + np.radians(135.0), 2 * np.pi) / np.radians(90.0)).astype(int)  # 0 = seg 13
     out = np.where(ring >= 2, 1 + np.minimum(six, 5), np.where(ring == 1, 7 + np.minimum(six, 5),
                                                               13 + np.minimum(four, 3)))
-    out = np.where(h < cap_height, 17, out)
+    out = np.where(h < cap_height + CAP_TOL_MM, 17, out)     # the endocardial apex itself is in the cap
     return np.where(h > length + 1e-9, 0, out).astype(int)
 
 

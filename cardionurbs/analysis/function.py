@@ -361,8 +361,10 @@ def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> d
     the consistent ones (a supported frame's from its neighbours,
     :mod:`cardionurbs.anatomy.cycle`), ``<mesh> raw (mL)`` each frame's own (the LV cavity
     of a frame with sections interpolated in time from its own contours alone, its other
-    volumes with those sections), and ``supported`` the frames that needed their
-    neighbours' support.
+    volumes with those sections), ``supported`` the frames that needed their
+    neighbours' support, and ``rv_basal_supported`` those whose RV cavity took its
+    neighbours' basal region (:meth:`BiventricularModel.rv_basal_support`; in a
+    metrics-only analysis only ED and ES are asked).
 
     ``every_structure=False`` (a metrics-only analysis) reports what the metrics already
     measured and builds nothing more: the LV cavity at every frame (the cavities ED, ES
@@ -380,8 +382,8 @@ def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> d
     Returns
     -------
     dict of str to list
-        ``frame``, ``time (ms)``, the ``<mesh> (mL)`` and ``<mesh> raw (mL)`` columns and
-        ``supported``.
+        ``frame``, ``time (ms)``, the ``<mesh> (mL)`` and ``<mesh> raw (mL)`` columns,
+        ``supported`` and ``rv_basal_supported``.
     """
     frames = list(getattr(model, "curve_frames", model.frames))
     built = set(model.frames)
@@ -399,8 +401,10 @@ def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> d
                for f in frames}
     consistent = {}
     for f in frames:
-        if f not in supported:
-            consistent[f] = raw[f]
+        if f not in supported:      # its own (the RV's basal region may be supported)
+            consistent[f] = (model.consistent_volumes(f) if f in built and (
+                every_structure or f in reported) and hasattr(model, "consistent_volumes")
+                else raw[f])
         elif every_structure or f in reported:
             consistent[f] = model.consistent_volumes(f)
         else:               # metrics only: the neighbours' other solids are not built for this
@@ -413,4 +417,8 @@ def volume_curve(model: "BiventricularModel", every_structure: bool = True) -> d
     for key in keys:
         out[f"{key} raw (mL)"] = [float(raw[f].get(key, NAN)) for f in frames]
     out["supported"] = sorted(supported)
+    rv_basal = getattr(model, "rv_basal_support", None)
+    out["rv_basal_supported"] = sorted(             # the frames whose RV basal region is
+        f for f in frames if f in built and f not in supported and rv_basal is not None
+        and (every_structure or f in reported) and rv_basal(f) is not None)   # supported
     return out

@@ -25,9 +25,10 @@ from cardionurbs.anatomy import mesh as meshing
 from cardionurbs.anatomy import residuals as fit_residuals
 from cardionurbs.anatomy.cycle import (MIN_FRAMES, BasalSupport, CycleCheck, basal_edges,
                                        check_curve, interpolate, is_cyclic, support_basal,
-                                       support_sections)
+                                       support_rv_basal, support_sections)
 from cardionurbs.anatomy.mesh import Plane
-from cardionurbs.anatomy.outflow import OutflowTract, outflow_tracts, tract_solid
+from cardionurbs.anatomy.outflow import (TIME_PRIOR_MIN_FRAMES, OutflowTract, outflow_tracts,
+                                         tract_solid)
 from cardionurbs.anatomy.residuals import RESIDUAL_COLUMNS, surface_distance  # noqa: F401 (re-exported)
 from cardionurbs.anatomy.sections import (MYO_CONSERVED_BOUND, SA_APEX_TAPER, SURFACES,
                                           FrameGeometry, frame_geometry,
@@ -346,10 +347,12 @@ class BiventricularModel:
         return dict(sorted(out.items()))
 
     def consistent_volumes(self, frame: int) -> dict[str, float]:
-        """The volumes (mL, keyed like :attr:`volumes`) the metrics use at one frame: its own,
-        or for a supported frame those of its nearest trusted neighbour on each side
-        interpolated linearly to it (:func:`cardionurbs.anatomy.cycle.interpolate`: two
-        frames' solids, not four), the LV cavity from the checked curve (the cubic).
+        """The volumes (mL, keyed like :attr:`volumes`) the metrics use at one frame: its own
+        (the RV cavity with its basal region from its neighbours where
+        :meth:`rv_basal_support` says so), or for a supported frame those of its nearest
+        trusted neighbour on each side interpolated linearly to it
+        (:func:`cardionurbs.anatomy.cycle.interpolate`: two frames' solids, not four), the
+        LV cavity from the checked curve (the cubic).
 
         Parameters
         ----------
@@ -363,7 +366,13 @@ class BiventricularModel:
         """
         src = self.supported.get(frame)
         if src is None:
-            return dict(self.volumes[frame]) if frame in self.frames else {}
+            if frame not in self.frames:
+                return {}
+            out = dict(self.volumes[frame])
+            rv = self.rv_basal_support(frame)
+            if rv is not None:
+                out["rv_cavity"] = rv.total
+            return out
         near = src[1:3]             # the nearest trusted frame on each side: linear in time
         keys = set().union(*(self.volumes[g] for g in near))
         curve = self.curve_frames
@@ -371,6 +380,66 @@ class BiventricularModel:
                               near, frame, self.cycle.cyclic) for k in sorted(keys)}
         out["lv_cavity"] = self.cycle.consistent[frame]
         return {k: v for k, v in out.items() if math.isfinite(v)}
+
+    @memoized
+    def rv_basal_support(self, frame: int) -> BasalSupport | None:
+        """How one frame's RV cavity basal to the RV's reference slice is supported by its
+        neighbours (:func:`cardionurbs.anatomy.cycle.support_rv_basal`; None when it keeps
+        its own, and for a model read back). A supported frame adds one warning.
+
+        Parameters
+        ----------
+        frame : int
+            A frame of the model.
+
+        Returns
+        -------
+        BasalSupport or None
+            ``total`` the RV cavity volume used (mL).
+        """
+        edges = self._rv_basal_edges()
+        if edges is None or frame not in edges[1] or frame not in self.frames:
+            return None
+        ref, edge = edges
+        vol = self.volumes[frame].get("rv_cavity", math.nan)
+        cycle = getattr(self, "cycle", None)
+        out = support_rv_basal(frame, self.frames, edge, ref, vol,
+                               lambda g: self._rv_basal_ml(g, ref),
+                               cyclic=bool(cycle is not None and cycle.cyclic))
+        if out is not None:
+            self.warnings.append(
+                f"frame {frame} RV supported by its neighbours' basal region: {out.why}; its RV "
+                f"cavity basal to slice {ref} {out.basal:.1f} mL departs "
+                f"{out.basal - out.used:+.1f} mL from frames {', '.join(map(str, out.sources))} "
+                f"({out.used:.1f} mL), so {out.total:.1f} mL used instead of {out.own:.1f}")
+        return out
+
+    @memoized
+    def _rv_basal_edges(self) -> tuple[str, dict[int, str]] | None:
+        """(reference slice, frame -> why) of the RV endocardial stacks
+        (:func:`cardionurbs.anatomy.cycle.basal_edges`); None for a model read back, a cine
+        of fewer than :data:`MIN_FRAMES` frames, or no edge (cached)."""
+        if not isinstance(self.surfaces, LazyFrames) or len(self.frames) < MIN_FRAMES:
+            return None
+        stacks = {f: [sec.slice for sec in self.geometry[f].sections.get("rv_endo") or []
+                      if sec.slice is not None] for f in self.frames}
+        if not all(stacks.values()):
+            return None
+        cycle = getattr(self, "cycle", None)
+        ref, edges = basal_edges(stacks, self.frames, bool(cycle is not None and cycle.cyclic))
+        return None if ref is None or not edges else (ref, edges)
+
+    def _rv_basal_ml(self, frame: int, slice_id: str) -> float:
+        """One frame's RV cavity (mL) on the basal side of an SA slice's plane (NaN when
+        the frame has no RV cavity or no RV endocardial section there)."""
+        geo = self.geometry[frame]
+        sec = next((x for x in geo.sections.get("rv_endo") or [] if x.slice == slice_id), None)
+        cav = self.solids(frame).get("rv_cavity") if frame in self.frames else None
+        if sec is None or cav is None:
+            return math.nan
+        n = np.asarray(geo.direction, float)
+        apical = cav.trim_by_plane(n, float(sec.points.mean(axis=0) @ n))
+        return (cav.volume() - apical.volume()) / 1000.0
 
     def own_lv_cavity_volume(self, frame: int) -> float:
         """:meth:`lv_cavity_volume` from the frame's own contours, without the sections
@@ -428,7 +497,26 @@ class BiventricularModel:
         return geo
 
     def _outflow(self, frame: int) -> dict[str, OutflowTract]:
+        return outflow_tracts(self.study, self.geometry[frame],
+                              [self._own_tracts(g).get("rv_endo") for g in self._rv_neighbours(frame)])
+
+    @memoized
+    def _own_tracts(self, frame: int) -> dict[str, OutflowTract]:
+        """One frame's outflow tubes from its own evidence alone (no neighbours; cached)."""
         return outflow_tracts(self.study, self.geometry[frame])
+
+    def _rv_neighbours(self, frame: int) -> list[int]:
+        """The frames before and after ``frame`` whose RVOT tubes smooth its own in time
+        (:func:`cardionurbs.anatomy.outflow.radii_in_time`): both adjacent frames of a cine of
+        :data:`~cardionurbs.anatomy.outflow.TIME_PRIOR_MIN_FRAMES` frames or more, when the
+        model has both; [] otherwise (the ends of the cine, a coarser one)."""
+        frames = self.frames
+        if len(self.curve_frames) < TIME_PRIOR_MIN_FRAMES or frame not in frames:
+            return []
+        i = frames.index(frame)
+        if i == 0 or i == len(frames) - 1 or frames[i + 1] - frames[i - 1] != 2:
+            return []
+        return [frames[i - 1], frames[i + 1]]
 
     @memoized
     def _tract_part(self, frame: int, structure: str):

@@ -30,7 +30,12 @@ Construction (one tube per surface, scanner mm):
   interpolated along ``h``;
 * the circles are joined into a closed triangulated tube (ruled between sections, so
   its volume is the Cavalieri sum of the section areas), which the model trims to the
-  apical side of the outflow valve plane and the basal side of the body's valve plane.
+  apical side of the outflow valve plane and the basal side of the body's valve plane;
+* in a cine of :data:`TIME_PRIOR_MIN_FRAMES` frames or more, the RVOT lumen's radii are,
+  section by section, the median of its own and the two adjacent frames' tubes
+  (:func:`radii_in_time`): the same section is crossed once at one frame and twice at the
+  next, so its radius from one frame's few crossings alone jumps where the tract has
+  barely moved.
 
 With SA ``rv_outlet`` contours (planes across the tract) the RVOT is lofted through them
 instead (:func:`loft_tract`): from the valve ring (the spline through the annulus points,
@@ -50,6 +55,7 @@ evidence, no RVOT wall.
 from __future__ import annotations
 
 from collections.abc import Sequence
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -863,7 +869,9 @@ def endo_signed_depth(t: OutflowTract, points: np.ndarray) -> np.ndarray:
     return r - np.linalg.norm(q, axis=1)
 
 
-def outflow_tracts(study: Study, geo: FrameGeometry) -> dict[str, OutflowTract]:
+def outflow_tracts(study: Study, geo: FrameGeometry,
+                   rv_neighbours: Sequence[OutflowTract | None] = ()
+                   ) -> dict[str, OutflowTract]:
     """The outflow tubes one frame's evidence allows: ``rv_endo`` / ``rv_epi`` (RVOT lumen
     and outer wall) and ``lv_endo`` (LVOT lumen); {} without evidence (module docstring).
 
@@ -873,6 +881,10 @@ def outflow_tracts(study: Study, geo: FrameGeometry) -> dict[str, OutflowTract]:
         The study (valve landmarks, outlet contours).
     geo : cardionurbs.anatomy.sections.FrameGeometry
         The frame's sections, valve planes and LA points.
+    rv_neighbours : sequence of OutflowTract or None, optional
+        The RVOT lumen tubes of the neighbouring frames, built without this argument: the
+        lumen's radii are their median with this frame's (:func:`radii_in_time`), before
+        its epicardial tube is widened from it.
 
     Returns
     -------
@@ -907,6 +919,50 @@ def outflow_tracts(study: Study, geo: FrameGeometry) -> dict[str, OutflowTract]:
         else:                           # valve landmarks and LA contour crossings
             runs = _tract_runs(geo, s, body, annulus.mean(axis=0))
             t = build_tract(s, annulus, runs, body, geo.direction)
+            if t is not None and s == "rv_endo":
+                t = radii_in_time(t, rv_neighbours)
         if t is not None:
             out[s] = t
     return out
+
+
+#: fewest frames whose RVOT tubes are smoothed in time (:func:`radii_in_time`): a coarser
+#: cine's neighbouring frames are too far apart (as the volume curve's check,
+#: :data:`cardionurbs.anatomy.cycle.MIN_FRAMES`)
+TIME_PRIOR_MIN_FRAMES = 16
+
+
+def radii_in_time(own: OutflowTract, neighbours: Sequence[OutflowTract | None]
+                  ) -> OutflowTract:
+    """A tube of circles whose section radii are the median, level by level, of its own and
+    its neighbouring frames' tubes (the same structure at the frames before and after).
+
+    The tube's sections come from a few LA contour crossings and two or three valve
+    landmarks, so from one frame to the next the same section may be crossed once or
+    twice, and seen across or not: its radius jumps (8 vs 17 mm on bivme-patient1) where
+    the tract has barely moved. The median of three frames keeps a radius two of them
+    agree on; the tube's own axis, centres and length (its valve and the body's valve
+    plane at this frame) are kept. The sections lie at the same levels along every
+    tube's axis (every :data:`STEP_MM` from the valve); a shorter tube's last radius is
+    held beyond its end, as its own interpolation does. Lofted tubes (``rings``, through
+    SA outlet contours) and neighbours that are missing or lofted are left as they are.
+
+    Parameters
+    ----------
+    own : OutflowTract
+        This frame's tube.
+    neighbours : sequence of OutflowTract or None
+        The same structure's tubes at the neighbouring frames (None: none there).
+
+    Returns
+    -------
+    OutflowTract
+        ``own`` with the median radii (``own`` itself when nothing applies).
+    """
+    others = [t for t in neighbours if t is not None and t.rings is None]
+    if own.rings is not None or len(others) < 2:
+        return own
+    k = len(own.levels)
+    stack = [own.radii] + [np.interp(own.levels, t.levels, t.radii) for t in others]
+    radii = np.median(np.asarray(stack)[:, :k], axis=0)
+    return dataclasses.replace(own, radii=radii)

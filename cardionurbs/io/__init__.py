@@ -67,7 +67,8 @@ def detect_format(path: str | Path) -> str:
     elif p.is_dir() and _has_dicom(p):
         hint = " (DICOM images but no contours beside them)"
     raise StudyError("cannot tell the study format (expected a native study.json, Sunnybrook "
-                     "contour folders beside DICOM, GPFile_*.txt + SliceInfoFile.txt, or NIfTI label maps)" + hint,
+                     "contour folders beside DICOM, GPFile_*.txt or one GPFile.txt + SliceInfoFile.txt, "
+                     "or NIfTI label maps)" + hint,
                      file=p)
 
 

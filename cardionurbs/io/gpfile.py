@@ -2,6 +2,13 @@
 
 Read and written so that a study can go to biv-me and back.
 
+Two layouts: one ``GPFile_NNN.txt`` per frame (any number of digits: biv-me's examples mix
+``GPFile_03.txt`` with ``GPFile_000.txt``; two files for one frame are refused), or, as in
+biv-me's ``test_data``, one ``GPFile.txt`` holding every frame, split by its ``time frame``
+column (each line's frame, a whole number >= 0; one warning says the frames come from the
+column). A folder with both reads the per-frame files; ``GPFile.txt`` itself as the path
+reads the single file. A study read from one file is written back as one file.
+
 ``GPFile_NNN.txt`` (one per frame NNN = 0, 1, ...), tab separated, one header
 line, then one guide point per line in scanner mm::
 
@@ -20,7 +27,9 @@ one contour, in drawing order.
     <image>  frameID:  <n>  [timeFrame  <t>]  ImagePositionPatient ...      (CAP exports)
 
 ``<image>`` is a DICOM file name or a UID. The CAP export lists each slice once
-per frame; lines of one slice are merged when their geometry agrees (1e-3 mm,
+per frame, under one number or (biv-me ``test_data``) a number per image: lines of one
+number, and numbers of one geometry (one warning counts them), are merged when their
+geometry agrees (1e-3 mm,
 1e-5 in the direction cosines) and a StudyError names both lines when it does
 not. With ``timeFrame`` numbers, every GPFile frame must be listed (0- or
 1-based). :func:`write_study` writes a study back in the style it was read in
@@ -104,6 +113,8 @@ if TYPE_CHECKING:    # pandas (~0.3 s to import): only for a file the plain read
 
 SLICE_INFO = "SliceInfoFile.txt"
 GP_FILE = re.compile(r"^GPFile_(\d+)\.txt$")
+#: biv-me's single-file layout: every frame in one file, told apart by its time-frame column
+SINGLE_GP_FILE = "GPFile.txt"
 HEADER = "x\ty\tz\tcontour type\tframeID\tweight\ttime frame"
 CONTOUR_TYPES = {"LV_ENDOCARDIAL": "lv_endo", "LV_EPICARDIAL": "lv_epi",
                  "RV_ENDOCARDIAL": "rv_endo", "RV_FREEWALL": "rv_freewall",
@@ -140,7 +151,8 @@ SEPTUM_TOL_MM = 0.5
 
 
 def detect(path: str | Path) -> bool:
-    """True when ``path`` is a folder (or a file in one) with GPFile_*.txt and SliceInfoFile.txt.
+    """True when ``path`` is a folder (or a file in one) with SliceInfoFile.txt and either
+    GPFile_NNN.txt files or one GPFile.txt holding every frame.
 
     Parameters
     ----------
@@ -153,7 +165,10 @@ def detect(path: str | Path) -> bool:
     """
     p = Path(path)
     folder = p if p.is_dir() else p.parent
-    return (folder / SLICE_INFO).is_file() and any(GP_FILE.match(q.name) for q in folder.iterdir())
+    if not (folder / SLICE_INFO).is_file():
+        return False
+    return (folder / SINGLE_GP_FILE).is_file() or any(GP_FILE.match(q.name)
+                                                     for q in folder.iterdir())
 
 
 # ------------------------------------------------------------------ SliceInfoFile
@@ -289,10 +304,47 @@ def _geometry_difference(a: dict, b: dict) -> str:
     return ""
 
 
-def _frame_of_time(slices: list[dict], files: list[tuple[int, Path]], path: Path) -> int | None:
+def _merge_same_geometry(slices: list[dict]) -> tuple[list[dict], dict[int, int]]:
+    """Merge the slice numbers whose geometry agrees (:func:`_geometry_difference`) into the
+    first-listed one: CAP exports can number each frame's image of one slice apart.
+
+    Parameters
+    ----------
+    slices : list of dict
+        :func:`read_slice_info`'s slices.
+
+    Returns
+    -------
+    slices : list of dict
+        One per distinct geometry (the first-listed number; its ``entries`` gain the others').
+    alias : dict of int to int
+        Merged slice number -> the number kept (empty when nothing merged).
+    """
+    kept: list[dict] = []
+    alias: dict[int, int] = {}
+    geo = np.array([[*s["position"], *s["orientation"], *s["pixel_spacing"]] for s in slices])
+    tol = np.r_[[SAME_POSITION_MM] * 3, [SAME_COSINE] * 6, [SAME_POSITION_MM] * 2]
+    owner = np.full(len(slices), -1)
+    for i, s in enumerate(slices):
+        if owner[i] >= 0:
+            continue
+        same = np.flatnonzero((np.abs(geo - geo[i]) <= tol).all(axis=1) & (owner < 0))
+        owner[same] = i
+        kept.append(s)
+        for j in same[same != i]:
+            alias[int(slices[j]["id"])] = int(s["id"])
+            s["entries"] = s["entries"] + slices[j]["entries"]
+    if alias and "style" in slices[0] and "style" not in kept[0]:
+        kept[0]["style"] = slices[0]["style"]
+    return kept, alias
+
+
+def _frame_of_time(slices: list[dict], files: list[tuple[int, Path]], path: Path,
+                   lines: dict[int, int] | None = None) -> int | None:
     """Offset from the SliceInfoFile's timeFrame numbers to GPFile frame numbers (0, or 1
     for 1-based exports), None when no line has a timeFrame. StudyError names the first
-    GPFile whose frame no SliceInfoFile line lists."""
+    GPFile whose frame no SliceInfoFile line lists (and, from ``lines``: frame -> line, the
+    frame's first line in a single GPFile.txt)."""
     times = {t for s in slices for _, t, _ in s["entries"] if t is not None}
     if not times:
         return None
@@ -300,7 +352,8 @@ def _frame_of_time(slices: list[dict], files: list[tuple[int, Path]], path: Path
     offset = max((0, 1), key=lambda o: (sum(f + o in times for f in frames), -o))
     for f, q in files:
         if f + offset not in times:
-            raise StudyError(f"no line of {SLICE_INFO} lists this frame (its lines list timeFrame "
+            at = f"line {lines[f]}: " if lines and f in lines and q.name == SINGLE_GP_FILE else ""
+            raise StudyError(f"{at}no line of {SLICE_INFO} lists this frame (its lines list timeFrame "
                              f"{min(times)}-{max(times)})", file=q, frame=f, field="timeFrame")
     return offset
 
@@ -507,16 +560,80 @@ def _slow_table(lines: list[str], start: int, path: Path) -> pd.DataFrame:
 
 
 def _gp_files(folder: Path) -> list[tuple[int, Path]]:
+    """(frame, file) of the folder's GPFile_NNN.txt (any number of digits), by frame;
+    StudyError naming both files when two name one frame (GPFile_03 and GPFile_003)."""
     files = sorted((int(m.group(1)), q) for q in folder.iterdir() if (m := GP_FILE.match(q.name)))
-    frames = [f for f, _ in files]
-    if len(set(frames)) != len(frames):
-        dup = next(f for f in frames if frames.count(f) > 1)
-        raise StudyError(f"two GPFiles for frame {dup}", file=folder)
+    for (f, a), (g, b) in zip(files, files[1:]):
+        if f == g:
+            raise StudyError(f"two GPFiles for frame {f} ({a.name} and {b.name})", file=folder)
     return files
 
 
+def _single_file(p: Path, folder: Path) -> Path | None:
+    """The one GPFile.txt holding every frame: ``p`` itself when it is that file, else the
+    folder's GPFile.txt when the folder has no GPFile_NNN.txt; None otherwise."""
+    if p.is_file() and p.name == SINGLE_GP_FILE:
+        return p
+    if (folder / SINGLE_GP_FILE).is_file() and not _gp_files(folder):
+        return folder / SINGLE_GP_FILE
+    return None
+
+
+def split_frames(t: dict[str, np.ndarray], path: Path) -> list[tuple[int, dict[str, np.ndarray]]]:
+    """Split the rows of a single-file GPFile (every frame in one file) by its ``time frame``
+    column, keeping each row's line number.
+
+    Parameters
+    ----------
+    t : dict of str to ndarray
+        The file's columns (:func:`read_gp_table`).
+    path : pathlib.Path
+        The file, for the messages.
+
+    Returns
+    -------
+    list of (int, dict)
+        (frame, that frame's rows) by frame; frames as the column numbers them.
+
+    Raises
+    ------
+    StudyError
+        A row whose time frame is missing or not a whole number >= 0 (naming its line).
+    """
+    text = np.char.strip(np.asarray(t["time"], dtype=str))
+    uniq, inverse = np.unique(text, return_inverse=True)
+    v = np.array([_number_or_nan(u) for u in uniq], float)[inverse]  # few distinct frames
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.isfinite(v) & (v == np.round(v)) & (v >= 0))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        got = "nothing" if text[i] == "" else excerpt(text[i])
+        raise StudyError(f"line {t['line'][i]}: time frame is {got}; {path.name} holds every "
+                         "frame, so each line needs its frame as a whole number >= 0 in the "
+                         "time frame column", file=path, field="time frame")
+    frames = v.astype(int)
+    return [(int(f), _take(t, frames == f)) for f in np.unique(frames)]
+
+
+def _read_tables(files: list[tuple[int, Path]], single: Path | None):
+    """Each frame's rows, the header and the set of x y z decimals, from the GPFile_NNN.txt
+    files or from the single GPFile.txt (split by :func:`split_frames`)."""
+    if single is None:
+        out = []
+        header, decimals = None, set()
+        for frame, f in files:
+            t, h, dec = read_gp_table(f)
+            header = h if header is None else header
+            decimals.add(dec)
+            out.append((frame, f, t))
+        return out, header, decimals
+    t, header, dec = read_gp_table(single)
+    return [(fr, single, tf) for fr, tf in split_frames(t, single)], header, {dec}
+
+
 def read_study(path: str | Path) -> Study:
-    """Read a GPFile folder (GPFile_NNN.txt per frame + SliceInfoFile.txt) into a Study.
+    """Read a GPFile folder (GPFile_NNN.txt per frame, or one GPFile.txt holding every
+    frame, + SliceInfoFile.txt) into a Study.
 
     EXCLUDED guide points are dropped; atrial, venous and extent traces are kept as
     non-ventricular contours (one warning counts them); the weight column becomes each
@@ -525,7 +642,7 @@ def read_study(path: str | Path) -> Study:
     Parameters
     ----------
     path : str or pathlib.Path
-        The GPFile folder, or a file in it.
+        The GPFile folder, or a file in it (``GPFile.txt``: that single file).
 
     Returns
     -------
@@ -539,27 +656,32 @@ def read_study(path: str | Path) -> Study:
     """
     p = Path(path)
     folder = p if p.is_dir() else p.parent
-    files = _gp_files(folder)
-    if not files:
-        raise StudyError("no GPFile_NNN.txt files in this folder", file=folder)
-    files_inside(folder, [folder / SLICE_INFO] + [f for _, f in files], what="GPFile")
+    single = _single_file(p, folder)
+    files = _gp_files(folder) if single is None else []
+    if not files and single is None:
+        raise StudyError(f"no GPFile_NNN.txt files and no {SINGLE_GP_FILE} in this folder",
+                         file=folder)
+    files_inside(folder, [folder / SLICE_INFO] + ([single] if single else [f for _, f in files]),
+                 what="GPFile")
     slices = read_slice_info(folder / SLICE_INFO)
-    _frame_of_time(slices, files, folder / SLICE_INFO)
+    raw, header, decimals = _read_tables(files, single)
+    if single is not None:
+        files = [(fr, single) for fr, _, _ in raw]
+    _frame_of_time(slices, files, folder / SLICE_INFO,
+                   lines={fr: int(t["line"][0]) for fr, _, t in raw if len(t["line"])})
     for s in slices:                           # names only (never opened), kept confined
         for _, _, name in s["entries"]:
             study_file(folder, name, file=folder / SLICE_INFO, field="file")
+    slices, alias = _merge_same_geometry(slices)
     slice_by_id = {s["id"]: s for s in slices}
     tables = []
-    header = None
-    decimals = set()
     excluded = 0
-    for frame, f in files:
-        t, h, dec = read_gp_table(f)
-        header = h if header is None else header
-        decimals.add(dec)
+    for frame, f, t in raw:
         drop = np.array([ty in EXCLUDED_TYPES for ty in t["type"]], dtype=bool)
         excluded += int(drop.sum())
         t = _take(t, ~drop)
+        if alias:
+            t["slice_id"] = np.array([alias.get(int(i), int(i)) for i in t["slice_id"]], int)
         unknown = ~np.isin(t["slice_id"], list(slice_by_id))
         if unknown.any():
             i = int(np.flatnonzero(unknown)[0])
@@ -589,7 +711,8 @@ def read_study(path: str | Path) -> Study:
     for (frame, f), t in zip(files, tables):
         blocks, runs = _read_blocks(t, frame, f, names, views, contours, landmarks, planes,
                                     warnings)
-        frame_meta[str(frame)] = {"file": f.name, "blocks": blocks, "runs": runs}
+        frame_meta[str(frame)] = {"file": None if single else f.name, "blocks": blocks,
+                                  "runs": runs}
     other = Counter(c.structure for c in contours if not c.ventricular)
     if other:
         counts = ", ".join(f"{k} x{v}" for k, v in sorted(other.items()))
@@ -597,11 +720,21 @@ def read_study(path: str | Path) -> Study:
                         f"kept but not used for the ventricles ({counts})")
     if excluded:
         warnings.append(f"{folder}: {excluded} EXCLUDED guide point(s) dropped")
+    if single is not None:
+        span = (f"1 frame ({files[0][0]})" if len(files) == 1
+                else f"{len(files)} frames ({files[0][0]}-{files[-1][0]})")
+        warnings.append(f"{single}: one file for every frame: {span} told apart by its time "
+                        "frame column")
+    if alias:
+        warnings.append(f"{folder / SLICE_INFO}: {len(alias)} slice number(s) with the geometry "
+                        f"of another (one image number per frame, as CAP exports number them) "
+                        f"merged into {len(slices)} slice(s)")
     warnings += _export_warnings(folder, rule, landmarks, files)
     style = slices[0]["style"]
     meta = {"format": "gpfile", "base_apex_rule": rule,
             "gpfile": {"header": header, "frames": frame_meta,
                        "decimals": decimals.pop() if len(decimals) == 1 else None,
+                       "single_file": single.name if single is not None else None,
                        "slices": [{"slice": names[s["id"]], "id": s["id"], "file": s["file"],
                                    "tokens": s["tokens"]} for s in slices],
                        "slice_info": {"label": style["label"], "sep": style["sep"],
@@ -632,9 +765,11 @@ def _export_warnings(folder: Path, rule: str | None, landmarks: list[Landmark],
     gaps = sorted(set(range(frames[0], frames[-1] + 1)) - set(frames))
     if gaps:
         shown = ", ".join(map(str, gaps[:8])) + (", ..." if len(gaps) > 8 else "")
+        span = (f"frames {frames[0]} and {frames[-1]} of {files[0][1].name}"
+                if files[0][1] == files[-1][1] else f"{files[0][1].name} and {files[-1][1].name}")
         out.append(f"{folder}: no GPFile for frame{'s' if len(gaps) > 1 else ''} {shown} (between "
-                   f"{files[0][1].name} and {files[-1][1].name}): missing from the volume curve, ED "
-                   "and ES chosen among the other frames")
+                   f"{span}): missing from the volume curve, ED and ES chosen among the other "
+                   "frames")
     return out
 
 
@@ -958,11 +1093,19 @@ def write_study(study: Study, folder: str | Path, *, style: str | None = None,
     exact = (gp.get("n_contours") == len(study.contours)
              and gp.get("n_landmarks") == len(study.landmarks) and vocabulary == "parts")
     frame_meta = gp.get("frames", {}) if exact else {}
+    texts = {}
     for frame in study.frames:
         fm = frame_meta.get(str(frame))
         name = (fm or {}).get("file") or f"GPFile_{frame:03d}.txt"
-        atomic.write_text(folder / name, _gp_file_text(study, frame, fm, gp, slice_ids, planes,
-                                                       vocabulary))
+        texts[name if not gp.get("single_file") else frame] = _gp_file_text(
+            study, frame, fm, gp, slice_ids, planes, vocabulary)
+    if gp.get("single_file"):         # read from one GPFile.txt: written back as one file
+        bodies = [t.split("\n", 1)[1] for t in texts.values()]
+        head = gp.get("header") or HEADER
+        atomic.write_text(folder / gp["single_file"], head + "\n" + "".join(bodies))
+        return folder
+    for name, text in texts.items():
+        atomic.write_text(folder / str(name), text)
     return folder
 
 
