@@ -566,6 +566,10 @@ def main(argv=None) -> int:
                          "choose_min_inside (at least N inside for each of the six)")
     ap.add_argument("--design", choices=("crossed", "legacy"), default="crossed",
                     help="the subject design (conditions(); legacy: sessions 9-15's)")
+    ap.add_argument("--test-raw", type=Path, action="append", default=[],
+                    help="with --from-raw and --min-inside: print the inside counts of the "
+                         "six on this --raw file (measured with the same --run-constants) "
+                         "under the setting the rule chose on --from-raw (repeatable)")
     ap.add_argument("--lvm-tied", action="store_true",
                     help="with --min-inside: one LVM_FACTOR value for every input kind")
     ap.add_argument("--no-lvm-entries", action="store_true",
@@ -652,6 +656,17 @@ def main(argv=None) -> int:
               ["(not recomputed for this run: --no-grid)"]), "",
             "## Every subject (error = model − truth / half-width; ✗ truth outside)", "",
             *subject_table(rows), ""]
+    if a.test_raw and a.min_inside and a.from_raw is not None:
+        raw_rows = [json.loads(line) for line in a.from_raw.read_text().splitlines() if line.strip()]
+        chosen, _ = choose_min_inside(raw_rows, a.min_inside, not a.no_lvm_entries)
+        for f in a.test_raw:
+            test = [json.loads(line) for line in f.read_text().splitlines() if line.strip()]
+            st = _stats(test, chosen)
+            inside = np.nansum(st[:, :, 0], axis=0)
+            n = np.sum(np.isfinite(st[:, :, 0]), axis=0)
+            print(f"{f.name}: chosen on {a.from_raw.name} (>= {a.min_inside}): "
+                  + ", ".join(f"{c.split()[0]} {i:.0f}/{k}" for c, i, k in zip(DONE_WHEN, inside, n))
+                  + f"; in 90-98 %: {sum(0.9 * k <= i <= 0.98 * k for i, k in zip(inside, n))} of 6")
     if a.out is not None:
         a.out.write_text("\n".join(text))
     else:
