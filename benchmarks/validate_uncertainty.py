@@ -59,8 +59,10 @@ NOISE = (0.0, 0.5, 1.0)
 BREATH = (0.0, 1.5)
 
 
-def conditions(n: int, seed0: int = 100, first: int = 0, design: str = "crossed") -> list[dict]:
-    """n subject conditions, the inputs cycled fastest. ``crossed`` (session 16): within each
+def conditions(n: int, seed0: int = 100, first: int = 0, design: str = "legacy") -> list[dict]:
+    """n subject conditions, the inputs cycled fastest. ``crossed`` (session 16, the command
+    line's default; the function keeps ``legacy`` so that other benchmarks built on it,
+    benchmarks/sa_only_base.py, reproduce their reports): within each
     input, its j-th subject (j = k // 6) has anatomy j mod 2, pathology (j + k) mod 3, contour
     noise (j // 2 + k) mod 3 (hand contours; label maps none) and breath-hold (j // 3 + k)
     mod 2, so that every input meets both anatomies, the three pathologies, the three noise
@@ -116,7 +118,8 @@ RUN_CONSTANTS = {"BETWEEN_FACTOR": 0.25, "OUTFLOW_SHARE": 1.0, "PIXEL_BIAS": 0.1
                  "LV_SHAPE_OBSERVED": 0.0,
                  "RV_SHAPE_LABELS": None, "RV_SHAPE_LABELS_LA": None, "RV_SHAPE_CONTOURS": None,
                  "RV_SHAPE_OBSERVED": 0.0,
-                 "LVM_LABELS": 1.0, "LVM_LABELS_LA": 1.0, "LVM_CONTOURS": 1.0, "LVM_OBSERVED": 1.0}
+                 "LVM_LABELS": 1.0, "LVM_LABELS_LA": 1.0, "LVM_CONTOURS": 1.0, "LVM_OBSERVED": 1.0,
+                 "LV_SHAPE_CORR": 1.0}
 #: the benchmark's names of the module's LV_SHAPE_REL entries
 LV_KEYS = {"LV_SHAPE_LABELS": "labels", "LV_SHAPE_LABELS_LA": "labels+LA",
            "LV_SHAPE_CONTOURS": "contours", "LV_SHAPE_OBSERVED": "observed"}
@@ -156,15 +159,25 @@ def _rv_rel(r: dict, consts: dict) -> float:
 
 def _lv_shape_sd(r: dict, col: str, consts: dict) -> float:
     """The ``lv shape`` source of :mod:`cardionurbs.analysis.uncertainty` under ``consts`` (the
-    input kind's share of the LV cavity volume, one error at ED and ES) propagated to
-    ``col``: f EDV, f ESV, f SV; 0 for EF (a shared scale cancels) and every other column."""
+    input kind's share f of the LV cavity volume at ED and ES, the two errors correlated by
+    LV_SHAPE_CORR ρ) propagated to ``col``: f EDV, f ESV, √(a² + b² − 2ρab) for SV and
+    (100 f ESV / EDV) √(2 (1 − ρ)) for EF (0 when ρ = 1: a shared scale cancels); 0 for
+    every other column."""
     kind = INPUT_KIND.get(r["input"])
     key = next((k for k, v in LV_KEYS.items() if v == kind), None)
     f = consts.get(key, 0.0) if key else 0.0
+    rho = float(consts.get("LV_SHAPE_CORR", 1.0))
     m = r["metrics"]
-    base = {"LVEDV (mL)": m["LVEDV (mL)"], "LVESV (mL)": m["LVESV (mL)"],
-            "LVSV (mL)": abs(m["LVSV (mL)"])}
-    return f * base.get(col, 0.0)
+    a, b = f * m["LVEDV (mL)"], f * m["LVESV (mL)"]
+    if col == "LVEDV (mL)":
+        return a
+    if col == "LVESV (mL)":
+        return b
+    if col == "LVSV (mL)":
+        return float(np.sqrt(max(a * a + b * b - 2 * rho * a * b, 0.0)))
+    if col == "LVEF (%)" and m["LVEDV (mL)"]:
+        return 100.0 * b / m["LVEDV (mL)"] * float(np.sqrt(max(2.0 * (1.0 - rho), 0.0)))
+    return 0.0
 
 
 def _rv_shape_sd(r: dict, col: str, f: float) -> float:
@@ -262,15 +275,16 @@ def choose_by_kind(rows: list[dict]) -> tuple[dict, list[str]]:
 
 #: the settings of the constants every input kind shares, ``--min-inside`` (GRID's values;
 #: OUTFLOW_SHARE stays the run's, so that a ``--no-variants`` run is rescaled exactly)
-CORE_GRID = [{"CONTOUR_FACTOR": c, "BETWEEN_FACTOR": b, "PIXEL_BIAS": p}
-             for c in (1.0, 1.5, 2.0, 3.0) for b in (0.25, 1.0) for p in (0.1, 0.2)]
+CORE_GRID = [{"CONTOUR_FACTOR": c, "BETWEEN_FACTOR": b, "PIXEL_BIAS": p, "LV_SHAPE_CORR": q}
+             for c in (1.0, 1.5, 2.0, 3.0) for b in (0.25, 1.0) for p in (0.1, 0.2)
+             for q in (1.0, 0.5, 0.0)]
 #: each entry's values (those of LV_GRID and RV_GRID; the LVM factors' own)
 ENTRY_VALUES = {k: sorted({g[k] for g in grid}) for grid in (LV_GRID, RV_GRID) for k in grid[0]}
 ENTRY_VALUES.update({"LV_SHAPE_OBSERVED": [0.0, 0.005, 0.01, 0.02],
                      "RV_SHAPE_OBSERVED": [0.0, 0.01, 0.02, 0.03, 0.05]})
 ENTRY_VALUES.update({k: [0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.25] for k in LVM_KEYS})
 #: the metrics each family of entries acts on
-ACTS_ON = {"LV": ("LVEDV (mL)", "LVESV (mL)"), "RV": ("RVEDV (mL)", "RVEF (%)"),
+ACTS_ON = {"LV": ("LVEDV (mL)", "LVESV (mL)", "LVEF (%)"), "RV": ("RVEDV (mL)", "RVEF (%)"),
            "LVM": ("LVM (g)",)}
 #: the families whose entries take one value for every input kind (``--lvm-tied``)
 TIED: set[str] = set()
@@ -552,6 +566,10 @@ def main(argv=None) -> int:
                          "choose_min_inside (at least N inside for each of the six)")
     ap.add_argument("--design", choices=("crossed", "legacy"), default="crossed",
                     help="the subject design (conditions(); legacy: sessions 9-15's)")
+    ap.add_argument("--test-raw", type=Path, action="append", default=[],
+                    help="with --from-raw and --min-inside: print the inside counts of the "
+                         "six on this --raw file (measured with the same --run-constants) "
+                         "under the setting the rule chose on --from-raw (repeatable)")
     ap.add_argument("--lvm-tied", action="store_true",
                     help="with --min-inside: one LVM_FACTOR value for every input kind")
     ap.add_argument("--no-lvm-entries", action="store_true",
@@ -638,6 +656,17 @@ def main(argv=None) -> int:
               ["(not recomputed for this run: --no-grid)"]), "",
             "## Every subject (error = model − truth / half-width; ✗ truth outside)", "",
             *subject_table(rows), ""]
+    if a.test_raw and a.min_inside and a.from_raw is not None:
+        raw_rows = [json.loads(line) for line in a.from_raw.read_text().splitlines() if line.strip()]
+        chosen, _ = choose_min_inside(raw_rows, a.min_inside, not a.no_lvm_entries)
+        for f in a.test_raw:
+            test = [json.loads(line) for line in f.read_text().splitlines() if line.strip()]
+            st = _stats(test, chosen)
+            inside = np.nansum(st[:, :, 0], axis=0)
+            n = np.sum(np.isfinite(st[:, :, 0]), axis=0)
+            print(f"{f.name}: chosen on {a.from_raw.name} (>= {a.min_inside}): "
+                  + ", ".join(f"{c.split()[0]} {i:.0f}/{k}" for c, i, k in zip(DONE_WHEN, inside, n))
+                  + f"; in 90-98 %: {sum(0.9 * k <= i <= 0.98 * k for i, k in zip(inside, n))} of 6")
     if a.out is not None:
         a.out.write_text("\n".join(text))
     else:

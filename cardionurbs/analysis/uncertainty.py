@@ -21,7 +21,8 @@ sections, contour points and frames:
   contours the end is observed, σ from their scatter about the surface;
 * **lv shape** -- the LV cavity's reconstruction error by input kind (label maps with and
   without long-axis maps, SA contours with a rule-placed base): :data:`LV_SHAPE_REL` of its
-  volume, one error at ED and ES (a model-error term set on the calibration phantoms);
+  volume at ED and ES, their errors correlated by :data:`LV_SHAPE_CORR` (a model-error
+  term set on the calibration phantoms);
 * **rv shape** -- an RV cavity no landmark or long-axis contour closes (label maps, SA-only
   contours): :data:`RV_SHAPE_REL` of its volume by input kind (a model-error term set on the
   calibration phantoms);
@@ -68,18 +69,22 @@ Z95 = 1.959963984540054
 #: relative SD of an RV cavity by input kind (:func:`lv_input_kind`; label maps, SA-only
 #: contours; ``observed``: a cavity the landmarks or long-axis contours close): ED and ES
 #: independent
-RV_SHAPE_REL = {"labels": 0.05, "labels+LA": 0.05, "contours": 0.0, "observed": 0.0}
+RV_SHAPE_REL = {"labels": 0.03, "labels+LA": 0.05, "contours": 0.03, "observed": 0.0}
 #: relative SD of an LV cavity by input kind (:func:`lv_input_kind`, ``observed`` for None):
 #: the reconstruction's
 #: own error at a base no SA section closes, one error at ED and ES (a model-error term set
 #: on the calibration phantoms, docs/metrics.md, Uncertainty)
-LV_SHAPE_REL = {"labels": 0.03, "labels+LA": 0.01, "contours": 0.0, "observed": 0.0}
+LV_SHAPE_REL = {"labels": 0.02, "labels+LA": 0.01, "contours": 0.03, "observed": 0.005}
+#: correlation of the lv shape errors at ED and ES (1: one error, the same share of the
+#: cavity missed at both, which cancels in EF; 0: independent), set on the calibration
+#: phantoms (docs/metrics.md, Uncertainty)
+LV_SHAPE_CORR = 0.5
 #: factor over the LV wall's propagated SD (every source above; not the one-sided
 #: allowances) by input kind (:func:`lv_input_kind`, ``observed`` for contours whose base the
 #: data fix): the wall's error is not its cavity's (epicardium and endocardium share most of
 #: a slice's misplacement and its between-slice shape), so LVM gets its own width, set on the
 #: calibration phantoms (docs/metrics.md, Uncertainty)
-LVM_FACTOR = {"labels": 1.0, "labels+LA": 1.0, "contours": 1.0, "observed": 1.0}
+LVM_FACTOR = {"labels": 0.7, "labels+LA": 0.7, "contours": 0.7, "observed": 0.7}
 #: the contours term's factor over independent point noise (docs/metrics.md, Uncertainty)
 CONTOUR_FACTOR = 2.0
 #: fraction of the trapezoid error that a lofted (cubic) surface keeps between slices
@@ -486,12 +491,13 @@ def _sampling_bias(model: "BiventricularModel") -> tuple[float, float]:
 
 def _combine(ed: VolumeError, es: VolumeError, grad_ed: float, grad_es: float) -> float:
     """SD of grad_ed · δEDV + grad_es · δESV: independent sources in quadrature, a shared
-    source (ES's ``shared``) as one error."""
+    source (ES's ``shared``) as one error (``lv shape``: correlated by :data:`LV_SHAPE_CORR`)."""
     var = 0.0
     for k in sorted(set(ed.sd) | set(es.sd)):
         a, b = grad_ed * ed.sd.get(k, 0.0), grad_es * es.sd.get(k, 0.0)
-        var += (a + b) ** 2 if k in es.shared else a * a + b * b
-    return math.sqrt(var)
+        rho = (LV_SHAPE_CORR if k == "lv shape" else 1.0) if k in es.shared else 0.0
+        var += a * a + b * b + 2.0 * rho * a * b
+    return math.sqrt(max(var, 0.0))
 
 
 def _allowance(ed: VolumeError, es: VolumeError, grad_ed: float, grad_es: float
