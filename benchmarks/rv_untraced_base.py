@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import functools
 import json
 import sys
 from pathlib import Path
@@ -32,11 +31,8 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import sa_only_base as B  # noqa: E402
-import validate_uncertainty as V  # noqa: E402
 
 from cardionurbs.anatomy import model as M  # noqa: E402
-from cardionurbs.phantom.generate import generate  # noqa: E402
-from cardionurbs.phantom.geometry import Acquisition  # noqa: E402
 from cardionurbs.pipeline import analyse_study  # noqa: E402
 
 KEYS = B.KEYS
@@ -45,15 +41,7 @@ RULE = M.rv_untraced_basal_level
 
 def measure(c: dict) -> list[dict]:
     """The subject's errors under both rules (and where the rule fires)."""
-    offset = float(np.random.default_rng(c["seed"]).uniform(0.5, 10.0))
-    V.phantom_generate.Acquisition = functools.partial(Acquisition, sa_first_offset_mm=offset)
-    try:
-        ph = generate(c["pathology"], seed=c["seed"], frames=2, noise_px=c["noise_px"],
-                      breath_hold_mm=c["breath_hold_mm"], anatomy_model=c["anatomy"])
-    finally:
-        V.phantom_generate.Acquisition = Acquisition
-    ph.study.tags = []
-    V._sa_only(ph.study)
+    ph, offset = B.sa_only_subject(c)
     t, out = ph.truth["metrics"], []
     try:
         for rule, fn in (("before", lambda study, geo: None), ("after", RULE)):

@@ -53,8 +53,9 @@ def subjects(seed0: int | None) -> list[dict]:
     return out
 
 
-def measure(c: dict) -> list[dict]:
-    """The subject's errors under both rules."""
+def sa_only_subject(c: dict):
+    """(phantom, first-slice offset mm) of a design row: its SA stack starting a seeded
+    0.5-10 mm below the base, tags and long-axis views left out."""
     offset = float(np.random.default_rng(c["seed"]).uniform(0.5, 10.0))
     V.phantom_generate.Acquisition = functools.partial(Acquisition, sa_first_offset_mm=offset)
     try:
@@ -64,6 +65,12 @@ def measure(c: dict) -> list[dict]:
         V.phantom_generate.Acquisition = Acquisition
     ph.study.tags = []
     V._sa_only(ph.study)
+    return ph, offset
+
+
+def measure(c: dict) -> list[dict]:
+    """The subject's errors under both rules."""
+    ph, _ = sa_only_subject(c)
     t, out = ph.truth["metrics"], []
     try:
         for rule, fn in (("before", lambda study, geo: None), ("after", RULE)):
