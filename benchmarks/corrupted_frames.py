@@ -39,7 +39,7 @@ generate = importlib.import_module("cardionurbs.phantom.generate")
 def corrupt(study, frame: int, how: str, seed: int = 0):
     """The study with one frame's contours halved (``"half"``: every other contour of each
     structure and view left out) or with 3 mm in-plane noise on every point (``"noise"``),
-    as ``tests/test_cycle.py::_corrupt``."""
+    (``tests/test_cycle.py`` corrupts its studies with this function)."""
     rng = np.random.default_rng(seed)
     out, count = [], {}
     for c in study.contours:

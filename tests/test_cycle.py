@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -229,21 +230,19 @@ def test_bivme_basal_slice_at_the_edge_of_its_run_is_supported(bivme_model):
 # ------------------------------------------------------------------ corrupted studies
 def _corrupt(study, frame: int, how: str, seed: int = 0):
     """The study with one frame's contours halved (every other contour of each structure
-    and view left out) or with 3 mm in-plane noise on every point."""
-    rng = np.random.default_rng(seed)
-    out, count = [], {}
-    for c in study.contours:
-        if c.frame != frame:
-            out.append(c)
-        elif how == "half":
-            k = count[c.structure, c.view] = count.get((c.structure, c.view), 0) + 1
-            if k % 2:
-                out.append(c)
-        else:
-            n = study.image(c.image).normal
-            e = rng.normal(0.0, 3.0, c.points.shape)
-            out.append(dataclasses.replace(c, points=c.points + e - np.outer(e @ n, n)))
-    return dataclasses.replace(study, contours=out, warnings=list(study.warnings))
+    and view left out) or with 3 mm in-plane noise on every point
+    (``benchmarks/corrupted_frames.py``'s ``corrupt``, which measures the same on more seeds)."""
+    import importlib.util
+    import sys
+
+    mod = sys.modules.get("corrupted_frames")
+    if mod is None:
+        path = Path(__file__).resolve().parents[1] / "benchmarks" / "corrupted_frames.py"
+        spec = importlib.util.spec_from_file_location("corrupted_frames", path)
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules["corrupted_frames"] = mod
+        spec.loader.exec_module(mod)
+    return mod.corrupt(study, frame, how, seed)
 
 
 def _lv_curve(study):
