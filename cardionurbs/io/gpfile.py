@@ -631,6 +631,71 @@ def _read_tables(files: list[tuple[int, Path]], single: Path | None):
     return [(fr, single, tf) for fr, tf in split_frames(t, single)], header, {dec}
 
 
+def _checked_tables(raw: list, alias: dict[int, int], slice_ids: set[int],
+                    last_frame: int) -> tuple[list[dict[str, np.ndarray]], int]:
+    """Each frame's rows without EXCLUDED points, slice numbers merged by ``alias``, checked
+    (slice reference, weight, values); and how many EXCLUDED points were dropped."""
+    tables = []
+    excluded = 0
+    for _frame, f, t in raw:
+        drop = np.array([ty in EXCLUDED_TYPES for ty in t["type"]], dtype=bool)
+        excluded += int(drop.sum())
+        t = _take(t, ~drop)
+        if alias:
+            t["slice_id"] = np.array([alias.get(int(i), int(i)) for i in t["slice_id"]], int)
+        unknown = ~np.isin(t["slice_id"], list(slice_ids))
+        if unknown.any():
+            i = int(np.flatnonzero(unknown)[0])
+            raise StudyError(f"line {t['line'][i]}: reference to slice (frameID) "
+                             f"{t['slice_id'][i]} that is not in {SLICE_INFO}", file=f,
+                             field="frameID")
+        w = t["weight"].astype(str).astype(float)
+        if (w < 0).any():
+            i = int(np.flatnonzero(w < 0)[0])
+            raise StudyError(f"line {t['line'][i]}: weight must be >= 0, got "
+                             f"{t['weight'][i]!r}", file=f, field="weight")
+        check_gp_values(t, f, last_frame)
+        tables.append(t)
+    return tables, excluded
+
+
+def _images(slices: list[dict], frames: list[int], planes: dict, names: dict,
+            views: dict) -> list[ImagePlane]:
+    """One ImagePlane per slice and frame; the DICOM names are meta only (files are absent)."""
+    return [ImagePlane(id=f"{names[s['id']]}_f{fr:03d}", slice=names[s["id"]],
+                       view=views[s["id"]], frame=fr, position=planes[s["id"]].position,
+                       row_cosine=planes[s["id"]].row_cosine,
+                       column_cosine=planes[s["id"]].column_cosine,
+                       pixel_spacing=planes[s["id"]].pixel_spacing, rows=DEFAULT_ROWS,
+                       columns=DEFAULT_COLUMNS, thickness=DEFAULT_THICKNESS_MM)
+            for s in slices for fr in frames]
+
+
+def _reading_warnings(folder: Path, contours: list[Contour], excluded: int, single: Path | None,
+                      files: list[tuple[int, Path]], alias: dict[int, int],
+                      n_slices: int) -> list[str]:
+    """What reading changed or set aside: non-ventricular contours, EXCLUDED points, frames
+    told apart in one file, slice numbers merged."""
+    warnings = []
+    other = Counter(c.structure for c in contours if not c.ventricular)
+    if other:
+        counts = ", ".join(f"{k} x{v}" for k, v in sorted(other.items()))
+        warnings.append(f"{folder}: {sum(other.values())} atrial, venous or extent contour(s) "
+                        f"kept but not used for the ventricles ({counts})")
+    if excluded:
+        warnings.append(f"{folder}: {excluded} EXCLUDED guide point(s) dropped")
+    if single is not None:
+        span = (f"1 frame ({files[0][0]})" if len(files) == 1
+                else f"{len(files)} frames ({files[0][0]}-{files[-1][0]})")
+        warnings.append(f"{single}: one file for every frame: {span} told apart by its time "
+                        "frame column")
+    if alias:
+        warnings.append(f"{folder / SLICE_INFO}: {len(alias)} slice number(s) with the geometry "
+                        f"of another (one image number per frame, as CAP exports number them) "
+                        f"merged into {n_slices} slice(s)")
+    return warnings
+
+
 def read_study(path: str | Path) -> Study:
     """Read a GPFile folder (GPFile_NNN.txt per frame, or one GPFile.txt holding every
     frame, + SliceInfoFile.txt) into a Study.
@@ -673,37 +738,11 @@ def read_study(path: str | Path) -> Study:
         for _, _, name in s["entries"]:
             study_file(folder, name, file=folder / SLICE_INFO, field="file")
     slices, alias = _merge_same_geometry(slices)
-    slice_by_id = {s["id"]: s for s in slices}
-    tables = []
-    excluded = 0
-    for frame, f, t in raw:
-        drop = np.array([ty in EXCLUDED_TYPES for ty in t["type"]], dtype=bool)
-        excluded += int(drop.sum())
-        t = _take(t, ~drop)
-        if alias:
-            t["slice_id"] = np.array([alias.get(int(i), int(i)) for i in t["slice_id"]], int)
-        unknown = ~np.isin(t["slice_id"], list(slice_by_id))
-        if unknown.any():
-            i = int(np.flatnonzero(unknown)[0])
-            raise StudyError(f"line {t['line'][i]}: reference to slice (frameID) "
-                             f"{t['slice_id'][i]} that is not in {SLICE_INFO}", file=f,
-                             field="frameID")
-        w = t["weight"].astype(str).astype(float)
-        if (w < 0).any():
-            i = int(np.flatnonzero(w < 0)[0])
-            raise StudyError(f"line {t['line'][i]}: weight must be >= 0, got "
-                             f"{t['weight'][i]!r}", file=f, field="weight")
-        check_gp_values(t, f, max(fr for fr, _ in files))
-        tables.append(t)
+    tables, excluded = _checked_tables(raw, alias, {s["id"] for s in slices},
+                                       max(fr for fr, _ in files))
     planes, names, views, rule = _slice_planes(slices, tables, folder)
     frames = [fr for fr, _ in files]
-    images = [ImagePlane(id=f"{names[s['id']]}_f{fr:03d}", slice=names[s["id"]],
-                         view=views[s["id"]], frame=fr, position=planes[s["id"]].position,
-                         row_cosine=planes[s["id"]].row_cosine,
-                         column_cosine=planes[s["id"]].column_cosine,
-                         pixel_spacing=planes[s["id"]].pixel_spacing, rows=DEFAULT_ROWS,
-                         columns=DEFAULT_COLUMNS, thickness=DEFAULT_THICKNESS_MM)
-              for s in slices for fr in frames]  # DICOM names: meta only (files are absent)
+    images = _images(slices, frames, planes, names, views)
     contours: list[Contour] = []
     landmarks: list[Landmark] = []
     frame_meta = {}
@@ -713,22 +752,7 @@ def read_study(path: str | Path) -> Study:
                                     warnings)
         frame_meta[str(frame)] = {"file": None if single else f.name, "blocks": blocks,
                                   "runs": runs}
-    other = Counter(c.structure for c in contours if not c.ventricular)
-    if other:
-        counts = ", ".join(f"{k} x{v}" for k, v in sorted(other.items()))
-        warnings.append(f"{folder}: {sum(other.values())} atrial, venous or extent contour(s) "
-                        f"kept but not used for the ventricles ({counts})")
-    if excluded:
-        warnings.append(f"{folder}: {excluded} EXCLUDED guide point(s) dropped")
-    if single is not None:
-        span = (f"1 frame ({files[0][0]})" if len(files) == 1
-                else f"{len(files)} frames ({files[0][0]}-{files[-1][0]})")
-        warnings.append(f"{single}: one file for every frame: {span} told apart by its time "
-                        "frame column")
-    if alias:
-        warnings.append(f"{folder / SLICE_INFO}: {len(alias)} slice number(s) with the geometry "
-                        f"of another (one image number per frame, as CAP exports number them) "
-                        f"merged into {len(slices)} slice(s)")
+    warnings += _reading_warnings(folder, contours, excluded, single, files, alias, len(slices))
     warnings += _export_warnings(folder, rule, landmarks, files)
     style = slices[0]["style"]
     meta = {"format": "gpfile", "base_apex_rule": rule,
