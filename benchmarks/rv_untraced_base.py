@@ -24,7 +24,6 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -57,18 +56,7 @@ def measure(c: dict) -> list[dict]:
 
 def table(rows: list[dict]) -> list[str]:
     """Mean error / mean |error| per anatomy and rule, then every subject the rule reaches."""
-    g: dict = collections.defaultdict(list)
-    for r in rows:
-        g[(r["anatomy"], r["rule"])].append(r["err"])
-    out = ["| anatomy (subjects) | rule | " + " | ".join(KEYS) + " |", "|---|---|" + "---|" * len(KEYS)]
-    for anat in ("ideal", "realistic"):
-        for rule in ("before", "after"):
-            es = g[(anat, rule)]
-            if not es:
-                continue
-            cells = [f"{np.mean([e[k] for e in es]):+.2f} / {np.mean([abs(e[k]) for e in es]):.2f}"
-                     for k in KEYS]
-            out.append(f"| {anat} ({len(es)}) | {rule} | " + " | ".join(cells) + " |")
+    out = B.table(rows)
     out += ["", "Every subject (error before -> after; fired: the rule at ED / ES):", "",
             "| seed | pathology | anatomy | noise px | breath mm | fired | RVEDV (mL) | RVESV (mL) | RVEF (%) |",
             "|---|---|---|---|---|---|---|---|---|"]

@@ -83,7 +83,7 @@ def measure(c: dict) -> list[dict]:
 
 
 def table(rows: list[dict]) -> list[str]:
-    """Mean error / mean |error| per anatomy and rule."""
+    """Mean error / mean |error| per anatomy and rule (a group without subjects left out)."""
     g: dict = collections.defaultdict(list)
     for r in rows:
         g[(r["anatomy"], r["rule"])].append(r["err"])
@@ -91,6 +91,8 @@ def table(rows: list[dict]) -> list[str]:
     for anat in ("ideal", "realistic"):
         for rule in ("before", "after"):
             es = g[(anat, rule)]
+            if not es:
+                continue
             cells = [f"{np.mean([e[k] for e in es]):+.2f} / {np.mean([abs(e[k]) for e in es]):.2f}"
                      for k in KEYS]
             out.append(f"| {anat} ({len(es)}) | {rule} | " + " | ".join(cells) + " |")
