@@ -122,6 +122,12 @@ RATE_COLUMNS = ("PER (mL/s)", "PEFR (mL/s)", "PAFR (mL/s)", "E/A ratio")
 MIN_FRAMES = 10
 #: the least smoothing of :func:`smoothed_rate`, in units of h³ (h the median frame interval)
 MIN_SMOOTHING = 10.0 ** -1.5
+#: standard deviation (mm) of the model's ES valve plane as the base's level at ES
+#: (:func:`base_motion`): the plane conserving the ED myocardium lay within 1.8 mm of the
+#: truth's base on every 50-frame phantom map of reports/validation-labelmaps.md; unlike the
+#: half-slice guess at ED (the base anywhere in the gap beyond the most basal slice, standard
+#: deviation gap / sqrt(12)) it does not grow with the slice gap
+ES_PLANE_SD_MM = 2.0
 NAN = float("nan")
 
 
@@ -527,10 +533,13 @@ def base_motion(phase: np.ndarray, passed: list[tuple[float, float]],
         b₀ (mm) and D (mm per unit phase): least squares where the base passed two levels or
         more. Through one level (phase p, level c) the line turns about that crossing; where
         it lies at ED (b₀) and at ES (b₀ − D) is not in the stack: with ``es_level`` D is the
-        least-squares compromise between the two ends' guesses, b₀ = top_ed + reach (the
-        half-slice rule) and b₀ − D = es_level, D = (p g₀ + (1 − p) g₁) / (p² + (1 − p)²),
-        g₀ = top_ed + reach − c, g₁ = c − es_level; without it D goes through the ED guess.
-        None where neither gives D > 0.
+        weighted least-squares compromise between the two ends' guesses, b₀ = top_ed + reach
+        (the half-slice rule) and b₀ − D = es_level,
+        D = (w₀ p g₀ + w₁ (1 − p) g₁) / (w₀ p² + w₁ (1 − p)²), g₀ = top_ed + reach − c,
+        g₁ = c − es_level, each guess weighted by its inverse variance: w₀ = 1 / σ₀²,
+        σ₀ = 2 reach / √12 (the base anywhere in the gap of 2 · reach), w₁ = 1 /
+        :data:`ES_PLANE_SD_MM`²; without ``es_level`` D goes through the ED guess. None where
+        neither gives D > 0.
     """
     ph, lv = np.array(passed, float).reshape(-1, 2).T
     if len(ph) == 0:
@@ -540,7 +549,9 @@ def base_motion(phase: np.ndarray, passed: list[tuple[float, float]],
     elif es_level is not None and np.isfinite(es_level):
         p, c = float(np.mean(ph)), float(lv[0])
         g0, g1 = top_ed + reach - c, c - es_level
-        d = (p * g0 + (1.0 - p) * g1) / (p * p + (1.0 - p) ** 2)
+        # inverse variances; no gap (reach 0): the ED guess is exact
+        w0, w1 = (3.0 / reach ** 2, 1.0 / ES_PLANE_SD_MM ** 2) if reach > 0 else (1.0, 0.0)
+        d = (w0 * p * g0 + w1 * (1.0 - p) * g1) / (w0 * p * p + w1 * (1.0 - p) ** 2)
         b0 = c + d * p
     else:
         b0 = top_ed + reach
