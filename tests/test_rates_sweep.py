@@ -173,7 +173,8 @@ def test_base_phase_from_the_completed_volume_where_fixed_slices_lag(first, swee
 def test_one_level_passed_the_es_end_narrows_the_base_guess(first, sweep):
     """10 mm slices, the base passes slice 0 only: where the ED base is not at the half-slice
     guess (5 mm) PER is 11-16 % off with that guess alone; the ES end (here its true level) as a
-    second guess brings every case closer (2-13 %), and where both guesses are right the rates
+    second guess brings every case closer (1-11 %, weighted by the inverse variances of
+    base_motion), and where both guesses are right the rates
     are within 2 %."""
     obs, stack, steps, es, b = _stack_curve(first, sweep, (2400, 1300, 900), spacing=10.0, reach=5.0)
     assert len(steps) == 2
@@ -183,7 +184,7 @@ def test_one_level_passed_the_es_end_narrows_the_base_guess(first, sweep):
     if (first, sweep) == (5.0, 9.0):
         assert max(abs(both[0]), abs(both[1])) < 0.02
     else:
-        assert abs(alone[0]) > 0.1 and abs(both[0]) < 0.13
+        assert abs(alone[0]) > 0.1 and abs(both[0]) < 0.115
 
 
 def test_smoothed_rate_has_a_least_smoothing():
