@@ -19,6 +19,10 @@ leaves them out (support is warranted there).
 ``--truth-frames N`` prints instead, per seed, the phantom's exact RV and LV cavity curves at
 N frames (no reconstruction): their worst frame against the mean of its two neighbours, the
 departure the Done-when of issue #30 bounds at 5 % on bivme-patient1.
+
+``--metrics-at BOUND`` prints instead, per seed, the RV metrics against the truth with the
+RV basal-support bound set to BOUND (0.08: the LV's, which main used before the RV's own):
+the frames whose RV basal region was supported, ED and ES.
 """
 
 from __future__ import annotations
@@ -155,6 +159,26 @@ def truth_departures(pathology: str, seed: int, frames: int) -> dict:
     return out
 
 
+def metrics_at(pathology: str, seed: int, anatomy: str, bound: float) -> dict:
+    """RV metrics of one phantom against its truth with the RV basal bound set to ``bound``."""
+    from cardionurbs.analysis.function import measure, volume_curve
+    from cardionurbs.anatomy import model as model_mod
+    ph = generate.generate(pathology, seed=seed, frames=20, noise_px=1.0, volume_check=False,
+                           anatomy_model=anatomy)
+    model_mod.support_rv_basal = functools.partial(support_rv_basal, bound=bound)
+    try:
+        model = reconstruct(ph.study)
+        met, vc = measure(model), volume_curve(model)
+    finally:
+        model_mod.support_rv_basal = support_rv_basal
+    truth = ph.truth["metrics"]
+    return {"pathology": pathology, "seed": seed, "anatomy": anatomy, "bound": bound,
+            "ed_es": [model.ed_frame, model.es_frame],
+            "truth_ed_es": [ph.truth["ed_frame"], ph.truth["es_frame"]],
+            "rv_basal_supported": vc.get("rv_basal_supported"),
+            **{k: [met[k], truth[k]] for k in ("RVEDV (mL)", "RVESV (mL)", "RVEF (%)")}}
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pathology", default="normal", choices=("normal", "mr", "phtn"))
@@ -163,8 +187,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--variants", nargs="+", default=["untouched"],
                     choices=("untouched", "shrink", "drop"))
     ap.add_argument("--truth-frames", type=int, default=0)
+    ap.add_argument("--metrics-at", type=float, default=None)
     a = ap.parse_args(argv)
     for seed in a.seeds:
+        if a.metrics_at is not None:
+            print(json.dumps(metrics_at(a.pathology, seed, a.anatomy, a.metrics_at)), flush=True)
+            continue
         if a.truth_frames:
             print(json.dumps(truth_departures(a.pathology, seed, a.truth_frames)), flush=True)
             continue
