@@ -109,7 +109,7 @@ def test_without_long_axis_views_the_ends_dominate(monkeypatch):
     # the contours' lv shape entry is 0 as calibrated (seeds 200-259, session 15); a
     # positive entry is set here so that the term's propagation is what is checked
     monkeypatch.setitem(U.LV_SHAPE_REL, "contours", 0.03)
-    monkeypatch.setattr(U, "LV_SHAPE_CORR", 1.0)       # one error at ED and ES (checked below)
+    monkeypatch.setitem(U.LV_SHAPE_CORR, "contours", 1.0)  # one error at ED and ES (below)
     ph = generate.generate("normal", seed=3, frames=2)
     st = ph.study
     st.tags = []
@@ -132,8 +132,11 @@ def test_without_long_axis_views_the_ends_dominate(monkeypatch):
     assert iv["sd"]["LVESV (mL)"]["lv shape"] == pytest.approx(rel * m["LVESV (mL)"], rel=1e-3)
     assert iv["sd"]["LVSV (mL)"]["lv shape"] == pytest.approx(rel * m["LVSV (mL)"], rel=1e-3)
     assert iv["sd"]["LVEF (%)"]["lv shape"] == pytest.approx(0.0, abs=1e-9)
-    # independent ED and ES errors (LV_SHAPE_CORR 0): SV and EF get the term, EDV keeps it
-    monkeypatch.setattr(U, "LV_SHAPE_CORR", 0.0)
+    # independent ED and ES errors (the kind's LV_SHAPE_CORR 0): SV and EF get the term,
+    # EDV keeps it
+    monkeypatch.setitem(U.LV_SHAPE_CORR, "observed", 0.0)   # another kind's entry: no effect
+    assert intervals(model, m)["sd"]["LVEF (%)"]["lv shape"] == pytest.approx(0.0, abs=1e-9)
+    monkeypatch.setitem(U.LV_SHAPE_CORR, "contours", 0.0)
     ind = intervals(model, m)["sd"]
     a, b = rel * m["LVEDV (mL)"], rel * m["LVESV (mL)"]
     assert ind["LVEDV (mL)"]["lv shape"] == pytest.approx(a, rel=1e-3)
