@@ -119,7 +119,9 @@ RUN_CONSTANTS = {"BETWEEN_FACTOR": 0.25, "OUTFLOW_SHARE": 1.0, "PIXEL_BIAS": 0.1
                  "RV_SHAPE_OBSERVED": 0.0,
                  "LVM_LABELS": 1.0, "LVM_LABELS_LA": 1.0, "LVM_CONTOURS": 1.0, "LVM_OBSERVED": 1.0,
                  "LV_SHAPE_CORR": 1.0, "LV_CORR_LABELS": None, "LV_CORR_LABELS_LA": None,
-                 "LV_CORR_CONTOURS": None, "LV_CORR_OBSERVED": None}
+                 "LV_CORR_CONTOURS": None, "LV_CORR_OBSERVED": None, "BASE_FACTOR": 1.0,
+                 "LV_ED_LABELS": 1.0, "LV_ED_LABELS_LA": 1.0, "LV_ED_CONTOURS": 1.0,
+                 "LV_ED_OBSERVED": 1.0}
 #: the benchmark's names of the module's LV_SHAPE_REL entries
 LV_KEYS = {"LV_SHAPE_LABELS": "labels", "LV_SHAPE_LABELS_LA": "labels+LA",
            "LV_SHAPE_CONTOURS": "contours", "LV_SHAPE_OBSERVED": "observed"}
@@ -127,6 +129,9 @@ LV_KEYS = {"LV_SHAPE_LABELS": "labels", "LV_SHAPE_LABELS_LA": "labels+LA",
 #: kind, before the entries; used where a setting gives no entry)
 LV_CORR_KEYS = {"LV_CORR_LABELS": "labels", "LV_CORR_LABELS_LA": "labels+LA",
                 "LV_CORR_CONTOURS": "contours", "LV_CORR_OBSERVED": "observed"}
+#: and of its LV_SHAPE_ED_FACTOR entries (session 17; 1 before)
+LV_ED_KEYS = {"LV_ED_LABELS": "labels", "LV_ED_LABELS_LA": "labels+LA",
+              "LV_ED_CONTOURS": "contours", "LV_ED_OBSERVED": "observed"}
 #: and of its RV_SHAPE_REL entries (RV_SHAPE_REL: a run's one value for every kind, before
 #: the entries; used where a setting gives no entry)
 RV_KEYS = {"RV_SHAPE_LABELS": "labels", "RV_SHAPE_LABELS_LA": "labels+LA",
@@ -145,11 +150,12 @@ MASS_KIND = INPUT_KIND
 
 def module_constants() -> dict[str, float]:
     """The module's constants under :data:`RUN_CONSTANTS`' names."""
-    entries = {**LV_KEYS, **RV_KEYS, **LVM_KEYS, **LV_CORR_KEYS}
+    entries = {**LV_KEYS, **RV_KEYS, **LVM_KEYS, **LV_CORR_KEYS, **LV_ED_KEYS}
     out = {k: float(getattr(U, k)) for k in RUN_CONSTANTS
            if k not in entries and k not in ("RV_SHAPE_REL", "LV_SHAPE_CORR")}
     out.update({k: float(U.LV_SHAPE_REL[kind]) for k, kind in LV_KEYS.items()})
     out.update({k: float(U.LV_SHAPE_CORR[kind]) for k, kind in LV_CORR_KEYS.items()})
+    out.update({k: float(U.LV_SHAPE_ED_FACTOR[kind]) for k, kind in LV_ED_KEYS.items()})
     out["LV_SHAPE_CORR"] = RUN_CONSTANTS["LV_SHAPE_CORR"]    # superseded by the entries
     out.update({k: float(U.LVM_FACTOR[kind]) for k, kind in LVM_KEYS.items()})
     out.update({k: float(U.RV_SHAPE_REL[kind]) for k, kind in RV_KEYS.items()})
@@ -166,18 +172,20 @@ def _rv_rel(r: dict, consts: dict) -> float:
 
 def _lv_shape_sd(r: dict, col: str, consts: dict) -> float:
     """The ``lv shape`` source of :mod:`cardionurbs.analysis.uncertainty` under ``consts`` (the
-    input kind's share f of the LV cavity volume at ED and ES, the two errors correlated by
-    the kind's LV_SHAPE_CORR entry ρ, else the one LV_SHAPE_CORR) propagated to ``col``: f EDV, f ESV, √(a² + b² − 2ρab) for SV and
-    (100 f ESV / EDV) √(2 (1 − ρ)) for EF (0 when ρ = 1: a shared scale cancels); 0 for
-    every other column."""
+    input kind's share f of the LV cavity volume at ES, f times its LV_SHAPE_ED_FACTOR entry
+    e at ED, the two errors correlated by the kind's LV_SHAPE_CORR entry ρ, else the one
+    LV_SHAPE_CORR) propagated to ``col``: a = e f EDV, b = f ESV, √(a² + b² − 2ρab) for SV
+    and the delta method for EF ((100 f ESV / EDV) √(2 (1 − ρ)) when e = 1: 0 when ρ = 1, a
+    shared scale cancels); 0 for every other column."""
     kind = INPUT_KIND.get(r["input"])
     key = next((k for k, v in LV_KEYS.items() if v == kind), None)
     f = consts.get(key, 0.0) if key else 0.0
     ckey = next((k for k, v in LV_CORR_KEYS.items() if v == kind), None)
     rho = consts.get(ckey) if ckey else None
     rho = float(consts.get("LV_SHAPE_CORR", 1.0) if rho is None else rho)
+    ed = consts.get(next((k for k, v in LV_ED_KEYS.items() if v == kind), ""), 1.0)
     m = r["metrics"]
-    a, b = f * m["LVEDV (mL)"], f * m["LVESV (mL)"]
+    a, b = f * (1.0 if ed is None else ed) * m["LVEDV (mL)"], f * m["LVESV (mL)"]
     if col == "LVEDV (mL)":
         return a
     if col == "LVESV (mL)":
@@ -185,7 +193,9 @@ def _lv_shape_sd(r: dict, col: str, consts: dict) -> float:
     if col == "LVSV (mL)":
         return float(np.sqrt(max(a * a + b * b - 2 * rho * a * b, 0.0)))
     if col == "LVEF (%)" and m["LVEDV (mL)"]:
-        return 100.0 * b / m["LVEDV (mL)"] * float(np.sqrt(max(2.0 * (1.0 - rho), 0.0)))
+        g_ed, g_es = 100.0 * m["LVESV (mL)"] / m["LVEDV (mL)"] ** 2, -100.0 / m["LVEDV (mL)"]
+        x, y = g_ed * a, g_es * b
+        return float(np.sqrt(max(x * x + y * y + 2 * rho * x * y, 0.0)))
     return 0.0
 
 
@@ -222,9 +232,26 @@ def rescaled(r: dict, consts: dict) -> dict:
     those of the variant with the same OUTFLOW_SHARE (same OPEN_SLAB_MM); LVM's Gaussian
     part scales as a whole with its input kind's LVM_FACTOR. Exact: the module gives the
     same numbers with these constants."""
+    out: dict = {}
+    for col, p in _rescale_parts(r, consts).items():
+        if p is None:
+            out[col] = None
+            continue
+        v, below, above, var = p
+        z_new = U.Z95 * float(np.sqrt(var + _lv_shape_sd(r, col, consts) ** 2))
+        if col == "LVM (g)":
+            z_new *= _lvm_factor(r, consts) / _lvm_factor(r, RUN_CONSTANTS)
+        out[col] = [v - z_new - below, v + z_new + above]
+    return out
+
+
+def _rescale_parts(r: dict, consts: dict) -> dict:
+    """:func:`rescaled`'s pieces of each metric under ``consts``: (value, allowance below,
+    allowance above, variance of every Gaussian source but ``lv shape``), or None."""
     scale = {"contours": consts["CONTOUR_FACTOR"] / RUN_CONSTANTS["CONTOUR_FACTOR"],
              "pixels": consts["PIXEL_BIAS"] / RUN_CONSTANTS["PIXEL_BIAS"],
-             "between": consts["BETWEEN_FACTOR"] / RUN_CONSTANTS["BETWEEN_FACTOR"]}
+             "between": consts["BETWEEN_FACTOR"] / RUN_CONSTANTS["BETWEEN_FACTOR"],
+             "base": consts.get("BASE_FACTOR", 1.0) / RUN_CONSTANTS.get("BASE_FACTOR", 1.0)}
     rv_old, rv_new = _rv_rel(r, RUN_CONSTANTS), _rv_rel(r, consts)
     if rv_old > 0:      # the run has an ``rv shape`` source already: scale it
         scale["rv shape"], rv_new = rv_new / rv_old, 0.0
@@ -234,7 +261,7 @@ def rescaled(r: dict, consts: dict) -> dict:
                 and c["PIXEL_BIAS"] == RUN_CONSTANTS["PIXEL_BIAS"])
     # a --no-variants run: its own allowances, valid while OUTFLOW_SHARE is the run's
     own = not r.get("variants") and consts["OUTFLOW_SHARE"] == RUN_CONSTANTS["OUTFLOW_SHARE"]
-    out = {}
+    out: dict = {}
     for col in METRICS:
         iv, sd = r["unc"].get(col), r["unc"]["sd"].get(col)
         var = iv if own else r["variants"][name].get(col)
@@ -242,16 +269,12 @@ def rescaled(r: dict, consts: dict) -> dict:
             out[col] = None
             continue
         v = r["metrics"][col]
-        sd = {k: x for k, x in sd.items() if k != "lv shape"}      # recomputed below
+        sd = {k: x for k, x in sd.items() if k != "lv shape"}      # recomputed by the caller
         z_old = U.Z95 * float(np.sqrt(sum(x * x for x in sd.values())
                                       + _lv_shape_sd(r, col, RUN_CONSTANTS) ** 2))
-        z_new = U.Z95 * float(np.sqrt(sum((x * scale.get(k, 1.0)) ** 2 for k, x in sd.items())
-                                      + _rv_shape_sd(r, col, rv_new) ** 2
-                                      + _lv_shape_sd(r, col, consts) ** 2))
-        if col == "LVM (g)":
-            z_new *= _lvm_factor(r, consts) / _lvm_factor(r, RUN_CONSTANTS)
-        below, above = (v - var[0]) - z_old, (var[1] - v) - z_old
-        out[col] = [v - z_new - below, v + z_new + above]
+        rest = (sum((x * scale.get(k, 1.0)) ** 2 for k, x in sd.items())
+                + _rv_shape_sd(r, col, rv_new) ** 2)
+        out[col] = (v, (v - var[0]) - z_old, (var[1] - v) - z_old, float(rest))
     return out
 
 
@@ -284,19 +307,24 @@ def choose_by_kind(rows: list[dict]) -> tuple[dict, list[str]]:
 
 #: the settings of the constants every input kind shares, ``--min-inside`` (GRID's values;
 #: OUTFLOW_SHARE stays the run's, so that a ``--no-variants`` run is rescaled exactly)
-CORE_GRID = [{"CONTOUR_FACTOR": c, "BETWEEN_FACTOR": b, "PIXEL_BIAS": p}
-             for c in (1.0, 1.5, 2.0, 3.0) for b in (0.25, 1.0) for p in (0.1, 0.2)]
+CORE_GRID = [{"CONTOUR_FACTOR": c, "BETWEEN_FACTOR": b, "PIXEL_BIAS": p, "BASE_FACTOR": f}
+             for c in (1.0, 1.5, 2.0, 3.0) for b in (0.25, 1.0) for p in (0.1, 0.2)
+             for f in (0.75, 0.5, 0.25)]
 #: each entry's values (those of LV_GRID and RV_GRID; the LVM factors' own)
 ENTRY_VALUES = {k: sorted({g[k] for g in grid}) for grid in (LV_GRID, RV_GRID) for k in grid[0]}
 ENTRY_VALUES.update({"LV_SHAPE_OBSERVED": [0.0, 0.005, 0.01, 0.02],
                      "RV_SHAPE_OBSERVED": [0.0, 0.01, 0.02, 0.03, 0.05]})
 ENTRY_VALUES.update({k: [0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.25, 1.5]
                      for k in LVM_KEYS})
-ENTRY_VALUES.update({k: [1.0, 0.75, 0.5, 0.25, 0.0] for k in LV_CORR_KEYS})
-#: the correlation entry that goes with each LV entry (chosen together: :func:`_options`)
+ENTRY_VALUES.update({k: [1.0, 0.5, 0.0, -0.5, -1.0] for k in LV_CORR_KEYS})
+ENTRY_VALUES.update({k: [1.0, 0.5, 0.25] for k in LV_ED_KEYS})
+#: the correlation and ED-share entries that go with each LV entry (chosen together:
+#: :func:`_options`)
 LV_CORR_OF = dict(zip(LV_KEYS, LV_CORR_KEYS))
+LV_ED_OF = dict(zip(LV_KEYS, LV_ED_KEYS))
 #: every entry's name in the tables
-ENTRY_NAMES = {**LV_KEYS, **RV_KEYS, **LVM_KEYS, **{k: f"ρ {v}" for k, v in LV_CORR_KEYS.items()}}
+ENTRY_NAMES = {**LV_KEYS, **RV_KEYS, **LVM_KEYS, **{k: f"ρ {v}" for k, v in LV_CORR_KEYS.items()},
+               **{k: f"ED {v}" for k, v in LV_ED_KEYS.items()}}
 #: the metrics each family of entries acts on
 ACTS_ON = {"LV": ("LVEDV (mL)", "LVESV (mL)", "LVEF (%)"), "RV": ("RVEDV (mL)", "RVEF (%)"),
            "LVM": ("LVM (g)",)}
@@ -324,9 +352,45 @@ def _options(family: str, key: str) -> list[dict]:
     """The settings one entry of a family may take: its :data:`ENTRY_VALUES`; an LV entry
     with its kind's correlation (:data:`LV_CORR_OF`), since both act on that kind's LVEF."""
     if family == "LV":
-        ckey = LV_CORR_OF[key]
-        return [{key: v, ckey: q} for v in ENTRY_VALUES[key] for q in ENTRY_VALUES[ckey]]
+        ckey, ekey = LV_CORR_OF[key], LV_ED_OF[key]
+        return [{key: v, ckey: q, ekey: e} for v in ENTRY_VALUES[key] for q in ENTRY_VALUES[ckey]
+                for e in ENTRY_VALUES[ekey]]
     return [{key: v} for v in ENTRY_VALUES[key]]
+
+
+def _pareto(s: np.ndarray) -> np.ndarray:
+    """The options (axis 0 of ``s``, shape (m, metrics, 2): inside counts, summed half-width /
+    value) that no other option beats: as many inside for every metric and no wider, better
+    in one. The narrowest combination meeting any count lies among them."""
+    ins, w = s[:, :, 0], s[:, :, 1].sum(axis=1)
+    keep = []
+    for i in range(len(s)):
+        ge = (ins >= ins[i]).all(axis=1) & (w <= w[i])
+        if not (ge & ((ins > ins[i]).any(axis=1) | (w < w[i]))).any():
+            keep.append(i)
+    return np.array(keep, dtype=int)
+
+
+def _lv_option_stats(rows: list[dict], core: dict, opts: list[dict]) -> np.ndarray:
+    """Inside counts and summed half-width / value of LVEDV, LVESV, LVEF over ``rows`` under
+    ``core`` and each LV option (shape (options, 3, 2)): :func:`_stats` for those three
+    metrics, with the rest of each interval computed once (the options change ``lv shape``
+    alone)."""
+    cols = ACTS_ON["LV"]
+    out = np.zeros((len(opts), len(cols), 2))
+    for r in rows:
+        parts = _rescale_parts(r, {**RUN_CONSTANTS, **core})
+        for j, col in enumerate(cols):
+            t, p = r["truth"].get(col), parts.get(col)
+            if t is None or p is None:
+                continue
+            v, below, above, var = p
+            for i, x in enumerate(opts):
+                z = U.Z95 * float(np.sqrt(var + _lv_shape_sd(r, col, {**RUN_CONSTANTS, **core,
+                                                                       **x}) ** 2))
+                out[i, j, 0] += v - z - below <= t <= v + z + above
+                out[i, j, 1] += (z + 0.5 * (below + above)) / abs(v) if v else 0.0
+    return out
 
 
 def _best_entries(rows: list[dict], core: dict, family: str, n_min: int, base: np.ndarray,
@@ -346,7 +410,8 @@ def _best_entries(rows: list[dict], core: dict, family: str, n_min: int, base: n
         sel = [r for r, k in zip(rows, kinds) if k == kind]
         n = np.sum(np.isfinite(base[kinds == kind][:, cols, 0]), axis=0)
         o = _options(family, key)
-        tot = np.array([np.nansum(_stats(sel, {**core, **x})[:, cols], axis=0) for x in o])
+        tot = (_lv_option_stats(sel, core, o) if family == "LV" else
+               np.array([np.nansum(_stats(sel, {**core, **x})[:, cols], axis=0) for x in o]))
         opts.append(o)
         sums.append(tot.reshape(len(o), len(cols), 2))
         oks.append((tot.reshape(len(o), len(cols), 2)[:, :, 0] >= floor * n - 1e-9).all(axis=1))
@@ -355,7 +420,7 @@ def _best_entries(rows: list[dict], core: dict, family: str, n_min: int, base: n
         ok = np.logical_and.reduce(oks)
         index = [(i,) * len(keys) for i in range(len(opts[0]))]
     else:                           # every combination of the kinds' admissible options
-        keep = [np.flatnonzero(k) for k in oks]
+        keep = [np.intersect1d(np.flatnonzero(k), _pareto(s_k)) for k, s_k in zip(oks, sums)]
         if any(len(k) == 0 for k in keep):
             return None
         tot = fixed[None]
