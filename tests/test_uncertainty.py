@@ -110,6 +110,7 @@ def test_without_long_axis_views_the_ends_dominate(monkeypatch):
     # positive entry is set here so that the term's propagation is what is checked
     monkeypatch.setitem(U.LV_SHAPE_REL, "contours", 0.03)
     monkeypatch.setitem(U.LV_SHAPE_CORR, "contours", 1.0)  # one error at ED and ES (below)
+    monkeypatch.setitem(U.LV_SHAPE_ED_FACTOR, "contours", 1.0)  # the same share at both
     ph = generate.generate("normal", seed=3, frames=2)
     st = ph.study
     st.tags = []
@@ -154,7 +155,7 @@ def test_without_long_axis_views_the_ends_dominate(monkeypatch):
     assert half["LVEF (%)"]["lv shape"] == pytest.approx(math.hypot(g_ed * 0.5 * a, g_es * b),
                                                          rel=1e-3)
     # the base term's factor scales the base SD alone, not the one-sided allowances
-    monkeypatch.setattr(U, "BASE_FACTOR", 0.5)
+    monkeypatch.setattr(U, "BASE_FACTOR", 0.5 * U.BASE_FACTOR)
     based = intervals(model, m)
     for col in ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)"):
         assert half[col]["base"] > 0, col
