@@ -19,7 +19,6 @@ import argparse
 import datetime as dt
 import functools
 import importlib
-import itertools
 import json
 import os
 import platform
@@ -119,10 +118,20 @@ RUN_CONSTANTS = {"BETWEEN_FACTOR": 0.25, "OUTFLOW_SHARE": 1.0, "PIXEL_BIAS": 0.1
                  "RV_SHAPE_LABELS": None, "RV_SHAPE_LABELS_LA": None, "RV_SHAPE_CONTOURS": None,
                  "RV_SHAPE_OBSERVED": 0.0,
                  "LVM_LABELS": 1.0, "LVM_LABELS_LA": 1.0, "LVM_CONTOURS": 1.0, "LVM_OBSERVED": 1.0,
-                 "LV_SHAPE_CORR": 1.0}
+                 "LV_SHAPE_CORR": 1.0, "LV_CORR_LABELS": None, "LV_CORR_LABELS_LA": None,
+                 "LV_CORR_CONTOURS": None, "LV_CORR_OBSERVED": None, "BASE_FACTOR": 1.0,
+                 "LV_ED_LABELS": 1.0, "LV_ED_LABELS_LA": 1.0, "LV_ED_CONTOURS": 1.0,
+                 "LV_ED_OBSERVED": 1.0}
 #: the benchmark's names of the module's LV_SHAPE_REL entries
 LV_KEYS = {"LV_SHAPE_LABELS": "labels", "LV_SHAPE_LABELS_LA": "labels+LA",
            "LV_SHAPE_CONTOURS": "contours", "LV_SHAPE_OBSERVED": "observed"}
+#: and of its LV_SHAPE_CORR entries (session 17; LV_SHAPE_CORR: a run's one value for every
+#: kind, before the entries; used where a setting gives no entry)
+LV_CORR_KEYS = {"LV_CORR_LABELS": "labels", "LV_CORR_LABELS_LA": "labels+LA",
+                "LV_CORR_CONTOURS": "contours", "LV_CORR_OBSERVED": "observed"}
+#: and of its LV_SHAPE_ED_FACTOR entries (session 17; 1 before)
+LV_ED_KEYS = {"LV_ED_LABELS": "labels", "LV_ED_LABELS_LA": "labels+LA",
+              "LV_ED_CONTOURS": "contours", "LV_ED_OBSERVED": "observed"}
 #: and of its RV_SHAPE_REL entries (RV_SHAPE_REL: a run's one value for every kind, before
 #: the entries; used where a setting gives no entry)
 RV_KEYS = {"RV_SHAPE_LABELS": "labels", "RV_SHAPE_LABELS_LA": "labels+LA",
@@ -141,9 +150,13 @@ MASS_KIND = INPUT_KIND
 
 def module_constants() -> dict[str, float]:
     """The module's constants under :data:`RUN_CONSTANTS`' names."""
+    entries = {**LV_KEYS, **RV_KEYS, **LVM_KEYS, **LV_CORR_KEYS, **LV_ED_KEYS}
     out = {k: float(getattr(U, k)) for k in RUN_CONSTANTS
-           if k not in LV_KEYS and k not in RV_KEYS and k not in LVM_KEYS and k != "RV_SHAPE_REL"}
+           if k not in entries and k not in ("RV_SHAPE_REL", "LV_SHAPE_CORR")}
     out.update({k: float(U.LV_SHAPE_REL[kind]) for k, kind in LV_KEYS.items()})
+    out.update({k: float(U.LV_SHAPE_CORR[kind]) for k, kind in LV_CORR_KEYS.items()})
+    out.update({k: float(U.LV_SHAPE_ED_FACTOR[kind]) for k, kind in LV_ED_KEYS.items()})
+    out["LV_SHAPE_CORR"] = RUN_CONSTANTS["LV_SHAPE_CORR"]    # superseded by the entries
     out.update({k: float(U.LVM_FACTOR[kind]) for k, kind in LVM_KEYS.items()})
     out.update({k: float(U.RV_SHAPE_REL[kind]) for k, kind in RV_KEYS.items()})
     out["RV_SHAPE_REL"] = RUN_CONSTANTS["RV_SHAPE_REL"]      # superseded by the entries
@@ -159,16 +172,20 @@ def _rv_rel(r: dict, consts: dict) -> float:
 
 def _lv_shape_sd(r: dict, col: str, consts: dict) -> float:
     """The ``lv shape`` source of :mod:`cardionurbs.analysis.uncertainty` under ``consts`` (the
-    input kind's share f of the LV cavity volume at ED and ES, the two errors correlated by
-    LV_SHAPE_CORR ρ) propagated to ``col``: f EDV, f ESV, √(a² + b² − 2ρab) for SV and
-    (100 f ESV / EDV) √(2 (1 − ρ)) for EF (0 when ρ = 1: a shared scale cancels); 0 for
-    every other column."""
+    input kind's share f of the LV cavity volume at ES, f times its LV_SHAPE_ED_FACTOR entry
+    e at ED, the two errors correlated by the kind's LV_SHAPE_CORR entry ρ, else the one
+    LV_SHAPE_CORR) propagated to ``col``: a = e f EDV, b = f ESV, √(a² + b² − 2ρab) for SV
+    and the delta method for EF ((100 f ESV / EDV) √(2 (1 − ρ)) when e = 1: 0 when ρ = 1, a
+    shared scale cancels); 0 for every other column."""
     kind = INPUT_KIND.get(r["input"])
     key = next((k for k, v in LV_KEYS.items() if v == kind), None)
     f = consts.get(key, 0.0) if key else 0.0
-    rho = float(consts.get("LV_SHAPE_CORR", 1.0))
+    ckey = next((k for k, v in LV_CORR_KEYS.items() if v == kind), None)
+    rho = consts.get(ckey) if ckey else None
+    rho = float(consts.get("LV_SHAPE_CORR", 1.0) if rho is None else rho)
+    ed = consts.get(next((k for k, v in LV_ED_KEYS.items() if v == kind), ""), 1.0)
     m = r["metrics"]
-    a, b = f * m["LVEDV (mL)"], f * m["LVESV (mL)"]
+    a, b = f * (1.0 if ed is None else ed) * m["LVEDV (mL)"], f * m["LVESV (mL)"]
     if col == "LVEDV (mL)":
         return a
     if col == "LVESV (mL)":
@@ -176,7 +193,9 @@ def _lv_shape_sd(r: dict, col: str, consts: dict) -> float:
     if col == "LVSV (mL)":
         return float(np.sqrt(max(a * a + b * b - 2 * rho * a * b, 0.0)))
     if col == "LVEF (%)" and m["LVEDV (mL)"]:
-        return 100.0 * b / m["LVEDV (mL)"] * float(np.sqrt(max(2.0 * (1.0 - rho), 0.0)))
+        g_ed, g_es = 100.0 * m["LVESV (mL)"] / m["LVEDV (mL)"] ** 2, -100.0 / m["LVEDV (mL)"]
+        x, y = g_ed * a, g_es * b
+        return float(np.sqrt(max(x * x + y * y + 2 * rho * x * y, 0.0)))
     return 0.0
 
 
@@ -213,9 +232,26 @@ def rescaled(r: dict, consts: dict) -> dict:
     those of the variant with the same OUTFLOW_SHARE (same OPEN_SLAB_MM); LVM's Gaussian
     part scales as a whole with its input kind's LVM_FACTOR. Exact: the module gives the
     same numbers with these constants."""
+    out: dict = {}
+    for col, p in _rescale_parts(r, consts).items():
+        if p is None:
+            out[col] = None
+            continue
+        v, below, above, var = p
+        z_new = U.Z95 * float(np.sqrt(var + _lv_shape_sd(r, col, consts) ** 2))
+        if col == "LVM (g)":
+            z_new *= _lvm_factor(r, consts) / _lvm_factor(r, RUN_CONSTANTS)
+        out[col] = [v - z_new - below, v + z_new + above]
+    return out
+
+
+def _rescale_parts(r: dict, consts: dict) -> dict:
+    """:func:`rescaled`'s pieces of each metric under ``consts``: (value, allowance below,
+    allowance above, variance of every Gaussian source but ``lv shape``), or None."""
     scale = {"contours": consts["CONTOUR_FACTOR"] / RUN_CONSTANTS["CONTOUR_FACTOR"],
              "pixels": consts["PIXEL_BIAS"] / RUN_CONSTANTS["PIXEL_BIAS"],
-             "between": consts["BETWEEN_FACTOR"] / RUN_CONSTANTS["BETWEEN_FACTOR"]}
+             "between": consts["BETWEEN_FACTOR"] / RUN_CONSTANTS["BETWEEN_FACTOR"],
+             "base": consts.get("BASE_FACTOR", 1.0) / RUN_CONSTANTS.get("BASE_FACTOR", 1.0)}
     rv_old, rv_new = _rv_rel(r, RUN_CONSTANTS), _rv_rel(r, consts)
     if rv_old > 0:      # the run has an ``rv shape`` source already: scale it
         scale["rv shape"], rv_new = rv_new / rv_old, 0.0
@@ -225,7 +261,7 @@ def rescaled(r: dict, consts: dict) -> dict:
                 and c["PIXEL_BIAS"] == RUN_CONSTANTS["PIXEL_BIAS"])
     # a --no-variants run: its own allowances, valid while OUTFLOW_SHARE is the run's
     own = not r.get("variants") and consts["OUTFLOW_SHARE"] == RUN_CONSTANTS["OUTFLOW_SHARE"]
-    out = {}
+    out: dict = {}
     for col in METRICS:
         iv, sd = r["unc"].get(col), r["unc"]["sd"].get(col)
         var = iv if own else r["variants"][name].get(col)
@@ -233,16 +269,12 @@ def rescaled(r: dict, consts: dict) -> dict:
             out[col] = None
             continue
         v = r["metrics"][col]
-        sd = {k: x for k, x in sd.items() if k != "lv shape"}      # recomputed below
+        sd = {k: x for k, x in sd.items() if k != "lv shape"}      # recomputed by the caller
         z_old = U.Z95 * float(np.sqrt(sum(x * x for x in sd.values())
                                       + _lv_shape_sd(r, col, RUN_CONSTANTS) ** 2))
-        z_new = U.Z95 * float(np.sqrt(sum((x * scale.get(k, 1.0)) ** 2 for k, x in sd.items())
-                                      + _rv_shape_sd(r, col, rv_new) ** 2
-                                      + _lv_shape_sd(r, col, consts) ** 2))
-        if col == "LVM (g)":
-            z_new *= _lvm_factor(r, consts) / _lvm_factor(r, RUN_CONSTANTS)
-        below, above = (v - var[0]) - z_old, (var[1] - v) - z_old
-        out[col] = [v - z_new - below, v + z_new + above]
+        rest = (sum((x * scale.get(k, 1.0)) ** 2 for k, x in sd.items())
+                + _rv_shape_sd(r, col, rv_new) ** 2)
+        out[col] = (v, (v - var[0]) - z_old, (var[1] - v) - z_old, float(rest))
     return out
 
 
@@ -261,7 +293,7 @@ LV_GRID = [{"LV_SHAPE_LABELS": a, "LV_SHAPE_LABELS_LA": b, "LV_SHAPE_CONTOURS": 
            for c in (0.0, 0.03, 0.05, 0.08, 0.10, 0.12, 0.15)]
 RV_GRID = [{"RV_SHAPE_LABELS": a, "RV_SHAPE_LABELS_LA": b, "RV_SHAPE_CONTOURS": c}
            for a in (0.0, 0.03, 0.05, 0.08, 0.10) for b in (0.0, 0.03, 0.05, 0.08, 0.10)
-           for c in (0.0, 0.03, 0.05, 0.08)]
+           for c in (0.0, 0.03, 0.05, 0.08, 0.10, 0.12)]
 
 
 def choose_by_kind(rows: list[dict]) -> tuple[dict, list[str]]:
@@ -275,14 +307,24 @@ def choose_by_kind(rows: list[dict]) -> tuple[dict, list[str]]:
 
 #: the settings of the constants every input kind shares, ``--min-inside`` (GRID's values;
 #: OUTFLOW_SHARE stays the run's, so that a ``--no-variants`` run is rescaled exactly)
-CORE_GRID = [{"CONTOUR_FACTOR": c, "BETWEEN_FACTOR": b, "PIXEL_BIAS": p, "LV_SHAPE_CORR": q}
+CORE_GRID = [{"CONTOUR_FACTOR": c, "BETWEEN_FACTOR": b, "PIXEL_BIAS": p, "BASE_FACTOR": f}
              for c in (1.0, 1.5, 2.0, 3.0) for b in (0.25, 1.0) for p in (0.1, 0.2)
-             for q in (1.0, 0.5, 0.0)]
+             for f in (0.75, 0.5, 0.25)]
 #: each entry's values (those of LV_GRID and RV_GRID; the LVM factors' own)
 ENTRY_VALUES = {k: sorted({g[k] for g in grid}) for grid in (LV_GRID, RV_GRID) for k in grid[0]}
 ENTRY_VALUES.update({"LV_SHAPE_OBSERVED": [0.0, 0.005, 0.01, 0.02],
                      "RV_SHAPE_OBSERVED": [0.0, 0.01, 0.02, 0.03, 0.05]})
-ENTRY_VALUES.update({k: [0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.25] for k in LVM_KEYS})
+ENTRY_VALUES.update({k: [0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.25, 1.5]
+                     for k in LVM_KEYS})
+ENTRY_VALUES.update({k: [1.0, 0.5, 0.0, -0.5, -1.0] for k in LV_CORR_KEYS})
+ENTRY_VALUES.update({k: [1.0, 0.5, 0.25] for k in LV_ED_KEYS})
+#: the correlation and ED-share entries that go with each LV entry (chosen together:
+#: :func:`_options`)
+LV_CORR_OF = dict(zip(LV_KEYS, LV_CORR_KEYS))
+LV_ED_OF = dict(zip(LV_KEYS, LV_ED_KEYS))
+#: every entry's name in the tables
+ENTRY_NAMES = {**LV_KEYS, **RV_KEYS, **LVM_KEYS, **{k: f"ρ {v}" for k, v in LV_CORR_KEYS.items()},
+               **{k: f"ED {v}" for k, v in LV_ED_KEYS.items()}}
 #: the metrics each family of entries acts on
 ACTS_ON = {"LV": ("LVEDV (mL)", "LVESV (mL)", "LVEF (%)"), "RV": ("RVEDV (mL)", "RVEF (%)"),
            "LVM": ("LVM (g)",)}
@@ -306,43 +348,112 @@ def _stats(rows: list[dict], consts: dict) -> np.ndarray:
     return out
 
 
-def _best_entries(rows: list[dict], core: dict, family: str, n_min: int, base: np.ndarray):
-    """The narrowest entries of one family (LV_KEYS, RV_KEYS, LVM_KEYS) under the shared constants
-    ``core`` with at least ``n_min`` inside for each metric they act on: (entries, inside
-    counts of those metrics, sum of their half-widths / value) or None. Each entry acts
-    on its own input kind's rows only, so the counts of a setting are sums over kinds."""
+def _options(family: str, key: str) -> list[dict]:
+    """The settings one entry of a family may take: its :data:`ENTRY_VALUES`; an LV entry
+    with its kind's correlation (:data:`LV_CORR_OF`), since both act on that kind's LVEF."""
+    if family == "LV":
+        ckey, ekey = LV_CORR_OF[key], LV_ED_OF[key]
+        return [{key: v, ckey: q, ekey: e} for v in ENTRY_VALUES[key] for q in ENTRY_VALUES[ckey]
+                for e in ENTRY_VALUES[ekey]]
+    return [{key: v} for v in ENTRY_VALUES[key]]
+
+
+def _pareto(s: np.ndarray) -> np.ndarray:
+    """The options (axis 0 of ``s``, shape (m, metrics, 2): inside counts, summed half-width /
+    value) that no other option beats: as many inside for every metric and no wider, better
+    in one. The narrowest combination meeting any count lies among them."""
+    ins, w = s[:, :, 0], s[:, :, 1].sum(axis=1)
+    keep = []
+    for i in range(len(s)):
+        ge = (ins >= ins[i]).all(axis=1) & (w <= w[i])
+        if not (ge & ((ins > ins[i]).any(axis=1) | (w < w[i]))).any():
+            keep.append(i)
+    return np.array(keep, dtype=int)
+
+
+def _lv_option_stats(rows: list[dict], core: dict, opts: list[dict]) -> np.ndarray:
+    """Inside counts and summed half-width / value of LVEDV, LVESV, LVEF over ``rows`` under
+    ``core`` and each LV option (shape (options, 3, 2)): :func:`_stats` for those three
+    metrics, with the rest of each interval computed once (the options change ``lv shape``
+    alone)."""
+    cols = ACTS_ON["LV"]
+    out = np.zeros((len(opts), len(cols), 2))
+    for r in rows:
+        parts = _rescale_parts(r, {**RUN_CONSTANTS, **core})
+        for j, col in enumerate(cols):
+            t, p = r["truth"].get(col), parts.get(col)
+            if t is None or p is None:
+                continue
+            v, below, above, var = p
+            for i, x in enumerate(opts):
+                z = U.Z95 * float(np.sqrt(var + _lv_shape_sd(r, col, {**RUN_CONSTANTS, **core,
+                                                                       **x}) ** 2))
+                out[i, j, 0] += v - z - below <= t <= v + z + above
+                out[i, j, 1] += (z + 0.5 * (below + above)) / abs(v) if v else 0.0
+    return out
+
+
+def _best_entries(rows: list[dict], core: dict, family: str, n_min: int, base: np.ndarray,
+                  floor: float = 0.0):
+    """The narrowest entries of one family (LV_KEYS with LV_CORR_KEYS, RV_KEYS, LVM_KEYS) under
+    the shared constants ``core`` with at least ``n_min`` inside for each metric they act on
+    and, within each input kind, at least ``floor`` of its subjects inside for each: (entries,
+    inside counts of those metrics, sum of their half-widths / value) or None. Each entry
+    acts on its own input kind's rows only, so the counts of a setting are sums over kinds."""
     keys, kind_of = FAMILIES[family]
     cols = [DONE_WHEN.index(c) for c in ACTS_ON[family]]
     kinds = np.array([kind_of.get(r["input"]) for r in rows], dtype=object)
     rest = ~np.isin(kinds, list(keys.values()))
     fixed = np.nansum(base[rest][:, cols], axis=0)              # rows no entry acts on
-    per_key = {}
+    opts, sums, oks = [], [], []
     for key, kind in keys.items():
         sel = [r for r, k in zip(rows, kinds) if k == kind]
-        per_key[key] = {v: np.nansum(_stats(sel, {**core, key: v})[:, cols], axis=0)
-                        for v in ENTRY_VALUES[key]}
-    best = None
-    combos = ([(v,) * len(keys) for v in ENTRY_VALUES[next(iter(keys))]] if family in TIED
-              else itertools.product(*(ENTRY_VALUES[k] for k in keys)))
-    for combo in combos:
-        tot = fixed + sum(per_key[k][v] for k, v in zip(keys, combo))
-        if (tot[:, 0] >= n_min).all() and (best is None or tot[:, 1].sum() < best[2]):
-            best = (dict(zip(keys, combo)), tot[:, 0], float(tot[:, 1].sum()))
-    return best
+        n = np.sum(np.isfinite(base[kinds == kind][:, cols, 0]), axis=0)
+        o = _options(family, key)
+        tot = (_lv_option_stats(sel, core, o) if family == "LV" else
+               np.array([np.nansum(_stats(sel, {**core, **x})[:, cols], axis=0) for x in o]))
+        opts.append(o)
+        sums.append(tot.reshape(len(o), len(cols), 2))
+        oks.append((tot.reshape(len(o), len(cols), 2)[:, :, 0] >= floor * n - 1e-9).all(axis=1))
+    if family in TIED:              # the same value for every kind
+        tot = fixed + sum(sums)
+        ok = np.logical_and.reduce(oks)
+        index = [(i,) * len(keys) for i in range(len(opts[0]))]
+    else:                           # every combination of the kinds' admissible options
+        keep = [np.intersect1d(np.flatnonzero(k), _pareto(s_k)) for k, s_k in zip(oks, sums)]
+        if any(len(k) == 0 for k in keep):
+            return None
+        tot = fixed[None]
+        for s_k, k in zip(sums, keep):
+            tot = (tot[:, None] + s_k[k][None, :]).reshape(-1, len(cols), 2)
+        ok = np.ones(len(tot), bool)
+        index = None
+    ok &= (tot[:, :, 0] >= n_min).all(axis=1)
+    if not ok.any():
+        return None
+    best = int(np.flatnonzero(ok)[np.argmin(tot[ok][:, :, 1].sum(axis=1))])
+    idx = (index[best] if index is not None else
+           [k[i] for k, i in zip(keep, np.unravel_index(best, [len(k) for k in keep]))])
+    entries = {}
+    for o, i in zip(opts, idx):
+        entries.update(o[int(i)])
+    return entries, tot[best, :, 0], float(tot[best, :, 1].sum())
 
 
-def choose_min_inside(rows: list[dict], n_min: int, lvm: bool = True) -> tuple[dict, list[str]]:
+def choose_min_inside(rows: list[dict], n_min: int, lvm: bool = True, floor: float = 0.0
+                      ) -> tuple[dict, list[str]]:
     """:func:`choose_at_least` at ``n_min``; where no setting has ``n_min`` inside for each
     of the six, at the highest count some setting reaches (said under the table)."""
     for n in range(n_min, 0, -1):
-        consts, table = choose_at_least(rows, n, lvm)
+        consts, table = choose_at_least(rows, n, lvm, floor)
         if consts:
             return consts, table + ([] if n == n_min else [
                 "", f"(no setting has {n_min} inside for each of the six: the rule applied at {n})"])
     return {}, table
 
 
-def choose_at_least(rows: list[dict], n_min: int, lvm: bool = True) -> tuple[dict, list[str]]:
+def choose_at_least(rows: list[dict], n_min: int, lvm: bool = True, floor: float = 0.0
+                    ) -> tuple[dict, list[str]]:
     """The rule of session 15: of CORE_GRID × the LV and RV entries (ENTRY_VALUES), the
     narrowest setting (mean half-width / value over the six DONE_WHEN metrics) with at
     least ``n_min`` subjects inside for every one of the six. ``lvm`` (session 16): the
@@ -350,7 +461,10 @@ def choose_at_least(rows: list[dict], n_min: int, lvm: bool = True) -> tuple[dic
     (they act on LVM alone), so that LVM is not left as wide as the shared constants make
     it; without, they stay the run's. Returns it and a table of the best setting of each
     CORE_GRID row. OUTFLOW_SHARE stays the run's, so that rows of a ``--no-variants`` run
-    are rescaled exactly too (their own one-sided allowances)."""
+    are rescaled exactly too (their own one-sided allowances). Session 17: the lv shape
+    correlation is an entry per kind (chosen with its kind's lv shape share, no longer in
+    CORE_GRID) and ``floor`` asks each input kind to have at least that fraction of its
+    subjects inside for each of the six too."""
     families = ("LV", "RV", "LVM") if lvm else ("LV", "RV")
     table = ["| " + " | ".join(CORE_GRID[0]) + " | "
              + " | ".join(f"{f} entries" for f in families) + " | "
@@ -360,7 +474,7 @@ def choose_at_least(rows: list[dict], n_min: int, lvm: bool = True) -> tuple[dic
     for core in CORE_GRID:
         base = _stats(rows, core)
         inside = np.nansum(base[:, :, 0], axis=0)
-        found = [_best_entries(rows, core, f, n_min, base) for f in families]
+        found = [_best_entries(rows, core, f, n_min, base, floor) for f in families]
         if any(x is None for x in found):
             table.append("| " + " | ".join(f"{core[k]:g}" for k in core)
                          + " | none" * len(families) + " | " + " | ".join(f"{x:.0f}" for x in inside)
@@ -373,7 +487,7 @@ def choose_at_least(rows: list[dict], n_min: int, lvm: bool = True) -> tuple[dic
         inside, rel = np.nansum(st[:, :, 0], axis=0), float(np.nanmean(st[:, :, 1]))
         ok = bool((inside >= n_min).all())
         table.append("| " + " | ".join(f"{core[k]:g}" for k in core) + " | "
-                     + " | ".join(", ".join(f"{FAMILIES[f][0][k]} {v:g}" for k, v in x[0].items())
+                     + " | ".join(", ".join(f"{ENTRY_NAMES[k]} {v:g}" for k, v in x[0].items())
                                   for f, x in zip(families, found)) + " | "
                      + " | ".join(f"{x:.0f}" for x in inside) + f" | {100 * rel:.2f} %"
                      + ("" if ok else " (LVEF short)") + " |")
@@ -490,9 +604,36 @@ def _row(r: dict, col: str) -> tuple[float, float, bool] | None:
     return r["metrics"][col] - t, 0.5 * (iv[1] - iv[0]), iv[0] <= t <= iv[1]
 
 
+def binomial_ci(inside: int, n: int) -> tuple[float, float]:
+    """The exact (Clopper-Pearson) 95 % interval of a coverage, %, from ``inside`` of ``n``."""
+    from scipy.stats import beta
+    lo = beta.ppf(0.025, inside, n - inside + 1) if inside > 0 else 0.0
+    hi = beta.ppf(0.975, inside + 1, n - inside) if inside < n else 1.0
+    return 100.0 * float(lo), 100.0 * float(hi)
+
+
+def kind_table(rows: list[dict]) -> list[str]:
+    """Coverage (inside / n, %) of the six by design input and by the module's input kind."""
+    out = ["| input (kind) | subjects | " + " | ".join(DONE_WHEN) + " |",
+           "|---" * (len(DONE_WHEN) + 2) + "|"]
+    groups = [(f"{i} ({INPUT_KIND[i]})", lambda r, i=i: r["input"] == i) for i in INPUTS]
+    groups += [(f"kind {k}", lambda r, k=k: INPUT_KIND[r["input"]] == k)
+               for k in dict.fromkeys(INPUT_KIND.values())]
+    for name, pick in groups:
+        sub = [r for r in rows if pick(r)]
+        if not sub:
+            continue
+        cells = []
+        for col in DONE_WHEN:
+            got = [x[2] for x in (_row(r, col) for r in sub) if x is not None]
+            cells.append(f"{sum(got)}/{len(got)}, {100.0 * sum(got) / len(got):.1f} %" if got else "")
+        out.append(f"| {name} | {len(sub)} | " + " | ".join(cells) + " |")
+    return out
+
+
 def coverage_table(rows: list[dict]) -> list[str]:
-    out = ["| metric | subjects | truth inside | coverage | median half-width | median abs error "
-           "| median abs z | in 90-98 % |", "|---|---|---|---|---|---|---|---|"]
+    out = ["| metric | subjects | truth inside | coverage | binomial 95 % CI | median half-width "
+           "| median abs error | median abs z | in 90-98 % |", "|---|---|---|---|---|---|---|---|---|"]
     for col in METRICS:
         got = [x for x in (_row(r, col) for r in rows) if x is not None]
         if not got:
@@ -501,7 +642,8 @@ def coverage_table(rows: list[dict]) -> list[str]:
         cov = 100.0 * inside / len(got)
         z = [abs(e) / (hw / 1.96) for e, hw, _ in got if hw > 0]
         ok = "yes" if 90 <= cov <= 98 else "**no**"
-        out.append(f"| {col} | {len(got)} | {inside} | {cov:.0f} % | "
+        lo, hi = binomial_ci(inside, len(got))
+        out.append(f"| {col} | {len(got)} | {inside} | {cov:.1f} % | {lo:.1f}-{hi:.1f} % | "
                    f"{np.median([x[1] for x in got]):.2f} | {np.median([abs(x[0]) for x in got]):.2f} "
                    f"| {np.median(z):.2f} | {ok if col in DONE_WHEN else '(not required)'} |")
     return out
@@ -570,6 +712,9 @@ def main(argv=None) -> int:
                     help="with --from-raw and --min-inside: print the inside counts of the "
                          "six on this --raw file (measured with the same --run-constants) "
                          "under the setting the rule chose on --from-raw (repeatable)")
+    ap.add_argument("--kind-floor", type=float, default=0.0,
+                    help="with --min-inside: also at least this fraction of each input kind's "
+                         "subjects inside for each of the six (session 17's rule: 0.9)")
     ap.add_argument("--lvm-tied", action="store_true",
                     help="with --min-inside: one LVM_FACTOR value for every input kind")
     ap.add_argument("--no-lvm-entries", action="store_true",
@@ -631,6 +776,7 @@ def main(argv=None) -> int:
             "constants " + ", ".join(f"{k} = {v:g}" for k, v in module_constants().items())
             + "; truth: the phantoms' analytic truth.json", "",
             "## Coverage (truth inside the 95 % interval)", "", *coverage_table(rows), "",
+            "by input and input kind (inside / subjects):", "", *kind_table(rows), "",
             "## Half-width as the data improve", "",
             "Mean half-width (metric units) by input (denser slices: `contours+LA` 10 -> 5 mm, "
             "`labels acdc` 10 -> 5 mm; long-axis views: `contours SA-only` -> `contours+LA`, "
@@ -652,13 +798,13 @@ def main(argv=None) -> int:
             "one with the most of the six in range, then the highest lowest coverage, then the "
             "narrowest. Every setting is computed on every subject "
             "from the same reconstruction (`rescaled()`: exact, no refit).", "",
-            *((choose_min_inside(rows, a.min_inside, not a.no_lvm_entries) if a.min_inside else choose_by_kind(rows) if a.lv_grid else choose(rows))[1] if rows and (a.min_inside or rows[0].get("variants")) and not a.no_grid else
+            *((choose_min_inside(rows, a.min_inside, not a.no_lvm_entries, a.kind_floor) if a.min_inside else choose_by_kind(rows) if a.lv_grid else choose(rows))[1] if rows and (a.min_inside or rows[0].get("variants")) and not a.no_grid else
               ["(not recomputed for this run: --no-grid)"]), "",
             "## Every subject (error = model − truth / half-width; ✗ truth outside)", "",
             *subject_table(rows), ""]
     if a.test_raw and a.min_inside and a.from_raw is not None:
         raw_rows = [json.loads(line) for line in a.from_raw.read_text().splitlines() if line.strip()]
-        chosen, _ = choose_min_inside(raw_rows, a.min_inside, not a.no_lvm_entries)
+        chosen, _ = choose_min_inside(raw_rows, a.min_inside, not a.no_lvm_entries, a.kind_floor)
         for f in a.test_raw:
             test = [json.loads(line) for line in f.read_text().splitlines() if line.strip()]
             st = _stats(test, chosen)

@@ -109,7 +109,8 @@ def test_without_long_axis_views_the_ends_dominate(monkeypatch):
     # the contours' lv shape entry is 0 as calibrated (seeds 200-259, session 15); a
     # positive entry is set here so that the term's propagation is what is checked
     monkeypatch.setitem(U.LV_SHAPE_REL, "contours", 0.03)
-    monkeypatch.setattr(U, "LV_SHAPE_CORR", 1.0)       # one error at ED and ES (checked below)
+    monkeypatch.setitem(U.LV_SHAPE_CORR, "contours", 1.0)  # one error at ED and ES (below)
+    monkeypatch.setitem(U.LV_SHAPE_ED_FACTOR, "contours", 1.0)  # the same share at both
     ph = generate.generate("normal", seed=3, frames=2)
     st = ph.study
     st.tags = []
@@ -132,14 +133,37 @@ def test_without_long_axis_views_the_ends_dominate(monkeypatch):
     assert iv["sd"]["LVESV (mL)"]["lv shape"] == pytest.approx(rel * m["LVESV (mL)"], rel=1e-3)
     assert iv["sd"]["LVSV (mL)"]["lv shape"] == pytest.approx(rel * m["LVSV (mL)"], rel=1e-3)
     assert iv["sd"]["LVEF (%)"]["lv shape"] == pytest.approx(0.0, abs=1e-9)
-    # independent ED and ES errors (LV_SHAPE_CORR 0): SV and EF get the term, EDV keeps it
-    monkeypatch.setattr(U, "LV_SHAPE_CORR", 0.0)
+    # independent ED and ES errors (the kind's LV_SHAPE_CORR 0): SV and EF get the term,
+    # EDV keeps it
+    monkeypatch.setitem(U.LV_SHAPE_CORR, "observed", 0.0)   # another kind's entry: no effect
+    assert intervals(model, m)["sd"]["LVEF (%)"]["lv shape"] == pytest.approx(0.0, abs=1e-9)
+    monkeypatch.setitem(U.LV_SHAPE_CORR, "contours", 0.0)
     ind = intervals(model, m)["sd"]
     a, b = rel * m["LVEDV (mL)"], rel * m["LVESV (mL)"]
     assert ind["LVEDV (mL)"]["lv shape"] == pytest.approx(a, rel=1e-3)
     assert ind["LVSV (mL)"]["lv shape"] == pytest.approx(math.hypot(a, b), rel=1e-3)
     ef = 100.0 * b / m["LVEDV (mL)"] * math.sqrt(2.0)
     assert ind["LVEF (%)"]["lv shape"] == pytest.approx(ef, rel=1e-3)
+    # the ED share of the term its own (LV_SHAPE_ED_FACTOR): EDV's lv shape halves, ESV's stays,
+    # EF's follows the delta method with ρ 0
+    monkeypatch.setitem(U.LV_SHAPE_ED_FACTOR, "contours", 0.5)
+    half_iv = intervals(model, m)
+    half = half_iv["sd"]
+    assert half["LVEDV (mL)"]["lv shape"] == pytest.approx(0.5 * a, rel=1e-3)
+    assert half["LVESV (mL)"]["lv shape"] == pytest.approx(b, rel=1e-3)
+    g_ed, g_es = 100.0 * m["LVESV (mL)"] / m["LVEDV (mL)"] ** 2, 100.0 / m["LVEDV (mL)"]
+    assert half["LVEF (%)"]["lv shape"] == pytest.approx(math.hypot(g_ed * 0.5 * a, g_es * b),
+                                                         rel=1e-3)
+    # the base term's factor scales the base SD alone, not the one-sided allowances
+    monkeypatch.setattr(U, "BASE_FACTOR", 0.5 * U.BASE_FACTOR)
+    based = intervals(model, m)
+    for col in ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)"):
+        assert half[col]["base"] > 0, col
+        assert based["sd"][col]["base"] == pytest.approx(0.5 * half[col]["base"], rel=1e-9)
+        for iv in (half_iv, based):
+            tot = U.Z95 * math.sqrt(sum(x * x for x in iv["sd"][col].values()))
+            iv[col] = (iv[col][1] - m[col]) - tot              # the allowance above
+        assert based[col] == pytest.approx(half_iv[col], abs=1e-9), col
 
 
 def test_one_frame_study_has_no_ef_interval(clean):

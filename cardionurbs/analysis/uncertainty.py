@@ -21,8 +21,8 @@ sections, contour points and frames:
   contours the end is observed, σ from their scatter about the surface;
 * **lv shape** -- the LV cavity's reconstruction error by input kind (label maps with and
   without long-axis maps, SA contours with a rule-placed base): :data:`LV_SHAPE_REL` of its
-  volume at ED and ES, their errors correlated by :data:`LV_SHAPE_CORR` (a model-error
-  term set on the calibration phantoms);
+  volume at ED and ES, their errors correlated by :data:`LV_SHAPE_CORR` (by input kind; a
+  model-error term set on the calibration phantoms);
 * **rv shape** -- an RV cavity no landmark or long-axis contour closes (label maps, SA-only
   contours): :data:`RV_SHAPE_REL` of its volume by input kind (a model-error term set on the
   calibration phantoms);
@@ -69,28 +69,36 @@ Z95 = 1.959963984540054
 #: relative SD of an RV cavity by input kind (:func:`lv_input_kind`; label maps, SA-only
 #: contours; ``observed``: a cavity the landmarks or long-axis contours close): ED and ES
 #: independent
-RV_SHAPE_REL = {"labels": 0.03, "labels+LA": 0.05, "contours": 0.03, "observed": 0.0}
+RV_SHAPE_REL = {"labels": 0.05, "labels+LA": 0.05, "contours": 0.08, "observed": 0.0}
 #: relative SD of an LV cavity by input kind (:func:`lv_input_kind`, ``observed`` for None):
 #: the reconstruction's
 #: own error at a base no SA section closes, one error at ED and ES (a model-error term set
 #: on the calibration phantoms, docs/metrics.md, Uncertainty)
-LV_SHAPE_REL = {"labels": 0.02, "labels+LA": 0.01, "contours": 0.03, "observed": 0.005}
-#: correlation of the lv shape errors at ED and ES (1: one error, the same share of the
-#: cavity missed at both, which cancels in EF; 0: independent), set on the calibration
-#: phantoms (docs/metrics.md, Uncertainty)
-LV_SHAPE_CORR = 0.5
+LV_SHAPE_REL = {"labels": 0.02, "labels+LA": 0.03, "contours": 0.08, "observed": 0.005}
+#: correlation of the lv shape errors at ED and ES by input kind (as :data:`LV_SHAPE_REL`;
+#: 1: one error, the same share of the cavity missed at both, which cancels in EF; 0:
+#: independent), set on the calibration phantoms (docs/metrics.md, Uncertainty)
+LV_SHAPE_CORR = {"labels": 1.0, "labels+LA": 0.0, "contours": 0.5, "observed": 0.0}
+#: the ED share of the lv shape term over :data:`LV_SHAPE_REL` (the ES share) by input kind:
+#: a rule-placed base misses more of the small ES cavity, relatively, than of the ED one
+#: (set on the calibration phantoms, docs/metrics.md, Uncertainty)
+LV_SHAPE_ED_FACTOR = {"labels": 0.25, "labels+LA": 0.5, "contours": 0.5, "observed": 1.0}
 #: factor over the LV wall's propagated SD (every source above; not the one-sided
 #: allowances) by input kind (:func:`lv_input_kind`, ``observed`` for contours whose base the
 #: data fix): the wall's error is not its cavity's (epicardium and endocardium share most of
 #: a slice's misplacement and its between-slice shape), so LVM gets its own width, set on the
 #: calibration phantoms (docs/metrics.md, Uncertainty)
-LVM_FACTOR = {"labels": 0.7, "labels+LA": 0.7, "contours": 0.7, "observed": 0.7}
+LVM_FACTOR = {"labels": 0.7, "labels+LA": 1.5, "contours": 0.7, "observed": 1.0}
 #: the contours term's factor over independent point noise (docs/metrics.md, Uncertainty)
-CONTOUR_FACTOR = 2.0
+CONTOUR_FACTOR = 1.5
 #: fraction of the trapezoid error that a lofted (cubic) surface keeps between slices
 BETWEEN_FACTOR = 1.0
 #: cap volume per (end area × cap length): 1/2 for a paraboloid, 1/3 for a cone
 CAP_SHAPE = 0.5
+#: factor over the base term's SD (1: the valve plane anywhere in the reach, a full slab
+#: of the basal area; below 1: the basal cap tapers, as the apex's does), set on the
+#: calibration phantoms (docs/metrics.md, Uncertainty)
+BASE_FACTOR = 0.5
 #: how far (mm) at least an end the stack leaves open may reach beyond its end section
 OPEN_SLAB_MM = 10.0
 #: systematic boundary placement of a label map's contours, in pixels (1 SD)
@@ -115,12 +123,15 @@ class VolumeError:
         The sources shared with the other frame.
     above, below : float
         The one-sided allowances, mL.
+    corr : float
+        The correlation of its ``lv shape`` source with the other frame's (when shared).
     """
 
     sd: dict[str, float] = field(default_factory=dict)
     shared: frozenset = frozenset()
     above: float = 0.0
     below: float = 0.0
+    corr: float = 1.0
 
     def total(self) -> float:
         """The root sum of squares of the sources' standard deviations, mL.
@@ -301,6 +312,7 @@ def volume_error(model: "BiventricularModel", frame: int, structure: str) -> dic
         reach = _open_slab(model, frame, structure, float(lev[i]), sign, h)
         sd[end] = shape * a_end * reach / SQRT12 / 1000.0
         sd[f"open {end}"] = shape * a_end * max(0.5 * reach - half, 0.0) / 1000.0
+    sd["base"] *= BASE_FACTOR                      # the SD only; the allowance stays
     return sd
 
 
@@ -354,7 +366,7 @@ def solid_error(model: "BiventricularModel", frame: int, solid: str) -> VolumeEr
         else:
             sd["lv shape"] = _lv_shape(model, frame)
         return VolumeError(sd, frozenset(shared), above + _outflow_allowance(model, frame, solid),
-                           0.0)
+                           0.0, lv_shape_corr(model))
     b = volume_error(model, frame, inner)
     if not b:
         return None
@@ -421,13 +433,33 @@ def lvm_factor(model: "BiventricularModel") -> float:
     return float(LVM_FACTOR.get(lv_input_kind(model) or "observed", 1.0))
 
 
+def lv_shape_corr(model: "BiventricularModel") -> float:
+    """The :data:`LV_SHAPE_CORR` of the model's input kind (:func:`lv_input_kind`;
+    ``observed`` when it is None): the correlation of its lv shape errors at ED and ES.
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+
+    Returns
+    -------
+    float
+    """
+    return float(LV_SHAPE_CORR.get(lv_input_kind(model) or "observed", 1.0))
+
+
 def _lv_shape(model: "BiventricularModel", frame: int) -> float:
     """SD (mL) of the LV cavity's own reconstruction error for its input kind:
     :data:`LV_SHAPE_REL` of its volume (``observed``: contours whose base the data fix). The SA
     sections leave the basal LV (the annulus' saddle, the outflow root) to the rule or the
     map's last slice, and the realistic base differs from the loft's guess by a share of the
-    cavity that is alike at ED and ES (one error, shared: EF keeps its interval)."""
-    rel = LV_SHAPE_REL.get(lv_input_kind(model) or "observed", 0.0)
+    cavity that is alike at ED and ES (correlated by :data:`LV_SHAPE_CORR`; at ED times
+    :data:`LV_SHAPE_ED_FACTOR`)."""
+    kind = lv_input_kind(model) or "observed"
+    rel = LV_SHAPE_REL.get(kind, 0.0)
+    if frame == model.ed_frame:
+        rel *= LV_SHAPE_ED_FACTOR.get(kind, 1.0)
     return rel * float(model.volumes[frame].get("lv_cavity", 0.0))
 
 
@@ -491,11 +523,12 @@ def _sampling_bias(model: "BiventricularModel") -> tuple[float, float]:
 
 def _combine(ed: VolumeError, es: VolumeError, grad_ed: float, grad_es: float) -> float:
     """SD of grad_ed · δEDV + grad_es · δESV: independent sources in quadrature, a shared
-    source (ES's ``shared``) as one error (``lv shape``: correlated by :data:`LV_SHAPE_CORR`)."""
+    source (ES's ``shared``) as one error (``lv shape``: correlated by ES's ``corr``, the
+    input kind's :data:`LV_SHAPE_CORR`)."""
     var = 0.0
     for k in sorted(set(ed.sd) | set(es.sd)):
         a, b = grad_ed * ed.sd.get(k, 0.0), grad_es * es.sd.get(k, 0.0)
-        rho = (LV_SHAPE_CORR if k == "lv shape" else 1.0) if k in es.shared else 0.0
+        rho = (es.corr if k == "lv shape" else 1.0) if k in es.shared else 0.0
         var += a * a + b * b + 2.0 * rho * a * b
     return math.sqrt(max(var, 0.0))
 
@@ -554,8 +587,8 @@ def _side_intervals(model, metrics: dict, side: str, bias: tuple[float, float],
 
 def _parts(ed: VolumeError, es: VolumeError, g_ed: float, g_es: float) -> dict[str, float]:
     """Per source, the SD of g_ed · δEDV + g_es · δESV."""
-    return {k: _combine(VolumeError({k: ed.sd.get(k, 0.0)}), VolumeError({k: es.sd.get(k, 0.0)},
-                                                                         es.shared), g_ed, g_es)
+    return {k: _combine(VolumeError({k: ed.sd.get(k, 0.0)}),
+                        VolumeError({k: es.sd.get(k, 0.0)}, es.shared, corr=es.corr), g_ed, g_es)
             for k in sorted(set(ed.sd) | set(es.sd))}
 
 
