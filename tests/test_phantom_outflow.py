@@ -177,3 +177,25 @@ def test_outflow_switch_and_errors(tmp_path):
     assert cli_main(["phantom", "--pathology", "phtn", "--outflow", "--no-dicom",
                      "--out", str(tmp_path / "q")]) == 2
     assert not (tmp_path / "q").exists()
+
+
+def test_a_view_that_misses_its_annulus_at_es_gives_no_landmark_there():
+    """Realistic MR seed 10153: the RVOT view, planned at ED, misses the pulmonary annulus at ES
+    (it raised PhantomError and the phantom could not be made). The ES frame has no pulmonary
+    landmark, ED keeps its eight; the truth's ES valve plane is the annulus' own fit; the
+    study reconstructs close to the truth."""
+    from cardionurbs.pipeline import analyse_study
+    ph = generate("mr", seed=10153, frames=2, anatomy_model="realistic", sa_spacing_mm=10.0,
+                  sa_thickness_mm=8.0)
+    n_pulm = [sum(lm.name == "pulmonary" and lm.frame == k for lm in ph.study.landmarks)
+              for k in (0, 1)]
+    assert n_pulm == [8, 0]
+    assert sum(lm.name == "aortic" and lm.frame == 1 for lm in ph.study.landmarks) == 8
+    c, n = trr.valve_planes(ph.anatomy, ph.motion, 1.0)["pulmonary"]
+    ring = annotate.annulus_ring(ph.anatomy, ph.motion, 1.0, "pulmonary")
+    assert np.allclose(c, ring.mean(axis=0)) and n[2] > 0     # its least-squares plane
+    assert np.abs((ring - c) @ n).max() < 0.5                 # (the moved annulus: 0.06 mm)
+    _, m = analyse_study(ph.study)
+    t = ph.truth["metrics"]
+    for k in ("LVEDV (mL)", "LVESV (mL)", "RVEDV (mL)", "RVESV (mL)"):
+        assert m[k] == pytest.approx(t[k], rel=0.05), k

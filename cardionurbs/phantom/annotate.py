@@ -1153,7 +1153,9 @@ def landmarks(anatomy: Anatomy, motion: Motion, f: float, n_mitral: int = 6,
 def outflow_landmarks(anatomy: Anatomy, motion: Motion, f: float, n_ring: int = 6) -> dict[str, np.ndarray]:
     """``pulmonary`` and ``aortic`` annulus points at phase f (motion frame): first the two points
     where the RVOT view (``la_rvot``), resp. the 3-chamber view, cuts the annulus, then ``n_ring``
-    points evenly spaced around it (docs/phantoms.md).
+    points evenly spaced around it (docs/phantoms.md). A view planned at ED can miss its annulus
+    at another phase (the annulus moved out of the fixed plane, e.g. with a large basal
+    rotation at ES): an annotator sees no valve there, so that annulus has no landmark at f.
 
     Parameters
     ----------
@@ -1165,25 +1167,49 @@ def outflow_landmarks(anatomy: Anatomy, motion: Motion, f: float, n_ring: int = 
         The cycle phase (0 at ED, 1 at ES).
     n_ring : int, optional
         Points evenly spaced around each annulus.
+
     Returns
     -------
     dict of str to ndarray
-        ``pulmonary`` and ``aortic`` -> points (2 + n_ring, 3), mm.
+        ``pulmonary`` and ``aortic`` -> points (2 + n_ring, 3), mm; an annulus its view does
+        not cut twice at f is left out.
     """
-    from cardionurbs.phantom import outflow as ofl
     from cardionurbs.phantom.geometry import la_plane
     out = {}
-    for name, ring_mat, view in (("pulmonary", ofl.pulmonary_ring(anatomy, 97), "la_rvot"),
-                                 ("aortic", ofl.aortic_ring(anatomy, 192), "la_3ch")):
+    for name, view in (("pulmonary", "la_rvot"), ("aortic", "la_3ch")):
         spec = la_plane(anatomy, view)
-        ring = bend(anatomy, motion.forward(anatomy, ring_mat, f))
+        ring = annulus_ring(anatomy, motion, f, name)
         cut = polyline_crossings(ring, spec.normal, float(spec.center @ spec.normal), closed=True)
-        if len(cut) != 2:
-            from cardionurbs.errors import PhantomError
-            raise PhantomError(f"the {view} view cuts the {name} annulus {len(cut)} times, not twice")
+        if len(cut) != 2:       # the view misses the annulus at this phase: no valve to click
+            continue
         idx = np.round(np.linspace(0, len(ring), n_ring, endpoint=False)).astype(int)
         out[name] = unbend(anatomy, np.r_[cut, ring[idx]])
     return out
+
+
+def annulus_ring(anatomy: Anatomy, motion: Motion, f: float, name: str) -> np.ndarray:
+    """The pulmonary or aortic annulus at phase f as a closed polyline, bent heart frame.
+
+    Parameters
+    ----------
+    anatomy : cardionurbs.phantom.anatomy.Anatomy
+        A realistic anatomy with outflow tracts (heart frame, mm).
+    motion : cardionurbs.phantom.motion.Motion
+        The motion.
+    f : float
+        The cycle phase (0 at ED, 1 at ES).
+    name : str
+        ``"pulmonary"`` (97 points) or ``"aortic"`` (192 points).
+
+    Returns
+    -------
+    ndarray
+        (n, 3) points, mm, in the bent frame (:func:`bend`).
+    """
+    from cardionurbs.phantom import outflow as ofl
+    ring_mat = (ofl.pulmonary_ring(anatomy, 97) if name == "pulmonary"
+                else ofl.aortic_ring(anatomy, 192))
+    return bend(anatomy, motion.forward(anatomy, ring_mat, f))
 
 
 def rv_insertion_points(anatomy: Anatomy, motion: Motion, spec: SliceSpec, f: float):

@@ -59,7 +59,10 @@ def valve_planes(anatomy: Anatomy, motion: Motion, f: float) -> dict[str, tuple[
     out = {}
     keys = ("mitral", "tricuspid") + (("pulmonary", "aortic") if anatomy.outflow is not None else ())
     for key in keys:
-        c, n = fit_plane(annotate.bend(anatomy, lm[key]))
+        # an outflow view that misses its annulus at f gives no landmark: the ring itself
+        pts = (annotate.bend(anatomy, lm[key]) if key in lm
+               else annotate.annulus_ring(anatomy, motion, f, key))
+        c, n = fit_plane(pts)
         out[key] = (c, n if n[2] > 0 else -n)
     return out
 
