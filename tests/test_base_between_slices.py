@@ -12,20 +12,13 @@ import pytest
 from cardionurbs import measure, reconstruct
 from cardionurbs.phantom import generate
 from cardionurbs.study import Study
-
-
-def _sa_only(study: Study) -> Study:
-    study.tags = []
-    study.contours = [c for c in study.contours if c.view == "SA"]
-    study.landmarks = [lm for lm in study.landmarks if lm.view == "SA"]
-    study.images = [im for im in study.images if im.view == "SA"]
-    return study
+from studies import sa_only
 
 
 @pytest.fixture(scope="module")
 def mr_sa_only():
     ph = generate("mr", seed=5, frames=2, matrix=128, volume_check=False)
-    return ph, _sa_only(ph.study)
+    return ph, sa_only(ph.study)
 
 
 def test_es_base_keeps_the_myocardium_and_the_ejection_fractions(mr_sa_only):

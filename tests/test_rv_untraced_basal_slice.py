@@ -11,14 +11,7 @@ import cardionurbs.anatomy.model as model_mod
 from cardionurbs import measure, reconstruct
 from cardionurbs.phantom import generate
 from cardionurbs.study import Study
-
-
-def _sa_only(study: Study) -> Study:
-    study.tags = []
-    study.contours = [c for c in study.contours if c.view == "SA"]
-    study.landmarks = [lm for lm in study.landmarks if lm.view == "SA"]
-    study.images = [im for im in study.images if im.view == "SA"]
-    return study
+from studies import sa_only as drop_long_axis
 
 
 def _without_rv_on_top_slice(study: Study, frames: tuple[int, ...]) -> Study:
@@ -37,7 +30,7 @@ def _without_rv_on_top_slice(study: Study, frames: tuple[int, ...]) -> Study:
 @pytest.fixture(scope="module")
 def sa_only():
     ph = generate("mr", seed=5, frames=2, matrix=128, volume_check=False)
-    study = _sa_only(ph.study)
+    study = drop_long_axis(ph.study)
     return ph, study, measure(reconstruct(study))
 
 
