@@ -224,6 +224,14 @@ def _lvm_factor(r: dict, consts: dict) -> float:
     return 1.0 if x is None else float(x)
 
 
+def run_constants(r: dict) -> dict:
+    """The constants a subject was measured with: its record's own (``run_constants``, written
+    by :func:`run_subject` since session 17, or added to an older file by ``--tag-constants``)
+    over :data:`RUN_CONSTANTS` (``--run-constants``), so that files measured under different
+    constants can be pooled."""
+    return {**RUN_CONSTANTS, **r.get("run_constants", {})}
+
+
 def rescaled(r: dict, consts: dict) -> dict:
     """A subject's intervals under other constants, from the run's own numbers: the Gaussian
     part's sources scale linearly with their constants (contours with CONTOUR_FACTOR,
@@ -240,7 +248,7 @@ def rescaled(r: dict, consts: dict) -> dict:
         v, below, above, var = p
         z_new = U.Z95 * float(np.sqrt(var + _lv_shape_sd(r, col, consts) ** 2))
         if col == "LVM (g)":
-            z_new *= _lvm_factor(r, consts) / _lvm_factor(r, RUN_CONSTANTS)
+            z_new *= _lvm_factor(r, consts) / _lvm_factor(r, run_constants(r))
         out[col] = [v - z_new - below, v + z_new + above]
     return out
 
@@ -248,19 +256,20 @@ def rescaled(r: dict, consts: dict) -> dict:
 def _rescale_parts(r: dict, consts: dict) -> dict:
     """:func:`rescaled`'s pieces of each metric under ``consts``: (value, allowance below,
     allowance above, variance of every Gaussian source but ``lv shape``), or None."""
-    scale = {"contours": consts["CONTOUR_FACTOR"] / RUN_CONSTANTS["CONTOUR_FACTOR"],
-             "pixels": consts["PIXEL_BIAS"] / RUN_CONSTANTS["PIXEL_BIAS"],
-             "between": consts["BETWEEN_FACTOR"] / RUN_CONSTANTS["BETWEEN_FACTOR"],
-             "base": consts.get("BASE_FACTOR", 1.0) / RUN_CONSTANTS.get("BASE_FACTOR", 1.0)}
-    rv_old, rv_new = _rv_rel(r, RUN_CONSTANTS), _rv_rel(r, consts)
+    run = run_constants(r)
+    scale = {"contours": consts["CONTOUR_FACTOR"] / run["CONTOUR_FACTOR"],
+             "pixels": consts["PIXEL_BIAS"] / run["PIXEL_BIAS"],
+             "between": consts["BETWEEN_FACTOR"] / run["BETWEEN_FACTOR"],
+             "base": consts.get("BASE_FACTOR", 1.0) / run.get("BASE_FACTOR", 1.0)}
+    rv_old, rv_new = _rv_rel(r, run), _rv_rel(r, consts)
     if rv_old > 0:      # the run has an ``rv shape`` source already: scale it
         scale["rv shape"], rv_new = rv_new / rv_old, 0.0
     name = next(n for n, c in VARIANTS.items() if c["OUTFLOW_SHARE"] == consts["OUTFLOW_SHARE"]
-                and c["OPEN_SLAB_MM"] == RUN_CONSTANTS["OPEN_SLAB_MM"]
-                and c["BETWEEN_FACTOR"] == RUN_CONSTANTS["BETWEEN_FACTOR"]
-                and c["PIXEL_BIAS"] == RUN_CONSTANTS["PIXEL_BIAS"])
+                and c["OPEN_SLAB_MM"] == run["OPEN_SLAB_MM"]
+                and c["BETWEEN_FACTOR"] == run["BETWEEN_FACTOR"]
+                and c["PIXEL_BIAS"] == run["PIXEL_BIAS"])
     # a --no-variants run: its own allowances, valid while OUTFLOW_SHARE is the run's
-    own = not r.get("variants") and consts["OUTFLOW_SHARE"] == RUN_CONSTANTS["OUTFLOW_SHARE"]
+    own = not r.get("variants") and consts["OUTFLOW_SHARE"] == run["OUTFLOW_SHARE"]
     out: dict = {}
     for col in METRICS:
         iv, sd = r["unc"].get(col), r["unc"]["sd"].get(col)
@@ -271,7 +280,7 @@ def _rescale_parts(r: dict, consts: dict) -> dict:
         v = r["metrics"][col]
         sd = {k: x for k, x in sd.items() if k != "lv shape"}      # recomputed by the caller
         z_old = U.Z95 * float(np.sqrt(sum(x * x for x in sd.values())
-                                      + _lv_shape_sd(r, col, RUN_CONSTANTS) ** 2))
+                                      + _lv_shape_sd(r, col, run) ** 2))
         rest = (sum((x * scale.get(k, 1.0)) ** 2 for k, x in sd.items())
                 + _rv_shape_sd(r, col, rv_new) ** 2)
         out[col] = (v, (v - var[0]) - z_old, (var[1] - v) - z_old, float(rest))
@@ -594,7 +603,7 @@ def run_subject(c: dict, variants: bool = True) -> dict:
     return {**c, "spacing": spacing, "offset": offset,
             "truth": {k: ph.truth["metrics"].get(k) for k in METRICS},
             "metrics": {k: metrics[k] for k in METRICS}, "unc": unc, "variants": var,
-            "cpu_s": cpu}
+            "cpu_s": cpu, "run_constants": module_constants()}
 
 
 def _row(r: dict, col: str) -> tuple[float, float, bool] | None:
@@ -687,6 +696,24 @@ def _kv(text: str) -> dict[str, float]:
     return out
 
 
+def _read_raw(path: Path) -> list[dict]:
+    """The subjects of a --raw file (JSON lines)."""
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def load_raw(a: argparse.Namespace) -> list[dict]:
+    """The subjects of ``--from-raw`` and of every ``--pool`` file, a pool file's subjects
+    tagged with its ``--pool-constants`` (:func:`run_constants`) unless they carry their own."""
+    if len(a.pool) != len(a.pool_constants):
+        raise SystemExit("give one --pool-constants for each --pool file")
+    rows = _read_raw(a.from_raw)
+    for path, consts in zip(a.pool, a.pool_constants):
+        for r in _read_raw(path):
+            r.setdefault("run_constants", {**RUN_CONSTANTS, **_kv(consts)})
+            rows.append(r)
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--subjects", type=int, default=12)
@@ -727,6 +754,12 @@ def main(argv=None) -> int:
     ap.add_argument("--run-constants", default=None,
                     help="with --from-raw: the constants the --raw file was measured with, "
                          "K=V,... (default: the first guesses of the seeds 200-259 run)")
+    ap.add_argument("--pool", type=Path, action="append", default=[],
+                    help="with --from-raw: also this --raw file, measured with the matching "
+                         "--pool-constants (repeatable, in the same order)")
+    ap.add_argument("--pool-constants", action="append", default=[],
+                    help="the constants a --pool file was measured with, K=V,... (over "
+                         "--run-constants)")
     ap.add_argument("--apply", default=None,
                     help="with --from-raw: report the run under these constants, K=V,... "
                          "(the rest the run's; default: the module's)")
@@ -739,7 +772,7 @@ def main(argv=None) -> int:
     start = time.time()
     raw = a.raw.open("w") if a.raw is not None else None
     if a.from_raw is not None:
-        rows = [json.loads(line) for line in a.from_raw.read_text().splitlines() if line.strip()]
+        rows = load_raw(a)
         consts = module_constants()
         if a.apply:
             consts = {**RUN_CONSTANTS, **_kv(a.apply)}
@@ -767,7 +800,7 @@ def main(argv=None) -> int:
             (f"- date: {dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M UTC}; {len(rows)} of "
              f"{a.subjects} subjects measured; {time.time() - start:.0f} s wall"
              if a.from_raw is None else
-             f"- {len(rows)} subjects, from {a.from_raw.name}, which `validate_uncertainty.py "
+             f"- {len(rows)} subjects, from {', '.join(f.name for f in [a.from_raw, *a.pool])}, which `validate_uncertainty.py "
              "--subjects 60 --seed0 200 --raw FILE` measured (the constants the module has now "
              "applied to the run's numbers, see The constants)"),
             f"- machine: {platform.machine()}, {os.cpu_count()} cores, Python "
@@ -798,12 +831,12 @@ def main(argv=None) -> int:
             "one with the most of the six in range, then the highest lowest coverage, then the "
             "narrowest. Every setting is computed on every subject "
             "from the same reconstruction (`rescaled()`: exact, no refit).", "",
-            *((choose_min_inside(rows, a.min_inside, not a.no_lvm_entries, a.kind_floor) if a.min_inside else choose_by_kind(rows) if a.lv_grid else choose(rows))[1] if rows and (a.min_inside or rows[0].get("variants")) and not a.no_grid else
+            *((choose_min_inside(load_raw(a), a.min_inside, not a.no_lvm_entries, a.kind_floor) if a.min_inside else choose_by_kind(rows) if a.lv_grid else choose(rows))[1] if rows and (a.min_inside or rows[0].get("variants")) and not a.no_grid else
               ["(not recomputed for this run: --no-grid)"]), "",
             "## Every subject (error = model − truth / half-width; ✗ truth outside)", "",
             *subject_table(rows), ""]
     if a.test_raw and a.min_inside and a.from_raw is not None:
-        raw_rows = [json.loads(line) for line in a.from_raw.read_text().splitlines() if line.strip()]
+        raw_rows = load_raw(a)
         chosen, _ = choose_min_inside(raw_rows, a.min_inside, not a.no_lvm_entries, a.kind_floor)
         for f in a.test_raw:
             test = [json.loads(line) for line in f.read_text().splitlines() if line.strip()]

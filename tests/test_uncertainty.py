@@ -74,7 +74,9 @@ def test_sources_and_method_in_the_result(clean):
     iv = intervals(model, m)
     assert U.lv_input_kind(model) is None       # long-axis contours fix the base: observed
     assert iv["sd"]["LVEDV (mL)"]["lv shape"] == pytest.approx(
-        U.LV_SHAPE_REL["observed"] * m["LVEDV (mL)"], rel=1e-3)
+        U.LV_SHAPE_ED_FACTOR["observed"] * U.LV_SHAPE_REL["observed"] * m["LVEDV (mL)"], rel=1e-3)
+    assert iv["sd"]["LVESV (mL)"]["lv shape"] == pytest.approx(
+        U.LV_SHAPE_REL["observed"] * m["LVESV (mL)"], rel=1e-3)
     assert "analytic" in iv["method"]
     sd = iv["sd"]["LVEDV (mL)"]
     assert {"contours", "between", "base", "apex"} <= set(sd)
@@ -105,12 +107,9 @@ def test_lvm_factor_scales_the_wall_interval_alone(clean, monkeypatch):
     assert intervals(model, m)[col] == after[col]
 
 
-def test_without_long_axis_views_the_ends_dominate(monkeypatch):
-    # the contours' lv shape entry is 0 as calibrated (seeds 200-259, session 15); a
-    # positive entry is set here so that the term's propagation is what is checked
-    monkeypatch.setitem(U.LV_SHAPE_REL, "contours", 0.03)
-    monkeypatch.setitem(U.LV_SHAPE_CORR, "contours", 1.0)  # one error at ED and ES (below)
-    monkeypatch.setitem(U.LV_SHAPE_ED_FACTOR, "contours", 1.0)  # the same share at both
+@pytest.fixture(scope="module")
+def sa_only():
+    """The clean fixture's phantom without its long-axis views (SA contours alone)."""
     ph = generate.generate("normal", seed=3, frames=2)
     st = ph.study
     st.tags = []
@@ -118,7 +117,34 @@ def test_without_long_axis_views_the_ends_dominate(monkeypatch):
     st.landmarks = [lm for lm in st.landmarks if lm.view == "SA"]
     st.images = [im for im in st.images if im.view == "SA"]
     model = reconstruct(st)
-    m = measure(model)
+    return ph, model, measure(model)
+
+
+def test_contours_with_and_without_long_axis_views_are_two_kinds(clean, sa_only, monkeypatch):
+    """The same hand contours with long-axis views (``observed``: the data fix the LV base)
+    and without (``contours``: the half-slice rule places it) are two input kinds, each
+    interval keyed by its own kind's entries and by no other's."""
+    (_, la, m_la), (_, sa, m_sa) = clean, sa_only
+    assert U.lv_input_kind(la) is None and U.lv_input_kind(sa) == "contours"
+    before = {k: intervals(model, m) for k, model, m in (("la", la, m_la), ("sa", sa, m_sa))}
+    for kind, moved, kept in (("observed", ("la", la, m_la), ("sa", sa, m_sa)),
+                              ("contours", ("sa", sa, m_sa), ("la", la, m_la))):
+        with monkeypatch.context() as mp:
+            mp.setitem(U.LV_SHAPE_REL, kind, 4.0 * U.LV_SHAPE_REL[kind] + 0.01)
+            mp.setitem(U.LVM_FACTOR, kind, 2.0 * U.LVM_FACTOR[kind])
+            a, b = intervals(*moved[1:]), intervals(*kept[1:])
+        for col in ("LVEDV (mL)", "LVESV (mL)", "LVM (g)"):
+            assert a[col][1] - a[col][0] > before[moved[0]][col][1] - before[moved[0]][col][0], col
+            assert b[col] == before[kept[0]][col], col
+
+
+def test_without_long_axis_views_the_ends_dominate(sa_only, monkeypatch):
+    # a positive entry with ρ 1 and one share at ED and ES is set here (whatever the
+    # calibrated ones are) so that the term's propagation is what is checked
+    monkeypatch.setitem(U.LV_SHAPE_REL, "contours", 0.03)
+    monkeypatch.setitem(U.LV_SHAPE_CORR, "contours", 1.0)  # one error at ED and ES (below)
+    monkeypatch.setitem(U.LV_SHAPE_ED_FACTOR, "contours", 1.0)  # the same share at both
+    ph, model, m = sa_only
     iv = intervals(model, m)
     sd = iv["sd"]["LVEDV (mL)"]
     assert sd["base"] > 5 * sd["contours"]

@@ -78,11 +78,11 @@ LV_SHAPE_REL = {"labels": 0.02, "labels+LA": 0.03, "contours": 0.08, "observed":
 #: correlation of the lv shape errors at ED and ES by input kind (as :data:`LV_SHAPE_REL`;
 #: 1: one error, the same share of the cavity missed at both, which cancels in EF; 0:
 #: independent), set on the calibration phantoms (docs/metrics.md, Uncertainty)
-LV_SHAPE_CORR = {"labels": 1.0, "labels+LA": 0.0, "contours": 0.5, "observed": 0.0}
+LV_SHAPE_CORR = {"labels": 1.0, "labels+LA": 0.5, "contours": 0.5, "observed": 1.0}
 #: the ED share of the lv shape term over :data:`LV_SHAPE_REL` (the ES share) by input kind:
 #: a rule-placed base misses more of the small ES cavity, relatively, than of the ED one
 #: (set on the calibration phantoms, docs/metrics.md, Uncertainty)
-LV_SHAPE_ED_FACTOR = {"labels": 0.25, "labels+LA": 0.5, "contours": 0.5, "observed": 1.0}
+LV_SHAPE_ED_FACTOR = {"labels": 0.25, "labels+LA": 0.5, "contours": 0.5, "observed": 0.25}
 #: factor over the LV wall's propagated SD (every source above; not the one-sided
 #: allowances) by input kind (:func:`lv_input_kind`, ``observed`` for contours whose base the
 #: data fix): the wall's error is not its cavity's (epicardium and endocardium share most of
