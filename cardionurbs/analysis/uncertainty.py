@@ -417,6 +417,11 @@ def lv_input_kind(model: "BiventricularModel") -> str | None:
     return "contours" if rule else None
 
 
+def _lv_kind(model: "BiventricularModel") -> str:
+    """The key of the per-kind LV tables: :func:`lv_input_kind`, ``observed`` when it is None."""
+    return lv_input_kind(model) or "observed"
+
+
 def lvm_factor(model: "BiventricularModel") -> float:
     """The :data:`LVM_FACTOR` of the model's input kind (:func:`lv_input_kind`; ``observed``
     when it is None): the factor over the LV wall's propagated SD.
@@ -430,7 +435,7 @@ def lvm_factor(model: "BiventricularModel") -> float:
     -------
     float
     """
-    return float(LVM_FACTOR.get(lv_input_kind(model) or "observed", 1.0))
+    return float(LVM_FACTOR.get(_lv_kind(model), 1.0))
 
 
 def lv_shape_corr(model: "BiventricularModel") -> float:
@@ -446,7 +451,7 @@ def lv_shape_corr(model: "BiventricularModel") -> float:
     -------
     float
     """
-    return float(LV_SHAPE_CORR.get(lv_input_kind(model) or "observed", 1.0))
+    return float(LV_SHAPE_CORR.get(_lv_kind(model), 1.0))
 
 
 def _lv_shape(model: "BiventricularModel", frame: int) -> float:
@@ -456,7 +461,7 @@ def _lv_shape(model: "BiventricularModel", frame: int) -> float:
     map's last slice, and the realistic base differs from the loft's guess by a share of the
     cavity that is alike at ED and ES (correlated by :data:`LV_SHAPE_CORR`; at ED times
     :data:`LV_SHAPE_ED_FACTOR`)."""
-    kind = lv_input_kind(model) or "observed"
+    kind = _lv_kind(model)
     rel = LV_SHAPE_REL.get(kind, 0.0)
     if frame == model.ed_frame:
         rel *= LV_SHAPE_ED_FACTOR.get(kind, 1.0)
