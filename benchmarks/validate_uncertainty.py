@@ -123,25 +123,30 @@ RUN_CONSTANTS = {"BETWEEN_FACTOR": 0.25, "OUTFLOW_SHARE": 1.0, "PIXEL_BIAS": 0.1
                  "LV_ED_LABELS": 1.0, "LV_ED_LABELS_LA": 1.0, "LV_ED_CONTOURS": 1.0,
                  "LV_ED_OBSERVED": 1.0}
 #: the benchmark's names of the module's LV_SHAPE_REL entries
-LV_KEYS = {"LV_SHAPE_LABELS": "labels", "LV_SHAPE_LABELS_LA": "labels+LA",
+LV_KEYS = {"LV_SHAPE_LABELS": "labels", "LV_SHAPE_LABELS_5MM": "labels 5mm",
+           "LV_SHAPE_LABELS_LA": "labels+LA",
            "LV_SHAPE_CONTOURS": "contours", "LV_SHAPE_OBSERVED": "observed"}
 #: and of its LV_SHAPE_CORR entries (session 17; LV_SHAPE_CORR: a run's one value for every
 #: kind, before the entries; used where a setting gives no entry)
-LV_CORR_KEYS = {"LV_CORR_LABELS": "labels", "LV_CORR_LABELS_LA": "labels+LA",
+LV_CORR_KEYS = {"LV_CORR_LABELS": "labels", "LV_CORR_LABELS_5MM": "labels 5mm",
+                "LV_CORR_LABELS_LA": "labels+LA",
                 "LV_CORR_CONTOURS": "contours", "LV_CORR_OBSERVED": "observed"}
 #: and of its LV_SHAPE_ED_FACTOR entries (session 17; 1 before)
-LV_ED_KEYS = {"LV_ED_LABELS": "labels", "LV_ED_LABELS_LA": "labels+LA",
+LV_ED_KEYS = {"LV_ED_LABELS": "labels", "LV_ED_LABELS_5MM": "labels 5mm",
+              "LV_ED_LABELS_LA": "labels+LA",
               "LV_ED_CONTOURS": "contours", "LV_ED_OBSERVED": "observed"}
 #: and of its RV_SHAPE_REL entries (RV_SHAPE_REL: a run's one value for every kind, before
 #: the entries; used where a setting gives no entry)
-RV_KEYS = {"RV_SHAPE_LABELS": "labels", "RV_SHAPE_LABELS_LA": "labels+LA",
+RV_KEYS = {"RV_SHAPE_LABELS": "labels", "RV_SHAPE_LABELS_5MM": "labels 5mm",
+           "RV_SHAPE_LABELS_LA": "labels+LA",
            "RV_SHAPE_CONTOURS": "contours", "RV_SHAPE_OBSERVED": "observed"}
 #: and of its LVM_FACTOR entries (before session 16's runs: 1, no such factor)
-LVM_KEYS = {"LVM_LABELS": "labels", "LVM_LABELS_LA": "labels+LA", "LVM_CONTOURS": "contours",
+LVM_KEYS = {"LVM_LABELS": "labels", "LVM_LABELS_5MM": "labels 5mm", "LVM_LABELS_LA": "labels+LA",
+            "LVM_CONTOURS": "contours",
             "LVM_OBSERVED": "observed"}
 #: the module's input kind (uncertainty.lv_input_kind) of each design input
 #: (``observed``: lv_input_kind None, the RV closed by long-axis contours too)
-INPUT_KIND = {"labels acdc 10mm": "labels", "labels acdc 5mm": "labels",
+INPUT_KIND = {"labels acdc 10mm": "labels", "labels acdc 5mm": "labels 5mm",
               "labels ukbb 10mm": "labels+LA", "contours SA-only": "contours",
               "contours+LA": "observed", "contours+LA 5mm": "observed"}
 #: the LVM_FACTOR kind of each design input
@@ -229,7 +234,23 @@ def run_constants(r: dict) -> dict:
     by :func:`run_subject` since session 17, or added to an older file by ``--tag-constants``)
     over :data:`RUN_CONSTANTS` (``--run-constants``), so that files measured under different
     constants can be pooled."""
-    return {**RUN_CONSTANTS, **r.get("run_constants", {})}
+    return full_constants(r.get("run_constants", {}))
+
+
+#: the entries of the 5 mm label maps (session 18: ``labels`` split by slice spacing)
+SPLIT_KEYS = tuple(k for keys in (LV_KEYS, LV_CORR_KEYS, LV_ED_KEYS, RV_KEYS, LVM_KEYS)
+                   for k in keys if k.endswith("_5MM"))
+
+
+def full_constants(consts: dict) -> dict:
+    """``consts`` over :data:`RUN_CONSTANTS`, a 5 mm label-map entry it lacks (a run or a
+    setting from before ``labels`` was split by slice spacing, session 18) that of the
+    10 mm maps: one ``labels`` entry for both spacings."""
+    out = {**RUN_CONSTANTS, **consts}
+    for key in SPLIT_KEYS:
+        if key not in consts:
+            out[key] = out[key[:-4]]
+    return out
 
 
 def rescaled(r: dict, consts: dict) -> dict:
@@ -321,9 +342,11 @@ CORE_GRID = [{"CONTOUR_FACTOR": c, "BETWEEN_FACTOR": b, "PIXEL_BIAS": p, "BASE_F
              for f in (0.75, 0.5, 0.25)]
 #: each entry's values (those of LV_GRID and RV_GRID; the LVM factors' own)
 ENTRY_VALUES = {k: sorted({g[k] for g in grid}) for grid in (LV_GRID, RV_GRID) for k in grid[0]}
+ENTRY_VALUES.update({"LV_SHAPE_LABELS_5MM": ENTRY_VALUES["LV_SHAPE_LABELS"],
+                     "RV_SHAPE_LABELS_5MM": ENTRY_VALUES["RV_SHAPE_LABELS"]})
 ENTRY_VALUES.update({"LV_SHAPE_OBSERVED": [0.0, 0.005, 0.01, 0.02],
                      "RV_SHAPE_OBSERVED": [0.0, 0.01, 0.02, 0.03, 0.05]})
-ENTRY_VALUES.update({k: [0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.25, 1.5]
+ENTRY_VALUES.update({k: [0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.25, 1.5]
                      for k in LVM_KEYS})
 ENTRY_VALUES.update({k: [1.0, 0.5, 0.0, -0.5, -1.0] for k in LV_CORR_KEYS})
 ENTRY_VALUES.update({k: [1.0, 0.5, 0.25] for k in LV_ED_KEYS})
@@ -348,7 +371,7 @@ def _stats(rows: list[dict], consts: dict) -> np.ndarray:
     under ``consts``, shape (n, 6, 2); NaN where the row has no interval or no truth."""
     out = np.full((len(rows), len(DONE_WHEN), 2), np.nan)
     for i, r in enumerate(rows):
-        iv = rescaled(r, {**RUN_CONSTANTS, **consts})
+        iv = rescaled(r, full_constants(consts))
         for j, col in enumerate(DONE_WHEN):
             t, v = r["truth"].get(col), r["metrics"][col]
             if iv[col] is not None and t is not None:
@@ -388,7 +411,7 @@ def _lv_option_stats(rows: list[dict], core: dict, opts: list[dict]) -> np.ndarr
     cols = ACTS_ON["LV"]
     out = np.zeros((len(opts), len(cols), 2))
     for r in rows:
-        parts = _rescale_parts(r, {**RUN_CONSTANTS, **core})
+        parts = _rescale_parts(r, full_constants(core))
         for j, col in enumerate(cols):
             t, p = r["truth"].get(col), parts.get(col)
             if t is None or p is None:
@@ -512,7 +535,7 @@ def grid_coverage(rows: list[dict], consts: dict) -> tuple[list[float], float]:
     """(coverage % of each DONE_WHEN metric, mean half-width relative to the value) of
     one setting on these subjects."""
     cov, rel = [], []
-    ivs = [rescaled(r, {**RUN_CONSTANTS, **consts}) for r in rows]
+    ivs = [rescaled(r, full_constants(consts)) for r in rows]
     for col in DONE_WHEN:
         got = [(iv[col], r["truth"][col], r["metrics"][col]) for r, iv in zip(rows, ivs)
                if iv[col] is not None and r["truth"].get(col) is not None]
@@ -775,7 +798,7 @@ def main(argv=None) -> int:
         rows = load_raw(a)
         consts = module_constants()
         if a.apply:
-            consts = {**RUN_CONSTANTS, **_kv(a.apply)}
+            consts = full_constants(_kv(a.apply))
         if consts != RUN_CONSTANTS and not a.no_grid:   # the run's numbers, rescaled
             for r in rows:
                 r["unc"].update(rescaled(r, consts))

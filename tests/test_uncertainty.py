@@ -138,6 +138,51 @@ def test_contours_with_and_without_long_axis_views_are_two_kinds(clean, sa_only,
             assert b[col] == before[kept[0]][col], col
 
 
+def test_labels_entries_interpolate_in_the_slice_spacing(monkeypatch):
+    """A label map without long-axis maps takes the ``labels 5mm`` entry at 5 mm, the
+    ``labels`` entry at 10 mm, the two linearly between and the nearer one beyond; the other
+    kinds their own entry whatever the spacing."""
+    table = {"labels": 1.0, "labels 5mm": 0.4, "labels+LA": 2.0}
+    for h, want in ((5.0, 0.4), (10.0, 1.0), (7.5, 0.7), (6.0, 0.52), (3.0, 0.4), (14.0, 1.0),
+                    (float("nan"), 1.0)):
+        monkeypatch.setattr(U, "sa_spacing_mm", lambda model, h=h: h)
+        assert U.kind_entry(table, None, "labels", 9.0) == pytest.approx(want), h
+        assert U.kind_entry(table, None, "labels+LA", 9.0) == 2.0
+        assert U.kind_entry(table, None, "contours", 9.0) == 9.0
+    assert U.kind_entry({"labels": 1.0}, None, "labels", 9.0) == 1.0   # no 5 mm entry
+
+
+@pytest.mark.parametrize("spacing, moved, kept", [(5.0, "labels 5mm", "labels"),
+                                                  (10.0, "labels", "labels 5mm")])
+def test_label_maps_at_5_and_10_mm_take_their_own_entries(tmp_path, monkeypatch, spacing, moved,
+                                                          kept):
+    """A 5 mm and a 10 mm ACDC-layout label map: the SA spacing read from the map, and each
+    interval moved by its own spacing's entries only."""
+    from cardionurbs import load_study
+    from cardionurbs.phantom.labelmaps import write_labelmaps
+
+    ph = generate.generate("normal", seed=3, frames=2, sa_spacing_mm=spacing,
+                           sa_thickness_mm=min(8.0, spacing))
+    ph.study.tags = []
+    write_labelmaps(ph, tmp_path, "acdc", images=False)
+    model = reconstruct(load_study(tmp_path))
+    m = measure(model)
+    assert U.lv_input_kind(model) == "labels"
+    assert U.sa_spacing_mm(model) == pytest.approx(spacing, abs=1e-6)
+    before = intervals(model, m)
+    with monkeypatch.context() as mp:
+        mp.setitem(U.LVM_FACTOR, kept, 5.0 * U.LVM_FACTOR[kept])
+        mp.setitem(U.LV_SHAPE_REL, kept, 4.0 * U.LV_SHAPE_REL[kept] + 0.01)
+        assert intervals(model, m)["LVM (g)"] == before["LVM (g)"]
+        assert intervals(model, m)["LVEDV (mL)"] == before["LVEDV (mL)"]
+    with monkeypatch.context() as mp:
+        mp.setitem(U.LVM_FACTOR, moved, 2.0 * U.LVM_FACTOR[moved])
+        mp.setitem(U.LV_SHAPE_REL, moved, 4.0 * U.LV_SHAPE_REL[moved] + 0.01)
+        after = intervals(model, m)
+    for col in ("LVM (g)", "LVEDV (mL)", "LVESV (mL)"):
+        assert after[col][1] - after[col][0] > before[col][1] - before[col][0], col
+
+
 def test_without_long_axis_views_the_ends_dominate(sa_only, monkeypatch):
     # a positive entry with ρ 1 and one share at ED and ES is set here (whatever the
     # calibrated ones are) so that the term's propagation is what is checked

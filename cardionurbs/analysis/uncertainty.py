@@ -69,26 +69,36 @@ Z95 = 1.959963984540054
 #: relative SD of an RV cavity by input kind (:func:`lv_input_kind`; label maps, SA-only
 #: contours; ``observed``: a cavity the landmarks or long-axis contours close): ED and ES
 #: independent
-RV_SHAPE_REL = {"labels": 0.05, "labels+LA": 0.05, "contours": 0.05, "observed": 0.0}
+RV_SHAPE_REL = {"labels": 0.05, "labels 5mm": 0.05, "labels+LA": 0.05, "contours": 0.05,
+                "observed": 0.0}
 #: relative SD of an LV cavity by input kind (:func:`lv_input_kind`, ``observed`` for None):
 #: the reconstruction's
 #: own error at a base no SA section closes, one error at ED and ES (a model-error term set
 #: on the calibration phantoms, docs/metrics.md, Uncertainty)
-LV_SHAPE_REL = {"labels": 0.02, "labels+LA": 0.02, "contours": 0.08, "observed": 0.005}
+LV_SHAPE_REL = {"labels": 0.02, "labels 5mm": 0.02, "labels+LA": 0.02, "contours": 0.08,
+                "observed": 0.005}
 #: correlation of the lv shape errors at ED and ES by input kind (as :data:`LV_SHAPE_REL`;
 #: 1: one error, the same share of the cavity missed at both, which cancels in EF; 0:
 #: independent), set on the calibration phantoms (docs/metrics.md, Uncertainty)
-LV_SHAPE_CORR = {"labels": 0.5, "labels+LA": 0.0, "contours": 0.5, "observed": 1.0}
+LV_SHAPE_CORR = {"labels": 0.5, "labels 5mm": 0.5, "labels+LA": 0.0, "contours": 0.5,
+                 "observed": 1.0}
 #: the ED share of the lv shape term over :data:`LV_SHAPE_REL` (the ES share) by input kind:
 #: a rule-placed base misses more of the small ES cavity, relatively, than of the ED one
 #: (set on the calibration phantoms, docs/metrics.md, Uncertainty)
-LV_SHAPE_ED_FACTOR = {"labels": 1.0, "labels+LA": 1.0, "contours": 0.5, "observed": 0.25}
+LV_SHAPE_ED_FACTOR = {"labels": 1.0, "labels 5mm": 1.0, "labels+LA": 1.0, "contours": 0.5,
+                      "observed": 0.25}
 #: factor over the LV wall's propagated SD (every source above; not the one-sided
 #: allowances) by input kind (:func:`lv_input_kind`, ``observed`` for contours whose base the
 #: data fix): the wall's error is not its cavity's (epicardium and endocardium share most of
 #: a slice's misplacement and its between-slice shape), so LVM gets its own width, set on the
 #: calibration phantoms (docs/metrics.md, Uncertainty)
-LVM_FACTOR = {"labels": 0.85, "labels+LA": 1.5, "contours": 0.7, "observed": 0.7}
+LVM_FACTOR = {"labels": 0.85, "labels 5mm": 0.85, "labels+LA": 1.5, "contours": 0.7,
+              "observed": 0.7}
+#: the SA slice spacing (mm) each ``labels`` entry of the per-kind tables above is set at
+#: (``labels``: 10 mm, the ACDC and UK Biobank spacing; ``labels 5mm``: 5 mm). A label map
+#: without long-axis maps takes the two entries interpolated linearly in its own SA spacing,
+#: the nearer one beyond them (:func:`kind_entry`); ``labels+LA`` is set at 10 mm only
+LABELS_SPACING_MM = {"labels 5mm": 5.0, "labels": 10.0}
 #: the contours term's factor over independent point noise (docs/metrics.md, Uncertainty)
 CONTOUR_FACTOR = 2.0
 #: fraction of the trapezoid error that a lofted (cubic) surface keeps between slices
@@ -391,7 +401,7 @@ def _rv_shape(model: "BiventricularModel", frame: int) -> float:
     if not (labels or "rv" in model.geometry[frame].base_from_slices):
         rel = RV_SHAPE_REL.get("observed", 0.0)      # closed by the data: the loft's own error
     else:
-        rel = RV_SHAPE_REL.get(lv_input_kind(model) or "contours", 0.0)
+        rel = kind_entry(RV_SHAPE_REL, model, lv_input_kind(model) or "contours", 0.0)
     return rel * float(model.volumes[frame].get("rv_cavity", 0.0))
 
 
@@ -422,6 +432,57 @@ def _lv_kind(model: "BiventricularModel") -> str:
     return lv_input_kind(model) or "observed"
 
 
+def sa_spacing_mm(model: "BiventricularModel") -> float:
+    """The median spacing of the model's SA image planes at ED (their origins along the first
+    plane's normal; a label map's slice spacing).
+
+    Parameters
+    ----------
+    model : BiventricularModel
+        The model.
+
+    Returns
+    -------
+    float
+        mm; NaN with fewer than two SA planes.
+    """
+    ims = model.study.images_at(model.ed_frame, "SA")
+    if len(ims) < 2:
+        return NAN
+    lev = np.unique(np.round([float(im.position @ ims[0].normal) for im in ims], 6))
+    return float(np.median(np.diff(lev))) if len(lev) > 1 else NAN
+
+
+def kind_entry(table: dict[str, float], model: "BiventricularModel", kind: str,
+               default: float) -> float:
+    """One input kind's entry of a per-kind table (:data:`LV_SHAPE_REL` ...). A ``labels``
+    kind whose table has the ``labels 5mm`` entry too: the two entries interpolated linearly in
+    the model's SA spacing between their :data:`LABELS_SPACING_MM` (the nearer one beyond them,
+    ``labels`` where the spacing is unknown).
+
+    Parameters
+    ----------
+    table : dict of str to float
+        The table.
+    model : BiventricularModel
+        The model (its SA spacing).
+    kind : str
+        The kind (``labels``, ``labels+LA``, ``contours``, ``observed``).
+    default : float
+        The entry of a kind the table lacks.
+
+    Returns
+    -------
+    float
+    """
+    if kind != "labels" or "labels 5mm" not in table or "labels" not in table:
+        return float(table.get(kind, default))
+    lo, hi = LABELS_SPACING_MM["labels 5mm"], LABELS_SPACING_MM["labels"]
+    h = sa_spacing_mm(model)
+    t = 1.0 if not math.isfinite(h) else min(max((h - lo) / (hi - lo), 0.0), 1.0)
+    return float((1.0 - t) * table["labels 5mm"] + t * table["labels"])
+
+
 def lvm_factor(model: "BiventricularModel") -> float:
     """The :data:`LVM_FACTOR` of the model's input kind (:func:`lv_input_kind`; ``observed``
     when it is None): the factor over the LV wall's propagated SD.
@@ -435,7 +496,7 @@ def lvm_factor(model: "BiventricularModel") -> float:
     -------
     float
     """
-    return float(LVM_FACTOR.get(_lv_kind(model), 1.0))
+    return kind_entry(LVM_FACTOR, model, _lv_kind(model), 1.0)
 
 
 def lv_shape_corr(model: "BiventricularModel") -> float:
@@ -451,7 +512,7 @@ def lv_shape_corr(model: "BiventricularModel") -> float:
     -------
     float
     """
-    return float(LV_SHAPE_CORR.get(_lv_kind(model), 1.0))
+    return kind_entry(LV_SHAPE_CORR, model, _lv_kind(model), 1.0)
 
 
 def _lv_shape(model: "BiventricularModel", frame: int) -> float:
@@ -462,9 +523,9 @@ def _lv_shape(model: "BiventricularModel", frame: int) -> float:
     cavity that is alike at ED and ES (correlated by :data:`LV_SHAPE_CORR`; at ED times
     :data:`LV_SHAPE_ED_FACTOR`)."""
     kind = _lv_kind(model)
-    rel = LV_SHAPE_REL.get(kind, 0.0)
+    rel = kind_entry(LV_SHAPE_REL, model, kind, 0.0)
     if frame == model.ed_frame:
-        rel *= LV_SHAPE_ED_FACTOR.get(kind, 1.0)
+        rel *= kind_entry(LV_SHAPE_ED_FACTOR, model, kind, 1.0)
     return rel * float(model.volumes[frame].get("lv_cavity", 0.0))
 
 
