@@ -69,8 +69,8 @@ Z95 = 1.959963984540054
 #: relative SD of an RV cavity by input kind (:func:`lv_input_kind`; label maps, SA-only
 #: contours; ``observed``: a cavity the landmarks or long-axis contours close): ED and ES
 #: independent
-RV_SHAPE_REL = {"labels": 0.05, "labels 5mm": 0.05, "labels+LA": 0.05, "contours": 0.05,
-                "observed": 0.0}
+RV_SHAPE_REL = {"labels": 0.05, "labels 5mm": 0.03, "labels+LA": 0.05, "contours": 0.05,
+                "observed": 0.01}
 #: relative SD of an LV cavity by input kind (:func:`lv_input_kind`, ``observed`` for None):
 #: the reconstruction's
 #: own error at a base no SA section closes, one error at ED and ES (a model-error term set
@@ -80,27 +80,27 @@ LV_SHAPE_REL = {"labels": 0.02, "labels 5mm": 0.02, "labels+LA": 0.02, "contours
 #: correlation of the lv shape errors at ED and ES by input kind (as :data:`LV_SHAPE_REL`;
 #: 1: one error, the same share of the cavity missed at both, which cancels in EF; 0:
 #: independent), set on the calibration phantoms (docs/metrics.md, Uncertainty)
-LV_SHAPE_CORR = {"labels": 0.5, "labels 5mm": 0.5, "labels+LA": 0.0, "contours": 0.5,
+LV_SHAPE_CORR = {"labels": 0.5, "labels 5mm": 1.0, "labels+LA": 0.0, "contours": 0.5,
                  "observed": 1.0}
 #: the ED share of the lv shape term over :data:`LV_SHAPE_REL` (the ES share) by input kind:
 #: a rule-placed base misses more of the small ES cavity, relatively, than of the ED one
 #: (set on the calibration phantoms, docs/metrics.md, Uncertainty)
-LV_SHAPE_ED_FACTOR = {"labels": 1.0, "labels 5mm": 1.0, "labels+LA": 1.0, "contours": 0.5,
+LV_SHAPE_ED_FACTOR = {"labels": 1.0, "labels 5mm": 0.25, "labels+LA": 1.0, "contours": 0.5,
                       "observed": 0.25}
 #: factor over the LV wall's propagated SD (every source above; not the one-sided
 #: allowances) by input kind (:func:`lv_input_kind`, ``observed`` for contours whose base the
 #: data fix): the wall's error is not its cavity's (epicardium and endocardium share most of
 #: a slice's misplacement and its between-slice shape), so LVM gets its own width, set on the
 #: calibration phantoms (docs/metrics.md, Uncertainty)
-LVM_FACTOR = {"labels": 0.85, "labels 5mm": 0.85, "labels+LA": 1.5, "contours": 0.7,
-              "observed": 0.7}
+LVM_FACTOR = {"labels": 1.25, "labels 5mm": 0.15, "labels+LA": 1.0, "contours": 0.7,
+              "observed": 1.0}
 #: the SA slice spacing (mm) each ``labels`` entry of the per-kind tables above is set at
 #: (``labels``: 10 mm, the ACDC and UK Biobank spacing; ``labels 5mm``: 5 mm). A label map
 #: without long-axis maps takes the two entries interpolated linearly in its own SA spacing,
 #: the nearer one beyond them (:func:`kind_entry`); ``labels+LA`` is set at 10 mm only
 LABELS_SPACING_MM = {"labels 5mm": 5.0, "labels": 10.0}
 #: the contours term's factor over independent point noise (docs/metrics.md, Uncertainty)
-CONTOUR_FACTOR = 2.0
+CONTOUR_FACTOR = 1.0
 #: fraction of the trapezoid error that a lofted (cubic) surface keeps between slices
 BETWEEN_FACTOR = 1.0
 #: cap volume per (end area × cap length): 1/2 for a paraboloid, 1/3 for a cone
