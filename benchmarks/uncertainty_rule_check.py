@@ -22,20 +22,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import validate_uncertainty as V  # noqa: E402
 
 
-def coverage(rows: list[dict], consts: dict) -> tuple[np.ndarray, np.ndarray, float]:
-    """(inside counts, subjects with an interval and a truth, mean half-width / value) of the
-    six DONE_WHEN metrics of ``rows`` under ``consts``."""
-    st = V._stats(rows, consts)
-    return (np.nansum(st[:, :, 0], axis=0), np.sum(np.isfinite(st[:, :, 0]), axis=0),
-            float(np.nanmean(st[:, :, 1])))
-
-
 def kind_floor_row(rows: list[dict], consts: dict) -> str:
     """The lowest coverage (%) of any input kind, over the six, under ``consts``."""
     kinds = sorted({V.INPUT_KIND[r["input"]] for r in rows})
     low = 100.0
     for k in kinds:
-        ins, n, _ = coverage([r for r in rows if V.INPUT_KIND[r["input"]] == k], consts)
+        ins, n, _ = V.inside_counts([r for r in rows if V.INPUT_KIND[r["input"]] == k], consts)
         low = min(low, float(np.min(100.0 * ins / np.maximum(n, 1))))
     return f"{low:.1f}"
 
@@ -63,8 +55,8 @@ def check_target(folds: dict[str, list[dict]], target: float, floor: float) -> l
         train = [r for k, rows in folds.items() if k != name for r in rows]
         n_min = math.ceil(target * len(train) - 1e-9)
         consts, _ = V.choose_min_inside(train, n_min, True, floor)
-        tr, tn, _ = coverage(train, consts)
-        te, en, w = coverage(test, consts)
+        tr, tn, _ = V.inside_counts(train, consts)
+        te, en, w = V.inside_counts(test, consts)
         pooled_i, pooled_n = pooled_i + te, pooled_n + en
         band = int(sum(0.9 * k <= i <= 0.98 * k for i, k in zip(te, en)))
         out.append(f"| {target:g} | {name} ({len(test)}) | {n_min} of {len(train)} | "

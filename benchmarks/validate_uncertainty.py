@@ -531,6 +531,14 @@ def choose_at_least(rows: list[dict], n_min: int, lvm: bool = True, floor: float
     return best[0], table
 
 
+def inside_counts(rows: list[dict], consts: dict) -> tuple[np.ndarray, np.ndarray, float]:
+    """(inside counts, subjects with an interval and a truth, mean half-width / value) of the
+    six DONE_WHEN metrics of ``rows`` under ``consts`` (:func:`_stats`)."""
+    st = _stats(rows, consts)
+    return (np.nansum(st[:, :, 0], axis=0), np.sum(np.isfinite(st[:, :, 0]), axis=0),
+            float(np.nanmean(st[:, :, 1])))
+
+
 def grid_coverage(rows: list[dict], consts: dict) -> tuple[list[float], float]:
     """(coverage % of each DONE_WHEN metric, mean half-width relative to the value) of
     one setting on these subjects."""
@@ -817,6 +825,9 @@ def main(argv=None) -> int:
               r["breath_hold_mm"], "  ".join(
                   f"{col.split()[0]} {x[0]:+.1f}/{x[1]:.1f}{'' if x[2] else '!'}"
                   for col in METRICS if (x := _row(r, col)) is not None), flush=True)
+    # --min-inside's choice, made once for the report's table and the --test-raw counts
+    min_inside_choice = functools.cache(lambda: choose_min_inside(
+        load_raw(a), a.min_inside, not a.no_lvm_entries, a.kind_floor))
     cmd = "nice -n 10 python benchmarks/validate_uncertainty.py " + " ".join(argv or sys.argv[1:])
     load = os.getloadavg()
     text = ["# Validation: per-subject 95 % intervals on phantoms", "", "```", cmd, "```", "",
@@ -854,18 +865,14 @@ def main(argv=None) -> int:
             "one with the most of the six in range, then the highest lowest coverage, then the "
             "narrowest. Every setting is computed on every subject "
             "from the same reconstruction (`rescaled()`: exact, no refit).", "",
-            *((choose_min_inside(load_raw(a), a.min_inside, not a.no_lvm_entries, a.kind_floor) if a.min_inside else choose_by_kind(rows) if a.lv_grid else choose(rows))[1] if rows and (a.min_inside or rows[0].get("variants")) and not a.no_grid else
+            *((min_inside_choice() if a.min_inside else choose_by_kind(rows) if a.lv_grid else choose(rows))[1] if rows and (a.min_inside or rows[0].get("variants")) and not a.no_grid else
               ["(not recomputed for this run: --no-grid)"]), "",
             "## Every subject (error = model − truth / half-width; ✗ truth outside)", "",
             *subject_table(rows), ""]
     if a.test_raw and a.min_inside and a.from_raw is not None:
-        raw_rows = load_raw(a)
-        chosen, _ = choose_min_inside(raw_rows, a.min_inside, not a.no_lvm_entries, a.kind_floor)
+        chosen, _ = min_inside_choice()
         for f in a.test_raw:
-            test = [json.loads(line) for line in f.read_text().splitlines() if line.strip()]
-            st = _stats(test, chosen)
-            inside = np.nansum(st[:, :, 0], axis=0)
-            n = np.sum(np.isfinite(st[:, :, 0]), axis=0)
+            inside, n, _ = inside_counts(_read_raw(f), chosen)
             print(f"{f.name}: chosen on {a.from_raw.name} (>= {a.min_inside}): "
                   + ", ".join(f"{c.split()[0]} {i:.0f}/{k}" for c, i, k in zip(DONE_WHEN, inside, n))
                   + f"; in 90-98 %: {sum(0.9 * k <= i <= 0.98 * k for i, k in zip(inside, n))} of 6")
