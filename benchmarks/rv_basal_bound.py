@@ -84,14 +84,20 @@ def beyond_both(model, frame: int, ref: str, own: float) -> float:
     return max(own - max(adj), 0.0) + min(own - min(adj), 0.0)
 
 
-def edge_rows(model, truth: list[float]) -> list[dict]:
-    """Per RV basal edge frame: own and held-cubic basal region, departure, truth errors."""
+def _edges(model) -> tuple[int | None, list[int], set[int]]:
+    """(reference slice, the RV basal edge frames in order, the edge set); none without."""
     edges = model._rv_basal_edges()
     if edges is None:
-        return []
+        return None, [], set()
     ref, edge = edges
+    return ref, sorted(edge), edge
+
+
+def edge_rows(model, truth: list[float]) -> list[dict]:
+    """Per RV basal edge frame: own and held-cubic basal region, departure, truth errors."""
+    ref, frames, edge = _edges(model)
     out = []
-    for f in sorted(edge):
+    for f in frames:
         vol = model.volumes[f].get("rv_cavity", math.nan)
         s = support_rv_basal(f, model.frames, edge, ref, vol,
                              lambda g: model._rv_basal_ml(g, ref),
@@ -109,12 +115,9 @@ def edge_rows(model, truth: list[float]) -> list[dict]:
 
 def basal_traced(model) -> list[tuple[int, str]]:
     """The edge frames that trace a slice basal to the reference one, and that slice."""
-    edges = model._rv_basal_edges()
-    if edges is None:
-        return []
-    ref, edge = edges
+    ref, frames, _ = _edges(model)
     out = []
-    for f in sorted(edge):
+    for f in frames:
         stack = [s.slice for s in model.geometry[f].sections.get("rv_endo") or []]
         if stack and stack[0] != ref:
             out.append((f, stack[stack.index(ref) - 1]))
